@@ -1,0 +1,308 @@
+// deepcontact._box2d: the thin native layer. Checks array shapes and dtypes, releases the
+// GIL for the work, and moves whole steps as numpy arrays (one call each way).
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <string>
+
+#include "step_xml.hpp"
+#include "world.hpp"
+
+namespace py = pybind11;
+using dc::BodyState;
+using dc::ContactState;
+
+namespace {
+
+// Hands a vector's storage to numpy without copying.
+template <typename T>
+py::array own(std::vector<T>&& v, size_t rows, size_t cols = 1) {
+    auto* heap = new std::vector<T>(std::move(v));
+    heap->resize(rows * cols);  // never empty-with-null data
+    py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
+    std::vector<py::ssize_t> shape{static_cast<py::ssize_t>(rows)};
+    if (cols > 1) shape.push_back(static_cast<py::ssize_t>(cols));
+    return py::array_t<T>(shape, heap->data(), owner);
+}
+
+py::array own_bool(const std::vector<uint8_t>& v) {
+    py::array_t<bool> out(static_cast<py::ssize_t>(v.size()));
+    auto m = out.mutable_unchecked<1>();
+    for (size_t i = 0; i < v.size(); ++i) m(i) = v[i] != 0;
+    return out;
+}
+
+py::dict to_dict(BodyState s) {
+    const size_t n = s.size();
+    py::dict d;
+    d["index"] = own(std::move(s.index), n);
+    d["type"] = own(std::move(s.type), n);
+    d["position"] = own(std::move(s.position), n, 2);
+    d["angle"] = own(std::move(s.angle), n);
+    d["center"] = own(std::move(s.center), n, 2);
+    d["velocity"] = own(std::move(s.velocity), n, 2);
+    d["omega"] = own(std::move(s.omega), n);
+    d["mass"] = own(std::move(s.mass), n);
+    d["inv_mass"] = own(std::move(s.inv_mass), n);
+    d["inertia"] = own(std::move(s.inertia), n);
+    d["inv_inertia"] = own(std::move(s.inv_inertia), n);
+    d["linear_damping"] = own(std::move(s.linear_damping), n);
+    d["angular_damping"] = own(std::move(s.angular_damping), n);
+    d["gravity_scale"] = own(std::move(s.gravity_scale), n);
+    d["fixed_rotation"] = own_bool(s.fixed_rotation);
+    return d;
+}
+
+py::dict to_dict(ContactState s) {
+    const size_t n = s.size();
+    py::dict d;
+    d["manifold"] = own(std::move(s.manifold), n);
+    d["island"] = own(std::move(s.island), n);
+    d["point"] = own(std::move(s.point), n);
+    d["point_count"] = own(std::move(s.point_count), n);
+    d["manifold_type"] = own(std::move(s.manifold_type), n);
+    d["body_a"] = own(std::move(s.body_a), n);
+    d["body_b"] = own(std::move(s.body_b), n);
+    d["fixture_a"] = own(std::move(s.fixture_a), n);
+    d["fixture_b"] = own(std::move(s.fixture_b), n);
+    d["child_a"] = own(std::move(s.child_a), n);
+    d["child_b"] = own(std::move(s.child_b), n);
+    d["id_key"] = own(std::move(s.id_key), n);
+    d["local_normal"] = own(std::move(s.local_normal), n, 2);
+    d["local_point"] = own(std::move(s.local_point), n, 2);
+    d["point_local"] = own(std::move(s.point_local), n, 2);
+    d["position"] = own(std::move(s.position), n, 2);
+    d["normal"] = own(std::move(s.normal), n, 2);
+    d["separation"] = own(std::move(s.separation), n);
+    d["friction"] = own(std::move(s.friction), n);
+    d["restitution"] = own(std::move(s.restitution), n);
+    d["restitution_threshold"] = own(std::move(s.restitution_threshold), n);
+    d["start_normal_impulse"] = own(std::move(s.start_normal_impulse), n);
+    d["start_tangent_impulse"] = own(std::move(s.start_tangent_impulse), n);
+    d["normal_impulse"] = own(std::move(s.normal_impulse), n);
+    d["tangent_impulse"] = own(std::move(s.tangent_impulse), n);
+    return d;
+}
+
+// A column of a dict of arrays, checked: exact dtype, C order, n rows of `width` values.
+template <typename T>
+const T* column(const py::dict& d, const char* key, size_t& n, size_t width = 1) {
+    if (!d.contains(key)) throw py::key_error(std::string("missing array '") + key + "'");
+    py::object obj = d[key];
+    if (!py::isinstance<py::array>(obj)) throw py::type_error(std::string("'") + key + "' must be a numpy array");
+    py::array a = py::reinterpret_borrow<py::array>(obj);
+    if (!a.dtype().is(py::dtype::of<T>()))
+        throw py::type_error(std::string("'") + key + "' has dtype " + std::string(py::str(a.dtype())) +
+                             ", expected " + std::string(py::str(py::dtype::of<T>())));
+    if (!(a.flags() & py::array::c_style)) throw py::value_error(std::string("'") + key + "' must be C-contiguous");
+    const size_t rows = a.ndim() == 0 ? 0 : static_cast<size_t>(a.shape(0));
+    const bool shape_ok = width == 1 ? a.ndim() == 1 : (a.ndim() == 2 && a.shape(1) == static_cast<py::ssize_t>(width));
+    if (!shape_ok) throw py::value_error(std::string("'") + key + "' has the wrong shape");
+    if (n == static_cast<size_t>(-1)) n = rows;
+    if (rows != n) throw py::value_error(std::string("'") + key + "' has " + std::to_string(rows) + " rows, expected " + std::to_string(n));
+    return static_cast<const T*>(a.data());
+}
+
+dc::BodyView body_view(const py::dict& d) {
+    dc::BodyView v;
+    size_t n = static_cast<size_t>(-1);
+    v.index = column<int32_t>(d, "index", n);
+    v.type = column<int8_t>(d, "type", n);
+    v.position = column<float>(d, "position", n, 2);
+    v.angle = column<float>(d, "angle", n);
+    v.center = column<float>(d, "center", n, 2);
+    v.velocity = column<float>(d, "velocity", n, 2);
+    v.omega = column<float>(d, "omega", n);
+    v.mass = column<float>(d, "mass", n);
+    v.inv_mass = column<float>(d, "inv_mass", n);
+    v.inertia = column<float>(d, "inertia", n);
+    v.inv_inertia = column<float>(d, "inv_inertia", n);
+    v.linear_damping = column<float>(d, "linear_damping", n);
+    v.angular_damping = column<float>(d, "angular_damping", n);
+    v.n = n;
+    return v;
+}
+
+dc::ContactView contact_view(const py::dict& d) {
+    dc::ContactView v;
+    size_t n = static_cast<size_t>(-1);
+    v.manifold = column<int32_t>(d, "manifold", n);
+    v.island = column<int32_t>(d, "island", n);
+    v.point = column<int8_t>(d, "point", n);
+    v.point_count = column<int8_t>(d, "point_count", n);
+    v.manifold_type = column<int8_t>(d, "manifold_type", n);
+    v.body_a = column<int32_t>(d, "body_a", n);
+    v.body_b = column<int32_t>(d, "body_b", n);
+    v.fixture_a = column<int32_t>(d, "fixture_a", n);
+    v.fixture_b = column<int32_t>(d, "fixture_b", n);
+    v.child_a = column<int32_t>(d, "child_a", n);
+    v.child_b = column<int32_t>(d, "child_b", n);
+    v.id_key = column<uint32_t>(d, "id_key", n);
+    v.local_normal = column<float>(d, "local_normal", n, 2);
+    v.local_point = column<float>(d, "local_point", n, 2);
+    v.point_local = column<float>(d, "point_local", n, 2);
+    v.position = column<float>(d, "position", n, 2);
+    v.normal = column<float>(d, "normal", n, 2);
+    v.separation = column<float>(d, "separation", n);
+    v.friction = column<float>(d, "friction", n);
+    v.restitution = column<float>(d, "restitution", n);
+    v.restitution_threshold = column<float>(d, "restitution_threshold", n);
+    v.start_normal_impulse = column<float>(d, "start_normal_impulse", n);
+    v.start_tangent_impulse = column<float>(d, "start_tangent_impulse", n);
+    v.normal_impulse = column<float>(d, "normal_impulse", n);
+    v.tangent_impulse = column<float>(d, "tangent_impulse", n);
+    v.n = n;
+    return v;
+}
+
+using F32 = py::array_t<float, py::array::c_style>;
+using I32 = py::array_t<int32_t, py::array::c_style>;
+
+void require(const py::array& a, size_t n, size_t width, const char* name) {
+    const bool ok = (width == 1 && a.ndim() == 1 && static_cast<size_t>(a.shape(0)) == n) ||
+                    (width > 1 && a.ndim() == 2 && static_cast<size_t>(a.shape(0)) == n &&
+                     static_cast<size_t>(a.shape(1)) == width);
+    if (!ok) throw py::value_error(std::string(name) + " must have shape (" + std::to_string(n) +
+                                   (width > 1 ? ", " + std::to_string(width) : std::string(",")) + ")");
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_box2d, m) {
+    m.doc() = "Box2D 2.4.1 (Debian's libbox2d) for deepcontact: worlds stepped whole, state as numpy arrays.";
+    m.attr("box2d_version") = DC_BOX2D_VERSION;  // from pkg-config at build time
+    m.attr("box2d_runtime_version") = std::to_string(b2_version.major) + "." + std::to_string(b2_version.minor) +
+                                       "." + std::to_string(b2_version.revision);
+    m.attr("linear_slop") = b2_linearSlop;
+    m.attr("polygon_radius") = b2_polygonRadius;
+    m.attr("max_polygon_vertices") = b2_maxPolygonVertices;
+
+    py::class_<dc::World>(m, "World")
+        .def(py::init<float, float>(), py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f)
+        .def(
+            "add_body",
+            [](dc::World& w, int type, float x, float y, float angle, float vx, float vy, float omega,
+               float linear_damping, float angular_damping, bool fixed_rotation, bool bullet) {
+                dc::BodySpec s{type, x, y, angle, vx, vy, omega, linear_damping, angular_damping, fixed_rotation, bullet};
+                return w.add_body(s);
+            },
+            py::arg("type"), py::arg("x"), py::arg("y"), py::arg("angle") = 0.0f, py::arg("vx") = 0.0f,
+            py::arg("vy") = 0.0f, py::arg("omega") = 0.0f, py::arg("linear_damping") = 0.0f,
+            py::arg("angular_damping") = 0.0f, py::arg("fixed_rotation") = false, py::arg("bullet") = false)
+        .def(
+            "add_circle",
+            [](dc::World& w, int body, float radius, float cx, float cy, float density, float friction,
+               float restitution, float threshold) {
+                return w.add_circle(body, radius, cx, cy, {density, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("radius"), py::arg("x") = 0.0f, py::arg("y") = 0.0f, py::arg("density") = 0.0f,
+            py::arg("friction") = 0.0f, py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "add_polygon",
+            [](dc::World& w, int body, F32 vertices, float density, float friction, float restitution,
+               float threshold) {
+                if (vertices.ndim() != 2 || vertices.shape(1) != 2)
+                    throw py::value_error("vertices must have shape (n, 2)");
+                std::vector<float> xy(vertices.data(), vertices.data() + vertices.size());
+                return w.add_polygon(body, xy, {density, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("vertices"), py::arg("density") = 0.0f, py::arg("friction") = 0.0f,
+            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "add_edge",
+            [](dc::World& w, int body, float x1, float y1, float x2, float y2, float friction, float restitution,
+               float threshold) {
+                return w.add_edge(body, x1, y1, x2, y2, {0.0f, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("x1"), py::arg("y1"), py::arg("x2"), py::arg("y2"), py::arg("friction") = 0.0f,
+            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def("remove_body", &dc::World::remove_body, py::arg("index"))
+        .def(
+            "step",
+            [](dc::World& w, float dt, int vel, int pos, bool record) -> py::object {
+                if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
+                if (vel < 0 || pos < 0) throw py::value_error("iteration counts must be >= 0");
+                {
+                    py::gil_scoped_release release;
+                    w.step(dt, vel, pos, record);
+                }
+                if (!record) return py::none();
+                return py::make_tuple(to_dict(w.recorded_bodies()), to_dict(w.recorded_contacts()));
+            },
+            py::arg("dt"), py::arg("velocity_iterations"), py::arg("position_iterations"), py::arg("record") = false,
+            "One Box2D step. With record=True returns (bodies before the step, contacts solved in it).")
+        .def("collide", &dc::World::collide, py::call_guard<py::gil_scoped_release>(),
+             "b2ContactManager::Collide(): rebuild manifolds, carrying impulses over by feature id.")
+        .def("find_new_contacts", &dc::World::find_new_contacts, py::call_guard<py::gil_scoped_release>())
+        .def("bodies", [](const dc::World& w) { return to_dict(w.bodies()); })
+        .def("contacts", [](dc::World& w) { return to_dict(w.contacts()); },
+             "Touching contacts in island order (the order Box2D's solver visits them).")
+        .def(
+            "set_manifold_impulses",
+            [](dc::World& w, F32 normal, F32 tangent) {
+                const size_t n = static_cast<size_t>(normal.size());
+                require(normal, n, 1, "normal");
+                require(tangent, n, 1, "tangent");
+                w.set_manifold_impulses(normal.data(), tangent.data(), n);
+            },
+            py::arg("normal"), py::arg("tangent"),
+            "Write impulses into the manifold points of the contacts last returned by contacts().")
+        .def(
+            "set_body_state",
+            [](dc::World& w, I32 index, F32 position, F32 angle, F32 velocity, F32 omega) {
+                const size_t n = static_cast<size_t>(index.size());
+                require(index, n, 1, "index");
+                require(position, n, 2, "position");
+                require(angle, n, 1, "angle");
+                require(velocity, n, 2, "velocity");
+                require(omega, n, 1, "omega");
+                w.set_body_state(index.data(), position.data(), angle.data(), velocity.data(), omega.data(), n);
+            },
+            py::arg("index"), py::arg("position"), py::arg("angle"), py::arg("velocity"), py::arg("omega"))
+        .def_property("continuous", &dc::World::continuous, &dc::World::set_continuous)
+        .def_property("sleeping", &dc::World::sleeping, &dc::World::set_sleeping)
+        .def_property("warm_starting", &dc::World::warm_starting, &dc::World::set_warm_starting)
+        .def_property("block_solve", &dc::World::block_solve, &dc::World::set_block_solve,
+                      "g_blockSolve while this world steps (the 2x2 block solver for two-point manifolds).")
+        .def_property("inv_dt0", &dc::World::inv_dt0, &dc::World::set_inv_dt0,
+                      "1/dt of the previous step; the next warm start is scaled by dt * inv_dt0.")
+        .def_property_readonly("last_dt_ratio", &dc::World::last_dt_ratio)
+        .def_property_readonly("body_count", &dc::World::body_count)
+        .def_property_readonly("fixture_count", &dc::World::fixture_count);
+
+    py::class_<dc::StepWriter>(m, "StepWriter")
+        .def(py::init<std::string, std::string, std::vector<std::string>, bool>(), py::arg("root_attributes"),
+             py::arg("header"), py::arg("shapes"), py::arg("damping"))
+        .def(
+            "render",
+            [](const dc::StepWriter& w, int64_t index, double time, float dt_ratio, const py::dict& bodies,
+               const py::dict& contacts, const std::string& extra_header) {
+                dc::BodyView b = body_view(bodies);
+                dc::ContactView c = contact_view(contacts);
+                std::string out;
+                {
+                    py::gil_scoped_release release;
+                    out = w.render(index, time, dt_ratio, b, c, extra_header);
+                }
+                return py::bytes(out);
+            },
+            py::arg("index"), py::arg("time"), py::arg("dt_ratio"), py::arg("bodies"), py::arg("contacts"),
+            py::arg("extra_header") = std::string());
+
+    m.def(
+        "format_floats",
+        [](py::array_t<float, py::array::c_style | py::array::forcecast> values) {
+            std::vector<std::string> out;
+            out.reserve(values.size());
+            for (py::ssize_t i = 0; i < values.size(); ++i) {
+                std::string s;
+                dc::append_float(s, values.data()[i]);
+                out.push_back(std::move(s));
+            }
+            return out;
+        },
+        "Shortest text that reads back to the same float32, for each value.");
+
+    py::register_exception<std::domain_error>(m, "NonFiniteError", PyExc_ValueError);
+}

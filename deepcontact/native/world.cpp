@@ -1,0 +1,332 @@
+#include "world.hpp"
+
+#include <algorithm>
+#include <array>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <unordered_set>
+
+// Box2D 2.4.1 defines this in b2_contact_solver.cpp without declaring it in a public header.
+extern B2_API bool g_blockSolve;
+
+namespace dc {
+namespace {
+
+// Reading the few private members the solver needs exactly (inverse mass and inertia about
+// the centre as Box2D stores them, and the previous step's 1/dt). An explicit template
+// instantiation may name private members; this is the standard-conforming way to do so.
+template <typename Tag, typename Tag::type Member>
+struct Expose {
+    friend typename Tag::type member(Tag) { return Member; }
+};
+struct BodyInvMass { using type = float b2Body::*; friend type member(BodyInvMass); };
+struct BodyInvI { using type = float b2Body::*; friend type member(BodyInvI); };
+struct BodyI { using type = float b2Body::*; friend type member(BodyI); };
+struct WorldInvDt0 { using type = float b2World::*; friend type member(WorldInvDt0); };
+template struct Expose<BodyInvMass, &b2Body::m_invMass>;
+template struct Expose<BodyInvI, &b2Body::m_invI>;
+template struct Expose<BodyI, &b2Body::m_I>;
+template struct Expose<WorldInvDt0, &b2World::m_inv_dt0>;
+
+// g_blockSolve is one flag for the whole process; worlds that differ must not race on it.
+std::mutex g_step_mutex;
+
+// Box2D 2.4.1's GetUserData() is not const; reading it changes nothing.
+int body_index(const b2Body* b) { return static_cast<int>(const_cast<b2Body*>(b)->GetUserData().pointer); }
+int fixture_index(const b2Fixture* f) {
+    return static_cast<int>(const_cast<b2Fixture*>(f)->GetUserData().pointer);
+}
+
+void push2(std::vector<float>& v, const b2Vec2& p) {
+    v.push_back(p.x);
+    v.push_back(p.y);
+}
+
+}  // namespace
+
+// Box2D's PreSolve sees each touching contact right after its manifold was rebuilt and the
+// previous impulses matched by feature id: that, times dtRatio, is the solver's first iterate.
+class World::StartRecorder : public b2ContactListener {
+public:
+    void PreSolve(b2Contact* contact, const b2Manifold*) override {
+        if (!active) return;
+        // Continuous physics calls PreSolve again during sub-steps: keep the first.
+        auto [it, inserted] = starts.try_emplace(contact);
+        if (!inserted) return;
+        const b2Manifold* m = contact->GetManifold();
+        for (int j = 0; j < m->pointCount; ++j) {
+            it->second[2 * j] = warm ? dt_ratio * m->points[j].normalImpulse : 0.0f;
+            it->second[2 * j + 1] = warm ? dt_ratio * m->points[j].tangentImpulse : 0.0f;
+        }
+    }
+    bool active = false;
+    bool warm = true;
+    float dt_ratio = 0.0f;
+    std::unordered_map<const b2Contact*, std::array<float, 4>> starts;
+};
+
+World::World(float gx, float gy)
+    : world_(std::make_unique<b2World>(b2Vec2(gx, gy))), recorder_(std::make_unique<StartRecorder>()) {
+    world_->SetContactListener(recorder_.get());
+}
+
+World::~World() = default;
+
+b2Body* World::body_at(int index) const {
+    if (index < 0 || index >= static_cast<int>(bodies_.size()) || bodies_[index] == nullptr)
+        throw std::out_of_range("no body with index " + std::to_string(index));
+    return bodies_[index];
+}
+
+int World::add_body(const BodySpec& s) {
+    if (s.type < 0 || s.type > 2) throw std::invalid_argument("body type must be 0, 1 or 2");
+    b2BodyDef def;
+    def.type = static_cast<b2BodyType>(s.type);
+    def.position.Set(s.x, s.y);
+    def.angle = s.angle;
+    def.linearVelocity.Set(s.vx, s.vy);
+    def.angularVelocity = s.omega;
+    def.linearDamping = s.linear_damping;
+    def.angularDamping = s.angular_damping;
+    def.fixedRotation = s.fixed_rotation;
+    def.bullet = s.bullet;
+    def.userData.pointer = bodies_.size();
+    bodies_.push_back(world_->CreateBody(&def));
+    ++live_bodies_;
+    ++generation_;
+    return static_cast<int>(bodies_.size()) - 1;
+}
+
+int World::add_fixture(int body, const b2Shape& shape, const Material& m) {
+    b2FixtureDef def;
+    def.shape = &shape;
+    def.density = m.density;
+    def.friction = m.friction;
+    def.restitution = m.restitution;
+    def.restitutionThreshold = m.restitution_threshold;
+    def.userData.pointer = fixtures_.size();
+    fixtures_.push_back(body_at(body)->CreateFixture(&def));
+    ++generation_;
+    return static_cast<int>(fixtures_.size()) - 1;
+}
+
+int World::add_circle(int body, float radius, float cx, float cy, const Material& m) {
+    if (!(radius > 0.0f)) throw std::invalid_argument("circle radius must be positive");
+    b2CircleShape shape;
+    shape.m_radius = radius;
+    shape.m_p.Set(cx, cy);
+    return add_fixture(body, shape, m);
+}
+
+int World::add_polygon(int body, const std::vector<float>& xy, const Material& m) {
+    const int n = static_cast<int>(xy.size() / 2);
+    // Box2D asserts (or misbehaves) on these; the Python layer checks convexity first.
+    if (n < 3 || n > b2_maxPolygonVertices)
+        throw std::invalid_argument("a polygon needs 3 to " + std::to_string(b2_maxPolygonVertices) + " vertices");
+    b2Vec2 points[b2_maxPolygonVertices];
+    for (int i = 0; i < n; ++i) points[i].Set(xy[2 * i], xy[2 * i + 1]);
+    b2PolygonShape shape;
+    shape.Set(points, n);
+    // Set() takes the convex hull after welding close points, and quietly substitutes a unit
+    // box for a degenerate one: insist that every given vertex survived.
+    bool kept = shape.m_count == n;
+    for (int i = 0; kept && i < n; ++i)
+        kept = std::find_if(shape.m_vertices, shape.m_vertices + shape.m_count, [&](const b2Vec2& v) {
+                   return v.x == points[i].x && v.y == points[i].y;
+               }) != shape.m_vertices + shape.m_count;
+    if (!kept) throw std::invalid_argument("polygon is not strictly convex or has vertices closer than the linear slop");
+    return add_fixture(body, shape, m);
+}
+
+int World::add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) {
+    b2EdgeShape shape;
+    shape.SetTwoSided(b2Vec2(x1, y1), b2Vec2(x2, y2));
+    return add_fixture(body, shape, m);
+}
+
+void World::remove_body(int index) {
+    world_->DestroyBody(body_at(index));
+    bodies_[index] = nullptr;
+    --live_bodies_;
+    ++generation_;
+}
+
+float World::inv_dt0() const { return world_.get()->*member(WorldInvDt0()); }
+void World::set_inv_dt0(float value) { world_.get()->*member(WorldInvDt0()) = value; }
+
+BodyState World::bodies() const {
+    BodyState s;
+    const size_t n = live_bodies_;
+    s.index.reserve(n);
+    for (b2Body* b : bodies_) {
+        if (b == nullptr) continue;
+        s.index.push_back(body_index(b));
+        s.type.push_back(static_cast<int8_t>(b->GetType()));
+        push2(s.position, b->GetPosition());
+        s.angle.push_back(b->GetAngle());
+        push2(s.center, b->GetWorldCenter());
+        push2(s.velocity, b->GetLinearVelocity());
+        s.omega.push_back(b->GetAngularVelocity());
+        s.mass.push_back(b->GetMass());
+        s.inv_mass.push_back(b->*member(BodyInvMass()));
+        s.inertia.push_back(b->*member(BodyI()));
+        s.inv_inertia.push_back(b->*member(BodyInvI()));
+        s.linear_damping.push_back(b->GetLinearDamping());
+        s.angular_damping.push_back(b->GetAngularDamping());
+        s.gravity_scale.push_back(b->GetGravityScale());
+        s.fixed_rotation.push_back(b->IsFixedRotation());
+    }
+    return s;
+}
+
+void World::set_body_state(const int32_t* index, const float* position, const float* angle,
+                           const float* velocity, const float* omega, size_t count) {
+    for (size_t i = 0; i < count; ++i) {
+        b2Body* b = body_at(index[i]);
+        b->SetTransform(b2Vec2(position[2 * i], position[2 * i + 1]), angle[i]);
+        b->SetLinearVelocity(b2Vec2(velocity[2 * i], velocity[2 * i + 1]));
+        b->SetAngularVelocity(omega[i]);
+    }
+    ++generation_;
+}
+
+void World::step(float dt, int velocity_iterations, int position_iterations, bool record) {
+    std::vector<b2Transform> start_xf;
+    if (record) {
+        recorded_bodies_ = bodies();
+        // The solver rebuilds transforms from the sweep, exactly like SynchronizeTransform.
+        start_xf.resize(bodies_.size());
+        for (b2Body* b : bodies_)
+            if (b != nullptr) start_xf[body_index(b)] = b->GetTransform();
+    }
+    const float inv_dt0 = this->inv_dt0();
+    last_dt_ratio_ = inv_dt0 * dt;  // as b2World::Step computes step.dtRatio
+    recorder_->starts.clear();
+    recorder_->active = record;
+    recorder_->warm = world_->GetWarmStarting();
+    recorder_->dt_ratio = last_dt_ratio_;
+    {
+        std::lock_guard<std::mutex> lock(g_step_mutex);
+        g_blockSolve = block_solve_;
+        world_->Step(dt, velocity_iterations, position_iterations);
+    }
+    recorder_->active = false;
+    ++generation_;
+    if (record) recorded_contacts_ = gather(&start_xf);
+}
+
+void World::collide() {
+    const_cast<b2ContactManager&>(world_->GetContactManager()).Collide();
+    ++generation_;
+}
+
+void World::find_new_contacts() {
+    const_cast<b2ContactManager&>(world_->GetContactManager()).FindNewContacts();
+    ++generation_;
+}
+
+ContactState World::contacts() {
+    ContactState s = gather(nullptr);
+    gathered_generation_ = generation_;
+    return s;
+}
+
+void World::set_manifold_impulses(const float* normal, const float* tangent, size_t count) {
+    if (gathered_generation_ != generation_)
+        throw std::runtime_error("the contacts changed since contacts() was called; call it again");
+    if (count != gathered_.size())
+        throw std::invalid_argument("expected " + std::to_string(gathered_.size()) +
+                                    " impulses, one per contact point, got " + std::to_string(count));
+    for (size_t i = 0; i < count; ++i) {
+        b2ManifoldPoint& p = gathered_[i].first->GetManifold()->points[gathered_[i].second];
+        p.normalImpulse = normal[i];
+        p.tangentImpulse = tangent[i];
+    }
+}
+
+// The contacts b2World::Solve hands to the contact solver, in the same order: a depth-first
+// search over the constraint graph seeded by the body list, islands not crossing static bodies.
+ContactState World::gather(const std::vector<b2Transform>* start_xf) {
+    ContactState s;
+    gathered_.clear();
+    std::vector<char> body_seen(bodies_.size(), 0);
+    std::unordered_set<const b2Contact*> contact_seen;
+    std::vector<b2Body*> stack;
+    int island = 0, manifold = 0;
+
+    auto emit = [&](b2Contact* c) {
+        const b2Fixture* fa = c->GetFixtureA();
+        const b2Fixture* fb = c->GetFixtureB();
+        const b2Body* ba = fa->GetBody();
+        const b2Body* bb = fb->GetBody();
+        b2Manifold* m = c->GetManifold();
+        const b2Transform& xfa = start_xf ? (*start_xf)[body_index(ba)] : ba->GetTransform();
+        const b2Transform& xfb = start_xf ? (*start_xf)[body_index(bb)] : bb->GetTransform();
+        b2WorldManifold wm;
+        wm.Initialize(m, xfa, fa->GetShape()->m_radius, xfb, fb->GetShape()->m_radius);
+        auto start = recorder_->starts.find(c);
+        for (int j = 0; j < m->pointCount; ++j) {
+            const b2ManifoldPoint& p = m->points[j];
+            s.manifold.push_back(manifold);
+            s.island.push_back(island);
+            s.point.push_back(static_cast<int8_t>(j));
+            s.point_count.push_back(static_cast<int8_t>(m->pointCount));
+            s.manifold_type.push_back(static_cast<int8_t>(m->type));
+            s.body_a.push_back(body_index(ba));
+            s.body_b.push_back(body_index(bb));
+            s.fixture_a.push_back(fixture_index(fa));
+            s.fixture_b.push_back(fixture_index(fb));
+            s.child_a.push_back(c->GetChildIndexA());
+            s.child_b.push_back(c->GetChildIndexB());
+            s.id_key.push_back(p.id.key);
+            push2(s.local_normal, m->localNormal);
+            push2(s.local_point, m->localPoint);
+            push2(s.point_local, p.localPoint);
+            push2(s.position, wm.points[j]);
+            push2(s.normal, wm.normal);
+            s.separation.push_back(wm.separations[j]);
+            s.friction.push_back(c->GetFriction());
+            s.restitution.push_back(c->GetRestitution());
+            s.restitution_threshold.push_back(c->GetRestitutionThreshold());
+            const bool known = start != recorder_->starts.end();
+            s.start_normal_impulse.push_back(known ? start->second[2 * j] : 0.0f);
+            s.start_tangent_impulse.push_back(known ? start->second[2 * j + 1] : 0.0f);
+            s.normal_impulse.push_back(p.normalImpulse);
+            s.tangent_impulse.push_back(p.tangentImpulse);
+            gathered_.emplace_back(c, j);
+        }
+        ++manifold;
+    };
+
+    for (b2Body* seed = world_->GetBodyList(); seed; seed = seed->GetNext()) {
+        if (body_seen[body_index(seed)]) continue;
+        if (!seed->IsAwake() || !seed->IsEnabled() || seed->GetType() == b2_staticBody) continue;
+        stack.push_back(seed);
+        body_seen[body_index(seed)] = 1;
+        bool any = false;
+        while (!stack.empty()) {
+            b2Body* b = stack.back();
+            stack.pop_back();
+            for (b2ContactEdge* ce = b->GetContactList(); ce; ce = ce->next) {
+                b2Contact* c = ce->contact;
+                if (contact_seen.count(c)) continue;
+                if (!c->IsEnabled() || !c->IsTouching()) continue;
+                if (c->GetFixtureA()->IsSensor() || c->GetFixtureB()->IsSensor()) continue;
+                contact_seen.insert(c);
+                emit(c);
+                any = true;
+                b2Body* other = ce->other;
+                // Box2D pushes static bodies too but never searches from them: skipping
+                // them leaves the order of everything else unchanged.
+                if (other->GetType() == b2_staticBody || body_seen[body_index(other)]) continue;
+                stack.push_back(other);
+                body_seen[body_index(other)] = 1;
+            }
+        }
+        if (any) ++island;
+    }
+    return s;
+}
+
+}  // namespace dc

@@ -1,0 +1,128 @@
+// A Box2D world built from a scene and stepped whole, with its state moved in and
+// out as flat arrays (structure of arrays). No Python here: module.cpp does the glue.
+#pragma once
+
+#include <box2d/box2d.h>
+
+#include <cstdint>
+#include <memory>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+namespace dc {
+
+struct BodySpec {
+    int type = 2;  // b2BodyType: 0 static, 1 kinematic, 2 dynamic
+    float x = 0, y = 0, angle = 0;
+    float vx = 0, vy = 0, omega = 0;
+    float linear_damping = 0, angular_damping = 0;
+    bool fixed_rotation = false;
+    bool bullet = false;
+};
+
+struct Material {
+    float density = 0;
+    float friction = 0;
+    float restitution = 0;
+    float restitution_threshold = 1.0f;
+};
+
+// Every live body, in scene index order. Vectors of 2 are interleaved (x0, y0, x1, ...).
+struct BodyState {
+    std::vector<int32_t> index;
+    std::vector<int8_t> type;
+    std::vector<float> position, angle, center, velocity, omega;
+    std::vector<float> mass, inv_mass, inertia, inv_inertia;  // inertia about the centre of mass
+    std::vector<float> linear_damping, angular_damping, gravity_scale;
+    std::vector<uint8_t> fixed_rotation;
+    size_t size() const { return index.size(); }
+};
+
+// One row per manifold point of every contact the velocity solver sees, in island order.
+struct ContactState {
+    std::vector<int32_t> manifold, island;
+    std::vector<int8_t> point, point_count, manifold_type;
+    std::vector<int32_t> body_a, body_b, fixture_a, fixture_b, child_a, child_b;
+    std::vector<uint32_t> id_key;
+    std::vector<float> local_normal, local_point, point_local;  // the manifold, in body frames
+    std::vector<float> position, normal, separation;             // the world manifold
+    std::vector<float> friction, restitution, restitution_threshold;
+    std::vector<float> start_normal_impulse, start_tangent_impulse;  // the solver's first iterate
+    std::vector<float> normal_impulse, tangent_impulse;              // what the solver produced
+    size_t size() const { return manifold.size(); }
+};
+
+class World {
+public:
+    World(float gravity_x, float gravity_y);
+    ~World();
+    World(const World&) = delete;
+    World& operator=(const World&) = delete;
+
+    int add_body(const BodySpec& spec);
+    int add_circle(int body, float radius, float cx, float cy, const Material& m);
+    int add_polygon(int body, const std::vector<float>& xy, const Material& m);
+    int add_edge(int body, float x1, float y1, float x2, float y2, const Material& m);
+    void remove_body(int body);
+
+    // One Box2D step. With record, the body state before the step and the solved
+    // contacts (world points computed from the start-of-step transforms, as the solver does)
+    // are kept for recorded_bodies() / recorded_contacts().
+    void step(float dt, int velocity_iterations, int position_iterations, bool record);
+
+    // The pieces of a step, for a solver of our own (NOTES §3).
+    void collide();
+    void find_new_contacts();
+    // Touching contacts in island order, world points from the current transforms.
+    ContactState contacts();
+    // Writes impulses into the manifold points of the contacts last returned by contacts().
+    void set_manifold_impulses(const float* normal, const float* tangent, size_t count);
+
+    BodyState bodies() const;
+    void set_body_state(const int32_t* index, const float* position, const float* angle,
+                        const float* velocity, const float* omega, size_t count);
+
+    const BodyState& recorded_bodies() const { return recorded_bodies_; }
+    const ContactState& recorded_contacts() const { return recorded_contacts_; }
+    float last_dt_ratio() const { return last_dt_ratio_; }
+
+    bool continuous() const { return world_->GetContinuousPhysics(); }
+    void set_continuous(bool on) { world_->SetContinuousPhysics(on); }
+    bool sleeping() const { return world_->GetAllowSleeping(); }
+    void set_sleeping(bool on) { world_->SetAllowSleeping(on); }
+    bool warm_starting() const { return world_->GetWarmStarting(); }
+    void set_warm_starting(bool on) { world_->SetWarmStarting(on); }
+    bool block_solve() const { return block_solve_; }
+    void set_block_solve(bool on) { block_solve_ = on; }
+    // 1/dt of the previous step (0 before the first): Box2D scales warm starts by dt * this.
+    float inv_dt0() const;
+    void set_inv_dt0(float value);
+
+    int body_count() const { return live_bodies_; }
+    int fixture_count() const { return static_cast<int>(fixtures_.size()); }
+
+private:
+    class StartRecorder;
+    b2Body* body_at(int index) const;
+    int add_fixture(int body, const b2Shape& shape, const Material& m);
+    ContactState gather(const std::vector<b2Transform>* start_xf);
+
+    std::unique_ptr<b2World> world_;
+    std::unique_ptr<StartRecorder> recorder_;
+    std::vector<b2Body*> bodies_;        // by scene index; nullptr once removed
+    std::vector<b2Fixture*> fixtures_;   // by fixture index
+    int live_bodies_ = 0;
+    bool block_solve_ = true;
+    float last_dt_ratio_ = 0.0f;
+
+    BodyState recorded_bodies_;
+    ContactState recorded_contacts_;
+
+    // contacts() remembers which (contact, point) each row was, for set_manifold_impulses;
+    // any change to the contact set makes that list stale.
+    std::vector<std::pair<b2Contact*, int>> gathered_;
+    uint64_t generation_ = 0, gathered_generation_ = ~uint64_t(0);
+};
+
+}  // namespace dc

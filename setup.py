@@ -1,0 +1,41 @@
+"""Builds deepcontact._box2d, the one native extension, against Debian's libbox2d.
+
+Everything else about the package lives in setup.cfg.
+"""
+import shlex
+import subprocess
+import sys
+
+from pybind11.setup_helpers import Pybind11Extension
+from setuptools import setup
+
+
+def pkg_config(*args):
+    try:
+        out = subprocess.run(["pkg-config", *args, "box2d"], check=True,
+                             capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        sys.exit("error: Box2D 2.4.1 not found by `pkg-config box2d`; "
+                 "install it with `apt-get install libbox2d-dev pkg-config` (or run `make setup`)")
+    return shlex.split(out)
+
+
+cflags = pkg_config("--cflags")
+box2d_version = pkg_config("--modversion")[0]
+ext = Pybind11Extension(
+    "deepcontact._box2d",
+    sources=[
+        "deepcontact/native/module.cpp",
+        "deepcontact/native/world.cpp",
+        "deepcontact/native/step_xml.cpp",
+    ],
+    include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
+    libraries=[f[2:] for f in pkg_config("--libs") if f.startswith("-l")],
+    # Box2D 2.4.1's own b2_version still says 2.4.0; record the packaged version we built against.
+    define_macros=[("DC_BOX2D_VERSION", f'"{box2d_version}"')],
+    cxx_std=17,
+    # No FMA contraction: the solver must round exactly as Box2D's float32 code does.
+    extra_compile_args=["-O2", "-ffp-contract=off"],
+)
+
+setup(ext_modules=[ext])
