@@ -1,0 +1,29 @@
+"""`dc`: the deepcontact command-line suite."""
+import click
+
+from deepcontact import __version__
+
+from .simulate import simulate
+from .validate import validate
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="dc")
+def cli():
+    """Study Box2D's contact solver and warm-start it with learned impulses.
+
+    The pipeline: simulate → validate → rasterize → train → evaluate.
+    Each subcommand has its own --help with examples.
+    """
+
+
+cli.add_command(simulate)
+cli.add_command(validate)
+
+
+def main():
+    cli(prog_name="dc")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,65 @@
+"""Options and behaviour shared by every `dc` subcommand (rasterio style): -v/-q counted into
+one log level, logs and progress on stderr, clean one-line errors unless -v."""
+import functools
+import logging
+import sys
+
+import click
+
+from deepcontact.errors import InputError
+
+
+def verbosity(f):
+    f = click.option("-v", "--verbose", count=True, help="More output; -v also shows tracebacks.")(f)
+    f = click.option("-q", "--quiet", count=True, help="Less output: no progress bar, warnings only.")(f)
+    return f
+
+
+overwrite = click.option("--overwrite", is_flag=True, help="Replace existing output.")
+jobs = click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
+                    help="Worker processes.")
+
+
+def log_level(verbose, quiet):
+    return max(logging.DEBUG, min(logging.ERROR, logging.INFO - 10 * verbose + 10 * quiet))
+
+
+def setup_logging(verbose, quiet):
+    logging.basicConfig(level=log_level(verbose, quiet), stream=sys.stderr,
+                        format="%(levelname)s: %(message)s")
+
+
+def command(name):
+    """Wraps a subcommand body: logging set-up, InputError → one line and exit 1,
+    Ctrl-C → exit 130; tracebacks only with -v."""
+    def decorate(f):
+        @functools.wraps(f)
+        def wrapper(*args, verbose=0, quiet=0, **kwargs):
+            setup_logging(verbose, quiet)
+            try:
+                return f(*args, verbose=verbose, quiet=quiet, **kwargs)
+            except InputError as e:
+                if verbose:
+                    raise
+                click.echo(f"dc {name}: error: {e}", err=True)
+                sys.exit(1)
+            except KeyboardInterrupt:
+                click.echo(f"dc {name}: interrupted; complete files were kept, no manifest written",
+                           err=True)
+                sys.exit(130)
+            except OSError as e:
+                if verbose:
+                    raise
+                where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+                click.echo(f"dc {name}: error: {where}{e.strerror or e}", err=True)
+                sys.exit(1)
+        return wrapper
+    return decorate
+
+
+def progress_bar(quiet, total, unit, desc):
+    """A tqdm bar on stderr, or None when quiet."""
+    if quiet:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False)

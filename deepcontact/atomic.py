@@ -1,0 +1,46 @@
+"""Atomic output: write to a temporary name in the same folder, then rename.
+
+An interrupted run leaves either the complete file or nothing (a stray ``.tmp`` file at most is
+removed on the way out).
+"""
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+
+def write_bytes(path, data: bytes):
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        _remove_quietly(tmp)
+        raise
+
+
+def write_text(path, text: str):
+    write_bytes(path, text.encode("utf-8"))
+
+
+@contextmanager
+def open_for_write(path, mode="wb"):
+    """A file object whose content appears at ``path`` only if the block completes."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode) as f:
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        _remove_quietly(tmp)
+        raise
+
+
+def _remove_quietly(path):
+    try:
+        os.unlink(path)
+    except OSError:
+        pass

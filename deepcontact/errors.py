@@ -1,0 +1,17 @@
+"""Errors about the user's input: one line naming the file (and line) and what is wrong."""
+
+
+class InputError(Exception):
+    """Bad input: the CLI prints ``path:line: message`` and exits non-zero, without a traceback."""
+
+    def __init__(self, message, path=None, line=None):
+        super().__init__(message)
+        self.message = message
+        self.path = None if path is None else str(path)
+        self.line = line
+
+    def __str__(self):
+        where = self.path or ""
+        if where and self.line:
+            where += f":{self.line}"
+        return f"{where}: {self.message}" if where else self.message

@@ -1,0 +1,245 @@
+"""Built-in scenes: the thesis pile and the hard cases other engines test with (NOTES §5).
+
+Each generator is a function of a seed and keyword parameters (its defaults give the types);
+every one can be written to a scene file with ``dc simulate NAME --write-scene FILE``.
+A parameter of 0 for gravity or friction means that effect is off, not simulated with zero.
+"""
+import inspect
+import math
+
+import numpy as np
+
+from .._box2d import linear_slop, polygon_radius
+from ..errors import InputError
+from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
+
+
+# Boxes come to rest with their 1 cm skins overlapping by the linear slop: placing them that far
+# apart from the start keeps a stack from being pushed up as it settles.
+REST_GAP = 2 * polygon_radius - linear_slop
+
+
+def _effects(gravity, friction, restitution=0.0, continuous=False):
+    return Effects(gravity=(0.0, f32(-gravity)) if gravity else None,
+                   friction=f32(friction) if friction else None,
+                   restitution=f32(restitution) if restitution else None,
+                   continuous=continuous)
+
+
+def _walls(width, height):
+    """A static box from (0, 0) to (width, height) made of four two-sided edges."""
+    w, h = f32(width), f32(height)
+    return Body(type="static", shapes=[Edge(0.0, 0.0, w, 0.0), Edge(w, 0.0, w, h),
+                                       Edge(w, h, 0.0, h), Edge(0.0, h, 0.0, 0.0)])
+
+
+def _ground(half_width=40.0):
+    return Body(type="static", shapes=[Edge(f32(-half_width), 0.0, f32(half_width), 0.0)])
+
+
+def _box(hx, hy, density):
+    hx, hy = f32(hx), f32(hy)
+    return Polygon(vertices=((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)), density=f32(density))
+
+
+def _dynamic(x, y, shape, angle=0.0, **kw):
+    return Body(type="dynamic", x=f32(x), y=f32(y), angle=f32(angle), shapes=[shape], **kw)
+
+
+def pile(seed, count=100, box=30.0, radius=1.0, sigma=6.0, density=1.0, friction=0.2,
+         gravity=9.81, dt=0.01, steps=600):
+    """The thesis world: `count` circles at Gaussian positions (no overlap) falling in a box."""
+    rng = np.random.default_rng(seed)
+    lo, hi = radius, box - radius
+    centres = np.empty((0, 2))
+    attempts = 0
+    while len(centres) < count:
+        attempts += 1
+        if attempts > 1000 * count:
+            raise InputError(f"pile: could not place {count} circles of radius {radius} without "
+                             f"overlap in a {box} box (sigma {sigma}); use fewer or smaller circles")
+        p = rng.normal(box / 2.0, sigma, size=2)
+        if np.any(p < lo) or np.any(p > hi):
+            continue
+        if len(centres) and np.min(np.sum((centres - p) ** 2, axis=1)) < (2.0 * radius + 1e-3) ** 2:
+            continue
+        centres = np.vstack([centres, p])
+    circles = [_dynamic(x, y, Circle(radius=f32(radius), density=f32(density))) for x, y in centres]
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps,
+                bodies=[_walls(box, box)] + circles)
+
+
+def stack(seed, count=20, size=1.0, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60, steps=600):
+    """A vertical stack of `count` boxes on the ground."""
+    pitch = size + REST_GAP
+    boxes = [_dynamic(0.0, REST_GAP + size / 2 + i * pitch, _box(size / 2, size / 2, density))
+             for i in range(count)]
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=[_ground()] + boxes)
+
+
+def pyramid(seed, base=20, size=1.0, gap=0.05, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60,
+            steps=600):
+    """A pyramid of boxes, `base` wide: base (base + 1) / 2 boxes in all."""
+    pitch = size * (1.0 + gap)
+    boxes = []
+    for row in range(base):
+        n = base - row
+        for j in range(n):
+            boxes.append(_dynamic((j - (n - 1) / 2) * pitch, REST_GAP + size / 2 + row * (size + REST_GAP),
+                                  _box(size / 2, size / 2, density)))
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps,
+                bodies=[_ground(max(40.0, base * pitch))] + boxes)
+
+
+def mass_ratio(seed, ratio=100.0, radius=0.5, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60,
+               steps=600):
+    """A heavy circle resting on a light one: equal density, areas (and masses) `ratio` : 1."""
+    big = radius * math.sqrt(ratio)
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=[
+        _ground(),
+        _dynamic(0.0, radius, Circle(radius=f32(radius), density=f32(density))),
+        _dynamic(0.0, 2 * radius + big, Circle(radius=f32(big), density=f32(density))),
+    ])
+
+
+def card_house(seed, levels=3, length=1.0, thickness=0.004, tilt=15.0, density=1.0, friction=0.7,
+               gravity=9.81, dt=1 / 60, steps=600):
+    """A house of cards: `levels` rows of leaning pairs with flat cards across.
+
+    Other engines use 1 mm cards; Box2D 2.4.1 welds polygon vertices closer than 2.5 mm (half
+    the linear slop), so 4 mm is the thinnest card here. Box2D's polygon skin (1 cm a side)
+    makes every card collide as if it were thicker still."""
+    a, t, phi = length / 2, thickness / 2, math.radians(tilt)
+    spacing = 4 * a * math.sin(phi) + 0.1 * length   # apex to apex
+    card = _box(t, a, density)
+    flat = _box(a, t, density)
+    bodies = [_ground()]
+    base_y = 0.0
+    for level in range(levels):
+        n = levels - level
+        apexes = [(j - (n - 1) / 2) * spacing for j in range(n)]
+        cy = base_y + a * math.cos(phi) + t * math.sin(phi)
+        dx = a * math.sin(phi) + t * math.cos(phi)
+        for xa in apexes:
+            bodies.append(_dynamic(xa - dx, cy, card, angle=-phi))   # leaning right
+            bodies.append(_dynamic(xa + dx, cy, card, angle=phi))    # leaning left
+        top = base_y + 2 * a * math.cos(phi) + 2 * t * math.sin(phi)
+        for left, right in zip(apexes, apexes[1:]):
+            bodies.append(_dynamic((left + right) / 2, top + t, flat))
+        base_y = top + 2 * t
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies)
+
+
+def arch(seed, blocks=9, inner=4.0, thickness=1.0, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60,
+         steps=600):
+    """A semicircular arch of `blocks` voussoirs standing on the ground, held by friction."""
+    bodies = [_ground()]
+    outer = inner + thickness
+    for i in range(blocks):
+        t0, t1 = math.pi * i / blocks, math.pi * (i + 1) / blocks
+        pts = np.array([(inner * math.cos(t0), inner * math.sin(t0)), (outer * math.cos(t0), outer * math.sin(t0)),
+                        (outer * math.cos(t1), outer * math.sin(t1)), (inner * math.cos(t1), inner * math.sin(t1))])
+        centre = pts.mean(axis=0)
+        local = tuple((f32(x), f32(y)) for x, y in pts - centre)
+        bodies.append(_dynamic(centre[0], centre[1], Polygon(vertices=local, density=f32(density))))
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies)
+
+
+def confined(seed, count=625, radius=0.5, spacing=1.25, speed=2.0, density=1.0, friction=0.0,
+             dt=1 / 60, steps=600):
+    """`count` circles in a closed box without gravity, started with random velocities."""
+    rng = np.random.default_rng(seed)
+    side = math.ceil(math.sqrt(count))
+    pitch = 2 * radius * spacing
+    box = side * pitch
+    bodies = [_walls(box, box)]
+    v = rng.normal(0.0, speed, size=(count, 2))
+    for k in range(count):
+        i, j = divmod(k, side)
+        bodies.append(_dynamic((j + 0.5) * pitch, (i + 0.5) * pitch,
+                               Circle(radius=f32(radius), density=f32(density)),
+                               vx=f32(v[k, 0]), vy=f32(v[k, 1])))
+    return dict(effects=_effects(0.0, friction), dt=dt, steps=steps, bodies=bodies)
+
+
+def warm_start_energy(seed, radius=0.5, density=1.0, top_density=100.0, remove_step=120, friction=0.6,
+                      gravity=9.81, dt=1 / 60, steps=360):
+    """Three stacked circles; the heavy top one is removed at `remove_step`. The warm start of
+    the remaining contacts still carries its weight: that must not launch the others."""
+    bodies = [_ground()] + [
+        _dynamic(0.0, radius * (2 * i + 1), Circle(radius=f32(radius), density=f32(d)))
+        for i, d in enumerate((density, density, top_density))]
+    return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies,
+                events=[RemoveEvent(step=remove_step, body=3)])
+
+
+def bullet(seed, stack=10, size=1.0, speed=120.0, radius=0.25, density=1.0, bullet_density=20.0,
+           friction=0.6, gravity=9.81, dt=1 / 60, steps=300):
+    """A small fast circle (a Box2D bullet, continuous collision on) fired into a stack of boxes."""
+    boxes = [_dynamic(0.0, REST_GAP + size / 2 + i * (size + REST_GAP), _box(size / 2, size / 2, density))
+             for i in range(stack)]
+    shot = _dynamic(-15.0, size * stack / 2, Circle(radius=f32(radius), density=f32(bullet_density)),
+                    vx=f32(speed), bullet=True)
+    return dict(effects=_effects(gravity, friction, continuous=True), dt=dt, steps=steps,
+                bodies=[_ground()] + boxes + [shot])
+
+
+GENERATORS = {
+    "pile": pile,
+    "stack": stack,
+    "pyramid": pyramid,
+    "mass-ratio": mass_ratio,
+    "card-house": card_house,
+    "arch": arch,
+    "confined": confined,
+    "warm-start-energy": warm_start_energy,
+    "bullet": bullet,
+}
+
+
+def parameters(name):
+    """{parameter: default} of a generator."""
+    sig = inspect.signature(GENERATORS[name])
+    return {k: p.default for k, p in sig.parameters.items() if k != "seed"}
+
+
+def _convert(name, key, text, default):
+    try:
+        if isinstance(default, bool):
+            if text.lower() in ("true", "1", "yes", "on"):
+                return True
+            if text.lower() in ("false", "0", "no", "off"):
+                return False
+            raise ValueError(text)
+        value = type(default)(text)
+    except ValueError:
+        raise InputError(f"generator {name!r}: parameter {key}={text!r} is not a "
+                         f"{type(default).__name__}") from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputError(f"generator {name!r}: parameter {key} must be finite")
+    return value
+
+
+def generate(name, seed=0, params=None, velocity_iterations=8, position_iterations=3) -> Scene:
+    """Make a scene with a built-in generator. `params` maps names to values or strings."""
+    if name not in GENERATORS:
+        raise InputError(f"unknown scene generator {name!r}; choose from {', '.join(GENERATORS)}")
+    defaults = parameters(name)
+    given = {}
+    for key, value in (params or {}).items():
+        if key not in defaults:
+            raise InputError(f"generator {name!r} has no parameter {key!r}; "
+                             f"its parameters are {', '.join(defaults)}")
+        given[key] = _convert(name, key, value, defaults[key]) if isinstance(value, str) else value
+    for key in ("dt",):
+        if key in given and not given[key] > 0:
+            raise InputError(f"generator {name!r}: {key} must be positive, got {given[key]}")
+    for key in ("steps", "count", "base", "levels", "blocks", "stack"):
+        if key in given and given[key] < 1:
+            raise InputError(f"generator {name!r}: {key} must be at least 1, got {given[key]}")
+    parts = GENERATORS[name](seed, **given)
+    return Scene(name=name, dt=f32(parts["dt"]), steps=int(parts["steps"]),
+                 solver=Solver(velocity_iterations=velocity_iterations,
+                               position_iterations=position_iterations),
+                 effects=parts["effects"], bodies=parts["bodies"], events=parts.get("events", []),
+                 generator=name, seed=seed, params={k: given[k] for k in sorted(given)})

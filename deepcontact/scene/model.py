@@ -1,0 +1,133 @@
+"""What a scene declares: the world, its bodies and shapes, and which effects are on.
+
+Numbers are stored as float32 values (Python floats holding a float32 exactly), because that is
+what Box2D simulates: a scene written to XML and read back is the same scene, bit for bit.
+Only declared effects are simulated: no gravity unless given, friction and restitution 0 unless
+their effect is declared, no damping unless declared, no continuous collision unless declared.
+"""
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+BODY_TYPES = ("static", "kinematic", "dynamic")
+
+
+def f32(value) -> float:
+    """The float32 nearest to value, as a Python float."""
+    return float(np.float32(value))
+
+
+@dataclass
+class Circle:
+    radius: float
+    x: float = 0.0
+    y: float = 0.0
+    density: float = 0.0
+    friction: Optional[float] = None      # None: the friction effect's coefficient (or 0)
+    restitution: Optional[float] = None   # None: the restitution effect's coefficient (or 0)
+    line: Optional[int] = None            # where it was read from, for error messages
+
+    kind = "circle"
+
+
+@dataclass
+class Polygon:
+    vertices: tuple   # ((x, y), ...) in the body frame, convex, 3 to 8 of them
+    density: float = 0.0
+    friction: Optional[float] = None
+    restitution: Optional[float] = None
+    line: Optional[int] = None
+
+    kind = "polygon"
+
+
+@dataclass
+class Edge:
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    friction: Optional[float] = None
+    restitution: Optional[float] = None
+    line: Optional[int] = None
+
+    kind = "edge"
+    density = 0.0
+
+
+@dataclass
+class Body:
+    type: str = "dynamic"
+    x: float = 0.0
+    y: float = 0.0
+    angle: float = 0.0
+    vx: float = 0.0
+    vy: float = 0.0
+    omega: float = 0.0
+    fixed_rotation: bool = False
+    bullet: bool = False
+    shapes: list = field(default_factory=list)
+    line: Optional[int] = None
+
+
+@dataclass
+class Effects:
+    gravity: Optional[tuple] = None            # (gx, gy) or None: no gravity
+    friction: Optional[float] = None           # default coefficient, or None: frictionless
+    restitution: Optional[float] = None        # default coefficient, or None: perfectly inelastic
+    restitution_threshold: float = 1.0         # m/s; slower approaches do not bounce (Box2D's default)
+    damping: Optional[tuple] = None            # (linear, angular) for every dynamic body, or None
+    continuous: bool = False                   # Box2D's continuous collision (time of impact)
+
+    def names(self):
+        """The effects that are on, in a fixed order."""
+        on = [("gravity", self.gravity is not None), ("friction", self.friction is not None),
+              ("restitution", self.restitution is not None), ("damping", self.damping is not None),
+              ("continuous", self.continuous)]
+        return [name for name, is_on in on if is_on]
+
+
+@dataclass
+class RemoveEvent:
+    """Remove a body before the given step (the warm-start energy case of NOTES §5)."""
+    step: int
+    body: int
+    line: Optional[int] = None
+
+
+@dataclass
+class Solver:
+    velocity_iterations: int = 8
+    position_iterations: int = 3
+    warm_starting: bool = True
+    block_solve: bool = True
+    sleeping: bool = False     # off: sleeping islands are skipped by the solver, hiding its work
+
+
+@dataclass
+class Scene:
+    name: str
+    dt: float = f32(0.01)
+    steps: int = 600
+    solver: Solver = field(default_factory=Solver)
+    effects: Effects = field(default_factory=Effects)
+    bodies: list = field(default_factory=list)
+    events: list = field(default_factory=list)
+    generator: Optional[str] = None            # provenance: which generator made it
+    seed: Optional[int] = None
+    params: dict = field(default_factory=dict)
+
+    def fixtures(self):
+        """(body index, shape) for every shape, in fixture index order."""
+        return [(i, s) for i, b in enumerate(self.bodies) for s in b.shapes]
+
+    def friction_of(self, shape) -> float:
+        if self.effects.friction is None:
+            return 0.0
+        return self.effects.friction if shape.friction is None else shape.friction
+
+    def restitution_of(self, shape) -> float:
+        if self.effects.restitution is None:
+            return 0.0
+        return self.effects.restitution if shape.restitution is None else shape.restitution

@@ -1,0 +1,49 @@
+"""XSD validation of scene and step files with lxml, errors as ``path:line:col: message``."""
+from functools import lru_cache
+from importlib import resources
+
+from lxml import etree
+
+KINDS = ("scene", "step")
+
+
+@lru_cache(maxsize=None)
+def schema(kind: str) -> etree.XMLSchema:
+    if kind not in KINDS:
+        raise ValueError(f"no schema for {kind!r}")
+    path = resources.files("deepcontact.schemas") / f"{kind}.xsd"
+    with resources.as_file(path) as p:
+        return etree.XMLSchema(etree.parse(str(p)))
+
+
+def schema_path(kind: str) -> str:
+    """The XSD file on disk (for independent validators such as ``xmllint --schema``)."""
+    with resources.as_file(resources.files("deepcontact.schemas") / f"{kind}.xsd") as p:
+        return str(p)
+
+
+def parse(path):
+    """Parse an XML file, keeping line numbers. Raises etree.XMLSyntaxError."""
+    parser = etree.XMLParser(remove_blank_text=False, resolve_entities=False, no_network=True)
+    return etree.parse(str(path), parser)
+
+
+def validate(path, kind=None):
+    """Returns (kind, tree or None, [error lines]). The kind comes from the root element."""
+    try:
+        tree = parse(path)
+    except etree.XMLSyntaxError as e:
+        line, col = e.position if e.position else (e.lineno or 0, 0)
+        return kind, None, [f"{path}:{line}:{col}: {e.msg}"]
+    except OSError as e:
+        return kind, None, [f"{path}:0:0: cannot read: {e.strerror or e}"]
+    root = tree.getroot().tag
+    if kind is None:
+        if root not in KINDS:
+            return None, tree, [f"{path}:{tree.getroot().sourceline}:0: root element <{root}> "
+                                f"is neither <scene> nor <step>"]
+        kind = root
+    xsd = schema(kind)
+    if xsd.validate(tree):
+        return kind, tree, []
+    return kind, tree, [f"{path}:{e.line}:{e.column}: {e.message}" for e in xsd.error_log]

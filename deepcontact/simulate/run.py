@@ -1,0 +1,159 @@
+"""Runs simulations and writes one folder per simulation, one XML file per step, and the
+run's manifest last.
+
+Layout of OUTDIR::
+
+    seed-000000/scene.xml          the scene exactly as simulated (generator output included)
+    seed-000000/step-000000.xml    one file per step (schemas/step.xsd)
+    manifest.json                  written last: its presence means the run is complete
+
+Every file is written atomically, so an interrupted run leaves only complete files and no
+manifest.
+"""
+import hashlib
+import json
+import logging
+import os
+import shutil
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import __version__, atomic
+from .._box2d import box2d_version
+from ..errors import InputError
+from ..scene.xml import to_xml
+from ..step.writer import step_filename, step_writer
+from .build import build_world, check_overlaps
+
+log = logging.getLogger(__name__)
+
+MANIFEST = "manifest.json"
+
+
+def sim_dirname(seed: int) -> str:
+    return f"seed-{seed:06d}"
+
+
+@dataclass
+class SimulationResult:
+    seed: int
+    dir: str
+    steps: int
+    files: int
+    contact_points: int
+    scene_sha256: str
+
+
+def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None) -> SimulationResult:
+    """Simulate one scene into out_dir (which must exist). on_step(k) is called after each step."""
+    out_dir = Path(out_dir)
+    scene_xml = to_xml(scene)
+    atomic.write_bytes(out_dir / "scene.xml", scene_xml)
+    world = build_world(scene)
+    writer = step_writer(scene, seed)
+    removals = {}
+    for ev in scene.events:
+        removals.setdefault(ev.step, []).append(ev.body)
+    s = scene.solver
+    files = points = 0
+    for k in range(scene.steps):
+        for body in removals.get(k, ()):
+            world.remove_body(body)
+        bodies, contacts = world.step(scene.dt, s.velocity_iterations, s.position_iterations, record=True)
+        n = len(contacts["manifold"])
+        points += n
+        if n or not skip_contactless:
+            xml = writer.render(k, k * float(scene.dt), world.last_dt_ratio, bodies, contacts)
+            atomic.write_bytes(out_dir / step_filename(k), xml)
+            files += 1
+        if on_step is not None:
+            on_step(k)
+    return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=files,
+                            contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest())
+
+
+def prepare_output(out_dir, seeds, overwrite):
+    """Create OUTDIR, refusing a non-empty one unless overwrite; with overwrite, remove this
+    run's own outputs (the manifest first, then the simulation folders) and nothing else."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("output path exists and is not a folder", out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not overwrite:
+            raise InputError("output folder is not empty; use --overwrite to replace it", out_dir)
+        manifest = out_dir / MANIFEST
+        if manifest.exists():
+            manifest.unlink()
+        for child in out_dir.iterdir():
+            if child.is_dir() and child.name.startswith("seed-"):
+                shutil.rmtree(child)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for seed in seeds:
+            (out_dir / sim_dirname(seed)).mkdir()
+        probe = out_dir / ".write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise InputError(f"cannot write there: {e.strerror or e}", out_dir) from None
+    return out_dir
+
+
+def _worker(args):
+    make_scene, seed, out_dir, skip = args
+    scene = make_scene(seed)
+    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip)
+
+
+def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, jobs=1, progress=None,
+        source=None):
+    """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
+
+    progress: a tqdm-like object counting steps (or None). Returns the manifest as a dict."""
+    seeds = list(seeds)
+    if not seeds:
+        raise InputError("no seeds to simulate (is the shard empty?)")
+    # Build (and check) the first scene before touching the output folder.
+    first = make_scene(seeds[0])
+    check_overlaps(first, source)
+    out_dir = prepare_output(out_dir, seeds, overwrite)
+    results = []
+    if jobs <= 1:
+        for seed in seeds:
+            scene = first if seed == seeds[0] else make_scene(seed)
+            if seed != seeds[0]:
+                check_overlaps(scene, source)
+            tick = (lambda k: progress.update(1)) if progress is not None else None
+            results.append(run_simulation(scene, out_dir / sim_dirname(seed), seed, skip_contactless, tick))
+    else:
+        for seed in seeds[1:]:
+            check_overlaps(make_scene(seed), source)
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(_worker, (make_scene, seed, str(out_dir), skip_contactless))
+                       for seed in seeds]
+            for f in as_completed(futures):
+                r = f.result()
+                results.append(r)
+                if progress is not None:
+                    progress.update(r.steps)
+    results.sort(key=lambda r: r.seed)
+    manifest = {
+        "format": 1,
+        "kind": "deepcontact-run",
+        "scene": first.name,
+        "source": source,
+        "generator": first.generator,
+        "params": first.params,
+        "solver": "box2d",
+        "velocity_iterations": first.solver.velocity_iterations,
+        "position_iterations": first.solver.position_iterations,
+        "dt": float(first.dt),
+        "skip_contactless": skip_contactless,
+        "versions": {"deepcontact": __version__, "box2d": box2d_version},
+        "simulations": [r.__dict__ for r in results],
+    }
+    atomic.write_text(out_dir / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    log.info("wrote %d simulations, %d step files to %s", len(results),
+             sum(r.files for r in results), os.fspath(out_dir))
+    return manifest

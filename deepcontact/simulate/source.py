@@ -1,0 +1,47 @@
+"""Where a simulation's scene comes from: a scene file or a built-in generator, per seed."""
+import dataclasses
+from pathlib import Path
+
+from ..errors import InputError
+from ..scene.generators import GENERATORS, generate
+from ..scene.xml import read_scene
+
+
+@dataclasses.dataclass
+class SceneSource:
+    """Callable seed -> Scene (picklable, so worker processes can build their own)."""
+    spec: str
+    params: dict = dataclasses.field(default_factory=dict)
+    steps: int = None
+    velocity_iterations: int = None
+
+    def __post_init__(self):
+        self.is_file = Path(self.spec).is_file()
+        if self.is_file:
+            if self.params:
+                raise InputError("--param is for generators; a scene file sets its values itself",
+                                 self.spec)
+            self._file_scene = read_scene(self.spec)
+        elif self.spec not in GENERATORS:
+            raise InputError(f"{self.spec!r} is neither a scene file nor a generator; generators: "
+                             f"{', '.join(GENERATORS)}")
+        if self.steps is not None and self.steps < 1:
+            raise InputError(f"--steps must be at least 1, got {self.steps}")
+        if self.velocity_iterations is not None and self.velocity_iterations < 0:
+            raise InputError(f"--iterations must be >= 0, got {self.velocity_iterations}")
+
+    def __call__(self, seed):
+        if self.is_file:
+            scene = dataclasses.replace(self._file_scene)
+        else:
+            scene = generate(self.spec, seed, self.params)
+        if self.steps is not None:
+            scene.steps = self.steps
+            scene.events = [e for e in scene.events if e.step < self.steps]
+        if self.velocity_iterations is not None:
+            scene.solver = dataclasses.replace(scene.solver, velocity_iterations=self.velocity_iterations)
+        return scene
+
+    @property
+    def label(self):
+        return self.spec

@@ -1,0 +1,67 @@
+"""Step files (schemas/step.xsd): the static parts rendered once per simulation here, the
+per-step body and contact state rendered natively (deepcontact._box2d.StepWriter)."""
+from xml.sax.saxutils import quoteattr
+
+from .. import __version__
+from .._box2d import StepWriter, box2d_version, polygon_radius
+from ..scene.xml import fmt
+
+FORMAT = 1
+
+
+def _bool(v):
+    return "true" if v else "false"
+
+
+def _shape_xml(scene, fixture, shape):
+    friction = fmt(scene.friction_of(shape))
+    restitution = fmt(scene.restitution_of(shape))
+    tail = f' friction="{friction}" restitution="{restitution}" fixture="{fixture}"'
+    if shape.kind == "circle":
+        return (f'        <circle radius="{fmt(shape.radius)}" x="{fmt(shape.x)}" y="{fmt(shape.y)}" '
+                f'density="{fmt(shape.density)}"{tail}/>\n')
+    if shape.kind == "edge":
+        return (f'        <edge x1="{fmt(shape.x1)}" y1="{fmt(shape.y1)}" x2="{fmt(shape.x2)}" '
+                f'y2="{fmt(shape.y2)}" radius="{fmt(polygon_radius)}"{tail}/>\n')
+    verts = "".join(f'          <vertex x="{fmt(x)}" y="{fmt(y)}"/>\n' for x, y in shape.vertices)
+    return (f'        <polygon density="{fmt(shape.density)}" radius="{fmt(polygon_radius)}"{tail}>\n'
+            f'{verts}        </polygon>\n')
+
+
+def body_shapes(scene):
+    """The <shape> element of every body, by body index, with fixture indices."""
+    out, fixture = [], 0
+    for body in scene.bodies:
+        parts = []
+        for shape in body.shapes:
+            parts.append(_shape_xml(scene, fixture, shape))
+            fixture += 1
+        out.append("      <shape>\n" + "".join(parts) + "      </shape>\n")
+    return out
+
+
+def header_xml(scene, solver="box2d"):
+    e, s = scene.effects, scene.solver
+    g = e.gravity if e.gravity is not None else (0.0, 0.0)
+    on = set(e.names())
+    effects = " ".join(f'{n}="{_bool(n in on)}"'
+                       for n in ("gravity", "friction", "restitution", "damping", "continuous"))
+    return ("  <header>\n"
+            f'    <gravity x="{fmt(g[0])}" y="{fmt(g[1])}"/>\n'
+            f'    <iterations velocity="{s.velocity_iterations}" position="{s.position_iterations}"/>\n'
+            f'    <solver name={quoteattr(solver)} warm_starting="{_bool(s.warm_starting)}" '
+            f'block_solve="{_bool(s.block_solve)}" continuous="{_bool(e.continuous)}" '
+            f'sleeping="{_bool(s.sleeping)}"/>\n'
+            f"    <effects {effects}/>\n"
+            f'    <versions deepcontact="{__version__}" box2d="{box2d_version}"/>\n'
+            "  </header>\n")
+
+
+def step_writer(scene, seed, solver="box2d") -> StepWriter:
+    root = f' format="{FORMAT}" scene={quoteattr(scene.name)} seed="{seed}" dt="{fmt(scene.dt)}"'
+    return StepWriter(root, header_xml(scene, solver), body_shapes(scene),
+                      scene.effects.damping is not None)
+
+
+def step_filename(index: int) -> str:
+    return f"step-{index:06d}.xml"
