@@ -95,14 +95,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     if not out_dir:
         raise InputError("missing -o/--output OUTDIR")
     seed_list = parse_shard(shard, parse_seeds(seed, seeds))
-    first = source(seed_list[0]) if seed_list else None
-    total = first.steps * len(seed_list) if first else 0
-    bar = options.progress_bar(quiet, total, "step", f"simulate {scene}")
-    try:
-        run(source, seed_list, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
-            progress=bar, source=scene)
-    finally:
-        if bar is not None:
-            bar.close()
+    bar = None if quiet else (lambda total: options.progress_bar(quiet, total, "step", f"simulate {scene}"))
+    run(source, seed_list, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
+        progress=bar, source=scene)
     if not quiet:
         click.echo(f"{out_dir}", err=False)

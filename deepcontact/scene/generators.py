@@ -51,19 +51,22 @@ def pile(seed, count=100, box=30.0, radius=1.0, sigma=6.0, density=1.0, friction
     """The thesis world: `count` circles at Gaussian positions (no overlap) falling in a box."""
     rng = np.random.default_rng(seed)
     lo, hi = radius, box - radius
-    centres = np.empty((0, 2))
-    attempts = 0
-    while len(centres) < count:
-        attempts += 1
-        if attempts > 1000 * count:
+    min_d2 = (2.0 * radius + 1e-3) ** 2
+    centres = np.empty((count, 2))
+    placed = drawn = 0
+    while placed < count:
+        if drawn > 1000 * count:
             raise InputError(f"pile: could not place {count} circles of radius {radius} without "
                              f"overlap in a {box} box (sigma {sigma}); use fewer or smaller circles")
-        p = rng.normal(box / 2.0, sigma, size=2)
-        if np.any(p < lo) or np.any(p > hi):
-            continue
-        if len(centres) and np.min(np.sum((centres - p) ** 2, axis=1)) < (2.0 * radius + 1e-3) ** 2:
-            continue
-        centres = np.vstack([centres, p])
+        batch = rng.normal(box / 2.0, sigma, size=(256, 2))
+        drawn += len(batch)
+        for p in batch[np.all((batch >= lo) & (batch <= hi), axis=1)]:
+            if placed and np.min(np.sum((centres[:placed] - p) ** 2, axis=1)) < min_d2:
+                continue
+            centres[placed] = p
+            placed += 1
+            if placed == count:
+                break
     circles = [_dynamic(x, y, Circle(radius=f32(radius), density=f32(density))) for x, y in centres]
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps,
                 bodies=[_walls(box, box)] + circles)

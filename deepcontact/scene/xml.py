@@ -1,11 +1,10 @@
 """Scene files: read (XSD-validated, then checked) and written (byte-stable)."""
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .. import schema
 from .._box2d import format_floats
 from ..errors import InputError
+from ..xmltext import quoteattr
 from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
 
@@ -118,6 +117,7 @@ def _shape(el):
 
 def read_scene(path) -> Scene:
     """Read, validate against schemas/scene.xsd and check a scene file. Raises InputError."""
+    from .. import schema  # lxml: only needed when reading
     kind, tree, errors = schema.validate(path, "scene")
     if errors:
         first = errors[0]

@@ -15,14 +15,15 @@ import json
 import logging
 import os
 import shutil
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections import deque
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
 from .. import __version__, atomic
 from .._box2d import box2d_version
 from ..errors import InputError
-from ..scene.xml import to_xml
+from ..scene.xml import fmt, to_xml
 from ..step.writer import step_filename, step_writer
 from .build import build_world, check_overlaps
 
@@ -57,18 +58,35 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None) -
         removals.setdefault(ev.step, []).append(ev.body)
     s = scene.solver
     files = points = 0
-    for k in range(scene.steps):
-        for body in removals.get(k, ()):
-            world.remove_body(body)
-        bodies, contacts = world.step(scene.dt, s.velocity_iterations, s.position_iterations, record=True)
-        n = len(contacts["manifold"])
-        points += n
-        if n or not skip_contactless:
-            xml = writer.render(k, k * float(scene.dt), world.last_dt_ratio, bodies, contacts)
-            atomic.write_bytes(out_dir / step_filename(k), xml)
-            files += 1
-        if on_step is not None:
-            on_step(k)
+
+    def write(k, dt_ratio, bodies, contacts):
+        xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts)
+        atomic.write_bytes(out_dir / step_filename(k), xml)
+
+    # Rendering and writing a step (GIL released in both) overlap with stepping the next one.
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = deque()
+        try:
+            for k in range(scene.steps):
+                for body in removals.get(k, ()):
+                    world.remove_body(body)
+                bodies, contacts = world.step(scene.dt, s.velocity_iterations, s.position_iterations,
+                                              record=True)
+                n = len(contacts["manifold"])
+                points += n
+                if n or not skip_contactless:
+                    pending.append(pool.submit(write, k, world.last_dt_ratio, bodies, contacts))
+                    files += 1
+                while pending and (len(pending) > 4 or pending[0].done()):
+                    pending.popleft().result()   # re-raises a failed write here
+                if on_step is not None:
+                    on_step(k)
+            while pending:
+                pending.popleft().result()
+        except BaseException:
+            for f in pending:
+                f.cancel()
+            raise
     return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=files,
                             contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest())
 
@@ -110,7 +128,8 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
         source=None):
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
-    progress: a tqdm-like object counting steps (or None). Returns the manifest as a dict."""
+    progress(total_steps) makes a tqdm-like counter of steps (or progress is None).
+    Returns the manifest as a dict."""
     seeds = list(seeds)
     if not seeds:
         raise InputError("no seeds to simulate (is the shard empty?)")
@@ -118,6 +137,35 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
     first = make_scene(seeds[0])
     check_overlaps(first, source)
     out_dir = prepare_output(out_dir, seeds, overwrite)
+    if progress is not None:
+        progress = progress(first.steps * len(seeds))
+    try:
+        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source)
+    finally:
+        if progress is not None:
+            progress.close()
+    manifest = {
+        "format": 1,
+        "kind": "deepcontact-run",
+        "scene": first.name,
+        "source": source,
+        "generator": first.generator,
+        "params": first.params,
+        "solver": "box2d",
+        "velocity_iterations": first.solver.velocity_iterations,
+        "position_iterations": first.solver.position_iterations,
+        "dt": float(fmt(first.dt)),
+        "skip_contactless": skip_contactless,
+        "versions": {"deepcontact": __version__, "box2d": box2d_version},
+        "simulations": [r.__dict__ for r in results],
+    }
+    atomic.write_text(out_dir / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    log.info("wrote %d simulations, %d step files to %s", len(results),
+             sum(r.files for r in results), os.fspath(out_dir))
+    return manifest
+
+
+def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source):
     results = []
     if jobs <= 1:
         for seed in seeds:
@@ -138,22 +186,4 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
                 if progress is not None:
                     progress.update(r.steps)
     results.sort(key=lambda r: r.seed)
-    manifest = {
-        "format": 1,
-        "kind": "deepcontact-run",
-        "scene": first.name,
-        "source": source,
-        "generator": first.generator,
-        "params": first.params,
-        "solver": "box2d",
-        "velocity_iterations": first.solver.velocity_iterations,
-        "position_iterations": first.solver.position_iterations,
-        "dt": float(first.dt),
-        "skip_contactless": skip_contactless,
-        "versions": {"deepcontact": __version__, "box2d": box2d_version},
-        "simulations": [r.__dict__ for r in results],
-    }
-    atomic.write_text(out_dir / MANIFEST, json.dumps(manifest, indent=2) + "\n")
-    log.info("wrote %d simulations, %d step files to %s", len(results),
-             sum(r.files for r in results), os.fspath(out_dir))
-    return manifest
+    return results

@@ -1,10 +1,10 @@
 """Step files (schemas/step.xsd): the static parts rendered once per simulation here, the
 per-step body and contact state rendered natively (deepcontact._box2d.StepWriter)."""
-from xml.sax.saxutils import quoteattr
 
 from .. import __version__
 from .._box2d import StepWriter, box2d_version, polygon_radius
 from ..scene.xml import fmt
+from ..xmltext import quoteattr
 
 FORMAT = 1
 
