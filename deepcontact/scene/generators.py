@@ -51,11 +51,15 @@ def pile(seed, count=100, box=30.0, radius=1.0, sigma=6.0, density=1.0, friction
     """The thesis world: `count` circles at Gaussian positions (no overlap) falling in a box."""
     rng = np.random.default_rng(seed)
     lo, hi = radius, box - radius
+    # Random sequential placement jams near 55% coverage: refuse hopeless requests at once.
+    if count * math.pi * radius ** 2 > 0.55 * (box - 2 * radius) ** 2:
+        raise InputError(f"pile: {count} circles of radius {radius} cannot be placed without overlap "
+                         f"in a {box} box (they would cover over 55% of it)")
     min_d2 = (2.0 * radius + 1e-3) ** 2
     centres = np.empty((count, 2))
     placed = drawn = 0
     while placed < count:
-        if drawn > 1000 * count:
+        if drawn > 200 * count + 10000:
             raise InputError(f"pile: could not place {count} circles of radius {radius} without "
                              f"overlap in a {box} box (sigma {sigma}); use fewer or smaller circles")
         batch = rng.normal(box / 2.0, sigma, size=(256, 2))
