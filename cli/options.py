@@ -58,8 +58,9 @@ def command(name):
 
 
 def progress_bar(quiet, total, unit, desc):
-    """A tqdm bar on stderr, or None when quiet."""
+    """A tqdm bar on stderr, or None when quiet (tqdm also stays silent when stderr is no terminal)."""
     if quiet:
         return None
     from tqdm import tqdm
-    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False)
+    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False,
+                disable=None)

@@ -1,0 +1,145 @@
+"""The `dc` commands as a user runs them: exit codes, one-line errors, files on disk."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from conftest import dc
+
+SMALL = ["--param", "count=30", "--param", "box=16", "--param", "sigma=4"]
+
+
+def tree_bytes(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(Path(root).rglob("*")) if p.is_file()}
+
+
+def test_same_seed_gives_byte_identical_files(tmp_path):
+    for name in ("a", "b"):
+        r = dc("simulate", "pile", *SMALL, "--steps", "120", "--seeds", "4..5", "-q", "-o", str(tmp_path / name))
+        assert r.returncode == 0, r.stderr
+    a, b = tree_bytes(tmp_path / "a"), tree_bytes(tmp_path / "b")
+    assert len(a) == 2 * 121 + 1 and a == b
+
+
+def test_parallel_jobs_give_the_same_files(tmp_path):
+    r1 = dc("simulate", "pile", *SMALL, "--steps", "60", "--seeds", "0..2", "-q", "-o", str(tmp_path / "a"))
+    r2 = dc("simulate", "pile", *SMALL, "--steps", "60", "--seeds", "0..2", "-q", "-j", "2",
+            "-o", str(tmp_path / "b"))
+    assert r1.returncode == r2.returncode == 0
+    assert tree_bytes(tmp_path / "a") == tree_bytes(tmp_path / "b")
+
+
+def test_manifest_and_layout(tmp_path):
+    out = tmp_path / "run"
+    r = dc("simulate", "pile", *SMALL, "--steps", "150", "--seeds", "0..3", "--shard", "1/2",
+           "--skip-contactless", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    sims = manifest["simulations"]
+    assert [s["seed"] for s in sims] == [1, 3]
+    for s in sims:
+        files = sorted((out / s["dir"]).glob("step-*.xml"))
+        assert len(files) == s["files"] < 150        # contact-less early steps skipped
+        assert (out / s["dir"] / "scene.xml").exists()
+    assert manifest["versions"]["box2d"] == "2.4.1" and manifest["dt"] == 0.01
+
+
+def test_refuses_a_non_empty_output_folder_without_overwrite(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    keep = out / "notes.txt"
+    keep.write_text("mine")
+    r = dc("simulate", "pile", *SMALL, "--steps", "5", "-o", str(out))
+    assert r.returncode == 1
+    assert r.stderr.strip().splitlines() == [f"dc simulate: error: {out}: output folder is not empty; "
+                                             f"use --overwrite to replace it"]
+    r = dc("simulate", "pile", *SMALL, "--steps", "5", "--overwrite", "-q", "-o", str(out))
+    assert r.returncode == 0 and keep.read_text() == "mine" and (out / "manifest.json").exists()
+
+
+def test_bad_input_is_one_line_without_traceback(tmp_path):
+    bad_scene = tmp_path / "bad.xml"
+    bad_scene.write_text('<scene name="x" format="1"><world dt="-1" steps="3"/><effects/><bodies/></scene>')
+    cases = [
+        (["simulate", "piles", "-o", str(tmp_path / "o1")], "neither a scene file nor a generator"),
+        (["simulate", "pile", "--param", "radius=big", "-o", str(tmp_path / "o2")], "is not a float"),
+        (["simulate", "pile", "--param", "nope=1", "-o", str(tmp_path / "o3")], "no parameter 'nope'"),
+        (["simulate", str(bad_scene), "-o", str(tmp_path / "o4")], f"{bad_scene}:1:"),
+        (["simulate", "pile", "--seeds", "9..2", "-o", str(tmp_path / "o5")], "--seeds"),
+        (["simulate", "pile", "-o", "/proc/nope"], "cannot write there"),
+    ]
+    for args, expected in cases:
+        r = dc(*args)
+        assert r.returncode == 1, (args, r.stderr)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and expected in lines[0], (args, r.stderr)
+        assert "Traceback" not in r.stderr
+    assert not (tmp_path / "o4").exists()
+    r = dc("simulate", "piles", "-v", "-o", str(tmp_path / "o6"))
+    assert r.returncode == 1 and "Traceback" in r.stderr
+
+
+def test_validate_accepts_a_run_and_pinpoints_a_corrupted_copy(pile_run, tmp_path):
+    r = dc("validate", str(pile_run))
+    assert r.returncode == 0, r.stdout
+    assert "151 files checked, 0 invalid" in r.stderr
+    src = sorted(pile_run.glob("seed-*/step-*.xml"))[-1]
+    lines = src.read_text().splitlines(keepends=True)
+    k = next(i for i, line in enumerate(lines) if "<impulse " in line)
+    lines[k] = lines[k].replace('n="', 'n="-nan', 1)
+    bad = tmp_path / "corrupt.xml"
+    bad.write_text("".join(lines))
+    truncated = tmp_path / "truncated.xml"
+    truncated.write_bytes(src.read_bytes()[:5000])
+    r = dc("validate", str(bad), str(truncated), str(src))
+    assert r.returncode == 1
+    assert f"{bad}:{k + 1}:" in r.stdout
+    assert f"{truncated}:" in r.stdout
+    assert str(src) not in r.stdout
+    assert "3 files checked, 2 invalid" in r.stderr
+
+
+def test_write_scene_then_simulate_it(tmp_path):
+    scene = tmp_path / "stack.xml"
+    assert dc("simulate", "stack", "--param", "count=4", "--write-scene", str(scene)).returncode == 0
+    assert dc("validate", str(scene)).returncode == 0
+    r = dc("simulate", "stack", "--param", "count=4", "--write-scene", str(scene))
+    assert r.returncode == 1 and "--overwrite" in r.stderr
+    r = dc("simulate", str(scene), "--steps", "10", "-q", "-o", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    assert len(list((tmp_path / "run").glob("seed-*/step-*.xml"))) == 10
+
+
+def test_every_command_has_examples_in_its_help():
+    for cmd in ("simulate", "validate"):
+        r = dc(cmd, "--help")
+        assert r.returncode == 0 and "Examples:" in r.stdout
+
+
+def test_list_generators():
+    r = dc("simulate", "--list", "pile")
+    assert r.returncode == 0 and "pile: count=100" in r.stdout and "warm-start-energy:" in r.stdout
+
+
+def test_ctrl_c_leaves_only_complete_files_and_no_manifest(tmp_path):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "deepcontact.cli.main", "simulate", "pile", "--seeds", "0..50", "-q",
+           "-o", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list(out.glob("seed-*/step-*.xml"))) < 200:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not (out / "manifest.json").exists()
+    leftovers = [p for p in out.rglob("*") if p.is_file() and not p.name.endswith(".xml")]
+    assert leftovers == []
+    files = sorted(out.glob("seed-*/step-*.xml"))
+    assert len(files) >= 200
+    r = dc("validate", "-q", *map(str, files[-20:]))   # the last ones written are complete
+    assert r.returncode == 0, r.stdout

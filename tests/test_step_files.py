@@ -1,0 +1,112 @@
+"""Step files: schema-valid (lxml and xmllint), exact float round trip, nothing non-finite."""
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from deepcontact import _box2d, schema
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.step.reader import read_step
+from deepcontact.step.writer import step_writer
+
+
+def step_files(run_dir):
+    return sorted(run_dir.glob("seed-*/step-*.xml"))
+
+
+def test_every_file_is_schema_valid(pile_run):
+    files = step_files(pile_run) + sorted(pile_run.glob("seed-*/scene.xml"))
+    assert len(files) == 151
+    for path in files:
+        kind, _, errors = schema.validate(path)
+        assert errors == [], errors[:3]
+
+
+@pytest.mark.skipif(shutil.which("xmllint") is None, reason="xmllint (libxml2-utils) not installed")
+def test_an_independent_validator_agrees(pile_run):
+    steps = step_files(pile_run)[::10]
+    out = subprocess.run(["xmllint", "--noout", "--schema", schema.schema_path("step"), *map(str, steps)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    scene = pile_run / "seed-000000" / "scene.xml"
+    out = subprocess.run(["xmllint", "--noout", "--schema", schema.schema_path("scene"), str(scene)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+
+
+def test_written_arrays_read_back_bit_for_bit():
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    world = build_world(scene)
+    writer = step_writer(scene, 0)
+    checked = 0
+    for k in range(150):
+        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+        if k % 25 and k != 149:
+            continue
+        xml = writer.render(k, k * 0.01, world.last_dt_ratio, bodies, contacts)
+        path = f"/tmp/dc-roundtrip-{k}.xml"
+        open(path, "wb").write(xml)
+        header, b, c = read_step(path)
+        assert header["index"] == k and header["scene"] == "pile"
+        for key in b:
+            assert np.array_equal(b[key], bodies[key]), key
+        for key in c:
+            assert np.array_equal(c[key], contacts[key]), key
+        checked += len(c["manifold"])
+    assert checked > 50
+
+
+finite32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=2000, deadline=None)
+@given(st.lists(finite32, min_size=1, max_size=20))
+def test_float32_text_round_trips_exactly(values):
+    a = np.array(values, dtype=np.float32)
+    text = _box2d.format_floats(a)
+    back = np.array([np.float32(t) for t in text], dtype=np.float32)
+    assert np.array_equal(a.view(np.uint32), back.view(np.uint32))   # -0.0 included
+    # and it is the shortest such text numpy knows of
+    for t, v in zip(text, a):
+        assert len(t.replace("e+", "e").replace("e-0", "e-")) <= len(repr(float(v))) + 4
+
+
+def test_shortest_text_examples():
+    assert _box2d.format_floats(np.array([0.1, 1.0, 3.1415927, -2.5e-8, 0.0], np.float32)) == \
+        ["0.1", "1", "3.1415927", "-2.5e-08", "0"]
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_values_never_reach_a_file(bad):
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    world = build_world(scene)
+    bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+    bodies["velocity"][5, 1] = bad
+    with pytest.raises(ValueError, match="non-finite y in body 5"):
+        step_writer(scene, 0).render(0, 0.0, 0.0, bodies, contacts)
+
+
+def test_render_checks_array_dtypes_and_shapes():
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    world = build_world(scene)
+    bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+    writer = step_writer(scene, 0)
+    wrong = dict(bodies, mass=bodies["mass"].astype(np.float64))
+    with pytest.raises(TypeError, match="'mass' has dtype float64"):
+        writer.render(0, 0.0, 0.0, wrong, contacts)
+    short = dict(bodies, omega=bodies["omega"][:-1])
+    with pytest.raises(ValueError, match="'omega' has"):
+        writer.render(0, 0.0, 0.0, short, contacts)
+
+
+def test_schema_rejects_nan_text(pile_run, tmp_path):
+    src = step_files(pile_run)[-1]
+    text = src.read_text()
+    bad = tmp_path / "bad.xml"
+    bad.write_text(text.replace('<spin omega="', '<spin omega="NaN" x="', 1))
+    _, _, errors = schema.validate(bad)
+    assert errors and all(e.startswith(f"{bad}:") for e in errors)
