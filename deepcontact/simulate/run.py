@@ -16,7 +16,7 @@ import logging
 import os
 import shutil
 from collections import deque
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,7 +64,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None) -
         atomic.write_bytes(out_dir / step_filename(k), xml)
 
     # Rendering and writing a step (GIL released in both) overlap with stepping the next one.
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    with ThreadPoolExecutor(max_workers=2) as pool:
         pending = deque()
         try:
             for k in range(scene.steps):
@@ -77,7 +77,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None) -
                 if n or not skip_contactless:
                     pending.append(pool.submit(write, k, world.last_dt_ratio, bodies, contacts))
                     files += 1
-                while pending and (len(pending) > 4 or pending[0].done()):
+                while pending and (len(pending) > 8 or pending[0].done()):
                     pending.popleft().result()   # re-raises a failed write here
                 if on_step is not None:
                     on_step(k)
@@ -177,6 +177,7 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
+        from concurrent.futures import ProcessPoolExecutor, as_completed  # 12 ms: only when used
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             futures = [pool.submit(_worker, (make_scene, seed, str(out_dir), skip_contactless))
                        for seed in seeds]

@@ -1,0 +1,49 @@
+# deepcontact: set-up, demo, tests and benchmarks. `make demo` and `make test` work from a clean
+# clone on Debian: they install Box2D (libbox2d-dev), the package and its dependencies as needed.
+
+PYTHON ?= python3
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+STAMPS := .stamps
+NATIVE := $(wildcard deepcontact/native/*.cpp deepcontact/native/*.hpp)
+RUNS ?= runs
+
+.PHONY: setup demo test test-slow bench clean
+
+# Debian packages: Box2D 2.4.1 and pkg-config to build against it, a C++ compiler, and xmllint
+# (an independent schema validator the tests use).
+$(STAMPS)/system:
+	@mkdir -p $(STAMPS)
+	@if ! pkg-config --exists box2d 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null; then \
+		echo "installing Debian packages: libbox2d-dev pkg-config libxml2-utils g++"; \
+		$(SUDO) apt-get update -qq && \
+		DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq libbox2d-dev pkg-config libxml2-utils g++ >/dev/null; \
+	fi
+	@touch $@
+
+# torch first and pinned: a looser requirement would pull a multi-GB CUDA build.
+$(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml $(NATIVE)
+	$(PYTHON) -m pip install -q torch==2.13.0
+	$(PYTHON) -m pip install -q "setuptools>=64" wheel "pybind11>=2.11"
+	$(PYTHON) -m pip install -q --no-build-isolation -e ".[test]"
+	@touch $@
+
+setup: $(STAMPS)/install
+
+# The main job on the built-in default scene: the thesis pile, simulated and validated.
+demo: setup
+	dc simulate pile --overwrite -o $(RUNS)/demo
+	dc validate -q $(RUNS)/demo
+	@echo "demo: 600 steps of the thesis pile (100 circles) in $(RUNS)/demo/seed-000000/, one XML file per step;"
+	@echo "      the run's manifest is $(RUNS)/demo/manifest.json"
+
+test: setup
+	$(PYTHON) -m pytest -q -m "not slow"
+
+test-slow: setup
+	$(PYTHON) -m pytest -q -m slow
+
+bench: setup
+	$(PYTHON) benchmarks/bench_simulate.py
+
+clean:
+	rm -rf $(STAMPS) build *.egg-info deepcontact/*.so $(RUNS)/demo
