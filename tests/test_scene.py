@@ -161,3 +161,16 @@ def test_unknown_generator_and_parameter():
         generate("stack", 0, {"dt": "-1"})
     with pytest.raises(InputError, match="cannot be placed"):
         generate("pile", 0, {"count": "500"})
+
+
+def test_shipped_example_scenes_are_valid_and_run():
+    from pathlib import Path
+    scenes = sorted((Path(__file__).parent.parent / "datasets" / "scenes").glob("*.xml"))
+    assert len(scenes) >= 2
+    for path in scenes:
+        scene = read_scene(path)
+        check_overlaps(scene, path)
+        world = build_world(scene)
+        for _ in range(scene.steps):
+            _, c = world.step(scene.dt, 8, 3, record=True)
+        assert len(c["manifold"]) > 0
