@@ -174,3 +174,19 @@ def test_shipped_example_scenes_are_valid_and_run():
         for _ in range(scene.steps):
             _, c = world.step(scene.dt, 8, 3, record=True)
         assert len(c["manifold"]) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(GENERATORS))
+def test_full_size_scene_runs_its_steps_finite(name):
+    scene = generate(name, 0)
+    check_overlaps(scene)
+    world = build_world(scene)
+    removals = {e.step: e.body for e in scene.events}
+    for k in range(scene.steps):
+        if k in removals:
+            world.remove_body(removals[k])
+        world.step(scene.dt, 8, 3)
+        if k % 50 == 0 or k == scene.steps - 1:
+            b = world.bodies()
+            assert np.all(np.isfinite(b["position"])) and np.all(np.isfinite(b["velocity"]))
