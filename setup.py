@@ -28,6 +28,7 @@ ext = Pybind11Extension(
         "deepcontact/native/module.cpp",
         "deepcontact/native/world.cpp",
         "deepcontact/native/step_xml.cpp",
+        "deepcontact/native/solver_module.cpp",
     ],
     include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
     libraries=[f[2:] for f in pkg_config("--libs") if f.startswith("-l")],

@@ -6,12 +6,14 @@
 
 #include <string>
 
+#include "pyarrays.hpp"
 #include "step_xml.hpp"
 #include "world.hpp"
 
 namespace py = pybind11;
 using dc::BodyState;
 using dc::ContactState;
+using dc::column;
 
 namespace {
 
@@ -41,6 +43,7 @@ py::dict to_dict(BodyState s) {
     d["position"] = own(std::move(s.position), n, 2);
     d["angle"] = own(std::move(s.angle), n);
     d["center"] = own(std::move(s.center), n, 2);
+    d["local_center"] = own(std::move(s.local_center), n, 2);
     d["velocity"] = own(std::move(s.velocity), n, 2);
     d["omega"] = own(std::move(s.omega), n);
     d["mass"] = own(std::move(s.mass), n);
@@ -78,30 +81,13 @@ py::dict to_dict(ContactState s) {
     d["friction"] = own(std::move(s.friction), n);
     d["restitution"] = own(std::move(s.restitution), n);
     d["restitution_threshold"] = own(std::move(s.restitution_threshold), n);
+    d["radius_a"] = own(std::move(s.radius_a), n);
+    d["radius_b"] = own(std::move(s.radius_b), n);
     d["start_normal_impulse"] = own(std::move(s.start_normal_impulse), n);
     d["start_tangent_impulse"] = own(std::move(s.start_tangent_impulse), n);
     d["normal_impulse"] = own(std::move(s.normal_impulse), n);
     d["tangent_impulse"] = own(std::move(s.tangent_impulse), n);
     return d;
-}
-
-// A column of a dict of arrays, checked: exact dtype, C order, n rows of `width` values.
-template <typename T>
-const T* column(const py::dict& d, const char* key, size_t& n, size_t width = 1) {
-    if (!d.contains(key)) throw py::key_error(std::string("missing array '") + key + "'");
-    py::object obj = d[key];
-    if (!py::isinstance<py::array>(obj)) throw py::type_error(std::string("'") + key + "' must be a numpy array");
-    py::array a = py::reinterpret_borrow<py::array>(obj);
-    if (!a.dtype().is(py::dtype::of<T>()))
-        throw py::type_error(std::string("'") + key + "' has dtype " + std::string(py::str(a.dtype())) +
-                             ", expected " + std::string(py::str(py::dtype::of<T>())));
-    if (!(a.flags() & py::array::c_style)) throw py::value_error(std::string("'") + key + "' must be C-contiguous");
-    const size_t rows = a.ndim() == 0 ? 0 : static_cast<size_t>(a.shape(0));
-    const bool shape_ok = width == 1 ? a.ndim() == 1 : (a.ndim() == 2 && a.shape(1) == static_cast<py::ssize_t>(width));
-    if (!shape_ok) throw py::value_error(std::string("'") + key + "' has the wrong shape");
-    if (n == static_cast<size_t>(-1)) n = rows;
-    if (rows != n) throw py::value_error(std::string("'") + key + "' has " + std::to_string(rows) + " rows, expected " + std::to_string(n));
-    return static_cast<const T*>(a.data());
 }
 
 dc::BodyView body_view(const py::dict& d) {
@@ -112,6 +98,7 @@ dc::BodyView body_view(const py::dict& d) {
     v.position = column<float>(d, "position", n, 2);
     v.angle = column<float>(d, "angle", n);
     v.center = column<float>(d, "center", n, 2);
+    v.local_center = column<float>(d, "local_center", n, 2);
     v.velocity = column<float>(d, "velocity", n, 2);
     v.omega = column<float>(d, "omega", n);
     v.mass = column<float>(d, "mass", n);
@@ -170,6 +157,7 @@ void require(const py::array& a, size_t n, size_t width, const char* name) {
 }  // namespace
 
 PYBIND11_MODULE(_box2d, m) {
+    dc::bind_solver(m);
     m.doc() = "Box2D 2.4.1 (Debian's libbox2d) for deepcontact: worlds stepped whole, state as numpy arrays.";
     m.attr("box2d_version") = DC_BOX2D_VERSION;  // from pkg-config at build time
     m.attr("box2d_runtime_version") = std::to_string(b2_version.major) + "." + std::to_string(b2_version.minor) +

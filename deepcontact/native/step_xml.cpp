@@ -99,7 +99,13 @@ std::string StepWriter::render(int64_t index, double time, float dt_ratio, const
         a.f("x", b.position[2 * k]).f("y", b.position[2 * k + 1]);
         out += "/>\n      <center";
         a.f("x", b.center[2 * k]).f("y", b.center[2 * k + 1]);
-        out += "/>\n      <velocity";
+        out += "/>\n";
+        if (b.local_center[2 * k] != 0.0f || b.local_center[2 * k + 1] != 0.0f) {
+            out += "      <local_center";
+            a.f("x", b.local_center[2 * k]).f("y", b.local_center[2 * k + 1]);
+            out += "/>\n";
+        }
+        out += "      <velocity";
         a.f("x", b.velocity[2 * k]).f("y", b.velocity[2 * k + 1]);
         out += "/>\n      <orientation";
         a.f("theta", b.angle[k]);

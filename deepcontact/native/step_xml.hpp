@@ -14,7 +14,7 @@ struct BodyView {
     size_t n = 0;
     const int32_t* index;
     const int8_t* type;
-    const float *position, *angle, *center, *velocity, *omega;
+    const float *position, *angle, *center, *local_center, *velocity, *omega;
     const float *mass, *inv_mass, *inertia, *inv_inertia;
     const float *linear_damping, *angular_damping;
 };

@@ -166,6 +166,7 @@ BodyState World::bodies() const {
         push2(s.position, b->GetPosition());
         s.angle.push_back(b->GetAngle());
         push2(s.center, b->GetWorldCenter());
+        push2(s.local_center, b->GetLocalCenter());
         push2(s.velocity, b->GetLinearVelocity());
         s.omega.push_back(b->GetAngularVelocity());
         s.mass.push_back(b->GetMass());
@@ -289,6 +290,8 @@ ContactState World::gather(const std::vector<b2Transform>* start_xf) {
             s.friction.push_back(c->GetFriction());
             s.restitution.push_back(c->GetRestitution());
             s.restitution_threshold.push_back(c->GetRestitutionThreshold());
+            s.radius_a.push_back(fa->GetShape()->m_radius);
+            s.radius_b.push_back(fb->GetShape()->m_radius);
             const bool known = start != recorder_->starts.end();
             s.start_normal_impulse.push_back(known ? start->second[2 * j] : 0.0f);
             s.start_tangent_impulse.push_back(known ? start->second[2 * j + 1] : 0.0f);

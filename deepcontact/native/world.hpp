@@ -32,7 +32,7 @@ struct Material {
 struct BodyState {
     std::vector<int32_t> index;
     std::vector<int8_t> type;
-    std::vector<float> position, angle, center, velocity, omega;
+    std::vector<float> position, angle, center, local_center, velocity, omega;
     std::vector<float> mass, inv_mass, inertia, inv_inertia;  // inertia about the centre of mass
     std::vector<float> linear_damping, angular_damping, gravity_scale;
     std::vector<uint8_t> fixed_rotation;
@@ -48,6 +48,7 @@ struct ContactState {
     std::vector<float> local_normal, local_point, point_local;  // the manifold, in body frames
     std::vector<float> position, normal, separation;             // the world manifold
     std::vector<float> friction, restitution, restitution_threshold;
+    std::vector<float> radius_a, radius_b;                       // the shapes' collision radii
     std::vector<float> start_normal_impulse, start_tangent_impulse;  // the solver's first iterate
     std::vector<float> normal_impulse, tangent_impulse;              // what the solver produced
     size_t size() const { return manifold.size(); }

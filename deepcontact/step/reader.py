@@ -39,7 +39,9 @@ def read_step(path, validate=True):
     n = len(rows)
     b = {k: np.zeros(n, np.float32) for k in ("angle", "omega", "mass", "inv_mass", "inertia",
                                               "inv_inertia", "linear_damping", "angular_damping")}
-    b.update({k: np.zeros((n, 2), np.float32) for k in ("position", "center", "velocity")})
+    b.update({k: np.zeros((n, 2), np.float32) for k in ("position", "center", "local_center", "velocity")})
+    b["gravity_scale"] = np.ones(n, np.float32)   # scenes have no per-body gravity scale
+    radius = {}                                     # fixture index -> collision radius
     b["index"] = np.zeros(n, np.int32)
     b["type"] = np.zeros(n, np.int8)
     for i, el in enumerate(rows):
@@ -48,6 +50,11 @@ def read_step(path, validate=True):
         for key in ("position", "center", "velocity"):
             e = el.find(key)
             b[key][i] = (_f(e, "x"), _f(e, "y"))
+        if (lc := el.find("local_center")) is not None:
+            b["local_center"][i] = (_f(lc, "x"), _f(lc, "y"))
+        for shape in el.find("shape"):
+            if isinstance(shape.tag, str):
+                radius[int(shape.get("fixture"))] = _f(shape, "radius")
         b["angle"][i] = _f(el.find("orientation"), "theta")
         b["omega"][i] = _f(el.find("spin"), "omega")
         b["mass"][i], b["inv_mass"][i] = _f(el.find("mass"), "value"), _f(el.find("mass"), "inverse")
@@ -90,4 +97,6 @@ def read_step(path, validate=True):
         c["local_normal"][i] = (_f(mf, "nx"), _f(mf, "ny"))
         c["local_point"][i] = (_f(mf, "x"), _f(mf, "y"))
         c["point_local"][i] = (_f(mf, "px"), _f(mf, "py"))
+    c["radius_a"] = np.array([radius[f] for f in c["fixture_a"]], np.float32)
+    c["radius_b"] = np.array([radius[f] for f in c["fixture_b"]], np.float32)
     return header, b, c

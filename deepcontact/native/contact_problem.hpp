@@ -1,0 +1,312 @@
+// The contact problem of one step, as Box2D's velocity solver sees it: per contact point the
+// lever arms, effective normal and tangent masses and restitution bias, per manifold the 2x2
+// block for two-point manifolds, per body the velocity after gravity and damping.
+//
+// Templated on the scalar. Every expression keeps the operand order of Box2D 2.4.1's own
+// (b2_island.cpp, b2_contact_solver.cpp, b2WorldManifold::Initialize), so that with R = float
+// and no FMA contraction the numbers are Box2D's, bit for bit.
+#pragma once
+
+#include <cfloat>
+#include <cmath>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace dc {
+
+template <class R>
+struct V2 {
+    R x, y;
+};
+template <class R> inline V2<R> operator+(V2<R> a, V2<R> b) { return {a.x + b.x, a.y + b.y}; }
+template <class R> inline V2<R> operator-(V2<R> a, V2<R> b) { return {a.x - b.x, a.y - b.y}; }
+template <class R> inline V2<R> operator-(V2<R> a) { return {-a.x, -a.y}; }
+template <class R> inline V2<R> operator*(R s, V2<R> a) { return {s * a.x, s * a.y}; }
+template <class R> inline R dot(V2<R> a, V2<R> b) { return a.x * b.x + a.y * b.y; }
+template <class R> inline R cross(V2<R> a, V2<R> b) { return a.x * b.y - a.y * b.x; }
+template <class R> inline V2<R> cross(V2<R> a, R s) { return {s * a.y, -s * a.x}; }
+template <class R> inline V2<R> cross(R s, V2<R> a) { return {-s * a.y, s * a.x}; }
+
+template <class R>
+struct Rot {
+    R s, c;
+    explicit Rot(R angle) : s(std::sin(angle)), c(std::cos(angle)) {}  // sinf/cosf for float
+};
+template <class R> inline V2<R> mul(const Rot<R>& q, V2<R> v) { return {q.c * v.x - q.s * v.y, q.s * v.x + q.c * v.y}; }
+template <class R>
+struct Xf {
+    V2<R> p;
+    Rot<R> q;
+};
+template <class R>
+inline V2<R> mul(const Xf<R>& t, V2<R> v) {
+    R x = (t.q.c * v.x - t.q.s * v.y) + t.p.x;
+    R y = (t.q.s * v.x + t.q.c * v.y) + t.p.y;
+    return {x, y};
+}
+
+// 2x2 matrix stored by columns, as b2Mat22.
+template <class R>
+struct M22 {
+    V2<R> ex{0, 0}, ey{0, 0};
+    M22 inverse() const {
+        R a = ex.x, b = ey.x, c = ex.y, d = ey.y;
+        M22 B;
+        R det = a * d - b * c;
+        if (det != R(0)) det = R(1) / det;
+        B.ex.x = det * d;
+        B.ey.x = -det * b;
+        B.ex.y = -det * c;
+        B.ey.y = det * a;
+        return B;
+    }
+};
+template <class R> inline V2<R> mul(const M22<R>& A, V2<R> v) { return {A.ex.x * v.x + A.ey.x * v.y, A.ex.y * v.x + A.ey.y * v.y}; }
+
+template <class R>
+struct ContactPoint {
+    V2<R> rA, rB;
+    R normal_mass, tangent_mass;
+    R k_normal, k_tangent;  // effective inverse masses: velocity change per unit impulse
+    R bias;                 // restitution velocity bias
+    R normal_impulse, tangent_impulse;
+};
+
+template <class R>
+struct ContactManifold {
+    int32_t a, b;           // body rows
+    int32_t first;          // first point row in the caller's arrays
+    int32_t count;          // points the solver uses (Box2D drops one of an ill-conditioned pair)
+    int32_t given;          // points given
+    bool friction_row;      // tangent rows present (friction > 0)
+    bool angular;           // any rotational inertia on either side
+    bool block;             // 2x2 block solver for the normal rows
+    V2<R> normal;
+    R friction, restitution, threshold;
+    R mA, mB, iA, iB;
+    M22<R> K, normal_mass;
+    ContactPoint<R> p[2];
+};
+
+template <class R>
+struct BodyVelocity {
+    V2<R> v;
+    R w;
+};
+
+// Column views of the arrays the Python layer hands over (float32, as Box2D stores them).
+struct BodyColumns {
+    size_t n = 0;
+    const float *center, *angle, *local_center, *velocity, *omega;
+    const float *mass, *inv_mass, *inv_inertia, *gravity_scale, *linear_damping, *angular_damping;
+    const int8_t* type;
+};
+
+struct ContactColumns {
+    size_t n = 0;
+    const int32_t *manifold, *row_a, *row_b;
+    const int8_t *point, *point_count, *manifold_type;
+    const float *local_normal, *local_point, *point_local, *radius_a, *radius_b;
+    const float *friction, *restitution, *restitution_threshold;
+};
+
+struct StepSettings {
+    float dt = 0;
+    float gravity[2] = {0, 0};
+    bool block_solve = true;
+    bool prune = true;  // leave out what the scene does not need (tangent rows without friction, ...)
+};
+
+struct ProblemStats {
+    int64_t manifolds = 0, points = 0, normal_rows = 0, tangent_rows = 0, block_manifolds = 0,
+            dropped_points = 0, angular_manifolds = 0, bias_rows = 0;
+};
+
+template <class R>
+struct ContactProblem {
+    std::vector<ContactManifold<R>> manifolds;
+    std::vector<BodyVelocity<R>> velocity;  // after gravity and damping: the solver's v*
+    ProblemStats stats;
+    size_t points = 0;
+};
+
+// Box2D's b2WorldManifold::Initialize.
+template <class R>
+void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>* point_local, int count,
+                    const Xf<R>& xfA, R radiusA, const Xf<R>& xfB, R radiusB, V2<R>& normal, V2<R>* points) {
+    const R eps = R(FLT_EPSILON);
+    if (type == 0) {  // circles
+        normal = {R(1), R(0)};
+        V2<R> pointA = mul(xfA, local_point);
+        V2<R> pointB = mul(xfB, point_local[0]);
+        V2<R> d = pointA - pointB;
+        if (d.x * d.x + d.y * d.y > eps * eps) {
+            normal = pointB - pointA;
+            R length = std::sqrt(normal.x * normal.x + normal.y * normal.y);
+            if (!(length < eps)) {
+                R inv = R(1) / length;
+                normal.x *= inv;
+                normal.y *= inv;
+            }
+        }
+        V2<R> cA = pointA + radiusA * normal;
+        V2<R> cB = pointB - radiusB * normal;
+        points[0] = R(0.5) * (cA + cB);
+    } else if (type == 1) {  // face A
+        normal = mul(xfA.q, local_normal);
+        V2<R> plane = mul(xfA, local_point);
+        for (int i = 0; i < count; ++i) {
+            V2<R> clip = mul(xfB, point_local[i]);
+            V2<R> cA = clip + (radiusA - dot(clip - plane, normal)) * normal;
+            V2<R> cB = clip - radiusB * normal;
+            points[i] = R(0.5) * (cA + cB);
+        }
+    } else {  // face B
+        normal = mul(xfB.q, local_normal);
+        V2<R> plane = mul(xfB, local_point);
+        for (int i = 0; i < count; ++i) {
+            V2<R> clip = mul(xfA, point_local[i]);
+            V2<R> cB = clip + (radiusB - dot(clip - plane, normal)) * normal;
+            V2<R> cA = clip - radiusA * normal;
+            points[i] = R(0.5) * (cA + cB);
+        }
+        normal = -normal;
+    }
+}
+
+template <class R>
+ContactProblem<R> assemble(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st) {
+    ContactProblem<R> pb;
+    const R h = R(st.dt);
+    const V2<R> gravity{R(st.gravity[0]), R(st.gravity[1])};
+    const bool has_gravity = gravity.x != R(0) || gravity.y != R(0);
+
+    // b2Island::Solve: integrate velocities, then damping (dynamic bodies only).
+    pb.velocity.resize(bc.n);
+    for (size_t i = 0; i < bc.n; ++i) {
+        V2<R> v{R(bc.velocity[2 * i]), R(bc.velocity[2 * i + 1])};
+        R w = R(bc.omega[i]);
+        if (bc.type[i] == 2) {
+            const R inv_mass = R(bc.inv_mass[i]);
+            if (has_gravity || !st.prune) {
+                const V2<R> force = (R(bc.gravity_scale[i]) * R(bc.mass[i])) * gravity + V2<R>{R(0), R(0)};
+                v = v + (h * inv_mass) * force;
+                w = w + h * R(bc.inv_inertia[i]) * R(0);
+            }
+            const R ld = R(bc.linear_damping[i]), ad = R(bc.angular_damping[i]);
+            if (ld != R(0) || ad != R(0) || !st.prune) {
+                const R sv = R(1) / (R(1) + h * ld);
+                v.x *= sv;
+                v.y *= sv;
+                w *= R(1) / (R(1) + h * ad);
+            }
+        }
+        pb.velocity[i] = {v, w};
+    }
+
+    // b2ContactSolver::InitializeVelocityConstraints, manifold by manifold in the given order.
+    size_t k = 0;
+    while (k < cc.n) {
+        const int32_t m_id = cc.manifold[k];
+        const int count = cc.point_count[k];
+        if (count < 1 || count > 2 || k + count > cc.n)
+            throw std::invalid_argument("contact point " + std::to_string(k) + ": bad point count");
+        for (int j = 0; j < count; ++j)
+            if (cc.manifold[k + j] != m_id || cc.point[k + j] != j || cc.point_count[k + j] != count)
+                throw std::invalid_argument("the points of manifold " + std::to_string(m_id) +
+                                            " must be consecutive rows, point 0 first");
+        const int32_t a = cc.row_a[k], b = cc.row_b[k];
+        if (a < 0 || b < 0 || static_cast<size_t>(a) >= bc.n || static_cast<size_t>(b) >= bc.n)
+            throw std::out_of_range("contact point " + std::to_string(k) + " names a body that is not given");
+
+        ContactManifold<R> m{};
+        m.a = a;
+        m.b = b;
+        m.first = static_cast<int32_t>(k);
+        m.count = m.given = count;
+        m.friction = R(cc.friction[k]);
+        m.restitution = R(cc.restitution[k]);
+        m.threshold = R(cc.restitution_threshold[k]);
+        m.mA = R(bc.inv_mass[a]);
+        m.mB = R(bc.inv_mass[b]);
+        m.iA = R(bc.inv_inertia[a]);
+        m.iB = R(bc.inv_inertia[b]);
+        m.friction_row = !st.prune || m.friction > R(0);
+        m.angular = !st.prune || m.iA != R(0) || m.iB != R(0);
+
+        const V2<R> cA{R(bc.center[2 * a]), R(bc.center[2 * a + 1])};
+        const V2<R> cB{R(bc.center[2 * b]), R(bc.center[2 * b + 1])};
+        Xf<R> xfA{{0, 0}, Rot<R>(R(bc.angle[a]))}, xfB{{0, 0}, Rot<R>(R(bc.angle[b]))};
+        xfA.p = cA - mul(xfA.q, V2<R>{R(bc.local_center[2 * a]), R(bc.local_center[2 * a + 1])});
+        xfB.p = cB - mul(xfB.q, V2<R>{R(bc.local_center[2 * b]), R(bc.local_center[2 * b + 1])});
+        V2<R> point_local[2], points[2];
+        for (int j = 0; j < count; ++j)
+            point_local[j] = {R(cc.point_local[2 * (k + j)]), R(cc.point_local[2 * (k + j) + 1])};
+        world_manifold<R>(cc.manifold_type[k], {R(cc.local_normal[2 * k]), R(cc.local_normal[2 * k + 1])},
+                          {R(cc.local_point[2 * k]), R(cc.local_point[2 * k + 1])}, point_local, count, xfA,
+                          R(cc.radius_a[k]), xfB, R(cc.radius_b[k]), m.normal, points);
+
+        const R mA = m.mA, mB = m.mB, iA = m.iA, iB = m.iB;
+        const V2<R> vA = pb.velocity[a].v, vB = pb.velocity[b].v;
+        const R wA = pb.velocity[a].w, wB = pb.velocity[b].w;
+        const V2<R> tangent = cross(m.normal, R(1));
+        for (int j = 0; j < count; ++j) {
+            ContactPoint<R>& p = m.p[j];
+            p.rA = points[j] - cA;
+            p.rB = points[j] - cB;
+            R rnA = cross(p.rA, m.normal);
+            R rnB = cross(p.rB, m.normal);
+            R kNormal = mA + mB + iA * rnA * rnA + iB * rnB * rnB;
+            p.k_normal = kNormal;
+            p.normal_mass = kNormal > R(0) ? R(1) / kNormal : R(0);
+            R rtA = cross(p.rA, tangent);
+            R rtB = cross(p.rB, tangent);
+            R kTangent = mA + mB + iA * rtA * rtA + iB * rtB * rtB;
+            p.k_tangent = kTangent;
+            p.tangent_mass = kTangent > R(0) ? R(1) / kTangent : R(0);
+            p.bias = R(0);
+            if (m.restitution != R(0) || !st.prune) {
+                R vRel = dot(m.normal, vB + cross(wB, p.rB) - vA - cross(wA, p.rA));
+                if (vRel < -m.threshold) {
+                    p.bias = -m.restitution * vRel;
+                    ++pb.stats.bias_rows;
+                }
+            }
+        }
+        if (count == 2 && st.block_solve) {
+            const ContactPoint<R>& p1 = m.p[0];
+            const ContactPoint<R>& p2 = m.p[1];
+            R rn1A = cross(p1.rA, m.normal);
+            R rn1B = cross(p1.rB, m.normal);
+            R rn2A = cross(p2.rA, m.normal);
+            R rn2B = cross(p2.rB, m.normal);
+            R k11 = mA + mB + iA * rn1A * rn1A + iB * rn1B * rn1B;
+            R k22 = mA + mB + iA * rn2A * rn2A + iB * rn2B * rn2B;
+            R k12 = mA + mB + iA * rn1A * rn2A + iB * rn1B * rn2B;
+            const R max_condition = R(1000);
+            if (k11 * k11 < max_condition * (k11 * k22 - k12 * k12)) {
+                m.K.ex = {k11, k12};
+                m.K.ey = {k12, k22};
+                m.normal_mass = m.K.inverse();
+                m.block = true;
+            } else {
+                m.count = 1;  // redundant pair: Box2D solves the first point only
+                ++pb.stats.dropped_points;
+            }
+        }
+        pb.stats.manifolds += 1;
+        pb.stats.points += count;
+        pb.stats.normal_rows += m.count;
+        pb.stats.tangent_rows += m.friction_row ? m.count : 0;
+        pb.stats.block_manifolds += m.block;
+        pb.stats.angular_manifolds += m.angular;
+        pb.manifolds.push_back(m);
+        k += count;
+    }
+    pb.points = cc.n;
+    return pb;
+}
+
+}  // namespace dc

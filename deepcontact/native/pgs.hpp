@@ -1,0 +1,330 @@
+// Projected Gauss-Seidel over a ContactProblem, as Box2D's b2ContactSolver does it: warm start
+// applied first, then sweeps over manifolds in the given (island) order, tangent rows before
+// normal rows, the 2x2 block solver for two-point manifolds. With R = float, relaxation 1 and
+// a fixed iteration count it is Box2D's velocity solver; otherwise it also over-relaxes (PSOR),
+// stops on a tolerance, and records how it converged.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "contact_problem.hpp"
+
+namespace dc {
+
+enum class Measure { none = 0, thesis = 1, velocity = 2, residual = 3 };
+
+struct SolveOptions {
+    int max_iterations = 8;
+    double tolerance = 0.0;        // stop once the chosen measure falls below it (0: never)
+    Measure stop_on = Measure::none;
+    double relaxation = 1.0;       // w of PSOR; 1 is plain PGS (Box2D)
+    bool history = false;          // record all three measures after every sweep
+    bool sanitize = true;          // project bad starts before use (off reproduces Box2D exactly)
+    double max_velocity = 0.0;     // starts that alone would change a contact's velocity by more
+                                   // than this are implausible (0: no such check)
+    bool final_residual = true;    // report the residual at the end (one extra pass)
+};
+
+struct SanitizeReport {
+    int64_t nonfinite = 0, negative = 0, implausible = 0, cone = 0;
+};
+
+struct SolveReport {
+    int iterations = 0;
+    std::vector<double> history;   // 3 per sweep: thesis, velocity, residual
+    double residual = 0.0;         // normalised min-map residual at the end
+    double thesis = 0.0, velocity = 0.0;  // the last sweep's measures
+    SanitizeReport sanitized;
+};
+
+template <class R>
+inline R clamp_box2d(R a, R low, R high) {  // b2Clamp: b2Max(low, b2Min(a, high))
+    R m = a < high ? a : high;
+    return low > m ? low : m;
+}
+
+template <class R>
+class PGS {
+public:
+    explicit PGS(ContactProblem<R>& pb) : pb_(pb) {}
+
+    // start_n/start_t: the first iterate per contact point, in the caller's row order.
+    template <class S>
+    SolveReport solve(const S* start_n, const S* start_t, const SolveOptions& opt) {
+        SolveReport rep;
+        load_start(start_n, start_t, opt, rep.sanitized);
+        // The residual is normalised by the free velocities, taken before the warm start.
+        if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) scale_ = free_velocity_scale();
+        warm_start();
+        const bool track = opt.history || opt.stop_on != Measure::none;
+        const R w = R(opt.relaxation);
+        const bool relax = opt.relaxation != 1.0;
+        for (int it = 0; it < opt.max_iterations; ++it) {
+            if (track) save_impulses();
+            if (relax)
+                sweep<true>(w);
+            else
+                sweep<false>(w);
+            rep.iterations = it + 1;
+            if (!track) continue;
+            double thesis = 0, velocity = 0;
+            sweep_change(thesis, velocity);
+            const double residual = opt.history || opt.stop_on == Measure::residual ? this->residual() : 0.0;
+            rep.thesis = thesis;
+            rep.velocity = velocity;
+            if (opt.history) {
+                rep.history.push_back(thesis);
+                rep.history.push_back(velocity);
+                rep.history.push_back(residual);
+            }
+            const double value = opt.stop_on == Measure::thesis     ? thesis
+                                 : opt.stop_on == Measure::velocity ? velocity
+                                 : opt.stop_on == Measure::residual ? residual
+                                                                    : 0.0;
+            if (opt.stop_on != Measure::none && value < opt.tolerance) break;
+        }
+        rep.residual = opt.final_residual ? residual() : std::numeric_limits<double>::quiet_NaN();
+        return rep;
+    }
+
+    // The normalised min-map residual of the LCP at the current iterate (see README).
+    double residual() const {
+        double worst = 0;
+        for (const auto& m : pb_.manifolds) {
+            const auto& A = pb_.velocity[m.a];
+            const auto& B = pb_.velocity[m.b];
+            const V2<R> tangent = cross(m.normal, R(1));
+            for (int j = 0; j < m.count; ++j) {
+                const auto& p = m.p[j];
+                V2<R> dv = B.v + cross(B.w, p.rB) - A.v - cross(A.w, p.rA);
+                const double vn = double(dot(dv, m.normal)) - double(p.bias);
+                const double n = double(p.normal_impulse);
+                worst = std::max(worst, std::abs(std::min(double(p.k_normal) * n, vn)));
+                if (m.friction_row) {
+                    const double kt = double(p.k_tangent);
+                    const double vt = double(dot(dv, tangent));
+                    const double hi = double(m.friction) * n * kt;
+                    const double x = kt * double(p.tangent_impulse);
+                    worst = std::max(worst, std::abs(x - std::clamp(x - vt, -hi, hi)));
+                }
+            }
+        }
+        return worst / scale_;
+    }
+
+    double scale() const { return scale_; }
+
+private:
+    template <class S>
+    void load_start(const S* sn, const S* st, const SolveOptions& opt, SanitizeReport& rep) {
+        for (auto& m : pb_.manifolds) {
+            for (int j = 0; j < m.given; ++j) {
+                auto& p = m.p[j];
+                double n = double(sn[m.first + j]), t = double(st[m.first + j]);
+                if (opt.sanitize) {
+                    if (!std::isfinite(n) || !std::isfinite(t)) {
+                        ++rep.nonfinite;
+                        n = t = 0;
+                    }
+                    if (n < 0) {
+                        ++rep.negative;
+                        n = 0;
+                    }
+                    if (opt.max_velocity > 0 && (n * double(p.k_normal) > opt.max_velocity ||
+                                                 std::abs(t) * double(p.k_tangent) > opt.max_velocity)) {
+                        ++rep.implausible;
+                        n = t = 0;
+                    }
+                    const double bound = double(m.friction) * n;
+                    if (std::abs(t) > bound) {
+                        ++rep.cone;
+                        t = std::clamp(t, -bound, bound);
+                    }
+                }
+                p.normal_impulse = R(n);
+                p.tangent_impulse = m.friction_row ? R(t) : R(0);
+            }
+        }
+    }
+
+    // Largest |relative normal velocity - bias| or |tangent velocity| before any impulse:
+    // the scale of the problem, so the residual is 1 at a zero start on an approaching contact.
+    double free_velocity_scale() {
+        double worst = 0;
+        for (const auto& m : pb_.manifolds) {
+            const auto& A = pb_.velocity[m.a];
+            const auto& B = pb_.velocity[m.b];
+            const V2<R> tangent = cross(m.normal, R(1));
+            for (int j = 0; j < m.count; ++j) {
+                const auto& p = m.p[j];
+                V2<R> dv = B.v + cross(B.w, p.rB) - A.v - cross(A.w, p.rA);
+                worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(p.bias)));
+                if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
+            }
+        }
+        return worst > 1e-30 ? worst : 1e-30;
+    }
+
+    // b2ContactSolver::WarmStart
+    void warm_start() {
+        for (const auto& m : pb_.manifolds) {
+            auto& A = pb_.velocity[m.a];
+            auto& B = pb_.velocity[m.b];
+            V2<R> vA = A.v, vB = B.v;
+            R wA = A.w, wB = B.w;
+            const V2<R> normal = m.normal;
+            const V2<R> tangent = cross(normal, R(1));
+            for (int j = 0; j < m.count; ++j) {
+                const auto& p = m.p[j];
+                V2<R> P = p.normal_impulse * normal + p.tangent_impulse * tangent;
+                wA -= m.iA * cross(p.rA, P);
+                vA = vA - m.mA * P;
+                wB += m.iB * cross(p.rB, P);
+                vB = vB + m.mB * P;
+            }
+            A = {vA, wA};
+            B = {vB, wB};
+        }
+    }
+
+    // b2ContactSolver::SolveVelocityConstraints, with optional over-relaxation.
+    template <bool Relax>
+    void sweep(R w) {
+        for (auto& m : pb_.manifolds) {
+            auto& A = pb_.velocity[m.a];
+            auto& B = pb_.velocity[m.b];
+            V2<R> vA = A.v, vB = B.v;
+            R wA = A.w, wB = B.w;
+            const R mA = m.mA, mB = m.mB, iA = m.iA, iB = m.iB;
+            const V2<R> normal = m.normal;
+            const V2<R> tangent = cross(normal, R(1));
+
+            if (m.friction_row) {
+                for (int j = 0; j < m.count; ++j) {
+                    auto& p = m.p[j];
+                    V2<R> dv = vB + cross(wB, p.rB) - vA - cross(wA, p.rA);
+                    R vt = dot(dv, tangent) - R(0);
+                    R lambda = p.tangent_mass * (-vt);
+                    if (Relax) lambda = w * lambda;
+                    R max_friction = m.friction * p.normal_impulse;
+                    R new_impulse = clamp_box2d(p.tangent_impulse + lambda, -max_friction, max_friction);
+                    lambda = new_impulse - p.tangent_impulse;
+                    p.tangent_impulse = new_impulse;
+                    V2<R> P = lambda * tangent;
+                    vA = vA - mA * P;
+                    wA -= iA * cross(p.rA, P);
+                    vB = vB + mB * P;
+                    wB += iB * cross(p.rB, P);
+                }
+            }
+
+            if (m.count == 1 || !m.block) {
+                for (int j = 0; j < m.count; ++j) {
+                    auto& p = m.p[j];
+                    V2<R> dv = vB + cross(wB, p.rB) - vA - cross(wA, p.rA);
+                    R vn = dot(dv, normal);
+                    R lambda = -p.normal_mass * (vn - p.bias);
+                    if (Relax) lambda = w * lambda;
+                    R sum = p.normal_impulse + lambda;
+                    R new_impulse = sum > R(0) ? sum : R(0);
+                    lambda = new_impulse - p.normal_impulse;
+                    p.normal_impulse = new_impulse;
+                    V2<R> P = lambda * normal;
+                    vA = vA - mA * P;
+                    wA -= iA * cross(p.rA, P);
+                    vB = vB + mB * P;
+                    wB += iB * cross(p.rB, P);
+                }
+            } else {
+                block_solve<Relax>(m, vA, wA, vB, wB, w);
+            }
+            A = {vA, wA};
+            B = {vB, wB};
+        }
+    }
+
+    // The 2x2 total-enumeration block solver of Box2D (cases 1-4, first valid one wins).
+    template <bool Relax>
+    void block_solve(ContactManifold<R>& m, V2<R>& vA, R& wA, V2<R>& vB, R& wB, R w) {
+        auto& cp1 = m.p[0];
+        auto& cp2 = m.p[1];
+        const R mA = m.mA, mB = m.mB, iA = m.iA, iB = m.iB;
+        const V2<R> normal = m.normal;
+        const V2<R> a{cp1.normal_impulse, cp2.normal_impulse};
+        V2<R> dv1 = vB + cross(wB, cp1.rB) - vA - cross(wA, cp1.rA);
+        V2<R> dv2 = vB + cross(wB, cp2.rB) - vA - cross(wA, cp2.rA);
+        R vn1 = dot(dv1, normal);
+        R vn2 = dot(dv2, normal);
+        V2<R> b{vn1 - cp1.bias, vn2 - cp2.bias};
+        b = b - mul(m.K, a);
+
+        auto apply = [&](V2<R> x) {
+            if (Relax) {  // over-relax the exact 2x2 answer, then keep it feasible
+                x = a + w * (x - a);
+                x.x = x.x > R(0) ? x.x : R(0);
+                x.y = x.y > R(0) ? x.y : R(0);
+            }
+            V2<R> d = x - a;
+            V2<R> P1 = d.x * normal;
+            V2<R> P2 = d.y * normal;
+            vA = vA - mA * (P1 + P2);
+            wA -= iA * (cross(cp1.rA, P1) + cross(cp2.rA, P2));
+            vB = vB + mB * (P1 + P2);
+            wB += iB * (cross(cp1.rB, P1) + cross(cp2.rB, P2));
+            cp1.normal_impulse = x.x;
+            cp2.normal_impulse = x.y;
+        };
+
+        // Case 1: vn = 0
+        V2<R> x = -mul(m.normal_mass, b);
+        if (x.x >= R(0) && x.y >= R(0)) return apply(x);
+        // Case 2: vn1 = 0, x2 = 0
+        x.x = -cp1.normal_mass * b.x;
+        x.y = R(0);
+        vn2 = m.K.ex.y * x.x + b.y;
+        if (x.x >= R(0) && vn2 >= R(0)) return apply(x);
+        // Case 3: vn2 = 0, x1 = 0
+        x.x = R(0);
+        x.y = -cp2.normal_mass * b.y;
+        vn1 = m.K.ey.x * x.y + b.x;
+        if (x.y >= R(0) && vn1 >= R(0)) return apply(x);
+        // Case 4: x = 0
+        x.x = R(0);
+        x.y = R(0);
+        vn1 = b.x;
+        vn2 = b.y;
+        if (vn1 >= R(0) && vn2 >= R(0)) return apply(x);
+        // No solution: Box2D leaves the impulses as they are.
+    }
+
+    void save_impulses() {
+        saved_.resize(2 * pb_.points);
+        for (const auto& m : pb_.manifolds)
+            for (int j = 0; j < m.count; ++j) {
+                saved_[2 * (m.first + j)] = m.p[j].normal_impulse;
+                saved_[2 * (m.first + j) + 1] = m.p[j].tangent_impulse;
+            }
+    }
+
+    // thesis: max over points of |(dn, dt)|; velocity: max over rows of |d lambda| k.
+    void sweep_change(double& thesis, double& velocity) const {
+        for (const auto& m : pb_.manifolds)
+            for (int j = 0; j < m.count; ++j) {
+                const auto& p = m.p[j];
+                const double dn = double(p.normal_impulse) - double(saved_[2 * (m.first + j)]);
+                const double dt = double(p.tangent_impulse) - double(saved_[2 * (m.first + j) + 1]);
+                thesis = std::max(thesis, std::sqrt(dn * dn + dt * dt));
+                velocity = std::max(velocity, std::max(std::abs(dn) * double(p.k_normal),
+                                                       std::abs(dt) * double(p.k_tangent)));
+            }
+    }
+
+    ContactProblem<R>& pb_;
+    std::vector<R> saved_;
+    double scale_ = 1.0;
+};
+
+}  // namespace dc

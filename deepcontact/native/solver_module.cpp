@@ -1,0 +1,172 @@
+// Python entry point of the contact solver: arrays in, impulses and convergence history out.
+#include <pybind11/stl.h>
+
+#include <string>
+
+#include "contact_problem.hpp"
+#include "pgs.hpp"
+#include "pyarrays.hpp"
+
+namespace dc {
+namespace {
+
+BodyColumns body_columns(const py::dict& d) {
+    BodyColumns c;
+    size_t n = static_cast<size_t>(-1);
+    c.center = column<float>(d, "center", n, 2);
+    c.angle = column<float>(d, "angle", n);
+    c.local_center = column<float>(d, "local_center", n, 2);
+    c.velocity = column<float>(d, "velocity", n, 2);
+    c.omega = column<float>(d, "omega", n);
+    c.mass = column<float>(d, "mass", n);
+    c.inv_mass = column<float>(d, "inv_mass", n);
+    c.inv_inertia = column<float>(d, "inv_inertia", n);
+    c.gravity_scale = column<float>(d, "gravity_scale", n);
+    c.linear_damping = column<float>(d, "linear_damping", n);
+    c.angular_damping = column<float>(d, "angular_damping", n);
+    c.type = column<int8_t>(d, "type", n);
+    c.n = n;
+    return c;
+}
+
+ContactColumns contact_columns(const py::dict& d) {
+    ContactColumns c;
+    size_t n = static_cast<size_t>(-1);
+    c.manifold = column<int32_t>(d, "manifold", n);
+    c.row_a = column<int32_t>(d, "row_a", n);
+    c.row_b = column<int32_t>(d, "row_b", n);
+    c.point = column<int8_t>(d, "point", n);
+    c.point_count = column<int8_t>(d, "point_count", n);
+    c.manifold_type = column<int8_t>(d, "manifold_type", n);
+    c.local_normal = column<float>(d, "local_normal", n, 2);
+    c.local_point = column<float>(d, "local_point", n, 2);
+    c.point_local = column<float>(d, "point_local", n, 2);
+    c.radius_a = column<float>(d, "radius_a", n);
+    c.radius_b = column<float>(d, "radius_b", n);
+    c.friction = column<float>(d, "friction", n);
+    c.restitution = column<float>(d, "restitution", n);
+    c.restitution_threshold = column<float>(d, "restitution_threshold", n);
+    c.n = n;
+    return c;
+}
+
+Measure parse_measure(const std::string& s) {
+    if (s == "none") return Measure::none;
+    if (s == "thesis") return Measure::thesis;
+    if (s == "velocity") return Measure::velocity;
+    if (s == "residual") return Measure::residual;
+    throw py::value_error("measure must be one of none, thesis, velocity, residual; got '" + s + "'");
+}
+
+py::dict stats_dict(const ProblemStats& s) {
+    py::dict d;
+    d["manifolds"] = s.manifolds;
+    d["points"] = s.points;
+    d["normal_rows"] = s.normal_rows;
+    d["tangent_rows"] = s.tangent_rows;
+    d["block_manifolds"] = s.block_manifolds;
+    d["dropped_points"] = s.dropped_points;
+    d["angular_manifolds"] = s.angular_manifolds;
+    d["bias_rows"] = s.bias_rows;
+    return d;
+}
+
+template <class R>
+py::dict run(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st, const double* sn,
+             const double* stt, const SolveOptions& opt) {
+    ContactProblem<R> pb;
+    SolveReport rep;
+    {
+        py::gil_scoped_release release;
+        pb = assemble<R>(bc, cc, st);
+        PGS<R> pgs(pb);
+        rep = pgs.solve(sn, stt, opt);
+    }
+    const size_t n = cc.n;
+    py::array_t<R> normal(static_cast<py::ssize_t>(n)), tangent(static_cast<py::ssize_t>(n));
+    auto nm = normal.template mutable_unchecked<1>();
+    auto tm = tangent.template mutable_unchecked<1>();
+    for (const auto& m : pb.manifolds)
+        for (int j = 0; j < m.given; ++j) {
+            nm(m.first + j) = m.p[j].normal_impulse;
+            tm(m.first + j) = m.p[j].tangent_impulse;
+        }
+    py::array_t<R> velocity({static_cast<py::ssize_t>(bc.n), py::ssize_t(2)}), omega(static_cast<py::ssize_t>(bc.n));
+    auto vm = velocity.template mutable_unchecked<2>();
+    auto wm = omega.template mutable_unchecked<1>();
+    for (size_t i = 0; i < bc.n; ++i) {
+        vm(i, 0) = pb.velocity[i].v.x;
+        vm(i, 1) = pb.velocity[i].v.y;
+        wm(i) = pb.velocity[i].w;
+    }
+    const py::ssize_t k = static_cast<py::ssize_t>(rep.history.size() / 3);
+    py::array_t<double> history({k, py::ssize_t(3)});
+    std::copy(rep.history.begin(), rep.history.end(), history.mutable_data());
+    py::dict out;
+    out["normal_impulse"] = normal;
+    out["tangent_impulse"] = tangent;
+    out["velocity"] = velocity;
+    out["omega"] = omega;
+    out["iterations"] = rep.iterations;
+    out["history"] = history;
+    out["residual"] = rep.residual;
+    out["thesis"] = rep.thesis;
+    out["velocity_change"] = rep.velocity;
+    py::dict san;
+    san["nonfinite"] = rep.sanitized.nonfinite;
+    san["negative"] = rep.sanitized.negative;
+    san["implausible"] = rep.sanitized.implausible;
+    san["cone"] = rep.sanitized.cone;
+    out["sanitized"] = san;
+    out["stats"] = stats_dict(pb.stats);
+    return out;
+}
+
+}  // namespace
+
+void bind_solver(py::module_& m) {
+    m.def(
+        "solve_contacts",
+        [](const py::dict& bodies, const py::dict& contacts,
+           py::array_t<double, py::array::c_style | py::array::forcecast> start_normal,
+           py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent, float dt,
+           std::pair<float, float> gravity, bool block_solve, bool prune, const std::string& precision,
+           int max_iterations, double tolerance, const std::string& stop_on, double relaxation, bool history,
+           bool sanitize, double max_velocity, bool final_residual) {
+            BodyColumns bc = body_columns(bodies);
+            ContactColumns cc = contact_columns(contacts);
+            if (static_cast<size_t>(start_normal.size()) != cc.n || static_cast<size_t>(start_tangent.size()) != cc.n ||
+                start_normal.ndim() != 1 || start_tangent.ndim() != 1)
+                throw py::value_error("start impulses must have one value per contact point (" +
+                                      std::to_string(cc.n) + ")");
+            if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
+            if (max_iterations < 0) throw py::value_error("max_iterations must be >= 0");
+            if (!(relaxation > 0.0 && relaxation < 2.0)) throw py::value_error("relaxation must be in (0, 2)");
+            StepSettings st;
+            st.dt = dt;
+            st.gravity[0] = gravity.first;
+            st.gravity[1] = gravity.second;
+            st.block_solve = block_solve;
+            st.prune = prune;
+            SolveOptions opt;
+            opt.max_iterations = max_iterations;
+            opt.tolerance = tolerance;
+            opt.stop_on = parse_measure(stop_on);
+            opt.relaxation = relaxation;
+            opt.history = history;
+            opt.sanitize = sanitize;
+            opt.max_velocity = max_velocity;
+            opt.final_residual = final_residual;
+            if (precision == "float32") return run<float>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
+            if (precision == "float64") return run<double>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
+            throw py::value_error("precision must be float32 or float64");
+        },
+        py::arg("bodies"), py::arg("contacts"), py::arg("start_normal"), py::arg("start_tangent"), py::kw_only(),
+        py::arg("dt"), py::arg("gravity"), py::arg("block_solve") = true, py::arg("prune") = true,
+        py::arg("precision") = "float32", py::arg("max_iterations") = 8, py::arg("tolerance") = 0.0,
+        py::arg("stop_on") = "none", py::arg("relaxation") = 1.0, py::arg("history") = false,
+        py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("final_residual") = true,
+        "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
+}
+
+}  // namespace dc

@@ -1,0 +1,59 @@
+"""One step's contact problem, from a recorded step file or from a live world.
+
+It holds exactly what Box2D's velocity solver starts from: the bodies at the start of the step
+(before gravity), every contact point in island order with its local manifold, and the
+solver's settings (dt, gravity, block solver). deepcontact._box2d.solve_contacts assembles the
+rows from it (lever arms, effective masses, restitution bias, 2x2 blocks) and solves.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+BODY_KEYS = ("center", "angle", "local_center", "velocity", "omega", "mass", "inv_mass", "inv_inertia",
+             "gravity_scale", "linear_damping", "angular_damping", "type")
+CONTACT_KEYS = ("manifold", "point", "point_count", "manifold_type", "local_normal", "local_point",
+                "point_local", "radius_a", "radius_b", "friction", "restitution", "restitution_threshold")
+
+
+@dataclass
+class StepProblem:
+    bodies: dict                 # the columns BODY_KEYS, one row per body
+    contacts: dict               # the columns CONTACT_KEYS plus row_a, row_b, one row per point
+    dt: float
+    gravity: tuple
+    block_solve: bool = True
+    velocity_iterations: int = 8
+    start_normal: np.ndarray = None      # Box2D's first iterate (its warm start)
+    start_tangent: np.ndarray = None
+    normal_impulse: np.ndarray = None    # what Box2D produced, when known
+    tangent_impulse: np.ndarray = None
+    keys: np.ndarray = field(default=None, repr=False)   # (fixture_a, child_a, fixture_b, child_b, id)
+    index: int = 0
+
+    @property
+    def points(self):
+        return len(self.contacts["manifold"])
+
+    @classmethod
+    def from_arrays(cls, bodies, contacts, *, dt, gravity, block_solve=True, velocity_iterations=8, index=0):
+        """From the arrays of World.step(record=True) or of step.reader.read_step."""
+        row = {int(i): r for r, i in enumerate(bodies["index"])}
+        c = {k: np.ascontiguousarray(contacts[k]) for k in CONTACT_KEYS}
+        c["row_a"] = np.array([row[int(i)] for i in contacts["body_a"]], dtype=np.int32)
+        c["row_b"] = np.array([row[int(i)] for i in contacts["body_b"]], dtype=np.int32)
+        b = {k: np.ascontiguousarray(bodies[k]) for k in BODY_KEYS}
+        keys = np.stack([contacts["fixture_a"], contacts["child_a"], contacts["fixture_b"], contacts["child_b"],
+                         contacts["id_key"].astype(np.int64)], axis=1).astype(np.int64)
+        return cls(bodies=b, contacts=c, dt=float(np.float32(dt)), gravity=tuple(float(g) for g in gravity),
+                   block_solve=bool(block_solve), velocity_iterations=int(velocity_iterations),
+                   start_normal=contacts["start_normal_impulse"], start_tangent=contacts["start_tangent_impulse"],
+                   normal_impulse=contacts["normal_impulse"], tangent_impulse=contacts["tangent_impulse"],
+                   keys=keys, index=index)
+
+    @classmethod
+    def from_step_file(cls, path):
+        from ..step.reader import read_step
+        header, bodies, contacts = read_step(path)
+        return cls.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
+                               block_solve=header["solver"]["block_solve"] == "true",
+                               velocity_iterations=header["velocity_iterations"], index=header["index"])
