@@ -1,0 +1,200 @@
+"""The project's PGS: Box2D-exact, checked against a slow Python reference, honest measures."""
+import numpy as np
+import pytest
+
+from deepcontact.scene.generators import generate
+from deepcontact.scene.xml import read_scene
+from deepcontact.simulate.build import build_world
+from deepcontact.solver import lcp as L
+from deepcontact.solver.pgs import solve
+from deepcontact.solver.problem import StepProblem
+from pathlib import Path
+
+SCENES = Path(__file__).parent.parent / "datasets" / "scenes"
+
+
+def scenes():
+    return {
+        "pile": generate("pile", 0, dict(count=30, box=16.0, sigma=4.0)),
+        "boxes-and-circles": read_scene(SCENES / "boxes-and-circles.xml"),
+        "bouncing": read_scene(SCENES / "bouncing.xml"),
+        "frictionless": generate("confined", 0, dict(count=64)),
+        "pyramid": generate("pyramid", 0, dict(base=6)),
+    }
+
+
+def recorded_steps(scene, steps=None, iterations=8, every=1):
+    """(problem, Box2D's contacts) for steps of a live world."""
+    world = build_world(scene)
+    out = []
+    for k in range(steps or scene.steps):
+        bodies, contacts = world.step(scene.dt, iterations, 3, record=True)
+        if len(contacts["manifold"]) and k % every == 0:
+            out.append((StepProblem.from_arrays(bodies, contacts, dt=scene.dt,
+                                                gravity=scene.effects.gravity or (0.0, 0.0),
+                                                block_solve=scene.solver.block_solve,
+                                                velocity_iterations=iterations), contacts))
+    return out
+
+
+@pytest.mark.parametrize("name", ["pile", "boxes-and-circles", "bouncing", "frictionless", "pyramid"])
+@pytest.mark.parametrize("iterations", [8, 100])
+def test_exact_mode_is_box2d_bit_for_bit(name, iterations):
+    scene = scenes()[name]
+    steps = recorded_steps(scene, steps=min(scene.steps, 200), iterations=iterations)
+    assert len(steps) > 20
+    for problem, c in steps:
+        s = solve(problem, mode="exact")
+        assert np.array_equal(s.normal_impulse, c["normal_impulse"]), problem.index
+        assert np.array_equal(s.tangent_impulse, c["tangent_impulse"]), problem.index
+
+
+def test_exact_mode_without_block_solver():
+    scene = read_scene(SCENES / "boxes-and-circles.xml")
+    scene.solver.block_solve = False
+    for problem, c in recorded_steps(scene, steps=120):
+        s = solve(problem, mode="exact")
+        assert np.array_equal(s.normal_impulse, c["normal_impulse"])
+
+
+def test_island_order_matters():
+    # Solving the same contacts in another order is a different (and not Box2D's) answer.
+    problem, c = recorded_steps(generate("pile", 0, dict(count=30, box=16.0, sigma=4.0)), steps=150)[-1]
+    order = np.argsort(problem.contacts["manifold"][::-1], kind="stable")[::-1]   # reverse manifolds
+    rev = {k: v[order] if hasattr(v, "shape") and len(v) == problem.points else v
+           for k, v in problem.contacts.items()}
+    rev["manifold"] = np.sort(problem.contacts["manifold"])[::-1].copy()
+    _, first = np.unique(rev["manifold"], return_index=True)
+    # rebuild consecutive point order within each manifold
+    idx = np.concatenate([np.nonzero(problem.contacts["manifold"] == m)[0]
+                          for m in problem.contacts["manifold"][::-1][np.sort(np.unique(
+                              problem.contacts["manifold"][::-1], return_index=True)[1])]])
+    shuffled = StepProblem(bodies=problem.bodies, contacts={k: np.ascontiguousarray(v[idx]) for k, v in
+                                                            problem.contacts.items()},
+                           dt=problem.dt, gravity=problem.gravity, start_normal=problem.start_normal[idx],
+                           start_tangent=problem.start_tangent[idx])
+    s = solve(shuffled, mode="exact")
+    assert not np.array_equal(s.normal_impulse, c["normal_impulse"][idx])
+
+
+@pytest.mark.parametrize("name", ["pile", "boxes-and-circles", "bouncing"])
+def test_native_float64_matches_the_python_reference(name):
+    scene = scenes()[name]
+    for problem, _ in recorded_steps(scene, steps=150, every=40)[-2:]:
+        problem.block_solve = False   # the textbook PGS has no 2x2 blocks
+        lcp = L.build_lcp(problem)
+        # the native solver projects starts onto the friction cone first (Box2D's own warm
+        # start can lie just outside it); give the reference the same start
+        n0 = problem.start_normal.astype(np.float64)
+        bound = problem.contacts["friction"].astype(np.float64) * n0
+        t0 = np.clip(problem.start_tangent.astype(np.float64), -bound, bound)
+        n, t = L.pgs(lcp, n0, t0, 25)
+        s = solve(problem, mode="float64", max_iterations=25)
+        scale = max(1.0, np.abs(n).max())
+        assert np.allclose(s.normal_impulse, n, rtol=0, atol=1e-9 * scale)
+        assert np.allclose(s.tangent_impulse, t, rtol=0, atol=1e-9 * scale)
+        # the same residual, normalised by the largest free velocity |b|
+        free = np.abs(lcp.b).max()
+        assert s.residual == pytest.approx(L.natural_residual(lcp, n, t) / free, rel=1e-6, abs=1e-12)
+
+
+def test_float64_differs_from_float32_only_by_rounding():
+    worst = 0.0
+    for problem, c in recorded_steps(scenes()["pile"], steps=150, every=30):
+        single = solve(problem, mode="float32")
+        double = solve(problem, mode="float64")
+        scale = max(1e-3, np.abs(single.normal_impulse).max())
+        worst = max(worst, np.abs(double.normal_impulse - single.normal_impulse).max() / scale)
+    assert 0 < worst < 1e-4
+
+
+def test_reference_solution_solves_the_lcp():
+    problem, _ = recorded_steps(scenes()["boxes-and-circles"], steps=150)[-1]
+    r = solve(problem, mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
+    assert r.residual < 1e-12 and r.iterations < 100_000
+    lcp = L.build_lcp(problem)
+    assert L.natural_residual(lcp, r.normal_impulse, r.tangent_impulse) < 1e-10
+    # complementarity and feasibility, in the LCP's own terms
+    lam = np.where(lcp.kind == 0, r.normal_impulse[lcp.point], r.tangent_impulse[lcp.point])
+    w = lcp.A @ lam + lcp.b
+    nrm = lcp.kind == 0
+    assert np.all(lam[nrm] >= 0) and np.all(w[nrm] > -1e-9)
+    assert np.abs(lam[nrm] * w[nrm]).max() < 1e-9
+
+
+def test_measures_are_what_the_readme_says():
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    k = 6
+    before = solve(problem, mode="float64", max_iterations=k)
+    after = solve(problem, mode="float64", max_iterations=k + 1, history=True)
+    dn = after.normal_impulse - before.normal_impulse
+    dt = after.tangent_impulse - before.tangent_impulse
+    assert after.history.shape == (k + 1, 3)
+    assert after.measure("thesis")[k] == pytest.approx(np.sqrt(dn ** 2 + dt ** 2).max(), rel=1e-12)
+    lcp = L.build_lcp(problem)
+    kn = np.zeros(problem.points)
+    kt = np.zeros(problem.points)
+    kn[lcp.point[lcp.kind == 0]] = np.diag(lcp.A)[lcp.kind == 0]
+    kt[lcp.point[lcp.kind == 1]] = np.diag(lcp.A)[lcp.kind == 1]
+    expected = max((np.abs(dn) * kn).max(), (np.abs(dt) * kt).max())
+    assert after.measure("velocity")[k] == pytest.approx(expected, rel=1e-6)
+    assert after.measure("residual")[k] == pytest.approx(after.residual, rel=1e-12)
+
+
+def test_tolerance_stops_early_and_the_cap_holds():
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    s = solve(problem, mode="float64", max_iterations=5000, tolerance=1e-4, stop_on="velocity", history=True)
+    assert s.iterations < 5000 and s.measure("velocity")[-1] < 1e-4 <= s.measure("velocity")[-2]
+    capped = solve(problem, mode="float64", max_iterations=3, tolerance=1e-14, stop_on="residual")
+    assert capped.iterations == 3
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -1.0, 1e30])
+def test_garbage_starts_are_sanitised_and_reported(bad):
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    n = np.full(problem.points, bad)
+    t = np.full(problem.points, bad)
+    s = solve(problem, n, t, mode="float32", max_iterations=200)
+    assert np.all(np.isfinite(s.normal_impulse)) and np.all(s.normal_impulse >= 0)
+    report = s.sanitized
+    assert sum(report.values()) >= problem.points
+    key = {True: "nonfinite"}.get(not np.isfinite(bad), "negative" if bad < 0 else "implausible")
+    assert report[key] == problem.points
+    zero = solve(problem, np.zeros(problem.points), np.zeros(problem.points), mode="float32", max_iterations=200)
+    assert np.array_equal(s.normal_impulse, zero.normal_impulse)
+
+
+def test_only_the_effects_a_scene_calls_for():
+    # frictionless: no tangent rows at all, and the answer equals the full problem's
+    problem, _ = recorded_steps(scenes()["frictionless"], steps=200)[-1]
+    lean = solve(problem, mode="float64", max_iterations=30)
+    full = solve(problem, mode="float64", max_iterations=30, prune=False)
+    assert lean.stats["tangent_rows"] == 0 and full.stats["tangent_rows"] == full.stats["normal_rows"] > 0
+    assert np.array_equal(lean.normal_impulse, full.normal_impulse)
+    assert not np.any(lean.tangent_impulse) and not np.any(full.tangent_impulse)
+    # no restitution declared: no bias rows; with restitution, some
+    pile, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    assert solve(pile, mode="float64").stats["bias_rows"] == 0
+    bouncing = [solve(p, mode="float64").stats["bias_rows"] for p, _ in recorded_steps(scenes()["bouncing"])]
+    assert max(bouncing) > 0
+    # no rotation: fixed-rotation bodies and edges only give linear manifolds
+    scene = generate("confined", 0, dict(count=16))
+    for b in scene.bodies:
+        b.fixed_rotation = True
+    problem, _ = recorded_steps(scene, steps=200)[-1]
+    assert solve(problem, mode="float64").stats["angular_manifolds"] == 0
+    assert solve(problem, mode="float64", prune=False).stats["angular_manifolds"] > 0
+
+
+def test_bad_problem_arrays_are_refused():
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    with pytest.raises(ValueError, match="one value per contact point"):
+        solve(problem, np.zeros(3), np.zeros(3))
+    broken = dict(problem.contacts, point=problem.contacts["point"][::-1].copy())
+    bad = StepProblem(bodies=problem.bodies, contacts=broken, dt=problem.dt, gravity=problem.gravity,
+                      start_normal=problem.start_normal, start_tangent=problem.start_tangent)
+    if (problem.contacts["point_count"] == 2).any():
+        with pytest.raises(ValueError, match="consecutive"):
+            solve(bad)
+    with pytest.raises(ValueError, match="relaxation"):
+        solve(problem, relaxation=2.5)
