@@ -27,6 +27,25 @@ def parse_shard(shard, seeds):
     return seeds[i::n]
 
 
+def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first_scene):
+    """LoopOptions for --solver pgs (None for box2d); pgs options without it are an error."""
+    given = {"--start": start, "--mode": mode, "--tolerance": tolerance, "--max-iterations": max_iterations,
+             "--stop-on": stop_on, "--relaxation": relaxation}
+    if solver == "box2d":
+        used = [k for k, v in given.items() if v is not None]
+        if used:
+            raise InputError(f"{', '.join(used)} only apply with --solver pgs")
+        return None
+    from deepcontact.simulate.pgs_loop import LoopOptions
+    mode = mode or "float64"
+    if mode == "exact" and relaxation not in (None, 1.0):
+        raise InputError("--mode exact is Box2D's PGS: it takes no --relaxation")
+    cap = max_iterations if max_iterations is not None else (
+        first_scene.solver.velocity_iterations if first_scene is not None else 8)
+    return LoopOptions(start=start or "builtin", mode=mode, max_iterations=cap, tolerance=tolerance or 0.0,
+                       stop_on=stop_on or "residual", relaxation=relaxation or 1.0)
+
+
 def parse_params(pairs):
     params = {}
     for pair in pairs:
@@ -51,12 +70,24 @@ def parse_params(pairs):
 @click.option("--write-scene", type=click.Path(dir_okay=False),
               help="Write the scene (for --seed) to this file and stop.")
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
+@click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
+              help="Box2D's own velocity solver, or the project's PGS in the loop.")
+@click.option("--start", type=click.Choice(["zero", "builtin"]), help="[pgs] First iterate (default builtin).")
+@click.option("--mode", type=click.Choice(["exact", "float32", "float64"]),
+              help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
+@click.option("--tolerance", type=click.FloatRange(min=0), help="[pgs] Stop when the measure falls below this.")
+@click.option("--max-iterations", type=click.IntRange(min=0), help="[pgs] Sweep cap (default: the scene's).")
+@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]),
+              help="[pgs] The measure the tolerance applies to (default residual).")
+@click.option("--relaxation", type=click.FloatRange(min=0, max=2, min_open=True, max_open=True),
+              help="[pgs] Over-relaxation w (PSOR; float64 mode).")
 @options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, write_scene,
-             list_generators, jobs, overwrite, verbose, quiet):
+             list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, jobs,
+             overwrite, verbose, quiet):
     """Simulate SCENE in Box2D and record every step as XML.
 
     SCENE is a scene file (schemas/scene.xsd) or a built-in generator: pile (the
@@ -72,6 +103,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
       dc simulate stack --param count=24 --iterations 30 -o runs/stack
       dc simulate pile --seed 3 --write-scene pile-3.xml
       dc simulate my-scene.xml --steps 100 -o runs/mine
+      dc simulate pile --solver pgs --start zero --tolerance 1e-4 --max-iterations 1000 -o runs/pgs
     """
     from deepcontact import atomic
     from deepcontact.scene.generators import GENERATORS, parameters
@@ -95,8 +127,10 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     if not out_dir:
         raise InputError("missing -o/--output OUTDIR")
     seed_list = parse_shard(shard, parse_seeds(seed, seeds))
+    loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation,
+                        source(seed_list[0]) if seed_list else None)
     bar = None if quiet else (lambda total: options.progress_bar(quiet, total, "step", f"simulate {scene}"))
     run(source, seed_list, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
-        progress=bar, source=scene)
+        progress=bar, source=scene, loop=loop)
     if not quiet:
         click.echo(f"{out_dir}", err=False)

@@ -81,6 +81,7 @@ std::string StepWriter::render(int64_t index, double time, float dt_ratio, const
     out += ">\n";
     out += header_;
     out += extra_header;
+    out += "  </header>\n";
 
     out += "  <bodies count=\"";
     append_int(out, static_cast<int64_t>(b.n));

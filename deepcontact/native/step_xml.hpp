@@ -35,7 +35,8 @@ struct ContactView {
 class StepWriter {
 public:
     // root_attributes: the attributes of <step> common to every step of a simulation;
-    // header: the <header> element; shapes[i]: the <shape> element of body i.
+    // header: the <header> element's opening and common lines (render adds the per-step
+    // extra_header and closes it); shapes[i]: the <shape> element of body i.
     StepWriter(std::string root_attributes, std::string header, std::vector<std::string> shapes,
                bool damping);
     // Raises std::domain_error naming the field if any value is NaN or infinite.

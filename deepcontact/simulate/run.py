@@ -20,12 +20,15 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .. import __version__, atomic
 from .._box2d import box2d_version
 from ..errors import InputError
 from ..scene.xml import fmt, to_xml
 from ..step.writer import step_filename, step_writer
 from .build import build_world, check_overlaps
+from .pgs_loop import PGSStepper, check_scene_for_loop
 
 log = logging.getLogger(__name__)
 
@@ -46,21 +49,37 @@ class SimulationResult:
     scene_sha256: str
 
 
-def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None) -> SimulationResult:
-    """Simulate one scene into out_dir (which must exist). on_step(k) is called after each step."""
+def _solve_xml(options, solution):
+    o = options
+    if solution is None:
+        iterations, residual, sanitized = 0, 0.0, 0
+    else:
+        iterations, residual = solution.iterations, solution.residual
+        sanitized = sum(solution.sanitized.values())
+    residual = residual if np.isfinite(residual) else 0.0
+    return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
+            f'max_iterations="{o.max_iterations}" relaxation="{fmt(o.relaxation)}" iterations="{iterations}" '
+            f'residual="{fmt(residual)}" sanitized="{sanitized}"/>\n')
+
+
+def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None) -> SimulationResult:
+    """Simulate one scene into out_dir (which must exist). on_step(k) is called after each step.
+
+    loop: LoopOptions to step with the project's PGS instead of Box2D's own solver."""
     out_dir = Path(out_dir)
     scene_xml = to_xml(scene)
     atomic.write_bytes(out_dir / "scene.xml", scene_xml)
     world = build_world(scene)
-    writer = step_writer(scene, seed)
+    writer = step_writer(scene, seed, "box2d" if loop is None else "pgs")
+    stepper = None if loop is None else PGSStepper(world, scene, loop)
     removals = {}
     for ev in scene.events:
         removals.setdefault(ev.step, []).append(ev.body)
     s = scene.solver
     files = points = 0
 
-    def write(k, dt_ratio, bodies, contacts):
-        xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts)
+    def write(k, dt_ratio, bodies, contacts, extra):
+        xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts, extra)
         atomic.write_bytes(out_dir / step_filename(k), xml)
 
     # Rendering and writing a step (GIL released in both) overlap with stepping the next one.
@@ -70,12 +89,19 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None) -
             for k in range(scene.steps):
                 for body in removals.get(k, ()):
                     world.remove_body(body)
-                bodies, contacts = world.step(scene.dt, s.velocity_iterations, s.position_iterations,
-                                              record=True)
+                if stepper is None:
+                    bodies, contacts = world.step(scene.dt, s.velocity_iterations, s.position_iterations,
+                                                  record=True)
+                    extra = ""
+                    dt_ratio = world.last_dt_ratio
+                else:
+                    bodies, contacts, solution = stepper.step()
+                    extra = _solve_xml(loop, solution)
+                    dt_ratio = 0.0 if k == 0 else 1.0
                 n = len(contacts["manifold"])
                 points += n
                 if n or not skip_contactless:
-                    pending.append(pool.submit(write, k, world.last_dt_ratio, bodies, contacts))
+                    pending.append(pool.submit(write, k, dt_ratio, bodies, contacts, extra))
                     files += 1
                 while pending and (len(pending) > 8 or pending[0].done()):
                     pending.popleft().result()   # re-raises a failed write here
@@ -119,13 +145,13 @@ def prepare_output(out_dir, seeds, overwrite):
 
 
 def _worker(args):
-    make_scene, seed, out_dir, skip = args
+    make_scene, seed, out_dir, skip, loop = args
     scene = make_scene(seed)
-    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip)
+    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop)
 
 
 def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, jobs=1, progress=None,
-        source=None):
+        source=None, loop=None):
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     progress(total_steps) makes a tqdm-like counter of steps (or progress is None).
@@ -136,11 +162,13 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
     # Build (and check) the first scene before touching the output folder.
     first = make_scene(seeds[0])
     check_overlaps(first, source)
+    if loop is not None:
+        check_scene_for_loop(first, source)
     out_dir = prepare_output(out_dir, seeds, overwrite)
     if progress is not None:
         progress = progress(first.steps * len(seeds))
     try:
-        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source)
+        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop)
     finally:
         if progress is not None:
             progress.close()
@@ -151,7 +179,8 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
         "source": source,
         "generator": first.generator,
         "params": first.params,
-        "solver": "box2d",
+        "solver": "box2d" if loop is None else "pgs",
+        "pgs": None if loop is None else dict(loop.__dict__),
         "velocity_iterations": first.solver.velocity_iterations,
         "position_iterations": first.solver.position_iterations,
         "dt": float(fmt(first.dt)),
@@ -165,7 +194,7 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
     return manifest
 
 
-def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source):
+def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop):
     results = []
     if jobs <= 1:
         for seed in seeds:
@@ -173,13 +202,14 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
             if seed != seeds[0]:
                 check_overlaps(scene, source)
             tick = (lambda k: progress.update(1)) if progress is not None else None
-            results.append(run_simulation(scene, out_dir / sim_dirname(seed), seed, skip_contactless, tick))
+            results.append(run_simulation(scene, out_dir / sim_dirname(seed), seed, skip_contactless, tick,
+                                          loop=loop))
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
         from concurrent.futures import ProcessPoolExecutor, as_completed  # 12 ms: only when used
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_worker, (make_scene, seed, str(out_dir), skip_contactless))
+            futures = [pool.submit(_worker, (make_scene, seed, str(out_dir), skip_contactless, loop))
                        for seed in seeds]
             for f in as_completed(futures):
                 r = f.result()

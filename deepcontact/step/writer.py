@@ -53,8 +53,8 @@ def header_xml(scene, solver="box2d"):
             f'block_solve="{_bool(s.block_solve)}" continuous="{_bool(e.continuous)}" '
             f'sleeping="{_bool(s.sleeping)}"/>\n'
             f"    <effects {effects}/>\n"
-            f'    <versions deepcontact="{__version__}" box2d="{box2d_version}"/>\n'
-            "  </header>\n")
+            f'    <versions deepcontact="{__version__}" box2d="{box2d_version}"/>\n')
+    # (the native writer closes <header> after any per-step lines, such as <solve>)
 
 
 def step_writer(scene, seed, solver="box2d") -> StepWriter:

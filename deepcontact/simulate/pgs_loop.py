@@ -1,0 +1,94 @@
+"""Stepping Box2D with the project's solver in the loop (NOTES §3):
+
+    Collide → gather the contacts → our PGS from a chosen start → write the impulses into the
+    manifold points → Step(dt, 0 velocity iterations, position iterations)
+
+With zero velocity iterations Box2D's warm start applies exactly the impulses written (its
+second Collide keeps them, matched by feature id), so the step moves with our answer. This needs
+continuous collision and sleeping off (time-of-impact sub-steps and sleeping islands are solved
+or skipped inside Box2D), and Box2D's warm-start scale dtRatio held at exactly 1.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..solver.pgs import solve
+from ..solver.problem import StepProblem
+
+STARTS = ("zero", "builtin")
+
+
+@dataclass
+class LoopOptions:
+    start: str = "builtin"
+    mode: str = "float64"
+    max_iterations: int = 8
+    tolerance: float = 0.0
+    stop_on: str = "residual"
+    relaxation: float = 1.0
+
+
+def unit_dt_ratio_inv(dt) -> np.float32:
+    """A float32 x with float32(x * dt) == 1 exactly, so Box2D applies written impulses as they are."""
+    dt = np.float32(dt)
+    x = np.float32(1.0) / dt
+    for candidate in (x, np.nextafter(x, np.float32(np.inf)), np.nextafter(x, np.float32(0))):
+        if np.float32(candidate * dt) == np.float32(1.0):
+            return np.float32(candidate)
+    raise InputError(f"dt = {dt} has no float32 inverse with dt * inverse == 1; choose another dt")
+
+
+def check_scene_for_loop(scene, source=None):
+    if scene.effects.continuous:
+        raise InputError("--solver pgs cannot run a scene with continuous collision: Box2D solves its "
+                         "time-of-impact sub-steps internally", source)
+    if scene.solver.sleeping:
+        raise InputError("--solver pgs needs sleeping off: Box2D skips the contacts of sleeping islands",
+                         source)
+
+
+class PGSStepper:
+    """Steps a world with the project's PGS; step() returns what the step file records."""
+
+    def __init__(self, world, scene, options: LoopOptions):
+        if options.start not in STARTS:
+            raise InputError(f"unknown start {options.start!r}; choose from {', '.join(STARTS)}")
+        check_scene_for_loop(scene)
+        self.world, self.scene, self.options = world, scene, options
+        self.gravity = scene.effects.gravity or (0.0, 0.0)
+        self.inv_dt = unit_dt_ratio_inv(scene.dt)
+        self.first = True
+        world.find_new_contacts()   # Step would do this itself, after our Collide
+
+    def step(self):
+        world, scene, o = self.world, self.scene, self.options
+        bodies = world.bodies()
+        world.collide()
+        contacts = world.contacts()
+        # Box2D's own warm start: the impulses carried over by feature id, times dtRatio (0 on
+        # the first step, when nothing was carried).
+        ratio = np.float32(0.0 if self.first else 1.0)
+        builtin_n = ratio * contacts["normal_impulse"]
+        builtin_t = ratio * contacts["tangent_impulse"]
+        if o.start == "builtin":
+            start_n, start_t = builtin_n, builtin_t
+        else:
+            start_n = np.zeros_like(builtin_n)
+            start_t = np.zeros_like(builtin_t)
+        solution = None
+        if len(contacts["manifold"]):
+            problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
+                                              block_solve=scene.solver.block_solve,
+                                              velocity_iterations=o.max_iterations)
+            solution = solve(problem, start_n, start_t, mode=o.mode, max_iterations=o.max_iterations,
+                             tolerance=o.tolerance, stop_on=o.stop_on, relaxation=o.relaxation)
+            world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
+                                        solution.tangent_impulse.astype(np.float32))
+        world.inv_dt0 = self.inv_dt
+        self.first = False
+        before, recorded = world.step(scene.dt, 0, scene.solver.position_iterations, record=True)
+        # What Box2D applied is what we wrote; record our start as the step's start.
+        recorded["start_normal_impulse"] = start_n.astype(np.float32)
+        recorded["start_tangent_impulse"] = start_t.astype(np.float32)
+        return before, recorded, solution
