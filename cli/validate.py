@@ -21,9 +21,12 @@ def xml_files(paths):
 
 @click.command()
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
+@click.option("--replay", is_flag=True,
+              help="PATHS are run folders: re-solve every step with the project's Box2D-exact PGS "
+                   "and compare with the impulses Box2D produced (exit 1 unless identical).")
 @options.verbosity
 @options.command("validate")
-def validate(paths, verbose, quiet):
+def validate(paths, replay, verbose, quiet):
     """Check step and scene files against the XSD schemas in schemas/.
 
     Folders are searched for *.xml files. Every error is printed as
@@ -31,12 +34,20 @@ def validate(paths, verbose, quiet):
     Scene files are also checked for what the schema cannot see (convex
     polygons, effects used but not declared, overlapping bodies, ...).
 
+    With --replay, each PATH is a run folder from `dc simulate`: every step is
+    solved again from its recorded start, with its recorded iteration count, by
+    the project's PGS in Box2D-exact mode; the largest difference to Box2D's
+    impulses must be 0.
+
     \b
     Examples:
       dc validate runs/pile
       dc validate runs/pile/seed-000000/step-000042.xml
       dc validate my-scene.xml
+      dc validate --replay runs/pile
     """
+    if replay:
+        return replay_runs(paths, quiet)
     from deepcontact import schema
     from deepcontact.scene.xml import read_scene
     from deepcontact.simulate.build import check_overlaps
@@ -62,3 +73,19 @@ def validate(paths, verbose, quiet):
     if not quiet:
         click.echo(f"{len(files)} files checked, {invalid} invalid", err=True)
     sys.exit(1 if invalid else 0)
+
+
+def replay_runs(paths, quiet):
+    from deepcontact.solver.replay import replay_run, step_files
+
+    failed = False
+    for run_dir in paths:
+        bar = options.progress_bar(quiet, len(step_files(run_dir)), "step", f"replay {run_dir}")
+        report = replay_run(run_dir, on_file=(lambda _: bar.update(1)) if bar is not None else None)
+        if bar is not None:
+            bar.close()
+        verdict = "exact" if report.exact else f"NOT exact in {report.inexact_steps} steps (worst: {report.worst})"
+        click.echo(f"{run_dir}: {report.steps} steps, {report.points} contact points replayed; "
+                   f"largest difference {report.max_difference:.9g}: {verdict}")
+        failed |= not report.exact
+    sys.exit(1 if failed else 0)

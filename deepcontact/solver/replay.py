@@ -1,0 +1,68 @@
+"""Replay fidelity: re-solve every recorded step in Box2D-exact mode from the recorded start with
+the recorded iteration count, and compare with the impulses Box2D produced."""
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .pgs import solve
+from .problem import StepProblem
+
+
+@dataclass
+class ReplayReport:
+    run: str
+    steps: int = 0
+    points: int = 0
+    max_difference: float = 0.0
+    inexact_steps: int = 0
+    worst: str = None
+    skipped: list = field(default_factory=list)
+
+    @property
+    def exact(self):
+        return self.max_difference == 0.0
+
+
+def step_files(run_dir):
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError("not a run folder", run_dir)
+    manifest = run_dir / "manifest.json"
+    if manifest.exists():
+        try:
+            sims = [run_dir / s["dir"] for s in json.loads(manifest.read_text())["simulations"]]
+        except (ValueError, KeyError) as e:
+            raise InputError(f"unreadable manifest: {e}", manifest) from None
+        if json.loads(manifest.read_text()).get("solver", "box2d") != "box2d":
+            raise InputError("--replay checks runs stepped by Box2D's own solver; this run used "
+                             "--solver pgs", manifest)
+    else:
+        sims = sorted(p for p in run_dir.glob("seed-*") if p.is_dir())
+    files = [f for sim in sims for f in sorted(sim.glob("step-*.xml"))]
+    if not files:
+        raise InputError("no step files found (expected seed-*/step-*.xml)", run_dir)
+    return files
+
+
+def replay_run(run_dir, on_file=None) -> ReplayReport:
+    report = ReplayReport(run=str(run_dir))
+    for path in step_files(run_dir):
+        problem = StepProblem.from_step_file(path)
+        if on_file is not None:
+            on_file(path)
+        if problem.points == 0:
+            continue
+        s = solve(problem, mode="exact", final_residual=False)
+        d = max(float(np.max(np.abs(s.normal_impulse - problem.normal_impulse))),
+                float(np.max(np.abs(s.tangent_impulse - problem.tangent_impulse))))
+        report.steps += 1
+        report.points += problem.points
+        if d > 0:
+            report.inexact_steps += 1
+        if d > report.max_difference or report.worst is None:
+            report.max_difference = max(report.max_difference, d)
+            report.worst = str(path)
+    return report
