@@ -72,7 +72,8 @@ def parse_params(pairs):
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
 @click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
               help="Box2D's own velocity solver, or the project's PGS in the loop.")
-@click.option("--start", type=click.Choice(["zero", "builtin"]), help="[pgs] First iterate (default builtin).")
+@click.option("--start", type=click.Choice(["zero", "builtin", "garbage"]),
+              help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
 @click.option("--mode", type=click.Choice(["exact", "float32", "float64"]),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
 @click.option("--tolerance", type=click.FloatRange(min=0), help="[pgs] Stop when the measure falls below this.")

@@ -121,19 +121,19 @@ def card_house(seed, levels=3, length=1.0, thickness=0.004, tilt=15.0, density=1
     card = _box(t, a, density)
     flat = _box(a, t, density)
     bodies = [_ground()]
-    base_y = 0.0
+    base_y = REST_GAP                       # every resting pair of surfaces starts REST_GAP apart
     for level in range(levels):
         n = levels - level
         apexes = [(j - (n - 1) / 2) * spacing for j in range(n)]
         cy = base_y + a * math.cos(phi) + t * math.sin(phi)
-        dx = a * math.sin(phi) + t * math.cos(phi)
+        dx = a * math.sin(phi) + t * math.cos(phi) + REST_GAP / (2 * math.cos(phi))
         for xa in apexes:
             bodies.append(_dynamic(xa - dx, cy, card, angle=-phi))   # leaning right
             bodies.append(_dynamic(xa + dx, cy, card, angle=phi))    # leaning left
         top = base_y + 2 * a * math.cos(phi) + 2 * t * math.sin(phi)
         for left, right in zip(apexes, apexes[1:]):
-            bodies.append(_dynamic((left + right) / 2, top + t, flat))
-        base_y = top + 2 * t
+            bodies.append(_dynamic((left + right) / 2, top + REST_GAP + t, flat))
+        base_y = top + REST_GAP + 2 * t + REST_GAP
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies)
 
 
@@ -142,17 +142,25 @@ def arch(seed, blocks=9, inner=4.0, thickness=1.0, density=1.0, friction=0.6, gr
     """A semicircular arch of `blocks` voussoirs standing on the ground, held by friction."""
     bodies = [_ground()]
     outer = inner + thickness
+
+    def face(theta, side):
+        # a radial face, moved REST_GAP / 2 off the joint so neighbours start at resting distance
+        u = np.array([math.cos(theta), math.sin(theta)])
+        off = side * (REST_GAP / 2) * np.array([-math.sin(theta), math.cos(theta)])
+        lift = np.array([0.0, REST_GAP / 2])
+        return inner * u + off + lift, outer * u + off + lift
+
     for i in range(blocks):
         t0, t1 = math.pi * i / blocks, math.pi * (i + 1) / blocks
-        pts = np.array([(inner * math.cos(t0), inner * math.sin(t0)), (outer * math.cos(t0), outer * math.sin(t0)),
-                        (outer * math.cos(t1), outer * math.sin(t1)), (inner * math.cos(t1), inner * math.sin(t1))])
+        (i0, o0), (i1, o1) = face(t0, +1), face(t1, -1)
+        pts = np.array([i0, o0, o1, i1])
         centre = pts.mean(axis=0)
         local = tuple((f32(x), f32(y)) for x, y in pts - centre)
         bodies.append(_dynamic(centre[0], centre[1], Polygon(vertices=local, density=f32(density))))
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies)
 
 
-def confined(seed, count=625, radius=0.5, spacing=1.25, speed=2.0, density=1.0, friction=0.0,
+def confined(seed, count=625, radius=0.5, spacing=1.25, speed=1.0, density=1.0, friction=0.0,
              dt=1 / 60, steps=600):
     """`count` circles in a closed box without gravity, started with random velocities."""
     rng = np.random.default_rng(seed)

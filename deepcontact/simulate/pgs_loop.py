@@ -16,7 +16,9 @@ from ..errors import InputError
 from ..solver.pgs import solve
 from ..solver.problem import StepProblem
 
-STARTS = ("zero", "builtin")
+STARTS = ("zero", "builtin", "garbage")
+# A deliberately broken start, for stability tests: huge, not a number, negative, in turn.
+GARBAGE = np.array([1e30, np.nan, -1.0])
 
 
 @dataclass
@@ -73,6 +75,9 @@ class PGSStepper:
         builtin_t = ratio * contacts["tangent_impulse"]
         if o.start == "builtin":
             start_n, start_t = builtin_n, builtin_t
+        elif o.start == "garbage":
+            start_n = np.resize(GARBAGE, len(builtin_n))
+            start_t = np.roll(start_n, 1)
         else:
             start_n = np.zeros_like(builtin_n)
             start_t = np.zeros_like(builtin_t)
@@ -89,6 +94,8 @@ class PGSStepper:
         self.first = False
         before, recorded = world.step(scene.dt, 0, scene.solver.position_iterations, record=True)
         # What Box2D applied is what we wrote; record our start as the step's start.
-        recorded["start_normal_impulse"] = start_n.astype(np.float32)
-        recorded["start_tangent_impulse"] = start_t.astype(np.float32)
+        # (a garbage start is recorded as sanitised: no NaN ever reaches a file)
+        used_n, used_t = (start_n, start_t) if o.start != "garbage" else (np.zeros_like(builtin_n),) * 2
+        recorded["start_normal_impulse"] = used_n.astype(np.float32)
+        recorded["start_tangent_impulse"] = used_t.astype(np.float32)
         return before, recorded, solution

@@ -1,0 +1,63 @@
+"""The hard scenes stay numerically stable under Box2D's solver and ours (fast variants here;
+`pytest -m slow` runs the full sizes). A case that fails at the default iteration count is
+rerun with more iterations until it passes: the count is recorded, the criteria never loosened."""
+import math
+
+import pytest
+
+from deepcontact.solver import stability as S
+
+
+@pytest.fixture(scope="module")
+def fast_study():
+    return {(d.case, d.solver, d.start): (d, f) for d, f in S.study(S.FAST)}
+
+
+def test_every_hard_scene_passes_at_a_recorded_iteration_count(fast_study):
+    assert len(fast_study) == len(S.FAST) * len(S.CONFIGS) - 3   # the bullet needs Box2D's own solver
+    for key, (default, found) in fast_study.items():
+        assert found.passed, (key, found)
+        assert found.finite and found.penetration <= S.PENETRATION_LIMIT
+        assert found.energy_rise <= found.energy_allowed
+        assert found.iterations >= default.iterations == 8
+
+
+def test_box2d_at_its_default_count(fast_study):
+    passes = {case for (case, solver, _), (d, _) in fast_study.items() if solver == "box2d" and d.passed}
+    assert {"pyramid 6", "card house 2", "arch 5", "confined 64", "bullet"} <= passes
+    # Known Box2D weaknesses at 8 iterations, passing with more: large mass ratios sink, and the
+    # heavy top's overlap, pushed out after its removal, lifts the rest.
+    for case in ("mass ratio 100:1", "mass ratio 400:1", "warm-start energy"):
+        default, found = fast_study[(case, "box2d", "builtin")]
+        assert not default.passed and found.passed and found.iterations > 8
+
+
+def test_our_solver_from_box2d_warm_start_behaves_like_box2d(fast_study):
+    for (case, solver, start), (default, found) in fast_study.items():
+        if solver == "pgs" and start == "builtin":
+            theirs = fast_study[(case, "box2d", "builtin")][1]
+            assert found.iterations == theirs.iterations
+            assert found.penetration == pytest.approx(theirs.penetration, abs=2e-4)
+
+
+def test_garbage_starts_are_harmless(fast_study):
+    for (case, solver, start), (default, found) in fast_study.items():
+        if start == "garbage":
+            zero = fast_study[(case, "pgs", "zero")][1]
+            assert found.sanitized > 0 and found.finite
+            assert found.iterations == zero.iterations
+            assert found.penetration == zero.penetration
+
+
+def test_penetration_is_measured_at_rest_and_peaks_reported(fast_study):
+    bullet = fast_study[("bullet", "box2d", "builtin")][1]
+    assert bullet.peak_penetration > 0.1 > bullet.penetration     # the impact, then rest
+    stack = fast_study[("stack 8", "box2d", "builtin")][1]
+    assert not math.isnan(stack.top_drift) and stack.top_drift < S.TOP_DRIFT_LIMIT
+
+
+@pytest.mark.slow
+def test_full_size_hard_scenes():
+    rows = S.study(S.FULL)
+    failed = [f for _, f in rows if not f.passed]
+    assert not failed, [S.format_row(d, f) for d, f in rows if not f.passed]
