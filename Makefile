@@ -7,7 +7,7 @@ STAMPS := .stamps
 NATIVE := $(wildcard deepcontact/native/*.cpp deepcontact/native/*.hpp)
 RUNS ?= runs
 
-.PHONY: setup demo test test-slow bench clean
+.PHONY: setup demo test test-slow bench stability clean
 
 # Debian packages: Box2D 2.4.1 and pkg-config to build against it, a C++ compiler, and xmllint
 # (an independent schema validator the tests use).
@@ -44,6 +44,11 @@ test-slow: setup
 
 bench: setup
 	$(PYTHON) benchmarks/bench_simulate.py
+	$(PYTHON) benchmarks/bench_solver.py
+
+# The hard-scene stability table of the README (about a minute).
+stability: setup
+	$(PYTHON) -m deepcontact.solver.stability --out $(RUNS)/stability.md
 
 clean:
 	rm -rf $(STAMPS) build *.egg-info deepcontact/*.so $(RUNS)/demo
