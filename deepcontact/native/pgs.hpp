@@ -94,12 +94,10 @@ public:
     double residual() const {
         double worst = 0;
         for (const auto& m : pb_.manifolds) {
-            const auto& A = pb_.velocity[m.a];
-            const auto& B = pb_.velocity[m.b];
             const V2<R> tangent = cross(m.normal, R(1));
             for (int j = 0; j < m.count; ++j) {
                 const auto& p = m.p[j];
-                V2<R> dv = B.v + cross(B.w, p.rB) - A.v - cross(A.w, p.rA);
+                const V2<R> dv = relative_velocity(m, p);
                 const double vn = double(dot(dv, m.normal)) - double(p.bias);
                 const double n = double(p.normal_impulse);
                 worst = std::max(worst, std::abs(std::min(double(p.k_normal) * n, vn)));
@@ -118,6 +116,13 @@ public:
     double scale() const { return scale_; }
 
 private:
+    // Velocity of B relative to A at a contact point, as the solver computes it.
+    V2<R> relative_velocity(const ContactManifold<R>& m, const ContactPoint<R>& p) const {
+        const auto& A = pb_.velocity[m.a];
+        const auto& B = pb_.velocity[m.b];
+        return B.v + cross(B.w, p.rB) - A.v - cross(A.w, p.rA);
+    }
+
     template <class S>
     void load_start(const S* sn, const S* st, const SolveOptions& opt, SanitizeReport& rep) {
         for (auto& m : pb_.manifolds) {
@@ -155,13 +160,10 @@ private:
     double free_velocity_scale() {
         double worst = 0;
         for (const auto& m : pb_.manifolds) {
-            const auto& A = pb_.velocity[m.a];
-            const auto& B = pb_.velocity[m.b];
             const V2<R> tangent = cross(m.normal, R(1));
             for (int j = 0; j < m.count; ++j) {
-                const auto& p = m.p[j];
-                V2<R> dv = B.v + cross(B.w, p.rB) - A.v - cross(A.w, p.rA);
-                worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(p.bias)));
+                const V2<R> dv = relative_velocity(m, m.p[j]);
+                worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(m.p[j].bias)));
                 if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
             }
         }
