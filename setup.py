@@ -29,6 +29,7 @@ ext = Pybind11Extension(
         "deepcontact/native/world.cpp",
         "deepcontact/native/step_xml.cpp",
         "deepcontact/native/solver_module.cpp",
+        "deepcontact/native/splat.cpp",
     ],
     include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
     libraries=[f[2:] for f in pkg_config("--libs") if f.startswith("-l")],

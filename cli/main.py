@@ -3,6 +3,7 @@ import click
 
 from deepcontact import __version__
 
+from .rasterize import rasterize
 from .simulate import simulate
 from .validate import validate
 
@@ -19,6 +20,7 @@ def cli():
 
 cli.add_command(simulate)
 cli.add_command(validate)
+cli.add_command(rasterize)
 
 
 def main():

@@ -158,6 +158,7 @@ void require(const py::array& a, size_t n, size_t width, const char* name) {
 
 PYBIND11_MODULE(_box2d, m) {
     dc::bind_solver(m);
+    dc::bind_grid(m);
     m.doc() = "Box2D 2.4.1 (Debian's libbox2d) for deepcontact: worlds stepped whole, state as numpy arrays.";
     m.attr("box2d_version") = DC_BOX2D_VERSION;  // from pkg-config at build time
     m.attr("box2d_runtime_version") = std::to_string(b2_version.major) + "." + std::to_string(b2_version.minor) +

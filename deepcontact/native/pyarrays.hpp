@@ -30,5 +30,6 @@ inline const T* column(const py::dict& d, const char* key, size_t& n, size_t wid
 
 
 void bind_solver(py::module_& m);
+void bind_grid(py::module_& m);
 
 }  // namespace dc

@@ -1,0 +1,303 @@
+"""Grid datasets: what `dc rasterize` writes and `dc train` reads.
+
+A dataset is a folder of plain NumPy `.npy` arrays plus `metadata.json` (see datasets/README.md).
+`.npy` because every ML user can open it without this package, `numpy.load(..., mmap_mode="r")`
+memory-maps it (a 150-simulation dataset is several GB: samples are read as they are used, never
+all at once), and it streams in order from disk; no extra dependency (HDF5, zarr) is needed.
+
+    inputs.npy            (N, C_in, H, W) float32
+    labels.npy            (N, C_out, H, W) float32
+    simulation.npy        (N,) int32   index into metadata["simulations"]
+    step.npy              (N,) int32   step index within its simulation
+    contact_offsets.npy   (N + 1,) int64: sample i's contact points are rows offsets[i]:offsets[i+1] of
+    contact_position.npy  (M, 2) float32
+    contact_impulse.npy   (M, 2) float32 (normal, tangent)
+    metadata.json         kernel, d, h, renormalisation, grid, channels, sources, split, versions
+
+Train/validation splits are by simulation, never by step (neighbouring steps are nearly equal).
+"""
+import hashlib
+import json
+import logging
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from .._box2d import box2d_version
+from ..errors import InputError
+from ..scene.xml import read_scene
+from ..step.reader import read_step_for_grid
+from .spec import GridSpec, scene_box
+from .splat import check_channels, rasterize
+
+log = logging.getLogger(__name__)
+FORMAT = 1
+ARRAYS = ("inputs", "labels", "simulation", "step", "contact_offsets", "contact_position", "contact_impulse")
+
+
+@dataclass
+class Simulation:
+    run: str
+    dir: str
+    seed: int
+    scene: str
+    box: tuple
+    radius: float
+    files: list          # step files with contacts (or all, with include_contactless)
+    contacts: list       # contact points per file
+
+
+def _contact_count(path):
+    data = Path(path).read_bytes()
+    i = data.find(b'<contacts count="')
+    if i < 0:
+        raise InputError("not a step file (no <contacts count=...>)", path)
+    j = data.find(b'"', i + 17)
+    try:
+        return int(data[i + 17:j])
+    except ValueError:
+        raise InputError("unreadable <contacts count>", path) from None
+
+
+def _smallest_radius(scene):
+    radii = [s.radius for b in scene.bodies if b.type != "static" for s in b.shapes if s.kind == "circle"]
+    return min(radii) if radii else None
+
+
+def collect(run_dirs, include_contactless=False):
+    """The simulations of finished runs, with the step files that become samples."""
+    sims, manifests = [], []
+    for run in map(Path, run_dirs):
+        manifest = run / "manifest.json"
+        if not manifest.is_file():
+            raise InputError("no manifest.json: not a finished `dc simulate` run", run)
+        raw = manifest.read_bytes()
+        try:
+            m = json.loads(raw)
+            entries = m["simulations"]
+        except (ValueError, KeyError) as e:
+            raise InputError(f"unreadable manifest: {e}", manifest) from None
+        manifests.append({"run": str(run), "manifest_sha256": hashlib.sha256(raw).hexdigest(),
+                          "scene": m.get("scene"), "solver": m.get("solver")})
+        for e in entries:
+            folder = run / e["dir"]
+            scene = read_scene(folder / "scene.xml")
+            files, counts = [], []
+            for f in sorted(folder.glob("step-*.xml")):
+                n = _contact_count(f)
+                if n or include_contactless:
+                    files.append(str(f))
+                    counts.append(n)
+            sims.append(Simulation(run=str(run), dir=e["dir"], seed=int(e["seed"]), scene=scene.name,
+                                   box=scene_box(scene), radius=_smallest_radius(scene), files=files,
+                                   contacts=counts))
+    if not sims:
+        raise InputError("the runs hold no simulations")
+    return sims, manifests
+
+
+def grid_for(sims, cell, h, kernel, renormalize, window=None):
+    if window is None:
+        boxes = {s.box for s in sims}
+        if None in boxes:
+            raise InputError("a scene has no static bodies to take a box from; give --window x0,y0,x1,y1")
+        if len(boxes) > 1:
+            raise InputError(f"the simulations have different boxes ({', '.join(map(str, sorted(boxes)))}); "
+                             f"give one --window x0,y0,x1,y1 for all")
+        window = boxes.pop()
+    return GridSpec.over(window, cell, h, kernel, renormalize)
+
+
+def _rasterize_simulation(args):
+    spec, inputs, labels, files = args
+    xi = np.empty((len(files), len(inputs), spec.ny, spec.nx), np.float32)
+    yl = np.empty((len(files), len(labels), spec.ny, spec.nx), np.float32)
+    steps = np.empty(len(files), np.int32)
+    positions, impulses, outside = [], [], 0
+    for k, path in enumerate(files):
+        header, bodies, contacts = read_step_for_grid(path)
+        xi[k] = rasterize(spec, bodies, contacts, inputs)
+        yl[k] = rasterize(spec, bodies, contacts, labels)
+        steps[k] = header["index"]
+        positions.append(contacts["position"])
+        impulses.append(np.stack([contacts["normal_impulse"], contacts["tangent_impulse"]], axis=1))
+        p = contacts["position"]
+        outside += int(np.count_nonzero((p[:, 0] < spec.x0) | (p[:, 1] < spec.y0)
+                                        | (p[:, 0] > spec.x0 + (spec.nx - 1) * spec.cell)
+                                        | (p[:, 1] > spec.y0 + (spec.ny - 1) * spec.cell)))
+    pos = np.concatenate(positions) if positions else np.empty((0, 2), np.float32)
+    imp = np.concatenate(impulses) if impulses else np.empty((0, 2), np.float32)
+    return xi, yl, steps, pos, imp, outside
+
+
+def split_simulations(count, validation_fraction, seed):
+    """{"train": [...], "validation": [...]} of simulation indices, chosen by a seeded shuffle."""
+    order = np.random.default_rng(seed).permutation(count)
+    n_val = int(round(validation_fraction * count))
+    if validation_fraction > 0 and count > 1:
+        n_val = min(max(n_val, 1), count - 1)
+    else:
+        n_val = 0
+    return {"train": sorted(int(i) for i in order[n_val:]), "validation": sorted(int(i) for i in order[:n_val])}
+
+
+def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize=True, inputs=None,
+                  labels=None, window=None, include_contactless=False, validation_fraction=0.2, seed=0,
+                  jobs=1, overwrite=False, progress=None):
+    """Rasterize every step of the runs into a dataset folder, atomically. Returns its metadata."""
+    from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
+    inputs = list(inputs or DEFAULT_INPUTS)
+    labels = list(labels or DEFAULT_LABELS)
+    check_channels(inputs, "input")
+    check_channels(labels, "label")
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise InputError("dataset exists; use --overwrite to replace it", out)
+    if not 0 <= validation_fraction < 1:
+        raise InputError(f"--validation must be in [0, 1), got {validation_fraction}")
+    sims, manifests = collect(run_dirs, include_contactless)
+    spec = grid_for(sims, cell, h, kernel, renormalize, window)
+    radii = [s.radius for s in sims if s.radius is not None]
+    for w in spec.rule_warnings(min(radii) if radii else None):
+        log.warning(w)
+    n = sum(len(s.files) for s in sims)
+    m = sum(sum(s.contacts) for s in sims)
+    if n == 0:
+        raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
+
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        arrays = {
+            "inputs": np.lib.format.open_memmap(tmp / "inputs.npy", "w+", np.float32, (n, len(inputs), spec.ny, spec.nx)),
+            "labels": np.lib.format.open_memmap(tmp / "labels.npy", "w+", np.float32, (n, len(labels), spec.ny, spec.nx)),
+            "simulation": np.empty(n, np.int32), "step": np.empty(n, np.int32),
+            "contact_offsets": np.zeros(n + 1, np.int64),
+            "contact_position": np.empty((m, 2), np.float32), "contact_impulse": np.empty((m, 2), np.float32),
+        }
+        row = point = outside = 0
+        tasks = [(spec, inputs, labels, s.files) for s in sims]
+        if jobs > 1:
+            from concurrent.futures import ProcessPoolExecutor
+            pool = ProcessPoolExecutor(max_workers=jobs)
+            results = pool.map(_rasterize_simulation, tasks)
+        else:
+            pool, results = None, map(_rasterize_simulation, tasks)
+        try:
+            for i, (xi, yl, steps, pos, imp, out_count) in enumerate(results):
+                k = len(steps)
+                arrays["inputs"][row:row + k] = xi
+                arrays["labels"][row:row + k] = yl
+                arrays["simulation"][row:row + k] = i
+                arrays["step"][row:row + k] = steps
+                counts = np.array(sims[i].contacts, dtype=np.int64)
+                if counts.sum() != len(pos):
+                    raise InputError("step files changed while rasterizing", sims[i].run)
+                arrays["contact_offsets"][row + 1:row + k + 1] = point + np.cumsum(counts)
+                arrays["contact_position"][point:point + len(pos)] = pos
+                arrays["contact_impulse"][point:point + len(imp)] = imp
+                row, point, outside = row + k, point + len(pos), outside + out_count
+                if progress is not None:
+                    progress.update(k)
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+        for name in ("inputs", "labels"):
+            arrays[name].flush()
+        del arrays["inputs"], arrays["labels"]
+        for name, a in arrays.items():
+            np.save(tmp / f"{name}.npy", a)
+        if outside:
+            log.info("%d contact points lie outside the grid (interpolation clamps them to its edge)", outside)
+        metadata = {
+            "format": FORMAT,
+            "kind": "deepcontact-dataset",
+            "samples": n,
+            "contact_points": m,
+            "grid": spec.as_dict(),
+            "inputs": inputs,
+            "labels": labels,
+            "contactless_steps": "kept" if include_contactless else "skipped",
+            "contacts_outside_grid": outside,
+            "simulations": [{"run": s.run, "dir": s.dir, "seed": s.seed, "scene": s.scene, "samples": len(s.files)}
+                            for s in sims],
+            "sources": manifests,
+            "split": split_simulations(len(sims), validation_fraction, seed),
+            "split_seed": seed,
+            "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": np.__version__},
+        }
+        (tmp / "metadata.json").write_text(json.dumps(metadata, indent=2) + "\n")
+        _replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return metadata
+
+
+def _replace(tmp, out):
+    """Move the finished folder into place; an existing one is swapped out, then removed."""
+    old = None
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        os.replace(out, old)
+    os.replace(tmp, out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+class GridDataset:
+    """A dataset folder, memory-mapped. `torch_dataset(split)` gives torch tensors."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        meta = self.path / "metadata.json"
+        if not meta.is_file():
+            raise InputError("not a dataset (no metadata.json)", self.path)
+        try:
+            self.metadata = json.loads(meta.read_text())
+        except ValueError as e:
+            raise InputError(f"unreadable metadata: {e}", meta) from None
+        if self.metadata.get("format") != FORMAT:
+            raise InputError(f"dataset format {self.metadata.get('format')} is not {FORMAT}", meta)
+        try:
+            self.arrays = {name: np.load(self.path / f"{name}.npy", mmap_mode="r") for name in ARRAYS}
+        except (OSError, ValueError) as e:
+            raise InputError(f"a dataset array is missing or damaged: {e}", self.path) from None
+        self.spec = GridSpec(**self.metadata["grid"])
+
+    def __len__(self):
+        return int(self.metadata["samples"])
+
+    def indices(self, split=None):
+        """Sample indices of a split ("train", "validation") or all."""
+        if split is None:
+            return np.arange(len(self))
+        sims = np.array(self.metadata["split"][split], dtype=np.int32)
+        return np.nonzero(np.isin(self.arrays["simulation"], sims))[0]
+
+    def contacts(self, i):
+        """(positions (n, 2), impulses (n, 2)) of sample i's contact points."""
+        a, b = self.arrays["contact_offsets"][i], self.arrays["contact_offsets"][i + 1]
+        return self.arrays["contact_position"][a:b], self.arrays["contact_impulse"][a:b]
+
+    def torch_dataset(self, split=None):
+        import torch
+
+        ds = self
+        idx = self.indices(split)
+
+        class _Torch(torch.utils.data.Dataset):
+            def __len__(self):
+                return len(idx)
+
+            def __getitem__(self, k):
+                i = int(idx[k])
+                return (torch.from_numpy(np.array(ds.arrays["inputs"][i])),
+                        torch.from_numpy(np.array(ds.arrays["labels"][i])))
+
+        return _Torch()

@@ -1,0 +1,91 @@
+"""The grid a step is drawn on: origin, cell size d, node counts, kernel and smoothing length h.
+
+Nodes sit at origin + (ix d, iy d), ix = 0..nx-1, spanning the scene's box (the extent of its
+static bodies) or a given window: the thesis's 30 x 30 box at d = 0.5 has 61 x 61 nodes.
+"""
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .kernels import KERNELS
+
+MAX_NODES = 4096 * 4096   # 64 MiB per float32 channel
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    x0: float
+    y0: float
+    cell: float
+    nx: int
+    ny: int
+    h: float
+    kernel: str = "poly6"
+    renormalize: bool = True
+
+    @property
+    def shape(self):
+        return (self.ny, self.nx)
+
+    def as_dict(self):
+        return asdict(self)
+
+    @classmethod
+    def over(cls, window, cell, h, kernel="poly6", renormalize=True):
+        """The grid whose nodes span window = (x0, y0, x1, y1) with spacing cell."""
+        x0, y0, x1, y1 = (float(v) for v in window)
+        if not all(math.isfinite(v) for v in (x0, y0, x1, y1)) or x1 <= x0 or y1 <= y0:
+            raise InputError(f"the grid window {window} is empty or not finite")
+        if not (math.isfinite(cell) and cell > 0):
+            raise InputError(f"cell size d must be positive, got {cell}")
+        if not (math.isfinite(h) and h > 0):
+            raise InputError(f"smoothing length h must be positive, got {h}")
+        if kernel not in KERNELS:
+            raise InputError(f"unknown kernel {kernel!r}; choose from {', '.join(KERNELS)}")
+        nx = int(math.floor((x1 - x0) / cell + 1e-9)) + 1
+        ny = int(math.floor((y1 - y0) / cell + 1e-9)) + 1
+        if nx * ny > MAX_NODES:
+            raise InputError(f"a grid of {nx} x {ny} nodes at d = {cell} exceeds the limit of "
+                             f"{MAX_NODES:,} nodes (64 MiB per channel); use a larger cell or a smaller window")
+        return cls(x0=x0, y0=y0, cell=float(cell), nx=nx, ny=ny, h=float(h), kernel=kernel,
+                   renormalize=bool(renormalize))
+
+    def rule_warnings(self, radius=None):
+        """The thesis's rules (d <= body radius, 0.71 d <= h <= d), as warnings: they are advice."""
+        out = []
+        if radius is not None and self.cell > radius:
+            out.append(f"d = {self.cell:g} is larger than the smallest body radius {radius:g}: two contacts "
+                       f"may share a cell (thesis rule d <= r)")
+        if self.h < math.sqrt(2) / 2 * self.cell:
+            out.append(f"h = {self.h:g} < 0.71 d = {math.sqrt(2) / 2 * self.cell:.3g}: a point between nodes may "
+                       f"reach none of them (thesis rule h >= 0.71 d)")
+        if self.h > self.cell:
+            out.append(f"h = {self.h:g} > d = {self.cell:g}: one contact spreads over several cells "
+                       f"(thesis rule h <= d)")
+        return out
+
+
+def scene_box(scene):
+    """(x0, y0, x1, y1) of the static bodies' shapes, or None if there are none."""
+    pts = []
+    for b in scene.bodies:
+        if b.type != "static":
+            continue
+        c, s = math.cos(b.angle), math.sin(b.angle)
+
+        def world(x, y):
+            return (b.x + c * x - s * y, b.y + s * x + c * y)
+        for sh in b.shapes:
+            if sh.kind == "edge":
+                pts += [world(sh.x1, sh.y1), world(sh.x2, sh.y2)]
+            elif sh.kind == "polygon":
+                pts += [world(x, y) for x, y in sh.vertices]
+            else:
+                cx, cy = world(sh.x, sh.y)
+                pts += [(cx - sh.radius, cy - sh.radius), (cx + sh.radius, cy + sh.radius)]
+    if not pts:
+        return None
+    p = np.array(pts)
+    return (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
