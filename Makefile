@@ -45,6 +45,7 @@ test-slow: setup
 bench: setup
 	$(PYTHON) benchmarks/bench_simulate.py
 	$(PYTHON) benchmarks/bench_solver.py
+	$(PYTHON) benchmarks/bench_rasterize.py
 
 # The hard-scene stability table of the README (about a minute).
 stability: setup

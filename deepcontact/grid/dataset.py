@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..scene.xml import read_scene
 from ..step.reader import read_step_for_grid
 from .spec import GridSpec, scene_box
-from .splat import check_channels, rasterize
+from .splat import check_channels, rasterize_step
 
 log = logging.getLogger(__name__)
 FORMAT = 1
@@ -120,8 +120,7 @@ def _rasterize_simulation(args):
     positions, impulses, outside = [], [], 0
     for k, path in enumerate(files):
         header, bodies, contacts = read_step_for_grid(path)
-        xi[k] = rasterize(spec, bodies, contacts, inputs)
-        yl[k] = rasterize(spec, bodies, contacts, labels)
+        xi[k], yl[k] = rasterize_step(spec, bodies, contacts, inputs, labels)
         steps[k] = header["index"]
         positions.append(contacts["position"])
         impulses.append(np.stack([contacts["normal_impulse"], contacts["tangent_impulse"]], axis=1))

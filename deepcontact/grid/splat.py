@@ -41,6 +41,13 @@ def splat_points(spec, points, values):
                   spec.nx, spec.ny, spec.h, KERNELS[spec.kernel], spec.renormalize)
 
 
+def rasterize_step(spec, bodies, contacts, inputs, labels):
+    """(inputs (C_in, H, W), labels (C_out, H, W)) of one step, with one splat per particle set."""
+    grids = rasterize(spec, bodies, contacts, list(inputs) + [n for n in labels if n not in inputs])
+    names = list(inputs) + [n for n in labels if n not in inputs]
+    return grids[:len(inputs)], grids[[names.index(n) for n in labels]]
+
+
 def rasterize(spec, bodies, contacts, channels):
     """The named channels of one step, (len(channels), H, W) float32.
 

@@ -18,30 +18,49 @@ constexpr double kPi = 3.14159265358979323846;
 
 enum Kernel { poly6 = 0, spiky = 1, cubic = 2, gaussian = 3 };
 
-// W(r) for r < h; 0 beyond.
-inline double weight(int kernel, double r, double h) {
-    if (r >= h) return 0.0;
-    switch (kernel) {
-        case poly6: {
-            const double d = h * h - r * r;
-            return 4.0 / (kPi * std::pow(h, 8)) * d * d * d;
-        }
-        case spiky: {
-            const double d = h - r;
-            return 10.0 / (kPi * std::pow(h, 5)) * d * d * d;
-        }
-        case cubic: {  // Monaghan's cubic spline with smoothing length h/2 (support h)
-            const double q = 2.0 * r / h;
-            const double sigma = 40.0 / (7.0 * kPi * h * h);
-            return q < 1.0 ? sigma * (1.0 - 1.5 * q * q + 0.75 * q * q * q) : sigma * 0.25 * std::pow(2.0 - q, 3);
-        }
-        case gaussian: {  // exp(-(r/s)^2), s = h/2, truncated at h and renormalised over the disc
-            const double s = 0.5 * h;
-            return std::exp(-(r * r) / (s * s)) / (kPi * s * s * (1.0 - std::exp(-4.0)));
+// W(r) for r < h, 0 beyond; the normalisation constants are worked out once per call.
+class KernelWeight {
+public:
+    KernelWeight(int kernel, double h) : kernel_(kernel), h_(h), h2_(h * h) {
+        switch (kernel) {
+            case poly6: norm_ = 4.0 / (kPi * std::pow(h, 8)); break;
+            case spiky: norm_ = 10.0 / (kPi * std::pow(h, 5)); break;
+            case cubic: norm_ = 40.0 / (7.0 * kPi * h * h); break;  // Monaghan, smoothing length h/2
+            case gaussian: {                                        // s = h/2, truncated at h
+                const double s = 0.5 * h;
+                inv_s2_ = 1.0 / (s * s);
+                norm_ = 1.0 / (kPi * s * s * (1.0 - std::exp(-4.0)));
+                break;
+            }
+            default: throw std::invalid_argument("unknown kernel");
         }
     }
-    throw std::invalid_argument("unknown kernel");
-}
+    // r2: squared distance
+    double operator()(double r2) const {
+        if (r2 >= h2_) return 0.0;
+        switch (kernel_) {
+            case poly6: {
+                const double d = h2_ - r2;
+                return norm_ * d * d * d;
+            }
+            case spiky: {
+                const double d = h_ - std::sqrt(r2);
+                return norm_ * d * d * d;
+            }
+            case cubic: {
+                const double q = 2.0 * std::sqrt(r2) / h_;
+                const double t = 2.0 - q;
+                return q < 1.0 ? norm_ * (1.0 - 1.5 * q * q + 0.75 * q * q * q) : norm_ * 0.25 * t * t * t;
+            }
+            default:
+                return norm_ * std::exp(-r2 * inv_s2_);
+        }
+    }
+
+private:
+    int kernel_;
+    double h_, h2_, norm_ = 0, inv_s2_ = 0;
+};
 
 py::array_t<float> splat(py::array_t<double, py::array::c_style | py::array::forcecast> points,
                          py::array_t<double, py::array::c_style | py::array::forcecast> values, double x0,
@@ -59,6 +78,7 @@ py::array_t<float> splat(py::array_t<double, py::array::c_style | py::array::for
     {
         py::gil_scoped_release release;
         const int reach = static_cast<int>(std::ceil(h / cell));
+        const KernelWeight weight(kernel, h);
         std::vector<double> w;
         std::vector<size_t> node;
         for (size_t i = 0; i < n; ++i) {
@@ -73,7 +93,7 @@ py::array_t<float> splat(py::array_t<double, py::array::c_style | py::array::for
                 const double dy = y0 + iy * cell - py;
                 for (int ix = std::max(0, cx - reach); ix <= std::min(nx - 1, cx + reach + 1); ++ix) {
                     const double dx = x0 + ix * cell - px;
-                    const double wi = weight(kernel, std::sqrt(dx * dx + dy * dy), h);
+                    const double wi = weight(dx * dx + dy * dy);
                     if (wi > 0.0) {
                         w.push_back(wi);
                         node.push_back(static_cast<size_t>(iy) * nx + ix);
