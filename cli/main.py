@@ -5,6 +5,7 @@ from deepcontact import __version__
 
 from .rasterize import rasterize
 from .simulate import simulate
+from .train import train
 from .validate import validate
 
 
@@ -21,6 +22,7 @@ def cli():
 cli.add_command(simulate)
 cli.add_command(validate)
 cli.add_command(rasterize)
+cli.add_command(train)
 
 
 def main():

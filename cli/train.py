@@ -1,0 +1,78 @@
+"""dc train: a CNN from a grid dataset."""
+import click
+
+from deepcontact.errors import InputError
+
+from . import options
+
+
+@click.command()
+@click.argument("dataset", type=click.Path(file_okay=False))
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder for checkpoints (last.pt, best.pt), metrics and the loss plot.")
+@click.option("--model", type=click.Choice(["thesis", "fcn"]), default="fcn", show_default=True,
+              help="thesis: the thesis's CNN (Table 5.1); fcn: a fully convolutional encoder-decoder.")
+@click.option("--targets", default="normal_impulse,tangent_impulse", show_default=True,
+              help="Label channels to learn: both maps at once, or one (train one model per map).")
+@click.option("--loss", type=click.Choice(["masked", "contacts", "mse"]), default="masked", show_default=True,
+              help="masked: thesis eq. 5.2; contacts: error at the contact points; mse: all nodes.")
+@click.option("--optimizer", type=click.Choice(["sgd", "adam"]), default="sgd", show_default=True,
+              help="sgd follows the thesis schedule (5e-3, 2e-3 at 100, 1e-3 at 300, 2e-4 at 500).")
+@click.option("--lr", type=float, default=1e-3, show_default=True, help="Adam's learning rate.")
+@click.option("--weight-decay", type=float, default=5e-4, show_default=True, help="L2 on the weights.")
+@click.option("--batch-size", type=click.IntRange(min=1), default=200, show_default=True)
+@click.option("--epochs", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--patience", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Stop after this many epochs without improvement (0: never).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
+@click.option("--width", "fcn_width", type=click.IntRange(min=1), default=16, show_default=True,
+              help="[fcn] Channels at the top.")
+@click.option("--depth", "fcn_depth", type=click.IntRange(min=1), default=3, show_default=True,
+              help="[fcn] Down-sampling levels.")
+@click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
+@click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")
+@options.overwrite
+@options.verbosity
+@options.command("train")
+def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
+          threads, fcn_width, fcn_depth, no_final_relu, resume, overwrite, verbose, quiet):
+    """Train a network mapping the input images of DATASET to its impulse images.
+
+    Writes OUTPUT/last.pt and best.pt (atomically, every epoch), metrics.csv and
+    metrics.json, and loss.png/svg. The split is the dataset's, by simulation.
+    Same seed, same weights; --resume continues exactly. Under torchrun
+    (WORLD_SIZE set) it trains data-parallel and rank 0 writes.
+
+    \b
+    Examples:
+      dc train data/thesis -o models/fcn --epochs 50 --patience 10
+      dc train data/thesis -o models/thesis --model thesis --epochs 1000
+      dc train data/thesis -o models/normal --targets normal_impulse
+      dc train data/thesis -o models/fcn --resume
+      torchrun --nproc_per_node 2 -m deepcontact.cli.main train data/thesis -o models/ddp
+    """
+    import shutil
+    from pathlib import Path
+
+    from deepcontact.model.train import TrainConfig, train as run
+
+    if overwrite and resume:
+        raise InputError("--resume and --overwrite contradict each other")
+    if overwrite and Path(out).exists():
+        for name in ("last.pt", "best.pt", "metrics.csv", "metrics.json", "loss.png", "loss.svg"):
+            (Path(out) / name).unlink(missing_ok=True)
+    cfg = TrainConfig(model=model, targets=[t.strip() for t in targets.split(",") if t.strip()], loss=loss,
+                      optimizer=optimizer, lr=lr, weight_decay=weight_decay, batch_size=batch_size, epochs=epochs,
+                      patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
+                      fcn_depth=fcn_depth)
+
+    def report(row):
+        if not quiet:
+            extra = "".join(f" {k}={row[k]:.4g}" for k in sorted(row) if k.startswith("val"))
+            click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
+                       f"({row['samples_per_second']:.0f} samples/s)", err=True)
+
+    history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads)
+    if not quiet and history:
+        click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

@@ -1,0 +1,1 @@
+"""Networks from grid images to impulse images, their losses, training and inference."""

@@ -1,0 +1,65 @@
+"""From a trained checkpoint to starting impulses for a step's contacts.
+
+    predictor = Predictor("runs/train/best.pt")
+    start = predictor.predict(bodies, contacts)      # arrays as World.step(record=True) gives them
+    start.normal, start.tangent, start.seconds       # projected onto ln >= 0, |lt| <= mu ln
+
+The step is rasterized with the dataset's recorded settings, the network predicts the impulse
+images, bilinear interpolation takes them to the contact points, and the result is projected
+onto the friction cone. Time is reported per stage: rasterize, model, interpolate.
+"""
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..grid.interpolate import bilinear
+from ..grid.spec import GridSpec
+from ..grid.splat import rasterize
+from .networks import build
+from .train import load_checkpoint
+
+
+@dataclass
+class Start:
+    normal: np.ndarray
+    tangent: np.ndarray
+    seconds: dict      # rasterize, model, interpolate
+    projected: int     # values moved onto the feasible set
+
+
+class Predictor:
+    def __init__(self, checkpoint, threads=None):
+        ck = load_checkpoint(checkpoint)
+        self.spec = GridSpec(**ck["dataset"]["grid"])
+        self.inputs = list(ck["dataset"]["inputs"])
+        self.targets = list(ck["targets"])
+        self.model = build(ck["network"])
+        self.model.load_state_dict(ck["model"])
+        self.model.eval()
+        if threads:
+            torch.set_num_threads(threads)
+
+    @torch.no_grad()
+    def predict(self, bodies, contacts) -> Start:
+        t0 = time.perf_counter()
+        x = rasterize(self.spec, bodies, contacts, self.inputs)
+        t1 = time.perf_counter()
+        pred = self.model(torch.from_numpy(x)[None])[0].numpy()
+        t2 = time.perf_counter()
+        values, _ = bilinear(pred, self.spec, contacts["position"])
+        if not self.spec.renormalize:
+            values = values * self.spec.cell ** 2
+        n = len(contacts["position"])
+        normal = values[self.targets.index("normal_impulse")] if "normal_impulse" in self.targets else np.zeros(n)
+        tangent = values[self.targets.index("tangent_impulse")] if "tangent_impulse" in self.targets else np.zeros(n)
+        normal = np.nan_to_num(np.asarray(normal, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        tangent = np.nan_to_num(np.asarray(tangent, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        bound = contacts["friction"].astype(np.float64) * np.maximum(normal, 0.0)
+        projected = int(np.count_nonzero(normal < 0) + np.count_nonzero(np.abs(tangent) > bound))
+        normal = np.maximum(normal, 0.0)
+        tangent = np.clip(tangent, -bound, bound)
+        t3 = time.perf_counter()
+        return Start(normal=normal, tangent=tangent, projected=projected,
+                     seconds={"rasterize": t1 - t0, "model": t2 - t1, "interpolate": t3 - t2})

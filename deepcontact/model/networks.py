@@ -1,0 +1,111 @@
+"""The two networks: the thesis's CNN, faithfully, and a fully convolutional encoder-decoder.
+
+`thesis` (thesis Table 5.1 and Appendix C): five stacks of convolutions 32-64-128-256-512 with
+ReLU (3x3 in the first stacks, 2x2 later, as the appendix's code has them), 2x2 max pooling with
+'same' padding between stacks, batch norm before the third and fifth stacks, dropout 0.1, then a
+dense layer to every output node, He-normal initialisation. Like the thesis it ends in a ReLU, so
+it cannot produce the negative half of the tangent impulses: kept for fidelity, documented, and
+not a model to rely on (`final_relu=False` removes it).
+
+`fcn`: a U-Net-like encoder-decoder with skip connections, `width` channels at the top, doubling
+`depth` times, outputting the label image at grid resolution with signed values. Far fewer
+weights; any grid size (padded to a multiple of 2^depth and cropped back).
+"""
+import warnings
+
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+# PyTorch notes that 'same' padding with the appendix's 2x2 kernels copies the input; it is right.
+warnings.filterwarnings("ignore", message="Using padding='same' with even kernel lengths")
+
+
+def _he(module):
+    if isinstance(module, (nn.Conv2d, nn.Linear)):
+        nn.init.kaiming_normal_(module.weight, nonlinearity="relu")
+        nn.init.zeros_(module.bias)
+
+
+class ThesisCNN(nn.Module):
+    def __init__(self, in_channels, out_channels, height, width, dropout=0.1, final_relu=True):
+        super().__init__()
+        self.out_shape = (out_channels, height, width)
+
+        def conv(cin, cout, k):
+            return [nn.Conv2d(cin, cout, k, padding="same"), nn.ReLU()]
+
+        def pool():
+            return [nn.MaxPool2d(2, 2, ceil_mode=True)]   # Keras 'same' pooling: 61 -> 31 -> 16 -> 8 -> 4
+        layers = (conv(in_channels, 32, 3) + conv(32, 32, 3) + [nn.Dropout(dropout)] + pool()
+                  + conv(32, 64, 3) + conv(64, 64, 3) + conv(64, 64, 2) + [nn.Dropout(dropout)] + pool()
+                  + [nn.BatchNorm2d(64)]
+                  + conv(64, 128, 2) + conv(128, 128, 2) + conv(128, 128, 2) + [nn.Dropout(dropout)] + pool()
+                  + conv(128, 256, 2) + conv(256, 256, 2) + conv(256, 256, 2) + [nn.Dropout(dropout)] + pool()
+                  + [nn.BatchNorm2d(256)]
+                  + conv(256, 512, 2) + conv(512, 512, 2) + conv(512, 512, 2) + [nn.Dropout(dropout)])
+        self.features = nn.Sequential(*layers)
+        h, w = height, width
+        for _ in range(4):
+            h, w = (h + 1) // 2, (w + 1) // 2
+        self.dense = nn.Linear(512 * h * w, out_channels * height * width)
+        self.final_relu = final_relu
+        self.apply(_he)
+
+    def forward(self, x):
+        y = self.dense(torch.flatten(self.features(x), 1))
+        if self.final_relu:
+            y = F.relu(y)
+        return y.view(x.shape[0], *self.out_shape)
+
+
+class _Block(nn.Sequential):
+    def __init__(self, cin, cout):
+        super().__init__(nn.Conv2d(cin, cout, 3, padding=1), nn.BatchNorm2d(cout), nn.ReLU(),
+                         nn.Conv2d(cout, cout, 3, padding=1), nn.BatchNorm2d(cout), nn.ReLU())
+
+
+class FCN(nn.Module):
+    def __init__(self, in_channels, out_channels, width=16, depth=3):
+        super().__init__()
+        self.depth = depth
+        chans = [width * 2 ** i for i in range(depth + 1)]
+        self.down = nn.ModuleList([_Block(in_channels, chans[0])] +
+                                  [_Block(chans[i], chans[i + 1]) for i in range(depth)])
+        self.up = nn.ModuleList([nn.ConvTranspose2d(chans[i + 1], chans[i], 2, stride=2) for i in reversed(range(depth))])
+        self.merge = nn.ModuleList([_Block(2 * chans[i], chans[i]) for i in reversed(range(depth))])
+        self.head = nn.Conv2d(chans[0], out_channels, 1)
+        self.apply(_he)
+
+    def forward(self, x):
+        h, w = x.shape[-2:]
+        m = 2 ** self.depth
+        x = F.pad(x, (0, (-w) % m, 0, (-h) % m))
+        skips = []
+        for i, block in enumerate(self.down):
+            x = block(x)
+            if i < self.depth:
+                skips.append(x)
+                x = F.max_pool2d(x, 2)
+        for up, merge in zip(self.up, self.merge):
+            x = merge(torch.cat([up(x), skips.pop()], dim=1))
+        return self.head(x)[..., :h, :w]
+
+
+def build(config):
+    """A network from its config dict (stored in checkpoints)."""
+    name = config["model"]
+    if name == "thesis":
+        return ThesisCNN(config["in_channels"], config["out_channels"], config["height"], config["width"],
+                         dropout=config.get("dropout", 0.1), final_relu=config.get("final_relu", True))
+    if name == "fcn":
+        return FCN(config["in_channels"], config["out_channels"], width=config.get("fcn_width", 16),
+                   depth=config.get("fcn_depth", 3))
+    raise ValueError(f"unknown model {name!r}; choose thesis or fcn")
+
+
+def parameter_count(model):
+    """Weights as Keras counts them: parameters plus batch-norm running statistics."""
+    params = sum(p.numel() for p in model.parameters())
+    stats = sum(b.numel() for name, b in model.named_buffers() if name.endswith(("running_mean", "running_var")))
+    return params, params + stats
