@@ -26,6 +26,7 @@ from . import options
               help="Stop after this many epochs without improvement (0: never).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
+@click.option("--device", default="cpu", show_default=True, help="torch device, e.g. cuda when a GPU is present.")
 @click.option("--width", "fcn_width", type=click.IntRange(min=1), default=16, show_default=True,
               help="[fcn] Channels at the top.")
 @click.option("--depth", "fcn_depth", type=click.IntRange(min=1), default=3, show_default=True,
@@ -36,7 +37,7 @@ from . import options
 @options.verbosity
 @options.command("train")
 def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
-          threads, fcn_width, fcn_depth, no_final_relu, resume, overwrite, verbose, quiet):
+          threads, device, fcn_width, fcn_depth, no_final_relu, resume, overwrite, verbose, quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
 
     Writes OUTPUT/last.pt and best.pt (atomically, every epoch), metrics.csv and
@@ -73,6 +74,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
             click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 
-    history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads)
+    history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
+                  device=device)
     if not quiet and history:
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

@@ -121,10 +121,15 @@ def check_compatible(ck, meta, path):
         raise InputError(f"the dataset has no label channel {', '.join(missing)}", path)
 
 
-def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=None):
+def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=None, device="cpu"):
     """Train; returns the history (a list of per-epoch metric dicts)."""
     if threads:
         torch.set_num_threads(threads)
+    try:
+        device = torch.device(device)
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as e:
+        raise InputError(f"device {device} is not available here: {e}") from None
     world, rank = _distributed()
     ds = GridDataset(dataset)
     meta = ds.metadata
@@ -161,7 +166,7 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     random.seed(cfg.seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
     net_cfg = network_config(cfg, meta, cfg.targets)
-    model = build(net_cfg)
+    model = build(net_cfg).to(device)
     if cfg.optimizer == "sgd":
         opt = torch.optim.SGD(model.parameters(), lr=thesis_lr(0), momentum=cfg.momentum, weight_decay=cfg.weight_decay)
     elif cfg.optimizer == "adam":
@@ -171,7 +176,7 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     history, best, bad_epochs, start = [], math.inf, 0, 0
     if ck is not None:
         model.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
+        opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
         _set_rng_state(ck["rng"])
         history, best, bad_epochs, start = ck["history"], ck["best"], ck["bad_epochs"], ck["epoch"] + 1
     net = model
@@ -182,8 +187,8 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
 
     def batch(indices):
         idx = np.sort(indices)   # reading a memory map in order
-        x = torch.from_numpy(np.ascontiguousarray(inputs[idx]))
-        y = torch.from_numpy(np.ascontiguousarray(labels[idx][:, target_idx]))
+        x = torch.from_numpy(np.ascontiguousarray(inputs[idx])).to(device)
+        y = torch.from_numpy(np.ascontiguousarray(labels[idx][:, target_idx])).to(device)
         return idx, x, y
 
     def loss_of(pred, y, idx):
@@ -192,12 +197,13 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
         if cfg.loss == "mse":
             return losses.mse(pred, y)
         pos, imp = zip(*(ds.contacts(int(i)) for i in idx))
-        return losses.contact_mse(pred, [torch.from_numpy(np.array(p)) for p in pos],
-                                  [torch.from_numpy(np.array(q)) for q in imp], spec, label_columns)
+        return losses.contact_mse(pred, [torch.from_numpy(np.array(p)).to(device) for p in pos],
+                                  [torch.from_numpy(np.array(q)).to(device) for q in imp], spec, label_columns)
 
     def save(name, epoch):
         _save(out_dir / name, {
-            "format": CHECKPOINT_FORMAT, "epoch": epoch, "model": model.state_dict(),
+            "format": CHECKPOINT_FORMAT, "epoch": epoch,
+            "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
             "optimizer": opt.state_dict(), "rng": _rng_state(), "history": history, "best": best,
             "bad_epochs": bad_epochs, "network": net_cfg, "train_config": asdict(cfg), "targets": cfg.targets,
             "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
@@ -277,7 +283,8 @@ def evaluate(model, ds, idx, target_idx, label_columns, spec, cfg, loss_of, batc
                 pos, imp = ds.contacts(int(i))
                 if len(pos) == 0:
                     continue
-                at = losses.bilinear_torch(pred[k], spec, torch.from_numpy(np.array(pos))).numpy() * scale
+                at = losses.bilinear_torch(pred[k], spec, torch.from_numpy(np.array(pos)).to(pred.device))
+                at = at.cpu().numpy() * scale
                 sq += ((at - np.array(imp)[:, label_columns].T) ** 2).sum(axis=1)
                 count += len(pos)
     out = {"val_loss": total / max(seen, 1)}
