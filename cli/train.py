@@ -14,8 +14,11 @@ from . import options
               help="thesis: the thesis's CNN (Table 5.1); fcn: a fully convolutional encoder-decoder.")
 @click.option("--targets", default="normal_impulse,tangent_impulse", show_default=True,
               help="Label channels to learn: both maps at once, or one (train one model per map).")
-@click.option("--loss", type=click.Choice(["masked", "contacts", "mse"]), default="masked", show_default=True,
-              help="masked: thesis eq. 5.2; contacts: error at the contact points; mse: all nodes.")
+@click.option("--loss", type=click.Choice(["masked", "contacts", "mse", "solver"]), default="masked",
+              show_default=True, help="masked: thesis eq. 5.2; contacts: error at the contact points; mse: all "
+              "nodes; solver: the step's LCP residual at the predicted start.")
+@click.option("--solver-sweeps", type=click.IntRange(min=0), default=0, show_default=True,
+              help="[solver loss] Damped Jacobi sweeps before taking the residual.")
 @click.option("--optimizer", type=click.Choice(["sgd", "adam"]), default="sgd", show_default=True,
               help="sgd follows the thesis schedule (5e-3, 2e-3 at 100, 1e-3 at 300, 2e-4 at 500).")
 @click.option("--lr", type=float, default=1e-3, show_default=True, help="Adam's learning rate.")
@@ -37,7 +40,7 @@ from . import options
 @options.verbosity
 @options.command("train")
 def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
-          threads, device, fcn_width, fcn_depth, no_final_relu, resume, overwrite, verbose, quiet):
+          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, overwrite, verbose, quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
 
     Writes OUTPUT/last.pt and best.pt (atomically, every epoch), metrics.csv and
@@ -66,7 +69,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     cfg = TrainConfig(model=model, targets=[t.strip() for t in targets.split(",") if t.strip()], loss=loss,
                       optimizer=optimizer, lr=lr, weight_decay=weight_decay, batch_size=batch_size, epochs=epochs,
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
-                      fcn_depth=fcn_depth)
+                      fcn_depth=fcn_depth, solver_sweeps=solver_sweeps)
 
     def report(row):
         if not quiet:

@@ -144,3 +144,24 @@ def test_a_nan_loss_stops_with_a_clear_message_and_keeps_the_checkpoint(tiny, tm
     r = dc("train", str(tiny), "-o", str(out), "--resume")
     assert r.returncode == 1 and "the loss became nan" in r.stderr.lower() and "Traceback" not in r.stderr
     assert (out / "last.pt").read_bytes() == before
+
+
+def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
+    from deepcontact.grid.dataset import GridDataset
+    from deepcontact.solver.problem import StepProblem
+    from deepcontact.solver.reference import reference_solution
+    ds = GridDataset(tiny)
+    loss = losses.SolverLoss(ds)
+    i = int(ds.indices("train")[-1])
+    p = loss.problem(i)
+    problem = StepProblem.from_step_file(loss.step_file(i))
+    exact = reference_solution(problem)
+    at_solution = loss.residual(torch.as_tensor(exact.normal_impulse), torch.as_tensor(exact.tangent_impulse), p)
+    at_zero = loss.residual(torch.zeros(problem.points, dtype=torch.float64),
+                            torch.zeros(problem.points, dtype=torch.float64), p)
+    assert at_solution.abs().max() < 1e-9 < at_zero.abs().max()
+    relaxed = losses.SolverLoss(ds, sweeps=5).residual(torch.zeros(problem.points, dtype=torch.float64),
+                                                      torch.zeros(problem.points, dtype=torch.float64), p)
+    assert (relaxed ** 2).sum() < (at_zero ** 2).sum()
+    h = train(tiny, tmp_path / "s", TrainConfig(**dict(SMALL, epochs=2, loss="solver")))
+    assert np.isfinite(h[-1]["train_loss"])

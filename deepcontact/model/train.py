@@ -48,6 +48,7 @@ class TrainConfig:
     final_relu: bool = True          # thesis model only: the thesis's last ReLU
     fcn_width: int = 16
     fcn_depth: int = 3
+    solver_sweeps: int = 0           # solver loss: relaxation sweeps before the residual
 
 
 def thesis_lr(epoch):
@@ -150,8 +151,9 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     target_idx = [meta["labels"].index(t) for t in cfg.targets]
     label_columns = [{"normal_impulse": 0, "tangent_impulse": 1}[t] for t in cfg.targets
                      if t in ("normal_impulse", "tangent_impulse")]
-    if cfg.loss == "contacts" and len(label_columns) != len(cfg.targets):
-        raise InputError("the contacts loss needs impulse targets (normal_impulse, tangent_impulse)")
+    if cfg.loss in ("contacts", "solver") and len(label_columns) != len(cfg.targets):
+        raise InputError(f"the {cfg.loss} loss needs impulse targets (normal_impulse, tangent_impulse)")
+    solver_loss = losses.SolverLoss(ds, sweeps=cfg.solver_sweeps) if cfg.loss == "solver" else None
     train_idx = ds.indices("train")
     val_idx = ds.indices("validation")
     if len(train_idx) == 0:
@@ -196,6 +198,8 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
             return losses.masked_mse(pred, y)
         if cfg.loss == "mse":
             return losses.mse(pred, y)
+        if cfg.loss == "solver":
+            return solver_loss(pred, idx, spec, label_columns)
         pos, imp = zip(*(ds.contacts(int(i)) for i in idx))
         return losses.contact_mse(pred, [torch.from_numpy(np.array(p)).to(device) for p in pos],
                                   [torch.from_numpy(np.array(q)).to(device) for q in imp], spec, label_columns)
