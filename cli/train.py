@@ -79,5 +79,6 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
 
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
                   device=device)
-    if not quiet and history:
+    import os
+    if not quiet and history and os.environ.get("RANK", "0") == "0":
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

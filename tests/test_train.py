@@ -165,3 +165,20 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
     assert (relaxed ** 2).sum() < (at_zero ** 2).sum()
     h = train(tiny, tmp_path / "s", TrainConfig(**dict(SMALL, epochs=2, loss="solver")))
     assert np.isfinite(h[-1]["train_loss"])
+
+
+def test_data_parallel_training_under_torchrun(tiny, tmp_path):
+    import shutil
+    import subprocess
+    import sys
+    torchrun = shutil.which("torchrun")
+    if torchrun is None:
+        pytest.skip("torchrun is not installed")
+    out = tmp_path / "ddp"
+    r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", str(tiny), "-o",
+                        str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
+                        "--optimizer", "adam"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stderr.count("best.pt and last.pt written") == 1          # rank 0 alone reports and writes
+    ck = load_checkpoint(out / "last.pt")
+    assert ck["epoch"] == 1 and len(json.loads((out / "metrics.json").read_text())) == 2

@@ -243,8 +243,12 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
             total += loss.item() * len(idx)
             seen += len(idx)
         seconds = time.perf_counter() - t0
+        if world > 1:   # the epoch's loss over all ranks' samples
+            sums = torch.tensor([total, float(seen)], dtype=torch.float64)
+            torch.distributed.all_reduce(sums)
+            total, seen = float(sums[0]), int(sums[1])
         row = {"epoch": epoch, "lr": lr, "train_loss": total / max(seen, 1), "seconds": seconds,
-               "samples_per_second": seen * world / max(seconds, 1e-9)}
+               "samples_per_second": seen / max(seconds, 1e-9)}
         row.update(evaluate(model, ds, val_idx, target_idx, label_columns, spec, cfg, loss_of, batch)
                    if len(val_idx) else {})
         history.append(row)
@@ -259,13 +263,16 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
             if improved:
                 save("best.pt", epoch)
             write_metrics(out_dir, history)
-        if progress is not None:
+        if progress is not None and rank == 0:
             progress(row)
         if cfg.patience and bad_epochs >= cfg.patience:
             log.info("no improvement for %d epochs: stopping after epoch %d", bad_epochs, epoch)
             break
     if rank == 0 and history:
         plot_losses(history, out_dir / "loss")
+    if world > 1:
+        torch.distributed.barrier()   # no rank leaves while rank 0 still writes
+        torch.distributed.destroy_process_group()
     return history
 
 
