@@ -3,6 +3,7 @@ import click
 
 from deepcontact import __version__
 
+from .evaluate import evaluate
 from .rasterize import rasterize
 from .simulate import simulate
 from .train import train
@@ -23,6 +24,7 @@ cli.add_command(simulate)
 cli.add_command(validate)
 cli.add_command(rasterize)
 cli.add_command(train)
+cli.add_command(evaluate)
 
 
 def main():

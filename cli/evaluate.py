@@ -1,0 +1,89 @@
+"""dc evaluate: every warm start compared on the recorded steps, with reports."""
+import click
+
+from deepcontact.errors import InputError
+
+from . import options
+
+
+@click.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Report folder.")
+@click.option("--starts", default="zero,builtin,copy,sph", show_default=True,
+              help="Comma-separated: zero, builtin, copy, copy2, copy0, sph, cnn, random, bad, guarded, cnn-new.")
+@click.option("--model", type=click.Path(dir_okay=False), help="A checkpoint from dc train (cnn, guarded, cnn-new).")
+@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), default=1e-4, show_default=True)
+@click.option("--max-iterations", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual",
+              show_default=True, help="The measure the tolerance applies to (README: Measuring convergence).")
+@click.option("--mode", type=click.Choice(["float32", "float64"]), default="float64", show_default=True)
+@click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
+@click.option("--cell", type=float, default=0.5, show_default=True, help="[sph without --model] Cell size d.")
+@click.option("--smoothing", type=float, default=0.5, show_default=True, help="[sph without --model] h.")
+@click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
+              show_default=True, help="[sph without --model] SPH kernel.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random start.")
+@options.overwrite
+@options.verbosity
+@options.command("evaluate")
+def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
+             overwrite, verbose, quiet):
+    """Solve every recorded step of RUNS from every start and compare.
+
+    Each step's reference solution (float64 PGS to a residual of 1e-12) is the
+    oracle "copy" and the ground truth for errors. Per step and start: sweeps
+    to tolerance, the convergence history, the final error, and time split
+    into prediction and solving. OUTPUT gets report.md, summary.csv/json,
+    steps.csv, pareto.json and convergence, iterations and pareto plots
+    (PNG and SVG).
+
+    \b
+    Examples:
+      dc evaluate runs/pile -o reports/starts
+      dc evaluate runs/pile --starts zero,builtin,copy,copy2,copy0,sph,random,bad -o reports/all
+      dc evaluate runs/val --starts zero,builtin,copy,sph,cnn,guarded,cnn-new --model models/fcn/best.pt -o r/cnn
+      dc evaluate runs/pile --tolerance 1e-4 --stop-on thesis --max-iterations 5000 --every 10 -o r/thesis
+    """
+    import os
+    import shutil
+    from pathlib import Path
+
+    from deepcontact.evaluate.replay import evaluate as run, step_files, summarize
+    from deepcontact.evaluate.report import summary_table, write_report
+    from deepcontact.evaluate.starts import make_starts
+    from deepcontact.grid.dataset import collect, grid_for
+
+    names = [s.strip() for s in starts.split(",") if s.strip()]
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise InputError("report folder is not empty; use --overwrite to replace it", out)
+    predictor, spec = None, None
+    if model:
+        from deepcontact.model.inference import Predictor
+        predictor = Predictor(model)
+        spec = predictor.spec
+    if "sph" in names and spec is None:
+        sims, _ = collect(runs)
+        spec = grid_for(sims, cell, smoothing, kernel, True)
+    table = make_starts(names, spec=spec, predictor=predictor)
+    total = sum(len(f[::every]) for r in runs for _, f in step_files(r)[1])
+    bar = options.progress_bar(quiet, total, "step", "evaluate")
+    rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
+               every=every, seed=seed, progress=(lambda k: bar.update(k)) if bar is not None else None)
+    if bar is not None:
+        bar.close()
+    summary = summarize(rows, table, max_iterations)
+    settings = dict(runs=[str(r) for r in runs], starts=names, model=model, tolerance=tolerance,
+                    max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
+                    steps=len({(r.run, r.seed, r.step) for r in rows}))
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        write_report(tmp, rows, summary, settings)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    click.echo(summary_table(summary))

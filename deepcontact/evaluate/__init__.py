@@ -1,0 +1,1 @@
+"""Warm starts compared: replay every recorded step from every start, and report."""

@@ -1,0 +1,136 @@
+"""Replay: every recorded step solved from every start, on the same problem.
+
+For each step and start: the start is made (its prediction time measured by stage), then the
+project's PGS runs from it until the stopping measure falls below the tolerance or the cap, once
+with the convergence history recorded and once without, for honest timing. Recorded per step
+and start: iterations, whether the cap was hit, the history, the final residual, the error
+against the reference solution (relative, in impulses), prediction and solve time.
+"""
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..solver.pgs import MEASURES, solve
+from ..solver.problem import StepProblem
+from ..solver.reference import reference_solution
+from ..step.reader import read_step
+from .starts import StepContext
+
+
+@dataclass
+class Row:
+    run: str
+    seed: int
+    step: int
+    points: int
+    start: str
+    iterations: int
+    capped: bool
+    residual: float
+    error: float              # |l - l*| / |l*| over all rows of the step
+    predict_ms: float
+    solve_ms: float
+    history: np.ndarray       # the stopping measure after each sweep (index 0: before any)
+
+
+def step_files(run_dir):
+    run = Path(run_dir)
+    manifest = run / "manifest.json"
+    if not manifest.is_file():
+        raise InputError("no manifest.json: not a finished `dc simulate` run", run)
+    m = json.loads(manifest.read_text())
+    if m.get("solver", "box2d") != "box2d":
+        raise InputError("evaluate replays runs stepped by Box2D's own solver (its warm start is the builtin "
+                         "start)", manifest)
+    out = []
+    for e in m["simulations"]:
+        files = sorted((run / e["dir"]).glob("step-*.xml"))
+        out.append((int(e["seed"]), files))
+    if not any(files for _, files in out):
+        raise InputError("the run has no step files", run)
+    return m, out
+
+
+def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
+             every=1, seed=0, progress=None):
+    """Rows for every (step, start). Runs must all come from one kind of scene."""
+    scenes = {}
+    plan = []
+    for run in run_dirs:
+        manifest, sims = step_files(run)
+        scenes[str(run)] = manifest.get("scene")
+        for s, files in sims:
+            plan.append((str(run), s, files))
+    if len(set(scenes.values())) > 1:
+        raise InputError(f"the runs hold different scenes ({', '.join(sorted(map(str, set(scenes.values()))))}); "
+                         f"evaluate one kind of scene at a time")
+    measure = MEASURES.index(stop_on)
+    rows = []
+    for run, sim_seed, files in plan:
+        previous = set()
+        for k, path in enumerate(files):
+            header, bodies, contacts = read_step(path)
+            keys = set(zip(contacts["fixture_a"].tolist(), contacts["child_a"].tolist(),
+                           contacts["fixture_b"].tolist(), contacts["child_b"].tolist(), contacts["id_key"].tolist()))
+            persisted = np.array([key in previous for key in zip(
+                contacts["fixture_a"].tolist(), contacts["child_a"].tolist(), contacts["fixture_b"].tolist(),
+                contacts["child_b"].tolist(), contacts["id_key"].tolist())], dtype=bool)
+            previous = keys
+            if k % every or len(contacts["manifold"]) == 0:
+                continue
+            problem = StepProblem.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
+                                              block_solve=header["solver"]["block_solve"] == "true",
+                                              velocity_iterations=header["velocity_iterations"],
+                                              index=header["index"])
+            reference = reference_solution(problem)
+            ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
+                              persisted=persisted, seed=seed)
+            ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
+            for name, start in starts.items():
+                value = start(ctx)
+                kw = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
+                before = solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0)
+                traced = solve(problem, value.normal, value.tangent, history=True, **kw)
+                t0 = time.perf_counter()
+                solve(problem, value.normal, value.tangent, final_residual=False, **kw)
+                solve_s = time.perf_counter() - t0
+                got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
+                hist = traced.history[:, measure]
+                first = before.residual if stop_on == "residual" else np.nan
+                rows.append(Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=name,
+                                iterations=traced.iterations,
+                                capped=bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance)),
+                                residual=traced.residual,
+                                error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
+                                predict_ms=sum(value.seconds.values()) * 1e3, solve_ms=solve_s * 1e3,
+                                history=np.concatenate([[first], hist])))
+            if progress is not None:
+                progress(1)
+    if not rows:
+        raise InputError("no steps with contacts to evaluate")
+    return rows
+
+
+def summarize(rows, starts, max_iterations):
+    """Per start: the distribution of iterations, the share at the cap, times, residual, error."""
+    out = {}
+    for name in starts:
+        rs = [r for r in rows if r.start == name]
+        it = np.array([r.iterations for r in rs])
+        pred = np.array([r.predict_ms for r in rs])
+        sol = np.array([r.solve_ms for r in rs])
+        out[name] = {
+            "steps": len(rs),
+            "iterations_median": float(np.median(it)), "iterations_p80": float(np.percentile(it, 80)),
+            "iterations_p95": float(np.percentile(it, 95)),
+            "at_cap": float(np.mean([r.capped for r in rs])),
+            "predict_ms_median": float(np.median(pred)), "solve_ms_median": float(np.median(sol)),
+            "total_ms_median": float(np.median(pred + sol)),
+            "residual_median": float(np.median([r.residual for r in rs])),
+            "error_median": float(np.median([r.error for r in rs])),
+        }
+    return out

@@ -1,0 +1,156 @@
+"""The evaluation report: markdown, CSV/JSON tables and plots (PNG and SVG).
+
+  convergence  median and 10-90% band of the stopping measure per iteration, per start
+               (the thesis's figures 3.7/3.8/5.7/5.9, with percentiles instead of a mean)
+  iterations   the distribution of iterations to tolerance per start (empirical CDF)
+  pareto       what accuracy costs in time: median residual reached against median total time
+               per step (prediction included), for each start and iteration budget
+"""
+import csv
+import io
+import json
+
+import numpy as np
+
+from .. import atomic
+
+BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
+
+
+def write_report(out, rows, summary, settings):
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["run", "seed", "step", "points", "start", "iterations", "capped", "residual", "error",
+                "predict_ms", "solve_ms"])
+    for r in rows:
+        w.writerow([r.run, r.seed, r.step, r.points, r.start, r.iterations, int(r.capped), f"{r.residual:.6g}",
+                    f"{r.error:.6g}", f"{r.predict_ms:.6g}", f"{r.solve_ms:.6g}"])
+    atomic.write_text(out / "steps.csv", buf.getvalue())
+    atomic.write_text(out / "summary.json", json.dumps({"settings": settings, "starts": summary}, indent=2) + "\n")
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    keys = list(next(iter(summary.values())))
+    w.writerow(["start"] + keys)
+    for name, s in summary.items():
+        w.writerow([name] + [f"{s[k]:.6g}" for k in keys])
+    atomic.write_text(out / "summary.csv", buf.getvalue())
+    pareto = pareto_points(rows, summary)
+    atomic.write_text(out / "pareto.json", json.dumps(pareto, indent=1) + "\n")
+    plots(out, rows, summary, settings, pareto)
+    atomic.write_text(out / "report.md", markdown(summary, settings, pareto))
+
+
+def summary_table(summary):
+    lines = ["| start | steps | median iterations | p80 | p95 | at the cap | predict ms | solve ms | total ms | "
+             "median error vs reference |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for name, s in summary.items():
+        lines.append(f"| {name} | {s['steps']} | {s['iterations_median']:.0f} | {s['iterations_p80']:.0f} | "
+                     f"{s['iterations_p95']:.0f} | {100 * s['at_cap']:.0f}% | {s['predict_ms_median']:.3f} | "
+                     f"{s['solve_ms_median']:.3f} | {s['total_ms_median']:.3f} | {s['error_median']:.3g} |")
+    return "\n".join(lines)
+
+
+def markdown(summary, settings, pareto):
+    s = settings
+    text = [f"# Warm starts compared\n",
+            f"Runs: {', '.join(s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
+            f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
+            f"Errors are against each step's reference solution (float64 PGS to a residual of 1e-12).\n",
+            summary_table(summary), "",
+            "Oracles (they know the answer): copy, copy2, copy0, sph. Times are medians per step; prediction "
+            "includes rasterizing, the network and interpolating where a start needs them.\n",
+            "![convergence](convergence.png)\n", "![iterations](iterations.png)\n", "![pareto](pareto.png)\n",
+            "## What accuracy costs in time\n",
+            "Median normalised residual after a budget of sweeps, and the median total time per step "
+            "(prediction plus that many sweeps):\n",
+            "| start | " + " | ".join(f"{b} sweeps" for b in BUDGETS) + " |",
+            "| --- |" + " ---: |" * len(BUDGETS)]
+    for name, pts in pareto.items():
+        cells = [f"{p['residual']:.2g} @ {p['ms']:.2f} ms" if p else "" for p in pts]
+        text.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(text) + "\n"
+
+
+def pareto_points(rows, summary):
+    """Per start and budget: median residual after that many sweeps, median time for them."""
+    out = {}
+    for name in summary:
+        rs = [r for r in rows if r.start == name]
+        per_sweep = np.median([r.solve_ms / max(r.iterations, 1) for r in rs])
+        pred = np.median([r.predict_ms for r in rs])
+        pts = []
+        for b in BUDGETS:
+            # beyond its last sweep a step sits at its final value (it had converged or was capped)
+            vals = [r.history[min(b, len(r.history) - 1)] for r in rs if len(r.history)]
+            vals = [v for v in vals if np.isfinite(v)]
+            pts.append({"budget": b, "residual": float(np.median(vals)) if vals else float("nan"),
+                        "ms": float(pred + per_sweep * b)} if vals else None)
+        out[name] = pts
+    return out
+
+
+def plots(out, rows, summary, settings, pareto):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {name: f"C{i % 10}" for i, name in enumerate(summary)}
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    cap = settings["max_iterations"]
+    for name in summary:
+        hs = [r.history for r in rows if r.start == name]
+        n = min(cap + 1, max(len(h) for h in hs))
+        m = np.full((len(hs), n), np.nan)
+        for i, h in enumerate(hs):
+            m[i, :len(h)] = h[:n]
+            m[i, len(h):] = h[-1] if len(h) else np.nan   # converged: stays where it stopped
+        x = np.arange(n)
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(m, axis=0)
+            lo, hi = np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0)
+        ax.plot(x[1:], med[1:], color=colors[name], label=name)
+        ax.fill_between(x[1:], lo[1:], hi[1:], color=colors[name], alpha=0.12)
+    ax.axhline(settings["tolerance"], color="k", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("PGS sweep")
+    ax.set_ylabel(f"{settings['stop_on']} measure (median, 10-90%)")
+    ax.set_title("Convergence by warm start")
+    ax.legend(fontsize=8, ncol=2)
+    ax.grid(alpha=0.3, which="both")
+    _save(fig, out / "convergence")
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name in summary:
+        it = np.sort([r.iterations for r in rows if r.start == name])
+        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post", color=colors[name], label=name)
+    ax.set_xscale("log")
+    ax.set_xlabel("iterations to tolerance")
+    ax.set_ylabel("share of steps")
+    ax.set_title("Iterations to tolerance")
+    ax.legend(fontsize=8, ncol=2)
+    ax.grid(alpha=0.3, which="both")
+    _save(fig, out / "iterations")
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, pts in pareto.items():
+        pts = [p for p in pts if p and np.isfinite(p["residual"]) and p["residual"] > 0]
+        ax.plot([p["ms"] for p in pts], [p["residual"] for p in pts], marker="o", ms=3, color=colors[name], label=name)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("time per step, prediction + sweeps (ms, median)")
+    ax.set_ylabel("residual reached (median)")
+    ax.set_title("What accuracy costs in time")
+    ax.legend(fontsize=8, ncol=2)
+    ax.grid(alpha=0.3, which="both")
+    _save(fig, out / "pareto")
+
+
+def _save(fig, stem):
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    for ext in ("png", "svg"):
+        fig.savefig(f"{stem}.{ext}", dpi=110)
+    plt.close(fig)
