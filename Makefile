@@ -7,7 +7,7 @@ STAMPS := .stamps
 NATIVE := $(wildcard deepcontact/native/*.cpp deepcontact/native/*.hpp)
 RUNS ?= runs
 
-.PHONY: setup demo test test-slow bench stability clean
+.PHONY: setup demo test test-slow bench stability smoke smoke-pipeline clean
 
 # Debian packages: Box2D 2.4.1 and pkg-config to build against it, a C++ compiler, and xmllint
 # (an independent schema validator the tests use).
@@ -46,6 +46,24 @@ bench: setup
 	$(PYTHON) benchmarks/bench_simulate.py
 	$(PYTHON) benchmarks/bench_solver.py
 	$(PYTHON) benchmarks/bench_rasterize.py
+
+# The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
+# The test suite runs smoke-pipeline (tests/test_pipeline.py).
+SMOKE ?= $(RUNS)/smoke
+smoke: setup
+	$(MAKE) --no-print-directory smoke-pipeline
+
+smoke-pipeline:
+	dc simulate pile --param count=30 --param box=16 --param sigma=4 --steps 120 --seeds 0..1 \
+		--skip-contactless -q --overwrite -o $(SMOKE)/run
+	dc validate -q $(SMOKE)/run
+	dc validate --replay -q $(SMOKE)/run
+	dc rasterize $(SMOKE)/run -o $(SMOKE)/data --validation 0.5 -q --overwrite
+	dc train $(SMOKE)/data -o $(SMOKE)/model --epochs 1 --width 4 --depth 2 --batch-size 32 --optimizer adam \
+		-q --overwrite
+	dc evaluate $(SMOKE)/run --starts zero,builtin,copy,sph,cnn,guarded --model $(SMOKE)/model/best.pt \
+		--every 10 -q --overwrite -o $(SMOKE)/report
+	@echo "smoke: report in $(SMOKE)/report/report.md"
 
 # The hard-scene stability table of the README (about a minute).
 stability: setup

@@ -1,0 +1,81 @@
+"""dc evaluate: the starts, their orderings on a real run, the report, and the whole pipeline."""
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import dc
+from deepcontact.errors import InputError
+from deepcontact.evaluate.replay import evaluate, summarize
+from deepcontact.evaluate.starts import make_starts
+from deepcontact.grid.spec import GridSpec
+
+ROOT = Path(__file__).parent.parent
+
+
+@pytest.fixture(scope="module")
+def settled_pile(tmp_path_factory):
+    """A small pile run long enough (300 steps) that most sampled steps are a resting pile."""
+    out = tmp_path_factory.mktemp("eval") / "run"
+    r = dc("simulate", "pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4", "--steps", "300",
+           "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def rows_and_summary(settled_pile):
+    starts = make_starts(["zero", "builtin", "copy", "copy2", "sph", "bad", "random"],
+                         spec=GridSpec.over((0, 0, 16, 16), 0.5, 0.5))
+    rows = evaluate([settled_pile], starts, tolerance=1e-4, max_iterations=3000, every=10)
+    return rows, summarize(rows, starts, 3000)
+
+
+def test_the_orderings_an_honest_comparison_must_show(rows_and_summary):
+    _, s = rows_and_summary
+    med = {k: v["iterations_median"] for k, v in s.items()}
+    assert med["copy"] <= 3                                   # the answer converges at once
+    assert med["copy2"] <= med["builtin"]
+    assert med["builtin"] < med["zero"]                      # Box2D's warm start beats zero
+    assert med["bad"] > med["zero"]                          # a bad start is worse than none
+    assert s["copy"]["error_median"] < 1e-9
+    assert all(v["residual_median"] < 1e-4 or v["at_cap"] > 0 for v in s.values())
+    assert s["sph"]["predict_ms_median"] > 0 and s["zero"]["predict_ms_median"] == 0
+
+
+def test_every_step_is_solved_from_every_start(rows_and_summary):
+    rows, s = rows_and_summary
+    steps = {(r.seed, r.step) for r in rows}
+    assert len(rows) == len(steps) * len(s)
+    for r in rows:
+        assert r.iterations >= 1 and np.isfinite(r.residual) and np.isfinite(r.history[0])
+        assert len(r.history) == r.iterations + 1
+        assert r.capped or r.history[-1] < 1e-4            # converged to the tolerance, or hit the cap
+
+
+def test_unknown_starts_and_missing_model_are_clear_errors(pile_run, tmp_path):
+    with pytest.raises(InputError, match="unknown start"):
+        make_starts(["zero", "lucky"])
+    with pytest.raises(InputError, match="need a trained --model"):
+        make_starts(["cnn"])
+    r = dc("evaluate", str(pile_run), "--starts", "zero,nope", "-o", str(tmp_path / "r"))
+    assert r.returncode == 1 and "nope" in r.stderr and not (tmp_path / "r").exists()
+    r = dc("evaluate", str(tmp_path), "-o", str(tmp_path / "r2"))
+    assert r.returncode == 1 and "manifest" in r.stderr
+
+
+def test_the_smoke_pipeline(tmp_path):
+    if shutil.which("make") is None:
+        pytest.skip("make is not installed")
+    smoke = tmp_path / "smoke"
+    r = subprocess.run(["make", "-s", "-C", str(ROOT), "smoke-pipeline", f"SMOKE={smoke}"], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    report = smoke / "report"
+    for name in ("report.md", "summary.csv", "summary.json", "steps.csv", "pareto.json", "convergence.png",
+                 "convergence.svg", "iterations.png", "pareto.png", "pareto.svg"):
+        assert (report / name).exists(), name
+    text = (report / "report.md").read_text()
+    assert "| cnn |" in text and "| guarded |" in text and "What accuracy costs in time" in text
