@@ -23,11 +23,15 @@ from . import options
 @click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
               show_default=True, help="[sph without --model] SPH kernel.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random start.")
+@click.option("--closed-loop", is_flag=True,
+              help="Let each start drive the simulation (the run's scene, from its first state) instead of "
+                   "replaying the recorded steps.")
+@click.option("--steps", type=click.IntRange(min=1), help="[--closed-loop] Steps to simulate (default: the scene's).")
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             overwrite, verbose, quiet):
+             closed_loop, steps, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 PGS to a residual of 1e-12) is the
@@ -43,6 +47,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
       dc evaluate runs/pile --starts zero,builtin,copy,copy2,copy0,sph,random,bad -o reports/all
       dc evaluate runs/val --starts zero,builtin,copy,sph,cnn,guarded,cnn-new --model models/fcn/best.pt -o r/cnn
       dc evaluate runs/pile --tolerance 1e-4 --stop-on thesis --max-iterations 5000 --every 10 -o r/thesis
+      dc evaluate runs/pile --closed-loop --starts zero,builtin,copy,bad --steps 200 -o r/loop
     """
     import os
     import shutil
@@ -66,6 +71,8 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         sims, _ = collect(runs)
         spec = grid_for(sims, cell, smoothing, kernel, True)
     table = make_starts(names, spec=spec, predictor=predictor)
+    if closed_loop:
+        return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, overwrite, quiet)
     total = sum(len(f[::every]) for r in runs for _, f in step_files(r)[1])
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
@@ -87,3 +94,43 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     click.echo(summary_table(summary))
+
+
+def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, overwrite, quiet):
+    import json
+    import os
+    import shutil
+
+    from deepcontact import atomic
+    from deepcontact.evaluate.closed_loop import closed_loop, loop_table
+    from deepcontact.evaluate.replay import step_files
+    from deepcontact.scene.xml import read_scene
+
+    manifest, sims = step_files(runs[0])
+    first = sims[0][1][0].parent / "scene.xml"
+    scene = read_scene(first)
+    bar = options.progress_bar(quiet, len(table) + 1, "run", "closed loop")
+    results = closed_loop(scene, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on,
+                          mode=mode, steps=steps, progress=(lambda k: bar.update(k)) if bar is not None else None)
+    if bar is not None:
+        bar.close()
+    text = loop_table(results)
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        atomic.write_text(tmp / "closed-loop.md", f"# Closed loop: {scene.name} from {first}\n\n"
+                          f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
+                          f"largest distance of any body from the trajectory stepped with reference solutions.\n\n"
+                          + text + "\n")
+        atomic.write_text(tmp / "closed-loop.json", json.dumps([{
+            "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
+            "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
+            "finite": r.finite} for r in results]) + "\n")
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    click.echo(text)

@@ -53,8 +53,11 @@ def check_scene_for_loop(scene, source=None):
 class PGSStepper:
     """Steps a world with the project's PGS; step() returns what the step file records."""
 
-    def __init__(self, world, scene, options: LoopOptions):
-        if options.start not in STARTS:
+    def __init__(self, world, scene, options: LoopOptions, start_fn=None):
+        """start_fn(bodies, contacts, problem, builtin_n, builtin_t) -> (normal, tangent), if given,
+        makes the first iterate instead of options.start (dc evaluate --closed-loop)."""
+        self.start_fn = start_fn
+        if start_fn is None and options.start not in STARTS:
             raise InputError(f"unknown start {options.start!r}; choose from {', '.join(STARTS)}")
         check_scene_for_loop(scene)
         self.world, self.scene, self.options = world, scene, options
@@ -73,7 +76,15 @@ class PGSStepper:
         ratio = np.float32(0.0 if self.first else 1.0)
         builtin_n = ratio * contacts["normal_impulse"]
         builtin_t = ratio * contacts["tangent_impulse"]
-        if o.start == "builtin":
+        problem = None
+        if len(contacts["manifold"]):
+            problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
+                                              block_solve=scene.solver.block_solve,
+                                              velocity_iterations=o.max_iterations)
+        if self.start_fn is not None:
+            start_n, start_t = (np.zeros(0), np.zeros(0)) if problem is None else \
+                self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+        elif o.start == "builtin":
             start_n, start_t = builtin_n, builtin_t
         elif o.start == "garbage":
             start_n = np.resize(GARBAGE, len(builtin_n))
@@ -82,10 +93,7 @@ class PGSStepper:
             start_n = np.zeros_like(builtin_n)
             start_t = np.zeros_like(builtin_t)
         solution = None
-        if len(contacts["manifold"]):
-            problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
-                                              block_solve=scene.solver.block_solve,
-                                              velocity_iterations=o.max_iterations)
+        if problem is not None:
             solution = solve(problem, start_n, start_t, mode=o.mode, max_iterations=o.max_iterations,
                              tolerance=o.tolerance, stop_on=o.stop_on, relaxation=o.relaxation)
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
@@ -96,6 +104,8 @@ class PGSStepper:
         # What Box2D applied is what we wrote; record our start as the step's start.
         # (a garbage start is recorded as sanitised: no NaN ever reaches a file)
         used_n, used_t = (start_n, start_t) if o.start != "garbage" else (np.zeros_like(builtin_n),) * 2
+        if len(used_n) != len(builtin_n):
+            used_n, used_t = np.zeros_like(builtin_n), np.zeros_like(builtin_t)
         recorded["start_normal_impulse"] = used_n.astype(np.float32)
         recorded["start_tangent_impulse"] = used_t.astype(np.float32)
         return before, recorded, solution
