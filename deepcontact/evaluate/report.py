@@ -3,8 +3,8 @@
   convergence  median and 10-90% band of the stopping measure per iteration, per start
                (the thesis's figures 3.7/3.8/5.7/5.9, with percentiles instead of a mean)
   iterations   the distribution of iterations to tolerance per start (empirical CDF)
-  pareto       what accuracy costs in time: median residual reached against median total time
-               per step (prediction included), for each start and iteration budget
+  pareto       what accuracy costs in time: the median stopping measure reached against the median
+               total time per step (prediction included), for each start and iteration budget
 """
 import csv
 import io
@@ -63,8 +63,8 @@ def markdown(summary, settings, pareto):
             "includes rasterizing, the network and interpolating where a start needs them.\n",
             "![convergence](convergence.png)\n", "![iterations](iterations.png)\n", "![pareto](pareto.png)\n",
             "## What accuracy costs in time\n",
-            "Median normalised residual after a budget of sweeps, and the median total time per step "
-            "(prediction plus that many sweeps):\n",
+            f"Median {s['stop_on']} measure after a budget of sweeps (a step that met the tolerance earlier "
+            "keeps its last value), and the median total time per step (prediction plus that many sweeps):\n",
             "| start | " + " | ".join(f"{b} sweeps" for b in BUDGETS) + " |",
             "| --- |" + " ---: |" * len(BUDGETS)]
     for name, pts in pareto.items():
@@ -141,7 +141,7 @@ def plots(out, rows, summary, settings, pareto):
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time per step, prediction + sweeps (ms, median)")
-    ax.set_ylabel("residual reached (median)")
+    ax.set_ylabel(f"{settings['stop_on']} measure reached (median)")
     ax.set_title("What accuracy costs in time")
     ax.legend(fontsize=8, ncol=2)
     ax.grid(alpha=0.3, which="both")
