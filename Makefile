@@ -7,7 +7,7 @@ STAMPS := .stamps
 NATIVE := $(wildcard deepcontact/native/*.cpp deepcontact/native/*.hpp)
 RUNS ?= runs
 
-.PHONY: setup demo test test-slow bench stability smoke smoke-pipeline clean
+.PHONY: setup demo test test-slow bench stability smoke smoke-pipeline study study-pipeline clean
 
 # Debian packages: Box2D 2.4.1 and pkg-config to build against it, a C++ compiler, and xmllint
 # (an independent schema validator the tests use).
@@ -64,6 +64,39 @@ smoke-pipeline:
 	dc evaluate $(SMOKE)/run --starts zero,builtin,copy,sph,cnn,guarded --model $(SMOKE)/model/best.pt \
 		--every 10 -q --overwrite -o $(SMOKE)/report
 	@echo "smoke: report in $(SMOKE)/report/report.md"
+
+# The thesis-scale study: 150 pile simulations, the grid dataset, the network, and every start
+# evaluated on held-out simulations, plus the thesis's figures 5.4-5.7. File targets: `make -j2`
+# runs independent steps together, and an interrupted study resumes where it stopped (the
+# manifest and dataset are written last, training resumes from last.pt).
+STUDY ?= $(RUNS)/study
+STUDY_EPOCHS ?= 30
+study: setup
+	$(MAKE) --no-print-directory study-pipeline
+
+study-pipeline: $(STUDY)/report/report.md $(STUDY)/figures/figures.md
+
+$(STUDY)/run/manifest.json:
+	dc simulate pile --seeds 0..149 -j 2 -q --overwrite -o $(STUDY)/run
+
+$(STUDY)/heldout/manifest.json:
+	dc simulate pile --seeds 1000..1001 -q --overwrite -o $(STUDY)/heldout
+
+$(STUDY)/data/metadata.json: $(STUDY)/run/manifest.json
+	dc rasterize $(STUDY)/run -o $(STUDY)/data -j 2 -q --overwrite
+
+$(STUDY)/model/done: $(STUDY)/data/metadata.json
+	if [ -f $(STUDY)/model/last.pt ]; then dc train $(STUDY)/data -o $(STUDY)/model --resume; \
+	else dc train $(STUDY)/data -o $(STUDY)/model --epochs $(STUDY_EPOCHS) --patience 5 --optimizer adam; fi
+	touch $@
+
+$(STUDY)/report/report.md: $(STUDY)/model/done $(STUDY)/heldout/manifest.json
+	dc evaluate $(STUDY)/heldout --starts zero,builtin,copy,copy2,copy0,sph,cnn,random,bad,guarded,cnn-new \
+		--model $(STUDY)/model/best.pt --stop-on thesis --tolerance 1e-4 --max-iterations 1000 --every 5 \
+		--overwrite -o $(STUDY)/report
+
+$(STUDY)/figures/figures.md: $(STUDY)/heldout/manifest.json
+	$(PYTHON) -m deepcontact.evaluate.figures $(STUDY)/heldout -o $(STUDY)/figures --every 10
 
 # The hard-scene stability table of the README (about a minute).
 stability: setup
