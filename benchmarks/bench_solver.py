@@ -13,8 +13,6 @@ import argparse
 import statistics
 import time
 
-import numpy as np
-
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 from deepcontact.solver import lcp as L

@@ -49,10 +49,9 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
       dc evaluate runs/pile --tolerance 1e-4 --stop-on thesis --max-iterations 5000 --every 10 -o r/thesis
       dc evaluate runs/pile --closed-loop --starts zero,builtin,copy,bad --steps 200 -o r/loop
     """
-    import os
-    import shutil
     from pathlib import Path
 
+    from deepcontact import atomic
     from deepcontact.evaluate.replay import evaluate as run, step_files, summarize
     from deepcontact.evaluate.report import summary_table, write_report
     from deepcontact.evaluate.starts import make_starts
@@ -83,23 +82,13 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     settings = dict(runs=[str(r) for r in runs], starts=names, model=model, tolerance=tolerance,
                     max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}))
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
+    with atomic.folder(out) as tmp:
         write_report(tmp, rows, summary, settings)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     click.echo(summary_table(summary))
 
 
 def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, overwrite, quiet):
     import json
-    import os
-    import shutil
 
     from deepcontact import atomic
     from deepcontact.evaluate.closed_loop import closed_loop, loop_table
@@ -115,10 +104,7 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
     if bar is not None:
         bar.close()
     text = loop_table(results)
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic.folder(out) as tmp:
         atomic.write_text(tmp / "closed-loop.md", f"# Closed loop: {scene.name} from {first}\n\n"
                           f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
                           f"largest distance of any body from the trajectory stepped with reference solutions.\n\n"
@@ -127,10 +113,4 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
             "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
             "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
             "finite": r.finite} for r in results]) + "\n")
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     click.echo(text)

@@ -69,7 +69,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
       dc rasterize runs/pile --oracle --impulses recorded
       dc rasterize runs/pile --study -o reports/sph
     """
-    from deepcontact.grid.dataset import collect, grid_for, write_dataset
+    from deepcontact.grid.dataset import collect, write_dataset
 
     win = parse_window(window)
     if oracle or study:

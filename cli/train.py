@@ -56,7 +56,6 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
       dc train data/thesis -o models/fcn --resume
       torchrun --nproc_per_node 2 -m deepcontact.cli.main train data/thesis -o models/ddp
     """
-    import shutil
     from pathlib import Path
 
     from deepcontact.model.train import TrainConfig, train as run

@@ -52,3 +52,28 @@ def _remove_quietly(path):
         os.unlink(path)
     except OSError:
         pass
+
+
+@contextmanager
+def folder(path):
+    """A temporary folder beside `path` that becomes `path` only if the block completes.
+
+    An existing folder is swapped out first and removed after; on failure or Ctrl-C the
+    temporary folder is removed and `path` is left as it was."""
+    import shutil
+    path = Path(path)
+    tmp = path.parent / f".{path.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        yield tmp
+        old = None
+        if path.exists():
+            old = path.parent / f".{path.name}.old-{os.getpid()}"
+            os.replace(path, old)
+        os.replace(tmp, path)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -1,6 +1,5 @@
 """The `dc` commands as a user runs them: exit codes, one-line errors, files on disk."""
 import json
-import os
 import signal
 import subprocess
 import sys

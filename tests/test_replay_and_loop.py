@@ -6,7 +6,6 @@ import pytest
 
 from conftest import dc
 from deepcontact.scene.generators import generate
-from deepcontact.scene.xml import read_scene
 from deepcontact.simulate.build import build_world
 from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
 from deepcontact.step.reader import read_step

@@ -170,7 +170,6 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
 def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     import shutil
     import subprocess
-    import sys
     torchrun = shutil.which("torchrun")
     if torchrun is None:
         pytest.skip("torchrun is not installed")

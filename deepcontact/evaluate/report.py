@@ -54,7 +54,7 @@ def summary_table(summary):
 
 def markdown(summary, settings, pareto):
     s = settings
-    text = [f"# Warm starts compared\n",
+    text = ["# Warm starts compared\n",
             f"Runs: {', '.join(s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
             f"Errors are against each step's reference solution (float64 PGS to a residual of 1e-12).\n",

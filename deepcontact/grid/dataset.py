@@ -19,14 +19,12 @@ Train/validation splits are by simulation, never by step (neighbouring steps are
 import hashlib
 import json
 import logging
-import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, atomic
 from .._box2d import box2d_version
 from ..errors import InputError
 from ..scene.xml import read_scene
@@ -168,10 +166,7 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     if n == 0:
         raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
 
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic.folder(out) as tmp:
         arrays = {
             "inputs": np.lib.format.open_memmap(tmp / "inputs.npy", "w+", np.float32, (n, len(inputs), spec.ny, spec.nx)),
             "labels": np.lib.format.open_memmap(tmp / "labels.npy", "w+", np.float32, (n, len(labels), spec.ny, spec.nx)),
@@ -231,22 +226,7 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
             "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": np.__version__},
         }
         (tmp / "metadata.json").write_text(json.dumps(metadata, indent=2) + "\n")
-        _replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return metadata
-
-
-def _replace(tmp, out):
-    """Move the finished folder into place; an existing one is swapped out, then removed."""
-    old = None
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        os.replace(out, old)
-    os.replace(tmp, out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 class GridDataset:

@@ -60,7 +60,6 @@ def exact_impulses(step_files, source="reference", log=None):
 def round_trip(steps, spec, label=""):
     """Errors of impulses → grid → bilinear back, over steps [(positions, normal, tangent, _)]."""
     err_n, err_t, ref_n, ref_t = [], [], [], []
-    max_n = max_t = 0.0
     outside = 0
     scale = 1.0 if spec.renormalize else spec.cell ** 2
     t0 = time.perf_counter()
