@@ -9,6 +9,7 @@
 import csv
 import io
 import json
+import warnings
 
 import numpy as np
 
@@ -107,7 +108,8 @@ def plots(out, rows, summary, settings, pareto):
             m[i, :len(h)] = h[:n]
             m[i, len(h):] = h[-1] if len(h) else np.nan   # converged: stays where it stopped
         x = np.arange(n)
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():   # column 0 is all NaN unless the residual is the measure
+            warnings.simplefilter("ignore", RuntimeWarning)
             med = np.nanmedian(m, axis=0)
             lo, hi = np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0)
         ax.plot(x[1:], med[1:], color=colors[name], label=name)
