@@ -14,6 +14,7 @@ import numpy as np
 
 from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
+from ..solver.problem import contact_keys
 from ..solver.reference import reference_solution
 from .starts import StepContext
 
@@ -37,8 +38,7 @@ def _adapter(name, start, timing):
 
     def start_fn(bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
-        keys = list(zip(contacts["fixture_a"].tolist(), contacts["child_a"].tolist(), contacts["fixture_b"].tolist(),
-                        contacts["child_b"].tolist(), contacts["id_key"].tolist()))
+        keys = contact_keys(contacts)
         persisted = np.array([k in previous["keys"] for k in keys], dtype=bool)
         previous["keys"] = set(keys)
         reference = reference_solution(problem) if name in NEEDS_REFERENCE else None

@@ -13,13 +13,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from .. import atomic
 from ..grid.dataset import collect
 from ..grid.spec import GridSpec
 from .replay import evaluate, summarize
-from .report import summary_table
+from .report import convergence_plot, summary_table
 from .starts import SPH, make_starts
 
 FIGURES = {
@@ -27,32 +25,6 @@ FIGURES = {
     "fig-5.5": [(f"d=h={d:g}", "poly6", d, d) for d in (0.25, 0.5, 1.0)],
     "fig-5.6": [(k, k, 0.5, 0.5) for k in ("poly6", "spiky")],
 }
-
-
-def plot_curves(rows, names, path, title, tolerance, stop_on):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for i, name in enumerate(names):
-        hs = [r.history for r in rows if r.start == name]
-        n = max(len(h) for h in hs)
-        m = np.array([np.concatenate([h, np.full(n - len(h), h[-1])]) for h in hs])
-        x = np.arange(1, n)
-        ax.plot(x, np.median(m, axis=0)[1:], color=f"C{i}", label=name)
-        ax.fill_between(x, np.percentile(m, 10, axis=0)[1:], np.percentile(m, 90, axis=0)[1:], color=f"C{i}", alpha=0.12)
-    ax.axhline(tolerance, color="k", lw=0.8, ls="--")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("PGS sweep")
-    ax.set_ylabel(f"{stop_on} measure (median, 10-90%)")
-    ax.set_title(title)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    for ext in ("png", "svg"):
-        fig.savefig(f"{path}.{ext}", dpi=110)
-    plt.close(fig)
 
 
 def main(argv=None):
@@ -73,11 +45,12 @@ def main(argv=None):
     for fig, settings in FIGURES.items():
         starts = {label: SPH(GridSpec.over(window, d, h, kernel)) for label, kernel, d, h in settings}
         rows = evaluate([args.run], starts, **kw)
-        plot_curves(rows, list(starts), out / fig, f"Thesis {fig[4:]}: the SPH start", args.tolerance, args.stop_on)
+        convergence_plot(rows, list(starts), out / fig, f"Thesis {fig[4:]}: the SPH start", args.tolerance,
+                         args.stop_on)
         text += [f"## {fig}\n", summary_table(summarize(rows, starts, args.max_iterations)), ""]
     starts = make_starts(["zero", "builtin", "copy", "sph"], spec=GridSpec.over(window, 0.5, 0.5))
     rows = evaluate([args.run], starts, **kw)
-    plot_curves(rows, list(starts), out / "fig-5.7", "Thesis 5.7: all starts", args.tolerance, args.stop_on)
+    convergence_plot(rows, list(starts), out / "fig-5.7", "Thesis 5.7: all starts", args.tolerance, args.stop_on)
     text += ["## fig-5.7\n", summary_table(summarize(rows, starts, args.max_iterations)), ""]
     atomic.write_text(out / "figures.md", "\n".join(text) + "\n")
     print("\n".join(text))

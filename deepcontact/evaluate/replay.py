@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..solver.pgs import MEASURES, solve
-from ..solver.problem import StepProblem
+from ..solver.problem import StepProblem, contact_keys
 from ..solver.reference import reference_solution
 from ..step.reader import read_step
 from .starts import StepContext
@@ -73,13 +73,10 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     for run, sim_seed, files in plan:
         previous = set()
         for k, path in enumerate(files):
-            header, bodies, contacts = read_step(path)
-            keys = set(zip(contacts["fixture_a"].tolist(), contacts["child_a"].tolist(),
-                           contacts["fixture_b"].tolist(), contacts["child_b"].tolist(), contacts["id_key"].tolist()))
-            persisted = np.array([key in previous for key in zip(
-                contacts["fixture_a"].tolist(), contacts["child_a"].tolist(), contacts["fixture_b"].tolist(),
-                contacts["child_b"].tolist(), contacts["id_key"].tolist())], dtype=bool)
-            previous = keys
+            header, bodies, contacts = read_step(path, validate=False)
+            keys = contact_keys(contacts)
+            persisted = np.array([key in previous for key in keys], dtype=bool)
+            previous = set(keys)
             if k % every or len(contacts["manifold"]) == 0:
                 continue
             problem = StepProblem.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
@@ -93,14 +90,15 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
             for name, start in starts.items():
                 value = start(ctx)
                 kw = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
-                before = solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0)
                 traced = solve(problem, value.normal, value.tangent, history=True, **kw)
                 t0 = time.perf_counter()
                 solve(problem, value.normal, value.tangent, final_residual=False, **kw)
                 solve_s = time.perf_counter() - t0
                 got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
                 hist = traced.history[:, measure]
-                first = before.residual if stop_on == "residual" else np.nan
+                # the measure before any sweep exists only for the residual (the others are changes)
+                first = (solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0).residual
+                         if stop_on == "residual" else np.nan)
                 rows.append(Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=name,
                                 iterations=traced.iterations,
                                 capped=bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance)),

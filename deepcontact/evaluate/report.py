@@ -92,62 +92,63 @@ def pareto_points(rows, summary):
     return out
 
 
-def plots(out, rows, summary, settings, pareto):
+def _axes():
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    return plt.subplots(figsize=(7, 4.5))
 
-    colors = {name: f"C{i % 10}" for i, name in enumerate(summary)}
-    fig, ax = plt.subplots(figsize=(7.5, 4.8))
-    cap = settings["max_iterations"]
-    for name in summary:
+
+def _finish(fig, ax, stem, xlabel, ylabel, title, ylog=True):
+    ax.set_xscale("log")
+    if ylog:
+        ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=8, ncol=2)
+    ax.grid(alpha=0.3, which="both")
+    _save(fig, stem)
+
+
+def convergence_plot(rows, names, stem, title, tolerance, stop_on, cap=None):
+    """Median and 10-90% band of the stopping measure per sweep, one curve per start; a step
+    that stopped keeps its last value (it had converged, or hit the cap)."""
+    fig, ax = _axes()
+    for i, name in enumerate(names):
         hs = [r.history for r in rows if r.start == name]
-        n = min(cap + 1, max(len(h) for h in hs))
-        m = np.full((len(hs), n), np.nan)
-        for i, h in enumerate(hs):
-            m[i, :len(h)] = h[:n]
-            m[i, len(h):] = h[-1] if len(h) else np.nan   # converged: stays where it stopped
-        x = np.arange(n)
+        n = max(len(h) for h in hs) if cap is None else min(cap + 1, max(len(h) for h in hs))
+        m = np.array([np.concatenate([h[:n], np.full(n - len(h[:n]), h[-1])]) for h in hs])
         with warnings.catch_warnings():   # column 0 is all NaN unless the residual is the measure
             warnings.simplefilter("ignore", RuntimeWarning)
             med = np.nanmedian(m, axis=0)
             lo, hi = np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0)
-        ax.plot(x[1:], med[1:], color=colors[name], label=name)
-        ax.fill_between(x[1:], lo[1:], hi[1:], color=colors[name], alpha=0.12)
-    ax.axhline(settings["tolerance"], color="k", lw=0.8, ls="--")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("PGS sweep")
-    ax.set_ylabel(f"{settings['stop_on']} measure (median, 10-90%)")
-    ax.set_title("Convergence by warm start")
-    ax.legend(fontsize=8, ncol=2)
-    ax.grid(alpha=0.3, which="both")
-    _save(fig, out / "convergence")
+        x = np.arange(n)
+        ax.plot(x[1:], med[1:], color=f"C{i % 10}", label=name, marker="o" if n <= 4 else None)  # (1-sweep starts)
+        ax.fill_between(x[1:], lo[1:], hi[1:], color=f"C{i % 10}", alpha=0.12)
+    ax.axhline(tolerance, color="k", lw=0.8, ls="--")
+    _finish(fig, ax, stem, "PGS sweep", f"{stop_on} measure (median, 10-90%)", title)
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for name in summary:
+
+def plots(out, rows, summary, settings, pareto):
+    names = list(summary)
+    convergence_plot(rows, names, out / "convergence", "Convergence by warm start", settings["tolerance"],
+                     settings["stop_on"], cap=settings["max_iterations"])
+
+    fig, ax = _axes()
+    for i, name in enumerate(names):
         it = np.sort([r.iterations for r in rows if r.start == name])
-        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post", color=colors[name], label=name)
-    ax.set_xscale("log")
-    ax.set_xlabel("iterations to tolerance")
-    ax.set_ylabel("share of steps")
-    ax.set_title("Iterations to tolerance")
-    ax.legend(fontsize=8, ncol=2)
-    ax.grid(alpha=0.3, which="both")
-    _save(fig, out / "iterations")
+        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post", color=f"C{i % 10}", label=name)
+    _finish(fig, ax, out / "iterations", "iterations to tolerance", "share of steps", "Iterations to tolerance",
+            ylog=False)
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for name, pts in pareto.items():
+    fig, ax = _axes()
+    for i, (name, pts) in enumerate(pareto.items()):
         pts = [p for p in pts if p and np.isfinite(p["residual"]) and p["residual"] > 0]
-        ax.plot([p["ms"] for p in pts], [p["residual"] for p in pts], marker="o", ms=3, color=colors[name], label=name)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("time per step, prediction + sweeps (ms, median)")
-    ax.set_ylabel(f"{settings['stop_on']} measure reached (median)")
-    ax.set_title("What accuracy costs in time")
-    ax.legend(fontsize=8, ncol=2)
-    ax.grid(alpha=0.3, which="both")
-    _save(fig, out / "pareto")
+        ax.plot([p["ms"] for p in pts], [p["residual"] for p in pts], marker="o", ms=3, color=f"C{i % 10}",
+                label=name)
+    _finish(fig, ax, out / "pareto", "time per step, prediction + sweeps (ms, median)",
+            f"{settings['stop_on']} measure reached (median)", "What accuracy costs in time")
 
 
 def _save(fig, stem):

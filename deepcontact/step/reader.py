@@ -1,7 +1,10 @@
 """Reading step files back into the same arrays the binding produces.
 
-The slow, obvious reader (lxml + Python): used by tests as the reference for the native
-writer's output, and by tools that read a step at a time."""
+One XPath query per column (an attribute of one child element of every <body> or <contact>),
+turned into a numpy array at once: every value is checked to be present and finite, and a
+problem is an InputError naming the file (and line). `read_step` reads everything (tests hold
+it bit for bit against the native writer); `read_step_for_grid` only what rasterizing needs.
+"""
 import numpy as np
 
 from .. import schema
@@ -10,148 +13,148 @@ from ..errors import InputError
 _MANIFOLD = {"circles": 0, "face_a": 1, "face_b": 2}
 _TYPE = {"static": 0, "kinematic": 1, "dynamic": 2}
 
+# key: (child element, attributes); "." is an attribute of the <body>/<contact> element itself
+_BODY_ALL = {"position": ("position", ("x", "y")), "center": ("center", ("x", "y")),
+             "velocity": ("velocity", ("x", "y")), "angle": ("orientation", ("theta",)),
+             "omega": ("spin", ("omega",)), "mass": ("mass", ("value",)), "inv_mass": ("mass", ("inverse",)),
+             "inertia": ("inertia", ("value",)), "inv_inertia": ("inertia", ("inverse",))}
+_CONTACT_ALL = {"position": ("position", ("x", "y")), "normal": ("normal", ("x", "y")),
+                "separation": ("separation", ("value",)), "friction": ("material", ("friction",)),
+                "restitution": ("material", ("restitution",)), "restitution_threshold": ("material", ("threshold",)),
+                "normal_impulse": ("impulse", ("n",)), "tangent_impulse": ("impulse", ("t",)),
+                "start_normal_impulse": ("start", ("n",)), "start_tangent_impulse": ("start", ("t",)),
+                "local_normal": ("manifold", ("nx", "ny")), "local_point": ("manifold", ("x", "y")),
+                "point_local": ("manifold", ("px", "py"))}
+_CONTACT_INT = {"manifold": (".", "manifold", np.int32), "island": (".", "island", np.int32),
+                "point": (".", "point", np.int8), "point_count": (".", "points", np.int8),
+                "body_a": (".", "master", np.int32), "body_b": (".", "slave", np.int32),
+                "id_key": (".", "id", np.uint32), "fixture_a": ("fixtures", "master", np.int32),
+                "child_a": ("fixtures", "master_child", np.int32), "fixture_b": ("fixtures", "slave", np.int32),
+                "child_b": ("fixtures", "slave_child", np.int32)}
+_BODY_GRID = {k: _BODY_ALL[k] for k in ("center", "velocity", "mass", "omega")}
+_CONTACT_GRID = {k: _CONTACT_ALL[k] for k in ("position", "normal", "normal_impulse", "tangent_impulse")}
 
-def _f(el, name):
-    return np.float32(el.get(name))
 
-
-def read_step(path, validate=True):
-    """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
+def _parse(path, validate):
+    from lxml import etree
     if validate:
         _, tree, errors = schema.validate(path, "step")
         if errors:
             first = errors[0].split(":", 3)
             raise InputError(first[3].strip(), path, int(first[1]) if first[1].isdigit() else None)
     else:
-        tree = schema.parse(path)
+        try:
+            tree = schema.parse(path)
+        except etree.XMLSyntaxError as e:
+            raise InputError(f"not a well-formed step file: {e.msg}", path, e.lineno) from None
+        except OSError as e:
+            raise InputError(f"cannot read: {e.strerror or e}", path) from None
     root = tree.getroot()
+    if root.tag != "step":
+        raise InputError(f"root element is <{root.tag}>, not <step>", path, root.sourceline)
+    return root
+
+
+class _Columns:
+    """Attribute columns of every `parent/child` element of a step file."""
+
+    def __init__(self, root, path, parent, child):
+        self.root, self.path, self.base = root, path, f"{parent}/{child}"
+        self.child = child
+        self.n = len(root.xpath(self.base))
+
+    def text(self, element, attr):
+        where = self.base if element == "." else f"{self.base}/{element}"
+        values = self.root.xpath(f"{where}/@{attr}")
+        if len(values) != self.n:
+            raise InputError(f"{self.n - len(values)} <{self.child}> element(s) lack <{element} {attr}=...>", self.path)
+        return values
+
+    def floats(self, element, attrs):
+        cols = []
+        for a in attrs:
+            try:
+                cols.append(np.array(self.text(element, a), dtype=np.float32))
+            except ValueError:
+                raise InputError(f"a <{element} {a}> value is not a number", self.path) from None
+        arr = np.stack(cols, axis=1) if len(cols) > 1 else cols[0]
+        if self.n == 0:
+            return arr
+        bad = ~np.isfinite(arr).reshape(self.n, -1).all(axis=1)
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise InputError(f"<{element}> of {self.child} {k} is not finite", self.path,
+                             self.root.xpath(self.base)[k].sourceline)
+        return arr
+
+    def ints(self, element, attr, dtype):
+        try:
+            return np.array([int(v) for v in self.text(element, attr)], dtype=dtype)
+        except ValueError:
+            raise InputError(f"a <{element} {attr}> value is not an integer", self.path) from None
+
+    def read(self, spec):
+        return {key: self.floats(element, attrs) for key, (element, attrs) in spec.items()}
+
+
+def _types(cols):
+    t = np.array([_TYPE.get(v, -1) for v in cols.text(".", "type")], dtype=np.int8)
+    if np.any(t < 0):
+        raise InputError("a body has an unknown type", cols.path)
+    return t
+
+
+def read_step(path, validate=True):
+    """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
+    root = _parse(path, validate)
     h = root.find("header")
     header = dict(scene=root.get("scene"), seed=int(root.get("seed")), index=int(root.get("index")),
                   time=np.float32(root.get("time")), dt=np.float32(root.get("dt")),
                   dt_ratio=np.float32(root.get("dt_ratio")),
-                  gravity=np.array([_f(h.find("gravity"), "x"), _f(h.find("gravity"), "y")], np.float32),
+                  gravity=np.array([h.find("gravity").get("x"), h.find("gravity").get("y")], np.float32),
                   velocity_iterations=int(h.find("iterations").get("velocity")),
                   position_iterations=int(h.find("iterations").get("position")),
                   solver=dict(h.find("solver").attrib), effects=dict(h.find("effects").attrib),
                   versions=dict(h.find("versions").attrib))
 
-    rows = root.find("bodies").findall("body")
-    n = len(rows)
-    b = {k: np.zeros(n, np.float32) for k in ("angle", "omega", "mass", "inv_mass", "inertia",
-                                              "inv_inertia", "linear_damping", "angular_damping")}
-    b.update({k: np.zeros((n, 2), np.float32) for k in ("position", "center", "local_center", "velocity")})
-    b["gravity_scale"] = np.ones(n, np.float32)   # scenes have no per-body gravity scale
-    radius = {}                                     # fixture index -> collision radius
-    b["index"] = np.zeros(n, np.int32)
-    b["type"] = np.zeros(n, np.int8)
-    for i, el in enumerate(rows):
-        b["index"][i] = int(el.get("index"))
-        b["type"][i] = _TYPE[el.get("type")]
-        for key in ("position", "center", "velocity"):
-            e = el.find(key)
-            b[key][i] = (_f(e, "x"), _f(e, "y"))
-        if (lc := el.find("local_center")) is not None:
-            b["local_center"][i] = (_f(lc, "x"), _f(lc, "y"))
-        for shape in el.find("shape"):
-            if isinstance(shape.tag, str):
-                radius[int(shape.get("fixture"))] = _f(shape, "radius")
-        b["angle"][i] = _f(el.find("orientation"), "theta")
-        b["omega"][i] = _f(el.find("spin"), "omega")
-        b["mass"][i], b["inv_mass"][i] = _f(el.find("mass"), "value"), _f(el.find("mass"), "inverse")
-        b["inertia"][i] = _f(el.find("inertia"), "value")
-        b["inv_inertia"][i] = _f(el.find("inertia"), "inverse")
-        if (d := el.find("damping")) is not None:
-            b["linear_damping"][i], b["angular_damping"][i] = _f(d, "linear"), _f(d, "angular")
+    bc = _Columns(root, path, "bodies", "body")
+    b = bc.read(_BODY_ALL)
+    b["index"] = bc.ints(".", "index", np.int32)
+    b["type"] = _types(bc)
+    row = {int(i): k for k, i in enumerate(b["index"])}
+    # optional elements, written only where they are not zero
+    b["local_center"] = np.zeros((bc.n, 2), np.float32)
+    for el in root.xpath("bodies/body[local_center]"):
+        lc = el.find("local_center")
+        b["local_center"][row[int(el.get("index"))]] = (lc.get("x"), lc.get("y"))
+    b["linear_damping"] = np.zeros(bc.n, np.float32)
+    b["angular_damping"] = np.zeros(bc.n, np.float32)
+    for el in root.xpath("bodies/body[damping]"):
+        d = el.find("damping")
+        k = row[int(el.get("index"))]
+        b["linear_damping"][k], b["angular_damping"][k] = d.get("linear"), d.get("angular")
+    b["gravity_scale"] = np.ones(bc.n, np.float32)   # scenes have no per-body gravity scale
+    radius = dict(zip(map(int, root.xpath("bodies/body/shape/*/@fixture")),
+                      np.array(root.xpath("bodies/body/shape/*/@radius"), dtype=np.float32)))
 
-    rows = root.find("contacts").findall("contact")
-    m = len(rows)
-    c = {k: np.zeros(m, np.int32) for k in ("manifold", "island", "body_a", "body_b", "fixture_a",
-                                            "fixture_b", "child_a", "child_b")}
-    c.update({k: np.zeros(m, np.int8) for k in ("point", "point_count", "manifold_type")})
-    c["id_key"] = np.zeros(m, np.uint32)
-    c.update({k: np.zeros((m, 2), np.float32) for k in ("local_normal", "local_point", "point_local",
-                                                        "position", "normal")})
-    c.update({k: np.zeros(m, np.float32) for k in (
-        "separation", "friction", "restitution", "restitution_threshold", "start_normal_impulse",
-        "start_tangent_impulse", "normal_impulse", "tangent_impulse")})
-    for i, el in enumerate(rows):
-        c["manifold"][i], c["island"][i] = int(el.get("manifold")), int(el.get("island"))
-        c["point"][i], c["point_count"][i] = int(el.get("point")), int(el.get("points"))
-        c["body_a"][i], c["body_b"][i] = int(el.get("master")), int(el.get("slave"))
-        c["id_key"][i] = int(el.get("id"))
-        fx = el.find("fixtures")
-        c["fixture_a"][i], c["child_a"][i] = int(fx.get("master")), int(fx.get("master_child"))
-        c["fixture_b"][i], c["child_b"][i] = int(fx.get("slave")), int(fx.get("slave_child"))
-        for key in ("position", "normal"):
-            e = el.find(key)
-            c[key][i] = (_f(e, "x"), _f(e, "y"))
-        c["separation"][i] = _f(el.find("separation"), "value")
-        mat = el.find("material")
-        c["friction"][i], c["restitution"][i] = _f(mat, "friction"), _f(mat, "restitution")
-        c["restitution_threshold"][i] = _f(mat, "threshold")
-        c["normal_impulse"][i], c["tangent_impulse"][i] = _f(el.find("impulse"), "n"), _f(el.find("impulse"), "t")
-        st = el.find("start")
-        c["start_normal_impulse"][i], c["start_tangent_impulse"][i] = _f(st, "n"), _f(st, "t")
-        mf = el.find("manifold")
-        c["manifold_type"][i] = _MANIFOLD[mf.get("type")]
-        c["local_normal"][i] = (_f(mf, "nx"), _f(mf, "ny"))
-        c["local_point"][i] = (_f(mf, "x"), _f(mf, "y"))
-        c["point_local"][i] = (_f(mf, "px"), _f(mf, "py"))
-    c["radius_a"] = np.array([radius[f] for f in c["fixture_a"]], np.float32)
-    c["radius_b"] = np.array([radius[f] for f in c["fixture_b"]], np.float32)
+    cc = _Columns(root, path, "contacts", "contact")
+    c = cc.read(_CONTACT_ALL)
+    c.update({key: cc.ints(element, attr, dtype) for key, (element, attr, dtype) in _CONTACT_INT.items()})
+    c["manifold_type"] = np.array([_MANIFOLD[v] for v in cc.text("manifold", "type")], dtype=np.int8)
+    try:
+        c["radius_a"] = np.array([radius[f] for f in c["fixture_a"].tolist()], np.float32)
+        c["radius_b"] = np.array([radius[f] for f in c["fixture_b"].tolist()], np.float32)
+    except KeyError as e:
+        raise InputError(f"a contact names fixture {e.args[0]}, which no body has", path) from None
     return header, b, c
 
 
-_GRID_BODY = {"center": ("center", ("x", "y")), "velocity": ("velocity", ("x", "y")),
-              "mass": ("mass", ("value",)), "omega": ("spin", ("omega",))}
-_GRID_CONTACT = {"position": ("position", ("x", "y")), "normal": ("normal", ("x", "y")),
-                 "impulse": ("impulse", ("n", "t"))}
-
-
 def read_step_for_grid(path):
-    """The fields rasterizing needs, fast (one XPath per column) and checked: a truncated or
-    malformed file, a missing value or a NaN is an InputError naming the file (and line)."""
-    from lxml import etree
-    try:
-        root = schema.parse(path).getroot()
-    except etree.XMLSyntaxError as e:
-        raise InputError(f"not a well-formed step file: {e.msg}", path, e.lineno) from None
-    except OSError as e:
-        raise InputError(f"cannot read: {e.strerror or e}", path) from None
-    if root.tag != "step":
-        raise InputError(f"root element is <{root.tag}>, not <step>", path, root.sourceline)
-
-    def columns(parent, child, spec):
-        n = len(root.xpath(f"{parent}/{child}"))
-        out = {}
-        for key, (element, attrs) in spec.items():
-            cols = []
-            for a in attrs:
-                text = root.xpath(f"{parent}/{child}/{element}/@{a}")
-                if len(text) != n:
-                    raise InputError(f"{n - len(text)} <{child}> element(s) lack <{element} {a}=...>", path)
-                try:
-                    cols.append(np.array(text, dtype=np.float32))
-                except ValueError:
-                    raise InputError(f"a <{element} {a}> value is not a number", path) from None
-            arr = np.stack(cols, axis=1) if len(cols) > 1 else cols[0]
-            if not np.all(np.isfinite(arr)):
-                bad = int(np.argmax(~np.isfinite(arr).reshape(n, -1).all(axis=1)))
-                line = root.xpath(f"{parent}/{child}")[bad].sourceline
-                raise InputError(f"<{element}> of {child} {bad} is not finite", path, line)
-            out[key] = arr
-        return out, n
-
-    bodies, nb = columns("bodies", "body", _GRID_BODY)
-    bodies["type"] = np.array([_TYPE.get(t, -1) for t in root.xpath("bodies/body/@type")], dtype=np.int8)
-    if np.any(bodies["type"] < 0):
-        raise InputError("a body has an unknown type", path)
-    contacts, nc = columns("contacts", "contact", _GRID_CONTACT)
-    imp = contacts.pop("impulse").reshape(nc, 2)
-    contacts["normal_impulse"], contacts["tangent_impulse"] = imp[:, 0], imp[:, 1]
-    for key in ("center", "velocity"):
-        bodies[key] = bodies[key].reshape(nb, 2)
-    for key in ("position", "normal"):
-        contacts[key] = contacts[key].reshape(nc, 2)
+    """The fields rasterizing needs, checked, without schema validation (fast)."""
+    root = _parse(path, validate=False)
+    bc = _Columns(root, path, "bodies", "body")
+    bodies = bc.read(_BODY_GRID)
+    bodies["type"] = _types(bc)
+    contacts = _Columns(root, path, "contacts", "contact").read(_CONTACT_GRID)
     header = dict(scene=root.get("scene"), seed=int(root.get("seed", 0)), index=int(root.get("index", 0)))
     return header, bodies, contacts
