@@ -24,10 +24,12 @@ struct BodyInvMass { using type = float b2Body::*; friend type member(BodyInvMas
 struct BodyInvI { using type = float b2Body::*; friend type member(BodyInvI); };
 struct BodyI { using type = float b2Body::*; friend type member(BodyI); };
 struct WorldInvDt0 { using type = float b2World::*; friend type member(WorldInvDt0); };
+struct WorldSolveTOI { using type = void (b2World::*)(const b2TimeStep&); friend type member(WorldSolveTOI); };
 template struct Expose<BodyInvMass, &b2Body::m_invMass>;
 template struct Expose<BodyInvI, &b2Body::m_invI>;
 template struct Expose<BodyI, &b2Body::m_I>;
 template struct Expose<WorldInvDt0, &b2World::m_inv_dt0>;
+template struct Expose<WorldSolveTOI, &b2World::SolveTOI>;
 
 // g_blockSolve is one flag for the whole process; worlds that differ must not race on it.
 std::mutex g_step_mutex;
@@ -45,29 +47,40 @@ void push2(std::vector<float>& v, const b2Vec2& p) {
 
 }  // namespace
 
-// Box2D's PreSolve sees each touching contact right after its manifold was rebuilt and the
-// previous impulses matched by feature id: that, times dtRatio, is the solver's first iterate.
-class World::StartRecorder : public b2ContactListener {
+// Records a step as the discrete velocity solver saw it. PreSolve sees each touching contact
+// right after its manifold was rebuilt and the previous impulses matched by feature id: that,
+// times dtRatio, is the solver's first iterate. Contacts between sleeping bodies are not
+// rebuilt (no PreSolve) yet are solved when their island wakes: they start from the impulses
+// stored before the step. PostSolve (b2Island::Report) then hands over every solved contact in
+// the solver's own order, islands that fall asleep at the end of the step included.
+class World::Recorder : public b2ContactListener {
 public:
+    explicit Recorder(World& world) : world_(world) {}
     void PreSolve(b2Contact* contact, const b2Manifold*) override {
-        if (!active) return;
-        // Continuous physics calls PreSolve again during sub-steps: keep the first.
-        auto [it, inserted] = starts.try_emplace(contact);
-        if (!inserted) return;
-        const b2Manifold* m = contact->GetManifold();
+        if (active) keep_start(contact);
+    }
+    void PostSolve(b2Contact* contact, const b2ContactImpulse*) override {
+        if (active) world_.record_solved(contact);
+    }
+    void keep_start(const b2Contact* contact) {
+        const b2Manifold* m = const_cast<b2Contact*>(contact)->GetManifold();
+        auto& s = starts[contact];
         for (int j = 0; j < m->pointCount; ++j) {
-            it->second[2 * j] = warm ? dt_ratio * m->points[j].normalImpulse : 0.0f;
-            it->second[2 * j + 1] = warm ? dt_ratio * m->points[j].tangentImpulse : 0.0f;
+            s[2 * j] = warm ? dt_ratio * m->points[j].normalImpulse : 0.0f;
+            s[2 * j + 1] = warm ? dt_ratio * m->points[j].tangentImpulse : 0.0f;
         }
     }
     bool active = false;
     bool warm = true;
     float dt_ratio = 0.0f;
     std::unordered_map<const b2Contact*, std::array<float, 4>> starts;
+
+private:
+    World& world_;
 };
 
 World::World(float gx, float gy)
-    : world_(std::make_unique<b2World>(b2Vec2(gx, gy))), recorder_(std::make_unique<StartRecorder>()) {
+    : world_(std::make_unique<b2World>(b2Vec2(gx, gy))), recorder_(std::make_unique<Recorder>(*this)) {
     world_->SetContactListener(recorder_.get());
 }
 
@@ -193,28 +206,71 @@ void World::set_body_state(const int32_t* index, const float* position, const fl
 }
 
 void World::step(float dt, int velocity_iterations, int position_iterations, bool record) {
-    std::vector<b2Transform> start_xf;
+    const float inv_dt0 = this->inv_dt0();
+    last_dt_ratio_ = inv_dt0 * dt;  // as b2World::Step computes step.dtRatio
     if (record) {
         recorded_bodies_ = bodies();
         // The solver rebuilds transforms from the sweep, exactly like SynchronizeTransform.
-        start_xf.resize(bodies_.size());
+        record_xf_.assign(bodies_.size(), b2Transform());
         for (b2Body* b : bodies_)
-            if (b != nullptr) start_xf[body_index(b)] = b->GetTransform();
+            if (b != nullptr) record_xf_[body_index(b)] = b->GetTransform();
+        recorded_contacts_ = ContactState();
+        record_bodies_.assign(bodies_.size(), -2);  // no island yet
+        record_island_ = -1;
+        record_manifold_ = 0;
+        recorder_->warm = world_->GetWarmStarting();
+        recorder_->dt_ratio = last_dt_ratio_;
+        recorder_->starts.clear();
+        for (b2Contact* c = world_->GetContactList(); c; c = c->GetNext()) recorder_->keep_start(c);
     }
-    const float inv_dt0 = this->inv_dt0();
-    last_dt_ratio_ = inv_dt0 * dt;  // as b2World::Step computes step.dtRatio
-    recorder_->starts.clear();
-    recorder_->active = record;
-    recorder_->warm = world_->GetWarmStarting();
-    recorder_->dt_ratio = last_dt_ratio_;
     {
         std::lock_guard<std::mutex> lock(g_step_mutex);
         g_blockSolve = block_solve_;
-        world_->Step(dt, velocity_iterations, position_iterations);
+        if (record && world_->GetContinuousPhysics()) {
+            // b2World::Step runs the discrete solve, then time-of-impact sub-steps that rebuild
+            // and re-solve contacts. Record the first alone, then run the second as Step would:
+            // it reads neither the forces Step clears nor the inv_dt0 Step sets in between.
+            world_->SetContinuousPhysics(false);
+            recorder_->active = true;
+            world_->Step(dt, velocity_iterations, position_iterations);
+            recorder_->active = false;
+            world_->SetContinuousPhysics(true);
+            if (dt > 0.0f) {
+                b2TimeStep ts;
+                ts.dt = dt;
+                ts.inv_dt = 1.0f / dt;
+                ts.dtRatio = last_dt_ratio_;
+                ts.velocityIterations = velocity_iterations;
+                ts.positionIterations = position_iterations;
+                ts.warmStarting = world_->GetWarmStarting();
+                (world_.get()->*member(WorldSolveTOI()))(ts);
+            }
+        } else {
+            recorder_->active = record;
+            world_->Step(dt, velocity_iterations, position_iterations);
+            recorder_->active = false;
+        }
     }
-    recorder_->active = false;
     ++generation_;
-    if (record) recorded_contacts_ = gather(&start_xf);
+}
+
+// One solved contact, reported by b2Island::Report in solver order. Islands are reported one
+// after another, and each contact of an island after its first touches a body seen before in
+// it (the depth-first search reached it through one): a contact touching no such body starts
+// the next island.
+void World::record_solved(b2Contact* c) {
+    const int a = body_index(c->GetFixtureA()->GetBody());
+    const int b = body_index(c->GetFixtureB()->GetBody());
+    const bool static_a = c->GetFixtureA()->GetBody()->GetType() == b2_staticBody;
+    const bool static_b = c->GetFixtureB()->GetBody()->GetType() == b2_staticBody;
+    const bool seen = (!static_a && record_bodies_[a] == record_island_) ||
+                      (!static_b && record_bodies_[b] == record_island_);
+    if (!seen) ++record_island_;
+    if (!static_a) record_bodies_[a] = record_island_;
+    if (!static_b) record_bodies_[b] = record_island_;
+    auto start = recorder_->starts.find(c);
+    emit(recorded_contacts_, c, record_island_, record_manifold_++, record_xf_,
+         start == recorder_->starts.end() ? nullptr : &start->second);
 }
 
 void World::collide() {
@@ -228,7 +284,7 @@ void World::find_new_contacts() {
 }
 
 ContactState World::contacts() {
-    ContactState s = gather(nullptr);
+    ContactState s = gather();
     gathered_generation_ = generation_;
     return s;
 }
@@ -246,61 +302,61 @@ void World::set_manifold_impulses(const float* normal, const float* tangent, siz
     }
 }
 
-// The contacts b2World::Solve hands to the contact solver, in the same order: a depth-first
-// search over the constraint graph seeded by the body list, islands not crossing static bodies.
-ContactState World::gather(const std::vector<b2Transform>* start_xf) {
+// One row per manifold point, the world manifold computed from the given transforms.
+void World::emit(ContactState& s, b2Contact* c, int island, int manifold, const std::vector<b2Transform>& xf,
+                 const std::array<float, 4>* start) {
+    const b2Fixture* fa = c->GetFixtureA();
+    const b2Fixture* fb = c->GetFixtureB();
+    const b2Body* ba = fa->GetBody();
+    const b2Body* bb = fb->GetBody();
+    b2Manifold* m = c->GetManifold();
+    b2WorldManifold wm;
+    wm.Initialize(m, xf[body_index(ba)], fa->GetShape()->m_radius, xf[body_index(bb)], fb->GetShape()->m_radius);
+    for (int j = 0; j < m->pointCount; ++j) {
+        const b2ManifoldPoint& p = m->points[j];
+        s.manifold.push_back(manifold);
+        s.island.push_back(island);
+        s.point.push_back(static_cast<int8_t>(j));
+        s.point_count.push_back(static_cast<int8_t>(m->pointCount));
+        s.manifold_type.push_back(static_cast<int8_t>(m->type));
+        s.body_a.push_back(body_index(ba));
+        s.body_b.push_back(body_index(bb));
+        s.fixture_a.push_back(fixture_index(fa));
+        s.fixture_b.push_back(fixture_index(fb));
+        s.child_a.push_back(c->GetChildIndexA());
+        s.child_b.push_back(c->GetChildIndexB());
+        s.id_key.push_back(p.id.key);
+        push2(s.local_normal, m->localNormal);
+        push2(s.local_point, m->localPoint);
+        push2(s.point_local, p.localPoint);
+        push2(s.position, wm.points[j]);
+        push2(s.normal, wm.normal);
+        s.separation.push_back(wm.separations[j]);
+        s.friction.push_back(c->GetFriction());
+        s.restitution.push_back(c->GetRestitution());
+        s.restitution_threshold.push_back(c->GetRestitutionThreshold());
+        s.radius_a.push_back(fa->GetShape()->m_radius);
+        s.radius_b.push_back(fb->GetShape()->m_radius);
+        s.start_normal_impulse.push_back(start ? (*start)[2 * j] : 0.0f);
+        s.start_tangent_impulse.push_back(start ? (*start)[2 * j + 1] : 0.0f);
+        s.normal_impulse.push_back(p.normalImpulse);
+        s.tangent_impulse.push_back(p.tangentImpulse);
+    }
+}
+
+// The touching contacts in the order b2World::Solve would hand them to the contact solver: a
+// depth-first search over the constraint graph seeded by the body list, islands not crossing
+// static bodies. Used between the pieces of a step run by our own solver (no sleeping there).
+ContactState World::gather() {
     ContactState s;
     gathered_.clear();
     std::vector<char> body_seen(bodies_.size(), 0);
     std::unordered_set<const b2Contact*> contact_seen;
     std::vector<b2Body*> stack;
+    std::vector<b2Transform> xf(bodies_.size());
+    for (b2Body* b : bodies_)
+        if (b != nullptr) xf[body_index(b)] = b->GetTransform();
     int island = 0, manifold = 0;
-
-    auto emit = [&](b2Contact* c) {
-        const b2Fixture* fa = c->GetFixtureA();
-        const b2Fixture* fb = c->GetFixtureB();
-        const b2Body* ba = fa->GetBody();
-        const b2Body* bb = fb->GetBody();
-        b2Manifold* m = c->GetManifold();
-        const b2Transform& xfa = start_xf ? (*start_xf)[body_index(ba)] : ba->GetTransform();
-        const b2Transform& xfb = start_xf ? (*start_xf)[body_index(bb)] : bb->GetTransform();
-        b2WorldManifold wm;
-        wm.Initialize(m, xfa, fa->GetShape()->m_radius, xfb, fb->GetShape()->m_radius);
-        auto start = recorder_->starts.find(c);
-        for (int j = 0; j < m->pointCount; ++j) {
-            const b2ManifoldPoint& p = m->points[j];
-            s.manifold.push_back(manifold);
-            s.island.push_back(island);
-            s.point.push_back(static_cast<int8_t>(j));
-            s.point_count.push_back(static_cast<int8_t>(m->pointCount));
-            s.manifold_type.push_back(static_cast<int8_t>(m->type));
-            s.body_a.push_back(body_index(ba));
-            s.body_b.push_back(body_index(bb));
-            s.fixture_a.push_back(fixture_index(fa));
-            s.fixture_b.push_back(fixture_index(fb));
-            s.child_a.push_back(c->GetChildIndexA());
-            s.child_b.push_back(c->GetChildIndexB());
-            s.id_key.push_back(p.id.key);
-            push2(s.local_normal, m->localNormal);
-            push2(s.local_point, m->localPoint);
-            push2(s.point_local, p.localPoint);
-            push2(s.position, wm.points[j]);
-            push2(s.normal, wm.normal);
-            s.separation.push_back(wm.separations[j]);
-            s.friction.push_back(c->GetFriction());
-            s.restitution.push_back(c->GetRestitution());
-            s.restitution_threshold.push_back(c->GetRestitutionThreshold());
-            s.radius_a.push_back(fa->GetShape()->m_radius);
-            s.radius_b.push_back(fb->GetShape()->m_radius);
-            const bool known = start != recorder_->starts.end();
-            s.start_normal_impulse.push_back(known ? start->second[2 * j] : 0.0f);
-            s.start_tangent_impulse.push_back(known ? start->second[2 * j + 1] : 0.0f);
-            s.normal_impulse.push_back(p.normalImpulse);
-            s.tangent_impulse.push_back(p.tangentImpulse);
-            gathered_.emplace_back(c, j);
-        }
-        ++manifold;
-    };
 
     for (b2Body* seed = world_->GetBodyList(); seed; seed = seed->GetNext()) {
         if (body_seen[body_index(seed)]) continue;
@@ -317,7 +373,8 @@ ContactState World::gather(const std::vector<b2Transform>* start_xf) {
                 if (!c->IsEnabled() || !c->IsTouching()) continue;
                 if (c->GetFixtureA()->IsSensor() || c->GetFixtureB()->IsSensor()) continue;
                 contact_seen.insert(c);
-                emit(c);
+                emit(s, c, island, manifold++, xf, nullptr);
+                for (int j = 0; j < c->GetManifold()->pointCount; ++j) gathered_.emplace_back(c, j);
                 any = true;
                 b2Body* other = ce->other;
                 // Box2D pushes static bodies too but never searches from them: skipping

@@ -4,6 +4,7 @@
 
 #include <box2d/box2d.h>
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <unordered_map>
@@ -104,13 +105,16 @@ public:
     int fixture_count() const { return static_cast<int>(fixtures_.size()); }
 
 private:
-    class StartRecorder;
+    class Recorder;
     b2Body* body_at(int index) const;
     int add_fixture(int body, const b2Shape& shape, const Material& m);
-    ContactState gather(const std::vector<b2Transform>* start_xf);
+    ContactState gather();
+    void record_solved(b2Contact* contact);
+    static void emit(ContactState& s, b2Contact* c, int island, int manifold, const std::vector<b2Transform>& xf,
+                     const std::array<float, 4>* start);
 
     std::unique_ptr<b2World> world_;
-    std::unique_ptr<StartRecorder> recorder_;
+    std::unique_ptr<Recorder> recorder_;
     std::vector<b2Body*> bodies_;        // by scene index; nullptr once removed
     std::vector<b2Fixture*> fixtures_;   // by fixture index
     int live_bodies_ = 0;
@@ -119,6 +123,9 @@ private:
 
     BodyState recorded_bodies_;
     ContactState recorded_contacts_;
+    std::vector<b2Transform> record_xf_;   // the bodies' transforms at the start of the step
+    std::vector<int> record_bodies_;       // the island each body was last seen in
+    int record_island_ = -1, record_manifold_ = 0;
 
     // contacts() remembers which (contact, point) each row was, for set_manifold_impulses;
     // any change to the contact set makes that list stale.
