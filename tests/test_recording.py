@@ -21,7 +21,7 @@ def trajectory(scene, steps, record):
         world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
                    record=record)
         b = world.bodies()
-        out.append(np.concatenate([b["position"], b["angle"], b["velocity"], b["omega"]]))
+        out.append(np.concatenate([b[k].ravel() for k in ("position", "angle", "velocity", "omega")]))
     return np.array(out)
 
 
