@@ -15,7 +15,9 @@ def verbosity(f):
     return f
 
 
-overwrite = click.option("--overwrite", is_flag=True, help="Replace existing output.")
+overwrite = click.option("--overwrite", is_flag=True,
+                         help="Replace existing output: the new output is built beside it and swapped in "
+                         "only when complete, so a failed or interrupted run keeps the old one.")
 jobs = click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
                     help="Worker processes.")
 
@@ -46,8 +48,8 @@ def command(name):
                 click.echo(f"dc {name}: error: {e}", err=True)
                 sys.exit(1)
             except KeyboardInterrupt:
-                click.echo(f"dc {name}: interrupted; complete files were kept, no manifest written",
-                           err=True)
+                click.echo(f"dc {name}: interrupted; only complete files were written, and output being "
+                           f"replaced (--overwrite) is as it was", err=True)
                 sys.exit(130)
             except OSError as e:
                 if verbose:
@@ -66,3 +68,7 @@ def progress_bar(quiet, total, unit, desc):
     from tqdm import tqdm
     return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False,
                 disable=None)
+
+
+max_memory = click.option("--max-memory", type=click.FloatRange(min=0, min_open=True), metavar="GB",
+                          help="Refuse work estimated to need more memory than this (default 8).")

@@ -45,11 +45,12 @@ def parse_window(text):
 @click.option("--every", type=click.IntRange(min=1), default=10, show_default=True,
               help="[--oracle/--study] Use every N-th step file.")
 @options.jobs
+@options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("rasterize")
 def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, window, include_contactless,
-              validation, seed, oracle, study, impulses, every, jobs, overwrite, verbose, quiet):
+              validation, seed, oracle, study, impulses, every, jobs, max_memory, overwrite, verbose, quiet):
     """Turn the step files of RUNS into SPH grid images for training.
 
     Inputs (N, C_in, H, W) and labels (N, C_out, H, W) float32 are written as
@@ -84,7 +85,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
         meta = write_dataset(runs, out, cell=cell, h=smoothing, kernel=kernel, renormalize=renormalize,
                              inputs=parse_list(inputs), labels=parse_list(labels), window=win,
                              include_contactless=include_contactless, validation_fraction=validation, seed=seed,
-                             jobs=jobs, overwrite=overwrite, progress=bar)
+                             jobs=jobs, overwrite=overwrite, progress=bar, max_memory=max_memory)
     finally:
         if bar is not None:
             bar.close()

@@ -83,12 +83,13 @@ def parse_params(pairs):
 @click.option("--relaxation", type=click.FloatRange(min=0, max=2, min_open=True, max_open=True),
               help="[pgs] Over-relaxation w (PSOR; float64 mode).")
 @options.jobs
+@options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, write_scene,
              list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, jobs,
-             overwrite, verbose, quiet):
+             max_memory, overwrite, verbose, quiet):
     """Simulate SCENE in Box2D and record every step as XML.
 
     SCENE is a scene file (schemas/scene.xsd) or a built-in generator: pile (the
@@ -119,6 +120,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
             click.echo(f"{name}: {defaults}")
         return
     source = SceneSource(scene, parse_params(params), steps, iterations)
+    source.check_memory(1, max_memory)
     if write_scene:
         import os
         if os.path.exists(write_scene) and not overwrite:
@@ -128,6 +130,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     if not out_dir:
         raise InputError("missing -o/--output OUTDIR")
     seed_list = parse_shard(shard, parse_seeds(seed, seeds))
+    source.check_memory(min(jobs, max(len(seed_list), 1)), max_memory)
     loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation,
                         source(seed_list[0]) if seed_list else None)
     bar = None if quiet else (lambda total: options.progress_bar(quiet, total, "step", f"simulate {scene}"))

@@ -24,7 +24,8 @@ from . import options
 @click.option("--lr", type=float, default=1e-3, show_default=True, help="Adam's learning rate.")
 @click.option("--weight-decay", type=float, default=5e-4, show_default=True, help="L2 on the weights.")
 @click.option("--batch-size", type=click.IntRange(min=1), default=200, show_default=True)
-@click.option("--epochs", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--epochs", type=click.IntRange(min=1),
+              help="Epochs in all (default 1000; with --resume, the run's own unless given).")
 @click.option("--patience", type=click.IntRange(min=0), default=0, show_default=True,
               help="Stop after this many epochs without improvement (0: never).")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -56,17 +57,12 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
       dc train data/thesis -o models/fcn --resume
       torchrun --nproc_per_node 2 -m deepcontact.cli.main train data/thesis -o models/ddp
     """
-    from pathlib import Path
-
     from deepcontact.model.train import TrainConfig, train as run
 
     if overwrite and resume:
         raise InputError("--resume and --overwrite contradict each other")
-    if overwrite and Path(out).exists():
-        for name in ("last.pt", "best.pt", "metrics.csv", "metrics.json", "loss.png", "loss.svg"):
-            (Path(out) / name).unlink(missing_ok=True)
     cfg = TrainConfig(model=model, targets=[t.strip() for t in targets.split(",") if t.strip()], loss=loss,
-                      optimizer=optimizer, lr=lr, weight_decay=weight_decay, batch_size=batch_size, epochs=epochs,
+                      optimizer=optimizer, lr=lr, weight_decay=weight_decay, batch_size=batch_size, epochs=epochs or 1000,
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
                       fcn_depth=fcn_depth, solver_sweeps=solver_sweeps)
 
@@ -77,7 +73,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
-                  device=device)
+                  device=device, overwrite=overwrite, epochs=epochs if resume else None)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

@@ -24,6 +24,10 @@ def write_bytes(path, data: bytes):
         finally:
             os.close(fd)
         os.replace(tmp, path)
+    except OSError as e:
+        _remove_quietly(tmp)
+        # name the file asked for, not the temporary one
+        raise type(e)(e.errno, e.strerror, path) from None
     except BaseException:
         _remove_quietly(tmp)
         raise

@@ -24,8 +24,17 @@ def schema_path(kind: str) -> str:
 
 def parse(path):
     """Parse an XML file, keeping line numbers. Raises etree.XMLSyntaxError."""
-    parser = etree.XMLParser(remove_blank_text=False, resolve_entities=False, no_network=True)
+    parser = etree.XMLParser(remove_blank_text=False, resolve_entities=False, no_network=True, load_dtd=False,
+                             huge_tree=False)
     return etree.parse(str(path), parser)
+
+
+DOCTYPE_REFUSED = "a DOCTYPE (DTD or entity declarations) is not allowed in deepcontact XML"
+
+
+def has_doctype(tree):
+    """Our formats have no DTD: entities would hide values from the schema (or read other files)."""
+    return tree.docinfo.internalDTD is not None or bool(tree.docinfo.doctype)
 
 
 def validate(path, kind=None):
@@ -37,6 +46,8 @@ def validate(path, kind=None):
         return kind, None, [f"{path}:{line}:{col}: {e.msg}"]
     except OSError as e:
         return kind, None, [f"{path}:0:0: cannot read: {e.strerror or e}"]
+    if has_doctype(tree):
+        return kind, None, [f"{path}:1:0: {DOCTYPE_REFUSED}"]
     root = tree.getroot().tag
     if kind is None:
         if root not in KINDS:

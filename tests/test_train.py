@@ -154,7 +154,7 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
     loss = losses.SolverLoss(ds)
     i = int(ds.indices("train")[-1])
     p = loss.problem(i)
-    problem = StepProblem.from_step_file(loss.step_file(i))
+    problem = StepProblem.from_step_file(loss.ds.step_file(i))
     exact = reference_solution(problem)
     at_solution = loss.residual(torch.as_tensor(exact.normal_impulse), torch.as_tensor(exact.tangent_impulse), p)
     at_zero = loss.residual(torch.zeros(problem.points, dtype=torch.float64),

@@ -6,14 +6,13 @@ with the convergence history recorded and once without, for honest timing. Recor
 and start: iterations, whether the cap was hit, the history, the final residual, the error
 against the reference solution (relative, in impulses), prediction and solve time.
 """
-import json
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..step.run_folder import read_run
 from ..solver.pgs import MEASURES, solve
 from ..solver.problem import StepProblem, contact_keys
 from ..solver.reference import reference_solution
@@ -38,21 +37,12 @@ class Row:
 
 
 def step_files(run_dir):
-    run = Path(run_dir)
-    manifest = run / "manifest.json"
-    if not manifest.is_file():
-        raise InputError("no manifest.json: not a finished `dc simulate` run", run)
-    m = json.loads(manifest.read_text())
-    if m.get("solver", "box2d") != "box2d":
-        raise InputError("evaluate replays runs stepped by Box2D's own solver (its warm start is the builtin "
-                         "start)", manifest)
-    out = []
-    for e in m["simulations"]:
-        files = sorted((run / e["dir"]).glob("step-*.xml"))
-        out.append((int(e["seed"]), files))
-    if not any(files for _, files in out):
-        raise InputError("the run has no step files", run)
-    return m, out
+    """(manifest, [(seed, step files)]) of a finished run of Box2D's own solver."""
+    run = read_run(run_dir, solver="box2d", purpose="evaluate replays runs stepped by Box2D's own solver (its "
+                   "warm start is the builtin start)")
+    if not run.step_files:
+        raise InputError("the run has no step files", run_dir)
+    return run.manifest, [(s.seed, s.files) for s in run.simulations]
 
 
 def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",

@@ -19,6 +19,7 @@ Train/validation splits are by simulation, never by step (neighbouring steps are
 import hashlib
 import json
 import logging
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,8 +28,10 @@ import numpy as np
 from .. import __version__, atomic
 from .._box2d import box2d_version
 from ..errors import InputError
+from ..resources import check_memory, gigabytes
 from ..scene.xml import read_scene
 from ..step.reader import read_step_for_grid
+from ..step.run_folder import MANIFEST, read_run, simulation_folder
 from .spec import GridSpec, scene_box
 from .splat import check_channels, rasterize_step
 
@@ -69,28 +72,20 @@ def _smallest_radius(scene):
 def collect(run_dirs, include_contactless=False):
     """The simulations of finished runs, with the step files that become samples."""
     sims, manifests = [], []
-    for run in map(Path, run_dirs):
-        manifest = run / "manifest.json"
-        if not manifest.is_file():
-            raise InputError("no manifest.json: not a finished `dc simulate` run", run)
-        raw = manifest.read_bytes()
-        try:
-            m = json.loads(raw)
-            entries = m["simulations"]
-        except (ValueError, KeyError) as e:
-            raise InputError(f"unreadable manifest: {e}", manifest) from None
-        manifests.append({"run": str(run), "manifest_sha256": hashlib.sha256(raw).hexdigest(),
-                          "scene": m.get("scene"), "solver": m.get("solver")})
-        for e in entries:
-            folder = run / e["dir"]
-            scene = read_scene(folder / "scene.xml")
+    for run_dir in map(Path, run_dirs):
+        run = read_run(run_dir)
+        raw = (run_dir / MANIFEST).read_bytes()
+        manifests.append({"run": str(run_dir), "manifest_sha256": hashlib.sha256(raw).hexdigest(),
+                          "scene": run.manifest.get("scene"), "solver": run.manifest.get("solver")})
+        for e in run.simulations:
+            scene = read_scene(e.path / "scene.xml")
             files, counts = [], []
-            for f in sorted(folder.glob("step-*.xml")):
+            for f in e.files:
                 n = _contact_count(f)
                 if n or include_contactless:
                     files.append(str(f))
                     counts.append(n)
-            sims.append(Simulation(run=str(run), dir=e["dir"], seed=int(e["seed"]), scene=scene.name,
+            sims.append(Simulation(run=str(run_dir), dir=e.dir, seed=e.seed, scene=scene.name,
                                    box=scene_box(scene), radius=_smallest_radius(scene), files=files,
                                    contacts=counts))
     if not sims:
@@ -144,8 +139,11 @@ def split_simulations(count, validation_fraction, seed):
 
 def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize=True, inputs=None,
                   labels=None, window=None, include_contactless=False, validation_fraction=0.2, seed=0,
-                  jobs=1, overwrite=False, progress=None):
-    """Rasterize every step of the runs into a dataset folder, atomically. Returns its metadata."""
+                  jobs=1, overwrite=False, progress=None, max_memory=None):
+    """Rasterize every step of the runs into a dataset folder, atomically. Returns its metadata.
+
+    Refuses (before writing) work whose images would not fit in max_memory GB (each worker holds
+    one simulation's) or on the disk."""
     from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
     inputs = list(inputs or DEFAULT_INPUTS)
     labels = list(labels or DEFAULT_LABELS)
@@ -165,6 +163,17 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     m = sum(sum(s.contacts) for s in sims)
     if n == 0:
         raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
+    per_sample = (len(inputs) + len(labels)) * spec.nx * spec.ny * 4
+    longest = max(len(s.files) for s in sims)
+    check_memory(per_sample * longest * min(jobs, len(sims)),
+                 max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
+    parent = out.resolve().parent
+    while not parent.exists():
+        parent = parent.parent
+    free = shutil.disk_usage(parent).free
+    if per_sample * n > free:
+        raise InputError(f"the dataset would take {gigabytes(per_sample * n):.3g} GB on disk; "
+                         f"{gigabytes(free):.3g} GB are free there", out)
 
     with atomic.folder(out) as tmp:
         arrays = {
@@ -238,16 +247,61 @@ class GridDataset:
         if not meta.is_file():
             raise InputError("not a dataset (no metadata.json)", self.path)
         try:
-            self.metadata = json.loads(meta.read_text())
-        except ValueError as e:
+            self.metadata = json.loads(meta.read_bytes())
+        except (ValueError, UnicodeDecodeError) as e:
             raise InputError(f"unreadable metadata: {e}", meta) from None
-        if self.metadata.get("format") != FORMAT:
-            raise InputError(f"dataset format {self.metadata.get('format')} is not {FORMAT}", meta)
+        m = self.metadata
+        if not isinstance(m, dict):
+            raise InputError(f"the metadata must be a JSON object, not {type(m).__name__}", meta)
+        if m.get("format") != FORMAT:
+            raise InputError(f"dataset format {m.get('format')!r} is not {FORMAT}", meta)
+        kinds = {"samples": int, "grid": dict, "inputs": list, "labels": list, "simulations": list, "split": dict,
+                 "sources": list}
+        for key, kind in kinds.items():
+            if not isinstance(m.get(key), kind) or isinstance(m.get(key), bool):
+                raise InputError(f"{key!r} must be a JSON {kind.__name__.replace('dict', 'object')}", meta)
+        self.arrays = {}
+        for name in ARRAYS:
+            path = self.path / f"{name}.npy"
+            try:
+                self.arrays[name] = np.load(path, mmap_mode="r", allow_pickle=False)
+            except FileNotFoundError:
+                raise InputError("missing dataset array", path) from None
+            except (OSError, ValueError) as e:
+                raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
+        n = m["samples"]
+        for name in ("inputs", "labels", "simulation", "step"):
+            if len(self.arrays[name]) != n:
+                raise InputError(f"{len(self.arrays[name])} rows, the metadata says {n} samples",
+                                 self.path / f"{name}.npy")
         try:
-            self.arrays = {name: np.load(self.path / f"{name}.npy", mmap_mode="r") for name in ARRAYS}
-        except (OSError, ValueError) as e:
-            raise InputError(f"a dataset array is missing or damaged: {e}", self.path) from None
-        self.spec = GridSpec(**self.metadata["grid"])
+            self.spec = GridSpec(**m["grid"])
+        except TypeError as e:
+            raise InputError(f"bad grid description: {e}", meta) from None
+
+    def step_file(self, i):
+        """The step file sample i was made from, found through the run it came from.
+
+        The metadata names that run; it is only followed if it is one of the dataset's sources,
+        its manifest is unchanged (the recorded SHA-256) and the simulation folder lies inside it."""
+        meta = self.path / "metadata.json"
+        sim = self.metadata["simulations"][int(self.arrays["simulation"][i])]
+        if not isinstance(sim, dict):
+            raise InputError("simulation entries must be JSON objects", meta)
+        sources = {s.get("run"): s.get("manifest_sha256") for s in self.metadata["sources"] if isinstance(s, dict)}
+        run = sim.get("run")
+        if run not in sources:
+            raise InputError(f"simulation run {run!r} is not one of the dataset's sources", meta)
+        manifest = Path(run) / MANIFEST
+        try:
+            digest = hashlib.sha256(manifest.read_bytes()).hexdigest()
+        except OSError as e:
+            raise InputError(f"the run this dataset was made from cannot be read: {e.strerror or e}",
+                             manifest) from None
+        if digest != sources[run]:
+            raise InputError("the run changed since the dataset was made (manifest SHA-256 differs)", manifest)
+        folder = simulation_folder(run, sim.get("dir"), meta)
+        return folder / f"step-{int(self.arrays['step'][i]):06d}.xml"
 
     def __len__(self):
         return int(self.metadata["samples"])

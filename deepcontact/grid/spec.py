@@ -39,9 +39,9 @@ class GridSpec:
         if not all(math.isfinite(v) for v in (x0, y0, x1, y1)) or x1 <= x0 or y1 <= y0:
             raise InputError(f"the grid window {window} is empty or not finite")
         if not (math.isfinite(cell) and cell > 0):
-            raise InputError(f"cell size d must be positive, got {cell}")
+            raise InputError(f"cell size d must be positive and finite, got {cell}")
         if not (math.isfinite(h) and h > 0):
-            raise InputError(f"smoothing length h must be positive, got {h}")
+            raise InputError(f"smoothing length h must be positive and finite, got {h}")
         if kernel not in KERNELS:
             raise InputError(f"unknown kernel {kernel!r}; choose from {', '.join(KERNELS)}")
         nx = int(math.floor((x1 - x0) / cell + 1e-9)) + 1

@@ -68,16 +68,11 @@ class SolverLoss:
         self.ds, self.sweeps, self.damping = dataset, sweeps, damping
         self.cache = {}
 
-    def step_file(self, i):
-        from pathlib import Path
-        sim = self.ds.metadata["simulations"][int(self.ds.arrays["simulation"][i])]
-        return Path(sim["run"]) / sim["dir"] / f"step-{int(self.ds.arrays['step'][i]):06d}.xml"
-
     def problem(self, i):
         if i not in self.cache:
             from ..solver.lcp import build_lcp
             from ..solver.problem import StepProblem
-            lcp = build_lcp(StepProblem.from_step_file(self.step_file(i)))
+            lcp = build_lcp(StepProblem.from_step_file(self.ds.step_file(i)))
             t = {name: torch.as_tensor(getattr(lcp, name)) for name in ("A", "b", "kind", "point", "normal_row",
                                                                        "friction")}
             t["scale"] = float(max(abs(lcp.b).max(), 1e-12)) if len(lcp.b) else 1.0

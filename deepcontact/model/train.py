@@ -12,8 +12,10 @@ import json
 import logging
 import math
 import os
+import pickle
 import random
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,7 +30,7 @@ from . import losses
 from .networks import build, parameter_count
 
 log = logging.getLogger(__name__)
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
 
 
 @dataclass
@@ -67,25 +69,46 @@ class TrainingDiverged(InputError):
 
 
 def _rng_state():
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    # numpy's state holds an ndarray, which weights_only loading refuses: store it as a tensor.
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return {"torch": torch.get_rng_state(),
+            "numpy": {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                      "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+            "python": random.getstate()}
 
 
 def _set_rng_state(state):
     torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
+    n = state["numpy"]
+    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached_gaussian"]))
     random.setstate(state["python"])
 
 
 def load_checkpoint(path):
+    """A checkpoint, loaded without running any code it might carry (weights_only)."""
     path = Path(path)
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=False)
+        ck = torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise InputError("no such checkpoint", path) from None
+    except IsADirectoryError:
+        raise InputError("a folder, not a checkpoint file", path) from None
+    except pickle.UnpicklingError:
+        raise InputError("refused: the checkpoint holds objects other than tensors and plain containers "
+                         "(loading it could run code)", path) from None
     except Exception as e:  # torch raises many kinds for a damaged file
         raise InputError(f"not a readable checkpoint (truncated or damaged?): {type(e).__name__}", path) from None
-    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT or "model" not in ck:
+    if not isinstance(ck, dict) or "model" not in ck:
         raise InputError("not a deepcontact checkpoint", path)
+    if ck.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"checkpoint format {ck.get('format')!r}; this version reads format {CHECKPOINT_FORMAT}",
+                         path)
+    keys = ("epoch", "network", "train_config", "targets", "dataset", "history", "best", "bad_epochs", "rng",
+            "optimizer")
+    missing = [k for k in keys if k not in ck]
+    if missing:
+        raise InputError(f"not a complete deepcontact checkpoint: no {', '.join(missing)}", path)
     return ck
 
 
@@ -122,8 +145,13 @@ def check_compatible(ck, meta, path):
         raise InputError(f"the dataset has no label channel {', '.join(missing)}", path)
 
 
-def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=None, device="cpu"):
-    """Train; returns the history (a list of per-epoch metric dicts)."""
+def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=None, device="cpu",
+          overwrite=False, epochs=None):
+    """Train; returns the history (a list of per-epoch metric dicts).
+
+    Everything is checked before the output folder is touched. With `overwrite`, the new run is
+    built beside the old one and replaces it only when it finishes. `epochs` overrides the
+    configuration's (or, with `resume`, the checkpoint's) number of epochs."""
     if threads:
         torch.set_num_threads(threads)
     try:
@@ -142,6 +170,8 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
         cfg = TrainConfig(**ck["train_config"])
         check_compatible(ck, meta, last)
     cfg = cfg or TrainConfig()
+    if epochs is not None:
+        cfg.epochs = epochs
     if cfg.loss not in losses.LOSSES:
         raise InputError(f"unknown loss {cfg.loss!r}; choose from {', '.join(losses.LOSSES)}")
     missing = [t for t in cfg.targets if t not in meta["labels"]]
@@ -158,122 +188,148 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     val_idx = ds.indices("validation")
     if len(train_idx) == 0:
         raise InputError("the dataset has no training samples", dataset)
-    if not resume and out_dir.exists() and (out_dir / "last.pt").exists():
-        raise InputError("a training run is already there; use --resume to continue or --overwrite", out_dir)
-    if rank == 0:
-        out_dir.mkdir(parents=True, exist_ok=True)
-
-    torch.manual_seed(cfg.seed)
-    np.random.seed(cfg.seed)
-    random.seed(cfg.seed)
-    torch.use_deterministic_algorithms(True, warn_only=True)
-    net_cfg = network_config(cfg, meta, cfg.targets)
-    model = build(net_cfg).to(device)
-    if cfg.optimizer == "sgd":
-        opt = torch.optim.SGD(model.parameters(), lr=thesis_lr(0), momentum=cfg.momentum, weight_decay=cfg.weight_decay)
-    elif cfg.optimizer == "adam":
-        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    else:
-        raise InputError(f"unknown optimizer {cfg.optimizer!r}; choose sgd or adam")
-    history, best, bad_epochs, start = [], math.inf, 0, 0
-    if ck is not None:
-        model.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
-        _set_rng_state(ck["rng"])
-        history, best, bad_epochs, start = ck["history"], ck["best"], ck["bad_epochs"], ck["epoch"] + 1
-    net = model
-    if world > 1:
-        net = torch.nn.parallel.DistributedDataParallel(model)
-    spec = GridSpec(**meta["grid"])
-    inputs, labels = ds.arrays["inputs"], ds.arrays["labels"]
-
-    def batch(indices):
-        idx = np.sort(indices)   # reading a memory map in order
-        x = torch.from_numpy(np.ascontiguousarray(inputs[idx])).to(device)
-        y = torch.from_numpy(np.ascontiguousarray(labels[idx][:, target_idx])).to(device)
-        return idx, x, y
-
-    def loss_of(pred, y, idx):
-        if cfg.loss == "masked":
-            return losses.masked_mse(pred, y)
-        if cfg.loss == "mse":
-            return losses.mse(pred, y)
-        if cfg.loss == "solver":
-            return solver_loss(pred, idx, spec, label_columns)
-        pos, imp = zip(*(ds.contacts(int(i)) for i in idx))
-        return losses.contact_mse(pred, [torch.from_numpy(np.array(p)).to(device) for p in pos],
-                                  [torch.from_numpy(np.array(q)).to(device) for q in imp], spec, label_columns)
-
-    def save(name, epoch):
-        _save(out_dir / name, {
-            "format": CHECKPOINT_FORMAT, "epoch": epoch,
-            "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-            "optimizer": opt.state_dict(), "rng": _rng_state(), "history": history, "best": best,
-            "bad_epochs": bad_epochs, "network": net_cfg, "train_config": asdict(cfg), "targets": cfg.targets,
-            "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
-            "dataset_path": str(dataset),
-            "versions": {"deepcontact": __version__, "torch": torch.__version__, "numpy": np.__version__},
-        })
-
-    if rank == 0 and not resume:
-        params, _ = parameter_count(model)
-        log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
-                 len(train_idx), len(val_idx))
-    for epoch in range(start, cfg.epochs):
-        lr = thesis_lr(epoch) if cfg.optimizer == "sgd" else cfg.lr
-        for g in opt.param_groups:
-            g["lr"] = lr
-        gen = torch.Generator().manual_seed(cfg.seed * 100003 + epoch)
-        order = train_idx[torch.randperm(len(train_idx), generator=gen).numpy()]
-        net.train()
-        t0 = time.perf_counter()
-        total, seen = 0.0, 0
-        for b0 in range(0, len(order), cfg.batch_size):
-            chunk = order[b0:b0 + cfg.batch_size][rank::world]
-            if len(chunk) == 0:
-                continue
-            idx, x, y = batch(chunk)
-            opt.zero_grad()
-            loss = loss_of(net(x), y, idx)
-            if not torch.isfinite(loss):
-                raise TrainingDiverged(f"the loss became {loss.item()} in epoch {epoch}; the last good checkpoint "
-                                       f"is kept ({last if last.exists() else 'none yet'})", out_dir)
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-            seen += len(idx)
-        seconds = time.perf_counter() - t0
-        if world > 1:   # the epoch's loss over all ranks' samples
-            sums = torch.tensor([total, float(seen)], dtype=torch.float64)
-            torch.distributed.all_reduce(sums)
-            total, seen = float(sums[0]), int(sums[1])
-        row = {"epoch": epoch, "lr": lr, "train_loss": total / max(seen, 1), "seconds": seconds,
-               "samples_per_second": seen / max(seconds, 1e-9)}
-        row.update(evaluate(model, ds, val_idx, target_idx, label_columns, spec, cfg, loss_of, batch)
-                   if len(val_idx) else {})
-        history.append(row)
-        score = row.get("val_loss", row["train_loss"])
-        improved = score < best
-        if improved:
-            best, bad_epochs = score, 0
+    if not resume and not overwrite and out_dir.exists() and any(out_dir.iterdir()):
+        raise InputError("the folder is not empty; use --resume to continue a run there or --overwrite to "
+                         "replace it", out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("not a folder", out_dir)
+    if overwrite and out_dir.exists() and any(out_dir.iterdir()) and not (out_dir / "last.pt").exists():
+        raise InputError("refusing to replace a folder that holds no training run (no last.pt)", out_dir)
+    replace = overwrite and rank == 0 and out_dir.exists()
+    kept = "the earlier run is left as it was" if replace else str(last)
+    with _output_folder(out_dir, replace, rank) as work:
+        torch.manual_seed(cfg.seed)
+        np.random.seed(cfg.seed)
+        random.seed(cfg.seed)
+        torch.use_deterministic_algorithms(True, warn_only=True)
+        net_cfg = network_config(cfg, meta, cfg.targets)
+        model = build(net_cfg).to(device)
+        if cfg.optimizer == "sgd":
+            opt = torch.optim.SGD(model.parameters(), lr=thesis_lr(0), momentum=cfg.momentum, weight_decay=cfg.weight_decay)
+        elif cfg.optimizer == "adam":
+            opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         else:
-            bad_epochs += 1
-        if rank == 0:
-            save("last.pt", epoch)
+            raise InputError(f"unknown optimizer {cfg.optimizer!r}; choose sgd or adam")
+        history, best, bad_epochs, start = [], math.inf, 0, 0
+        if ck is not None:
+            model.load_state_dict(ck["model"])
+            opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
+            _set_rng_state(ck["rng"])
+            history, best, bad_epochs, start = ck["history"], ck["best"], ck["bad_epochs"], ck["epoch"] + 1
+        net = model
+        if world > 1:
+            net = torch.nn.parallel.DistributedDataParallel(model)
+        spec = GridSpec(**meta["grid"])
+        inputs, labels = ds.arrays["inputs"], ds.arrays["labels"]
+
+        def batch(indices):
+            idx = np.sort(indices)   # reading a memory map in order
+            x = torch.from_numpy(np.ascontiguousarray(inputs[idx])).to(device)
+            y = torch.from_numpy(np.ascontiguousarray(labels[idx][:, target_idx])).to(device)
+            return idx, x, y
+
+        def loss_of(pred, y, idx):
+            if cfg.loss == "masked":
+                return losses.masked_mse(pred, y)
+            if cfg.loss == "mse":
+                return losses.mse(pred, y)
+            if cfg.loss == "solver":
+                return solver_loss(pred, idx, spec, label_columns)
+            pos, imp = zip(*(ds.contacts(int(i)) for i in idx))
+            return losses.contact_mse(pred, [torch.from_numpy(np.array(p)).to(device) for p in pos],
+                                      [torch.from_numpy(np.array(q)).to(device) for q in imp], spec, label_columns)
+
+        def save(name, epoch):
+            _save(work / name, {
+                "format": CHECKPOINT_FORMAT, "epoch": epoch,
+                "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+                "optimizer": opt.state_dict(), "rng": _rng_state(), "history": history, "best": best,
+                "bad_epochs": bad_epochs, "network": net_cfg, "train_config": asdict(cfg), "targets": cfg.targets,
+                "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
+                "dataset_path": str(dataset),
+                "versions": {"deepcontact": __version__, "torch": torch.__version__, "numpy": np.__version__},
+            })
+
+        if rank == 0 and not resume:
+            params, _ = parameter_count(model)
+            log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
+                     len(train_idx), len(val_idx))
+        for epoch in range(start, cfg.epochs):
+            lr = thesis_lr(epoch) if cfg.optimizer == "sgd" else cfg.lr
+            for g in opt.param_groups:
+                g["lr"] = lr
+            gen = torch.Generator().manual_seed(cfg.seed * 100003 + epoch)
+            order = train_idx[torch.randperm(len(train_idx), generator=gen).numpy()]
+            net.train()
+            t0 = time.perf_counter()
+            total, seen = 0.0, 0
+            for b0 in range(0, len(order), cfg.batch_size):
+                chunk = order[b0:b0 + cfg.batch_size][rank::world]
+                if len(chunk) == 0:
+                    continue
+                idx, x, y = batch(chunk)
+                opt.zero_grad()
+                loss = loss_of(net(x), y, idx)
+                if not torch.isfinite(loss):
+                    raise TrainingDiverged(f"the loss became {loss.item()} in epoch {epoch}; the last good checkpoint "
+                                           f"is kept ({kept})", out_dir)
+                loss.backward()
+                opt.step()
+                total += loss.item() * len(idx)
+                seen += len(idx)
+            seconds = time.perf_counter() - t0
+            if world > 1:   # the epoch's loss over all ranks' samples
+                sums = torch.tensor([total, float(seen)], dtype=torch.float64)
+                torch.distributed.all_reduce(sums)
+                total, seen = float(sums[0]), int(sums[1])
+            row = {"epoch": epoch, "lr": lr, "train_loss": total / max(seen, 1), "seconds": seconds,
+                   "samples_per_second": seen / max(seconds, 1e-9)}
+            row.update(evaluate(model, ds, val_idx, target_idx, label_columns, spec, cfg, loss_of, batch)
+                       if len(val_idx) else {})
+            history.append(row)
+            score = row.get("val_loss", row["train_loss"])
+            improved = score < best
             if improved:
-                save("best.pt", epoch)
-            write_metrics(out_dir, history)
-        if progress is not None and rank == 0:
-            progress(row)
-        if cfg.patience and bad_epochs >= cfg.patience:
-            log.info("no improvement for %d epochs: stopping after epoch %d", bad_epochs, epoch)
-            break
-    if rank == 0 and history:
-        plot_losses(history, out_dir / "loss")
-    if world > 1:
-        torch.distributed.barrier()   # no rank leaves while rank 0 still writes
-        torch.distributed.destroy_process_group()
-    return history
+                best, bad_epochs = score, 0
+            else:
+                bad_epochs += 1
+            if rank == 0:
+                save("last.pt", epoch)
+                if improved:
+                    save("best.pt", epoch)
+                write_metrics(work, history)
+            if progress is not None and rank == 0:
+                progress(row)
+            if cfg.patience and bad_epochs >= cfg.patience:
+                log.info("no improvement for %d epochs: stopping after epoch %d", bad_epochs, epoch)
+                break
+        if rank == 0 and history:
+            plot_losses(history, work / "loss")
+        if world > 1:
+            torch.distributed.barrier()   # no rank leaves while rank 0 still writes
+            torch.distributed.destroy_process_group()
+        return history
+
+
+@contextmanager
+def _output_folder(out_dir, replace, rank):
+    """Where this run writes: beside the old run when replacing it (swapped in at the end), or
+    the folder itself, which a run that fails before writing anything leaves as it found it."""
+    if rank != 0:
+        yield out_dir
+        return
+    if replace:
+        with atomic.folder(out_dir) as tmp:
+            yield tmp
+        return
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        yield out_dir
+    except BaseException:
+        if created and not any(out_dir.iterdir()):
+            out_dir.rmdir()
+        raise
 
 
 @torch.no_grad()

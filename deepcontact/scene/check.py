@@ -13,6 +13,39 @@ def _finite(*values):
     return all(math.isfinite(v) for v in values)
 
 
+# Box2D computes in float32 and asserts (aborting the process) on what overflows there, such as
+# a circle of radius 1e20 whose mass is infinite. These bounds keep every quantity it forms from
+# the scene (areas, masses, inertias, their inverses, impulses) well inside float32's range.
+MAX_LENGTH = 1e6      # m: positions, radii, vertices (float32 still resolves 6 cm there)
+MAX_SPEED = 1e6       # m/s, and rad/s for spin
+MAX_GRAVITY = 1e6     # m/s^2
+MAX_DAMPING = 1e6     # 1/s
+MASS_RANGE = (1e-20, 1e20)   # kg (and kg m^2 for the rotational inertia of a body)
+
+
+def _within(limit, *values):
+    return all(math.isfinite(v) and abs(v) <= limit for v in values)
+
+
+def shape_mass(s):
+    """(mass, first moment (2,), polar moment about the body origin) of one shape, in float64."""
+    if s.kind == "circle":
+        m = s.density * math.pi * s.radius ** 2
+        return m, m * np.array([s.x, s.y]), m * (0.5 * s.radius ** 2 + s.x ** 2 + s.y ** 2)
+    if s.kind == "polygon":
+        p = np.asarray(s.vertices, dtype=np.float64)
+        q = np.roll(p, -1, axis=0)
+        cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
+        sign = 1.0 if cross.sum() >= 0 else -1.0
+        area = 0.5 * sign * cross.sum()
+        first = sign * s.density * np.array([np.sum(cross * (p[:, 0] + q[:, 0])),
+                                             np.sum(cross * (p[:, 1] + q[:, 1]))]) / 6.0
+        polar = sign * s.density * np.sum(cross * (p[:, 0] ** 2 + p[:, 0] * q[:, 0] + q[:, 0] ** 2
+                                                   + p[:, 1] ** 2 + p[:, 1] * q[:, 1] + q[:, 1] ** 2)) / 12.0
+        return s.density * area, first, polar
+    return 0.0, np.zeros(2), 0.0
+
+
 def polygon_problem(vertices):
     """Why Box2D would not take these vertices as they are, or None."""
     n = len(vertices)
@@ -41,31 +74,33 @@ def check_scene(scene, path=None):
     def fail(msg, line=None):
         raise InputError(msg, path, line)
 
-    if not (_finite(scene.dt) and scene.dt > 0):
-        fail(f"dt must be positive, got {scene.dt}")
+    if not (_finite(scene.dt) and 1e-6 <= scene.dt <= 10):
+        fail(f"dt must be between 1e-6 and 10 s, got {scene.dt}")
     if scene.steps < 1:
         fail(f"steps must be at least 1, got {scene.steps}")
     if scene.solver.velocity_iterations < 0 or scene.solver.position_iterations < 0:
         fail("iteration counts must be >= 0")
     e = scene.effects
-    if e.gravity is not None and not _finite(*e.gravity):
-        fail("gravity is not finite")
+    if e.gravity is not None and not _within(MAX_GRAVITY, *e.gravity):
+        fail(f"gravity must be finite and at most {MAX_GRAVITY:g} m/s^2 in each component, got {e.gravity}")
     for name in ("friction", "restitution"):
         v = getattr(e, name)
         if v is not None and not (_finite(v) and v >= 0):
             fail(f"{name} coefficient must be a finite number >= 0")
-    if e.damping is not None and not (_finite(*e.damping) and min(e.damping) >= 0):
-        fail("damping must be finite and >= 0")
+    if e.damping is not None and not (_within(MAX_DAMPING, *e.damping) and min(e.damping) >= 0):
+        fail(f"damping must be between 0 and {MAX_DAMPING:g}")
 
     for i, b in enumerate(scene.bodies):
         where = f"body {i}"
         if b.type not in BODY_TYPES:
             fail(f"{where}: unknown type {b.type!r}", b.line)
-        if not _finite(b.x, b.y, b.angle, b.vx, b.vy, b.omega):
-            fail(f"{where}: position, angle or velocity is not a finite number", b.line)
+        if not _within(MAX_LENGTH, b.x, b.y, b.angle):
+            fail(f"{where}: position and angle must be finite and at most {MAX_LENGTH:g} in size", b.line)
+        if not _within(MAX_SPEED, b.vx, b.vy, b.omega):
+            fail(f"{where}: velocity and spin must be finite and at most {MAX_SPEED:g} in size", b.line)
         if b.bullet and not e.continuous:
             fail(f"{where} is a bullet, which needs the continuous effect declared", b.line)
-        mass = 0.0
+        mass, first, polar = 0.0, np.zeros(2), 0.0
         for s in b.shapes:
             line = s.line or b.line
             if s.friction is not None and e.friction is None:
@@ -78,22 +113,39 @@ def check_scene(scene, path=None):
                 v = getattr(s, name)
                 if v is not None and not (_finite(v) and v >= 0):
                     fail(f"{where}: {s.kind} {name} must be a finite number >= 0", line)
+            if s.density is not None and s.density > 1e20:
+                fail(f"{where}: {s.kind} density must be at most 1e20 kg/m^2", line)
             if s.kind == "circle":
-                if not (_finite(s.radius, s.x, s.y) and s.radius > 0):
-                    fail(f"{where}: circle radius must be positive and finite", line)
-                mass += s.density * s.radius ** 2
+                if not (_within(MAX_LENGTH, s.radius, s.x, s.y) and s.radius > 0):
+                    fail(f"{where}: circle radius must be positive and at most {MAX_LENGTH:g} m, and its "
+                         f"centre finite and within {MAX_LENGTH:g} m", line)
             elif s.kind == "polygon":
+                if not _within(MAX_LENGTH, *np.ravel(np.asarray(s.vertices, dtype=np.float64))):
+                    fail(f"{where}: polygon vertices must be finite and within {MAX_LENGTH:g} m", line)
                 problem = polygon_problem(s.vertices)
                 if problem:
                     fail(f"{where}: {problem}", line)
-                mass += s.density
             else:
-                if not _finite(s.x1, s.y1, s.x2, s.y2):
-                    fail(f"{where}: edge end is not a finite number", line)
+                if not _within(MAX_LENGTH, s.x1, s.y1, s.x2, s.y2):
+                    fail(f"{where}: edge ends must be finite and within {MAX_LENGTH:g} m", line)
                 if math.hypot(s.x2 - s.x1, s.y2 - s.y1) < linear_slop:
                     fail(f"{where}: edge shorter than the linear slop ({linear_slop:g} m)", line)
+            m, f, j = shape_mass(s)
+            mass, first, polar = mass + m, first + f, polar + j
         if b.type == "dynamic" and mass <= 0:
             fail(f"{where} is dynamic but has no mass: give a circle or polygon a density > 0", b.line)
+        lo, hi = MASS_RANGE
+        if b.type == "dynamic" and not lo <= mass <= hi:
+            fail(f"{where}: its mass {mass:.3g} kg is outside [{lo:g}, {hi:g}] (float32 could not hold it, "
+                 f"or its inverse, safely)", b.line)
+        if b.type == "dynamic" and not b.fixed_rotation:
+            # Box2D shifts the inertia to the centre of mass in float32 and asserts it stays > 0:
+            # shapes tiny beside their distance from the body origin cancel it out.
+            inertia = polar - float(first @ first) / mass
+            if not (inertia <= hi and inertia > 1e-5 * polar and inertia >= lo):
+                fail(f"{where}: its rotational inertia about the centre of mass ({inertia:.3g} kg m^2) is "
+                     f"outside [{lo:g}, {hi:g}] or lost to rounding (shapes small beside their distance "
+                     f"from the body's origin)", b.line)
 
     for ev in scene.events:
         if ev.body >= len(scene.bodies):

@@ -11,6 +11,7 @@ import numpy as np
 
 from .._box2d import linear_slop, polygon_radius
 from ..errors import InputError
+from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
 
 
@@ -235,8 +236,26 @@ def _convert(name, key, text, default):
     return value
 
 
-def generate(name, seed=0, params=None, velocity_iterations=8, position_iterations=3) -> Scene:
-    """Make a scene with a built-in generator. `params` maps names to values or strings."""
+# What each parameter may be: sizes, counts and densities positive, the rest not negative.
+_POSITIVE = {"count", "box", "radius", "sigma", "size", "density", "top_density", "bullet_density", "ratio",
+             "length", "thickness", "inner", "spacing", "dt", "steps", "base", "levels", "blocks", "stack"}
+_MAX_PARAM = 1e9   # beyond this a float32 scene overflows anyway; check_scene has the exact limits
+
+# How many bodies a generator makes, known before making them (the memory guard needs it).
+BODY_COUNT = {
+    "pile": lambda p: p["count"] + 1, "stack": lambda p: p["count"] + 1,
+    "pyramid": lambda p: p["base"] * (p["base"] + 1) // 2 + 1, "mass-ratio": lambda p: 3,
+    "card-house": lambda p: p["levels"] * (p["levels"] + 1) * 3 // 2 + 1, "arch": lambda p: p["blocks"] + 1,
+    "confined": lambda p: p["count"] + 1, "warm-start-energy": lambda p: 4, "bullet": lambda p: p["stack"] + 2,
+}
+
+
+def body_count(name, params=None):
+    """An upper estimate of the bodies generate(name, params=params) makes."""
+    return int(BODY_COUNT[name](_checked_params(name, params)[0]))
+
+
+def _checked_params(name, params):
     if name not in GENERATORS:
         raise InputError(f"unknown scene generator {name!r}; choose from {', '.join(GENERATORS)}")
     defaults = parameters(name)
@@ -246,15 +265,28 @@ def generate(name, seed=0, params=None, velocity_iterations=8, position_iteratio
             raise InputError(f"generator {name!r} has no parameter {key!r}; "
                              f"its parameters are {', '.join(defaults)}")
         given[key] = _convert(name, key, value, defaults[key]) if isinstance(value, str) else value
-    for key in ("dt",):
-        if key in given and not given[key] > 0:
-            raise InputError(f"generator {name!r}: {key} must be positive, got {given[key]}")
-    for key in ("steps", "count", "base", "levels", "blocks", "stack"):
-        if key in given and given[key] < 1:
-            raise InputError(f"generator {name!r}: {key} must be at least 1, got {given[key]}")
+    for key, value in given.items():
+        if isinstance(value, bool):
+            continue
+        if key in _POSITIVE and not value > 0:
+            raise InputError(f"generator {name!r}: {key} must be positive, got {value}")
+        if key not in _POSITIVE and not value >= 0:
+            raise InputError(f"generator {name!r}: {key} must not be negative, got {value}")
+        if not abs(value) <= _MAX_PARAM:
+            raise InputError(f"generator {name!r}: {key}={value:g} is too large (at most {_MAX_PARAM:g})")
+    return {**defaults, **given}, given
+
+
+def generate(name, seed=0, params=None, velocity_iterations=8, position_iterations=3) -> Scene:
+    """Make a scene with a built-in generator. `params` maps names to values or strings.
+
+    The scene is checked (scene.check.check_scene) before it is returned."""
+    _, given = _checked_params(name, params)
     parts = GENERATORS[name](seed, **given)
-    return Scene(name=name, dt=f32(parts["dt"]), steps=int(parts["steps"]),
+    scene = Scene(name=name, dt=f32(parts["dt"]), steps=int(parts["steps"]),
                  solver=Solver(velocity_iterations=velocity_iterations,
                                position_iterations=position_iterations),
                  effects=parts["effects"], bodies=parts["bodies"], events=parts.get("events", []),
                  generator=name, seed=seed, params={k: given[k] for k in sorted(given)})
+    check_scene(scene, f"generator {name}")
+    return scene

@@ -14,9 +14,9 @@ import hashlib
 import json
 import logging
 import os
-import shutil
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,13 +26,13 @@ from .. import __version__, atomic
 from .._box2d import box2d_version
 from ..errors import InputError
 from ..scene.xml import fmt, to_xml
+from ..step.run_folder import MANIFEST
 from ..step.writer import step_filename, step_writer
 from .build import build_world, check_overlaps
 from .pgs_loop import PGSStepper, check_scene_for_loop
 
 log = logging.getLogger(__name__)
 
-MANIFEST = "manifest.json"
 
 
 def sim_dirname(seed: int) -> str:
@@ -117,21 +117,28 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                             contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest())
 
 
-def prepare_output(out_dir, seeds, overwrite):
-    """Create OUTDIR, refusing a non-empty one unless overwrite; with overwrite, remove this
-    run's own outputs (the manifest first, then the simulation folders) and nothing else."""
+def check_output(out_dir, overwrite):
+    """Whether an earlier run in OUTDIR is to be replaced; refuses what must not be touched.
+
+    Only a folder holding nothing but a run (its manifest and seed-* folders) is replaced."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("output path exists and is not a folder", out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()):
-        if not overwrite:
-            raise InputError("output folder is not empty; use --overwrite to replace it", out_dir)
-        manifest = out_dir / MANIFEST
-        if manifest.exists():
-            manifest.unlink()
-        for child in out_dir.iterdir():
-            if child.is_dir() and child.name.startswith("seed-"):
-                shutil.rmtree(child)
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return False
+    if not overwrite:
+        raise InputError("output folder is not empty; use --overwrite to replace it", out_dir)
+    other = sorted(p.name for p in out_dir.iterdir()
+                   if not (p.name == MANIFEST or p.name.startswith(".") or (p.is_dir() and p.name.startswith("seed-"))))
+    if other:
+        raise InputError(f"refusing to replace a folder that holds more than a run ({', '.join(other[:3])}"
+                         f"{', ...' if len(other) > 3 else ''})", out_dir)
+    return True
+
+
+def prepare_output(out_dir, seeds):
+    """Create OUTDIR (empty or new) and a folder per simulation."""
+    out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         for seed in seeds:
@@ -142,6 +149,11 @@ def prepare_output(out_dir, seeds, overwrite):
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", out_dir) from None
     return out_dir
+
+
+@contextmanager
+def _in_place(out_dir):
+    yield out_dir
 
 
 def _worker(args):
@@ -164,7 +176,18 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
     check_overlaps(first, source)
     if loop is not None:
         check_scene_for_loop(first, source)
-    out_dir = prepare_output(out_dir, seeds, overwrite)
+    out_dir = Path(out_dir)
+    # An earlier run is replaced only once the new one is complete: it is built beside it.
+    replace = check_output(out_dir, overwrite)
+    with (atomic.folder(out_dir) if replace else _in_place(out_dir)) as work:
+        manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
+                             progress, source, loop)
+    log.info("wrote %d simulations, %d step files to %s", len(manifest["simulations"]),
+             sum(r["files"] for r in manifest["simulations"]), os.fspath(out_dir))
+    return manifest
+
+
+def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop):
     if progress is not None:
         progress = progress(first.steps * len(seeds))
     try:
@@ -189,8 +212,6 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
         "simulations": [r.__dict__ for r in results],
     }
     atomic.write_text(out_dir / MANIFEST, json.dumps(manifest, indent=2) + "\n")
-    log.info("wrote %d simulations, %d step files to %s", len(results),
-             sum(r.files for r in results), os.fspath(out_dir))
     return manifest
 
 

@@ -3,7 +3,8 @@ import dataclasses
 from pathlib import Path
 
 from ..errors import InputError
-from ..scene.generators import GENERATORS, generate
+from ..resources import BYTES_PER_BODY, check_memory
+from ..scene.generators import GENERATORS, body_count, generate
 from ..scene.xml import read_scene
 
 
@@ -41,6 +42,12 @@ class SceneSource:
         if self.velocity_iterations is not None:
             scene.solver = dataclasses.replace(scene.solver, velocity_iterations=self.velocity_iterations)
         return scene
+
+    def check_memory(self, workers=1, max_memory=None):
+        """Refuse scenes too large for max_memory GB (workers simulate at once), before making any."""
+        bodies = len(self._file_scene.bodies) if self.is_file else body_count(self.spec, self.params)
+        check_memory(bodies * BYTES_PER_BODY * workers, max_memory,
+                     f"simulating {bodies:,} bodies{f' in {workers} workers' if workers > 1 else ''}")
 
     @property
     def label(self):

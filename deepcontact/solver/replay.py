@@ -1,12 +1,12 @@
 """Replay fidelity: re-solve every recorded step in Box2D-exact mode from the recorded start with
 the recorded iteration count, and compare with the impulses Box2D produced."""
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..step.run_folder import MANIFEST, read_run
 from .pgs import solve
 from .problem import StepProblem
 
@@ -27,21 +27,17 @@ class ReplayReport:
 
 
 def step_files(run_dir):
+    """The step files of a run: those its manifest lists, or of every seed-* folder of an
+    unfinished run (no manifest yet)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise InputError("not a run folder", run_dir)
-    manifest = run_dir / "manifest.json"
-    if manifest.exists():
-        try:
-            sims = [run_dir / s["dir"] for s in json.loads(manifest.read_text())["simulations"]]
-        except (ValueError, KeyError) as e:
-            raise InputError(f"unreadable manifest: {e}", manifest) from None
-        if json.loads(manifest.read_text()).get("solver", "box2d") != "box2d":
-            raise InputError("--replay checks runs stepped by Box2D's own solver; this run used "
-                             "--solver pgs", manifest)
+    if (run_dir / MANIFEST).exists():
+        files = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver; "
+                         "this run used --solver pgs").step_files
     else:
-        sims = sorted(p for p in run_dir.glob("seed-*") if p.is_dir())
-    files = [f for sim in sims for f in sorted(sim.glob("step-*.xml"))]
+        files = [f for sim in sorted(p for p in run_dir.glob("seed-*") if p.is_dir())
+                 for f in sorted(sim.glob("step-*.xml"))]
     if not files:
         raise InputError("no step files found (expected seed-*/step-*.xml)", run_dir)
     return files

@@ -49,6 +49,8 @@ def _parse(path, validate):
             raise InputError(f"not a well-formed step file: {e.msg}", path, e.lineno) from None
         except OSError as e:
             raise InputError(f"cannot read: {e.strerror or e}", path) from None
+        if schema.has_doctype(tree):
+            raise InputError(schema.DOCTYPE_REFUSED, path, 1)
     root = tree.getroot()
     if root.tag != "step":
         raise InputError(f"root element is <{root.tag}>, not <step>", path, root.sourceline)

@@ -1,0 +1,100 @@
+"""Reading a `dc simulate` run folder: its manifest, checked, and the step files it lists.
+
+Every reader of runs (validate --replay, rasterize, evaluate) comes through here, so each gets
+the same checks: the manifest is a JSON object of the expected shape, every simulation folder it
+names lies inside the run folder (no absolute paths, no ``..``), and each folder holds exactly
+the number of step files the manifest recorded (a deleted or added file is an error, not a
+silently shorter run).
+"""
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import InputError
+
+MANIFEST = "manifest.json"
+_SIM_DIR = re.compile(r"seed-\d{6,}")
+
+
+@dataclass
+class Simulation:
+    seed: int
+    dir: str          # the folder's name inside the run
+    path: Path
+    files: list       # its step files, in step order
+
+
+@dataclass
+class Run:
+    path: Path
+    manifest: dict
+    simulations: list
+
+    @property
+    def step_files(self):
+        return [f for s in self.simulations for f in s.files]
+
+
+def _int(entry, key, index, path):
+    value = entry.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InputError(f"simulation {index}: {key!r} must be a non-negative integer, got {value!r}", path)
+    return value
+
+
+def read_manifest(run_dir):
+    """The manifest of a finished run, checked for shape; InputError naming the file otherwise."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError("not a run folder", run_dir)
+    path = run_dir / MANIFEST
+    if not path.is_file():
+        raise InputError("no manifest.json: not a finished `dc simulate` run", run_dir)
+    try:
+        m = json.loads(path.read_bytes())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"unreadable manifest: {e}", path) from None
+    if not isinstance(m, dict):
+        raise InputError(f"the manifest must be a JSON object, not {type(m).__name__}", path)
+    if not isinstance(m.get("simulations"), list):
+        raise InputError("the manifest has no list of simulations", path)
+    return m
+
+
+def simulation_folder(run_dir, name, manifest_path):
+    """The folder `name` inside run_dir; refuses anything that would lead outside it."""
+    if not isinstance(name, str) or not _SIM_DIR.fullmatch(name):
+        raise InputError(f"simulation folder {name!r} is not a seed-NNNNNN folder of this run "
+                         f"(paths leading elsewhere are refused)", manifest_path)
+    return Path(run_dir) / name
+
+
+def read_run(run_dir, solver=None, purpose=None):
+    """A finished run: its manifest and each simulation's step files, counted against it.
+
+    solver: refuse runs whose manifest names another solver ("box2d" or "pgs"); purpose says
+    why in the message."""
+    run_dir = Path(run_dir)
+    m = read_manifest(run_dir)
+    path = run_dir / MANIFEST
+    if solver is not None and m.get("solver", "box2d") != solver:
+        raise InputError(purpose or f"this needs a run of the {solver} solver", path)
+    sims = []
+    for i, e in enumerate(m["simulations"]):
+        if not isinstance(e, dict):
+            raise InputError(f"simulation {i} must be a JSON object", path)
+        if "dir" not in e:
+            raise InputError(f"simulation {i} has no 'dir'", path)
+        folder = simulation_folder(run_dir, e["dir"], path)
+        seed = _int(e, "seed", i, path)
+        if not folder.is_dir():
+            raise InputError(f"simulation {i}: folder {e['dir']} is missing", path)
+        files = sorted(folder.glob("step-*.xml"))
+        if "files" in e:
+            want = _int(e, "files", i, path)
+            if len(files) != want:
+                raise InputError(f"{e['dir']} holds {len(files)} step files, the manifest recorded {want} "
+                                 f"(files deleted or added after the run?)", folder)
+        sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files))
+    return Run(path=run_dir, manifest=m, simulations=sims)
