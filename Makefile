@@ -6,6 +6,8 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 STAMPS := .stamps
 NATIVE := $(wildcard deepcontact/native/*.cpp deepcontact/native/*.hpp)
 RUNS ?= runs
+# The installed entry point of $(PYTHON), whatever `dc` is first on PATH.
+DC := $(PYTHON) -m deepcontact.cli.main
 
 .PHONY: setup demo test test-slow bench stability smoke smoke-pipeline study study-pipeline clean
 
@@ -31,8 +33,8 @@ setup: $(STAMPS)/install
 
 # The main job on the built-in default scene: the thesis pile, simulated and validated.
 demo: setup
-	dc simulate pile --overwrite -o $(RUNS)/demo
-	dc validate -q $(RUNS)/demo
+	$(DC) simulate pile --overwrite -o $(RUNS)/demo
+	$(DC) validate -q $(RUNS)/demo
 	@echo "demo: 600 steps of the thesis pile (100 circles) in $(RUNS)/demo/seed-000000/, one XML file per step;"
 	@echo "      the run's manifest is $(RUNS)/demo/manifest.json"
 
@@ -54,14 +56,14 @@ smoke: setup
 	$(MAKE) --no-print-directory smoke-pipeline
 
 smoke-pipeline:
-	dc simulate pile --param count=30 --param box=16 --param sigma=4 --steps 120 --seeds 0..1 \
+	$(DC) simulate pile --param count=30 --param box=16 --param sigma=4 --steps 120 --seeds 0..1 \
 		--skip-contactless -q --overwrite -o $(SMOKE)/run
-	dc validate -q $(SMOKE)/run
-	dc validate --replay -q $(SMOKE)/run
-	dc rasterize $(SMOKE)/run -o $(SMOKE)/data --validation 0.5 -q --overwrite
-	dc train $(SMOKE)/data -o $(SMOKE)/model --epochs 1 --width 4 --depth 2 --batch-size 32 --optimizer adam \
+	$(DC) validate -q $(SMOKE)/run
+	$(DC) validate --replay -q $(SMOKE)/run
+	$(DC) rasterize $(SMOKE)/run -o $(SMOKE)/data --validation 0.5 -q --overwrite
+	$(DC) train $(SMOKE)/data -o $(SMOKE)/model --epochs 1 --width 4 --depth 2 --batch-size 32 --optimizer adam \
 		-q --overwrite
-	dc evaluate $(SMOKE)/run --starts zero,builtin,copy,sph,cnn,guarded --model $(SMOKE)/model/best.pt \
+	$(DC) evaluate $(SMOKE)/run --starts zero,builtin,copy,sph,cnn,guarded --model $(SMOKE)/model/best.pt \
 		--every 10 -q --overwrite -o $(SMOKE)/report
 	@echo "smoke: report in $(SMOKE)/report/report.md"
 
@@ -77,21 +79,21 @@ study: setup
 study-pipeline: $(STUDY)/report/report.md $(STUDY)/figures/figures.md
 
 $(STUDY)/run/manifest.json:
-	dc simulate pile --seeds 0..149 -j 2 -q --overwrite -o $(STUDY)/run
+	$(DC) simulate pile --seeds 0..149 -j 2 -q --overwrite -o $(STUDY)/run
 
 $(STUDY)/heldout/manifest.json:
-	dc simulate pile --seeds 1000..1001 -q --overwrite -o $(STUDY)/heldout
+	$(DC) simulate pile --seeds 1000..1001 -q --overwrite -o $(STUDY)/heldout
 
 $(STUDY)/data/metadata.json: $(STUDY)/run/manifest.json
-	dc rasterize $(STUDY)/run -o $(STUDY)/data -j 2 -q --overwrite
+	$(DC) rasterize $(STUDY)/run -o $(STUDY)/data -j 2 -q --overwrite
 
 $(STUDY)/model/done: $(STUDY)/data/metadata.json
-	if [ -f $(STUDY)/model/last.pt ]; then dc train $(STUDY)/data -o $(STUDY)/model --resume; \
-	else dc train $(STUDY)/data -o $(STUDY)/model --epochs $(STUDY_EPOCHS) --patience 5 --optimizer adam; fi
+	if [ -f $(STUDY)/model/last.pt ]; then $(DC) train $(STUDY)/data -o $(STUDY)/model --resume; \
+	else $(DC) train $(STUDY)/data -o $(STUDY)/model --epochs $(STUDY_EPOCHS) --patience 5 --optimizer adam; fi
 	touch $@
 
 $(STUDY)/report/report.md: $(STUDY)/model/done $(STUDY)/heldout/manifest.json
-	dc evaluate $(STUDY)/heldout --starts zero,builtin,copy,copy2,copy0,sph,cnn,random,bad,guarded,cnn-new \
+	$(DC) evaluate $(STUDY)/heldout --starts zero,builtin,copy,copy2,copy0,sph,cnn,random,bad,guarded,cnn-new \
 		--model $(STUDY)/model/best.pt --stop-on thesis --tolerance 1e-4 --max-iterations 1000 --every 5 \
 		--overwrite -o $(STUDY)/report
 

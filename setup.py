@@ -6,8 +6,8 @@ import shlex
 import subprocess
 import sys
 
-from pybind11.setup_helpers import Pybind11Extension
-from setuptools import setup
+from pybind11.setup_helpers import ParallelCompile, Pybind11Extension
+from setuptools import find_packages, setup
 
 
 def pkg_config(*args):
@@ -40,4 +40,10 @@ ext = Pybind11Extension(
     extra_compile_args=["-O2", "-ffp-contract=off"],
 )
 
-setup(ext_modules=[ext])
+# Every package under deepcontact/ (a new one cannot be forgotten), plus the two folders that
+# setup.cfg's package_dir maps into it.
+packages = find_packages(include=["deepcontact", "deepcontact.*"]) + ["deepcontact.cli", "deepcontact.schemas"]
+
+# The five translation units compile side by side (DC_BUILD_JOBS overrides the core count).
+ParallelCompile("DC_BUILD_JOBS").install()
+setup(ext_modules=[ext], packages=packages)

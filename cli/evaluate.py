@@ -12,14 +12,14 @@ from . import options
 @click.option("--starts", default="zero,builtin,copy,sph", show_default=True,
               help="Comma-separated: zero, builtin, copy, copy2, copy0, sph, cnn, random, bad, guarded, cnn-new.")
 @click.option("--model", type=click.Path(dir_okay=False), help="A checkpoint from dc train (cnn, guarded, cnn-new).")
-@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), default=1e-4, show_default=True)
+@click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
 @click.option("--max-iterations", type=click.IntRange(min=1), default=1000, show_default=True)
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual",
               show_default=True, help="The measure the tolerance applies to (README: Measuring convergence).")
 @click.option("--mode", type=click.Choice(["float32", "float64"]), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
-@click.option("--cell", type=float, default=0.5, show_default=True, help="[sph without --model] Cell size d.")
-@click.option("--smoothing", type=float, default=0.5, show_default=True, help="[sph without --model] h.")
+@click.option("--cell", type=options.Finite(), default=0.5, show_default=True, help="[sph without --model] Cell size d.")
+@click.option("--smoothing", type=options.Finite(), default=0.5, show_default=True, help="[sph without --model] h.")
 @click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
               show_default=True, help="[sph without --model] SPH kernel.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random start.")

@@ -9,6 +9,18 @@ import click
 from deepcontact.errors import InputError
 
 
+class Finite(click.FloatRange):
+    """A float option that must be finite (click's own ranges let nan and inf through)."""
+    name = "finite float"
+
+    def convert(self, value, param, ctx):
+        import math
+        value = super().convert(value, param, ctx)
+        if not math.isfinite(value):
+            self.fail(f"{value} is not a finite number", param, ctx)
+        return value
+
+
 def verbosity(f):
     f = click.option("-v", "--verbose", count=True, help="More output; -v also shows tracebacks.")(f)
     f = click.option("-q", "--quiet", count=True, help="Less output: no progress bar, warnings only.")(f)
@@ -70,5 +82,5 @@ def progress_bar(quiet, total, unit, desc):
                 disable=None)
 
 
-max_memory = click.option("--max-memory", type=click.FloatRange(min=0, min_open=True), metavar="GB",
+max_memory = click.option("--max-memory", type=Finite(min=0, min_open=True), metavar="GB",
                           help="Refuse work estimated to need more memory than this (default 8).")

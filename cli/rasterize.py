@@ -27,15 +27,15 @@ def parse_window(text):
 @click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder (or report folder with --study).")
 @click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
               show_default=True, help="SPH kernel (2D-normalised).")
-@click.option("--cell", type=float, default=0.5, show_default=True, help="Cell size d (node spacing).")
-@click.option("--smoothing", type=float, default=0.5, show_default=True, help="Smoothing length h (support).")
+@click.option("--cell", type=options.Finite(), default=0.5, show_default=True, help="Cell size d (node spacing).")
+@click.option("--smoothing", type=options.Finite(), default=0.5, show_default=True, help="Smoothing length h (support).")
 @click.option("--renormalize/--no-renormalize", default=True, show_default=True,
               help="Scale each particle's weights to sum to 1 over its nodes (grids hold amounts).")
 @click.option("--inputs", help="Input channels, comma-separated (default mass,vx,vy,spin,nx,ny).")
 @click.option("--labels", help="Label channels (default normal_impulse,tangent_impulse).")
 @click.option("--window", metavar="X0,Y0,X1,Y1", help="Grid window (default: the scenes' static box).")
 @click.option("--include-contactless", is_flag=True, help="Keep steps without contacts.")
-@click.option("--validation", type=float, default=0.2, show_default=True,
+@click.option("--validation", type=options.Finite(), default=0.2, show_default=True,
               help="Share of simulations held out for validation.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the split.")
 @click.option("--oracle", is_flag=True, help="Only report the SPH round trip for these settings.")

@@ -76,11 +76,11 @@ def parse_params(pairs):
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
 @click.option("--mode", type=click.Choice(["exact", "float32", "float64"]),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
-@click.option("--tolerance", type=click.FloatRange(min=0), help="[pgs] Stop when the measure falls below this.")
+@click.option("--tolerance", type=options.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
 @click.option("--max-iterations", type=click.IntRange(min=0), help="[pgs] Sweep cap (default: the scene's).")
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]),
               help="[pgs] The measure the tolerance applies to (default residual).")
-@click.option("--relaxation", type=click.FloatRange(min=0, max=2, min_open=True, max_open=True),
+@click.option("--relaxation", type=options.Finite(min=0, max=2, min_open=True, max_open=True),
               help="[pgs] Over-relaxation w (PSOR; float64 mode).")
 @options.jobs
 @options.max_memory

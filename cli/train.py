@@ -21,8 +21,8 @@ from . import options
               help="[solver loss] Damped Jacobi sweeps before taking the residual.")
 @click.option("--optimizer", type=click.Choice(["sgd", "adam"]), default="sgd", show_default=True,
               help="sgd follows the thesis schedule (5e-3, 2e-3 at 100, 1e-3 at 300, 2e-4 at 500).")
-@click.option("--lr", type=float, default=1e-3, show_default=True, help="Adam's learning rate.")
-@click.option("--weight-decay", type=float, default=5e-4, show_default=True, help="L2 on the weights.")
+@click.option("--lr", type=options.Finite(), default=1e-3, show_default=True, help="Adam's learning rate.")
+@click.option("--weight-decay", type=options.Finite(), default=5e-4, show_default=True, help="L2 on the weights.")
 @click.option("--batch-size", type=click.IntRange(min=1), default=200, show_default=True)
 @click.option("--epochs", type=click.IntRange(min=1),
               help="Epochs in all (default 1000; with --resume, the run's own unless given).")

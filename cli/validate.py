@@ -52,9 +52,20 @@ def validate(paths, replay, verbose, quiet):
     from deepcontact.scene.xml import read_scene
     from deepcontact.simulate.build import check_overlaps
 
+    from deepcontact.step.run_folder import MANIFEST, read_run
+
     files = list(xml_files(paths))
-    bar = options.progress_bar(quiet or len(files) < 50, len(files), "file", "validate")
+    if not files:
+        raise InputError(f"no XML files found in {', '.join(paths)}")
     invalid = 0
+    for run in (Path(p) for p in paths):
+        if (run / MANIFEST).is_file():   # a run: its manifest must match its folders
+            try:
+                read_run(run)
+            except InputError as e:
+                invalid += 1
+                click.echo(f"{e.path}:{e.line or 0}:0: {e.message}")
+    bar = options.progress_bar(quiet or len(files) < 50, len(files), "file", "validate")
     for path in files:
         kind, tree, errors = schema.validate(path)
         if not errors and kind == "scene":

@@ -55,8 +55,10 @@ def test_refuses_a_non_empty_output_folder_without_overwrite(tmp_path):
     assert r.returncode == 1
     assert r.stderr.strip().splitlines() == [f"dc simulate: error: {out}: output folder is not empty; "
                                              f"use --overwrite to replace it"]
+    # --overwrite replaces a run as a whole; a folder holding anything else is not a run to replace
     r = dc("simulate", "pile", *SMALL, "--steps", "5", "--overwrite", "-q", "-o", str(out))
-    assert r.returncode == 0 and keep.read_text() == "mine" and (out / "manifest.json").exists()
+    assert r.returncode == 1 and "holds more than a run (notes.txt)" in r.stderr
+    assert keep.read_text() == "mine" and sorted(p.name for p in out.iterdir()) == ["notes.txt"]
 
 
 def test_bad_input_is_one_line_without_traceback(tmp_path):

@@ -99,10 +99,20 @@ def _axes():
     return plt.subplots(figsize=(7, 4.5))
 
 
+def _any_positive(ax, axis):
+    values = [np.asarray(line.get_xdata() if axis == "x" else line.get_ydata(), dtype=float) for line in ax.lines]
+    return any(np.any(np.isfinite(v) & (v > 0)) for v in values)
+
+
 def _finish(fig, ax, stem, xlabel, ylabel, title, ylog=True):
-    ax.set_xscale("log")
-    if ylog:
+    # A log axis needs a positive value to show: when every value is 0 (a solve that starts at
+    # the exact answer), the axis stays linear and the plot says so.
+    if _any_positive(ax, "x"):
+        ax.set_xscale("log")
+    if ylog and _any_positive(ax, "y"):
         ax.set_yscale("log")
+    elif ylog:
+        ax.text(0.5, 0.5, "every value is 0", transform=ax.transAxes, ha="center", va="center")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)

@@ -247,7 +247,7 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
                 "bad_epochs": bad_epochs, "network": net_cfg, "train_config": asdict(cfg), "targets": cfg.targets,
                 "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
                 "dataset_path": str(dataset),
-                "versions": {"deepcontact": __version__, "torch": torch.__version__, "numpy": np.__version__},
+                "versions": {"deepcontact": __version__, "torch": str(torch.__version__), "numpy": str(np.__version__)},
             })
 
         if rank == 0 and not resume:
@@ -380,7 +380,8 @@ def plot_losses(history, stem):
     ax.plot(epochs, [r["train_loss"] for r in history], label="training")
     if "val_loss" in history[0]:
         ax.plot(epochs, [r["val_loss"] for r in history], label="validation")
-    ax.set_yscale("log")
+    if any(r["train_loss"] > 0 for r in history):   # (a log axis needs a positive value)
+        ax.set_yscale("log")
     ax.set_xlabel("epoch")
     ax.set_ylabel("loss")
     ax.legend()

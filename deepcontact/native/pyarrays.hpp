@@ -16,7 +16,8 @@ inline const T* column(const py::dict& d, const char* key, size_t& n, size_t wid
     py::object obj = d[key];
     if (!py::isinstance<py::array>(obj)) throw py::type_error(std::string("'") + key + "' must be a numpy array");
     py::array a = py::reinterpret_borrow<py::array>(obj);
-    if (!a.dtype().is(py::dtype::of<T>()))
+    // equal(), not is(): an equivalent dtype object (from a pickle, say) is the same dtype
+    if (!a.dtype().equal(py::dtype::of<T>()))
         throw py::type_error(std::string("'") + key + "' has dtype " + std::string(py::str(a.dtype())) +
                              ", expected " + std::string(py::str(py::dtype::of<T>())));
     if (!(a.flags() & py::array::c_style)) throw py::value_error(std::string("'") + key + "' must be C-contiguous");

@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
+
 BODY_KEYS = ("center", "angle", "local_center", "velocity", "omega", "mass", "inv_mass", "inv_inertia",
              "gravity_scale", "linear_damping", "angular_damping", "type")
 CONTACT_KEYS = ("manifold", "point", "point_count", "manifold_type", "local_normal", "local_point",
@@ -48,6 +50,9 @@ class StepProblem:
         """From the arrays of World.step(record=True) or of step.reader.read_step."""
         row = {int(i): r for r, i in enumerate(bodies["index"])}
         c = {k: np.ascontiguousarray(contacts[k]) for k in CONTACT_KEYS}
+        missing = sorted({int(i) for i in np.concatenate([contacts["body_a"], contacts["body_b"]])} - set(row))
+        if missing:
+            raise InputError(f"a contact names body {missing[0]}, which the step does not hold")
         c["row_a"] = np.array([row[int(i)] for i in contacts["body_a"]], dtype=np.int32)
         c["row_b"] = np.array([row[int(i)] for i in contacts["body_b"]], dtype=np.int32)
         b = {k: np.ascontiguousarray(bodies[k]) for k in BODY_KEYS}
@@ -63,6 +68,9 @@ class StepProblem:
         from ..step.reader import read_step
         # (every value is checked present and finite; the schema is `dc validate`'s job)
         header, bodies, contacts = read_step(path, validate=False)
-        return cls.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
-                               block_solve=header["solver"]["block_solve"] == "true",
-                               velocity_iterations=header["velocity_iterations"], index=header["index"])
+        try:
+            return cls.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
+                                   block_solve=header["solver"]["block_solve"] == "true",
+                                   velocity_iterations=header["velocity_iterations"], index=header["index"])
+        except InputError as e:
+            raise InputError(e.message, path) from None
