@@ -69,10 +69,7 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
             previous = set(keys)
             if k % every or len(contacts["manifold"]) == 0:
                 continue
-            problem = StepProblem.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
-                                              block_solve=header["solver"]["block_solve"] == "true",
-                                              velocity_iterations=header["velocity_iterations"],
-                                              index=header["index"])
+            problem = StepProblem.from_step(header, bodies, contacts, path)
             reference = reference_solution(problem)
             ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                               persisted=persisted, seed=seed)

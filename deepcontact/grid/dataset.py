@@ -156,9 +156,6 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
         raise InputError(f"--validation must be in [0, 1), got {validation_fraction}")
     sims, manifests = collect(run_dirs, include_contactless)
     spec = grid_for(sims, cell, h, kernel, renormalize, window)
-    radii = [s.radius for s in sims if s.radius is not None]
-    for w in spec.rule_warnings(min(radii) if radii else None):
-        log.warning(w)
     n = sum(len(s.files) for s in sims)
     m = sum(sum(s.contacts) for s in sims)
     if n == 0:
@@ -174,6 +171,9 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     if per_sample * n > free:
         raise InputError(f"the dataset would take {gigabytes(per_sample * n):.3g} GB on disk; "
                          f"{gigabytes(free):.3g} GB are free there", out)
+    radii = [s.radius for s in sims if s.radius is not None]
+    for w in spec.rule_warnings(min(radii) if radii else None):
+        log.warning(w)
 
     with atomic.folder(out) as tmp:
         arrays = {
@@ -278,6 +278,13 @@ class GridDataset:
             self.spec = GridSpec(**m["grid"])
         except TypeError as e:
             raise InputError(f"bad grid description: {e}", meta) from None
+
+    def check_step_sources(self):
+        """Refuse at once a dataset whose simulations cannot be followed back to their step files."""
+        for k in range(len(self.metadata["simulations"])):
+            rows = np.nonzero(self.arrays["simulation"] == k)[0]
+            if len(rows):
+                self.step_file(int(rows[0]))
 
     def step_file(self, i):
         """The step file sample i was made from, found through the run it came from.

@@ -67,6 +67,7 @@ class SolverLoss:
     def __init__(self, dataset, sweeps=0, damping=0.5):
         self.ds, self.sweeps, self.damping = dataset, sweeps, damping
         self.cache = {}
+        dataset.check_step_sources()
 
     def problem(self, i):
         if i not in self.cache:

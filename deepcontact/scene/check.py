@@ -74,21 +74,23 @@ def check_scene(scene, path=None):
     def fail(msg, line=None):
         raise InputError(msg, path, line)
 
+    at = scene.lines.get
     if not (_finite(scene.dt) and 1e-6 <= scene.dt <= 10):
-        fail(f"dt must be between 1e-6 and 10 s, got {scene.dt}")
+        fail(f"dt must be between 1e-6 and 10 s, got {scene.dt}", at("world"))
     if scene.steps < 1:
-        fail(f"steps must be at least 1, got {scene.steps}")
+        fail(f"steps must be at least 1, got {scene.steps}", at("world"))
     if scene.solver.velocity_iterations < 0 or scene.solver.position_iterations < 0:
-        fail("iteration counts must be >= 0")
+        fail("iteration counts must be >= 0", at("solver"))
     e = scene.effects
     if e.gravity is not None and not _within(MAX_GRAVITY, *e.gravity):
-        fail(f"gravity must be finite and at most {MAX_GRAVITY:g} m/s^2 in each component, got {e.gravity}")
+        fail(f"gravity must be finite and at most {MAX_GRAVITY:g} m/s^2 in each component, got {e.gravity}",
+             at("gravity"))
     for name in ("friction", "restitution"):
         v = getattr(e, name)
         if v is not None and not (_finite(v) and v >= 0):
-            fail(f"{name} coefficient must be a finite number >= 0")
+            fail(f"{name} coefficient must be a finite number >= 0", at(name))
     if e.damping is not None and not (_within(MAX_DAMPING, *e.damping) and min(e.damping) >= 0):
-        fail(f"damping must be between 0 and {MAX_DAMPING:g}")
+        fail(f"damping must be between 0 and {MAX_DAMPING:g}", at("damping"))
 
     for i, b in enumerate(scene.bodies):
         where = f"body {i}"

@@ -14,8 +14,10 @@ BODY_TYPES = ("static", "kinematic", "dynamic")
 
 
 def f32(value) -> float:
-    """The float32 nearest to value, as a Python float."""
-    return float(np.float32(value))
+    """The float32 nearest to value, as a Python float (inf beyond float32's range: the scene
+    check refuses it with the line it came from)."""
+    with np.errstate(over="ignore"):
+        return float(np.float32(value))
 
 
 @dataclass
@@ -117,6 +119,7 @@ class Scene:
     generator: Optional[str] = None            # provenance: which generator made it
     seed: Optional[int] = None
     params: dict = field(default_factory=dict)
+    lines: dict = field(default_factory=dict, compare=False)   # element -> line, for a file's errors
 
     def fixtures(self):
         """(body index, shape) for every shape, in fixture index order."""

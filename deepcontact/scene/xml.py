@@ -168,6 +168,7 @@ def read_scene(path) -> Scene:
                   seed=None if gen is None or gen.get("seed") is None else int(gen.get("seed")),
                   params={} if gen is None else {p.get("name"): p.get("value")
                                                  for p in gen.findall("param")})
+    scene.lines = {el.tag: el.sourceline for el in [world, solver_el, *eff] if el is not None and isinstance(el.tag, str)}
     check_scene(scene, path)
     return scene
 

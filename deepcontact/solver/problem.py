@@ -67,7 +67,11 @@ class StepProblem:
     def from_step_file(cls, path):
         from ..step.reader import read_step
         # (every value is checked present and finite; the schema is `dc validate`'s job)
-        header, bodies, contacts = read_step(path, validate=False)
+        return cls.from_step(*read_step(path, validate=False), path=path)
+
+    @classmethod
+    def from_step(cls, header, bodies, contacts, path=None):
+        """From what step.reader.read_step returns; errors name `path`."""
         try:
             return cls.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
                                    block_solve=header["solver"]["block_solve"] == "true",
