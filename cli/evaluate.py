@@ -1,8 +1,6 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
 import click
 
-from deepcontact.errors import InputError
-
 from . import options
 
 
@@ -59,8 +57,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
 
     names = [s.strip() for s in starts.split(",") if s.strip()]
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("report folder is not empty; use --overwrite to replace it", out)
+    atomic.check_replaceable(out, overwrite, ("report.md", "closed-loop.md"), "report")
     predictor, spec = None, None
     if model:
         from deepcontact.model.inference import Predictor

@@ -121,14 +121,10 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
     if not out:
         raise InputError("--study needs -o REPORT_DIR")
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("report folder is not empty; use --overwrite", out)
-    out.mkdir(parents=True, exist_ok=True)
+    atomic.check_replaceable(out, overwrite, ("sph-study.md",), "SPH study")
     window = (spec.x0, spec.y0, spec.x0 + (spec.nx - 1) * spec.cell, spec.y0 + (spec.ny - 1) * spec.cell)
     rows = O.study(steps, window, renormalize)
     table = O.TABLE_HEADER + "\n" + "\n".join(O.table_row(r) for r in rows) + "\n"
-    atomic.write_text(out / "sph-study.md", f"{len(steps)} steps, {sum(len(s[0]) for s in steps)} contact points, "
-                                             f"{impulses} impulses, renormalised: {renormalize}\n\n" + table)
     import csv
     import io
     buf = io.StringIO()
@@ -136,6 +132,9 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
     w.writerow(list(O.RoundTrip.__dataclass_fields__))
     for r in rows:
         w.writerow(list(r.__dict__.values()))
-    atomic.write_text(out / "sph-study.csv", buf.getvalue())
-    O.plot(rows, os.fspath(out / "sph-study"))
+    with atomic.folder(out) as tmp:   # an earlier report is replaced only by a complete one
+        atomic.write_text(tmp / "sph-study.md", f"{len(steps)} steps, {sum(len(s[0]) for s in steps)} contact "
+                          f"points, {impulses} impulses, renormalised: {renormalize}\n\n" + table)
+        atomic.write_text(tmp / "sph-study.csv", buf.getvalue())
+        O.plot(rows, os.fspath(tmp / "sph-study"))
     click.echo(table)

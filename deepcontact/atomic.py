@@ -58,6 +58,22 @@ def _remove_quietly(path):
         pass
 
 
+def check_replaceable(path, overwrite, markers, what):
+    """Refuse to write into `path` unless it is new, empty, or (with overwrite) an earlier output
+    of the same kind: a folder holding one of `markers`. Anything else is the user's, not ours
+    to replace."""
+    from .errors import InputError
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError("exists and is not a folder", path)
+    if not path.exists() or not any(path.iterdir()):
+        return
+    if not overwrite:
+        raise InputError(f"{what} folder is not empty; use --overwrite to replace it", path)
+    if not any((path / m).exists() for m in markers):
+        raise InputError(f"refusing to replace a folder that holds no {what} (no {' or '.join(markers)})", path)
+
+
 @contextmanager
 def folder(path):
     """A temporary folder beside `path` that becomes `path` only if the block completes.

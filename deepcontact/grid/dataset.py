@@ -150,8 +150,7 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     check_channels(inputs, "input")
     check_channels(labels, "label")
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise InputError("dataset exists; use --overwrite to replace it", out)
+    atomic.check_replaceable(out, overwrite, ("metadata.json",), "dataset")
     if not 0 <= validation_fraction < 1:
         raise InputError(f"--validation must be in [0, 1), got {validation_fraction}")
     sims, manifests = collect(run_dirs, include_contactless)
