@@ -21,6 +21,18 @@ class Finite(click.FloatRange):
         return value
 
 
+class Relaxation(click.ParamType):
+    """Over-relaxation: a w in (0, 2), or auto (chosen per scene from its first steps)."""
+    name = "w|auto"
+
+    def convert(self, value, param, ctx):
+        from deepcontact.solver.relaxation import parse_relaxation
+        try:
+            return parse_relaxation(value)
+        except ValueError as e:
+            self.fail(str(e), param, ctx)
+
+
 def verbosity(f):
     f = click.option("-v", "--verbose", count=True, help="More output; -v also shows tracebacks.")(f)
     f = click.option("-q", "--quiet", count=True, help="Less output: no progress bar, warnings only.")(f)

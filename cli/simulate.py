@@ -40,6 +40,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
     mode = mode or "float64"
     if mode == "exact" and relaxation not in (None, 1.0):
         raise InputError("--mode exact is Box2D's PGS: it takes no --relaxation")
+    if relaxation == "auto" and not tolerance:
+        raise InputError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
     cap = max_iterations if max_iterations is not None else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
     return LoopOptions(start=start or "builtin", mode=mode, max_iterations=cap, tolerance=tolerance or 0.0,
@@ -80,8 +82,9 @@ def parse_params(pairs):
 @click.option("--max-iterations", type=click.IntRange(min=0), help="[pgs] Sweep cap (default: the scene's).")
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]),
               help="[pgs] The measure the tolerance applies to (default residual).")
-@click.option("--relaxation", type=options.Finite(min=0, max=2, min_open=True, max_open=True),
-              help="[pgs] Over-relaxation w (PSOR; float64 mode).")
+@click.option("--relaxation", type=options.Relaxation(),
+              help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "
+                   "on the first 8 steps with contacts.")
 @options.jobs
 @options.max_memory
 @options.overwrite

@@ -26,6 +26,7 @@ struct SolveOptions {
     double max_velocity = 0.0;     // starts that alone would change a contact's velocity by more
                                    // than this are implausible (0: no such check)
     bool final_residual = true;    // report the residual at the end (one extra pass)
+    bool guard = true;             // over-relaxation falls back to w = 1 if the residual climbs
 };
 
 struct SanitizeReport {
@@ -37,8 +38,15 @@ struct SolveReport {
     std::vector<double> history;   // 3 per sweep: thesis, velocity, residual
     double residual = 0.0;         // normalised min-map residual at the end
     double thesis = 0.0, velocity = 0.0;  // the last sweep's measures
+    int relaxation_fallback = 0;   // the sweep after which over-relaxation was dropped (0: never)
     SanitizeReport sanitized;
 };
+
+// Over-relaxed PGS is not guaranteed to converge on every LCP (it is for w in (0, 2) on a
+// symmetric positive definite problem without friction, not with the friction cone's coupling):
+// when the residual climbs this far above the best seen, the solve continues with w = 1.
+constexpr double kRelaxationGuard = 10.0;
+constexpr int kGuardEvery = 4;     // sweeps between residual checks when nothing else needs them
 
 template <class R>
 inline R clamp_box2d(R a, R low, R high) {  // b2Clamp: b2Max(low, b2Min(a, high))
@@ -61,7 +69,9 @@ public:
         warm_start();
         const bool track = opt.history || opt.stop_on != Measure::none;
         const R w = R(opt.relaxation);
-        const bool relax = opt.relaxation != 1.0;
+        bool relax = opt.relaxation != 1.0;
+        const bool residual_each_sweep = opt.history || opt.stop_on == Measure::residual;
+        double best = std::numeric_limits<double>::infinity();
         for (int it = 0; it < opt.max_iterations; ++it) {
             if (track) save_impulses();
             if (relax)
@@ -69,10 +79,23 @@ public:
             else
                 sweep<false>(w);
             rep.iterations = it + 1;
+            double residual = 0.0;
+            // (the guard looks every kGuardEvery sweeps whatever else is measured, so a solve
+            // takes the same iterates with and without history)
+            const bool guard_now = relax && opt.guard && (it + 1) % kGuardEvery == 0;
+            if (residual_each_sweep || guard_now) {
+                residual = this->residual();
+                if (guard_now) {
+                    if (!(residual <= kRelaxationGuard * best)) {
+                        relax = false;
+                        rep.relaxation_fallback = it + 1;
+                    }
+                    best = std::min(best, residual);
+                }
+            }
             if (!track) continue;
             double thesis = 0, velocity = 0;
             sweep_change(thesis, velocity);
-            const double residual = opt.history || opt.stop_on == Measure::residual ? this->residual() : 0.0;
             rep.thesis = thesis;
             rep.velocity = velocity;
             if (opt.history) {

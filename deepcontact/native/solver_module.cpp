@@ -112,6 +112,7 @@ py::dict run(const BodyColumns& bc, const ContactColumns& cc, const StepSettings
     out["residual"] = rep.residual;
     out["thesis"] = rep.thesis;
     out["velocity_change"] = rep.velocity;
+    out["relaxation_fallback"] = rep.relaxation_fallback;
     py::dict san;
     san["nonfinite"] = rep.sanitized.nonfinite;
     san["negative"] = rep.sanitized.negative;
@@ -132,7 +133,7 @@ void bind_solver(py::module_& m) {
            py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent, float dt,
            std::pair<float, float> gravity, bool block_solve, bool prune, const std::string& precision,
            int max_iterations, double tolerance, const std::string& stop_on, double relaxation, bool history,
-           bool sanitize, double max_velocity, bool final_residual) {
+           bool sanitize, double max_velocity, bool final_residual, bool guard) {
             BodyColumns bc = body_columns(bodies);
             ContactColumns cc = contact_columns(contacts);
             if (static_cast<size_t>(start_normal.size()) != cc.n || static_cast<size_t>(start_tangent.size()) != cc.n ||
@@ -157,6 +158,7 @@ void bind_solver(py::module_& m) {
             opt.sanitize = sanitize;
             opt.max_velocity = max_velocity;
             opt.final_residual = final_residual;
+            opt.guard = guard;
             if (precision == "float32") return run<float>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
             if (precision == "float64") return run<double>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
             throw py::value_error("precision must be float32 or float64");
@@ -166,6 +168,7 @@ void bind_solver(py::module_& m) {
         py::arg("precision") = "float32", py::arg("max_iterations") = 8, py::arg("tolerance") = 0.0,
         py::arg("stop_on") = "none", py::arg("relaxation") = 1.0, py::arg("history") = false,
         py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("final_residual") = true,
+        py::arg("guard") = true,
         "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
 }
 

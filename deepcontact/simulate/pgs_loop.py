@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..solver.pgs import solve
 from ..solver.problem import StepProblem
+from ..solver.relaxation import AutoRelaxation
 
 STARTS = ("zero", "builtin", "garbage")
 # A deliberately broken start, for stability tests: huge, not a number, negative, in turn.
@@ -28,7 +29,7 @@ class LoopOptions:
     max_iterations: int = 8
     tolerance: float = 0.0
     stop_on: str = "residual"
-    relaxation: float = 1.0
+    relaxation: object = 1.0     # w in (0, 2), or "auto" (solver.relaxation.AutoRelaxation)
 
 
 def unit_dt_ratio_inv(dt) -> np.float32:
@@ -64,6 +65,9 @@ class PGSStepper:
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
         self.first = True
+        self.relaxation = options.relaxation
+        if options.relaxation == "auto":
+            self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode)
         world.find_new_contacts()   # Step would do this itself, after our Collide
 
     def step(self):
@@ -94,8 +98,9 @@ class PGSStepper:
             start_t = np.zeros_like(builtin_t)
         solution = None
         if problem is not None:
+            w = self.relaxation(problem, start_n, start_t) if callable(self.relaxation) else self.relaxation
             solution = solve(problem, start_n, start_t, mode=o.mode, max_iterations=o.max_iterations,
-                             tolerance=o.tolerance, stop_on=o.stop_on, relaxation=o.relaxation)
+                             tolerance=o.tolerance, stop_on=o.stop_on, relaxation=w)
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt

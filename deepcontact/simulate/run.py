@@ -51,14 +51,15 @@ class SimulationResult:
 
 def _solve_xml(options, solution):
     o = options
+    w = 1.0 if o.relaxation == "auto" else o.relaxation
     if solution is None:
         iterations, residual, sanitized = 0, 0.0, 0
     else:
-        iterations, residual = solution.iterations, solution.residual
+        iterations, residual, w = solution.iterations, solution.residual, solution.relaxation
         sanitized = sum(solution.sanitized.values())
     residual = residual if np.isfinite(residual) else 0.0
     return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
-            f'max_iterations="{o.max_iterations}" relaxation="{fmt(o.relaxation)}" iterations="{iterations}" '
+            f'max_iterations="{o.max_iterations}" relaxation="{fmt(w)}" iterations="{iterations}" '
             f'residual="{fmt(residual)}" sanitized="{sanitized}"/>\n')
 
 

@@ -36,6 +36,8 @@ class Solution:
     residual: float            # normalised residual at the end
     sanitized: dict
     stats: dict
+    relaxation_fallback: int = 0   # the sweep after which over-relaxation fell back to w = 1 (0: never)
+    relaxation: float = 1.0        # the w it was asked to use
 
     def measure(self, name):
         return self.history[:, MEASURES.index(name)]
@@ -43,8 +45,11 @@ class Solution:
 
 def solve(problem, start_normal=None, start_tangent=None, *, mode="float64", max_iterations=None,
           tolerance=0.0, stop_on="residual", relaxation=1.0, history=False, prune=True,
-          final_residual=True) -> Solution:
-    """Solve the step's contact problem from a start (default: Box2D's own warm start)."""
+          final_residual=True, guard=True) -> Solution:
+    """Solve the step's contact problem from a start (default: Box2D's own warm start).
+
+    With relaxation w != 1 (PSOR) and guard, a solve whose residual climbs tenfold above its best
+    continues with w = 1 (checked every 4 sweeps; Solution.relaxation_fallback says when)."""
     if mode not in ("exact", "float32", "float64"):
         raise ValueError(f"mode must be exact, float32 or float64, not {mode!r}")
     if mode == "exact" and relaxation != 1.0:
@@ -58,8 +63,9 @@ def solve(problem, start_normal=None, start_tangent=None, *, mode="float64", max
         max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations,
         tolerance=tolerance, stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
         history=history, sanitize=mode != "exact",
-        max_velocity=2.0 * MAX_TRANSLATION / problem.dt, final_residual=final_residual)
+        max_velocity=2.0 * MAX_TRANSLATION / problem.dt, final_residual=final_residual, guard=guard)
     return Solution(normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"],
                     velocity=out["velocity"], omega=out["omega"], iterations=out["iterations"],
                     history=out["history"], residual=out["residual"], sanitized=out["sanitized"],
-                    stats=out["stats"])
+                    stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
+                    relaxation=float(relaxation))
