@@ -25,15 +25,22 @@ from . import options
               help="Let each start drive the simulation (the run's scene, from its first state) instead of "
                    "replaying the recorded steps.")
 @click.option("--steps", type=click.IntRange(min=1), help="[--closed-loop] Steps to simulate (default: the scene's).")
+@click.option("--relaxation", "relaxation", default="1", show_default=True, metavar="W[,W...]",
+              help="Over-relaxation (PSOR) w in (0, 2) for every start, or auto (the w with the fewest sweeps on "
+                   "the first 8 hard steps); several, comma-separated, compare them.")
+@click.option("--budgets/--no-budgets", default=True, show_default=True,
+              help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
+                   "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             closed_loop, steps, overwrite, verbose, quiet):
+             closed_loop, steps, relaxation, budgets, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
-    Each step's reference solution (float64 PGS to a residual of 1e-12) is the
-    oracle "copy" and the ground truth for errors. Per step and start: sweeps
+    Each step's reference solution (float64 PGS from zero to a residual of
+    1e-12) is the oracle "copy" and the ground truth for errors, in impulses
+    and in body velocities after the solve. Per step and start: sweeps
     to tolerance, the convergence history, the final error, and time split
     into prediction and solving. OUTPUT gets report.md, summary.csv/json,
     steps.csv, pareto.json and convergence, iterations and pareto plots
@@ -46,6 +53,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
       dc evaluate runs/val --starts zero,builtin,copy,sph,cnn,guarded,cnn-new --model models/fcn/best.pt -o r/cnn
       dc evaluate runs/pile --tolerance 1e-4 --stop-on thesis --max-iterations 5000 --every 10 -o r/thesis
       dc evaluate runs/pile --closed-loop --starts zero,builtin,copy,bad --steps 200 -o r/loop
+      dc evaluate runs/pile --starts builtin,prev --relaxation 1,1.5,1.7,auto --every 5 -o r/psor
     """
     from pathlib import Path
 
@@ -55,7 +63,16 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     from deepcontact.evaluate.starts import make_starts
     from deepcontact.grid.dataset import collect, grid_for
 
+    from deepcontact.errors import InputError
+    from deepcontact.solver.relaxation import parse_relaxation
+
     names = [s.strip() for s in starts.split(",") if s.strip()]
+    try:
+        relaxations = list(dict.fromkeys(parse_relaxation(w) for w in relaxation.split(",") if w.strip()))
+    except ValueError as e:
+        raise InputError(f"--relaxation: {e}") from None
+    if not relaxations:
+        raise InputError("--relaxation: give at least one w")
     out = Path(out)
     atomic.check_replaceable(out, overwrite, ("report.md", "closed-loop.md"), "report")
     predictor, spec = None, None
@@ -68,15 +85,17 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         spec = grid_for(sims, cell, smoothing, kernel, True)
     table = make_starts(names, spec=spec, predictor=predictor)
     if closed_loop:
-        return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, overwrite, quiet)
+        return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
+                               quiet)
     total = sum(len(f[::every]) for r in runs for _, f in step_files(r)[1])
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
-               every=every, seed=seed, progress=(lambda k: bar.update(k)) if bar is not None else None)
+               every=every, seed=seed, progress=(lambda k: bar.update(k)) if bar is not None else None,
+               relaxations=relaxations, budgets=budgets)
     if bar is not None:
         bar.close()
     summary = summarize(rows, table, max_iterations)
-    settings = dict(runs=[str(r) for r in runs], starts=names, model=model, tolerance=tolerance,
+    settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, model=model, tolerance=tolerance,
                     max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}))
     with atomic.folder(out) as tmp:
@@ -84,30 +103,41 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     click.echo(summary_table(summary))
 
 
-def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, overwrite, quiet):
+def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet):
     import json
 
     from deepcontact import atomic
-    from deepcontact.evaluate.closed_loop import closed_loop, loop_table
+    from deepcontact.evaluate.closed_loop import (box2d_iterations, closed_loop, loop_plot, loop_table,
+                                                  reference_trajectory)
     from deepcontact.evaluate.replay import step_files
     from deepcontact.scene.xml import read_scene
 
     manifest, sims = step_files(runs[0])
     first = sims[0][1][0].parent / "scene.xml"
     scene = read_scene(first)
-    bar = options.progress_bar(quiet, len(table) + 1, "run", "closed loop")
+    bar = options.progress_bar(quiet, len(table) * len(relaxations) + 1 + bool(budgets), "run", "closed loop")
+    reference = reference_trajectory(scene, steps or scene.steps)
     results = closed_loop(scene, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on,
-                          mode=mode, steps=steps, progress=(lambda k: bar.update(k)) if bar is not None else None)
+                          mode=mode, steps=steps, progress=(lambda k: bar.update(k)) if bar is not None else None,
+                          relaxations=relaxations, reference=reference)
+    if budgets:
+        results += box2d_iterations(scene, steps=steps, reference=reference)
+        if bar is not None:
+            bar.update(1)
     if bar is not None:
         bar.close()
     text = loop_table(results)
     with atomic.folder(out) as tmp:
         atomic.write_text(tmp / "closed-loop.md", f"# Closed loop: {scene.name} from {first}\n\n"
                           f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
-                          f"largest distance of any body from the trajectory stepped with reference solutions.\n\n"
-                          + text + "\n")
+                          f"largest distance of any body from the trajectory stepped with reference solutions "
+                          f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
+                          f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
+                          f"`@w`: over-relaxed PGS. `box2d k iterations`: Box2D's own solver.\n\n"
+                          + text + "\n\n![closed loop](closed-loop.png)\n")
+        loop_plot(results, tmp / "closed-loop")
         atomic.write_text(tmp / "closed-loop.json", json.dumps([{
             "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
             "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
-            "finite": r.finite} for r in results]) + "\n")
+            "energy_error": r.energy_error, "finite": r.finite} for r in results]) + "\n")
     click.echo(text)

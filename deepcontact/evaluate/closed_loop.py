@@ -4,8 +4,11 @@ Unlike replay, errors feed back: a start that leaves the solver short of the ans
 next state. Every start runs the same scene from the same initial state under the same stopping
 rule; the reference trajectory is the one stepped with each step's reference solution (float64
 PGS to a residual of 1e-12). Reported per start: iterations per step, time per step (prediction
-included), how far the bodies drift from the reference trajectory, the deepest contact, and
-whether anything became non-finite.
+included), how far the bodies drift from the reference trajectory, the energy error against it,
+the deepest contact, and whether anything became non-finite.
+
+`box2d_iterations` runs the same comparison for Box2D's own solver at fixed velocity iteration
+counts: what its accuracy costs in time.
 """
 import time
 from dataclasses import dataclass
@@ -16,6 +19,7 @@ from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.problem import contact_keys
 from ..solver.reference import reference_solution
+from .replay import variants
 from .starts import StepContext
 
 NEEDS_REFERENCE = ("copy", "copy2", "copy0", "sph", "random")
@@ -31,82 +35,180 @@ class LoopResult:
     drift: np.ndarray          # max over bodies of |position - reference position|, per step
     penetration: float
     finite: bool
+    energy_error: float = float("nan")   # max over steps of |E - E_ref|, relative to |E_ref| at step 0
+    relaxation: float = 1.0
 
 
-def _adapter(name, start, timing):
-    previous = {"keys": set()}
+class _Adapter:
+    """A start as the loop's start_fn; remembers the solution applied, for the prev start."""
 
-    def start_fn(bodies, contacts, problem, builtin_n, builtin_t):
+    def __init__(self, name, start):
+        self.name, self.start, self.timing = name, start, []
+        self.keys, self.known, self.previous = [], set(), {}
+
+    def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
-        keys = contact_keys(contacts)
-        persisted = np.array([k in previous["keys"] for k in keys], dtype=bool)
-        previous["keys"] = set(keys)
-        reference = reference_solution(problem) if name in NEEDS_REFERENCE else None
-        value = start(StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
-                                  persisted=persisted))
-        timing.append(sum(value.seconds.values()))
+        self.keys = contact_keys(contacts)
+        persisted = np.array([k in self.known for k in self.keys], dtype=bool)
+        self.known = set(self.keys)
+        reference = reference_solution(problem) if self.name in NEEDS_REFERENCE else None
+        value = self.start(StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
+                                       persisted=persisted, previous=self.previous))
+        self.timing.append(sum(value.seconds.values()))
         return value.normal, value.tangent
-    return start_fn
+
+    def solved(self, solution):
+        self.previous = {} if solution is None else dict(
+            zip(self.keys, zip(solution.normal_impulse.tolist(), solution.tangent_impulse.tolist())))
 
 
-def run_loop(scene, start_fn, options, steps):
+def energy(bodies, gravity):
+    """Kinetic plus gravitational potential energy of the dynamic bodies (J)."""
+    dyn = bodies["type"] == 2
+    m = bodies["mass"][dyn].astype(np.float64)
+    v = bodies["velocity"][dyn].astype(np.float64)
+    kinetic = 0.5 * (m * (v ** 2).sum(axis=1)).sum() + 0.5 * (bodies["inertia"][dyn].astype(np.float64)
+                                                              * bodies["omega"][dyn].astype(np.float64) ** 2).sum()
+    g = np.asarray(gravity or (0.0, 0.0), dtype=np.float64)
+    return float(kinetic - (m * (bodies["center"][dyn].astype(np.float64) @ g)).sum())
+
+
+@dataclass
+class Trajectory:
+    positions: np.ndarray
+    energies: np.ndarray
+    iterations: np.ndarray
+    seconds: np.ndarray
+    deepest: float
+    finite: bool
+
+
+def run_loop(scene, start_fn, options, steps, solved=None):
     world = build_world(scene)
     stepper = PGSStepper(world, scene, options, start_fn=start_fn)
+    return _follow(world, scene, steps, lambda: stepper.step(), solved)
+
+
+def _follow(world, scene, steps, step, solved=None):
     removals = {e.step: e.body for e in scene.events}
-    positions, iterations, seconds, deepest, finite = [], [], [], 0.0, True
+    positions, energies, iterations, seconds, deepest, finite = [], [], [], [], 0.0, True
     for k in range(steps):
         if k in removals:
             world.remove_body(removals[k])
         t0 = time.perf_counter()
-        _, contacts, solution = stepper.step()
+        _, contacts, solution = step()
         seconds.append(time.perf_counter() - t0)
+        if solved is not None:
+            solved(solution)
         iterations.append(0 if solution is None else solution.iterations)
         b = world.bodies()
         if not (np.all(np.isfinite(b["position"])) and np.all(np.isfinite(b["velocity"]))):
             finite = False
             break
-        if len(contacts["separation"]):
+        if contacts is not None and len(contacts["separation"]):
             deepest = max(deepest, float(-contacts["separation"].min()))
         positions.append(b["position"].astype(np.float64).copy())
-    return np.array(positions), np.array(iterations), np.array(seconds), deepest, finite
+        energies.append(energy(b, scene.effects.gravity))
+    return Trajectory(np.array(positions), np.array(energies), np.array(iterations), np.array(seconds), deepest,
+                      finite)
 
 
-def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-                steps=None, progress=None):
-    steps = steps or scene.steps
-    options = LoopOptions(start="builtin", mode=mode, max_iterations=max_iterations, tolerance=tolerance,
-                          stop_on=stop_on)
+def reference_trajectory(scene, steps):
+    """The scene stepped with every step's reference solution (float64 PGS to 1e-12)."""
     exact = LoopOptions(start="builtin", mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
 
     def reference_fn(bodies, contacts, problem, builtin_n, builtin_t):
-        problem.start_normal, problem.start_tangent = builtin_n, builtin_t
         r = reference_solution(problem)
         return r.normal_impulse, r.tangent_impulse
-    ref_positions, *_ = run_loop(scene, reference_fn, exact, steps)
+    return run_loop(scene, reference_fn, exact, steps)
+
+
+def _compare(t, ref):
+    n = min(len(t.positions), len(ref.positions))
+    drift = np.array([np.abs(t.positions[k] - ref.positions[k]).max() for k in range(n)])
+    scale = max(abs(ref.energies[0]), 1e-300) if len(ref.energies) else 1.0
+    err = float(np.abs(t.energies[:n] - ref.energies[:n]).max() / scale) if n else float("nan")
+    return drift, err
+
+
+def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
+                steps=None, progress=None, relaxations=(1.0,), reference=None):
+    """Every start (with every w) driving the scene; reference: a reference_trajectory to reuse."""
+    steps = steps or scene.steps
+    ref = reference or reference_trajectory(scene, steps)
     if progress:
         progress(1)
     results = []
-    for name, start in starts.items():
-        timing = []
-        pos, its, secs, deepest, finite = run_loop(scene, _adapter(name, start, timing), options, steps)
-        n = min(len(pos), len(ref_positions))
-        drift = np.array([np.abs(pos[k] - ref_positions[k]).max() for k in range(n)])
-        results.append(LoopResult(start=name, steps=len(its), iterations=its, ms_per_step=secs * 1e3,
-                                  predict_ms=np.array(timing) * 1e3, drift=drift, penetration=deepest, finite=finite))
+    for v in variants(starts, relaxations):
+        options = LoopOptions(start="builtin", mode=mode, max_iterations=max_iterations, tolerance=tolerance,
+                              stop_on=stop_on, relaxation=v.relaxation)
+        adapter = _Adapter(v.label.split("@")[0], v.start)
+        t = run_loop(scene, adapter, options, steps, solved=adapter.solved)
+        drift, err = _compare(t, ref)
+        results.append(LoopResult(start=v.label, steps=len(t.iterations), iterations=t.iterations,
+                                  ms_per_step=t.seconds * 1e3, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
+                                  penetration=t.deepest, finite=t.finite, energy_error=err,
+                                  relaxation=v.relaxation if v.relaxation != "auto" else float("nan")))
         if progress:
             progress(1)
     return results
 
 
+def box2d_iterations(scene, counts=(1, 2, 4, 8, 16, 32, 64, 128, 256), steps=None, reference=None):
+    """Box2D's own solver at fixed velocity iteration counts against the reference trajectory:
+    drift, energy error and deepest contact, and the measured time per step (a run without
+    recording; the contacts come from a second, identical, recorded run)."""
+    steps = steps or scene.steps
+    ref = reference or reference_trajectory(scene, steps)
+    p = scene.solver.position_iterations
+    results = []
+    for k in counts:
+        bare, rec = build_world(scene), build_world(scene)
+
+        def bare_step():
+            bare.step(scene.dt, k, p)
+            return None, None, None
+
+        def recorded_step():
+            return None, rec.step(scene.dt, k, p, record=True)[1], None
+        timed = _follow(bare, scene, steps, bare_step)
+        recorded = _follow(rec, scene, steps, recorded_step)
+        drift, err = _compare(timed, ref)
+        results.append(LoopResult(start=f"box2d {k} iterations", steps=len(timed.positions),
+                                  iterations=np.full(len(timed.positions), k), ms_per_step=timed.seconds * 1e3,
+                                  predict_ms=np.zeros(0), drift=drift, penetration=recorded.deepest,
+                                  finite=timed.finite and recorded.finite, energy_error=err))
+    return results
+
+
 def loop_table(results):
+    """One row per start (and w) and per Box2D iteration count."""
     lines = ["| start | steps | median iterations | p80 | max | ms per step (median) | of which prediction | "
-             "final drift (m) | max drift (m) | deepest contact (cm) | finite |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+             "final drift (m) | max drift (m) | energy error | deepest contact (cm) | finite |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
     for r in results:
         it = r.iterations[r.iterations > 0] if np.any(r.iterations > 0) else r.iterations
         pred = float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0
         lines.append(f"| {r.start} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | {it.max():.0f} | "
-                     f"{np.median(r.ms_per_step):.2f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "
-                     f"{r.drift.max() if len(r.drift) else float('nan'):.3g} | {100 * r.penetration:.2f} | "
-                     f"{'yes' if r.finite else 'NO'} |")
+                     f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "
+                     f"{r.drift.max() if len(r.drift) else float('nan'):.3g} | {r.energy_error:.2g} | "
+                     f"{100 * r.penetration:.2f} | {'yes' if r.finite else 'NO'} |")
     return "\n".join(lines)
+
+
+def loop_plot(results, stem):
+    """What accuracy costs in time in the loop: the largest drift from the reference trajectory
+    against the median measured time per step; Box2D's iteration counts joined by a line."""
+    from .report import _axes, _finish
+    fig, ax = _axes()
+    box2d = [r for r in results if r.start.startswith("box2d ")]
+    ours = [r for r in results if not r.start.startswith("box2d ")]
+    if box2d:
+        ax.plot([np.median(r.ms_per_step) for r in box2d], [r.drift.max() for r in box2d], "k-o", ms=3,
+                label="Box2D, 1 ... 256 iterations")
+        for r in box2d:
+            ax.annotate(str(int(r.iterations[0])), (np.median(r.ms_per_step), r.drift.max()), fontsize=7)
+    for i, r in enumerate(ours):
+        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], "o", color=f"C{i % 10}", label=r.start)
+    _finish(fig, ax, stem, "measured time per step (ms, median)", "largest drift from the reference trajectory (m)",
+            "What accuracy costs in time, in the loop")

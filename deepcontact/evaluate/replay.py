@@ -15,9 +15,10 @@ from ..errors import InputError
 from ..step.run_folder import read_run
 from ..solver.pgs import MEASURES, solve
 from ..solver.problem import StepProblem, contact_keys
-from ..solver.reference import reference_solution
+from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
+from ..solver.relaxation import AutoRelaxation
 from ..step.reader import read_step
-from .starts import StepContext
+from .starts import Previous, StepContext
 
 
 @dataclass
@@ -26,14 +27,39 @@ class Row:
     seed: int
     step: int
     points: int
-    start: str
+    start: str                # the variant's label: the start, and "@w" when relaxed
     iterations: int
     capped: bool
     residual: float
-    error: float              # |l - l*| / |l*| over all rows of the step
+    error: float              # |l - l*| / |l*| over all rows of the step (impulses need not be unique)
+    velocity_error: float     # max over bodies of |v - v*| after the solve, m/s (velocities are unique)
     predict_ms: float
     solve_ms: float
     history: np.ndarray       # the stopping measure after each sweep (index 0: before any)
+    relaxation: float = 1.0
+    fallback: bool = False    # over-relaxation fell back to w = 1 in this solve
+    reference_residual: float = 0.0     # what the step's reference solution reached
+    budget_ms: np.ndarray = None        # measured time of exactly BUDGETS[i] sweeps (no early stop)
+    budget_residual: np.ndarray = None  # the residual after them
+
+
+# Fixed sweep budgets for "what accuracy costs in time", each timed on its own.
+BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
+
+
+@dataclass
+class Variant:
+    """One column of the comparison: a start, and the over-relaxation w its solves use."""
+    label: str
+    start: object
+    relaxation: object = 1.0     # a float, or "auto" until resolved
+
+
+def variants(starts, relaxations=(1.0,)):
+    """Every start with every w; labels are the start names, with "@w" unless w is only 1."""
+    plain = list(relaxations) == [1.0]
+    return [Variant(name if plain else f"{name}@{w:g}" if w != "auto" else f"{name}@auto", start, w)
+            for w in relaxations for name, start in starts.items()]
 
 
 def step_files(run_dir):
@@ -45,11 +71,8 @@ def step_files(run_dir):
     return run.manifest, [(s.seed, s.files) for s in run.simulations]
 
 
-def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-             every=1, seed=0, progress=None):
-    """Rows for every (step, start). Runs must all come from one kind of scene."""
-    scenes = {}
-    plan = []
+def _plan(run_dirs):
+    scenes, plan = {}, []
     for run in run_dirs:
         manifest, sims = step_files(run)
         scenes[str(run)] = manifest.get("scene")
@@ -58,7 +81,57 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     if len(set(scenes.values())) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted(map(str, set(scenes.values()))))}); "
                          f"evaluate one kind of scene at a time")
+    return plan
+
+
+def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float64"):
+    """The w `auto` picks for these runs: AutoRelaxation over their first steps, from builtin."""
+    tuner = AutoRelaxation(tolerance, stop_on, max_iterations, mode)
+    for _, _, files in _plan(run_dirs):
+        for path in files:
+            problem = StepProblem.from_step_file(path)
+            if problem.points:
+                tuner(problem, problem.start_normal, problem.start_tangent)
+            if tuner.tuned:
+                return tuner.w
+    return tuner.w
+
+
+def previous_solution(path, settings):
+    """{contact key: (normal, tangent)} of the step before `path`, solved from its builtin start
+    to the same tolerance: the `prev` start's source (None for a first step)."""
+    index = int(path.stem.split("-")[1])
+    before = path.parent / f"step-{index - 1:06d}.xml"
+    if index == 0 or not before.exists():
+        return None
+    header, bodies, contacts = read_step(before, validate=False)
+    if len(contacts["manifold"]) == 0:
+        return {}
+    problem = StepProblem.from_step(header, bodies, contacts, before)
+    s = solve(problem, **settings)
+    return dict(zip(contact_keys(contacts), zip(s.normal_impulse.tolist(), s.tangent_impulse.tolist())))
+
+
+def _velocity_error(solution, reference):
+    return float(np.sqrt(((solution.velocity - reference.velocity) ** 2).sum(axis=1)).max()) \
+        if len(reference.velocity) else 0.0
+
+
+def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
+             every=1, seed=0, progress=None, relaxations=(1.0,), budgets=False):
+    """Rows for every (step, variant): each start with each w. Runs must hold one kind of scene.
+
+    budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached."""
+    plan = _plan(run_dirs)
+    table = variants(starts, relaxations)
+    if any(v.relaxation == "auto" for v in table):
+        w = tune_relaxation(run_dirs, tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations, mode=mode)
+        for v in table:
+            if v.relaxation == "auto":
+                v.relaxation = w
     measure = MEASURES.index(stop_on)
+    wants_prev = any(isinstance(v.start, Previous) for v in table)
+    settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
     rows = []
     for run, sim_seed, files in plan:
         previous = set()
@@ -72,11 +145,12 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
             problem = StepProblem.from_step(header, bodies, contacts, path)
             reference = reference_solution(problem)
             ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
-                              persisted=persisted, seed=seed)
+                              persisted=persisted, seed=seed,
+                              previous=previous_solution(path, settings) if wants_prev else None)
             ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
-            for name, start in starts.items():
-                value = start(ctx)
-                kw = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
+            for v in table:
+                value = v.start(ctx)
+                kw = dict(settings, relaxation=v.relaxation)
                 traced = solve(problem, value.normal, value.tangent, history=True, **kw)
                 t0 = time.perf_counter()
                 solve(problem, value.normal, value.tangent, final_residual=False, **kw)
@@ -86,13 +160,18 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
                 # the measure before any sweep exists only for the residual (the others are changes)
                 first = (solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0).residual
                          if stop_on == "residual" else np.nan)
-                rows.append(Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=name,
-                                iterations=traced.iterations,
-                                capped=bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance)),
-                                residual=traced.residual,
-                                error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
-                                predict_ms=sum(value.seconds.values()) * 1e3, solve_ms=solve_s * 1e3,
-                                history=np.concatenate([[first], hist])))
+                row = Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=v.label,
+                          iterations=traced.iterations,
+                          capped=bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance)),
+                          residual=traced.residual,
+                          error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
+                          velocity_error=_velocity_error(traced, reference),
+                          predict_ms=sum(value.seconds.values()) * 1e3, solve_ms=solve_s * 1e3,
+                          history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
+                          fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual)
+                if budgets:
+                    row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation)
+                rows.append(row)
             if progress is not None:
                 progress(1)
     if not rows:
@@ -100,16 +179,32 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     return rows
 
 
+def _budgets(problem, value, mode, w):
+    """Measured: the time of exactly b sweeps for every budget b (no early stop, no measuring on
+    the way), and the residual after them (one traced run: the same iterates, since nothing in a
+    solve depends on whether it is traced)."""
+    traced = solve(problem, value.normal, value.tangent, mode=mode, max_iterations=BUDGETS[-1], relaxation=w,
+                   history=True)
+    residual = traced.history[np.array(BUDGETS) - 1, MEASURES.index("residual")]
+    ms = []
+    for b in BUDGETS:
+        t0 = time.perf_counter()
+        solve(problem, value.normal, value.tangent, mode=mode, max_iterations=b, relaxation=w, final_residual=False)
+        ms.append((time.perf_counter() - t0) * 1e3)
+    return np.array(ms), residual
+
+
 def summarize(rows, starts, max_iterations):
-    """Per start: the distribution of iterations, the share at the cap, times, residual, error."""
+    """Per variant: the distribution of iterations, the share at the cap, times, residual, errors."""
     out = {}
-    for name in starts:
+    for name in dict.fromkeys(r.start for r in rows):
         rs = [r for r in rows if r.start == name]
         it = np.array([r.iterations for r in rs])
         pred = np.array([r.predict_ms for r in rs])
         sol = np.array([r.solve_ms for r in rs])
         out[name] = {
             "steps": len(rs),
+            "relaxation": rs[0].relaxation,
             "iterations_median": float(np.median(it)), "iterations_p80": float(np.percentile(it, 80)),
             "iterations_p95": float(np.percentile(it, 95)),
             "at_cap": float(np.mean([r.capped for r in rs])),
@@ -117,5 +212,15 @@ def summarize(rows, starts, max_iterations):
             "total_ms_median": float(np.median(pred + sol)),
             "residual_median": float(np.median([r.residual for r in rs])),
             "error_median": float(np.median([r.error for r in rs])),
+            "velocity_error_median": float(np.median([r.velocity_error for r in rs])),
+            "fallbacks": float(np.mean([r.fallback for r in rs])),
         }
     return out
+
+
+def reference_summary(rows):
+    """How many steps' reference solutions reached the 1e-12 target."""
+    per_step = {(r.run, r.seed, r.step): r.reference_residual for r in rows}
+    reached = sum(v < REFERENCE_TOLERANCE for v in per_step.values())
+    return {"steps": len(per_step), "reached": int(reached), "tolerance": REFERENCE_TOLERANCE,
+            "worst_residual": float(max(per_step.values()))}

@@ -3,6 +3,8 @@
     zero      all impulses 0
     builtin   Box2D's own: the previous step's impulses matched by feature key, times dtRatio
               (recorded in every step file as the solver's start)
+    prev      the previous step's solution at the tolerance (not Box2D's 8 sweeps), matched by
+              contact key (fixtures, children, feature id); new contacts start at 0
     copy      the step's reference solution (an oracle: it is the answer)
     copy2     the oracle rounded to 2 decimals; copy0: to integers
     sph       the oracle through the grid and back (the grid's own loss; an oracle too)
@@ -21,7 +23,7 @@ from ..errors import InputError
 from ..grid.interpolate import bilinear
 from ..grid.splat import splat_points
 
-NAMES = ("zero", "builtin", "copy", "copy2", "copy0", "sph", "cnn", "random", "bad", "guarded", "cnn-new")
+NAMES = ("zero", "builtin", "prev", "copy", "copy2", "copy0", "sph", "cnn", "random", "bad", "guarded", "cnn-new")
 ORACLES = ("copy", "copy2", "copy0", "sph")
 NEEDS_MODEL = ("cnn", "guarded", "cnn-new")
 
@@ -35,6 +37,7 @@ class StepContext:
     reference: object        # solver.pgs.Solution (float64, to 1e-12)
     persisted: np.ndarray    # True where the contact point existed in the previous step
     seed: int = 0
+    previous: dict = None    # {contact key: (normal, tangent)} of the previous step's solution
     cache: dict = field(default_factory=dict)
 
 
@@ -58,6 +61,16 @@ class Zero:
 class Builtin:
     def __call__(self, ctx):
         return _free(ctx.problem.start_normal, ctx.problem.start_tangent)
+
+
+class Previous:
+    def __call__(self, ctx):
+        from ..solver.problem import contact_keys
+        if ctx.previous is None:
+            raise InputError("the prev start needs the previous step's solution")
+        found = [ctx.previous.get(k, (0.0, 0.0)) for k in contact_keys(ctx.contacts)]
+        n, t = (np.array(v, dtype=np.float64) for v in zip(*found)) if found else (np.zeros(0), np.zeros(0))
+        return _free(n, t)
 
 
 class Copy:
@@ -154,7 +167,7 @@ def make_starts(names, spec=None, predictor=None):
     if any(n in NEEDS_MODEL for n in names) and predictor is None:
         raise InputError(f"the starts {', '.join(n for n in names if n in NEEDS_MODEL)} need a trained --model")
     cnn = CNN(predictor) if predictor is not None else None
-    table = {"zero": Zero, "builtin": Builtin, "copy": Copy, "copy2": lambda: Copy(2), "copy0": lambda: Copy(0),
+    table = {"zero": Zero, "builtin": Builtin, "prev": Previous, "copy": Copy, "copy2": lambda: Copy(2), "copy0": lambda: Copy(0),
              "sph": lambda: SPH(spec), "cnn": lambda: cnn, "random": Random, "bad": Bad,
              "guarded": lambda: Guarded(cnn), "cnn-new": lambda: CNNNew(cnn)}
     return {n: table[n]() for n in names}
