@@ -19,6 +19,7 @@ from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.problem import contact_keys
 from ..solver.reference import reference_solution
+from ..solver.stability import energy
 from .replay import variants
 from .starts import StepContext
 
@@ -62,17 +63,6 @@ class _Adapter:
             zip(self.keys, zip(solution.normal_impulse.tolist(), solution.tangent_impulse.tolist())))
 
 
-def energy(bodies, gravity):
-    """Kinetic plus gravitational potential energy of the dynamic bodies (J)."""
-    dyn = bodies["type"] == 2
-    m = bodies["mass"][dyn].astype(np.float64)
-    v = bodies["velocity"][dyn].astype(np.float64)
-    kinetic = 0.5 * (m * (v ** 2).sum(axis=1)).sum() + 0.5 * (bodies["inertia"][dyn].astype(np.float64)
-                                                              * bodies["omega"][dyn].astype(np.float64) ** 2).sum()
-    g = np.asarray(gravity or (0.0, 0.0), dtype=np.float64)
-    return float(kinetic - (m * (bodies["center"][dyn].astype(np.float64) @ g)).sum())
-
-
 @dataclass
 class Trajectory:
     positions: np.ndarray
@@ -108,7 +98,7 @@ def _follow(world, scene, steps, step, solved=None):
         if contacts is not None and len(contacts["separation"]):
             deepest = max(deepest, float(-contacts["separation"].min()))
         positions.append(b["position"].astype(np.float64).copy())
-        energies.append(energy(b, scene.effects.gravity))
+        energies.append(energy(b, scene.effects.gravity or (0.0, 0.0)))
     return Trajectory(np.array(positions), np.array(energies), np.array(iterations), np.array(seconds), deepest,
                       finite)
 

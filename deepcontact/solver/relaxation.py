@@ -14,6 +14,7 @@ from .pgs import solve
 CANDIDATES = (1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6, 1.7, 1.8, 1.9)
 TRIAL_STEPS = 8
 INFORMATIVE = 8    # sweeps: a trial step must need more than this at w = 1
+RETUNE_EVERY = 50  # problems between trials once tuned: the best w drifts as a scene settles
 
 
 def parse_relaxation(text):
@@ -41,12 +42,15 @@ def best_w(trials):
 
 
 class AutoRelaxation:
-    """Tunes w on the first TRIAL_STEPS problems it is shown, then keeps it."""
+    """Tunes w on the first TRIAL_STEPS hard problems it is shown, then keeps trying one problem
+    in every RETUNE_EVERY and follows the best w over the last TRIAL_STEPS trials."""
 
-    def __init__(self, tolerance, stop_on, max_iterations, mode="float64", trial_steps=TRIAL_STEPS):
+    def __init__(self, tolerance, stop_on, max_iterations, mode="float64", trial_steps=TRIAL_STEPS,
+                 retune_every=RETUNE_EVERY):
         self.settings = dict(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations, mode=mode)
-        self.trial_steps = trial_steps
+        self.trial_steps, self.retune_every = trial_steps, retune_every
         self.trials = []
+        self.seen = 0
 
     @property
     def tuned(self):
@@ -54,11 +58,12 @@ class AutoRelaxation:
 
     @property
     def w(self):
-        return best_w(self.trials)
+        return best_w(self.trials[-self.trial_steps:])
 
     def __call__(self, problem, start_n, start_t):
-        """The w to solve this problem with (trying every candidate on it while still tuning)."""
-        if not self.tuned and self.settings["tolerance"] > 0:
+        """The w to solve this problem with (trying every candidate on it while tuning)."""
+        self.seen += 1
+        if self.settings["tolerance"] > 0 and (not self.tuned or self.seen % self.retune_every == 0):
             trial = sweeps_by_w(problem, start_n, start_t, **self.settings)
             # a problem plain PGS solves in a few sweeps (the first touch of a falling body) is
             # not what relaxation is for, and says nothing about the settled scene to come
