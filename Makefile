@@ -48,6 +48,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_simulate.py
 	$(PYTHON) benchmarks/bench_solver.py
 	$(PYTHON) benchmarks/bench_rasterize.py
+	$(PYTHON) benchmarks/bench_relaxation.py --scene pile
+	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_pipeline.py).

@@ -1,0 +1,81 @@
+"""Time to the same accuracy: Box2D's warm start against over-relaxation and the prev start.
+
+For the settled half of a scene (steps 300-599, every 10th), each step is solved to a residual of
+1e-4 (float64 PGS, cap 1000) from: builtin (Box2D's warm start), builtin with w = 1.7, prev (the
+previous step's solution at the tolerance), prev with w = 1.7, and builtin with the w `auto` picks.
+Reported: median sweeps and median measured solve time, each as a ratio to builtin at w = 1 in the
+same run (best of --repeats timings per step).
+
+Usage: python benchmarks/bench_relaxation.py [--scene pile|pyramid] [--repeats N]
+"""
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.solver.pgs import solve
+from deepcontact.solver.problem import StepProblem, contact_keys
+from deepcontact.solver.relaxation import AutoRelaxation
+
+SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
+
+
+def steps_of(name):
+    scene = generate(name, 0, {})
+    world = build_world(scene)
+    out = []
+    for k in range(600):
+        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+        if k >= 299 and len(contacts["manifold"]):
+            out.append((k, StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
+                                                   velocity_iterations=8), contact_keys(contacts)))
+    return out
+
+
+def timed(problem, n, t, w, repeats):
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        s = solve(problem, n, t, relaxation=w, final_residual=False, **SETTINGS)
+        best = min(best, time.perf_counter() - t0)
+    return s.iterations, best
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="pile", choices=["pile", "pyramid"])
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    steps = steps_of(args.scene)
+    tuner = AutoRelaxation(SETTINGS["tolerance"], SETTINGS["stop_on"], SETTINGS["max_iterations"])
+    for _, p, _ in steps[::max(1, len(steps) // 32)]:
+        if not tuner.tuned:
+            tuner(p, p.start_normal, p.start_tangent)
+    rows = {name: [] for name in ("builtin", "builtin@1.7", f"builtin@auto({tuner.w:g})", "prev", "prev@1.7")}
+    for (k0, p0, keys0), (k, p, keys) in zip(steps, steps[1:]):
+        if k != k0 + 1 or (k - 300) % 10:
+            continue
+        s0 = solve(p0, **SETTINGS)
+        previous = dict(zip(keys0, zip(s0.normal_impulse, s0.tangent_impulse)))
+        pn, pt = (np.array(v) for v in zip(*[previous.get(key, (0.0, 0.0)) for key in keys]))
+        starts = {"builtin": (p.start_normal, p.start_tangent, 1.0),
+                  "builtin@1.7": (p.start_normal, p.start_tangent, 1.7),
+                  f"builtin@auto({tuner.w:g})": (p.start_normal, p.start_tangent, tuner.w),
+                  "prev": (pn, pt, 1.0), "prev@1.7": (pn, pt, 1.7)}
+        for name, (n, t, w) in starts.items():
+            rows[name].append(timed(p, n, t, w, args.repeats))
+    base_it = statistics.median(i for i, _ in rows["builtin"])
+    base_s = statistics.median(s for _, s in rows["builtin"])
+    print(f"{args.scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
+    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7}")
+    for name, r in rows.items():
+        it = statistics.median(i for i, _ in r)
+        ms = statistics.median(s for _, s in r)
+        print(f"{name:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>10.3f} {ms / base_s:>7.2f}")
+
+
+if __name__ == "__main__":
+    main()
