@@ -26,6 +26,26 @@ def contact_keys(contacts):
     return list(zip(*(contacts[k].tolist() for k in KEY_COLUMNS)))
 
 
+def _rows(index, bodies):
+    """The row of each body (scene index) among the step's bodies `index`; vectorised, since the
+    closed loop builds a problem every step."""
+    index, bodies = np.asarray(index), np.asarray(bodies)
+    if len(bodies) == 0:
+        return np.zeros(0, np.int32)
+    rows = None
+    if len(index):
+        # bodies come in scene order (World.bodies(), step files): sorted, so no argsort is needed
+        rows = np.minimum(np.searchsorted(index, bodies), len(index) - 1)
+        if np.any(index[rows] != bodies):
+            order = np.argsort(index, kind="stable")
+            rows = order[np.minimum(np.searchsorted(index, bodies, sorter=order), len(index) - 1)]
+    if rows is None or np.any(index[rows] != bodies):
+        known = set(index.tolist())
+        missing = next(int(b) for b in bodies.tolist() if b not in known)
+        raise InputError(f"a contact names body {missing}, which the step does not hold")
+    return rows.astype(np.int32)
+
+
 @dataclass
 class StepProblem:
     bodies: dict                 # the columns BODY_KEYS, one row per body
@@ -48,13 +68,8 @@ class StepProblem:
     @classmethod
     def from_arrays(cls, bodies, contacts, *, dt, gravity, block_solve=True, velocity_iterations=8, index=0):
         """From the arrays of World.step(record=True) or of step.reader.read_step."""
-        row = {int(i): r for r, i in enumerate(bodies["index"])}
         c = {k: np.ascontiguousarray(contacts[k]) for k in CONTACT_KEYS}
-        missing = sorted({int(i) for i in np.concatenate([contacts["body_a"], contacts["body_b"]])} - set(row))
-        if missing:
-            raise InputError(f"a contact names body {missing[0]}, which the step does not hold")
-        c["row_a"] = np.array([row[int(i)] for i in contacts["body_a"]], dtype=np.int32)
-        c["row_b"] = np.array([row[int(i)] for i in contacts["body_b"]], dtype=np.int32)
+        c["row_a"], c["row_b"] = (_rows(bodies["index"], contacts[k]) for k in ("body_a", "body_b"))
         b = {k: np.ascontiguousarray(bodies[k]) for k in BODY_KEYS}
         keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
         return cls(bodies=b, contacts=c, dt=float(np.float32(dt)), gravity=tuple(float(g) for g in gravity),
