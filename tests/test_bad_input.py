@@ -413,3 +413,11 @@ def test_11_make_uses_the_given_python():
                        cwd=ROOT, capture_output=True, text=True, check=True)
     commands = [line for line in r.stdout.splitlines() if " simulate " in line or " train " in line]
     assert commands and all(line.startswith("/opt/venv/bin/python -m deepcontact.cli.main ") for line in commands)
+
+
+def test_5_bad_relaxations(run, tmp_path):
+    for value, needle in (("2.5", "must be in (0, 2) or auto"), (",", "give at least one w"), ("fast", "auto")):
+        one_line_error(dc("evaluate", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), needle)
+    one_line_error(dc("simulate", *PILE, "--solver", "pgs", "--relaxation", "auto", "-o", str(tmp_path / "s")),
+                   "give --tolerance")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
