@@ -21,7 +21,10 @@ def parse_relaxation(text):
     """'auto' or a float in (0, 2), for the CLI; raises ValueError with the reason."""
     if str(text).strip().lower() == "auto":
         return "auto"
-    w = float(text)
+    try:
+        w = float(text)
+    except ValueError:
+        raise ValueError(f"relaxation must be a number in (0, 2) or auto, got {text!r}") from None
     if not (0.0 < w < 2.0):
         raise ValueError(f"relaxation must be in (0, 2) or auto, got {text}")
     return w
