@@ -1,10 +1,13 @@
-"""Replay: every recorded step solved from every start, on the same problem.
+"""Replay: every recorded step solved from every start (and every over-relaxation w), on the
+same problem.
 
-For each step and start: the start is made (its prediction time measured by stage), then the
+For each step and variant: the start is made (its prediction time measured by stage), then the
 project's PGS runs from it until the stopping measure falls below the tolerance or the cap, once
 with the convergence history recorded and once without, for honest timing. Recorded per step
-and start: iterations, whether the cap was hit, the history, the final residual, the error
-against the reference solution (relative, in impulses), prediction and solve time.
+and variant: iterations, whether the cap was hit, the history, the final residual, the errors
+against the step's reference solution (in impulses, and in body velocities after the solve),
+whether the PSOR guard fell back, prediction and solve time, and with `budgets` the measured time
+and reached residual of fixed sweep budgets.
 """
 import time
 from dataclasses import dataclass
