@@ -22,7 +22,7 @@ import numpy as np
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 from deepcontact.solver.pgs import solve
-from deepcontact.solver.problem import StepProblem, contact_keys
+from deepcontact.solver.problem import StepProblem, contact_keys, impulses_by_key
 from deepcontact.solver.relaxation import AutoRelaxation
 
 SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
@@ -91,7 +91,7 @@ def main():
         if k != k0 + 1 or (k - 300) % 10:
             continue
         s0 = solve(p0, **SETTINGS)
-        previous = dict(zip(keys0, zip(s0.normal_impulse, s0.tangent_impulse)))
+        previous = impulses_by_key(keys0, s0.normal_impulse, s0.tangent_impulse)
         pn, pt = (np.array(v) for v in zip(*[previous.get(key, (0.0, 0.0)) for key in keys]))
         starts = {"builtin": (p.start_normal, p.start_tangent, 1.0),
                   "builtin@1.7": (p.start_normal, p.start_tangent, 1.7),

@@ -61,9 +61,8 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     from deepcontact.evaluate.replay import evaluate as run, step_files, summarize
     from deepcontact.evaluate.report import summary_table, write_report
     from deepcontact.evaluate.starts import make_starts
-    from deepcontact.grid.dataset import collect, grid_for
-
     from deepcontact.errors import InputError
+    from deepcontact.grid.dataset import collect, grid_for
     from deepcontact.solver.relaxation import parse_relaxation
 
     names = [s.strip() for s in starts.split(",") if s.strip()]

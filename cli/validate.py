@@ -51,7 +51,6 @@ def validate(paths, replay, verbose, quiet):
     from deepcontact import schema
     from deepcontact.scene.xml import read_scene
     from deepcontact.simulate.build import check_overlaps
-
     from deepcontact.step.run_folder import MANIFEST, read_run
 
     files = list(xml_files(paths))

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
-from ..solver.problem import contact_keys
+from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.stability import energy
 from .replay import variants
@@ -59,8 +59,8 @@ class _Adapter:
         return value.normal, value.tangent
 
     def solved(self, solution):
-        self.previous = {} if solution is None else dict(
-            zip(self.keys, zip(solution.normal_impulse.tolist(), solution.tangent_impulse.tolist())))
+        self.previous = {} if solution is None else impulses_by_key(self.keys, solution.normal_impulse,
+                                                                     solution.tangent_impulse)
 
 
 @dataclass

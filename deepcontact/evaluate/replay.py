@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import InputError
 from ..step.run_folder import read_run
 from ..solver.pgs import MEASURES, solve
-from ..solver.problem import StepProblem, contact_keys
+from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
 from ..step.reader import read_step
@@ -61,7 +61,7 @@ class Variant:
 def variants(starts, relaxations=(1.0,)):
     """Every start with every w; labels are the start names, with "@w" unless w is only 1."""
     plain = list(relaxations) == [1.0]
-    return [Variant(name if plain else f"{name}@{w:g}" if w != "auto" else f"{name}@auto", start, w)
+    return [Variant(name if plain else f"{name}@{w if w == 'auto' else format(w, 'g')}", start, w)
             for w in relaxations for name, start in starts.items()]
 
 
@@ -102,20 +102,16 @@ def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float
     return tuner.w
 
 
-def previous_solution(path, settings):
-    """{contact key: (normal, tangent)} of the step before `path`, solved from its builtin start
-    to the same tolerance: the `prev` start's source (empty for a first step, or one whose
-    predecessor was not written: --skip-contactless)."""
-    index = int(path.stem.split("-")[1])
-    before = path.parent / f"step-{index - 1:06d}.xml"
-    if index == 0 or not before.exists():
+def previous_solution(before, index, settings):
+    """{contact key: (normal, tangent)} of the step before step `index`, solved from its builtin
+    start to the same tolerance: the `prev` start's source. `before` is that step as read
+    (header, bodies, contacts, path), or None; a step whose predecessor is not the step just before
+    it (the first, or one after a skipped contactless step) gets {}."""
+    if before is None or before[0]["index"] != index - 1 or len(before[2]["manifold"]) == 0:
         return {}
-    header, bodies, contacts = read_step(before, validate=False)
-    if len(contacts["manifold"]) == 0:
-        return {}
-    problem = StepProblem.from_step(header, bodies, contacts, before)
-    s = solve(problem, **settings)
-    return dict(zip(contact_keys(contacts), zip(s.normal_impulse.tolist(), s.tangent_impulse.tolist())))
+    header, bodies, contacts, path = before
+    s = solve(StepProblem.from_step(header, bodies, contacts, path), **settings)
+    return impulses_by_key(contact_keys(contacts), s.normal_impulse, s.tangent_impulse)
 
 
 def _velocity_error(solution, reference):
@@ -140,19 +136,19 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
     rows = []
     for run, sim_seed, files in plan:
-        previous = set()
+        previous, before = set(), None
         for k, path in enumerate(files):
             header, bodies, contacts = read_step(path, validate=False)
             keys = contact_keys(contacts)
             persisted = np.array([key in previous for key in keys], dtype=bool)
-            previous = set(keys)
+            previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
             if k % every or len(contacts["manifold"]) == 0:
                 continue
             problem = StepProblem.from_step(header, bodies, contacts, path)
             reference = reference_solution(problem)
             ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                               persisted=persisted, seed=seed,
-                              previous=previous_solution(path, settings) if wants_prev else None)
+                              previous=previous_solution(earlier, header["index"], settings) if wants_prev else None)
             ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
             for v in table:
                 value = v.start(ctx)

@@ -277,37 +277,45 @@ class GridDataset:
             self.spec = GridSpec(**m["grid"])
         except TypeError as e:
             raise InputError(f"bad grid description: {e}", meta) from None
+        self._folders, self._verified_runs = {}, set()
 
     def check_step_sources(self):
         """Refuse at once a dataset whose simulations cannot be followed back to their step files."""
-        for k in range(len(self.metadata["simulations"])):
-            rows = np.nonzero(self.arrays["simulation"] == k)[0]
-            if len(rows):
-                self.step_file(int(rows[0]))
+        for k in np.unique(self.arrays["simulation"]).tolist():
+            self._simulation_folder(k)
 
     def step_file(self, i):
         """The step file sample i was made from, found through the run it came from.
 
         The metadata names that run; it is only followed if it is one of the dataset's sources,
         its manifest is unchanged (the recorded SHA-256) and the simulation folder lies inside it."""
+        folder = self._simulation_folder(int(self.arrays["simulation"][i]))
+        return folder / f"step-{int(self.arrays['step'][i]):06d}.xml"
+
+    def _simulation_folder(self, k):
+        """Simulation k's folder, checked once (not per sample: the solver loss asks per sample)."""
+        if k in self._folders:
+            return self._folders[k]
         meta = self.path / "metadata.json"
-        sim = self.metadata["simulations"][int(self.arrays["simulation"][i])]
+        sim = self.metadata["simulations"][k]
         if not isinstance(sim, dict):
             raise InputError("simulation entries must be JSON objects", meta)
         sources = {s.get("run"): s.get("manifest_sha256") for s in self.metadata["sources"] if isinstance(s, dict)}
         run = sim.get("run")
         if run not in sources:
             raise InputError(f"simulation run {run!r} is not one of the dataset's sources", meta)
-        manifest = Path(run) / MANIFEST
-        try:
-            digest = hashlib.sha256(manifest.read_bytes()).hexdigest()
-        except OSError as e:
-            raise InputError(f"the run this dataset was made from cannot be read: {e.strerror or e}",
-                             manifest) from None
-        if digest != sources[run]:
-            raise InputError("the run changed since the dataset was made (manifest SHA-256 differs)", manifest)
-        folder = simulation_folder(run, sim.get("dir"), meta)
-        return folder / f"step-{int(self.arrays['step'][i]):06d}.xml"
+        if run not in self._verified_runs:
+            manifest = Path(run) / MANIFEST
+            try:
+                digest = hashlib.sha256(manifest.read_bytes()).hexdigest()
+            except OSError as e:
+                raise InputError(f"the run this dataset was made from cannot be read: {e.strerror or e}",
+                                 manifest) from None
+            if digest != sources[run]:
+                raise InputError("the run changed since the dataset was made (manifest SHA-256 differs)", manifest)
+            self._verified_runs.add(run)
+        self._folders[k] = simulation_folder(run, sim.get("dir"), meta)
+        return self._folders[k]
 
     def __len__(self):
         return int(self.metadata["samples"])

@@ -26,6 +26,11 @@ def contact_keys(contacts):
     return list(zip(*(contacts[k].tolist() for k in KEY_COLUMNS)))
 
 
+def impulses_by_key(keys, normal, tangent):
+    """{contact key: (normal, tangent)}: a solution, to be matched to a later step's contacts."""
+    return dict(zip(keys, zip(np.asarray(normal).tolist(), np.asarray(tangent).tolist())))
+
+
 def _rows(index, bodies):
     """The row of each body (scene index) among the step's bodies `index`; vectorised, since the
     closed loop builds a problem every step."""
