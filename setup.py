@@ -29,6 +29,7 @@ ext = Pybind11Extension(
         "deepcontact/native/world.cpp",
         "deepcontact/native/step_xml.cpp",
         "deepcontact/native/solver_module.cpp",
+        "deepcontact/native/pgs_step.cpp",
         "deepcontact/native/splat.cpp",
     ],
     include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
@@ -44,6 +45,6 @@ ext = Pybind11Extension(
 # setup.cfg's package_dir maps into it.
 packages = find_packages(include=["deepcontact", "deepcontact.*"]) + ["deepcontact.cli", "deepcontact.schemas"]
 
-# The five translation units compile side by side (DC_BUILD_JOBS overrides the core count).
+# The six translation units compile side by side (DC_BUILD_JOBS overrides the core count).
 ParallelCompile("DC_BUILD_JOBS").install()
 setup(ext_modules=[ext], packages=packages)

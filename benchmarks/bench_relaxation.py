@@ -60,7 +60,7 @@ def loop(name, repeats):
             times, its = [], []
             for _ in range(scene.steps):
                 t0 = time.perf_counter()
-                _, _, solution = stepper.step()
+                solution = stepper.step().solution
                 times.append(time.perf_counter() - t0)
                 its.append(0 if solution is None else solution.iterations)
             seconds[w] = np.minimum(seconds[w], times) if w in seconds else np.array(times)

@@ -54,7 +54,7 @@ def run_both(scene, steps, options):
     for _ in range(steps):
         _, c_theirs = theirs.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
                                   record=True)
-        _, c_ours, _ = stepper.step()
+        c_ours = stepper.step().contacts
         same = (len(c_ours["manifold"]) == len(c_theirs["manifold"])
                 and np.array_equal(c_ours["normal_impulse"], c_theirs["normal_impulse"])
                 and np.array_equal(c_ours["tangent_impulse"], c_theirs["tangent_impulse"]))

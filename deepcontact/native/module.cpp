@@ -221,6 +221,10 @@ PYBIND11_MODULE(_box2d, m) {
             },
             py::arg("dt"), py::arg("velocity_iterations"), py::arg("position_iterations"), py::arg("record") = false,
             "One Box2D step. With record=True returns (bodies before the step, contacts solved in it).")
+        .def("recorded", [](const dc::World& w) {
+                 return py::make_tuple(to_dict(w.recorded_bodies()), to_dict(w.recorded_contacts()));
+             },
+             "(bodies before, contacts solved) of the last step recorded; see step(record=True).")
         .def("collide", &dc::World::collide, py::call_guard<py::gil_scoped_release>(),
              "b2ContactManager::Collide(): rebuild manifolds, carrying impulses over by feature id.")
         .def("find_new_contacts", &dc::World::find_new_contacts, py::call_guard<py::gil_scoped_release>())

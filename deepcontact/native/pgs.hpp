@@ -37,7 +37,8 @@ struct SolveReport {
     int iterations = 0;
     std::vector<double> history;   // 3 per sweep: thesis, velocity, residual
     double residual = 0.0;         // normalised min-map residual at the end
-    double thesis = 0.0, velocity = 0.0;  // the last sweep's measures
+    double thesis = std::numeric_limits<double>::quiet_NaN();  // the last sweep's measures, when
+    double velocity = std::numeric_limits<double>::quiet_NaN();  // they were tracked
     int relaxation_fallback = 0;   // the sweep after which over-relaxation was dropped (0: never)
     SanitizeReport sanitized;
 };
@@ -67,7 +68,9 @@ public:
         // The residual is normalised by the free velocities, taken before the warm start.
         if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) scale_ = free_velocity_scale();
         warm_start();
+        // The change of the iterate is needed only to report it or to stop on it.
         const bool track = opt.history || opt.stop_on != Measure::none;
+        const bool track_change = opt.history || opt.stop_on == Measure::thesis || opt.stop_on == Measure::velocity;
         const R w = R(opt.relaxation);
         bool relax = opt.relaxation != 1.0;
         const bool residual_each_sweep = opt.history || opt.stop_on == Measure::residual;
@@ -75,7 +78,7 @@ public:
         bool residual_is_current = false;  // computed after the last sweep: no extra pass needed
         double last_residual = 0.0;
         for (int it = 0; it < opt.max_iterations; ++it) {
-            if (track) save_impulses();
+            if (track_change) save_impulses();
             if (relax)
                 sweep<true>(w);
             else
@@ -99,9 +102,11 @@ public:
             }
             if (!track) continue;
             double thesis = 0, velocity = 0;
-            sweep_change(thesis, velocity);
-            rep.thesis = thesis;
-            rep.velocity = velocity;
+            if (track_change) {
+                sweep_change(thesis, velocity);
+                rep.thesis = thesis;
+                rep.velocity = velocity;
+            }
             if (opt.history) {
                 rep.history.push_back(thesis);
                 rep.history.push_back(velocity);

@@ -5,6 +5,7 @@
 
 #include "contact_problem.hpp"
 #include "pgs.hpp"
+#include "pgs_step.hpp"
 #include "pyarrays.hpp"
 
 namespace dc {
@@ -71,6 +72,28 @@ py::dict stats_dict(const ProblemStats& s) {
     return d;
 }
 
+// What a solve reports besides the impulses: how it converged, what was sanitised, the problem's size.
+py::dict report_dict(const SolveReport& rep, const ProblemStats& stats) {
+    const py::ssize_t k = static_cast<py::ssize_t>(rep.history.size() / 3);
+    py::array_t<double> history({k, py::ssize_t(3)});
+    std::copy(rep.history.begin(), rep.history.end(), history.mutable_data());
+    py::dict out;
+    out["iterations"] = rep.iterations;
+    out["history"] = history;
+    out["residual"] = rep.residual;
+    out["thesis"] = rep.thesis;
+    out["velocity_change"] = rep.velocity;
+    out["relaxation_fallback"] = rep.relaxation_fallback;
+    py::dict san;
+    san["nonfinite"] = rep.sanitized.nonfinite;
+    san["negative"] = rep.sanitized.negative;
+    san["implausible"] = rep.sanitized.implausible;
+    san["cone"] = rep.sanitized.cone;
+    out["sanitized"] = san;
+    out["stats"] = stats_dict(stats);
+    return out;
+}
+
 template <class R>
 py::dict run(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st, const double* sn,
              const double* stt, const SolveOptions& opt) {
@@ -99,28 +122,46 @@ py::dict run(const BodyColumns& bc, const ContactColumns& cc, const StepSettings
         vm(i, 1) = pb.velocity[i].v.y;
         wm(i) = pb.velocity[i].w;
     }
-    const py::ssize_t k = static_cast<py::ssize_t>(rep.history.size() / 3);
-    py::array_t<double> history({k, py::ssize_t(3)});
-    std::copy(rep.history.begin(), rep.history.end(), history.mutable_data());
-    py::dict out;
+    py::dict out = report_dict(rep, pb.stats);
     out["normal_impulse"] = normal;
     out["tangent_impulse"] = tangent;
     out["velocity"] = velocity;
     out["omega"] = omega;
-    out["iterations"] = rep.iterations;
-    out["history"] = history;
-    out["residual"] = rep.residual;
-    out["thesis"] = rep.thesis;
-    out["velocity_change"] = rep.velocity;
-    out["relaxation_fallback"] = rep.relaxation_fallback;
-    py::dict san;
-    san["nonfinite"] = rep.sanitized.nonfinite;
-    san["negative"] = rep.sanitized.negative;
-    san["implausible"] = rep.sanitized.implausible;
-    san["cone"] = rep.sanitized.cone;
-    out["sanitized"] = san;
-    out["stats"] = stats_dict(pb.stats);
     return out;
+}
+
+py::array_t<double> to_array(const std::vector<double>& v) {
+    py::array_t<double> a(static_cast<py::ssize_t>(v.size()));
+    std::copy(v.begin(), v.end(), a.mutable_data());
+    return a;
+}
+
+SolveOptions solve_options(int max_iterations, double tolerance, const std::string& stop_on, double relaxation,
+                           bool history, bool sanitize, double max_velocity, bool final_residual, bool guard) {
+    if (max_iterations < 0) throw py::value_error("max_iterations must be >= 0");
+    if (!(relaxation > 0.0 && relaxation < 2.0)) throw py::value_error("relaxation must be in (0, 2)");
+    SolveOptions opt;
+    opt.max_iterations = max_iterations;
+    opt.tolerance = tolerance;
+    opt.stop_on = parse_measure(stop_on);
+    opt.relaxation = relaxation;
+    opt.history = history;
+    opt.sanitize = sanitize;
+    opt.max_velocity = max_velocity;
+    opt.final_residual = final_residual;
+    opt.guard = guard;
+    return opt;
+}
+
+StepSettings step_settings(float dt, std::pair<float, float> gravity, bool block_solve, bool prune) {
+    if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
+    StepSettings st;
+    st.dt = dt;
+    st.gravity[0] = gravity.first;
+    st.gravity[1] = gravity.second;
+    st.block_solve = block_solve;
+    st.prune = prune;
+    return st;
 }
 
 }  // namespace
@@ -140,25 +181,9 @@ void bind_solver(py::module_& m) {
                 start_normal.ndim() != 1 || start_tangent.ndim() != 1)
                 throw py::value_error("start impulses must have one value per contact point (" +
                                       std::to_string(cc.n) + ")");
-            if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
-            if (max_iterations < 0) throw py::value_error("max_iterations must be >= 0");
-            if (!(relaxation > 0.0 && relaxation < 2.0)) throw py::value_error("relaxation must be in (0, 2)");
-            StepSettings st;
-            st.dt = dt;
-            st.gravity[0] = gravity.first;
-            st.gravity[1] = gravity.second;
-            st.block_solve = block_solve;
-            st.prune = prune;
-            SolveOptions opt;
-            opt.max_iterations = max_iterations;
-            opt.tolerance = tolerance;
-            opt.stop_on = parse_measure(stop_on);
-            opt.relaxation = relaxation;
-            opt.history = history;
-            opt.sanitize = sanitize;
-            opt.max_velocity = max_velocity;
-            opt.final_residual = final_residual;
-            opt.guard = guard;
+            const StepSettings st = step_settings(dt, gravity, block_solve, prune);
+            const SolveOptions opt = solve_options(max_iterations, tolerance, stop_on, relaxation, history, sanitize,
+                                                   max_velocity, final_residual, guard);
             if (precision == "float32") return run<float>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
             if (precision == "float64") return run<double>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
             throw py::value_error("precision must be float32 or float64");
@@ -170,6 +195,49 @@ void bind_solver(py::module_& m) {
         py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("final_residual") = true,
         py::arg("guard") = true,
         "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
+
+    m.def(
+        "pgs_step",
+        [](World& world, float dt, std::pair<float, float> gravity, bool block_solve, bool prune,
+           const std::string& precision, int max_iterations, double tolerance, const std::string& stop_on,
+           double relaxation, bool sanitize, double max_velocity, bool guard, const std::string& start,
+           float warm_scale, float inv_dt0, int position_iterations, bool record) {
+            PGSStepSettings s;
+            s.step = step_settings(dt, gravity, block_solve, prune);
+            s.solve = solve_options(max_iterations, tolerance, stop_on, relaxation, false, sanitize, max_velocity,
+                                    true, guard);
+            if (precision != "float32" && precision != "float64")
+                throw py::value_error("precision must be float32 or float64");
+            s.float64 = precision == "float64";
+            if (start != "zero" && start != "builtin") throw py::value_error("start must be zero or builtin");
+            s.start = start == "zero" ? LoopStart::zero : LoopStart::builtin;
+            if (position_iterations < 0) throw py::value_error("position_iterations must be >= 0");
+            s.warm_scale = warm_scale;
+            s.inv_dt0 = inv_dt0;
+            s.position_iterations = position_iterations;
+            s.record = record;
+            PGSStepReport rep;
+            {
+                py::gil_scoped_release release;
+                rep = pgs_step(world, s);
+            }
+            if (!rep.solved) return py::object(py::none());
+            py::dict out = report_dict(rep.solve, rep.stats);
+            out["normal_impulse"] = to_array(rep.normal_impulse);
+            out["tangent_impulse"] = to_array(rep.tangent_impulse);
+            out["start_normal"] = to_array(rep.start_normal);
+            out["start_tangent"] = to_array(rep.start_tangent);
+            out["deepest"] = rep.deepest;
+            return py::object(out);
+        },
+        py::arg("world"), py::kw_only(), py::arg("dt"), py::arg("gravity"), py::arg("block_solve") = true,
+        py::arg("prune") = true, py::arg("precision") = "float64", py::arg("max_iterations") = 8,
+        py::arg("tolerance") = 0.0, py::arg("stop_on") = "none", py::arg("relaxation") = 1.0,
+        py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("guard") = true,
+        py::arg("start") = "builtin", py::arg("warm_scale") = 1.0f, py::arg("inv_dt0") = 0.0f,
+        py::arg("position_iterations") = 3, py::arg("record") = false,
+        "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"
+        "velocity iterations), whole in native code. Returns the solve's report, or None without contacts.");
 }
 
 }  // namespace dc

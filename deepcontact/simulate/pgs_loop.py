@@ -7,13 +7,18 @@ With zero velocity iterations Box2D's warm start applies exactly the impulses wr
 second Collide keeps them, matched by feature id), so the step moves with our answer. This needs
 continuous collision and sleeping off (time-of-impact sub-steps and sleeping islands are solved
 or skipped inside Box2D), and Box2D's warm-start scale dtRatio held at exactly 1.
+
+Starts from zero or from Box2D's warm start at a fixed w run the whole step in one native call
+(deepcontact._box2d.pgs_step); a start made in Python, `garbage` and `auto` take the same path
+in pieces. The two give identical trajectories (tests/test_replay_and_loop.py).
 """
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._box2d import pgs_step
 from ..errors import InputError
-from ..solver.pgs import solve
+from ..solver.pgs import MAX_TRANSLATION, Solution, solve
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 
@@ -51,26 +56,69 @@ def check_scene_for_loop(scene, source=None):
                          source)
 
 
-class PGSStepper:
-    """Steps a world with the project's PGS; step() returns what the step file records."""
+@dataclass
+class LoopStep:
+    """What one step of the loop did."""
+    bodies: dict         # the bodies before the step, as a step file records them (None unless recording)
+    contacts: dict       # the contacts solved, with the impulses applied (None unless recording)
+    solution: Solution   # None when the step had no contact points
+    deepest: float       # the deepest penetration among the step's contact points (m), >= 0
 
-    def __init__(self, world, scene, options: LoopOptions, start_fn=None):
+
+class PGSStepper:
+    """Steps a world with the project's PGS; step() returns a LoopStep."""
+
+    def __init__(self, world, scene, options: LoopOptions, start_fn=None, record=True, native=True):
         """start_fn(bodies, contacts, problem, builtin_n, builtin_t) -> (normal, tangent), if given,
-        makes the first iterate instead of options.start (dc evaluate --closed-loop)."""
+        makes the first iterate instead of options.start (dc evaluate --closed-loop). record: keep
+        the bodies and contacts of each step (step files need them; a timed loop does not).
+        native=False steps in pieces through Python even where one native call could."""
         self.start_fn = start_fn
         if start_fn is None and options.start not in STARTS:
             raise InputError(f"unknown start {options.start!r}; choose from {', '.join(STARTS)}")
         check_scene_for_loop(scene)
-        self.world, self.scene, self.options = world, scene, options
+        self.world, self.scene, self.options, self.record = world, scene, options, record
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
         self.first = True
         self.relaxation = options.relaxation
         if options.relaxation == "auto":
             self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode)
+        self.native = (native and start_fn is None and options.start in ("zero", "builtin")
+                       and not callable(self.relaxation))
         world.find_new_contacts()   # Step would do this itself, after our Collide
 
-    def step(self):
+    def step(self) -> LoopStep:
+        return self._native_step() if self.native else self._python_step()
+
+    def _native_step(self):
+        scene, o = self.scene, self.options
+        out = pgs_step(self.world, dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve,
+                       precision="float64" if o.mode == "float64" else "float32",
+                       max_iterations=o.max_iterations, tolerance=o.tolerance,
+                       stop_on=o.stop_on if o.tolerance > 0 else "none", relaxation=self.relaxation,
+                       sanitize=o.mode != "exact", max_velocity=2.0 * MAX_TRANSLATION / scene.dt, start=o.start,
+                       warm_scale=0.0 if self.first else 1.0, inv_dt0=self.inv_dt,
+                       position_iterations=scene.solver.position_iterations, record=self.record)
+        self.first = False
+        solution = None if out is None else Solution(
+            normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"], velocity=None, omega=None,
+            iterations=out["iterations"], history=out["history"], residual=out["residual"],
+            sanitized=out["sanitized"], stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
+            relaxation=float(self.relaxation))
+        deepest = 0.0 if out is None else out["deepest"]
+        if not self.record:
+            return LoopStep(None, None, solution, deepest)
+        before, recorded = self.world.recorded()
+        # Box2D applied what we wrote; the step file records our start as the step's start.
+        # (Box2D's recorder saw our solution carried over as its warm start.)
+        n = len(recorded["normal_impulse"])
+        same = out is not None and len(out["start_normal"]) == n
+        recorded["start_normal_impulse"] = out["start_normal"].astype(np.float32) if same else np.zeros(n, np.float32)
+        recorded["start_tangent_impulse"] = out["start_tangent"].astype(np.float32) if same else np.zeros(n, np.float32)
+        return LoopStep(before, recorded, solution, deepest)
+
+    def _python_step(self):
         world, scene, o = self.world, self.scene, self.options
         bodies = world.bodies()
         world.collide()
@@ -105,7 +153,11 @@ class PGSStepper:
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt
         self.first = False
-        before, recorded = world.step(scene.dt, 0, scene.solver.position_iterations, record=True)
+        deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
+        out = world.step(scene.dt, 0, scene.solver.position_iterations, record=self.record)
+        if not self.record:
+            return LoopStep(None, None, solution, deepest)
+        before, recorded = out
         # What Box2D applied is what we wrote; record our start as the step's start.
         # (a garbage start is recorded as sanitised: no NaN ever reaches a file)
         used_n, used_t = (start_n, start_t) if o.start != "garbage" else (np.zeros_like(builtin_n),) * 2
@@ -113,4 +165,4 @@ class PGSStepper:
             used_n, used_t = np.zeros_like(builtin_n), np.zeros_like(builtin_t)
         recorded["start_normal_impulse"] = used_n.astype(np.float32)
         recorded["start_tangent_impulse"] = used_t.astype(np.float32)
-        return before, recorded, solution
+        return LoopStep(before, recorded, solution, deepest)

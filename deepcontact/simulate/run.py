@@ -96,7 +96,8 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                     extra = ""
                     dt_ratio = world.last_dt_ratio
                 else:
-                    bodies, contacts, solution = stepper.step()
+                    done = stepper.step()
+                    bodies, contacts, solution = done.bodies, done.contacts, done.solution
                     extra = _solve_xml(loop, solution)
                     dt_ratio = 0.0 if k == 0 else 1.0
                 n = len(contacts["manifold"])

@@ -143,7 +143,8 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
         if stepper is None:
             _, contacts = world.step(scene.dt, iterations, scene.solver.position_iterations, record=True)
         else:
-            _, contacts, solution = stepper.step()
+            done = stepper.step()
+            contacts, solution = done.contacts, done.solution
             if solution is not None:
                 sanitized += sum(solution.sanitized.values())
         bodies = world.bodies()

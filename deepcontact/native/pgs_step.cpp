@@ -1,0 +1,102 @@
+#include "pgs_step.hpp"
+
+#include <algorithm>
+
+namespace dc {
+namespace {
+
+template <class R>
+void solve_step(const BodyColumns& bc, const ContactColumns& cc, const PGSStepSettings& s,
+                const std::vector<double>& start_n, const std::vector<double>& start_t, PGSStepReport& out) {
+    ContactProblem<R> pb = assemble<R>(bc, cc, s.step);
+    out.solve = PGS<R>(pb).solve(start_n.data(), start_t.data(), s.solve);
+    out.stats = pb.stats;
+    // A point Box2D drops from an ill-conditioned pair keeps its start, as in solve_contacts.
+    out.normal_impulse = start_n;
+    out.tangent_impulse = start_t;
+    for (const auto& m : pb.manifolds)
+        for (int j = 0; j < m.given; ++j) {
+            out.normal_impulse[m.first + j] = double(m.p[j].normal_impulse);
+            out.tangent_impulse[m.first + j] = double(m.p[j].tangent_impulse);
+        }
+}
+
+}  // namespace
+
+PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
+    PGSStepReport out;
+    const BodyState bodies = world.bodies();  // before Collide, as the Python loop takes them
+    world.collide();
+    const ContactState contacts = world.contacts();
+    const size_t n = contacts.size();
+    if (n > 0) {
+        // Contacts name bodies by scene index; the solver wants their rows.
+        const int32_t last = bodies.size() ? *std::max_element(bodies.index.begin(), bodies.index.end()) : -1;
+        std::vector<int32_t> row_of(static_cast<size_t>(last + 1), -1);
+        for (size_t i = 0; i < bodies.size(); ++i) row_of[bodies.index[i]] = static_cast<int32_t>(i);
+        std::vector<int32_t> row_a(n), row_b(n);
+        for (size_t k = 0; k < n; ++k) {
+            row_a[k] = row_of[contacts.body_a[k]];
+            row_b[k] = row_of[contacts.body_b[k]];
+        }
+        BodyColumns bc;
+        bc.n = bodies.size();
+        bc.center = bodies.center.data();
+        bc.angle = bodies.angle.data();
+        bc.local_center = bodies.local_center.data();
+        bc.velocity = bodies.velocity.data();
+        bc.omega = bodies.omega.data();
+        bc.mass = bodies.mass.data();
+        bc.inv_mass = bodies.inv_mass.data();
+        bc.inv_inertia = bodies.inv_inertia.data();
+        bc.gravity_scale = bodies.gravity_scale.data();
+        bc.linear_damping = bodies.linear_damping.data();
+        bc.angular_damping = bodies.angular_damping.data();
+        bc.type = bodies.type.data();
+        ContactColumns cc;
+        cc.n = n;
+        cc.manifold = contacts.manifold.data();
+        cc.row_a = row_a.data();
+        cc.row_b = row_b.data();
+        cc.point = contacts.point.data();
+        cc.point_count = contacts.point_count.data();
+        cc.manifold_type = contacts.manifold_type.data();
+        cc.local_normal = contacts.local_normal.data();
+        cc.local_point = contacts.local_point.data();
+        cc.point_local = contacts.point_local.data();
+        cc.radius_a = contacts.radius_a.data();
+        cc.radius_b = contacts.radius_b.data();
+        cc.friction = contacts.friction.data();
+        cc.restitution = contacts.restitution.data();
+        cc.restitution_threshold = contacts.restitution_threshold.data();
+
+        // Box2D's warm start: the impulses Collide carried over by feature id, times dtRatio
+        // (rounded in float32 first, as Box2D scales them).
+        std::vector<double> start_n(n, 0.0), start_t(n, 0.0);
+        if (s.start == LoopStart::builtin)
+            for (size_t k = 0; k < n; ++k) {
+                start_n[k] = double(s.warm_scale * contacts.normal_impulse[k]);
+                start_t[k] = double(s.warm_scale * contacts.tangent_impulse[k]);
+            }
+        if (s.float64)
+            solve_step<double>(bc, cc, s, start_n, start_t, out);
+        else
+            solve_step<float>(bc, cc, s, start_n, start_t, out);
+        out.start_normal = std::move(start_n);
+        out.start_tangent = std::move(start_t);
+        out.solved = true;
+
+        std::vector<float> normal(n), tangent(n);
+        for (size_t k = 0; k < n; ++k) {
+            normal[k] = float(out.normal_impulse[k]);
+            tangent[k] = float(out.tangent_impulse[k]);
+        }
+        world.set_manifold_impulses(normal.data(), tangent.data(), n);
+        for (float d : contacts.separation) out.deepest = std::max(out.deepest, -double(d));
+    }
+    world.set_inv_dt0(s.inv_dt0);
+    world.step(s.step.dt, 0, s.position_iterations, s.record);
+    return out;
+}
+
+}  // namespace dc

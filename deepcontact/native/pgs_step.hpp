@@ -1,0 +1,40 @@
+// One step with the project's PGS in place of Box2D's velocity solver, whole in native code
+// (NOTES §3): Collide, gather the contacts in island order, assemble, solve from Box2D's warm
+// start or from zero, write the impulses into the manifold points, then Box2D's Step with no
+// velocity iterations. The Python loop (simulate/pgs_loop.py) does the same in pieces, for
+// starts made in Python; this saves the per-step round trip of every array through numpy.
+#pragma once
+
+#include <vector>
+
+#include "contact_problem.hpp"
+#include "pgs.hpp"
+#include "world.hpp"
+
+namespace dc {
+
+enum class LoopStart { zero, builtin };
+
+struct PGSStepSettings {
+    StepSettings step;             // dt, gravity, block solver, prune
+    SolveOptions solve;
+    bool float64 = true;
+    LoopStart start = LoopStart::builtin;
+    float warm_scale = 1.0f;       // dtRatio applied to the carried impulses (0 on the first step)
+    float inv_dt0 = 0.0f;          // set before Step so that dt * inv_dt0 == 1: our impulses stand as written
+    int position_iterations = 3;
+    bool record = false;           // keep the step for World::recorded_bodies() / recorded_contacts()
+};
+
+struct PGSStepReport {
+    bool solved = false;           // false when the step had no contact points
+    SolveReport solve;
+    ProblemStats stats;
+    std::vector<double> start_normal, start_tangent;      // the first iterate, per contact point
+    std::vector<double> normal_impulse, tangent_impulse;  // the solution, per contact point
+    double deepest = 0.0;          // deepest penetration among the step's contact points (m), >= 0
+};
+
+PGSStepReport pgs_step(World& world, const PGSStepSettings& settings);
+
+}  // namespace dc
