@@ -106,3 +106,31 @@ def test_pgs_options_need_the_pgs_solver_and_a_suitable_scene(tmp_path):
     assert r.returncode == 1 and "only apply with --solver pgs" in r.stderr
     r = dc("simulate", "bullet", "--solver", "pgs", "-o", str(tmp_path / "b"))
     assert r.returncode == 1 and "continuous collision" in r.stderr
+
+
+@pytest.mark.parametrize("start,mode,w", [("builtin", "float64", 1.0), ("builtin", "float64", 1.7),
+                                          ("zero", "float32", 1.0), ("builtin", "exact", 1.0)])
+@pytest.mark.parametrize("scene", ["pile", "pyramid"])
+def test_the_native_loop_step_matches_the_step_in_pieces(scene, start, mode, w):
+    # One native call per step (pgs_step) against the same step taken in pieces through Python:
+    # the same trajectory and the same recorded step, array for array, bit for bit.
+    s = generate(scene, 0, dict(count=30, box=16.0, sigma=4.0) if scene == "pile" else dict(base=6))
+    options = LoopOptions(start=start, mode=mode, max_iterations=200 if mode != "exact" else 8,
+                          tolerance=1e-4 if mode != "exact" else 0.0, relaxation=w)
+    native, pieces = (PGSStepper(build_world(s), s, options, native=n) for n in (True, False))
+    assert native.native and not pieces.native
+    solved = 0
+    for _ in range(120):
+        a, b = native.step(), pieces.step()
+        assert (a.solution is None) == (b.solution is None)
+        if a.solution is not None:
+            solved += 1
+            assert a.solution.iterations == b.solution.iterations
+            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
+        assert a.deepest == b.deepest
+        for got, want in ((a.bodies, b.bodies), (a.contacts, b.contacts)):
+            assert got.keys() == want.keys()
+            for key in want:
+                assert np.array_equal(got[key], want[key]), key
+    assert solved > 20
+    assert np.array_equal(native.world.bodies()["position"], pieces.world.bodies()["position"])
