@@ -8,8 +8,9 @@ same run (best of --repeats timings per step).
 
 With --loop: our PGS drives the scene instead (600 steps, residual < 1e-4, cap 1000), where
 Box2D's warm start is the previous step's solution at the tolerance; reported are median sweeps and
-the median measured time of a whole step (collide, solve, Box2D's position step), builtin with w =
-1.7 against builtin, runs interleaved, best of --repeats per step.
+the median measured time of a whole step (collide, solve, Box2D's position step; one native call),
+builtin with w = 1.7 against builtin, runs interleaved, best of --repeats per step. --seed picks
+the scene's seed (default 0).
 
 Usage: python benchmarks/bench_relaxation.py [--scene pile|pyramid] [--repeats N] [--loop]
 """
@@ -49,14 +50,15 @@ def timed(problem, n, t, w, repeats):
     return s.iterations, best
 
 
-def loop(name, repeats):
+def loop(name, repeats, seed=0):
     from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
     seconds, sweeps = {}, {}
     for _ in range(repeats):
         for w in (1.0, 1.7):
-            scene = generate(name, 0, {})
+            scene = generate(name, seed, {})
             stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=1000,
-                                                                        tolerance=1e-4, relaxation=w))
+                                                                        tolerance=1e-4, relaxation=w),
+                                 record=False)
             times, its = [], []
             for _ in range(scene.steps):
                 t0 = time.perf_counter()
@@ -65,7 +67,7 @@ def loop(name, repeats):
                 its.append(0 if solution is None else solution.iterations)
             seconds[w] = np.minimum(seconds[w], times) if w in seconds else np.array(times)
             sweeps[w] = its
-    print(f"{name}, our PGS in the loop: {len(seconds[1.0])} steps, residual < 1e-4, cap 1000")
+    print(f"{name} seed {seed}, our PGS in the loop: {len(seconds[1.0])} steps, residual < 1e-4, cap 1000")
     print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
     base_it, base_ms = np.median(sweeps[1.0]), np.median(seconds[1.0])
     for w, label in ((1.0, "builtin"), (1.7, "builtin@1.7")):
@@ -78,9 +80,10 @@ def main():
     ap.add_argument("--scene", default="pile", choices=["pile", "pyramid"])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--loop", action="store_true", help="our PGS in the loop instead of replay")
+    ap.add_argument("--seed", type=int, default=0, help="the scene's seed (--loop)")
     args = ap.parse_args()
     if args.loop:
-        return loop(args.scene, args.repeats)
+        return loop(args.scene, args.repeats, args.seed)
     steps = steps_of(args.scene)
     tuner = AutoRelaxation(SETTINGS["tolerance"], SETTINGS["stop_on"], SETTINGS["max_iterations"])
     for _, p, _ in steps[::max(1, len(steps) // 32)]:

@@ -197,6 +197,98 @@ void bind_solver(py::module_& m) {
         "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
 
     m.def(
+        "contact_rows",
+        [](const py::dict& bodies, const py::dict& contacts, float dt, std::pair<float, float> gravity,
+           bool block_solve, bool prune) {
+            const BodyColumns bc = body_columns(bodies);
+            const ContactColumns cc = contact_columns(contacts);
+            const StepSettings st = step_settings(dt, gravity, block_solve, prune);
+            ContactProblem<double> pb;
+            double scale = 1.0;
+            {
+                py::gil_scoped_release release;
+                pb = assemble<double>(bc, cc, st);
+                // (the free-velocity scale is taken before the warm start: no start applied here)
+                std::vector<double> zero(cc.n, 0.0);
+                SolveOptions opt;
+                opt.max_iterations = 0;
+                PGS<double> pgs(pb);
+                pgs.solve(zero.data(), zero.data(), opt);
+                scale = pgs.scale();
+            }
+            const auto n = static_cast<py::ssize_t>(cc.n);
+            py::array_t<int32_t> manifold(n), row_a(n), row_b(n);
+            py::array_t<bool> active(n), friction_row(n);
+            py::array_t<double> normal({n, py::ssize_t(2)}), r_a({n, py::ssize_t(2)}), r_b({n, py::ssize_t(2)});
+            py::array_t<double> k_normal(n), k_tangent(n), bias(n), friction(n);
+            auto M = manifold.mutable_unchecked<1>();
+            auto A = row_a.mutable_unchecked<1>();
+            auto B = row_b.mutable_unchecked<1>();
+            auto act = active.mutable_unchecked<1>();
+            auto fr = friction_row.mutable_unchecked<1>();
+            auto N = normal.mutable_unchecked<2>();
+            auto RA = r_a.mutable_unchecked<2>();
+            auto RB = r_b.mutable_unchecked<2>();
+            auto KN = k_normal.mutable_unchecked<1>();
+            auto KT = k_tangent.mutable_unchecked<1>();
+            auto BI = bias.mutable_unchecked<1>();
+            auto FR = friction.mutable_unchecked<1>();
+            for (size_t mi = 0; mi < pb.manifolds.size(); ++mi) {
+                const auto& m = pb.manifolds[mi];
+                for (int j = 0; j < m.given; ++j) {
+                    const auto& p = m.p[j];
+                    const py::ssize_t k = m.first + j;
+                    M(k) = static_cast<int32_t>(mi);
+                    A(k) = m.a;
+                    B(k) = m.b;
+                    act(k) = j < m.count;
+                    fr(k) = m.friction_row;
+                    N(k, 0) = m.normal.x;
+                    N(k, 1) = m.normal.y;
+                    RA(k, 0) = p.rA.x;
+                    RA(k, 1) = p.rA.y;
+                    RB(k, 0) = p.rB.x;
+                    RB(k, 1) = p.rB.y;
+                    KN(k) = p.k_normal;
+                    KT(k) = p.k_tangent;
+                    BI(k) = p.bias;
+                    FR(k) = m.friction;
+                }
+            }
+            const auto nb = static_cast<py::ssize_t>(bc.n);
+            py::array_t<double> velocity({nb, py::ssize_t(2)}), omega(nb);
+            auto V = velocity.mutable_unchecked<2>();
+            auto W = omega.mutable_unchecked<1>();
+            for (size_t i = 0; i < bc.n; ++i) {
+                V(i, 0) = pb.velocity[i].v.x;
+                V(i, 1) = pb.velocity[i].v.y;
+                W(i) = pb.velocity[i].w;
+            }
+            py::dict out;
+            out["manifold"] = manifold;
+            out["row_a"] = row_a;
+            out["row_b"] = row_b;
+            out["active"] = active;
+            out["friction_row"] = friction_row;
+            out["normal"] = normal;
+            out["r_a"] = r_a;
+            out["r_b"] = r_b;
+            out["k_normal"] = k_normal;
+            out["k_tangent"] = k_tangent;
+            out["bias"] = bias;
+            out["friction"] = friction;
+            out["velocity"] = velocity;
+            out["omega"] = omega;
+            out["scale"] = scale;
+            return out;
+        },
+        py::arg("bodies"), py::arg("contacts"), py::kw_only(), py::arg("dt"), py::arg("gravity"),
+        py::arg("block_solve") = true, py::arg("prune") = true,
+        "The rows of one step's contact problem as the solver assembles them (float64): per contact\n"
+        "point the lever arms, normal, effective inverse masses, bias; per body the velocity before\n"
+        "any impulse; and the free-velocity scale the residual is divided by.");
+
+    m.def(
         "pgs_step",
         [](World& world, float dt, std::pair<float, float> gravity, bool block_solve, bool prune,
            const std::string& precision, int max_iterations, double tolerance, const std::string& stop_on,
