@@ -9,7 +9,8 @@ same run (best of --repeats timings per step).
 With --loop: our PGS drives the scene instead (600 steps, residual < 1e-4, cap 1000), where
 Box2D's warm start is the previous step's solution at the tolerance; reported are median sweeps and
 the median measured time of a whole step (collide, solve, Box2D's position step; one native call),
-builtin with w = 1.7 against builtin, runs interleaved, best of --repeats per step. --seed picks
+builtin with w = 1.7 and with `auto` against builtin, runs interleaved, best of --repeats per step
+(auto's trials, every w on the first 8 hard steps and then one step in 50, included). --seed picks
 the scene's seed (default 0).
 
 Usage: python benchmarks/bench_relaxation.py [--scene pile|pyramid] [--repeats N] [--loop]
@@ -54,7 +55,7 @@ def loop(name, repeats, seed=0):
     from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
     seconds, sweeps = {}, {}
     for _ in range(repeats):
-        for w in (1.0, 1.7):
+        for w in (1.0, 1.7, "auto"):
             scene = generate(name, seed, {})
             stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=1000,
                                                                         tolerance=1e-4, relaxation=w),
@@ -70,7 +71,7 @@ def loop(name, repeats, seed=0):
     print(f"{name} seed {seed}, our PGS in the loop: {len(seconds[1.0])} steps, residual < 1e-4, cap 1000")
     print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
     base_it, base_ms = np.median(sweeps[1.0]), np.median(seconds[1.0])
-    for w, label in ((1.0, "builtin"), (1.7, "builtin@1.7")):
+    for w, label in ((1.0, "builtin"), (1.7, "builtin@1.7"), ("auto", "builtin@auto")):
         it, ms = np.median(sweeps[w]), np.median(seconds[w])
         print(f"{label:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>15.3f} {ms / base_ms:>7.2f}")
 

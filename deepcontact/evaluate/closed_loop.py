@@ -134,7 +134,7 @@ def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     for v in variants(starts, relaxations):
         name = v.label.split("@")[0]
         # Zero and Box2D's warm start need nothing from Python: the whole step is one native call.
-        native = name in NATIVE_STARTS and v.relaxation != "auto"
+        native = name in NATIVE_STARTS
         options = LoopOptions(start=name if native else "builtin", mode=mode, max_iterations=max_iterations,
                               tolerance=tolerance, stop_on=stop_on, relaxation=v.relaxation)
         adapter = _Adapter(name, v.start)

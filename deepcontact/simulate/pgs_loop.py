@@ -8,9 +8,10 @@ second Collide keeps them, matched by feature id), so the step moves with our an
 continuous collision and sleeping off (time-of-impact sub-steps and sleeping islands are solved
 or skipped inside Box2D), and Box2D's warm-start scale dtRatio held at exactly 1.
 
-Starts from zero or from Box2D's warm start at a fixed w run the whole step in one native call
-(deepcontact._box2d.pgs_step); a start made in Python, `garbage` and `auto` take the same path
-in pieces. The two give identical trajectories (tests/test_replay_and_loop.py).
+Starts from zero or from Box2D's warm start run the whole step in one native call
+(deepcontact._box2d.pgs_step); a start made in Python, `garbage`, and the steps on which `auto`
+tries every w take the same path in pieces. The two give identical trajectories
+(tests/test_replay_and_loop.py).
 """
 from dataclasses import dataclass
 
@@ -84,19 +85,25 @@ class PGSStepper:
         self.relaxation = options.relaxation
         if options.relaxation == "auto":
             self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode)
-        self.native = (native and start_fn is None and options.start in ("zero", "builtin")
-                       and not callable(self.relaxation))
+        self.native = native and start_fn is None and options.start in ("zero", "builtin")
         world.find_new_contacts()   # Step would do this itself, after our Collide
 
     def step(self) -> LoopStep:
-        return self._native_step() if self.native else self._python_step()
+        # `auto` tries every w on a step now and then: that step goes through Python
+        auto = callable(self.relaxation)
+        if not self.native or (auto and self.relaxation.wants_trial()):
+            return self._python_step()
+        done = self._native_step(self.relaxation.w if auto else self.relaxation)
+        if auto and done.solution is not None:
+            self.relaxation.solved_without_trial()
+        return done
 
-    def _native_step(self):
+    def _native_step(self, w):
         scene, o = self.scene, self.options
         out = pgs_step(self.world, dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve,
                        precision="float64" if o.mode == "float64" else "float32",
                        max_iterations=o.max_iterations, tolerance=o.tolerance,
-                       stop_on=o.stop_on if o.tolerance > 0 else "none", relaxation=self.relaxation,
+                       stop_on=o.stop_on if o.tolerance > 0 else "none", relaxation=w,
                        sanitize=o.mode != "exact", max_velocity=2.0 * MAX_TRANSLATION / scene.dt, start=o.start,
                        warm_scale=0.0 if self.first else 1.0, inv_dt0=self.inv_dt,
                        position_iterations=scene.solver.position_iterations, record=self.record)
@@ -105,7 +112,7 @@ class PGSStepper:
             normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"], velocity=None, omega=None,
             iterations=out["iterations"], history=out["history"], residual=out["residual"],
             sanitized=out["sanitized"], stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
-            relaxation=float(self.relaxation))
+            relaxation=float(w))
         deepest = 0.0 if out is None else out["deepest"]
         if not self.record:
             return LoopStep(None, None, solution, deepest)

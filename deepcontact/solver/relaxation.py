@@ -63,10 +63,19 @@ class AutoRelaxation:
     def w(self):
         return best_w(self.trials[-self.trial_steps:])
 
+    def wants_trial(self):
+        """Whether the next problem will be tried at every candidate (else it is solved at self.w)."""
+        return self.settings["tolerance"] > 0 and (not self.tuned or (self.seen + 1) % self.retune_every == 0)
+
+    def solved_without_trial(self):
+        """Counts a problem solved at self.w elsewhere (the native loop), as __call__ would have."""
+        self.seen += 1
+
     def __call__(self, problem, start_n, start_t):
         """The w to solve this problem with (trying every candidate on it while tuning)."""
+        trying = self.wants_trial()
         self.seen += 1
-        if self.settings["tolerance"] > 0 and (not self.tuned or self.seen % self.retune_every == 0):
+        if trying:
             trial = sweeps_by_w(problem, start_n, start_t, **self.settings)
             # a problem plain PGS solves in a few sweeps (the first touch of a falling body) is
             # not what relaxation is for, and says nothing about the settled scene to come
