@@ -28,6 +28,9 @@ from . import options
 @click.option("--relaxation", "relaxation", default="1", show_default=True, metavar="W[,W...]",
               help="Over-relaxation (PSOR) w in (0, 2) for every start, or auto (the w with the fewest sweeps on "
                    "the first 8 hard steps); several, comma-separated, compare them.")
+@click.option("--accelerate", default="none", show_default=True, metavar="none|nncg[,...]",
+              help="Acceleration on top of the sweeps: none, or nncg (conjugate directions); both, "
+                   "comma-separated, compare them (each with every w).")
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
@@ -35,7 +38,7 @@ from . import options
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             closed_loop, steps, relaxation, budgets, overwrite, verbose, quiet):
+             closed_loop, steps, relaxation, accelerate, budgets, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 PGS from zero to a residual of
@@ -54,6 +57,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
       dc evaluate runs/pile --tolerance 1e-4 --stop-on thesis --max-iterations 5000 --every 10 -o r/thesis
       dc evaluate runs/pile --closed-loop --starts zero,builtin,copy,bad --steps 200 -o r/loop
       dc evaluate runs/pile --starts builtin,prev --relaxation 1,1.5,1.7,auto --every 5 -o r/psor
+      dc evaluate runs/pile --starts builtin --accelerate none,nncg --relaxation 1,1.3 --closed-loop -o r/nncg
     """
     from pathlib import Path
 
@@ -72,6 +76,11 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         raise InputError(f"--relaxation: {e}") from None
     if not relaxations:
         raise InputError("--relaxation: give at least one w")
+    from deepcontact.solver.pgs import ACCELERATIONS
+    accelerations = list(dict.fromkeys(a.strip().lower() for a in accelerate.split(",") if a.strip()))
+    unknown = [a for a in accelerations if a not in ACCELERATIONS]
+    if unknown or not accelerations:
+        raise InputError(f"--accelerate: choose from {', '.join(ACCELERATIONS)}, comma-separated; got {accelerate!r}")
     out = Path(out)
     atomic.check_replaceable(out, overwrite, ("report.md", "closed-loop.md"), "report")
     predictor, spec = None, None
@@ -85,16 +94,17 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     table = make_starts(names, spec=spec, predictor=predictor)
     if closed_loop:
         return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
-                               quiet)
+                               quiet, accelerations)
     total = sum(len(f[::every]) for r in runs for _, f in step_files(r)[1])
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
                every=every, seed=seed, progress=(lambda k: bar.update(k)) if bar is not None else None,
-               relaxations=relaxations, budgets=budgets)
+               relaxations=relaxations, budgets=budgets, accelerations=accelerations)
     if bar is not None:
         bar.close()
     summary = summarize(rows, table, max_iterations)
-    settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, model=model, tolerance=tolerance,
+    settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, accelerate=accelerations,
+                    model=model, tolerance=tolerance,
                     max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}))
     with atomic.folder(out) as tmp:
@@ -102,7 +112,8 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     click.echo(summary_table(summary))
 
 
-def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet):
+def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet,
+                    accelerations=("none",)):
     import json
 
     from deepcontact import atomic
@@ -114,11 +125,12 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
     manifest, sims = step_files(runs[0])
     first = sims[0][1][0].parent / "scene.xml"
     scene = read_scene(first)
-    bar = options.progress_bar(quiet, len(table) * len(relaxations) + 1 + bool(budgets), "run", "closed loop")
+    bar = options.progress_bar(quiet, len(table) * len(relaxations) * len(accelerations) + 1 + bool(budgets), "run",
+                               "closed loop")
     reference = reference_trajectory(scene, steps or scene.steps)
     results = closed_loop(scene, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on,
                           mode=mode, steps=steps, progress=(lambda k: bar.update(k)) if bar is not None else None,
-                          relaxations=relaxations, reference=reference)
+                          relaxations=relaxations, reference=reference, accelerations=accelerations)
     if budgets:
         results += box2d_iterations(scene, steps=steps, reference=reference)
         if bar is not None:
@@ -132,7 +144,7 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
                           f"largest distance of any body from the trajectory stepped with reference solutions "
                           f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
                           f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
-                          f"`@w`: over-relaxed PGS. `box2d k iterations`: Box2D's own solver.\n\n"
+                          f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own solver.\n\n"
                           + text + "\n\n![closed loop](closed-loop.png)\n")
         loop_plot(results, tmp / "closed-loop")
         atomic.write_text(tmp / "closed-loop.json", json.dumps([{

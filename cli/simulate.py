@@ -27,10 +27,10 @@ def parse_shard(shard, seeds):
     return seeds[i::n]
 
 
-def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first_scene):
+def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first_scene, accelerate=None):
     """LoopOptions for --solver pgs (None for box2d); pgs options without it are an error."""
     given = {"--start": start, "--mode": mode, "--tolerance": tolerance, "--max-iterations": max_iterations,
-             "--stop-on": stop_on, "--relaxation": relaxation}
+             "--stop-on": stop_on, "--relaxation": relaxation, "--accelerate": accelerate}
     if solver == "box2d":
         used = [k for k, v in given.items() if v is not None]
         if used:
@@ -40,12 +40,14 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
     mode = mode or "float64"
     if mode == "exact" and relaxation not in (None, 1.0):
         raise InputError("--mode exact is Box2D's PGS: it takes no --relaxation")
+    if mode == "exact" and accelerate not in (None, "none"):
+        raise InputError("--mode exact is Box2D's PGS: it takes no --accelerate")
     if relaxation == "auto" and not tolerance:
         raise InputError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
     cap = max_iterations if max_iterations is not None else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
     return LoopOptions(start=start or "builtin", mode=mode, max_iterations=cap, tolerance=tolerance or 0.0,
-                       stop_on=stop_on or "residual", relaxation=relaxation or 1.0)
+                       stop_on=stop_on or "residual", relaxation=relaxation or 1.0, accelerate=accelerate or "none")
 
 
 def parse_params(pairs):
@@ -85,13 +87,16 @@ def parse_params(pairs):
 @click.option("--relaxation", type=options.Relaxation(),
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "
                    "on the first 8 steps with contacts.")
+@click.option("--accelerate", type=click.Choice(["none", "nncg"]),
+              help="[pgs] nncg: conjugate directions on top of the sweeps (nonsmooth nonlinear conjugate "
+                   "gradient; float32/float64 modes). Default none.")
 @options.jobs
 @options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, write_scene,
-             list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, jobs,
+             list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
              max_memory, overwrite, verbose, quiet):
     """Simulate SCENE in Box2D and record every step as XML.
 
@@ -109,6 +114,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
       dc simulate pile --seed 3 --write-scene pile-3.xml
       dc simulate my-scene.xml --steps 100 -o runs/mine
       dc simulate pile --solver pgs --start zero --tolerance 1e-4 --max-iterations 1000 -o runs/pgs
+      dc simulate pile --solver pgs --tolerance 1e-4 --max-iterations 1000 --accelerate nncg --relaxation 1.3 -o runs/cg
     """
     from deepcontact import atomic
     from deepcontact.scene.generators import GENERATORS, parameters
@@ -135,7 +141,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     seed_list = parse_shard(shard, parse_seeds(seed, seeds))
     source.check_memory(min(jobs, max(len(seed_list), 1)), max_memory)
     loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation,
-                        source(seed_list[0]) if seed_list else None)
+                        source(seed_list[0]) if seed_list else None, accelerate)
     bar = None if quiet else (lambda total: options.progress_bar(quiet, total, "step", f"simulate {scene}"))
     run(source, seed_list, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, loop=loop)

@@ -14,7 +14,7 @@ def fast_study():
 
 
 def test_every_hard_scene_passes_at_a_recorded_iteration_count(fast_study):
-    pgs = sum(solver == "pgs" for solver, _, _ in S.CONFIGS)
+    pgs = sum(solver == "pgs" for solver, *_ in S.CONFIGS)
     assert len(fast_study) == len(S.FAST) * len(S.CONFIGS) - pgs   # the bullet needs Box2D's own solver
     for key, (default, found) in fast_study.items():
         assert found.passed, (key, found)
@@ -60,6 +60,19 @@ def test_over_relaxation_is_stable_on_every_hard_scene(fast_study):
             assert found.passed and found.finite, (case, start, found)
             if start.startswith("builtin"):
                 assert found.iterations <= plain.iterations, (case, start, found.iterations, plain.iterations)
+
+
+def test_conjugate_directions_are_stable_and_cost_no_iterations_from_the_warm_start(fast_study):
+    # NNCG keeps every criterion on every hard scene; from Box2D's warm start it never needs more
+    # iterations than plain PGS, and at w = 1.3 it passes everything at Box2D's default 8.
+    for (case, solver, start), (default, found) in fast_study.items():
+        if "+nncg" in start:
+            assert found.passed and found.finite, (case, start, found)
+            if start.startswith("builtin"):
+                plain = fast_study[(case, solver, "builtin")][1]
+                assert found.iterations <= plain.iterations, (case, start, found.iterations, plain.iterations)
+            if start == "builtin+nncg@1.3":
+                assert default.passed, (case, start)
 
 
 def test_penetration_is_measured_at_rest_and_peaks_reported(fast_study):

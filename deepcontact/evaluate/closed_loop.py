@@ -124,19 +124,20 @@ def _compare(t, ref):
 
 
 def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-                steps=None, progress=None, relaxations=(1.0,), reference=None):
-    """Every start (with every w) driving the scene; reference: a reference_trajectory to reuse."""
+                steps=None, progress=None, relaxations=(1.0,), reference=None, accelerations=("none",)):
+    """Every start (with every acceleration and w) driving the scene; reference: a
+    reference_trajectory to reuse."""
     steps = steps or scene.steps
     ref = reference or reference_trajectory(scene, steps)
     if progress:
         progress(1)
     results = []
-    for v in variants(starts, relaxations):
-        name = v.label.split("@")[0]
+    for v in variants(starts, relaxations, accelerations):
+        name = v.label.split("@")[0].split("+")[0]
         # Zero and Box2D's warm start need nothing from Python: the whole step is one native call.
         native = name in NATIVE_STARTS
         options = LoopOptions(start=name if native else "builtin", mode=mode, max_iterations=max_iterations,
-                              tolerance=tolerance, stop_on=stop_on, relaxation=v.relaxation)
+                              tolerance=tolerance, stop_on=stop_on, relaxation=v.relaxation, accelerate=v.accelerate)
         adapter = _Adapter(name, v.start)
         t = run_loop(scene, None if native else adapter, options, steps, solved=None if native else adapter.solved)
         drift, err = _compare(t, ref)

@@ -40,7 +40,8 @@ class Row:
     solve_ms: float
     history: np.ndarray       # the stopping measure after each sweep (index 0: before any)
     relaxation: float = 1.0
-    fallback: bool = False    # over-relaxation fell back to w = 1 in this solve
+    fallback: bool = False    # over-relaxation (or acceleration) fell back to plain PGS in this solve
+    accelerate: str = "none"
     reference_residual: float = 0.0     # what the step's reference solution reached
     budget_ms: np.ndarray = None        # measured time of exactly BUDGETS[i] sweeps (no early stop)
     budget_residual: np.ndarray = None  # the residual after them
@@ -52,17 +53,21 @@ BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
 
 @dataclass
 class Variant:
-    """One column of the comparison: a start, and the over-relaxation w its solves use."""
+    """One column of the comparison: a start, and the over-relaxation w and acceleration its
+    solves use."""
     label: str
     start: object
     relaxation: object = 1.0     # a float, or "auto" until resolved
+    accelerate: str = "none"     # or "nncg" (solver.pgs.ACCELERATIONS)
 
 
-def variants(starts, relaxations=(1.0,)):
-    """Every start with every w; labels are the start names, with "@w" unless w is only 1."""
+def variants(starts, relaxations=(1.0,), accelerations=("none",)):
+    """Every start with every acceleration and every w; labels are the start names, with "+nncg"
+    when accelerated and "@w" unless w is only 1."""
     plain = list(relaxations) == [1.0]
-    return [Variant(name if plain else f"{name}@{w if w == 'auto' else format(w, 'g')}", start, w)
-            for w in relaxations for name, start in starts.items()]
+    return [Variant(name + ("" if a == "none" else f"+{a}")
+                    + ("" if plain else f"@{w if w == 'auto' else format(w, 'g')}"), start, w, a)
+            for a in accelerations for w in relaxations for name, start in starts.items()]
 
 
 def step_files(run_dir):
@@ -87,10 +92,10 @@ def _plan(run_dirs):
     return plan
 
 
-def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float64"):
+def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float64", accelerate="none"):
     """The w `auto` picks for these runs: AutoRelaxation from builtin starts, on steps spread
     evenly over the first simulation (a replay knows the whole run; the loop only its past)."""
-    tuner = AutoRelaxation(tolerance, stop_on, max_iterations, mode)
+    tuner = AutoRelaxation(tolerance, stop_on, max_iterations, mode, accelerate=accelerate)
     _, _, files = _plan(run_dirs)[0]
     stride = max(1, len(files) // (4 * tuner.trial_steps))
     for path in files[stride // 2::stride]:
@@ -120,17 +125,21 @@ def _velocity_error(solution, reference):
 
 
 def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-             every=1, seed=0, progress=None, relaxations=(1.0,), budgets=False):
-    """Rows for every (step, variant): each start with each w. Runs must hold one kind of scene.
+             every=1, seed=0, progress=None, relaxations=(1.0,), budgets=False, accelerations=("none",)):
+    """Rows for every (step, variant): each start with each acceleration and w. Runs must hold
+    one kind of scene.
 
     budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached."""
     plan = _plan(run_dirs)
-    table = variants(starts, relaxations)
-    if any(v.relaxation == "auto" for v in table):
-        w = tune_relaxation(run_dirs, tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations, mode=mode)
-        for v in table:
-            if v.relaxation == "auto":
-                v.relaxation = w
+    table = variants(starts, relaxations, accelerations)
+    tuned = {}
+    for v in table:
+        if v.relaxation == "auto":
+            if v.accelerate not in tuned:
+                tuned[v.accelerate] = tune_relaxation(run_dirs, tolerance=tolerance, stop_on=stop_on,
+                                                      max_iterations=max_iterations, mode=mode,
+                                                      accelerate=v.accelerate)
+            v.relaxation = tuned[v.accelerate]
     measure = MEASURES.index(stop_on)
     wants_prev = any(isinstance(v.start, Previous) for v in table)
     settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
@@ -152,7 +161,7 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
             ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
             for v in table:
                 value = v.start(ctx)
-                kw = dict(settings, relaxation=v.relaxation)
+                kw = dict(settings, relaxation=v.relaxation, accelerate=v.accelerate)
                 traced = solve(problem, value.normal, value.tangent, history=True, **kw)
                 t0 = time.perf_counter()
                 solve(problem, value.normal, value.tangent, final_residual=False, **kw)
@@ -170,9 +179,10 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
                           velocity_error=_velocity_error(traced, reference),
                           predict_ms=sum(value.seconds.values()) * 1e3, solve_ms=solve_s * 1e3,
                           history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
+                          accelerate=v.accelerate,
                           fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual)
                 if budgets:
-                    row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation)
+                    row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation, v.accelerate)
                 rows.append(row)
             if progress is not None:
                 progress(1)
@@ -181,19 +191,21 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     return rows
 
 
-def _budgets(problem, value, mode, w):
+def _budgets(problem, value, mode, w, accelerate="none"):
     """Measured: the time of exactly b sweeps for every budget b (no early stop, no measuring on
     the way), and the residual after them (one traced run: the same iterates, since nothing in a
     solve depends on whether it is traced)."""
     traced = solve(problem, value.normal, value.tangent, mode=mode, max_iterations=BUDGETS[-1], relaxation=w,
-                   history=True)
+                   accelerate=accelerate, history=True)
     residual = traced.history[np.array(BUDGETS) - 1, MEASURES.index("residual")]
     # (an untimed solve first: the first call after another start's would pay for cold caches)
-    solve(problem, value.normal, value.tangent, mode=mode, max_iterations=1, relaxation=w, final_residual=False)
+    solve(problem, value.normal, value.tangent, mode=mode, max_iterations=1, relaxation=w, accelerate=accelerate,
+          final_residual=False)
     ms = []
     for b in BUDGETS:
         t0 = time.perf_counter()
-        solve(problem, value.normal, value.tangent, mode=mode, max_iterations=b, relaxation=w, final_residual=False)
+        solve(problem, value.normal, value.tangent, mode=mode, max_iterations=b, relaxation=w, accelerate=accelerate,
+              final_residual=False)
         ms.append((time.perf_counter() - t0) * 1e3)
     return np.array(ms), residual
 
@@ -209,6 +221,7 @@ def summarize(rows, starts, max_iterations):
         out[name] = {
             "steps": len(rs),
             "relaxation": rs[0].relaxation,
+            "accelerate": rs[0].accelerate,
             "iterations_median": float(np.median(it)), "iterations_p80": float(np.percentile(it, 80)),
             "iterations_p95": float(np.percentile(it, 95)),
             "at_cap": float(np.mean([r.capped for r in rs])),

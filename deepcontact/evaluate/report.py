@@ -36,7 +36,7 @@ def write_report(out, rows, summary, settings):
     keys = list(next(iter(summary.values())))
     w.writerow(["start"] + keys)
     for name, s in summary.items():
-        w.writerow([name] + [f"{s[k]:.6g}" for k in keys])
+        w.writerow([name] + [s[k] if isinstance(s[k], str) else f"{s[k]:.6g}" for k in keys])
     atomic.write_text(out / "summary.csv", buf.getvalue())
     pareto = pareto_points(rows, summary)
     if pareto:

@@ -27,6 +27,7 @@ struct SolveOptions {
                                    // than this are implausible (0: no such check)
     bool final_residual = true;    // report the residual at the end (one extra pass)
     bool guard = true;             // over-relaxation falls back to w = 1 if the residual climbs
+    bool conjugate = false;        // NNCG: each sweep's change plus a multiple of the last direction
 };
 
 struct SanitizeReport {
@@ -73,12 +74,15 @@ public:
         const bool track_change = opt.history || opt.stop_on == Measure::thesis || opt.stop_on == Measure::velocity;
         const R w = R(opt.relaxation);
         bool relax = opt.relaxation != 1.0;
+        bool conjugate = opt.conjugate;
+        direction_.assign(2 * pb_.points, R(0));
+        last_change_ = -1.0;
         const bool residual_each_sweep = opt.history || opt.stop_on == Measure::residual;
         double best = std::numeric_limits<double>::infinity();
         bool residual_is_current = false;  // computed after the last sweep: no extra pass needed
         double last_residual = 0.0;
         for (int it = 0; it < opt.max_iterations; ++it) {
-            if (track_change) save_impulses();
+            if (track_change || conjugate) save_impulses();
             if (relax)
                 sweep<true>(w);
             else
@@ -87,7 +91,7 @@ public:
             double residual = 0.0;
             // (the guard looks every kGuardEvery sweeps whatever else is measured, so a solve
             // takes the same iterates with and without history)
-            const bool guard_now = relax && opt.guard && (it + 1) % kGuardEvery == 0;
+            const bool guard_now = (relax || conjugate) && opt.guard && (it + 1) % kGuardEvery == 0;
             residual_is_current = residual_each_sweep || guard_now;
             if (residual_is_current) {
                 residual = this->residual();
@@ -95,12 +99,18 @@ public:
                 if (guard_now) {
                     if (!(residual <= kRelaxationGuard * best)) {
                         relax = false;
+                        conjugate = false;
                         rep.relaxation_fallback = it + 1;
                     }
                     best = std::min(best, residual);
                 }
             }
-            if (!track) continue;
+            // (never after the last sweep, nor once converged: a solve ends on a projected iterate)
+            const bool more = it + 1 < opt.max_iterations;
+            if (!track) {
+                if (conjugate && more) conjugate_step();
+                continue;
+            }
             double thesis = 0, velocity = 0;
             if (track_change) {
                 sweep_change(thesis, velocity);
@@ -117,6 +127,7 @@ public:
                                  : opt.stop_on == Measure::residual ? residual
                                                                     : 0.0;
             if (opt.stop_on != Measure::none && value < opt.tolerance) break;
+            if (conjugate && more) conjugate_step();
         }
         rep.residual = !opt.final_residual  ? std::numeric_limits<double>::quiet_NaN()
                        : residual_is_current ? last_residual
@@ -336,6 +347,48 @@ private:
         // No solution: Box2D leaves the impulses as they are.
     }
 
+    // Nonsmooth nonlinear conjugate gradient (Silcowitz, Niebe, Erleben 2010): the sweep's change
+    // d is the (negative) gradient; the iterate moves on by beta times the last direction, beta =
+    // |d|^2 / |d_last|^2 (Fletcher-Reeves), restarting when beta > 1. The next sweep projects.
+    void conjugate_step() {
+        double change = 0;
+        for (const auto& m : pb_.manifolds)
+            for (int j = 0; j < m.count; ++j) {
+                const double dn = double(m.p[j].normal_impulse) - double(saved_[2 * (m.first + j)]);
+                const double dt = double(m.p[j].tangent_impulse) - double(saved_[2 * (m.first + j) + 1]);
+                change += dn * dn + dt * dt;
+            }
+        const double beta = last_change_ > 0 ? change / last_change_ : 2.0;
+        last_change_ = change;
+        const bool restart = !(beta <= 1.0);
+        const R b = R(restart ? 0.0 : beta);
+        for (auto& m : pb_.manifolds) {
+            auto& A = pb_.velocity[m.a];
+            auto& B = pb_.velocity[m.b];
+            const V2<R> normal = m.normal;
+            const V2<R> tangent = cross(normal, R(1));
+            for (int j = 0; j < m.count; ++j) {
+                auto& p = m.p[j];
+                R& pn = direction_[2 * (m.first + j)];
+                R& pt = direction_[2 * (m.first + j) + 1];
+                const R dn = p.normal_impulse - saved_[2 * (m.first + j)];
+                const R dt = p.tangent_impulse - saved_[2 * (m.first + j) + 1];
+                if (!restart) {  // x += beta p, and the bodies' velocities with it
+                    const R sn = b * pn, st = b * pt;
+                    p.normal_impulse += sn;
+                    p.tangent_impulse += st;
+                    const V2<R> P = sn * normal + st * tangent;
+                    A.v = A.v - m.mA * P;
+                    A.w -= m.iA * cross(p.rA, P);
+                    B.v = B.v + m.mB * P;
+                    B.w += m.iB * cross(p.rB, P);
+                }
+                pn = b * pn + dn;
+                pt = b * pt + dt;
+            }
+        }
+    }
+
     void save_impulses() {
         saved_.resize(2 * pb_.points);
         for (const auto& m : pb_.manifolds)
@@ -360,6 +413,8 @@ private:
 
     ContactProblem<R>& pb_;
     std::vector<R> saved_;
+    std::vector<R> direction_;   // NNCG's search direction, 2 per contact point
+    double last_change_ = -1.0;
     double scale_ = 1.0;
 };
 

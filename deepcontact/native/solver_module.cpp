@@ -137,7 +137,8 @@ py::array_t<double> to_array(const std::vector<double>& v) {
 }
 
 SolveOptions solve_options(int max_iterations, double tolerance, const std::string& stop_on, double relaxation,
-                           bool history, bool sanitize, double max_velocity, bool final_residual, bool guard) {
+                           bool history, bool sanitize, double max_velocity, bool final_residual, bool guard,
+                           bool conjugate) {
     if (max_iterations < 0) throw py::value_error("max_iterations must be >= 0");
     if (!(relaxation > 0.0 && relaxation < 2.0)) throw py::value_error("relaxation must be in (0, 2)");
     SolveOptions opt;
@@ -150,6 +151,7 @@ SolveOptions solve_options(int max_iterations, double tolerance, const std::stri
     opt.max_velocity = max_velocity;
     opt.final_residual = final_residual;
     opt.guard = guard;
+    opt.conjugate = conjugate;
     return opt;
 }
 
@@ -174,7 +176,7 @@ void bind_solver(py::module_& m) {
            py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent, float dt,
            std::pair<float, float> gravity, bool block_solve, bool prune, const std::string& precision,
            int max_iterations, double tolerance, const std::string& stop_on, double relaxation, bool history,
-           bool sanitize, double max_velocity, bool final_residual, bool guard) {
+           bool sanitize, double max_velocity, bool final_residual, bool guard, bool conjugate) {
             BodyColumns bc = body_columns(bodies);
             ContactColumns cc = contact_columns(contacts);
             if (static_cast<size_t>(start_normal.size()) != cc.n || static_cast<size_t>(start_tangent.size()) != cc.n ||
@@ -183,7 +185,7 @@ void bind_solver(py::module_& m) {
                                       std::to_string(cc.n) + ")");
             const StepSettings st = step_settings(dt, gravity, block_solve, prune);
             const SolveOptions opt = solve_options(max_iterations, tolerance, stop_on, relaxation, history, sanitize,
-                                                   max_velocity, final_residual, guard);
+                                                   max_velocity, final_residual, guard, conjugate);
             if (precision == "float32") return run<float>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
             if (precision == "float64") return run<double>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
             throw py::value_error("precision must be float32 or float64");
@@ -193,7 +195,7 @@ void bind_solver(py::module_& m) {
         py::arg("precision") = "float32", py::arg("max_iterations") = 8, py::arg("tolerance") = 0.0,
         py::arg("stop_on") = "none", py::arg("relaxation") = 1.0, py::arg("history") = false,
         py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("final_residual") = true,
-        py::arg("guard") = true,
+        py::arg("guard") = true, py::arg("conjugate") = false,
         "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
 
     m.def(
@@ -292,12 +294,12 @@ void bind_solver(py::module_& m) {
         "pgs_step",
         [](World& world, float dt, std::pair<float, float> gravity, bool block_solve, bool prune,
            const std::string& precision, int max_iterations, double tolerance, const std::string& stop_on,
-           double relaxation, bool sanitize, double max_velocity, bool guard, const std::string& start,
+           double relaxation, bool conjugate, bool sanitize, double max_velocity, bool guard, const std::string& start,
            float warm_scale, float inv_dt0, int position_iterations, bool record) {
             PGSStepSettings s;
             s.step = step_settings(dt, gravity, block_solve, prune);
             s.solve = solve_options(max_iterations, tolerance, stop_on, relaxation, false, sanitize, max_velocity,
-                                    true, guard);
+                                    true, guard, conjugate);
             if (precision != "float32" && precision != "float64")
                 throw py::value_error("precision must be float32 or float64");
             s.float64 = precision == "float64";
@@ -325,7 +327,7 @@ void bind_solver(py::module_& m) {
         py::arg("world"), py::kw_only(), py::arg("dt"), py::arg("gravity"), py::arg("block_solve") = true,
         py::arg("prune") = true, py::arg("precision") = "float64", py::arg("max_iterations") = 8,
         py::arg("tolerance") = 0.0, py::arg("stop_on") = "none", py::arg("relaxation") = 1.0,
-        py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("guard") = true,
+        py::arg("conjugate") = false, py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("guard") = true,
         py::arg("start") = "builtin", py::arg("warm_scale") = 1.0f, py::arg("inv_dt0") = 0.0f,
         py::arg("position_iterations") = 3, py::arg("record") = false,
         "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"

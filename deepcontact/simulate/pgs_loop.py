@@ -19,7 +19,7 @@ import numpy as np
 
 from .._box2d import pgs_step
 from ..errors import InputError
-from ..solver.pgs import MAX_TRANSLATION, Solution, solve
+from ..solver.pgs import ACCELERATIONS, MAX_TRANSLATION, Solution, solve
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 
@@ -36,6 +36,7 @@ class LoopOptions:
     tolerance: float = 0.0
     stop_on: str = "residual"
     relaxation: object = 1.0     # w in (0, 2), or "auto" (solver.relaxation.AutoRelaxation)
+    accelerate: str = "none"     # or "nncg" (solver.pgs.ACCELERATIONS)
 
 
 def unit_dt_ratio_inv(dt) -> np.float32:
@@ -78,13 +79,18 @@ class PGSStepper:
         if start_fn is None and options.start not in STARTS:
             raise InputError(f"unknown start {options.start!r}; choose from {', '.join(STARTS)}")
         check_scene_for_loop(scene)
+        if options.accelerate not in ACCELERATIONS:
+            raise InputError(f"unknown acceleration {options.accelerate!r}; choose from {', '.join(ACCELERATIONS)}")
+        if options.mode == "exact" and (options.relaxation != 1.0 or options.accelerate != "none"):
+            raise InputError("exact mode is Box2D's PGS: no over-relaxation, no acceleration")
         self.world, self.scene, self.options, self.record = world, scene, options, record
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
         self.first = True
         self.relaxation = options.relaxation
         if options.relaxation == "auto":
-            self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode)
+            self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode,
+                                             accelerate=options.accelerate)
         self.native = native and start_fn is None and options.start in ("zero", "builtin")
         world.find_new_contacts()   # Step would do this itself, after our Collide
 
@@ -103,7 +109,7 @@ class PGSStepper:
         out = pgs_step(self.world, dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve,
                        precision="float64" if o.mode == "float64" else "float32",
                        max_iterations=o.max_iterations, tolerance=o.tolerance,
-                       stop_on=o.stop_on if o.tolerance > 0 else "none", relaxation=w,
+                       stop_on=o.stop_on if o.tolerance > 0 else "none", relaxation=w, conjugate=o.accelerate == "nncg",
                        sanitize=o.mode != "exact", max_velocity=2.0 * MAX_TRANSLATION / scene.dt, start=o.start,
                        warm_scale=0.0 if self.first else 1.0, inv_dt0=self.inv_dt,
                        position_iterations=scene.solver.position_iterations, record=self.record)
@@ -155,7 +161,7 @@ class PGSStepper:
         if problem is not None:
             w = self.relaxation(problem, start_n, start_t) if callable(self.relaxation) else self.relaxation
             solution = solve(problem, start_n, start_t, mode=o.mode, max_iterations=o.max_iterations,
-                             tolerance=o.tolerance, stop_on=o.stop_on, relaxation=w)
+                             tolerance=o.tolerance, stop_on=o.stop_on, relaxation=w, accelerate=o.accelerate)
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt

@@ -59,7 +59,8 @@ def _solve_xml(options, solution):
         sanitized = sum(solution.sanitized.values())
     residual = residual if np.isfinite(residual) else 0.0
     return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
-            f'max_iterations="{o.max_iterations}" relaxation="{fmt(w)}" iterations="{iterations}" '
+            f'max_iterations="{o.max_iterations}" relaxation="{fmt(w)}" accelerate="{o.accelerate}" '
+            f'iterations="{iterations}" '
             f'residual="{fmt(residual)}" sanitized="{sanitized}"/>\n')
 
 

@@ -30,10 +30,11 @@ def parse_relaxation(text):
     return w
 
 
-def sweeps_by_w(problem, start_n, start_t, *, tolerance, stop_on, max_iterations, mode="float64"):
+def sweeps_by_w(problem, start_n, start_t, *, tolerance, stop_on, max_iterations, mode="float64", accelerate="none"):
     """{w: sweeps to the tolerance} for every candidate w, from the same start."""
     return {w: solve(problem, start_n, start_t, mode=mode, max_iterations=max_iterations, tolerance=tolerance,
-                     stop_on=stop_on, relaxation=w, final_residual=False).iterations for w in CANDIDATES}
+                     stop_on=stop_on, relaxation=w, final_residual=False, accelerate=accelerate).iterations
+            for w in CANDIDATES}
 
 
 def best_w(trials):
@@ -49,8 +50,9 @@ class AutoRelaxation:
     in every RETUNE_EVERY and follows the best w over the last TRIAL_STEPS trials."""
 
     def __init__(self, tolerance, stop_on, max_iterations, mode="float64", trial_steps=TRIAL_STEPS,
-                 retune_every=RETUNE_EVERY):
-        self.settings = dict(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations, mode=mode)
+                 retune_every=RETUNE_EVERY, accelerate="none"):
+        self.settings = dict(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations, mode=mode,
+                             accelerate=accelerate)
         self.trial_steps, self.retune_every = trial_steps, retune_every
         self.trials = []
         self.seen = 0

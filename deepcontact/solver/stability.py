@@ -67,11 +67,13 @@ FAST = [
     Case("bullet", "bullet", dict(stack=4, steps=120)),
 ]
 
-# (solver, start, w): Box2D's own, and ours from zero, from Box2D's warm start and from garbage,
-# plain and over-relaxed (PSOR at w = 1.7, the best w on the thesis pile; its guard included).
+# (solver, start, w, acceleration): Box2D's own, and ours from zero, from Box2D's warm start and
+# from garbage, plain, over-relaxed (PSOR at w = 1.7, the best w on the thesis pile in replay) and
+# with conjugate directions (NNCG, plain and at w = 1.3, the best in the loop); guards included.
 RELAXED = 1.7
-CONFIGS = [("box2d", "builtin", 1.0), ("pgs", "zero", 1.0), ("pgs", "builtin", 1.0), ("pgs", "garbage", 1.0),
-           ("pgs", "zero", RELAXED), ("pgs", "builtin", RELAXED)]
+CONFIGS = [("box2d", "builtin", 1.0, "none"), ("pgs", "zero", 1.0, "none"), ("pgs", "builtin", 1.0, "none"),
+           ("pgs", "garbage", 1.0, "none"), ("pgs", "zero", RELAXED, "none"), ("pgs", "builtin", RELAXED, "none"),
+           ("pgs", "zero", 1.0, "nncg"), ("pgs", "builtin", 1.0, "nncg"), ("pgs", "builtin", 1.3, "nncg")]
 
 
 @dataclass
@@ -107,11 +109,11 @@ def energy(bodies, gravity):
     return kinetic + potential
 
 
-def label(start, relaxation):
-    return start if relaxation == 1.0 else f"{start}@{relaxation:g}"
+def label(start, relaxation, accelerate="none"):
+    return start + ("" if accelerate == "none" else f"+{accelerate}") + ("" if relaxation == 1.0 else f"@{relaxation:g}")
 
 
-def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.0) -> Result:
+def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.0, accelerate="none") -> Result:
     scene = generate(case.generator, 0, case.params)
     scene.solver.velocity_iterations = iterations
     gravity = scene.effects.gravity or (0.0, 0.0)
@@ -119,7 +121,7 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
     stepper = None
     if solver == "pgs":
         stepper = PGSStepper(world, scene, LoopOptions(start=start, mode="float64", max_iterations=iterations,
-                                                       relaxation=relaxation))
+                                                       relaxation=relaxation, accelerate=accelerate))
     removals = {e.step: e.body for e in scene.events}
     bodies = world.bodies()
     top = int(np.argmax(np.where(bodies["type"] == 2, bodies["center"][:, 1], -np.inf)))
@@ -163,22 +165,22 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
             excess, rise, worst_allowed = e / allowed, e, allowed
         if case.stack_top:
             drift = max(drift, float(np.linalg.norm(bodies["center"][top] - top_start)))
-    return Result(case=case.label, solver=solver, start=label(start, relaxation), iterations=iterations, finite=finite,
+    return Result(case=case.label, solver=solver, start=label(start, relaxation, accelerate), iterations=iterations, finite=finite,
                   penetration=penetration, peak_penetration=peak, energy_rise=float(rise),
                   energy_allowed=worst_allowed,
                   top_drift=drift if case.stack_top else float("nan"), sanitized=sanitized,
                   seconds=time.perf_counter() - t0)
 
 
-def passing(case, solver, start, relaxation=1.0, first=8, cap=MAX_ITERATIONS):
+def passing(case, solver, start, relaxation=1.0, first=8, cap=MAX_ITERATIONS, accelerate="none"):
     """(result at the default count, result at the smallest passing count or the cap)."""
-    default = run_case(case, solver, start, first, relaxation)
+    default = run_case(case, solver, start, first, relaxation, accelerate)
     if default.passed:
         return default, default
     n, result = first, default
     while not result.passed and n < cap:
         n *= 2
-        result = run_case(case, solver, start, n, relaxation)
+        result = run_case(case, solver, start, n, relaxation, accelerate)
     return default, result
 
 
@@ -190,10 +192,10 @@ def applicable(case, solver):
 def study(cases, configs=CONFIGS, log=None):
     rows = []
     for case in cases:
-        for solver, start, relaxation in configs:
+        for solver, start, relaxation, accelerate in configs:
             if not applicable(case, solver):
                 continue
-            default, found = passing(case, solver, start, relaxation)
+            default, found = passing(case, solver, start, relaxation, accelerate=accelerate)
             rows.append((default, found))
             if log:
                 log(format_row(default, found))
