@@ -50,7 +50,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_rasterize.py
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
-	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop
+	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_pipeline.py).

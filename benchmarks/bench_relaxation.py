@@ -1,19 +1,22 @@
-"""Time to the same accuracy: Box2D's warm start against over-relaxation and the prev start.
+"""Time to the same accuracy: Box2D's warm start against over-relaxation, conjugate directions
+(NNCG) and the prev start.
 
 For the settled half of a scene (steps 300-599, every 10th), each step is solved to a residual of
 1e-4 (float64 PGS, cap 1000) from: builtin (Box2D's warm start), builtin with w = 1.7, prev (the
-previous step's solution at the tolerance), prev with w = 1.7, and builtin with the w `auto` picks.
+previous step's solution at the tolerance), prev with w = 1.7, builtin with the w `auto` picks,
+and with NNCG: builtin, builtin at w = 1.3, prev.
 Reported: median sweeps and median measured solve time, each as a ratio to builtin at w = 1 in the
 same run (best of --repeats timings per step).
 
 With --loop: our PGS drives the scene instead (600 steps, residual < 1e-4, cap 1000), where
 Box2D's warm start is the previous step's solution at the tolerance; reported are median sweeps and
 the median measured time of a whole step (collide, solve, Box2D's position step; one native call),
-builtin with w = 1.7 and with `auto` against builtin, runs interleaved, best of --repeats per step
-(auto's trials, every w on the first 8 hard steps and then one step in 50, included). --seed picks
-the scene's seed (default 0).
+builtin with w = 1.7, with `auto`, with NNCG and with NNCG at w = 1.3 against builtin, runs
+interleaved, best of --repeats per step (auto's trials, every w on the first 8 hard steps and then
+one step in 50, included). --seeds 0,1,... pools several trajectories (default 0): the pile is
+chaotic, and one trajectory's median says little about the next.
 
-Usage: python benchmarks/bench_relaxation.py [--scene pile|pyramid] [--repeats N] [--loop]
+Usage: python benchmarks/bench_relaxation.py [--scene pile|pyramid] [--repeats N] [--loop [--seeds 0,1]]
 """
 import argparse
 import statistics
@@ -42,23 +45,46 @@ def steps_of(name):
     return out
 
 
-def timed(problem, n, t, w, repeats):
+def timed(problem, n, t, w, repeats, accelerate="none"):
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()
-        s = solve(problem, n, t, relaxation=w, final_residual=False, **SETTINGS)
+        s = solve(problem, n, t, relaxation=w, final_residual=False, accelerate=accelerate, **SETTINGS)
         best = min(best, time.perf_counter() - t0)
     return s.iterations, best
 
 
-def loop(name, repeats, seed=0):
+LOOP_VARIANTS = (("builtin", 1.0, "none"), ("builtin@1.7", 1.7, "none"), ("builtin@auto", "auto", "none"),
+                 ("builtin+nncg", 1.0, "nncg"), ("builtin+nncg@1.3", 1.3, "nncg"))
+
+
+def loop(name, repeats, seeds=(0,)):
+    """Every variant in the loop on every seed; medians over all steps of all seeds (a pile is
+    chaotic: one trajectory's median says little about the next)."""
+    seconds, sweeps = {}, {}
+    for seed in seeds:
+        s, i = loop_one(name, repeats, seed)
+        for label in s:
+            seconds.setdefault(label, []).extend(s[label])
+            sweeps.setdefault(label, []).extend(i[label])
+    print(f"{name} seeds {','.join(map(str, seeds))}, our PGS in the loop: {len(seconds['builtin'])} steps, "
+          f"residual < 1e-4, cap 1000")
+    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
+    base_it, base_ms = np.median(sweeps["builtin"]), np.median(seconds["builtin"])
+    for label, _, _ in LOOP_VARIANTS:
+        it, ms = np.median(sweeps[label]), np.median(seconds[label])
+        print(f"{label:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>15.3f} {ms / base_ms:>7.2f}")
+
+
+def loop_one(name, repeats, seed):
     from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
     seconds, sweeps = {}, {}
     for _ in range(repeats):
-        for w in (1.0, 1.7, "auto"):
+        for label, w, accelerate in LOOP_VARIANTS:
             scene = generate(name, seed, {})
             stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=1000,
-                                                                        tolerance=1e-4, relaxation=w),
+                                                                        tolerance=1e-4, relaxation=w,
+                                                                        accelerate=accelerate),
                                  record=False)
             times, its = [], []
             for _ in range(scene.steps):
@@ -66,14 +92,9 @@ def loop(name, repeats, seed=0):
                 solution = stepper.step().solution
                 times.append(time.perf_counter() - t0)
                 its.append(0 if solution is None else solution.iterations)
-            seconds[w] = np.minimum(seconds[w], times) if w in seconds else np.array(times)
-            sweeps[w] = its
-    print(f"{name} seed {seed}, our PGS in the loop: {len(seconds[1.0])} steps, residual < 1e-4, cap 1000")
-    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
-    base_it, base_ms = np.median(sweeps[1.0]), np.median(seconds[1.0])
-    for w, label in ((1.0, "builtin"), (1.7, "builtin@1.7"), ("auto", "builtin@auto")):
-        it, ms = np.median(sweeps[w]), np.median(seconds[w])
-        print(f"{label:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>15.3f} {ms / base_ms:>7.2f}")
+            seconds[label] = np.minimum(seconds[label], times) if label in seconds else np.array(times)
+            sweeps[label] = its
+    return {k: list(v) for k, v in seconds.items()}, sweeps
 
 
 def main():
@@ -81,28 +102,32 @@ def main():
     ap.add_argument("--scene", default="pile", choices=["pile", "pyramid"])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--loop", action="store_true", help="our PGS in the loop instead of replay")
-    ap.add_argument("--seed", type=int, default=0, help="the scene's seed (--loop)")
+    ap.add_argument("--seeds", default="0", help="the scene's seeds, comma-separated (--loop; pooled)")
     args = ap.parse_args()
     if args.loop:
-        return loop(args.scene, args.repeats, args.seed)
+        return loop(args.scene, args.repeats, [int(s) for s in args.seeds.split(",")])
     steps = steps_of(args.scene)
     tuner = AutoRelaxation(SETTINGS["tolerance"], SETTINGS["stop_on"], SETTINGS["max_iterations"])
     for _, p, _ in steps[::max(1, len(steps) // 32)]:
         if not tuner.tuned:
             tuner(p, p.start_normal, p.start_tangent)
-    rows = {name: [] for name in ("builtin", "builtin@1.7", f"builtin@auto({tuner.w:g})", "prev", "prev@1.7")}
+    rows = {name: [] for name in ("builtin", "builtin@1.7", f"builtin@auto({tuner.w:g})", "prev", "prev@1.7",
+                                  "builtin+nncg", "builtin+nncg@1.3", "prev+nncg")}
     for (k0, p0, keys0), (k, p, keys) in zip(steps, steps[1:]):
         if k != k0 + 1 or (k - 300) % 10:
             continue
         s0 = solve(p0, **SETTINGS)
         previous = impulses_by_key(keys0, s0.normal_impulse, s0.tangent_impulse)
         pn, pt = (np.array(v) for v in zip(*[previous.get(key, (0.0, 0.0)) for key in keys]))
-        starts = {"builtin": (p.start_normal, p.start_tangent, 1.0),
-                  "builtin@1.7": (p.start_normal, p.start_tangent, 1.7),
-                  f"builtin@auto({tuner.w:g})": (p.start_normal, p.start_tangent, tuner.w),
-                  "prev": (pn, pt, 1.0), "prev@1.7": (pn, pt, 1.7)}
-        for name, (n, t, w) in starts.items():
-            rows[name].append(timed(p, n, t, w, args.repeats))
+        starts = {"builtin": (p.start_normal, p.start_tangent, 1.0, "none"),
+                  "builtin@1.7": (p.start_normal, p.start_tangent, 1.7, "none"),
+                  f"builtin@auto({tuner.w:g})": (p.start_normal, p.start_tangent, tuner.w, "none"),
+                  "prev": (pn, pt, 1.0, "none"), "prev@1.7": (pn, pt, 1.7, "none"),
+                  "builtin+nncg": (p.start_normal, p.start_tangent, 1.0, "nncg"),
+                  "builtin+nncg@1.3": (p.start_normal, p.start_tangent, 1.3, "nncg"),
+                  "prev+nncg": (pn, pt, 1.0, "nncg")}
+        for name, (n, t, w, accelerate) in starts.items():
+            rows[name].append(timed(p, n, t, w, args.repeats, accelerate))
     base_it = statistics.median(i for i, _ in rows["builtin"])
     base_s = statistics.median(s for _, s in rows["builtin"])
     print(f"{args.scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
