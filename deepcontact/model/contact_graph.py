@@ -73,7 +73,7 @@ def _colours(manifold, row_a, row_b, dynamic):
 
 def graph_of(problems, start_normal=None, start_tangent=None):
     """A batch Graph from StepProblems (starts default to each problem's own, Box2D's warm start)."""
-    parts, offset = [], 0
+    parts, offset, base = [], 0, 0     # bodies and points of the steps before this one
     groups = {}
     for s, p in enumerate(problems):
         rows = contact_rows(p.bodies, p.contacts, dt=p.dt, gravity=p.gravity, block_solve=p.block_solve)
@@ -82,7 +82,6 @@ def graph_of(problems, start_normal=None, start_tangent=None):
         dynamic = (inv_mass > 0) | (inv_inertia > 0)
         first, colours = _colours(rows["manifold"], rows["row_a"], rows["row_b"], dynamic)
         counts = p.contacts["point_count"][first]
-        base = sum(len(q["k_normal"]) for q in parts)
         for f, c, n in zip(first, colours, counts):
             for j in range(n):
                 groups.setdefault((int(c), j), []).append(base + f + j)
@@ -96,6 +95,7 @@ def graph_of(problems, start_normal=None, start_tangent=None):
                           step=np.full(len(rows["k_normal"]), s), sn=sn,
                           st=np.where(rows["friction_row"], st, 0.0)))
         offset += len(inv_mass)
+        base += len(rows["k_normal"])
 
     def cat(key):
         return torch.from_numpy(np.concatenate([q[key] for q in parts]))
