@@ -2,8 +2,8 @@
 
 Unlike replay, errors feed back: a start that leaves the solver short of the answer changes the
 next state. Zero and builtin starts step in one native call each (simulate.pgs_loop); the others
-pay for the round trip through Python, and that is counted in their time. Every start runs the same scene from the same initial state under the same stopping
-rule; the reference trajectory is the one stepped with each step's reference solution (float64
+pay for the round trip through Python, and that is counted in their time. Every start runs the
+same scene from the same initial state under the same stopping rule; the reference trajectory is the one stepped with each step's reference solution (float64
 PGS to a residual of 1e-12). Reported per start: iterations per step, time per step (prediction
 included), how far the bodies drift from the reference trajectory, the energy error against it,
 the deepest contact, and whether anything became non-finite.
@@ -133,12 +133,11 @@ def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
         progress(1)
     results = []
     for v in variants(starts, relaxations, accelerations):
-        name = v.label.split("@")[0].split("+")[0]
         # Zero and Box2D's warm start need nothing from Python: the whole step is one native call.
-        native = name in NATIVE_STARTS
-        options = LoopOptions(start=name if native else "builtin", mode=mode, max_iterations=max_iterations,
+        native = v.name in NATIVE_STARTS
+        options = LoopOptions(start=v.name if native else "builtin", mode=mode, max_iterations=max_iterations,
                               tolerance=tolerance, stop_on=stop_on, relaxation=v.relaxation, accelerate=v.accelerate)
-        adapter = _Adapter(name, v.start)
+        adapter = _Adapter(v.name, v.start)
         t = run_loop(scene, None if native else adapter, options, steps, solved=None if native else adapter.solved)
         drift, err = _compare(t, ref)
         results.append(LoopResult(start=v.label, steps=len(t.iterations), iterations=t.iterations,

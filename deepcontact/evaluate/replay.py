@@ -56,6 +56,7 @@ class Variant:
     """One column of the comparison: a start, and the over-relaxation w and acceleration its
     solves use."""
     label: str
+    name: str                    # the start's name
     start: object
     relaxation: object = 1.0     # a float, or "auto" until resolved
     accelerate: str = "none"     # or "nncg" (solver.pgs.ACCELERATIONS)
@@ -66,7 +67,7 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
     when accelerated and "@w" unless w is only 1."""
     plain = list(relaxations) == [1.0]
     return [Variant(name + ("" if a == "none" else f"+{a}")
-                    + ("" if plain else f"@{w if w == 'auto' else format(w, 'g')}"), start, w, a)
+                    + ("" if plain else f"@{w if w == 'auto' else format(w, 'g')}"), name, start, w, a)
             for a in accelerations for w in relaxations for name, start in starts.items()]
 
 

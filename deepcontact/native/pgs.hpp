@@ -75,8 +75,10 @@ public:
         const R w = R(opt.relaxation);
         bool relax = opt.relaxation != 1.0;
         bool conjugate = opt.conjugate;
-        direction_.assign(2 * pb_.points, R(0));
-        last_change_ = -1.0;
+        if (conjugate) {
+            direction_.assign(2 * pb_.points, R(0));
+            last_change_ = -1.0;
+        }
         const bool residual_each_sweep = opt.history || opt.stop_on == Measure::residual;
         double best = std::numeric_limits<double>::infinity();
         bool residual_is_current = false;  // computed after the last sweep: no extra pass needed
@@ -158,7 +160,20 @@ public:
         return worst / scale_;
     }
 
-    double scale() const { return scale_; }
+    // Largest |relative normal velocity - bias| or |tangent velocity| before any impulse:
+    // the scale of the problem, so the residual is 1 at a zero start on an approaching contact.
+    double free_velocity_scale() const {
+        double worst = 0;
+        for (const auto& m : pb_.manifolds) {
+            const V2<R> tangent = cross(m.normal, R(1));
+            for (int j = 0; j < m.count; ++j) {
+                const V2<R> dv = relative_velocity(m, m.p[j]);
+                worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(m.p[j].bias)));
+                if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
+            }
+        }
+        return worst > 1e-30 ? worst : 1e-30;
+    }
 
 private:
     // Velocity of B relative to A at a contact point, as the solver computes it.
@@ -200,20 +215,6 @@ private:
         }
     }
 
-    // Largest |relative normal velocity - bias| or |tangent velocity| before any impulse:
-    // the scale of the problem, so the residual is 1 at a zero start on an approaching contact.
-    double free_velocity_scale() {
-        double worst = 0;
-        for (const auto& m : pb_.manifolds) {
-            const V2<R> tangent = cross(m.normal, R(1));
-            for (int j = 0; j < m.count; ++j) {
-                const V2<R> dv = relative_velocity(m, m.p[j]);
-                worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(m.p[j].bias)));
-                if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
-            }
-        }
-        return worst > 1e-30 ? worst : 1e-30;
-    }
 
     // b2ContactSolver::WarmStart
     void warm_start() {

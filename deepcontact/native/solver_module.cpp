@@ -210,13 +210,7 @@ void bind_solver(py::module_& m) {
             {
                 py::gil_scoped_release release;
                 pb = assemble<double>(bc, cc, st);
-                // (the free-velocity scale is taken before the warm start: no start applied here)
-                std::vector<double> zero(cc.n, 0.0);
-                SolveOptions opt;
-                opt.max_iterations = 0;
-                PGS<double> pgs(pb);
-                pgs.solve(zero.data(), zero.data(), opt);
-                scale = pgs.scale();
+                scale = PGS<double>(pb).free_velocity_scale();  // no impulse applied yet
             }
             const auto n = static_cast<py::ssize_t>(cc.n);
             py::array_t<int32_t> manifold(n), row_a(n), row_b(n);
