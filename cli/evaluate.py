@@ -1,34 +1,39 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
 import click
 
+from deepcontact.evaluate.starts import NAMES as START_NAMES
+from deepcontact.solver.pgs import ACCELERATIONS
+
 from . import options
 
 
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Report folder.")
-@click.option("--starts", default="zero,builtin,copy,sph", show_default=True,
-              help="Comma-separated: zero, builtin, copy, copy2, copy0, sph, cnn, random, bad, guarded, cnn-new.")
+@click.option("--starts", type=options.CommaList(click.Choice(START_NAMES), "START[,...]"),
+              default="zero,builtin,copy,sph", show_default=True, help=f"Comma-separated: {', '.join(START_NAMES)}.")
 @click.option("--model", type=click.Path(dir_okay=False), help="A checkpoint from dc train (cnn, guarded, cnn-new).")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
-@click.option("--max-iterations", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual",
               show_default=True, help="The measure the tolerance applies to (README: Measuring convergence).")
 @click.option("--mode", type=click.Choice(["float32", "float64"]), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
-@click.option("--cell", type=options.Finite(), default=0.5, show_default=True, help="[sph without --model] Cell size d.")
-@click.option("--smoothing", type=options.Finite(), default=0.5, show_default=True, help="[sph without --model] h.")
+@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --model] Cell size d.")
+@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --model] h.")
 @click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
               show_default=True, help="[sph without --model] SPH kernel.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random start.")
+@click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the random start.")
 @click.option("--closed-loop", is_flag=True,
               help="Let each start drive the simulation (the run's scene, from its first state) instead of "
                    "replaying the recorded steps.")
-@click.option("--steps", type=click.IntRange(min=1), help="[--closed-loop] Steps to simulate (default: the scene's).")
-@click.option("--relaxation", "relaxation", default="1", show_default=True, metavar="W[,W...]",
+@click.option("--steps", type=options.count(min=1), help="[--closed-loop] Steps to simulate (default: the scene's).")
+@click.option("--relaxation", "relaxation", type=options.CommaList(options.Relaxation(), "W[,W...]"), default="1",
+              show_default=True,
               help="Over-relaxation (PSOR) w in (0, 2) for every start, or auto (the w with the fewest sweeps on "
                    "the first 8 hard steps); several, comma-separated, compare them.")
-@click.option("--accelerate", default="none", show_default=True, metavar="none|nncg[,...]",
+@click.option("--accelerate", type=options.CommaList(click.Choice(ACCELERATIONS), "none|nncg[,...]"),
+              default="none", show_default=True,
               help="Acceleration on top of the sweeps: none, or nncg (conjugate directions); both, "
                    "comma-separated, compare them (each with every w).")
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
@@ -59,30 +64,22 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
       dc evaluate runs/pile --starts builtin,prev --relaxation 1,1.5,1.7,auto --every 5 -o r/psor
       dc evaluate runs/pile --starts builtin --accelerate none,nncg --relaxation 1,1.3 --closed-loop -o r/nncg
     """
-    from pathlib import Path
-
     from deepcontact import atomic
+    from deepcontact.evaluate.report import REPORT_FILES
+
+    # Computed inside the output's lock; the report appears only when complete.
+    with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
+        _evaluate(runs, work, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
+                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet)
+
+
+def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
+              closed_loop, steps, relaxations, accelerations, budgets, quiet):
     from deepcontact.evaluate.replay import evaluate as run, step_files, summarize
     from deepcontact.evaluate.report import summary_table, write_report
     from deepcontact.evaluate.starts import make_starts
-    from deepcontact.errors import InputError
     from deepcontact.grid.dataset import collect, grid_for
-    from deepcontact.solver.relaxation import parse_relaxation
 
-    names = [s.strip() for s in starts.split(",") if s.strip()]
-    try:
-        relaxations = list(dict.fromkeys(parse_relaxation(w) for w in relaxation.split(",") if w.strip()))
-    except ValueError as e:
-        raise InputError(f"--relaxation: {e}") from None
-    if not relaxations:
-        raise InputError("--relaxation: give at least one w")
-    from deepcontact.solver.pgs import ACCELERATIONS
-    accelerations = list(dict.fromkeys(a.strip().lower() for a in accelerate.split(",") if a.strip()))
-    unknown = [a for a in accelerations if a not in ACCELERATIONS]
-    if unknown or not accelerations:
-        raise InputError(f"--accelerate: choose from {', '.join(ACCELERATIONS)}, comma-separated; got {accelerate!r}")
-    out = Path(out)
-    atomic.check_replaceable(out, overwrite, ("report.md", "closed-loop.md"), "report")
     predictor, spec = None, None
     if model:
         from deepcontact.model.inference import Predictor
@@ -90,7 +87,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         spec = predictor.spec
     if "sph" in names and spec is None:
         sims, _ = collect(runs)
-        spec = grid_for(sims, cell, smoothing, kernel, True)
+        spec, _ = grid_for(sims, cell, smoothing, kernel, True)
     table = make_starts(names, spec=spec, predictor=predictor)
     if closed_loop:
         return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
@@ -107,8 +104,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
                     model=model, tolerance=tolerance,
                     max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}))
-    with atomic.folder(out) as tmp:
-        write_report(tmp, rows, summary, settings)
+    write_report(out, rows, summary, settings)
     click.echo(summary_table(summary))
 
 
@@ -138,17 +134,16 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
     if bar is not None:
         bar.close()
     text = loop_table(results)
-    with atomic.folder(out) as tmp:
-        atomic.write_text(tmp / "closed-loop.md", f"# Closed loop: {scene.name} from {first}\n\n"
-                          f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
-                          f"largest distance of any body from the trajectory stepped with reference solutions "
-                          f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
-                          f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
-                          f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own solver.\n\n"
-                          + text + "\n\n![closed loop](closed-loop.png)\n")
-        loop_plot(results, tmp / "closed-loop")
-        atomic.write_text(tmp / "closed-loop.json", json.dumps([{
-            "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
-            "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
-            "energy_error": r.energy_error, "finite": r.finite} for r in results]) + "\n")
+    atomic.write_text(out / "closed-loop.md", f"# Closed loop: {scene.name} from {first}\n\n"
+                      f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
+                      f"largest distance of any surviving body from the trajectory stepped with reference solutions "
+                      f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
+                      f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
+                      f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own "
+                      f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
+    loop_plot(results, out / "closed-loop")
+    atomic.write_text(out / "closed-loop.json", json.dumps([{
+        "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
+        "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
+        "energy_error": r.energy_error, "finite": r.finite} for r in results]) + "\n")
     click.echo(text)

@@ -2,11 +2,12 @@
 one log level, logs and progress on stderr, clean one-line errors unless -v."""
 import functools
 import logging
+import signal
 import sys
 
 import click
 
-from deepcontact.errors import InputError
+from deepcontact.errors import InputError, show_path
 
 
 class Finite(click.FloatRange):
@@ -21,6 +22,14 @@ class Finite(click.FloatRange):
         return value
 
 
+INT32_MAX = 2 ** 31 - 1   # iteration and step counts: what Box2D and the native solver take
+
+
+def count(min=0, max=INT32_MAX):
+    """A whole-number option within what the native code takes."""
+    return click.IntRange(min=min, max=max)
+
+
 class Relaxation(click.ParamType):
     """Over-relaxation: a w in (0, 2), or auto (chosen per scene from its first steps)."""
     name = "w|auto"
@@ -31,6 +40,88 @@ class Relaxation(click.ParamType):
             return parse_relaxation(value)
         except ValueError as e:
             self.fail(str(e), param, ctx)
+
+
+class CommaList(click.ParamType):
+    """Comma-separated values, each converted by `item` (a click type) and given once; at least one."""
+    name = "list"
+
+    def __init__(self, item=None, metavar=None):
+        self.item = item
+        self.name = metavar or (f"{item.name}[,...]" if item is not None else "a,b,...")
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, list):
+            return value
+        parts = [t.strip() for t in str(value).split(",") if t.strip()]
+        if not parts:
+            self.fail(f"give at least one value, comma-separated; got {value!r}", param, ctx)
+        if self.item is not None:
+            parts = [self.item.convert(t, param, ctx) for t in parts]
+        twice = [t for i, t in enumerate(parts) if t in parts[:i]]
+        if twice:
+            self.fail(f"{twice[0]} is listed twice", param, ctx)
+        return parts
+
+
+class Window(click.ParamType):
+    """x0,y0,x1,y1: four finite numbers with x0 < x1 and y0 < y1."""
+    name = "x0,y0,x1,y1"
+
+    def convert(self, value, param, ctx):
+        import math
+        if isinstance(value, tuple):
+            return value
+        try:
+            values = tuple(float(t) for t in value.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != 4 or not all(math.isfinite(v) for v in values):
+            self.fail(f"takes four finite numbers x0,y0,x1,y1; got {value!r}", param, ctx)
+        if not (values[0] < values[2] and values[1] < values[3]):
+            self.fail(f"needs x0 < x1 and y0 < y1; got {value!r}", param, ctx)
+        return values
+
+
+class SeedRange(click.ParamType):
+    """A..B, inclusive, as a range (never a list: a billion seeds cost nothing until used)."""
+    name = "A..B"
+
+    def convert(self, value, param, ctx):
+        import re
+        if isinstance(value, range):
+            return value
+        m = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", value)
+        if not m or int(m.group(1)) > int(m.group(2)) or int(m.group(2)) > INT32_MAX:
+            self.fail(f"must look like A..B with 0 <= A <= B <= {INT32_MAX} (inclusive), got {value!r}", param, ctx)
+        return range(int(m.group(1)), int(m.group(2)) + 1)
+
+
+class Shard(click.ParamType):
+    """I/N: every N-th item, starting at the I-th (0-based)."""
+    name = "I/N"
+
+    def convert(self, value, param, ctx):
+        import re
+        if isinstance(value, tuple):
+            return value
+        m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", value)
+        if not m or not int(m.group(1)) < int(m.group(2)):
+            self.fail(f"must look like I/N with 0 <= I < N, got {value!r}", param, ctx)
+        return int(m.group(1)), int(m.group(2))
+
+
+class KeyValue(click.ParamType):
+    """key=value."""
+    name = "KEY=VALUE"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        key, sep, val = value.partition("=")
+        if not sep or not key.strip():
+            self.fail(f"takes key=value, got {value!r}", param, ctx)
+        return key.strip(), val.strip()
 
 
 def verbosity(f):
@@ -57,30 +148,63 @@ def setup_logging(verbose, quiet):
         logging.getLogger(noisy).setLevel(max(logging.WARNING, log_level(verbose, quiet)))
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, SIGHUP or SIGINT: unwinds like Ctrl-C, so every partial output is removed."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _on_signal(signum, frame):
+    # The clean-up this starts must not itself be cut short by a second signal.
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+MAX_MESSAGE = 600   # characters: a message is one readable line, whatever a parser put in it
+
+
+def one_line(text):
+    text = " ".join(str(text).split())
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 1] + "…"
+
+
 def command(name):
-    """Wraps a subcommand body: logging set-up, InputError → one line and exit 1,
-    Ctrl-C → exit 130; tracebacks only with -v."""
+    """Wraps a subcommand body: logging set-up, InputError → one line and exit 1, Ctrl-C,
+    SIGTERM and SIGHUP → clean-up and exit 128 + signal; tracebacks only with -v."""
     def decorate(f):
         @functools.wraps(f)
         def wrapper(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
+            for s in STOP_SIGNALS:
+                signal.signal(s, _on_signal)
+
+            def fail(message):
+                click.echo(one_line(f"dc {name}: error: {message}"), err=True)
+                sys.exit(1)
             try:
                 return f(*args, verbose=verbose, quiet=quiet, **kwargs)
             except InputError as e:
                 if verbose:
                     raise
-                click.echo(f"dc {name}: error: {e}", err=True)
-                sys.exit(1)
-            except KeyboardInterrupt:
-                click.echo(f"dc {name}: interrupted; only complete files were written, and output being "
-                           f"replaced (--overwrite) is as it was", err=True)
-                sys.exit(130)
+                fail(e)
+            except KeyboardInterrupt as e:
+                signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
+                click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}); only complete files were "
+                           f"written, and output being replaced (--overwrite) is as it was", err=True)
+                sys.exit(128 + signum)
+            except MemoryError:
+                if verbose:
+                    raise
+                fail("out of memory; lower the size of the work (or --max-memory to be refused earlier)")
             except OSError as e:
                 if verbose:
                     raise
-                where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-                click.echo(f"dc {name}: error: {where}{e.strerror or e}", err=True)
-                sys.exit(1)
+                where = f"{show_path(e.filename)}: " if getattr(e, "filename", None) else ""
+                fail(f"{where}{e.strerror or e}")
         return wrapper
     return decorate
 

@@ -2,24 +2,11 @@
 import click
 
 from deepcontact.errors import InputError
+from deepcontact.grid.splat import ALL_CHANNELS
 
 from . import options
 
-
-def parse_list(text):
-    return [t.strip() for t in text.split(",") if t.strip()] if text else None
-
-
-def parse_window(text):
-    if text is None:
-        return None
-    try:
-        values = [float(t) for t in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 4:
-        raise InputError(f"--window takes x0,y0,x1,y1, got {text!r}")
-    return tuple(values)
+CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
 
 
 @click.command()
@@ -27,17 +14,18 @@ def parse_window(text):
 @click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder (or report folder with --study).")
 @click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
               show_default=True, help="SPH kernel (2D-normalised).")
-@click.option("--cell", type=options.Finite(), default=0.5, show_default=True, help="Cell size d (node spacing).")
-@click.option("--smoothing", type=options.Finite(), default=0.5, show_default=True, help="Smoothing length h (support).")
+@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d (node spacing).")
+@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Smoothing length h (support).")
 @click.option("--renormalize/--no-renormalize", default=True, show_default=True,
               help="Scale each particle's weights to sum to 1 over its nodes (grids hold amounts).")
-@click.option("--inputs", help="Input channels, comma-separated (default mass,vx,vy,spin,nx,ny).")
-@click.option("--labels", help="Label channels (default normal_impulse,tangent_impulse).")
-@click.option("--window", metavar="X0,Y0,X1,Y1", help="Grid window (default: the scenes' static box).")
+@click.option("--inputs", type=CHANNELS, help="Input channels, comma-separated (default mass,vx,vy,spin,nx,ny).")
+@click.option("--labels", type=CHANNELS, help="Label channels (default normal_impulse,tangent_impulse).")
+@click.option("--window", type=options.Window(),
+              help="Grid window (default: the scenes' static box, or where the bodies went over the run).")
 @click.option("--include-contactless", is_flag=True, help="Keep steps without contacts.")
-@click.option("--validation", type=options.Finite(), default=0.2, show_default=True,
+@click.option("--validation", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,
               help="Share of simulations held out for validation.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the split.")
+@click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the split.")
 @click.option("--oracle", is_flag=True, help="Only report the SPH round trip for these settings.")
 @click.option("--study", is_flag=True, help="Sweep kernel x d x h (thesis figures 5.4-5.6) into -o.")
 @click.option("--impulses", type=click.Choice(["reference", "recorded"]), default="reference", show_default=True,
@@ -72,18 +60,18 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     """
     from deepcontact.grid.dataset import collect, write_dataset
 
-    win = parse_window(window)
+    win = window
     if oracle or study:
         return report(runs, out, kernel, cell, smoothing, renormalize, win, impulses, every, study, overwrite,
                       quiet)
     if not out:
-        raise InputError("missing -o/--output DATASET")
+        raise click.UsageError("missing -o/--output DATASET")
     sims, _ = collect(runs, include_contactless)
     total = sum(len(s.files) for s in sims)
     bar = options.progress_bar(quiet, total, "step", "rasterize")
     try:
         meta = write_dataset(runs, out, cell=cell, h=smoothing, kernel=kernel, renormalize=renormalize,
-                             inputs=parse_list(inputs), labels=parse_list(labels), window=win,
+                             inputs=inputs, labels=labels, window=win,
                              include_contactless=include_contactless, validation_fraction=validation, seed=seed,
                              jobs=jobs, overwrite=overwrite, progress=bar, max_memory=max_memory)
     finally:
@@ -105,7 +93,7 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
     from deepcontact.grid.dataset import collect, grid_for
 
     sims, _ = collect(runs)
-    spec = grid_for(sims, cell, smoothing, kernel, renormalize, window)
+    spec, _ = grid_for(sims, cell, smoothing, kernel, renormalize, window)
     files = [f for s in sims for f in s.files][::every]
     bar = options.progress_bar(quiet, len(files), "step", f"{impulses} impulses")
     steps = O.exact_impulses(files, impulses, log=(lambda _: bar.update(1)) if bar is not None else None)
@@ -119,9 +107,8 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
         click.echo(O.table_row(r))
         return
     if not out:
-        raise InputError("--study needs -o REPORT_DIR")
+        raise click.UsageError("--study needs -o REPORT_DIR")
     out = Path(out)
-    atomic.check_replaceable(out, overwrite, ("sph-study.md",), "SPH study")
     window = (spec.x0, spec.y0, spec.x0 + (spec.nx - 1) * spec.cell, spec.y0 + (spec.ny - 1) * spec.cell)
     rows = O.study(steps, window, renormalize)
     table = O.TABLE_HEADER + "\n" + "\n".join(O.table_row(r) for r in rows) + "\n"
@@ -132,7 +119,7 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
     w.writerow(list(O.RoundTrip.__dataclass_fields__))
     for r in rows:
         w.writerow(list(r.__dict__.values()))
-    with atomic.folder(out) as tmp:   # an earlier report is replaced only by a complete one
+    with atomic.output_folder(out, O.STUDY_FILES, overwrite, command="rasterize --study") as tmp:
         atomic.write_text(tmp / "sph-study.md", f"{len(steps)} steps, {sum(len(s[0]) for s in steps)} contact "
                           f"points, {impulses} impulses, renormalised: {renormalize}\n\n" + table)
         atomic.write_text(tmp / "sph-study.csv", buf.getvalue())

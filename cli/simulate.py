@@ -1,6 +1,4 @@
 """dc simulate: scenes → per-step XML files."""
-import re
-
 import click
 
 from deepcontact.errors import InputError
@@ -8,23 +6,13 @@ from deepcontact.errors import InputError
 from . import options
 
 
-def parse_seeds(seed, seeds):
-    if seeds is None:
-        return [seed]
-    m = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", seeds)
-    if not m or int(m.group(1)) > int(m.group(2)):
-        raise InputError(f"--seeds must look like A..B with A <= B (inclusive), got {seeds!r}")
-    return list(range(int(m.group(1)), int(m.group(2)) + 1))
-
-
-def parse_shard(shard, seeds):
-    if shard is None:
-        return seeds
-    m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", shard)
-    if not m or not int(m.group(1)) < int(m.group(2)):
-        raise InputError(f"--shard must look like I/N with 0 <= I < N, got {shard!r}")
-    i, n = int(m.group(1)), int(m.group(2))
-    return seeds[i::n]
+def seed_list(seed, seeds, shard):
+    """The seeds to simulate, as a range: --seed alone, or --seeds A..B, thinned by --shard I/N."""
+    chosen = seeds if seeds is not None else range(seed, seed + 1)
+    if shard is not None:
+        i, n = shard
+        chosen = chosen[i::n]
+    return chosen
 
 
 def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first_scene, accelerate=None):
@@ -34,42 +22,32 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
     if solver == "box2d":
         used = [k for k, v in given.items() if v is not None]
         if used:
-            raise InputError(f"{', '.join(used)} only apply with --solver pgs")
+            raise click.UsageError(f"{', '.join(used)} only apply with --solver pgs")
         return None
     from deepcontact.simulate.pgs_loop import LoopOptions
     mode = mode or "float64"
     if mode == "exact" and relaxation not in (None, 1.0):
-        raise InputError("--mode exact is Box2D's PGS: it takes no --relaxation")
+        raise click.UsageError("--mode exact is Box2D's PGS: it takes no --relaxation")
     if mode == "exact" and accelerate not in (None, "none"):
-        raise InputError("--mode exact is Box2D's PGS: it takes no --accelerate")
+        raise click.UsageError("--mode exact is Box2D's PGS: it takes no --accelerate")
     if relaxation == "auto" and not tolerance:
-        raise InputError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
+        raise click.UsageError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
     cap = max_iterations if max_iterations is not None else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
     return LoopOptions(start=start or "builtin", mode=mode, max_iterations=cap, tolerance=tolerance or 0.0,
                        stop_on=stop_on or "residual", relaxation=relaxation or 1.0, accelerate=accelerate or "none")
 
 
-def parse_params(pairs):
-    params = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"--param takes key=value, got {pair!r}")
-        params[key.strip()] = value.strip()
-    return params
-
-
 @click.command()
 @click.argument("scene")
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), help="Output folder.")
-@click.option("--steps", type=int, help="Override the scene's number of steps.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed.")
-@click.option("--seeds", metavar="A..B", help="Simulate every seed from A to B (inclusive).")
-@click.option("--shard", metavar="I/N", help="Only every N-th seed, starting at the I-th (0-based).")
-@click.option("--param", "params", multiple=True, metavar="KEY=VALUE",
+@click.option("--steps", type=options.count(min=1), help="Override the scene's number of steps.")
+@click.option("--seed", type=options.count(), default=0, show_default=True, help="Random seed.")
+@click.option("--seeds", type=options.SeedRange(), help="Simulate every seed from A to B (inclusive).")
+@click.option("--shard", type=options.Shard(), help="Only every N-th seed, starting at the I-th (0-based).")
+@click.option("--param", "params", multiple=True, type=options.KeyValue(),
               help="A generator parameter (repeatable); see --list.")
-@click.option("--iterations", type=int, help="Override Box2D's velocity iterations per step.")
+@click.option("--iterations", type=options.count(), help="Override Box2D's velocity iterations per step.")
 @click.option("--skip-contactless", is_flag=True, help="Write no file for steps without contacts.")
 @click.option("--write-scene", type=click.Path(dir_okay=False),
               help="Write the scene (for --seed) to this file and stop.")
@@ -81,7 +59,7 @@ def parse_params(pairs):
 @click.option("--mode", type=click.Choice(["exact", "float32", "float64"]),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
 @click.option("--tolerance", type=options.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
-@click.option("--max-iterations", type=click.IntRange(min=0), help="[pgs] Sweep cap (default: the scene's).")
+@click.option("--max-iterations", type=options.count(), help="[pgs] Sweep cap (default: the scene's).")
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]),
               help="[pgs] The measure the tolerance applies to (default residual).")
 @click.option("--relaxation", type=options.Relaxation(),
@@ -92,12 +70,14 @@ def parse_params(pairs):
                    "gradient; float32/float64 modes). Default none.")
 @options.jobs
 @options.max_memory
+@click.option("--max-disk", type=options.Finite(min=0, min_open=True), metavar="GB",
+              help="Refuse a run estimated to write more than this (the free space is always a limit).")
 @options.overwrite
 @options.verbosity
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, write_scene,
              list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
-             max_memory, overwrite, verbose, quiet):
+             max_memory, max_disk, overwrite, verbose, quiet):
     """Simulate SCENE in Box2D and record every step as XML.
 
     SCENE is a scene file (schemas/scene.xsd) or a built-in generator: pile (the
@@ -128,7 +108,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
                                 for k, v in parameters(name).items())
             click.echo(f"{name}: {defaults}")
         return
-    source = SceneSource(scene, parse_params(params), steps, iterations)
+    source = SceneSource(scene, dict(params), steps, iterations)
     source.check_memory(1, max_memory)
     if write_scene:
         import os
@@ -137,13 +117,13 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         atomic.write_bytes(write_scene, to_xml(source(seed)))
         return
     if not out_dir:
-        raise InputError("missing -o/--output OUTDIR")
-    seed_list = parse_shard(shard, parse_seeds(seed, seeds))
-    source.check_memory(min(jobs, max(len(seed_list), 1)), max_memory)
+        raise click.UsageError("missing -o/--output OUTDIR")
+    chosen = seed_list(seed, seeds, shard)
+    source.check_memory(min(jobs, max(len(chosen), 1)), max_memory)
     loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation,
-                        source(seed_list[0]) if seed_list else None, accelerate)
+                        source(chosen[0]) if chosen else None, accelerate)
     bar = None if quiet else (lambda total: options.progress_bar(quiet, total, "step", f"simulate {scene}"))
-    run(source, seed_list, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
-        progress=bar, source=scene, loop=loop)
+    run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
+        progress=bar, source=scene, loop=loop, max_disk=max_disk)
     if not quiet:
         click.echo(f"{out_dir}", err=False)

@@ -1,9 +1,21 @@
 """dc train: a CNN from a grid dataset."""
 import click
 
-from deepcontact.errors import InputError
 
 from . import options
+
+
+def torch_device(ctx, param, value):
+    """A torch device that exists here and holds real tensors (not meta)."""
+    import torch
+    try:
+        device = torch.device(value)
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as e:
+        raise click.BadParameter(f"{value!r} is not a device available here ({options.one_line(e)})") from None
+    if device.type == "meta":
+        raise click.BadParameter("meta tensors hold no data: choose cpu or an accelerator")
+    return value
 
 
 @click.command()
@@ -12,36 +24,40 @@ from . import options
               help="Folder for checkpoints (last.pt, best.pt), metrics and the loss plot.")
 @click.option("--model", type=click.Choice(["thesis", "fcn"]), default="fcn", show_default=True,
               help="thesis: the thesis's CNN (Table 5.1); fcn: a fully convolutional encoder-decoder.")
-@click.option("--targets", default="normal_impulse,tangent_impulse", show_default=True,
+@click.option("--targets", type=options.CommaList(), default="normal_impulse,tangent_impulse", show_default=True,
               help="Label channels to learn: both maps at once, or one (train one model per map).")
 @click.option("--loss", type=click.Choice(["masked", "contacts", "mse", "solver"]), default="masked",
               show_default=True, help="masked: thesis eq. 5.2; contacts: error at the contact points; mse: all "
               "nodes; solver: the step's LCP residual at the predicted start.")
-@click.option("--solver-sweeps", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--solver-sweeps", type=options.count(), default=0, show_default=True,
               help="[solver loss] Damped Jacobi sweeps before taking the residual.")
 @click.option("--optimizer", type=click.Choice(["sgd", "adam"]), default="sgd", show_default=True,
               help="sgd follows the thesis schedule (5e-3, 2e-3 at 100, 1e-3 at 300, 2e-4 at 500).")
-@click.option("--lr", type=options.Finite(), default=1e-3, show_default=True, help="Adam's learning rate.")
-@click.option("--weight-decay", type=options.Finite(), default=5e-4, show_default=True, help="L2 on the weights.")
-@click.option("--batch-size", type=click.IntRange(min=1), default=200, show_default=True)
-@click.option("--epochs", type=click.IntRange(min=1),
+@click.option("--lr", type=options.Finite(min=0, min_open=True), default=1e-3, show_default=True,
+              help="Adam's learning rate.")
+@click.option("--weight-decay", type=options.Finite(min=0), default=5e-4, show_default=True, help="L2 on the weights.")
+@click.option("--batch-size", type=options.count(min=1), default=200, show_default=True)
+@click.option("--epochs", type=options.count(min=1),
               help="Epochs in all (default 1000; with --resume, the run's own unless given).")
-@click.option("--patience", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--patience", type=options.count(), default=0, show_default=True,
               help="Stop after this many epochs without improvement (0: never).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=options.count(), default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
-@click.option("--device", default="cpu", show_default=True, help="torch device, e.g. cuda when a GPU is present.")
-@click.option("--width", "fcn_width", type=click.IntRange(min=1), default=16, show_default=True,
+@click.option("--device", default="cpu", show_default=True, callback=torch_device,
+              help="torch device, e.g. cuda when a GPU is present.")
+@click.option("--width", "fcn_width", type=options.count(min=1, max=4096), default=16, show_default=True,
               help="[fcn] Channels at the top.")
-@click.option("--depth", "fcn_depth", type=click.IntRange(min=1), default=3, show_default=True,
+@click.option("--depth", "fcn_depth", type=options.count(min=1, max=12), default=3, show_default=True,
               help="[fcn] Down-sampling levels.")
 @click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
 @click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")
+@options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("train")
 def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
-          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, overwrite, verbose, quiet):
+          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, max_memory, overwrite, verbose,
+          quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
 
     Writes OUTPUT/last.pt and best.pt (atomically, every epoch), metrics.csv and
@@ -60,8 +76,8 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     from deepcontact.model.train import TrainConfig, train as run
 
     if overwrite and resume:
-        raise InputError("--resume and --overwrite contradict each other")
-    cfg = TrainConfig(model=model, targets=[t.strip() for t in targets.split(",") if t.strip()], loss=loss,
+        raise click.UsageError("--resume and --overwrite contradict each other")
+    cfg = TrainConfig(model=model, targets=targets, loss=loss,
                       optimizer=optimizer, lr=lr, weight_decay=weight_decay, batch_size=batch_size, epochs=epochs or 1000,
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
                       fcn_depth=fcn_depth, solver_sweeps=solver_sweeps)
@@ -73,7 +89,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
-                  device=device, overwrite=overwrite, epochs=epochs if resume else None)
+                  device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

@@ -10,13 +10,19 @@ from . import options
 
 
 def xml_files(paths):
+    """Every *.xml file named or under a named folder. Anything by such a name that is not a
+    regular file (a FIFO would block the parser forever) is refused."""
     for p in map(Path, paths):
         if p.is_dir():
-            yield from sorted(q for q in p.rglob("*.xml") if not q.name.startswith("."))
+            found = sorted(q for q in p.rglob("*.xml") if not q.name.startswith("."))
         elif p.exists():
-            yield p
+            found = [p]
         else:
             raise InputError("no such file or folder", p)
+        for q in found:
+            if not q.is_file():
+                raise InputError("not a regular file", q)
+        yield from found
 
 
 @click.command()
@@ -51,27 +57,35 @@ def validate(paths, replay, verbose, quiet):
     from deepcontact import schema
     from deepcontact.scene.xml import read_scene
     from deepcontact.simulate.build import check_overlaps
+    from deepcontact.step.reader import check_origin
     from deepcontact.step.run_folder import MANIFEST, read_run
 
     files = list(xml_files(paths))
     if not files:
         raise InputError(f"no XML files found in {', '.join(paths)}")
     invalid = 0
+    origin = {}   # step file -> (scene, seed) of the simulation it lies in
     for run in (Path(p) for p in paths):
         if (run / MANIFEST).is_file():   # a run: its manifest must match its folders
             try:
-                read_run(run)
+                r = read_run(run)
             except InputError as e:
                 invalid += 1
                 click.echo(f"{e.path}:{e.line or 0}:0: {e.message}")
+                continue
+            origin.update({f.resolve(): (r.manifest.get("scene"), s.seed) for s in r.simulations for f in s.files})
     bar = options.progress_bar(quiet or len(files) < 50, len(files), "file", "validate")
     for path in files:
         kind, tree, errors = schema.validate(path)
-        if not errors and kind == "scene":
-            try:
+        try:
+            if not errors and kind == "scene":
                 check_overlaps(read_scene(path), path)
-            except InputError as e:
-                errors = [f"{e.path}:{e.line or 0}:0: {e.message}"]
+            elif not errors and path.resolve() in origin:
+                root = tree.getroot()
+                check_origin({"scene": root.get("scene"), "seed": int(root.get("seed"))}, *origin[path.resolve()],
+                             path)
+        except InputError as e:
+            errors = [f"{e.path}:{e.line or 0}:0: {e.message}"]
         if errors:
             invalid += 1
             for line in errors:

@@ -10,8 +10,17 @@ class InputError(Exception):
         self.path = None if path is None else str(path)
         self.line = line
 
+    def __reduce__(self):   # across worker processes, with the path and line
+        return (type(self), (self.message, self.path, self.line))
+
     def __str__(self):
-        where = self.path or ""
+        where = show_path(self.path) if self.path else ""
         if where and self.line:
             where += f":{self.line}"
         return f"{where}: {self.message}" if where else self.message
+
+
+def show_path(path):
+    """A path as one line shows it: quoted when it holds a newline or other unprintable character."""
+    path = str(path)
+    return path if path.isprintable() else repr(path)

@@ -36,6 +36,14 @@ def one_line_error(r, *needles):
     return lines[0]
 
 
+def option_error(r, *needles):
+    """A bad option value: exit 2 with click's usage message naming the option, no traceback."""
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr, r.stderr
+    for n in needles:
+        assert str(n) in r.stderr, (n, r.stderr)
+
+
 def snapshot(folder):
     """Every file under folder with its bytes: equal snapshots mean nothing was lost or changed."""
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
@@ -116,11 +124,11 @@ def test_2_train_overwrite_with_a_bad_dataset_keeps_the_old_model(model, tmp_pat
 def test_2_train_overwrite_replaces_the_run_when_it_finishes(dataset, model, tmp_path):
     old = tmp_path / "model"
     shutil.copytree(model, old)
-    (old / "stale.txt").write_text("from the old run")
+    (old / "loss.svg").write_text("from the old run")
     r = dc("train", str(dataset), "-o", str(old), "--overwrite", "--epochs", "2", "--width", "4", "--depth", "2",
            "-q")
     assert r.returncode == 0, r.stderr
-    assert not (old / "stale.txt").exists() and len(json.loads((old / "metrics.json").read_text())) == 2
+    assert (old / "loss.svg").read_text() != "from the old run" and len(json.loads((old / "metrics.json").read_text())) == 2
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]   # no partial folder left
 
 
@@ -129,7 +137,7 @@ def test_2_train_overwrite_refuses_a_folder_that_is_no_training_run(dataset, tmp
     mine.mkdir()
     (mine / "thesis.tex").write_text("precious")
     r = dc("train", str(dataset), "-o", str(mine), "--overwrite", "--epochs", "1")
-    one_line_error(r, mine, "no training run")
+    one_line_error(r, mine / "thesis.tex", "not written by dc train")
     assert (mine / "thesis.tex").read_text() == "precious"
 
 
@@ -326,6 +334,8 @@ def test_7_the_solver_loss_follows_only_the_datasets_own_sources(run, dataset, t
     bad = tmp_path / "data"
     shutil.copytree(dataset, bad)
     meta = json.loads((bad / "metadata.json").read_text())
+    for src in meta["sources"]:   # the copy is elsewhere: name the run absolutely (the copy's relative path breaks)
+        src["run"] = str(run.resolve())
     for sim in meta["simulations"]:
         sim["run"] = str(tmp_path / "elsewhere")
     (bad / "metadata.json").write_text(json.dumps(meta))
@@ -416,8 +426,8 @@ def test_11_make_uses_the_given_python():
 
 
 def test_5_bad_relaxations(run, tmp_path):
-    for value, needle in (("2.5", "must be in (0, 2) or auto"), (",", "give at least one w"), ("fast", "auto")):
-        one_line_error(dc("evaluate", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), needle)
-    one_line_error(dc("simulate", *PILE, "--solver", "pgs", "--relaxation", "auto", "-o", str(tmp_path / "s")),
-                   "give --tolerance")
+    for value, needle in (("2.5", "must be in (0, 2) or auto"), (",", "give at least one value"), ("fast", "auto")):
+        option_error(dc("evaluate", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), "--relaxation", needle)
+    option_error(dc("simulate", *PILE, "--solver", "pgs", "--relaxation", "auto", "-o", str(tmp_path / "s")),
+                 "give --tolerance")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()

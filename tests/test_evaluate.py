@@ -61,7 +61,7 @@ def test_unknown_starts_and_missing_model_are_clear_errors(pile_run, tmp_path):
     with pytest.raises(InputError, match="need a trained --model"):
         make_starts(["cnn"])
     r = dc("evaluate", str(pile_run), "--starts", "zero,nope", "-o", str(tmp_path / "r"))
-    assert r.returncode == 1 and "nope" in r.stderr and not (tmp_path / "r").exists()
+    assert r.returncode == 2 and "nope" in r.stderr and not (tmp_path / "r").exists()   # a bad option value
     r = dc("evaluate", str(tmp_path), "-o", str(tmp_path / "r2"))
     assert r.returncode == 1 and "manifest" in r.stderr
 

@@ -154,9 +154,9 @@ def test_dataset_cli_refuses_and_leaves_nothing_partial(two_runs, tmp_path):
     r = dc("rasterize", str(bad_run), "-o", str(tmp_path / "ds3"))
     assert r.returncode == 1 and ("not a number" in r.stderr or "not finite" in r.stderr)
     r = dc("rasterize", str(two_runs / "a"), "--cell", "0", "-o", str(tmp_path / "ds4"))
-    assert r.returncode == 1 and "cell size d must be positive" in r.stderr
+    assert r.returncode == 2 and "--cell" in r.stderr   # bad option values exit 2
     r = dc("rasterize", str(two_runs / "a"), "--inputs", "mass,colour", "-o", str(tmp_path / "ds5"))
-    assert r.returncode == 1 and "colour" in r.stderr
+    assert r.returncode == 2 and "colour" in r.stderr
     r = dc("rasterize", str(tmp_path), "-o", str(tmp_path / "ds6"))
     assert r.returncode == 1 and "manifest" in r.stderr
 

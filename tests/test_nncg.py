@@ -88,7 +88,7 @@ def test_simulate_and_evaluate_with_nncg(tmp_path):
     assert solved["accelerate"] == "nncg" and float(solved["relaxation"]) == 1.3
     r = dc("simulate", *SMALL, "--steps", "5", "--solver", "pgs", "--mode", "exact", "--accelerate", "nncg",
            "-o", str(tmp_path / "no"))
-    assert r.returncode == 1 and "--accelerate" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "--accelerate" in r.stderr and "Traceback" not in r.stderr
     r = dc("simulate", *SMALL, "--steps", "5", "--accelerate", "nncg", "-o", str(tmp_path / "no"))
     assert r.returncode != 0 and "--solver pgs" in r.stderr
     run = tmp_path / "run"
@@ -98,4 +98,4 @@ def test_simulate_and_evaluate_with_nncg(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "builtin+nncg" in r.stdout
     r = dc("evaluate", str(run), "--starts", "builtin", "--accelerate", "nncg,anderson", "-o", str(tmp_path / "x"))
-    assert r.returncode == 1 and "--accelerate" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "--accelerate" in r.stderr and "Traceback" not in r.stderr

@@ -20,7 +20,7 @@ from ..solver.pgs import MEASURES, solve
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
-from ..step.reader import read_step
+from ..step.reader import check_origin, read_step
 from .starts import Previous, StepContext
 
 
@@ -86,7 +86,7 @@ def _plan(run_dirs):
         manifest, sims = step_files(run)
         scenes[str(run)] = manifest.get("scene")
         for s, files in sims:
-            plan.append((str(run), s, files))
+            plan.append((str(run), s, files, manifest.get("scene")))
     if len(set(scenes.values())) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted(map(str, set(scenes.values()))))}); "
                          f"evaluate one kind of scene at a time")
@@ -97,7 +97,7 @@ def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float
     """The w `auto` picks for these runs: AutoRelaxation from builtin starts, on steps spread
     evenly over the first simulation (a replay knows the whole run; the loop only its past)."""
     tuner = AutoRelaxation(tolerance, stop_on, max_iterations, mode, accelerate=accelerate)
-    _, _, files = _plan(run_dirs)[0]
+    _, _, files, _ = _plan(run_dirs)[0]
     stride = max(1, len(files) // (4 * tuner.trial_steps))
     for path in files[stride // 2::stride]:
         problem = StepProblem.from_step_file(path)
@@ -145,10 +145,11 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
     wants_prev = any(isinstance(v.start, Previous) for v in table)
     settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
     rows = []
-    for run, sim_seed, files in plan:
+    for run, sim_seed, files, scene in plan:
         previous, before = set(), None
         for k, path in enumerate(files):
             header, bodies, contacts = read_step(path, validate=False)
+            check_origin(header, scene, sim_seed, path)
             keys = contact_keys(contacts)
             persisted = np.array([key in previous for key in keys], dtype=bool)
             previous, earlier, before = set(keys), before, (header, bodies, contacts, path)

@@ -17,6 +17,10 @@ import numpy as np
 from .. import atomic
 from .replay import BUDGETS, reference_summary
 
+# Everything a report folder holds (replay and closed loop): what --overwrite may replace.
+REPORT_FILES = atomic.Owned("report", [r"report\.md", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
+                                       r"(convergence|iterations|pareto)\.(png|svg)", r"closed-loop\.(md|json|png|svg)"])
+
 
 def write_report(out, rows, summary, settings):
     out.mkdir(parents=True, exist_ok=True)

@@ -16,28 +16,38 @@ all at once), and it streams in order from disk; no extra dependency (HDF5, zarr
 
 Train/validation splits are by simulation, never by step (neighbouring steps are nearly equal).
 """
+import errno
 import hashlib
+import io
 import json
 import logging
-import shutil
+import os
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, atomic
+from .. import __version__, atomic, workers
 from .._box2d import box2d_version
 from ..errors import InputError
-from ..resources import check_memory, gigabytes
+from ..resources import check_disk, check_memory
 from ..scene.xml import read_scene
-from ..step.reader import read_step_for_grid
-from ..step.run_folder import MANIFEST, read_run, simulation_folder
+from ..step.reader import check_origin, read_step_for_grid
+from ..step.run_folder import MANIFEST, read_run, require_regular, simulation_folder
 from .spec import GridSpec, scene_box
 from .splat import check_channels, rasterize_step
 
 log = logging.getLogger(__name__)
-FORMAT = 1
+FORMAT = 2   # 2: runs are named relative to the dataset folder (1: relative to where rasterize ran)
 ARRAYS = ("inputs", "labels", "simulation", "step", "contact_offsets", "contact_position", "contact_impulse")
+# What each array must be; C: channels, N: samples, M: contact points (from the metadata).
+ARRAY_LAYOUT = {"inputs": (np.float32, ("N", "C_in", "H", "W")), "labels": (np.float32, ("N", "C_out", "H", "W")),
+                "simulation": (np.int32, ("N",)), "step": (np.int32, ("N",)),
+                "contact_offsets": (np.int64, ("N+1",)), "contact_position": (np.float32, ("M", 2)),
+                "contact_impulse": (np.float32, ("M", 2))}
+# Everything a dataset folder holds: what --overwrite may replace.
+DATASET_FILES = atomic.Owned("dataset", ["metadata\\.json"] + [f"{name}\\.npy" for name in ARRAYS])
 
 
 @dataclass
@@ -50,6 +60,7 @@ class Simulation:
     radius: float
     files: list          # step files with contacts (or all, with include_contactless)
     contacts: list       # contact points per file
+    extent: tuple = None  # where the bodies went over the run (the manifest's record)
 
 
 def _contact_count(path):
@@ -59,9 +70,13 @@ def _contact_count(path):
         raise InputError("not a step file (no <contacts count=...>)", path)
     j = data.find(b'"', i + 17)
     try:
-        return int(data[i + 17:j])
+        n = int(data[i + 17:j])
     except ValueError:
         raise InputError("unreadable <contacts count>", path) from None
+    if n == 0 and data.find(b"<contact ", j) >= 0:   # a zero count must not hide a step's contacts
+        raise InputError('<contacts count="0"> but it holds <contact> elements', path,
+                         data.count(b"\n", 0, i) + 1)
+    return n
 
 
 def _smallest_radius(scene):
@@ -71,14 +86,18 @@ def _smallest_radius(scene):
 
 def collect(run_dirs, include_contactless=False):
     """The simulations of finished runs, with the step files that become samples."""
-    sims, manifests = [], []
+    sims, manifests, seen = [], [], {}
     for run_dir in map(Path, run_dirs):
+        key = run_dir.resolve()
+        if key in seen:   # the same simulations in both splits would make validation meaningless
+            raise InputError(f"this run is given twice (also as {seen[key]})", run_dir)
+        seen[key] = run_dir
         run = read_run(run_dir)
         raw = (run_dir / MANIFEST).read_bytes()
         manifests.append({"run": str(run_dir), "manifest_sha256": hashlib.sha256(raw).hexdigest(),
                           "scene": run.manifest.get("scene"), "solver": run.manifest.get("solver")})
         for e in run.simulations:
-            scene = read_scene(e.path / "scene.xml")
+            scene = read_scene(require_regular(e.path / "scene.xml"))
             files, counts = [], []
             for f in e.files:
                 n = _contact_count(f)
@@ -87,32 +106,46 @@ def collect(run_dirs, include_contactless=False):
                     counts.append(n)
             sims.append(Simulation(run=str(run_dir), dir=e.dir, seed=e.seed, scene=scene.name,
                                    box=scene_box(scene), radius=_smallest_radius(scene), files=files,
-                                   contacts=counts))
+                                   contacts=counts, extent=e.extent))
     if not sims:
         raise InputError("the runs hold no simulations")
     return sims, manifests
 
 
-def grid_for(sims, cell, h, kernel, renormalize, window=None):
-    if window is None:
-        boxes = {s.box for s in sims}
-        if None in boxes:
-            raise InputError("a scene has no static bodies to take a box from; give --window x0,y0,x1,y1")
+def default_window(sims, pad):
+    """The scenes' static box where they have one (the same for all), else the extent of every
+    body over the runs, widened by pad on each side; and a phrase saying which it is."""
+    boxes = {s.box for s in sims}
+    if None not in boxes:
         if len(boxes) > 1:
             raise InputError(f"the simulations have different boxes ({', '.join(map(str, sorted(boxes)))}); "
                              f"give one --window x0,y0,x1,y1 for all")
-        window = boxes.pop()
-    return GridSpec.over(window, cell, h, kernel, renormalize)
+        return boxes.pop(), "the scenes' static box"
+    if any(s.extent is None for s in sims):
+        raise InputError("a scene has no static box, and its run records no extent of the bodies (a run from "
+                         "an older version); give --window x0,y0,x1,y1")
+    e = np.array([s.extent for s in sims])
+    window = (e[:, 0].min() - pad, e[:, 1].min() - pad, e[:, 2].max() + pad, e[:, 3].max() + pad)
+    return tuple(float(v) for v in window), "where the bodies went over the runs (no static box)"
+
+
+def grid_for(sims, cell, h, kernel, renormalize, window=None):
+    """The grid over window, or over default_window's choice; the spec and a phrase for the log."""
+    which = "given"
+    if window is None:
+        window, which = default_window(sims, pad=h + cell)
+    return GridSpec.over(window, cell, h, kernel, renormalize), which
 
 
 def _rasterize_simulation(args):
-    spec, inputs, labels, files = args
+    spec, inputs, labels, files, scene, seed = args
     xi = np.empty((len(files), len(inputs), spec.ny, spec.nx), np.float32)
     yl = np.empty((len(files), len(labels), spec.ny, spec.nx), np.float32)
     steps = np.empty(len(files), np.int32)
     positions, impulses, outside = [], [], 0
     for k, path in enumerate(files):
         header, bodies, contacts = read_step_for_grid(path)
+        check_origin(header, scene, seed, path)
         xi[k], yl[k] = rasterize_step(spec, bodies, contacts, inputs, labels)
         steps[k] = header["index"]
         positions.append(contacts["position"])
@@ -137,6 +170,43 @@ def split_simulations(count, validation_fraction, seed):
     return {"train": sorted(int(i) for i in order[n_val:]), "validation": sorted(int(i) for i in order[:n_val])}
 
 
+class _NpyWriter:
+    """An .npy file of a known shape, written front to back in chunks (no memory map: a full disk
+    is an OSError naming the file, not a SIGBUS). Its space is reserved first where the file
+    system can, so a disk too small fails before any work."""
+
+    def __init__(self, path, dtype, shape):
+        self.path = os.fspath(path)
+        self.dtype = np.dtype(dtype)
+        header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": tuple(shape)}
+        with self._naming():
+            self.f = open(self.path, "wb")
+            np.lib.format.write_array_header_1_0(self.f, header) if np.prod(shape) * self.dtype.itemsize < 2 ** 32 \
+                else np.lib.format.write_array_header_2_0(self.f, header)
+            self.f.flush()
+            size = self.f.tell() + int(np.prod(shape)) * self.dtype.itemsize
+            try:
+                os.posix_fallocate(self.f.fileno(), 0, size)
+            except OSError as e:
+                if e.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+                    raise
+
+    @contextmanager
+    def _naming(self):
+        try:
+            yield
+        except OSError as e:
+            raise OSError(e.errno, e.strerror, self.path) from None
+
+    def write(self, array):
+        with self._naming():
+            self.f.write(np.ascontiguousarray(array, dtype=self.dtype).data)
+
+    def close(self):
+        with self._naming():
+            self.f.close()
+
+
 def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize=True, inputs=None,
                   labels=None, window=None, include_contactless=False, validation_fraction=0.2, seed=0,
                   jobs=1, overwrite=False, progress=None, max_memory=None):
@@ -150,11 +220,10 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     check_channels(inputs, "input")
     check_channels(labels, "label")
     out = Path(out)
-    atomic.check_replaceable(out, overwrite, ("metadata.json",), "dataset")
     if not 0 <= validation_fraction < 1:
         raise InputError(f"--validation must be in [0, 1), got {validation_fraction}")
     sims, manifests = collect(run_dirs, include_contactless)
-    spec = grid_for(sims, cell, h, kernel, renormalize, window)
+    spec, which = grid_for(sims, cell, h, kernel, renormalize, window)
     n = sum(len(s.files) for s in sims)
     m = sum(sum(s.contacts) for s in sims)
     if n == 0:
@@ -163,38 +232,31 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     longest = max(len(s.files) for s in sims)
     check_memory(per_sample * longest * min(jobs, len(sims)),
                  max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
-    parent = out.resolve().parent
-    while not parent.exists():
-        parent = parent.parent
-    free = shutil.disk_usage(parent).free
-    if per_sample * n > free:
-        raise InputError(f"the dataset would take {gigabytes(per_sample * n):.3g} GB on disk; "
-                         f"{gigabytes(free):.3g} GB are free there", out)
+    check_disk(per_sample * n + 28 * m + 16 * n, out, None, "the dataset")
+    log.info("grid window %g, %g, %g, %g (%s): %d x %d nodes", spec.x0, spec.y0, spec.x0 + (spec.nx - 1) * spec.cell,
+             spec.y0 + (spec.ny - 1) * spec.cell, which, spec.nx, spec.ny)
     radii = [s.radius for s in sims if s.radius is not None]
     for w in spec.rule_warnings(min(radii) if radii else None):
         log.warning(w)
 
-    with atomic.folder(out) as tmp:
+    with atomic.output_folder(out, DATASET_FILES, overwrite, command="rasterize") as tmp:
+        shapes = {"N": n, "N+1": n + 1, "M": m, "C_in": len(inputs), "C_out": len(labels), "H": spec.ny,
+                  "W": spec.nx}
+        images = {name: _NpyWriter(tmp / f"{name}.npy", ARRAY_LAYOUT[name][0],
+                                   [shapes.get(d, d) for d in ARRAY_LAYOUT[name][1]]) for name in ("inputs", "labels")}
         arrays = {
-            "inputs": np.lib.format.open_memmap(tmp / "inputs.npy", "w+", np.float32, (n, len(inputs), spec.ny, spec.nx)),
-            "labels": np.lib.format.open_memmap(tmp / "labels.npy", "w+", np.float32, (n, len(labels), spec.ny, spec.nx)),
             "simulation": np.empty(n, np.int32), "step": np.empty(n, np.int32),
             "contact_offsets": np.zeros(n + 1, np.int64),
             "contact_position": np.empty((m, 2), np.float32), "contact_impulse": np.empty((m, 2), np.float32),
         }
         row = point = outside = 0
-        tasks = [(spec, inputs, labels, s.files) for s in sims]
-        if jobs > 1:
-            from concurrent.futures import ProcessPoolExecutor
-            pool = ProcessPoolExecutor(max_workers=jobs)
-            results = pool.map(_rasterize_simulation, tasks)
-        else:
-            pool, results = None, map(_rasterize_simulation, tasks)
-        try:
+        tasks = [(spec, inputs, labels, s.files, s.scene, s.seed) for s in sims]
+        with (workers.pool(jobs) if jobs > 1 else nullcontext()) as pool:
+            results = pool.imap(_rasterize_simulation, tasks) if pool is not None else map(_rasterize_simulation, tasks)
             for i, (xi, yl, steps, pos, imp, out_count) in enumerate(results):
                 k = len(steps)
-                arrays["inputs"][row:row + k] = xi
-                arrays["labels"][row:row + k] = yl
+                images["inputs"].write(xi)
+                images["labels"].write(yl)
                 arrays["simulation"][row:row + k] = i
                 arrays["step"][row:row + k] = steps
                 counts = np.array(sims[i].contacts, dtype=np.int64)
@@ -206,16 +268,13 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
                 row, point, outside = row + k, point + len(pos), outside + out_count
                 if progress is not None:
                     progress.update(k)
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
-        for name in ("inputs", "labels"):
-            arrays[name].flush()
-        del arrays["inputs"], arrays["labels"]
+        for writer in images.values():
+            writer.close()
         for name, a in arrays.items():
-            np.save(tmp / f"{name}.npy", a)
+            atomic.write_bytes(tmp / f"{name}.npy", _npy_bytes(a))
         if outside:
             log.info("%d contact points lie outside the grid (interpolation clamps them to its edge)", outside)
+        where = out.resolve()
         metadata = {
             "format": FORMAT,
             "kind": "deepcontact-dataset",
@@ -226,15 +285,27 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
             "labels": labels,
             "contactless_steps": "kept" if include_contactless else "skipped",
             "contacts_outside_grid": outside,
-            "simulations": [{"run": s.run, "dir": s.dir, "seed": s.seed, "scene": s.scene, "samples": len(s.files)}
-                            for s in sims],
-            "sources": manifests,
+            "simulations": [{"run": _relative(s.run, where), "dir": s.dir, "seed": s.seed, "scene": s.scene,
+                             "samples": len(s.files)} for s in sims],
+            "sources": [dict(src, run=_relative(src["run"], where)) for src in manifests],
             "split": split_simulations(len(sims), validation_fraction, seed),
             "split_seed": seed,
             "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": np.__version__},
         }
-        (tmp / "metadata.json").write_text(json.dumps(metadata, indent=2) + "\n")
+        atomic.write_text(tmp / "metadata.json", json.dumps(metadata, indent=2) + "\n")
     return metadata
+
+
+def _relative(run, dataset):
+    """A run's path as the dataset records it: relative to the dataset folder, so the two can be
+    moved together and the dataset read from any working directory."""
+    return os.path.relpath(Path(run).resolve(), dataset)
+
+
+def _npy_bytes(array):
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
 
 
 class GridDataset:
@@ -259,25 +330,52 @@ class GridDataset:
         for key, kind in kinds.items():
             if not isinstance(m.get(key), kind) or isinstance(m.get(key), bool):
                 raise InputError(f"{key!r} must be a JSON {kind.__name__.replace('dict', 'object')}", meta)
-        self.arrays = {}
-        for name in ARRAYS:
-            path = self.path / f"{name}.npy"
-            try:
-                self.arrays[name] = np.load(path, mmap_mode="r", allow_pickle=False)
-            except FileNotFoundError:
-                raise InputError("missing dataset array", path) from None
-            except (OSError, ValueError) as e:
-                raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
-        n = m["samples"]
-        for name in ("inputs", "labels", "simulation", "step"):
-            if len(self.arrays[name]) != n:
-                raise InputError(f"{len(self.arrays[name])} rows, the metadata says {n} samples",
-                                 self.path / f"{name}.npy")
+        for key in ("inputs", "labels"):
+            if not m[key] or not all(isinstance(c, str) for c in m[key]):
+                raise InputError(f"{key!r} must be a list of channel names", meta)
+        n_sims = len(m["simulations"])
+        for part in ("train", "validation"):
+            ids = m["split"].get(part)
+            if not isinstance(ids, list) or not all(type(i) is int and 0 <= i < n_sims for i in ids):
+                raise InputError(f"split {part!r} must be a list of simulation numbers 0..{n_sims - 1}", meta)
         try:
             self.spec = GridSpec(**m["grid"])
         except TypeError as e:
             raise InputError(f"bad grid description: {e}", meta) from None
+        if not all(type(getattr(self.spec, k)) is int and getattr(self.spec, k) > 0 for k in ("nx", "ny")):
+            raise InputError("grid 'nx' and 'ny' must be positive integers", meta)
+        self.arrays = {}
+        for name in ARRAYS:
+            path = self.path / f"{name}.npy"
+            try:
+                self.arrays[name] = np.load(require_regular(path), mmap_mode="r", allow_pickle=False)
+            except InputError:
+                raise InputError("missing dataset array", path) from None
+            except (OSError, ValueError) as e:
+                raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
+        self._check_arrays(meta)
         self._folders, self._verified_runs = {}, set()
+
+    def _check_arrays(self, meta):
+        """Every array of the dtype and shape the metadata implies, indices within range."""
+        m, a = self.metadata, self.arrays
+        points = len(a["contact_position"])
+        sizes = {"N": m["samples"], "N+1": m["samples"] + 1, "M": points, "C_in": len(m["inputs"]),
+                 "C_out": len(m["labels"]), "H": self.spec.ny, "W": self.spec.nx}
+        for name, (dtype, dims) in ARRAY_LAYOUT.items():
+            want = tuple(sizes.get(d, d) for d in dims)
+            path = self.path / f"{name}.npy"
+            if a[name].dtype != dtype:
+                raise InputError(f"holds {a[name].dtype}, a dataset's {name} are {np.dtype(dtype)}", path)
+            if a[name].shape != want:
+                raise InputError(f"shape {a[name].shape}, the metadata implies {want}", path)
+        offsets = np.asarray(a["contact_offsets"])
+        if offsets[0] != 0 or offsets[-1] != points or np.any(np.diff(offsets) < 0):
+            raise InputError(f"must rise from 0 to the {points} contact points", self.path / "contact_offsets.npy")
+        sim = np.asarray(a["simulation"])
+        if len(sim) and (sim.min() < 0 or sim.max() >= len(m["simulations"])):
+            raise InputError(f"names simulations outside 0..{len(m['simulations']) - 1}",
+                             self.path / "simulation.npy")
 
     def check_step_sources(self):
         """Refuse at once a dataset whose simulations cannot be followed back to their step files."""
@@ -302,10 +400,11 @@ class GridDataset:
             raise InputError("simulation entries must be JSON objects", meta)
         sources = {s.get("run"): s.get("manifest_sha256") for s in self.metadata["sources"] if isinstance(s, dict)}
         run = sim.get("run")
-        if run not in sources:
+        if not isinstance(run, str) or run not in sources:
             raise InputError(f"simulation run {run!r} is not one of the dataset's sources", meta)
+        folder = self.path / run   # relative to the dataset (an absolute path stays as it is)
         if run not in self._verified_runs:
-            manifest = Path(run) / MANIFEST
+            manifest = folder / MANIFEST
             try:
                 digest = hashlib.sha256(manifest.read_bytes()).hexdigest()
             except OSError as e:
@@ -314,7 +413,7 @@ class GridDataset:
             if digest != sources[run]:
                 raise InputError("the run changed since the dataset was made (manifest SHA-256 differs)", manifest)
             self._verified_runs.add(run)
-        self._folders[k] = simulation_folder(run, sim.get("dir"), meta)
+        self._folders[k] = simulation_folder(folder, sim.get("dir"), meta)
         return self._folders[k]
 
     def __len__(self):

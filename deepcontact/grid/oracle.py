@@ -11,10 +11,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import atomic
 from ..solver.problem import StepProblem
 from ..solver.reference import reference_solution
 from .interpolate import bilinear
 from .splat import splat_points
+
+# Everything an SPH study folder holds: what --overwrite may replace.
+STUDY_FILES = atomic.Owned("SPH study", [r"sph-study\.(md|csv|png|svg)"])
 
 
 @dataclass

@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import InputError
-from .kernels import KERNELS
+from .kernels import KERNELS, weight
 
 MAX_NODES = 4096 * 4096   # 64 MiB per float32 channel
 
@@ -44,6 +44,11 @@ class GridSpec:
             raise InputError(f"smoothing length h must be positive and finite, got {h}")
         if kernel not in KERNELS:
             raise InputError(f"unknown kernel {kernel!r}; choose from {', '.join(KERNELS)}")
+        # A node holds about W(0) d^2 of a particle's value: it must be a float32 the grid can carry.
+        node_weight = float(weight(kernel, 0.0, h)) * cell * cell
+        if not (math.isfinite(node_weight) and 1e-30 < node_weight < 1e30):
+            raise InputError(f"h = {h:g} at d = {cell:g} puts a weight of {node_weight:.3g} on a node: float32 grid "
+                             f"images cannot carry that (choose h near d)")
         nx = int(math.floor((x1 - x0) / cell + 1e-9)) + 1
         ny = int(math.floor((y1 - y0) / cell + 1e-9)) + 1
         if nx * ny > MAX_NODES:
@@ -68,7 +73,8 @@ class GridSpec:
 
 
 def scene_box(scene):
-    """(x0, y0, x1, y1) of the static bodies' shapes, or None if there are none."""
+    """(x0, y0, x1, y1) of the static bodies' shapes, or None if there are none or they enclose
+    no area (a ground line: the pyramid, the stack)."""
     pts = []
     for b in scene.bodies:
         if b.type != "static":
@@ -88,4 +94,5 @@ def scene_box(scene):
     if not pts:
         return None
     p = np.array(pts)
-    return (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
+    box = (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
+    return box if box[2] > box[0] and box[3] > box[1] else None

@@ -109,3 +109,66 @@ def parameter_count(model):
     params = sum(p.numel() for p in model.parameters())
     stats = sum(b.numel() for name, b in model.named_buffers() if name.endswith(("running_mean", "running_var")))
     return params, params + stats
+
+
+# What a network config may ask for: beyond these a config is a mistake or tampering (a width of
+# 10**6 would ask for terabytes before anything could say so).
+CONFIG_LIMITS = {"in_channels": (1, 64), "out_channels": (1, 64), "height": (1, 4096), "width": (1, 4096),
+                 "fcn_width": (1, 4096), "fcn_depth": (1, 12)}
+
+
+def check_config(config):
+    """Why a network config cannot be built, or None."""
+    if not isinstance(config, dict) or config.get("model") not in ("thesis", "fcn"):
+        return "the network is neither the thesis model nor fcn"
+    for key, (low, high) in CONFIG_LIMITS.items():
+        value = config.get(key, low if key.startswith("fcn") else None)
+        if type(value) is not int or not low <= value <= high:
+            return f"network {key} must be a whole number from {low} to {high}, got {value!r}"
+    dropout = config.get("dropout", 0.1)
+    if not isinstance(dropout, (int, float)) or isinstance(dropout, bool) or not 0 <= dropout < 1:
+        return f"network dropout must be in [0, 1), got {dropout!r}"
+    if not isinstance(config.get("final_relu", True), bool):
+        return "network final_relu must be true or false"
+    return None
+
+
+def on_meta(config):
+    """The network built on torch's meta device: shapes and counts, no memory."""
+    with torch.device("meta"):
+        return build(config)
+
+
+def shape_problem(config, state):
+    """Why a state dict does not fit the network config (names or tensor shapes), or None."""
+    want = on_meta(config).state_dict()
+    if not isinstance(state, dict) or set(state) != set(want):
+        missing = sorted(set(want) - set(state)) if isinstance(state, dict) else []
+        return f"its weights do not belong to this network ({'missing ' + missing[0] if missing else 'other names'})"
+    for name, tensor in want.items():
+        got = state[name]
+        if not isinstance(got, torch.Tensor) or tuple(got.shape) != tuple(tensor.shape):
+            return f"weight {name} has shape {tuple(getattr(got, 'shape', ()))}, the network needs {tuple(tensor.shape)}"
+        if got.dtype != tensor.dtype:
+            return f"weight {name} is {got.dtype}, the network needs {tensor.dtype}"
+    return None
+
+
+def training_memory(config, batch_size, optimizer="adam"):
+    """Bytes training needs, estimated on the meta device: the weights, their gradients and the
+    optimizer's state (two moments for Adam, one momentum for SGD), and every module's output for
+    one batch kept for the backward pass (twice: the output and its gradient)."""
+    model = on_meta(config)
+    params = sum(p.numel() * p.element_size() for p in model.parameters())
+    activations = 0
+
+    def count(module, inputs, output):
+        nonlocal activations
+        if isinstance(output, torch.Tensor) and not list(module.children()):
+            activations += output.numel() * output.element_size()
+    hooks = [m.register_forward_hook(count) for m in model.modules()]
+    x = torch.empty(batch_size, config["in_channels"], config["height"], config["width"], device="meta")
+    model(x)
+    for h in hooks:
+        h.remove()
+    return params * (2 + (2 if optimizer == "adam" else 1)) + 2 * activations

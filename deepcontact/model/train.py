@@ -26,11 +26,14 @@ from .. import __version__, atomic
 from ..errors import InputError
 from ..grid.dataset import GridDataset
 from ..grid.spec import GridSpec
+from ..resources import check_memory
 from . import losses
-from .networks import build, parameter_count
+from .networks import build, check_config, parameter_count, shape_problem, training_memory
 
 log = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
+# Everything a training folder holds: what --overwrite may replace.
+MODEL_FILES = atomic.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
 
 
 @dataclass
@@ -109,6 +112,10 @@ def load_checkpoint(path):
     missing = [k for k in keys if k not in ck]
     if missing:
         raise InputError(f"not a complete deepcontact checkpoint: no {', '.join(missing)}", path)
+    # Checked before anything is built from it: a tampered config could ask for terabytes.
+    problem = check_config(ck["network"]) or shape_problem(ck["network"], ck["model"])
+    if problem:
+        raise InputError(f"refused: {problem}", path)
     return ck
 
 
@@ -146,12 +153,13 @@ def check_compatible(ck, meta, path):
 
 
 def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=None, device="cpu",
-          overwrite=False, epochs=None):
+          overwrite=False, epochs=None, max_memory=None):
     """Train; returns the history (a list of per-epoch metric dicts).
 
     Everything is checked before the output folder is touched. With `overwrite`, the new run is
     built beside the old one and replaces it only when it finishes. `epochs` overrides the
-    configuration's (or, with `resume`, the checkpoint's) number of epochs."""
+    configuration's (or, with `resume`, the checkpoint's) number of epochs. max_memory: refuse a
+    network and batch estimated to need more GB (default resources.DEFAULT_MAX_MEMORY_GB)."""
     if threads:
         torch.set_num_threads(threads)
     try:
@@ -188,21 +196,29 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     val_idx = ds.indices("validation")
     if len(train_idx) == 0:
         raise InputError("the dataset has no training samples", dataset)
-    if not resume and not overwrite and out_dir.exists() and any(out_dir.iterdir()):
+    if not resume and not overwrite and out_dir.is_dir() and any(out_dir.iterdir()):
         raise InputError("the folder is not empty; use --resume to continue a run there or --overwrite to "
                          "replace it", out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("not a folder", out_dir)
-    if overwrite and out_dir.exists() and any(out_dir.iterdir()) and not (out_dir / "last.pt").exists():
-        raise InputError("refusing to replace a folder that holds no training run (no last.pt)", out_dir)
-    replace = overwrite and rank == 0 and out_dir.exists()
-    kept = "the earlier run is left as it was" if replace else str(last)
-    with _output_folder(out_dir, replace, rank) as work:
+    net_cfg = network_config(cfg, meta, cfg.targets)
+    problem = check_config(net_cfg)
+    if problem:
+        raise InputError(problem)
+    check_memory(training_memory(net_cfg, cfg.batch_size, cfg.optimizer), max_memory,
+                 f"training the {cfg.model} network with batches of {cfg.batch_size}")
+    # Replacing an earlier run builds the new one beside it; otherwise training writes in place,
+    # so that an interrupted run can be resumed from its last.pt.
+    replace = overwrite and out_dir.is_dir() and any(out_dir.iterdir())
+
+    def kept():
+        """What a failed run leaves, said as it is."""
+        if replace:
+            return "the earlier run is left as it was"
+        return f"the last good checkpoint is kept ({last})" if last.exists() else "no checkpoint was written"
+    with _output_folder(out_dir, overwrite, replace, resume, rank) as work:
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)
         random.seed(cfg.seed)
         torch.use_deterministic_algorithms(True, warn_only=True)
-        net_cfg = network_config(cfg, meta, cfg.targets)
         model = build(net_cfg).to(device)
         if cfg.optimizer == "sgd":
             opt = torch.optim.SGD(model.parameters(), lr=thesis_lr(0), momentum=cfg.momentum, weight_decay=cfg.weight_decay)
@@ -226,6 +242,10 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
             idx = np.sort(indices)   # reading a memory map in order
             x = torch.from_numpy(np.ascontiguousarray(inputs[idx])).to(device)
             y = torch.from_numpy(np.ascontiguousarray(labels[idx][:, target_idx])).to(device)
+            for name, t in (("inputs", x), ("labels", y)):
+                if not torch.isfinite(t).all():
+                    k = int(idx[int(torch.nonzero(~torch.isfinite(t.flatten(1)).all(dim=1))[0])])
+                    raise InputError(f"sample {k} holds a NaN or infinite value; {kept()}", ds.path / f"{name}.npy")
             return idx, x, y
 
         def loss_of(pred, y, idx):
@@ -271,8 +291,7 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
                 opt.zero_grad()
                 loss = loss_of(net(x), y, idx)
                 if not torch.isfinite(loss):
-                    raise TrainingDiverged(f"the loss became {loss.item()} in epoch {epoch}; the last good checkpoint "
-                                           f"is kept ({kept})", out_dir)
+                    raise TrainingDiverged(f"the loss became {loss.item()} in epoch {epoch}; {kept()}", out_dir)
                 loss.backward()
                 opt.step()
                 total += loss.item() * len(idx)
@@ -312,24 +331,16 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
 
 
 @contextmanager
-def _output_folder(out_dir, replace, rank):
+def _output_folder(out_dir, overwrite, replace, resume, rank):
     """Where this run writes: beside the old run when replacing it (swapped in at the end), or
-    the folder itself, which a run that fails before writing anything leaves as it found it."""
+    the folder itself, which a run that fails before writing anything leaves as it found it.
+    Rank 0 alone writes, under the output's lock."""
     if rank != 0:
         yield out_dir
         return
-    if replace:
-        with atomic.folder(out_dir) as tmp:
-            yield tmp
-        return
-    created = not out_dir.exists()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    try:
-        yield out_dir
-    except BaseException:
-        if created and not any(out_dir.iterdir()):
-            out_dir.rmdir()
-        raise
+    with atomic.output_folder(out_dir, MODEL_FILES, overwrite, command="train", in_place=not replace,
+                              existing_ok=resume) as work:
+        yield work
 
 
 @torch.no_grad()

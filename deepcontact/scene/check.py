@@ -21,6 +21,8 @@ MAX_SPEED = 1e6       # m/s, and rad/s for spin
 MAX_GRAVITY = 1e6     # m/s^2
 MAX_DAMPING = 1e6     # 1/s
 MASS_RANGE = (1e-20, 1e20)   # kg (and kg m^2 for the rotational inertia of a body)
+MAX_COEFFICIENT = 1e9   # friction and restitution: the generators' limit (1e20 overflows float32 impulses)
+MAX_COUNT = 2 ** 31 - 1   # steps and iterations: Box2D's int32
 
 
 def _within(limit, *values):
@@ -77,18 +79,18 @@ def check_scene(scene, path=None):
     at = scene.lines.get
     if not (_finite(scene.dt) and 1e-6 <= scene.dt <= 10):
         fail(f"dt must be between 1e-6 and 10 s, got {scene.dt}", at("world"))
-    if scene.steps < 1:
-        fail(f"steps must be at least 1, got {scene.steps}", at("world"))
-    if scene.solver.velocity_iterations < 0 or scene.solver.position_iterations < 0:
-        fail("iteration counts must be >= 0", at("solver"))
+    if not 1 <= scene.steps <= MAX_COUNT:
+        fail(f"steps must be between 1 and {MAX_COUNT}, got {scene.steps}", at("world"))
+    if not all(0 <= n <= MAX_COUNT for n in (scene.solver.velocity_iterations, scene.solver.position_iterations)):
+        fail(f"iteration counts must be between 0 and {MAX_COUNT}", at("solver"))
     e = scene.effects
     if e.gravity is not None and not _within(MAX_GRAVITY, *e.gravity):
         fail(f"gravity must be finite and at most {MAX_GRAVITY:g} m/s^2 in each component, got {e.gravity}",
              at("gravity"))
     for name in ("friction", "restitution"):
         v = getattr(e, name)
-        if v is not None and not (_finite(v) and v >= 0):
-            fail(f"{name} coefficient must be a finite number >= 0", at(name))
+        if v is not None and not (_finite(v) and 0 <= v <= MAX_COEFFICIENT):
+            fail(f"{name} coefficient must be a finite number from 0 to {MAX_COEFFICIENT:g}", at(name))
     if e.damping is not None and not (_within(MAX_DAMPING, *e.damping) and min(e.damping) >= 0):
         fail(f"damping must be between 0 and {MAX_DAMPING:g}", at("damping"))
 
@@ -115,6 +117,8 @@ def check_scene(scene, path=None):
                 v = getattr(s, name)
                 if v is not None and not (_finite(v) and v >= 0):
                     fail(f"{where}: {s.kind} {name} must be a finite number >= 0", line)
+                if name != "density" and v is not None and v > MAX_COEFFICIENT:
+                    fail(f"{where}: {s.kind} {name} must be at most {MAX_COEFFICIENT:g}", line)
             if s.density is not None and s.density > 1e20:
                 fail(f"{where}: {s.kind} density must be at most 1e20 kg/m^2", line)
             if s.kind == "circle":

@@ -121,6 +121,13 @@ class Scene:
     params: dict = field(default_factory=dict)
     lines: dict = field(default_factory=dict, compare=False)   # element -> line, for a file's errors
 
+    def removals(self):
+        """{step: [body, ...]}: every removal event, several in one step included."""
+        out = {}
+        for ev in self.events:
+            out.setdefault(ev.step, []).append(ev.body)
+        return out
+
     def fixtures(self):
         """(body index, shape) for every shape, in fixture index order."""
         return [(i, s) for i, b in enumerate(self.bodies) for s in b.shapes]

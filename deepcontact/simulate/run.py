@@ -7,24 +7,27 @@ Layout of OUTDIR::
     seed-000000/step-000000.xml    one file per step (schemas/step.xsd)
     manifest.json                  written last: its presence means the run is complete
 
-Every file is written atomically, so an interrupted run leaves only complete files and no
-manifest.
+The run is built in a partial folder beside OUTDIR and appears under its name only when complete
+(`atomic.output_folder`): an interrupted or failed run leaves nothing, and an earlier run it was
+to replace (--overwrite) as it was.
 """
 import hashlib
 import json
 import logging
+import math
 import os
+import re
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, atomic
+from .. import __version__, atomic, workers
 from .._box2d import box2d_version
 from ..errors import InputError
+from ..resources import STEP_BYTES_PER_BODY, check_disk
 from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST
 from ..step.writer import step_filename, step_writer
@@ -33,6 +36,41 @@ from .pgs_loop import PGSStepper, check_scene_for_loop
 
 log = logging.getLogger(__name__)
 
+# Everything a run folder holds: what --overwrite may replace.
+RUN_FILES = atomic.Owned("run", [re.escape(MANIFEST), r"seed-\d{6,}/", r"seed-\d{6,}/scene\.xml",
+                                 r"seed-\d{6,}/step-\d{6,}\.xml"])
+
+
+def body_reach(body):
+    """The largest distance of any point of a body's shapes from its origin."""
+    reach = 0.0
+    for sh in body.shapes:
+        if sh.kind == "circle":
+            reach = max(reach, math.hypot(sh.x, sh.y) + sh.radius)
+        elif sh.kind == "polygon":
+            reach = max(reach, max(math.hypot(x, y) for x, y in sh.vertices))
+        else:
+            reach = max(reach, math.hypot(sh.x1, sh.y1), math.hypot(sh.x2, sh.y2))
+    return reach
+
+
+class Extent:
+    """The box every body's shapes stayed in over a simulation (for a grid window)."""
+
+    def __init__(self, scene):
+        self.reach = np.array([body_reach(b) for b in scene.bodies] or [0.0])
+        self.lo, self.hi = np.full(2, np.inf), np.full(2, -np.inf)
+
+    def add(self, bodies):
+        if len(bodies["position"]):
+            r = self.reach[bodies["index"]][:, None]
+            self.lo = np.minimum(self.lo, (bodies["position"] - r).min(axis=0))
+            self.hi = np.maximum(self.hi, (bodies["position"] + r).max(axis=0))
+
+    def as_list(self):
+        if not np.all(np.isfinite(self.lo)):
+            return None
+        return [float(fmt(v)) for v in (*self.lo, *self.hi)]
 
 
 def sim_dirname(seed: int) -> str:
@@ -47,6 +85,7 @@ class SimulationResult:
     files: int
     contact_points: int
     scene_sha256: str
+    extent: list = None   # [x0, y0, x1, y1] the bodies stayed in over the run
 
 
 def _solve_xml(options, solution):
@@ -74,9 +113,8 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     world = build_world(scene)
     writer = step_writer(scene, seed, "box2d" if loop is None else "pgs")
     stepper = None if loop is None else PGSStepper(world, scene, loop)
-    removals = {}
-    for ev in scene.events:
-        removals.setdefault(ev.step, []).append(ev.body)
+    removals = scene.removals()
+    extent = Extent(scene)
     s = scene.solver
     files = points = 0
 
@@ -101,6 +139,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                     bodies, contacts, solution = done.bodies, done.contacts, done.solution
                     extra = _solve_xml(loop, solution)
                     dt_ratio = 0.0 if k == 0 else 1.0
+                extent.add(bodies)
                 n = len(contacts["manifold"])
                 points += n
                 if n or not skip_contactless:
@@ -117,46 +156,19 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                 f.cancel()
             raise
     return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=files,
-                            contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest())
-
-
-def check_output(out_dir, overwrite):
-    """Whether an earlier run in OUTDIR is to be replaced; refuses what must not be touched.
-
-    Only a folder holding nothing but a run (its manifest and seed-* folders) is replaced."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("output path exists and is not a folder", out_dir)
-    if not out_dir.exists() or not any(out_dir.iterdir()):
-        return False
-    if not overwrite:
-        raise InputError("output folder is not empty; use --overwrite to replace it", out_dir)
-    other = sorted(p.name for p in out_dir.iterdir()
-                   if not (p.name == MANIFEST or p.name.startswith(".") or (p.is_dir() and p.name.startswith("seed-"))))
-    if other:
-        raise InputError(f"refusing to replace a folder that holds more than a run ({', '.join(other[:3])}"
-                         f"{', ...' if len(other) > 3 else ''})", out_dir)
-    return True
+                            contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
+                            extent=extent.as_list())
 
 
 def prepare_output(out_dir, seeds):
-    """Create OUTDIR (empty or new) and a folder per simulation."""
+    """A folder per simulation in the (new, empty) folder the run is built in."""
     out_dir = Path(out_dir)
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
         for seed in seeds:
             (out_dir / sim_dirname(seed)).mkdir()
-        probe = out_dir / ".write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", out_dir) from None
     return out_dir
-
-
-@contextmanager
-def _in_place(out_dir):
-    yield out_dir
 
 
 def _worker(args):
@@ -166,13 +178,13 @@ def _worker(args):
 
 
 def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, jobs=1, progress=None,
-        source=None, loop=None):
+        source=None, loop=None, max_disk=None):
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
-    progress(total_steps) makes a tqdm-like counter of steps (or progress is None).
-    Returns the manifest as a dict."""
-    seeds = list(seeds)
-    if not seeds:
+    seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
+    of steps (or progress is None). max_disk: refuse runs estimated above this many GB (the free
+    space is always a limit). Returns the manifest as a dict."""
+    if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
     # Build (and check) the first scene before touching the output folder.
     first = make_scene(seeds[0])
@@ -180,9 +192,9 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
     if loop is not None:
         check_scene_for_loop(first, source)
     out_dir = Path(out_dir)
-    # An earlier run is replaced only once the new one is complete: it is built beside it.
-    replace = check_output(out_dir, overwrite)
-    with (atomic.folder(out_dir) if replace else _in_place(out_dir)) as work:
+    with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
+        check_disk(len(seeds) * first.steps * (1024 + STEP_BYTES_PER_BODY * len(first.bodies)), work, max_disk,
+                   f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
                              progress, source, loop)
     log.info("wrote %d simulations, %d step files to %s", len(manifest["simulations"]),
@@ -231,12 +243,9 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
-        from concurrent.futures import ProcessPoolExecutor, as_completed  # 12 ms: only when used
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_worker, (make_scene, seed, str(out_dir), skip_contactless, loop))
-                       for seed in seeds]
-            for f in as_completed(futures):
-                r = f.result()
+        with workers.pool(jobs) as pool:
+            tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop) for seed in seeds)
+            for r in pool.imap_unordered(_worker, tasks):
                 results.append(r)
                 if progress is not None:
                     progress.update(r.steps)

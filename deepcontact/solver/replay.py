@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..step.run_folder import MANIFEST, read_run
+from ..step.reader import check_origin, read_step
+from ..step.run_folder import MANIFEST, read_run, step_files_in
 from .pgs import solve
 from .problem import StepProblem
 
@@ -27,17 +28,19 @@ class ReplayReport:
 
 
 def step_files(run_dir):
-    """The step files of a run: those its manifest lists, or of every seed-* folder of an
-    unfinished run (no manifest yet)."""
+    """[(path, scene, seed)] of a run's step files: those its manifest lists (each checked to
+    belong to its simulation when read), or of every seed-* folder of an unfinished run (no
+    manifest yet: nothing to check them against)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise InputError("not a run folder", run_dir)
     if (run_dir / MANIFEST).exists():
-        files = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver; "
-                         "this run used --solver pgs").step_files
+        run = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver; "
+                       "this run used --solver pgs")
+        files = [(f, run.manifest.get("scene"), s.seed) for s in run.simulations for f in s.files]
     else:
-        files = [f for sim in sorted(p for p in run_dir.glob("seed-*") if p.is_dir())
-                 for f in sorted(sim.glob("step-*.xml"))]
+        files = [(f, None, None) for sim in sorted(p for p in run_dir.glob("seed-*") if p.is_dir())
+                 for f in step_files_in(sim)]
     if not files:
         raise InputError("no step files found (expected seed-*/step-*.xml)", run_dir)
     return files
@@ -45,8 +48,11 @@ def step_files(run_dir):
 
 def replay_run(run_dir, on_file=None) -> ReplayReport:
     report = ReplayReport(run=str(run_dir))
-    for path in step_files(run_dir):
-        problem = StepProblem.from_step_file(path)
+    for path, scene, seed in step_files(run_dir):
+        header, bodies, contacts = read_step(path, validate=False)
+        if seed is not None:
+            check_origin(header, scene, seed, path)
+        problem = StepProblem.from_step(header, bodies, contacts, path)
         if on_file is not None:
             on_file(path)
         if problem.points == 0:

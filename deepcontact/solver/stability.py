@@ -122,10 +122,11 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
     if solver == "pgs":
         stepper = PGSStepper(world, scene, LoopOptions(start=start, mode="float64", max_iterations=iterations,
                                                        relaxation=relaxation, accelerate=accelerate))
-    removals = {e.step: e.body for e in scene.events}
+    removals = scene.removals()
     bodies = world.bodies()
-    top = int(np.argmax(np.where(bodies["type"] == 2, bodies["center"][:, 1], -np.inf)))
-    top_start = bodies["center"][top].astype(np.float64)
+    # the top body, by its index: removals shift the rows of the arrays
+    top = int(bodies["index"][np.argmax(np.where(bodies["type"] == 2, bodies["center"][:, 1], -np.inf))])
+    top_start = bodies["center"][bodies["index"] == top][0].astype(np.float64)
 
     def allowance(b):
         mass = float(np.sum(b["mass"][b["type"] == 2]))
@@ -140,7 +141,8 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
     t0 = time.perf_counter()
     for k in range(scene.steps):
         if k in removals:     # an external cause: measure from here on
-            world.remove_body(removals[k])
+            for body in removals[k]:
+                world.remove_body(body)
             baseline, allowed = energy(world.bodies(), gravity), allowance(world.bodies())
         if stepper is None:
             _, contacts = world.step(scene.dt, iterations, scene.solver.position_iterations, record=True)
@@ -163,8 +165,8 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
         e = energy(bodies, gravity) - baseline
         if e / allowed > excess:
             excess, rise, worst_allowed = e / allowed, e, allowed
-        if case.stack_top:
-            drift = max(drift, float(np.linalg.norm(bodies["center"][top] - top_start)))
+        if case.stack_top and np.any(bodies["index"] == top):
+            drift = max(drift, float(np.linalg.norm(bodies["center"][bodies["index"] == top][0] - top_start)))
     return Result(case=case.label, solver=solver, start=label(start, relaxation, accelerate), iterations=iterations, finite=finite,
                   penetration=penetration, peak_penetration=peak, energy_rise=float(rise),
                   energy_allowed=worst_allowed,

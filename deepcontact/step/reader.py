@@ -11,6 +11,7 @@ from .. import schema
 from ..errors import InputError
 
 _MANIFOLD = {"circles": 0, "face_a": 1, "face_b": 2}
+INT32_MAX = 2 ** 31 - 1   # every count and index in a step file (schemas/common.xsd: count)
 _TYPE = {"static": 0, "kinematic": 1, "dynamic": 2}
 
 # key: (child element, attributes); "." is an attribute of the <body>/<contact> element itself
@@ -57,6 +58,27 @@ def _parse(path, validate):
     return root
 
 
+def _count(element, attr, path, low=0, high=INT32_MAX):
+    """An integer attribute within [low, high]; InputError naming the file and line otherwise."""
+    text = element.get(attr)
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        raise InputError(f"<{element.tag} {attr}> must be a whole number, got {text!r}", path,
+                         element.sourceline) from None
+    if not low <= value <= high:
+        raise InputError(f"<{element.tag} {attr}> must be between {low} and {high}, got {value}", path,
+                         element.sourceline)
+    return value
+
+
+def check_origin(header, scene, seed, path):
+    """A step file belongs to the simulation it lies in: the same scene name and seed."""
+    if header["scene"] != scene or header["seed"] != seed:
+        raise InputError(f"the step file is of scene {header['scene']!r} seed {header['seed']}, but lies in a "
+                         f"simulation of scene {scene!r} seed {seed} (copied from another run?)", path, 1)
+
+
 class _Columns:
     """Attribute columns of every `parent/child` element of a step file."""
 
@@ -64,6 +86,12 @@ class _Columns:
         self.root, self.path, self.base = root, path, f"{parent}/{child}"
         self.child = child
         self.n = len(root.xpath(self.base))
+        holder = root.find(parent)
+        if holder is None:
+            raise InputError(f"no <{parent}> element", path, root.sourceline)
+        if _count(holder, "count", path) != self.n:
+            raise InputError(f'<{parent} count="{holder.get("count")}"> but it holds {self.n} <{child}> elements',
+                             path, holder.sourceline)
 
     def text(self, element, attr):
         where = self.base if element == "." else f"{self.base}/{element}"
@@ -91,9 +119,15 @@ class _Columns:
 
     def ints(self, element, attr, dtype):
         try:
-            return np.array([int(v) for v in self.text(element, attr)], dtype=dtype)
+            values = [int(v) for v in self.text(element, attr)]
         except ValueError:
             raise InputError(f"a <{element} {attr}> value is not an integer", self.path) from None
+        info = np.iinfo(dtype)
+        low, high = max(info.min, 0), min(info.max, INT32_MAX) if dtype != np.uint32 else info.max
+        bad = [v for v in values if not low <= v <= high]
+        if bad:
+            raise InputError(f"a <{element} {attr}> value is out of range ({bad[0]}; {low} to {high})", self.path)
+        return np.array(values, dtype=dtype)
 
     def read(self, spec):
         return {key: self.floats(element, attrs) for key, (element, attrs) in spec.items()}
@@ -110,12 +144,12 @@ def read_step(path, validate=True):
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
     root = _parse(path, validate)
     h = root.find("header")
-    header = dict(scene=root.get("scene"), seed=int(root.get("seed")), index=int(root.get("index")),
+    header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path),
                   time=np.float32(root.get("time")), dt=np.float32(root.get("dt")),
                   dt_ratio=np.float32(root.get("dt_ratio")),
                   gravity=np.array([h.find("gravity").get("x"), h.find("gravity").get("y")], np.float32),
-                  velocity_iterations=int(h.find("iterations").get("velocity")),
-                  position_iterations=int(h.find("iterations").get("position")),
+                  velocity_iterations=_count(h.find("iterations"), "velocity", path),
+                  position_iterations=_count(h.find("iterations"), "position", path),
                   solver=dict(h.find("solver").attrib), effects=dict(h.find("effects").attrib),
                   versions=dict(h.find("versions").attrib))
 
@@ -136,8 +170,11 @@ def read_step(path, validate=True):
         k = row[int(el.get("index"))]
         b["linear_damping"][k], b["angular_damping"][k] = d.get("linear"), d.get("angular")
     b["gravity_scale"] = np.ones(bc.n, np.float32)   # scenes have no per-body gravity scale
-    radius = dict(zip(map(int, root.xpath("bodies/body/shape/*/@fixture")),
-                      np.array(root.xpath("bodies/body/shape/*/@radius"), dtype=np.float32)))
+    try:
+        radius = dict(zip(map(int, root.xpath("bodies/body/shape/*/@fixture")),
+                          np.array(root.xpath("bodies/body/shape/*/@radius"), dtype=np.float32)))
+    except ValueError:
+        raise InputError("a shape's fixture or radius is not a number", path) from None
 
     cc = _Columns(root, path, "contacts", "contact")
     c = cc.read(_CONTACT_ALL)
@@ -158,5 +195,5 @@ def read_step_for_grid(path):
     bodies = bc.read(_BODY_GRID)
     bodies["type"] = _types(bc)
     contacts = _Columns(root, path, "contacts", "contact").read(_CONTACT_GRID)
-    header = dict(scene=root.get("scene"), seed=int(root.get("seed", 0)), index=int(root.get("index", 0)))
+    header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path))
     return header, bodies, contacts

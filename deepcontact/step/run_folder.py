@@ -7,6 +7,8 @@ the number of step files the manifest recorded (a deleted or added file is an er
 silently shorter run).
 """
 import json
+import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +17,7 @@ from ..errors import InputError
 
 MANIFEST = "manifest.json"
 _SIM_DIR = re.compile(r"seed-\d{6,}")
+_STEP_FILE = re.compile(r"step-\d{6,}\.xml")
 
 
 @dataclass
@@ -23,6 +26,7 @@ class Simulation:
     dir: str          # the folder's name inside the run
     path: Path
     files: list       # its step files, in step order
+    extent: tuple = None   # (x0, y0, x1, y1) the bodies stayed in, where the manifest records it
 
 
 @dataclass
@@ -41,6 +45,40 @@ def _int(entry, key, index, path):
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise InputError(f"simulation {index}: {key!r} must be a non-negative integer, got {value!r}", path)
     return value
+
+
+def _extent(entry, index, path):
+    value = entry.get("extent")
+    if value is None:
+        return None
+    ok = (isinstance(value, list) and len(value) == 4
+          and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+    if not ok or value[0] > value[2] or value[1] > value[3]:
+        raise InputError(f"simulation {index}: 'extent' must be [x0, y0, x1, y1], finite, got {value!r}", path)
+    return tuple(float(v) for v in value)
+
+
+def step_files_in(folder):
+    """The step files of a simulation folder, sorted; anything by that name that is not a regular
+    file (a FIFO, a device, a folder) is refused: reading it could block or mislead."""
+    files = []
+    with os.scandir(folder) as it:
+        for e in it:
+            if _STEP_FILE.fullmatch(e.name):
+                if not e.is_file():
+                    raise InputError("not a regular file", e.path)
+                files.append(Path(e.path))
+    return sorted(files)
+
+
+def require_regular(path):
+    """path, if it is a regular file; InputError otherwise (a FIFO would block a reader)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file", path)
+    if not path.is_file():
+        raise InputError("not a regular file", path)
+    return path
 
 
 def read_manifest(run_dir):
@@ -80,7 +118,7 @@ def read_run(run_dir, solver=None, purpose=None):
     path = run_dir / MANIFEST
     if solver is not None and m.get("solver", "box2d") != solver:
         raise InputError(purpose or f"this needs a run of the {solver} solver", path)
-    sims = []
+    sims, seen = [], {}
     for i, e in enumerate(m["simulations"]):
         if not isinstance(e, dict):
             raise InputError(f"simulation {i} must be a JSON object", path)
@@ -88,13 +126,17 @@ def read_run(run_dir, solver=None, purpose=None):
             raise InputError(f"simulation {i} has no 'dir'", path)
         folder = simulation_folder(run_dir, e["dir"], path)
         seed = _int(e, "seed", i, path)
+        for key, value in (("dir", e["dir"]), ("seed", seed)):
+            if (key, value) in seen:
+                raise InputError(f"simulations {seen[key, value]} and {i} have the same {key} {value!r}", path)
+            seen[key, value] = i
         if not folder.is_dir():
             raise InputError(f"simulation {i}: folder {e['dir']} is missing", path)
-        files = sorted(folder.glob("step-*.xml"))
+        files = step_files_in(folder)
         if "files" in e:
             want = _int(e, "files", i, path)
             if len(files) != want:
                 raise InputError(f"{e['dir']} holds {len(files)} step files, the manifest recorded {want} "
                                  f"(files deleted or added after the run?)", folder)
-        sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files))
+        sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path)))
     return Run(path=run_dir, manifest=m, simulations=sims)
