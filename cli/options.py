@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from deepcontact.errors import InputError, show_path
+from deepcontact.errors import InputError, one_line, show_path
 
 
 class Finite(click.FloatRange):
@@ -164,12 +164,6 @@ def _on_signal(signum, frame):
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-MAX_MESSAGE = 600   # characters: a message is one readable line, whatever a parser put in it
-
-
-def one_line(text):
-    text = " ".join(str(text).split())
-    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 1] + "…"
 
 
 def command(name):

@@ -20,6 +20,15 @@ class InputError(Exception):
         return f"{where}: {self.message}" if where else self.message
 
 
+MAX_MESSAGE = 600   # characters: a message is one readable line, whatever a parser put in it
+
+
+def one_line(text):
+    """text on one line (white space folded), cut to MAX_MESSAGE characters."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 1] + "…"
+
+
 def show_path(path):
     """A path as one line shows it: quoted when it holds a newline or other unprintable character."""
     path = str(path)

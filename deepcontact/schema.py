@@ -4,6 +4,8 @@ from importlib import resources
 
 from lxml import etree
 
+from .errors import one_line, show_path
+
 KINDS = ("scene", "step")
 
 
@@ -39,22 +41,28 @@ def has_doctype(tree):
 
 def validate(path, kind=None):
     """Returns (kind, tree or None, [error lines]). The kind comes from the root element."""
+    kind, tree, errors = _validate(path, kind)
+    return kind, tree, [one_line(e) for e in errors]
+
+
+def _validate(path, kind):
+    shown = show_path(path)
     try:
         tree = parse(path)
     except etree.XMLSyntaxError as e:
         line, col = e.position if e.position else (e.lineno or 0, 0)
-        return kind, None, [f"{path}:{line}:{col}: {e.msg}"]
+        return kind, None, [f"{shown}:{line}:{col}: {e.msg}"]
     except OSError as e:
-        return kind, None, [f"{path}:0:0: cannot read: {e.strerror or e}"]
+        return kind, None, [f"{shown}:0:0: cannot read: {e.strerror or e}"]
     if has_doctype(tree):
-        return kind, None, [f"{path}:1:0: {DOCTYPE_REFUSED}"]
+        return kind, None, [f"{shown}:1:0: {DOCTYPE_REFUSED}"]
     root = tree.getroot().tag
     if kind is None:
         if root not in KINDS:
-            return None, tree, [f"{path}:{tree.getroot().sourceline}:0: root element <{root}> "
+            return None, tree, [f"{shown}:{tree.getroot().sourceline}:0: root element <{root}> "
                                 f"is neither <scene> nor <step>"]
         kind = root
     xsd = schema(kind)
     if xsd.validate(tree):
         return kind, tree, []
-    return kind, tree, [f"{path}:{e.line}:{e.column}: {e.message}" for e in xsd.error_log]
+    return kind, tree, [f"{shown}:{e.line}:{e.column}: {e.message}" for e in xsd.error_log]

@@ -30,7 +30,7 @@ import numpy as np
 
 from .. import __version__, atomic, workers
 from .._box2d import box2d_version
-from ..errors import InputError
+from ..errors import InputError, show_path
 from ..resources import check_disk, check_memory
 from ..scene.xml import read_scene
 from ..step.reader import check_origin, read_step_for_grid
@@ -90,7 +90,7 @@ def collect(run_dirs, include_contactless=False):
     for run_dir in map(Path, run_dirs):
         key = run_dir.resolve()
         if key in seen:   # the same simulations in both splits would make validation meaningless
-            raise InputError(f"this run is given twice (also as {seen[key]})", run_dir)
+            raise InputError(f"this run is given twice (also as {show_path(seen[key])})", run_dir)
         seen[key] = run_dir
         run = read_run(run_dir)
         raw = (run_dir / MANIFEST).read_bytes()

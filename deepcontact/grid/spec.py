@@ -6,7 +6,6 @@ static bodies) or a given window: the thesis's 30 x 30 box at d = 0.5 has 61 x 6
 import math
 from dataclasses import asdict, dataclass
 
-import numpy as np
 
 from ..errors import InputError
 from .kernels import KERNELS, weight
@@ -75,24 +74,5 @@ class GridSpec:
 def scene_box(scene):
     """(x0, y0, x1, y1) of the static bodies' shapes, or None if there are none or they enclose
     no area (a ground line: the pyramid, the stack)."""
-    pts = []
-    for b in scene.bodies:
-        if b.type != "static":
-            continue
-        c, s = math.cos(b.angle), math.sin(b.angle)
-
-        def world(x, y):
-            return (b.x + c * x - s * y, b.y + s * x + c * y)
-        for sh in b.shapes:
-            if sh.kind == "edge":
-                pts += [world(sh.x1, sh.y1), world(sh.x2, sh.y2)]
-            elif sh.kind == "polygon":
-                pts += [world(x, y) for x, y in sh.vertices]
-            else:
-                cx, cy = world(sh.x, sh.y)
-                pts += [(cx - sh.radius, cy - sh.radius), (cx + sh.radius, cy + sh.radius)]
-    if not pts:
-        return None
-    p = np.array(pts)
-    box = (float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
-    return box if box[2] > box[0] and box[3] > box[1] else None
+    box = scene.static_extent()
+    return box if box is not None and box[2] > box[0] and box[3] > box[1] else None

@@ -175,7 +175,10 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     ck = None
     if resume:
         ck = load_checkpoint(last)
-        cfg = TrainConfig(**ck["train_config"])
+        try:
+            cfg = TrainConfig(**ck["train_config"])
+        except TypeError as e:
+            raise InputError(f"refused: the training config does not fit this version ({e})", last) from None
         check_compatible(ck, meta, last)
     cfg = cfg or TrainConfig()
     if epochs is not None:

@@ -5,6 +5,7 @@ what Box2D simulates: a scene written to XML and read back is the same scene, bi
 Only declared effects are simulated: no gravity unless given, friction and restitution 0 unless
 their effect is declared, no damping unless declared, no continuous collision unless declared.
 """
+import math
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -120,6 +121,29 @@ class Scene:
     seed: Optional[int] = None
     params: dict = field(default_factory=dict)
     lines: dict = field(default_factory=dict, compare=False)   # element -> line, for a file's errors
+
+    def static_extent(self):
+        """(x0, y0, x1, y1) of the static bodies' shapes in the world, or None if there are none."""
+        pts = []
+        for b in self.bodies:
+            if b.type != "static":
+                continue
+            c, s = math.cos(b.angle), math.sin(b.angle)
+
+            def world(x, y):
+                return (b.x + c * x - s * y, b.y + s * x + c * y)
+            for sh in b.shapes:
+                if sh.kind == "edge":
+                    pts += [world(sh.x1, sh.y1), world(sh.x2, sh.y2)]
+                elif sh.kind == "polygon":
+                    pts += [world(x, y) for x, y in sh.vertices]
+                else:
+                    cx, cy = world(sh.x, sh.y)
+                    pts += [(cx - sh.radius, cy - sh.radius), (cx + sh.radius, cy + sh.radius)]
+        if not pts:
+            return None
+        xs, ys = zip(*pts)
+        return (float(min(xs)), float(min(ys)), float(max(xs)), float(max(ys)))
 
     def removals(self):
         """{step: [body, ...]}: every removal event, several in one step included."""

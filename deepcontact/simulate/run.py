@@ -55,17 +55,22 @@ def body_reach(body):
 
 
 class Extent:
-    """The box every body's shapes stayed in over a simulation (for a grid window)."""
+    """The box every body's shapes stayed in over a simulation (for a grid window): the static
+    shapes exactly, a moving body as a disc of its reach about its origin at every step."""
 
     def __init__(self, scene):
         self.reach = np.array([body_reach(b) for b in scene.bodies] or [0.0])
-        self.lo, self.hi = np.full(2, np.inf), np.full(2, -np.inf)
+        box = scene.static_extent()
+        self.lo = np.array(box[:2]) if box else np.full(2, np.inf)
+        self.hi = np.array(box[2:]) if box else np.full(2, -np.inf)
 
     def add(self, bodies):
-        if len(bodies["position"]):
-            r = self.reach[bodies["index"]][:, None]
-            self.lo = np.minimum(self.lo, (bodies["position"] - r).min(axis=0))
-            self.hi = np.maximum(self.hi, (bodies["position"] + r).max(axis=0))
+        moving = bodies["type"] != 0
+        if np.any(moving):
+            r = self.reach[bodies["index"][moving]][:, None]
+            p = bodies["position"][moving]
+            self.lo = np.minimum(self.lo, (p - r).min(axis=0))
+            self.hi = np.maximum(self.hi, (p + r).max(axis=0))
 
     def as_list(self):
         if not np.all(np.isfinite(self.lo)):
@@ -193,7 +198,7 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
         check_scene_for_loop(first, source)
     out_dir = Path(out_dir)
     with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
-        check_disk(len(seeds) * first.steps * (1024 + STEP_BYTES_PER_BODY * len(first.bodies)), work, max_disk,
+        check_disk(len(seeds) * first.steps * (1024 + STEP_BYTES_PER_BODY * len(first.bodies)), out_dir, max_disk,
                    f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
                              progress, source, loop)

@@ -8,7 +8,7 @@ it bit for bit against the native writer); `read_step_for_grid` only what raster
 import numpy as np
 
 from .. import schema
-from ..errors import InputError
+from ..errors import InputError, show_path
 
 _MANIFOLD = {"circles": 0, "face_a": 1, "face_b": 2}
 INT32_MAX = 2 ** 31 - 1   # every count and index in a step file (schemas/common.xsd: count)
@@ -41,8 +41,8 @@ def _parse(path, validate):
     if validate:
         _, tree, errors = schema.validate(path, "step")
         if errors:
-            first = errors[0].split(":", 3)
-            raise InputError(first[3].strip(), path, int(first[1]) if first[1].isdigit() else None)
+            line, _, message = errors[0][len(show_path(path)) + 1:].split(":", 2)   # path:line:col: message
+            raise InputError(message.strip(), path, int(line) if line.isdigit() else None)
     else:
         try:
             tree = schema.parse(path)
@@ -97,7 +97,8 @@ class _Columns:
         where = self.base if element == "." else f"{self.base}/{element}"
         values = self.root.xpath(f"{where}/@{attr}")
         if len(values) != self.n:
-            raise InputError(f"{self.n - len(values)} <{self.child}> element(s) lack <{element} {attr}=...>", self.path)
+            raise InputError(f"{self.n - len(values)} <{self.child}> element(s) lack <{self._name(element)} {attr}=...>",
+                             self.path)
         return values
 
     def floats(self, element, attrs):
@@ -121,13 +122,17 @@ class _Columns:
         try:
             values = [int(v) for v in self.text(element, attr)]
         except ValueError:
-            raise InputError(f"a <{element} {attr}> value is not an integer", self.path) from None
+            raise InputError(f"a <{self._name(element)} {attr}> value is not an integer", self.path) from None
         info = np.iinfo(dtype)
         low, high = max(info.min, 0), min(info.max, INT32_MAX) if dtype != np.uint32 else info.max
         bad = [v for v in values if not low <= v <= high]
         if bad:
-            raise InputError(f"a <{element} {attr}> value is out of range ({bad[0]}; {low} to {high})", self.path)
+            raise InputError(f"a <{self._name(element)} {attr}> value is out of range ({bad[0]}; {low} to {high})",
+                             self.path)
         return np.array(values, dtype=dtype)
+
+    def _name(self, element):
+        return self.child if element == "." else element
 
     def read(self, spec):
         return {key: self.floats(element, attrs) for key, (element, attrs) in spec.items()}
