@@ -79,7 +79,9 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
             bar.close()
     g = meta["grid"]
     if not quiet:
-        click.echo(f"{out}: {meta['samples']} samples, {g['nx']} x {g['ny']} grid, inputs {','.join(meta['inputs'])}, "
+        x1, y1 = g["x0"] + (g["nx"] - 1) * g["cell"], g["y0"] + (g["ny"] - 1) * g["cell"]
+        click.echo(f"{out}: {meta['samples']} samples, {g['nx']} x {g['ny']} grid over {g['x0']:g},{g['y0']:g},{x1:g},"
+                   f"{y1:g} ({meta['window']}), inputs {','.join(meta['inputs'])}, "
                    f"labels {','.join(meta['labels'])}; {len(meta['split']['train'])} training and "
                    f"{len(meta['split']['validation'])} validation simulations", err=True)
 

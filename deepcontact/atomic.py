@@ -174,7 +174,8 @@ def glob_escape(name):
 
 
 @contextmanager
-def output_folder(path, owned, overwrite=False, *, command, in_place=False, existing_ok=False):
+def output_folder(path, owned, overwrite=False, *, command, in_place=False, existing_ok=False,
+                  hint="use --overwrite to replace it"):
     """The folder a command writes its output in, checked, locked and atomic.
 
     A new or empty ``path`` is written; an existing output only with overwrite, and only if every
@@ -182,7 +183,8 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
     built in ``.NAME.partial-PID`` beside path and swapped in when complete, so a failed or
     interrupted command leaves path as it was. in_place: write into path itself (training, which
     resumes from what it wrote); a folder it created is removed again if it is still empty.
-    existing_ok: an existing output is written into (resuming) without overwrite."""
+    existing_ok: an existing output is written into (resuming) without overwrite. hint: what
+    the message for an output that is there already suggests."""
     from .errors import InputError
     path = Path(path)
     if path.is_symlink():
@@ -200,7 +202,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
         existing = path.is_dir() and any(path.iterdir())
         if existing and not existing_ok:
             if not overwrite:
-                raise InputError("output folder is not empty; use --overwrite to replace it", path)
+                raise InputError(f"output folder is not empty; {hint}", path)
             foreign = owned.first_foreign(path)
             if foreign is not None:
                 raise InputError(f"not written by dc {command}: refusing to replace {path} (--overwrite only "

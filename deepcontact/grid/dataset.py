@@ -222,24 +222,23 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
     out = Path(out)
     if not 0 <= validation_fraction < 1:
         raise InputError(f"--validation must be in [0, 1), got {validation_fraction}")
-    sims, manifests = collect(run_dirs, include_contactless)
-    spec, which = grid_for(sims, cell, h, kernel, renormalize, window)
-    n = sum(len(s.files) for s in sims)
-    m = sum(sum(s.contacts) for s in sims)
-    if n == 0:
-        raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
-    per_sample = (len(inputs) + len(labels)) * spec.nx * spec.ny * 4
-    longest = max(len(s.files) for s in sims)
-    check_memory(per_sample * longest * min(jobs, len(sims)),
-                 max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
-    check_disk(per_sample * n + 28 * m + 16 * n, out, None, "the dataset")
-    log.info("grid window %g, %g, %g, %g (%s): %d x %d nodes", spec.x0, spec.y0, spec.x0 + (spec.nx - 1) * spec.cell,
-             spec.y0 + (spec.ny - 1) * spec.cell, which, spec.nx, spec.ny)
-    radii = [s.radius for s in sims if s.radius is not None]
-    for w in spec.rule_warnings(min(radii) if radii else None):
-        log.warning(w)
-
+    # The output is checked and locked first: nothing is read or logged for an output refused.
     with atomic.output_folder(out, DATASET_FILES, overwrite, command="rasterize") as tmp:
+        sims, manifests = collect(run_dirs, include_contactless)
+        spec, which = grid_for(sims, cell, h, kernel, renormalize, window)
+        n = sum(len(s.files) for s in sims)
+        m = sum(sum(s.contacts) for s in sims)
+        if n == 0:
+            raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
+        per_sample = (len(inputs) + len(labels)) * spec.nx * spec.ny * 4
+        longest = max(len(s.files) for s in sims)
+        check_memory(per_sample * longest * min(jobs, len(sims)),
+                     max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
+        check_disk(per_sample * n + 28 * m + 16 * n, out, None, "the dataset")
+        radii = [s.radius for s in sims if s.radius is not None]
+        for w in spec.rule_warnings(min(radii) if radii else None):
+            log.warning(w)
+
         shapes = {"N": n, "N+1": n + 1, "M": m, "C_in": len(inputs), "C_out": len(labels), "H": spec.ny,
                   "W": spec.nx}
         images = {name: _NpyWriter(tmp / f"{name}.npy", ARRAY_LAYOUT[name][0],
@@ -281,6 +280,7 @@ def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize
             "samples": n,
             "contact_points": m,
             "grid": spec.as_dict(),
+            "window": which,   # where the grid's extent came from
             "inputs": inputs,
             "labels": labels,
             "contactless_steps": "kept" if include_contactless else "skipped",

@@ -199,9 +199,6 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     val_idx = ds.indices("validation")
     if len(train_idx) == 0:
         raise InputError("the dataset has no training samples", dataset)
-    if not resume and not overwrite and out_dir.is_dir() and any(out_dir.iterdir()):
-        raise InputError("the folder is not empty; use --resume to continue a run there or --overwrite to "
-                         "replace it", out_dir)
     net_cfg = network_config(cfg, meta, cfg.targets)
     problem = check_config(net_cfg)
     if problem:
@@ -342,7 +339,8 @@ def _output_folder(out_dir, overwrite, replace, resume, rank):
         yield out_dir
         return
     with atomic.output_folder(out_dir, MODEL_FILES, overwrite, command="train", in_place=not replace,
-                              existing_ok=resume) as work:
+                              existing_ok=resume, hint="use --resume to continue a run there or --overwrite to "
+                              "replace it") as work:
         yield work
 
 

@@ -1,0 +1,604 @@
+"""Nothing lost, ever: tried as a hostile user would, through the real `dc`.
+
+--overwrite replaces only what the command wrote; two commands never write one output; signals,
+full disks and dying parents leave no partial output and no live worker; runaway sizes are
+refused before anything is written; tampered or inconsistent input is one line naming the file,
+and bad option values exit 2. (The property-based sweep over mutated files is
+tests/test_mutations.py.)
+"""
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import dc
+from deepcontact import atomic
+
+PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
+TINY_TRAIN = ["--epochs", "1", "--width", "4", "--depth", "2", "-q"]
+
+
+def one_line_error(r, *needles):
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    for n in needles:
+        assert str(n) in lines[0], (n, lines[0])
+    return lines[0]
+
+
+def option_error(r, *needles):
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr, r.stderr
+    for n in needles:
+        assert str(n) in r.stderr, (n, r.stderr)
+
+
+def snapshot(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
+
+
+def leftovers(parent):
+    """What our commands leave beside their outputs when something goes wrong."""
+    return sorted(p.name for p in Path(parent).iterdir() if p.name.startswith(".") and
+                  (".partial-" in p.name or ".old-" in p.name or p.name.endswith(".lock")))
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("lost") / "run"
+    r = dc("simulate", *PILE, "--steps", "120", "--seeds", "0..1", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def dataset(run):
+    out = run.parent / "data"
+    r = dc("rasterize", str(run), "-o", str(out), "--cell", "1", "--smoothing", "1", "--validation", "0.5", "-q")
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def model(dataset):
+    out = dataset.parent / "model"
+    r = dc("train", str(dataset), "-o", str(out), *TINY_TRAIN)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def copy(src, dst):
+    shutil.copytree(src, dst)
+    return dst
+
+
+# --- --overwrite replaces only what the command wrote -------------------------------------------
+
+def test_overwrite_refuses_a_dataset_folder_holding_user_files(run, dataset, tmp_path):
+    mine = copy(dataset, tmp_path / "data")
+    (mine / "src").mkdir()
+    (mine / "src" / "main.py").write_text("print('mine')")
+    (mine / "README").write_text("notes")
+    before = snapshot(mine)
+    r = dc("rasterize", str(run), "-o", str(mine), "--overwrite", "--cell", "1", "--smoothing", "1")
+    one_line_error(r, mine / "README", "not written by dc rasterize")
+    (mine / "README").unlink()
+    r = dc("rasterize", str(run), "-o", str(mine), "--overwrite", "--cell", "1", "--smoothing", "1")
+    one_line_error(r, mine / "src", "not written by dc rasterize")
+    assert snapshot(mine) == {k: v for k, v in before.items() if k != "README"}
+    assert leftovers(tmp_path) == []
+
+
+def test_overwrite_refuses_report_and_training_folders_with_foreign_files(run, dataset, model, tmp_path):
+    report = tmp_path / "report"
+    assert dc("evaluate", str(run), "--starts", "builtin", "--every", "40", "--no-budgets", "-q",
+              "-o", str(report)).returncode == 0
+    (report / "analysis.ipynb").write_text("{}")
+    r = dc("evaluate", str(run), "--starts", "builtin", "--every", "40", "--overwrite", "-q", "-o", str(report))
+    one_line_error(r, report / "analysis.ipynb", "not written by dc evaluate")
+    assert (report / "analysis.ipynb").exists() and (report / "report.md").exists()
+    trained = copy(model, tmp_path / "model")
+    (trained / "notes.txt").write_text("mine")
+    r = dc("train", str(dataset), "-o", str(trained), "--overwrite", *TINY_TRAIN)
+    one_line_error(r, trained / "notes.txt", "not written by dc train")
+    assert (trained / "notes.txt").read_text() == "mine"
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("foreign", [".git/HEAD", "seed-000001/inputs.npy", "seed-000002/todo.txt"])
+def test_simulate_overwrite_looks_at_hidden_files_and_inside_seed_folders(run, tmp_path, foreign):
+    out = copy(run, tmp_path / "run")
+    (out / foreign).parent.mkdir(exist_ok=True)
+    (out / foreign).write_text("mine")
+    before = snapshot(out)
+    r = dc("simulate", *PILE, "--steps", "10", "--overwrite", "-q", "-o", str(out))
+    first = out / foreign.split("/")[0] if foreign.startswith(".") else out / foreign
+    one_line_error(r, "not written by dc simulate", first)
+    assert snapshot(out) == before and leftovers(tmp_path) == []
+
+
+def test_overwrite_replaces_a_folder_of_the_commands_own_files(run, tmp_path):
+    out = copy(run, tmp_path / "run")
+    (out / "seed-000000" / ".step-000005.xml.999.tmp").write_text("a temporary file of an earlier run")
+    r = dc("simulate", *PILE, "--steps", "10", "--overwrite", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "manifest.json").read_text())["simulations"][0]["steps"] == 10
+    assert not (out / "seed-000001").exists() and leftovers(tmp_path) == []
+
+
+def test_a_symlinked_output_is_refused_and_nothing_is_left_beside_it(run, dataset, tmp_path):
+    real = copy(dataset, tmp_path / "real")
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    before = snapshot(real)
+    r = dc("rasterize", str(run), "-o", str(link), "--overwrite", "--cell", "1", "--smoothing", "1")
+    one_line_error(r, link, "symbolic link")
+    r = dc("simulate", *PILE, "--steps", "5", "--overwrite", "-o", str(link))
+    one_line_error(r, link, "symbolic link")
+    assert link.is_symlink() and snapshot(real) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]
+
+
+def test_leftovers_of_a_killed_run_are_cleared_by_the_next(run, tmp_path):
+    out = tmp_path / "run"
+    stale = tmp_path / ".run.partial-99999999"
+    (stale / "seed-000000").mkdir(parents=True)
+    (stale / "seed-000000" / "step-000000.xml").write_text("<step/>")
+    r = dc("simulate", *PILE, "--steps", "5", "-q", "-o", str(out))
+    assert r.returncode == 0 and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+# --- one writer per output ---------------------------------------------------------------------
+
+@contextmanager
+def held(path):
+    with atomic.locked(path):
+        yield
+
+
+def test_a_second_command_on_a_locked_output_refuses(run, dataset, tmp_path):
+    for args, out in ((["rasterize", str(run), "--cell", "1", "--smoothing", "1"], tmp_path / "data"),
+                      (["train", str(dataset), *TINY_TRAIN], tmp_path / "model"),
+                      (["simulate", *PILE, "--steps", "5"], tmp_path / "run"),
+                      (["evaluate", str(run), "--starts", "builtin", "--every", "40"], tmp_path / "report")):
+        with held(out):
+            r = dc(*args, "-o", str(out))
+        one_line_error(r, out, "another dc command is writing this output")
+        assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_two_trainings_into_one_folder_at_once(dataset, tmp_path):
+    out = tmp_path / "m"
+    first = start(["train", str(dataset), "-o", str(out), "--epochs", "100000", "--width", "4", "--depth", "2", "-q"],
+                  tmp_path)
+    wait_for(lambda: (out / "last.pt").exists())
+    second = dc("train", str(dataset), "-o", str(out), "--epochs", "3", "--width", "4", "--depth", "2", "-q")
+    one_line_error(second, out, "another dc command")
+    first.send_signal(signal.SIGINT)
+    assert first.wait(timeout=60) == 130
+    # only the first training's files, whole: it can be resumed
+    assert {p.name for p in out.iterdir()} <= {"last.pt", "best.pt", "metrics.csv", "metrics.json"}
+    assert len(json.loads((out / "metrics.json").read_text())) >= 1
+    assert leftovers(tmp_path) == []
+
+
+# --- full disks ----------------------------------------------------------------------------------
+
+@contextmanager
+def small_disk(tmp_path, **options):
+    """A tmpfs of the given size / inode count (root only: mount)."""
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        pytest.skip("mounting a small file system needs root")
+    where = tmp_path / "disk"
+    where.mkdir()
+    opts = ",".join(f"{k}={v}" for k, v in options.items())
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(where)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+def test_a_disk_too_small_for_the_estimate_is_refused_before_writing(run, tmp_path):
+    with small_disk(tmp_path, size="2m") as disk:
+        r = dc("rasterize", str(run), "-o", str(disk / "data"), "--cell", "0.2", "--smoothing", "0.2")
+        one_line_error(r, disk / "data", "on disk", "free there")
+        r = dc("simulate", "pile", "--seeds", "0..3", "-o", str(disk / "run"))
+        one_line_error(r, disk / "run", "on disk", "free there")
+        r = dc("simulate", *PILE, "--steps", "10", "--max-disk", "0.0001", "-o", str(disk / "run"))
+        one_line_error(r, "--max-disk")
+        assert list(disk.iterdir()) == []
+
+
+@pytest.mark.parametrize("inodes", [6, 8, 10])
+def test_a_full_disk_while_writing_is_one_line_naming_the_file(run, tmp_path, inodes):
+    # A file system out of inodes runs out of room after the estimate passed: the write fails.
+    with small_disk(tmp_path, size="100m", nr_inodes=inodes) as disk:
+        r = dc("rasterize", str(run), "-o", str(disk / "data"), "--cell", "1", "--smoothing", "1", "-q")
+        line = one_line_error(r, "No space left on device")
+        assert f"{disk / 'data'}/" in line and ".partial-" not in line
+        r = dc("evaluate", str(run), "--starts", "builtin", "--every", "40", "-q", "-o", str(disk / "report"))
+        line = one_line_error(r, "No space left on device")
+        assert f"{disk / 'report'}" in line and ".partial-" not in line
+        assert list(disk.iterdir()) == []
+
+
+# --- signals and workers -------------------------------------------------------------------------
+
+def start(args, cwd):
+    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", *args], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(predicate, seconds=60):
+    deadline = time.time() + seconds
+    while not predicate():
+        if time.time() > deadline:
+            raise AssertionError("timed out waiting")
+        time.sleep(0.02)
+
+
+def children(pid):
+    try:
+        return [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def alive(pid):
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, model, tmp_path, sig):
+    outputs = {"run": copy(run, tmp_path / "run"), "data": copy(dataset, tmp_path / "data"),
+               "model": copy(model, tmp_path / "model")}
+    commands = {"run": ["simulate", "pile", "--seeds", "0..40", "--overwrite", "-q", "-o", "run"],
+                "data": ["rasterize", str(run), "--cell", "0.1", "--smoothing", "0.1", "--overwrite", "-q",
+                         "-o", "data", "--max-memory", "20"],
+                "model": ["train", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2", "--overwrite",
+                          "-q", "-o", "model"]}
+    for name, args in commands.items():
+        before = snapshot(outputs[name])
+        proc = start(args, tmp_path)
+        wait_for(lambda: any(tmp_path.glob(f".{name}.partial-*/*")))
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 128 + sig, err
+        assert "interrupted" in err and "Traceback" not in err
+        assert snapshot(outputs[name]) == before, name
+        assert leftovers(tmp_path) == [], name
+
+
+def test_a_signal_to_a_fresh_run_leaves_nothing(dataset, tmp_path):
+    proc = start(["simulate", "pile", "--seeds", "0..40", "-q", "-o", "run"], tmp_path)
+    wait_for(lambda: any(tmp_path.glob(".run.partial-*/seed-*/step-*.xml")))
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 143
+    assert list(tmp_path.iterdir()) == []
+    proc = start(["train", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2", "-q", "-o", "m"],
+                 tmp_path)
+    wait_for(lambda: (tmp_path / ".m.lock").exists())
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 143
+    # a training folder is written in place (so it can resume): only whole checkpoints, or nothing
+    assert not (tmp_path / "m").exists() or {p.name for p in (tmp_path / "m").iterdir()} <= \
+        {"last.pt", "best.pt", "metrics.csv", "metrics.json"}
+    assert not [p for p in tmp_path.rglob("*") if p.name.endswith(".tmp")] and leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("command", ["simulate", "rasterize"])
+def test_no_worker_outlives_the_command(run, tmp_path, command):
+    args = {"simulate": ["simulate", "pile", "--seeds", "0..200", "-j", "2", "-q", "-o", "out"],
+            "rasterize": ["rasterize", str(run), "--cell", "0.05", "--smoothing", "0.05", "-j", "2", "-q",
+                          "-o", "out", "--max-memory", "20"]}[command]
+    proc = start(args, tmp_path)
+    wait_for(lambda: len(children(proc.pid)) >= 2)
+    workers = children(proc.pid)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 143
+    wait_for(lambda: not any(alive(w) for w in workers), seconds=10)
+    time.sleep(0.5)
+    assert list(tmp_path.iterdir()) == []   # and nothing written after the command exited
+
+
+# --- input that blocks or lies -------------------------------------------------------------------
+
+def test_a_fifo_named_like_a_step_file_is_refused(run, tmp_path):
+    bad = copy(run, tmp_path / "run")
+    fifo = bad / "seed-000000" / "step-000999.xml"
+    os.mkfifo(fifo)
+    for args in (["validate", str(bad)], ["validate", str(fifo)], ["validate", "--replay", str(bad)],
+                 ["rasterize", str(bad), "-o", str(tmp_path / "d")],
+                 ["evaluate", str(bad), "--starts", "builtin", "-o", str(tmp_path / "r")]):
+        r = dc(*args, timeout=60)
+        one_line_error(r, fifo, "not a regular file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_wrong_contacts_count_names_the_step_file(run, tmp_path):
+    for count, needle in (("999", "but it holds"), ("0", 'count="0"> but it holds')):
+        bad = copy(run, tmp_path / f"run{count}")
+        step = sorted(bad.glob("seed-000000/step-*.xml"))[-1]
+        text = step.read_text()
+        start_ = text.index('<contacts count="')
+        end = text.index('"', start_ + 17)
+        step.write_text(text[:start_] + f'<contacts count="{count}' + text[end:])
+        for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")],
+                     ["evaluate", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+                     ["validate", "--replay", str(bad)]):
+            one_line_error(dc(*args), step, needle)
+    assert not (tmp_path / "d").exists() and not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("pattern,value,needle", [
+    (r'(<step [^>]*\bindex=")\d+', "abc", "<step index> must be a whole number"),
+    (r'(<step [^>]*\bseed=")\d+', "x", "<step seed> must be a whole number"),
+    (r'(<step [^>]*\bindex=")\d+', "99999999999", "must be between 0 and 2147483647"),
+    (r'(<contact [^>]*\bmaster=")\d+', "99999999999", "out of range"),
+])
+def test_step_file_integers_are_checked_alike_by_the_schema_and_the_readers(run, tmp_path, pattern, value, needle):
+    bad = copy(run, tmp_path / "run")
+    step = sorted(bad.glob("seed-000000/step-*.xml"))[-1]
+    text, n = re.subn(pattern, lambda m: m.group(1) + value, step.read_text(), count=1)
+    assert n == 1
+    step.write_text(text)
+    r = dc("validate", str(step))
+    assert r.returncode == 1 and "not a valid value of the atomic type 'count'" in r.stdout, r.stdout
+    readers = [["evaluate", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+               ["validate", "--replay", str(bad)]]
+    if "master" not in pattern:    # rasterizing reads no body numbers of contacts
+        readers.append(["rasterize", str(bad), "-o", str(tmp_path / "d")])
+    for args in readers:
+        one_line_error(dc(*args), step, needle)
+
+
+def test_a_step_file_copied_from_another_simulation_is_refused(run, tmp_path):
+    other = tmp_path / "other"
+    assert dc("simulate", *PILE, "--steps", "120", "--seed", "7", "-q", "-o", str(other)).returncode == 0
+    bad = copy(run, tmp_path / "run")
+    step = sorted(bad.glob("seed-000000/step-*.xml"))[-1]
+    shutil.copy(other / "seed-000007" / step.name, step)
+    r = dc("validate", "-q", str(bad))
+    assert r.returncode == 1 and "seed 7, but lies in a simulation of scene 'pile' seed 0" in r.stdout
+    for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")],
+                 ["evaluate", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+                 ["validate", "--replay", str(bad)]):
+        one_line_error(dc(*args), step, "copied from another run")
+
+
+def test_one_simulation_twice_is_refused(run, tmp_path):
+    bad = copy(run, tmp_path / "run")
+    manifest = json.loads((bad / "manifest.json").read_text())
+    manifest["simulations"].append(dict(manifest["simulations"][0]))
+    (bad / "manifest.json").write_text(json.dumps(manifest))
+    one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), bad / "manifest.json", "same dir")
+    one_line_error(dc("rasterize", str(run), str(run), "-o", str(tmp_path / "d")), run, "given twice")
+    assert not (tmp_path / "d").exists()
+
+
+def test_a_grid_that_cannot_carry_a_value_is_refused(run, tmp_path):
+    one_line_error(dc("rasterize", str(run), "--smoothing", "1e30", "-o", str(tmp_path / "d")), "float32 grid")
+    assert not (tmp_path / "d").exists()
+
+
+def test_a_dataset_names_its_runs_relative_to_itself(run, tmp_path):
+    moved = tmp_path / "project"
+    copy(run, moved / "runs" / "pile")
+    r = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "rasterize", "runs/pile", "-o", "data/pile",
+                        "--cell", "1", "--smoothing", "1", "--validation", "0.5", "-q"], cwd=moved,
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    meta = json.loads((moved / "data" / "pile" / "metadata.json").read_text())
+    assert meta["sources"][0]["run"] == "../../runs/pile" and meta["simulations"][0]["run"] == "../../runs/pile"
+    shutil.move(moved, tmp_path / "elsewhere")   # the two move together
+    r = dc("train", str(tmp_path / "elsewhere" / "data" / "pile"), "-o", str(tmp_path / "m"), "--loss", "solver",
+           *TINY_TRAIN)
+    assert r.returncode == 0, r.stderr
+
+
+def test_a_scene_without_a_static_box_gets_a_window_around_its_bodies(tmp_path):
+    run = tmp_path / "pyramid"
+    assert dc("simulate", "pyramid", "--param", "base=4", "--steps", "30", "-q", "-o", str(run)).returncode == 0
+    extent = json.loads((run / "manifest.json").read_text())["simulations"][0]["extent"]
+    assert extent[0] == -40.0 and extent[2] == 40.0 and -0.5 < extent[1] < 0 and 3 < extent[3] < 5
+    r = dc("rasterize", str(run), "-o", str(tmp_path / "d"))
+    assert r.returncode == 0, r.stderr
+    assert "where the bodies went over the runs" in r.stderr
+    grid = json.loads((tmp_path / "d" / "metadata.json").read_text())["grid"]
+    assert grid["x0"] < -40 and grid["y0"] < extent[1] and grid["y0"] + (grid["ny"] - 1) * grid["cell"] >= extent[3]
+    from deepcontact.grid.dataset import GridDataset
+    assert GridDataset(tmp_path / "d").arrays["inputs"][-1, 0].max() > 0    # the boxes' mass is on the grid
+
+
+# --- runaway sizes --------------------------------------------------------------------------------
+
+def test_runaway_sizes_are_refused_before_anything_is_written(dataset, tmp_path):
+    out = tmp_path / "o"
+    option_error(dc("simulate", *PILE, "--steps", "99999999999999999999", "-o", str(out)), "--steps")
+    one_line_error(dc("simulate", *PILE, "--steps", "2000000000", "-o", str(out)), "GB on disk")
+    one_line_error(dc("simulate", *PILE, "--seeds", "0..999999999", "-o", str(out), timeout=30), "GB on disk")
+    for option in ("--iterations", "--max-iterations"):
+        option_error(dc("simulate", *PILE, "--solver", "pgs", option, str(2 ** 31), "-o", str(out)), option)
+    option_error(dc("train", str(dataset), "--solver-sweeps", str(2 ** 31), "-o", str(out)), "--solver-sweeps")
+    option_error(dc("train", str(dataset), "--width", "100000", "-o", str(out)), "--width")
+    one_line_error(dc("train", str(dataset), "--width", "4000", "--depth", "8", "-o", str(out)),
+                   "GB of memory", "--max-memory")
+    one_line_error(dc("train", str(dataset), "--width", "64", "--max-memory", "0.01", "-o", str(out)), "GB of memory")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_scene_files_are_held_to_the_generators_limits(tmp_path):
+    scene = tmp_path / "s.xml"
+    assert dc("simulate", *PILE, "--write-scene", str(scene)).returncode == 0
+    text = scene.read_text()
+    for pattern, value, needle in ((r'(<friction coefficient=")[^"]*', "1e20", "from 0 to 1e+09"),
+                                   (r'(<friction coefficient=")[^"]*', "1e9", None),
+                                   (r'(velocity_iterations=")\d+', str(2 ** 31), "not a valid value of the atomic type"),
+                                   (r'(\bsteps=")\d+', "99999999999", "not a valid value of the atomic type")):
+        changed, n = re.subn(pattern, lambda m: m.group(1) + value, text, count=1)
+        assert n == 1
+        (tmp_path / "bad.xml").write_text(changed)
+        r = dc("simulate", str(tmp_path / "bad.xml"), "--steps", "2", "-q", "-o", str(tmp_path / "o"))
+        if needle is None:   # the limit itself is allowed
+            assert r.returncode == 0, r.stderr
+            shutil.rmtree(tmp_path / "o")
+            continue
+        one_line_error(r, tmp_path / "bad.xml", needle)
+    assert not (tmp_path / "o").exists()
+
+
+# --- tampered datasets and checkpoints -------------------------------------------------------------
+
+def tamper_array(dataset, tmp_path, name, change):
+    bad = copy(dataset, tmp_path / "data")
+    np.save(bad / f"{name}.npy", change(np.load(dataset / f"{name}.npy")))
+    return bad
+
+
+def tamper_metadata(dataset, tmp_path, change):
+    bad = copy(dataset, tmp_path / "data")
+    meta = json.loads((bad / "metadata.json").read_text())
+    change(meta)
+    (bad / "metadata.json").write_text(json.dumps(meta))
+    return bad
+
+
+@pytest.mark.parametrize("name,change,needle", [
+    ("inputs", lambda a: a.astype(np.float64), "holds float64"),
+    ("inputs", lambda a: a.astype(np.float16), "holds float16"),
+    ("inputs", lambda a: a.astype(np.int16), "holds int16"),
+    ("inputs", lambda a: a[:, :3], "the metadata implies"),
+    ("contact_offsets", lambda a: a[:-3], "the metadata implies"),
+    ("simulation", lambda a: a + 5, "names simulations outside"),
+])
+def test_a_dataset_array_that_does_not_fit_its_metadata_is_refused(dataset, tmp_path, name, change, needle):
+    bad = tamper_array(dataset, tmp_path, name, change)
+    one_line_error(dc("train", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / f"{name}.npy", needle)
+    assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize("change,needle", [
+    (lambda m: m.__setitem__("split", "all"), "'split' must be a JSON object"),
+    (lambda m: m["split"].__setitem__("train", ["0"]), "split 'train' must be a list"),
+    (lambda m: m["split"].__setitem__("validation", [99]), "split 'validation' must be a list"),
+    (lambda m: m.__setitem__("labels", "normal_impulse"), "'labels' must be a JSON list"),
+    (lambda m: m.__setitem__("labels", [1, 2]), "list of channel names"),
+])
+def test_metadata_of_the_wrong_type_is_refused(dataset, tmp_path, change, needle):
+    bad = tamper_metadata(dataset, tmp_path, change)
+    one_line_error(dc("train", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / "metadata.json", needle)
+
+
+def test_a_nan_in_a_dataset_names_the_array_and_what_was_kept(dataset, tmp_path):
+    def poison(a):
+        a = a.copy()
+        a[3, 0, 2, 2] = np.nan
+        return a
+    bad = tamper_array(dataset, tmp_path, "labels", poison)
+    r = dc("train", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN)
+    one_line_error(r, bad / "labels.npy", "sample 3", "no checkpoint was written")
+    assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize("change,needle", [
+    (lambda ck: ck["model"].__setitem__(next(iter(ck["model"])), __import__("torch").zeros(3, 3)), "has shape"),
+    (lambda ck: ck["network"].__setitem__("model", "thesis"), "do not belong to this network"),
+    (lambda ck: ck["network"].__setitem__("fcn_width", 10 ** 6), "fcn_width must be"),
+    (lambda ck: ck["network"].__setitem__("in_channels", "6"), "in_channels must be"),
+    (lambda ck: ck["train_config"].__setitem__("evil", 1), "training config"),
+])
+def test_a_tampered_checkpoint_is_refused_before_a_network_is_built(run, dataset, model, tmp_path, change, needle):
+    import torch
+    bad = copy(model, tmp_path / "model")
+    ck = torch.load(bad / "last.pt", weights_only=True)
+    change(ck)
+    torch.save(ck, bad / "last.pt")
+    before = snapshot(bad)
+    one_line_error(dc("train", str(dataset), "-o", str(bad), "--resume"), bad / "last.pt")
+    if "training config" not in needle:
+        one_line_error(dc("evaluate", str(run), "--starts", "cnn", "--model", str(bad / "last.pt"),
+                          "-o", str(tmp_path / "r")), bad / "last.pt", "refused", needle)
+    assert snapshot(bad) == before and not (tmp_path / "r").exists()
+
+
+# --- option values, closed loop, messages ---------------------------------------------------------
+
+@pytest.mark.parametrize("args,option", [
+    (["train", "{data}", "--lr", "-1", "--optimizer", "adam"], "--lr"),
+    (["train", "{data}", "--weight-decay", "-1"], "--weight-decay"),
+    (["train", "{data}", "--device", "meta"], "--device"),
+    (["train", "{data}", "--device", "nonsense"], "--device"),
+    (["rasterize", "{run}", "--validation", "1"], "--validation"),
+    (["rasterize", "{run}", "--window", "nan,0,1,1"], "--window"),
+    (["rasterize", "{run}", "--window", "1,1,0,0"], "--window"),
+    (["rasterize", "{run}", "--inputs", "mass,mass"], "listed twice"),
+    (["simulate", "pile", "--iterations", "-1"], "--iterations"),
+    (["simulate", "pile", "--seeds", "3..1"], "--seeds"),
+    (["simulate", "pile", "--shard", "2/2"], "--shard"),
+    (["simulate", "pile", "--param", "count"], "--param"),
+    (["simulate", "pile", "--solver", "pgs", "--relaxation", "2.5"], "--relaxation"),
+    (["simulate", "pile", "--tolerance", "1e-3"], "only apply with --solver pgs"),
+    (["evaluate", "{run}", "--relaxation", "2.5"], "--relaxation"),
+    (["evaluate", "{run}", "--accelerate", "foo"], "--accelerate"),
+    (["evaluate", "{run}", "--starts", "zero,lucky"], "--starts"),
+])
+def test_bad_option_values_exit_2_in_every_command(run, dataset, tmp_path, args, option):
+    args = [a.format(run=run, data=dataset) for a in args]
+    option_error(dc(*args, "-o", str(tmp_path / "o")), option)
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_closed_loop_follows_removals_and_empty_scenes(tmp_path):
+    from deepcontact.evaluate.closed_loop import closed_loop, reference_trajectory
+    from deepcontact.evaluate.starts import make_starts
+    from deepcontact.scene.generators import generate
+    from deepcontact.scene.model import RemoveEvent
+    scene = generate("stack", 0, {"count": 5})
+    scene.steps = 40
+    scene.events = [RemoveEvent(step=20, body=5), RemoveEvent(step=20, body=4)]   # two in one step
+    ref = reference_trajectory(scene, 40)
+    assert len(ref.positions[19]) == 6 and len(ref.positions[20]) == 4          # ground + 3 boxes left
+    [result] = closed_loop(scene, make_starts(["builtin"]), steps=40, reference=ref)
+    assert result.finite and result.steps == 40 and np.all(np.isfinite(result.drift))
+    run = tmp_path / "wse"
+    assert dc("simulate", "warm-start-energy", "--steps", "160", "-q", "-o", str(run)).returncode == 0
+    r = dc("evaluate", str(run), "--closed-loop", "--starts", "builtin", "--no-budgets", "-q", "-o", str(tmp_path / "r"))
+    assert r.returncode == 0, r.stderr
+    empty = tmp_path / "empty.xml"
+    empty.write_text('<scene name="empty" format="1"><world dt="0.01" steps="20"/><effects/><bodies/></scene>')
+    assert dc("simulate", str(empty), "-q", "-o", str(tmp_path / "e")).returncode == 0
+    r = dc("evaluate", str(tmp_path / "e"), "--closed-loop", "--starts", "builtin", "-q", "-o", str(tmp_path / "re"))
+    assert r.returncode == 0, r.stderr
+
+
+def test_messages_stay_on_one_line(run, tmp_path):
+    weird = tmp_path / "two\nlines"
+    copy(run, weird)
+    line = one_line_error(dc("rasterize", str(weird), str(weird), "-o", str(tmp_path / "d")), "given twice")
+    assert repr(str(weird)) in line
+    bad = copy(run, tmp_path / "huge")
+    step = sorted(bad.glob("seed-000000/step-*.xml"))[-1]
+    step.write_text(step.read_text().replace("<step ", '<step junk="' + "x" * 20_000_000 + '" ', 1))
+    line = one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), step)
+    assert len(line) <= 600
+    r = dc("validate", str(step))
+    assert r.returncode == 1 and len(r.stdout.strip().splitlines()) >= 1
+    assert all(len(x) <= 600 for x in r.stdout.strip().splitlines())
