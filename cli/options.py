@@ -143,7 +143,7 @@ def log_level(verbose, quiet):
 
 def setup_logging(verbose, quiet):
     logging.basicConfig(level=log_level(verbose, quiet), stream=sys.stderr,
-                        format="%(levelname)s: %(message)s")
+                        format="%(levelname)s: %(message)s", force=True)   # (force: each command its own stderr)
     for noisy in ("matplotlib", "PIL"):   # their debug output is not ours
         logging.getLogger(noisy).setLevel(max(logging.WARNING, log_level(verbose, quiet)))
 

@@ -92,9 +92,12 @@ class StepProblem:
     @classmethod
     def from_step(cls, header, bodies, contacts, path=None):
         """From what step.reader.read_step returns; errors name `path`."""
+        block = header["solver"].get("block_solve")
+        if block not in ("true", "false", "1", "0"):
+            raise InputError(f"<solver block_solve> must be true or false, got {block!r}", path)
         try:
             return cls.from_arrays(bodies, contacts, dt=header["dt"], gravity=header["gravity"],
-                                   block_solve=header["solver"]["block_solve"] == "true",
+                                   block_solve=block in ("true", "1"),
                                    velocity_iterations=header["velocity_iterations"], index=header["index"])
         except InputError as e:
             raise InputError(e.message, path) from None

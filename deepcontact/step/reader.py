@@ -72,6 +72,25 @@ def _count(element, attr, path, low=0, high=INT32_MAX):
     return value
 
 
+def _child(element, tag, path):
+    found = element.find(tag)
+    if found is None:
+        raise InputError(f"<{element.tag}> has no <{tag}>", path, element.sourceline)
+    return found
+
+
+def _float(element, attr, path):
+    """A finite float32 attribute; InputError naming the file and line otherwise."""
+    text = element.get(attr)
+    try:
+        value = np.float32(text)
+    except (TypeError, ValueError):
+        raise InputError(f"<{element.tag} {attr}> must be a number, got {text!r}", path, element.sourceline) from None
+    if not np.isfinite(value):
+        raise InputError(f"<{element.tag} {attr}> must be finite, got {text!r}", path, element.sourceline)
+    return value
+
+
 def check_origin(header, scene, seed, path):
     """A step file belongs to the simulation it lies in: the same scene name and seed."""
     if header["scene"] != scene or header["seed"] != seed:
@@ -148,15 +167,15 @@ def _types(cols):
 def read_step(path, validate=True):
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
     root = _parse(path, validate)
-    h = root.find("header")
+    h = _child(root, "header", path)
+    gravity, iterations = _child(h, "gravity", path), _child(h, "iterations", path)
     header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path),
-                  time=np.float32(root.get("time")), dt=np.float32(root.get("dt")),
-                  dt_ratio=np.float32(root.get("dt_ratio")),
-                  gravity=np.array([h.find("gravity").get("x"), h.find("gravity").get("y")], np.float32),
-                  velocity_iterations=_count(h.find("iterations"), "velocity", path),
-                  position_iterations=_count(h.find("iterations"), "position", path),
-                  solver=dict(h.find("solver").attrib), effects=dict(h.find("effects").attrib),
-                  versions=dict(h.find("versions").attrib))
+                  time=_float(root, "time", path), dt=_float(root, "dt", path), dt_ratio=_float(root, "dt_ratio", path),
+                  gravity=np.array([_float(gravity, "x", path), _float(gravity, "y", path)], np.float32),
+                  velocity_iterations=_count(iterations, "velocity", path),
+                  position_iterations=_count(iterations, "position", path),
+                  solver=dict(_child(h, "solver", path).attrib), effects=dict(_child(h, "effects", path).attrib),
+                  versions=dict(_child(h, "versions", path).attrib))
 
     bc = _Columns(root, path, "bodies", "body")
     b = bc.read(_BODY_ALL)
