@@ -1,4 +1,7 @@
 """XSD validation of scene and step files with lxml, errors as ``path:line:col: message``."""
+import errno
+import os
+import stat
 from functools import lru_cache
 from importlib import resources
 
@@ -25,7 +28,10 @@ def schema_path(kind: str) -> str:
 
 
 def parse(path):
-    """Parse an XML file, keeping line numbers. Raises etree.XMLSyntaxError."""
+    """Parse an XML file, keeping line numbers. Raises etree.XMLSyntaxError, or OSError for what
+    is not a regular file (a FIFO would block the parser forever)."""
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise OSError(errno.EINVAL, "not a regular file", str(path))
     parser = etree.XMLParser(remove_blank_text=False, resolve_entities=False, no_network=True, load_dtd=False,
                              huge_tree=False)
     return etree.parse(str(path), parser)

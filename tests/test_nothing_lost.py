@@ -333,6 +333,21 @@ def test_a_fifo_named_like_a_step_file_is_refused(run, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
+def test_a_fifo_in_place_of_a_scene_or_checkpoint_is_refused(run, tmp_path):
+    bad = copy(run, tmp_path / "run")
+    scene = bad / "seed-000000" / "scene.xml"
+    scene.unlink()
+    os.mkfifo(scene)
+    checkpoint = tmp_path / "model.pt"
+    os.mkfifo(checkpoint)
+    for args, fifo in ((["validate", str(scene)], scene), (["rasterize", str(bad), "-o", str(tmp_path / "d")], scene),
+                       (["evaluate", str(bad), "--closed-loop", "--starts", "builtin", "-o", str(tmp_path / "r")], scene),
+                       (["evaluate", str(run), "--starts", "cnn", "--model", str(checkpoint), "-o", str(tmp_path / "r")],
+                        checkpoint)):
+        one_line_error(dc(*args, timeout=60), fifo, "not a regular file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "run"]
+
+
 def test_a_wrong_contacts_count_names_the_step_file(run, tmp_path):
     for count, needle in (("999", "but it holds"), ("0", 'count="0"> but it holds')):
         bad = copy(run, tmp_path / f"run{count}")
@@ -391,6 +406,9 @@ def test_one_simulation_twice_is_refused(run, tmp_path):
     (bad / "manifest.json").write_text(json.dumps(manifest))
     one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), bad / "manifest.json", "same dir")
     one_line_error(dc("rasterize", str(run), str(run), "-o", str(tmp_path / "d")), run, "given twice")
+    one_line_error(dc("evaluate", str(run), str(run), "--starts", "builtin", "-o", str(tmp_path / "r")), run,
+                   "given twice")
+    assert not (tmp_path / "r").exists()
     assert not (tmp_path / "d").exists()
 
 

@@ -11,6 +11,7 @@ and reached residual of fixed sweep budgets.
 """
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -81,8 +82,11 @@ def step_files(run_dir):
 
 
 def _plan(run_dirs):
-    scenes, plan = {}, []
+    scenes, plan, seen = {}, [], set()
     for run in run_dirs:
+        if Path(run).resolve() in seen:
+            raise InputError("this run is given twice", run)
+        seen.add(Path(run).resolve())
         manifest, sims = step_files(run)
         scenes[str(run)] = manifest.get("scene")
         for s, files in sims:

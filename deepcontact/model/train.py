@@ -91,6 +91,8 @@ def _set_rng_state(state):
 def load_checkpoint(path):
     """A checkpoint, loaded without running any code it might carry (weights_only)."""
     path = Path(path)
+    if path.exists() and not (path.is_file() or path.is_dir()):   # a FIFO would block torch.load
+        raise InputError("not a regular file", path)
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
