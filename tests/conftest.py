@@ -32,3 +32,27 @@ def dc(*args, check=False, timeout=120):
     exe = shutil.which("dc")
     cmd = [exe, *args] if exe else [sys.executable, "-m", "deepcontact.cli.main", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=check)
+
+
+def one_line_error(r, *needles):
+    """The CLI's promise: exit 1, one line on stderr naming what is wrong, no traceback."""
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    for n in needles:
+        assert str(n) in lines[0], (n, lines[0])
+    return lines[0]
+
+
+def option_error(r, *needles):
+    """A bad option value: exit 2 with click's usage message naming the option, no traceback."""
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr, r.stderr
+    for n in needles:
+        assert str(n) in r.stderr, (n, r.stderr)
+
+
+def snapshot(folder):
+    """Every file under folder with its bytes: equal snapshots mean nothing was lost or changed."""
+    from pathlib import Path
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}

@@ -20,31 +20,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import dc
+from conftest import dc, one_line_error, option_error, snapshot
 from deepcontact import atomic
 
 PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
 TINY_TRAIN = ["--epochs", "1", "--width", "4", "--depth", "2", "-q"]
-
-
-def one_line_error(r, *needles):
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 1, (r.returncode, r.stderr)
-    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
-    for n in needles:
-        assert str(n) in lines[0], (n, lines[0])
-    return lines[0]
-
-
-def option_error(r, *needles):
-    assert r.returncode == 2, (r.returncode, r.stderr)
-    assert "Traceback" not in r.stderr, r.stderr
-    for n in needles:
-        assert str(n) in r.stderr, (n, r.stderr)
-
-
-def snapshot(folder):
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
 
 
 def leftovers(parent):
