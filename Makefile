@@ -53,7 +53,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
-# The test suite runs smoke-pipeline (tests/test_pipeline.py).
+# The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).
 SMOKE ?= $(RUNS)/smoke
 smoke: setup
 	$(MAKE) --no-print-directory smoke-pipeline

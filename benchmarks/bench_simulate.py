@@ -5,7 +5,7 @@ XML on) as a whole process, start-up included, next to baselines measured in the
   record     stepping + moving each step to numpy (in-process)
   dc         `dc simulate pile` as a user runs it (a fresh process, files written)
   thesis-xml the thesis pipeline's writing approach on the same arrays: a Python-side
-             export into ElementTree, pretty-printed with minidom (NOTES §3), on a sample of
+             export into ElementTree, pretty-printed with minidom, as the thesis code did, on a sample of
              steps (in-process)
 
 Usage: python benchmarks/bench_simulate.py [--repeats N] [--json FILE]

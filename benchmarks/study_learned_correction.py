@@ -1,4 +1,4 @@
-"""Issue 10, item 5: does a learned correction on the contact graph beat Box2D's warm start?
+"""Does a learned correction on the contact graph beat Box2D's warm start?
 
 Data: the 100-circle thesis pile driven by our PGS in the loop (builtin start, residual < 1e-4,
 cap 1000), where the builtin start is the previous step's solution at the tolerance. Training
@@ -12,7 +12,7 @@ block solver, residual < 1e-4, cap 1000) from builtin and from builtin + correct
 and 1.7: median sweeps, median solve time and the median prediction time (torch on the CPU,
 graph assembly included), each as a ratio to builtin at w = 1.
 
-Result (README "Faster to the same accuracy"): no fewer sweeps than builtin, and a prediction
+Result (docs/results.md, "Faster to the same accuracy"): no fewer sweeps than builtin, and a prediction
 that costs several solves. Takes about 2 minutes with --train 0,1 --steps 300, 7 with 0,1,2,3.
 
 Usage: python benchmarks/study_learned_correction.py [--epochs N] [--sweeps K] [--rounds R]

@@ -16,7 +16,7 @@ from . import options
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual",
-              show_default=True, help="The measure the tolerance applies to (README: Measuring convergence).")
+              show_default=True, help="The measure the tolerance applies to (docs/solver.md: Measuring convergence).")
 @click.option("--mode", type=click.Choice(["float32", "float64"]), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
 @click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --model] Cell size d.")

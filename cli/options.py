@@ -187,8 +187,8 @@ def command(name):
                 fail(e)
             except KeyboardInterrupt as e:
                 signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
-                click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}); only complete files were "
-                           f"written, and output being replaced (--overwrite) is as it was", err=True)
+                click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}); no partial output was left, "
+                           f"and output being replaced (--overwrite) is as it was", err=True)
                 sys.exit(128 + signum)
             except MemoryError:
                 if verbose:

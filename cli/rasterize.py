@@ -42,7 +42,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     """Turn the step files of RUNS into SPH grid images for training.
 
     Inputs (N, C_in, H, W) and labels (N, C_out, H, W) float32 are written as
-    memory-mappable .npy files with metadata.json (see datasets/README.md);
+    memory-mappable .npy files with metadata.json (see docs/formats.md);
     train and validation are split by simulation. The grid's nodes span the
     scenes' box at spacing d (61 x 61 for the thesis's 30 x 30 box at d = 0.5).
 

@@ -1,6 +1,6 @@
 """Grid datasets: what `dc rasterize` writes and `dc train` reads.
 
-A dataset is a folder of plain NumPy `.npy` arrays plus `metadata.json` (see datasets/README.md).
+A dataset is a folder of plain NumPy `.npy` arrays plus `metadata.json` (see docs/formats.md).
 `.npy` because every ML user can open it without this package, `numpy.load(..., mmap_mode="r")`
 memory-maps it (a 150-simulation dataset is several GB: samples are read as they are used, never
 all at once), and it streams in order from disk; no extra dependency (HDF5, zarr) is needed.

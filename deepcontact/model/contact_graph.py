@@ -1,4 +1,4 @@
-"""A learned correction to Box2D's warm start on the contact graph (issue 10, item 5).
+"""A learned correction to Box2D's warm start on the contact graph.
 
 Nodes are the contact points and the bodies; a point talks to its two bodies and they to their
 other points. The network sees each point in velocity units (impulse times effective inverse

@@ -56,7 +56,7 @@ class SolverLoss:
     built once from its step file and cached. The prediction, interpolated at the contact points
     and projected onto the feasible set (ln >= 0, |lt| <= mu ln), is relaxed by k damped
     projected-Jacobi sweeps, and the loss is the squared min-map residual of the LCP there (the
-    README's residual, in velocity units, normalised by the step's largest free velocity).
+    the residual of docs/solver.md, in velocity units, normalised by the step's largest free velocity).
 
     Why Jacobi and not Gauss-Seidel: a Gauss-Seidel sweep is a chain of one-row updates, hundreds of
     tiny autograd operations per sample; a Jacobi sweep is one matrix product, differentiable and

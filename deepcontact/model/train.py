@@ -57,7 +57,8 @@ class TrainConfig:
 
 
 def thesis_lr(epoch):
-    """Algorithm 4, its overlapping conditions read as intended (NOTES §1)."""
+    """The thesis's Algorithm 4. Its conditions overlap (epoch > 300 and 300 < epoch < 500); read
+    as intended: 5e-3 until epoch 100, 2e-3 until 300, 1e-3 until 500, 2e-4 after."""
     if epoch < 100:
         return 5e-3
     if epoch < 300:

@@ -137,7 +137,7 @@ public:
         return rep;
     }
 
-    // The normalised min-map residual of the LCP at the current iterate (see README).
+    // The normalised min-map residual of the LCP at the current iterate (see docs/solver.md).
     double residual() const {
         double worst = 0;
         for (const auto& m : pb_.manifolds) {

@@ -1,5 +1,5 @@
 // One step with the project's PGS in place of Box2D's velocity solver, whole in native code
-// (NOTES §3): Collide, gather the contacts in island order, assemble, solve from Box2D's warm
+// (docs/solver.md, "The loop"): Collide, gather the contacts in island order, assemble, solve from Box2D's warm
 // start or from zero, write the impulses into the manifold points, then Box2D's Step with no
 // velocity iterations. The Python loop (simulate/pgs_loop.py) does the same in pieces, for
 // starts made in Python; this saves the per-step round trip of every array through numpy.

@@ -73,7 +73,8 @@ public:
     // are kept for recorded_bodies() / recorded_contacts().
     void step(float dt, int velocity_iterations, int position_iterations, bool record);
 
-    // The pieces of a step, for a solver of our own (NOTES §3).
+    // The pieces of a step, for a solver of our own: Collide, our solve, Step with no velocity
+    // iterations (docs/solver.md, "The loop").
     void collide();
     void find_new_contacts();
     // Touching contacts in island order, world points from the current transforms.

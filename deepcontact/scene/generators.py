@@ -1,4 +1,6 @@
-"""Built-in scenes: the thesis pile and the hard cases other engines test with (NOTES §5).
+"""Built-in scenes: the thesis pile and the hard cases other engines test with: stacks of 15-24
+boxes, pyramids of base 20 and 100, mass ratios to 400:1, a card house, an arch held by friction,
+625 confined circles, a removed heavy top, a bullet into a stack.
 
 Each generator is a function of a seed and keyword parameters (its defaults give the types);
 every one can be written to a scene file with ``dc simulate NAME --write-scene FILE``.

@@ -93,7 +93,8 @@ class Effects:
 
 @dataclass
 class RemoveEvent:
-    """Remove a body before the given step (the warm-start energy case of NOTES §5)."""
+    """Remove a body before the given step (the warm-start energy case: a heavy top removed
+    mid-run must not launch the bodies below it with its stale impulses)."""
     step: int
     body: int
     line: Optional[int] = None

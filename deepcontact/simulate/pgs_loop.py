@@ -1,4 +1,4 @@
-"""Stepping Box2D with the project's solver in the loop (NOTES §3):
+"""Stepping Box2D with the project's solver in the loop (docs/solver.md, "The loop"):
 
     Collide → gather the contacts → our PGS from a chosen start → write the impulses into the
     manifold points → Step(dt, 0 velocity iterations, position iterations)

@@ -9,10 +9,10 @@ Modes:
 Acceleration (float32/float64): `nncg` adds to each sweep's result beta times the last search
 direction (Fletcher-Reeves beta = |change|^2 / |last change|^2, restarting when beta > 1); the
 next sweep projects it back. It costs two more passes over the contact points per sweep (about
-1.5x a plain sweep, README "Faster to the same accuracy").
+1.5x a plain sweep, docs/results.md, "Faster to the same accuracy").
 
 Stopping: a fixed count (tolerance 0) or the first sweep whose chosen measure falls below the
-tolerance, capped at max_iterations. Measures (per sweep, see README "Measuring convergence"):
+tolerance, capped at max_iterations. Measures (per sweep, see docs/solver.md, "Measuring convergence"):
   thesis     max over contact points of |(d ln, d lt)|, the change of the iterate in the sweep
   velocity   max over rows of |d lambda| * k, the change of contact velocity it causes (m/s)
   residual   max over rows of the min-map residual of the LCP in velocity units, divided by the

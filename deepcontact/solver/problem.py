@@ -22,7 +22,8 @@ KEY_COLUMNS = ("fixture_a", "child_a", "fixture_b", "child_b", "id_key")
 
 def contact_keys(contacts):
     """What identifies a contact point across steps, as Box2D matches them: both fixtures and
-    child indices, and the feature id (a body pair alone is not enough: NOTES §1)."""
+    child indices, and the feature id (a body pair alone is not enough: a circle in a corner
+    touches two walls of one static body)."""
     return list(zip(*(contacts[k].tolist() for k in KEY_COLUMNS)))
 
 

@@ -1,4 +1,4 @@
-"""Stability of the hard scenes (NOTES §5) under Box2D's solver and ours.
+"""Stability of the hard scenes (scene/generators.py) under Box2D's solver and ours.
 
 Each case runs a scene for its steps with one solver and start, and measures:
   finite       no NaN or inf in any body state or impulse
