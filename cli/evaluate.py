@@ -95,10 +95,9 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
     total = sum(len(f[::every]) for r in runs for _, f in step_files(r)[1])
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
-               every=every, seed=seed, progress=(lambda k: bar.update(k)) if bar is not None else None,
+               every=every, seed=seed, progress=bar.update,
                relaxations=relaxations, budgets=budgets, accelerations=accelerations)
-    if bar is not None:
-        bar.close()
+    bar.close()
     summary = summarize(rows, table, max_iterations)
     settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, accelerate=accelerations,
                     model=model, tolerance=tolerance,
@@ -110,11 +109,8 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
 
 def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet,
                     accelerations=("none",)):
-    import json
-
-    from deepcontact import atomic
-    from deepcontact.evaluate.closed_loop import (box2d_iterations, closed_loop, loop_plot, loop_table,
-                                                  reference_trajectory)
+    from deepcontact.evaluate.closed_loop import box2d_iterations, closed_loop, reference_trajectory
+    from deepcontact.evaluate.report import write_loop_report
     from deepcontact.evaluate.replay import step_files
     from deepcontact.scene.xml import read_scene
 
@@ -125,25 +121,11 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
                                "closed loop")
     reference = reference_trajectory(scene, steps or scene.steps)
     results = closed_loop(scene, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on,
-                          mode=mode, steps=steps, progress=(lambda k: bar.update(k)) if bar is not None else None,
+                          mode=mode, steps=steps, progress=bar.update,
                           relaxations=relaxations, reference=reference, accelerations=accelerations)
     if budgets:
         results += box2d_iterations(scene, steps=steps, reference=reference)
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    text = loop_table(results)
-    atomic.write_text(out / "closed-loop.md", f"# Closed loop: {scene.name} from {first}\n\n"
-                      f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
-                      f"largest distance of any surviving body from the trajectory stepped with reference solutions "
-                      f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
-                      f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
-                      f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own "
-                      f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
-    loop_plot(results, out / "closed-loop")
-    atomic.write_text(out / "closed-loop.json", json.dumps([{
-        "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
-        "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
-        "energy_error": r.energy_error, "finite": r.finite} for r in results]) + "\n")
-    click.echo(text)
+        bar.update(1)
+    bar.close()
+    click.echo(write_loop_report(out, results, f"{scene.name} from {first}", stop_on, tolerance, max_iterations,
+                                 mode))

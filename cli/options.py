@@ -204,12 +204,11 @@ def command(name):
 
 
 def progress_bar(quiet, total, unit, desc):
-    """A tqdm bar on stderr, or None when quiet (tqdm also stays silent when stderr is no terminal)."""
-    if quiet:
-        return None
+    """A tqdm bar on stderr; a silent one when quiet or when stderr is no terminal (every bar
+    takes update() and close(), so callers need not ask which)."""
     from tqdm import tqdm
     return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False,
-                disable=None)
+                disable=True if quiet else None)
 
 
 max_memory = click.option("--max-memory", type=Finite(min=0, min_open=True), metavar="GB",

@@ -75,8 +75,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
                              include_contactless=include_contactless, validation_fraction=validation, seed=seed,
                              jobs=jobs, overwrite=overwrite, progress=bar, max_memory=max_memory)
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     g = meta["grid"]
     if not quiet:
         x1, y1 = g["x0"] + (g["nx"] - 1) * g["cell"], g["y0"] + (g["ny"] - 1) * g["cell"]
@@ -87,9 +86,6 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
 
 
 def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, every, study, overwrite, quiet):
-    import os
-    from pathlib import Path
-
     from deepcontact import atomic
     from deepcontact.grid import oracle as O
     from deepcontact.grid.dataset import collect, grid_for
@@ -98,9 +94,8 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
     spec, _ = grid_for(sims, cell, smoothing, kernel, renormalize, window)
     files = [f for s in sims for f in s.files][::every]
     bar = options.progress_bar(quiet, len(files), "step", f"{impulses} impulses")
-    steps = O.exact_impulses(files, impulses, log=(lambda _: bar.update(1)) if bar is not None else None)
-    if bar is not None:
-        bar.close()
+    steps = O.exact_impulses(files, impulses, log=lambda _: bar.update(1))
+    bar.close()
     if not steps:
         raise InputError("no steps with contacts to push through the grid")
     if not study:
@@ -110,20 +105,7 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
         return
     if not out:
         raise click.UsageError("--study needs -o REPORT_DIR")
-    out = Path(out)
     window = (spec.x0, spec.y0, spec.x0 + (spec.nx - 1) * spec.cell, spec.y0 + (spec.ny - 1) * spec.cell)
-    rows = O.study(steps, window, renormalize)
-    table = O.TABLE_HEADER + "\n" + "\n".join(O.table_row(r) for r in rows) + "\n"
-    import csv
-    import io
-    buf = io.StringIO()
-    w = csv.writer(buf)
-    w.writerow(list(O.RoundTrip.__dataclass_fields__))
-    for r in rows:
-        w.writerow(list(r.__dict__.values()))
-    with atomic.output_folder(out, O.STUDY_FILES, overwrite, command="rasterize --study") as tmp:
-        atomic.write_text(tmp / "sph-study.md", f"{len(steps)} steps, {sum(len(s[0]) for s in steps)} contact "
-                          f"points, {impulses} impulses, renormalised: {renormalize}\n\n" + table)
-        atomic.write_text(tmp / "sph-study.csv", buf.getvalue())
-        O.plot(rows, os.fspath(tmp / "sph-study"))
-    click.echo(table)
+    with atomic.output_folder(out, O.STUDY_FILES, overwrite, command="rasterize --study") as work:
+        rows = O.study(steps, window, renormalize)
+        click.echo(O.write_study(work, steps, rows, impulses, renormalize))

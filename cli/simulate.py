@@ -122,7 +122,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     source.check_memory(min(jobs, max(len(chosen), 1)), max_memory)
     loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation,
                         source(chosen[0]) if chosen else None, accelerate)
-    bar = None if quiet else (lambda total: options.progress_bar(quiet, total, "step", f"simulate {scene}"))
+    def bar(total):
+        return options.progress_bar(quiet, total, "step", f"simulate {scene}")
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, loop=loop, max_disk=max_disk)
     if not quiet:

@@ -90,10 +90,8 @@ def validate(paths, replay, verbose, quiet):
             invalid += 1
             for line in errors:
                 click.echo(line)
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+        bar.update(1)
+    bar.close()
     if not quiet:
         click.echo(f"{len(files)} files checked, {invalid} invalid", err=True)
     sys.exit(1 if invalid else 0)
@@ -105,9 +103,8 @@ def replay_runs(paths, quiet):
     failed = False
     for run_dir in paths:
         bar = options.progress_bar(quiet, len(step_files(run_dir)), "step", f"replay {run_dir}")
-        report = replay_run(run_dir, on_file=(lambda _: bar.update(1)) if bar is not None else None)
-        if bar is not None:
-            bar.close()
+        report = replay_run(run_dir, on_file=lambda _: bar.update(1))
+        bar.close()
         verdict = "exact" if report.exact else f"NOT exact in {report.inexact_steps} steps (worst: {report.worst})"
         click.echo(f"{run_dir}: {report.steps} steps, {report.points} contact points replayed; "
                    f"largest difference {report.max_difference:.9g}: {verdict}")

@@ -1,9 +1,10 @@
-"""Bad input never crashes, never runs code, never loses earlier output (issue 9).
+"""Bad input never crashes, never runs code, never loses earlier output.
 
-Each test is one item of the issue, tried as a hostile user would, through the real `dc`:
+Each test is one hostile case, tried as a user would, through the real `dc`:
 one line naming the file (and line), a non-zero exit, no traceback, no partial output, and
-earlier output left exactly as it was. (Item 9, the recording of continuous collision and
-sleeping, is tests/test_recording.py; item 11's wheel is tests/test_packaging.py.)
+earlier output left exactly as it was. (The recording of continuous collision and sleeping is
+tests/test_recording.py; the wheel is tests/test_packaging.py; the hostile cases of output
+folders, signals, disks and tampered files are tests/test_nothing_lost.py.)
 """
 import json
 import os
@@ -55,7 +56,7 @@ def copy_run(run, tmp_path):
     return dst
 
 
-# 1. checkpoints are loaded without running code -------------------------------------------------
+# checkpoints are loaded without running code -------------------------------------------------
 
 class _Payload:
     def __init__(self, marker):
@@ -65,7 +66,7 @@ class _Payload:
         return (os.system, (f"touch {self.marker}",))
 
 
-def test_1_a_crafted_checkpoint_runs_no_code(run, model, tmp_path):
+def test_a_crafted_checkpoint_runs_no_code(run, model, tmp_path):
     import torch
     marker = tmp_path / "pwned"
     evil = tmp_path / "evil.pt"
@@ -81,15 +82,15 @@ def test_1_a_crafted_checkpoint_runs_no_code(run, model, tmp_path):
     assert not (tmp_path / "r").exists()
 
 
-def test_1_checkpoints_hold_only_tensors_and_plain_containers(model):
+def test_checkpoints_hold_only_tensors_and_plain_containers(model):
     import torch
     ck = torch.load(model / "last.pt", weights_only=True)   # raises if anything else is inside
     assert ck["format"] == 2 and ck["epoch"] == 0
 
 
-# 2. --overwrite is atomic -------------------------------------------------------------------
+# --overwrite is atomic -------------------------------------------------------------------
 
-def test_2_train_overwrite_with_a_bad_dataset_keeps_the_old_model(model, tmp_path):
+def test_train_overwrite_with_a_bad_dataset_keeps_the_old_model(model, tmp_path):
     old = tmp_path / "model"
     shutil.copytree(model, old)
     before = snapshot(old)
@@ -98,7 +99,7 @@ def test_2_train_overwrite_with_a_bad_dataset_keeps_the_old_model(model, tmp_pat
     assert snapshot(old) == before
 
 
-def test_2_train_overwrite_replaces_the_run_when_it_finishes(dataset, model, tmp_path):
+def test_train_overwrite_replaces_the_run_when_it_finishes(dataset, model, tmp_path):
     old = tmp_path / "model"
     shutil.copytree(model, old)
     (old / "loss.svg").write_text("from the old run")
@@ -109,7 +110,7 @@ def test_2_train_overwrite_replaces_the_run_when_it_finishes(dataset, model, tmp
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]   # no partial folder left
 
 
-def test_2_train_overwrite_refuses_a_folder_that_is_no_training_run(dataset, tmp_path):
+def test_train_overwrite_refuses_a_folder_that_is_no_training_run(dataset, tmp_path):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "thesis.tex").write_text("precious")
@@ -118,7 +119,7 @@ def test_2_train_overwrite_refuses_a_folder_that_is_no_training_run(dataset, tmp
     assert (mine / "thesis.tex").read_text() == "precious"
 
 
-def test_2_an_interrupted_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
+def test_an_interrupted_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
     old = copy_run(run, tmp_path)
     before = snapshot(old)
     cmd = [shutil.which("dc"), "simulate", *PILE, "--steps", "100000", "--overwrite", "-q", "-o", str(old)]
@@ -135,7 +136,7 @@ def test_2_an_interrupted_simulate_overwrite_keeps_the_earlier_run(run, tmp_path
     assert sorted(os.listdir(tmp_path)) == ["run"]   # the partial new run is gone
 
 
-def test_2_a_failing_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
+def test_a_failing_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
     old = copy_run(run, tmp_path)
     before = snapshot(old)
     r = dc("simulate", *PILE, "--param", "radius=-1", "--overwrite", "-o", str(old))
@@ -143,7 +144,7 @@ def test_2_a_failing_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
     assert snapshot(old) == before
 
 
-# 3. Box2D's float32 limits: no abort ---------------------------------------------------------
+# Box2D's float32 limits: no abort ---------------------------------------------------------
 
 def scene_with(tmp_path, old, new, name="scene.xml"):
     text = (SCENES / "bouncing.xml").read_text()
@@ -161,7 +162,7 @@ def scene_with(tmp_path, old, new, name="scene.xml"):
     ('<body x="4" y="2" vx="1.5">', '<body x="4" y="2" vx="1e30">', "velocity"),
     ('<gravity x="0" y="-9.81"/>', '<gravity x="0" y="-1e40"/>', "gravity"),
 ])
-def test_3_out_of_range_scenes_are_refused_not_aborted(tmp_path, old, new, needle):
+def test_out_of_range_scenes_are_refused_not_aborted(tmp_path, old, new, needle):
     path = scene_with(tmp_path, old, new)
     r = dc("simulate", str(path), "-o", str(tmp_path / "out"))
     line = one_line_error(r, needle)
@@ -171,7 +172,7 @@ def test_3_out_of_range_scenes_are_refused_not_aborted(tmp_path, old, new, needl
     assert not (tmp_path / "out").exists()
 
 
-def test_3_a_shape_lost_to_rounding_is_refused(tmp_path):
+def test_a_shape_lost_to_rounding_is_refused(tmp_path):
     # Box2D shifts the inertia to the centre of mass in float32 and asserts it is > 0: a small
     # circle far from its body's origin cancels out.
     path = scene_with(tmp_path, '<body x="2" y="3"><circle radius="0.5" density="1"/>',
@@ -179,7 +180,7 @@ def test_3_a_shape_lost_to_rounding_is_refused(tmp_path):
     one_line_error(dc("simulate", str(path), "-o", str(tmp_path / "o")), "rotational inertia")
 
 
-# 4. tracebacks become one line ---------------------------------------------------------------
+# tracebacks become one line ---------------------------------------------------------------
 
 @pytest.mark.parametrize("param,needle", [("radius=0", "radius must be positive"),
                                           ("radius=-2", "radius must be positive"),
@@ -189,7 +190,7 @@ def test_3_a_shape_lost_to_rounding_is_refused(tmp_path):
                                           ("density=-1", "density must be positive"),
                                           ("friction=-0.5", "friction must not be negative"),
                                           ("count=1e6", "count")])
-def test_4_5_bad_generator_parameters(tmp_path, param, needle):
+def test_bad_generator_parameters(tmp_path, param, needle):
     r = dc("simulate", "pile", "--param", param, "--steps", "2", "-o", str(tmp_path / "out"))
     one_line_error(r, needle)
     assert not (tmp_path / "out").exists()
@@ -211,7 +212,7 @@ def edit_manifest(run, tmp_path, change):
     (lambda m: m["simulations"].__setitem__(0, [1, 2]), "must be a JSON object"),
 ])
 @pytest.mark.parametrize("command", ["rasterize", "evaluate", "validate"])
-def test_4_damaged_manifests(run, tmp_path, change, needle, command):
+def test_damaged_manifests(run, tmp_path, change, needle, command):
     bad = edit_manifest(run, tmp_path, change)
     manifest = bad / "manifest.json"
     if command == "rasterize":
@@ -224,7 +225,7 @@ def test_4_damaged_manifests(run, tmp_path, change, needle, command):
     assert not (tmp_path / "data").exists() and not (tmp_path / "report").exists()
 
 
-def test_4_metadata_that_is_not_an_object(dataset, tmp_path):
+def test_metadata_that_is_not_an_object(dataset, tmp_path):
     bad = tmp_path / "data"
     shutil.copytree(dataset, bad)
     (bad / "metadata.json").write_text("[1, 2, 3]")
@@ -233,7 +234,7 @@ def test_4_metadata_that_is_not_an_object(dataset, tmp_path):
     assert not (tmp_path / "m").exists()
 
 
-def test_4_a_contact_naming_a_missing_body(run, tmp_path):
+def test_a_contact_naming_a_missing_body(run, tmp_path):
     bad = copy_run(run, tmp_path)
     step = max((p for p in bad.glob("seed-000000/step-*.xml") if "<contact " in p.read_text()))
     text = step.read_text()
@@ -243,7 +244,7 @@ def test_4_a_contact_naming_a_missing_body(run, tmp_path):
     one_line_error(dc("evaluate", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")), step, "body 999")
 
 
-def test_4_entities_and_doctypes_are_refused(tmp_path):
+def test_entities_and_doctypes_are_refused(tmp_path):
     text = (SCENES / "bouncing.xml").read_text().replace(
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<?xml version="1.0" encoding="UTF-8"?>\n<!DOCTYPE scene [<!ENTITY x SYSTEM "file:///etc/passwd">]>')
@@ -254,17 +255,17 @@ def test_4_entities_and_doctypes_are_refused(tmp_path):
     assert r.returncode == 1 and "DOCTYPE" in r.stdout and "Traceback" not in r.stderr
 
 
-# 5. bad input is not accepted ------------------------------------------------------------------
+# bad input is not accepted ------------------------------------------------------------------
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
-def test_5_non_finite_tolerances(run, tmp_path, value):
+def test_non_finite_tolerances(run, tmp_path, value):
     r = dc("evaluate", str(run), "--starts", "zero", "--tolerance", value, "-o", str(tmp_path / "r"))
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "not a finite number" in r.stderr or "not in the range" in r.stderr
     assert not (tmp_path / "r").exists()
 
 
-def test_5_a_step_file_deleted_from_a_run(run, tmp_path):
+def test_a_step_file_deleted_from_a_run(run, tmp_path):
     bad = copy_run(run, tmp_path)
     gone = sorted(bad.glob("seed-000001/step-*.xml"))[50]
     gone.unlink()
@@ -276,14 +277,14 @@ def test_5_a_step_file_deleted_from_a_run(run, tmp_path):
     assert r.returncode == 1 and "manifest recorded 80" in r.stdout
 
 
-def test_5_validate_finds_nothing_to_check(tmp_path):
+def test_validate_finds_nothing_to_check(tmp_path):
     (tmp_path / "empty").mkdir()
     one_line_error(dc("validate", str(tmp_path / "empty")), "no XML files")
 
 
-# 6. a report whose residuals are all exactly 0 -----------------------------------------------
+# a report whose residuals are all exactly 0 -----------------------------------------------
 
-def test_6_evaluate_when_every_residual_is_zero(tmp_path):
+def test_evaluate_when_every_residual_is_zero(tmp_path):
     # No gravity, nothing moving: every contact's answer is 0, and zero starts at it exactly.
     scene = tmp_path / "still.xml"
     scene.write_text('<?xml version="1.0"?>\n<scene name="still" format="1"><world dt="0.016666668" steps="20"/>'
@@ -297,17 +298,17 @@ def test_6_evaluate_when_every_residual_is_zero(tmp_path):
         assert (out / "pareto.png").exists() and (out / "convergence.png").exists()
 
 
-# 7. paths never lead outside the run or dataset folder ------------------------------------------
+# paths never lead outside the run or dataset folder ------------------------------------------
 
 @pytest.mark.parametrize("where", ["../../other/seed-000003", "/etc", "seed-000000/../../x", "."])
-def test_7_manifest_paths_stay_inside_the_run(run, tmp_path, where):
+def test_manifest_paths_stay_inside_the_run(run, tmp_path, where):
     bad = edit_manifest(run, tmp_path, lambda m: m["simulations"][0].update(dir=where))
     for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")], ["validate", "--replay", str(bad)],
                  ["evaluate", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")]):
         one_line_error(dc(*args), bad / "manifest.json", "paths leading elsewhere are refused")
 
 
-def test_7_the_solver_loss_follows_only_the_datasets_own_sources(run, dataset, tmp_path):
+def test_the_solver_loss_follows_only_the_datasets_own_sources(run, dataset, tmp_path):
     bad = tmp_path / "data"
     shutil.copytree(dataset, bad)
     meta = json.loads((bad / "metadata.json").read_text())
@@ -319,7 +320,7 @@ def test_7_the_solver_loss_follows_only_the_datasets_own_sources(run, dataset, t
     r = dc("train", str(bad), "-o", str(tmp_path / "m"), "--loss", "solver", "--epochs", "1", "--width", "4",
            "--depth", "2")
     one_line_error(r, bad / "metadata.json", "not one of the dataset's sources")
-    assert not (tmp_path / "m").exists()       # and a failed train leaves no empty folder (item 10)
+    assert not (tmp_path / "m").exists()       # and a failed train leaves no empty folder
     meta["simulations"][0]["run"] = meta["sources"][0]["run"]
     meta["simulations"][0]["dir"] = "../../../etc"
     (bad / "metadata.json").write_text(json.dumps(meta))
@@ -328,17 +329,17 @@ def test_7_the_solver_loss_follows_only_the_datasets_own_sources(run, dataset, t
     one_line_error(r, "paths leading elsewhere are refused")
 
 
-# 8. memory is estimated before it is spent -------------------------------------------------------
+# memory is estimated before it is spent -------------------------------------------------------
 
 @pytest.mark.parametrize("params", [["pyramid", "--param", "base=20000"],
                                     ["pile", "--param", "count=1000000", "--param", "box=3000"]])
-def test_8_scenes_too_large_for_memory(tmp_path, params):
+def test_scenes_too_large_for_memory(tmp_path, params):
     r = dc("simulate", *params, "-o", str(tmp_path / "o"), timeout=60)
     one_line_error(r, "GB of memory", "--max-memory")
     assert not (tmp_path / "o").exists()
 
 
-def test_8_grids_too_large_for_memory_and_the_override(run, tmp_path):
+def test_grids_too_large_for_memory_and_the_override(run, tmp_path):
     r = dc("rasterize", str(run), "--cell", "0.003", "-o", str(tmp_path / "d"), timeout=60)
     one_line_error(r, "GB of memory", "d = 0.003")
     r = dc("rasterize", str(run), "-o", str(tmp_path / "d"), "--max-memory", "0.0001")
@@ -347,15 +348,15 @@ def test_8_grids_too_large_for_memory_and_the_override(run, tmp_path):
     assert dc("rasterize", str(run), "-o", str(tmp_path / "d"), "--max-memory", "1", "-q").returncode == 0
 
 
-# 10. the minor ones -------------------------------------------------------------------------------
+# the minor ones -------------------------------------------------------------------------------
 
-def test_10_write_scene_into_a_missing_folder_names_the_file(tmp_path):
+def test_write_scene_into_a_missing_folder_names_the_file(tmp_path):
     target = tmp_path / "no" / "such" / "scene.xml"
     line = one_line_error(dc("simulate", "pile", "--write-scene", str(target)), target)
     assert ".tmp" not in line
 
 
-def test_10_a_truncated_array_names_the_file(dataset, tmp_path):
+def test_a_truncated_array_names_the_file(dataset, tmp_path):
     bad = tmp_path / "data"
     shutil.copytree(dataset, bad)
     labels = bad / "labels.npy"
@@ -363,7 +364,7 @@ def test_10_a_truncated_array_names_the_file(dataset, tmp_path):
     one_line_error(dc("train", str(bad), "-o", str(tmp_path / "m"), "--epochs", "1"), labels)
 
 
-def test_10_smoothing_length_must_be_finite(run, tmp_path):
+def test_smoothing_length_must_be_finite(run, tmp_path):
     r = dc("rasterize", str(run), "--smoothing", "inf", "-o", str(tmp_path / "d"))
     assert r.returncode == 2 and "not a finite number" in r.stderr
     from deepcontact.errors import InputError
@@ -372,7 +373,7 @@ def test_10_smoothing_length_must_be_finite(run, tmp_path):
         GridSpec.over((0, 0, 1, 1), 0.5, float("inf"))
 
 
-def test_10_resume_takes_a_new_epoch_count(dataset, tmp_path):
+def test_resume_takes_a_new_epoch_count(dataset, tmp_path):
     out = tmp_path / "m"
     base = ["--width", "4", "--depth", "2", "-q"]
     assert dc("train", str(dataset), "-o", str(out), "--epochs", "1", *base).returncode == 0
@@ -380,7 +381,7 @@ def test_10_resume_takes_a_new_epoch_count(dataset, tmp_path):
     assert [r["epoch"] for r in json.loads((out / "metrics.json").read_text())] == [0, 1, 2]
 
 
-def test_10_the_binding_takes_unpickled_float32_arrays():
+def test_the_binding_takes_unpickled_float32_arrays():
     from deepcontact.scene.generators import generate
     from deepcontact.simulate.build import build_world
     world = build_world(generate("pile", 0, {"count": 12, "box": 12.0, "sigma": 2.5}))
@@ -393,16 +394,16 @@ def test_10_the_binding_takes_unpickled_float32_arrays():
     world.set_manifold_impulses(zeros, zeros.copy())   # "dtype float32, expected float32" before
 
 
-# 11. make calls $(PYTHON)'s own entry point -----------------------------------------------------
+# make calls $(PYTHON)'s own entry point -----------------------------------------------------
 
-def test_11_make_uses_the_given_python():
+def test_make_uses_the_given_python():
     r = subprocess.run(["make", "-n", "--no-print-directory", "smoke-pipeline", "PYTHON=/opt/venv/bin/python"],
                        cwd=ROOT, capture_output=True, text=True, check=True)
     commands = [line for line in r.stdout.splitlines() if " simulate " in line or " train " in line]
     assert commands and all(line.startswith("/opt/venv/bin/python -m deepcontact.cli.main ") for line in commands)
 
 
-def test_5_bad_relaxations(run, tmp_path):
+def test_bad_relaxations(run, tmp_path):
     for value, needle in (("2.5", "must be in (0, 2) or auto"), (",", "give at least one value"), ("fast", "auto")):
         option_error(dc("evaluate", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), "--relaxation", needle)
     option_error(dc("simulate", *PILE, "--solver", "pgs", "--relaxation", "auto", "-o", str(tmp_path / "s")),

@@ -1,4 +1,4 @@
-"""The contact-graph correction (issue 10, item 5): its differentiable solver against the real one."""
+"""The contact-graph correction: its differentiable solver against the real one."""
 import numpy as np
 import pytest
 import torch

@@ -1,4 +1,4 @@
-"""Conjugate directions on top of the sweeps (NNCG, issue 10): the same answer, fewer sweeps,
+"""Conjugate directions on top of the sweeps (NNCG): the same answer, fewer sweeps,
 always a feasible iterate, refused where Box2D's exact arithmetic is asked for."""
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Step files hold the problem the discrete velocity solver really solved (issue 9, item 9):
+"""Step files hold the problem the discrete velocity solver really solved:
 continuous collision and sleeping islands included, and recording never changes the simulation."""
 from pathlib import Path
 

@@ -1,4 +1,4 @@
-"""Faster to the same accuracy (issue 10): over-relaxation and its guard, `auto`, the prev start,
+"""Faster to the same accuracy: over-relaxation and its guard, `auto`, the prev start,
 reference solutions independent of the start, and measured accuracy-versus-time budgets."""
 import json
 

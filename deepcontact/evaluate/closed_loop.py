@@ -181,36 +181,3 @@ def box2d_iterations(scene, counts=(1, 2, 4, 8, 16, 32, 64, 128, 256), steps=Non
                                   predict_ms=np.zeros(0), drift=drift, penetration=recorded.deepest,
                                   finite=timed.finite and recorded.finite, energy_error=err))
     return results
-
-
-def loop_table(results):
-    """One row per start (and w) and per Box2D iteration count."""
-    lines = ["| start | steps | median iterations | p80 | max | ms per step (median) | of which prediction | "
-             "final drift (m) | max drift (m) | energy error | deepest contact (cm) | finite |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
-    for r in results:
-        it = r.iterations[r.iterations > 0] if np.any(r.iterations > 0) else r.iterations
-        pred = float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0
-        lines.append(f"| {r.start} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | {it.max():.0f} | "
-                     f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "
-                     f"{r.drift.max() if len(r.drift) else float('nan'):.3g} | {r.energy_error:.2g} | "
-                     f"{100 * r.penetration:.2f} | {'yes' if r.finite else 'NO'} |")
-    return "\n".join(lines)
-
-
-def loop_plot(results, stem):
-    """What accuracy costs in time in the loop: the largest drift from the reference trajectory
-    against the median measured time per step; Box2D's iteration counts joined by a line."""
-    from .report import _axes, _finish
-    fig, ax = _axes()
-    box2d = [r for r in results if r.start.startswith("box2d ")]
-    ours = [r for r in results if not r.start.startswith("box2d ")]
-    if box2d:
-        ax.plot([np.median(r.ms_per_step) for r in box2d], [r.drift.max() for r in box2d], "k-o", ms=3,
-                label="Box2D, 1 ... 256 iterations")
-        for r in box2d:
-            ax.annotate(str(int(r.iterations[0])), (np.median(r.ms_per_step), r.drift.max()), fontsize=7)
-    for i, r in enumerate(ours):
-        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], "o", color=f"C{i % 10}", label=r.start)
-    _finish(fig, ax, stem, "measured time per step (ms, median)", "largest drift from the reference trajectory (m)",
-            "What accuracy costs in time, in the loop")

@@ -6,6 +6,8 @@
   pareto       what accuracy costs in time, measured: for fixed sweep budgets run without early
                stopping, the median residual reached against the median measured time per step
                (prediction included), per start (written when the budgets were run)
+  closed-loop  each start driving the simulation: iterations, time, drift and energy error
+               against the reference trajectory, with Box2D's own solver at 1-256 iterations
 """
 import csv
 import io
@@ -181,3 +183,53 @@ def _save(fig, stem):
     for ext in ("png", "svg"):
         fig.savefig(f"{stem}.{ext}", dpi=110)
     plt.close(fig)
+
+
+def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode):
+    """closed-loop.md, .json and the plot into the folder out; returns the table."""
+    text = loop_table(results)
+    atomic.write_text(out / "closed-loop.md", f"# Closed loop: {what}\n\n"
+                      f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
+                      f"largest distance of any surviving body from the trajectory stepped with reference solutions "
+                      f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
+                      f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
+                      f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own "
+                      f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
+    loop_plot(results, out / "closed-loop")
+    atomic.write_text(out / "closed-loop.json", json.dumps([{
+        "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
+        "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
+        "energy_error": r.energy_error, "finite": r.finite} for r in results]) + "\n")
+    return text
+
+
+def loop_table(results):
+    """One row per start (and w) and per Box2D iteration count."""
+    lines = ["| start | steps | median iterations | p80 | max | ms per step (median) | of which prediction | "
+             "final drift (m) | max drift (m) | energy error | deepest contact (cm) | finite |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+    for r in results:
+        it = r.iterations[r.iterations > 0] if np.any(r.iterations > 0) else r.iterations
+        pred = float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0
+        lines.append(f"| {r.start} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | {it.max():.0f} | "
+                     f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "
+                     f"{r.drift.max() if len(r.drift) else float('nan'):.3g} | {r.energy_error:.2g} | "
+                     f"{100 * r.penetration:.2f} | {'yes' if r.finite else 'NO'} |")
+    return "\n".join(lines)
+
+
+def loop_plot(results, stem):
+    """What accuracy costs in time in the loop: the largest drift from the reference trajectory
+    against the median measured time per step; Box2D's iteration counts joined by a line."""
+    fig, ax = _axes()
+    box2d = [r for r in results if r.start.startswith("box2d ")]
+    ours = [r for r in results if not r.start.startswith("box2d ")]
+    if box2d:
+        ax.plot([np.median(r.ms_per_step) for r in box2d], [r.drift.max() for r in box2d], "k-o", ms=3,
+                label="Box2D, 1 ... 256 iterations")
+        for r in box2d:
+            ax.annotate(str(int(r.iterations[0])), (np.median(r.ms_per_step), r.drift.max()), fontsize=7)
+    for i, r in enumerate(ours):
+        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], "o", color=f"C{i % 10}", label=r.start)
+    _finish(fig, ax, stem, "measured time per step (ms, median)", "largest drift from the reference trajectory (m)",
+            "What accuracy costs in time, in the loop")

@@ -146,3 +146,20 @@ def plot(rows, path_stem):
     for ext in ("png", "svg"):
         fig.savefig(f"{path_stem}.{ext}", dpi=120)
     plt.close(fig)
+
+
+def write_study(out, steps, rows, impulses, renormalize):
+    """sph-study.md (the table), .csv and the plot into the folder out; returns the table."""
+    import csv
+    import io
+    table = TABLE_HEADER + "\n" + "\n".join(table_row(r) for r in rows) + "\n"
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(list(RoundTrip.__dataclass_fields__))
+    for r in rows:
+        w.writerow(list(r.__dict__.values()))
+    atomic.write_text(out / "sph-study.md", f"{len(steps)} steps, {sum(len(s[0]) for s in steps)} contact points, "
+                      f"{impulses} impulses, renormalised: {renormalize}\n\n" + table)
+    atomic.write_text(out / "sph-study.csv", buf.getvalue())
+    plot(rows, str(out / "sph-study"))
+    return table
