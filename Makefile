@@ -101,11 +101,11 @@ $(STUDY)/report/report.md: $(STUDY)/model/done $(STUDY)/heldout/manifest.json
 		--overwrite -o $(STUDY)/report
 
 $(STUDY)/figures/figures.md: $(STUDY)/heldout/manifest.json
-	$(PYTHON) -m deepcontact.evaluate.figures $(STUDY)/heldout -o $(STUDY)/figures --every 10
+	$(DC) study figures $(STUDY)/heldout -o $(STUDY)/figures --every 10 --overwrite
 
 # The hard-scene stability table of the README (about a minute).
 stability: setup
-	$(PYTHON) -m deepcontact.solver.stability --out $(RUNS)/stability.md
+	$(DC) study stability -o $(RUNS)/stability.md --overwrite
 
 clean:
 	rm -rf $(STAMPS) build *.egg-info deepcontact/*.so $(RUNS)/demo

@@ -1,7 +1,7 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
 import click
 
-from deepcontact.evaluate.starts import NAMES as START_NAMES
+from deepcontact.warmstart.starts import NAMES as START_NAMES
 from deepcontact.solver.pgs import ACCELERATIONS
 
 from . import options
@@ -77,7 +77,7 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
               closed_loop, steps, relaxations, accelerations, budgets, quiet):
     from deepcontact.evaluate.replay import evaluate as run, step_files, summarize
     from deepcontact.evaluate.report import summary_table, write_report
-    from deepcontact.evaluate.starts import make_starts
+    from deepcontact.warmstart.starts import make_starts
     from deepcontact.grid.dataset import collect, grid_for
 
     predictor, spec = None, None

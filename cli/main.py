@@ -6,6 +6,7 @@ from deepcontact import __version__
 from .evaluate import evaluate
 from .rasterize import rasterize
 from .simulate import simulate
+from .study import study
 from .train import train
 from .validate import validate
 
@@ -15,8 +16,9 @@ from .validate import validate
 def cli():
     """Study Box2D's contact solver and warm-start it with learned impulses.
 
-    The pipeline: simulate → validate → rasterize → train → evaluate.
-    Each subcommand has its own --help with examples.
+    The pipeline: simulate → validate → rasterize → train → evaluate; the
+    longer measurements are under `dc study`. Each subcommand has its own
+    --help with examples.
     """
 
 
@@ -25,6 +27,7 @@ cli.add_command(validate)
 cli.add_command(rasterize)
 cli.add_command(train)
 cli.add_command(evaluate)
+cli.add_command(study)
 
 
 def main():

@@ -98,7 +98,7 @@ def validate(paths, replay, verbose, quiet):
 
 
 def replay_runs(paths, quiet):
-    from deepcontact.solver.replay import replay_run, step_files
+    from deepcontact.solver.fidelity import replay_run, step_files
 
     failed = False
     for run_dir in paths:

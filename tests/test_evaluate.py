@@ -9,7 +9,7 @@ import pytest
 from conftest import dc
 from deepcontact.errors import InputError
 from deepcontact.evaluate.replay import evaluate, summarize
-from deepcontact.evaluate.starts import make_starts
+from deepcontact.warmstart.starts import make_starts
 from deepcontact.grid.spec import GridSpec
 
 ROOT = Path(__file__).parent.parent

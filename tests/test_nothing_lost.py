@@ -566,7 +566,7 @@ def test_bad_option_values_exit_2_in_every_command(run, dataset, tmp_path, args,
 
 def test_the_closed_loop_follows_removals_and_empty_scenes(tmp_path):
     from deepcontact.evaluate.closed_loop import closed_loop, reference_trajectory
-    from deepcontact.evaluate.starts import make_starts
+    from deepcontact.warmstart.starts import make_starts
     from deepcontact.scene.generators import generate
     from deepcontact.scene.model import RemoveEvent
     scene = generate("stack", 0, {"count": 5})

@@ -8,7 +8,7 @@ import pytest
 from conftest import dc
 from deepcontact.evaluate.closed_loop import box2d_iterations, closed_loop, reference_trajectory
 from deepcontact.evaluate.replay import BUDGETS, evaluate, previous_solution, summarize
-from deepcontact.evaluate.starts import make_starts
+from deepcontact.warmstart.starts import make_starts
 from deepcontact.scene.generators import generate
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem, contact_keys

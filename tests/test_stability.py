@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from deepcontact.solver import stability as S
+from deepcontact.studies import stability as S
 
 
 @pytest.fixture(scope="module")

@@ -11,18 +11,18 @@ the deepest contact, and whether anything became non-finite.
 `box2d_iterations` runs the same comparison for Box2D's own solver at fixed velocity iteration
 counts: what its accuracy costs in time.
 """
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..simulate import stepping
 from ..simulate.build import build_world
-from ..simulate.pgs_loop import LoopOptions, LoopStep, PGSStepper
+from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
-from ..solver.stability import energy
+from ..solver.metrics import drift, energy, positions
 from .replay import variants
-from .starts import StepContext
+from ..warmstart.starts import StepContext
 
 NEEDS_REFERENCE = ("copy", "copy2", "copy0", "sph", "random")
 NATIVE_STARTS = ("zero", "builtin")
@@ -83,14 +83,9 @@ def run_loop(scene, start_fn, options, steps, solved=None):
 
 
 def _follow(world, scene, steps, step, solved=None):
-    removals = scene.removals()
-    positions, energies, iterations, seconds, deepest, finite = [], [], [], [], 0.0, True
-    for k in range(steps):
-        for body in removals.get(k, ()):
-            world.remove_body(body)
-        t0 = time.perf_counter()
-        done = step()
-        seconds.append(time.perf_counter() - t0)
+    trail, energies, iterations, seconds, deepest, finite = [], [], [], [], 0.0, True
+    for done in stepping.steps(world, scene, step, steps):
+        seconds.append(done.seconds)
         if solved is not None:
             solved(done.solution)
         iterations.append(0 if done.solution is None else done.solution.iterations)
@@ -99,9 +94,9 @@ def _follow(world, scene, steps, step, solved=None):
             finite = False
             break
         deepest = max(deepest, done.deepest)
-        positions.append(dict(zip(b["index"].tolist(), b["position"].astype(np.float64))))
+        trail.append(positions(b))
         energies.append(energy(b, scene.effects.gravity or (0.0, 0.0)))
-    return Trajectory(positions, np.array(energies), np.array(iterations), np.array(seconds), deepest, finite)
+    return Trajectory(trail, np.array(energies), np.array(iterations), np.array(seconds), deepest, finite)
 
 
 def reference_trajectory(scene, steps):
@@ -114,18 +109,12 @@ def reference_trajectory(scene, steps):
     return run_loop(scene, reference_fn, exact, steps)
 
 
-def _drift(a, b):
-    """The largest coordinate difference of the bodies present in both steps (0 for none)."""
-    common = a.keys() & b.keys()
-    return max((float(np.abs(a[i] - b[i]).max()) for i in common), default=0.0)
-
-
 def _compare(t, ref):
     n = min(len(t.positions), len(ref.positions))
-    drift = np.array([_drift(t.positions[k], ref.positions[k]) for k in range(n)])
+    distance = np.array([drift(t.positions[k], ref.positions[k]) for k in range(n)])
     scale = max(abs(ref.energies[0]), 1e-300) if len(ref.energies) else 1.0
     err = float(np.abs(t.energies[:n] - ref.energies[:n]).max() / scale) if n else float("nan")
-    return drift, err
+    return distance, err
 
 
 def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
@@ -160,21 +149,11 @@ def box2d_iterations(scene, counts=(1, 2, 4, 8, 16, 32, 64, 128, 256), steps=Non
     recording; the contacts come from a second, identical, recorded run)."""
     steps = steps or scene.steps
     ref = reference or reference_trajectory(scene, steps)
-    p = scene.solver.position_iterations
     results = []
     for k in counts:
         bare, rec = build_world(scene), build_world(scene)
-
-        def bare_step():
-            bare.step(scene.dt, k, p)
-            return LoopStep(None, None, None, 0.0)
-
-        def recorded_step():
-            contacts = rec.step(scene.dt, k, p, record=True)[1]
-            sep = contacts["separation"]
-            return LoopStep(None, contacts, None, max(0.0, float(-sep.min())) if len(sep) else 0.0)
-        timed = _follow(bare, scene, steps, bare_step)
-        recorded = _follow(rec, scene, steps, recorded_step)
+        timed = _follow(bare, scene, steps, stepping.box2d(bare, scene, k, record=False))
+        recorded = _follow(rec, scene, steps, stepping.box2d(rec, scene, k))
         drift, err = _compare(timed, ref)
         results.append(LoopResult(start=f"box2d {k} iterations", steps=len(timed.positions),
                                   iterations=np.full(len(timed.positions), k), ms_per_step=timed.seconds * 1e3,

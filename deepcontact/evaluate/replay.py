@@ -22,7 +22,7 @@ from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
 from ..step.reader import check_origin, read_step
-from .starts import Previous, StepContext
+from ..warmstart.starts import Previous, StepContext
 
 
 @dataclass

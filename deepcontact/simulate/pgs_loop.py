@@ -65,6 +65,7 @@ class LoopStep:
     contacts: dict       # the contacts solved, with the impulses applied (None unless recording)
     solution: Solution   # None when the step had no contact points
     deepest: float       # the deepest penetration among the step's contact points (m), >= 0
+    dt_ratio: float = None   # Box2D's warm-start scale, where Box2D's own solver reports it
 
 
 class PGSStepper:

@@ -32,6 +32,7 @@ from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST
 from ..step.writer import step_filename, step_writer
 from .build import build_world, check_overlaps
+from . import stepping
 from .pgs_loop import PGSStepper, check_scene_for_loop
 
 log = logging.getLogger(__name__)
@@ -123,10 +124,8 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     atomic.write_bytes(out_dir / "scene.xml", scene_xml)
     world = build_world(scene)
     writer = step_writer(scene, seed, "box2d" if loop is None else "pgs")
-    stepper = None if loop is None else PGSStepper(world, scene, loop)
-    removals = scene.removals()
+    step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
     extent = Extent(scene)
-    s = scene.solver
     files = points = 0
 
     def write(k, dt_ratio, bodies, contacts, extra):
@@ -137,24 +136,14 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     with ThreadPoolExecutor(max_workers=2) as pool:
         pending = deque()
         try:
-            for k in range(scene.steps):
-                for body in removals.get(k, ()):
-                    world.remove_body(body)
-                if stepper is None:
-                    bodies, contacts = world.step(scene.dt, s.velocity_iterations, s.position_iterations,
-                                                  record=True)
-                    extra = ""
-                    dt_ratio = world.last_dt_ratio
-                else:
-                    done = stepper.step()
-                    bodies, contacts, solution = done.bodies, done.contacts, done.solution
-                    extra = _solve_xml(loop, solution)
-                    dt_ratio = 0.0 if k == 0 else 1.0
+            for done in stepping.steps(world, scene, step):
+                k, bodies, contacts = done.index, done.bodies, done.contacts
                 extent.add(bodies)
                 n = len(contacts["manifold"])
                 points += n
                 if n or not skip_contactless:
-                    pending.append(pool.submit(write, k, dt_ratio, bodies, contacts, extra))
+                    extra = "" if loop is None else _solve_xml(loop, done.solution)
+                    pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
                     files += 1
                 while pending and (len(pending) > 8 or pending[0].done()):
                     pending.popleft().result()   # re-raises a failed write here

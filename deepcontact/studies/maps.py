@@ -2,16 +2,14 @@
 models (normal only, tangent only; the thesis's goals 7-9), and compare them on the validation
 simulations at the contact points.
 
-    python -m deepcontact.model.compare DATASET -o OUTDIR [--epochs N] [--model fcn] [--width W]
+    dc study maps DATASET -o OUTDIR [--epochs N] [--model fcn] [--width W]
 """
-import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 from .. import atomic
-from .train import TrainConfig, train
+from ..model.train import TrainConfig, train
 
 ARMS = {"joint": ["normal_impulse", "tangent_impulse"], "normal only": ["normal_impulse"],
         "tangent only": ["tangent_impulse"]}
@@ -40,24 +38,15 @@ def table(rows):
     return "\n".join(lines)
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("dataset")
-    ap.add_argument("-o", "--output", required=True)
-    ap.add_argument("--epochs", type=int, default=10)
-    ap.add_argument("--model", default="fcn")
-    ap.add_argument("--width", type=int, default=16)
-    ap.add_argument("--loss", default="masked")
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
-    rows = compare(args.dataset, args.output, model=args.model, fcn_width=args.width, epochs=args.epochs,
-                   loss=args.loss, optimizer="adam", lr=1e-3, batch_size=64, seed=args.seed)
+# Everything a maps folder holds: what --overwrite may replace (a training run per arm).
+MAP_FILES = atomic.Owned("maps comparison", [r"compare\.(md|json)", r"(joint|normal-only|tangent-only)/",
+                                              r"(joint|normal-only|tangent-only)/((last|best)\.pt|metrics\.(csv|json)|"
+                                              r"loss\.(png|svg))"])
+
+
+def write_comparison(out, rows):
+    """compare.md and compare.json into the folder out; returns the table."""
     text = table(rows)
-    atomic.write_text(Path(args.output) / "compare.md", text + "\n")
-    atomic.write_text(Path(args.output) / "compare.json", json.dumps(rows, indent=2) + "\n")
-    print(text)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    atomic.write_text(Path(out) / "compare.md", text + "\n")
+    atomic.write_text(Path(out) / "compare.json", json.dumps(rows, indent=2) + "\n")
+    return text

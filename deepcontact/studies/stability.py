@@ -13,11 +13,9 @@ Each case runs a scene for its steps with one solver and start, and measures:
 Where a case fails at the scene's iteration count, the iteration count is doubled until it
 passes (up to a cap), and that count is recorded: the criteria are never loosened.
 
-    python -m deepcontact.solver.stability [--fast] [--out FILE.md]
+    dc study stability [--fast] [-o FILE.md]
 """
-import argparse
 import math
-import sys
 import time
 from dataclasses import dataclass
 
@@ -25,8 +23,10 @@ import numpy as np
 
 from .._box2d import linear_slop
 from ..scene.generators import generate
+from ..simulate import stepping
 from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
+from ..solver.metrics import deepest, energy
 
 PENETRATION_LIMIT = 3 * linear_slop
 TOP_DRIFT_LIMIT = 0.01
@@ -97,18 +97,6 @@ class Result:
                 and (math.isnan(self.top_drift) or self.top_drift < TOP_DRIFT_LIMIT))
 
 
-def energy(bodies, gravity):
-    dyn = bodies["type"] == 2
-    m = bodies["mass"][dyn].astype(np.float64)
-    v = bodies["velocity"][dyn].astype(np.float64)
-    w = bodies["omega"][dyn].astype(np.float64)
-    inertia = bodies["inertia"][dyn].astype(np.float64)
-    c = bodies["center"][dyn].astype(np.float64)
-    kinetic = 0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.sum(inertia * w * w)
-    potential = -np.sum(m * (c @ np.asarray(gravity, dtype=np.float64)))
-    return kinetic + potential
-
-
 def label(start, relaxation, accelerate="none"):
     return start + ("" if accelerate == "none" else f"+{accelerate}") + ("" if relaxation == 1.0 else f"@{relaxation:g}")
 
@@ -118,11 +106,11 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
     scene.solver.velocity_iterations = iterations
     gravity = scene.effects.gravity or (0.0, 0.0)
     world = build_world(scene)
-    stepper = None
     if solver == "pgs":
-        stepper = PGSStepper(world, scene, LoopOptions(start=start, mode="float64", max_iterations=iterations,
-                                                       relaxation=relaxation, accelerate=accelerate))
-    removals = scene.removals()
+        step = PGSStepper(world, scene, LoopOptions(start=start, mode="float64", max_iterations=iterations,
+                                                    relaxation=relaxation, accelerate=accelerate)).step
+    else:
+        step = stepping.box2d(world, scene, iterations)
     bodies = world.bodies()
     # the top body, by its index: removals shift the rows of the arrays
     top = int(bodies["index"][np.argmax(np.where(bodies["type"] == 2, bodies["center"][:, 1], -np.inf))])
@@ -138,30 +126,26 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
     finite, penetration, peak, drift, sanitized = True, 0.0, 0.0, 0.0, 0
     rise, worst_allowed, excess = -np.inf, allowed, -np.inf
     settled = scene.steps - scene.steps // 4
+
+    def rebase(k):   # a removal is an external cause: energy is measured from here on
+        nonlocal baseline, allowed
+        baseline, allowed = energy(world.bodies(), gravity), allowance(world.bodies())
+
     t0 = time.perf_counter()
-    for k in range(scene.steps):
-        if k in removals:     # an external cause: measure from here on
-            for body in removals[k]:
-                world.remove_body(body)
-            baseline, allowed = energy(world.bodies(), gravity), allowance(world.bodies())
-        if stepper is None:
-            _, contacts = world.step(scene.dt, iterations, scene.solver.position_iterations, record=True)
-        else:
-            done = stepper.step()
-            contacts, solution = done.contacts, done.solution
-            if solution is not None:
-                sanitized += sum(solution.sanitized.values())
+    for done in stepping.steps(world, scene, step, after_removal=rebase):
+        k, contacts, solution = done.index, done.contacts, done.solution
+        if solution is not None:
+            sanitized += sum(solution.sanitized.values())
         bodies = world.bodies()
         arrays = [bodies["position"], bodies["velocity"], bodies["omega"], contacts["normal_impulse"],
                   contacts["tangent_impulse"]]
         if not all(np.all(np.isfinite(a)) for a in arrays):
             finite = False
             break
-        if len(contacts["separation"]):
-            deepest = float(-contacts["separation"].min())
-            peak = max(peak, deepest)
-            if k >= settled:
-                penetration = max(penetration, deepest)
+        depth = deepest(contacts)
+        peak = max(peak, depth)
+        if k >= settled:
+            penetration = max(penetration, depth)
         e = energy(bodies, gravity) - baseline
         if e / allowed > excess:
             excess, rise, worst_allowed = e / allowed, e, allowed
@@ -219,18 +203,6 @@ HEADER = ("| scene | solver | start | passes at 8 | passes at (iterations) | pen
           "| --- | --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: |")
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--fast", action="store_true", help="the small variants the test suite runs")
-    ap.add_argument("--out", help="also write the markdown table to this file")
-    args = ap.parse_args(argv)
-    print(HEADER)
-    rows = study(FAST if args.fast else FULL, log=print)
-    if args.out:
-        from .. import atomic
-        atomic.write_text(args.out, HEADER + "\n" + "\n".join(format_row(d, f) for d, f in rows) + "\n")
-    return 0 if all(f.passed for _, f in rows) else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+def table(rows):
+    """The markdown table of study()'s rows."""
+    return HEADER + "\n" + "\n".join(format_row(d, f) for d, f in rows) + "\n"

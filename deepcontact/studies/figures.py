@@ -1,0 +1,49 @@
+"""The thesis's convergence figures, regenerated with the SPH start:
+
+  5.4  h in {0.1, 0.2, 0.25, 0.5} at d = 0.25 (Poly6)
+  5.5  d in {0.25, 0.5, 1.0} at h = d (Poly6)
+  5.6  Poly6 against Spiky at d = h = 0.5
+  5.7  all starts (zero, builtin, copy, sph) at d = h = 0.5
+
+Each is the median (and 10-90% band) of the stopping measure per PGS sweep over the run's steps.
+
+    dc study figures RUN -o OUTDIR [--every 10] [--tolerance 1e-4] [--stop-on thesis]
+"""
+from .. import atomic
+from ..grid.dataset import collect
+from ..grid.spec import GridSpec
+from ..evaluate.replay import evaluate, summarize
+from ..evaluate.report import convergence_plot, summary_table
+from ..warmstart.starts import SPH, make_starts
+
+FIGURES = {
+    "fig-5.4": [(f"h={h:g}", "poly6", 0.25, h) for h in (0.1, 0.2, 0.25, 0.5)],
+    "fig-5.5": [(f"d=h={d:g}", "poly6", d, d) for d in (0.25, 0.5, 1.0)],
+    "fig-5.6": [(k, k, 0.5, 0.5) for k in ("poly6", "spiky")],
+}
+
+
+# Everything a figures folder holds: what --overwrite may replace.
+FIGURE_FILES = atomic.Owned("figures folder", [r"figures\.md", r"fig-5\.[4-7]\.(png|svg)"])
+
+
+def figures(run, out, every=10, tolerance=1e-4, stop_on="thesis", max_iterations=1000):
+    """Figures 5.4-5.7 of the run into the folder out; returns the markdown text."""
+    from ..errors import InputError
+    sims, _ = collect([run])
+    window = sims[0].box
+    if window is None:
+        raise InputError("the thesis's figures need a scene with a static box (the pile)", run)
+    kw = dict(tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, every=every)
+    text = []
+    for fig, settings in FIGURES.items():
+        starts = {label: SPH(GridSpec.over(window, d, h, kernel)) for label, kernel, d, h in settings}
+        rows = evaluate([run], starts, **kw)
+        convergence_plot(rows, list(starts), out / fig, f"Thesis {fig[4:]}: the SPH start", tolerance, stop_on)
+        text += [f"## {fig}\n", summary_table(summarize(rows, starts, max_iterations)), ""]
+    starts = make_starts(["zero", "builtin", "copy", "sph"], spec=GridSpec.over(window, 0.5, 0.5))
+    rows = evaluate([run], starts, **kw)
+    convergence_plot(rows, list(starts), out / "fig-5.7", "Thesis 5.7: all starts", tolerance, stop_on)
+    text += ["## fig-5.7\n", summary_table(summarize(rows, starts, max_iterations)), ""]
+    atomic.write_text(out / "figures.md", "\n".join(text) + "\n")
+    return "\n".join(text)

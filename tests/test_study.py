@@ -1,0 +1,55 @@
+"""`dc study`: the longer measurements as subcommands, with the same output rules as the rest."""
+import pytest
+
+from conftest import dc, one_line_error
+
+PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study") / "run"
+    assert dc("simulate", *PILE, "--steps", "120", "--seeds", "0..1", "-q", "-o", str(out)).returncode == 0
+    return out
+
+
+def test_dc_study_lists_the_studies():
+    r = dc("study", "--help")
+    assert r.returncode == 0 and "Examples:" in r.stdout
+    for name in ("stability", "figures", "maps"):
+        assert name in r.stdout
+        assert "Examples:" in dc("study", name, "--help").stdout
+
+
+def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_path):
+    out = tmp_path / "stability.md"
+    r = dc("study", "stability", "--fast", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    table = out.read_text()
+    assert table.startswith("| scene | solver |") and "| stack" in table and "| bullet |" in table
+    one_line_error(dc("study", "stability", "--fast", "-o", str(out)), out, "--overwrite")
+
+
+def test_the_thesis_figures_of_a_run(run, tmp_path):
+    out = tmp_path / "figures"
+    r = dc("study", "figures", str(run), "-o", str(out), "--every", "40", "-q")
+    assert r.returncode == 0, r.stderr
+    assert {p.name for p in out.iterdir()} == {"figures.md"} | {f"fig-5.{k}.{e}" for k in (4, 5, 6, 7)
+                                                               for e in ("png", "svg")}
+    assert "## fig-5.7" in (out / "figures.md").read_text()
+    (out / "mine.txt").write_text("mine")
+    one_line_error(dc("study", "figures", str(run), "-o", str(out), "--overwrite"), out / "mine.txt",
+                   "not written by dc study figures")
+
+
+def test_one_map_or_two(run, tmp_path):
+    data = tmp_path / "data"
+    assert dc("rasterize", str(run), "-o", str(data), "--cell", "1", "--smoothing", "1", "--validation", "0.5",
+              "-q").returncode == 0
+    out = tmp_path / "maps"
+    r = dc("study", "maps", str(data), "-o", str(out), "--epochs", "1", "--width", "4", "-q")
+    assert r.returncode == 0, r.stderr
+    assert "| joint | 1 |" in (out / "compare.md").read_text()
+    assert (out / "normal-only" / "last.pt").exists() and (out / "tangent-only" / "best.pt").exists()
+    r = dc("study", "maps", str(data), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite")
+    assert r.returncode == 0, r.stderr
