@@ -75,7 +75,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
 
 def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
               closed_loop, steps, relaxations, accelerations, budgets, quiet):
-    from deepcontact.evaluate.replay import evaluate as run, step_files, summarize
+    from deepcontact.evaluate.replay import box2d_run, evaluate as run, summarize
     from deepcontact.evaluate.report import summary_table, write_report
     from deepcontact.warmstart.starts import make_starts
     from deepcontact.grid.dataset import collect, grid_for
@@ -92,7 +92,7 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
     if closed_loop:
         return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
                                quiet, accelerations)
-    total = sum(len(f[::every]) for r in runs for _, f in step_files(r)[1])
+    total = sum(len(s.files[::every]) for r in runs for s in box2d_run(r).simulations)
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
                every=every, seed=seed, progress=bar.update,
@@ -111,11 +111,10 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
                     accelerations=("none",)):
     from deepcontact.evaluate.closed_loop import box2d_iterations, closed_loop, reference_trajectory
     from deepcontact.evaluate.report import write_loop_report
-    from deepcontact.evaluate.replay import step_files
+    from deepcontact.evaluate.replay import box2d_run
     from deepcontact.scene.xml import read_scene
 
-    manifest, sims = step_files(runs[0])
-    first = sims[0][1][0].parent / "scene.xml"
+    first = box2d_run(runs[0]).simulations[0].path / "scene.xml"
     scene = read_scene(first)
     bar = options.progress_bar(quiet, len(table) * len(relaxations) * len(accelerations) + 1 + bool(budgets), "run",
                                "closed loop")

@@ -98,11 +98,11 @@ def validate(paths, replay, verbose, quiet):
 
 
 def replay_runs(paths, quiet):
-    from deepcontact.solver.fidelity import replay_run, step_files
+    from deepcontact.solver.fidelity import replay_run, replayable_run
 
     failed = False
     for run_dir in paths:
-        bar = options.progress_bar(quiet, len(step_files(run_dir)), "step", f"replay {run_dir}")
+        bar = options.progress_bar(quiet, len(replayable_run(run_dir).step_files), "step", f"replay {run_dir}")
         report = replay_run(run_dir, on_file=lambda _: bar.update(1))
         bar.close()
         verdict = "exact" if report.exact else f"NOT exact in {report.inexact_steps} steps (worst: {report.worst})"

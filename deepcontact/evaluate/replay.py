@@ -72,13 +72,13 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
             for a in accelerations for w in relaxations for name, start in starts.items()]
 
 
-def step_files(run_dir):
-    """(manifest, [(seed, step files)]) of a finished run of Box2D's own solver."""
+def box2d_run(run_dir):
+    """A finished run of Box2D's own solver (its warm start is the builtin start), with step files."""
     run = read_run(run_dir, solver="box2d", purpose="evaluate replays runs stepped by Box2D's own solver (its "
                    "warm start is the builtin start)")
     if not run.step_files:
         raise InputError("the run has no step files", run_dir)
-    return run.manifest, [(s.seed, s.files) for s in run.simulations]
+    return run
 
 
 def _plan(run_dirs):
@@ -87,10 +87,10 @@ def _plan(run_dirs):
         if Path(run).resolve() in seen:
             raise InputError("this run is given twice", run)
         seen.add(Path(run).resolve())
-        manifest, sims = step_files(run)
-        scenes[str(run)] = manifest.get("scene")
-        for s, files in sims:
-            plan.append((str(run), s, files, manifest.get("scene")))
+        sims = box2d_run(run).simulations
+        scenes[str(run)] = sims[0].scene
+        for s in sims:
+            plan.append((str(run), s.seed, s.files, s.scene))
     if len(set(scenes.values())) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted(map(str, set(scenes.values()))))}); "
                          f"evaluate one kind of scene at a time")

@@ -12,7 +12,6 @@ The run is built in a partial folder beside OUTDIR and appears under its name on
 to replace (--overwrite) as it was.
 """
 import hashlib
-import json
 import logging
 import math
 import os
@@ -24,12 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, atomic, workers
-from .._box2d import box2d_version
+from .. import atomic, workers
 from ..errors import InputError
 from ..resources import STEP_BYTES_PER_BODY, check_disk
 from ..scene.xml import fmt, to_xml
-from ..step.run_folder import MANIFEST
+from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import step_filename, step_writer
 from .build import build_world, check_overlaps
 from . import stepping
@@ -210,24 +208,9 @@ def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progres
     finally:
         if progress is not None:
             progress.close()
-    manifest = {
-        "format": 1,
-        "kind": "deepcontact-run",
-        "scene": first.name,
-        "source": source,
-        "generator": first.generator,
-        "params": first.params,
-        "solver": "box2d" if loop is None else "pgs",
-        "pgs": None if loop is None else dict(loop.__dict__),
-        "velocity_iterations": first.solver.velocity_iterations,
-        "position_iterations": first.solver.position_iterations,
-        "dt": float(fmt(first.dt)),
-        "skip_contactless": skip_contactless,
-        "versions": {"deepcontact": __version__, "box2d": box2d_version},
-        "simulations": [r.__dict__ for r in results],
-    }
-    atomic.write_text(out_dir / MANIFEST, json.dumps(manifest, indent=2) + "\n")
-    return manifest
+    return write_manifest(out_dir, first, source=source, solver="box2d" if loop is None else "pgs",
+                          pgs=None if loop is None else dict(loop.__dict__), skip_contactless=skip_contactless,
+                          simulations=[r.__dict__ for r in results])
 
 
 def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop):

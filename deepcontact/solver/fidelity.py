@@ -1,13 +1,12 @@
 """Replay fidelity: re-solve every recorded step in Box2D-exact mode from the recorded start with
 the recorded iteration count, and compare with the impulses Box2D produced."""
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..step.reader import check_origin, read_step
-from ..step.run_folder import MANIFEST, read_run, step_files_in
+from ..step.run_folder import read_run
 from .pgs import solve
 from .problem import StepProblem
 
@@ -27,31 +26,21 @@ class ReplayReport:
         return self.max_difference == 0.0
 
 
-def step_files(run_dir):
-    """[(path, scene, seed)] of a run's step files: those its manifest lists (each checked to
-    belong to its simulation when read), or of every seed-* folder of an unfinished run (no
-    manifest yet: nothing to check them against)."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError("not a run folder", run_dir)
-    if (run_dir / MANIFEST).exists():
-        run = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver; "
-                       "this run used --solver pgs")
-        files = [(f, run.manifest.get("scene"), s.seed) for s in run.simulations for f in s.files]
-    else:
-        files = [(f, None, None) for sim in sorted(p for p in run_dir.glob("seed-*") if p.is_dir())
-                 for f in step_files_in(sim)]
-    if not files:
+def replayable_run(run_dir):
+    """The run --replay checks: finished (its step files checked against the manifest) or not."""
+    run = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver; this "
+                   "run used --solver pgs", unfinished=True)
+    if not run.step_files:
         raise InputError("no step files found (expected seed-*/step-*.xml)", run_dir)
-    return files
+    return run
 
 
 def replay_run(run_dir, on_file=None) -> ReplayReport:
     report = ReplayReport(run=str(run_dir))
-    for path, scene, seed in step_files(run_dir):
+    for sim, path in ((s, f) for s in replayable_run(run_dir).simulations for f in s.files):
         header, bodies, contacts = read_step(path, validate=False)
-        if seed is not None:
-            check_origin(header, scene, seed, path)
+        if sim.scene is not None:
+            check_origin(header, sim.scene, sim.seed, path)
         problem = StepProblem.from_step(header, bodies, contacts, path)
         if on_file is not None:
             on_file(path)

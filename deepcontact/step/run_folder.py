@@ -1,4 +1,4 @@
-"""Reading a `dc simulate` run folder: its manifest, checked, and the step files it lists.
+"""A `dc simulate` run folder: its manifest, written and read here, and the step files it lists.
 
 Every reader of runs (validate --replay, rasterize, evaluate) comes through here, so each gets
 the same checks: the manifest is a JSON object of the expected shape, every simulation folder it
@@ -27,12 +27,13 @@ class Simulation:
     path: Path
     files: list       # its step files, in step order
     extent: tuple = None   # (x0, y0, x1, y1) the bodies stayed in, where the manifest records it
+    scene: str = None      # the scene's name, which each step file must repeat (None: not known)
 
 
 @dataclass
 class Run:
     path: Path
-    manifest: dict
+    manifest: dict    # None for an unfinished run
     simulations: list
 
     @property
@@ -81,6 +82,33 @@ def require_regular(path):
     return path
 
 
+def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, simulations):
+    """The run's manifest, written last (its presence means the run is complete); returns it.
+    scene: the first simulation's scene; simulations: one dict per simulation (seed, dir,
+    steps, files, contact_points, scene_sha256, extent)."""
+    from .. import __version__, atomic
+    from .._box2d import box2d_version
+    from ..scene.xml import fmt
+    manifest = {
+        "format": 1,
+        "kind": "deepcontact-run",
+        "scene": scene.name,
+        "source": source,
+        "generator": scene.generator,
+        "params": scene.params,
+        "solver": solver,
+        "pgs": pgs,
+        "velocity_iterations": scene.solver.velocity_iterations,
+        "position_iterations": scene.solver.position_iterations,
+        "dt": float(fmt(scene.dt)),
+        "skip_contactless": skip_contactless,
+        "versions": {"deepcontact": __version__, "box2d": box2d_version},
+        "simulations": simulations,
+    }
+    atomic.write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    return manifest
+
+
 def read_manifest(run_dir):
     """The manifest of a finished run, checked for shape; InputError naming the file otherwise."""
     run_dir = Path(run_dir)
@@ -108,12 +136,18 @@ def simulation_folder(run_dir, name, manifest_path):
     return Path(run_dir) / name
 
 
-def read_run(run_dir, solver=None, purpose=None):
+def read_run(run_dir, solver=None, purpose=None, unfinished=False):
     """A finished run: its manifest and each simulation's step files, counted against it.
 
     solver: refuse runs whose manifest names another solver ("box2d" or "pgs"); purpose says
-    why in the message."""
+    why in the message. unfinished: a folder without a manifest (a run still being written, or
+    step files copied by hand) is read from its seed-NNNNNN folders, with nothing to check the
+    files against."""
     run_dir = Path(run_dir)
+    if unfinished and run_dir.is_dir() and not (run_dir / MANIFEST).exists():
+        sims = [Simulation(seed=int(p.name[5:]), dir=p.name, path=p, files=step_files_in(p))
+                for p in sorted(run_dir.iterdir()) if _SIM_DIR.fullmatch(p.name) and p.is_dir()]
+        return Run(path=run_dir, manifest=None, simulations=sims)
     m = read_manifest(run_dir)
     path = run_dir / MANIFEST
     if solver is not None and m.get("solver", "box2d") != solver:
@@ -138,5 +172,6 @@ def read_run(run_dir, solver=None, purpose=None):
             if len(files) != want:
                 raise InputError(f"{e['dir']} holds {len(files)} step files, the manifest recorded {want} "
                                  f"(files deleted or added after the run?)", folder)
-        sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path)))
+        sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
+                               scene=m.get("scene")))
     return Run(path=run_dir, manifest=m, simulations=sims)
