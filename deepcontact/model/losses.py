@@ -55,8 +55,8 @@ class SolverLoss:
     For each sample the step's explicit LCP (A, b, friction bounds; deepcontact.solver.lcp) is
     built once from its step file and cached. The prediction, interpolated at the contact points
     and projected onto the feasible set (ln >= 0, |lt| <= mu ln), is relaxed by k damped
-    projected-Jacobi sweeps, and the loss is the squared min-map residual of the LCP there (the
-    the residual of docs/solver.md, in velocity units, normalised by the step's largest free velocity).
+    projected-Jacobi sweeps, and the loss is the squared min-map residual of the LCP there
+    (docs/solver.md: in velocity units, normalised by the step's largest free velocity).
 
     Why Jacobi and not Gauss-Seidel: a Gauss-Seidel sweep is a chain of one-row updates, hundreds of
     tiny autograd operations per sample; a Jacobi sweep is one matrix product, differentiable and

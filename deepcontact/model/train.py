@@ -192,15 +192,12 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     if missing or not cfg.targets:
         raise InputError(f"the dataset's labels are {', '.join(meta['labels'])}; no {', '.join(missing) or 'target'}",
                          dataset)
-    target_idx = [meta["labels"].index(t) for t in cfg.targets]
-    label_columns = [{"normal_impulse": 0, "tangent_impulse": 1}[t] for t in cfg.targets
-                     if t in ("normal_impulse", "tangent_impulse")]
-    if cfg.loss in ("contacts", "solver") and len(label_columns) != len(cfg.targets):
+    impulses = [t for t in cfg.targets if t in ("normal_impulse", "tangent_impulse")]
+    if cfg.loss in ("contacts", "solver") and len(impulses) != len(cfg.targets):
         raise InputError(f"the {cfg.loss} loss needs impulse targets (normal_impulse, tangent_impulse)")
-    solver_loss = losses.SolverLoss(ds, sweeps=cfg.solver_sweeps) if cfg.loss == "solver" else None
-    train_idx = ds.indices("train")
-    val_idx = ds.indices("validation")
-    if len(train_idx) == 0:
+    if cfg.loss == "solver":
+        ds.check_step_sources()
+    if len(ds.indices("train")) == 0:
         raise InputError("the dataset has no training samples", dataset)
     net_cfg = network_config(cfg, meta, cfg.targets)
     problem = check_config(net_cfg)
@@ -218,119 +215,205 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
             return "the earlier run is left as it was"
         return f"the last good checkpoint is kept ({last})" if last.exists() else "no checkpoint was written"
     with _output_folder(out_dir, overwrite, replace, resume, rank) as work:
-        torch.manual_seed(cfg.seed)
-        np.random.seed(cfg.seed)
-        random.seed(cfg.seed)
-        torch.use_deterministic_algorithms(True, warn_only=True)
-        model = build(net_cfg).to(device)
-        if cfg.optimizer == "sgd":
-            opt = torch.optim.SGD(model.parameters(), lr=thesis_lr(0), momentum=cfg.momentum, weight_decay=cfg.weight_decay)
-        elif cfg.optimizer == "adam":
-            opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        else:
-            raise InputError(f"unknown optimizer {cfg.optimizer!r}; choose sgd or adam")
-        history, best, bad_epochs, start = [], math.inf, 0, 0
+        trainer = Trainer(ds, cfg, net_cfg, device, world=world, rank=rank, kept=kept)
         if ck is not None:
-            model.load_state_dict(ck["model"])
-            opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
-            _set_rng_state(ck["rng"])
-            history, best, bad_epochs, start = ck["history"], ck["best"], ck["bad_epochs"], ck["epoch"] + 1
-        net = model
-        if world > 1:
-            net = torch.nn.parallel.DistributedDataParallel(model)
-        spec = GridSpec(**meta["grid"])
-        inputs, labels = ds.arrays["inputs"], ds.arrays["labels"]
-
-        def batch(indices):
-            idx = np.sort(indices)   # reading a memory map in order
-            x = torch.from_numpy(np.ascontiguousarray(inputs[idx])).to(device)
-            y = torch.from_numpy(np.ascontiguousarray(labels[idx][:, target_idx])).to(device)
-            for name, t in (("inputs", x), ("labels", y)):
-                if not torch.isfinite(t).all():
-                    k = int(idx[int(torch.nonzero(~torch.isfinite(t.flatten(1)).all(dim=1))[0])])
-                    raise InputError(f"sample {k} holds a NaN or infinite value; {kept()}", ds.path / f"{name}.npy")
-            return idx, x, y
-
-        def loss_of(pred, y, idx):
-            if cfg.loss == "masked":
-                return losses.masked_mse(pred, y)
-            if cfg.loss == "mse":
-                return losses.mse(pred, y)
-            if cfg.loss == "solver":
-                return solver_loss(pred, idx, spec, label_columns)
-            pos, imp = zip(*(ds.contacts(int(i)) for i in idx))
-            return losses.contact_mse(pred, [torch.from_numpy(np.array(p)).to(device) for p in pos],
-                                      [torch.from_numpy(np.array(q)).to(device) for q in imp], spec, label_columns)
-
-        def save(name, epoch):
-            _save(work / name, {
-                "format": CHECKPOINT_FORMAT, "epoch": epoch,
-                "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-                "optimizer": opt.state_dict(), "rng": _rng_state(), "history": history, "best": best,
-                "bad_epochs": bad_epochs, "network": net_cfg, "train_config": asdict(cfg), "targets": cfg.targets,
-                "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
-                "dataset_path": str(dataset),
-                "versions": {"deepcontact": __version__, "torch": str(torch.__version__), "numpy": str(np.__version__)},
-            })
-
-        if rank == 0 and not resume:
-            params, _ = parameter_count(model)
+            trainer.resume_from(ck)
+        elif rank == 0:
+            params, _ = parameter_count(trainer.model)
             log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
-                     len(train_idx), len(val_idx))
-        for epoch in range(start, cfg.epochs):
-            lr = thesis_lr(epoch) if cfg.optimizer == "sgd" else cfg.lr
-            for g in opt.param_groups:
-                g["lr"] = lr
-            gen = torch.Generator().manual_seed(cfg.seed * 100003 + epoch)
-            order = train_idx[torch.randperm(len(train_idx), generator=gen).numpy()]
-            net.train()
-            t0 = time.perf_counter()
-            total, seen = 0.0, 0
-            for b0 in range(0, len(order), cfg.batch_size):
-                chunk = order[b0:b0 + cfg.batch_size][rank::world]
-                if len(chunk) == 0:
-                    continue
-                idx, x, y = batch(chunk)
-                opt.zero_grad()
-                loss = loss_of(net(x), y, idx)
-                if not torch.isfinite(loss):
-                    raise TrainingDiverged(f"the loss became {loss.item()} in epoch {epoch}; {kept()}", out_dir)
-                loss.backward()
-                opt.step()
-                total += loss.item() * len(idx)
-                seen += len(idx)
-            seconds = time.perf_counter() - t0
-            if world > 1:   # the epoch's loss over all ranks' samples
-                sums = torch.tensor([total, float(seen)], dtype=torch.float64)
-                torch.distributed.all_reduce(sums)
-                total, seen = float(sums[0]), int(sums[1])
-            row = {"epoch": epoch, "lr": lr, "train_loss": total / max(seen, 1), "seconds": seconds,
-                   "samples_per_second": seen / max(seconds, 1e-9)}
-            row.update(evaluate(model, ds, val_idx, target_idx, label_columns, spec, cfg, loss_of, batch)
-                       if len(val_idx) else {})
-            history.append(row)
-            score = row.get("val_loss", row["train_loss"])
-            improved = score < best
-            if improved:
-                best, bad_epochs = score, 0
-            else:
-                bad_epochs += 1
-            if rank == 0:
-                save("last.pt", epoch)
-                if improved:
-                    save("best.pt", epoch)
-                write_metrics(work, history)
-            if progress is not None and rank == 0:
-                progress(row)
-            if cfg.patience and bad_epochs >= cfg.patience:
-                log.info("no improvement for %d epochs: stopping after epoch %d", bad_epochs, epoch)
-                break
-        if rank == 0 and history:
-            plot_losses(history, work / "loss")
+                     len(trainer.train_idx), len(trainer.val_idx))
+        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir)
         if world > 1:
             torch.distributed.barrier()   # no rank leaves while rank 0 still writes
             torch.distributed.destroy_process_group()
         return history
+
+
+def _optimizer(cfg, model):
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(model.parameters(), lr=thesis_lr(0), momentum=cfg.momentum,
+                               weight_decay=cfg.weight_decay)
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    raise InputError(f"unknown optimizer {cfg.optimizer!r}; choose sgd or adam")
+
+
+def _masked_loss(t, pred, y, idx):
+    return losses.masked_mse(pred, y)
+
+
+def _mse_loss(t, pred, y, idx):
+    return losses.mse(pred, y)
+
+
+def _solver_loss(t, pred, y, idx):
+    return t.solver_loss(pred, idx, t.spec, t.label_columns)
+
+
+def _contact_loss(t, pred, y, idx):
+    pos, imp = zip(*(t.ds.contacts(int(i)) for i in idx))
+    return losses.contact_mse(pred, [torch.from_numpy(np.array(p)).to(t.device) for p in pos],
+                              [torch.from_numpy(np.array(q)).to(t.device) for q in imp], t.spec, t.label_columns)
+
+
+# The losses by name (losses.LOSSES): each takes the trainer, the prediction, the labels and the samples.
+LOSS_OF = {"masked": _masked_loss, "mse": _mse_loss, "solver": _solver_loss, "contacts": _contact_loss}
+
+
+class Trainer:
+    """One training run: the dataset, the network and its optimizer under one configuration.
+
+    run_epoch trains one epoch, validate measures the validation simulations, checkpoint is
+    what last.pt and best.pt hold, fit runs the epochs and writes them. The seeds are set before
+    the network is built, so the same seed gives the same weights; resume_from restores every
+    state a checkpoint holds, so a resumed run continues as if never stopped."""
+
+    def __init__(self, ds, cfg, net_cfg, device, world=1, rank=0, kept=lambda: ""):
+        self.ds, self.cfg, self.net_cfg, self.device = ds, cfg, net_cfg, device
+        self.world, self.rank, self.kept = world, rank, kept
+        labels = ds.metadata["labels"]
+        self.target_idx = [labels.index(t) for t in cfg.targets]
+        self.label_columns = [{"normal_impulse": 0, "tangent_impulse": 1}[t] for t in cfg.targets
+                              if t in ("normal_impulse", "tangent_impulse")]
+        self.solver_loss = losses.SolverLoss(ds, sweeps=cfg.solver_sweeps) if cfg.loss == "solver" else None
+        self.train_idx, self.val_idx = ds.indices("train"), ds.indices("validation")
+        self.spec = GridSpec(**ds.metadata["grid"])
+        torch.manual_seed(cfg.seed)
+        np.random.seed(cfg.seed)
+        random.seed(cfg.seed)
+        torch.use_deterministic_algorithms(True, warn_only=True)
+        self.model = build(net_cfg).to(device)
+        self.opt = _optimizer(cfg, self.model)
+        self.net = torch.nn.parallel.DistributedDataParallel(self.model) if world > 1 else self.model
+        self.history, self.best, self.bad_epochs, self.start = [], math.inf, 0, 0
+
+    def resume_from(self, ck):
+        self.model.load_state_dict(ck["model"])
+        self.opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
+        _set_rng_state(ck["rng"])
+        self.history, self.best, self.bad_epochs, self.start = ck["history"], ck["best"], ck["bad_epochs"], \
+            ck["epoch"] + 1
+
+    def batch(self, indices):
+        """(sorted indices, inputs, labels) on the device; a NaN or inf in either is refused."""
+        idx = np.sort(indices)   # reading a memory map in order
+        x = torch.from_numpy(np.ascontiguousarray(self.ds.arrays["inputs"][idx])).to(self.device)
+        y = torch.from_numpy(np.ascontiguousarray(self.ds.arrays["labels"][idx][:, self.target_idx])).to(self.device)
+        for name, t in (("inputs", x), ("labels", y)):
+            if not torch.isfinite(t).all():
+                k = int(idx[int(torch.nonzero(~torch.isfinite(t.flatten(1)).all(dim=1))[0])])
+                raise InputError(f"sample {k} holds a NaN or infinite value; {self.kept()}",
+                                 self.ds.path / f"{name}.npy")
+        return idx, x, y
+
+    def loss(self, pred, y, idx):
+        return LOSS_OF[self.cfg.loss](self, pred, y, idx)
+
+    def run_epoch(self, epoch):
+        """One pass over the training samples in this epoch's seeded order; the metrics row."""
+        cfg = self.cfg
+        lr = thesis_lr(epoch) if cfg.optimizer == "sgd" else cfg.lr
+        for g in self.opt.param_groups:
+            g["lr"] = lr
+        gen = torch.Generator().manual_seed(cfg.seed * 100003 + epoch)
+        order = self.train_idx[torch.randperm(len(self.train_idx), generator=gen).numpy()]
+        self.net.train()
+        t0 = time.perf_counter()
+        total, seen = 0.0, 0
+        for b0 in range(0, len(order), cfg.batch_size):
+            chunk = order[b0:b0 + cfg.batch_size][self.rank::self.world]
+            if len(chunk) == 0:
+                continue
+            idx, x, y = self.batch(chunk)
+            self.opt.zero_grad()
+            loss = self.loss(self.net(x), y, idx)
+            if not torch.isfinite(loss):
+                raise TrainingDiverged(f"the loss became {loss.item()} in epoch {epoch}; {self.kept()}")
+            loss.backward()
+            self.opt.step()
+            total += loss.item() * len(idx)
+            seen += len(idx)
+        seconds = time.perf_counter() - t0
+        if self.world > 1:   # the epoch's loss over all ranks' samples
+            sums = torch.tensor([total, float(seen)], dtype=torch.float64)
+            torch.distributed.all_reduce(sums)
+            total, seen = float(sums[0]), int(sums[1])
+        return {"epoch": epoch, "lr": lr, "train_loss": total / max(seen, 1), "seconds": seconds,
+                "samples_per_second": seen / max(seconds, 1e-9)}
+
+    @torch.no_grad()
+    def validate(self):
+        """Validation loss and the RMSE at the contact points, per target."""
+        self.model.eval()
+        total, seen = 0.0, 0
+        sq = np.zeros(len(self.label_columns))
+        count = 0
+        spec = self.spec
+        for b0 in range(0, len(self.val_idx), self.cfg.batch_size):
+            ids, x, y = self.batch(self.val_idx[b0:b0 + self.cfg.batch_size])
+            pred = self.model(x)
+            total += self.loss(pred, y, ids).item() * len(ids)
+            seen += len(ids)
+            if self.label_columns:
+                scale = 1.0 if spec.renormalize else spec.cell ** 2
+                for k, i in enumerate(ids):
+                    pos, imp = self.ds.contacts(int(i))
+                    if len(pos) == 0:
+                        continue
+                    at = losses.bilinear_torch(pred[k], spec, torch.from_numpy(np.array(pos)).to(pred.device))
+                    at = at.cpu().numpy() * scale
+                    sq += ((at - np.array(imp)[:, self.label_columns].T) ** 2).sum(axis=1)
+                    count += len(pos)
+        out = {"val_loss": total / max(seen, 1)}
+        names = {0: "normal", 1: "tangent"}
+        for j, col in enumerate(self.label_columns):
+            out[f"val_contact_rmse_{names[col]}"] = float(math.sqrt(sq[j] / max(count, 1)))
+        return out
+
+    def checkpoint(self, epoch, dataset_path):
+        """Everything a run needs to continue exactly: plain containers and tensors only."""
+        meta = self.ds.metadata
+        return {
+            "format": CHECKPOINT_FORMAT, "epoch": epoch,
+            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
+            "optimizer": self.opt.state_dict(), "rng": _rng_state(), "history": self.history, "best": self.best,
+            "bad_epochs": self.bad_epochs, "network": self.net_cfg, "train_config": asdict(self.cfg),
+            "targets": self.cfg.targets,
+            "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
+            "dataset_path": dataset_path,
+            "versions": {"deepcontact": __version__, "torch": str(torch.__version__), "numpy": str(np.__version__)},
+        }
+
+    def fit(self, work, progress=None, dataset_path="", out_dir=None):
+        """The remaining epochs, writing last.pt (every epoch), best.pt (on improvement) and the
+        metrics into work (rank 0); early stopping after `patience` epochs without improvement."""
+        cfg = self.cfg
+        for epoch in range(self.start, cfg.epochs):
+            try:
+                row = self.run_epoch(epoch)
+            except TrainingDiverged as e:
+                raise TrainingDiverged(e.message, out_dir) from None
+            row.update(self.validate() if len(self.val_idx) else {})
+            self.history.append(row)
+            score = row.get("val_loss", row["train_loss"])
+            improved = score < self.best
+            if improved:
+                self.best, self.bad_epochs = score, 0
+            else:
+                self.bad_epochs += 1
+            if self.rank == 0:
+                _save(work / "last.pt", self.checkpoint(epoch, dataset_path))
+                if improved:
+                    _save(work / "best.pt", self.checkpoint(epoch, dataset_path))
+                write_metrics(work, self.history)
+                if progress is not None:
+                    progress(row)
+            if cfg.patience and self.bad_epochs >= cfg.patience:
+                log.info("no improvement for %d epochs: stopping after epoch %d", self.bad_epochs, epoch)
+                break
+        if self.rank == 0 and self.history:
+            plot_losses(self.history, work / "loss")
+        return self.history
 
 
 @contextmanager
@@ -345,35 +428,6 @@ def _output_folder(out_dir, overwrite, replace, resume, rank):
                               existing_ok=resume, hint="use --resume to continue a run there or --overwrite to "
                               "replace it") as work:
         yield work
-
-
-@torch.no_grad()
-def evaluate(model, ds, idx, target_idx, label_columns, spec, cfg, loss_of, batch):
-    """Validation loss and the RMSE at the contact points, per target."""
-    model.eval()
-    total, seen = 0.0, 0
-    sq = np.zeros(len(label_columns))
-    count = 0
-    for b0 in range(0, len(idx), cfg.batch_size):
-        ids, x, y = batch(idx[b0:b0 + cfg.batch_size])
-        pred = model(x)
-        total += loss_of(pred, y, ids).item() * len(ids)
-        seen += len(ids)
-        if label_columns:
-            scale = 1.0 if spec.renormalize else spec.cell ** 2
-            for k, i in enumerate(ids):
-                pos, imp = ds.contacts(int(i))
-                if len(pos) == 0:
-                    continue
-                at = losses.bilinear_torch(pred[k], spec, torch.from_numpy(np.array(pos)).to(pred.device))
-                at = at.cpu().numpy() * scale
-                sq += ((at - np.array(imp)[:, label_columns].T) ** 2).sum(axis=1)
-                count += len(pos)
-    out = {"val_loss": total / max(seen, 1)}
-    names = {0: "normal", 1: "tangent"}
-    for j, col in enumerate(label_columns):
-        out[f"val_contact_rmse_{names[col]}"] = float(math.sqrt(sq[j] / max(count, 1)))
-    return out
 
 
 def write_metrics(out_dir, history):
