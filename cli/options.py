@@ -64,63 +64,79 @@ class CommaList(click.ParamType):
         return parts
 
 
-class Window(click.ParamType):
+class Parsed(click.ParamType):
+    """A text option parsed by `parse`, which raises ValueError with the reason; a value that
+    is already parsed (a default given as such) passes through."""
+
+    def parse(self, text):
+        raise NotImplementedError
+
+    def convert(self, value, param, ctx):
+        if not isinstance(value, str):
+            return value
+        try:
+            return self.parse(value)
+        except ValueError as e:
+            self.fail(f"{e}; got {value!r}", param, ctx)
+
+
+class Window(Parsed):
     """x0,y0,x1,y1: four finite numbers with x0 < x1 and y0 < y1."""
     name = "x0,y0,x1,y1"
 
-    def convert(self, value, param, ctx):
+    def parse(self, text):
         import math
-        if isinstance(value, tuple):
-            return value
         try:
-            values = tuple(float(t) for t in value.split(","))
+            values = tuple(float(t) for t in text.split(","))
         except ValueError:
             values = ()
         if len(values) != 4 or not all(math.isfinite(v) for v in values):
-            self.fail(f"takes four finite numbers x0,y0,x1,y1; got {value!r}", param, ctx)
+            raise ValueError("takes four finite numbers x0,y0,x1,y1")
         if not (values[0] < values[2] and values[1] < values[3]):
-            self.fail(f"needs x0 < x1 and y0 < y1; got {value!r}", param, ctx)
+            raise ValueError("needs x0 < x1 and y0 < y1")
         return values
 
 
-class SeedRange(click.ParamType):
+def _two_whole_numbers(pattern, text, problem):
+    import re
+    m = re.fullmatch(pattern, text)
+    if not m:
+        raise ValueError(problem)
+    return int(m.group(1)), int(m.group(2))
+
+
+class SeedRange(Parsed):
     """A..B, inclusive, as a range (never a list: a billion seeds cost nothing until used)."""
     name = "A..B"
 
-    def convert(self, value, param, ctx):
-        import re
-        if isinstance(value, range):
-            return value
-        m = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", value)
-        if not m or int(m.group(1)) > int(m.group(2)) or int(m.group(2)) > INT32_MAX:
-            self.fail(f"must look like A..B with 0 <= A <= B <= {INT32_MAX} (inclusive), got {value!r}", param, ctx)
-        return range(int(m.group(1)), int(m.group(2)) + 1)
+    def parse(self, text):
+        problem = f"must look like A..B with 0 <= A <= B <= {INT32_MAX} (inclusive)"
+        a, b = _two_whole_numbers(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", text, problem)
+        if a > b or b > INT32_MAX:
+            raise ValueError(problem)
+        return range(a, b + 1)
 
 
-class Shard(click.ParamType):
+class Shard(Parsed):
     """I/N: every N-th item, starting at the I-th (0-based)."""
     name = "I/N"
 
-    def convert(self, value, param, ctx):
-        import re
-        if isinstance(value, tuple):
-            return value
-        m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", value)
-        if not m or not int(m.group(1)) < int(m.group(2)):
-            self.fail(f"must look like I/N with 0 <= I < N, got {value!r}", param, ctx)
-        return int(m.group(1)), int(m.group(2))
+    def parse(self, text):
+        problem = "must look like I/N with 0 <= I < N"
+        i, n = _two_whole_numbers(r"\s*(\d+)\s*/\s*(\d+)\s*", text, problem)
+        if not i < n:
+            raise ValueError(problem)
+        return i, n
 
 
-class KeyValue(click.ParamType):
+class KeyValue(Parsed):
     """key=value."""
     name = "KEY=VALUE"
 
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        key, sep, val = value.partition("=")
+    def parse(self, text):
+        key, sep, val = text.partition("=")
         if not sep or not key.strip():
-            self.fail(f"takes key=value, got {value!r}", param, ctx)
+            raise ValueError("takes key=value")
         return key.strip(), val.strip()
 
 

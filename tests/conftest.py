@@ -4,7 +4,7 @@ import sys
 
 import pytest
 
-from deepcontact.simulate.run import run
+from deepcontact.simulate.run import run as simulate_run
 from deepcontact.simulate.source import SceneSource
 
 # A small pile: enough contacts (two-point manifolds on the walls included) to exercise every
@@ -16,7 +16,7 @@ def simulate(out_dir, spec="pile", seeds=(0,), params=None, **kw):
     params = dict(SMALL_PILE if params is None and spec == "pile" else (params or {}))
     steps = params.pop("steps", None)
     source = SceneSource(spec, params, int(steps) if steps else None)
-    return run(source, list(seeds), out_dir, **kw)
+    return simulate_run(source, list(seeds), out_dir, **kw)
 
 
 @pytest.fixture(scope="session")
@@ -56,3 +56,35 @@ def snapshot(folder):
     """Every file under folder with its bytes: equal snapshots mean nothing was lost or changed."""
     from pathlib import Path
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
+
+
+def written(out, *args):
+    """`dc ARGS -q -o OUT`, which must succeed; returns OUT."""
+    r = dc(*args, "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def simulated(tmp_path_factory, name, *args):
+    """A run folder `dc simulate ARGS` wrote (read-only for tests: copy before changing)."""
+    return written(tmp_path_factory.mktemp(name) / "run", "simulate", *args)
+
+
+# A small pile run, its dataset and a one-epoch model, shared by the tests of hostile input
+# (read-only: copy before changing).
+HOSTILE_PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
+
+
+@pytest.fixture(scope="session")
+def run(tmp_path_factory):
+    return simulated(tmp_path_factory, "hostile", *HOSTILE_PILE, "--steps", "120", "--seeds", "0..1")
+
+
+@pytest.fixture(scope="session")
+def dataset(run):
+    return written(run.parent / "data", "rasterize", str(run), "--cell", "1", "--smoothing", "1", "--validation", "0.5")
+
+
+@pytest.fixture(scope="session")
+def model(dataset):
+    return written(dataset.parent / "model", "train", str(dataset), "--epochs", "1", "--width", "4", "--depth", "2")

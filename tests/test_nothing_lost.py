@@ -33,30 +33,6 @@ def leftovers(parent):
                   (".partial-" in p.name or ".old-" in p.name or p.name.endswith(".lock")))
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("lost") / "run"
-    r = dc("simulate", *PILE, "--steps", "120", "--seeds", "0..1", "-q", "-o", str(out))
-    assert r.returncode == 0, r.stderr
-    return out
-
-
-@pytest.fixture(scope="module")
-def dataset(run):
-    out = run.parent / "data"
-    r = dc("rasterize", str(run), "-o", str(out), "--cell", "1", "--smoothing", "1", "--validation", "0.5", "-q")
-    assert r.returncode == 0, r.stderr
-    return out
-
-
-@pytest.fixture(scope="module")
-def model(dataset):
-    out = dataset.parent / "model"
-    r = dc("train", str(dataset), "-o", str(out), *TINY_TRAIN)
-    assert r.returncode == 0, r.stderr
-    return out
-
-
 def copy(src, dst):
     shutil.copytree(src, dst)
     return dst

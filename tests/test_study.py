@@ -1,16 +1,14 @@
 """`dc study`: the longer measurements as subcommands, with the same output rules as the rest."""
 import pytest
 
-from conftest import dc, one_line_error
+from conftest import dc, one_line_error, simulated
 
 PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("study") / "run"
-    assert dc("simulate", *PILE, "--steps", "120", "--seeds", "0..1", "-q", "-o", str(out)).returncode == 0
-    return out
+    return simulated(tmp_path_factory, "study", *PILE, "--steps", "120", "--seeds", "0..1")
 
 
 def test_dc_study_lists_the_studies():
