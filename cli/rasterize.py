@@ -58,7 +58,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
       dc rasterize runs/pile --oracle --impulses recorded
       dc rasterize runs/pile --study -o reports/sph
     """
-    from deepcontact.grid.dataset import collect, write_dataset
+    from deepcontact.grid.dataset import DatasetSettings, collect, write_dataset
 
     win = window
     if oracle or study:
@@ -70,10 +70,10 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     total = sum(len(s.files) for s in sims)
     bar = options.progress_bar(quiet, total, "step", "rasterize")
     try:
-        meta = write_dataset(runs, out, cell=cell, h=smoothing, kernel=kernel, renormalize=renormalize,
-                             inputs=inputs, labels=labels, window=win,
-                             include_contactless=include_contactless, validation_fraction=validation, seed=seed,
-                             jobs=jobs, overwrite=overwrite, progress=bar, max_memory=max_memory)
+        settings = DatasetSettings(cell=cell, h=smoothing, kernel=kernel, renormalize=renormalize, inputs=inputs,
+                                   labels=labels, window=win, include_contactless=include_contactless,
+                                   validation_fraction=validation, seed=seed)
+        meta = write_dataset(runs, out, settings, jobs=jobs, overwrite=overwrite, progress=bar, max_memory=max_memory)
     finally:
         bar.close()
     g = meta["grid"]

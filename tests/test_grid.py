@@ -8,7 +8,7 @@ import torch
 
 from conftest import dc
 from deepcontact.errors import InputError
-from deepcontact.grid.dataset import GridDataset, write_dataset
+from deepcontact.grid.dataset import DatasetSettings, GridDataset, write_dataset
 from deepcontact.grid.interpolate import bilinear
 from deepcontact.grid.kernels import KERNELS, weight
 from deepcontact.grid.oracle import exact_impulses, round_trip
@@ -111,7 +111,7 @@ def two_runs(tmp_path_factory):
 
 def test_dataset_layout_split_and_loader(two_runs, tmp_path):
     out = tmp_path / "ds"
-    meta = write_dataset([two_runs / "a", two_runs / "b"], out, validation_fraction=0.25, seed=1)
+    meta = write_dataset([two_runs / "a", two_runs / "b"], out, DatasetSettings(validation_fraction=0.25, seed=1))
     ds = GridDataset(out)
     n = len(ds)
     assert n == meta["samples"] > 100
@@ -168,7 +168,7 @@ def test_different_boxes_need_a_window(two_runs, tmp_path):
     assert r.returncode == 0
     with pytest.raises(InputError, match="different boxes"):
         write_dataset([two_runs / "a", other], tmp_path / "ds")
-    meta = write_dataset([two_runs / "a", other], tmp_path / "ds", window=(0, 0, 20, 20))
+    meta = write_dataset([two_runs / "a", other], tmp_path / "ds", DatasetSettings(window=(0, 0, 20, 20)))
     assert meta["grid"]["nx"] == 41
 
 

@@ -7,7 +7,7 @@ import torch
 
 from conftest import dc
 from deepcontact.errors import InputError
-from deepcontact.grid.dataset import write_dataset
+from deepcontact.grid.dataset import DatasetSettings, write_dataset
 from deepcontact.model import losses
 from deepcontact.model.inference import Predictor
 from deepcontact.model.networks import build, parameter_count
@@ -53,7 +53,7 @@ def tiny(tmp_path_factory):
     r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5", "--steps", "60",
            "--seeds", "0..1", "--skip-contactless", "-q", "-o", str(base / "run"))
     assert r.returncode == 0, r.stderr
-    write_dataset([base / "run"], base / "ds", cell=1.0, h=1.0, validation_fraction=0.5)
+    write_dataset([base / "run"], base / "ds", DatasetSettings(cell=1.0, h=1.0, validation_fraction=0.5))
     return base / "ds"
 
 
@@ -124,7 +124,7 @@ def test_bad_checkpoints_and_mismatched_datasets(tiny, tmp_path):
     r = dc("train", str(tmp_path), "-o", str(tmp_path / "y"))
     assert r.returncode == 1 and "not a dataset" in r.stderr
     other = tmp_path / "other"
-    write_dataset([tiny.parent / "run"], other, cell=0.5, h=0.5)
+    write_dataset([tiny.parent / "run"], other, DatasetSettings(cell=0.5, h=0.5))
     ck = load_checkpoint(good)
     from deepcontact.grid.dataset import GridDataset
     from deepcontact.model.train import check_compatible

@@ -16,6 +16,7 @@ all at once), and it streams in order from disk; no extra dependency (HDF5, zarr
 
 Train/validation splits are by simulation, never by step (neighbouring steps are nearly equal).
 """
+import dataclasses
 import errno
 import hashlib
 import io
@@ -207,93 +208,127 @@ class _NpyWriter:
             self.f.close()
 
 
-def write_dataset(run_dirs, out, *, cell=0.5, h=0.5, kernel="poly6", renormalize=True, inputs=None,
-                  labels=None, window=None, include_contactless=False, validation_fraction=0.2, seed=0,
-                  jobs=1, overwrite=False, progress=None, max_memory=None):
+@dataclass
+class DatasetSettings:
+    """How runs become a dataset: the grid, the channels, which steps, and the split."""
+    cell: float = 0.5                # d, the node spacing
+    h: float = 0.5                   # the smoothing length
+    kernel: str = "poly6"
+    renormalize: bool = True
+    inputs: list = None              # channel names (default splat.DEFAULT_INPUTS)
+    labels: list = None              # (default splat.DEFAULT_LABELS)
+    window: tuple = None             # (x0, y0, x1, y1), or None: default_window
+    include_contactless: bool = False
+    validation_fraction: float = 0.2
+    seed: int = 0                    # of the split
+
+    def checked(self):
+        """A copy with the default channels filled in; InputError for what cannot be."""
+        from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
+        s = dataclasses.replace(self, inputs=list(self.inputs or DEFAULT_INPUTS),
+                                labels=list(self.labels or DEFAULT_LABELS))
+        check_channels(s.inputs, "input")
+        check_channels(s.labels, "label")
+        if not 0 <= s.validation_fraction < 1:
+            raise InputError(f"--validation must be in [0, 1), got {s.validation_fraction}")
+        return s
+
+
+def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, progress=None, max_memory=None):
     """Rasterize every step of the runs into a dataset folder, atomically. Returns its metadata.
 
     Refuses (before writing) work whose images would not fit in max_memory GB (each worker holds
     one simulation's) or on the disk."""
-    from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
-    inputs = list(inputs or DEFAULT_INPUTS)
-    labels = list(labels or DEFAULT_LABELS)
-    check_channels(inputs, "input")
-    check_channels(labels, "label")
+    s = (settings or DatasetSettings()).checked()
     out = Path(out)
-    if not 0 <= validation_fraction < 1:
-        raise InputError(f"--validation must be in [0, 1), got {validation_fraction}")
     # The output is checked and locked first: nothing is read or logged for an output refused.
     with atomic.output_folder(out, DATASET_FILES, overwrite, command="rasterize") as tmp:
-        sims, manifests = collect(run_dirs, include_contactless)
-        spec, which = grid_for(sims, cell, h, kernel, renormalize, window)
-        n = sum(len(s.files) for s in sims)
-        m = sum(sum(s.contacts) for s in sims)
-        if n == 0:
-            raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
-        per_sample = (len(inputs) + len(labels)) * spec.nx * spec.ny * 4
-        longest = max(len(s.files) for s in sims)
-        check_memory(per_sample * longest * min(jobs, len(sims)),
-                     max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
-        check_disk(per_sample * n + 28 * m + 16 * n, out, None, "the dataset")
-        radii = [s.radius for s in sims if s.radius is not None]
-        for w in spec.rule_warnings(min(radii) if radii else None):
-            log.warning(w)
-
-        shapes = {"N": n, "N+1": n + 1, "M": m, "C_in": len(inputs), "C_out": len(labels), "H": spec.ny,
-                  "W": spec.nx}
-        images = {name: _NpyWriter(tmp / f"{name}.npy", ARRAY_LAYOUT[name][0],
-                                   [shapes.get(d, d) for d in ARRAY_LAYOUT[name][1]]) for name in ("inputs", "labels")}
-        arrays = {
-            "simulation": np.empty(n, np.int32), "step": np.empty(n, np.int32),
-            "contact_offsets": np.zeros(n + 1, np.int64),
-            "contact_position": np.empty((m, 2), np.float32), "contact_impulse": np.empty((m, 2), np.float32),
-        }
-        row = point = outside = 0
-        tasks = [(spec, inputs, labels, s.files, s.scene, s.seed) for s in sims]
-        with (workers.pool(jobs) if jobs > 1 else nullcontext()) as pool:
-            results = pool.imap(_rasterize_simulation, tasks) if pool is not None else map(_rasterize_simulation, tasks)
-            for i, (xi, yl, steps, pos, imp, out_count) in enumerate(results):
-                k = len(steps)
-                images["inputs"].write(xi)
-                images["labels"].write(yl)
-                arrays["simulation"][row:row + k] = i
-                arrays["step"][row:row + k] = steps
-                counts = np.array(sims[i].contacts, dtype=np.int64)
-                if counts.sum() != len(pos):
-                    raise InputError("step files changed while rasterizing", sims[i].run)
-                arrays["contact_offsets"][row + 1:row + k + 1] = point + np.cumsum(counts)
-                arrays["contact_position"][point:point + len(pos)] = pos
-                arrays["contact_impulse"][point:point + len(imp)] = imp
-                row, point, outside = row + k, point + len(pos), outside + out_count
-                if progress is not None:
-                    progress.update(k)
-        for writer in images.values():
-            writer.close()
-        for name, a in arrays.items():
-            atomic.write_bytes(tmp / f"{name}.npy", _npy_bytes(a))
+        sims, manifests = collect(run_dirs, s.include_contactless)
+        spec, which = grid_for(sims, s.cell, s.h, s.kernel, s.renormalize, s.window)
+        _check_resources(sims, spec, s, jobs, max_memory, out)
+        outside = _write_arrays(tmp, sims, spec, s, jobs, progress)
         if outside:
             log.info("%d contact points lie outside the grid (interpolation clamps them to its edge)", outside)
-        where = out.resolve()
-        metadata = {
-            "format": FORMAT,
-            "kind": "deepcontact-dataset",
-            "samples": n,
-            "contact_points": m,
-            "grid": spec.as_dict(),
-            "window": which,   # where the grid's extent came from
-            "inputs": inputs,
-            "labels": labels,
-            "contactless_steps": "kept" if include_contactless else "skipped",
-            "contacts_outside_grid": outside,
-            "simulations": [{"run": _relative(s.run, where), "dir": s.dir, "seed": s.seed, "scene": s.scene,
-                             "samples": len(s.files)} for s in sims],
-            "sources": [dict(src, run=_relative(src["run"], where)) for src in manifests],
-            "split": split_simulations(len(sims), validation_fraction, seed),
-            "split_seed": seed,
-            "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": np.__version__},
-        }
+        metadata = _metadata(out.resolve(), sims, manifests, spec, which, s, outside)
         atomic.write_text(tmp / "metadata.json", json.dumps(metadata, indent=2) + "\n")
     return metadata
+
+
+def _check_resources(sims, spec, s, jobs, max_memory, out):
+    """Refuse a dataset with no samples, or one that would not fit in memory or on the disk."""
+    n = sum(len(sim.files) for sim in sims)
+    if n == 0:
+        raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
+    per_sample = (len(s.inputs) + len(s.labels)) * spec.nx * spec.ny * 4
+    longest = max(len(sim.files) for sim in sims)
+    check_memory(per_sample * longest * min(jobs, len(sims)),
+                 max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
+    m = sum(sum(sim.contacts) for sim in sims)
+    check_disk(per_sample * n + 28 * m + 16 * n, out, None, "the dataset")
+    radii = [sim.radius for sim in sims if sim.radius is not None]
+    for w in spec.rule_warnings(min(radii) if radii else None):
+        log.warning(w)
+
+
+def _write_arrays(tmp, sims, spec, s, jobs, progress):
+    """Every array of the dataset into tmp, simulation by simulation (in workers with jobs > 1);
+    returns how many contact points lie outside the grid."""
+    n = sum(len(sim.files) for sim in sims)
+    m = sum(sum(sim.contacts) for sim in sims)
+    shapes = {"N": n, "N+1": n + 1, "M": m, "C_in": len(s.inputs), "C_out": len(s.labels), "H": spec.ny,
+              "W": spec.nx}
+    images = {name: _NpyWriter(tmp / f"{name}.npy", ARRAY_LAYOUT[name][0],
+                               [shapes.get(d, d) for d in ARRAY_LAYOUT[name][1]]) for name in ("inputs", "labels")}
+    arrays = {
+        "simulation": np.empty(n, np.int32), "step": np.empty(n, np.int32),
+        "contact_offsets": np.zeros(n + 1, np.int64),
+        "contact_position": np.empty((m, 2), np.float32), "contact_impulse": np.empty((m, 2), np.float32),
+    }
+    row = point = outside = 0
+    tasks = [(spec, s.inputs, s.labels, sim.files, sim.scene, sim.seed) for sim in sims]
+    with (workers.pool(jobs) if jobs > 1 else nullcontext()) as pool:
+        results = pool.imap(_rasterize_simulation, tasks) if pool is not None else map(_rasterize_simulation, tasks)
+        for i, (xi, yl, steps, pos, imp, out_count) in enumerate(results):
+            k = len(steps)
+            images["inputs"].write(xi)
+            images["labels"].write(yl)
+            arrays["simulation"][row:row + k] = i
+            arrays["step"][row:row + k] = steps
+            counts = np.array(sims[i].contacts, dtype=np.int64)
+            if counts.sum() != len(pos):
+                raise InputError("step files changed while rasterizing", sims[i].run)
+            arrays["contact_offsets"][row + 1:row + k + 1] = point + np.cumsum(counts)
+            arrays["contact_position"][point:point + len(pos)] = pos
+            arrays["contact_impulse"][point:point + len(imp)] = imp
+            row, point, outside = row + k, point + len(pos), outside + out_count
+            if progress is not None:
+                progress.update(k)
+    for writer in images.values():
+        writer.close()
+    for name, a in arrays.items():
+        atomic.write_bytes(tmp / f"{name}.npy", _npy_bytes(a))
+    return outside
+
+
+def _metadata(where, sims, manifests, spec, which, s, outside):
+    return {
+        "format": FORMAT,
+        "kind": "deepcontact-dataset",
+        "samples": sum(len(sim.files) for sim in sims),
+        "contact_points": sum(sum(sim.contacts) for sim in sims),
+        "grid": spec.as_dict(),
+        "window": which,   # where the grid's extent came from
+        "inputs": s.inputs,
+        "labels": s.labels,
+        "contactless_steps": "kept" if s.include_contactless else "skipped",
+        "contacts_outside_grid": outside,
+        "simulations": [{"run": _relative(sim.run, where), "dir": sim.dir, "seed": sim.seed, "scene": sim.scene,
+                         "samples": len(sim.files)} for sim in sims],
+        "sources": [dict(src, run=_relative(src["run"], where)) for src in manifests],
+        "split": split_simulations(len(sims), s.validation_fraction, s.seed),
+        "split_seed": s.seed,
+        "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": np.__version__},
+    }
 
 
 def _relative(run, dataset):
