@@ -35,24 +35,14 @@ py::array own_bool(const std::vector<uint8_t>& v) {
     return out;
 }
 
+// The dicts handed to Python and the checked views read back, generated from records.hpp.
+#define DC_OWN_FIELD(T, name, width) d[#name] = own(std::move(s.name), n, width);
+#define DC_COLUMN_FIELD(T, name, width) v.name = column<T>(d, #name, n, width);
+
 py::dict to_dict(BodyState s) {
     const size_t n = s.size();
     py::dict d;
-    d["index"] = own(std::move(s.index), n);
-    d["type"] = own(std::move(s.type), n);
-    d["position"] = own(std::move(s.position), n, 2);
-    d["angle"] = own(std::move(s.angle), n);
-    d["center"] = own(std::move(s.center), n, 2);
-    d["local_center"] = own(std::move(s.local_center), n, 2);
-    d["velocity"] = own(std::move(s.velocity), n, 2);
-    d["omega"] = own(std::move(s.omega), n);
-    d["mass"] = own(std::move(s.mass), n);
-    d["inv_mass"] = own(std::move(s.inv_mass), n);
-    d["inertia"] = own(std::move(s.inertia), n);
-    d["inv_inertia"] = own(std::move(s.inv_inertia), n);
-    d["linear_damping"] = own(std::move(s.linear_damping), n);
-    d["angular_damping"] = own(std::move(s.angular_damping), n);
-    d["gravity_scale"] = own(std::move(s.gravity_scale), n);
+    DC_BODY_FIELDS(DC_OWN_FIELD)
     d["fixed_rotation"] = own_bool(s.fixed_rotation);
     return d;
 }
@@ -60,53 +50,14 @@ py::dict to_dict(BodyState s) {
 py::dict to_dict(ContactState s) {
     const size_t n = s.size();
     py::dict d;
-    d["manifold"] = own(std::move(s.manifold), n);
-    d["island"] = own(std::move(s.island), n);
-    d["point"] = own(std::move(s.point), n);
-    d["point_count"] = own(std::move(s.point_count), n);
-    d["manifold_type"] = own(std::move(s.manifold_type), n);
-    d["body_a"] = own(std::move(s.body_a), n);
-    d["body_b"] = own(std::move(s.body_b), n);
-    d["fixture_a"] = own(std::move(s.fixture_a), n);
-    d["fixture_b"] = own(std::move(s.fixture_b), n);
-    d["child_a"] = own(std::move(s.child_a), n);
-    d["child_b"] = own(std::move(s.child_b), n);
-    d["id_key"] = own(std::move(s.id_key), n);
-    d["local_normal"] = own(std::move(s.local_normal), n, 2);
-    d["local_point"] = own(std::move(s.local_point), n, 2);
-    d["point_local"] = own(std::move(s.point_local), n, 2);
-    d["position"] = own(std::move(s.position), n, 2);
-    d["normal"] = own(std::move(s.normal), n, 2);
-    d["separation"] = own(std::move(s.separation), n);
-    d["friction"] = own(std::move(s.friction), n);
-    d["restitution"] = own(std::move(s.restitution), n);
-    d["restitution_threshold"] = own(std::move(s.restitution_threshold), n);
-    d["radius_a"] = own(std::move(s.radius_a), n);
-    d["radius_b"] = own(std::move(s.radius_b), n);
-    d["start_normal_impulse"] = own(std::move(s.start_normal_impulse), n);
-    d["start_tangent_impulse"] = own(std::move(s.start_tangent_impulse), n);
-    d["normal_impulse"] = own(std::move(s.normal_impulse), n);
-    d["tangent_impulse"] = own(std::move(s.tangent_impulse), n);
+    DC_CONTACT_FIELDS(DC_OWN_FIELD)
     return d;
 }
 
 dc::BodyView body_view(const py::dict& d) {
     dc::BodyView v;
     size_t n = static_cast<size_t>(-1);
-    v.index = column<int32_t>(d, "index", n);
-    v.type = column<int8_t>(d, "type", n);
-    v.position = column<float>(d, "position", n, 2);
-    v.angle = column<float>(d, "angle", n);
-    v.center = column<float>(d, "center", n, 2);
-    v.local_center = column<float>(d, "local_center", n, 2);
-    v.velocity = column<float>(d, "velocity", n, 2);
-    v.omega = column<float>(d, "omega", n);
-    v.mass = column<float>(d, "mass", n);
-    v.inv_mass = column<float>(d, "inv_mass", n);
-    v.inertia = column<float>(d, "inertia", n);
-    v.inv_inertia = column<float>(d, "inv_inertia", n);
-    v.linear_damping = column<float>(d, "linear_damping", n);
-    v.angular_damping = column<float>(d, "angular_damping", n);
+    DC_BODY_FIELDS(DC_COLUMN_FIELD)
     v.n = n;
     return v;
 }
@@ -114,31 +65,7 @@ dc::BodyView body_view(const py::dict& d) {
 dc::ContactView contact_view(const py::dict& d) {
     dc::ContactView v;
     size_t n = static_cast<size_t>(-1);
-    v.manifold = column<int32_t>(d, "manifold", n);
-    v.island = column<int32_t>(d, "island", n);
-    v.point = column<int8_t>(d, "point", n);
-    v.point_count = column<int8_t>(d, "point_count", n);
-    v.manifold_type = column<int8_t>(d, "manifold_type", n);
-    v.body_a = column<int32_t>(d, "body_a", n);
-    v.body_b = column<int32_t>(d, "body_b", n);
-    v.fixture_a = column<int32_t>(d, "fixture_a", n);
-    v.fixture_b = column<int32_t>(d, "fixture_b", n);
-    v.child_a = column<int32_t>(d, "child_a", n);
-    v.child_b = column<int32_t>(d, "child_b", n);
-    v.id_key = column<uint32_t>(d, "id_key", n);
-    v.local_normal = column<float>(d, "local_normal", n, 2);
-    v.local_point = column<float>(d, "local_point", n, 2);
-    v.point_local = column<float>(d, "point_local", n, 2);
-    v.position = column<float>(d, "position", n, 2);
-    v.normal = column<float>(d, "normal", n, 2);
-    v.separation = column<float>(d, "separation", n);
-    v.friction = column<float>(d, "friction", n);
-    v.restitution = column<float>(d, "restitution", n);
-    v.restitution_threshold = column<float>(d, "restitution_threshold", n);
-    v.start_normal_impulse = column<float>(d, "start_normal_impulse", n);
-    v.start_tangent_impulse = column<float>(d, "start_tangent_impulse", n);
-    v.normal_impulse = column<float>(d, "normal_impulse", n);
-    v.tangent_impulse = column<float>(d, "tangent_impulse", n);
+    DC_CONTACT_FIELDS(DC_COLUMN_FIELD)
     v.n = n;
     return v;
 }

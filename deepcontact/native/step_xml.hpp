@@ -7,29 +7,20 @@
 #include <string>
 #include <vector>
 
+#include "records.hpp"
+
 namespace dc {
 
 // Borrowed pointers to the columns of a BodyState / ContactState (see world.hpp).
+// Read-only views of a step's records (records.hpp), n rows each.
 struct BodyView {
     size_t n = 0;
-    const int32_t* index;
-    const int8_t* type;
-    const float *position, *angle, *center, *local_center, *velocity, *omega;
-    const float *mass, *inv_mass, *inertia, *inv_inertia;
-    const float *linear_damping, *angular_damping;
+    DC_BODY_FIELDS(DC_POINTER_FIELD)
 };
 
 struct ContactView {
     size_t n = 0;
-    const int32_t *manifold, *island;
-    const int8_t *point, *point_count, *manifold_type;
-    const int32_t *body_a, *body_b, *fixture_a, *fixture_b, *child_a, *child_b;
-    const uint32_t* id_key;
-    const float *local_normal, *local_point, *point_local;
-    const float *position, *normal, *separation;
-    const float *friction, *restitution, *restitution_threshold;
-    const float *start_normal_impulse, *start_tangent_impulse;
-    const float *normal_impulse, *tangent_impulse;
+    DC_CONTACT_FIELDS(DC_POINTER_FIELD)
 };
 
 class StepWriter {

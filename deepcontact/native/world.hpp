@@ -11,6 +11,8 @@
 #include <utility>
 #include <vector>
 
+#include "records.hpp"
+
 namespace dc {
 
 struct BodySpec {
@@ -29,29 +31,16 @@ struct Material {
     float restitution_threshold = 1.0f;
 };
 
-// Every live body, in scene index order. Vectors of 2 are interleaved (x0, y0, x1, ...).
+// Every live body (records.hpp), in scene index order. Vectors of 2 are interleaved (x0, y0, x1, ...).
 struct BodyState {
-    std::vector<int32_t> index;
-    std::vector<int8_t> type;
-    std::vector<float> position, angle, center, local_center, velocity, omega;
-    std::vector<float> mass, inv_mass, inertia, inv_inertia;  // inertia about the centre of mass
-    std::vector<float> linear_damping, angular_damping, gravity_scale;
-    std::vector<uint8_t> fixed_rotation;
+    DC_BODY_FIELDS(DC_VECTOR_FIELD)
+    std::vector<uint8_t> fixed_rotation;   // read by tests and tools, never written to a step file
     size_t size() const { return index.size(); }
 };
 
-// One row per manifold point of every contact the velocity solver sees, in island order.
+// One row per manifold point of every contact the velocity solver sees (records.hpp).
 struct ContactState {
-    std::vector<int32_t> manifold, island;
-    std::vector<int8_t> point, point_count, manifold_type;
-    std::vector<int32_t> body_a, body_b, fixture_a, fixture_b, child_a, child_b;
-    std::vector<uint32_t> id_key;
-    std::vector<float> local_normal, local_point, point_local;  // the manifold, in body frames
-    std::vector<float> position, normal, separation;             // the world manifold
-    std::vector<float> friction, restitution, restitution_threshold;
-    std::vector<float> radius_a, radius_b;                       // the shapes' collision radii
-    std::vector<float> start_normal_impulse, start_tangent_impulse;  // the solver's first iterate
-    std::vector<float> normal_impulse, tangent_impulse;              // what the solver produced
+    DC_CONTACT_FIELDS(DC_VECTOR_FIELD)
     size_t size() const { return manifold.size(); }
 };
 
