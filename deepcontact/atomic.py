@@ -4,10 +4,10 @@ An interrupted run leaves either the complete file or nothing (a stray ``.tmp`` 
 removed on the way out). Whole output folders go through `output_folder`: locked against a
 second command, replaced only when every entry is the command's own, swapped in when complete.
 """
+import glob
 import logging
 import os
 import re
-import sys
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -139,7 +139,10 @@ def locked(path):
     path = Path(path)
     lock = path.parent / f".{path.name}.lock"
     while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise InputError(f"cannot write there: {e.strerror or e}", path) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -163,14 +166,10 @@ def _remove_leftovers(path):
     """Folders an interrupted (killed) earlier command left beside path, under our own names.
     Called with the lock held, so no running command owns them."""
     import shutil
-    for p in path.parent.glob(f".{glob_escape(path.name)}.*"):
+    for p in path.parent.glob(f".{glob.escape(path.name)}.*"):
         if re.fullmatch(rf"\.{re.escape(path.name)}\.(partial|old)-\d+", p.name) and not p.is_symlink():
             log.info("removing %s, left by an interrupted earlier run", p)
             shutil.rmtree(p, ignore_errors=True)
-
-
-def glob_escape(name):
-    return re.sub(r"([*?\[])", r"[\1]", name)
 
 
 @contextmanager
@@ -193,11 +192,9 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
         raise InputError("exists and is not a folder", path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        lock = locked(path)
-        lock.__enter__()
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", path) from None
-    with _exiting(lock):
+    with locked(path):
         _remove_leftovers(path)
         existing = path.is_dir() and any(path.iterdir())
         if existing and not existing_ok:
@@ -220,18 +217,6 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
             if created and not any(path.iterdir()):
                 path.rmdir()
             raise
-
-
-@contextmanager
-def _exiting(entered):
-    """Leaves a context manager entered by hand (to tell its own errors from the block's)."""
-    try:
-        yield
-    except BaseException:
-        if not entered.__exit__(*sys.exc_info()):
-            raise
-    else:
-        entered.__exit__(None, None, None)
 
 
 @contextmanager

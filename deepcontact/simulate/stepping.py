@@ -23,7 +23,6 @@ class Stepped:
     dt_ratio: float     # Box2D's warm-start scale for the step
     deepest: float      # the deepest penetration among the step's contact points (m), >= 0
     seconds: float      # wall time of the step itself
-    removed: tuple      # the bodies removed just before this step
 
 
 def box2d(world, scene, velocity_iterations=None, record=True):
@@ -47,7 +46,7 @@ def steps(world, scene, step, count=None, after_removal=None):
     is called once a step's removals are done, before it is stepped."""
     removals = scene.removals()
     for k in range(scene.steps if count is None else count):
-        removed = tuple(removals.get(k, ()))
+        removed = removals.get(k, ())
         for body in removed:
             world.remove_body(body)
         if removed and after_removal is not None:
@@ -59,4 +58,4 @@ def steps(world, scene, step, count=None, after_removal=None):
         # (the project's solver steps at constant dt; Box2D's reports its own).
         dt_ratio = done.dt_ratio if done.dt_ratio is not None else (0.0 if k == 0 else 1.0)
         yield Stepped(index=k, bodies=done.bodies, contacts=done.contacts, solution=done.solution,
-                      dt_ratio=dt_ratio, deepest=done.deepest, seconds=seconds, removed=removed)
+                      dt_ratio=dt_ratio, deepest=done.deepest, seconds=seconds)

@@ -138,17 +138,20 @@ class _Columns:
         return arr
 
     def ints(self, element, attr, dtype):
-        try:
-            values = [int(v) for v in self.text(element, attr)]
+        try:   # through int64, checked at once, then to the column's own type
+            values = np.array([int(v) for v in self.text(element, attr)], dtype=np.int64)
         except ValueError:
             raise InputError(f"a <{self._name(element)} {attr}> value is not an integer", self.path) from None
+        except OverflowError:
+            values = None
         info = np.iinfo(dtype)
         low, high = max(info.min, 0), min(info.max, INT32_MAX) if dtype != np.uint32 else info.max
-        bad = [v for v in values if not low <= v <= high]
-        if bad:
-            raise InputError(f"a <{self._name(element)} {attr}> value is out of range ({bad[0]}; {low} to {high})",
+        bad = None if values is None else (values < low) | (values > high)
+        if bad is None or bad.any():
+            shown = "beyond 64 bits" if bad is None else int(values[np.argmax(bad)])
+            raise InputError(f"a <{self._name(element)} {attr}> value is out of range ({shown}; {low} to {high})",
                              self.path)
-        return np.array(values, dtype=dtype)
+        return values.astype(dtype)
 
     def _name(self, element):
         return self.child if element == "." else element
