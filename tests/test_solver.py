@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from deepcontact import _box2d
 from deepcontact.scene.generators import generate
 from deepcontact.scene.xml import read_scene
 from deepcontact.simulate.build import build_world
@@ -193,3 +194,45 @@ def test_bad_problem_arrays_are_refused():
             solve(bad)
     with pytest.raises(ValueError, match="relaxation"):
         solve(problem, relaxation=2.5)
+
+
+def test_bad_options_are_refused_once_natively_naming_the_option():
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    for kwargs, message in [(dict(mode="float16"), "mode must be one of exact, float32, float64, not 'float16'"),
+                            (dict(accelerate="newton"), "accelerate must be one of none, nncg"),
+                            (dict(tolerance=1e-3, stop_on="energy"), "stop_on must be one of none, thesis"),
+                            (dict(mode="exact", relaxation=1.3), "exact mode is Box2D's PGS"),
+                            (dict(mode="exact", accelerate="nncg"), "exact mode is Box2D's PGS"),
+                            (dict(max_iterations=-1), "max_iterations must be >= 0"),
+                            (dict(tolerance=float("nan")), "tolerance must be finite")]:
+        with pytest.raises(ValueError, match=message):
+            solve(problem, **kwargs)
+    with pytest.raises(TypeError, match="SolveOptions has no field 'relax'"):
+        _box2d.SolveOptions(relax=1.5)
+    with pytest.raises(ValueError, match="dt must be positive"):
+        _box2d.StepSettings(dt=0.0, gravity=(0.0, -10.0))
+    settings = problem.settings()
+    with pytest.raises(ValueError, match="position_iterations must be >= 0"):
+        _box2d.PGSStepSettings(step=settings, solve=_box2d.SolveOptions(), position_iterations=-1)
+    with pytest.raises(ValueError, match="start must be one of zero, builtin"):
+        _box2d.PGSStepSettings(step=settings, start="garbage")
+    # options set after construction are checked again where they are used
+    options = _box2d.SolveOptions()
+    options.relaxation = 3.0
+    with pytest.raises(ValueError, match="relaxation must be in"):
+        _box2d.solve_contacts(problem.bodies, problem.contacts, problem.start_normal, problem.start_tangent,
+                              settings, options)
+
+
+def test_the_solver_reads_exactly_its_columns_of_the_record_tables():
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    assert set(problem.bodies) == set(_box2d.SOLVER_BODY_FIELDS)
+    assert set(problem.contacts) == set(_box2d.SOLVER_CONTACT_FIELDS) | {"row_a", "row_b"}
+    for key in _box2d.SOLVER_BODY_FIELDS:
+        with pytest.raises(KeyError, match=f"missing array '{key}'"):
+            _box2d.contact_rows({k: v for k, v in problem.bodies.items() if k != key}, problem.contacts,
+                                problem.settings())
+    for key in _box2d.SOLVER_CONTACT_FIELDS + ("row_a", "row_b"):
+        with pytest.raises(KeyError, match=f"missing array '{key}'"):
+            _box2d.contact_rows(problem.bodies, {k: v for k, v in problem.contacts.items() if k != key},
+                                problem.settings())

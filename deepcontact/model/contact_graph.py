@@ -76,7 +76,7 @@ def graph_of(problems, start_normal=None, start_tangent=None):
     parts, offset, base = [], 0, 0     # bodies and points of the steps before this one
     groups = {}
     for s, p in enumerate(problems):
-        rows = contact_rows(p.bodies, p.contacts, dt=p.dt, gravity=p.gravity, block_solve=p.block_solve)
+        rows = contact_rows(p.bodies, p.contacts, p.settings())
         inv_mass = p.bodies["inv_mass"].astype(np.float64)
         inv_inertia = p.bodies["inv_inertia"].astype(np.float64)
         dynamic = (inv_mass > 0) | (inv_inertia > 0)

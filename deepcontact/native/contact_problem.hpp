@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include "records.hpp"
+
 namespace dc {
 
 template <class R>
@@ -96,21 +98,22 @@ struct BodyVelocity {
     R w;
 };
 
-// Column views of the arrays the Python layer hands over (float32, as Box2D stores them).
+// The solver's inputs: borrowed float32 columns (as Box2D stores them) of the records' solver
+// rows (records.hpp), n rows each; contacts name their bodies by row.
 struct BodyColumns {
     size_t n = 0;
-    const float *center, *angle, *local_center, *velocity, *omega;
-    const float *mass, *inv_mass, *inv_inertia, *gravity_scale, *linear_damping, *angular_damping;
-    const int8_t* type;
+    DC_BODY_FIELDS(DC_SOLVER_POINTER_FIELD)
 };
 
 struct ContactColumns {
     size_t n = 0;
-    const int32_t *manifold, *row_a, *row_b;
-    const int8_t *point, *point_count, *manifold_type;
-    const float *local_normal, *local_point, *point_local, *radius_a, *radius_b;
-    const float *friction, *restitution, *restitution_threshold;
+    DC_CONTACT_FIELDS(DC_SOLVER_POINTER_FIELD)
+    const int32_t *row_a = nullptr, *row_b = nullptr;
 };
+
+// The names of those columns, for the Python layer (solver/problem.py).
+inline const char* const kSolverBodyFields[] = {DC_BODY_FIELDS(DC_SOLVER_FIELD_NAME)};
+inline const char* const kSolverContactFields[] = {DC_CONTACT_FIELDS(DC_SOLVER_FIELD_NAME)};
 
 struct StepSettings {
     float dt = 0;
@@ -118,6 +121,13 @@ struct StepSettings {
     bool block_solve = true;
     bool prune = true;  // leave out what the scene does not need (tangent rows without friction, ...)
 };
+
+// Throws std::invalid_argument (ValueError in Python) naming what is wrong.
+inline void check(const StepSettings& st) {
+    if (!(st.dt > 0.0f) || !std::isfinite(st.dt)) throw std::invalid_argument("dt must be positive and finite");
+    if (!std::isfinite(st.gravity[0]) || !std::isfinite(st.gravity[1]))
+        throw std::invalid_argument("gravity must be finite");
+}
 
 struct ProblemStats {
     int64_t manifolds = 0, points = 0, normal_rows = 0, tangent_rows = 0, block_manifolds = 0,

@@ -36,8 +36,8 @@ py::array own_bool(const std::vector<uint8_t>& v) {
 }
 
 // The dicts handed to Python and the checked views read back, generated from records.hpp.
-#define DC_OWN_FIELD(T, name, width) d[#name] = own(std::move(s.name), n, width);
-#define DC_COLUMN_FIELD(T, name, width) v.name = column<T>(d, #name, n, width);
+#define DC_OWN_FIELD(T, name, width, solver) d[#name] = own(std::move(s.name), n, width);
+#define DC_COLUMN_FIELD(T, name, width, solver) v.name = column<T>(d, #name, n, width);
 
 py::dict to_dict(BodyState s) {
     const size_t n = s.size();

@@ -8,27 +8,48 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 #include <vector>
 
 #include "contact_problem.hpp"
 
 namespace dc {
 
-enum class Measure { none = 0, thesis = 1, velocity = 2, residual = 3 };
+// What a sweep measures, to stop on (docs/solver.md, "Measuring convergence").
+enum class Measure { none, thesis, velocity, residual };
+// exact: float32, Box2D's arithmetic and order, starts used as given (Box2D's solver, bit for
+// bit); float32: the same, bad starts sanitised first; float64: double precision.
+enum class Mode { exact, float32, float64 };
+// nncg: each sweep's change plus a multiple of the last direction (Silcowitz et al. 2010).
+enum class Acceleration { none, nncg };
 
 struct SolveOptions {
+    Mode mode = Mode::float64;
     int max_iterations = 8;
     double tolerance = 0.0;        // stop once the chosen measure falls below it (0: never)
     Measure stop_on = Measure::none;
     double relaxation = 1.0;       // w of PSOR; 1 is plain PGS (Box2D)
+    Acceleration accelerate = Acceleration::none;
     bool history = false;          // record all three measures after every sweep
-    bool sanitize = true;          // project bad starts before use (off reproduces Box2D exactly)
     double max_velocity = 0.0;     // starts that alone would change a contact's velocity by more
                                    // than this are implausible (0: no such check)
     bool final_residual = true;    // report the residual at the end (one extra pass)
     bool guard = true;             // over-relaxation falls back to w = 1 if the residual climbs
-    bool conjugate = false;        // NNCG: each sweep's change plus a multiple of the last direction
+
+    bool sanitize() const { return mode != Mode::exact; }  // exact reproduces Box2D, bad starts too
+    bool float64() const { return mode == Mode::float64; }
 };
+
+// The one check of a solve's options; throws std::invalid_argument (ValueError in Python).
+inline void check(const SolveOptions& o) {
+    if (o.max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
+    if (!(o.tolerance >= 0.0) || !std::isfinite(o.tolerance))
+        throw std::invalid_argument("tolerance must be finite and >= 0");
+    if (!(o.relaxation > 0.0 && o.relaxation < 2.0)) throw std::invalid_argument("relaxation must be in (0, 2)");
+    if (!(o.max_velocity >= 0.0)) throw std::invalid_argument("max_velocity must be >= 0");
+    if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
+        throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
+}
 
 struct SanitizeReport {
     int64_t nonfinite = 0, negative = 0, implausible = 0, cone = 0;
@@ -74,7 +95,7 @@ public:
         const bool track_change = opt.history || opt.stop_on == Measure::thesis || opt.stop_on == Measure::velocity;
         const R w = R(opt.relaxation);
         bool relax = opt.relaxation != 1.0;
-        bool conjugate = opt.conjugate;
+        bool conjugate = opt.accelerate == Acceleration::nncg;
         if (conjugate) {
             direction_.assign(2 * pb_.points, R(0));
             last_change_ = -1.0;
@@ -189,7 +210,7 @@ private:
             for (int j = 0; j < m.given; ++j) {
                 auto& p = m.p[j];
                 double n = double(sn[m.first + j]), t = double(st[m.first + j]);
-                if (opt.sanitize) {
+                if (opt.sanitize()) {
                     if (!std::isfinite(n) || !std::isfinite(t)) {
                         ++rep.nonfinite;
                         n = t = 0;

@@ -5,6 +5,25 @@
 namespace dc {
 namespace {
 
+// The solver's columns of a world's records (records.hpp), borrowed.
+#define DC_SOLVER_TAKE(T, name, width, solver) DC_IF_##solver(c.name = s.name.data();)
+
+BodyColumns columns(const BodyState& s) {
+    BodyColumns c;
+    c.n = s.size();
+    DC_BODY_FIELDS(DC_SOLVER_TAKE)
+    return c;
+}
+
+ContactColumns columns(const ContactState& s, const int32_t* row_a, const int32_t* row_b) {
+    ContactColumns c;
+    c.n = s.size();
+    DC_CONTACT_FIELDS(DC_SOLVER_TAKE)
+    c.row_a = row_a;
+    c.row_b = row_b;
+    return c;
+}
+
 template <class R>
 void solve_step(const BodyColumns& bc, const ContactColumns& cc, const PGSStepSettings& s,
                 const std::vector<double>& start_n, const std::vector<double>& start_t, PGSStepReport& out) {
@@ -39,36 +58,8 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
             row_a[k] = row_of[contacts.body_a[k]];
             row_b[k] = row_of[contacts.body_b[k]];
         }
-        BodyColumns bc;
-        bc.n = bodies.size();
-        bc.center = bodies.center.data();
-        bc.angle = bodies.angle.data();
-        bc.local_center = bodies.local_center.data();
-        bc.velocity = bodies.velocity.data();
-        bc.omega = bodies.omega.data();
-        bc.mass = bodies.mass.data();
-        bc.inv_mass = bodies.inv_mass.data();
-        bc.inv_inertia = bodies.inv_inertia.data();
-        bc.gravity_scale = bodies.gravity_scale.data();
-        bc.linear_damping = bodies.linear_damping.data();
-        bc.angular_damping = bodies.angular_damping.data();
-        bc.type = bodies.type.data();
-        ContactColumns cc;
-        cc.n = n;
-        cc.manifold = contacts.manifold.data();
-        cc.row_a = row_a.data();
-        cc.row_b = row_b.data();
-        cc.point = contacts.point.data();
-        cc.point_count = contacts.point_count.data();
-        cc.manifold_type = contacts.manifold_type.data();
-        cc.local_normal = contacts.local_normal.data();
-        cc.local_point = contacts.local_point.data();
-        cc.point_local = contacts.point_local.data();
-        cc.radius_a = contacts.radius_a.data();
-        cc.radius_b = contacts.radius_b.data();
-        cc.friction = contacts.friction.data();
-        cc.restitution = contacts.restitution.data();
-        cc.restitution_threshold = contacts.restitution_threshold.data();
+        const BodyColumns bc = columns(bodies);
+        const ContactColumns cc = columns(contacts, row_a.data(), row_b.data());
 
         // Box2D's warm start: the impulses Collide carried over by feature id, times dtRatio
         // (rounded in float32 first, as Box2D scales them).
@@ -78,7 +69,7 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
                 start_n[k] = double(s.warm_scale * contacts.normal_impulse[k]);
                 start_t[k] = double(s.warm_scale * contacts.tangent_impulse[k]);
             }
-        if (s.float64)
+        if (s.solve.float64())
             solve_step<double>(bc, cc, s, start_n, start_t, out);
         else
             solve_step<float>(bc, cc, s, start_n, start_t, out);

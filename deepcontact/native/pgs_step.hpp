@@ -5,6 +5,8 @@
 // starts made in Python; this saves the per-step round trip of every array through numpy.
 #pragma once
 
+#include <cmath>
+#include <stdexcept>
 #include <vector>
 
 #include "contact_problem.hpp"
@@ -13,18 +15,27 @@
 
 namespace dc {
 
+// Where a step of the loop starts PGS: from zero, or from the impulses Box2D carried over.
 enum class LoopStart { zero, builtin };
 
 struct PGSStepSettings {
     StepSettings step;             // dt, gravity, block solver, prune
-    SolveOptions solve;
-    bool float64 = true;
+    SolveOptions solve;            // precision (mode), stopping, relaxation, acceleration
     LoopStart start = LoopStart::builtin;
     float warm_scale = 1.0f;       // dtRatio applied to the carried impulses (0 on the first step)
     float inv_dt0 = 0.0f;          // set before Step so that dt * inv_dt0 == 1: our impulses stand as written
     int position_iterations = 3;
     bool record = false;           // keep the step for World::recorded_bodies() / recorded_contacts()
 };
+
+// Throws std::invalid_argument (ValueError in Python) naming what is wrong.
+inline void check(const PGSStepSettings& s) {
+    check(s.step);
+    check(s.solve);
+    if (s.position_iterations < 0) throw std::invalid_argument("position_iterations must be >= 0");
+    if (!std::isfinite(s.warm_scale) || !std::isfinite(s.inv_dt0))
+        throw std::invalid_argument("warm_scale and inv_dt0 must be finite");
+}
 
 struct PGSStepReport {
     bool solved = false;           // false when the step had no contact points

@@ -1,7 +1,12 @@
-// Python entry point of the contact solver: arrays in, impulses and convergence history out.
+// Python entry points of the contact solver (deepcontact/solver, simulate/pgs_loop.py): the
+// options as bound structs, arrays in, impulses and convergence history out.
 #include <pybind11/stl.h>
 
+#include <initializer_list>
+#include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "contact_problem.hpp"
 #include "pgs.hpp"
@@ -11,21 +16,13 @@
 namespace dc {
 namespace {
 
+// The solver's columns of dicts of arrays, checked (records.hpp's solver rows).
+#define DC_SOLVER_COLUMN(T, name, width, solver) DC_IF_##solver(c.name = column<T>(d, #name, n, width);)
+
 BodyColumns body_columns(const py::dict& d) {
     BodyColumns c;
     size_t n = static_cast<size_t>(-1);
-    c.center = column<float>(d, "center", n, 2);
-    c.angle = column<float>(d, "angle", n);
-    c.local_center = column<float>(d, "local_center", n, 2);
-    c.velocity = column<float>(d, "velocity", n, 2);
-    c.omega = column<float>(d, "omega", n);
-    c.mass = column<float>(d, "mass", n);
-    c.inv_mass = column<float>(d, "inv_mass", n);
-    c.inv_inertia = column<float>(d, "inv_inertia", n);
-    c.gravity_scale = column<float>(d, "gravity_scale", n);
-    c.linear_damping = column<float>(d, "linear_damping", n);
-    c.angular_damping = column<float>(d, "angular_damping", n);
-    c.type = column<int8_t>(d, "type", n);
+    DC_BODY_FIELDS(DC_SOLVER_COLUMN)
     c.n = n;
     return c;
 }
@@ -33,30 +30,73 @@ BodyColumns body_columns(const py::dict& d) {
 ContactColumns contact_columns(const py::dict& d) {
     ContactColumns c;
     size_t n = static_cast<size_t>(-1);
-    c.manifold = column<int32_t>(d, "manifold", n);
+    DC_CONTACT_FIELDS(DC_SOLVER_COLUMN)
     c.row_a = column<int32_t>(d, "row_a", n);
     c.row_b = column<int32_t>(d, "row_b", n);
-    c.point = column<int8_t>(d, "point", n);
-    c.point_count = column<int8_t>(d, "point_count", n);
-    c.manifold_type = column<int8_t>(d, "manifold_type", n);
-    c.local_normal = column<float>(d, "local_normal", n, 2);
-    c.local_point = column<float>(d, "local_point", n, 2);
-    c.point_local = column<float>(d, "point_local", n, 2);
-    c.radius_a = column<float>(d, "radius_a", n);
-    c.radius_b = column<float>(d, "radius_b", n);
-    c.friction = column<float>(d, "friction", n);
-    c.restitution = column<float>(d, "restitution", n);
-    c.restitution_threshold = column<float>(d, "restitution_threshold", n);
     c.n = n;
     return c;
 }
 
-Measure parse_measure(const std::string& s) {
-    if (s == "none") return Measure::none;
-    if (s == "thesis") return Measure::thesis;
-    if (s == "velocity") return Measure::velocity;
-    if (s == "residual") return Measure::residual;
-    throw py::value_error("measure must be one of none, thesis, velocity, residual; got '" + s + "'");
+py::tuple names(const char* const* first, const char* const* last) {
+    py::list out;
+    for (; first != last; ++first) out.append(*first);
+    return py::tuple(out);
+}
+
+// Enums whose values may also be given by name ("float64"); a bad name is a ValueError listing
+// the choices, so the Python layer need not check the strings again.
+template <class E>
+struct EnumNames {
+    static inline std::string type;  // the Python name
+    static inline std::vector<std::pair<std::string, E>> values;
+};
+
+template <class E>
+void bind_enum(py::module_& m, const char* name, std::initializer_list<std::pair<const char*, E>> values,
+               const char* doc) {
+    py::enum_<E> e(m, name, doc);
+    EnumNames<E>::type = name;
+    for (const auto& [key, value] : values) {
+        e.value(key, value);
+        EnumNames<E>::values.emplace_back(key, value);
+    }
+}
+
+template <class E>
+E enum_value(const py::handle& h, const std::string& field) {
+    if (py::isinstance<E>(h)) return h.cast<E>();
+    if (!py::isinstance<py::str>(h)) throw py::type_error(field + " must be a " + EnumNames<E>::type + " or its name");
+    const std::string s = h.cast<std::string>();
+    std::string choices;
+    for (const auto& [key, value] : EnumNames<E>::values) {
+        if (key == s) return value;
+        choices += (choices.empty() ? "" : ", ") + key;
+    }
+    throw py::value_error(field + " must be one of " + choices + ", not '" + s + "'");
+}
+
+// An enum field of a bound struct, settable by value or by name.
+template <class T, class E>
+void enum_field(py::class_<T>& cls, const char* name, E T::*member) {
+    cls.def_property(
+        name, [member](const T& t) { return t.*member; },
+        [member, field = std::string(name)](T& t, const py::object& v) { t.*member = enum_value<E>(v, field); });
+}
+
+// A keyword constructor for an options struct: each keyword sets the field of that name (through
+// its bound property, so names convert to enums), then the struct is checked once.
+template <class T>
+std::unique_ptr<T> from_keywords(const char* what, const py::kwargs& kw) {
+    auto out = std::make_unique<T>();
+    py::object self = py::cast(out.get(), py::return_value_policy::reference);
+    for (const auto& [key, value] : kw) {
+        const std::string k = py::str(key);
+        if (k.rfind("_", 0) == 0 || !py::hasattr(py::type::of(self), k.c_str()))
+            throw py::type_error(std::string(what) + " has no field '" + k + "'");
+        self.attr(key) = value;
+    }
+    check(*out);
+    return out;
 }
 
 py::dict stats_dict(const ProblemStats& s) {
@@ -95,18 +135,32 @@ py::dict report_dict(const SolveReport& rep, const ProblemStats& stats) {
 }
 
 template <class R>
-py::dict run(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st, const double* sn,
-             const double* stt, const SolveOptions& opt) {
+void body_velocities(const ContactProblem<R>& pb, py::dict& out) {
+    const auto nb = static_cast<py::ssize_t>(pb.velocity.size());
+    py::array_t<R> velocity({nb, py::ssize_t(2)}), omega(nb);
+    auto V = velocity.template mutable_unchecked<2>();
+    auto W = omega.template mutable_unchecked<1>();
+    for (py::ssize_t i = 0; i < nb; ++i) {
+        V(i, 0) = pb.velocity[i].v.x;
+        V(i, 1) = pb.velocity[i].v.y;
+        W(i) = pb.velocity[i].w;
+    }
+    out["velocity"] = velocity;
+    out["omega"] = omega;
+}
+
+template <class R>
+py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st, const double* sn,
+               const double* stt, const SolveOptions& opt) {
     ContactProblem<R> pb;
     SolveReport rep;
     {
         py::gil_scoped_release release;
         pb = assemble<R>(bc, cc, st);
-        PGS<R> pgs(pb);
-        rep = pgs.solve(sn, stt, opt);
+        rep = PGS<R>(pb).solve(sn, stt, opt);
     }
-    const size_t n = cc.n;
-    py::array_t<R> normal(static_cast<py::ssize_t>(n)), tangent(static_cast<py::ssize_t>(n));
+    const auto n = static_cast<py::ssize_t>(cc.n);
+    py::array_t<R> normal(n), tangent(n);
     auto nm = normal.template mutable_unchecked<1>();
     auto tm = tangent.template mutable_unchecked<1>();
     for (const auto& m : pb.manifolds)
@@ -114,19 +168,99 @@ py::dict run(const BodyColumns& bc, const ContactColumns& cc, const StepSettings
             nm(m.first + j) = m.p[j].normal_impulse;
             tm(m.first + j) = m.p[j].tangent_impulse;
         }
-    py::array_t<R> velocity({static_cast<py::ssize_t>(bc.n), py::ssize_t(2)}), omega(static_cast<py::ssize_t>(bc.n));
-    auto vm = velocity.template mutable_unchecked<2>();
-    auto wm = omega.template mutable_unchecked<1>();
-    for (size_t i = 0; i < bc.n; ++i) {
-        vm(i, 0) = pb.velocity[i].v.x;
-        vm(i, 1) = pb.velocity[i].v.y;
-        wm(i) = pb.velocity[i].w;
-    }
     py::dict out = report_dict(rep, pb.stats);
     out["normal_impulse"] = normal;
     out["tangent_impulse"] = tangent;
-    out["velocity"] = velocity;
-    out["omega"] = omega;
+    body_velocities(pb, out);
+    return out;
+}
+
+py::dict solve_contacts(const py::dict& bodies, const py::dict& contacts,
+                        py::array_t<double, py::array::c_style | py::array::forcecast> start_normal,
+                        py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent,
+                        const StepSettings& step, const SolveOptions& options) {
+    const BodyColumns bc = body_columns(bodies);
+    const ContactColumns cc = contact_columns(contacts);
+    if (start_normal.ndim() != 1 || start_tangent.ndim() != 1 || static_cast<size_t>(start_normal.size()) != cc.n ||
+        static_cast<size_t>(start_tangent.size()) != cc.n)
+        throw py::value_error("start impulses must have one value per contact point (" + std::to_string(cc.n) + ")");
+    check(step);
+    check(options);
+    if (options.float64()) return solve<double>(bc, cc, step, start_normal.data(), start_tangent.data(), options);
+    return solve<float>(bc, cc, step, start_normal.data(), start_tangent.data(), options);
+}
+
+// Per contact point the rows as assembled; per body the velocity before any impulse.
+py::dict rows_dict(const ContactProblem<double>& pb, size_t points) {
+    const auto n = static_cast<py::ssize_t>(points);
+    py::array_t<int32_t> manifold(n), row_a(n), row_b(n);
+    py::array_t<bool> active(n), friction_row(n);
+    py::array_t<double> normal({n, py::ssize_t(2)}), r_a({n, py::ssize_t(2)}), r_b({n, py::ssize_t(2)});
+    py::array_t<double> k_normal(n), k_tangent(n), bias(n), friction(n);
+    auto M = manifold.mutable_unchecked<1>();
+    auto A = row_a.mutable_unchecked<1>();
+    auto B = row_b.mutable_unchecked<1>();
+    auto act = active.mutable_unchecked<1>();
+    auto fr = friction_row.mutable_unchecked<1>();
+    auto N = normal.mutable_unchecked<2>();
+    auto RA = r_a.mutable_unchecked<2>();
+    auto RB = r_b.mutable_unchecked<2>();
+    auto KN = k_normal.mutable_unchecked<1>();
+    auto KT = k_tangent.mutable_unchecked<1>();
+    auto BI = bias.mutable_unchecked<1>();
+    auto FR = friction.mutable_unchecked<1>();
+    for (size_t mi = 0; mi < pb.manifolds.size(); ++mi) {
+        const auto& m = pb.manifolds[mi];
+        for (int j = 0; j < m.given; ++j) {
+            const auto& p = m.p[j];
+            const py::ssize_t k = m.first + j;
+            M(k) = static_cast<int32_t>(mi);
+            A(k) = m.a;
+            B(k) = m.b;
+            act(k) = j < m.count;
+            fr(k) = m.friction_row;
+            N(k, 0) = m.normal.x;
+            N(k, 1) = m.normal.y;
+            RA(k, 0) = p.rA.x;
+            RA(k, 1) = p.rA.y;
+            RB(k, 0) = p.rB.x;
+            RB(k, 1) = p.rB.y;
+            KN(k) = p.k_normal;
+            KT(k) = p.k_tangent;
+            BI(k) = p.bias;
+            FR(k) = m.friction;
+        }
+    }
+    py::dict out;
+    out["manifold"] = manifold;
+    out["row_a"] = row_a;
+    out["row_b"] = row_b;
+    out["active"] = active;
+    out["friction_row"] = friction_row;
+    out["normal"] = normal;
+    out["r_a"] = r_a;
+    out["r_b"] = r_b;
+    out["k_normal"] = k_normal;
+    out["k_tangent"] = k_tangent;
+    out["bias"] = bias;
+    out["friction"] = friction;
+    body_velocities(pb, out);
+    return out;
+}
+
+py::dict contact_rows(const py::dict& bodies, const py::dict& contacts, const StepSettings& step) {
+    const BodyColumns bc = body_columns(bodies);
+    const ContactColumns cc = contact_columns(contacts);
+    check(step);
+    ContactProblem<double> pb;
+    double scale = 1.0;
+    {
+        py::gil_scoped_release release;
+        pb = assemble<double>(bc, cc, step);
+        scale = PGS<double>(pb).free_velocity_scale();  // no impulse applied yet
+    }
+    py::dict out = rows_dict(pb, cc.n);
+    out["scale"] = scale;
     return out;
 }
 
@@ -136,196 +270,91 @@ py::array_t<double> to_array(const std::vector<double>& v) {
     return a;
 }
 
-SolveOptions solve_options(int max_iterations, double tolerance, const std::string& stop_on, double relaxation,
-                           bool history, bool sanitize, double max_velocity, bool final_residual, bool guard,
-                           bool conjugate) {
-    if (max_iterations < 0) throw py::value_error("max_iterations must be >= 0");
-    if (!(relaxation > 0.0 && relaxation < 2.0)) throw py::value_error("relaxation must be in (0, 2)");
-    SolveOptions opt;
-    opt.max_iterations = max_iterations;
-    opt.tolerance = tolerance;
-    opt.stop_on = parse_measure(stop_on);
-    opt.relaxation = relaxation;
-    opt.history = history;
-    opt.sanitize = sanitize;
-    opt.max_velocity = max_velocity;
-    opt.final_residual = final_residual;
-    opt.guard = guard;
-    opt.conjugate = conjugate;
-    return opt;
+py::object step_world(World& world, const PGSStepSettings& settings) {
+    check(settings);
+    PGSStepReport rep;
+    {
+        py::gil_scoped_release release;
+        rep = pgs_step(world, settings);
+    }
+    if (!rep.solved) return py::none();
+    py::dict out = report_dict(rep.solve, rep.stats);
+    out["normal_impulse"] = to_array(rep.normal_impulse);
+    out["tangent_impulse"] = to_array(rep.tangent_impulse);
+    out["start_normal"] = to_array(rep.start_normal);
+    out["start_tangent"] = to_array(rep.start_tangent);
+    out["deepest"] = rep.deepest;
+    return out;
 }
 
-StepSettings step_settings(float dt, std::pair<float, float> gravity, bool block_solve, bool prune) {
-    if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
-    StepSettings st;
-    st.dt = dt;
-    st.gravity[0] = gravity.first;
-    st.gravity[1] = gravity.second;
-    st.block_solve = block_solve;
-    st.prune = prune;
-    return st;
+void bind_options(py::module_& m) {
+    bind_enum<Mode>(m, "Mode", {{"exact", Mode::exact}, {"float32", Mode::float32}, {"float64", Mode::float64}},
+                    "Arithmetic of a solve: exact is Box2D's float32 PGS bit for bit, starts used as given;\n"
+                    "float32 the same with bad starts sanitised; float64 double precision.");
+    bind_enum<Measure>(
+        m, "Measure",
+        {{"none", Measure::none}, {"thesis", Measure::thesis}, {"velocity", Measure::velocity},
+         {"residual", Measure::residual}},
+        "What a sweep measures to stop on (docs/solver.md, \"Measuring convergence\").");
+    bind_enum<Acceleration>(m, "Acceleration", {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}},
+                            "none: plain (P)SOR sweeps; nncg: nonsmooth nonlinear conjugate gradient.");
+    bind_enum<LoopStart>(m, "LoopStart", {{"zero", LoopStart::zero}, {"builtin", LoopStart::builtin}},
+                         "Where a step of the native loop starts PGS: zero or Box2D's carried impulses.");
+
+    py::class_<StepSettings>(m, "StepSettings", "The step a contact problem belongs to (checked on construction).")
+        .def(py::init([](const py::kwargs& kw) { return from_keywords<StepSettings>("StepSettings", kw); }))
+        .def_readwrite("dt", &StepSettings::dt, "time step (s)")
+        .def_property(
+            "gravity", [](const StepSettings& s) { return std::make_pair(s.gravity[0], s.gravity[1]); },
+            [](StepSettings& s, std::pair<float, float> g) {
+                s.gravity[0] = g.first;
+                s.gravity[1] = g.second;
+            },
+            "(x, y) in m/s^2")
+        .def_readwrite("block_solve", &StepSettings::block_solve, "Box2D's 2x2 block solver for two-point manifolds")
+        .def_readwrite("prune", &StepSettings::prune, "leave out rows the scene does not need");
+
+    py::class_<SolveOptions> options(m, "SolveOptions", "How PGS solves (checked on construction and on use).");
+    enum_field(options, "mode", &SolveOptions::mode);
+    enum_field(options, "stop_on", &SolveOptions::stop_on);
+    enum_field(options, "accelerate", &SolveOptions::accelerate);
+    options.def(py::init([](const py::kwargs& kw) { return from_keywords<SolveOptions>("SolveOptions", kw); }))
+        .def_readwrite("max_iterations", &SolveOptions::max_iterations)
+        .def_readwrite("tolerance", &SolveOptions::tolerance, "stop once stop_on falls below it (0: never)")
+        .def_readwrite("relaxation", &SolveOptions::relaxation, "w of PSOR in (0, 2); 1 is plain PGS")
+        .def_readwrite("history", &SolveOptions::history, "record thesis, velocity, residual after every sweep")
+        .def_readwrite("max_velocity", &SolveOptions::max_velocity,
+                       "starts that alone change a contact velocity by more are implausible (0: no check)")
+        .def_readwrite("final_residual", &SolveOptions::final_residual, "report the residual at the end")
+        .def_readwrite("guard", &SolveOptions::guard, "fall back to w = 1 if the residual climbs tenfold");
+
+    py::class_<PGSStepSettings> loop(m, "PGSStepSettings", "One step of the native loop (checked on construction and use).");
+    enum_field(loop, "start", &PGSStepSettings::start);
+    loop.def(py::init([](const py::kwargs& kw) { return from_keywords<PGSStepSettings>("PGSStepSettings", kw); }))
+        .def_readwrite("step", &PGSStepSettings::step)
+        .def_readwrite("solve", &PGSStepSettings::solve)
+        .def_readwrite("warm_scale", &PGSStepSettings::warm_scale, "dtRatio applied to the carried impulses")
+        .def_readwrite("inv_dt0", &PGSStepSettings::inv_dt0, "1/dt Box2D scales the written impulses by")
+        .def_readwrite("position_iterations", &PGSStepSettings::position_iterations)
+        .def_readwrite("record", &PGSStepSettings::record, "keep the step for World.recorded()");
 }
 
 }  // namespace
 
 void bind_solver(py::module_& m) {
-    m.def(
-        "solve_contacts",
-        [](const py::dict& bodies, const py::dict& contacts,
-           py::array_t<double, py::array::c_style | py::array::forcecast> start_normal,
-           py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent, float dt,
-           std::pair<float, float> gravity, bool block_solve, bool prune, const std::string& precision,
-           int max_iterations, double tolerance, const std::string& stop_on, double relaxation, bool history,
-           bool sanitize, double max_velocity, bool final_residual, bool guard, bool conjugate) {
-            BodyColumns bc = body_columns(bodies);
-            ContactColumns cc = contact_columns(contacts);
-            if (static_cast<size_t>(start_normal.size()) != cc.n || static_cast<size_t>(start_tangent.size()) != cc.n ||
-                start_normal.ndim() != 1 || start_tangent.ndim() != 1)
-                throw py::value_error("start impulses must have one value per contact point (" +
-                                      std::to_string(cc.n) + ")");
-            const StepSettings st = step_settings(dt, gravity, block_solve, prune);
-            const SolveOptions opt = solve_options(max_iterations, tolerance, stop_on, relaxation, history, sanitize,
-                                                   max_velocity, final_residual, guard, conjugate);
-            if (precision == "float32") return run<float>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
-            if (precision == "float64") return run<double>(bc, cc, st, start_normal.data(), start_tangent.data(), opt);
-            throw py::value_error("precision must be float32 or float64");
-        },
-        py::arg("bodies"), py::arg("contacts"), py::arg("start_normal"), py::arg("start_tangent"), py::kw_only(),
-        py::arg("dt"), py::arg("gravity"), py::arg("block_solve") = true, py::arg("prune") = true,
-        py::arg("precision") = "float32", py::arg("max_iterations") = 8, py::arg("tolerance") = 0.0,
-        py::arg("stop_on") = "none", py::arg("relaxation") = 1.0, py::arg("history") = false,
-        py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("final_residual") = true,
-        py::arg("guard") = true, py::arg("conjugate") = false,
-        "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
-
-    m.def(
-        "contact_rows",
-        [](const py::dict& bodies, const py::dict& contacts, float dt, std::pair<float, float> gravity,
-           bool block_solve, bool prune) {
-            const BodyColumns bc = body_columns(bodies);
-            const ContactColumns cc = contact_columns(contacts);
-            const StepSettings st = step_settings(dt, gravity, block_solve, prune);
-            ContactProblem<double> pb;
-            double scale = 1.0;
-            {
-                py::gil_scoped_release release;
-                pb = assemble<double>(bc, cc, st);
-                scale = PGS<double>(pb).free_velocity_scale();  // no impulse applied yet
-            }
-            const auto n = static_cast<py::ssize_t>(cc.n);
-            py::array_t<int32_t> manifold(n), row_a(n), row_b(n);
-            py::array_t<bool> active(n), friction_row(n);
-            py::array_t<double> normal({n, py::ssize_t(2)}), r_a({n, py::ssize_t(2)}), r_b({n, py::ssize_t(2)});
-            py::array_t<double> k_normal(n), k_tangent(n), bias(n), friction(n);
-            auto M = manifold.mutable_unchecked<1>();
-            auto A = row_a.mutable_unchecked<1>();
-            auto B = row_b.mutable_unchecked<1>();
-            auto act = active.mutable_unchecked<1>();
-            auto fr = friction_row.mutable_unchecked<1>();
-            auto N = normal.mutable_unchecked<2>();
-            auto RA = r_a.mutable_unchecked<2>();
-            auto RB = r_b.mutable_unchecked<2>();
-            auto KN = k_normal.mutable_unchecked<1>();
-            auto KT = k_tangent.mutable_unchecked<1>();
-            auto BI = bias.mutable_unchecked<1>();
-            auto FR = friction.mutable_unchecked<1>();
-            for (size_t mi = 0; mi < pb.manifolds.size(); ++mi) {
-                const auto& m = pb.manifolds[mi];
-                for (int j = 0; j < m.given; ++j) {
-                    const auto& p = m.p[j];
-                    const py::ssize_t k = m.first + j;
-                    M(k) = static_cast<int32_t>(mi);
-                    A(k) = m.a;
-                    B(k) = m.b;
-                    act(k) = j < m.count;
-                    fr(k) = m.friction_row;
-                    N(k, 0) = m.normal.x;
-                    N(k, 1) = m.normal.y;
-                    RA(k, 0) = p.rA.x;
-                    RA(k, 1) = p.rA.y;
-                    RB(k, 0) = p.rB.x;
-                    RB(k, 1) = p.rB.y;
-                    KN(k) = p.k_normal;
-                    KT(k) = p.k_tangent;
-                    BI(k) = p.bias;
-                    FR(k) = m.friction;
-                }
-            }
-            const auto nb = static_cast<py::ssize_t>(bc.n);
-            py::array_t<double> velocity({nb, py::ssize_t(2)}), omega(nb);
-            auto V = velocity.mutable_unchecked<2>();
-            auto W = omega.mutable_unchecked<1>();
-            for (size_t i = 0; i < bc.n; ++i) {
-                V(i, 0) = pb.velocity[i].v.x;
-                V(i, 1) = pb.velocity[i].v.y;
-                W(i) = pb.velocity[i].w;
-            }
-            py::dict out;
-            out["manifold"] = manifold;
-            out["row_a"] = row_a;
-            out["row_b"] = row_b;
-            out["active"] = active;
-            out["friction_row"] = friction_row;
-            out["normal"] = normal;
-            out["r_a"] = r_a;
-            out["r_b"] = r_b;
-            out["k_normal"] = k_normal;
-            out["k_tangent"] = k_tangent;
-            out["bias"] = bias;
-            out["friction"] = friction;
-            out["velocity"] = velocity;
-            out["omega"] = omega;
-            out["scale"] = scale;
-            return out;
-        },
-        py::arg("bodies"), py::arg("contacts"), py::kw_only(), py::arg("dt"), py::arg("gravity"),
-        py::arg("block_solve") = true, py::arg("prune") = true,
-        "The rows of one step's contact problem as the solver assembles them (float64): per contact\n"
-        "point the lever arms, normal, effective inverse masses, bias; per body the velocity before\n"
-        "any impulse; and the free-velocity scale the residual is divided by.");
-
-    m.def(
-        "pgs_step",
-        [](World& world, float dt, std::pair<float, float> gravity, bool block_solve, bool prune,
-           const std::string& precision, int max_iterations, double tolerance, const std::string& stop_on,
-           double relaxation, bool conjugate, bool sanitize, double max_velocity, bool guard, const std::string& start,
-           float warm_scale, float inv_dt0, int position_iterations, bool record) {
-            PGSStepSettings s;
-            s.step = step_settings(dt, gravity, block_solve, prune);
-            s.solve = solve_options(max_iterations, tolerance, stop_on, relaxation, false, sanitize, max_velocity,
-                                    true, guard, conjugate);
-            if (precision != "float32" && precision != "float64")
-                throw py::value_error("precision must be float32 or float64");
-            s.float64 = precision == "float64";
-            if (start != "zero" && start != "builtin") throw py::value_error("start must be zero or builtin");
-            s.start = start == "zero" ? LoopStart::zero : LoopStart::builtin;
-            if (position_iterations < 0) throw py::value_error("position_iterations must be >= 0");
-            s.warm_scale = warm_scale;
-            s.inv_dt0 = inv_dt0;
-            s.position_iterations = position_iterations;
-            s.record = record;
-            PGSStepReport rep;
-            {
-                py::gil_scoped_release release;
-                rep = pgs_step(world, s);
-            }
-            if (!rep.solved) return py::object(py::none());
-            py::dict out = report_dict(rep.solve, rep.stats);
-            out["normal_impulse"] = to_array(rep.normal_impulse);
-            out["tangent_impulse"] = to_array(rep.tangent_impulse);
-            out["start_normal"] = to_array(rep.start_normal);
-            out["start_tangent"] = to_array(rep.start_tangent);
-            out["deepest"] = rep.deepest;
-            return py::object(out);
-        },
-        py::arg("world"), py::kw_only(), py::arg("dt"), py::arg("gravity"), py::arg("block_solve") = true,
-        py::arg("prune") = true, py::arg("precision") = "float64", py::arg("max_iterations") = 8,
-        py::arg("tolerance") = 0.0, py::arg("stop_on") = "none", py::arg("relaxation") = 1.0,
-        py::arg("conjugate") = false, py::arg("sanitize") = true, py::arg("max_velocity") = 0.0, py::arg("guard") = true,
-        py::arg("start") = "builtin", py::arg("warm_scale") = 1.0f, py::arg("inv_dt0") = 0.0f,
-        py::arg("position_iterations") = 3, py::arg("record") = false,
-        "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"
-        "velocity iterations), whole in native code. Returns the solve's report, or None without contacts.");
+    bind_options(m);
+    m.attr("SOLVER_BODY_FIELDS") = names(std::begin(kSolverBodyFields), std::end(kSolverBodyFields));
+    m.attr("SOLVER_CONTACT_FIELDS") = names(std::begin(kSolverContactFields), std::end(kSolverContactFields));
+    m.def("solve_contacts", &solve_contacts, py::arg("bodies"), py::arg("contacts"), py::arg("start_normal"),
+          py::arg("start_tangent"), py::arg("step"), py::arg("options"),
+          "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
+    m.def("contact_rows", &contact_rows, py::arg("bodies"), py::arg("contacts"), py::arg("step"),
+          "The rows of one step's contact problem as the solver assembles them (float64): per contact\n"
+          "point the lever arms, normal, effective inverse masses, bias; per body the velocity before\n"
+          "any impulse; and the free-velocity scale the residual is divided by.");
+    m.def("pgs_step", &step_world, py::arg("world"), py::arg("settings"),
+          "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"
+          "velocity iterations), whole in native code. Returns the solve's report, or None without contacts.");
 }
 
 }  // namespace dc

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._box2d import pgs_step
+from .._box2d import PGSStepSettings, StepSettings, pgs_step
 from ..errors import InputError
-from ..solver.pgs import ACCELERATIONS, MAX_TRANSLATION, Solution, solve
+from ..solver.pgs import Solution, solve
+from ..solver.pgs import options as solve_options
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 
@@ -80,19 +81,30 @@ class PGSStepper:
         if start_fn is None and options.start not in STARTS:
             raise InputError(f"unknown start {options.start!r}; choose from {', '.join(STARTS)}")
         check_scene_for_loop(scene)
-        if options.accelerate not in ACCELERATIONS:
-            raise InputError(f"unknown acceleration {options.accelerate!r}; choose from {', '.join(ACCELERATIONS)}")
-        if options.mode == "exact" and (options.relaxation != 1.0 or options.accelerate != "none"):
+        auto = options.relaxation == "auto"
+        if auto and options.mode == "exact":
             raise InputError("exact mode is Box2D's PGS: no over-relaxation, no acceleration")
+        try:
+            self.solve_options = solve_options(
+                dt=scene.dt, mode=options.mode, max_iterations=options.max_iterations, tolerance=options.tolerance,
+                stop_on=options.stop_on, relaxation=1.0 if auto else options.relaxation,
+                accelerate=options.accelerate)
+        except ValueError as e:
+            raise InputError(str(e)) from None
         self.world, self.scene, self.options, self.record = world, scene, options, record
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
         self.first = True
         self.relaxation = options.relaxation
-        if options.relaxation == "auto":
+        if auto:
             self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode,
                                              accelerate=options.accelerate)
         self.native = native and start_fn is None and options.start in ("zero", "builtin")
+        if self.native:
+            self.settings = PGSStepSettings(
+                step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve),
+                solve=self.solve_options, start=options.start, warm_scale=0.0, inv_dt0=self.inv_dt,
+                position_iterations=scene.solver.position_iterations, record=record)
         world.find_new_contacts()   # Step would do this itself, after our Collide
 
     def step(self) -> LoopStep:
@@ -106,14 +118,11 @@ class PGSStepper:
         return done
 
     def _native_step(self, w):
-        scene, o = self.scene, self.options
-        out = pgs_step(self.world, dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve,
-                       precision="float64" if o.mode == "float64" else "float32",
-                       max_iterations=o.max_iterations, tolerance=o.tolerance,
-                       stop_on=o.stop_on if o.tolerance > 0 else "none", relaxation=w, conjugate=o.accelerate == "nncg",
-                       sanitize=o.mode != "exact", max_velocity=2.0 * MAX_TRANSLATION / scene.dt, start=o.start,
-                       warm_scale=0.0 if self.first else 1.0, inv_dt0=self.inv_dt,
-                       position_iterations=scene.solver.position_iterations, record=self.record)
+        self.settings.warm_scale = 0.0 if self.first else 1.0
+        if w != self.solve_options.relaxation:
+            self.solve_options.relaxation = w
+            self.settings.solve = self.solve_options
+        out = pgs_step(self.world, self.settings)
         self.first = False
         solution = None if out is None else Solution(
             normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"], velocity=None, omega=None,

@@ -22,12 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._box2d import solve_contacts
+from .._box2d import Acceleration, Mode, SolveOptions, solve_contacts
 
 MEASURES = ("thesis", "velocity", "residual")
 # none: plain (P)SOR sweeps. nncg: after each sweep the iterate also moves along a conjugate
 # direction (nonsmooth nonlinear conjugate gradient, Silcowitz, Niebe and Erleben 2010).
-ACCELERATIONS = ("none", "nncg")
+ACCELERATIONS = tuple(Acceleration.__members__)
+MODES = tuple(Mode.__members__)
 # Box2D moves a body at most b2_maxTranslation = 2 m per step; a start that alone would change a
 # contact's velocity by more than twice that speed is not an impulse the step could need.
 MAX_TRANSLATION = 2.0
@@ -51,6 +52,17 @@ class Solution:
         return self.history[:, MEASURES.index(name)]
 
 
+def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="residual", relaxation=1.0,
+            history=False, final_residual=True, guard=True, accelerate="none") -> SolveOptions:
+    """The native solver's options (checked there, once): names become its enums, a tolerance of
+    0 means a fixed sweep count, and a start that alone would move a contact faster than Box2D
+    lets a body travel in a step (dt) counts as implausible."""
+    return SolveOptions(mode=mode, max_iterations=max_iterations, tolerance=tolerance,
+                        stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
+                        accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
+                        final_residual=final_residual, guard=guard)
+
+
 def solve(problem, start_normal=None, start_tangent=None, *, mode="float64", max_iterations=None,
           tolerance=0.0, stop_on="residual", relaxation=1.0, history=False, prune=True,
           final_residual=True, guard=True, accelerate="none") -> Solution:
@@ -58,26 +70,15 @@ def solve(problem, start_normal=None, start_tangent=None, *, mode="float64", max
 
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
     tenfold above its best continues as plain PGS (checked every 4 sweeps;
-    Solution.relaxation_fallback says when). A solve always ends on a sweep's projected iterate."""
-    if mode not in ("exact", "float32", "float64"):
-        raise ValueError(f"mode must be exact, float32 or float64, not {mode!r}")
-    if mode == "exact" and relaxation != 1.0:
-        raise ValueError("exact mode is Box2D's PGS: relaxation must be 1")
-    if accelerate not in ACCELERATIONS:
-        raise ValueError(f"accelerate must be one of {', '.join(ACCELERATIONS)}, not {accelerate!r}")
-    if mode == "exact" and accelerate != "none":
-        raise ValueError("exact mode is Box2D's PGS: no acceleration")
+    Solution.relaxation_fallback says when). A solve always ends on a sweep's projected iterate.
+    Bad options raise ValueError."""
+    opts = options(dt=problem.dt, mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation,
+                   history=history, final_residual=final_residual, guard=guard, accelerate=accelerate,
+                   max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
-    out = solve_contacts(
-        problem.bodies, problem.contacts, np.asarray(n, dtype=np.float64), np.asarray(t, dtype=np.float64),
-        dt=problem.dt, gravity=problem.gravity, block_solve=problem.block_solve, prune=prune,
-        precision="float64" if mode == "float64" else "float32",
-        max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations,
-        tolerance=tolerance, stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
-        history=history, sanitize=mode != "exact",
-        max_velocity=2.0 * MAX_TRANSLATION / problem.dt, final_residual=final_residual, guard=guard,
-        conjugate=accelerate == "nncg")
+    out = solve_contacts(problem.bodies, problem.contacts, np.asarray(n, dtype=np.float64),
+                         np.asarray(t, dtype=np.float64), problem.settings(prune), opts)
     return Solution(normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"],
                     velocity=out["velocity"], omega=out["omega"], iterations=out["iterations"],
                     history=out["history"], residual=out["residual"], sanitized=out["sanitized"],

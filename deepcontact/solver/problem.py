@@ -9,13 +9,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._box2d import SOLVER_BODY_FIELDS, SOLVER_CONTACT_FIELDS, StepSettings
 from ..errors import InputError
 
-BODY_KEYS = ("center", "angle", "local_center", "velocity", "omega", "mass", "inv_mass", "inv_inertia",
-             "gravity_scale", "linear_damping", "angular_damping", "type")
-CONTACT_KEYS = ("manifold", "point", "point_count", "manifold_type", "local_normal", "local_point",
-                "point_local", "radius_a", "radius_b", "friction", "restitution", "restitution_threshold")
-
+# The columns the native solver reads: its rows of the record tables (native/records.hpp).
+BODY_KEYS = SOLVER_BODY_FIELDS
+CONTACT_KEYS = SOLVER_CONTACT_FIELDS
 
 KEY_COLUMNS = ("fixture_a", "child_a", "fixture_b", "child_b", "id_key")
 
@@ -70,6 +69,10 @@ class StepProblem:
     @property
     def points(self):
         return len(self.contacts["manifold"])
+
+    def settings(self, prune=True) -> StepSettings:
+        """The step the native solver assembles the problem for."""
+        return StepSettings(dt=self.dt, gravity=self.gravity, block_solve=self.block_solve, prune=prune)
 
     @classmethod
     def from_arrays(cls, bodies, contacts, *, dt, gravity, block_solve=True, velocity_iterations=8, index=0):
