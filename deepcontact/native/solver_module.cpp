@@ -134,19 +134,25 @@ py::dict report_dict(const SolveReport& rep, const ProblemStats& stats) {
     return out;
 }
 
+// A new array of n rows of `width` values, stored in out[name]; returns where to write it.
+template <class T>
+T* new_column(py::dict& out, const char* name, size_t n, size_t width = 1) {
+    const auto rows = static_cast<py::ssize_t>(n);
+    py::array_t<T> a = width == 1 ? py::array_t<T>(rows) : py::array_t<T>({rows, static_cast<py::ssize_t>(width)});
+    out[name] = a;
+    return a.mutable_data();
+}
+
 template <class R>
 void body_velocities(const ContactProblem<R>& pb, py::dict& out) {
-    const auto nb = static_cast<py::ssize_t>(pb.velocity.size());
-    py::array_t<R> velocity({nb, py::ssize_t(2)}), omega(nb);
-    auto V = velocity.template mutable_unchecked<2>();
-    auto W = omega.template mutable_unchecked<1>();
-    for (py::ssize_t i = 0; i < nb; ++i) {
-        V(i, 0) = pb.velocity[i].v.x;
-        V(i, 1) = pb.velocity[i].v.y;
-        W(i) = pb.velocity[i].w;
+    const size_t n = pb.velocity.size();
+    R* velocity = new_column<R>(out, "velocity", n, 2);
+    R* omega = new_column<R>(out, "omega", n);
+    for (size_t i = 0; i < n; ++i) {
+        velocity[2 * i] = pb.velocity[i].v.x;
+        velocity[2 * i + 1] = pb.velocity[i].v.y;
+        omega[i] = pb.velocity[i].w;
     }
-    out["velocity"] = velocity;
-    out["omega"] = omega;
 }
 
 template <class R>
@@ -159,18 +165,14 @@ py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettin
         pb = assemble<R>(bc, cc, st);
         rep = PGS<R>(pb).solve(sn, stt, opt);
     }
-    const auto n = static_cast<py::ssize_t>(cc.n);
-    py::array_t<R> normal(n), tangent(n);
-    auto nm = normal.template mutable_unchecked<1>();
-    auto tm = tangent.template mutable_unchecked<1>();
+    py::dict out = report_dict(rep, pb.stats);
+    R* normal = new_column<R>(out, "normal_impulse", cc.n);
+    R* tangent = new_column<R>(out, "tangent_impulse", cc.n);
     for (const auto& m : pb.manifolds)
         for (int j = 0; j < m.given; ++j) {
-            nm(m.first + j) = m.p[j].normal_impulse;
-            tm(m.first + j) = m.p[j].tangent_impulse;
+            normal[m.first + j] = m.p[j].normal_impulse;
+            tangent[m.first + j] = m.p[j].tangent_impulse;
         }
-    py::dict out = report_dict(rep, pb.stats);
-    out["normal_impulse"] = normal;
-    out["tangent_impulse"] = tangent;
     body_velocities(pb, out);
     return out;
 }
@@ -192,58 +194,41 @@ py::dict solve_contacts(const py::dict& bodies, const py::dict& contacts,
 
 // Per contact point the rows as assembled; per body the velocity before any impulse.
 py::dict rows_dict(const ContactProblem<double>& pb, size_t points) {
-    const auto n = static_cast<py::ssize_t>(points);
-    py::array_t<int32_t> manifold(n), row_a(n), row_b(n);
-    py::array_t<bool> active(n), friction_row(n);
-    py::array_t<double> normal({n, py::ssize_t(2)}), r_a({n, py::ssize_t(2)}), r_b({n, py::ssize_t(2)});
-    py::array_t<double> k_normal(n), k_tangent(n), bias(n), friction(n);
-    auto M = manifold.mutable_unchecked<1>();
-    auto A = row_a.mutable_unchecked<1>();
-    auto B = row_b.mutable_unchecked<1>();
-    auto act = active.mutable_unchecked<1>();
-    auto fr = friction_row.mutable_unchecked<1>();
-    auto N = normal.mutable_unchecked<2>();
-    auto RA = r_a.mutable_unchecked<2>();
-    auto RB = r_b.mutable_unchecked<2>();
-    auto KN = k_normal.mutable_unchecked<1>();
-    auto KT = k_tangent.mutable_unchecked<1>();
-    auto BI = bias.mutable_unchecked<1>();
-    auto FR = friction.mutable_unchecked<1>();
+    py::dict out;
+    int32_t* manifold = new_column<int32_t>(out, "manifold", points);
+    int32_t* row_a = new_column<int32_t>(out, "row_a", points);
+    int32_t* row_b = new_column<int32_t>(out, "row_b", points);
+    bool* active = new_column<bool>(out, "active", points);
+    bool* friction_row = new_column<bool>(out, "friction_row", points);
+    double* normal = new_column<double>(out, "normal", points, 2);
+    double* r_a = new_column<double>(out, "r_a", points, 2);
+    double* r_b = new_column<double>(out, "r_b", points, 2);
+    double* k_normal = new_column<double>(out, "k_normal", points);
+    double* k_tangent = new_column<double>(out, "k_tangent", points);
+    double* bias = new_column<double>(out, "bias", points);
+    double* friction = new_column<double>(out, "friction", points);
     for (size_t mi = 0; mi < pb.manifolds.size(); ++mi) {
         const auto& m = pb.manifolds[mi];
         for (int j = 0; j < m.given; ++j) {
             const auto& p = m.p[j];
-            const py::ssize_t k = m.first + j;
-            M(k) = static_cast<int32_t>(mi);
-            A(k) = m.a;
-            B(k) = m.b;
-            act(k) = j < m.count;
-            fr(k) = m.friction_row;
-            N(k, 0) = m.normal.x;
-            N(k, 1) = m.normal.y;
-            RA(k, 0) = p.rA.x;
-            RA(k, 1) = p.rA.y;
-            RB(k, 0) = p.rB.x;
-            RB(k, 1) = p.rB.y;
-            KN(k) = p.k_normal;
-            KT(k) = p.k_tangent;
-            BI(k) = p.bias;
-            FR(k) = m.friction;
+            const size_t k = m.first + j;
+            manifold[k] = static_cast<int32_t>(mi);
+            row_a[k] = m.a;
+            row_b[k] = m.b;
+            active[k] = j < m.count;
+            friction_row[k] = m.friction_row;
+            normal[2 * k] = m.normal.x;
+            normal[2 * k + 1] = m.normal.y;
+            r_a[2 * k] = p.rA.x;
+            r_a[2 * k + 1] = p.rA.y;
+            r_b[2 * k] = p.rB.x;
+            r_b[2 * k + 1] = p.rB.y;
+            k_normal[k] = p.k_normal;
+            k_tangent[k] = p.k_tangent;
+            bias[k] = p.bias;
+            friction[k] = m.friction;
         }
     }
-    py::dict out;
-    out["manifold"] = manifold;
-    out["row_a"] = row_a;
-    out["row_b"] = row_b;
-    out["active"] = active;
-    out["friction_row"] = friction_row;
-    out["normal"] = normal;
-    out["r_a"] = r_a;
-    out["r_b"] = r_b;
-    out["k_normal"] = k_normal;
-    out["k_tangent"] = k_tangent;
-    out["bias"] = bias;
-    out["friction"] = friction;
     body_velocities(pb, out);
     return out;
 }
