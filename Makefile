@@ -9,16 +9,20 @@ RUNS ?= runs
 # The installed entry point of $(PYTHON), whatever `dc` is first on PATH.
 DC := $(PYTHON) -m deepcontact.cli.main
 
+DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev pkg-config libxml2-utils g++ python3-siconos python3-h5py
+
 .PHONY: setup demo test test-slow bench stability smoke smoke-pipeline study study-pipeline clean
 
-# Debian packages: Box2D 2.4.1 and pkg-config to build against it, a C++ compiler, and xmllint
-# (an independent schema validator the tests use).
+# Debian packages: Box2D 2.4.1, Eigen (header-only sparse factorizations) and pkg-config to build
+# against them, a C++ compiler, xmllint (an independent schema validator the tests use), and
+# Siconos with h5py for Debian's own python3 (the peer solver the tests compare against).
 $(STAMPS)/system:
 	@mkdir -p $(STAMPS)
-	@if ! pkg-config --exists box2d 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null; then \
-		echo "installing Debian packages: libbox2d-dev pkg-config libxml2-utils g++"; \
+	@if ! pkg-config --exists box2d eigen3 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null \
+			|| ! /usr/bin/python3 -c "import siconos.numerics, h5py" 2>/dev/null; then \
+		echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 		$(SUDO) apt-get update -qq && \
-		DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq libbox2d-dev pkg-config libxml2-utils g++ >/dev/null; \
+		DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEBIAN_PACKAGES) >/dev/null; \
 	fi
 	@touch $@
 

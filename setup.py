@@ -1,4 +1,4 @@
-"""Builds deepcontact._box2d, the one native extension, against Debian's libbox2d.
+"""Builds deepcontact._box2d, the one native extension, against Debian's libbox2d and Eigen.
 
 Everything else about the package lives in setup.cfg.
 """
@@ -10,17 +10,22 @@ from pybind11.setup_helpers import ParallelCompile, Pybind11Extension
 from setuptools import find_packages, setup
 
 
-def pkg_config(*args):
+# pkg-config name: (what it is, Debian's package)
+NEEDS = {"box2d": ("Box2D 2.4.1", "libbox2d-dev"), "eigen3": ("Eigen 3, header-only", "libeigen3-dev")}
+
+
+def pkg_config(*args, package="box2d"):
     try:
-        out = subprocess.run(["pkg-config", *args, "box2d"], check=True,
+        out = subprocess.run(["pkg-config", *args, package], check=True,
                              capture_output=True, text=True).stdout
     except (OSError, subprocess.CalledProcessError):
-        sys.exit("error: Box2D 2.4.1 not found by `pkg-config box2d`; "
-                 "install it with `apt-get install libbox2d-dev pkg-config` (or run `make setup`)")
+        what, debian = NEEDS[package]
+        sys.exit(f"error: {what} not found by `pkg-config {package}`; install it with "
+                 f"`apt-get install {debian} pkg-config` (or run `make setup`)")
     return shlex.split(out)
 
 
-cflags = pkg_config("--cflags")
+cflags = pkg_config("--cflags") + pkg_config("--cflags", package="eigen3")
 box2d_version = pkg_config("--modversion")[0]
 ext = Pybind11Extension(
     "deepcontact._box2d",

@@ -11,7 +11,10 @@
 #include <stdexcept>
 #include <vector>
 
+#include <type_traits>
+
 #include "contact_problem.hpp"
+#include "newton.hpp"
 
 namespace dc {
 
@@ -20,8 +23,10 @@ enum class Measure { none, thesis, velocity, residual };
 // exact: float32, Box2D's arithmetic and order, starts used as given (Box2D's solver, bit for
 // bit); float32: the same, bad starts sanitised first; float64: double precision.
 enum class Mode { exact, float32, float64 };
-// nncg: each sweep's change plus a multiple of the last direction (Silcowitz et al. 2010).
-enum class Acceleration { none, nncg };
+// nncg: each sweep's change plus a multiple of the last direction (Silcowitz et al. 2010);
+// newton: a few sweeps to settle which contacts touch and slide, then semismooth Newton steps on
+// the whole step (newton.hpp), back to sweeps whenever a Newton step fails.
+enum class Acceleration { none, nncg, newton };
 
 struct SolveOptions {
     Mode mode = Mode::float64;
@@ -49,6 +54,10 @@ inline void check(const SolveOptions& o) {
     if (!(o.max_velocity >= 0.0)) throw std::invalid_argument("max_velocity must be >= 0");
     if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
+    if (o.accelerate == Acceleration::newton && o.mode != Mode::float64)
+        throw std::invalid_argument("newton is float64 only");
+    if (o.accelerate == Acceleration::newton && !(o.stop_on == Measure::residual && o.tolerance > 0))
+        throw std::invalid_argument("newton stops on the residual: give a tolerance");
 }
 
 struct SanitizeReport {
@@ -62,6 +71,8 @@ struct SolveReport {
     double thesis = std::numeric_limits<double>::quiet_NaN();  // the last sweep's measures, when
     double velocity = std::numeric_limits<double>::quiet_NaN();  // they were tracked
     int relaxation_fallback = 0;   // the sweep after which over-relaxation was dropped (0: never)
+    int factorizations = 0;        // Newton steps tried (each factorizes one sparse system)
+    int newton_fallbacks = 0;      // Newton steps that failed, after which sweeps went on
     SanitizeReport sanitized;
 };
 
@@ -90,6 +101,11 @@ public:
         // The residual is normalised by the free velocities, taken before the warm start.
         if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) scale_ = free_velocity_scale();
         warm_start();
+        if constexpr (std::is_same_v<R, double>)
+            if (opt.accelerate == Acceleration::newton) {
+                solve_newton(opt, rep);
+                return rep;
+            }
         // The change of the iterate is needed only to report it or to stop on it.
         const bool track = opt.history || opt.stop_on != Measure::none;
         const bool track_change = opt.history || opt.stop_on == Measure::thesis || opt.stop_on == Measure::velocity;
@@ -197,6 +213,55 @@ public:
     }
 
 private:
+    static constexpr int kSweepsBeforeNewton = 4;
+    static constexpr int kSweepsAfterFailure = 1024;  // at most, doubling from 4 at each failure
+    static constexpr int kNewtonLimit = 200;
+    static constexpr double kNewtonProgress = 0.5;  // systems factorized per solve, then sweeps alone
+
+    // Sweeps (PSOR at w) settle the active set; Newton steps finish while they lower the merit.
+    // After a Newton step fails, twice as many sweeps as before run first (sweeps are cheap and
+    // change which contacts touch and slide; a factorization costs a hundred sweeps).
+    void solve_newton(const SolveOptions& opt, SolveReport& rep) {
+        Newton newton(pb_, scale_);
+        const R w = R(opt.relaxation);
+        double residual = this->residual();
+        auto record = [&] {
+            if (opt.history) rep.history.insert(rep.history.end(), {std::nan(""), std::nan(""), residual});
+        };
+        int sweeps = kSweepsBeforeNewton;
+        while (residual >= opt.tolerance && rep.iterations < opt.max_iterations) {
+            const int now = std::min(sweeps, opt.max_iterations - rep.iterations);
+            for (int k = 0; k < now; ++k) {
+                if (opt.relaxation != 1.0)
+                    sweep<true>(w);
+                else
+                    sweep<false>(w);
+                ++rep.iterations;
+                if (opt.history) {
+                    residual = this->residual();
+                    record();
+                }
+            }
+            residual = this->residual();
+            while (residual >= opt.tolerance && newton.factorizations() < kNewtonLimit) {
+                const double before = residual;
+                const bool stepped = newton.step();
+                rep.factorizations = newton.factorizations();
+                if (stepped) {
+                    residual = this->residual();
+                    record();
+                }
+                // a step that does not halve the residual is no better than sweeps
+                if (!stepped || residual > kNewtonProgress * before) {
+                    ++rep.newton_fallbacks;
+                    sweeps = std::min(2 * sweeps, kSweepsAfterFailure);
+                    break;
+                }
+            }
+        }
+        rep.residual = residual;
+    }
+
     // Velocity of B relative to A at a contact point, as the solver computes it.
     V2<R> relative_velocity(const ContactManifold<R>& m, const ContactPoint<R>& p) const {
         const auto& A = pb_.velocity[m.a];

@@ -124,6 +124,8 @@ py::dict report_dict(const SolveReport& rep, const ProblemStats& stats) {
     out["thesis"] = rep.thesis;
     out["velocity_change"] = rep.velocity;
     out["relaxation_fallback"] = rep.relaxation_fallback;
+    out["factorizations"] = rep.factorizations;
+    out["newton_fallbacks"] = rep.newton_fallbacks;
     py::dict san;
     san["nonfinite"] = rep.sanitized.nonfinite;
     san["negative"] = rep.sanitized.negative;
@@ -281,8 +283,11 @@ void bind_options(py::module_& m) {
         {{"none", Measure::none}, {"thesis", Measure::thesis}, {"velocity", Measure::velocity},
          {"residual", Measure::residual}},
         "What a sweep measures to stop on (docs/solver.md, \"Measuring convergence\").");
-    bind_enum<Acceleration>(m, "Acceleration", {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}},
-                            "none: plain (P)SOR sweeps; nncg: nonsmooth nonlinear conjugate gradient.");
+    bind_enum<Acceleration>(
+        m, "Acceleration",
+        {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}, {"newton", Acceleration::newton}},
+        "none: plain (P)SOR sweeps; nncg: nonsmooth nonlinear conjugate gradient; newton: sweeps,\n"
+        "then semismooth Newton steps on the whole step (float64, stops on the residual).");
     bind_enum<LoopStart>(m, "LoopStart", {{"zero", LoopStart::zero}, {"builtin", LoopStart::builtin}},
                          "Where a step of the native loop starts PGS: zero or Box2D's carried impulses.");
 

@@ -124,11 +124,7 @@ class PGSStepper:
             self.settings.solve = self.solve_options
         out = pgs_step(self.world, self.settings)
         self.first = False
-        solution = None if out is None else Solution(
-            normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"], velocity=None, omega=None,
-            iterations=out["iterations"], history=out["history"], residual=out["residual"],
-            sanitized=out["sanitized"], stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
-            relaxation=float(w))
+        solution = None if out is None else Solution.from_native(out, w)
         deepest = 0.0 if out is None else out["deepest"]
         if not self.record:
             return LoopStep(None, None, solution, deepest)

@@ -47,6 +47,18 @@ class Solution:
     stats: dict
     relaxation_fallback: int = 0   # the sweep after which over-relaxation fell back to w = 1 (0: never)
     relaxation: float = 1.0        # the w it was asked to use
+    factorizations: int = 0        # Newton steps tried, each one sparse factorization (accelerate="newton")
+    newton_fallbacks: int = 0      # of those, the steps that failed and handed back to sweeps
+
+    @classmethod
+    def from_native(cls, out, relaxation, velocity=None, omega=None):
+        """From the dict the native solver returns."""
+        return cls(normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"],
+                   velocity=out.get("velocity", velocity), omega=out.get("omega", omega),
+                   iterations=out["iterations"], history=out["history"], residual=out["residual"],
+                   sanitized=out["sanitized"], stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
+                   relaxation=float(relaxation), factorizations=out["factorizations"],
+                   newton_fallbacks=out["newton_fallbacks"])
 
     def measure(self, name):
         return self.history[:, MEASURES.index(name)]
@@ -79,8 +91,4 @@ def solve(problem, start_normal=None, start_tangent=None, *, mode="float64", max
     t = problem.start_tangent if start_tangent is None else start_tangent
     out = solve_contacts(problem.bodies, problem.contacts, np.asarray(n, dtype=np.float64),
                          np.asarray(t, dtype=np.float64), problem.settings(prune), opts)
-    return Solution(normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"],
-                    velocity=out["velocity"], omega=out["omega"], iterations=out["iterations"],
-                    history=out["history"], residual=out["residual"], sanitized=out["sanitized"],
-                    stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
-                    relaxation=float(relaxation))
+    return Solution.from_native(out, relaxation)

@@ -1,0 +1,104 @@
+"""The exact solve of a step: float64 PGS from zero (the reference until now) against the
+proximal semismooth Newton solver (accelerate="newton"), both from zero to a residual of 1e-12,
+at most 100,000 sweeps.
+
+Problems: the held-out pile (seeds 1000-1001, every 5th step with contacts) and the pyramid
+(base 20, every 5th step). Reported per scene: how many steps reach 1e-12, the worst residual,
+the median and total time, and the same on the steps where PGS stops at its cap (the hard ones),
+as ratios to PGS in the same run; for Newton also the sparse factorizations and the fallbacks to
+sweeps. With --siconos, Siconos's Lemke solver (fc2d_lexicolemke, Debian's python3-siconos run
+as a subprocess on the problems exported in FCLIB's format) is timed on the same steps.
+
+Usage: python benchmarks/bench_exact.py [--scene pile|pyramid|both] [--every 5] [--siconos]
+"""
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.solver.pgs import solve
+from deepcontact.solver.problem import StepProblem
+
+TOLERANCE, CAP = 1e-12, 100_000
+
+
+def problems(name, every):
+    scenes = [generate("pile", s, {}) for s in (1000, 1001)] if name == "pile" else [generate("pyramid", 0, {"base": 20})]
+    out = []
+    for scene in scenes:
+        world = build_world(scene)
+        for k in range(scene.steps):
+            bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+            if k % every == 0 and len(contacts["manifold"]):
+                out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
+                                                   gravity=scene.effects.gravity or (0.0, 0.0),
+                                                   block_solve=scene.solver.block_solve))
+    return out
+
+
+def timed(problem, accelerate):
+    zero = np.zeros(problem.points)
+    t0 = time.perf_counter()
+    s = solve(problem, zero, zero, mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual",
+              accelerate=accelerate)
+    return s, time.perf_counter() - t0
+
+
+def siconos_times(steps):
+    """Seconds Siconos's Lemke takes per problem, and its residual by our measure."""
+    from deepcontact.solver import fclib, peer
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = [fclib.write_problem(p, Path(tmp) / f"step-{i:04d}.hdf5") for i, p in enumerate(steps)]
+        return peer.solve_files(paths, solver="lemke")
+
+
+def report(name, steps, use_siconos):
+    pgs = [timed(p, "none") for p in steps]
+    newton = [timed(p, "newton") for p in steps]
+    hard = [i for i, (s, _) in enumerate(pgs) if s.iterations >= CAP]
+    print(f"\n{name}: {len(steps)} steps, {sum(p.points for p in steps) / len(steps):.0f} contact points on average, "
+          f"{len(hard)} where PGS stops at its cap")
+    print("| solver | reach 1e-12 | worst residual | median ms | total s | on PGS's capped steps: median ms | "
+          "factorizations (median) | fallbacks (total) |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    base_median = statistics.median(t for _, t in pgs)
+    base_hard = statistics.median(pgs[i][1] for i in hard) if hard else float("nan")
+    rows = [("PGS from zero (reference until now)", pgs), ("proximal Newton (accelerate newton)", newton)]
+    for label, runs in rows:
+        med = statistics.median(t for _, t in runs)
+        hard_ms = statistics.median(runs[i][1] for i in hard) if hard else float("nan")
+        reached = sum(s.residual < TOLERANCE for s, _ in runs)
+        worst = max(s.residual for s, _ in runs)
+        fact = statistics.median(s.factorizations for s, _ in runs)
+        falls = sum(s.newton_fallbacks for s, _ in runs)
+        print(f"| {label} | {reached} | {worst:.1e} | {med * 1e3:.2f} ({med / base_median:.2f}x) | "
+              f"{sum(t for _, t in runs):.2f} | {hard_ms * 1e3:.1f} ({hard_ms / base_hard:.3f}x) | {fact:.0f} | {falls} |")
+    if use_siconos:
+        times, residuals = siconos_times(steps)
+        med = statistics.median(times)
+        hard_ms = statistics.median(times[i] for i in hard) if hard else float("nan")
+        reached = sum(r < TOLERANCE for r in residuals)
+        print(f"| Siconos fc2d Lemke (subprocess; solve time only) | {reached} | {max(residuals):.1e} | "
+              f"{med * 1e3:.2f} ({med / base_median:.2f}x) | {sum(times):.2f} | {hard_ms * 1e3:.1f} "
+              f"({hard_ms / base_hard:.3f}x) | | |")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="both", choices=["pile", "pyramid", "both"])
+    ap.add_argument("--every", type=int, default=5)
+    ap.add_argument("--siconos", action="store_true")
+    args = ap.parse_args()
+    for name in (["pile", "pyramid"] if args.scene == "both" else [args.scene]):
+        report(name, problems(name, args.every), args.siconos)
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
