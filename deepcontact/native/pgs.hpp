@@ -56,8 +56,8 @@ inline void check(const SolveOptions& o) {
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
     if (o.accelerate == Acceleration::newton && o.mode != Mode::float64)
         throw std::invalid_argument("newton is float64 only");
-    if (o.accelerate == Acceleration::newton && !(o.stop_on == Measure::residual && o.tolerance > 0))
-        throw std::invalid_argument("newton stops on the residual: give a tolerance");
+    if (o.accelerate == Acceleration::newton && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))
+        throw std::invalid_argument("newton stops on the residual (tolerance 0: exact, 1e-12)");
 }
 
 struct SanitizeReport {
@@ -216,7 +216,8 @@ private:
     static constexpr int kSweepsBeforeNewton = 4;
     static constexpr int kSweepsAfterFailure = 1024;  // at most, doubling from 4 at each failure
     static constexpr int kNewtonLimit = 200;
-    static constexpr double kNewtonProgress = 0.5;  // systems factorized per solve, then sweeps alone
+    static constexpr double kNewtonProgress = 0.5;
+    static constexpr double kExact = 1e-12;   // what newton solves to without a tolerance  // systems factorized per solve, then sweeps alone
 
     // Sweeps (PSOR at w) settle the active set; Newton steps finish while they lower the merit.
     // After a Newton step fails, twice as many sweeps as before run first (sweeps are cheap and
@@ -224,12 +225,13 @@ private:
     void solve_newton(const SolveOptions& opt, SolveReport& rep) {
         Newton newton(pb_, scale_);
         const R w = R(opt.relaxation);
+        const double tolerance = opt.tolerance > 0 ? opt.tolerance : kExact;
         double residual = this->residual();
         auto record = [&] {
             if (opt.history) rep.history.insert(rep.history.end(), {std::nan(""), std::nan(""), residual});
         };
         int sweeps = kSweepsBeforeNewton;
-        while (residual >= opt.tolerance && rep.iterations < opt.max_iterations) {
+        while (residual >= tolerance && rep.iterations < opt.max_iterations) {
             const int now = std::min(sweeps, opt.max_iterations - rep.iterations);
             for (int k = 0; k < now; ++k) {
                 if (opt.relaxation != 1.0)
@@ -243,7 +245,7 @@ private:
                 }
             }
             residual = this->residual();
-            while (residual >= opt.tolerance && newton.factorizations() < kNewtonLimit) {
+            while (residual >= tolerance && newton.factorizations() < kNewtonLimit) {
                 const double before = residual;
                 const bool stepped = newton.step();
                 rep.factorizations = newton.factorizations();

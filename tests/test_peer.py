@@ -1,0 +1,71 @@
+"""Siconos as an independent peer: our step problems exported in FCLIB's format, solved by its
+Lemke solver in Debian's own Python, and both answers judged by a residual Siconos's side
+computes from the file alone."""
+import numpy as np
+import pytest
+
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.solver import fclib, peer
+from deepcontact.solver.problem import StepProblem
+from deepcontact.solver.reference import reference_solution
+
+# (generator, parameters, steps): a fixed sample of the thesis pile, a pyramid and hard scenes
+SAMPLE = [("pile", {}, (100, 150, 200, 250)), ("pyramid", dict(base=6), (60, 120)),
+          ("stack", dict(count=8), (100, 200)), ("mass-ratio", dict(ratio=400.0), (100,)),
+          ("card-house", dict(levels=2), (100,))]
+
+
+def steps(generator, params, wanted):
+    scene = generate(generator, 0, params)
+    world = build_world(scene)
+    out = []
+    for k in range(max(wanted) + 1):
+        bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
+                                      record=True)
+        if k in wanted:
+            assert len(contacts["manifold"]), (generator, k)
+            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
+                                               gravity=scene.effects.gravity or (0.0, 0.0),
+                                               block_solve=scene.solver.block_solve))
+    return out
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    assert peer.available(), "Siconos for /usr/bin/python3 is missing: make setup installs python3-siconos"
+    folder = tmp_path_factory.mktemp("fclib")
+    out = []
+    for generator, params, wanted in SAMPLE:
+        for problem in steps(generator, params, wanted):
+            ours = reference_solution(problem)
+            path = fclib.write_problem(problem, folder / f"{generator}-{problem.index}.hdf5",
+                                       solution=(ours.normal_impulse, ours.tangent_impulse))
+            out.append((path, problem, ours))
+    return out
+
+
+def test_our_exact_solution_and_siconos_lemke_both_solve_the_exported_problems(exported):
+    results = peer.run([path for path, _, _ in exported], solver="lemke")
+    assert len(results) == len(exported)
+    for (path, problem, ours), theirs in zip(exported, results):
+        assert ours.residual < 1e-12, path.name
+        # judged on the Siconos side, from the file alone
+        assert theirs["stored_residual"] < 1e-12, path.name
+        assert theirs["stored_residual"] == pytest.approx(ours.residual, rel=1e-3, abs=1e-12), path.name
+        assert theirs["info"] == 0 and theirs["residual"] < 1e-9, path.name
+
+
+def test_the_export_is_the_problem_our_solver_solves(exported):
+    for path, problem, ours in exported:
+        lp = fclib.read_problem(path)
+        written = fclib.local_problem(problem)
+        assert (abs(lp.W - written.W)).max() == 0 and np.array_equal(lp.q, written.q)
+        # W is symmetric positive semidefinite (J M^-1 J^T) with the solver's k on its diagonal
+        dense = lp.W.toarray()
+        assert np.allclose(dense, dense.T, rtol=0, atol=1e-12 * np.abs(dense).max())
+        assert np.linalg.eigvalsh(dense).min() > -1e-9 * np.abs(dense).max()
+        r = written.reaction(ours.normal_impulse, ours.tangent_impulse)
+        assert fclib.residual(lp, r) == pytest.approx(ours.residual, rel=1e-3, abs=1e-12)
+        # a perturbed answer is not a solution: the check can fail
+        assert fclib.residual(lp, r * 1.01 + 1e-3) > 1e-5
