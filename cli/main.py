@@ -4,6 +4,7 @@ import click
 from deepcontact import __version__
 
 from .evaluate import evaluate
+from .export import export
 from .rasterize import rasterize
 from .simulate import simulate
 from .study import study
@@ -17,8 +18,9 @@ def cli():
     """Study Box2D's contact solver and warm-start it with learned impulses.
 
     The pipeline: simulate → validate → rasterize → train → evaluate; the
-    longer measurements are under `dc study`. Each subcommand has its own
-    --help with examples.
+    longer measurements are under `dc study`; `dc export` hands a run's step
+    problems to other solvers (FCLIB). Each subcommand has its own --help
+    with examples.
     """
 
 
@@ -28,6 +30,7 @@ cli.add_command(rasterize)
 cli.add_command(train)
 cli.add_command(evaluate)
 cli.add_command(study)
+cli.add_command(export)
 
 
 def main():

@@ -33,6 +33,10 @@ def pool(jobs):
     try:
         yield p
     except BaseException:
+        # Killed first: Pool.terminate() alone can wait forever on a worker blocked writing a
+        # result (seen once under load, after SIGTERM); these workers hold nothing to clean up.
+        for worker in multiprocessing.active_children():
+            worker.kill()
         p.terminate()
         p.join()
         raise

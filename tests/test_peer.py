@@ -69,3 +69,20 @@ def test_the_export_is_the_problem_our_solver_solves(exported):
         assert fclib.residual(lp, r) == pytest.approx(ours.residual, rel=1e-3, abs=1e-12)
         # a perturbed answer is not a solution: the check can fail
         assert fclib.residual(lp, r * 1.01 + 1e-3) > 1e-5
+
+
+def test_dc_export_writes_every_nth_step_with_its_reference_and_replaces_only_its_own(pile_run, tmp_path):
+    import json
+
+    from conftest import dc, one_line_error, snapshot, written
+    out = written(tmp_path / "fclib", "export", str(pile_run), "--every", "25")
+    index = json.loads((out / "index.json").read_text())["problems"]
+    assert index and all(p["step"] % 25 == 0 and p["contacts"] > 0 for p in index)
+    assert all(p["residual"] < 1e-9 for p in index)    # the small pile's steps
+    last = fclib.read_problem(out / index[-1]["file"])   # 2 rows per contact point the solver uses
+    assert last.W.shape[0] == last.W.shape[1] == 2 * len(last.mu) and len(last.mu) <= index[-1]["contacts"]
+    before = snapshot(out)
+    one_line_error(dc("export", str(pile_run), "-o", str(out)), "not empty")
+    (out / "notes.txt").write_text("mine")
+    one_line_error(dc("export", str(pile_run), "-o", str(out), "--overwrite"), "notes.txt")
+    assert snapshot(out) == dict(before, **{"notes.txt": b"mine"})

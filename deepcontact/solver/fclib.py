@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from .. import atomic
 from .._box2d import contact_rows
 
 
@@ -143,3 +144,62 @@ def residual(lp: LocalProblem, r) -> float:
     ft = np.where(lp.mu > 0, ft, kt * rt)
     scale = max(np.abs(lp.q[0::2]).max(initial=0.0), np.abs(np.where(lp.mu > 0, lp.q[1::2], 0.0)).max(initial=0.0), 1e-30)
     return float(max(np.abs(fn).max(initial=0.0), np.abs(ft).max(initial=0.0)) / scale)
+
+
+# What `dc export` writes (atomic.output_folder replaces nothing else).
+EXPORT_FILES = atomic.Owned("FCLIB export", [r"seed-\d{6,}/", r"seed-\d{6,}/step-\d{6,}\.hdf5", r"index\.json"])
+SOLUTIONS = ("reference", "recorded", "none")
+
+
+def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, progress=None):
+    """Every `every`-th step of a run with contacts, as FCLIB local problems under
+    out/seed-NNNNNN/step-NNNNNN.hdf5, each with the step's recorded start as its guess and, with
+    solution="reference", the reference solution (or "recorded": what the run's solver produced)
+    as /solution; out/index.json lists the files with their sizes and the solution's residual.
+    Written atomically (a partial export never stands). Returns the index."""
+    import json
+
+    from ..errors import InputError
+    from ..step.run_folder import read_run
+    from .problem import StepProblem
+    from .reference import reference_solution
+
+    if solution not in SOLUTIONS:
+        raise InputError(f"solution must be one of {', '.join(SOLUTIONS)}, not {solution!r}")
+    run = read_run(run_dir)
+    if not run.step_files:
+        raise InputError("the run has no step files", run_dir)
+    index = []
+    with atomic.output_folder(out, EXPORT_FILES, overwrite, command="export") as work:
+        for sim in run.simulations:
+            (work / sim.dir).mkdir()
+            for k, path in enumerate(sim.files):
+                if progress is not None:
+                    progress.update()
+                if k % every:
+                    continue
+                problem = StepProblem.from_step_file(path)
+                if not problem.points:
+                    continue
+                pair, residual = None, None
+                if solution == "reference":
+                    s = reference_solution(problem)
+                    pair, residual = (s.normal_impulse, s.tangent_impulse), s.residual
+                elif solution == "recorded":
+                    pair = (problem.normal_impulse, problem.tangent_impulse)
+                name = f"{sim.dir}/{path.stem}.hdf5"
+                write_problem(problem, work / name, solution=pair, guess=(problem.start_normal, problem.start_tangent),
+                              title=f"{run.manifest.get('scene', 'scene')} seed {sim.seed} step {problem.index}")
+                if pair is not None and residual is None:
+                    residual = residual_of(problem, pair)
+                index.append({"file": name, "seed": sim.seed, "step": problem.index, "contacts": int(problem.points),
+                              "solution": solution, "residual": residual})
+        atomic.write_text(work / "index.json", json.dumps({"format": "fclib_local", "spacedim": 2,
+                                                           "problems": index}, indent=1) + "\n")
+    return index
+
+
+def residual_of(problem, pair):
+    """Our residual of per-point impulses on the step, through its FCLIB form."""
+    lp = local_problem(problem)
+    return residual(lp, lp.reaction(*pair))

@@ -1,0 +1,48 @@
+"""dc export: a run's step problems in FCLIB's HDF5 format, for other contact solvers."""
+import click
+
+from . import options
+
+
+@click.command()
+@click.argument("run_dir", type=click.Path())
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder to write (seed-NNNNNN/step-NNNNNN.hdf5 and index.json).")
+@click.option("--every", type=options.count(min=1), default=1, show_default=True,
+              help="Export every N-th step (steps without contacts are skipped).")
+@click.option("--solution", type=click.Choice(["reference", "recorded", "none"]), default="reference",
+              show_default=True,
+              help="Store as /solution: the exact reference (Newton, residual < 1e-12 where it gets "
+                   "there), what the run's solver produced, or nothing.")
+@options.overwrite
+@options.verbosity
+@options.command("export")
+def export(run_dir, out, every, solution, overwrite, verbose, quiet):
+    """Write each step's contact problem as an FCLIB local problem (2D).
+
+    Each file holds W (the Delassus matrix J M^-1 J^T of the contact points
+    the solver uses, per point its normal row then its tangent row), q, mu,
+    the step's recorded start as a guess and, by default, the reference
+    solution; index.json lists the files with the stored solution's residual.
+    The layout is fclib.c's, so FCLIB readers (Siconos among them) take the
+    files as they are. docs/formats.md describes it.
+
+    \b
+    Examples:
+      dc export runs/pile -o runs/pile-fclib --every 10
+      dc export runs/pyramid -o runs/pyramid-fclib --solution recorded
+      /usr/bin/python3 -c "import h5py; print(list(h5py.File('runs/pile-fclib/seed-000000/step-000010.hdf5')))"
+    """
+    from deepcontact.solver.fclib import export_run
+    from deepcontact.step.run_folder import read_run
+
+    total = len(read_run(run_dir).step_files)
+    bar = options.progress_bar(quiet, total, "step", "export")
+    try:
+        index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite, progress=bar)
+    finally:
+        bar.close()
+    if not quiet:
+        worst = max((p["residual"] for p in index if p["residual"] is not None), default=None)
+        click.echo(f"{len(index)} problems in {out}" + ("" if worst is None else f"; worst stored residual {worst:.1e}"),
+                   err=True)
