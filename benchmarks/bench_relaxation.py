@@ -4,7 +4,8 @@
 For the settled half of a scene (steps 300-599, every 10th), each step is solved to a residual of
 1e-4 (float64 PGS, cap 1000) from: builtin (Box2D's warm start), builtin with w = 1.7, prev (the
 previous step's solution at the tolerance), prev with w = 1.7, builtin with the w `auto` picks,
-and with NNCG: builtin, builtin at w = 1.3, prev.
+with NNCG: builtin, builtin at w = 1.3, prev; and with Newton (sweeps, then semismooth Newton
+steps): builtin, builtin at w = 1.7, prev at w = 1.7 (their sparse factorizations reported too).
 Reported: median sweeps and median measured solve time, each as a ratio to builtin at w = 1 in the
 same run (best of --repeats timings per step).
 
@@ -51,7 +52,7 @@ def timed(problem, n, t, w, repeats, accelerate="none"):
         t0 = time.perf_counter()
         s = solve(problem, n, t, relaxation=w, final_residual=False, accelerate=accelerate, **SETTINGS)
         best = min(best, time.perf_counter() - t0)
-    return s.iterations, best
+    return s.iterations, best, s.factorizations
 
 
 LOOP_VARIANTS = (("builtin", 1.0, "none"), ("builtin@1.7", 1.7, "none"), ("builtin@auto", "auto", "none"),
@@ -112,7 +113,8 @@ def main():
         if not tuner.tuned:
             tuner(p, p.start_normal, p.start_tangent)
     rows = {name: [] for name in ("builtin", "builtin@1.7", f"builtin@auto({tuner.w:g})", "prev", "prev@1.7",
-                                  "builtin+nncg", "builtin+nncg@1.3", "prev+nncg")}
+                                  "builtin+nncg", "builtin+nncg@1.3", "prev+nncg",
+                                  "builtin+newton", "builtin+newton@1.7", "prev+newton@1.7")}
     for (k0, p0, keys0), (k, p, keys) in zip(steps, steps[1:]):
         if k != k0 + 1 or (k - 300) % 10:
             continue
@@ -125,17 +127,21 @@ def main():
                   "prev": (pn, pt, 1.0, "none"), "prev@1.7": (pn, pt, 1.7, "none"),
                   "builtin+nncg": (p.start_normal, p.start_tangent, 1.0, "nncg"),
                   "builtin+nncg@1.3": (p.start_normal, p.start_tangent, 1.3, "nncg"),
-                  "prev+nncg": (pn, pt, 1.0, "nncg")}
+                  "prev+nncg": (pn, pt, 1.0, "nncg"),
+                  "builtin+newton": (p.start_normal, p.start_tangent, 1.0, "newton"),
+                  "builtin+newton@1.7": (p.start_normal, p.start_tangent, 1.7, "newton"),
+                  "prev+newton@1.7": (pn, pt, 1.7, "newton")}
         for name, (n, t, w, accelerate) in starts.items():
             rows[name].append(timed(p, n, t, w, args.repeats, accelerate))
-    base_it = statistics.median(i for i, _ in rows["builtin"])
-    base_s = statistics.median(s for _, s in rows["builtin"])
+    base_it = statistics.median(i for i, _, _ in rows["builtin"])
+    base_s = statistics.median(s for _, s, _ in rows["builtin"])
     print(f"{args.scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
-    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7}")
+    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7} {'factorizations':>15}")
     for name, r in rows.items():
-        it = statistics.median(i for i, _ in r)
-        ms = statistics.median(s for _, s in r)
-        print(f"{name:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>10.3f} {ms / base_s:>7.2f}")
+        it = statistics.median(i for i, _, _ in r)
+        ms = statistics.median(s for _, s, _ in r)
+        fact = statistics.median(f for _, _, f in r)
+        print(f"{name:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>10.3f} {ms / base_s:>7.2f} {fact:>15.0f}")
 
 
 if __name__ == "__main__":

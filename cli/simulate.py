@@ -2,6 +2,7 @@
 import click
 
 from deepcontact.errors import InputError
+from deepcontact.solver.pgs import ACCELERATIONS
 
 from . import options
 
@@ -30,6 +31,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
         raise click.UsageError("--mode exact is Box2D's PGS: it takes no --relaxation")
     if mode == "exact" and accelerate not in (None, "none"):
         raise click.UsageError("--mode exact is Box2D's PGS: it takes no --accelerate")
+    if accelerate == "newton" and mode == "float32":
+        raise click.UsageError("--accelerate newton is float64 only")
     if relaxation == "auto" and not tolerance:
         raise click.UsageError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
     cap = max_iterations if max_iterations is not None else (
@@ -65,9 +68,10 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--relaxation", type=options.Relaxation(),
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "
                    "on the first 8 steps with contacts.")
-@click.option("--accelerate", type=click.Choice(["none", "nncg"]),
+@click.option("--accelerate", type=click.Choice(ACCELERATIONS),
               help="[pgs] nncg: conjugate directions on top of the sweeps (nonsmooth nonlinear conjugate "
-                   "gradient; float32/float64 modes). Default none.")
+                   "gradient; float32/float64 modes); newton: sweeps, then semismooth Newton steps on the "
+                   "whole step (float64; without --tolerance it solves to 1e-12). Default none.")
 @options.jobs
 @options.max_memory
 @click.option("--max-disk", type=options.Finite(min=0, min_open=True), metavar="GB",
