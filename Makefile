@@ -55,6 +55,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2
+	$(PYTHON) benchmarks/bench_exact.py --siconos
+	sh benchmarks/bench_loop_scale.sh
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).

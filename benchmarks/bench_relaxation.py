@@ -5,7 +5,9 @@ For the settled half of a scene (steps 300-599, every 10th), each step is solved
 1e-4 (float64 PGS, cap 1000) from: builtin (Box2D's warm start), builtin with w = 1.7, prev (the
 previous step's solution at the tolerance), prev with w = 1.7, builtin with the w `auto` picks,
 with NNCG: builtin, builtin at w = 1.3, prev; and with Newton (sweeps, then semismooth Newton
-steps): builtin, builtin at w = 1.7, prev at w = 1.7 (their sparse factorizations reported too).
+steps): builtin, builtin at w = 1.7, prev at w = 1.7 (their sparse factorizations reported too);
+with subspace minimization (Newton's systems solved by conjugate gradients): builtin, builtin at
+w = 1.7, prev.
 Reported: median sweeps and median measured solve time, each as a ratio to builtin at w = 1 in the
 same run (best of --repeats timings per step).
 
@@ -114,7 +116,8 @@ def main():
             tuner(p, p.start_normal, p.start_tangent)
     rows = {name: [] for name in ("builtin", "builtin@1.7", f"builtin@auto({tuner.w:g})", "prev", "prev@1.7",
                                   "builtin+nncg", "builtin+nncg@1.3", "prev+nncg",
-                                  "builtin+newton", "builtin+newton@1.7", "prev+newton@1.7")}
+                                  "builtin+newton", "builtin+newton@1.7", "prev+newton@1.7",
+                                  "builtin+subspace", "builtin+subspace@1.7", "prev+subspace")}
     for (k0, p0, keys0), (k, p, keys) in zip(steps, steps[1:]):
         if k != k0 + 1 or (k - 300) % 10:
             continue
@@ -130,7 +133,10 @@ def main():
                   "prev+nncg": (pn, pt, 1.0, "nncg"),
                   "builtin+newton": (p.start_normal, p.start_tangent, 1.0, "newton"),
                   "builtin+newton@1.7": (p.start_normal, p.start_tangent, 1.7, "newton"),
-                  "prev+newton@1.7": (pn, pt, 1.7, "newton")}
+                  "prev+newton@1.7": (pn, pt, 1.7, "newton"),
+                  "builtin+subspace": (p.start_normal, p.start_tangent, 1.0, "subspace"),
+                  "builtin+subspace@1.7": (p.start_normal, p.start_tangent, 1.7, "subspace"),
+                  "prev+subspace": (pn, pt, 1.0, "subspace")}
         for name, (n, t, w, accelerate) in starts.items():
             rows[name].append(timed(p, n, t, w, args.repeats, accelerate))
     base_it = statistics.median(i for i, _, _ in rows["builtin"])

@@ -32,11 +32,12 @@ from . import options
               show_default=True,
               help="Over-relaxation (PSOR) w in (0, 2) for every start, or auto (the w with the fewest sweeps on "
                    "the first 8 hard steps); several, comma-separated, compare them.")
-@click.option("--accelerate", type=options.CommaList(click.Choice(ACCELERATIONS + ("all",)), "none|nncg|newton[,...]|all"),
+@click.option("--accelerate", type=options.CommaList(click.Choice(ACCELERATIONS + ("all",)), "none|nncg|newton|subspace[,...]|all"),
               default="none", show_default=True,
               help="On top of the sweeps: none; nncg (conjugate directions); newton (sweeps, then "
-                   "semismooth Newton steps on the whole step; float64). Several, comma-separated, or all, "
-                   "compare them (each with every w).")
+                   "semismooth Newton steps on the whole step; float64); subspace (the same, each system "
+                   "solved by conjugate gradients). Several, comma-separated, or all, compare them (each "
+                   "with every w).")
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
@@ -73,8 +74,8 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
 
     if "all" in accelerate:
         accelerate = list(ACCELERATIONS)
-    if "newton" in accelerate and mode != "float64":
-        raise click.UsageError("--accelerate newton is float64 only: use --mode float64")
+    if {"newton", "subspace"} & set(accelerate) and mode != "float64":
+        raise click.UsageError("--accelerate newton and subspace are float64 only: use --mode float64")
 
     # Computed inside the output's lock; the report appears only when complete.
     with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:

@@ -31,8 +31,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
         raise click.UsageError("--mode exact is Box2D's PGS: it takes no --relaxation")
     if mode == "exact" and accelerate not in (None, "none"):
         raise click.UsageError("--mode exact is Box2D's PGS: it takes no --accelerate")
-    if accelerate == "newton" and mode == "float32":
-        raise click.UsageError("--accelerate newton is float64 only")
+    if accelerate in ("newton", "subspace") and mode == "float32":
+        raise click.UsageError(f"--accelerate {accelerate} is float64 only")
     if relaxation == "auto" and not tolerance:
         raise click.UsageError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
     cap = max_iterations if max_iterations is not None else (
@@ -71,7 +71,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--accelerate", type=click.Choice(ACCELERATIONS),
               help="[pgs] nncg: conjugate directions on top of the sweeps (nonsmooth nonlinear conjugate "
                    "gradient; float32/float64 modes); newton: sweeps, then semismooth Newton steps on the "
-                   "whole step (float64; without --tolerance it solves to 1e-12). Default none.")
+                   "whole step (float64; without --tolerance it solves to 1e-12); subspace: the same, each "
+                   "system solved by conjugate gradients. Default none.")
 @options.jobs
 @options.max_memory
 @click.option("--max-disk", type=options.Finite(min=0, min_open=True), metavar="GB",

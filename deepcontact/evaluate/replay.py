@@ -36,7 +36,7 @@ class Row:
     capped: bool
     residual: float
     error: float              # |l - l*| / |l*| over all rows of the step (impulses need not be unique)
-    velocity_error: float     # max over bodies of |v - v*| after the solve, m/s (velocities are unique)
+    velocity_error: float     # max over bodies of |v - v*| after the solve, m/s (unique only without friction)
     predict_ms: float
     solve_ms: float
     history: np.ndarray       # the stopping measure after each sweep (index 0: before any)

@@ -34,7 +34,13 @@ namespace dc {
 class Newton {
 public:
     // scale: the step's free-velocity scale (the residual's denominator).
-    Newton(ContactProblem<double>& pb, double scale) : pb_(pb), scale_(scale) { layout(); }
+    // iterative: solve each step's system by conjugate gradients instead of a factorization, with
+    // sliding rows held at the current friction bound (which keeps the system symmetric):
+    // PGS with subspace minimization (Silcowitz, Niebe and Erleben 2010), inexact but cheap.
+    Newton(ContactProblem<double>& pb, double scale, bool iterative = false)
+        : pb_(pb), scale_(scale), iterative_(iterative) {
+        layout();
+    }
 
     // One proximal Newton step from the impulses and velocities in the problem; false (nothing
     // changed) when no rho up to the heaviest lowers the merit.
@@ -72,6 +78,8 @@ private:
     static constexpr int kInnerSteps = 3;      // Newton steps on one proximal problem
     static constexpr double kInnerTolerance = 1e-4;  // its merit, relative to the true one at lambda0
     static constexpr double kSmallestStep = 1.0 / 64;
+    static constexpr int kCgIterations = 50;
+    static constexpr double kCgReduction = 0.1;
 
     // A row of the problem: its point, direction and Jacobian on the two bodies (vx, vy, w each).
     struct Row {
@@ -230,10 +238,10 @@ private:
             const double mu = r.m->friction, ln = x_[r.normal], hi = mu * r.k * ln;
             const double u = r.k * x - s;
             if (u >= hi) {  // sliding at +mu ln
-                slope[i] = mu;
+                slope[i] = iterative_ ? 0.0 : mu;
                 constant[i] = -(x - mu * ln);
             } else if (u <= -hi) {
-                slope[i] = -mu;
+                slope[i] = iterative_ ? 0.0 : -mu;
                 constant[i] = -(x + mu * ln);
             } else {
                 free_index[i] = nf++;
@@ -248,7 +256,9 @@ private:
                 q[i] += slope[i] * q[rows_[i].normal];
         }
         delta_.assign(n, 0.0);
-        if (nf > 0) {
+        if (nf > 0 && iterative_) {
+            if (!conjugate_gradients(free_index, q, nf, rho)) return false;
+        } else if (nf > 0) {
             // K = J_F W G with G = J^T P: a free row's own column, plus slope times a sliding
             // row's column on its (free) normal's.
             const int nb3 = static_cast<int>(3 * pb_.velocity.size());
@@ -300,8 +310,62 @@ private:
         return true;
     }
 
+    // K delta_F = rhs by Jacobi-preconditioned conjugate gradients, K = J_F W J_F^T + rho I applied
+    // through the bodies (each product costs about one sweep); stops at a tenth of the first
+    // residual or kCgIterations. Writes the free rows of delta_.
+    bool conjugate_gradients(const std::vector<int>& free_index, const std::vector<double>& q, int nf, double rho) {
+        std::vector<size_t> row_of(nf);
+        for (size_t i = 0; i < rows_.size(); ++i)
+            if (free_index[i] >= 0) row_of[free_index[i]] = i;
+        body_change([&](size_t i) { return q[i]; });
+        std::vector<double> b(nf), x(nf, 0.0), r(nf), z(nf), p(nf), kp(nf), diag(nf);
+        for (int f = 0; f < nf; ++f) {
+            const size_t i = row_of[f];
+            b[f] = -shifted(i, x_, wx_, rho) - row_change(rows_[i]);
+            diag[f] = rows_[i].k + rho;
+        }
+        auto apply = [&](const std::vector<double>& v, std::vector<double>& out) {
+            body_change([&](size_t i) { return free_index[i] >= 0 ? v[free_index[i]] : 0.0; });
+            for (int f = 0; f < nf; ++f) out[f] = row_change(rows_[row_of[f]]) + rho * v[f];
+        };
+        r = b;
+        double rz = 0, first = 0;
+        for (int f = 0; f < nf; ++f) {
+            z[f] = r[f] / diag[f];
+            p[f] = z[f];
+            rz += r[f] * z[f];
+            first = std::max(first, std::abs(r[f]));
+        }
+        if (!(first > 0)) return true;
+        for (int it = 0; it < kCgIterations; ++it) {
+            apply(p, kp);
+            double pkp = 0;
+            for (int f = 0; f < nf; ++f) pkp += p[f] * kp[f];
+            if (!(pkp > 0)) break;
+            const double alpha = rz / pkp;
+            double worst = 0, rz_next = 0;
+            for (int f = 0; f < nf; ++f) {
+                x[f] += alpha * p[f];
+                r[f] -= alpha * kp[f];
+                worst = std::max(worst, std::abs(r[f]));
+                z[f] = r[f] / diag[f];
+                rz_next += r[f] * z[f];
+            }
+            if (worst <= kCgReduction * first) break;
+            const double beta = rz_next / rz;
+            rz = rz_next;
+            for (int f = 0; f < nf; ++f) p[f] = z[f] + beta * p[f];
+        }
+        for (int f = 0; f < nf; ++f) {
+            if (!std::isfinite(x[f])) return false;
+            delta_[row_of[f]] = x[f];
+        }
+        return true;
+    }
+
     ContactProblem<double>& pb_;
     double scale_;
+    bool iterative_ = false;
     double largest_k_ = 0.0;
     double rho_ = kLightest;
     int factorizations_ = 0;

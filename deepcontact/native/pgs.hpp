@@ -26,7 +26,8 @@ enum class Mode { exact, float32, float64 };
 // nncg: each sweep's change plus a multiple of the last direction (Silcowitz et al. 2010);
 // newton: a few sweeps to settle which contacts touch and slide, then semismooth Newton steps on
 // the whole step (newton.hpp), back to sweeps whenever a Newton step fails.
-enum class Acceleration { none, nncg, newton };
+// subspace: the same with each Newton system solved inexactly by conjugate gradients.
+enum class Acceleration { none, nncg, newton, subspace };
 
 struct SolveOptions {
     Mode mode = Mode::float64;
@@ -54,10 +55,10 @@ inline void check(const SolveOptions& o) {
     if (!(o.max_velocity >= 0.0)) throw std::invalid_argument("max_velocity must be >= 0");
     if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
-    if (o.accelerate == Acceleration::newton && o.mode != Mode::float64)
-        throw std::invalid_argument("newton is float64 only");
-    if (o.accelerate == Acceleration::newton && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))
-        throw std::invalid_argument("newton stops on the residual (tolerance 0: exact, 1e-12)");
+    const bool global = o.accelerate == Acceleration::newton || o.accelerate == Acceleration::subspace;
+    if (global && o.mode != Mode::float64) throw std::invalid_argument("newton and subspace are float64 only");
+    if (global && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))
+        throw std::invalid_argument("newton and subspace stop on the residual (tolerance 0: exact, 1e-12)");
 }
 
 struct SanitizeReport {
@@ -102,7 +103,7 @@ public:
         if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) scale_ = free_velocity_scale();
         warm_start();
         if constexpr (std::is_same_v<R, double>)
-            if (opt.accelerate == Acceleration::newton) {
+            if (opt.accelerate == Acceleration::newton || opt.accelerate == Acceleration::subspace) {
                 solve_newton(opt, rep);
                 return rep;
             }
@@ -223,7 +224,7 @@ private:
     // After a Newton step fails, twice as many sweeps as before run first (sweeps are cheap and
     // change which contacts touch and slide; a factorization costs a hundred sweeps).
     void solve_newton(const SolveOptions& opt, SolveReport& rep) {
-        Newton newton(pb_, scale_);
+        Newton newton(pb_, scale_, opt.accelerate == Acceleration::subspace);
         const R w = R(opt.relaxation);
         const double tolerance = opt.tolerance > 0 ? opt.tolerance : kExact;
         double residual = this->residual();

@@ -285,9 +285,11 @@ void bind_options(py::module_& m) {
         "What a sweep measures to stop on (docs/solver.md, \"Measuring convergence\").");
     bind_enum<Acceleration>(
         m, "Acceleration",
-        {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}, {"newton", Acceleration::newton}},
+        {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}, {"newton", Acceleration::newton},
+         {"subspace", Acceleration::subspace}},
         "none: plain (P)SOR sweeps; nncg: nonsmooth nonlinear conjugate gradient; newton: sweeps,\n"
-        "then semismooth Newton steps on the whole step (float64, stops on the residual).");
+        "then semismooth Newton steps on the whole step (float64, stops on the residual); subspace:\n"
+        "the same with each system solved inexactly by conjugate gradients.");
     bind_enum<LoopStart>(m, "LoopStart", {{"zero", LoopStart::zero}, {"builtin", LoopStart::builtin}},
                          "Where a step of the native loop starts PGS: zero or Box2D's carried impulses.");
 

@@ -1,0 +1,30 @@
+#!/bin/sh
+# What our solver in the loop costs as the scene grows: whole `dc simulate` runs of 800 steps
+# (the XML output included), Box2D's own 8 iterations against our PGS from Box2D's warm start to a
+# residual of 1e-4 (cap 1000), plain, with Newton steps and with subspace minimization, on the
+# 100-circle thesis pile and a 1000-circle pile. Prints wall seconds per run (a run over 900 s is
+# stopped and printed as such); ratios are taken within one run of this script.
+#   sh benchmarks/bench_loop_scale.sh [OUT_DIR]
+set -e
+OUT=${1:-/tmp/dc-bench-loop}
+DC="python3 -m deepcontact.cli.main"
+BIG="--param count=1000 --param box=95 --param sigma=19"
+PGS="--solver pgs --tolerance 1e-4 --max-iterations 1000"
+run() {
+    name=$1; shift
+    start=$(date +%s.%N)
+    if timeout 900 $DC simulate pile --steps 800 -q --overwrite -o "$OUT/$name" "$@"; then
+        end=$(date +%s.%N)
+        echo "$name $(echo "$end - $start" | bc) s"
+    else
+        echo "$name stopped after 900 s"
+    fi
+}
+run pile100-box2d
+run pile100-pgs $PGS
+run pile100-newton $PGS --accelerate newton
+run pile100-subspace $PGS --accelerate subspace
+run pile1000-box2d $BIG
+run pile1000-pgs $BIG $PGS
+run pile1000-subspace $BIG $PGS --accelerate subspace
+run pile1000-newton $BIG $PGS --accelerate newton
