@@ -129,9 +129,13 @@ inline void check(const StepSettings& st) {
         throw std::invalid_argument("gravity must be finite");
 }
 
+// The size of a step's problem, reported with every solve: one table for the struct and its dict.
+#define DC_PROBLEM_STATS(X) \
+    X(manifolds) X(points) X(normal_rows) X(tangent_rows) X(block_manifolds) X(dropped_points) X(angular_manifolds) X(bias_rows)
+#define DC_STAT_FIELD(name) int64_t name = 0;
+
 struct ProblemStats {
-    int64_t manifolds = 0, points = 0, normal_rows = 0, tangent_rows = 0, block_manifolds = 0,
-            dropped_points = 0, angular_manifolds = 0, bias_rows = 0;
+    DC_PROBLEM_STATS(DC_STAT_FIELD)
 };
 
 template <class R>

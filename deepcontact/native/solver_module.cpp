@@ -101,14 +101,9 @@ std::unique_ptr<T> from_keywords(const char* what, const py::kwargs& kw) {
 
 py::dict stats_dict(const ProblemStats& s) {
     py::dict d;
-    d["manifolds"] = s.manifolds;
-    d["points"] = s.points;
-    d["normal_rows"] = s.normal_rows;
-    d["tangent_rows"] = s.tangent_rows;
-    d["block_manifolds"] = s.block_manifolds;
-    d["dropped_points"] = s.dropped_points;
-    d["angular_manifolds"] = s.angular_manifolds;
-    d["bias_rows"] = s.bias_rows;
+#define DC_STAT_ITEM(name) d[#name] = s.name;
+    DC_PROBLEM_STATS(DC_STAT_ITEM)
+#undef DC_STAT_ITEM
     return d;
 }
 
