@@ -78,3 +78,16 @@ def test_newton_in_the_loop_and_its_options(tmp_path):
                     "-o", str(tmp_path / "bad")), "float64 only")
     option_error(dc("evaluate", str(tmp_path / "run"), "--mode", "float32", "--accelerate", "all",
                     "-o", str(tmp_path / "r")), "float64 only")
+
+
+def test_lemke_solves_the_friction_lcp_of_a_step_to_machine_precision():
+    from deepcontact.solver import fclib, pivoting
+    for p in SAMPLE[:2] + SAMPLE[-1:]:
+        lp = fclib.local_problem(p)
+        M, q = pivoting.friction_lcp(lp)
+        z = pivoting.lemke(M, q)
+        assert z is not None
+        w = M @ z + q
+        assert z.min() >= 0 and w.min() >= -1e-9 * np.abs(q).max() and abs(z @ w) <= 1e-9 * np.abs(q).max() ** 2
+        pair = pivoting.pivoted_impulses(p)
+        assert fclib.residual(lp, lp.reaction(*pair)) < 1e-9

@@ -49,6 +49,7 @@ class Solution:
     relaxation: float = 1.0        # the w it was asked to use
     factorizations: int = 0        # Newton steps tried, each one sparse factorization (accelerate="newton")
     newton_fallbacks: int = 0      # of those, the steps that failed and handed back to sweeps
+    pivoted: bool = False          # the reference finished by Lemke's pivoting (solver/reference.py)
 
     @classmethod
     def from_native(cls, out, relaxation, velocity=None, omega=None):

@@ -1,0 +1,83 @@
+"""Lemke's complementary pivoting on a step's 2D friction LCP: the fallback of the reference
+where Newton stalls near, not at, an exact solution (a pivot between active sets is what it
+lacks; docs/solver.md).
+
+The step's local problem (solver/fclib.py: u = W r + q per point normal, tangent) becomes an LCP
+in z = (ln, l+, l-, beta), lt = l+ - l-, exact in 2D (the friction cone has two edges):
+
+    w_n    =  A_nn ln + A_nt (l+ - l-) + q_n          >= 0  _|_ ln
+    w_+    =  A_tn ln + A_tt (l+ - l-) + q_t + beta   >= 0  _|_ l+
+    w_-    = -A_tn ln - A_tt (l+ - l-) - q_t + beta   >= 0  _|_ l-
+    w_beta =  mu ln - l+ - l-                         >= 0  _|_ beta   (beta: the sliding speed)
+
+Lemke's method with covering vector e and a dense tableau (numpy, float64): O(N^2) per pivot
+for N = 4 x points, so it is kept for the steps that need it.
+"""
+import numpy as np
+
+from .fclib import local_problem
+
+PIVOTS_PER_ROW = 10
+
+
+def friction_lcp(lp):
+    """(M, q) of the LCP above from an FCLIB LocalProblem."""
+    W = lp.W.toarray()
+    Ann, Ant, Atn, Att = W[0::2, 0::2], W[0::2, 1::2], W[1::2, 0::2], W[1::2, 1::2]
+    qn, qt = lp.q[0::2], lp.q[1::2]
+    m = len(qn)
+    I, Z = np.eye(m), np.zeros((m, m))
+    M = np.block([[Ann, Ant, -Ant, Z], [Atn, Att, -Att, I], [-Atn, -Att, Att, I], [np.diag(lp.mu), -I, -I, Z]])
+    return M, np.concatenate([qn, qt, -qt, np.zeros(m)])
+
+
+def lemke(M, q, max_pivots=None):
+    """z >= 0 with w = M z + q >= 0 and z.w = 0, or None (ray termination or too many pivots)."""
+    n = len(q)
+    if n == 0 or q.min() >= 0:
+        return np.zeros(n)
+    # tableau rows: w - M z - e z0 = q; columns w (0..n-1), z (n..2n-1), z0 (2n), right side
+    T = np.hstack([np.eye(n), -M, -np.ones((n, 1)), q[:, None]])
+    basis = np.arange(n)
+    z0 = 2 * n
+    scale = max(1.0, np.abs(q).max())
+
+    def pivot(r, c):
+        T[r] /= T[r, c]
+        column = T[:, c].copy()
+        column[r] = 0.0
+        T[:] -= np.outer(column, T[r])
+
+    r = int(np.argmin(q))
+    pivot(r, z0)
+    leaving, basis[r] = basis[r], z0
+    for _ in range(max_pivots or PIVOTS_PER_ROW * n):
+        entering = leaving + n if leaving < n else leaving - n   # the complement
+        column = T[:, entering]
+        rows = np.nonzero(column > 1e-12 * np.abs(column).max(initial=1.0))[0]
+        if len(rows) == 0:
+            return None
+        ratios = T[rows, -1] / column[rows]
+        best = ratios.min()
+        ties = rows[ratios <= best + 1e-12 * scale]
+        r = int(ties[np.nonzero(basis[ties] == z0)[0][0]]) if np.any(basis[ties] == z0) else int(ties[0])
+        pivot(r, entering)
+        leaving, basis[r] = basis[r], entering
+        if leaving == z0:
+            z = np.zeros(n)
+            inside = (basis >= n) & (basis < 2 * n)
+            z[basis[inside] - n] = np.maximum(T[inside, -1], 0.0)
+            return z
+    return None
+
+
+def pivoted_impulses(problem):
+    """Per-point (normal, tangent) impulses of the step by Lemke's method, or None."""
+    lp = local_problem(problem)
+    m = len(lp.mu)
+    z = lemke(*friction_lcp(lp))
+    if z is None:
+        return None
+    r = np.empty(2 * m)
+    r[0::2], r[1::2] = z[:m], z[m:2 * m] - z[2 * m:3 * m]
+    return lp.impulses(r, problem.points)
