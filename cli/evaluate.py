@@ -48,8 +48,9 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
              closed_loop, steps, relaxation, accelerate, budgets, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
-    Each step's reference solution (float64 from zero to a residual of 1e-12,
-    PGS sweeps and Newton steps; where it stops short the report says so) is
+    Each step's reference solution (float64 from zero to a residual of 1e-12:
+    PGS sweeps, Newton steps and, where Newton stalls, Lemke's pivoting; where
+    it stops short the report says so) is
     the oracle "copy" and the ground truth for errors, in impulses and in body
     velocities after the solve (exact solutions of a frictional step need not
     agree in either: the residual is the honest measure). Per step and start: sweeps

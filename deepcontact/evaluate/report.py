@@ -69,8 +69,8 @@ def markdown(summary, settings, pareto):
     text = ["# Warm starts compared\n",
             f"Runs: {', '.join(s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
-            f"Errors are against each step's reference solution (float64 from zero, PGS sweeps and Newton steps, to "
-            f"a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it, the worst ended at "
+            f"Errors are against each step's reference solution (float64 from zero, PGS sweeps, Newton steps and, "
+            f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it, the worst ended at "
             f"{ref['worst_residual']:.2g}). Exact solutions of a frictional step need not be unique, in impulses nor "
             f"in body velocities: the residual is the honest per-step measure, and the impulse and velocity errors "
             f"against one reference are informative, not ground truth.\n",
