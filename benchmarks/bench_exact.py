@@ -25,6 +25,7 @@ from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
+from deepcontact.solver.reference import finish_by_pivoting
 
 TOLERANCE, CAP = 1e-12, 100_000
 
@@ -52,18 +53,10 @@ def timed(problem, accelerate):
 
 
 def pivoted(problem, newton_run):
-    """Newton, then where it stalls Lemke's pivoting (solver/pivoting.py) and Newton from there."""
+    """Newton, then where it stalls Lemke's pivoting and Newton from there (the reference)."""
     s, seconds = newton_run
-    if s.residual < TOLERANCE:
-        return s, seconds
-    from deepcontact.solver.pivoting import pivoted_impulses
     t0 = time.perf_counter()
-    pair = pivoted_impulses(problem)
-    if pair is not None:
-        polished = solve(problem, *pair, mode="float64", max_iterations=2000, tolerance=TOLERANCE,
-                         stop_on="residual", accelerate="newton")
-        if polished.residual < s.residual:
-            s = polished
+    s = finish_by_pivoting(problem, s, TOLERANCE)
     return s, seconds + time.perf_counter() - t0
 
 

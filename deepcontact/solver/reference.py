@@ -27,7 +27,15 @@ def reference_solution(problem, tolerance=TOLERANCE, cap=CAP, relaxation=1.0, ac
     zero = np.zeros(problem.points)
     s = solve(problem, zero, zero, mode="float64", max_iterations=cap, tolerance=tolerance, stop_on="residual",
               relaxation=relaxation, accelerate=accelerate)
-    if not pivot or accelerate != "newton" or s.residual < tolerance or problem.points > PIVOT_POINTS:
+    if not pivot or accelerate != "newton":
+        return s
+    return finish_by_pivoting(problem, s, tolerance)
+
+
+def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE) -> Solution:
+    """Where Newton's solution s misses the tolerance (and the step has at most PIVOT_POINTS
+    points): Lemke's pivoting, then Newton from its answer; the better of that and s."""
+    if s.residual < tolerance or problem.points > PIVOT_POINTS:
         return s
     from .pivoting import pivoted_impulses
     pair = pivoted_impulses(problem)
@@ -35,10 +43,10 @@ def reference_solution(problem, tolerance=TOLERANCE, cap=CAP, relaxation=1.0, ac
         return s
     polished = solve(problem, *pair, mode="float64", max_iterations=2000, tolerance=tolerance, stop_on="residual",
                      accelerate="newton")
-    if polished.residual < s.residual:
-        polished.pivoted = True
-        polished.iterations += s.iterations
-        polished.factorizations += s.factorizations
-        polished.newton_fallbacks += s.newton_fallbacks
-        return polished
-    return s
+    if polished.residual >= s.residual:
+        return s
+    polished.pivoted = True
+    polished.iterations += s.iterations
+    polished.factorizations += s.factorizations
+    polished.newton_fallbacks += s.newton_fallbacks
+    return polished
