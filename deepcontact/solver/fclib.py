@@ -15,6 +15,7 @@ CSC matrix: nzmax, m, n, nz = -1, p, i, x), /fclib_local/vectors/{q, mu}, /fclib
 {title, description, math_info}; optionally /solution/{u, r} and /guesses (number_of_guesses,
 then groups 1..N with u, r).
 """
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,10 @@ import scipy.sparse as sp
 
 from .. import atomic
 from .._box2d import contact_rows
+from ..errors import InputError
+from ..step.run_folder import read_run
+from .problem import StepProblem
+from .reference import reference_solution
 
 
 @dataclass
@@ -81,12 +86,13 @@ def local_problem(problem) -> LocalProblem:
     return LocalProblem(W=W, q=q, mu=rows["friction"][points].astype(np.float64), points=points)
 
 
-def write_problem(problem, path, *, solution=None, guess=None, title="", description=""):
+def write_problem(problem, path, *, solution=None, guess=None, title="", description="", lp=None):
     """Writes the step's problem (and optionally a solution and a guess, per-point (normal,
-    tangent) pairs) to path as an FCLIB local problem, atomically; returns path."""
+    tangent) pairs) to path as an FCLIB local problem, atomically; returns path. lp: the step's
+    local_problem, where the caller has it already."""
     import h5py
     path = Path(path)
-    lp = local_problem(problem)
+    lp = local_problem(problem) if lp is None else lp
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:
@@ -157,13 +163,6 @@ def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, 
     solution="reference", the reference solution (or "recorded": what the run's solver produced)
     as /solution; out/index.json lists the files with their sizes and the solution's residual.
     Written atomically (a partial export never stands). Returns the index."""
-    import json
-
-    from ..errors import InputError
-    from ..step.run_folder import read_run
-    from .problem import StepProblem
-    from .reference import reference_solution
-
     if solution not in SOLUTIONS:
         raise InputError(f"solution must be one of {', '.join(SOLUTIONS)}, not {solution!r}")
     run = read_run(run_dir)
@@ -181,25 +180,21 @@ def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, 
                 problem = StepProblem.from_step_file(path)
                 if not problem.points:
                     continue
-                pair, residual = None, None
+                pair, stored = None, None   # the stored solution and its residual
                 if solution == "reference":
                     s = reference_solution(problem)
-                    pair, residual = (s.normal_impulse, s.tangent_impulse), s.residual
+                    pair, stored = (s.normal_impulse, s.tangent_impulse), s.residual
                 elif solution == "recorded":
                     pair = (problem.normal_impulse, problem.tangent_impulse)
                 name = f"{sim.dir}/{path.stem}.hdf5"
+                lp = local_problem(problem)
                 write_problem(problem, work / name, solution=pair, guess=(problem.start_normal, problem.start_tangent),
-                              title=f"{run.manifest.get('scene', 'scene')} seed {sim.seed} step {problem.index}")
-                if pair is not None and residual is None:
-                    residual = residual_of(problem, pair)
+                              title=f"{run.manifest.get('scene', 'scene')} seed {sim.seed} step {problem.index}", lp=lp)
+                if pair is not None and stored is None:
+                    stored = residual(lp, lp.reaction(*pair))
                 index.append({"file": name, "seed": sim.seed, "step": problem.index, "contacts": int(problem.points),
-                              "solution": solution, "residual": residual})
+                              "solution": solution, "residual": stored})
         atomic.write_text(work / "index.json", json.dumps({"format": "fclib_local", "spacedim": 2,
                                                            "problems": index}, indent=1) + "\n")
     return index
 
-
-def residual_of(problem, pair):
-    """Our residual of per-point impulses on the step, through its FCLIB form."""
-    lp = local_problem(problem)
-    return residual(lp, lp.reaction(*pair))

@@ -52,10 +52,10 @@ class Solution:
     pivoted: bool = False          # the reference finished by Lemke's pivoting (solver/reference.py)
 
     @classmethod
-    def from_native(cls, out, relaxation, velocity=None, omega=None):
-        """From the dict the native solver returns."""
+    def from_native(cls, out, relaxation):
+        """From the dict the native solver returns (a loop step's has no body velocities)."""
         return cls(normal_impulse=out["normal_impulse"], tangent_impulse=out["tangent_impulse"],
-                   velocity=out.get("velocity", velocity), omega=out.get("omega", omega),
+                   velocity=out.get("velocity"), omega=out.get("omega"),
                    iterations=out["iterations"], history=out["history"], residual=out["residual"],
                    sanitized=out["sanitized"], stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
                    relaxation=float(relaxation), factorizations=out["factorizations"],
