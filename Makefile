@@ -9,7 +9,7 @@ RUNS ?= runs
 # The installed entry point of $(PYTHON), whatever `dc` is first on PATH.
 DC := $(PYTHON) -m deepcontact.cli.main
 
-DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev pkg-config libxml2-utils g++ python3-siconos python3-h5py
+DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos python3-h5py
 
 .PHONY: setup demo test test-slow bench stability smoke smoke-pipeline study study-pipeline clean
 
@@ -18,7 +18,7 @@ DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev pkg-config libxml2-utils g++ pytho
 # Siconos with h5py for Debian's own python3 (the peer solver the tests compare against).
 $(STAMPS)/system:
 	@mkdir -p $(STAMPS)
-	@if ! pkg-config --exists box2d eigen3 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null \
+	@if ! pkg-config --exists box2d eigen3 libxml-2.0 zlib 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null \
 			|| ! /usr/bin/python3 -c "import siconos.numerics, h5py" 2>/dev/null; then \
 		echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 		$(SUDO) apt-get update -qq && \

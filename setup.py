@@ -1,4 +1,5 @@
-"""Builds deepcontact._box2d, the one native extension, against Debian's libbox2d and Eigen.
+"""Builds deepcontact._box2d, the one native extension, against Debian's libbox2d, Eigen, libxml2
+and zlib.
 
 Everything else about the package lives in setup.cfg.
 """
@@ -11,7 +12,8 @@ from setuptools import find_packages, setup
 
 
 # pkg-config name: (what it is, Debian's package)
-NEEDS = {"box2d": ("Box2D 2.4.1", "libbox2d-dev"), "eigen3": ("Eigen 3, header-only", "libeigen3-dev")}
+NEEDS = {"box2d": ("Box2D 2.4.1", "libbox2d-dev"), "eigen3": ("Eigen 3, header-only", "libeigen3-dev"),
+         "libxml-2.0": ("libxml2 (the step-file reader)", "libxml2-dev"), "zlib": ("zlib", "zlib1g-dev")}
 
 
 def pkg_config(*args, package="box2d"):
@@ -25,7 +27,8 @@ def pkg_config(*args, package="box2d"):
     return shlex.split(out)
 
 
-cflags = pkg_config("--cflags") + pkg_config("--cflags", package="eigen3")
+LIBRARIES = ("box2d", "libxml-2.0", "zlib")
+cflags = [f for p in ("box2d", "eigen3", "libxml-2.0", "zlib") for f in pkg_config("--cflags", package=p)]
 box2d_version = pkg_config("--modversion")[0]
 ext = Pybind11Extension(
     "deepcontact._box2d",
@@ -33,12 +36,13 @@ ext = Pybind11Extension(
         "deepcontact/native/module.cpp",
         "deepcontact/native/world.cpp",
         "deepcontact/native/step_xml.cpp",
+        "deepcontact/native/step_read.cpp",
         "deepcontact/native/solver_module.cpp",
         "deepcontact/native/pgs_step.cpp",
         "deepcontact/native/splat.cpp",
     ],
     include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
-    libraries=[f[2:] for f in pkg_config("--libs") if f.startswith("-l")],
+    libraries=[f[2:] for p in LIBRARIES for f in pkg_config("--libs", package=p) if f.startswith("-l")],
     # Box2D 2.4.1's own b2_version still says 2.4.0; record the packaged version we built against.
     define_macros=[("DC_BOX2D_VERSION", f'"{box2d_version}"')],
     cxx_std=17,
@@ -50,6 +54,6 @@ ext = Pybind11Extension(
 # setup.cfg's package_dir maps into it.
 packages = find_packages(include=["deepcontact", "deepcontact.*"]) + ["deepcontact.cli", "deepcontact.schemas"]
 
-# The six translation units compile side by side (DC_BUILD_JOBS overrides the core count).
+# The seven translation units compile side by side (DC_BUILD_JOBS overrides the core count).
 ParallelCompile("DC_BUILD_JOBS").install()
 setup(ext_modules=[ext], packages=packages)

@@ -52,6 +52,9 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
               help="A generator parameter (repeatable); see --list.")
 @click.option("--iterations", type=options.count(), help="Override Box2D's velocity iterations per step.")
 @click.option("--skip-contactless", is_flag=True, help="Write no file for steps without contacts.")
+@click.option("--compress", is_flag=True,
+              help="Write step-NNNNNN.xml.gz (gzip, about 1/6 of the size); every reader, dc validate and "
+                   "xmllint read both forms.")
 @click.option("--write-scene", type=click.Path(dir_okay=False),
               help="Write the scene (for --seed) to this file and stop.")
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
@@ -80,7 +83,7 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @options.overwrite
 @options.verbosity
 @options.command("simulate")
-def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, write_scene,
+def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, compress, write_scene,
              list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
              max_memory, max_disk, overwrite, verbose, quiet):
     """Simulate SCENE in Box2D and record every step as XML.
@@ -88,12 +91,14 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     SCENE is a scene file (schemas/scene.xsd) or a built-in generator: pile (the
     thesis world), stack, pyramid, mass-ratio, card-house, arch, confined,
     warm-start-energy, bullet. Each simulation gets a folder seed-NNNNNN/ holding
-    scene.xml and step-NNNNNN.xml files; OUTDIR/manifest.json is written last.
+    scene.xml and step-NNNNNN.xml files (step-NNNNNN.xml.gz with --compress);
+    OUTDIR/manifest.json is written last.
 
     \b
     Examples:
       dc simulate pile -o runs/pile
       dc simulate pile --param count=70 --seeds 0..149 --jobs 2 -o runs/thesis
+      dc simulate pile --seeds 0..149 --jobs 2 --compress -o runs/thesis-gz
       dc simulate pile --seeds 0..149 --shard 1/4 -o runs/shard-1
       dc simulate stack --param count=24 --iterations 30 -o runs/stack
       dc simulate pile --seed 3 --write-scene pile-3.xml
@@ -130,6 +135,6 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
-        progress=bar, source=scene, loop=loop, max_disk=max_disk)
+        progress=bar, source=scene, loop=loop, max_disk=max_disk, compress=compress)
     if not quiet:
         click.echo(f"{out_dir}", err=False)

@@ -7,6 +7,7 @@ from importlib import resources
 
 from lxml import etree
 
+from ._box2d import DOCTYPE_REFUSED   # one text, shared with the native reader
 from .errors import one_line, show_path
 
 KINDS = ("scene", "step")
@@ -37,7 +38,6 @@ def parse(path):
     return etree.parse(str(path), parser)
 
 
-DOCTYPE_REFUSED = "a DOCTYPE (DTD or entity declarations) is not allowed in deepcontact XML"
 
 
 def has_doctype(tree):

@@ -145,3 +145,18 @@ def pool(jobs):
     except BaseException:
         p.kill()
         raise
+
+
+class _Serial:
+    """The pool's interface, run in this process (one job: no fork, nothing to kill)."""
+
+    @staticmethod
+    def imap(fn, tasks):
+        return map(fn, tasks)
+
+    imap_unordered = imap
+
+
+@contextmanager
+def serial():
+    yield _Serial()

@@ -35,7 +35,7 @@ from ..errors import InputError, show_path
 from ..resources import check_disk, check_memory
 from ..scene.xml import read_scene
 from ..step.reader import check_origin, read_step_for_grid
-from ..step.run_folder import MANIFEST, read_run, require_regular, simulation_folder
+from ..step.run_folder import MANIFEST, read_run, require_regular, simulation_folder, step_path
 from .spec import GridSpec, scene_box
 from .splat import check_channels, rasterize_step
 
@@ -423,7 +423,7 @@ class GridDataset:
         The metadata names that run; it is only followed if it is one of the dataset's sources,
         its manifest is unchanged (the recorded SHA-256) and the simulation folder lies inside it."""
         folder = self._simulation_folder(int(self.arrays["simulation"][i]))
-        return folder / f"step-{int(self.arrays['step'][i]):06d}.xml"
+        return step_path(folder, int(self.arrays["step"][i]))
 
     def _simulation_folder(self, k):
         """Simulation k's folder, checked once (not per sample: the solver loss asks per sample)."""

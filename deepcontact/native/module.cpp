@@ -7,6 +7,7 @@
 #include <string>
 
 #include "pyarrays.hpp"
+#include "step_read.hpp"
 #include "step_xml.hpp"
 #include "world.hpp"
 
@@ -39,11 +40,12 @@ py::array own_bool(const std::vector<uint8_t>& v) {
 #define DC_OWN_FIELD(T, name, width, solver) d[#name] = own(std::move(s.name), n, width);
 #define DC_COLUMN_FIELD(T, name, width, solver) v.name = column<T>(d, #name, n, width);
 
-py::dict to_dict(BodyState s) {
+// with_fixed_rotation: a World's bodies; step files do not record it.
+py::dict to_dict(BodyState s, bool with_fixed_rotation = true) {
     const size_t n = s.size();
     py::dict d;
     DC_BODY_FIELDS(DC_OWN_FIELD)
-    d["fixed_rotation"] = own_bool(s.fixed_rotation);
+    if (with_fixed_rotation) d["fixed_rotation"] = own_bool(s.fixed_rotation);
     return d;
 }
 
@@ -70,6 +72,70 @@ dc::ContactView contact_view(const py::dict& d) {
     return v;
 }
 
+// A step file's header as step/reader_lxml.py gives it (numpy float32 scalars for its floats).
+py::dict to_dict(const dc::StepHeader& h) {
+    py::object f32 = py::module_::import("numpy").attr("float32");
+    py::dict d;
+    d["scene"] = h.has_scene ? py::object(py::str(h.scene)) : py::object(py::none());
+    d["seed"] = h.seed;
+    d["index"] = h.index;
+    d["time"] = f32(h.time);
+    d["dt"] = f32(h.dt);
+    d["dt_ratio"] = f32(h.dt_ratio);
+    std::vector<float> g(h.gravity, h.gravity + 2);
+    d["gravity"] = own(std::move(g), 2);
+    d["velocity_iterations"] = h.velocity_iterations;
+    d["position_iterations"] = h.position_iterations;
+    d["solver"] = h.solver;
+    d["effects"] = h.effects;
+    d["versions"] = h.versions;
+    return d;
+}
+
+void bind_step_reader(py::module_& m) {
+    static py::exception<dc::StepFileError> error(m, "StepFileError", PyExc_ValueError);
+    py::register_exception_translator([](std::exception_ptr p) {
+        try {
+            if (p) std::rethrow_exception(p);
+        } catch (const dc::StepFileError& e) {   // args: (message, line; 0 for the whole file)
+            PyErr_SetObject(error.ptr(), py::make_tuple(e.what(), e.line).ptr());
+        }
+    });
+    m.attr("DOCTYPE_REFUSED") = dc::kDoctypeRefused;
+    py::class_<dc::StepSchema>(m, "StepSchema", "A compiled XSD, shared by every validation that uses it.")
+        .def(py::init<std::string>(), py::arg("xsd_path"));
+    m.def(
+        "read_step_file",
+        [](const std::string& path, const dc::StepSchema* schema) {
+            dc::StepFile f;
+            {
+                py::gil_scoped_release release;
+                f = dc::read_step_file(path, schema);
+            }
+            return py::make_tuple(to_dict(f.header), to_dict(std::move(f.bodies), false),
+                                  to_dict(std::move(f.contacts)));
+        },
+        py::arg("path"), py::arg("schema") = nullptr,
+        "(header, bodies, contacts) of a step file (.xml or .xml.gz), streamed with libxml2; validated\n"
+        "against schema in the same pass if given. Raises StepFileError(message, line).");
+    m.def(
+        "validate_step_file",
+        [](const std::string& path, const dc::StepSchema& schema, size_t max_errors) {
+            dc::Validation v;
+            {
+                py::gil_scoped_release release;
+                v = dc::validate_step_file(path, schema, max_errors);
+            }
+            py::list errors;
+            for (const auto& e : v.errors) errors.append(py::make_tuple(e.line, e.column, e.message));
+            return py::make_tuple(v.root, v.has_scene ? py::object(py::str(v.scene)) : py::object(py::none()),
+                                  v.seed < 0 ? py::object(py::none()) : py::object(py::int_(v.seed)), errors);
+        },
+        py::arg("path"), py::arg("schema"), py::arg("max_errors") = 100,
+        "(root, scene, seed, [(line, column, message)]) of a file checked against the step schema in\n"
+        "one streaming pass; only a <step> root is parsed (for another, root says which it is).");
+}
+
 using F32 = py::array_t<float, py::array::c_style>;
 using I32 = py::array_t<int32_t, py::array::c_style>;
 
@@ -86,6 +152,7 @@ void require(const py::array& a, size_t n, size_t width, const char* name) {
 PYBIND11_MODULE(_box2d, m) {
     dc::bind_solver(m);
     dc::bind_grid(m);
+    bind_step_reader(m);
     m.doc() = "Box2D 2.4.1 (Debian's libbox2d) for deepcontact: worlds stepped whole, state as numpy arrays.";
     m.attr("box2d_version") = DC_BOX2D_VERSION;  // from pkg-config at build time
     m.attr("box2d_runtime_version") = std::to_string(b2_version.major) + "." + std::to_string(b2_version.minor) +

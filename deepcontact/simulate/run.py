@@ -4,7 +4,7 @@ run's manifest last.
 Layout of OUTDIR::
 
     seed-000000/scene.xml          the scene exactly as simulated (generator output included)
-    seed-000000/step-000000.xml    one file per step (schemas/step.xsd)
+    seed-000000/step-000000.xml    one file per step (schemas/step.xsd; .xml.gz with --compress)
     manifest.json                  written last: its presence means the run is complete
 
 The run is built in a partial folder beside OUTDIR and appears under its name only when complete
@@ -25,10 +25,10 @@ import numpy as np
 
 from .. import atomic, workers
 from ..errors import InputError
-from ..resources import STEP_BYTES_PER_BODY, check_disk
+from ..resources import COMPRESSION_RATIO, STEP_BYTES_PER_BODY, check_disk
 from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST, write_manifest
-from ..step.writer import step_filename, step_writer
+from ..step.writer import compressed, step_filename, step_writer
 from .build import build_world, check_overlaps
 from . import stepping
 from .pgs_loop import PGSStepper, check_scene_for_loop
@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 
 # Everything a run folder holds: what --overwrite may replace.
 RUN_FILES = atomic.Owned("run", [re.escape(MANIFEST), r"seed-\d{6,}/", r"seed-\d{6,}/scene\.xml",
-                                 r"seed-\d{6,}/step-\d{6,}\.xml"])
+                                 r"seed-\d{6,}/step-\d{6,}\.xml(\.gz)?"])
 
 
 def body_reach(body):
@@ -113,10 +113,12 @@ def _solve_xml(options, solution):
             f'residual="{fmt(residual)}" sanitized="{sanitized}"/>\n')
 
 
-def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None) -> SimulationResult:
+def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None,
+                   compress=False) -> SimulationResult:
     """Simulate one scene into out_dir (which must exist). on_step(k) is called after each step.
 
-    loop: LoopOptions to step with the project's PGS instead of Box2D's own solver."""
+    loop: LoopOptions to step with the project's PGS instead of Box2D's own solver.
+    compress: write step-NNNNNN.xml.gz (gzip) instead of plain XML."""
     out_dir = Path(out_dir)
     scene_xml = to_xml(scene)
     atomic.write_bytes(out_dir / "scene.xml", scene_xml)
@@ -128,9 +130,9 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
 
     def write(k, dt_ratio, bodies, contacts, extra):
         xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts, extra)
-        atomic.write_bytes(out_dir / step_filename(k), xml)
+        atomic.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
 
-    # Rendering and writing a step (GIL released in both) overlap with stepping the next one.
+    # Rendering, compressing and writing a step (GIL released in each) overlap with stepping the next.
     with ThreadPoolExecutor(max_workers=2) as pool:
         pending = deque()
         try:
@@ -170,18 +172,18 @@ def prepare_output(out_dir, seeds):
 
 
 def _worker(args):
-    make_scene, seed, out_dir, skip, loop = args
+    make_scene, seed, out_dir, skip, loop, compress = args
     scene = make_scene(seed)
-    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop)
+    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop, compress=compress)
 
 
 def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, jobs=1, progress=None,
-        source=None, loop=None, max_disk=None):
+        source=None, loop=None, max_disk=None, compress=False):
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
     of steps (or progress is None). max_disk: refuse runs estimated above this many GB (the free
-    space is always a limit). Returns the manifest as a dict."""
+    space is always a limit). compress: gzip every step file. Returns the manifest as a dict."""
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
     # Build (and check) the first scene before touching the output folder.
@@ -191,29 +193,32 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
         check_scene_for_loop(first, source)
     out_dir = Path(out_dir)
     with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
-        check_disk(len(seeds) * first.steps * (1024 + STEP_BYTES_PER_BODY * len(first.bodies)), out_dir, max_disk,
+        per_step = (1024 + STEP_BYTES_PER_BODY * len(first.bodies)) // (COMPRESSION_RATIO if compress else 1)
+        check_disk(len(seeds) * first.steps * per_step, out_dir, max_disk,
                    f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
-                             progress, source, loop)
+                             progress, source, loop, compress)
     log.info("wrote %d simulations, %d step files to %s", len(manifest["simulations"]),
              sum(r["files"] for r in manifest["simulations"]), os.fspath(out_dir))
     return manifest
 
 
-def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop):
+def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop, compress):
     if progress is not None:
         progress = progress(first.steps * len(seeds))
     try:
-        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop)
+        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop,
+                                compress)
     finally:
         if progress is not None:
             progress.close()
     return write_manifest(out_dir, first, source=source, solver="box2d" if loop is None else "pgs",
                           pgs=None if loop is None else dict(loop.__dict__), skip_contactless=skip_contactless,
+                          compression="gzip" if compress else "none",
                           simulations=[r.__dict__ for r in results])
 
 
-def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop):
+def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop, compress):
     results = []
     if jobs <= 1:
         for seed in seeds:
@@ -222,12 +227,12 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
                 check_overlaps(scene, source)
             tick = (lambda k: progress.update(1)) if progress is not None else None
             results.append(run_simulation(scene, out_dir / sim_dirname(seed), seed, skip_contactless, tick,
-                                          loop=loop))
+                                          loop=loop, compress=compress))
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
         with workers.pool(jobs) as pool:
-            tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop) for seed in seeds)
+            tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop, compress) for seed in seeds)
             for r in pool.imap_unordered(_worker, tasks):
                 results.append(r)
                 if progress is not None:

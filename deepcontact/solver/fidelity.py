@@ -4,6 +4,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import workers
 from ..errors import InputError
 from ..step.reader import check_origin, read_step
 from ..step.run_folder import read_run
@@ -35,25 +36,43 @@ def replayable_run(run_dir):
     return run
 
 
-def replay_run(run_dir, on_file=None) -> ReplayReport:
-    report = ReplayReport(run=str(run_dir))
-    for sim, path in ((s, f) for s in replayable_run(run_dir).simulations for f in s.files):
+def replay_simulation(task):
+    """(steps, points, [(difference, path)] of the steps replayed) for one simulation's files."""
+    scene, seed, files = task
+    steps = points = 0
+    differences = []
+    for path in files:
         header, bodies, contacts = read_step(path, validate=False)
-        if sim.scene is not None:
-            check_origin(header, sim.scene, sim.seed, path)
+        if scene is not None:
+            check_origin(header, scene, seed, path)
         problem = StepProblem.from_step(header, bodies, contacts, path)
-        if on_file is not None:
-            on_file(path)
         if problem.points == 0:
             continue
         s = solve(problem, mode="exact", final_residual=False)
         d = max(float(np.max(np.abs(s.normal_impulse - problem.normal_impulse))),
                 float(np.max(np.abs(s.tangent_impulse - problem.tangent_impulse))))
-        report.steps += 1
-        report.points += problem.points
-        if d > 0:
-            report.inexact_steps += 1
-        if d > report.max_difference or report.worst is None:
-            report.max_difference = max(report.max_difference, d)
-            report.worst = str(path)
+        steps += 1
+        points += problem.points
+        differences.append((d, str(path)))
+    return steps, points, differences
+
+
+def replay_run(run_dir, on_file=None, jobs=1) -> ReplayReport:
+    """Every step of a run replayed; jobs > 1 replays simulations side by side (same report).
+    on_file(path) is called for every step file read."""
+    report = ReplayReport(run=str(run_dir))
+    tasks = [(sim.scene, sim.seed, sim.files) for sim in replayable_run(run_dir).simulations]
+    with workers.pool(jobs) if jobs > 1 and len(tasks) > 1 else workers.serial() as pool:
+        for task, (steps, points, differences) in zip(tasks, pool.imap(replay_simulation, tasks)):
+            report.steps += steps
+            report.points += points
+            for d, path in differences:   # in step order: the first worst step is named
+                if d > 0:
+                    report.inexact_steps += 1
+                if d > report.max_difference or report.worst is None:
+                    report.max_difference = max(report.max_difference, d)
+                    report.worst = path
+            if on_file is not None:
+                for path in task[2]:
+                    on_file(path)
     return report

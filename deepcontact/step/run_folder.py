@@ -17,7 +17,7 @@ from ..errors import InputError
 
 MANIFEST = "manifest.json"
 _SIM_DIR = re.compile(r"seed-\d{6,}")
-_STEP_FILE = re.compile(r"step-\d{6,}\.xml")
+_STEP_FILE = re.compile(r"step-(\d{6,})\.xml(\.gz)?")   # plain, or gzip (dc simulate --compress)
 
 
 @dataclass
@@ -62,14 +62,26 @@ def _extent(entry, index, path):
 def step_files_in(folder):
     """The step files of a simulation folder, sorted; anything by that name that is not a regular
     file (a FIFO, a device, a folder) is refused: reading it could block or mislead."""
-    files = []
+    files, seen = [], {}
     with os.scandir(folder) as it:
         for e in it:
-            if _STEP_FILE.fullmatch(e.name):
+            m = _STEP_FILE.fullmatch(e.name)
+            if m:
                 if not e.is_file():
                     raise InputError("not a regular file", e.path)
+                index = int(m.group(1))
+                if index in seen:   # step-000007.xml beside step-000007.xml.gz: which one is the step?
+                    raise InputError(f"step {index} is there twice ({seen[index]} and {e.name})", folder)
+                seen[index] = e.name
                 files.append(Path(e.path))
     return sorted(files)
+
+
+def step_path(folder, index):
+    """The file of step `index` in a simulation folder, plain or compressed."""
+    plain = Path(folder) / f"step-{index:06d}.xml"
+    packed = plain.with_name(plain.name + ".gz")
+    return packed if not plain.exists() and packed.exists() else plain
 
 
 def require_regular(path):
@@ -82,7 +94,7 @@ def require_regular(path):
     return path
 
 
-def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, simulations):
+def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, simulations, compression="none"):
     """The run's manifest, written last (its presence means the run is complete); returns it.
     scene: the first simulation's scene; simulations: one dict per simulation (seed, dir,
     steps, files, contact_points, scene_sha256, extent)."""
@@ -102,6 +114,7 @@ def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, sim
         "position_iterations": scene.solver.position_iterations,
         "dt": float(fmt(scene.dt)),
         "skip_contactless": skip_contactless,
+        "compression": compression,
         "versions": {"deepcontact": __version__, "box2d": box2d_version},
         "simulations": simulations,
     }

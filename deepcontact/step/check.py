@@ -1,0 +1,33 @@
+"""Checking files against the schemas, one error a line as ``path:line:col: message``.
+
+Step files are checked in one streaming pass (libxml2 with the XSD plugged into the parse, as
+.xml or .xml.gz); anything whose root is not <step> (scene files, a DOCTYPE, a stray XML file)
+goes through lxml (schema.validate). A step file is also checked to belong to the simulation it
+lies in, where that is known."""
+from .. import schema
+from .._box2d import StepFileError, validate_step_file
+from ..errors import InputError, one_line, show_path
+from .reader import check_origin, step_schema
+
+MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
+
+
+def check_file(path, origin=None):
+    """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed) of the simulation
+    the file lies in, or None."""
+    shown = show_path(path)
+    try:
+        root, scene, seed, errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)
+    except StepFileError as e:   # cannot be read at all (missing, not a regular file, cut gzip)
+        message, line = e.args
+        return None, [one_line(f"{shown}:{line}:0: {message}")]
+    if root != "step":
+        kind, _, lines = schema.validate(path)
+        return kind, lines
+    lines = [one_line(f"{shown}:{line}:{column}: {message}") for line, column, message in sorted(errors)]
+    if not lines and origin is not None:
+        try:
+            check_origin({"scene": scene, "seed": seed}, *origin, path)
+        except InputError as e:
+            lines = [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
+    return "step", lines
