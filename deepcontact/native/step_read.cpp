@@ -713,6 +713,9 @@ void parse(const std::string& path, Reader& reader, const StepSchema* schema, So
     if (!ctxt) throw std::bad_alloc();
     // No network and no DTD loading; entities are never substituted (a DOCTYPE is refused).
     xmlCtxtUseOptions(ctxt.get(), XML_PARSE_NONET);
+    // The plugged validator's handler has no error callback of its own: ours, on the copy the
+    // parser uses, so that nothing is printed and every well-formedness error is kept.
+    ctxt->sax->serror = on_syntax_error;
     reader.ctxt = ctxt.get();
     reader.bodies.intern(ctxt->dict);
     reader.contacts.intern(ctxt->dict);
@@ -726,6 +729,11 @@ void parse(const std::string& path, Reader& reader, const StepSchema* schema, So
     } reset{reader};
     xmlParseDocument(ctxt.get());
     if (!input.error.empty()) throw StepFileError(input.error, 0);
+    if (!ctxt->wellFormed && reader.syntax.message.empty()) {
+        const xmlError* e = xmlCtxtGetLastError(ctxt.get());
+        reader.syntax = {e ? message_of(e) : "malformed XML", e ? static_cast<long>(e->line) : 0,
+                         e ? static_cast<long>(e->int2) : 0};
+    }
 }
 
 // The first bytes of a file, and the name of its root element as far as they tell
