@@ -41,11 +41,12 @@ from . import options
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
+@options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             closed_loop, steps, relaxation, accelerate, budgets, overwrite, verbose, quiet):
+             closed_loop, steps, relaxation, accelerate, budgets, jobs, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 from zero to a residual of 1e-12:
@@ -57,7 +58,8 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     to tolerance, the convergence history, the final error, and time split
     into prediction and solving. OUTPUT gets report.md, summary.csv/json,
     steps.csv, pareto.json and convergence, iterations and pareto plots
-    (PNG and SVG).
+    (PNG and SVG). With -j, simulations are replayed side by side in worker
+    processes (the same rows; each solve is still timed on its own core).
 
     \b
     Examples:
@@ -69,6 +71,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
       dc evaluate runs/pile --starts builtin,prev --relaxation 1,1.5,1.7,auto --every 5 -o r/psor
       dc evaluate runs/pile --starts builtin --accelerate none,nncg --relaxation 1,1.3 --closed-loop -o r/nncg
       dc evaluate runs/pile --starts builtin,prev --accelerate all --tolerance 1e-4 --every 5 -o r/global
+      dc evaluate runs/heldout --starts zero,builtin,prev -j 2 -o r/fast
     """
     from deepcontact import atomic
     from deepcontact.evaluate.report import REPORT_FILES
@@ -77,15 +80,17 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         accelerate = list(ACCELERATIONS)
     if {"newton", "subspace"} & set(accelerate) and mode != "float64":
         raise click.UsageError("--accelerate newton and subspace are float64 only: use --mode float64")
+    if closed_loop and jobs > 1:
+        raise click.UsageError("-j applies to replay; --closed-loop runs its starts one after another")
 
     # Computed inside the output's lock; the report appears only when complete.
     with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
         _evaluate(runs, work, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet)
+                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs)
 
 
 def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-              closed_loop, steps, relaxations, accelerations, budgets, quiet):
+              closed_loop, steps, relaxations, accelerations, budgets, quiet, jobs=1):
     from deepcontact.evaluate.replay import box2d_run, evaluate as run, summarize
     from deepcontact.evaluate.report import summary_table, write_report
     from deepcontact.warmstart.starts import make_starts
@@ -103,11 +108,11 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
     if closed_loop:
         return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
                                quiet, accelerations)
-    total = sum(len(s.files[::every]) for r in runs for s in box2d_run(r).simulations)
+    total = sum(len(s.files) for r in runs for s in box2d_run(r).simulations)
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
                every=every, seed=seed, progress=bar.update,
-               relaxations=relaxations, budgets=budgets, accelerations=accelerations)
+               relaxations=relaxations, budgets=budgets, accelerations=accelerations, jobs=jobs)
     bar.close()
     summary = summarize(rows, table, max_iterations)
     settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, accelerate=accelerations,

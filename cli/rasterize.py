@@ -58,7 +58,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
       dc rasterize runs/pile --oracle --impulses recorded
       dc rasterize runs/pile --study -o reports/sph
     """
-    from deepcontact.grid.dataset import DatasetSettings, collect, write_dataset
+    from deepcontact.grid.dataset import DatasetSettings, write_dataset
 
     win = window
     if oracle or study:
@@ -66,16 +66,19 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
                       quiet)
     if not out:
         raise click.UsageError("missing -o/--output DATASET")
-    sims, _ = collect(runs, include_contactless)
-    total = sum(len(s.files) for s in sims)
-    bar = options.progress_bar(quiet, total, "step", "rasterize")
+    bars = []
+
+    def bar(total):
+        bars.append(options.progress_bar(quiet, total, "step", "rasterize"))
+        return bars[-1]
     try:
         settings = DatasetSettings(cell=cell, h=smoothing, kernel=kernel, renormalize=renormalize, inputs=inputs,
                                    labels=labels, window=win, include_contactless=include_contactless,
                                    validation_fraction=validation, seed=seed)
         meta = write_dataset(runs, out, settings, jobs=jobs, overwrite=overwrite, progress=bar, max_memory=max_memory)
     finally:
-        bar.close()
+        for b in bars:
+            b.close()
     g = meta["grid"]
     if not quiet:
         x1, y1 = g["x0"] + (g["nx"] - 1) * g["cell"], g["y0"] + (g["ny"] - 1) * g["cell"]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import workers
 from ..errors import InputError
 from ..step.run_folder import read_run
 from ..solver.pgs import MEASURES, solve
@@ -130,12 +131,66 @@ def _velocity_error(solution, reference):
         if len(reference.velocity) else 0.0
 
 
+def evaluate_simulation(task):
+    """The rows of one simulation: (run, seed, files, scene), the variants, the solver settings,
+    every, seed, budgets."""
+    (run, sim_seed, files, scene), table, settings, every, seed, budgets = task
+    mode, max_iterations, tolerance, stop_on = (settings[k] for k in ("mode", "max_iterations", "tolerance", "stop_on"))
+    measure = MEASURES.index(stop_on)
+    wants_prev = any(isinstance(v.start, Previous) for v in table)
+    rows = []
+    previous, before = set(), None
+    for k, path in enumerate(files):
+        header, bodies, contacts = read_step(path, validate=False)
+        check_origin(header, scene, sim_seed, path)
+        keys = contact_keys(contacts)
+        persisted = np.array([key in previous for key in keys], dtype=bool)
+        previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
+        if k % every or len(contacts["manifold"]) == 0:
+            continue
+        problem = StepProblem.from_step(header, bodies, contacts, path)
+        reference = reference_solution(problem)
+        ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
+                          persisted=persisted, seed=seed,
+                          previous=previous_solution(earlier, header["index"], settings) if wants_prev else None)
+        ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
+        for v in table:
+            value = v.start(ctx)
+            kw = dict(settings, relaxation=v.relaxation, accelerate=v.accelerate)
+            traced = solve(problem, value.normal, value.tangent, history=True, **kw)
+            t0 = time.perf_counter()
+            solve(problem, value.normal, value.tangent, final_residual=False, **kw)
+            solve_s = time.perf_counter() - t0
+            got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
+            hist = traced.history[:, measure]
+            # the measure before any sweep exists only for the residual (the others are changes)
+            first = (solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0).residual
+                     if stop_on == "residual" else np.nan)
+            row = Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=v.label,
+                      iterations=traced.iterations,
+                      capped=bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance)),
+                      residual=traced.residual,
+                      error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
+                      velocity_error=_velocity_error(traced, reference),
+                      predict_ms=sum(value.seconds.values()) * 1e3, solve_ms=solve_s * 1e3,
+                      history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
+                      accelerate=v.accelerate,
+                      fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual,
+                      factorizations=traced.factorizations)
+            if budgets:
+                row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation, v.accelerate)
+            rows.append(row)
+    return rows
+
+
 def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-             every=1, seed=0, progress=None, relaxations=(1.0,), budgets=False, accelerations=("none",)):
+             every=1, seed=0, progress=None, relaxations=(1.0,), budgets=False, accelerations=("none",), jobs=1):
     """Rows for every (step, variant): each start with each acceleration and w. Runs must hold
     one kind of scene.
 
-    budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached."""
+    budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached.
+    jobs > 1: simulations side by side in worker processes (the same rows, in the same order; the
+    times are each worker's own). progress(n) is called as n more step files are done."""
     plan = _plan(run_dirs)
     table = variants(starts, relaxations, accelerations)
     tuned = {}
@@ -146,54 +201,14 @@ def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
                                                       max_iterations=max_iterations, mode=mode,
                                                       accelerate=v.accelerate)
             v.relaxation = tuned[v.accelerate]
-    measure = MEASURES.index(stop_on)
-    wants_prev = any(isinstance(v.start, Previous) for v in table)
     settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
+    tasks = [(sim, table, settings, every, seed, budgets) for sim in plan]
     rows = []
-    for run, sim_seed, files, scene in plan:
-        previous, before = set(), None
-        for k, path in enumerate(files):
-            header, bodies, contacts = read_step(path, validate=False)
-            check_origin(header, scene, sim_seed, path)
-            keys = contact_keys(contacts)
-            persisted = np.array([key in previous for key in keys], dtype=bool)
-            previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
-            if k % every or len(contacts["manifold"]) == 0:
-                continue
-            problem = StepProblem.from_step(header, bodies, contacts, path)
-            reference = reference_solution(problem)
-            ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
-                              persisted=persisted, seed=seed,
-                              previous=previous_solution(earlier, header["index"], settings) if wants_prev else None)
-            ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
-            for v in table:
-                value = v.start(ctx)
-                kw = dict(settings, relaxation=v.relaxation, accelerate=v.accelerate)
-                traced = solve(problem, value.normal, value.tangent, history=True, **kw)
-                t0 = time.perf_counter()
-                solve(problem, value.normal, value.tangent, final_residual=False, **kw)
-                solve_s = time.perf_counter() - t0
-                got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
-                hist = traced.history[:, measure]
-                # the measure before any sweep exists only for the residual (the others are changes)
-                first = (solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0).residual
-                         if stop_on == "residual" else np.nan)
-                row = Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=v.label,
-                          iterations=traced.iterations,
-                          capped=bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance)),
-                          residual=traced.residual,
-                          error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
-                          velocity_error=_velocity_error(traced, reference),
-                          predict_ms=sum(value.seconds.values()) * 1e3, solve_ms=solve_s * 1e3,
-                          history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
-                          accelerate=v.accelerate,
-                          fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual,
-                          factorizations=traced.factorizations)
-                if budgets:
-                    row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation, v.accelerate)
-                rows.append(row)
+    with workers.pool(jobs) if jobs > 1 and len(tasks) > 1 else workers.serial() as pool:
+        for task, simulation_rows in zip(tasks, pool.imap(evaluate_simulation, tasks)):
+            rows.extend(simulation_rows)
             if progress is not None:
-                progress(1)
+                progress(len(task[0][2]))
     if not rows:
         raise InputError("no steps with contacts to evaluate")
     return rows

@@ -18,12 +18,14 @@ Train/validation splits are by simulation, never by step (neighbouring steps are
 """
 import dataclasses
 import errno
+import gzip
 import hashlib
 import io
 import json
 import logging
 import os
-from contextlib import contextmanager, nullcontext
+import zlib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,7 +67,14 @@ class Simulation:
 
 
 def _contact_count(path):
+    """The contact count a step file declares, found without parsing it (and checked later,
+    when the file is read)."""
     data = Path(path).read_bytes()
+    if data[:2] == b"\x1f\x8b":   # dc simulate --compress
+        try:
+            data = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error) as e:
+            raise InputError(f"cannot read: {e}", path) from None
     i = data.find(b'<contacts count="')
     if i < 0:
         raise InputError("not a step file (no <contacts count=...>)", path)
@@ -237,6 +246,8 @@ class DatasetSettings:
 def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, progress=None, max_memory=None):
     """Rasterize every step of the runs into a dataset folder, atomically. Returns its metadata.
 
+    progress(total_steps) makes a tqdm-like counter of steps (or progress is None).
+
     Refuses (before writing) work whose images would not fit in max_memory GB (each worker holds
     one simulation's) or on the disk."""
     s = (settings or DatasetSettings()).checked()
@@ -246,7 +257,8 @@ def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, prog
         sims, manifests = collect(run_dirs, s.include_contactless)
         spec, which = grid_for(sims, s.cell, s.h, s.kernel, s.renormalize, s.window)
         _check_resources(sims, spec, s, jobs, max_memory, out)
-        outside = _write_arrays(tmp, sims, spec, s, jobs, progress)
+        outside = _write_arrays(tmp, sims, spec, s, jobs,
+                                progress(sum(len(sim.files) for sim in sims)) if progress is not None else None)
         if outside:
             log.info("%d contact points lie outside the grid (interpolation clamps them to its edge)", outside)
         metadata = _metadata(out.resolve(), sims, manifests, spec, which, s, outside)
@@ -286,9 +298,8 @@ def _write_arrays(tmp, sims, spec, s, jobs, progress):
     }
     row = point = outside = 0
     tasks = [(spec, s.inputs, s.labels, sim.files, sim.scene, sim.seed) for sim in sims]
-    with (workers.pool(jobs) if jobs > 1 else nullcontext()) as pool:
-        results = pool.imap(_rasterize_simulation, tasks) if pool is not None else map(_rasterize_simulation, tasks)
-        for i, (xi, yl, steps, pos, imp, out_count) in enumerate(results):
+    with workers.pool(jobs) if jobs > 1 else workers.serial() as pool:
+        for i, (xi, yl, steps, pos, imp, out_count) in enumerate(pool.imap(_rasterize_simulation, tasks)):
             k = len(steps)
             images["inputs"].write(xi)
             images["labels"].write(yl)
