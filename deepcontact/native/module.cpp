@@ -89,6 +89,7 @@ py::dict to_dict(const dc::StepHeader& h) {
     d["solver"] = h.solver;
     d["effects"] = h.effects;
     d["versions"] = h.versions;
+    d["solve"] = h.has_solve ? py::object(py::cast(h.solve)) : py::object(py::none());
     return d;
 }
 

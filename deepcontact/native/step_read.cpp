@@ -308,7 +308,7 @@ private:
 
     std::string store(State& s, std::vector<float> State::*column, size_t at, const Field<State>& f, Text t) const {
         float v;
-        if (!parse_float(t, v)) return describe(f) + "> must be a number, got " + shown(t);
+        if (!parse_float(t, v)) return describe(f) + "> is not a number: " + shown(t);
         if (!std::isfinite(v))
             return describe(f) + "> of " + row_ + " " + std::to_string(row_index_) + " is not finite (" + shown(t) + ")";
         (s.*column)[at] = v;
@@ -533,6 +533,13 @@ struct Reader {
     void header(const xmlChar* name, int n, const xmlChar** attributes) {
         static const char* const kParts[] = {"gravity", "iterations", "solver", "effects", "versions"};
         StepHeader& h = out.header;
+        if (named(name, "solve")) {   // written only where the project's solver stepped the world
+            h.has_solve = true;
+            for_each_attribute(n, attributes, [&](const Attribute& a) {
+                h.solve[reinterpret_cast<const char*>(a.name)] = a.value.str();
+            });
+            return;
+        }
         for (uint32_t k = 0; k < 5; ++k) {
             if (!named(name, kParts[k])) continue;
             header_seen |= 1u << k;
@@ -585,7 +592,7 @@ struct Reader {
 
     bool finite(float& out_value, const char* element, const char* attr, Text t) {
         if (!parse_float(t, out_value)) {
-            fail(std::string("<") + element + " " + attr + "> must be a number, got " + shown(t));
+            fail(std::string("<") + element + " " + attr + "> is not a number: " + shown(t));
             return false;
         }
         if (!std::isfinite(out_value)) {

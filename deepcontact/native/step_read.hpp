@@ -35,6 +35,8 @@ struct StepHeader {
     float gravity[2] = {0, 0};
     int64_t velocity_iterations = 0, position_iterations = 0;
     Attributes solver, effects, versions;
+    bool has_solve = false;
+    Attributes solve;       // <solve>: how the project's solver stepped it (iterations, residual, ...)
 };
 
 struct StepFile {

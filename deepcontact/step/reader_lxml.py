@@ -171,7 +171,8 @@ def read_step(path, validate=True):
                   velocity_iterations=_count(iterations, "velocity", path),
                   position_iterations=_count(iterations, "position", path),
                   solver=dict(_child(h, "solver", path).attrib), effects=dict(_child(h, "effects", path).attrib),
-                  versions=dict(_child(h, "versions", path).attrib))
+                  versions=dict(_child(h, "versions", path).attrib),
+                  solve=dict(h.find("solve").attrib) if h.find("solve") is not None else None)
 
     bc = _Columns(root, path, "bodies", "body")
     b = bc.read(_BODY_ALL)
