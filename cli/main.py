@@ -6,6 +6,7 @@ from deepcontact import __version__
 from .evaluate import evaluate
 from .export import export
 from .rasterize import rasterize
+from .render import render
 from .simulate import simulate
 from .study import study
 from .train import train
@@ -19,8 +20,8 @@ def cli():
 
     The pipeline: simulate → validate → rasterize → train → evaluate; the
     longer measurements are under `dc study`; `dc export` hands a run's step
-    problems to other solvers (FCLIB). Each subcommand has its own --help
-    with examples.
+    problems to other solvers (FCLIB); `dc render` draws steps, runs and grid
+    samples. Each subcommand has its own --help with examples.
     """
 
 
@@ -31,6 +32,7 @@ cli.add_command(train)
 cli.add_command(evaluate)
 cli.add_command(study)
 cli.add_command(export)
+cli.add_command(render)
 
 
 def main():

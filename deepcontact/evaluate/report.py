@@ -17,11 +17,13 @@ import warnings
 import numpy as np
 
 from .. import atomic
+from ..html import markdown_to_html
 from .replay import BUDGETS, reference_summary
 
 # Everything a report folder holds (replay and closed loop): what --overwrite may replace.
-REPORT_FILES = atomic.Owned("report", [r"report\.md", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
-                                       r"(convergence|iterations|pareto)\.(png|svg)", r"closed-loop\.(md|json|png|svg)"])
+REPORT_FILES = atomic.Owned("report", [r"report\.(md|html)", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
+                                       r"(convergence|iterations|pareto)\.(png|svg)",
+                                       r"closed-loop\.(md|html|json|png|svg)"])
 
 
 def write_report(out, rows, summary, settings):
@@ -48,7 +50,10 @@ def write_report(out, rows, summary, settings):
     if pareto:
         atomic.write_text(out / "pareto.json", json.dumps(pareto, indent=1) + "\n")
     plots(out, rows, summary, settings, pareto)
-    atomic.write_text(out / "report.md", markdown(summary, settings, pareto))
+    text = markdown(summary, settings, pareto)
+    atomic.write_text(out / "report.md", text)
+    # the same tables and plots in one page that reads offline (SVG inline)
+    atomic.write_text(out / "report.html", markdown_to_html(text, out, "Warm starts compared"))
 
 
 def summary_table(summary):
@@ -187,16 +192,18 @@ def _save(fig, stem):
 
 
 def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode):
-    """closed-loop.md, .json and the plot into the folder out; returns the table."""
+    """closed-loop.md (and .html), .json and the plot into the folder out; returns the table."""
     text = loop_table(results)
-    atomic.write_text(out / "closed-loop.md", f"# Closed loop: {what}\n\n"
-                      f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
-                      f"largest distance of any surviving body from the trajectory stepped with reference solutions "
-                      f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
-                      f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
-                      f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own "
-                      f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
+    page = (f"# Closed loop: {what}\n\n"
+            f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
+            f"largest distance of any surviving body from the trajectory stepped with reference solutions "
+            f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
+            f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
+            f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own "
+            f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
+    atomic.write_text(out / "closed-loop.md", page)
     loop_plot(results, out / "closed-loop")
+    atomic.write_text(out / "closed-loop.html", markdown_to_html(page, out, f"Closed loop: {what}"))
     atomic.write_text(out / "closed-loop.json", json.dumps([{
         "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
         "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,

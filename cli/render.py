@@ -1,0 +1,141 @@
+"""dc render: pictures of steps, runs and grid samples, and a run viewer in one HTML file."""
+from pathlib import Path
+
+import click
+
+from deepcontact.errors import InputError
+
+from . import options
+
+FORMS = {"step": (".png", ".svg"), "run": (".gif", ".mp4", ".webm", ".html"), "dataset": (".png",)}
+
+
+def kind_of(path):
+    """What INPUT is: a step file, a run (or one simulation folder of it), or a grid dataset."""
+    p = Path(path)
+    if p.is_file():
+        return "step"
+    if not p.exists():
+        raise InputError("no such file or folder", p)
+    if (p / "metadata.json").is_file():
+        return "dataset"
+    return "run"
+
+
+@click.command()
+@click.argument("input_path", metavar="INPUT", type=click.Path())
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
+              help="The picture, movie or page; its extension chooses the form: .png/.svg (a step or a "
+                   "dataset sample), .gif/.mp4/.webm/.html (a run).")
+@click.option("--size", type=click.IntRange(min=64, max=4096), default=640, show_default=True,
+              help="Width of the picture (or of each panel) in pixels.")
+@click.option("--window", type=options.Window(), help="The part of the world to draw (default: around the bodies).")
+@click.option("--no-contacts", is_flag=True, help="Draw no contact points or impulses.")
+@click.option("--color-by", type=click.Choice(["type", "speed"]), default="type", show_default=True,
+              help="Fill bodies by type (static, kinematic, dynamic) or by speed.")
+@click.option("--seed", type=options.count(), help="[run] The simulation to draw (default: the run's first).")
+@click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="[run] Every k-th step.")
+@click.option("--fps", type=click.IntRange(min=1, max=120), default=30, show_default=True, help="[run] Frame rate.")
+@click.option("--compare", type=click.Path(file_okay=False),
+              help="[run] A second run drawn beside the first, step for step, with the largest distance "
+                   "between the same body in both.")
+@click.option("--sample", type=options.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
+@click.option("--model", type=click.Path(dir_okay=False),
+              help="[dataset] A checkpoint from dc train: its prediction and error beside each label.")
+@options.overwrite
+@options.verbosity
+@options.command("render")
+def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, overwrite,
+           verbose, quiet):
+    """Draw INPUT: a step file, a run, or a sample of a grid dataset.
+
+    \b
+    A step file -> PNG or SVG: static geometry, bodies, contact points with
+      normal (red) and friction (blue) impulse arrows scaled and coloured
+      by magnitude, and the scene, seed, step and time.
+    A run (or one seed-NNNNNN folder of it) -> GIF, MP4 or WebM (every k-th
+      step, a progress bar and a step counter; --compare draws a second run
+      beside it), or HTML: a run viewer in one file (play, step slider,
+      toggles for contacts and impulses, each step's numbers; no network).
+    A grid dataset -> PNG: the sample's input channels and labels as panels,
+      with --model the prediction and its error beside each label.
+
+    MP4 and WebM need Debian's ffmpeg. Output is written atomically.
+
+    \b
+    Examples:
+      dc render runs/demo/seed-000000/step-000599.xml -o pile.png
+      dc render runs/demo/seed-000000/step-000300.xml --color-by speed -o pile.svg
+      dc render runs/demo -o pile.gif --every 4 --fps 25
+      dc render runs/demo --compare runs/psor -o box2d-vs-psor.mp4 --every 2
+      dc render runs/demo -o pile.html --every 2
+      dc render data/thesis --sample 120 --model models/fcn/best.pt -o sample.png
+    """
+    from deepcontact import atomic
+
+    kind = kind_of(input_path)
+    suffix = "".join(Path(out).suffixes[-1:]).lower()
+    if suffix not in FORMS[kind]:
+        every_form = sorted({s for forms in FORMS.values() for s in forms})
+        if suffix in every_form:
+            raise click.BadParameter(f"a {kind} is drawn as {' or '.join(FORMS[kind])}, not {suffix}",
+                                     param_hint="'-o' / '--output'")
+        raise click.BadParameter(f"unknown extension {suffix or '(none)'!r}: choose one of {', '.join(every_form)}",
+                                 param_hint="'-o' / '--output'")
+    if compare and suffix not in (".gif", ".mp4", ".webm"):
+        raise click.UsageError("--compare draws two runs into a .gif, .mp4 or .webm")
+    if model and kind != "dataset":
+        raise click.UsageError("--model applies to a dataset sample")
+    out = Path(out)
+    with atomic.locked(out):
+        if out.exists() and not overwrite:
+            raise InputError("file exists; use --overwrite to replace it", out)
+        if kind == "step":
+            _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:])
+        elif kind == "dataset":
+            from deepcontact.render.panels import sample_panels
+            atomic.write_bytes(out, sample_panels(input_path, sample, model))
+        else:
+            _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet)
+    if not quiet:
+        click.echo(str(out))
+
+
+def _step(path, out, size, window, contacts, color_by, fmt):
+    from deepcontact import atomic
+    from deepcontact.render.draw import Painter, Window
+    from deepcontact.render.frames import title, window_for
+    from deepcontact.render.shapes import read_shapes
+    from deepcontact.step.reader import read_step
+
+    header, bodies, contacts_ = read_step(path, validate=False)
+    shapes = read_shapes(path)
+    win = Window(*window) if window else window_for(shapes, [(header, bodies, contacts_)])
+    painter = Painter(shapes, win, size, contacts=contacts, color_by=color_by)
+    painter.draw(bodies, contacts_, title(header, bodies, contacts_))
+    atomic.write_bytes(out, painter.image_bytes(fmt))
+
+
+def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare, quiet):
+    from deepcontact import atomic
+    from deepcontact.render.draw import Window
+    from deepcontact.render.frames import frames, painter_for, simulation_files, write_gif, write_video
+
+    clip = simulation_files(path, seed, every)
+    if out.suffix.lower() == ".html":
+        from deepcontact.render.viewer import viewer_html
+        atomic.write_text(out, viewer_html(clip, size, fps))
+        return
+    other = simulation_files(compare, seed, every) if compare else None
+    painter = painter_for(clip, size, contacts, color_by, Window(*window) if window else None,
+                          panels=2 if other else 1)
+    bar = options.progress_bar(quiet, len(clip.files), "frame", f"render {out.name}")
+    stream = (bar.update(1) or f for f in frames(clip, painter, other))
+    try:
+        if out.suffix.lower() == ".gif":
+            write_gif(out, stream, fps)
+        else:
+            w, h = painter.size
+            write_video(out, stream, fps, (w * (2 if other else 1), h))
+    finally:
+        bar.close()

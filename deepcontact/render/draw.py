@@ -1,0 +1,164 @@
+"""One step drawn with matplotlib onto a figure that is reused frame after frame: static
+geometry, bodies (circles with an orientation tick, polygons, edges; coloured by type or by
+speed), contact points with their normal and friction impulses as arrows scaled and coloured by
+magnitude, and a title.
+
+The axes fill the whole picture and the picture has the window's aspect ratio, so a world point
+(x, y) lands on pixel ((x - x0) / (x1 - x0) * width, (y1 - y) / (y1 - y0) * height): `pixel`
+says it, and the tests sample pictures there."""
+import io
+from dataclasses import dataclass
+
+import numpy as np
+
+from .shapes import _present, _rows, place
+
+BACKGROUND = "#ffffff"
+FILL = {0: "#9a9a9a", 1: "#a8c6e8", 2: "#f5c48a"}     # static, kinematic, dynamic (light: arrows show)
+OUTLINE = "#3a3a3a"
+NORMAL_MAP, FRICTION_MAP = "Reds", "Blues"   # darker for larger impulses
+
+
+@dataclass
+class Window:
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+
+    @classmethod
+    def around(cls, bounds, pad=0.04):
+        x0, y0, x1, y1 = bounds
+        w, h = max(x1 - x0, 1e-3), max(y1 - y0, 1e-3)
+        return cls(x0 - pad * w, y0 - pad * h, x1 + pad * w, y1 + pad * h)
+
+    def size(self, width):
+        """(width, height) in pixels, even (video codecs want even sizes), the window's aspect."""
+        height = width * (self.y1 - self.y0) / (self.x1 - self.x0)
+        return 2 * max(8, round(width / 2)), 2 * max(8, round(height / 2))
+
+    def pixel(self, x, y, size):
+        w, h = size
+        return (x - self.x0) / (self.x1 - self.x0) * w, (self.y1 - y) / (self.y1 - self.y0) * h
+
+
+class Painter:
+    """Draws steps of one simulation. impulse_scale: metres of arrow per N s of impulse
+    (None: from each step's largest); speed_max: the speed the colour map tops out at when
+    colouring by speed (None: each step's largest)."""
+
+    def __init__(self, shapes, window, width=640, contacts=True, color_by="type", impulse_scale=None,
+                 speed_max=None, panels=1):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+        self.shapes, self.window, self.contacts, self.color_by = shapes, window, contacts, color_by
+        self.impulse_scale, self.speed_max = impulse_scale, speed_max
+        self.size = window.size(width)
+        w, h = self.size
+        self.dpi = 100
+        self.fig = Figure(figsize=(panels * w / self.dpi, h / self.dpi), dpi=self.dpi, facecolor=BACKGROUND)
+        self.canvas = FigureCanvasAgg(self.fig)
+        self.axes = [self.fig.add_axes([k / panels, 0, 1 / panels, 1]) for k in range(panels)]
+        for ax in self.axes:
+            ax.set_xlim(window.x0, window.x1)
+            ax.set_ylim(window.y0, window.y1)
+            ax.set_axis_off()
+            ax.set_facecolor(BACKGROUND)
+
+    def draw(self, bodies, contacts, title="", panel=0, progress=None):
+        """Draws one step into a panel (replacing what it held)."""
+        ax = self.axes[panel]
+        for artist in list(ax.collections) + list(ax.texts) + list(ax.patches):
+            artist.remove()
+        self._bodies(ax, bodies)
+        if self.contacts and len(contacts["position"]):
+            self._contacts(ax, contacts)
+        if title:
+            ax.text(0.01, 0.99, title, transform=ax.transAxes, va="top", ha="left", fontsize=9, family="monospace",
+                    bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=2))
+        if progress is not None:
+            from matplotlib.patches import Rectangle
+            ax.add_patch(Rectangle((0, 0), progress, 0.008, transform=ax.transAxes, color="#4e79a7", zorder=5))
+
+    def rgb(self):
+        """The picture as an (height, width, 3) uint8 array."""
+        self.canvas.draw()
+        return np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
+
+    def image_bytes(self, fmt):
+        """The picture as PNG or SVG (no date inside: the same step gives the same bytes)."""
+        import matplotlib
+        buf = io.BytesIO()
+        with matplotlib.rc_context({"svg.hashsalt": "deepcontact"}):
+            self.fig.savefig(buf, format=fmt, dpi=self.dpi, facecolor=BACKGROUND,
+                             metadata={"Date": None} if fmt == "svg" else None)
+        return buf.getvalue()
+
+    # --- pieces --------------------------------------------------------------------------
+
+    def _fills(self, bodies, rows):
+        kinds = bodies["type"][rows]
+        if self.color_by == "speed":
+            from matplotlib import colormaps
+            speed = np.hypot(*bodies["velocity"][rows].T)
+            top = self.speed_max or max(float(speed.max(initial=0.0)), 1e-6)
+            colours = colormaps["viridis"](np.clip(speed / top, 0, 1))
+            colours[kinds == 0] = (0.6, 0.6, 0.6, 1.0)
+            return colours
+        return [FILL.get(int(k), FILL[2]) for k in kinds]
+
+    def _bodies(self, ax, bodies):
+        from matplotlib.collections import EllipseCollection, LineCollection, PolyCollection
+        s = self.shapes
+        row = _rows(bodies["index"])
+        pos = bodies["position"].astype(np.float64)
+        angle = bodies["angle"].astype(np.float64)
+        if len(s.edges):
+            e = s.edges[_present(row, s.edges[:, 0])]
+            r = row[e[:, 0].astype(int)]
+            a, b = place(pos[r], angle[r], e[:, 1:3]), place(pos[r], angle[r], e[:, 3:5])
+            ax.add_collection(LineCollection(np.stack([a, b], 1), colors=OUTLINE, linewidths=1.5))
+        polys = [(row[b], verts) for b, verts in s.polygons if 0 <= b < len(row) and row[b] >= 0]
+        if polys:
+            verts = [place(np.repeat(pos[k:k + 1], len(v), 0), np.repeat(angle[k], len(v)), v) for k, v in polys]
+            ax.add_collection(PolyCollection(verts, facecolors=self._fills(bodies, np.array([k for k, _ in polys])),
+                                             edgecolors=OUTLINE, linewidths=0.5))
+        if len(s.circles):
+            c = s.circles[_present(row, s.circles[:, 0])]
+            r = row[c[:, 0].astype(int)]
+            centre = place(pos[r], angle[r], c[:, 2:4])
+            d = 2 * c[:, 1]
+            ax.add_collection(EllipseCollection(d, d, np.zeros(len(d)), units="xy", offsets=centre,
+                                                offset_transform=ax.transData, facecolors=self._fills(bodies, r),
+                                                edgecolors=OUTLINE, linewidths=0.5))
+            # the orientation: a tick from half the radius to the rim (the centre keeps its fill)
+            u = np.stack([np.cos(angle[r]), np.sin(angle[r])], 1) * c[:, 1:2]
+            ax.add_collection(LineCollection(np.stack([centre + 0.5 * u, centre + u], 1), colors=OUTLINE,
+                                             linewidths=0.8))
+
+    def _contacts(self, ax, contacts):
+        from matplotlib.colors import Normalize
+        p = contacts["position"].astype(np.float64)
+        n = contacts["normal"].astype(np.float64)
+        t = np.stack([n[:, 1], -n[:, 0]], 1)   # Box2D's tangent: cross(normal, 1)
+        ln = contacts["normal_impulse"].astype(np.float64)
+        lt = contacts["tangent_impulse"].astype(np.float64)
+        scale = self.impulse_scale or impulse_scale_for([ln], self.window)
+        ax.scatter(p[:, 0], p[:, 1], s=3, c="#111111", linewidths=0, zorder=3)
+        for values, direction, cmap in ((ln, n, NORMAL_MAP), (lt, t, FRICTION_MAP)):
+            keep = np.abs(values) > 0
+            if not np.any(keep):
+                continue
+            v = direction[keep] * (values[keep] * scale)[:, None]
+            size = np.abs(values[keep])
+            top = float(size.max())   # the palest shade is kept off white: the map starts at -top/3
+            ax.quiver(p[keep, 0], p[keep, 1], v[:, 0], v[:, 1], size, cmap=cmap, norm=Normalize(-top / 3, top),
+                      angles="xy", scale_units="xy", scale=1, width=0.003, headwidth=3, headlength=4, zorder=4)
+
+
+def impulse_scale_for(normal_impulses, window):
+    """Metres of arrow per unit of impulse: the 99th percentile of the normal impulses given
+    draws as a twentieth of the window's width."""
+    values = np.concatenate([np.abs(np.asarray(v, np.float64)) for v in normal_impulses]) if normal_impulses else []
+    top = float(np.percentile(values, 99)) if len(values) else 0.0
+    return (window.x1 - window.x0) / 20 / top if top > 0 else 0.0

@@ -1,0 +1,162 @@
+"""A run (one simulation of it) as frames: the step files every k-th, each drawn by a Painter,
+and the frames written as GIF (Pillow) or MP4/WebM (Debian's ffmpeg, fed raw frames on a pipe).
+With a second run, the two are drawn side by side, step for step, with the largest distance
+between the same body in both."""
+import io
+import os
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import atomic
+from ..errors import InputError
+from ..step.reader import check_origin, read_step
+from ..step.run_folder import read_run
+from .draw import Painter, Window, impulse_scale_for
+from .shapes import read_shapes
+
+VIDEO = {".mp4": ("mp4", ["-c:v", "libx264", "-pix_fmt", "yuv420p", "-preset", "veryfast"]),
+         ".webm": ("webm", ["-c:v", "libvpx-vp9", "-pix_fmt", "yuv420p", "-b:v", "0", "-crf", "40", "-deadline",
+                            "realtime", "-cpu-used", "8"])}
+
+
+@dataclass
+class Clip:
+    """The step files of one simulation to draw, and what every frame shares."""
+    path: Path           # the run folder
+    scene: str
+    seed: int
+    files: list          # every k-th step file
+    total: int           # step files in the simulation
+
+
+def simulation_files(run_dir, seed=None, every=1):
+    """The chosen simulation (by seed; the first by default) of a run folder, or the simulation
+    folder itself, as a Clip."""
+    run_dir = Path(run_dir)
+    if run_dir.name.startswith("seed-") and not (run_dir / "manifest.json").exists():
+        run = read_run(run_dir.parent, unfinished=True)
+        sims = [s for s in run.simulations if s.dir == run_dir.name]
+    else:
+        sims = read_run(run_dir, unfinished=True).simulations
+        if seed is not None:
+            sims = [s for s in sims if s.seed == seed]
+            if not sims:
+                raise InputError(f"the run has no simulation of seed {seed}", run_dir)
+    if not sims or not sims[0].files:
+        raise InputError("no step files here (expected seed-NNNNNN/step-NNNNNN.xml)", run_dir)
+    s = sims[0]
+    return Clip(path=run_dir, scene=s.scene, seed=s.seed, files=s.files[::every], total=len(s.files))
+
+
+def read_frame(clip, path):
+    header, bodies, contacts = read_step(path, validate=False)
+    if clip.scene is not None:
+        check_origin(header, clip.scene, clip.seed, path)
+    return header, bodies, contacts
+
+
+def title(header, bodies, contacts, extra=""):
+    solve = header.get("solve")
+    solved = f" · {solve['iterations']} sweeps, residual {float(solve['residual']):.1e}" if solve else ""
+    return (f"{header['scene']} · seed {header['seed']} · step {header['index']} · t = {float(header['time']):.2f} s\n"
+            f"{len(bodies['index'])} bodies · {len(contacts['manifold'])} contact points{solved}{extra}")
+
+
+def window_for(shapes, frames):
+    """Around every body of the first and last frames (static geometry included)."""
+    bounds = [shapes.bounds(b["position"].astype(np.float64), b["angle"].astype(np.float64), b["index"])
+              for _, b, _ in frames]
+    bounds = [b for b in bounds if b is not None]
+    if not bounds:
+        raise InputError("nothing to draw: the step has no bodies with shapes")
+    return Window.around((min(b[0] for b in bounds), min(b[1] for b in bounds),
+                          max(b[2] for b in bounds), max(b[3] for b in bounds)))
+
+
+def painter_for(clip, width, contacts=True, color_by="type", window=None, panels=1):
+    """A Painter for a clip: shapes from its first step file, the window around its first and
+    last steps, one impulse scale for the whole clip (from a sample of its steps)."""
+    shapes = read_shapes(clip.files[0])
+    ends = [read_frame(clip, clip.files[0]), read_frame(clip, clip.files[-1])]
+    window = window or window_for(shapes, ends)
+    sample = [read_frame(clip, f)[2]["normal_impulse"] for f in clip.files[:: max(1, len(clip.files) // 12)]]
+    speeds = [np.hypot(*b["velocity"].T).max(initial=0.0) for _, b, _ in ends]
+    return Painter(shapes, window, width, contacts=contacts, color_by=color_by,
+                   impulse_scale=impulse_scale_for(sample, window), speed_max=max(max(speeds), 1e-6),
+                   panels=panels)
+
+
+def distance(a, b):
+    """The largest distance between the same body in two steps (bodies in both)."""
+    common, ia, ib = np.intersect1d(a["index"], b["index"], return_indices=True)
+    if not len(common):
+        return float("nan")
+    return float(np.max(np.hypot(*(a["position"][ia] - b["position"][ib]).astype(np.float64).T)))
+
+
+def frames(clip, painter, compare=None):
+    """RGB frames of the clip (and of the run compared, side by side, step for step)."""
+    others = {}
+    if compare is not None:
+        others = {int(f.name[5:11]): f for f in compare.files}
+    for k, path in enumerate(clip.files):
+        header, bodies, contacts = read_frame(clip, path)
+        progress = (k + 1) / len(clip.files)
+        extra = ""
+        if compare is not None:
+            other = others.get(header["index"])
+            if other is None:
+                raise InputError(f"the run compared has no step {header['index']}", compare.path)
+            h2, b2, c2 = read_frame(compare, other)
+            extra = f" · max distance {distance(bodies, b2):.3g} m"
+            painter.draw(b2, c2, title(h2, b2, c2, extra) + f"\n{compare.path}", panel=1, progress=progress)
+        painter.draw(bodies, contacts, title(header, bodies, contacts, extra) + (f"\n{clip.path}" if compare else ""),
+                     panel=0, progress=progress)
+        yield painter.rgb()
+
+
+def write_gif(out, frames_iter, fps):
+    from PIL import Image
+    images = [Image.fromarray(f).convert("P", palette=Image.ADAPTIVE, colors=128) for f in frames_iter]
+    if not images:
+        raise InputError("no frames to write")
+    buf = io.BytesIO()
+    images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0,
+                   optimize=False)
+    atomic.write_bytes(out, buf.getvalue())
+    return len(images)
+
+
+def write_video(out, frames_iter, fps, size):
+    out = Path(out)
+    fmt, codec = VIDEO[out.suffix.lower()]
+    ffmpeg = shutil.which("ffmpeg")
+    if ffmpeg is None:
+        raise InputError(f"{out.suffix} needs ffmpeg, which is not installed: install Debian's ffmpeg "
+                         f"(apt-get install ffmpeg), or write a .gif", out)
+    tmp = out.parent / f".{out.name}.{os.getpid()}.tmp"
+    w, h = size
+    cmd = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", str(fps),
+           "-i", "-", *codec, "-f", fmt, str(tmp)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    count = 0
+    try:
+        for f in frames_iter:
+            proc.stdin.write(np.ascontiguousarray(f).tobytes())
+            count += 1
+        proc.stdin.close()
+        err = proc.stderr.read().decode(errors="replace")
+        if proc.wait() != 0:
+            raise InputError(f"ffmpeg failed: {err.strip()[-300:]}", out)
+        os.replace(tmp, out)
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        if tmp.exists():
+            tmp.unlink()
+        raise
+    return count

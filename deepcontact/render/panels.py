@@ -1,0 +1,67 @@
+"""A grid dataset's sample as panels: every input channel and label (the thesis's figures 3.x
+and 5.x), and with a model its prediction and the prediction's error beside each label."""
+import io
+
+import numpy as np
+
+from ..errors import InputError
+from ..grid.dataset import GridDataset
+
+
+def sample_panels(dataset, index, model=None, panel_px=220):
+    """PNG bytes of sample `index` of a dataset folder; model: a checkpoint from dc train."""
+    data = GridDataset(dataset)
+    if not 0 <= index < len(data):
+        raise InputError(f"sample {index} is out of range: the dataset has {len(data)} samples (0 to {len(data) - 1})",
+                         dataset)
+    meta = data.metadata
+    x = np.asarray(data.arrays["inputs"][index], np.float32)
+    y = np.asarray(data.arrays["labels"][index], np.float32)
+    rows = [[(name, x[c], "viridis") for c, name in enumerate(meta["inputs"])],
+            [(name, y[c], "magma") for c, name in enumerate(meta["labels"])]]
+    if model is not None:
+        pred = _predict(model, meta, x, dataset)
+        rows.append([(f"predicted {name}", pred[name], "magma") for name in meta["labels"] if name in pred])
+        rows.append([(f"error of {name}", pred[name] - y[c], "coolwarm") for c, name in enumerate(meta["labels"])
+                     if name in pred])
+    return _figure(rows, panel_px, f"{dataset} · sample {index} (simulation {int(data.arrays['simulation'][index])}, "
+                                   f"step {int(data.arrays['step'][index])})", meta["grid"])
+
+
+def _predict(model, meta, x, dataset):
+    import torch
+    from ..model.inference import Predictor
+    p = Predictor(model)
+    if list(p.inputs) != list(meta["inputs"]):
+        raise InputError(f"the model reads channels {','.join(p.inputs)}, the dataset has "
+                         f"{','.join(meta['inputs'])}", dataset)
+    with torch.no_grad():
+        out = p.model(torch.from_numpy(np.ascontiguousarray(x))[None])[0].numpy()
+    return {name: out[k] for k, name in enumerate(p.targets)}
+
+
+def _figure(rows, panel_px, title, grid):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    cols = max(len(r) for r in rows)
+    dpi = 100
+    fig = Figure(figsize=(cols * panel_px / dpi, len(rows) * panel_px / dpi + 0.4), dpi=dpi)
+    FigureCanvasAgg(fig)
+    fig.suptitle(title, fontsize=9)
+    extent = (grid["x0"], grid["x0"] + (grid["nx"] - 1) * grid["cell"],
+              grid["y0"], grid["y0"] + (grid["ny"] - 1) * grid["cell"])
+    for r, row in enumerate(rows):
+        for c, (name, image, cmap) in enumerate(row):
+            ax = fig.add_subplot(len(rows), cols, r * cols + c + 1)
+            if cmap == "coolwarm":   # an error: symmetric about 0
+                top = float(np.abs(image).max()) or 1.0
+                shown = ax.imshow(image, origin="lower", cmap=cmap, vmin=-top, vmax=top, extent=extent)
+            else:
+                shown = ax.imshow(image, origin="lower", cmap=cmap, extent=extent)
+            ax.set_title(name, fontsize=8)
+            ax.tick_params(labelsize=6)
+            fig.colorbar(shown, ax=ax, shrink=0.75).ax.tick_params(labelsize=6)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
