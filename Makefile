@@ -9,16 +9,20 @@ RUNS ?= runs
 # The installed entry point of $(PYTHON), whatever `dc` is first on PATH.
 DC := $(PYTHON) -m deepcontact.cli.main
 
-DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos python3-h5py
+DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos \
+	python3-h5py ffmpeg chromium
 
 .PHONY: setup demo test test-slow bench stability smoke smoke-pipeline study study-pipeline clean
 
-# Debian packages: Box2D 2.4.1, Eigen (header-only sparse factorizations) and pkg-config to build
-# against them, a C++ compiler, xmllint (an independent schema validator the tests use), and
-# Siconos with h5py for Debian's own python3 (the peer solver the tests compare against).
+# Debian packages: Box2D 2.4.1, Eigen (header-only sparse factorizations), libxml2 and zlib (the
+# native step-file reader) and pkg-config to build against them, a C++ compiler, xmllint (an
+# independent schema validator the tests use), Siconos with h5py for Debian's own python3 (the
+# peer solver the tests compare against), ffmpeg (dc render to MP4/WebM) and chromium (the tests
+# open the HTML pages in a real headless browser).
 $(STAMPS)/system:
 	@mkdir -p $(STAMPS)
 	@if ! pkg-config --exists box2d eigen3 libxml-2.0 zlib 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null \
+			|| ! command -v ffmpeg >/dev/null || ! command -v chromium >/dev/null \
 			|| ! /usr/bin/python3 -c "import siconos.numerics, h5py" 2>/dev/null; then \
 		echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 		$(SUDO) apt-get update -qq && \
@@ -35,12 +39,15 @@ $(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml $(NATIVE)
 
 setup: $(STAMPS)/install
 
-# The main job on the built-in default scene: the thesis pile, simulated and validated.
+# The main job on the built-in default scene: the thesis pile, simulated, validated and drawn.
 demo: setup
 	$(DC) simulate pile --overwrite -o $(RUNS)/demo
 	$(DC) validate -q $(RUNS)/demo
+	$(DC) render $(RUNS)/demo/seed-000000/step-000599.xml --overwrite -q -o $(RUNS)/demo-last-step.png
+	$(DC) render $(RUNS)/demo --every 4 --fps 25 --size 480 --overwrite -q -o $(RUNS)/demo.gif
 	@echo "demo: 600 steps of the thesis pile (100 circles) in $(RUNS)/demo/seed-000000/, one XML file per step;"
-	@echo "      the run's manifest is $(RUNS)/demo/manifest.json"
+	@echo "      the run's manifest is $(RUNS)/demo/manifest.json. Look at it:"
+	@echo "      $(RUNS)/demo-last-step.png (the last step, contacts and impulses) and $(RUNS)/demo.gif (the run)"
 
 test: setup
 	$(PYTHON) -m pytest -q -m "not slow"
@@ -52,6 +59,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_simulate.py
 	$(PYTHON) benchmarks/bench_solver.py
 	$(PYTHON) benchmarks/bench_rasterize.py
+	$(PYTHON) benchmarks/bench_scale.py
+	$(PYTHON) benchmarks/bench_render.py
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2
@@ -114,4 +123,4 @@ stability: setup
 	$(DC) study stability -o $(RUNS)/stability.md --overwrite
 
 clean:
-	rm -rf $(STAMPS) build *.egg-info deepcontact/*.so $(RUNS)/demo
+	rm -rf $(STAMPS) build *.egg-info deepcontact/*.so $(RUNS)/demo $(RUNS)/demo-last-step.png $(RUNS)/demo.gif
