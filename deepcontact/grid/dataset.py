@@ -147,7 +147,14 @@ def grid_for(sims, cell, h, kernel, renormalize, window=None):
     return GridSpec.over(window, cell, h, kernel, renormalize), which
 
 
-def _rasterize_simulation(args):
+# Steps a worker rasterizes per task: the images in memory at once are CHUNK samples per worker,
+# however long the simulations.
+CHUNK = 64
+
+
+def _rasterize_steps(args):
+    """Images, step numbers, contact positions and impulses, and how many contact points fell
+    outside the grid, for consecutive step files of one simulation."""
     spec, inputs, labels, files, scene, seed = args
     xi = np.empty((len(files), len(inputs), spec.ny, spec.nx), np.float32)
     yl = np.empty((len(files), len(labels), spec.ny, spec.nx), np.float32)
@@ -249,7 +256,7 @@ def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, prog
     progress(total_steps) makes a tqdm-like counter of steps (or progress is None).
 
     Refuses (before writing) work whose images would not fit in max_memory GB (each worker holds
-    one simulation's) or on the disk."""
+    CHUNK steps' images) or on the disk."""
     s = (settings or DatasetSettings()).checked()
     out = Path(out)
     # The output is checked and locked first: nothing is read or logged for an output refused.
@@ -272,8 +279,8 @@ def _check_resources(sims, spec, s, jobs, max_memory, out):
     if n == 0:
         raise InputError("no steps with contacts in these runs (use --include-contactless to keep them)")
     per_sample = (len(s.inputs) + len(s.labels)) * spec.nx * spec.ny * 4
-    longest = max(len(sim.files) for sim in sims)
-    check_memory(per_sample * longest * min(jobs, len(sims)),
+    longest = min(max(len(sim.files) for sim in sims), CHUNK)
+    check_memory(per_sample * longest * jobs,
                  max_memory, f"rasterizing at d = {spec.cell:g} ({spec.nx} x {spec.ny} nodes)")
     m = sum(sum(sim.contacts) for sim in sims)
     check_disk(per_sample * n + 28 * m + 16 * n, out, None, "the dataset")
@@ -297,15 +304,18 @@ def _write_arrays(tmp, sims, spec, s, jobs, progress):
         "contact_position": np.empty((m, 2), np.float32), "contact_impulse": np.empty((m, 2), np.float32),
     }
     row = point = outside = 0
-    tasks = [(spec, s.inputs, s.labels, sim.files, sim.scene, sim.seed) for sim in sims]
+    # tasks of CHUNK consecutive steps of one simulation, written in order as they come back
+    chunks = [(i, first) for i, sim in enumerate(sims) for first in range(0, len(sim.files), CHUNK)]
+    tasks = [(spec, s.inputs, s.labels, sims[i].files[first:first + CHUNK], sims[i].scene, sims[i].seed)
+             for i, first in chunks]
     with workers.pool(jobs) if jobs > 1 else workers.serial() as pool:
-        for i, (xi, yl, steps, pos, imp, out_count) in enumerate(pool.imap(_rasterize_simulation, tasks)):
+        for (i, first), (xi, yl, steps, pos, imp, out_count) in zip(chunks, pool.imap(_rasterize_steps, tasks)):
             k = len(steps)
             images["inputs"].write(xi)
             images["labels"].write(yl)
             arrays["simulation"][row:row + k] = i
             arrays["step"][row:row + k] = steps
-            counts = np.array(sims[i].contacts, dtype=np.int64)
+            counts = np.array(sims[i].contacts[first:first + k], dtype=np.int64)
             if counts.sum() != len(pos):
                 raise InputError("step files changed while rasterizing", sims[i].run)
             arrays["contact_offsets"][row + 1:row + k + 1] = point + np.cumsum(counts)
