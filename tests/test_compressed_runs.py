@@ -97,3 +97,21 @@ def test_jobs_change_nothing_in_what_validate_and_evaluate_report(runs, tmp_path
     rows = [[(r["seed"], r["step"], r["start"], r["iterations"], r["residual"], r["error"])
              for r in csv.DictReader(open(e / "steps.csv"))] for e in reports]
     assert rows[0] == rows[1] and len({r[0] for r in rows[0]}) == 2
+
+
+def test_the_manifests_contact_counts_are_checked_against_the_files(runs, tmp_path):
+    """dc rasterize sizes a dataset from the manifest's contact points per file, without reading
+    the files first; a count that does not match its file is refused, naming the file."""
+    bad = tmp_path / "run"
+    shutil.copytree(runs[0], bad)
+    manifest = json.loads((bad / "manifest.json").read_text())
+    counts = manifest["simulations"][1]["file_contact_points"]
+    assert len(counts) == 120 and sum(counts) == manifest["simulations"][1]["contact_points"]
+    k = max(range(len(counts)), key=lambda i: counts[i])
+    counts[k] -= 1
+    (bad / "manifest.json").write_text(json.dumps(manifest))
+    step = sorted(bad.glob("seed-000001/step-*.xml"))[k]
+    one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), step, "contact points")
+    counts[k] = "many"
+    (bad / "manifest.json").write_text(json.dumps(manifest))
+    one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), "file_contact_points")

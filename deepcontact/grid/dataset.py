@@ -109,8 +109,8 @@ def collect(run_dirs, include_contactless=False):
         for e in run.simulations:
             scene = read_scene(require_regular(e.path / "scene.xml"))
             files, counts = [], []
-            for f in e.files:
-                n = _contact_count(f)
+            # the counts the manifest recorded (checked file by file as they are read), else a scan
+            for f, n in zip(e.files, e.contacts or map(_contact_count, e.files)):
                 if n or include_contactless:
                     files.append(str(f))
                     counts.append(n)
@@ -153,27 +153,48 @@ CHUNK = 64
 
 
 def _rasterize_steps(args):
-    """Images, step numbers, contact positions and impulses, and how many contact points fell
-    outside the grid, for consecutive step files of one simulation."""
-    spec, inputs, labels, files, scene, seed = args
+    """Rasterizes consecutive step files of one simulation and writes their images straight into
+    the dataset's image files at their rows (`places`: (path, byte offset) for inputs and labels;
+    the images never travel back through a pipe). Returns step numbers, contact positions and
+    impulses, and how many contact points fell outside the grid."""
+    spec, inputs, labels, files, scene, seed, places = args
     xi = np.empty((len(files), len(inputs), spec.ny, spec.nx), np.float32)
     yl = np.empty((len(files), len(labels), spec.ny, spec.nx), np.float32)
     steps = np.empty(len(files), np.int32)
+    counts = np.empty(len(files), np.int64)
     positions, impulses, outside = [], [], 0
     for k, path in enumerate(files):
         header, bodies, contacts = read_step_for_grid(path)
         check_origin(header, scene, seed, path)
         xi[k], yl[k] = rasterize_step(spec, bodies, contacts, inputs, labels)
         steps[k] = header["index"]
+        counts[k] = len(contacts["position"])
         positions.append(contacts["position"])
         impulses.append(np.stack([contacts["normal_impulse"], contacts["tangent_impulse"]], axis=1))
         p = contacts["position"]
         outside += int(np.count_nonzero((p[:, 0] < spec.x0) | (p[:, 1] < spec.y0)
                                         | (p[:, 0] > spec.x0 + (spec.nx - 1) * spec.cell)
                                         | (p[:, 1] > spec.y0 + (spec.ny - 1) * spec.cell)))
+    for (path, offset), images in zip(places, (xi, yl)):
+        _write_at(path, offset, images)
     pos = np.concatenate(positions) if positions else np.empty((0, 2), np.float32)
     imp = np.concatenate(impulses) if impulses else np.empty((0, 2), np.float32)
-    return xi, yl, steps, pos, imp, outside
+    return steps, counts, pos, imp, outside
+
+
+def _write_at(path, offset, array):
+    """array's bytes into the file at offset (the file's space is reserved: see _NpyWriter)."""
+    view = memoryview(np.ascontiguousarray(array)).cast("B")
+    try:
+        fd = os.open(path, os.O_WRONLY)
+        try:
+            while view:
+                written = os.pwrite(fd, view, offset)
+                view, offset = view[written:], offset + written
+        finally:
+            os.close(fd)
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, os.fspath(path)) from None
 
 
 def split_simulations(count, validation_fraction, seed):
@@ -188,9 +209,10 @@ def split_simulations(count, validation_fraction, seed):
 
 
 class _NpyWriter:
-    """An .npy file of a known shape, written front to back in chunks (no memory map: a full disk
-    is an OSError naming the file, not a SIGBUS). Its space is reserved first where the file
-    system can, so a disk too small fails before any work."""
+    """An .npy file of a known shape whose rows are written in place (`place(row)` says where;
+    workers write there with pwrite, no memory map: a full disk is an OSError naming the file, not
+    a SIGBUS). Its space is reserved first where the file system can, so a disk too small fails
+    before any work."""
 
     def __init__(self, path, dtype, shape):
         self.path = os.fspath(path)
@@ -201,6 +223,8 @@ class _NpyWriter:
             np.lib.format.write_array_header_1_0(self.f, header) if np.prod(shape) * self.dtype.itemsize < 2 ** 32 \
                 else np.lib.format.write_array_header_2_0(self.f, header)
             self.f.flush()
+            self.data_offset = self.f.tell()
+            self.row_bytes = int(np.prod(shape[1:])) * self.dtype.itemsize
             size = self.f.tell() + int(np.prod(shape)) * self.dtype.itemsize
             try:
                 os.posix_fallocate(self.f.fileno(), 0, size)
@@ -215,9 +239,9 @@ class _NpyWriter:
         except OSError as e:
             raise OSError(e.errno, e.strerror, self.path) from None
 
-    def write(self, array):
-        with self._naming():
-            self.f.write(np.ascontiguousarray(array, dtype=self.dtype).data)
+    def place(self, row):
+        """(path, byte offset) of a row."""
+        return self.path, self.data_offset + row * self.row_bytes
 
     def close(self):
         with self._naming():
@@ -304,20 +328,25 @@ def _write_arrays(tmp, sims, spec, s, jobs, progress):
         "contact_position": np.empty((m, 2), np.float32), "contact_impulse": np.empty((m, 2), np.float32),
     }
     row = point = outside = 0
-    # tasks of CHUNK consecutive steps of one simulation, written in order as they come back
+    # tasks of CHUNK consecutive steps of one simulation; each writes its images at its rows
     chunks = [(i, first) for i, sim in enumerate(sims) for first in range(0, len(sim.files), CHUNK)]
-    tasks = [(spec, s.inputs, s.labels, sims[i].files[first:first + CHUNK], sims[i].scene, sims[i].seed)
-             for i, first in chunks]
+    tasks, start = [], 0
+    for i, first in chunks:
+        files = sims[i].files[first:first + CHUNK]
+        tasks.append((spec, s.inputs, s.labels, files, sims[i].scene, sims[i].seed,
+                      [images[name].place(start) for name in ("inputs", "labels")]))
+        start += len(files)
     with workers.pool(jobs) if jobs > 1 else workers.serial() as pool:
-        for (i, first), (xi, yl, steps, pos, imp, out_count) in zip(chunks, pool.imap(_rasterize_steps, tasks)):
+        for (i, first), (steps, found, pos, imp, out_count) in zip(chunks, pool.imap(_rasterize_steps, tasks)):
             k = len(steps)
-            images["inputs"].write(xi)
-            images["labels"].write(yl)
             arrays["simulation"][row:row + k] = i
             arrays["step"][row:row + k] = steps
             counts = np.array(sims[i].contacts[first:first + k], dtype=np.int64)
-            if counts.sum() != len(pos):
-                raise InputError("step files changed while rasterizing", sims[i].run)
+            if not np.array_equal(counts, found):
+                bad = first + int(np.argmax(counts != found))
+                raise InputError(f"holds {found[bad - first]} contact points where {counts[bad - first]} were "
+                                 f"counted before reading (the manifest's record, or the file changed while "
+                                 f"rasterizing)", sims[i].files[bad])
             arrays["contact_offsets"][row + 1:row + k + 1] = point + np.cumsum(counts)
             arrays["contact_position"][point:point + len(pos)] = pos
             arrays["contact_impulse"][point:point + len(imp)] = imp

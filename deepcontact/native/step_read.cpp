@@ -46,7 +46,7 @@ public:
             ::close(fd);
             throw StepFileError("cannot read: out of memory", 0);
         }
-        gzbuffer(gz_, kChunk);
+        gzbuffer(gz_, 1 << 15);   // zlib then allocates 96 kB: under malloc's mmap threshold, reused
     }
     ~Source() { gzclose_r(gz_); }
     Source(const Source&) = delete;
@@ -390,8 +390,7 @@ struct Reader {
     }
 
     void start(const xmlChar* name, int n_attributes, const xmlChar** attributes) {
-        if (!problem.message.empty()) return;
-        const At parent = stack.back();
+        const At parent = problem.message.empty() ? stack.back() : At::Other;   // after a problem: nothing more
         At here = At::Other;
         switch (parent) {
             case At::Outside: here = step(name, n_attributes, attributes); break;
@@ -453,6 +452,7 @@ struct Reader {
     }
 
     void end() {
+        if (stack.size() < 2) return;   // (never: every start pushed one)
         const At here = stack.back();
         stack.pop_back();
         if (!problem.message.empty()) return;
@@ -497,6 +497,8 @@ struct Reader {
             if (named(a.name, "scene")) {
                 h.has_scene = true;
                 h.scene = a.value.str();   // as given: the schema's token type is checked by validation
+            } else if (named(a.name, "seed") && mode == RootOnly) {   // a bad one is the schema's to report
+                seed = parse_int(a.value, 0, kInt32Max, h.seed) == 0;
             } else if (named(a.name, "seed")) {
                 seed = whole(h.seed, "step", "seed", a.value);
             } else if (mode == RootOnly) {
@@ -693,7 +695,7 @@ struct Input {
 // Parses the file (`head`: bytes already read from it), with the schema's validator plugged in
 // if given: libxml2's pull parser reading through zlib, which streams without the push
 // parser's look-ahead. Stops at the reader's first problem or the first well-formedness error.
-void parse(const std::string& path, Reader& reader, const StepSchema* schema, Source& source, std::string head) {
+void parse(Reader& reader, const StepSchema* schema, Source& source, std::string head) {
     xmlSAXHandler handler;
     std::memset(&handler, 0, sizeof handler);
     handler.initialized = XML_SAX2_MAGIC;
@@ -791,7 +793,7 @@ StepSchema::~StepSchema() { xmlSchemaFree(schema_); }
 StepFile read_step_file(const std::string& path, const StepSchema* schema) {
     Source source(path);
     Reader reader(Reader::Read);
-    parse(path, reader, schema, source, std::string());
+    parse(reader, schema, source, std::string());
     if (!reader.schema_errors.empty()) {   // the schema's first complaint, where it came first
         const SchemaIssue& e = reader.schema_errors.front();
         if (reader.problem.message.empty() || e.line <= reader.problem.line) throw StepFileError(e.message, e.line);
@@ -812,7 +814,7 @@ Validation validate_step_file(const std::string& path, const StepSchema& schema,
     if (!v.root.empty() && v.root != "step") return v;
     Reader reader(Reader::RootOnly);
     reader.max_errors = max_errors;
-    parse(path, reader, &schema, source, std::move(head));
+    parse(reader, &schema, source, std::move(head));
     if (!reader.root.empty()) v.root = reader.root;
     v.has_scene = reader.out.header.has_scene;
     v.scene = reader.out.header.scene;

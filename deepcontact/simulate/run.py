@@ -96,6 +96,7 @@ class SimulationResult:
     contact_points: int
     scene_sha256: str
     extent: list = None   # [x0, y0, x1, y1] the bodies stayed in over the run
+    file_contact_points: list = None   # contact points of each step file written, in order
 
 
 def _solve_xml(options, solution):
@@ -127,6 +128,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
     extent = Extent(scene)
     files = points = 0
+    per_file = []
 
     def write(k, dt_ratio, bodies, contacts, extra):
         xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts, extra)
@@ -145,6 +147,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                     extra = "" if loop is None else _solve_xml(loop, done.solution)
                     pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
                     files += 1
+                    per_file.append(n)
                 while pending and (len(pending) > 8 or pending[0].done()):
                     pending.popleft().result()   # re-raises a failed write here
                 if on_step is not None:
@@ -157,7 +160,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
             raise
     return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=files,
                             contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
-                            extent=extent.as_list())
+                            extent=extent.as_list(), file_contact_points=per_file)
 
 
 def prepare_output(out_dir, seeds):

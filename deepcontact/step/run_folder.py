@@ -28,6 +28,7 @@ class Simulation:
     files: list       # its step files, in step order
     extent: tuple = None   # (x0, y0, x1, y1) the bodies stayed in, where the manifest records it
     scene: str = None      # the scene's name, which each step file must repeat (None: not known)
+    contacts: list = None  # contact points of each step file, where the manifest records them
 
 
 @dataclass
@@ -57,6 +58,20 @@ def _extent(entry, index, path):
     if not ok or value[0] > value[2] or value[1] > value[3]:
         raise InputError(f"simulation {index}: 'extent' must be [x0, y0, x1, y1], finite, got {value!r}", path)
     return tuple(float(v) for v in value)
+
+
+def _file_contacts(entry, index, files, path):
+    """The manifest's contact points per step file (written by dc simulate since compressed runs;
+    None for older runs): whole numbers, one per file. Readers still check them against the
+    files as they read them."""
+    value = entry.get("file_contact_points")
+    if value is None:
+        return None
+    if (not isinstance(value, list) or len(value) != files
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2 ** 31 - 1 for v in value)):
+        raise InputError(f"simulation {index}: 'file_contact_points' must list one whole number per step file "
+                         f"({files})", path)
+    return value
 
 
 def step_files_in(folder):
@@ -186,5 +201,5 @@ def read_run(run_dir, solver=None, purpose=None, unfinished=False):
                 raise InputError(f"{e['dir']} holds {len(files)} step files, the manifest recorded {want} "
                                  f"(files deleted or added after the run?)", folder)
         sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
-                               scene=m.get("scene")))
+                               scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path)))
     return Run(path=run_dir, manifest=m, simulations=sims)
