@@ -11,7 +11,7 @@ start) as wall seconds per step file with each one's peak memory (ru_maxrss), an
 step in-process (median over the run's last steps): the native reader, and the lxml reference
 it replaced, in the same run. Reading cost per body shows whether it stays linear.
 
-Usage: python benchmarks/bench_scale.py [--out DIR] [--repeats N] [--quick]
+Usage: python benchmarks/bench_scale.py [--out DIR] [--repeats N] [--quick] [--part pile|scale|both]
 (--quick: small sizes and few steps, a minute; the full run takes about twenty minutes and 5 GB
 of disk: the piles are stepped until they settle, so that the steps read are full of contacts.)
 """
@@ -143,13 +143,17 @@ def main():
     ap.add_argument("--out", default="/tmp/dc-bench-scale")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--part", choices=("pile", "scale", "both"), default="both",
+                    help="the thesis pile's whole commands, the scaling table, or both")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"# bench_scale ({'quick' if args.quick else 'full'}), {os.cpu_count()} cores; "
           f"default memory limit of the commands: 8 GB")
-    thesis_pile(out, 1 if args.quick else args.repeats, 120 if args.quick else 600)
-    scaling(out, QUICK if args.quick else FULL)
+    if args.part in ("pile", "both"):
+        thesis_pile(out, 1 if args.quick else args.repeats, 120 if args.quick else 600)
+    if args.part in ("scale", "both"):
+        scaling(out, QUICK if args.quick else FULL)
 
 
 if __name__ == "__main__":
