@@ -74,7 +74,8 @@ class Painter:
         if self.contacts and len(contacts["position"]):
             self._contacts(ax, contacts)
         if title:
-            ax.text(0.01, 0.99, title, transform=ax.transAxes, va="top", ha="left", fontsize=9, family="monospace",
+            size = min(9.0, max(5.0, self.size[0] / 70))   # small pictures, small print
+            ax.text(0.01, 0.99, title, transform=ax.transAxes, va="top", ha="left", fontsize=size, family="monospace",
                     bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=2))
         if progress is not None:
             from matplotlib.patches import Rectangle

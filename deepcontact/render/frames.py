@@ -63,7 +63,8 @@ def title(header, bodies, contacts, extra=""):
     solve = header.get("solve")
     solved = f" · {solve['iterations']} sweeps, residual {float(solve['residual']):.1e}" if solve else ""
     return (f"{header['scene']} · seed {header['seed']} · step {header['index']} · t = {float(header['time']):.2f} s\n"
-            f"{len(bodies['index'])} bodies · {len(contacts['manifold'])} contact points{solved}{extra}")
+            f"{len(bodies['index'])} bodies · {len(contacts['manifold'])} contact points{solved}"
+            + (f"\n{extra}" if extra else ""))
 
 
 def window_for(shapes, frames):
@@ -112,7 +113,7 @@ def frames(clip, painter, compare=None):
             if other is None:
                 raise InputError(f"the run compared has no step {header['index']}", compare.path)
             h2, b2, c2 = read_frame(compare, other)
-            extra = f" · max distance {distance(bodies, b2):.3g} m"
+            extra = f"max distance between the runs {distance(bodies, b2):.3g} m"
             painter.draw(b2, c2, title(h2, b2, c2, extra) + f"\n{compare.path}", panel=1, progress=progress)
         painter.draw(bodies, contacts, title(header, bodies, contacts, extra) + (f"\n{clip.path}" if compare else ""),
                      panel=0, progress=progress)
