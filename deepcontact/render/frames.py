@@ -14,7 +14,7 @@ import numpy as np
 from .. import atomic
 from ..errors import InputError
 from ..step.reader import check_origin, read_step
-from ..step.run_folder import read_run
+from ..step.run_folder import read_run, step_index
 from .draw import Painter, Window, impulse_scale_for
 from .shapes import read_shapes
 
@@ -103,7 +103,7 @@ def frames(clip, painter, compare=None):
     """RGB frames of the clip (and of the run compared, side by side, step for step)."""
     others = {}
     if compare is not None:
-        others = {int(f.name[5:11]): f for f in compare.files}
+        others = {step_index(f): f for f in compare.files}
     for k, path in enumerate(clip.files):
         header, bodies, contacts = read_frame(clip, path)
         progress = (k + 1) / len(clip.files)

@@ -92,6 +92,14 @@ def step_files_in(folder):
     return sorted(files)
 
 
+def step_index(path):
+    """The step number in a step file's name (step-NNNNNN.xml or .xml.gz)."""
+    m = _STEP_FILE.fullmatch(Path(path).name)
+    if m is None:
+        raise InputError("not named like a step file (step-NNNNNN.xml)", path)
+    return int(m.group(1))
+
+
 def step_path(folder, index):
     """The file of step `index` in a simulation folder, plain or compressed."""
     plain = Path(folder) / f"step-{index:06d}.xml"
