@@ -111,8 +111,11 @@ def test_replay_rows_compare_velocities_and_budgets_are_measured(pile):
     for r in rows:
         assert r.velocity_error >= 0 and np.isfinite(r.velocity_error)
         assert len(r.budget_ms) == len(BUDGETS) and np.all(r.budget_ms > 0)
-        assert r.budget_ms[-1] > r.budget_ms[0]            # 1024 sweeps take longer than one
         assert np.all(np.isfinite(r.budget_residual))
+    # 1024 sweeps take longer than one: compared over the rows' medians, so that one solve
+    # preempted on a loaded machine cannot decide it
+    budget_ms = np.array([r.budget_ms for r in rows])
+    assert len(rows) >= 4 and np.median(budget_ms[:, -1]) > np.median(budget_ms[:, 0])
 
 
 def test_in_the_loop_prev_is_builtin_and_box2d_converges_with_iterations():
