@@ -182,3 +182,14 @@ def test_the_evaluate_report_page_in_a_real_browser(run, tmp_path):
     assert (picture != 255).any(axis=2).mean() > 0.03   # the tables and plots drew
     md = (report / "report.md").read_text()
     assert md.count("|") > 20 and "convergence.png" in md
+
+
+def test_the_viewer_carries_the_solvers_numbers_where_the_run_recorded_them(tmp_path):
+    run = written(tmp_path / "pgs", "simulate", "pile", "--param", "count=12", "--param", "box=12", "--param",
+                  "sigma=2.5", "--steps", "60", "--solver", "pgs", "--tolerance", "1e-4", "--max-iterations", "200")
+    page = written(tmp_path / "pgs.html", "render", str(run), "--every", "10").read_text()
+    data = json.loads(page.split('<script id="data" type="application/json">', 1)[1].split("</script>", 1)[0])
+    assert len(data["frames"]) == 6 and all(f["solve"] is not None for f in data["frames"])
+    last = data["frames"][-1]
+    header = read_step(steps_of(run)[::10][-1])[0]["solve"]
+    assert last["solve"] == {"iterations": int(header["iterations"]), "residual": float(header["residual"])}
