@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .shapes import _present, _rows, place
 
 BACKGROUND = "#ffffff"
 FILL = {0: "#9a9a9a", 1: "#a8c6e8", 2: "#f5c48a"}     # static, kinematic, dynamic (light: arrows show)
@@ -110,31 +109,22 @@ class Painter:
 
     def _bodies(self, ax, bodies):
         from matplotlib.collections import EllipseCollection, LineCollection, PolyCollection
-        s = self.shapes
-        row = _rows(bodies["index"])
-        pos = bodies["position"].astype(np.float64)
-        angle = bodies["angle"].astype(np.float64)
-        if len(s.edges):
-            e = s.edges[_present(row, s.edges[:, 0])]
-            r = row[e[:, 0].astype(int)]
-            a, b = place(pos[r], angle[r], e[:, 1:3]), place(pos[r], angle[r], e[:, 3:5])
-            ax.add_collection(LineCollection(np.stack([a, b], 1), colors=OUTLINE, linewidths=1.5))
-        polys = [(row[b], verts) for b, verts in s.polygons if 0 <= b < len(row) and row[b] >= 0]
-        if polys:
-            verts = [place(np.repeat(pos[k:k + 1], len(v), 0), np.repeat(angle[k], len(v)), v) for k, v in polys]
-            ax.add_collection(PolyCollection(verts, facecolors=self._fills(bodies, np.array([k for k, _ in polys])),
+        p = self.shapes.placed(bodies)
+        if len(p.edges):
+            ax.add_collection(LineCollection(p.edges, colors=OUTLINE, linewidths=1.5))
+        if p.polygons:
+            ax.add_collection(PolyCollection(p.polygons, facecolors=self._fills(bodies, p.polygon_rows),
                                              edgecolors=OUTLINE, linewidths=0.5))
-        if len(s.circles):
-            c = s.circles[_present(row, s.circles[:, 0])]
-            r = row[c[:, 0].astype(int)]
-            centre = place(pos[r], angle[r], c[:, 2:4])
-            d = 2 * c[:, 1]
-            ax.add_collection(EllipseCollection(d, d, np.zeros(len(d)), units="xy", offsets=centre,
-                                                offset_transform=ax.transData, facecolors=self._fills(bodies, r),
+        if len(p.centres):
+            d = 2 * p.radii
+            ax.add_collection(EllipseCollection(d, d, np.zeros(len(d)), units="xy", offsets=p.centres,
+                                                offset_transform=ax.transData,
+                                                facecolors=self._fills(bodies, p.circle_rows),
                                                 edgecolors=OUTLINE, linewidths=0.5))
             # the orientation: a tick from half the radius to the rim (the centre keeps its fill)
-            u = np.stack([np.cos(angle[r]), np.sin(angle[r])], 1) * c[:, 1:2]
-            ax.add_collection(LineCollection(np.stack([centre + 0.5 * u, centre + u], 1), colors=OUTLINE,
+            angle = bodies["angle"].astype(np.float64)[p.circle_rows]
+            u = np.stack([np.cos(angle), np.sin(angle)], 1) * p.radii[:, None]
+            ax.add_collection(LineCollection(np.stack([p.centres + 0.5 * u, p.centres + u], 1), colors=OUTLINE,
                                              linewidths=0.8))
 
     def _contacts(self, ax, contacts):

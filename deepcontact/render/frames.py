@@ -69,8 +69,7 @@ def title(header, bodies, contacts, extra=""):
 
 def window_for(shapes, frames):
     """Around every body of the first and last frames (static geometry included)."""
-    bounds = [shapes.bounds(b["position"].astype(np.float64), b["angle"].astype(np.float64), b["index"])
-              for _, b, _ in frames]
+    bounds = [shapes.bounds(b) for _, b, _ in frames]
     bounds = [b for b in bounds if b is not None]
     if not bounds:
         raise InputError("nothing to draw: the step has no bodies with shapes")

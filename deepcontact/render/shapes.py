@@ -9,41 +9,47 @@ from ..errors import InputError
 
 
 @dataclass
+class Placed:
+    """A step's shapes in the world: each with the row of its body in the step's arrays."""
+    circle_rows: np.ndarray      # (k,)
+    centres: np.ndarray          # (k, 2)
+    radii: np.ndarray            # (k,)
+    polygon_rows: np.ndarray     # (p,)
+    polygons: list               # p arrays of (m, 2) vertices
+    edges: np.ndarray            # (e, 2, 2): both ends
+
+
+@dataclass
 class Shapes:
     circles: np.ndarray          # (k, 4): body index, radius, x, y
     polygons: list = field(default_factory=list)   # (body index, (m, 2) vertices)
     edges: np.ndarray = None     # (k, 5): body index, x1, y1, x2, y2
-    types: dict = field(default_factory=dict)      # body index -> "static", "kinematic", "dynamic"
 
-    def bounds(self, positions, angles, indices):
-        """(x0, y0, x1, y1) around every shape of the given bodies, placed as given."""
-        pts = [p for p in self.world_points(positions, angles, indices) if len(p)]
-        if not pts:
+    def placed(self, bodies) -> Placed:
+        """The shapes of the bodies a step holds, where the step puts them."""
+        row = _rows(bodies["index"])
+        pos = bodies["position"].astype(np.float64)
+        angle = bodies["angle"].astype(np.float64)
+        c = self.circles[_present(row, self.circles[:, 0])]
+        cr = row[c[:, 0].astype(int)]
+        e = self.edges[_present(row, self.edges[:, 0])]
+        er = row[e[:, 0].astype(int)]
+        polys = [(row[b], v) for b, v in self.polygons if 0 <= b < len(row) and row[b] >= 0]
+        return Placed(circle_rows=cr, centres=place(pos[cr], angle[cr], c[:, 2:4]), radii=c[:, 1],
+                      polygon_rows=np.array([k for k, _ in polys], np.int64),
+                      polygons=[place(np.repeat(pos[k:k + 1], len(v), 0), np.repeat(angle[k], len(v)), v)
+                                for k, v in polys],
+                      edges=np.stack([place(pos[er], angle[er], e[:, 1:3]), place(pos[er], angle[er], e[:, 3:5])], 1))
+
+    def bounds(self, bodies):
+        """(x0, y0, x1, y1) around every shape of the step's bodies, or None."""
+        p = self.placed(bodies)
+        r = p.radii[:, None]
+        parts = [q for q in (p.centres - r, p.centres + r, p.edges.reshape(-1, 2), *p.polygons) if len(q)]
+        if not parts:
             return None
-        allp = np.concatenate(pts)
-        return float(allp[:, 0].min()), float(allp[:, 1].min()), float(allp[:, 0].max()), float(allp[:, 1].max())
-
-    def world_points(self, positions, angles, indices):
-        """Points that outline each shape in the world: circle extremes, vertices, edge ends."""
-        row = _rows(indices)
-        out = []
-        if len(self.circles):
-            keep = _present(row, self.circles[:, 0])
-            c = self.circles[keep]
-            r = row[c[:, 0].astype(int)]
-            centre = place(positions[r], angles[r], c[:, 2:4])
-            rad = c[:, 1:2]
-            out += [centre - rad, centre + rad]
-        for body, verts in self.polygons:
-            if 0 <= body < len(row) and row[body] >= 0:
-                k = row[body]
-                out.append(place(np.repeat(positions[k:k + 1], len(verts), 0), np.repeat(angles[k], len(verts)), verts))
-        if self.edges is not None and len(self.edges):
-            keep = _present(row, self.edges[:, 0])
-            e = self.edges[keep]
-            r = row[e[:, 0].astype(int)]
-            out += [place(positions[r], angles[r], e[:, 1:3]), place(positions[r], angles[r], e[:, 3:5])]
-        return out
+        points = np.concatenate(parts)
+        return float(points[:, 0].min()), float(points[:, 1].min()), float(points[:, 0].max()), float(points[:, 1].max())
 
 
 def _rows(indices):
@@ -77,11 +83,10 @@ def read_shapes(path) -> Shapes:
         raise InputError(f"not a well-formed step file: {e.msg}", path, e.lineno) from None
     except OSError as e:
         raise InputError(f"cannot read: {e.strerror or e}", path) from None
-    circles, polygons, edges, types = [], [], [], {}
+    circles, polygons, edges = [], [], []
     try:
         for body in root.iterfind("bodies/body"):
             index = int(body.get("index"))
-            types[index] = body.get("type")
             for s in body.iterfind("shape/*"):
                 if s.tag == "circle":
                     circles.append((index, float(s.get("radius")), float(s.get("x", 0)), float(s.get("y", 0))))
@@ -93,4 +98,4 @@ def read_shapes(path) -> Shapes:
     except (TypeError, ValueError):
         raise InputError("a body's shape has a missing or unreadable value", path) from None
     return Shapes(circles=np.array(circles, np.float64).reshape(-1, 4), polygons=polygons,
-                  edges=np.array(edges, np.float64).reshape(-1, 5), types=types)
+                  edges=np.array(edges, np.float64).reshape(-1, 5))
