@@ -42,11 +42,15 @@ class Predictor:
             torch.set_num_threads(threads)
 
     @torch.no_grad()
+    def images(self, x):
+        """The network's impulse images (targets, ny, nx) for one input image (inputs, ny, nx)."""
+        return self.model(torch.from_numpy(np.ascontiguousarray(x, np.float32))[None])[0].numpy()
+
     def predict(self, bodies, contacts) -> Start:
         t0 = time.perf_counter()
         x = rasterize(self.spec, bodies, contacts, self.inputs)
         t1 = time.perf_counter()
-        pred = self.model(torch.from_numpy(x)[None])[0].numpy()
+        pred = self.images(x)
         t2 = time.perf_counter()
         values, _ = bilinear(pred, self.spec, contacts["position"])
         if not self.spec.renormalize:

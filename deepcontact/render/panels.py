@@ -29,15 +29,12 @@ def sample_panels(dataset, index, model=None, panel_px=220):
 
 
 def _predict(model, meta, x, dataset):
-    import torch
     from ..model.inference import Predictor
     p = Predictor(model)
     if list(p.inputs) != list(meta["inputs"]):
         raise InputError(f"the model reads channels {','.join(p.inputs)}, the dataset has "
                          f"{','.join(meta['inputs'])}", dataset)
-    with torch.no_grad():
-        out = p.model(torch.from_numpy(np.ascontiguousarray(x))[None])[0].numpy()
-    return {name: out[k] for k, name in enumerate(p.targets)}
+    return dict(zip(p.targets, p.images(x)))
 
 
 def _figure(rows, panel_px, title, grid):
