@@ -127,8 +127,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     writer = step_writer(scene, seed, "box2d" if loop is None else "pgs")
     step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
     extent = Extent(scene)
-    files = points = 0
-    per_file = []
+    per_file = []   # contact points of each file written (a skipped step has none)
 
     def write(k, dt_ratio, bodies, contacts, extra):
         xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts, extra)
@@ -142,11 +141,9 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                 k, bodies, contacts = done.index, done.bodies, done.contacts
                 extent.add(bodies)
                 n = len(contacts["manifold"])
-                points += n
                 if n or not skip_contactless:
                     extra = "" if loop is None else _solve_xml(loop, done.solution)
                     pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
-                    files += 1
                     per_file.append(n)
                 while pending and (len(pending) > 8 or pending[0].done()):
                     pending.popleft().result()   # re-raises a failed write here
@@ -158,8 +155,8 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
             for f in pending:
                 f.cancel()
             raise
-    return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=files,
-                            contact_points=points, scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
+    return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=len(per_file),
+                            contact_points=sum(per_file), scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
                             extent=extent.as_list(), file_contact_points=per_file)
 
 
