@@ -118,6 +118,22 @@ int parse_int(Text t, int64_t low, int64_t high, int64_t& out) {
     return out < low || out > high ? 2 : 0;
 }
 
+// "" when t is a finite float32 (then in out), else what is wrong with it.
+std::string float_problem(Text t, float& out) {
+    if (!parse_float(t, out)) return "is not a number: " + shown(t);
+    if (!std::isfinite(out)) return "is not finite: " + shown(t);
+    return "";
+}
+
+// "" when t is a whole number in [0, high] (then in out), else what is wrong with it.
+std::string whole_problem(Text t, int64_t high, int64_t& out) {
+    switch (parse_int(t, 0, high, out)) {
+        case 0: return "";
+        case 1: return "must be a whole number, got " + shown(t);
+        default: return "is out of range: must be between 0 and " + std::to_string(high) + ", got " + shown(t);
+    }
+}
+
 template <typename T>
 constexpr int64_t high_of() {
     return std::is_same_v<T, uint32_t> ? int64_t(std::numeric_limits<uint32_t>::max())
@@ -306,26 +322,25 @@ private:
         return std::string("<") + (std::strcmp(f.element, ".") == 0 ? row_ : f.element) + " " + f.attr;
     }
 
+    // "<impulse n> of contact 3 " and what is wrong, or "" when nothing is
+    std::string in_row(const Field<State>& f, const std::string& problem) const {
+        if (problem.empty()) return "";
+        return describe(f) + "> of " + row_ + " " + std::to_string(row_index_) + " " + problem;
+    }
+
     std::string store(State& s, std::vector<float> State::*column, size_t at, const Field<State>& f, Text t) const {
         float v;
-        if (!parse_float(t, v)) return describe(f) + "> is not a number: " + shown(t);
-        if (!std::isfinite(v))
-            return describe(f) + "> of " + row_ + " " + std::to_string(row_index_) + " is not finite (" + shown(t) + ")";
-        (s.*column)[at] = v;
-        return "";
+        std::string problem = float_problem(t, v);
+        if (problem.empty()) (s.*column)[at] = v;
+        return in_row(f, problem);
     }
 
     template <typename T>
     std::string store(State& s, std::vector<T> State::*column, size_t at, const Field<State>& f, Text t) const {
         int64_t v = 0;
-        switch (parse_int(t, 0, high_of<T>(), v)) {
-            case 1: return describe(f) + "> must be a whole number, got " + shown(t);
-            case 2:
-                return describe(f) + "> value " + shown(t) + " is out of range (0 to " +
-                       std::to_string(high_of<T>()) + ")";
-        }
-        (s.*column)[at] = static_cast<T>(v);
-        return "";
+        std::string problem = whole_problem(t, high_of<T>(), v);
+        if (problem.empty()) (s.*column)[at] = static_cast<T>(v);
+        return in_row(f, problem);
     }
 
     std::string store(State& s, EnumColumn<State> e, size_t at, const Field<State>& f, Text t) const {
@@ -334,7 +349,7 @@ private:
                 (s.*e.column)[at] = static_cast<int8_t>(k);
                 return "";
             }
-        return describe(f) + "> has an unknown value " + shown(t);
+        return in_row(f, "has an unknown value " + shown(t));
     }
 
     const Field<State>* fields_;
@@ -349,6 +364,9 @@ private:
 // --- the SAX2 reader ------------------------------------------------------------------------
 
 enum class At : uint8_t { Outside, Step, Header, Bodies, Body, Shape, Contacts, Contact, Other };
+
+// What a <header> must hold (a <solve> line may follow them).
+const char* const kHeaderParts[] = {"gravity", "iterations", "solver", "effects", "versions"};
 
 struct Problem {
     std::string message;
@@ -498,7 +516,7 @@ struct Reader {
                 h.has_scene = true;
                 h.scene = a.value.str();   // as given: the schema's token type is checked by validation
             } else if (named(a.name, "seed") && mode == RootOnly) {   // a bad one is the schema's to report
-                seed = parse_int(a.value, 0, kInt32Max, h.seed) == 0;
+                seed = whole_problem(a.value, kInt32Max, h.seed).empty();
             } else if (named(a.name, "seed")) {
                 seed = whole(h.seed, "step", "seed", a.value);
             } else if (mode == RootOnly) {
@@ -533,36 +551,37 @@ struct Reader {
     }
 
     void header(const xmlChar* name, int n, const xmlChar** attributes) {
-        static const char* const kParts[] = {"gravity", "iterations", "solver", "effects", "versions"};
         StepHeader& h = out.header;
+        auto copy = [&](Attributes& into) {
+            for_each_attribute(n, attributes, [&](const Attribute& a) {
+                into[reinterpret_cast<const char*>(a.name)] = a.value.str();
+            });
+        };
         if (named(name, "solve")) {   // written only where the project's solver stepped the world
             h.has_solve = true;
-            for_each_attribute(n, attributes, [&](const Attribute& a) {
-                h.solve[reinterpret_cast<const char*>(a.name)] = a.value.str();
-            });
-            return;
+            return copy(h.solve);
         }
-        for (uint32_t k = 0; k < 5; ++k) {
-            if (!named(name, kParts[k])) continue;
-            header_seen |= 1u << k;
-            if (k == 0 || k == 1) {
-                bool x = false, y = false;
-                for_each_attribute(n, attributes, [&](const Attribute& a) {
-                    if (k == 0 && named(a.name, "x")) x = finite(h.gravity[0], "gravity", "x", a.value);
-                    if (k == 0 && named(a.name, "y")) y = finite(h.gravity[1], "gravity", "y", a.value);
-                    if (k == 1 && named(a.name, "velocity"))
-                        x = whole(h.velocity_iterations, "iterations", "velocity", a.value);
-                    if (k == 1 && named(a.name, "position"))
-                        y = whole(h.position_iterations, "iterations", "position", a.value);
-                });
-                if (!(x && y) && problem.message.empty())
-                    fail(std::string("<") + kParts[k] + "> lacks " + (k == 0 ? "x or y" : "velocity or position"));
-            } else {
-                Attributes& into = k == 2 ? h.solver : k == 3 ? h.effects : h.versions;
-                for_each_attribute(n, attributes, [&](const Attribute& a) {
-                    into[reinterpret_cast<const char*>(a.name)] = a.value.str();
-                });
-            }
+        for (size_t k = 0; k < std::size(kHeaderParts); ++k)
+            if (named(name, kHeaderParts[k])) header_seen |= 1u << k;
+        bool x = false, y = false;
+        if (named(name, "gravity")) {
+            for_each_attribute(n, attributes, [&](const Attribute& a) {
+                if (named(a.name, "x")) x = finite(h.gravity[0], "gravity", "x", a.value);
+                if (named(a.name, "y")) y = finite(h.gravity[1], "gravity", "y", a.value);
+            });
+            if (!(x && y) && problem.message.empty()) fail("<gravity> lacks x or y");
+        } else if (named(name, "iterations")) {
+            for_each_attribute(n, attributes, [&](const Attribute& a) {
+                if (named(a.name, "velocity")) x = whole(h.velocity_iterations, "iterations", "velocity", a.value);
+                if (named(a.name, "position")) y = whole(h.position_iterations, "iterations", "position", a.value);
+            });
+            if (!(x && y) && problem.message.empty()) fail("<iterations> lacks velocity or position");
+        } else if (named(name, "solver")) {
+            copy(h.solver);
+        } else if (named(name, "effects")) {
+            copy(h.effects);
+        } else if (named(name, "versions")) {
+            copy(h.versions);
         }
     }
 
@@ -581,36 +600,27 @@ struct Reader {
         radius[fixture] = r;
     }
 
+    // A value outside the record tables: fails naming <element attr> unless the check passes.
+    bool checked(const std::string& problem, const char* element, const char* attr) {
+        if (!problem.empty()) fail(std::string("<") + element + " " + attr + "> " + problem);
+        return problem.empty();
+    }
+
     bool whole(int64_t& out_value, const char* element, const char* attr, Text t) {
-        switch (parse_int(t, 0, kInt32Max, out_value)) {
-            case 0: return true;
-            case 1: fail(std::string("<") + element + " " + attr + "> must be a whole number, got " + shown(t)); break;
-            default:
-                fail(std::string("<") + element + " " + attr + "> must be between 0 and " + std::to_string(kInt32Max) +
-                     ", got " + t.str().substr(0, 40));
-        }
-        return false;
+        return checked(whole_problem(t, kInt32Max, out_value), element, attr);
     }
 
     bool finite(float& out_value, const char* element, const char* attr, Text t) {
-        if (!parse_float(t, out_value)) {
-            fail(std::string("<") + element + " " + attr + "> is not a number: " + shown(t));
-            return false;
-        }
-        if (!std::isfinite(out_value)) {
-            fail(std::string("<") + element + " " + attr + "> must be finite, got " + shown(t));
-            return false;
-        }
-        return true;
+        return checked(float_problem(t, out_value), element, attr);
     }
 
     // After the parse: what a step must have, and each contact's shape radii.
     void finish() {
         if (!problem.message.empty()) return;
         if (header_line == 0) return fail("<step> has no <header>", 1);
-        static const char* const kParts[] = {"gravity", "iterations", "solver", "effects", "versions"};
-        for (int k = 0; k < 5; ++k)
-            if (!(header_seen >> k & 1)) return fail(std::string("<header> has no <") + kParts[k] + ">", header_line);
+        for (size_t k = 0; k < std::size(kHeaderParts); ++k)
+            if (!(header_seen >> k & 1))
+                return fail(std::string("<header> has no <") + kHeaderParts[k] + ">", header_line);
         if (bodies_line < 0) return fail("no <bodies> element", 1);
         if (contacts_line < 0) return fail("no <contacts> element", 1);
         ContactState& c = out.contacts;
