@@ -74,7 +74,7 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
     from deepcontact import atomic
 
     kind = kind_of(input_path)
-    suffix = "".join(Path(out).suffixes[-1:]).lower()
+    suffix = Path(out).suffix.lower()
     if suffix not in FORMS[kind]:
         every_form = sorted({s for forms in FORMS.values() for s in forms})
         if suffix in every_form:

@@ -9,7 +9,7 @@ import json
 import numpy as np
 
 from .. import __version__
-from .draw import FILL, impulse_scale_for
+from .draw import FILL
 from .frames import painter_for, read_frame
 
 
@@ -36,7 +36,7 @@ def viewer_html(clip, width=640, fps=30):
     data = {
         "scene": clip.scene, "seed": clip.seed, "run": str(clip.path), "steps": clip.total,
         "window": [window.x0, window.y0, window.x1, window.y1], "size": list(painter.size), "fps": fps,
-        "scale": painter.impulse_scale or impulse_scale_for([], window),
+        "scale": painter.impulse_scale,
         "fill": {str(k): v for k, v in FILL.items()},
         "circles": _rounded(shapes.circles), "edges": _rounded(shapes.edges),
         "polygons": [[int(b), _rounded(v)] for b, v in shapes.polygons],
