@@ -138,8 +138,8 @@ def read_problem(path) -> LocalProblem:
     return LocalProblem(W=matrix, q=q, mu=mu, points=np.arange(len(mu)))
 
 
-def residual(lp: LocalProblem, r) -> float:
-    """The solver's normalised min-map residual of r on the local problem (docs/solver.md)."""
+def point_residuals(lp: LocalProblem, r) -> np.ndarray:
+    """Per contact, the larger |F| of its normal and tangent rows (velocity units, unnormalised)."""
     u = lp.W @ r + lp.q
     k = lp.W.diagonal()
     kn, kt = k[0::2], k[1::2]
@@ -148,8 +148,17 @@ def residual(lp: LocalProblem, r) -> float:
     hi = lp.mu * kt * rn
     ft = kt * rt - np.clip(kt * rt - ut, -hi, hi)
     ft = np.where(lp.mu > 0, ft, kt * rt)
-    scale = max(np.abs(lp.q[0::2]).max(initial=0.0), np.abs(np.where(lp.mu > 0, lp.q[1::2], 0.0)).max(initial=0.0), 1e-30)
-    return float(max(np.abs(fn).max(initial=0.0), np.abs(ft).max(initial=0.0)) / scale)
+    return np.maximum(np.abs(fn), np.abs(ft))
+
+
+def residual_scale(lp: LocalProblem) -> float:
+    """The residual's denominator: the step's largest free relative velocity (of the rows solved)."""
+    return max(np.abs(lp.q[0::2]).max(initial=0.0), np.abs(np.where(lp.mu > 0, lp.q[1::2], 0.0)).max(initial=0.0), 1e-30)
+
+
+def residual(lp: LocalProblem, r) -> float:
+    """The solver's normalised min-map residual of r on the local problem (docs/solver.md)."""
+    return float(point_residuals(lp, r).max(initial=0.0) / residual_scale(lp))
 
 
 # What `dc export` writes (atomic.output_folder replaces nothing else).

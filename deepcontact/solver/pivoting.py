@@ -11,11 +11,14 @@ in z = (ln, l+, l-, beta), lt = l+ - l-, exact in 2D (the friction cone has two 
     w_beta =  mu ln - l+ - l-                         >= 0  _|_ beta   (beta: the sliding speed)
 
 Lemke's method with covering vector e and a dense tableau (numpy, float64): O(N^2) per pivot
-for N = 4 x points, so it is kept for the steps that need it.
+for N = 4 x points, so it is kept for the steps that need it, and is first run on a neighbourhood
+(local_pivot): where Newton stalls, its residual sits on a few contacts, and an exact answer of
+their LCP, the other contacts' impulses held, lets Newton go on to an exact answer of the step.
 """
 import numpy as np
 
-from .fclib import local_problem
+from .._box2d import contact_rows
+from .fclib import LocalProblem, local_problem, point_residuals
 
 PIVOTS_PER_ROW = 10
 
@@ -78,6 +81,48 @@ def pivoted_impulses(problem):
     z = lemke(*friction_lcp(lp))
     if z is None:
         return None
+    return lp.impulses(_from_z(z, m), problem.points)
+
+
+def _from_z(z, m):
+    """FCLIB's r (per contact: normal, tangent) from the LCP's z = (ln, l+, l-, beta)."""
     r = np.empty(2 * m)
     r[0::2], r[1::2] = z[:m], z[m:2 * m] - z[2 * m:3 * m]
+    return r
+
+
+def neighbourhood(problem, lp, r, rings=1, share=1e-2):
+    """The contacts (indices into lp) whose residual is at least `share` of the largest, grown by
+    `rings` rings of contacts on the same dynamic bodies."""
+    rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
+    a, b = rows["row_a"][lp.points], rows["row_b"][lp.points]
+    dynamic = problem.bodies["type"] == 2
+    f = point_residuals(lp, r)
+    chosen = f >= share * f.max(initial=0.0)
+    for _ in range(rings):
+        touched = np.zeros(len(dynamic), bool)
+        touched[a[chosen]] = True
+        touched[b[chosen]] = True
+        touched &= dynamic     # the ground touches everything: it joins nothing
+        chosen |= touched[a] | touched[b]
+    return np.nonzero(chosen)[0]
+
+
+def local_pivot(problem, normal, tangent, rings=1, share=1e-2):
+    """Per-point (normal, tangent) impulses: the given ones, with the neighbourhood of the
+    contacts carrying the residual replaced by Lemke's exact answer of their LCP (the other
+    contacts' impulses held); None if Lemke fails there."""
+    lp = local_problem(problem)
+    r = lp.reaction(normal, tangent)
+    chosen = neighbourhood(problem, lp, r, rings, share)
+    rows = np.ravel(np.column_stack([2 * chosen, 2 * chosen + 1]))
+    held = np.ones(len(r), bool)
+    held[rows] = False
+    W = lp.W.tocsr()
+    sub = LocalProblem(W=W[rows][:, rows].tocsc(), q=lp.q[rows] + W[rows][:, held] @ r[held],
+                       mu=lp.mu[chosen], points=np.arange(len(chosen)))
+    z = lemke(*friction_lcp(sub))
+    if z is None:
+        return None
+    r[rows] = _from_z(z, len(chosen))
     return lp.impulses(r, problem.points)

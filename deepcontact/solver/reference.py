@@ -1,15 +1,18 @@
 """The reference solution of a step: the "Copy" oracle and the ground truth for errors.
 
-Float64, from zero, to a normalised min-map residual below 1e-12 or 100,000 sweeps: a few PGS
-sweeps, then proximal semismooth Newton steps on the whole step (accelerate="newton",
-native/newton.hpp), back to sweeps whenever a Newton step fails. On some stacked, redundant steps
-Newton stalls near, not at, an exact solution; there (up to PIVOT_POINTS contact points) Lemke's
-pivoting (solver/pivoting.py) and Newton from its answer take over, and the better answer is
-kept (Solution.pivoted says so). The residual reached, the factorizations and the fallbacks are
-part of the answer: reports count the steps that still miss 1e-12 rather than pretending. It starts from zero so that it does not depend on any start being
-compared. Exact solutions of a frictional step need not be unique, in impulses nor in body
-velocities (tests/test_peer.py: Siconos's Lemke solution of the same step can differ): judge a
-solution by its residual.
+Float64, from zero, to a normalised min-map residual below 1e-12: a few PGS sweeps, then proximal
+semismooth Newton steps on the whole step (accelerate="newton", native/newton.hpp), back to sweeps
+whenever a Newton step fails. On some stacked, redundant steps Newton stalls near a point that is
+not a solution (an exact one exists with other contacts separating and sliding). After
+FIRST_SWEEPS without an exact answer the reference pivots (solver/pivoting.py): Lemke's method on
+the neighbourhood of the contacts that carry the residual, the others held, then Newton from
+there; a wider neighbourhood; the whole step (up to PIVOT_POINTS contact points); and last
+Newton from the best answer to the cap. The best answer is kept (Solution.pivoted says that a
+pivot led to it). The residual reached, the sweeps, factorizations and fallbacks are part of the
+answer: reports count the steps that still miss 1e-12 rather than pretending. It starts from
+zero so that it does not depend on any start being compared. Exact solutions of a frictional step
+need not be unique, in impulses nor in body velocities (tests/test_peer.py: Siconos's Lemke
+solution of the same step can differ): judge a solution by its residual.
 """
 import numpy as np
 
@@ -17,7 +20,12 @@ from .pgs import Solution, solve
 
 TOLERANCE = 1e-12
 CAP = 100_000
-PIVOT_POINTS = 250   # a dense tableau of 4 x points rows: beyond this Lemke costs more than it gives
+FIRST_SWEEPS = 2048     # Newton's sweeps before pivoting: most steps are exact within a few hundred
+POLISH_SWEEPS = 3000    # Newton after each pivot
+# (rings, share): the contacts carrying at least `share` of the largest residual, and `rings` rings
+# of contacts around them, tried in turn
+NEIGHBOURHOODS = ((0, 0.1), (1, 0.1), (0, 0.1), (1, 0.1), (1, 0.03), (2, 1e-2))
+PIVOT_POINTS = 250      # a dense tableau of 4 x points rows: beyond this Lemke costs more than it gives
 
 
 def reference_solution(problem, tolerance=TOLERANCE, cap=CAP, relaxation=1.0, accelerate="newton",
@@ -25,28 +33,53 @@ def reference_solution(problem, tolerance=TOLERANCE, cap=CAP, relaxation=1.0, ac
     """Solve from zero to the tolerance (float64; accelerate="none" is plain PGS, the reference
     before Newton; pivot: Lemke where Newton stalls)."""
     zero = np.zeros(problem.points)
-    s = solve(problem, zero, zero, mode="float64", max_iterations=cap, tolerance=tolerance, stop_on="residual",
-              relaxation=relaxation, accelerate=accelerate)
-    if not pivot or accelerate != "newton":
-        return s
-    return finish_by_pivoting(problem, s, tolerance)
+    pivoting = pivot and accelerate == "newton"
+    s = _newton(problem, zero, zero, min(cap, FIRST_SWEEPS) if pivoting else cap, tolerance,
+                relaxation=relaxation, accelerate=accelerate)
+    return finish_by_pivoting(problem, s, tolerance, cap) if pivoting else s
 
 
-def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE) -> Solution:
-    """Where Newton's solution s misses the tolerance (and the step has at most PIVOT_POINTS
-    points): Lemke's pivoting, then Newton from its answer; the better of that and s."""
-    if s.residual < tolerance or problem.points > PIVOT_POINTS:
+def _newton(problem, normal, tangent, sweeps, tolerance, relaxation=1.0, accelerate="newton"):
+    return solve(problem, normal, tangent, mode="float64", max_iterations=sweeps, tolerance=tolerance,
+                 stop_on="residual", relaxation=relaxation, accelerate=accelerate)
+
+
+def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> Solution:
+    """From Newton's answer s, if it misses the tolerance: pivots (local, wider, whole), each
+    followed by Newton, then Newton to the cap; the best answer, its work summed."""
+    if s.residual < tolerance:
         return s
-    from .pivoting import pivoted_impulses
-    pair = pivoted_impulses(problem)
-    if pair is None:
-        return s
-    polished = solve(problem, *pair, mode="float64", max_iterations=2000, tolerance=tolerance, stop_on="residual",
-                     accelerate="newton")
-    if polished.residual >= s.residual:
-        return s
-    polished.pivoted = True
-    polished.iterations += s.iterations
-    polished.factorizations += s.factorizations
-    polished.newton_fallbacks += s.newton_fallbacks
-    return polished
+    from .pivoting import local_pivot, pivoted_impulses
+    best, work = s, [s]
+    attempts = [lambda b, rings=rings, share=share: local_pivot(problem, b.normal_impulse, b.tangent_impulse,
+                                                                 rings, share)
+                for rings, share in NEIGHBOURHOODS]
+    if problem.points <= PIVOT_POINTS:
+        attempts.append(lambda b: pivoted_impulses(problem))
+    for attempt in attempts:
+        pair = attempt(best)
+        if pair is None:
+            continue
+        t = _newton(problem, *pair, POLISH_SWEEPS, tolerance)
+        work.append(t)
+        if t.residual < best.residual:
+            best = t
+            best.pivoted = True
+        if best.residual < tolerance:
+            return _summed(best, work)
+    left = cap - sum(w.iterations for w in work)
+    if left > 0:
+        t = _newton(problem, best.normal_impulse, best.tangent_impulse, left, tolerance)
+        work.append(t)
+        if t.residual < best.residual:
+            t.pivoted = best.pivoted
+            best = t
+    return _summed(best, work)
+
+
+def _summed(best: Solution, work) -> Solution:
+    """best, carrying the sweeps, factorizations and fallbacks of every solve that led to it."""
+    best.iterations = sum(w.iterations for w in work)
+    best.factorizations = sum(w.factorizations for w in work)
+    best.newton_fallbacks = sum(w.newton_fallbacks for w in work)
+    return best
