@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "contact_problem.hpp"
+#include "lemke.hpp"
 #include "pgs.hpp"
 #include "pgs_step.hpp"
 #include "pyarrays.hpp"
@@ -326,6 +327,24 @@ void bind_options(py::module_& m) {
         .def_readwrite("record", &PGSStepSettings::record, "keep the step for World.recorded()");
 }
 
+// Lemke on (M, q): (z, pivots), z None where it ends on a ray or runs out of pivots.
+py::tuple lemke_lcp(py::array_t<double, py::array::c_style | py::array::forcecast> M,
+                    py::array_t<double, py::array::c_style | py::array::forcecast> q, int max_pivots) {
+    if (q.ndim() != 1) throw py::value_error("q must be one-dimensional");
+    const py::ssize_t n = q.shape(0);
+    if (M.ndim() != 2 || M.shape(0) != n || M.shape(1) != n)
+        throw py::value_error("M must be " + std::to_string(n) + " x " + std::to_string(n) + ", like q");
+    if (max_pivots < 0) throw py::value_error("max_pivots must be at least 0");
+    LemkeResult r;
+    {
+        py::gil_scoped_release release;
+        r = lemke(M.data(), q.data(), static_cast<int>(n), max_pivots);
+    }
+    py::object z = py::none();
+    if (r.solved) z = py::array_t<double>(n, r.z.data());
+    return py::make_tuple(z, r.pivots);
+}
+
 }  // namespace
 
 void bind_solver(py::module_& m) {
@@ -339,6 +358,9 @@ void bind_solver(py::module_& m) {
           "The rows of one step's contact problem as the solver assembles them (float64): per contact\n"
           "point the lever arms, normal, effective inverse masses, bias; per body the velocity before\n"
           "any impulse; and the free-velocity scale the residual is divided by.");
+    m.def("lemke", &lemke_lcp, py::arg("M"), py::arg("q"), py::arg("max_pivots"),
+          "Lemke's complementary pivoting on w = M z + q (dense M, float64): (z, pivots), z None on a\n"
+          "ray or when max_pivots run out (native/lemke.hpp; solver/pivoting.py has the tableau form).");
     m.def("pgs_step", &step_world, py::arg("world"), py::arg("settings"),
           "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"
           "velocity iterations), whole in native code. Returns the solve's report, or None without contacts.");

@@ -17,7 +17,7 @@ their LCP, the other contacts' impulses held, lets Newton go on to an exact answ
 """
 import numpy as np
 
-from .._box2d import contact_rows
+from .._box2d import contact_rows, lemke as native_lemke
 from .fclib import LocalProblem, local_problem, point_residuals
 
 PIVOTS_PER_ROW = 10
@@ -35,7 +35,15 @@ def friction_lcp(lp):
 
 
 def lemke(M, q, max_pivots=None):
-    """z >= 0 with w = M z + q >= 0 and z.w = 0, or None (ray termination or too many pivots)."""
+    """z >= 0 with w = M z + q >= 0 and z.w = 0, or None (ray termination or too many pivots):
+    the native revised form (native/lemke.hpp), the same pivot rule as lemke_tableau."""
+    z, _ = native_lemke(np.ascontiguousarray(M, dtype=np.float64), np.asarray(q, dtype=np.float64),
+                        max_pivots or PIVOTS_PER_ROW * len(q))
+    return z
+
+
+def lemke_tableau(M, q, max_pivots=None):
+    """Lemke's method on a dense tableau in numpy: the slow, readable reference of lemke()."""
     n = len(q)
     if n == 0 or q.min() >= 0:
         return np.zeros(n)
@@ -74,11 +82,12 @@ def lemke(M, q, max_pivots=None):
     return None
 
 
-def pivoted_impulses(problem):
-    """Per-point (normal, tangent) impulses of the step by Lemke's method, or None."""
+def pivoted_impulses(problem, method=None):
+    """Per-point (normal, tangent) impulses of the step by Lemke's method (default the native
+    lemke; lemke_tableau is the other), or None."""
     lp = local_problem(problem)
     m = len(lp.mu)
-    z = lemke(*friction_lcp(lp))
+    z = (method or lemke)(*friction_lcp(lp))
     if z is None:
         return None
     return lp.impulses(_from_z(z, m), problem.points)

@@ -49,13 +49,13 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
     followed by Newton, then Newton to the cap; the best answer, its work summed."""
     if s.residual < tolerance:
         return s
-    from .pivoting import local_pivot, pivoted_impulses
+    from .pivoting import lemke_tableau, local_pivot, pivoted_impulses
     best, work = s, [s]
     attempts = [lambda b, rings=rings, share=share: local_pivot(problem, b.normal_impulse, b.tangent_impulse,
                                                                  rings, share)
                 for rings, share in NEIGHBOURHOODS]
-    if problem.points <= PIVOT_POINTS:
-        attempts.append(lambda b: pivoted_impulses(problem))
+    if problem.points <= PIVOT_POINTS:   # the whole step, natively, then on the tableau (its path can differ)
+        attempts += [lambda b: pivoted_impulses(problem), lambda b: pivoted_impulses(problem, lemke_tableau)]
     for attempt in attempts:
         pair = attempt(best)
         if pair is None:
