@@ -12,7 +12,11 @@ from deepcontact.solver.problem import StepProblem
 
 
 def problems(generator, params, wanted):
-    scene = generate(generator, 0, params)
+    return problems_of_seed(generator, 0, params, wanted)
+
+
+def problems_of_seed(generator, seed, params, wanted):
+    scene = generate(generator, seed, params)
     world = build_world(scene)
     out = []
     for k in range(max(wanted) + 1):
@@ -91,3 +95,38 @@ def test_lemke_solves_the_friction_lcp_of_a_step_to_machine_precision():
         assert z.min() >= 0 and w.min() >= -1e-9 * np.abs(q).max() and abs(z @ w) <= 1e-9 * np.abs(q).max() ** 2
         pair = pivoting.pivoted_impulses(p)
         assert fclib.residual(lp, lp.reaction(*pair)) < 1e-9
+
+
+def test_native_lemke_agrees_with_the_tableau_where_the_answer_is_unique():
+    from deepcontact.solver import pivoting
+    rng = np.random.default_rng(7)
+    for n in (1, 5, 40):
+        A = rng.standard_normal((n, n))
+        M = A @ A.T + 0.1 * np.eye(n)          # positive definite: one solution
+        q = rng.standard_normal(n)
+        native, tableau = pivoting.lemke(M, q), pivoting.lemke_tableau(M, q)
+        assert native is not None and tableau is not None
+        w = M @ native + q
+        assert native.min() >= 0 and w.min() >= -1e-9 and abs(native @ w) <= 1e-9
+        np.testing.assert_allclose(native, tableau, atol=1e-9)
+    assert pivoting.lemke(np.eye(3), np.ones(3)).tolist() == [0.0, 0.0, 0.0]   # q >= 0: z = 0
+    z, pivots = pivoting.native_lemke(-np.eye(2), -np.ones(2), 100)   # w = -z - 1: no solution, a ray
+    assert z is None and pivots >= 1
+    with pytest.raises(ValueError, match="M must be 3 x 3"):
+        pivoting.native_lemke(np.eye(2), np.ones(3), 10)
+
+
+def test_the_reference_pivots_where_newton_stalls_and_reaches_1e_12():
+    """A held-out pile step on which Newton alone settles at a residual of 1e-7 (docs/solver.md):
+    Lemke on the neighbourhood of the contacts carrying that residual, then Newton, is exact."""
+    from deepcontact.solver import pivoting, reference
+    from deepcontact.solver.fclib import local_problem
+    (p,) = problems_of_seed("pile", 1000, {}, (245,))
+    newton = solve(p, zero(p), zero(p), tolerance=1e-12, max_iterations=reference.FIRST_SWEEPS, accelerate="newton")
+    assert newton.residual > 1e-9
+    lp = local_problem(p)
+    near = pivoting.neighbourhood(p, lp, lp.reaction(newton.normal_impulse, newton.tangent_impulse), rings=1, share=0.1)
+    assert 0 < len(near) < p.points / 2    # a neighbourhood, not the step
+    r = reference.reference_solution(p)
+    assert r.residual < 1e-12 and r.pivoted
+    assert r.iterations > newton.iterations and r.factorizations > newton.factorizations   # all the work counted
