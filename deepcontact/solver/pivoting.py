@@ -117,13 +117,16 @@ def neighbourhood(problem, lp, r, rings=1, share=1e-2):
     return np.nonzero(chosen)[0]
 
 
-def local_pivot(problem, normal, tangent, rings=1, share=1e-2):
+def local_pivot(problem, normal, tangent, rings=1, share=1e-2, most=120):
     """Per-point (normal, tangent) impulses: the given ones, with the neighbourhood of the
     contacts carrying the residual replaced by Lemke's exact answer of their LCP (the other
-    contacts' impulses held); None if Lemke fails there."""
+    contacts' impulses held); None if Lemke fails there or the neighbourhood has more than
+    `most` contacts (a pivot costs (4 x contacts)^2)."""
     lp = local_problem(problem)
     r = lp.reaction(normal, tangent)
     chosen = neighbourhood(problem, lp, r, rings, share)
+    if len(chosen) > most:
+        return None
     rows = np.ravel(np.column_stack([2 * chosen, 2 * chosen + 1]))
     held = np.ones(len(r), bool)
     held[rows] = False
