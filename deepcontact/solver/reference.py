@@ -23,7 +23,8 @@ CAP = 100_000
 FIRST_SWEEPS = 2048     # Newton's sweeps before pivoting: most steps are exact within a few hundred
 POLISH_SWEEPS = 3000    # Newton after each pivot
 # (rings, share): the contacts carrying at least `share` of the largest residual, and `rings` rings
-# of contacts around them, tried in turn
+# of contacts around them, tried in turn, each around the residual of the best answer so far (so a
+# neighbourhood tried again is another one once a pivot has moved the residual)
 NEIGHBOURHOODS = ((0, 0.1), (1, 0.1), (0, 0.1), (1, 0.1), (1, 0.03), (2, 1e-2))
 PIVOT_POINTS = 250      # a dense tableau of 4 x points rows: beyond this Lemke costs more than it gives
 
