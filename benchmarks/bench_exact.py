@@ -11,7 +11,11 @@ as ratios to PGS in the same run; for Newton also the sparse factorizations and 
 sweeps. With --siconos, Siconos's Lemke solver (fc2d_lexicolemke, Debian's python3-siconos run
 as a subprocess on the problems exported in FCLIB's format) is timed on the same steps.
 
-Usage: python benchmarks/bench_exact.py [--scene pile|pyramid|both] [--every 5] [--siconos]
+With --scene hard, the reference alone on every `--every`-th step of each scene of the stability
+study (`dc study stability`): how many steps it solves exactly, how many it pivoted, the worst
+residual and the time.
+
+Usage: python benchmarks/bench_exact.py [--scene pile|pyramid|both|hard] [--every 5] [--siconos]
 """
 import argparse
 import statistics
@@ -27,17 +31,20 @@ from deepcontact.simulate.build import build_world
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
 from deepcontact.solver.reference import reference_solution
+from deepcontact.studies.stability import FULL
 
 TOLERANCE, CAP = 1e-12, 100_000
 
 
-def problems(name, every):
-    scenes = [generate("pile", s, {}) for s in (1000, 1001)] if name == "pile" else [generate("pyramid", 0, {"base": 20})]
+def problems(name, every, scenes=None):
+    if scenes is None:
+        scenes = [generate("pile", s, {}) for s in (1000, 1001)] if name == "pile" else [generate("pyramid", 0, {"base": 20})]
     out = []
     for scene in scenes:
         world = build_world(scene)
         for k in range(scene.steps):
-            bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+            bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
+                                          record=True)
             if k % every == 0 and len(contacts["manifold"]):
                 out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
                                                    gravity=scene.effects.gravity or (0.0, 0.0),
@@ -99,12 +106,29 @@ def report(name, steps, use_siconos):
               f"({hard_ms / base_hard:.3f}x) | | |")
 
 
+def report_hard(every):
+    """The reference on every `every`-th step of each scene of the stability study."""
+    print(f"\nthe reference on every {every}. step of the stability study's scenes (to 1e-12, from zero)")
+    print("| scene | steps | contact points (mean) | reach 1e-12 | pivoted | worst residual | total s |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for case in FULL:
+        steps = problems(case.generator, every, [generate(case.generator, 0, case.params)])
+        runs = [referenced(p) for p in steps]
+        misses = [f"step {p.index}: {s.residual:.1e}" for p, (s, _) in zip(steps, runs) if s.residual >= TOLERANCE]
+        print(f"| {case.label} | {len(steps)} | {statistics.mean(p.points for p in steps):.0f} | "
+              f"{len(steps) - len(misses)} | {sum(s.pivoted for s, _ in runs)} | {max(s.residual for s, _ in runs):.1e} | "
+              f"{sum(t for _, t in runs):.3f} |" + (f" misses: {'; '.join(misses[:5])}" if misses else ""))
+        sys.stdout.flush()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="both", choices=["pile", "pyramid", "both"])
+    ap.add_argument("--scene", default="both", choices=["pile", "pyramid", "both", "hard"])
     ap.add_argument("--every", type=int, default=5)
     ap.add_argument("--siconos", action="store_true")
     args = ap.parse_args()
+    if args.scene == "hard":
+        return report_hard(args.every)
     for name in (["pile", "pyramid"] if args.scene == "both" else [args.scene]):
         report(name, problems(name, args.every), args.siconos)
     sys.stdout.flush()
