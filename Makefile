@@ -65,6 +65,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2
 	$(PYTHON) benchmarks/bench_exact.py --siconos
+	$(PYTHON) benchmarks/bench_exact.py --scene hard --every 1
+	$(PYTHON) benchmarks/bench_peer.py
 	sh benchmarks/bench_loop_scale.sh
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.

@@ -1,0 +1,95 @@
+"""Time to a tolerance, ours against Siconos's 2D solvers, in one run.
+
+The same step problems (held-out pile: seeds 1000-1001, every `--every`th step with contacts;
+pyramid, base 20, every 50th step; with --scene pyramid40 the first five steps of a base-40
+pyramid, 820 boxes, ours alone: Siconos's 2D solvers take W dense, 6,400 rows) are solved from zero to each tolerance by our solver
+(float64 PGS, NNCG, proximal Newton, subspace minimization; in-process, assembly included) and by
+Siconos 4.4 (`fc2d` NSGS with the same number as its tolerance, and Lemke on the pile; Debian's
+python3-siconos in a subprocess on the FCLIB export of the same steps, its solve time alone).
+Every answer is judged by the same measure, our normalised min-map residual (Siconos's by the
+Siconos side's own code, which reproduces ours): NSGS's own stopping error is not ours, so a
+solver "reaches" a tolerance only if its answer's residual is below it.
+
+Usage: python benchmarks/bench_peer.py [--scene pile|pyramid|both|pyramid40] [--every 5] [--tolerances 1e-4,1e-8]
+       [--cap 100000]
+"""
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench_exact import problems
+from deepcontact.scene.generators import generate
+from deepcontact.solver import fclib, peer
+from deepcontact.solver.pgs import solve
+
+OURS = ("none", "nncg", "newton", "subspace")
+
+
+def ours(steps, accelerate, tolerance, cap):
+    times, residuals = [], []
+    for p in steps:
+        zero = np.zeros(p.points)
+        t0 = time.perf_counter()
+        s = solve(p, zero, zero, mode="float64", max_iterations=cap, tolerance=tolerance, stop_on="residual",
+                  accelerate=accelerate)
+        times.append(time.perf_counter() - t0)
+        residuals.append(s.residual)
+    return times, residuals
+
+
+def row(label, tolerance, times, residuals):
+    reached = sum(r < tolerance for r in residuals)
+    med = statistics.median(times)
+    print(f"| {tolerance:g} | {label} | {reached} of {len(times)} | {max(residuals):.1e} | {med * 1e3:.2f} | "
+          f"{sum(times):.2f} |")
+    sys.stdout.flush()
+
+
+def first_steps(base, count):
+    """The first `count` steps with contacts of a pyramid, from its initial gaps."""
+    scene = generate("pyramid", 0, {"base": base, "steps": count})
+    return problems("pyramid", 1, [scene])
+
+
+def report(name, steps, tolerances, cap):
+    print(f"\n{name}: {len(steps)} steps, {statistics.mean(p.points for p in steps):.0f} contact points on average")
+    print("| tolerance | solver | reach it (our residual) | worst residual | median ms | total s |")
+    print("| ---: | --- | ---: | ---: | ---: | ---: |")
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = [fclib.write_problem(p, Path(tmp) / f"step-{i:04d}.hdf5") for i, p in enumerate(steps)
+                 if name != "pyramid40"]
+        for tolerance in tolerances:
+            for accelerate in OURS:
+                row(f"ours, {accelerate}", tolerance, *ours(steps, accelerate, tolerance, cap))
+            if name == "pyramid40":
+                continue
+            results = peer.run(paths, "nsgs", tolerance)
+            row("Siconos NSGS", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results])
+            if name == "pile":   # Lemke on the pyramid's 1,600-row dense problems takes minutes a step
+                results = peer.run(paths, "lemke", tolerance)
+                row("Siconos Lemke", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="both", choices=["pile", "pyramid", "both", "pyramid40"])
+    ap.add_argument("--every", type=int, default=5)
+    ap.add_argument("--tolerances", default="1e-4,1e-8")
+    ap.add_argument("--cap", type=int, default=100_000, help="our sweeps at most (Siconos: 100,000 iterations)")
+    args = ap.parse_args()
+    if not peer.available():
+        sys.exit("Siconos is not installed for /usr/bin/python3 (make setup installs python3-siconos)")
+    tolerances = [float(t) for t in args.tolerances.split(",")]
+    if args.scene == "pyramid40":
+        return report("pyramid40", first_steps(40, 5), tolerances, args.cap)
+    for name in (["pile", "pyramid"] if args.scene == "both" else [args.scene]):
+        report(name, problems(name, args.every if name == "pile" else 50), tolerances, args.cap)
+
+
+if __name__ == "__main__":
+    main()
