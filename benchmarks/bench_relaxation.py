@@ -9,7 +9,9 @@ steps): builtin, builtin at w = 1.7, prev at w = 1.7 (their sparse factorization
 with subspace minimization (Newton's systems solved by conjugate gradients): builtin, builtin at
 w = 1.7, prev.
 Reported: median sweeps and median measured solve time, each as a ratio to builtin at w = 1 in the
-same run (best of --repeats timings per step).
+same run (best of --repeats timings per step); and the fixed cost of a solve (the same call with no
+sweep: options, the arrays handed over and checked, the problem assembled, the answer handed back),
+below which no start can bring a solve.
 
 With --loop: our PGS drives the scene instead (600 steps, residual < 1e-4, cap 1000), where
 Box2D's warm start is the previous step's solution at the tolerance; reported are median sweeps and
@@ -55,6 +57,16 @@ def timed(problem, n, t, w, repeats, accelerate="none"):
         s = solve(problem, n, t, relaxation=w, final_residual=False, accelerate=accelerate, **SETTINGS)
         best = min(best, time.perf_counter() - t0)
     return s.iterations, best, s.factorizations
+
+
+def fixed_cost(problem, repeats):
+    """The time of a solve that makes no sweep (best of repeats)."""
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        solve(problem, final_residual=False, mode="float64", max_iterations=0)
+        best = min(best, time.perf_counter() - t0)
+    return 0, best, 0
 
 
 LOOP_VARIANTS = (("builtin", 1.0, "none"), ("builtin@1.7", 1.7, "none"), ("builtin@auto", "auto", "none"),
@@ -117,7 +129,8 @@ def main():
     rows = {name: [] for name in ("builtin", "builtin@1.7", f"builtin@auto({tuner.w:g})", "prev", "prev@1.7",
                                   "builtin+nncg", "builtin+nncg@1.3", "prev+nncg",
                                   "builtin+newton", "builtin+newton@1.7", "prev+newton@1.7",
-                                  "builtin+subspace", "builtin+subspace@1.7", "prev+subspace")}
+                                  "builtin+subspace", "builtin+subspace@1.7", "prev+subspace",
+                                  "no sweep (fixed cost)")}
     for (k0, p0, keys0), (k, p, keys) in zip(steps, steps[1:]):
         if k != k0 + 1 or (k - 300) % 10:
             continue
@@ -139,6 +152,7 @@ def main():
                   "prev+subspace": (pn, pt, 1.0, "subspace")}
         for name, (n, t, w, accelerate) in starts.items():
             rows[name].append(timed(p, n, t, w, args.repeats, accelerate))
+        rows["no sweep (fixed cost)"].append(fixed_cost(p, args.repeats))
     base_it = statistics.median(i for i, _, _ in rows["builtin"])
     base_s = statistics.median(s for _, s, _ in rows["builtin"])
     print(f"{args.scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
