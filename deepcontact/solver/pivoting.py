@@ -82,12 +82,17 @@ def lemke_tableau(M, q, max_pivots=None):
     return None
 
 
-def pivoted_impulses(problem, method=None):
+def pivoted_impulses(problem, method=None, perturb=0.0):
     """Per-point (normal, tangent) impulses of the step by Lemke's method (default the native
-    lemke; lemke_tableau is the other), or None."""
+    lemke; lemke_tableau is the other), or None. perturb: q raised by up to this fraction of its
+    largest entry, pseudo-randomly (the same every time): on a degenerate step the ties that end
+    Lemke on a ray or a wrong basis are broken, and Newton finishes from the perturbed answer."""
     lp = local_problem(problem)
     m = len(lp.mu)
-    z = (method or lemke)(*friction_lcp(lp))
+    M, q = friction_lcp(lp)
+    if perturb:
+        q = q + perturb * np.abs(q).max(initial=0.0) * np.random.default_rng(0).random(len(q))
+    z = (method or lemke)(M, q)
     if z is None:
         return None
     return lp.impulses(_from_z(z, m), problem.points)

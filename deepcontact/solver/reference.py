@@ -6,8 +6,9 @@ whenever a Newton step fails. On some stacked, redundant steps Newton stalls nea
 not a solution (an exact one exists with other contacts separating and sliding). After
 FIRST_SWEEPS without an exact answer the reference pivots (solver/pivoting.py): Lemke's method on
 the neighbourhood of the contacts that carry the residual, the others held, then Newton from
-there; a wider neighbourhood; the whole step (up to PIVOT_POINTS contact points); and last
-Newton from the best answer to the cap. The best answer is kept (Solution.pivoted says that a
+there; a wider neighbourhood; the whole step (up to PIVOT_POINTS contact points), as it is and
+with q slightly perturbed (a degenerate step's ties end Lemke on a ray or a wrong basis); and
+last Newton from the best answer to the cap. The best answer is kept (Solution.pivoted says that a
 pivot led to it). The residual reached, the sweeps, factorizations and fallbacks are part of the
 answer: reports count the steps that still miss 1e-12 rather than pretending. It starts from
 zero so that it does not depend on any start being compared. Exact solutions of a frictional step
@@ -27,6 +28,7 @@ POLISH_SWEEPS = 3000    # Newton after each pivot
 # neighbourhood tried again is another one once a pivot has moved the residual)
 NEIGHBOURHOODS = ((0, 0.1), (1, 0.1), (0, 0.1), (1, 0.1), (1, 0.03), (2, 1e-2))
 PIVOT_POINTS = 250      # a dense tableau of 4 x points rows: beyond this Lemke costs more than it gives
+PERTURBATIONS = (0.0, 1e-12, 1e-10, 1e-8)   # of q, for the whole step's Lemke: degenerate steps need one
 
 
 def reference_solution(problem, tolerance=TOLERANCE, cap=CAP, relaxation=1.0, accelerate="newton",
@@ -56,7 +58,9 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
                                                                  rings, share)
                 for rings, share in NEIGHBOURHOODS]
     if problem.points <= PIVOT_POINTS:   # the whole step, natively, then on the tableau (its path can differ)
-        attempts += [lambda b: pivoted_impulses(problem), lambda b: pivoted_impulses(problem, lemke_tableau)]
+        attempts += [lambda b, method=method, perturb=perturb: pivoted_impulses(problem, method, perturb)
+                     for perturb in PERTURBATIONS for method in (None, lemke_tableau)]
+        attempts += attempts[:len(NEIGHBOURHOODS)]   # the neighbourhoods again, around what is left
     for attempt in attempts:
         pair = attempt(best)
         if pair is None:
