@@ -108,7 +108,8 @@ def report(name, steps, use_siconos):
 
 def report_hard(every):
     """The reference on every `every`-th step of each scene of the stability study."""
-    print(f"\nthe reference on every {every}. step of the stability study's scenes (to 1e-12, from zero)")
+    which = "every step" if every == 1 else f"one step in {every}"
+    print(f"\nthe reference on {which} of the stability study's scenes (to 1e-12, from zero)")
     print("| scene | steps | contact points (mean) | reach 1e-12 | pivoted | worst residual | total s |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for case in FULL:
