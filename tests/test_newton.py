@@ -116,17 +116,50 @@ def test_native_lemke_agrees_with_the_tableau_where_the_answer_is_unique():
         pivoting.native_lemke(np.eye(2), np.ones(3), 10)
 
 
+HELD_OUT = problems_of_seed("pile", 1000, {}, (245, 275))
+
+
 def test_the_reference_pivots_where_newton_stalls_and_reaches_1e_12():
-    """A held-out pile step on which Newton alone settles at a residual of 1e-7 (docs/solver.md):
-    Lemke on the neighbourhood of the contacts carrying that residual, then Newton, is exact."""
+    """Held-out pile steps on which Newton alone settles at a residual of 1e-7 (docs/solver.md):
+    Lemke on the neighbourhood of the contacts carrying that residual, then Newton, is exact (step
+    245); on a step degenerate for Lemke (275: a ray on the whole step), with q perturbed."""
     from deepcontact.solver import pivoting, reference
     from deepcontact.solver.fclib import local_problem
-    (p,) = problems_of_seed("pile", 1000, {}, (245,))
-    newton = solve(p, zero(p), zero(p), tolerance=1e-12, max_iterations=reference.FIRST_SWEEPS, accelerate="newton")
-    assert newton.residual > 1e-9
+    for p in HELD_OUT:
+        newton = solve(p, zero(p), zero(p), tolerance=1e-12, max_iterations=reference.FIRST_SWEEPS,
+                       accelerate="newton")
+        assert newton.residual > 1e-9, p.index
+        lp = local_problem(p)
+        near = pivoting.neighbourhood(p, lp, lp.reaction(newton.normal_impulse, newton.tangent_impulse), 1, 0.1)
+        assert 0 < len(near) < p.points / 2, p.index    # a neighbourhood, not the step
+        r = reference.reference_solution(p)
+        assert r.residual < 1e-12 and r.pivoted, p.index
+        assert r.iterations > newton.iterations and r.factorizations > newton.factorizations   # all the work counted
+
+
+def test_a_neighbourhood_grows_through_dynamic_bodies_only():
+    from deepcontact._box2d import contact_rows
+    from deepcontact.solver import pivoting
+    from deepcontact.solver.fclib import local_problem, point_residuals
+    p = HELD_OUT[0]
+    s = solve(p, zero(p), zero(p), tolerance=1e-12, max_iterations=300, accelerate="newton")
     lp = local_problem(p)
-    near = pivoting.neighbourhood(p, lp, lp.reaction(newton.normal_impulse, newton.tangent_impulse), rings=1, share=0.1)
-    assert 0 < len(near) < p.points / 2    # a neighbourhood, not the step
-    r = reference.reference_solution(p)
-    assert r.residual < 1e-12 and r.pivoted
-    assert r.iterations > newton.iterations and r.factorizations > newton.factorizations   # all the work counted
+    r = lp.reaction(s.normal_impulse, s.tangent_impulse)
+    f = point_residuals(lp, r)
+    worst = pivoting.neighbourhood(p, lp, r, rings=0, share=1.0)
+    assert list(worst) == list(np.nonzero(f == f.max())[0])
+    rows = contact_rows(p.bodies, p.contacts, p.settings(prune=False))
+    a, b = rows["row_a"][lp.points], rows["row_b"][lp.points]
+    dynamic = set(np.nonzero(p.bodies["type"] == 2)[0]) & (set(a[worst]) | set(b[worst]))
+    ring = pivoting.neighbourhood(p, lp, r, rings=1, share=1.0)
+    assert set(worst) < set(ring)
+    assert set(ring) == set(np.nonzero(np.isin(a, list(dynamic)) | np.isin(b, list(dynamic)))[0]) | set(worst)
+
+
+def test_a_perturbed_pivot_is_reproducible():
+    from deepcontact.solver import pivoting
+    p = HELD_OUT[1]
+    first, second = pivoting.pivoted_impulses(p, perturb=1e-12), pivoting.pivoted_impulses(p, perturb=1e-12)
+    assert first is not None
+    np.testing.assert_array_equal(first[0], second[0])
+    np.testing.assert_array_equal(first[1], second[1])
