@@ -3,8 +3,9 @@
 // The revised form of solver/pivoting.py's dense tableau, with the same pivot rule: the basis
 // inverse B^-1 (n x n) and B^-1 q are kept; an entering column is formed from M's sparse column
 // (a step's friction LCP has 2% of its entries nonzero), so a pivot costs one rank-one update of
-// B^-1 (n^2) instead of the tableau's 2 n^2, and no temporary arrays. Rounding builds up in B^-1
-// over a thousand pivots, so the final basis is factorized afresh (sparse LU) for the answer.
+// B^-1 (n^2) instead of the tableau's 2 n^2, and no temporary arrays. The answer is read from a
+// fresh sparse LU of the final basis rather than from the updated B^-1 q, which carries the
+// rounding of every pivot.
 #pragma once
 
 #include <Eigen/SparseCore>
