@@ -139,7 +139,9 @@ def test_dc_evaluate_relaxation_and_budgets(pile, tmp_path):
     assert 1.0 <= summary["starts"]["builtin@auto"]["relaxation"] < 2.0
     ref = summary["settings"]["reference"]
     assert ref["tolerance"] == 1e-12 and 0 < ref["steps"] and 0 <= ref["reached"] <= ref["steps"]
+    assert 0 <= ref["pivoted"] <= ref["steps"]
     text = (out / "report.md").read_text()
+    assert f"{ref['reached']} of {ref['steps']} steps reached it ({ref['pivoted']} by a pivot)" in text
     assert "1024 sweeps" in text and "velocity error" in text and (out / "pareto.png").exists()
     loop = tmp_path / "loop"
     r = dc("evaluate", str(pile), "--closed-loop", "--steps", "60", "--starts", "builtin", "--relaxation", "1.7",

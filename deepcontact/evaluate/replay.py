@@ -45,6 +45,7 @@ class Row:
     fallback: bool = False    # over-relaxation (or acceleration) fell back to plain PGS in this solve
     accelerate: str = "none"
     reference_residual: float = 0.0     # what the step's reference solution reached
+    reference_pivoted: bool = False     # the reference got there by a pivot (solver/reference.py)
     budget_ms: np.ndarray = None        # measured time of exactly BUDGETS[i] sweeps (no early stop)
     budget_residual: np.ndarray = None  # the residual after them
     factorizations: int = 0   # sparse systems a global method factorized or solved (newton, subspace)
@@ -176,6 +177,7 @@ def evaluate_simulation(task):
                       history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
                       accelerate=v.accelerate,
                       fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual,
+                      reference_pivoted=reference.pivoted,
                       factorizations=traced.factorizations)
             if budgets:
                 row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation, v.accelerate)
@@ -274,7 +276,8 @@ def summarize(rows, starts, max_iterations):
 
 def reference_summary(rows):
     """How many steps' reference solutions reached the 1e-12 target."""
-    per_step = {(r.run, r.seed, r.step): r.reference_residual for r in rows}
-    reached = sum(v < REFERENCE_TOLERANCE for v in per_step.values())
+    per_step = {(r.run, r.seed, r.step): (r.reference_residual, r.reference_pivoted) for r in rows}
+    reached = sum(v < REFERENCE_TOLERANCE for v, _ in per_step.values())
     return {"steps": len(per_step), "reached": int(reached), "tolerance": REFERENCE_TOLERANCE,
-            "worst_residual": float(max(per_step.values()))}
+            "pivoted": int(sum(pivoted for _, pivoted in per_step.values())),
+            "worst_residual": float(max(v for v, _ in per_step.values()))}

@@ -31,11 +31,12 @@ def write_report(out, rows, summary, settings):
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["run", "seed", "step", "points", "start", "relaxation", "iterations", "capped", "fallback", "residual",
-                "error", "velocity_error", "predict_ms", "solve_ms", "reference_residual"])
+                "error", "velocity_error", "predict_ms", "solve_ms", "reference_residual", "reference_pivoted"])
     for r in rows:
         w.writerow([r.run, r.seed, r.step, r.points, r.start, f"{r.relaxation:g}", r.iterations, int(r.capped),
                     int(r.fallback), f"{r.residual:.6g}", f"{r.error:.6g}", f"{r.velocity_error:.6g}",
-                    f"{r.predict_ms:.6g}", f"{r.solve_ms:.6g}", f"{r.reference_residual:.6g}"])
+                    f"{r.predict_ms:.6g}", f"{r.solve_ms:.6g}", f"{r.reference_residual:.6g}",
+                    int(r.reference_pivoted)])
     atomic.write_text(out / "steps.csv", buf.getvalue())
     settings = dict(settings, reference=reference_summary(rows))
     atomic.write_text(out / "summary.json", json.dumps({"settings": settings, "starts": summary}, indent=2) + "\n")
@@ -75,7 +76,8 @@ def markdown(summary, settings, pareto):
             f"Runs: {', '.join(s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
             f"Errors are against each step's reference solution (float64 from zero, PGS sweeps, Newton steps and, "
-            f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it, the worst ended at "
+            f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it "
+            f"({ref['pivoted']} by a pivot), the worst ended at "
             f"{ref['worst_residual']:.2g}). Exact solutions of a frictional step need not be unique, in impulses nor "
             f"in body velocities: the residual is the honest per-step measure, and the impulse and velocity errors "
             f"against one reference are informative, not ground truth.\n",
