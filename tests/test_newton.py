@@ -93,7 +93,7 @@ def test_lemke_solves_the_friction_lcp_of_a_step_to_machine_precision():
         assert z is not None
         w = M @ z + q
         assert z.min() >= 0 and w.min() >= -1e-9 * np.abs(q).max() and abs(z @ w) <= 1e-9 * np.abs(q).max() ** 2
-        pair = pivoting.pivoted_impulses(p)
+        pair = pivoting.StepPivots(p).whole()
         assert fclib.residual(lp, lp.reaction(*pair)) < 1e-9
 
 
@@ -130,7 +130,7 @@ def test_the_reference_pivots_where_newton_stalls_and_reaches_1e_12():
                        accelerate="newton")
         assert newton.residual > 1e-9, p.index
         lp = local_problem(p)
-        near = pivoting.neighbourhood(p, lp, lp.reaction(newton.normal_impulse, newton.tangent_impulse), 1, 0.1)
+        near = pivoting.StepPivots(p).neighbourhood(lp.reaction(newton.normal_impulse, newton.tangent_impulse), 1, 0.1)
         assert 0 < len(near) < p.points / 2, p.index    # a neighbourhood, not the step
         r = reference.reference_solution(p)
         assert r.residual < 1e-12 and r.pivoted, p.index
@@ -146,12 +146,13 @@ def test_a_neighbourhood_grows_through_dynamic_bodies_only():
     lp = local_problem(p)
     r = lp.reaction(s.normal_impulse, s.tangent_impulse)
     f = point_residuals(lp, r)
-    worst = pivoting.neighbourhood(p, lp, r, rings=0, share=1.0)
+    step = pivoting.StepPivots(p)
+    worst = step.neighbourhood(r, rings=0, share=1.0)
     assert list(worst) == list(np.nonzero(f == f.max())[0])
     rows = contact_rows(p.bodies, p.contacts, p.settings(prune=False))
     a, b = rows["row_a"][lp.points], rows["row_b"][lp.points]
     dynamic = set(np.nonzero(p.bodies["type"] == 2)[0]) & (set(a[worst]) | set(b[worst]))
-    ring = pivoting.neighbourhood(p, lp, r, rings=1, share=1.0)
+    ring = step.neighbourhood(r, rings=1, share=1.0)
     assert set(worst) < set(ring)
     assert set(ring) == set(np.nonzero(np.isin(a, list(dynamic)) | np.isin(b, list(dynamic)))[0]) | set(worst)
 
@@ -159,7 +160,7 @@ def test_a_neighbourhood_grows_through_dynamic_bodies_only():
 def test_a_perturbed_pivot_is_reproducible():
     from deepcontact.solver import pivoting
     p = HELD_OUT[1]
-    first, second = pivoting.pivoted_impulses(p, perturb=1e-12), pivoting.pivoted_impulses(p, perturb=1e-12)
+    first, second = pivoting.StepPivots(p).whole(perturb=1e-12), pivoting.StepPivots(p).whole(perturb=1e-12)
     assert first is not None
     np.testing.assert_array_equal(first[0], second[0])
     np.testing.assert_array_equal(first[1], second[1])

@@ -12,7 +12,7 @@ in z = (ln, l+, l-, beta), lt = l+ - l-, exact in 2D (the friction cone has two 
 
 Lemke's method with covering vector e and a dense tableau (numpy, float64): O(N^2) per pivot
 for N = 4 x points, so it is kept for the steps that need it, and is first run on a neighbourhood
-(local_pivot): where Newton stalls, its residual sits on a few contacts, and an exact answer of
+(StepPivots.local): where Newton stalls, its residual sits on a few contacts, and an exact answer of
 their LCP, the other contacts' impulses held, lets Newton go on to an exact answer of the step.
 """
 import numpy as np
@@ -82,22 +82,6 @@ def lemke_tableau(M, q, max_pivots=None):
     return None
 
 
-def pivoted_impulses(problem, method=None, perturb=0.0):
-    """Per-point (normal, tangent) impulses of the step by Lemke's method (default the native
-    lemke; lemke_tableau is the other), or None. perturb: q raised by up to this fraction of its
-    largest entry, pseudo-randomly (the same every time): on a degenerate step the ties that end
-    Lemke on a ray or a wrong basis are broken, and Newton finishes from the perturbed answer."""
-    lp = local_problem(problem)
-    m = len(lp.mu)
-    M, q = friction_lcp(lp)
-    if perturb:
-        q = q + perturb * np.abs(q).max(initial=0.0) * np.random.default_rng(0).random(len(q))
-    z = (method or lemke)(M, q)
-    if z is None:
-        return None
-    return lp.impulses(_from_z(z, m), problem.points)
-
-
 def _from_z(z, m):
     """FCLIB's r (per contact: normal, tangent) from the LCP's z = (ln, l+, l-, beta)."""
     r = np.empty(2 * m)
@@ -105,41 +89,65 @@ def _from_z(z, m):
     return r
 
 
-def neighbourhood(problem, lp, r, rings=1, share=1e-2):
-    """The contacts (indices into lp) whose residual is at least `share` of the largest, grown by
-    `rings` rings of contacts on the same dynamic bodies."""
-    rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
-    a, b = rows["row_a"][lp.points], rows["row_b"][lp.points]
-    dynamic = problem.bodies["type"] == 2
-    f = point_residuals(lp, r)
-    chosen = f >= share * f.max(initial=0.0)
-    for _ in range(rings):
-        touched = np.zeros(len(dynamic), bool)
-        touched[a[chosen]] = True
-        touched[b[chosen]] = True
-        touched &= dynamic     # the ground touches everything: it joins nothing
-        chosen |= touched[a] | touched[b]
-    return np.nonzero(chosen)[0]
+class StepPivots:
+    """One step made ready for pivoting once, however many pivots are tried on it: its local
+    problem (W in CSR), each contact's two bodies and, when first asked for, its friction LCP."""
 
+    def __init__(self, problem):
+        self.problem = problem
+        self.lp = local_problem(problem)
+        self.W = self.lp.W.tocsr()
+        rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
+        self.body_a, self.body_b = rows["row_a"][self.lp.points], rows["row_b"][self.lp.points]
+        self.dynamic = problem.bodies["type"] == 2
+        self._lcp = None
 
-def local_pivot(problem, normal, tangent, rings=1, share=1e-2, most=120):
-    """Per-point (normal, tangent) impulses: the given ones, with the neighbourhood of the
-    contacts carrying the residual replaced by Lemke's exact answer of their LCP (the other
-    contacts' impulses held); None if Lemke fails there or the neighbourhood has more than
-    `most` contacts (a pivot costs (4 x contacts)^2)."""
-    lp = local_problem(problem)
-    r = lp.reaction(normal, tangent)
-    chosen = neighbourhood(problem, lp, r, rings, share)
-    if len(chosen) > most:
-        return None
-    rows = np.ravel(np.column_stack([2 * chosen, 2 * chosen + 1]))
-    held = np.ones(len(r), bool)
-    held[rows] = False
-    W = lp.W.tocsr()
-    sub = LocalProblem(W=W[rows][:, rows].tocsc(), q=lp.q[rows] + W[rows][:, held] @ r[held],
-                       mu=lp.mu[chosen], points=np.arange(len(chosen)))
-    z = lemke(*friction_lcp(sub))
-    if z is None:
-        return None
-    r[rows] = _from_z(z, len(chosen))
-    return lp.impulses(r, problem.points)
+    def whole(self, method=None, perturb=0.0):
+        """Per-point (normal, tangent) impulses of the step by Lemke's method (default the native
+        lemke; lemke_tableau is the other), or None. perturb: q raised by up to this fraction of
+        its largest entry, pseudo-randomly (the same every time): on a degenerate step the ties
+        that end Lemke on a ray or a wrong basis are broken, and Newton finishes from there."""
+        if self._lcp is None:
+            self._lcp = friction_lcp(self.lp)
+        M, q = self._lcp
+        if perturb:
+            q = q + perturb * np.abs(q).max(initial=0.0) * np.random.default_rng(0).random(len(q))
+        z = (method or lemke)(M, q)
+        if z is None:
+            return None
+        return self.lp.impulses(_from_z(z, len(self.lp.mu)), self.problem.points)
+
+    def neighbourhood(self, r, rings=1, share=1e-2):
+        """The contacts (indices into lp) whose residual at r is at least `share` of the
+        largest, grown by `rings` rings of contacts on the same dynamic bodies."""
+        a, b = self.body_a, self.body_b
+        f = point_residuals(self.lp, r)
+        chosen = f >= share * f.max(initial=0.0)
+        for _ in range(rings):
+            touched = np.zeros(len(self.dynamic), bool)
+            touched[a[chosen]] = True
+            touched[b[chosen]] = True
+            touched &= self.dynamic     # the ground touches everything: it joins nothing
+            chosen |= touched[a] | touched[b]
+        return np.nonzero(chosen)[0]
+
+    def local(self, normal, tangent, rings=1, share=1e-2, most=120):
+        """Per-point (normal, tangent) impulses: the given ones, with the neighbourhood of the
+        contacts carrying the residual replaced by Lemke's exact answer of their LCP (the other
+        contacts' impulses held); None if Lemke fails there or the neighbourhood has more than
+        `most` contacts (a pivot costs (4 x contacts)^2)."""
+        r = self.lp.reaction(normal, tangent)
+        chosen = self.neighbourhood(r, rings, share)
+        if len(chosen) > most:
+            return None
+        rows = np.ravel(np.column_stack([2 * chosen, 2 * chosen + 1]))
+        held = np.ones(len(r), bool)
+        held[rows] = False
+        W = self.W[rows]
+        sub = LocalProblem(W=W[:, rows].tocsc(), q=self.lp.q[rows] + W[:, held] @ r[held],
+                           mu=self.lp.mu[chosen], points=np.arange(len(chosen)))
+        z = lemke(*friction_lcp(sub))
+        if z is None:
+            return None
+        r[rows] = _from_z(z, len(chosen))
+        return self.lp.impulses(r, self.problem.points)

@@ -52,13 +52,13 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
     followed by Newton, then Newton to the cap; the best answer, its work summed."""
     if s.residual < tolerance:
         return s
-    from .pivoting import lemke_tableau, local_pivot, pivoted_impulses
+    from .pivoting import StepPivots, lemke_tableau
+    step = StepPivots(problem)
     best, work = s, [s]
-    attempts = [lambda b, rings=rings, share=share: local_pivot(problem, b.normal_impulse, b.tangent_impulse,
-                                                                 rings, share)
+    attempts = [lambda b, rings=rings, share=share: step.local(b.normal_impulse, b.tangent_impulse, rings, share)
                 for rings, share in NEIGHBOURHOODS]
     if problem.points <= PIVOT_POINTS:   # the whole step, natively, then on the tableau (its path can differ)
-        attempts += [lambda b, method=method, perturb=perturb: pivoted_impulses(problem, method, perturb)
+        attempts += [lambda b, method=method, perturb=perturb: step.whole(method, perturb)
                      for perturb in PERTURBATIONS for method in (None, lemke_tableau)]
         attempts += attempts[:len(NEIGHBOURHOODS)]   # the neighbourhoods again, around what is left
     for attempt in attempts:
