@@ -52,10 +52,11 @@ def problems(name, every, scenes=None):
     return out
 
 
-def timed(problem, accelerate):
+def timed(problem, accelerate, tolerance=TOLERANCE, cap=CAP):
+    """Our solver from zero to the tolerance: (Solution, seconds)."""
     zero = np.zeros(problem.points)
     t0 = time.perf_counter()
-    s = solve(problem, zero, zero, mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual",
+    s = solve(problem, zero, zero, mode="float64", max_iterations=cap, tolerance=tolerance, stop_on="residual",
               accelerate=accelerate)
     return s, time.perf_counter() - t0
 

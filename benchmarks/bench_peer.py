@@ -17,29 +17,18 @@ import argparse
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
-
-from bench_exact import problems
+from bench_exact import problems, timed
 from deepcontact.scene.generators import generate
 from deepcontact.solver import fclib, peer
-from deepcontact.solver.pgs import solve
 
 OURS = ("none", "nncg", "newton", "subspace")
 
 
 def ours(steps, accelerate, tolerance, cap):
-    times, residuals = [], []
-    for p in steps:
-        zero = np.zeros(p.points)
-        t0 = time.perf_counter()
-        s = solve(p, zero, zero, mode="float64", max_iterations=cap, tolerance=tolerance, stop_on="residual",
-                  accelerate=accelerate)
-        times.append(time.perf_counter() - t0)
-        residuals.append(s.residual)
-    return times, residuals
+    runs = [timed(p, accelerate, tolerance, cap) for p in steps]
+    return [t for _, t in runs], [s.residual for s, _ in runs]
 
 
 def row(label, tolerance, times, residuals):
