@@ -7,7 +7,9 @@ import sys
 
 import click
 
+from deepcontact import interrupts
 from deepcontact.errors import InputError, one_line, show_path
+from deepcontact.interrupts import Terminated
 
 
 class Finite(click.FloatRange):
@@ -164,24 +166,6 @@ def setup_logging(verbose, quiet):
         logging.getLogger(noisy).setLevel(max(logging.WARNING, log_level(verbose, quiet)))
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, SIGHUP or SIGINT: unwinds like Ctrl-C, so every partial output is removed."""
-
-    def __init__(self, signum):
-        super().__init__(signum)
-        self.signum = signum
-
-
-def _on_signal(signum, frame):
-    # The clean-up this starts must not itself be cut short by a second signal.
-    for s in STOP_SIGNALS:
-        signal.signal(s, signal.SIG_IGN)
-    raise Terminated(signum)
-
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
 def command(name):
     """Wraps a subcommand body: logging set-up, InputError → one line and exit 1, Ctrl-C,
     SIGTERM and SIGHUP → clean-up and exit 128 + signal; tracebacks only with -v."""
@@ -189,8 +173,7 @@ def command(name):
         @functools.wraps(f)
         def wrapper(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
-            for s in STOP_SIGNALS:
-                signal.signal(s, _on_signal)
+            interrupts.install()
 
             def fail(message):
                 click.echo(one_line(f"dc {name}: error: {message}"), err=True)

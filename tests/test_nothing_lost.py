@@ -242,6 +242,33 @@ def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, 
         assert leftovers(tmp_path) == [], name
 
 
+def test_a_signal_inside_a_held_block_is_raised_as_it_is_left():
+    """The mechanism behind the writer threads of dc simulate: a stop signal never unwinds the
+    main thread out of a block that waits on locks shared with other threads."""
+    from deepcontact import interrupts
+    saved = {s: signal.getsignal(s) for s in interrupts.STOP_SIGNALS}
+    try:
+        interrupts.install()
+        finished = False
+        with pytest.raises(interrupts.Terminated) as raised:
+            with interrupts.held():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)          # the handler has run by now; nothing was raised here
+                with interrupts.held():   # nested blocks: raised when the outermost is left
+                    pass
+                finished = True
+        assert finished and raised.value.signum == signal.SIGTERM
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN   # the clean-up is not cut short
+        interrupts.install()
+        with pytest.raises(interrupts.Terminated):   # outside a held block: at once
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(0.05)
+            raise AssertionError("not interrupted")
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+
+
 def test_a_signal_to_a_fresh_run_leaves_nothing(dataset, tmp_path):
     proc = start(["simulate", "pile", "--seeds", "0..40", "-q", "-o", "run"], tmp_path)
     wait_for(lambda: any(tmp_path.glob(".run.partial-*/seed-*/step-*.xml")))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic, workers
+from .. import atomic, interrupts, workers
 from ..errors import InputError
 from ..resources import COMPRESSION_RATIO, STEP_BYTES_PER_BODY, check_disk
 from ..scene.xml import fmt, to_xml
@@ -134,6 +134,8 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
         atomic.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
 
     # Rendering, compressing and writing a step (GIL released in each) overlap with stepping the next.
+    # The pool's and the futures' locks are shared with the writer threads (and the progress bar's
+    # with tqdm's): a stop signal waits until the main thread holds none of them (interrupts.held).
     with ThreadPoolExecutor(max_workers=2) as pool:
         pending = deque()
         try:
@@ -141,16 +143,18 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                 k, bodies, contacts = done.index, done.bodies, done.contacts
                 extent.add(bodies)
                 n = len(contacts["manifold"])
-                if n or not skip_contactless:
-                    extra = "" if loop is None else _solve_xml(loop, done.solution)
-                    pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
-                    per_file.append(n)
-                while pending and (len(pending) > 8 or pending[0].done()):
-                    pending.popleft().result()   # re-raises a failed write here
-                if on_step is not None:
-                    on_step(k)
-            while pending:
-                pending.popleft().result()
+                with interrupts.held():
+                    if n or not skip_contactless:
+                        extra = "" if loop is None else _solve_xml(loop, done.solution)
+                        pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
+                        per_file.append(n)
+                    while pending and (len(pending) > 8 or pending[0].done()):
+                        pending.popleft().result()   # re-raises a failed write here
+                    if on_step is not None:
+                        on_step(k)   # a progress bar: its lock is shared with tqdm's monitor thread
+            with interrupts.held():
+                while pending:
+                    pending.popleft().result()
         except BaseException:
             for f in pending:
                 f.cancel()

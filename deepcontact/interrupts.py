@@ -1,0 +1,58 @@
+"""Stop signals as an exception, and the places where it must wait.
+
+A command turns SIGINT, SIGTERM and SIGHUP into Terminated, raised in the main thread wherever it
+is, so that the output being built unwinds like after Ctrl-C. Raised inside a lock that another
+thread needs, it leaves that lock held: unwinding out of Future.result() left the future's
+condition held, and the writer thread finishing that future waited for it while the command
+waited for the writer thread, forever (`dc simulate` under load, SIGTERM ignored thereafter).
+Code that waits on such locks runs inside held(): a signal that comes meanwhile is raised when
+the block is left instead.
+"""
+import signal
+from contextlib import contextmanager
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+_held = 0          # depth of held() blocks the main thread is in
+_pending = None    # the signal that came while held
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, SIGHUP or SIGINT: unwinds like Ctrl-C, so every partial output is removed."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _on_signal(signum, frame):
+    global _pending
+    # The clean-up this starts must not itself be cut short by a second signal.
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    if _held:
+        _pending = signum
+        return
+    raise Terminated(signum)
+
+
+def install():
+    """Stop signals raise Terminated from now on (in the main thread)."""
+    global _pending
+    _pending = None
+    for s in STOP_SIGNALS:
+        signal.signal(s, _on_signal)
+
+
+@contextmanager
+def held():
+    """A block that a stop signal does not interrupt: it is raised as the block is left."""
+    global _held, _pending
+    _held += 1
+    try:
+        yield
+    finally:
+        _held -= 1
+        if not _held and _pending is not None:
+            signum, _pending = _pending, None
+            raise Terminated(signum)
