@@ -3,6 +3,7 @@ and zlib.
 
 Everything else about the package lives in setup.cfg.
 """
+import glob
 import shlex
 import subprocess
 import sys
@@ -41,6 +42,8 @@ ext = Pybind11Extension(
         "deepcontact/native/pgs_step.cpp",
         "deepcontact/native/splat.cpp",
     ],
+    # the solver lives in headers: a change to one must rebuild the module
+    depends=sorted(glob.glob("deepcontact/native/*.hpp")),
     include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
     libraries=[f[2:] for p in LIBRARIES for f in pkg_config("--libs", package=p) if f.startswith("-l")],
     # Box2D 2.4.1's own b2_version still says 2.4.0; record the packaged version we built against.
