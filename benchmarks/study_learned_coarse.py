@@ -91,11 +91,11 @@ class Coarse:
         else:
             weight = torch.exp(model(self.features(n, t, w).float(), g.a, g.b, len(g.inv_mass)).double())
         touching = g.active & ((n > 0) | (w[:p] < 0))
-        sticking = touching & (g.friction > 0)
+        frictional = touching & (g.friction > 0)   # their tangent rows
         P = torch.zeros(2 * p, 2 * K, dtype=torch.float64)
         r = torch.arange(p)
         P = P.index_put((r, self.aggregate), weight[:, 0] * touching) \
-             .index_put((r + p, K + self.aggregate), weight[:, 1] * sticking)
+             .index_put((r + p, K + self.aggregate), weight[:, 1] * frictional)
         # a mode with no touching row has an empty column: a small ridge keeps G regular (and
         # its derivative defined), and leaves such a mode at zero
         G = P.T @ self.A @ P
