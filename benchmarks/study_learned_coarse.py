@@ -37,7 +37,7 @@ import torch
 from deepcontact._box2d import contact_rows
 from deepcontact.model import contact_graph as cg
 from deepcontact.solver.pgs import solve
-from study_learned_correction import loop_problems
+from study_learned_correction import datasets
 
 TOLERANCE, CAP = 1e-4, 1000
 
@@ -210,11 +210,7 @@ def main():
     ap.add_argument("--train", default="0,1")
     ap.add_argument("--steps", type=int, default=600)
     args = ap.parse_args()
-    t0 = time.perf_counter()
-    train_set = [p for s in args.train.split(",") for p in loop_problems(int(s), args.steps)]
-    test_set = loop_problems(1000, args.steps)[::2]
-    print(f"data: {len(train_set)} training steps, {len(test_set)} held-out, {time.perf_counter() - t0:.1f} s",
-          flush=True)
+    train_set, test_set = datasets(args.train, args.steps)
     model = train(train_set, args.epochs, args.sweeps, args.cell, args.lr, seed=0)
     evaluate(model, test_set, args.sweeps, args.cell)
 

@@ -48,6 +48,16 @@ def loop_problems(seed, steps=600):
     return out
 
 
+def datasets(train, steps):
+    """The loop steps of the training seeds ("0,1") and every second step of held-out seed 1000."""
+    t0 = time.perf_counter()
+    train_set = [p for s in train.split(",") for p in loop_problems(int(s), steps)]
+    test_set = loop_problems(1000, steps)[::2]
+    print(f"data: {len(train_set)} training steps, {len(test_set)} held-out, {time.perf_counter() - t0:.1f} s",
+          flush=True)
+    return train_set, test_set
+
+
 def train(problems, epochs, sweeps, batch, seed, lr=3e-4, rounds=2, width=32):
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -118,11 +128,7 @@ def main():
     ap.add_argument("--train", default="0,1,2,3")
     ap.add_argument("--steps", type=int, default=600)
     args = ap.parse_args()
-    t0 = time.perf_counter()
-    train_set = [p for s in args.train.split(",") for p in loop_problems(int(s), args.steps)]
-    test_set = loop_problems(1000, args.steps)[::2]
-    print(f"data: {len(train_set)} training steps, {len(test_set)} held-out, {time.perf_counter() - t0:.1f} s",
-          flush=True)
+    train_set, test_set = datasets(args.train, args.steps)
     model = train(train_set, args.epochs, args.sweeps, args.batch, seed=0, lr=args.lr, rounds=args.rounds,
                   width=args.width)
     evaluate(model, test_set)
