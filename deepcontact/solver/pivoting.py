@@ -10,10 +10,12 @@ in z = (ln, l+, l-, beta), lt = l+ - l-, exact in 2D (the friction cone has two 
     w_-    = -A_tn ln - A_tt (l+ - l-) - q_t + beta   >= 0  _|_ l-
     w_beta =  mu ln - l+ - l-                         >= 0  _|_ beta   (beta: the sliding speed)
 
-Lemke's method with covering vector e and a dense tableau (numpy, float64): O(N^2) per pivot
-for N = 4 x points, so it is kept for the steps that need it, and is first run on a neighbourhood
-(StepPivots.local): where Newton stalls, its residual sits on a few contacts, and an exact answer of
-their LCP, the other contacts' impulses held, lets Newton go on to an exact answer of the step.
+Lemke's method with covering vector e (natively in revised form, lemke(); the numpy tableau,
+lemke_tableau(), is its readable reference): O(N^2) per pivot for N = 4 x points, even revised
+(the basis inverse is dense), so it is kept for the steps that need it, and is first run on a
+neighbourhood (StepPivots.local): where Newton stalls, its residual sits on a few contacts, and an
+exact answer of their LCP, the other contacts' impulses held, lets Newton go on to an exact
+answer of the step.
 """
 import numpy as np
 
