@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from deepcontact import interrupts
+from deepcontact import atomic, interrupts
 from deepcontact.errors import InputError, one_line, show_path
 from deepcontact.interrupts import Terminated
 
@@ -174,6 +174,7 @@ def command(name):
         def wrapper(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
             interrupts.install()
+            atomic.completed.clear()
 
             def fail(message):
                 click.echo(one_line(f"dc {name}: error: {message}"), err=True)
@@ -186,8 +187,12 @@ def command(name):
                 fail(e)
             except KeyboardInterrupt as e:
                 signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
-                click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}); no partial output was left, "
-                           f"and output being replaced (--overwrite) is as it was", err=True)
+                if atomic.completed:   # the signal waited for a swap to finish
+                    click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}) after its output was "
+                               f"complete: {show_path(atomic.completed[-1])} is the new output", err=True)
+                else:
+                    click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}); no partial output was "
+                               f"left, and output being replaced (--overwrite) is as it was", err=True)
                 sys.exit(128 + signum)
             except MemoryError:
                 if verbose:

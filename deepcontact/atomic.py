@@ -1,28 +1,85 @@
 """Atomic output: write to a temporary name in the same folder, then rename.
 
-An interrupted run leaves either the complete file or nothing (a stray ``.tmp`` file at most is
-removed on the way out). Whole output folders go through `output_folder`: locked against a
-second command, replaced only when every entry is the command's own, swapped in when complete.
+An interrupted run leaves either the complete file or nothing. Whole output folders go through
+`output_folder`: locked against a second command, replaced only when every entry is one the
+command's own record says it wrote, swapped in when complete by a journalled replacement that a
+signal cannot cut in two and that the next command finishes or undoes if the process was killed.
+
+Names beside an output ``NAME`` (shortened with a hash when NAME is long, so that they fit in 255
+bytes): ``.NAME.lock`` (the lock), ``.NAME.partial-*`` (the output being built), ``.NAME.old-*``
+(the output being replaced, only while ``.NAME.swap``, the journal, names it). Inside an output
+folder, ``.dc-output.json`` records the command and every entry it wrote; nothing is ever taken
+for the command's own by its name alone.
 """
-import glob
+import hashlib
+import json
 import logging
 import os
-import re
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
 log = logging.getLogger(__name__)
 
+RECORD = ".dc-output.json"
+NAME_MAX = 255     # bytes in one file name (Linux, macOS)
+_SPARE = 40        # room left for the longest suffix we add (".partial-PID-XXXXXXXX", ".PID.tmp")
+
+# Folders written in place (training), by absolute path: every file written there is entered in
+# the folder's record before its bytes, so even a killed run leaves a record of what it wrote.
+_in_place = {}
+
+# Outputs swapped in during this process: an interruption that comes after is said as such.
+completed = []
+
+
+def short_name(name):
+    """name, or for one too long to take a suffix, its start and a hash of the whole (still unique)."""
+    raw = name.encode("utf-8", "surrogateescape")
+    if len(raw) <= NAME_MAX - _SPARE:
+        return name
+    head = raw[:NAME_MAX - _SPARE - 12].decode("utf-8", "ignore")
+    return f"{head}~{hashlib.sha1(raw).hexdigest()[:10]}"
+
+
+def beside(path, kind):
+    """The path of our ``.NAME.KIND`` file or folder beside path."""
+    path = Path(path)
+    return path.parent / f".{short_name(path.name)}.{kind}"
+
+
+def check_replaceable(path):
+    """Refuses (InputError) an output path that is there but is not a regular file: a folder, a
+    device, a FIFO or a socket is never replaced by a file, and a symbolic link never followed."""
+    from .errors import InputError
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
+    if stat.S_ISLNK(st.st_mode):
+        raise InputError("is a symbolic link: refusing to write through it or replace it", path)
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a special file (device, FIFO or socket)"
+        raise InputError(f"is {kind}, not a regular file: refusing to replace it", path)
+
 
 def write_bytes(path, data: bytes):
+    """data at path, atomically: complete or not there (an earlier file stays until replaced)."""
     # The hot path of `dc simulate` (one call per step): plain os calls, a temporary name
     # unique to this process (tempfile.mkstemp costs more than the write itself).
     path = os.fspath(path)
     head, name = os.path.split(path)
-    tmp = os.path.join(head, f".{name}.{os.getpid()}.tmp")
+    check_replaceable(path)
+    tmp = os.path.join(head, f".{short_name(name)}.{os.getpid()}.tmp")
+    if _in_place:
+        record = _in_place.get(os.path.abspath(head or "."))
+        if record is not None:
+            record.enter(name, os.path.basename(tmp))
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644)
         try:
             view = memoryview(data)
             while view:
@@ -43,11 +100,20 @@ def write_text(path, text: str):
     write_bytes(path, text.encode("utf-8"))
 
 
+def figure_bytes(fig, fmt, **savefig):
+    """A matplotlib figure as the bytes of a picture (written with write_bytes, never in place)."""
+    import io
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, **savefig)
+    return buf.getvalue()
+
+
 @contextmanager
 def open_for_write(path, mode="wb"):
     """A file object whose content appears at ``path`` only if the block completes."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    check_replaceable(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{short_name(path.name)}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, mode) as f:
             yield f
@@ -64,85 +130,117 @@ def _remove_quietly(path):
         pass
 
 
-@contextmanager
-def folder(path):
-    """A temporary folder beside `path` that becomes `path` only if the block completes.
+# --- What an output folder holds: its record ----------------------------------------------------
 
-    An existing folder is moved aside first and removed after; on failure, Ctrl-C or a signal
-    the temporary folder is removed and `path` is left as it was."""
-    import shutil
-    from .errors import InputError
-    path = Path(path)
-    tmp = path.parent / f".{path.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
+def entries(folder):
+    """Every entry under folder, relative and ``/``-separated, folders ending in ``/``, sorted;
+    symbolic links are listed, never followed."""
+    out = []
+
+    def walk(d, rel):
+        with os.scandir(d) as it:
+            for e in sorted(it, key=lambda e: e.name):
+                r = f"{rel}{e.name}"
+                if e.is_dir(follow_symlinks=False):
+                    out.append(r + "/")
+                    walk(e.path, r + "/")
+                else:
+                    out.append(r)
+    walk(folder, "")
+    return out
+
+
+def read_record(folder):
+    """The record in an output folder: a dict with ``command``, ``state``, ``files`` and
+    ``temporary``, or None where there is none (or it is not one of ours)."""
+    p = Path(folder) / RECORD
     try:
-        tmp.mkdir(parents=True)
-    except OSError as e:
-        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
-    try:
-        yield tmp
-        old = None
-        if path.exists():
-            old = path.parent / f".{path.name}.old-{os.getpid()}"
-            os.replace(path, old)
-        os.replace(tmp, path)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        if not stat.S_ISREG(os.lstat(p).st_mode) or os.lstat(p).st_size > 1 << 30:
+            return None
+        rec = json.loads(p.read_bytes())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    ok = (isinstance(rec, dict) and isinstance(rec.get("command"), str) and rec.get("state") in ("partial", "done")
+          and all(isinstance(rec.get(k), list) and all(isinstance(x, str) for x in rec[k])
+                  for k in ("files", "temporary")))
+    return rec if ok else None
 
 
-# --- Output folders ----------------------------------------------------------------------------
-# A command's output folder is replaced (--overwrite) only if everything in it is something that
-# command writes: each writer keeps the list beside itself as an `Owned`. Two commands never write
-# one output at once: each holds an exclusive lock on `.NAME.lock` beside it while it works.
-
-# temporary names of write_bytes / open_for_write, anywhere in an output
-_TEMPORARY = r"(?:.*/)?\.[^/]+\.tmp"
+def _write_record(folder, command, state, files=(), temporary=()):
+    write_text(Path(folder) / RECORD, json.dumps({"command": command, "state": state, "files": sorted(files),
+                                                  "temporary": sorted(temporary)}, indent=0) + "\n")
 
 
 class Owned:
-    """What one kind of output holds: regular expressions over paths relative to the output
-    folder (``/``-separated); a pattern ending in ``/`` names a folder."""
+    """What one kind of output is called (``what``); which entries are the command's own is
+    decided by the record the command left inside the folder (`first_foreign`)."""
 
-    def __init__(self, what, patterns):
+    def __init__(self, what, patterns=()):
         self.what = what
-        self._dirs = [re.compile(p[:-1]) for p in patterns if p.endswith("/")]
-        self._files = [re.compile(p) for p in patterns if not p.endswith("/")] + [re.compile(_TEMPORARY)]
+        self.patterns = list(patterns)   # what it holds, for the reader (never used to decide)
 
-    def first_foreign(self, folder):
-        """The first path under folder (in sorted order) that this kind of output does not hold,
-        or None. Symbolic links are never followed, and never ours."""
-        def walk(d, rel):
-            with os.scandir(d) as it:
-                entries = sorted(it, key=lambda e: e.name)
-            for e in entries:
-                r = f"{rel}{e.name}"
-                if e.is_dir(follow_symlinks=False):
-                    if not any(p.fullmatch(r) for p in self._dirs):
-                        return e.path
-                    bad = walk(e.path, r + "/")
-                    if bad:
-                        return bad
-                elif not (e.is_file(follow_symlinks=False) and any(p.fullmatch(r) for p in self._files)):
-                    return e.path
-            return None
-        return walk(folder, "")
+    def first_foreign(self, folder, command):
+        """The first path under folder (sorted) that dc `command` did not write there, or None."""
+        rec = read_record(folder)
+        if rec is None or rec["state"] != "done" or rec["command"] != command:
+            return None, rec
+        own = set(rec["files"]) | {RECORD}
+        for r in entries(folder):
+            if r not in own:
+                return os.path.join(folder, r.rstrip("/")), rec
+        return None, rec
 
+
+class _InPlace:
+    """The record of a folder written in place, kept up to date as files are written."""
+
+    def __init__(self, folder, command):
+        self.folder, self.command = Path(folder), command
+        rec = read_record(folder)
+        mine = rec is not None and rec["command"] == command
+        self.files = set(rec["files"]) if mine else set()
+        # temporary files a killed run of ours left: ours to remove
+        for name in (rec["temporary"] if mine else ()):
+            p = self.folder / name
+            if p.is_file() and not p.is_symlink():
+                log.info("removing %s, left by an interrupted earlier run", p)
+                _remove_quietly(p)
+        self.temporary = set()
+        self.save()
+
+    def enter(self, name, tmp):
+        if name not in self.files or tmp not in self.temporary:
+            self.files.add(name)
+            self.temporary.add(tmp)
+            self.save()
+
+    def save(self, final=False):
+        if final:   # what is there now, of what we wrote
+            self.files = {f for f in self.files if (self.folder / f).exists()}
+            self.temporary = {t for t in self.temporary if (self.folder / t).exists()}
+        _write_record(self.folder, self.command, "done", self.files, self.temporary)
+
+
+# --- Locks, leftovers and the replacement journal -----------------------------------------------
 
 @contextmanager
 def locked(path):
     """Holds an exclusive lock on ``.NAME.lock`` beside path, or refuses at once."""
+    import errno
     import fcntl
     from .errors import InputError
-    path = Path(path)
-    lock = path.parent / f".{path.name}.lock"
+    lock = beside(path, "lock")
     while True:
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
         except OSError as e:
+            if e.errno == errno.ELOOP:
+                raise InputError(f"the lock file {lock.name} beside it is a symbolic link: refusing to follow "
+                                 "it; remove it", path) from None
             raise InputError(f"cannot write there: {e.strerror or e}", path) from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise InputError(f"the lock file {lock.name} beside it is not a regular file; remove it", path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -150,7 +248,7 @@ def locked(path):
             raise InputError("another dc command is writing this output now; wait for it or choose another "
                              "output", path) from None
         try:   # the holder before us may have removed the file: then lock the new one
-            if os.stat(lock).st_ino == os.fstat(fd).st_ino:
+            if os.stat(lock, follow_symlinks=False).st_ino == os.fstat(fd).st_ino:
                 break
         except FileNotFoundError:
             pass
@@ -162,61 +260,145 @@ def locked(path):
         os.close(fd)
 
 
-def _remove_leftovers(path):
-    """Folders an interrupted (killed) earlier command left beside path, under our own names.
-    Called with the lock held, so no running command owns them."""
+def recover(path):
+    """Finishes or undoes what a killed earlier command left beside path (called under its lock,
+    so no running command owns any of it): a replacement cut between its renames is undone (the
+    earlier output restored) or, when the new output is in place, finished; partial folders that
+    hold our record are removed. Nothing without our record or journal is touched."""
     import shutil
-    for p in path.parent.glob(f".{glob.escape(path.name)}.*"):
-        if re.fullmatch(rf"\.{re.escape(path.name)}\.(partial|old)-\d+", p.name) and not p.is_symlink():
-            log.info("removing %s, left by an interrupted earlier run", p)
-            shutil.rmtree(p, ignore_errors=True)
+    path = Path(path)
+    journal = beside(path, "swap")
+    if journal.is_file() and not journal.is_symlink():
+        try:
+            j = json.loads(journal.read_bytes())
+            old = path.parent / j["old"]
+            assert isinstance(j["old"], str) and "/" not in j["old"]
+        except (OSError, ValueError, KeyError, TypeError, AssertionError):
+            old = None
+        if old is not None and old.is_dir() and not old.is_symlink():
+            if not os.path.lexists(path):
+                os.replace(old, path)
+                log.warning("restored %s from %s: an earlier replacement was interrupted before the new output "
+                            "was in place", path, old.name)
+            else:
+                log.info("removing %s, the output an interrupted replacement had already replaced", old)
+                shutil.rmtree(old, ignore_errors=True)
+        _remove_quietly(journal)
+    prefix = f".{short_name(path.name)}.partial-"
+    for p in path.parent.iterdir() if path.parent.is_dir() else ():
+        if p.name.startswith(prefix) and p.is_dir() and not p.is_symlink():
+            rec = read_record(p)
+            if rec is not None and rec["state"] == "partial":
+                log.info("removing %s, left by an interrupted earlier run", p)
+                shutil.rmtree(p, ignore_errors=True)
 
+
+@contextmanager
+def folder(path, command="dc"):
+    """A temporary folder beside `path` that becomes `path` only if the block completes.
+
+    The swap is journalled (``.NAME.swap`` names the earlier output while it is moved aside) and
+    held against stop signals, which are raised once it is done; a process killed in the middle is
+    finished or undone by `recover`. On failure, Ctrl-C or a signal before the swap the temporary
+    folder is removed and `path` is left as it was."""
+    import shutil
+    from . import interrupts
+    from .errors import InputError
+    path = Path(path)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{short_name(path.name)}.partial-{os.getpid()}-", dir=path.parent))
+        _write_record(tmp, command, "partial")
+    except OSError as e:
+        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
+    swapped = False
+    try:
+        yield tmp
+        _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
+        with interrupts.held():
+            old = None
+            if os.path.lexists(path):
+                old = Path(tempfile.mktemp(prefix=f".{short_name(path.name)}.old-{os.getpid()}-", dir=path.parent))
+                write_text(beside(path, "swap"), json.dumps({"old": old.name}) + "\n")
+                os.replace(path, old)
+            os.replace(tmp, path)
+            swapped = True
+            completed.append(path)
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+                _remove_quietly(beside(path, "swap"))
+    except BaseException:
+        if not swapped:
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+# --- Output folders ----------------------------------------------------------------------------
+# A command's output folder is replaced (--overwrite) only if its record says that command wrote
+# it and every entry in it is one the record lists. Two commands never write one output at once:
+# each holds an exclusive lock on `.NAME.lock` beside it while it works.
 
 @contextmanager
 def output_folder(path, owned, overwrite=False, *, command, in_place=False, existing_ok=False,
                   hint="use --overwrite to replace it"):
     """The folder a command writes its output in, checked, locked and atomic.
 
-    A new or empty ``path`` is written; an existing output only with overwrite, and only if every
-    entry in it is one `owned` lists (else the first foreign path is named). Normally the output is
-    built in ``.NAME.partial-PID`` beside path and swapped in when complete, so a failed or
-    interrupted command leaves path as it was. in_place: write into path itself (training, which
-    resumes from what it wrote); a folder it created is removed again if it is still empty.
-    existing_ok: an existing output is written into (resuming) without overwrite. hint: what
-    the message for an output that is there already suggests."""
+    A new or empty ``path`` is written; an existing output only with overwrite, and only if its
+    record says dc ``command`` wrote every entry in it (else the first foreign path is named).
+    Normally the output is built in ``.NAME.partial-*`` beside path and swapped in when complete,
+    so a failed or interrupted command leaves path as it was. in_place: write into path itself
+    (training, which resumes from what it wrote), entering each file in the record before writing
+    it; a folder it created is removed again if it holds nothing but the record. existing_ok: an
+    existing output is written into (resuming) without overwrite. hint: what the message for an
+    output that is there already suggests."""
     from .errors import InputError
     path = Path(path)
     if path.is_symlink():
         raise InputError("is a symbolic link: refusing to write through it; give the folder itself", path)
-    if path.exists() and not path.is_dir():
+    if os.path.lexists(path) and not path.is_dir():
         raise InputError("exists and is not a folder", path)
+    here = Path.cwd().resolve()
+    if path.resolve() == here or path.resolve() in here.parents:
+        raise InputError("is the current folder or one above it: give the output a folder of its own "
+                         "(e.g. -o out)", path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", path) from None
     with locked(path):
-        _remove_leftovers(path)
+        recover(path)
         existing = path.is_dir() and any(path.iterdir())
         if existing and not existing_ok:
             if not overwrite:
                 raise InputError(f"output folder is not empty; {hint}", path)
-            foreign = owned.first_foreign(path)
+            foreign, rec = owned.first_foreign(path, command)
+            if rec is None or rec["state"] != "done":
+                raise InputError(f"not written by dc {command} (it holds no record {RECORD} of a dc output): "
+                                 "refusing to replace it; remove it yourself or choose another output", path)
+            if rec["command"] != command:
+                raise InputError(f"written by dc {rec['command']}, not dc {command}: refusing to replace it", path)
             if foreign is not None:
                 raise InputError(f"not written by dc {command}: refusing to replace {path} (--overwrite only "
-                                 f"replaces a folder holding nothing but a {owned.what})", foreign)
+                                 f"replaces a {owned.what} holding nothing but what dc {command} wrote)", foreign)
         if not in_place:
-            with folder(path) as tmp, _named(path, tmp):
+            with folder(path, command) as tmp, _named(path, tmp):
                 yield tmp
             return
         created = not path.exists()
         path.mkdir(exist_ok=True)
+        key = os.path.abspath(path)
+        _in_place[key] = record = _InPlace(path, command)
         try:
             with _named(path, path):
                 yield path
         except BaseException:
-            if created and not any(path.iterdir()):
+            if created and set(os.listdir(path)) <= {RECORD}:
+                _remove_quietly(path / RECORD)
                 path.rmdir()
+                _in_place.pop(key, None)
             raise
+        finally:
+            if _in_place.pop(key, None) is not None:
+                record.save(final=True)
 
 
 @contextmanager

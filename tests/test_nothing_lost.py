@@ -78,19 +78,28 @@ def test_simulate_overwrite_looks_at_hidden_files_and_inside_seed_folders(run, t
     (out / foreign).write_text("mine")
     before = snapshot(out)
     r = dc("simulate", *PILE, "--steps", "10", "--overwrite", "-q", "-o", str(out))
-    first = out / foreign.split("/")[0] if foreign.startswith(".") else out / foreign
+    # the first entry the run's record does not list: a new folder itself, else the file
+    first = out / foreign if (out / foreign).parent.name == "seed-000001" else out / foreign.split("/")[0]
     one_line_error(r, "not written by dc simulate", first)
     assert snapshot(out) == before and leftovers(tmp_path) == []
 
 
 def test_overwrite_replaces_a_folder_of_the_commands_own_files(run, tmp_path):
     out = copy(run, tmp_path / "run")
-    (out / "seed-000000" / ".step-000005.xml.999.tmp").write_text("a temporary file of an earlier run")
     r = dc("simulate", *PILE, "--steps", "10", "--overwrite", "-q", "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert json.loads((out / "manifest.json").read_text())["simulations"][0]["steps"] == 10
     assert not (out / "seed-000001").exists() and leftovers(tmp_path) == []
 
+
+@pytest.mark.parametrize("name", [".field-notes.tmp", "seed-000001/.labels-checked.tmp",
+                                  "seed-000000/.step-000005.xml.999.tmp", ".dc-partial"])
+def test_a_users_file_named_like_ours_is_never_taken_for_ours(run, tmp_path, name):
+    out = copy(run, tmp_path / "run")
+    (out / name).write_text("the user's own")
+    r = dc("simulate", *PILE, "--steps", "10", "--overwrite", "-q", "-o", str(out))
+    one_line_error(r, "not written by dc simulate", out / name)
+    assert (out / name).read_text() == "the user's own"
 
 def test_a_symlinked_output_is_refused_and_nothing_is_left_beside_it(run, dataset, tmp_path):
     real = copy(dataset, tmp_path / "real")
@@ -107,11 +116,79 @@ def test_a_symlinked_output_is_refused_and_nothing_is_left_beside_it(run, datase
 
 def test_leftovers_of_a_killed_run_are_cleared_by_the_next(run, tmp_path):
     out = tmp_path / "run"
-    stale = tmp_path / ".run.partial-99999999"
+    stale = tmp_path / ".run.partial-99999999-abc"    # a partial folder of ours: it holds our record
     (stale / "seed-000000").mkdir(parents=True)
     (stale / "seed-000000" / "step-000000.xml").write_text("<step/>")
+    atomic._write_record(stale, "simulate", "partial")
+    users = tmp_path / ".run.partial-12345"           # named like ours, but no record: the user's
+    users.mkdir()
+    (users / "notes.txt").write_text("mine")
     r = dc("simulate", *PILE, "--steps", "5", "-q", "-o", str(out))
-    assert r.returncode == 0 and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert r.returncode == 0 and sorted(p.name for p in tmp_path.iterdir()) == [".run.partial-12345", "run"]
+    assert (users / "notes.txt").read_text() == "mine"
+
+
+def test_a_replacement_killed_between_its_renames_is_undone_or_finished(run, tmp_path):
+    # killed after the earlier output was moved aside, before the new one was in place: the next
+    # command restores the earlier output (it is the only copy) and says so
+    out = copy(run, tmp_path / "run")
+    before = snapshot(out)
+    old = tmp_path / ".run.old-4242-xyz"
+    os.replace(out, old)
+    (tmp_path / ".run.swap").write_text(json.dumps({"old": old.name}))
+    r = dc("simulate", *PILE, "--steps", "5", "-o", str(out))
+    assert r.returncode == 1 and "restored" in r.stderr and "not empty" in r.stderr, r.stderr
+    assert snapshot(out) == before and leftovers(tmp_path) == [] and not (tmp_path / ".run.swap").exists()
+    # killed after the new output was in place, while the old one was being removed: finished
+    stale = copy(run, tmp_path / ".run.old-4343-xyz")
+    (tmp_path / ".run.swap").write_text(json.dumps({"old": stale.name}))
+    r = dc("simulate", *PILE, "--steps", "5", "-o", str(out))
+    assert r.returncode == 1 and not stale.exists() and snapshot(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_signal_during_the_swap_waits_for_it(run, tmp_path, monkeypatch):
+    """SIGTERM delivered between the two renames of a replacement is raised only once the new
+    output is in place: never a moment with neither."""
+    from deepcontact import interrupts
+    out = copy(run, tmp_path / "run")
+    real_replace = os.replace
+
+    def replace(src, dst):
+        if Path(dst).name.startswith(".run.old-"):
+            os.kill(os.getpid(), signal.SIGTERM)   # the handler runs now: the swap must hold it
+            time.sleep(0.05)
+        return real_replace(src, dst)
+    saved = {s: signal.getsignal(s) for s in interrupts.STOP_SIGNALS}
+    interrupts.install()
+    monkeypatch.setattr(os, "replace", replace)
+    try:
+        with pytest.raises(interrupts.Terminated):
+            with atomic.output_folder(out, atomic.Owned("run"), overwrite=True, command="simulate") as work:
+                (work / "new.txt").write_text("new")
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+    assert sorted(p.name for p in out.iterdir()) == [".dc-output.json", "new.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"] and atomic.completed[-1] == out
+
+
+def test_long_output_names_and_the_current_folder(run, tmp_path):
+    name = "r" * 250    # legal, but .NAME.partial-PID would not be
+    r = dc("simulate", *PILE, "--steps", "5", "-q", "-o", str(tmp_path / name))
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+    r = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "simulate", *PILE, "--steps", "5", "-o", "."],
+                       cwd=tmp_path / name, capture_output=True, text=True)
+    one_line_error(r, "the current folder")
+
+
+def test_a_lock_file_that_is_a_symlink_is_not_followed(tmp_path):
+    target = tmp_path / "elsewhere"
+    (tmp_path / ".run.lock").symlink_to(target)
+    r = dc("simulate", *PILE, "--steps", "5", "-o", str(tmp_path / "run"))
+    one_line_error(r, "symbolic link")
+    assert not target.exists() and not (tmp_path / "run").exists()
 
 
 # --- one writer per output ---------------------------------------------------------------------
@@ -144,7 +221,7 @@ def test_two_trainings_into_one_folder_at_once(dataset, tmp_path):
     first.send_signal(signal.SIGINT)
     assert first.wait(timeout=60) == 130
     # only the first training's files, whole: it can be resumed
-    assert {p.name for p in out.iterdir()} <= {"last.pt", "best.pt", "metrics.csv", "metrics.json"}
+    assert {p.name for p in out.iterdir()} <= {"last.pt", "best.pt", "metrics.csv", "metrics.json", atomic.RECORD}
     assert len(json.loads((out / "metrics.json").read_text())) >= 1
     assert leftovers(tmp_path) == []
 

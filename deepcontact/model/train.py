@@ -456,6 +456,8 @@ def plot_losses(history, stem):
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(f"{stem}.png", dpi=110)
-    fig.savefig(f"{stem}.svg")
+    # through bytes and an atomic write: training writes in place, and an interrupted run must
+    # not leave half a picture
+    atomic.write_bytes(f"{stem}.png", atomic.figure_bytes(fig, "png", dpi=110))
+    atomic.write_bytes(f"{stem}.svg", atomic.figure_bytes(fig, "svg"))
     plt.close(fig)
