@@ -76,8 +76,15 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     from deepcontact import atomic
     from deepcontact.evaluate.report import REPORT_FILES
 
+    from deepcontact.warmstart.starts import NEEDS_MODEL
     if "all" in accelerate:
         accelerate = list(ACCELERATIONS)
+    learned = [n for n in starts if n in NEEDS_MODEL]
+    if learned and not model:
+        raise click.BadParameter(f"the start(s) {', '.join(learned)} need a trained model: give --model CHECKPOINT",
+                                 param_hint="'--model'")
+    if "sph" in starts and not model:
+        options.check_grid_options(kernel, cell, smoothing)
     if {"newton", "subspace"} & set(accelerate) and mode != "float64":
         raise click.UsageError("--accelerate newton and subspace are float64 only: use --mode float64")
     if closed_loop and jobs > 1:

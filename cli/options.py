@@ -8,7 +8,7 @@ import sys
 import click
 
 from deepcontact import atomic, interrupts
-from deepcontact.errors import InputError, one_line, show_path
+from deepcontact.errors import InputError, OptionError, one_line, show_path
 from deepcontact.interrupts import Terminated
 
 
@@ -181,6 +181,11 @@ def command(name):
                 sys.exit(1)
             try:
                 return f(*args, verbose=verbose, quiet=quiet, **kwargs)
+            except OptionError as e:
+                if verbose:
+                    raise
+                click.echo(one_line(f"dc {name}: error: {e}"), err=True)
+                sys.exit(2)
             except InputError as e:
                 if verbose:
                     raise
@@ -203,6 +208,16 @@ def command(name):
                     raise
                 where = f"{show_path(e.filename)}: " if getattr(e, "filename", None) else ""
                 fail(f"{where}{e.strerror or e}")
+            except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+                raise
+            except RecursionError:
+                if verbose:
+                    raise
+                fail("the input is nested too deeply to read")
+            except Exception as e:   # a promise kept even where a check is missing: one line, no traceback
+                if verbose:
+                    raise
+                fail(f"{type(e).__name__}: {e} (not a message of ours: please report it; -v shows where it came from)")
         return wrapper
     return decorate
 
@@ -217,3 +232,11 @@ def progress_bar(quiet, total, unit, desc):
 
 max_memory = click.option("--max-memory", type=Finite(min=0, min_open=True), metavar="GB",
                           help="Refuse work estimated to need more memory than this (default 8).")
+
+
+def check_grid_options(kernel, cell, smoothing):
+    """--cell and --smoothing that no float32 grid can carry: a bad option value (exit 2)."""
+    from deepcontact.grid.spec import node_weight_problem
+    problem = node_weight_problem(kernel, cell, smoothing)
+    if problem:
+        raise click.BadParameter(problem, param_hint="'--cell' / '--smoothing'")

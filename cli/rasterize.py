@@ -60,6 +60,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     """
     from deepcontact.grid.dataset import DatasetSettings, write_dataset
 
+    options.check_grid_options(kernel, cell, smoothing)
     win = window
     if oracle or study:
         return report(runs, out, kernel, cell, smoothing, renormalize, win, impulses, every, study, overwrite,

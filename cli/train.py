@@ -42,7 +42,9 @@ def torch_device(ctx, param, value):
 @click.option("--patience", type=options.count(), default=0, show_default=True,
               help="Stop after this many epochs without improvement (0: never).")
 @click.option("--seed", type=options.count(), default=0, show_default=True)
-@click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
+@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
+              help="CPU threads for torch. The count changes the order of float sums, so the same seed trains "
+              "the same weights at the same count: the default is fixed, never the machine's cores.")
 @click.option("--device", default="cpu", show_default=True, callback=torch_device,
               help="torch device, e.g. cuda when a GPU is present.")
 @click.option("--width", "fcn_width", type=options.count(min=1, max=4096), default=16, show_default=True,
@@ -88,8 +90,16 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
             click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 
+    ctx = click.get_current_context()
+    fields = {"model": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
+              "weight_decay": "weight_decay", "batch_size": "batch_size", "patience": "patience", "seed": "seed",
+              "no_final_relu": "final_relu", "fcn_width": "fcn_width", "fcn_depth": "fcn_depth",
+              "solver_sweeps": "solver_sweeps"}
+    given = {field: getattr(cfg, field) for param, field in fields.items()
+             if ctx.get_parameter_source(param) != click.core.ParameterSource.DEFAULT}
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
-                  device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory)
+                  device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
+                  given=given)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

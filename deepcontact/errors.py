@@ -20,6 +20,20 @@ class InputError(Exception):
         return f"{where}: {self.message}" if where else self.message
 
 
+class OptionError(InputError):
+    """Options that do not fit the input (or each other): the CLI exits 2, as for a bad option value."""
+
+    def __init__(self, message, option):
+        super().__init__(message)
+        self.option = option
+
+    def __reduce__(self):
+        return (type(self), (self.message, self.option))
+
+    def __str__(self):
+        return f"Invalid value for {self.option!r}: {self.message}" if self.option else self.message
+
+
 MAX_MESSAGE = 600   # characters: a message is one readable line, whatever a parser put in it
 
 

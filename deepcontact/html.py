@@ -3,11 +3,14 @@ offline (no script, no network), with each plot's SVG inlined in place of its PN
 
 Only the markdown the reports write is understood: headings, paragraphs, pipe tables, bullet
 lists, `code`, **bold** and ![alt](plot.png) images (replaced by plot.svg from the same folder
-where it exists, else embedded as a data: URL)."""
+where it exists, else embedded as a data: URL). Only the pictures the command itself drew (the
+names it passes as `pictures`) are inlined: an image line anywhere else, say from a run path that
+holds markdown, is shown as the text it is, so no page inlines a file from the reader's disk."""
 import base64
-import html
 import re
 from pathlib import Path
+
+from .escape import html_attr, html_text, svg_is_inert
 
 STYLE = """
 body { font: 15px/1.45 system-ui, sans-serif; margin: 2em auto; max-width: 72em; padding: 0 1em; color: #222; }
@@ -23,7 +26,7 @@ code { background: #f4f4f4; padding: 0 0.2em; }
 
 def _inline(text):
     """Escapes text, then turns `code` and **bold** into tags."""
-    out = html.escape(text, quote=False)
+    out = html_text(text)
     out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
     return re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", out)
 
@@ -37,12 +40,15 @@ def _figure(alt, target, folder):
     svg = path.with_suffix(".svg")
     if svg.is_file():
         text = svg.read_text(encoding="utf-8")
-        text = text[text.index("<svg"):] if "<svg" in text else text   # drop the XML declaration and DOCTYPE
-        return f'<figure aria-label="{html.escape(alt)}">{text}</figure>'
+        if svg_is_inert(text):
+            text = text[text.index("<svg"):] if "<svg" in text else text   # drop the XML declaration and DOCTYPE
+            return f'<figure aria-label="{html_attr(alt)}">{text}</figure>'
+        data = base64.b64encode(svg.read_bytes()).decode()   # in an <img>, no script of it runs
+        return f'<figure><img alt="{html_attr(alt)}" src="data:image/svg+xml;base64,{data}"></figure>'
     if path.is_file():
         data = base64.b64encode(path.read_bytes()).decode()
-        return f'<figure><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}"></figure>'
-    return f"<p><em>({html.escape(alt)}: {html.escape(target)} is missing)</em></p>"
+        return f'<figure><img alt="{html_attr(alt)}" src="data:image/png;base64,{data}"></figure>'
+    return f"<p><em>({html_text(alt)}: {html_text(target)} is missing)</em></p>"
 
 
 def _table(lines):
@@ -57,8 +63,10 @@ def _table(lines):
     return "\n".join(out + ["</table>"])
 
 
-def markdown_to_html(text, folder, title):
-    """One HTML page from the report's markdown; images are looked up in `folder`."""
+def markdown_to_html(text, folder, title, pictures=()):
+    """One HTML page from the report's markdown; the images named in `pictures` (file names the
+    command drew in `folder`) are inlined from there, any other image line is text."""
+    pictures = set(pictures)
     body, block = [], []
     lines = text.splitlines()
     i = 0
@@ -70,7 +78,8 @@ def markdown_to_html(text, folder, title):
     while i < len(lines):
         line = lines[i]
         stripped = line.strip()
-        image = re.fullmatch(r"!\[([^\]]*)\]\(([^)\s]+)\)", stripped)
+        image = re.fullmatch(r"!\[([^\]]*)\]\(([^)\s/]+)\)", stripped)
+        image = image if image and image.group(2) in pictures else None
         if not stripped:
             flush()
         elif stripped.startswith("#"):
@@ -101,5 +110,5 @@ def markdown_to_html(text, folder, title):
         i += 1
     flush()
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{html.escape(title)}</title><style>{STYLE}</style></head>\n<body>\n"
+            f"<title>{html_text(title)}</title><style>{STYLE}</style></head>\n<body>\n"
             + "\n".join(body) + "\n</body></html>\n")

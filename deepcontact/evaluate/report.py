@@ -17,6 +17,7 @@ import warnings
 import numpy as np
 
 from .. import atomic
+from ..escape import plot_text
 from ..html import markdown_to_html
 from .replay import BUDGETS, reference_summary
 
@@ -54,7 +55,8 @@ def write_report(out, rows, summary, settings):
     text = markdown(summary, settings, pareto)
     atomic.write_text(out / "report.md", text)
     # the same tables and plots in one page that reads offline (SVG inline)
-    atomic.write_text(out / "report.html", markdown_to_html(text, out, "Warm starts compared"))
+    atomic.write_text(out / "report.html", markdown_to_html(text, out, "Warm starts compared",
+                                                          pictures=("convergence.png", "iterations.png", "pareto.png")))
 
 
 def summary_table(summary):
@@ -137,7 +139,7 @@ def _finish(fig, ax, stem, xlabel, ylabel, title, ylog=True):
         ax.text(0.5, 0.5, "every value is 0", transform=ax.transAxes, ha="center", va="center")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.set_title(title)
+    ax.set_title(plot_text(title))
     ax.legend(fontsize=8, ncol=2)
     ax.grid(alpha=0.3, which="both")
     _save(fig, stem)
@@ -156,7 +158,7 @@ def convergence_plot(rows, names, stem, title, tolerance, stop_on, cap=None):
             med = np.nanmedian(m, axis=0)
             lo, hi = np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0)
         x = np.arange(n)
-        ax.plot(x[1:], med[1:], color=f"C{i % 10}", label=name, marker="o" if n <= 4 else None)  # (1-sweep starts)
+        ax.plot(x[1:], med[1:], color=f"C{i % 10}", label=plot_text(name), marker="o" if n <= 4 else None)  # (1-sweep starts)
         ax.fill_between(x[1:], lo[1:], hi[1:], color=f"C{i % 10}", alpha=0.12)
     ax.axhline(tolerance, color="k", lw=0.8, ls="--")
     _finish(fig, ax, stem, "PGS sweep", f"{stop_on} measure (median, 10-90%)", title)
@@ -170,7 +172,7 @@ def plots(out, rows, summary, settings, pareto):
     fig, ax = _axes()
     for i, name in enumerate(names):
         it = np.sort([r.iterations for r in rows if r.start == name])
-        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post", color=f"C{i % 10}", label=name)
+        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post", color=f"C{i % 10}", label=plot_text(name))
     _finish(fig, ax, out / "iterations", "iterations to tolerance", "share of steps", "Iterations to tolerance",
             ylog=False)
 
@@ -180,7 +182,7 @@ def plots(out, rows, summary, settings, pareto):
     for i, (name, pts) in enumerate(pareto.items()):
         pts = [p for p in pts if p and np.isfinite(p["residual"]) and p["residual"] > 0]
         ax.plot([p["ms"] for p in pts], [p["residual"] for p in pts], marker="o", ms=3, color=f"C{i % 10}",
-                label=name)
+                label=plot_text(name))
     _finish(fig, ax, out / "pareto", "measured time per step, prediction + a fixed number of sweeps (ms, median)",
             "residual reached (median)", "What accuracy costs in time")
 
@@ -205,7 +207,8 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
             f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
     atomic.write_text(out / "closed-loop.md", page)
     loop_plot(results, out / "closed-loop")
-    atomic.write_text(out / "closed-loop.html", markdown_to_html(page, out, f"Closed loop: {what}"))
+    atomic.write_text(out / "closed-loop.html", markdown_to_html(page, out, f"Closed loop: {what}",
+                                                                   pictures=("closed-loop.png",)))
     atomic.write_text(out / "closed-loop.json", json.dumps([{
         "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
         "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
@@ -240,6 +243,6 @@ def loop_plot(results, stem):
         for r in box2d:
             ax.annotate(str(int(r.iterations[0])), (np.median(r.ms_per_step), r.drift.max()), fontsize=7)
     for i, r in enumerate(ours):
-        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], "o", color=f"C{i % 10}", label=r.start)
+        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], "o", color=f"C{i % 10}", label=plot_text(r.start))
     _finish(fig, ax, stem, "measured time per step (ms, median)", "largest drift from the reference trajectory (m)",
             "What accuracy costs in time, in the loop")

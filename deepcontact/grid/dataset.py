@@ -424,11 +424,9 @@ class GridDataset:
             if not isinstance(ids, list) or not all(type(i) is int and 0 <= i < n_sims for i in ids):
                 raise InputError(f"split {part!r} must be a list of simulation numbers 0..{n_sims - 1}", meta)
         try:
-            self.spec = GridSpec(**m["grid"])
-        except TypeError as e:
-            raise InputError(f"bad grid description: {e}", meta) from None
-        if not all(type(getattr(self.spec, k)) is int and getattr(self.spec, k) > 0 for k in ("nx", "ny")):
-            raise InputError("grid 'nx' and 'ny' must be positive integers", meta)
+            self.spec = GridSpec.from_dict(m["grid"])
+        except ValueError as e:
+            raise InputError(str(e), meta) from None
         self.arrays = {}
         for name in ARRAYS:
             path = self.path / f"{name}.npy"

@@ -4,7 +4,7 @@ Nodes sit at origin + (ix d, iy d), ix = 0..nx-1, spanning the scene's box (the 
 static bodies) or a given window: the thesis's 30 x 30 box at d = 0.5 has 61 x 61 nodes.
 """
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 
 from ..errors import InputError
@@ -32,6 +32,40 @@ class GridSpec:
         return asdict(self)
 
     @classmethod
+    def from_dict(cls, d):
+        """The grid a file describes (dataset metadata, a checkpoint), every field checked for its
+        type and range before use; raises ValueError saying what is wrong."""
+        if not isinstance(d, dict):
+            raise ValueError("the grid must be a JSON object")
+        names = [f.name for f in fields(cls)]
+        unknown = [k for k in d if k not in names]
+        missing = [k for k in names[:6] if k not in d]
+        if unknown or missing:
+            raise ValueError(f"bad grid description: {'unknown ' + ', '.join(map(str, unknown)) if unknown else ''}"
+                             f"{'; ' if unknown and missing else ''}{'no ' + ', '.join(missing) if missing else ''}")
+
+        def number(k):
+            v = d[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"grid {k!r} must be a finite number, not {v!r}")
+            return float(v)
+        x0, y0, cell, h = number("x0"), number("y0"), number("cell"), number("h")
+        if cell <= 0 or h <= 0:
+            raise ValueError(f"grid 'cell' and 'h' must be positive, not {cell:g} and {h:g}")
+        nx, ny = d["nx"], d["ny"]
+        if not all(type(n) is int and n > 0 for n in (nx, ny)) or nx * ny > MAX_NODES:
+            raise ValueError(f"grid 'nx' and 'ny' must be positive integers, at most {MAX_NODES:,} nodes in all")
+        kernel, renormalize = d.get("kernel", "poly6"), d.get("renormalize", True)
+        if kernel not in KERNELS:
+            raise ValueError(f"grid 'kernel' must be one of {', '.join(KERNELS)}, not {kernel!r}")
+        if not isinstance(renormalize, bool):
+            raise ValueError("grid 'renormalize' must be true or false")
+        problem = node_weight_problem(kernel, cell, h)
+        if problem:
+            raise ValueError(problem)
+        return cls(x0=x0, y0=y0, cell=cell, nx=nx, ny=ny, h=h, kernel=kernel, renormalize=renormalize)
+
+    @classmethod
     def over(cls, window, cell, h, kernel="poly6", renormalize=True):
         """The grid whose nodes span window = (x0, y0, x1, y1) with spacing cell."""
         x0, y0, x1, y1 = (float(v) for v in window)
@@ -43,11 +77,9 @@ class GridSpec:
             raise InputError(f"smoothing length h must be positive and finite, got {h}")
         if kernel not in KERNELS:
             raise InputError(f"unknown kernel {kernel!r}; choose from {', '.join(KERNELS)}")
-        # A node holds about W(0) d^2 of a particle's value: it must be a float32 the grid can carry.
-        node_weight = float(weight(kernel, 0.0, h)) * cell * cell
-        if not (math.isfinite(node_weight) and 1e-30 < node_weight < 1e30):
-            raise InputError(f"h = {h:g} at d = {cell:g} puts a weight of {node_weight:.3g} on a node: float32 grid "
-                             f"images cannot carry that (choose h near d)")
+        problem = node_weight_problem(kernel, cell, h)
+        if problem:
+            raise InputError(problem)
         nx = int(math.floor((x1 - x0) / cell + 1e-9)) + 1
         ny = int(math.floor((y1 - y0) / cell + 1e-9)) + 1
         if nx * ny > MAX_NODES:
@@ -76,3 +108,13 @@ def scene_box(scene):
     no area (a ground line: the pyramid, the stack)."""
     box = scene.static_extent()
     return box if box is not None and box[2] > box[0] and box[3] > box[1] else None
+
+
+def node_weight_problem(kernel, cell, h):
+    """Why float32 grid images cannot carry a value at cell size d and smoothing length h, or None."""
+    # A node holds about W(0) d^2 of a particle's value: it must be a float32 the grid can carry.
+    node_weight = float(weight(kernel, 0.0, h)) * cell * cell
+    if not (math.isfinite(node_weight) and 1e-30 < node_weight < 1e30):
+        return (f"h = {h:g} at d = {cell:g} puts a weight of {node_weight:.3g} on a node: float32 grid "
+                f"images cannot carry that (choose h near d)")
+    return None

@@ -32,7 +32,7 @@ class Start:
 class Predictor:
     def __init__(self, checkpoint, threads=None):
         ck = load_checkpoint(checkpoint)
-        self.spec = GridSpec(**ck["dataset"]["grid"])
+        self.spec = GridSpec.from_dict(ck["dataset"]["grid"])   # (checked by load_checkpoint)
         self.inputs = list(ck["dataset"]["inputs"])
         self.targets = list(ck["targets"])
         self.model = build(ck["network"])

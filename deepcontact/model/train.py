@@ -91,11 +91,19 @@ def _set_rng_state(state):
 
 def load_checkpoint(path):
     """A checkpoint, loaded without running any code it might carry (weights_only)."""
+    import warnings
     path = Path(path)
     if path.exists() and not (path.is_file() or path.is_dir()):   # a FIFO would block torch.load
         raise InputError("not a regular file", path)
+    if path.is_file():
+        with open(path, "rb") as f:
+            magic = f.read(4)
+        if magic[:2] != b"PK" and magic[:1] != b"\x80":   # torch's zip format, or a legacy pickle
+            raise InputError("not a checkpoint: not a file torch.save writes (a picture? another file?)", path)
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():   # torch's own advice on weights_only is not for our users
+            warnings.simplefilter("ignore")
+            ck = torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise InputError("no such checkpoint", path) from None
     except IsADirectoryError:
@@ -116,10 +124,52 @@ def load_checkpoint(path):
     if missing:
         raise InputError(f"not a complete deepcontact checkpoint: no {', '.join(missing)}", path)
     # Checked before anything is built from it: a tampered config could ask for terabytes.
-    problem = check_config(ck["network"]) or shape_problem(ck["network"], ck["model"])
+    problem = (check_config(ck["network"]) or shape_problem(ck["network"], ck["model"])
+               or checkpoint_problem(ck))
     if problem:
         raise InputError(f"refused: {problem}", path)
     return ck
+
+
+def checkpoint_problem(ck):
+    """What is wrong with a checkpoint's bookkeeping (types and ranges), or None."""
+    def whole(v):
+        return type(v) is int and 0 <= v < 2 ** 31
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+    if not whole(ck["epoch"]) or not whole(ck["bad_epochs"]):
+        return "'epoch' and 'bad_epochs' must be whole numbers"
+    if not number(ck["best"]) or math.isnan(ck["best"]):
+        return "'best' must be a number"
+    h = ck["history"]
+    if not isinstance(h, list) or not all(isinstance(r, dict) and all(isinstance(k, str) and number(v)
+                                                                      for k, v in r.items()) for r in h):
+        return "'history' must be a list of rows of named numbers"
+    if any(not whole(r.get("epoch")) for r in h):
+        return "every 'history' row needs a whole-number epoch"
+    d = ck["dataset"]
+    if not isinstance(d, dict):
+        return "'dataset' must be a dictionary"
+    try:
+        GridSpec.from_dict(d.get("grid"))
+    except ValueError as e:
+        return str(e)
+    for key in ("inputs", "labels"):
+        if not isinstance(d.get(key), list) or not d[key] or not all(isinstance(c, str) for c in d[key]):
+            return f"the dataset's {key!r} must be a list of channel names"
+    t = ck["targets"]
+    if not isinstance(t, list) or not t or not all(isinstance(c, str) and c in d["labels"] for c in t):
+        return "'targets' must name label channels of its dataset"
+    cfg = ck["train_config"]
+    if not isinstance(cfg, dict):
+        return "'train_config' must be a dictionary"
+    defaults = TrainConfig()
+    for k, v in cfg.items():
+        if hasattr(defaults, k) and type(v) is not type(getattr(defaults, k)) and not (
+                isinstance(getattr(defaults, k), float) and number(v)):
+            return f"train_config {k!r} must be {type(getattr(defaults, k)).__name__}, not {v!r}"
+    return None
 
 
 def _save(path, obj):
@@ -155,8 +205,29 @@ def check_compatible(ck, meta, path):
         raise InputError(f"the dataset has no label channel {', '.join(missing)}", path)
 
 
-def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=None, device="cpu",
-          overwrite=False, epochs=None, max_memory=None):
+def check_same_run(ck, meta, path, given, threads, dataset):
+    """--resume continues the run in the checkpoint: on its own dataset, with its own settings."""
+    from ..errors import OptionError
+    for key in ("samples", "sources", "split", "labels"):
+        if ck["dataset"].get(key) != meta.get(key):
+            raise InputError(f"the run in {path} was trained on another dataset (its {key} differ from "
+                             f"{dataset}'s): --resume continues a run on its own dataset", dataset)
+    if given is not None:
+        own = ck["train_config"]
+        for name, value in dict(given).items():
+            if name in own and own[name] != value:
+                option = "--" + {"fcn_width": "width", "fcn_depth": "depth", "final_relu": "no-final-relu",
+                                 "model": "arch"}.get(name, name).replace("_", "-")
+                raise OptionError(f"--resume continues the run with its own settings: it has {name} = {own[name]!r}, "
+                                  f"not {value!r} (leave the option out, or train a new run)", option)
+    if "threads" in ck and ck["threads"] != (threads or 1):
+        from ..errors import OptionError
+        raise OptionError(f"the run was trained with --threads {ck['threads']}, and the count changes the arithmetic: "
+                          f"resume with --threads {ck['threads']}", "--threads")
+
+
+def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=1, device="cpu",
+          overwrite=False, epochs=None, max_memory=None, given=()):
     """Train; returns the history (a list of per-epoch metric dicts).
 
     Everything is checked before the output folder is touched. With `overwrite`, the new run is
@@ -183,6 +254,7 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
         except TypeError as e:
             raise InputError(f"refused: the training config does not fit this version ({e})", last) from None
         check_compatible(ck, meta, last)
+        check_same_run(ck, meta, last, given, threads, dataset)
     cfg = cfg or TrainConfig()
     if epochs is not None:
         cfg.epochs = epochs
@@ -380,7 +452,7 @@ class Trainer:
             "bad_epochs": self.bad_epochs, "network": self.net_cfg, "train_config": asdict(self.cfg),
             "targets": self.cfg.targets,
             "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
-            "dataset_path": dataset_path,
+            "dataset_path": dataset_path, "threads": torch.get_num_threads(),
             "versions": {"deepcontact": __version__, "torch": str(torch.__version__), "numpy": str(np.__version__)},
         }
 

@@ -75,6 +75,7 @@ class Painter:
         if title:
             size = min(9.0, max(5.0, self.size[0] / 70))   # small pictures, small print
             ax.text(0.01, 0.99, title, transform=ax.transAxes, va="top", ha="left", fontsize=size, family="monospace",
+                    parse_math=False,   # (a scene name is the user's text, not math)
                     bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=2))
         if progress is not None:
             from matplotlib.patches import Rectangle

@@ -44,7 +44,7 @@ def _figure(rows, panel_px, title, grid):
     dpi = 100
     fig = Figure(figsize=(cols * panel_px / dpi, len(rows) * panel_px / dpi + 0.4), dpi=dpi)
     FigureCanvasAgg(fig)
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(title, fontsize=9, parse_math=False)   # (names are the user's text, not math)
     extent = (grid["x0"], grid["x0"] + (grid["nx"] - 1) * grid["cell"],
               grid["y0"], grid["y0"] + (grid["ny"] - 1) * grid["cell"])
     for r, row in enumerate(rows):
@@ -55,7 +55,7 @@ def _figure(rows, panel_px, title, grid):
                 shown = ax.imshow(image, origin="lower", cmap=cmap, vmin=-top, vmax=top, extent=extent)
             else:
                 shown = ax.imshow(image, origin="lower", cmap=cmap, extent=extent)
-            ax.set_title(name, fontsize=8)
+            ax.set_title(name, fontsize=8, parse_math=False)
             ax.tick_params(labelsize=6)
             fig.colorbar(shown, ax=ax, shrink=0.75).ax.tick_params(labelsize=6)
     fig.tight_layout(rect=(0, 0, 1, 0.97))

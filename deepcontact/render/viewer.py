@@ -4,11 +4,10 @@ impulses, and each step's numbers beside the canvas. `#frame=K` in the address o
 
 The canvas sits at the page's top-left corner and has the window's aspect ratio, so a world
 point maps to a pixel as in draw.Window.pixel (the tests check a screenshot there)."""
-import json
-
 import numpy as np
 
 from .. import __version__
+from ..escape import fill, html_text, script_json
 from .draw import FILL
 from .frames import painter_for, read_frame
 
@@ -42,10 +41,9 @@ def viewer_html(clip, width=640, fps=30):
         "polygons": [[int(b), _rounded(v)] for b, v in shapes.polygons],
         "frames": frames,
     }
-    text = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
     w, h = painter.size
-    return PAGE.replace("__DATA__", text).replace("__W__", str(w)).replace("__H__", str(h)) \
-        .replace("__TITLE__", f"{clip.scene} seed {clip.seed}").replace("__VERSION__", __version__)
+    return fill(PAGE, DATA=script_json(data), W=str(w), H=str(h), TITLE=html_text(f"{clip.scene} seed {clip.seed}"),
+                VERSION=html_text(__version__))
 
 
 PAGE = """<!DOCTYPE html>

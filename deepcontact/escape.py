@@ -1,0 +1,46 @@
+"""One escaping helper per output context: every string that reaches a page or a picture goes
+through the one for where it lands. Scene names, run paths and channel names are the user's text:
+legal in XML, they may hold markup, script or matplotlib's math syntax."""
+import html
+import json
+import re
+
+_SCRIPT_UNSAFE = {"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "\u2028": "\\u2028", "\u2029": "\\u2029"}
+
+
+def html_text(text):
+    """Text inside an HTML element (a paragraph, a cell, <title>)."""
+    return html.escape(str(text), quote=False)
+
+
+def html_attr(text):
+    """Text inside a double- or single-quoted HTML attribute."""
+    return html.escape(str(text), quote=True)
+
+
+def script_json(obj):
+    """JSON to embed in a <script> element: no '</script>', '<!--' or '-->' can form in it, and
+    the two line separators JavaScript once refused are escaped."""
+    text = json.dumps(obj, separators=(",", ":"), allow_nan=False)
+    return re.sub("[<>&\u2028\u2029]", lambda m: _SCRIPT_UNSAFE[m.group()], text)
+
+
+def plot_text(text):
+    """Text for a matplotlib label, title or legend, shown as written: '$' starts no math."""
+    return str(text).replace("$", r"\$")
+
+
+_ACTIVE_SVG = re.compile(r"<\s*(script|foreignObject|iframe|object|embed)\b|\son[a-z]+\s*=|javascript:|"
+                         r"(xlink:)?href\s*=\s*[\"'](?!#)", re.IGNORECASE)
+
+
+def svg_is_inert(text):
+    """Whether an SVG holds nothing that runs or loads: no script, event handler or outside link
+    (the plots matplotlib draws hold none; anything else is shown as an <img>, where none runs)."""
+    return _ACTIVE_SVG.search(text) is None
+
+
+def fill(template, **values):
+    """template with each __NAME__ replaced by values[NAME] in one pass: a value holding
+    '__OTHER__' is left as it is, never filled in turn."""
+    return re.sub(r"__([A-Z]+)__", lambda m: values[m.group(1)] if m.group(1) in values else m.group(), template)
