@@ -137,7 +137,7 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
     from deepcontact.evaluate.replay import box2d_run
     from deepcontact.scene.xml import read_scene
 
-    first = box2d_run(runs[0]).simulations[0].path / "scene.xml"
+    first = box2d_run(runs[0]).simulations[0].scene_file()
     scene = read_scene(first)
     bar = options.progress_bar(quiet, len(table) * len(relaxations) * len(accelerations) + 1 + bool(budgets), "run",
                                "closed loop")

@@ -96,7 +96,7 @@ def _smallest_radius(scene):
 
 def collect(run_dirs, include_contactless=False):
     """The simulations of finished runs, with the step files that become samples."""
-    sims, manifests, seen = [], [], {}
+    sims, manifests, seen, simulated = [], [], {}, {}
     for run_dir in map(Path, run_dirs):
         key = run_dir.resolve()
         if key in seen:   # the same simulations in both splits would make validation meaningless
@@ -107,10 +107,21 @@ def collect(run_dirs, include_contactless=False):
         manifests.append({"run": str(run_dir), "manifest_sha256": hashlib.sha256(raw).hexdigest(),
                           "scene": run.manifest.get("scene"), "solver": run.manifest.get("solver")})
         for e in run.simulations:
-            scene = read_scene(require_regular(e.path / "scene.xml"))
+            scene = read_scene(e.scene_file())
+            # one simulation in two runs (a copied run) would sit in both training and validation
+            same = (e.scene_sha256, e.seed)
+            if e.scene_sha256 is not None and same in simulated:
+                raise InputError(f"seed {e.seed} of this scene is also in {show_path(simulated[same])}: the same "
+                                 "simulation twice (a copied run?) would be in both training and validation", e.path)
+            simulated[same] = e.path
             files, counts = [], []
             # the counts the manifest recorded (checked file by file as they are read), else a scan
             for f, n in zip(e.files, e.contacts or map(_contact_count, e.files)):
+                if n == 0 and e.contacts and not include_contactless:   # a 0 must not drop a step unread
+                    real = _contact_count(f)
+                    if real:
+                        raise InputError(f"holds {real} contact points, the manifest recorded 0 (changed after "
+                                         "the run?)", f)
                 if n or include_contactless:
                     files.append(str(f))
                     counts.append(n)

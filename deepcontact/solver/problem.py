@@ -90,8 +90,8 @@ class StepProblem:
     @classmethod
     def from_step_file(cls, path):
         from ..step.reader import read_step
-        # (every value is checked present and finite; the schema is `dc validate`'s job)
-        return cls.from_step(*read_step(path, validate=False), path=path)
+        # with the schema: the rules `dc validate` holds a step to (friction >= 0, ...), in the same pass
+        return cls.from_step(*read_step(path, validate=True), path=path)
 
     @classmethod
     def from_step(cls, header, bodies, contacts, path=None):

@@ -7,7 +7,7 @@ lies in, where that is known."""
 from .. import schema
 from .._box2d import StepFileError, validate_step_file
 from ..errors import InputError, one_line, show_path
-from .reader import check_origin, step_schema
+from .reader import check_origin, read_step, step_schema
 
 MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
@@ -25,9 +25,11 @@ def check_file(path, origin=None):
         kind, _, lines = schema.validate(path)
         return kind, lines
     lines = [one_line(f"{shown}:{line}:{column}: {message}") for line, column, message in sorted(errors)]
-    if not lines and origin is not None:
-        try:
-            check_origin({"scene": scene, "seed": seed}, *origin, path)
+    if not lines:
+        try:   # what the schema cannot say: manifolds whole, the file where it belongs
+            read_step(path, validate=False)
+            if origin is not None:
+                check_origin({"scene": scene, "seed": seed}, *origin, path)
         except InputError as e:
             lines = [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
     return "step", lines

@@ -25,10 +25,40 @@ def step_schema() -> StepSchema:
 def read_step(path, validate=True):
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
     try:
-        return read_step_file(str(path), step_schema() if validate else None)
+        step = read_step_file(str(path), step_schema() if validate else None)
     except StepFileError as e:
         message, line = e.args
         raise InputError(message, path, line or None) from None
+    problem = manifold_problem(step[2])
+    if problem:
+        raise InputError(problem, path)
+    return step
+
+
+def manifold_problem(contacts):
+    """Why the contact points do not form manifolds (each manifold's points in consecutive
+    rows, point 0 first, all with the manifold's point count of 1 or 2), or None. The schema
+    cannot say it; the solver assumes it."""
+    import numpy as np
+    m, point, count = contacts["manifold"], contacts["point"], contacts["point_count"]
+    n = len(m)
+    if not n:
+        return None
+    bad = (count < 1) | (count > 2) | (point < 0) | (point >= count)
+    first = point == 0
+    # a point k > 0 follows point k - 1 of the same manifold, with the same count
+    follows = np.zeros(n, bool)
+    follows[1:] = (m[1:] == m[:-1]) & (point[1:] == point[:-1] + 1) & (count[1:] == count[:-1])
+    bad |= ~first & ~follows
+    # a manifold is complete: its last point is count - 1, and a new manifold starts after it
+    last = np.ones(n, bool)
+    last[:-1] = point[1:] == 0
+    bad |= last & (point != count - 1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        return (f"contact point {k} (manifold {int(m[k])}, point {int(point[k])} of {int(count[k])}): the points "
+                "of a manifold must be consecutive, point 0 first")
+    return None
 
 
 def read_step_for_grid(path):
@@ -39,7 +69,12 @@ def read_step_for_grid(path):
 
 
 def check_origin(header, scene, seed, path):
-    """A step file belongs to the simulation it lies in: the same scene name and seed."""
+    """A step file belongs where it lies: the simulation's scene name and seed, and the step its
+    name gives (a step copied over its neighbour would be read twice)."""
+    from .run_folder import step_index
     if header["scene"] != scene or header["seed"] != seed:
         raise InputError(f"the step file is of scene {header['scene']!r} seed {header['seed']}, but lies in a "
                          f"simulation of scene {scene!r} seed {seed} (copied from another run?)", path, 1)
+    if "index" in header and header["index"] != step_index(path):
+        raise InputError(f"the step file is step {header['index']} by its header, but is named step "
+                         f"{step_index(path)} (copied over another step?)", path, 1)

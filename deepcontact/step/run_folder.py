@@ -29,6 +29,16 @@ class Simulation:
     extent: tuple = None   # (x0, y0, x1, y1) the bodies stayed in, where the manifest records it
     scene: str = None      # the scene's name, which each step file must repeat (None: not known)
     contacts: list = None  # contact points of each step file, where the manifest records them
+    scene_sha256: str = None   # the hash of its scene.xml the manifest recorded
+
+    def scene_file(self):
+        """Its scene.xml, a regular file whose bytes are the ones the run recorded (an edited
+        scene would be simulated, or drawn, as another scene than the steps')."""
+        import hashlib
+        path = require_regular(self.path / "scene.xml")
+        if self.scene_sha256 is not None and hashlib.sha256(path.read_bytes()).hexdigest() != self.scene_sha256:
+            raise InputError("changed since the run: its SHA-256 is not the one the manifest recorded", path)
+        return path
 
 
 @dataclass
@@ -208,6 +218,10 @@ def read_run(run_dir, solver=None, purpose=None, unfinished=False):
             if len(files) != want:
                 raise InputError(f"{e['dir']} holds {len(files)} step files, the manifest recorded {want} "
                                  f"(files deleted or added after the run?)", folder)
+        digest = e.get("scene_sha256")
+        if digest is not None and not (isinstance(digest, str) and re.fullmatch(r"[0-9a-f]{64}", digest)):
+            raise InputError(f"simulation {i}: 'scene_sha256' must be 64 hexadecimal digits", path)
         sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
-                               scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path)))
+                               scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path),
+                               scene_sha256=digest))
     return Run(path=run_dir, manifest=m, simulations=sims)
