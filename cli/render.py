@@ -86,8 +86,14 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
         raise click.UsageError("--compare draws two runs into a .gif, .mp4 or .webm")
     if model and kind != "dataset":
         raise click.UsageError("--model applies to a dataset sample")
+    if window and min(window[2] - window[0], window[3] - window[1]) < MIN_WINDOW:
+        # float32 positions resolve no finer, and the drawing's cost grows with the magnification
+        raise click.BadParameter(f"a window narrower than {MIN_WINDOW:g} m shows nothing a step file resolves",
+                                 param_hint="'--window'")
     out = Path(out)
+    atomic.check_replaceable(out)
     with atomic.locked(out):
+        atomic.check_replaceable(out)   # a FIFO, a device or a folder is never replaced by a picture
         if out.exists() and not overwrite:
             raise InputError("file exists; use --overwrite to replace it", out)
         if kind == "step":
@@ -99,6 +105,9 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
             _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet)
     if not quiet:
         click.echo(str(out))
+
+
+MIN_WINDOW = 1e-4   # metres
 
 
 def _step(path, out, size, window, contacts, color_by, fmt):

@@ -30,6 +30,10 @@ _SPARE = 40        # room left for the longest suffix we add (".partial-PID-XXXX
 # the folder's record before its bytes, so even a killed run leaves a record of what it wrote.
 _in_place = {}
 
+# Locks this process holds, by the absolute path of their output: the file descriptor, and the
+# temporary files noted in it (a killed run's are removed by the next command to take the lock).
+_locks = {}
+
 # Outputs swapped in during this process: an interruption that comes after is said as such.
 completed = []
 
@@ -74,6 +78,8 @@ def write_bytes(path, data: bytes):
     head, name = os.path.split(path)
     check_replaceable(path)
     tmp = os.path.join(head, f".{short_name(name)}.{os.getpid()}.tmp")
+    if _locks and os.path.abspath(path) in _locks:
+        note_temporary(path, tmp)
     if _in_place:
         record = _in_place.get(os.path.abspath(head or "."))
         if record is not None:
@@ -114,6 +120,9 @@ def open_for_write(path, mode="wb"):
     path = Path(path)
     check_replaceable(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{short_name(path.name)}.", suffix=".tmp", dir=path.parent)
+    os.fchmod(fd, 0o644)   # (as write_bytes: mkstemp's 0600 is for secrets)
+    if _locks and os.path.abspath(path) in _locks:
+        note_temporary(path, tmp)
     try:
         with os.fdopen(fd, mode) as f:
             yield f
@@ -253,11 +262,40 @@ def locked(path):
         except FileNotFoundError:
             pass
         os.close(fd)
+    # temporary files that the lock's last holder noted and did not live to remove: ours
+    try:
+        noted = json.loads(os.pread(fd, 1 << 16, 0) or b"[]")
+    except (OSError, ValueError, UnicodeDecodeError):
+        noted = []
+    for name in noted if isinstance(noted, list) else ():
+        p = Path(path).parent / str(name)
+        if "/" not in str(name) and p.is_file() and not p.is_symlink():
+            log.info("removing %s, left by an interrupted earlier run", p)
+            _remove_quietly(p)
+    os.ftruncate(fd, 0)
+    key = os.path.abspath(path)
+    _locks[key] = (fd, [])
     try:
         yield
     finally:
+        _locks.pop(key, None)
         _remove_quietly(lock)
         os.close(fd)
+
+
+def note_temporary(path, tmp):
+    """Enters tmp, a temporary file beside the output path, in path's lock (held by this
+    process), so that if the process is killed the next command on path removes it."""
+    entry = _locks.get(os.path.abspath(path))
+    if entry is None:
+        return
+    fd, names = entry
+    name = os.path.basename(os.fspath(tmp))
+    if name not in names:
+        names.append(name)
+        data = json.dumps(names).encode()
+        os.pwrite(fd, data, 0)
+        os.ftruncate(fd, len(data))
 
 
 def recover(path):

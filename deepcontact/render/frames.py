@@ -120,15 +120,56 @@ def frames(clip, painter, compare=None):
 
 
 def write_gif(out, frames_iter, fps):
+    """An animated GIF, each frame encoded (its own 128-colour palette) and written as it comes:
+    memory holds one frame, whatever the run's length."""
     from PIL import Image
-    images = [Image.fromarray(f).convert("P", palette=Image.ADAPTIVE, colors=128) for f in frames_iter]
-    if not images:
-        raise InputError("no frames to write")
-    buf = io.BytesIO()
-    images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0,
-                   optimize=False)
-    atomic.write_bytes(out, buf.getvalue())
-    return len(images)
+    count = 0
+    with atomic.open_for_write(out) as f:
+        for rgb in frames_iter:
+            frame = Image.fromarray(rgb).convert("P", palette=Image.ADAPTIVE, colors=128)
+            buf = io.BytesIO()
+            frame.save(buf, format="GIF", duration=round(1000 / fps), optimize=False)
+            f.write(_gif_frame(buf.getvalue(), first=count == 0))
+            count += 1
+        if not count:
+            raise InputError("no frames to write", out)
+        f.write(b"\x3b")   # the trailer
+    return count
+
+
+def _gif_frame(data, first):
+    """The bytes one single-frame GIF contributes to an animation: for the first frame its header,
+    screen, palette and a loop-forever extension; for every frame its blocks, the palette moved
+    into the image descriptor (a local colour table) after the first."""
+    packed = data[10]
+    table = 3 * 2 ** ((packed & 7) + 1) if packed & 0x80 else 0
+    palette, pos = data[13:13 + table], 13 + table
+    out = bytearray()
+    if first:
+        out += data[:pos] + b"\x21\xff\x0bNETSCAPE2.0\x03\x01\x00\x00\x00"
+    while data[pos] != 0x3b:
+        if data[pos] == 0x21:                        # an extension: label, then sub-blocks to a 0
+            end = pos + 2
+            while data[end]:
+                end += data[end] + 1
+            out += data[pos:end + 1]
+            pos = end + 1
+        elif data[pos] == 0x2c:                      # an image: descriptor, LZW size, sub-blocks to a 0
+            descriptor = bytearray(data[pos:pos + 10])
+            if descriptor[9] & 0x80:
+                raise ValueError("unexpected local colour table in a single-frame GIF")
+            pos += 10
+            if not first and table:
+                descriptor[9] |= 0x80 | (packed & 7)
+                descriptor += palette
+            end = pos + 1
+            while data[end]:
+                end += data[end] + 1
+            out += descriptor + data[pos:end + 1]
+            pos = end + 1
+        else:
+            raise ValueError(f"unexpected GIF block 0x{data[pos]:02x}")
+    return bytes(out)
 
 
 def write_video(out, frames_iter, fps, size):
@@ -138,7 +179,8 @@ def write_video(out, frames_iter, fps, size):
     if ffmpeg is None:
         raise InputError(f"{out.suffix} needs ffmpeg, which is not installed: install Debian's ffmpeg "
                          f"(apt-get install ffmpeg), or write a .gif", out)
-    tmp = out.parent / f".{out.name}.{os.getpid()}.tmp"
+    tmp = atomic.beside(out, f"{os.getpid()}.tmp")
+    atomic.note_temporary(out, tmp)   # a killed run's copy is then removed by the next
     w, h = size
     cmd = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", str(fps),
            "-i", "-", *codec, "-f", fmt, str(tmp)]

@@ -30,10 +30,15 @@ def sample_panels(dataset, index, model=None, panel_px=220):
 
 def _predict(model, meta, x, dataset):
     from ..model.inference import Predictor
+    from ..grid.spec import GridSpec
     p = Predictor(model)
     if list(p.inputs) != list(meta["inputs"]):
         raise InputError(f"the model reads channels {','.join(p.inputs)}, the dataset has "
                          f"{','.join(meta['inputs'])}", dataset)
+    if p.spec != GridSpec.from_dict(meta["grid"]):   # (the rule dc train --resume and dc evaluate apply)
+        raise InputError(f"the model was trained on another grid ({p.spec.nx} x {p.spec.ny} nodes, d = {p.spec.cell:g}, "
+                         f"h = {p.spec.h:g} from {p.spec.x0:g},{p.spec.y0:g}): it cannot draw this dataset's sample",
+                         model)
     return dict(zip(p.targets, p.images(x)))
 
 
