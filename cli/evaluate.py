@@ -42,11 +42,12 @@ from . import options
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
 @options.jobs
+@options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             closed_loop, steps, relaxation, accelerate, budgets, jobs, overwrite, verbose, quiet):
+             closed_loop, steps, relaxation, accelerate, budgets, jobs, max_memory, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 from zero to a residual of 1e-12:
@@ -91,6 +92,13 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         raise click.UsageError("-j applies to replay; --closed-loop runs its starts one after another")
 
     # Computed inside the output's lock; the report appears only when complete.
+    if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep
+        from deepcontact.evaluate.replay import box2d_run
+        from deepcontact.resources import check_memory
+        total = sum(-(-len(s.files) // every) for r in runs for s in box2d_run(r).simulations)
+        variants = len(starts) * len(relaxation) * len(accelerate)
+        check_memory(total * variants * (max_iterations + 1) * 8 * 2, max_memory,
+                     f"the convergence histories of {total:,} steps x {variants} variants up to {max_iterations:,} sweeps")
     with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
         _evaluate(runs, work, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
                   seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs)

@@ -49,12 +49,16 @@ def stability(out, fast, overwrite, verbose, quiet):
     from deepcontact.errors import InputError
     from deepcontact.studies import stability as S
 
-    if out and os.path.exists(out) and not overwrite:
-        raise InputError("file exists; use --overwrite to replace it", out)
-    click.echo(S.HEADER)
-    rows = S.study(S.FAST if fast else S.FULL, log=click.echo)
-    if out:
-        atomic.write_text(out, S.table(rows))
+    from contextlib import nullcontext
+    if out:   # checked (and locked) before the study, not after it
+        atomic.check_replaceable(out)
+    with atomic.locked(out) if out else nullcontext():
+        if out and os.path.exists(out) and not overwrite:
+            raise InputError("file exists; use --overwrite to replace it", out)
+        click.echo(S.HEADER)
+        rows = S.study(S.FAST if fast else S.FULL, log=click.echo)
+        if out:
+            atomic.write_text(out, S.table(rows))
     failed = sum(not f.passed for _, f in rows)
     if failed:
         raise InputError(f"{failed} of {len(rows)} configurations never met their criteria (see the table)")

@@ -445,7 +445,11 @@ class GridDataset:
                 self.arrays[name] = np.load(require_regular(path), mmap_mode="r", allow_pickle=False)
             except InputError:
                 raise InputError("missing dataset array", path) from None
-            except (OSError, ValueError) as e:
+            except OSError as e:
+                if e.errno == errno.ENOMEM:   # the machine's limit, not the file's fault
+                    raise MemoryError(f"cannot map {path}: {e.strerror}") from None
+                raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
+            except ValueError as e:
                 raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
         self._check_arrays(meta)
         self._folders, self._verified_runs = {}, set()

@@ -24,9 +24,12 @@ const char* const kDoctypeRefused = "a DOCTYPE (DTD or entity declarations) is n
 namespace {
 
 constexpr size_t kChunk = 1 << 16;
-// Far above any step we write (a 10,000-body step is 10 MB), and a bound on what a small
-// compressed file may inflate to.
+// Far above any step we write (a 10,000-body step is 10 MB).
 constexpr size_t kMaxBytes = size_t(1) << 31;
+// What a compressed file may inflate to: our steps inflate about 6x, so 64x its size (and at
+// least 16 MiB) refuses a small file that would fill memory long before the 2 GiB bound.
+constexpr size_t kMaxRatio = 64;
+constexpr size_t kMinBound = size_t(16) << 20;
 constexpr int64_t kInt32Max = std::numeric_limits<int32_t>::max();
 
 // A file read in chunks through zlib, which passes plain (uncompressed) files through as they are.
@@ -41,6 +44,10 @@ public:
             ::close(fd);
             throw StepFileError("not a regular file", 0);
         }
+        limit_ = kMaxBytes;
+        unsigned char magic[2] = {0, 0};
+        if (::pread(fd, magic, 2, 0) == 2 && magic[0] == 0x1f && magic[1] == 0x8b)
+            limit_ = std::min(kMaxBytes, std::max(kMinBound, kMaxRatio * static_cast<size_t>(st.st_size)));
         gz_ = gzdopen(fd, "rb");
         if (gz_ == nullptr) {
             ::close(fd);
@@ -62,13 +69,17 @@ public:
                                     (code == Z_BUF_ERROR ? " (a cut compressed file?)" : ""),
                                 0);
         total_ += static_cast<size_t>(got);
-        if (total_ > kMaxBytes) throw StepFileError("more than 2 GiB of XML: not a step file", 0);
+        if (total_ > limit_)
+            throw StepFileError(limit_ == kMaxBytes ? "more than 2 GiB of XML: not a step file"
+                                                    : "inflates to more than 64 times its compressed size: not a "
+                                                      "step file dc simulate --compress wrote", 0);
         return static_cast<size_t>(got);
     }
 
 private:
     gzFile gz_ = nullptr;
     size_t total_ = 0;
+    size_t limit_ = 0;
 };
 
 // --- values -------------------------------------------------------------------------------

@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import atomic, interrupts, workers
 from ..errors import InputError
-from ..resources import COMPRESSION_RATIO, STEP_BYTES_PER_BODY, check_disk
+from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
@@ -197,7 +197,9 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
         check_scene_for_loop(first, source)
     out_dir = Path(out_dir)
     with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
-        per_step = (1024 + STEP_BYTES_PER_BODY * len(first.bodies)) // (COMPRESSION_RATIO if compress else 1)
+        # (by fixtures as well as bodies: a body of many fixtures makes many contact points)
+        fixtures = sum(len(b.shapes) for b in first.bodies)
+        per_step = step_bytes(len(first.bodies), fixtures) // (COMPRESSION_RATIO if compress else 1)
         check_disk(len(seeds) * first.steps * per_step, out_dir, max_disk,
                    f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
