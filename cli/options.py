@@ -8,7 +8,7 @@ import sys
 import click
 
 from deepcontact import atomic, interrupts
-from deepcontact.errors import InputError, OptionError, one_line, show_path
+from deepcontact.errors import Failure, InputError, OptionError, one_line, show_path
 from deepcontact.interrupts import Terminated
 
 
@@ -186,7 +186,7 @@ def command(name):
                     raise
                 click.echo(one_line(f"dc {name}: error: {e}"), err=True)
                 sys.exit(2)
-            except InputError as e:
+            except (InputError, Failure) as e:
                 if verbose:
                     raise
                 fail(e)

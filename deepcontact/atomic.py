@@ -309,18 +309,21 @@ def recover(path):
     if journal.is_file() and not journal.is_symlink():
         try:
             j = json.loads(journal.read_bytes())
-            old = path.parent / j["old"]
-            assert isinstance(j["old"], str) and "/" not in j["old"]
-        except (OSError, ValueError, KeyError, TypeError, AssertionError):
-            old = None
-        if old is not None and old.is_dir() and not old.is_symlink():
-            if not os.path.lexists(path):
+            old, new = (path.parent / j[k] if isinstance(j[k], str) and "/" not in j[k] and j[k].startswith(".")
+                        else None for k in ("old", "new"))
+        except (OSError, ValueError, KeyError, TypeError):
+            old = new = None
+        if new is not None and new.is_dir() and not new.is_symlink():
+            # the swap did not happen: path is the earlier output, or it was moved aside
+            if not os.path.lexists(path) and old is not None and old.is_dir():
                 os.replace(old, path)
                 log.warning("restored %s from %s: an earlier replacement was interrupted before the new output "
                             "was in place", path, old.name)
-            else:
-                log.info("removing %s, the output an interrupted replacement had already replaced", old)
-                shutil.rmtree(old, ignore_errors=True)
+            log.info("removing %s, left by an interrupted earlier run", new)
+            shutil.rmtree(new, ignore_errors=True)
+        elif old is not None and old.is_dir() and not old.is_symlink() and os.path.lexists(path):
+            log.info("removing %s, the output an interrupted replacement had already replaced", old)
+            shutil.rmtree(old, ignore_errors=True)
         _remove_quietly(journal)
     prefix = f".{short_name(path.name)}.partial-"
     for p in path.parent.iterdir() if path.parent.is_dir() else ():
@@ -351,19 +354,20 @@ def folder(path, command="dc"):
     swapped = False
     try:
         yield tmp
-        _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
         with interrupts.held():
-            old = None
+            # the journal first: from here on, a kill at any instruction is finished or undone by
+            # the next command (recover), which finds the earlier output or the new one, whole
+            old = Path(tempfile.mktemp(prefix=f".{short_name(path.name)}.old-{os.getpid()}-", dir=path.parent))
+            write_text(beside(path, "swap"), json.dumps({"old": old.name, "new": tmp.name}) + "\n")
+            _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
             if os.path.lexists(path):
-                old = Path(tempfile.mktemp(prefix=f".{short_name(path.name)}.old-{os.getpid()}-", dir=path.parent))
-                write_text(beside(path, "swap"), json.dumps({"old": old.name}) + "\n")
                 os.replace(path, old)
             os.replace(tmp, path)
             swapped = True
             completed.append(path)
-            if old is not None:
+            if old.exists():
                 shutil.rmtree(old, ignore_errors=True)
-                _remove_quietly(beside(path, "swap"))
+            _remove_quietly(beside(path, "swap"))
     except BaseException:
         if not swapped:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -410,8 +414,9 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
                 raise InputError(f"output folder is not empty; {hint}", path)
             foreign, rec = owned.first_foreign(path, command)
             if rec is None or rec["state"] != "done":
-                raise InputError(f"not written by dc {command} (it holds no record {RECORD} of a dc output): "
-                                 "refusing to replace it; remove it yourself or choose another output", path)
+                first = os.path.join(path, entries(path)[0].rstrip("/"))
+                raise InputError(f"not written by dc {command}: refusing to replace {path} (it holds no record "
+                                 f"{RECORD} of a dc output; remove it yourself or choose another output)", first)
             if rec["command"] != command:
                 raise InputError(f"written by dc {rec['command']}, not dc {command}: refusing to replace it", path)
             if foreign is not None:

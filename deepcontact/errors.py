@@ -20,6 +20,11 @@ class InputError(Exception):
         return f"{where}: {self.message}" if where else self.message
 
 
+class Failure(Exception):
+    """Work that could not finish for a reason outside the input (a worker killed, say): the CLI
+    prints the message on one line and exits 1."""
+
+
 class OptionError(InputError):
     """Options that do not fit the input (or each other): the CLI exits 2, as for a bad option value."""
 

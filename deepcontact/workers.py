@@ -14,6 +14,8 @@ import signal
 from contextlib import contextmanager
 from multiprocessing.connection import Pipe, wait
 
+from .errors import Failure
+
 _PR_SET_PDEATHSIG = 1
 
 
@@ -94,7 +96,8 @@ class Pool:
                 try:
                     status, value = conn.recv()
                 except EOFError:
-                    raise RuntimeError("a worker process died") from None
+                    raise Failure("a worker process died (killed by a signal, or out of memory?); nothing of this "
+                                  "command's output was kept") from None
                 if status == "error":
                     raise value
                 yield index, value

@@ -20,7 +20,7 @@ def test_same_seed_gives_byte_identical_files(tmp_path):
         r = dc("simulate", "pile", *SMALL, "--steps", "120", "--seeds", "4..5", "-q", "-o", str(tmp_path / name))
         assert r.returncode == 0, r.stderr
     a, b = tree_bytes(tmp_path / "a"), tree_bytes(tmp_path / "b")
-    assert len(a) == 2 * 121 + 1 and a == b
+    assert len(a) == 2 * 121 + 2 and a == b   # the step files, two scenes, the manifest and the record
 
 
 def test_parallel_jobs_give_the_same_files(tmp_path):

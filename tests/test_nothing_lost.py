@@ -473,7 +473,7 @@ def test_one_simulation_twice_is_refused(run, tmp_path):
 
 
 def test_a_grid_that_cannot_carry_a_value_is_refused(run, tmp_path):
-    one_line_error(dc("rasterize", str(run), "--smoothing", "1e30", "-o", str(tmp_path / "d")), "float32 grid")
+    option_error(dc("rasterize", str(run), "--smoothing", "1e30", "-o", str(tmp_path / "d")), "float32 grid")
     assert not (tmp_path / "d").exists()
 
 

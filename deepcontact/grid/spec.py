@@ -56,7 +56,7 @@ class GridSpec:
         if not all(type(n) is int and n > 0 for n in (nx, ny)) or nx * ny > MAX_NODES:
             raise ValueError(f"grid 'nx' and 'ny' must be positive integers, at most {MAX_NODES:,} nodes in all")
         kernel, renormalize = d.get("kernel", "poly6"), d.get("renormalize", True)
-        if kernel not in KERNELS:
+        if not isinstance(kernel, str) or kernel not in KERNELS:
             raise ValueError(f"grid 'kernel' must be one of {', '.join(KERNELS)}, not {kernel!r}")
         if not isinstance(renormalize, bool):
             raise ValueError("grid 'renormalize' must be true or false")
@@ -113,7 +113,10 @@ def scene_box(scene):
 def node_weight_problem(kernel, cell, h):
     """Why float32 grid images cannot carry a value at cell size d and smoothing length h, or None."""
     # A node holds about W(0) d^2 of a particle's value: it must be a float32 the grid can carry.
-    node_weight = float(weight(kernel, 0.0, h)) * cell * cell
+    try:
+        node_weight = float(weight(kernel, 0.0, h)) * cell * cell
+    except (ZeroDivisionError, OverflowError):   # h so small or large that the kernel's scale is not a float
+        node_weight = float("inf")
     if not (math.isfinite(node_weight) and 1e-30 < node_weight < 1e30):
         return (f"h = {h:g} at d = {cell:g} puts a weight of {node_weight:.3g} on a node: float32 grid "
                 f"images cannot carry that (choose h near d)")

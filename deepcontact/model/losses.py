@@ -69,6 +69,16 @@ class SolverLoss:
         self.cache = {}
         dataset.check_step_sources()
 
+    @staticmethod
+    def memory(dataset, batch_size, sweeps):
+        """Bytes the loss holds: each sample's dense LCP matrix, cached (two rows a contact point,
+        float64), and for one batch the autograd graph of its sweeps (about 8 row vectors a sweep)."""
+        points = np.diff(np.asarray(dataset.arrays["contact_offsets"], np.int64))
+        rows = 2 * points
+        cached = int(np.sum(rows.astype(np.float64) ** 2)) * 8
+        biggest = int(np.sort(rows)[-batch_size:].sum()) if len(rows) else 0
+        return cached + biggest * 8 * 8 * (sweeps + 1)
+
     def problem(self, i):
         if i not in self.cache:
             from ..solver.lcp import build_lcp

@@ -275,8 +275,11 @@ def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None
     problem = check_config(net_cfg)
     if problem:
         raise InputError(problem)
-    check_memory(training_memory(net_cfg, cfg.batch_size, cfg.optimizer), max_memory,
-                 f"training the {cfg.model} network with batches of {cfg.batch_size}")
+    need = training_memory(net_cfg, cfg.batch_size, cfg.optimizer)
+    if cfg.loss == "solver":
+        need += losses.SolverLoss.memory(ds, cfg.batch_size, cfg.solver_sweeps)
+    check_memory(need, max_memory, f"training the {cfg.model} network with batches of {cfg.batch_size}"
+                 + (f" and the solver loss ({cfg.solver_sweeps} sweeps)" if cfg.loss == "solver" else ""))
     # Replacing an earlier run builds the new one beside it; otherwise training writes in place,
     # so that an interrupted run can be resumed from its last.pt.
     replace = overwrite and out_dir.is_dir() and any(out_dir.iterdir())

@@ -741,8 +741,10 @@ void parse(Reader& reader, const StepSchema* schema, Source& source, std::string
     std::unique_ptr<xmlParserCtxt, void (*)(xmlParserCtxtPtr)> ctxt(
         xmlCreateIOParserCtxt(sax, data, Input::read, nullptr, &input, XML_CHAR_ENCODING_NONE), xmlFreeParserCtxt);
     if (!ctxt) throw std::bad_alloc();
-    // No network and no DTD loading; entities are never substituted (a DOCTYPE is refused).
-    xmlCtxtUseOptions(ctxt.get(), XML_PARSE_NONET);
+    // No network and no DTD loading. NOENT: the predefined entities and character references
+    // in attribute values are decoded (without it SAX2 hands "&amp;" over as "&#38;", so a scene
+    // named "a&b" read back as another name); no other entity can be declared (a DOCTYPE is refused).
+    xmlCtxtUseOptions(ctxt.get(), XML_PARSE_NONET | XML_PARSE_NOENT);
     // The plugged validator's handler has no error callback of its own: ours, on the copy the
     // parser uses, so that nothing is printed and every well-formedness error is kept.
     ctxt->sax->serror = on_syntax_error;

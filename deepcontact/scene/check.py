@@ -91,6 +91,10 @@ def check_scene(scene, path=None):
         v = getattr(e, name)
         if v is not None and not (_finite(v) and 0 <= v <= MAX_COEFFICIENT):
             fail(f"{name} coefficient must be a finite number from 0 to {MAX_COEFFICIENT:g}", at(name))
+    if e.restitution is not None and not (_finite(e.restitution_threshold) and
+                                          0 <= e.restitution_threshold <= MAX_SPEED):
+        fail(f"the restitution threshold must be a speed from 0 to {MAX_SPEED:g} m/s, got {e.restitution_threshold}",
+             at("restitution"))
     if e.damping is not None and not (_within(MAX_DAMPING, *e.damping) and min(e.damping) >= 0):
         fail(f"damping must be between 0 and {MAX_DAMPING:g}", at("damping"))
 

@@ -26,6 +26,7 @@ import numpy as np
 from .. import atomic, interrupts, workers
 from ..errors import InputError
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
+from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
@@ -130,7 +131,12 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     per_file = []   # contact points of each file written (a skipped step has none)
 
     def write(k, dt_ratio, bodies, contacts, extra):
-        xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts, extra)
+        try:
+            xml = writer.render(k, k * float(scene.dt), dt_ratio, bodies, contacts, extra)
+        except NonFiniteError as e:   # no NaN or inf in a file: the scene outran float32
+            raise InputError(f"seed {seed}: the simulation became non-finite at step {k} ({e}): the scene asks for "
+                             "more than Box2D's float32 holds (bodies too far or too fast, forces too large, or a "
+                             "start that diverged); nothing of it was kept") from None
         atomic.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
 
     # Rendering, compressing and writing a step (GIL released in each) overlap with stepping the next.
