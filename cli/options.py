@@ -164,6 +164,10 @@ def setup_logging(verbose, quiet):
                         format="%(levelname)s: %(message)s", force=True)   # (force: each command its own stderr)
     for noisy in ("matplotlib", "PIL"):   # their debug output is not ours
         logging.getLogger(noisy).setLevel(max(logging.WARNING, log_level(verbose, quiet)))
+    # Python warnings of the libraries (matplotlib, torch, numpy) are advice to us, not to the
+    # user, and span lines: into the log, shown with -v only.
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(logging.WARNING if verbose else logging.ERROR)
 
 
 def command(name):

@@ -11,6 +11,7 @@ from ..errors import InputError
 from .kernels import KERNELS, weight
 
 MAX_NODES = 4096 * 4096   # 64 MiB per float32 channel
+MAX_COORDINATE = 1e7      # m: ten times the farthest a scene may place a body
 
 
 @dataclass(frozen=True)
@@ -52,9 +53,15 @@ class GridSpec:
         x0, y0, cell, h = number("x0"), number("y0"), number("cell"), number("h")
         if cell <= 0 or h <= 0:
             raise ValueError(f"grid 'cell' and 'h' must be positive, not {cell:g} and {h:g}")
+        if max(abs(x0), abs(y0)) > MAX_COORDINATE or cell < 1e-6 * max(1.0, abs(x0), abs(y0)):
+            # (scenes lie within 1e6 m; float32 nodes this far out, or this close, would coincide)
+            raise ValueError(f"grid origin {x0:g},{y0:g} must lie within {MAX_COORDINATE:g} m, its cell "
+                             f"{cell:g} m above a millionth of it")
         nx, ny = d["nx"], d["ny"]
         if not all(type(n) is int and n > 0 for n in (nx, ny)) or nx * ny > MAX_NODES:
             raise ValueError(f"grid 'nx' and 'ny' must be positive integers, at most {MAX_NODES:,} nodes in all")
+        if max(nx, ny) * cell > 2 * MAX_COORDINATE:
+            raise ValueError(f"the grid spans {max(nx, ny) * cell:g} m, more than {2 * MAX_COORDINATE:g}")
         kernel, renormalize = d.get("kernel", "poly6"), d.get("renormalize", True)
         if not isinstance(kernel, str) or kernel not in KERNELS:
             raise ValueError(f"grid 'kernel' must be one of {', '.join(KERNELS)}, not {kernel!r}")

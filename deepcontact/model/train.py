@@ -164,11 +164,38 @@ def checkpoint_problem(ck):
     cfg = ck["train_config"]
     if not isinstance(cfg, dict):
         return "'train_config' must be a dictionary"
-    defaults = TrainConfig()
+    problem = config_problem(cfg)
+    return f"train_config: {problem}" if problem else None
+
+
+# The training options' ranges, as the CLI takes them: (low, high), inclusive; None: open.
+_RANGES = {"batch_size": (1, 2 ** 31 - 1), "epochs": (1, 2 ** 31 - 1), "patience": (0, 2 ** 31 - 1),
+           "seed": (0, 2 ** 31 - 1), "fcn_width": (1, 4096), "fcn_depth": (1, 12), "solver_sweeps": (0, 2 ** 31 - 1),
+           "lr": (0, None), "weight_decay": (0, None), "momentum": (0, 1), "dropout": (0, 1)}
+_CHOICES = {"model": ("thesis", "fcn"), "optimizer": ("sgd", "adam")}
+
+
+def config_problem(cfg):
+    """What is wrong with a training config read from a file (types, ranges, choices), or None."""
+    defaults = asdict(TrainConfig())
     for k, v in cfg.items():
-        if hasattr(defaults, k) and type(v) is not type(getattr(defaults, k)) and not (
-                isinstance(getattr(defaults, k), float) and number(v)):
-            return f"train_config {k!r} must be {type(getattr(defaults, k)).__name__}, not {v!r}"
+        if k not in defaults:
+            return f"unknown setting {k!r}"
+        want = type(defaults[k])
+        if want is float:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                return f"{k!r} must be a finite number, not {v!r}"
+        elif type(v) is not want:
+            return f"{k!r} must be {want.__name__}, not {v!r}"
+        lo, hi = _RANGES.get(k, (None, None))
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            return f"{k!r} must be from {lo} to {hi if hi is not None else 'any'}, not {v!r}"
+        if k in _CHOICES and v not in _CHOICES[k]:
+            return f"{k!r} must be one of {', '.join(_CHOICES[k])}, not {v!r}"
+        if k == "targets" and (not v or not all(isinstance(t, str) for t in v)):
+            return "'targets' must be a list of label channel names"
+        if k == "loss" and v not in losses.LOSSES:
+            return f"'loss' must be one of {', '.join(losses.LOSSES)}, not {v!r}"
     return None
 
 
