@@ -313,17 +313,18 @@ def recover(path):
                         else None for k in ("old", "new"))
         except (OSError, ValueError, KeyError, TypeError):
             old = new = None
-        if new is not None and new.is_dir() and not new.is_symlink():
-            # the swap did not happen: path is the earlier output, or it was moved aside
-            if not os.path.lexists(path) and old is not None and old.is_dir():
-                os.replace(old, path)
-                log.warning("restored %s from %s: an earlier replacement was interrupted before the new output "
-                            "was in place", path, old.name)
-            log.info("removing %s, left by an interrupted earlier run", new)
-            shutil.rmtree(new, ignore_errors=True)
-        elif old is not None and old.is_dir() and not old.is_symlink() and os.path.lexists(path):
+        if not os.path.lexists(path) and old is not None and old.is_dir() and not old.is_symlink():
+            # killed between the renames: the earlier output is the only copy, and comes back
+            os.replace(old, path)
+            log.warning("restored %s from %s: an earlier replacement was interrupted before the new output "
+                        "was in place", path, old.name)
+        elif old is not None and old.is_dir() and not old.is_symlink():
+            # killed after the swap, while the earlier output was being removed
             log.info("removing %s, the output an interrupted replacement had already replaced", old)
             shutil.rmtree(old, ignore_errors=True)
+        if new is not None and new.is_dir() and not new.is_symlink():   # never swapped in: ours, unfinished
+            log.info("removing %s, left by an interrupted earlier run", new)
+            shutil.rmtree(new, ignore_errors=True)
         _remove_quietly(journal)
     prefix = f".{short_name(path.name)}.partial-"
     for p in path.parent.iterdir() if path.parent.is_dir() else ():

@@ -329,8 +329,14 @@ def test_a_deep_tree_is_walked_without_recursion(tmp_path):
         d = d / "d"
         os.mkdir(d)
     (d / "x.xml").write_text("<step/>")
-    r = invoke("validate", tmp_path)
-    assert r.exit_code == 1 and "Traceback" not in r.stderr and "1 files checked" in r.stderr, r.stderr
+    try:
+        r = invoke("validate", tmp_path)
+        assert r.exit_code == 1 and "Traceback" not in r.stderr and "1 files checked" in r.stderr, r.stderr
+    finally:   # from the bottom up: shutil.rmtree (and pytest's clean-up) recurse
+        (d / "x.xml").unlink()
+        while d != tmp_path:
+            d.rmdir()
+            d = d.parent
 
 
 # --- Silently wrong output ---------------------------------------------------------------------

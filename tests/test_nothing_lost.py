@@ -134,14 +134,15 @@ def test_a_replacement_killed_between_its_renames_is_undone_or_finished(run, tmp
     out = copy(run, tmp_path / "run")
     before = snapshot(out)
     old = tmp_path / ".run.old-4242-xyz"
+    new = copy(run, tmp_path / ".run.partial-4242-abc")   # complete, but never swapped in
     os.replace(out, old)
-    (tmp_path / ".run.swap").write_text(json.dumps({"old": old.name}))
+    (tmp_path / ".run.swap").write_text(json.dumps({"old": old.name, "new": new.name}))
     r = dc("simulate", *PILE, "--steps", "5", "-o", str(out))
     assert r.returncode == 1 and "restored" in r.stderr and "not empty" in r.stderr, r.stderr
     assert snapshot(out) == before and leftovers(tmp_path) == [] and not (tmp_path / ".run.swap").exists()
     # killed after the new output was in place, while the old one was being removed: finished
     stale = copy(run, tmp_path / ".run.old-4343-xyz")
-    (tmp_path / ".run.swap").write_text(json.dumps({"old": stale.name}))
+    (tmp_path / ".run.swap").write_text(json.dumps({"old": stale.name, "new": ".run.partial-4343-gone"}))
     r = dc("simulate", *PILE, "--steps", "5", "-o", str(out))
     assert r.returncode == 1 and not stale.exists() and snapshot(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
