@@ -516,3 +516,27 @@ def test_option_errors_exit_2_and_files_that_are_not_checkpoints_say_so(run, tmp
         bogus.exists() or bogus.write_text("not a checkpoint")
         err = one_line(invoke("evaluate", run, "--starts", "cnn", "--model", bogus, "-o", tmp_path / "r"), 1)
         assert "not a checkpoint" in err and "run code" not in err and "weights_only" not in err, err
+
+
+def _die_on_two(task):
+    if task == 2:
+        os.kill(os.getpid(), signal.SIGKILL)   # the worker killed (the OOM killer, a user)
+    return task
+
+
+def _die_always(args):
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_killed_worker_is_one_line_and_the_output_is_not_kept(run, tmp_path, monkeypatch):
+    from deepcontact import workers
+    from deepcontact.errors import Failure
+    with pytest.raises(Failure, match="worker process died"):
+        with workers.pool(2) as pool:
+            list(pool.imap(_die_on_two, range(6)))
+    # through a command: a rasterizing worker killed midway
+    from deepcontact.grid import dataset as D
+    monkeypatch.setattr(D, "_rasterize_steps", _die_always)
+    r = invoke("rasterize", run, "--cell", "1", "--smoothing", "1", "-j", "2", "-o", tmp_path / "d")
+    one_line(r, 1, "worker process died")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
