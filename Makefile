@@ -61,6 +61,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_rasterize.py
 	$(PYTHON) benchmarks/bench_scale.py
 	$(PYTHON) benchmarks/bench_render.py
+	$(PYTHON) benchmarks/bench_predict.py
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
 	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2

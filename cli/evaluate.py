@@ -1,6 +1,9 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
+import dataclasses
+
 import click
 
+from deepcontact.errors import InputError
 from deepcontact.warmstart.starts import NAMES as START_NAMES
 from deepcontact.solver.pgs import ACCELERATIONS
 
@@ -42,12 +45,14 @@ from . import options
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
 @options.jobs
+@options.threads
 @options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             closed_loop, steps, relaxation, accelerate, budgets, jobs, max_memory, overwrite, verbose, quiet):
+             closed_loop, steps, relaxation, accelerate, budgets, jobs, threads, max_memory, overwrite, verbose,
+             quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 from zero to a residual of 1e-12:
@@ -88,8 +93,6 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         options.check_grid_options(kernel, cell, smoothing)
     if {"newton", "subspace"} & set(accelerate) and mode != "float64":
         raise click.UsageError("--accelerate newton and subspace are float64 only: use --mode float64")
-    if closed_loop and jobs > 1:
-        raise click.UsageError("-j applies to replay; --closed-loop runs its starts one after another")
 
     # Computed inside the output's lock; the report appears only when complete.
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep
@@ -101,11 +104,12 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
                      f"the convergence histories of {total:,} steps x {variants} variants up to {max_iterations:,} sweeps")
     with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
         _evaluate(runs, work, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs)
+                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs, threads)
 
 
 def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-              closed_loop, steps, relaxations, accelerations, budgets, quiet, jobs=1):
+              closed_loop, steps, relaxations, accelerations, budgets, quiet, jobs=1, threads=1):
+    from deepcontact.protocol import protocol, use_threads
     from deepcontact.evaluate.replay import box2d_run, evaluate as run, summarize
     from deepcontact.evaluate.report import summary_table, write_report
     from deepcontact.warmstart.starts import make_starts
@@ -114,15 +118,17 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
     predictor, spec = None, None
     if model:
         from deepcontact.model.inference import Predictor
-        predictor = Predictor(model)
+        predictor = Predictor(model, threads=threads)
         spec = predictor.spec
+    use_threads(threads)
+    measured = protocol(threads, jobs)   # (the load average now, before the work adds to it)
     if "sph" in names and spec is None:
         sims, _ = collect(runs)
         spec, _ = grid_for(sims, cell, smoothing, kernel, True)
     table = make_starts(names, spec=spec, predictor=predictor)
     if closed_loop:
         return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
-                               quiet, accelerations)
+                               quiet, accelerations, measured, jobs)
     total = sum(len(s.files) for r in runs for s in box2d_run(r).simulations)
     bar = options.progress_bar(quiet, total, "step", "evaluate")
     rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
@@ -133,29 +139,36 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
     settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, accelerate=accelerations,
                     model=model, tolerance=tolerance,
                     max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
-                    steps=len({(r.run, r.seed, r.step) for r in rows}))
+                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured)
     write_report(out, rows, summary, settings)
     click.echo(summary_table(summary))
 
 
 def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet,
-                    accelerations=("none",)):
-    from deepcontact.evaluate.closed_loop import box2d_iterations, closed_loop, reference_trajectory
+                    accelerations=("none",), measured=None, jobs=1):
+    """Every simulation of every run given, its rows per seed and pooled over all of them."""
+    from deepcontact.evaluate.closed_loop import every_simulation, pooled
     from deepcontact.evaluate.report import write_loop_report
     from deepcontact.evaluate.replay import box2d_run
     from deepcontact.scene.xml import read_scene
 
-    first = box2d_run(runs[0]).simulations[0].scene_file()
-    scene = read_scene(first)
-    bar = options.progress_bar(quiet, len(table) * len(relaxations) * len(accelerations) + 1 + bool(budgets), "run",
-                               "closed loop")
-    reference = reference_trajectory(scene, steps or scene.steps)
-    results = closed_loop(scene, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on,
-                          mode=mode, steps=steps, progress=bar.update,
-                          relaxations=relaxations, reference=reference, accelerations=accelerations)
-    if budgets:
-        results += box2d_iterations(scene, steps=steps, reference=reference)
-        bar.update(1)
+    sims = [(r, s) for r in runs for s in box2d_run(r).simulations]
+    scenes = [read_scene(s.scene_file()) for _, s in sims]
+    if len({scene.name for scene in scenes}) > 1:
+        raise InputError(f"the runs hold different scenes ({', '.join(sorted({sc.name for sc in scenes}))}); "
+                         "the closed loop pools one kind of scene at a time")
+    bar = options.progress_bar(quiet, len(sims), "simulation", "closed loop")
+    per_simulation = every_simulation(scenes, table, budgets=budgets, jobs=jobs, progress=bar.update,
+                                      tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
+                                      steps=steps, relaxations=relaxations, accelerations=accelerations)
     bar.close()
-    click.echo(write_loop_report(out, results, f"{scene.name} from {first}", stop_on, tolerance, max_iterations,
-                                 mode))
+    if len(sims) == 1:
+        results = per_simulation[0]
+    else:   # the pooled rows first, then each simulation's, named by its run and seed
+        results = pooled(per_simulation) + [
+            dataclasses.replace(r, start=f"{r.start} · {run} seed {s.seed}")
+            for (run, s), rows in zip(sims, per_simulation) for r in rows]
+    what = (f"{scenes[0].name}, {len(sims)} simulation{'s' if len(sims) != 1 else ''} of "
+            f"{', '.join(map(str, runs))}")
+    click.echo(write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured,
+                                 simulations=len(sims)))

@@ -36,6 +36,10 @@ cli.add_command(render)
 
 
 def main():
+    import shlex
+    import sys
+    from deepcontact import protocol
+    protocol.command_line = shlex.join(["dc", *sys.argv[1:]])   # recorded in every report
     cli(prog_name="dc")
 
 

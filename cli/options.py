@@ -151,6 +151,10 @@ def verbosity(f):
 overwrite = click.option("--overwrite", is_flag=True,
                          help="Replace existing output: the new output is built beside it and swapped in "
                          "only when complete, so a failed or interrupted run keeps the old one.")
+threads = click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
+                       help="torch threads per process for timed work (prediction, training). More than one "
+                       "spins against other processes: on a busy machine the times move by up to 100x. "
+                       "Recorded in every report.")
 jobs = click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
                     help="Worker processes.")
 

@@ -42,11 +42,12 @@ def kind_of(path):
 @click.option("--sample", type=options.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
 @click.option("--model", type=click.Path(dir_okay=False),
               help="[dataset] A checkpoint from dc train: its prediction and error beside each label.")
+@options.threads
 @options.overwrite
 @options.verbosity
 @options.command("render")
-def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, overwrite,
-           verbose, quiet):
+def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, threads,
+           overwrite, verbose, quiet):
     """Draw INPUT: a step file, a run, or a sample of a grid dataset.
 
     \b
@@ -100,7 +101,7 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
             _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:])
         elif kind == "dataset":
             from deepcontact.render.panels import sample_panels
-            atomic.write_bytes(out, sample_panels(input_path, sample, model))
+            atomic.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
         else:
             _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet)
     if not quiet:

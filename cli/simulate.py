@@ -35,7 +35,10 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
         raise click.UsageError(f"--accelerate {accelerate} is float64 only")
     if relaxation == "auto" and not tolerance:
         raise click.UsageError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
-    cap = max_iterations if max_iterations is not None else (
+    # A tolerance asks to converge: the cap is then dc evaluate's (1000), not the scene's 8 sweeps,
+    # which would stop nearly every step short of it without a word.
+    from deepcontact.simulate.pgs_loop import DEFAULT_TOLERANCE_CAP
+    cap = max_iterations if max_iterations is not None else DEFAULT_TOLERANCE_CAP if tolerance else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
     return LoopOptions(start=start or "builtin", mode=mode, max_iterations=cap, tolerance=tolerance or 0.0,
                        stop_on=stop_on or "residual", relaxation=relaxation or 1.0, accelerate=accelerate or "none")
@@ -65,7 +68,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--mode", type=click.Choice(["exact", "float32", "float64"]),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
 @click.option("--tolerance", type=options.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
-@click.option("--max-iterations", type=options.count(), help="[pgs] Sweep cap (default: the scene's).")
+@click.option("--max-iterations", type=options.count(),
+              help="[pgs] Sweep cap (default: 1000 with --tolerance, as dc evaluate's; else the scene's).")
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]),
               help="[pgs] The measure the tolerance applies to (default residual).")
 @click.option("--relaxation", type=options.Relaxation(),

@@ -55,10 +55,13 @@ def stability(out, fast, overwrite, verbose, quiet):
     with atomic.locked(out) if out else nullcontext():
         if out and os.path.exists(out) and not overwrite:
             raise InputError("file exists; use --overwrite to replace it", out)
+        from deepcontact.protocol import protocol, protocol_line
+        measured = protocol()
         click.echo(S.HEADER)
         rows = S.study(S.FAST if fast else S.FULL, log=click.echo)
         if out:
-            atomic.write_text(out, S.table(rows))
+            atomic.write_text(out, f"# Stability of the hard scenes ({'fast' if fast else 'full'} variants)\n\n"
+                              f"{protocol_line(measured)}\n\n" + S.table(rows))
     failed = sum(not f.passed for _, f in rows)
     if failed:
         raise InputError(f"{failed} of {len(rows)} configurations never met their criteria (see the table)")

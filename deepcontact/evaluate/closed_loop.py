@@ -11,10 +11,11 @@ the deepest contact, and whether anything became non-finite.
 `box2d_iterations` runs the same comparison for Box2D's own solver at fixed velocity iteration
 counts: what its accuracy costs in time.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import workers
 from ..simulate import stepping
 from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
@@ -160,3 +161,48 @@ def box2d_iterations(scene, counts=(1, 2, 4, 8, 16, 32, 64, 128, 256), steps=Non
                                   predict_ms=np.zeros(0), drift=drift, penetration=recorded.deepest,
                                   finite=timed.finite and recorded.finite, energy_error=err))
     return results
+
+
+def loop_simulation(task):
+    """One simulation's closed-loop rows: every start, and Box2D's iteration counts when asked,
+    against one reference trajectory. task: (scene, starts, options, budgets); a function of its
+    own so that worker processes can run simulations side by side."""
+    scene, starts, options, budgets = task
+    steps = options.get("steps") or scene.steps
+    reference = reference_trajectory(scene, steps)
+    results = closed_loop(scene, starts, reference=reference, **options)
+    if budgets:
+        results += box2d_iterations(scene, steps=steps, reference=reference)
+    return results
+
+
+def every_simulation(scenes, starts, *, budgets=False, jobs=1, progress=None, **options):
+    """The closed loop on every scene (one per simulation: its seed's initial state), side by side
+    in `jobs` worker processes; returns one list of LoopResult per scene, in order. options:
+    those of closed_loop. progress(n): n more simulations done."""
+    tasks = [(scene, starts, options, budgets) for scene in scenes]
+    out = []
+    with workers.pool(jobs) if jobs > 1 and len(tasks) > 1 else workers.serial() as pool:
+        for results in pool.imap(loop_simulation, tasks):
+            out.append(results)
+            if progress:
+                progress(1)
+    return out
+
+
+def pooled(per_simulation):
+    """One row per start over every simulation: iterations, times and predictions pooled, the
+    drift at each step the largest of any simulation's, the worst penetration and energy error,
+    finite only if every simulation stayed finite."""
+    rows = []
+    for same in zip(*per_simulation):
+        n = min(len(r.drift) for r in same)
+        rows.append(replace(
+            same[0], steps=sum(r.steps for r in same),
+            iterations=np.concatenate([r.iterations for r in same]),
+            ms_per_step=np.concatenate([r.ms_per_step for r in same]),
+            predict_ms=np.concatenate([r.predict_ms for r in same]),
+            drift=np.max([r.drift[:n] for r in same], axis=0) if n else np.zeros(0),
+            penetration=max(r.penetration for r in same), finite=all(r.finite for r in same),
+            energy_error=max(r.energy_error for r in same)))
+    return rows

@@ -19,6 +19,7 @@ import numpy as np
 from .. import atomic
 from ..escape import plot_text
 from ..html import markdown_to_html
+from ..protocol import protocol_line
 from .replay import BUDGETS, reference_summary
 
 # Everything a report folder holds (replay and closed loop): what --overwrite may replace.
@@ -84,6 +85,7 @@ def markdown(summary, settings, pareto):
             f"in body velocities: the residual is the honest per-step measure, and the impulse and velocity errors "
             f"against one reference are informative, not ground truth.\n",
             summary_table(summary), "",
+            *([protocol_line(s["protocol"]) + "\n"] if s.get("protocol") else []),
             "Oracles (they know the answer): copy, copy2, copy0, sph. `@w`: over-relaxed (PSOR) with that w; "
             "'w fell back': solves where the guard returned to w = 1. Times are medians per step; prediction "
             "includes rasterizing, the network and interpolating where a start needs them.\n",
@@ -195,24 +197,32 @@ def _save(fig, stem):
     plt.close(fig)
 
 
-def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode):
-    """closed-loop.md (and .html), .json and the plot into the folder out; returns the table."""
+def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured=None, simulations=1):
+    """closed-loop.md (and .html), .json and the plot into the folder out; returns the table.
+    With several simulations, results hold the pooled rows first (one per start), then each
+    simulation's; the plot shows the pooled ones."""
     text = loop_table(results)
+    rows_per_simulation = len(results) // (simulations + 1) if simulations > 1 else len(results)
     page = (f"# Closed loop: {what}\n\n"
             f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
             f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
             f"`@w`: over-relaxed PGS; `+nncg`: with conjugate directions. `box2d k iterations`: Box2D's own "
-            f"solver.\n\n" + text + "\n\n![closed loop](closed-loop.png)\n")
+            f"solver."
+            + (f" {simulations} simulations: the first rows pool them all (iterations and times over every step of "
+               f"every simulation; the drift at each step the largest of any simulation's; the worst penetration "
+               f"and energy error), the rows after them are each simulation's." if simulations > 1 else "")
+            + "\n\n" + text + "\n\n" + (protocol_line(measured) + "\n\n" if measured else "")
+            + "![closed loop](closed-loop.png)\n")
     atomic.write_text(out / "closed-loop.md", page)
-    loop_plot(results, out / "closed-loop")
+    loop_plot(results[:rows_per_simulation], out / "closed-loop")
     atomic.write_text(out / "closed-loop.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                                    pictures=("closed-loop.png",)))
-    atomic.write_text(out / "closed-loop.json", json.dumps([{
+    atomic.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "results": [{
         "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
         "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
-        "energy_error": r.energy_error, "finite": r.finite} for r in results]) + "\n")
+        "energy_error": r.energy_error, "finite": r.finite} for r in results]}) + "\n")
     return text
 
 

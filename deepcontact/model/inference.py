@@ -30,7 +30,11 @@ class Start:
 
 
 class Predictor:
-    def __init__(self, checkpoint, threads=None):
+    """A trained network as a warm start: rasterize a step, run the network, interpolate its
+    impulse images back to the contact points. threads: torch's threads, 1 unless asked (the
+    timed default; torch's own, a thread per core, spins against other processes)."""
+
+    def __init__(self, checkpoint, threads=1):
         ck = load_checkpoint(checkpoint)
         self.spec = GridSpec.from_dict(ck["dataset"]["grid"])   # (checked by load_checkpoint)
         self.inputs = list(ck["dataset"]["inputs"])
@@ -38,8 +42,7 @@ class Predictor:
         self.model = build(ck["network"])
         self.model.load_state_dict(ck["model"])
         self.model.eval()
-        if threads:
-            torch.set_num_threads(threads)
+        torch.set_num_threads(threads or 1)
 
     @torch.no_grad()
     def images(self, x):

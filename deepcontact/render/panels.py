@@ -8,8 +8,9 @@ from ..errors import InputError
 from ..grid.dataset import GridDataset
 
 
-def sample_panels(dataset, index, model=None, panel_px=220):
-    """PNG bytes of sample `index` of a dataset folder; model: a checkpoint from dc train."""
+def sample_panels(dataset, index, model=None, panel_px=220, threads=1):
+    """PNG bytes of sample `index` of a dataset folder; model: a checkpoint from dc train, run on
+    `threads` torch threads."""
     data = GridDataset(dataset)
     if not 0 <= index < len(data):
         raise InputError(f"sample {index} is out of range: the dataset has {len(data)} samples (0 to {len(data) - 1})",
@@ -20,7 +21,7 @@ def sample_panels(dataset, index, model=None, panel_px=220):
     rows = [[(name, x[c], "viridis") for c, name in enumerate(meta["inputs"])],
             [(name, y[c], "magma") for c, name in enumerate(meta["labels"])]]
     if model is not None:
-        pred = _predict(model, meta, x, dataset)
+        pred = _predict(model, meta, x, dataset, threads)
         rows.append([(f"predicted {name}", pred[name], "magma") for name in meta["labels"] if name in pred])
         rows.append([(f"error of {name}", pred[name] - y[c], "coolwarm") for c, name in enumerate(meta["labels"])
                      if name in pred])
@@ -28,10 +29,10 @@ def sample_panels(dataset, index, model=None, panel_px=220):
                                    f"step {int(data.arrays['step'][index])})", meta["grid"])
 
 
-def _predict(model, meta, x, dataset):
+def _predict(model, meta, x, dataset, threads=1):
     from ..model.inference import Predictor
     from ..grid.spec import GridSpec
-    p = Predictor(model)
+    p = Predictor(model, threads=threads)
     if list(p.inputs) != list(meta["inputs"]):
         raise InputError(f"the model reads channels {','.join(p.inputs)}, the dataset has "
                          f"{','.join(meta['inputs'])}", dataset)

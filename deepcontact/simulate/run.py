@@ -98,6 +98,7 @@ class SimulationResult:
     scene_sha256: str
     extent: list = None   # [x0, y0, x1, y1] the bodies stayed in over the run
     file_contact_points: list = None   # contact points of each step file written, in order
+    capped: int = None   # --solver pgs with a tolerance: steps that stopped at the sweep cap short of it
 
 
 def _solve_xml(options, solution):
@@ -129,6 +130,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
     step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
     extent = Extent(scene)
     per_file = []   # contact points of each file written (a skipped step has none)
+    capped = 0
 
     def write(k, dt_ratio, bodies, contacts, extra):
         try:
@@ -149,6 +151,11 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                 k, bodies, contacts = done.index, done.bodies, done.contacts
                 extent.add(bodies)
                 n = len(contacts["manifold"])
+                sol = done.solution
+                if loop is not None and loop.tolerance > 0 and sol is not None and \
+                        sol.iterations >= loop.max_iterations and \
+                        (loop.stop_on != "residual" or not sol.residual <= loop.tolerance):
+                    capped += 1   # stopped by the cap, not by the tolerance
                 with interrupts.held():
                     if n or not skip_contactless:
                         extra = "" if loop is None else _solve_xml(loop, done.solution)
@@ -167,7 +174,8 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
             raise
     return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=len(per_file),
                             contact_points=sum(per_file), scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
-                            extent=extent.as_list(), file_contact_points=per_file)
+                            extent=extent.as_list(), file_contact_points=per_file,
+                            capped=capped if loop is not None and loop.tolerance > 0 else None)
 
 
 def prepare_output(out_dir, seeds):
@@ -212,6 +220,11 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
                              progress, source, loop, compress)
     log.info("wrote %d simulations, %d step files to %s", len(manifest["simulations"]),
              sum(r["files"] for r in manifest["simulations"]), os.fspath(out_dir))
+    capped = sum(r.get("capped") or 0 for r in manifest["simulations"])
+    if capped:
+        log.warning("%d of %d steps stopped at the cap of %d sweeps before the %s measure fell below %g (raise "
+                    "--max-iterations; each step file's <solve> says where it stopped)", capped,
+                    sum(r["steps"] for r in manifest["simulations"]), loop.max_iterations, loop.stop_on, loop.tolerance)
     return manifest
 
 

@@ -12,6 +12,7 @@ Each is the median (and 10-90% band) of the stopping measure per PGS sweep over 
 from .. import atomic
 from ..grid.dataset import collect
 from ..grid.spec import GridSpec
+from ..protocol import protocol, protocol_line
 from ..evaluate.replay import evaluate, summarize
 from ..evaluate.report import convergence_plot, summary_table
 from ..warmstart.starts import SPH, make_starts
@@ -35,6 +36,7 @@ def figures(run, out, every=10, tolerance=1e-4, stop_on="thesis", max_iterations
     if window is None:
         raise InputError("the thesis's figures need a scene with a static box (the pile)", run)
     kw = dict(tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, every=every)
+    measured = protocol()
     text = []
     for fig, settings in FIGURES.items():
         starts = {label: SPH(GridSpec.over(window, d, h, kernel)) for label, kernel, d, h in settings}
@@ -44,6 +46,7 @@ def figures(run, out, every=10, tolerance=1e-4, stop_on="thesis", max_iterations
     starts = make_starts(["zero", "builtin", "copy", "sph"], spec=GridSpec.over(window, 0.5, 0.5))
     rows = evaluate([run], starts, **kw)
     convergence_plot(rows, list(starts), out / "fig-5.7", "Thesis 5.7: all starts", tolerance, stop_on)
-    text += ["## fig-5.7\n", summary_table(summarize(rows, starts, max_iterations)), ""]
+    text += ["## fig-5.7\n", summary_table(summarize(rows, starts, max_iterations)), "",
+             protocol_line(measured), ""]
     atomic.write_text(out / "figures.md", "\n".join(text) + "\n")
     return "\n".join(text)

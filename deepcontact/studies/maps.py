@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from .. import atomic
+from ..protocol import protocol, protocol_line
 from ..model.train import TrainConfig, train
 
 ARMS = {"joint": ["normal_impulse", "tangent_impulse"], "normal only": ["normal_impulse"],
@@ -44,9 +45,9 @@ MAP_FILES = atomic.Owned("maps comparison", [r"compare\.(md|json)", r"(joint|nor
                                               r"loss\.(png|svg))"])
 
 
-def write_comparison(out, rows):
+def write_comparison(out, rows, measured=None):
     """compare.md and compare.json into the folder out; returns the table."""
     text = table(rows)
-    atomic.write_text(Path(out) / "compare.md", text + "\n")
+    atomic.write_text(Path(out) / "compare.md", text + "\n\n" + protocol_line(measured or protocol()) + "\n")
     atomic.write_text(Path(out) / "compare.json", json.dumps(rows, indent=2) + "\n")
     return text

@@ -1,0 +1,75 @@
+"""How a measurement was taken, recorded beside it: a time means little without the threads it
+ran on, the worker processes beside it, the versions, the CPU and how busy the machine was.
+
+Every report (`dc evaluate`'s report.md and summary.json, the closed loop, `dc study`'s
+outputs) and every benchmark records `protocol()`; `protocol_line()` says it in one sentence.
+Timed work runs on one torch thread unless the user asks for more (`--threads`): torch's
+default, a thread per core, spins against other processes and moved a prediction time 100x on a
+loaded machine.
+"""
+import os
+import platform
+import sys
+import time
+
+DEFAULT_THREADS = 1
+
+# The command line as the user typed it, set by the `dc` entry point (None in-process).
+command_line = None
+
+
+def use_threads(threads):
+    """torch's intra-op threads for this process (and the workers it forks), if torch is used."""
+    threads = threads or DEFAULT_THREADS
+    if "torch" in sys.modules:
+        import torch
+        torch.set_num_threads(threads)
+    return threads
+
+
+def cpu_model():
+    """The CPU's model name (Linux: /proc/cpuinfo), else what platform says."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _version(package):
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return None
+
+
+def protocol(threads=DEFAULT_THREADS, jobs=1):
+    """A dict of how this process measures: threads, -j, versions, CPU, load, command line."""
+    from . import __version__
+    from ._box2d import box2d_version
+    try:
+        load = [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        load = None
+    return {
+        "threads": threads, "jobs": jobs,
+        "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": _version("numpy"),
+                     "torch": _version("torch"), "python": platform.python_version()},
+        "cpu": cpu_model(), "cores": os.cpu_count(), "load_average": load,
+        "command": command_line, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+
+
+def protocol_line(p):
+    """The protocol in one sentence, for a report."""
+    v = p["versions"]
+    load = "unknown" if p["load_average"] is None else ", ".join(f"{x:g}" for x in p["load_average"])
+    command = f" Command: `{p['command']}`." if p.get("command") else ""
+    return (f"Measured with {p['threads']} torch thread{'s' if p['threads'] != 1 else ''} per process and "
+            f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {p['cpu']} ({p['cores']} cores; "
+            f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}, numpy "
+            f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}")

@@ -1,0 +1,69 @@
+"""Timings a reader can trust and no silent subsets: every report says how it was measured
+(threads, -j, versions, CPU, load, command), the closed loop runs every simulation it is given,
+and a tolerance without a cap converges instead of stopping at the scene's 8 sweeps."""
+import json
+import subprocess
+import sys
+
+import torch
+
+from conftest import HOSTILE_PILE
+from test_mutations import invoke
+
+
+def test_every_evaluate_report_records_its_protocol(run, tmp_path):
+    r = invoke("evaluate", run, "--starts", "builtin", "--every", "30", "--no-budgets", "--threads", "2", "-q",
+               "-o", tmp_path / "r")
+    assert r.exit_code == 0, r.stderr
+    p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
+    assert p["threads"] == 2 and p["jobs"] == 1 and p["cpu"] and p["cores"] >= 1
+    assert set(p["versions"]) == {"deepcontact", "box2d", "numpy", "torch", "python"} and all(p["versions"].values())
+    assert len(p["load_average"]) == 3
+    text = (tmp_path / "r" / "report.md").read_text()
+    assert "Measured with 2 torch threads per process and 1 worker process (-j)" in text
+    torch.set_num_threads(1)
+
+
+def test_the_default_is_one_thread_whatever_the_machine(run, model, tmp_path):
+    torch.set_num_threads(2)   # torch's default on a larger machine: the command's own default wins
+    r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40", "--no-budgets", "-q",
+               "-o", tmp_path / "r")
+    assert r.exit_code == 0, r.stderr
+    assert torch.get_num_threads() == 1
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]["threads"] == 1
+
+
+def test_the_closed_loop_runs_every_simulation(run, tmp_path):
+    args = ["evaluate", run, "--closed-loop", "--starts", "builtin", "--steps", "30", "--no-budgets", "-q"]
+    assert invoke(*args, "-o", tmp_path / "one").exit_code == 0
+    assert invoke(*args, "-j", "2", "-o", tmp_path / "two").exit_code == 0
+    text = (tmp_path / "one" / "closed-loop.md").read_text()
+    assert "2 simulations" in text and "seed 0" in text and "seed 1" in text, text
+    rows = [line for line in text.splitlines() if line.startswith("| builtin")]
+    assert len(rows) == 3   # pooled, then each simulation's
+    one = json.loads((tmp_path / "one" / "closed-loop.json").read_text())
+    two = json.loads((tmp_path / "two" / "closed-loop.json").read_text())
+    assert [r["iterations"] for r in one["results"]] == [r["iterations"] for r in two["results"]]
+    pooled, first, second = one["results"]
+    assert pooled["iterations"] == first["iterations"] + second["iterations"]
+    assert max(pooled["drift"]) == max(max(first["drift"]), max(second["drift"]))
+    assert one["protocol"]["threads"] == 1
+
+
+def test_a_tolerance_without_a_cap_converges_and_a_short_cap_is_counted(tmp_path):
+    r = invoke("simulate", *HOSTILE_PILE, "--steps", "60", "--solver", "pgs", "--tolerance", "1e-6", "-q",
+               "-o", tmp_path / "a")
+    assert r.exit_code == 0, r.stderr
+    m = json.loads((tmp_path / "a" / "manifest.json").read_text())
+    assert m["pgs"]["max_iterations"] == 1000 and m["simulations"][0]["capped"] == 0
+    dense = ["pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4"]
+    r = invoke("simulate", *dense, "--steps", "150", "--solver", "pgs", "--tolerance", "1e-9",
+               "--max-iterations", "2", "-o", tmp_path / "b")
+    assert r.exit_code == 0, r.stderr
+    capped = json.loads((tmp_path / "b" / "manifest.json").read_text())["simulations"][0]["capped"]
+    assert capped > 50 and f"{capped} of 150 steps stopped at the cap of 2 sweeps" in r.stderr, r.stderr
+
+
+def test_python_dash_m_deepcontact_is_dc():
+    r = subprocess.run([sys.executable, "-m", "deepcontact", "--version"], capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.startswith("dc, version"), r.stdout + r.stderr
