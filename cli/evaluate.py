@@ -86,6 +86,17 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     if "all" in accelerate:
         accelerate = list(ACCELERATIONS)
     learned = [n for n in starts if n in NEEDS_MODEL]
+    sph_grid = "sph" in starts and not model
+    options.refuse_inapplicable([
+        ("steps", closed_loop, "only applies with --closed-loop (replay solves the recorded steps)"),
+        ("every", not closed_loop, "applies to replay; --closed-loop steps every step"),
+        ("max_memory", not closed_loop, "applies to replay's convergence histories, not --closed-loop"),
+        ("model", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
+        ("cell", sph_grid, "only applies to the sph start without --model (a model brings its own grid)"),
+        ("smoothing", sph_grid, "only applies to the sph start without --model (a model brings its own grid)"),
+        ("kernel", sph_grid, "only applies to the sph start without --model (a model brings its own grid)"),
+        ("seed", "random" in starts, "only applies to the random start"),
+    ])
     if learned and not model:
         raise click.BadParameter(f"the start(s) {', '.join(learned)} need a trained model: give --model CHECKPOINT",
                                  param_hint="'--model'")

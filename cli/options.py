@@ -248,3 +248,19 @@ def check_grid_options(kernel, cell, smoothing):
     problem = node_weight_problem(kernel, cell, smoothing)
     if problem:
         raise click.BadParameter(problem, param_hint="'--cell' / '--smoothing'")
+
+
+def refuse_inapplicable(rules):
+    """One rule for every command: an option the user gave that does not apply to the chosen mode
+    is refused (exit 2, naming it and why) rather than ignored. rules: (parameter name, whether it
+    applies, why not). Defaults never count: only what was typed (or set in the environment)."""
+    from click.core import ParameterSource
+    ctx = click.get_current_context()
+    for name, applies, why in rules:
+        if applies or ctx.get_parameter_source(name) in (None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP):
+            continue
+        param = next(p for p in ctx.command.params if p.name == name)
+        flag = max(param.opts, key=len)
+        if getattr(param, "secondary_opts", None) and ctx.params.get(name) is False:
+            flag = max(param.secondary_opts, key=len)
+        raise click.UsageError(f"{flag} {why}")

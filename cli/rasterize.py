@@ -60,6 +60,12 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     """
     from deepcontact.grid.dataset import DatasetSettings, write_dataset
 
+    report_only = oracle or study
+    options.refuse_inapplicable(
+        [(name, report_only, "only applies with --oracle or --study") for name in ("impulses", "every")]
+        + [(name, not report_only, "does not apply with --oracle or --study (they write no dataset)")
+           for name in ("inputs", "labels", "include_contactless", "validation", "seed", "jobs", "max_memory")]
+        + [("out", not oracle, "does not apply with --oracle (it prints its table)")])
     options.check_grid_options(kernel, cell, smoothing)
     win = window
     if oracle or study:

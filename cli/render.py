@@ -76,6 +76,14 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
 
     kind = kind_of(input_path)
     suffix = Path(out).suffix.lower()
+    movie = suffix in (".gif", ".mp4", ".webm", ".html")
+    options.refuse_inapplicable(
+        [(name, kind == "run", "only applies to a run") for name in ("seed", "every", "compare")]
+        + [("fps", kind == "run" and movie, "only applies to a run drawn as a movie or a viewer")]
+        + [(name, kind == "dataset", "only applies to a grid dataset's sample") for name in ("sample", "model")]
+        + [(name, kind != "dataset", "does not apply to a grid dataset's sample (it draws grid images)")
+           for name in ("size", "window", "no_contacts", "color_by")]
+        + [("threads", model is not None, "only applies with --model (nothing else runs torch)")])
     if suffix not in FORMS[kind]:
         every_form = sorted({s for forms in FORMS.values() for s in forms})
         if suffix in every_form:

@@ -23,7 +23,7 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
     if solver == "box2d":
         used = [k for k, v in given.items() if v is not None]
         if used:
-            raise click.UsageError(f"{', '.join(used)} only apply with --solver pgs")
+            raise click.UsageError(f"{', '.join(used)} only appl{'ies' if len(used) == 1 else 'y'} with --solver pgs")
         return None
     from deepcontact.simulate.pgs_loop import LoopOptions
     mode = mode or "float64"
@@ -45,7 +45,7 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 
 
 @click.command()
-@click.argument("scene")
+@click.argument("scene", required=False)
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--steps", type=options.count(min=1), help="Override the scene's number of steps.")
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Random seed.")
@@ -116,12 +116,22 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     from deepcontact.simulate.run import run
     from deepcontact.simulate.source import SceneSource
 
-    if list_generators:
+    given_seeds = seeds is not None
+    options.refuse_inapplicable([
+        ("seed", not given_seeds, "and --seeds: give one (--seed for one simulation, --seeds A..B for several)"),
+        ("shard", given_seeds, "only applies with --seeds (it splits their range)"),
+        ("out_dir", not write_scene, "does not apply with --write-scene (it writes the scene and stops)"),
+        ("iterations", solver == "box2d", "is Box2D's solver's velocity iterations; with --solver pgs the cap is "
+                                          "--max-iterations"),
+    ])
+    if list_generators:   # (no SCENE needed)
         for name in GENERATORS:
             defaults = " ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                 for k, v in parameters(name).items())
             click.echo(f"{name}: {defaults}")
         return
+    if scene is None:
+        raise click.UsageError("missing SCENE: a generator (see --list) or a scene file")
     source = SceneSource(scene, dict(params), steps, iterations)
     source.check_memory(1, max_memory)
     if write_scene:

@@ -79,6 +79,14 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
 
     if overwrite and resume:
         raise click.UsageError("--resume and --overwrite contradict each other")
+    if not resume:   # (with --resume, the run's own settings decide: train() compares what was given)
+        options.refuse_inapplicable([
+            ("no_final_relu", model == "thesis", "only applies to --model thesis (the FCN has no final ReLU)"),
+            ("fcn_width", model == "fcn", "only applies to --model fcn"),
+            ("fcn_depth", model == "fcn", "only applies to --model fcn"),
+            ("lr", optimizer == "adam", "only applies to --optimizer adam (SGD follows the thesis's schedule)"),
+            ("solver_sweeps", loss == "solver", "only applies to --loss solver"),
+        ])
     cfg = TrainConfig(model=model, targets=targets, loss=loss,
                       optimizer=optimizer, lr=lr, weight_decay=weight_decay, batch_size=batch_size, epochs=epochs or 1000,
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,

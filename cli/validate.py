@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from deepcontact.errors import InputError
+from deepcontact.errors import InputError, count
 
 from . import options
 
@@ -137,7 +137,7 @@ def validate(paths, replay, jobs, verbose, quiet):
             bar.update(len(checked))
     bar.close()
     if not quiet:
-        click.echo(f"{len(files)} files checked, {invalid} invalid", err=True)
+        click.echo(f"{count(len(files), 'file')} checked, {invalid} invalid", err=True)
     sys.exit(1 if invalid else 0)
 
 

@@ -52,3 +52,8 @@ def show_path(path):
     """A path as one line shows it: quoted when it holds a newline or other unprintable character."""
     path = str(path)
     return path if path.isprintable() else repr(path)
+
+
+def count(n, word, plural=None):
+    """'1 file', '2 files': a number with its noun in the right form."""
+    return f"{n:,} {word if n == 1 else plural or word + 's'}"

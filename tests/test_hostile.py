@@ -331,7 +331,7 @@ def test_a_deep_tree_is_walked_without_recursion(tmp_path):
     (d / "x.xml").write_text("<step/>")
     try:
         r = invoke("validate", tmp_path)
-        assert r.exit_code == 1 and "Traceback" not in r.stderr and "1 files checked" in r.stderr, r.stderr
+        assert r.exit_code == 1 and "Traceback" not in r.stderr and "1 file checked" in r.stderr, r.stderr
     finally:   # from the bottom up: shutil.rmtree (and pytest's clean-up) recurse
         (d / "x.xml").unlink()
         while d != tmp_path:

@@ -634,7 +634,7 @@ def test_a_tampered_checkpoint_is_refused_before_a_network_is_built(run, dataset
     (["simulate", "pile", "--shard", "2/2"], "--shard"),
     (["simulate", "pile", "--param", "count"], "--param"),
     (["simulate", "pile", "--solver", "pgs", "--relaxation", "2.5"], "--relaxation"),
-    (["simulate", "pile", "--tolerance", "1e-3"], "only apply with --solver pgs"),
+    (["simulate", "pile", "--tolerance", "1e-3"], "only applies with --solver pgs"),
     (["evaluate", "{run}", "--relaxation", "2.5"], "--relaxation"),
     (["evaluate", "{run}", "--accelerate", "foo"], "--accelerate"),
     (["evaluate", "{run}", "--starts", "zero,lucky"], "--starts"),

@@ -5,6 +5,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 import torch
 
 from conftest import HOSTILE_PILE
@@ -67,3 +68,43 @@ def test_a_tolerance_without_a_cap_converges_and_a_short_cap_is_counted(tmp_path
 def test_python_dash_m_deepcontact_is_dc():
     r = subprocess.run([sys.executable, "-m", "deepcontact", "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.startswith("dc, version"), r.stdout + r.stderr
+
+
+INAPPLICABLE = [
+    # (command and arguments up to the options, the option given, its value or None for a flag)
+    (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--steps", "5"),
+    (["evaluate", "{run}", "--starts", "builtin", "--closed-loop", "-o", "{tmp}/r"], "--every", "3"),
+    (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--model", "{model}/best.pt"),
+    (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--cell", "1"),
+    (["evaluate", "{run}", "--starts", "cnn", "--model", "{model}/best.pt", "-o", "{tmp}/r"], "--kernel", "spiky"),
+    (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--seed", "3"),
+    (["rasterize", "{run}", "-o", "{tmp}/d"], "--every", "3"),
+    (["rasterize", "{run}", "-o", "{tmp}/d"], "--impulses", "recorded"),
+    (["rasterize", "{run}", "--oracle"], "--validation", "0.5"),
+    (["rasterize", "{run}", "--oracle"], "--inputs", "mass"),
+    (["train", "{data}", "-o", "{tmp}/m"], "--no-final-relu", None),
+    (["train", "{data}", "--model", "thesis", "-o", "{tmp}/m"], "--width", "8"),
+    (["train", "{data}", "-o", "{tmp}/m"], "--lr", "0.1"),
+    (["train", "{data}", "-o", "{tmp}/m"], "--solver-sweeps", "3"),
+    (["simulate", "pile", "--seeds", "0..1", "-o", "{tmp}/s"], "--seed", "4"),
+    (["simulate", "pile", "-o", "{tmp}/s"], "--shard", "0/2"),
+    (["simulate", "pile", "--write-scene", "{tmp}/scene.xml"], "-o", "{tmp}/s"),
+    (["simulate", "pile", "--solver", "pgs", "-o", "{tmp}/s"], "--iterations", "20"),
+    (["simulate", "pile", "-o", "{tmp}/s"], "--tolerance", "1e-4"),
+    (["render", "{step}", "-o", "{tmp}/p.png"], "--every", "2"),
+    (["render", "{step}", "-o", "{tmp}/p.png"], "--fps", "10"),
+    (["render", "{run}", "-o", "{tmp}/p.gif"], "--sample", "2"),
+    (["render", "{data}", "-o", "{tmp}/p.png"], "--color-by", "speed"),
+    (["render", "{step}", "-o", "{tmp}/p.png"], "--threads", "2"),
+]
+
+
+@pytest.mark.parametrize("args,option,value", INAPPLICABLE, ids=lambda x: x if isinstance(x, str) else None)
+def test_an_option_that_does_not_apply_is_refused(run, dataset, model, tmp_path, args, option, value):
+    step = sorted(run.glob("seed-000000/step-*.xml"))[-1]
+    fill = dict(run=run, data=dataset, model=model, tmp=tmp_path, step=step)
+    argv = [a.format(**fill) for a in args] + [option] + ([] if value is None else [value.format(**fill)])
+    r = invoke(*argv)
+    assert r.exit_code == 2 and "Traceback" not in r.stderr, (argv, r.stderr)
+    assert option in r.stderr and ("appl" in r.stderr or "give one" in r.stderr or "is Box2D" in r.stderr), r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []   # refused before anything was written

@@ -33,7 +33,7 @@ import numpy as np
 
 from .. import __version__, atomic, workers
 from .._box2d import box2d_version
-from ..errors import InputError, show_path
+from ..errors import InputError, count, show_path
 from ..resources import check_disk, check_memory
 from ..scene.xml import read_scene
 from ..step.reader import check_origin, read_step_for_grid
@@ -120,7 +120,7 @@ def collect(run_dirs, include_contactless=False):
                 if n == 0 and e.contacts and not include_contactless:   # a 0 must not drop a step unread
                     real = _contact_count(f)
                     if real:
-                        raise InputError(f"holds {real} contact points, the manifest recorded 0 (changed after "
+                        raise InputError(f"holds {count(real, 'contact point')}, the manifest recorded 0 (changed after "
                                          "the run?)", f)
                 if n or include_contactless:
                     files.append(str(f))

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import atomic
-from ..errors import InputError
+from ..errors import InputError, count
 from ..step.reader import check_origin, read_step
 from ..step.run_folder import read_run, step_index
 from .draw import Painter, Window, impulse_scale_for
@@ -61,7 +61,7 @@ def read_frame(clip, path):
 
 def title(header, bodies, contacts, extra=""):
     solve = header.get("solve")
-    solved = f" · {solve['iterations']} sweeps, residual {float(solve['residual']):.1e}" if solve else ""
+    solved = f" · {count(int(solve['iterations']), 'sweep')}, residual {float(solve['residual']):.1e}" if solve else ""
     return (f"{header['scene']} · seed {header['seed']} · step {header['index']} · t = {float(header['time']):.2f} s\n"
             f"{len(bodies['index'])} bodies · {len(contacts['manifold'])} contact points{solved}"
             + (f"\n{extra}" if extra else ""))

@@ -231,8 +231,9 @@ def _convert(name, key, text, default):
             raise ValueError(text)
         value = type(default)(text)
     except ValueError:
-        raise InputError(f"generator {name!r}: parameter {key}={text!r} is not a "
-                         f"{type(default).__name__}") from None
+        kind = {"int": "whole number", "float": "number", "bool": "true or false"}.get(type(default).__name__,
+                                                                                     type(default).__name__)
+        raise InputError(f"generator {name!r}: parameter {key}={text!r} is not a {kind}") from None
     if isinstance(value, float) and not math.isfinite(value):
         raise InputError(f"generator {name!r}: parameter {key} must be finite")
     return value

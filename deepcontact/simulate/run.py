@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import atomic, interrupts, workers
-from ..errors import InputError
+from ..errors import InputError, count
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
@@ -218,8 +218,8 @@ def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, 
                    f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
                              progress, source, loop, compress)
-    log.info("wrote %d simulations, %d step files to %s", len(manifest["simulations"]),
-             sum(r["files"] for r in manifest["simulations"]), os.fspath(out_dir))
+    log.info("wrote %s, %s to %s", count(len(manifest["simulations"]), "simulation"),
+             count(sum(r["files"] for r in manifest["simulations"]), "step file"), os.fspath(out_dir))
     capped = sum(r.get("capped") or 0 for r in manifest["simulations"])
     if capped:
         log.warning("%d of %d steps stopped at the cap of %d sweeps before the %s measure fell below %g (raise "

@@ -13,7 +13,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, count
 
 MANIFEST = "manifest.json"
 _SIM_DIR = re.compile(r"seed-\d{6,}")
@@ -216,7 +216,7 @@ def read_run(run_dir, solver=None, purpose=None, unfinished=False):
         if "files" in e:
             want = _int(e, "files", i, path)
             if len(files) != want:
-                raise InputError(f"{e['dir']} holds {len(files)} step files, the manifest recorded {want} "
+                raise InputError(f"{e['dir']} holds {count(len(files), 'step file')}, the manifest recorded {want} "
                                  f"(files deleted or added after the run?)", folder)
         digest = e.get("scene_sha256")
         if digest is not None and not (isinstance(digest, str) and re.fullmatch(r"[0-9a-f]{64}", digest)):
