@@ -103,7 +103,7 @@ def test_simulate_with_pgs_records_iterations_and_residual(tmp_path):
 
 def test_pgs_options_need_the_pgs_solver_and_a_suitable_scene(tmp_path):
     r = dc("simulate", "pile", "--tolerance", "1e-3", "-o", str(tmp_path / "a"))
-    assert r.returncode == 2 and "only apply with --solver pgs" in r.stderr   # options that do not go together
+    assert r.returncode == 2 and "only applies with --solver pgs" in r.stderr   # options that do not go together
     r = dc("simulate", "bullet", "--solver", "pgs", "-o", str(tmp_path / "b"))
     assert r.returncode == 1 and "continuous collision" in r.stderr
 
