@@ -4,7 +4,7 @@ import dataclasses
 import click
 
 from deepcontact.errors import InputError
-from deepcontact.warmstart.starts import NAMES as START_NAMES
+from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 from deepcontact.solver.pgs import ACCELERATIONS
 
 from . import options
@@ -13,8 +13,10 @@ from . import options
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Report folder.")
-@click.option("--starts", type=options.CommaList(click.Choice(START_NAMES), "START[,...]"),
-              default="zero,builtin,copy,sph", show_default=True, help=f"Comma-separated: {', '.join(START_NAMES)}.")
+@click.option("--starts", type=options.CommaList(options.PluginName(STARTS), "START[,...]"),
+              default="zero,builtin,copy,sph", show_default=True,
+              help=f"Comma-separated: {', '.join(START_NAMES)}, an installed plug-in's name, or "
+                   f"package.module:Name (docs/api.md).")
 @click.option("--model", type=click.Path(dir_okay=False), help="A checkpoint from dc train (cnn, guarded, cnn-new).")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
@@ -82,10 +84,10 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     from deepcontact import atomic
     from deepcontact.evaluate.report import REPORT_FILES
 
-    from deepcontact.warmstart.starts import NEEDS_MODEL
+    from deepcontact.warmstart.starts import trait
     if "all" in accelerate:
         accelerate = list(ACCELERATIONS)
-    learned = [n for n in starts if n in NEEDS_MODEL]
+    learned = [n for n in starts if trait(n, "needs_model")]
     sph_grid = "sph" in starts and not model
     options.refuse_inapplicable([
         ("steps", closed_loop, "only applies with --closed-loop (replay solves the recorded steps)"),

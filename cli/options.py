@@ -66,6 +66,21 @@ class CommaList(click.ParamType):
         return parts
 
 
+class PluginName(click.ParamType):
+    """A name a registry (deepcontact.plugins.Registry) can resolve: a built-in, an installed
+    plug-in or package.module:Name. Only the form is checked here; loading is the command's."""
+    name = "name"
+
+    def __init__(self, registry):
+        self.registry = registry
+
+    def convert(self, value, param, ctx):
+        if not self.registry.is_name(value):
+            self.fail(f"{value!r} is not a {self.registry.kind}: choose from {', '.join(self.registry.names())}, "
+                      f"or name a plug-in as package.module:Name", param, ctx)
+        return value
+
+
 class Parsed(click.ParamType):
     """A text option parsed by `parse`, which raises ValueError with the reason; a value that
     is already parsed (a default given as such) passes through."""

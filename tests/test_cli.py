@@ -66,7 +66,7 @@ def test_bad_input_is_one_line_without_traceback(tmp_path):
     bad_scene.write_text('<scene name="x" format="1"><world dt="-1" steps="3"/><effects/><bodies/></scene>')
     cases = [
         (["simulate", "piles", "-o", str(tmp_path / "o1")], "neither a scene file nor a generator"),
-        (["simulate", "pile", "--param", "radius=big", "-o", str(tmp_path / "o2")], "is not a float"),
+        (["simulate", "pile", "--param", "radius=big", "-o", str(tmp_path / "o2")], "is not a number"),
         (["simulate", "pile", "--param", "nope=1", "-o", str(tmp_path / "o3")], "no parameter 'nope'"),
         (["simulate", str(bad_scene), "-o", str(tmp_path / "o4")], f"{bad_scene}:1:"),
         (["simulate", "pile", "-o", "/proc/nope"], "cannot write there"),

@@ -155,7 +155,7 @@ def test_unknown_generator_and_parameter():
         generate("piles")
     with pytest.raises(InputError, match="no parameter 'cout'"):
         generate("pile", 0, {"cout": "3"})
-    with pytest.raises(InputError, match="not a int"):
+    with pytest.raises(InputError, match="not a whole number"):
         generate("pile", 0, {"count": "many"})
     with pytest.raises(InputError, match="dt must be positive"):
         generate("stack", 0, {"dt": "-1"})

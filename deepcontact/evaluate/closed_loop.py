@@ -23,9 +23,8 @@ from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
 from .replay import variants
-from ..warmstart.starts import StepContext
+from ..warmstart.starts import StepContext, trait
 
-NEEDS_REFERENCE = ("copy", "copy2", "copy0", "sph", "random")
 NATIVE_STARTS = ("zero", "builtin")
 
 
@@ -48,6 +47,7 @@ class _Adapter:
 
     def __init__(self, name, start):
         self.name, self.start, self.timing = name, start, []
+        self.needs_reference = trait(name, "needs_reference")   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
@@ -55,7 +55,7 @@ class _Adapter:
         self.keys = contact_keys(contacts)
         persisted = np.array([k in self.known for k in self.keys], dtype=bool)
         self.known = set(self.keys)
-        reference = reference_solution(problem) if self.name in NEEDS_REFERENCE else None
+        reference = reference_solution(problem) if self.needs_reference else None
         value = self.start(StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                                        persisted=persisted, previous=self.previous))
         self.timing.append(sum(value.seconds.values()))

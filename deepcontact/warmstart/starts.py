@@ -21,11 +21,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..grid.interpolate import bilinear
+from ..plugins import PluginError, Registry
 from ..grid.splat import splat_points
-
-NAMES = ("zero", "builtin", "prev", "copy", "copy2", "copy0", "sph", "cnn", "random", "bad", "guarded", "cnn-new")
-ORACLES = ("copy", "copy2", "copy0", "sph")
-NEEDS_MODEL = ("cnn", "guarded", "cnn-new")
 
 
 @dataclass
@@ -53,17 +50,24 @@ def _free(n, t):
 
 
 class Zero:
+    """All impulses 0: the cold start."""
+
     def __call__(self, ctx):
         n = ctx.problem.points
         return _free(np.zeros(n), np.zeros(n))
 
 
 class Builtin:
+    """Box2D's own warm start: the previous step's impulses by feature key, times dtRatio (the
+    solver's first iterate as the step file recorded it)."""
+
     def __call__(self, ctx):
         return _free(ctx.problem.start_normal, ctx.problem.start_tangent)
 
 
 class Previous:
+    """The previous step's solution at the tolerance, matched by contact key; new contacts start at 0."""
+
     def __call__(self, ctx):
         from ..solver.problem import contact_keys
         if ctx.previous is None:
@@ -74,6 +78,8 @@ class Previous:
 
 
 class Copy:
+    """The step's reference solution, optionally rounded (an oracle: it is the answer)."""
+
     def __init__(self, decimals=None):
         self.decimals = decimals
 
@@ -85,6 +91,9 @@ class Copy:
 
 
 class SPH:
+    """The reference solution splatted onto the grid and interpolated back: the grid's own loss,
+    the best any grid-learned start can do (an oracle)."""
+
     def __init__(self, spec):
         self.spec = spec
 
@@ -101,6 +110,9 @@ class SPH:
 
 
 class CNN:
+    """A trained network's prediction (model.inference.Predictor), cached per step so that
+    starts built on it pay for it once."""
+
     def __init__(self, predictor):
         self.predictor = predictor
 
@@ -112,6 +124,8 @@ class CNN:
 
 
 class Random:
+    """Uniform impulses of the step's scale, friction inside the cone, seeded per step."""
+
     def __call__(self, ctx):
         rng = np.random.default_rng([ctx.seed, ctx.problem.index])
         scale = float(np.abs(ctx.reference.normal_impulse).max()) or 1.0
@@ -121,6 +135,8 @@ class Random:
 
 
 class Bad:
+    """Every impulse 50: a start far from any answer."""
+
     def __call__(self, ctx):
         n = ctx.problem.points
         return _free(np.full(n, 50.0), np.full(n, 50.0))
@@ -149,6 +165,9 @@ class Guarded:
 
 
 class CNNNew:
+    """Box2D's warm start where a contact persists from the previous step, the network's
+    prediction only for new contacts."""
+
     def __init__(self, cnn):
         self.cnn = cnn
 
@@ -159,15 +178,93 @@ class CNNNew:
                           np.where(keep, ctx.problem.start_tangent, learned.tangent), learned.seconds)
 
 
+# --- The registry: built-ins and plug-ins alike ------------------------------------------------
+# A factory takes keyword arguments it declares from {spec, predictor} (the grid of --cell/--model,
+# the trained model) and returns a start: a callable ctx -> StartValue. Traits: oracle (knows the
+# answer), needs_model (a trained checkpoint), needs_reference (reads ctx.reference in the loop).
+
+STARTS = Registry("start", "deepcontact.starts")
+STARTS.register("zero", lambda: Zero())
+STARTS.register("builtin", lambda: Builtin())
+STARTS.register("prev", lambda: Previous())
+STARTS.register("copy", lambda: Copy(), oracle=True, needs_reference=True)
+STARTS.register("copy2", lambda: Copy(2), oracle=True, needs_reference=True)
+STARTS.register("copy0", lambda: Copy(0), oracle=True, needs_reference=True)
+STARTS.register("sph", lambda spec: SPH(spec), oracle=True, needs_reference=True)
+STARTS.register("cnn", lambda predictor: CNN(predictor), needs_model=True)
+STARTS.register("random", lambda: Random(), needs_reference=True)
+STARTS.register("bad", lambda: Bad())
+STARTS.register("guarded", lambda predictor: Guarded(CNN(predictor)), needs_model=True)
+STARTS.register("cnn-new", lambda predictor: CNNNew(CNN(predictor)), needs_model=True)
+
+NAMES = tuple(STARTS.builtin())
+ORACLES = tuple(n for n in NAMES if getattr(STARTS.load(n), "oracle", False))
+NEEDS_MODEL = tuple(n for n in NAMES if getattr(STARTS.load(n), "needs_model", False))
+
+
+def trait(name, key):
+    """A start's trait (oracle, needs_model, needs_reference), False where it does not say."""
+    return bool(getattr(STARTS.load(name), key, False))
+
+
+class Checked:
+    """A plug-in start held to the contract: a StartValue (or anything with normal, tangent and
+    seconds) of one finite value per contact point; else one line naming the start."""
+
+    def __init__(self, name, start):
+        self.name, self.start = name, start
+
+    def __call__(self, ctx):
+        try:
+            value = self.start(ctx)
+        except InputError:
+            raise
+        except Exception as e:
+            raise PluginError(f"the start {self.name!r} raised {type(e).__name__}: {e}") from None
+        n = ctx.problem.points
+        try:
+            normal = np.asarray(value.normal, np.float64)
+            tangent = np.asarray(value.tangent, np.float64)
+            seconds = {str(k): float(v) for k, v in dict(getattr(value, "seconds", {}) or {}).items()}
+        except (AttributeError, TypeError, ValueError) as e:
+            raise PluginError(f"the start {self.name!r} must return a StartValue(normal, tangent, seconds): "
+                              f"{type(e).__name__}: {e}") from None
+        for what, a in (("normal", normal), ("tangent", tangent)):
+            if a.shape != (n,):
+                raise PluginError(f"the start {self.name!r} returned {what} impulses of shape {a.shape}; the step "
+                                  f"has {n} contact points, so ({n},)")
+            if not np.all(np.isfinite(a)):
+                raise PluginError(f"the start {self.name!r} returned a non-finite {what} impulse")
+        if not all(np.isfinite(v) and v >= 0 for v in seconds.values()):
+            raise PluginError(f"the start {self.name!r} returned prediction seconds that are not finite and >= 0")
+        return StartValue(normal, tangent, seconds)
+
+
 def make_starts(names, spec=None, predictor=None):
-    """{name: start} for the names asked for; sph needs a grid spec, the learned ones a model."""
-    unknown = [n for n in names if n not in NAMES]
-    if unknown or not names:
-        raise InputError(f"unknown start(s) {', '.join(unknown) or '(none)'}; choose from {', '.join(NAMES)}")
-    if any(n in NEEDS_MODEL for n in names) and predictor is None:
-        raise InputError(f"the starts {', '.join(n for n in names if n in NEEDS_MODEL)} need a trained --model")
-    cnn = CNN(predictor) if predictor is not None else None
-    table = {"zero": Zero, "builtin": Builtin, "prev": Previous, "copy": Copy, "copy2": lambda: Copy(2), "copy0": lambda: Copy(0),
-             "sph": lambda: SPH(spec), "cnn": lambda: cnn, "random": Random, "bad": Bad,
-             "guarded": lambda: Guarded(cnn), "cnn-new": lambda: CNNNew(cnn)}
-    return {n: table[n]() for n in names}
+    """{name: start} for the names asked for: registered built-ins, installed plug-ins (entry
+    points in group deepcontact.starts) or package.module:Name. Each factory gets the arguments
+    it declares: spec (the grid) and predictor (the trained model). Plug-ins are checked on every
+    call (Checked)."""
+    import inspect
+    if not names:
+        raise InputError(f"no start given; choose from {', '.join(STARTS.names())}")
+    out = {}
+    for name in names:
+        factory = STARTS.load(name)
+        try:
+            wanted = inspect.signature(factory).parameters
+        except (TypeError, ValueError):
+            wanted = {}
+        given = {"spec": spec, "predictor": predictor}
+        if "predictor" in wanted and predictor is None:
+            raise InputError(f"the start {name} needs a trained --model")
+        if "spec" in wanted and spec is None:
+            raise InputError(f"the start {name} needs a grid (--cell, --smoothing, --kernel, or a --model)")
+        try:
+            start = factory(**{k: v for k, v in given.items() if k in wanted})
+        except InputError:
+            raise
+        except Exception as e:
+            raise PluginError(f"the start {name!r} could not be made: {type(e).__name__}: {e}") from None
+        out[name] = start if name in NAMES else Checked(name, start)
+    return out

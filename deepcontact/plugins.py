@@ -1,0 +1,76 @@
+"""Registries: one per kind of thing a researcher brings (warm starts today), used by the built-ins
+themselves. A name resolves to a registered built-in, to an entry point of an installed package
+(group ``deepcontact.starts``), or, written ``package.module:Name``, to that attribute of an
+importable module. Loading a plug-in is always the user's explicit choice (a name on the command
+line or in code); nothing read from a file ever imports code.
+"""
+import importlib
+import re
+from importlib.metadata import entry_points
+
+from .errors import InputError
+
+_NAME = re.compile(r"[a-z][a-z0-9-]*")
+_TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
+
+
+class PluginError(InputError):
+    """A plug-in that cannot be found, imported or used: one line naming it and what is wrong."""
+
+
+class Registry:
+    """Named factories of one kind. `register` adds a built-in (or a plug-in registering itself in
+    code); `load` resolves a name as described in the module docstring."""
+
+    def __init__(self, kind, group):
+        self.kind, self.group = kind, group
+        self._builtin = {}
+
+    def register(self, name, factory=None, **traits):
+        """Registers factory under name (lower case, digits and '-'); usable as a decorator.
+        traits: what the rest of the pipeline may ask of it (see the kind's contract)."""
+        if not _NAME.fullmatch(name):
+            raise ValueError(f"a {self.kind} name is lower case letters, digits and '-': {name!r}")
+
+        def add(f):
+            for key, value in traits.items():
+                setattr(f, key, value)
+            self._builtin[name] = f
+            return f
+        return add if factory is None else add(factory)
+
+    def builtin(self):
+        """The names registered in code, in registration order."""
+        return list(self._builtin)
+
+    def installed(self):
+        """{name: entry point} of the installed packages' plug-ins of this kind."""
+        return {ep.name: ep for ep in entry_points(group=self.group)}
+
+    def names(self):
+        return self.builtin() + [n for n in self.installed() if n not in self._builtin]
+
+    def is_name(self, text):
+        """Whether text could name one of these (a registered name or a module:attribute)."""
+        return text in self._builtin or text in self.installed() or bool(_TARGET.fullmatch(text))
+
+    def load(self, name):
+        """The factory named `name`; PluginError naming it if it cannot be had."""
+        if name in self._builtin:
+            return self._builtin[name]
+        found = self.installed().get(name)
+        if found is None and not _TARGET.fullmatch(name):
+            raise PluginError(f"unknown {self.kind} {name!r}: choose from {', '.join(self.names())}, or name one "
+                              f"as package.module:Name")
+        target = found.value if found is not None else name
+        module, _, attribute = target.partition(":")
+        try:
+            obj = importlib.import_module(module)
+            for part in attribute.split("."):
+                obj = getattr(obj, part)
+        except Exception as e:   # the plug-in's own code raised while importing: say so, in one line
+            raise PluginError(f"the {self.kind} plug-in {name!r} cannot be loaded ({target}): "
+                              f"{type(e).__name__}: {e}") from None
+        if not callable(obj):
+            raise PluginError(f"the {self.kind} plug-in {name!r} ({target}) is not a class or function")
+        return obj
