@@ -84,7 +84,7 @@ smoke-pipeline:
 	$(DC) rasterize $(SMOKE)/run -o $(SMOKE)/data --validation 0.5 -q --overwrite
 	$(DC) train $(SMOKE)/data -o $(SMOKE)/model --epochs 1 --width 4 --depth 2 --batch-size 32 --optimizer adam \
 		-q --overwrite
-	$(DC) evaluate $(SMOKE)/run --starts zero,builtin,copy,sph,cnn,guarded --model $(SMOKE)/model/best.pt \
+	$(DC) evaluate $(SMOKE)/run --starts zero,builtin,copy,sph,cnn,guarded --checkpoint $(SMOKE)/model/best.pt \
 		--every 10 -q --overwrite -o $(SMOKE)/report
 	@echo "smoke: report in $(SMOKE)/report/report.md"
 
@@ -115,7 +115,7 @@ $(STUDY)/model/done: $(STUDY)/data/metadata.json
 
 $(STUDY)/report/report.md: $(STUDY)/model/done $(STUDY)/heldout/manifest.json
 	$(DC) evaluate $(STUDY)/heldout --starts zero,builtin,copy,copy2,copy0,sph,cnn,random,bad,guarded,cnn-new \
-		--model $(STUDY)/model/best.pt --stop-on thesis --tolerance 1e-4 --max-iterations 1000 --every 5 \
+		--checkpoint $(STUDY)/model/best.pt --stop-on thesis --tolerance 1e-4 --max-iterations 1000 --every 5 \
 		--overwrite -o $(STUDY)/report
 
 $(STUDY)/figures/figures.md: $(STUDY)/heldout/manifest.json

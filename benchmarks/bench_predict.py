@@ -41,7 +41,7 @@ def dc(*args):
 
 
 def reported(run, model, out, every, threads):
-    dc("evaluate", run, "--starts", "cnn", "--model", model, "--every", every, "--no-budgets", "--threads", threads,
+    dc("evaluate", run, "--starts", "cnn", "--checkpoint", model, "--every", every, "--no-budgets", "--threads", threads,
        "-q", "--overwrite", "-o", out)
     summary = json.loads((out / "summary.json").read_text())
     return summary["starts"]["cnn"]["predict_ms_median"]

@@ -4,6 +4,7 @@ import dataclasses
 import click
 
 from deepcontact.errors import InputError
+from deepcontact.model.arch import NETWORKS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 from deepcontact.solver.pgs import ACCELERATIONS
 
@@ -17,17 +18,21 @@ from . import options
               default="zero,builtin,copy,sph", show_default=True,
               help=f"Comma-separated: {', '.join(START_NAMES)}, an installed plug-in's name, or "
                    f"package.module:Name (docs/api.md).")
-@click.option("--model", type=click.Path(dir_okay=False), help="A checkpoint from dc train (cnn, guarded, cnn-new).")
+@click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
+              help="A checkpoint from dc train (the starts cnn, guarded, cnn-new).")
+@options.deprecated_alias("--model", "--checkpoint", "evaluate")
+@click.option("--arch", type=options.PluginName(NETWORKS),
+              help="Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual",
               show_default=True, help="The measure the tolerance applies to (docs/solver.md: Measuring convergence).")
 @click.option("--mode", type=click.Choice(["float32", "float64"]), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
-@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --model] Cell size d.")
-@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --model] h.")
+@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] Cell size d.")
+@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] h.")
 @click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
-              show_default=True, help="[sph without --model] SPH kernel.")
+              show_default=True, help="[sph without --checkpoint] SPH kernel.")
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the random start.")
 @click.option("--closed-loop", is_flag=True,
               help="Let each start drive the simulation (the run's scene, from its first state) instead of "
@@ -52,7 +57,7 @@ from . import options
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
-def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
+def evaluate(runs, out, starts, model, model_alias, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
              closed_loop, steps, relaxation, accelerate, budgets, jobs, threads, max_memory, overwrite, verbose,
              quiet):
     """Solve every recorded step of RUNS from every start and compare.
@@ -73,7 +78,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     Examples:
       dc evaluate runs/pile -o reports/starts
       dc evaluate runs/pile --starts zero,builtin,copy,copy2,copy0,sph,random,bad -o reports/all
-      dc evaluate runs/val --starts zero,builtin,copy,sph,cnn,guarded,cnn-new --model models/fcn/best.pt -o r/cnn
+      dc evaluate runs/val --starts zero,builtin,copy,sph,cnn,guarded,cnn-new --checkpoint models/fcn/best.pt -o r/cnn
       dc evaluate runs/pile --tolerance 1e-4 --stop-on thesis --max-iterations 5000 --every 10 -o r/thesis
       dc evaluate runs/pile --closed-loop --starts zero,builtin,copy,bad --steps 200 -o r/loop
       dc evaluate runs/pile --starts builtin,prev --relaxation 1,1.5,1.7,auto --every 5 -o r/psor
@@ -85,6 +90,7 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
     from deepcontact.evaluate.report import REPORT_FILES
 
     from deepcontact.warmstart.starts import trait
+    model = options.take_alias(model, model_alias, "--model", "--checkpoint")
     if "all" in accelerate:
         accelerate = list(ACCELERATIONS)
     learned = [n for n in starts if trait(n, "needs_model")]
@@ -94,14 +100,17 @@ def evaluate(runs, out, starts, model, tolerance, max_iterations, stop_on, mode,
         ("every", not closed_loop, "applies to replay; --closed-loop steps every step"),
         ("max_memory", not closed_loop, "applies to replay's convergence histories, not --closed-loop"),
         ("model", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
-        ("cell", sph_grid, "only applies to the sph start without --model (a model brings its own grid)"),
-        ("smoothing", sph_grid, "only applies to the sph start without --model (a model brings its own grid)"),
-        ("kernel", sph_grid, "only applies to the sph start without --model (a model brings its own grid)"),
+        ("model_alias", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
+        ("arch", bool(model), "only applies with --checkpoint"),
+        ("cell", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
+        ("smoothing", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
+        ("kernel", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("seed", "random" in starts, "only applies to the random start"),
     ])
     if learned and not model:
-        raise click.BadParameter(f"the start(s) {', '.join(learned)} need a trained model: give --model CHECKPOINT",
-                                 param_hint="'--model'")
+        raise click.BadParameter(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
+                                 param_hint="'--checkpoint'")
+    options.load_network(arch)
     if "sph" in starts and not model:
         options.check_grid_options(kernel, cell, smoothing)
     if {"newton", "subspace"} & set(accelerate) and mode != "float64":

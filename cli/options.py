@@ -196,6 +196,8 @@ def command(name):
         @functools.wraps(f)
         def wrapper(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
+            for message in click.get_current_context().meta.get("dc_deprecated", []):
+                logging.getLogger("deepcontact.cli").warning("%s", message)
             interrupts.install()
             atomic.completed.clear()
 
@@ -279,3 +281,30 @@ def refuse_inapplicable(rules):
         if getattr(param, "secondary_opts", None) and ctx.params.get(name) is False:
             flag = max(param.secondary_opts, key=len)
         raise click.UsageError(f"{flag} {why}")
+
+
+def deprecated_alias(old, new, command):
+    """A hidden option kept for an old spelling: it still works and says what replaces it."""
+    def warn(ctx, param, value):
+        if value is not None:   # (said once logging is set up, by the command's wrapper)
+            ctx.meta.setdefault("dc_deprecated", []).append(f"{old} is deprecated in dc {command}: use {new}")
+        return value
+    return click.option(old, f"{old.lstrip('-').replace('-', '_')}_alias", hidden=True, expose_value=True,
+                        callback=warn, help=f"Deprecated: {new}.")
+
+
+def take_alias(value, alias, name, new):
+    """The value of an option or of its deprecated alias (not both)."""
+    if alias is not None:
+        if value is not None:
+            raise click.UsageError(f"{name} is the old spelling of {new}: give one")
+        return alias
+    return value
+
+
+def load_network(arch):
+    """--arch: a network plug-in loaded by the user's explicit choice (built-ins need nothing)."""
+    if arch is not None:
+        from deepcontact.model.arch import BUILTIN, NETWORKS
+        if arch not in BUILTIN:
+            NETWORKS.load(arch)

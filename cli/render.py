@@ -5,6 +5,8 @@ import click
 
 from deepcontact.errors import InputError
 
+from deepcontact.model.arch import NETWORKS
+
 from . import options
 
 FORMS = {"step": (".png", ".svg"), "run": (".gif", ".mp4", ".webm", ".html"), "dataset": (".png",)}
@@ -40,14 +42,17 @@ def kind_of(path):
               help="[run] A second run drawn beside the first, step for step, with the largest distance "
                    "between the same body in both.")
 @click.option("--sample", type=options.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
-@click.option("--model", type=click.Path(dir_okay=False),
+@click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
               help="[dataset] A checkpoint from dc train: its prediction and error beside each label.")
+@options.deprecated_alias("--model", "--checkpoint", "render")
+@click.option("--arch", type=options.PluginName(NETWORKS),
+              help="[dataset] Load this network plug-in for a checkpoint that needs it.")
 @options.threads
 @options.overwrite
 @options.verbosity
 @options.command("render")
-def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, threads,
-           overwrite, verbose, quiet):
+def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, model_alias,
+           arch, threads, overwrite, verbose, quiet):
     """Draw INPUT: a step file, a run, or a sample of a grid dataset.
 
     \b
@@ -59,7 +64,7 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
       beside it), or HTML: a run viewer in one file (play, step slider,
       toggles for contacts and impulses, each step's numbers; no network).
     A grid dataset -> PNG: the sample's input channels and labels as panels,
-      with --model the prediction and its error beside each label.
+      with --checkpoint the prediction and its error beside each label.
 
     MP4 and WebM need Debian's ffmpeg. Output is written atomically.
 
@@ -70,20 +75,24 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
       dc render runs/demo -o pile.gif --every 4 --fps 25
       dc render runs/demo --compare runs/psor -o box2d-vs-psor.mp4 --every 2
       dc render runs/demo -o pile.html --every 2
-      dc render data/thesis --sample 120 --model models/fcn/best.pt -o sample.png
+      dc render data/thesis --sample 120 --checkpoint models/fcn/best.pt -o sample.png
     """
     from deepcontact import atomic
 
+    model = options.take_alias(model, model_alias, "--model", "--checkpoint")
     kind = kind_of(input_path)
     suffix = Path(out).suffix.lower()
     movie = suffix in (".gif", ".mp4", ".webm", ".html")
     options.refuse_inapplicable(
         [(name, kind == "run", "only applies to a run") for name in ("seed", "every", "compare")]
         + [("fps", kind == "run" and movie, "only applies to a run drawn as a movie or a viewer")]
-        + [(name, kind == "dataset", "only applies to a grid dataset's sample") for name in ("sample", "model")]
+        + [(name, kind == "dataset", "only applies to a grid dataset's sample")
+           for name in ("sample", "model", "model_alias")]
+        + [("arch", model is not None, "only applies with --checkpoint")]
         + [(name, kind != "dataset", "does not apply to a grid dataset's sample (it draws grid images)")
            for name in ("size", "window", "no_contacts", "color_by")]
-        + [("threads", model is not None, "only applies with --model (nothing else runs torch)")])
+        + [("threads", model is not None, "only applies with --checkpoint (nothing else runs torch)")])
+    options.load_network(arch)
     if suffix not in FORMS[kind]:
         every_form = sorted({s for forms in FORMS.values() for s in forms})
         if suffix in every_form:
@@ -93,8 +102,6 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
                                  param_hint="'-o' / '--output'")
     if compare and suffix not in (".gif", ".mp4", ".webm"):
         raise click.UsageError("--compare draws two runs into a .gif, .mp4 or .webm")
-    if model and kind != "dataset":
-        raise click.UsageError("--model applies to a dataset sample")
     if window and min(window[2] - window[0], window[3] - window[1]) < MIN_WINDOW:
         # float32 positions resolve no finer, and the drawing's cost grows with the magnification
         raise click.BadParameter(f"a window narrower than {MIN_WINDOW:g} m shows nothing a step file resolves",

@@ -2,6 +2,8 @@
 import click
 
 
+from deepcontact.model.arch import NETWORKS
+
 from . import options
 
 
@@ -22,8 +24,10 @@ def torch_device(ctx, param, value):
 @click.argument("dataset", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder for checkpoints (last.pt, best.pt), metrics and the loss plot.")
-@click.option("--model", type=click.Choice(["thesis", "fcn"]), default="fcn", show_default=True,
-              help="thesis: the thesis's CNN (Table 5.1); fcn: a fully convolutional encoder-decoder.")
+@click.option("--arch", "model", type=options.PluginName(NETWORKS), default="fcn", show_default=True,
+              help="The network: thesis (the thesis's CNN, Table 5.1), fcn (a fully convolutional "
+                   "encoder-decoder), an installed plug-in's name, or package.module:Name (docs/api.md).")
+@options.deprecated_alias("--model", "--arch", "train")
 @click.option("--targets", type=options.CommaList(), default="normal_impulse,tangent_impulse", show_default=True,
               help="Label channels to learn: both maps at once, or one (train one model per map).")
 @click.option("--loss", type=click.Choice(["masked", "contacts", "mse", "solver"]), default="masked",
@@ -57,7 +61,7 @@ def torch_device(ctx, param, value):
 @options.overwrite
 @options.verbosity
 @options.command("train")
-def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
+def train(dataset, out, model, model_alias, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
           threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, max_memory, overwrite, verbose,
           quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
@@ -70,12 +74,20 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     \b
     Examples:
       dc train data/thesis -o models/fcn --epochs 50 --patience 10
-      dc train data/thesis -o models/thesis --model thesis --epochs 1000
+      dc train data/thesis -o models/thesis --arch thesis --epochs 1000
       dc train data/thesis -o models/normal --targets normal_impulse
       dc train data/thesis -o models/fcn --resume
       torchrun --nproc_per_node 2 -m deepcontact.cli.main train data/thesis -o models/ddp
     """
     from deepcontact.model.train import TrainConfig, train as run
+
+    ctx = click.get_current_context()
+    from click.core import ParameterSource
+    if model_alias is not None:
+        if ctx.get_parameter_source("model") != ParameterSource.DEFAULT:
+            raise click.UsageError("--model is the old spelling of --arch: give one")
+        model = model_alias
+        ctx.params["model"] = model
 
     if overwrite and resume:
         raise click.UsageError("--resume and --overwrite contradict each other")
@@ -98,13 +110,13 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
             click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 
-    ctx = click.get_current_context()
-    fields = {"model": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
+    fields = {"model": "model", "model_alias": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
               "weight_decay": "weight_decay", "batch_size": "batch_size", "patience": "patience", "seed": "seed",
               "no_final_relu": "final_relu", "fcn_width": "fcn_width", "fcn_depth": "fcn_depth",
               "solver_sweeps": "solver_sweeps"}
     given = {field: getattr(cfg, field) for param, field in fields.items()
              if ctx.get_parameter_source(param) != click.core.ParameterSource.DEFAULT}
+    options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
                   given=given)

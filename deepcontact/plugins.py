@@ -1,7 +1,7 @@
-"""Registries: one per kind of thing a researcher brings (warm starts today), used by the built-ins
-themselves. A name resolves to a registered built-in, to an entry point of an installed package
-(group ``deepcontact.starts``), or, written ``package.module:Name``, to that attribute of an
-importable module. Loading a plug-in is always the user's explicit choice (a name on the command
+"""Registries: one per kind of thing a researcher brings (warm starts, networks), used by the
+built-ins themselves. A name resolves to a registered built-in, to an entry point of an installed
+package (groups ``deepcontact.starts``, ``deepcontact.networks``), or, written
+``package.module:Name``, to that attribute of an importable module. Loading a plug-in is always the user's explicit choice (a name on the command
 line or in code); nothing read from a file ever imports code.
 """
 import importlib
@@ -25,6 +25,7 @@ class Registry:
     def __init__(self, kind, group):
         self.kind, self.group = kind, group
         self._builtin = {}
+        self._loaded = {}   # plug-ins loaded by an explicit choice (load), by name
 
     def register(self, name, factory=None, **traits):
         """Registers factory under name (lower case, digits and '-'); usable as a decorator.
@@ -73,4 +74,10 @@ class Registry:
                               f"{type(e).__name__}: {e}") from None
         if not callable(obj):
             raise PluginError(f"the {self.kind} plug-in {name!r} ({target}) is not a class or function")
+        self._loaded[name] = obj
         return obj
+
+    def resolved(self, name):
+        """The factory of a built-in or of a plug-in already loaded by an explicit choice (load),
+        or None: what a name read from a file may resolve to, so that a file never imports code."""
+        return self._builtin.get(name) or self._loaded.get(name)

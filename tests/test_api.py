@@ -23,11 +23,14 @@ def test_the_api_page_runs_as_written(capsys):
     try:
         for block in blocks:
             exec(compile(block, "docs/api.md", "exec"), namespace)
-    finally:
+    finally:   # (registered by the page; other tests see the built-ins)
+        from deepcontact.model.arch import NETWORKS
         from deepcontact.warmstart import STARTS
-        STARTS._builtin.pop("overshoot", None)   # (registered by the page; other tests see the built-ins)
+        STARTS._builtin.pop("overshoot", None)
+        NETWORKS._builtin.pop("two-convs", None)
     out = capsys.readouterr().out
     assert re.search(r"builtin\s+median\s+\d+ sweeps", out) and "mine" in out and "overshoot" in out, out
+    assert re.search(r"\d+ weights", out), out
 
 
 @pytest.fixture
@@ -52,7 +55,7 @@ def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp
     assert start in (tmp_path / "loop" / "closed-loop.md").read_text()
 
 
-def test_an_installed_plugin_is_found_by_its_entry_point(run, tmp_path):
+def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path):
     target = tmp_path / "site"
     pip = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
                           "--target", str(target), str(EXAMPLE)], capture_output=True, text=True)
@@ -63,9 +66,13 @@ def test_an_installed_plugin_is_found_by_its_entry_point(run, tmp_path):
                        capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
     assert "damped-builtin" in json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
-    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", "--help"], capture_output=True, text=True,
-                       env=env)
-    assert r.returncode == 0
+    r = subprocess.run([sys.executable, "-m", "deepcontact", "train", str(dataset), "--arch", "tiny-conv", "--epochs",
+                        "1", "-q", "-o", str(tmp_path / "m")], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", str(run), "--starts", "cnn", "--checkpoint",
+                        str(tmp_path / "m" / "best.pt"), "--arch", "tiny-conv", "--every", "30", "--no-budgets", "-q",
+                        "-o", str(tmp_path / "r2")], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
 
 
 BROKEN = textwrap.dedent('''
@@ -111,3 +118,70 @@ def test_a_broken_start_is_one_line_and_leaves_nothing(run, tmp_path, monkeypatc
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and f"broken_starts:{name}" in lines[0] and needle in lines[0], lines
     assert not (tmp_path / "r").exists()
+
+
+def test_a_network_plugin_trains_evaluates_and_draws_and_is_never_loaded_by_a_checkpoint(
+        run, dataset, tmp_path, example_on_path):
+    net = "dc_example_plugins.networks:TinyConv"
+    r = invoke("train", dataset, "--arch", net, "--epochs", "1", "-q", "-o", tmp_path / "m")
+    assert r.exit_code == 0, r.stderr
+    ck = tmp_path / "m" / "best.pt"
+    from deepcontact.model.arch import NETWORKS
+    NETWORKS._loaded.clear()   # a fresh process: nothing loaded but what the user names
+    r = invoke("evaluate", run, "--starts", "cnn", "--checkpoint", ck, "--every", "30", "--no-budgets",
+               "-o", tmp_path / "r")
+    assert r.exit_code == 1 and "name it with --arch" in r.stderr and not (tmp_path / "r").exists(), r.stderr
+    r = invoke("evaluate", run, "--starts", "builtin,cnn", "--checkpoint", ck, "--arch", net, "--every", "30",
+               "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.exit_code == 0, r.stderr
+    r = invoke("evaluate", run, "--starts", "cnn", "--checkpoint", ck, "--arch", net, "--closed-loop", "--steps", "15",
+               "--no-budgets", "-q", "-o", tmp_path / "loop")
+    assert r.exit_code == 0, r.stderr
+    r = invoke("render", dataset, "--sample", "0", "--checkpoint", ck, "--arch", net, "-q", "-o", tmp_path / "s.png")
+    assert r.exit_code == 0 and (tmp_path / "s.png").stat().st_size > 1000, r.stderr
+    NETWORKS._loaded.clear()
+
+
+BROKEN_NETS = textwrap.dedent('''
+    import torch
+    from torch import nn
+
+    class WrongShape(nn.Module):
+        def __init__(self, in_channels, out_channels, height, width):
+            super().__init__()
+            self.conv = nn.Conv2d(in_channels, out_channels + 1, 1)
+        def forward(self, x):
+            return self.conv(x)
+
+    class Raises(nn.Module):
+        def __init__(self, in_channels, out_channels, height, width):
+            super().__init__()
+            self.conv = nn.Conv2d(in_channels, out_channels, 1)
+        def forward(self, x):
+            raise ValueError("not today")
+
+    def NoModule(in_channels, out_channels, height, width):
+        raise RuntimeError("cannot build")
+    ''')
+
+
+@pytest.mark.parametrize("name,needle", [("WrongShape", "it must give"), ("Raises", "not today"),
+                                         ("NoModule", "cannot build")])
+def test_a_broken_network_is_one_line(dataset, tmp_path, monkeypatch, name, needle):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "broken_nets.py").write_text(BROKEN_NETS)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    r = invoke("train", dataset, "--arch", f"broken_nets:{name}", "--epochs", "1", "-o", tmp_path / "m")
+    sys.modules.pop("broken_nets", None)
+    lines = r.stderr.strip().splitlines()
+    assert r.exit_code == 1 and len(lines) == 1 and needle in lines[0] and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "m").exists()
+
+
+def test_old_spellings_still_work_and_say_they_are_deprecated(run, model, tmp_path):
+    r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40", "--no-budgets",
+               "-q", "-o", tmp_path / "r")
+    assert r.exit_code == 0 and "--model is deprecated in dc evaluate: use --checkpoint" in r.stderr, r.stderr
+    r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint", model / "best.pt",
+               "-o", tmp_path / "r2")
+    assert r.exit_code == 2 and "give one" in r.stderr

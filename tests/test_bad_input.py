@@ -47,7 +47,7 @@ def test_a_crafted_checkpoint_runs_no_code(run, model, tmp_path):
     marker = tmp_path / "pwned"
     evil = tmp_path / "evil.pt"
     torch.save({"format": 2, "model": _Payload(marker)}, evil)
-    r = dc("evaluate", str(run), "--starts", "cnn", "--model", str(evil), "-o", str(tmp_path / "r"))
+    r = dc("evaluate", str(run), "--starts", "cnn", "--checkpoint", str(evil), "-o", str(tmp_path / "r"))
     one_line_error(r, evil, "refused")
     part = tmp_path / "part"
     shutil.copytree(model, part)

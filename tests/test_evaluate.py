@@ -58,7 +58,7 @@ def test_every_step_is_solved_from_every_start(rows_and_summary):
 def test_unknown_starts_and_missing_model_are_clear_errors(pile_run, tmp_path):
     with pytest.raises(InputError, match="unknown start"):
         make_starts(["zero", "lucky"])
-    with pytest.raises(InputError, match="needs? a trained --model"):
+    with pytest.raises(InputError, match="needs? a trained model"):
         make_starts(["cnn"])
     r = dc("evaluate", str(pile_run), "--starts", "zero,nope", "-o", str(tmp_path / "r"))
     assert r.returncode == 2 and "nope" in r.stderr and not (tmp_path / "r").exists()   # a bad option value

@@ -248,7 +248,7 @@ def test_a_tampered_checkpoints_bookkeeping_is_one_line(model, dataset, tmp_path
         d = d[p]
     d[last] = value
     torch.save(ck, tmp / "last.pt")
-    r = invoke("evaluate", dataset.parent / "run", "--starts", "cnn", "--model", tmp / "last.pt", "--every", "60",
+    r = invoke("evaluate", dataset.parent / "run", "--starts", "cnn", "--checkpoint", tmp / "last.pt", "--every", "60",
                "--no-budgets", "-q", "-o", tmp / "r")
     assert_clean(r, tmp / "r")
     shutil.copytree(model, tmp / "m")
@@ -342,7 +342,7 @@ def test_a_deep_tree_is_walked_without_recursion(tmp_path):
 # --- Silently wrong output ---------------------------------------------------------------------
 
 RESUME_OPTIONS = [("--width", "8"), ("--depth", "3"), ("--loss", "mse"), ("--optimizer", "adam"), ("--lr", "0.01"),
-                  ("--batch-size", "7"), ("--seed", "3"), ("--targets", "normal_impulse"), ("--model", "thesis"),
+                  ("--batch-size", "7"), ("--seed", "3"), ("--targets", "normal_impulse"), ("--arch", "thesis"),
                   ("--threads", "2")]
 
 
@@ -406,7 +406,7 @@ def test_export_refuses_what_validate_refuses(run, tmp_path, value):
 def test_render_refuses_a_model_of_another_grid(run, dataset, model, tmp_path):
     other = tmp_path / "other"
     assert invoke("rasterize", run, "--cell", "0.5", "--smoothing", "0.5", "-q", "-o", other).exit_code == 0
-    one_line(invoke("render", other, "--sample", "0", "--model", model / "best.pt", "-o", tmp_path / "p.png"), 1,
+    one_line(invoke("render", other, "--sample", "0", "--checkpoint", model / "best.pt", "-o", tmp_path / "p.png"), 1,
              "another grid")
     assert not (tmp_path / "p.png").exists()
 
@@ -514,7 +514,7 @@ def test_option_errors_exit_2_and_files_that_are_not_checkpoints_say_so(run, tmp
     assert invoke("render", sorted(run.glob("seed-000000/step-*.xml"))[-1], "-q", "-o", png).exit_code == 0
     for bogus in (png, tmp_path / "notes.txt"):
         bogus.exists() or bogus.write_text("not a checkpoint")
-        err = one_line(invoke("evaluate", run, "--starts", "cnn", "--model", bogus, "-o", tmp_path / "r"), 1)
+        err = one_line(invoke("evaluate", run, "--starts", "cnn", "--checkpoint", bogus, "-o", tmp_path / "r"), 1)
         assert "not a checkpoint" in err and "run code" not in err and "weights_only" not in err, err
 
 

@@ -403,7 +403,7 @@ def test_a_fifo_in_place_of_a_scene_or_checkpoint_is_refused(run, tmp_path):
     os.mkfifo(checkpoint)
     for args, fifo in ((["validate", str(scene)], scene), (["rasterize", str(bad), "-o", str(tmp_path / "d")], scene),
                        (["evaluate", str(bad), "--closed-loop", "--starts", "builtin", "-o", str(tmp_path / "r")], scene),
-                       (["evaluate", str(run), "--starts", "cnn", "--model", str(checkpoint), "-o", str(tmp_path / "r")],
+                       (["evaluate", str(run), "--starts", "cnn", "--checkpoint", str(checkpoint), "-o", str(tmp_path / "r")],
                         checkpoint)):
         one_line_error(dc(*args, timeout=60), fifo, "not a regular file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "run"]
@@ -613,7 +613,7 @@ def test_a_tampered_checkpoint_is_refused_before_a_network_is_built(run, dataset
     before = snapshot(bad)
     one_line_error(dc("train", str(dataset), "-o", str(bad), "--resume"), bad / "last.pt")
     if "training config" not in needle:
-        one_line_error(dc("evaluate", str(run), "--starts", "cnn", "--model", str(bad / "last.pt"),
+        one_line_error(dc("evaluate", str(run), "--starts", "cnn", "--checkpoint", str(bad / "last.pt"),
                           "-o", str(tmp_path / "r")), bad / "last.pt", "refused", needle)
     assert snapshot(bad) == before and not (tmp_path / "r").exists()
 

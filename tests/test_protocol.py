@@ -27,7 +27,7 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
 
 def test_the_default_is_one_thread_whatever_the_machine(run, model, tmp_path):
     torch.set_num_threads(2)   # torch's default on a larger machine: the command's own default wins
-    r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40", "--no-budgets", "-q",
+    r = invoke("evaluate", run, "--starts", "cnn", "--checkpoint", model / "best.pt", "--every", "40", "--no-budgets", "-q",
                "-o", tmp_path / "r")
     assert r.exit_code == 0, r.stderr
     assert torch.get_num_threads() == 1
@@ -74,16 +74,16 @@ INAPPLICABLE = [
     # (command and arguments up to the options, the option given, its value or None for a flag)
     (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--steps", "5"),
     (["evaluate", "{run}", "--starts", "builtin", "--closed-loop", "-o", "{tmp}/r"], "--every", "3"),
-    (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--model", "{model}/best.pt"),
+    (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--checkpoint", "{model}/best.pt"),
     (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--cell", "1"),
-    (["evaluate", "{run}", "--starts", "cnn", "--model", "{model}/best.pt", "-o", "{tmp}/r"], "--kernel", "spiky"),
+    (["evaluate", "{run}", "--starts", "cnn", "--checkpoint", "{model}/best.pt", "-o", "{tmp}/r"], "--kernel", "spiky"),
     (["evaluate", "{run}", "--starts", "builtin", "-o", "{tmp}/r"], "--seed", "3"),
     (["rasterize", "{run}", "-o", "{tmp}/d"], "--every", "3"),
     (["rasterize", "{run}", "-o", "{tmp}/d"], "--impulses", "recorded"),
     (["rasterize", "{run}", "--oracle"], "--validation", "0.5"),
     (["rasterize", "{run}", "--oracle"], "--inputs", "mass"),
     (["train", "{data}", "-o", "{tmp}/m"], "--no-final-relu", None),
-    (["train", "{data}", "--model", "thesis", "-o", "{tmp}/m"], "--width", "8"),
+    (["train", "{data}", "--arch", "thesis", "-o", "{tmp}/m"], "--width", "8"),
     (["train", "{data}", "-o", "{tmp}/m"], "--lr", "0.1"),
     (["train", "{data}", "-o", "{tmp}/m"], "--solver-sweeps", "3"),
     (["simulate", "pile", "--seeds", "0..1", "-o", "{tmp}/s"], "--seed", "4"),

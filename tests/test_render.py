@@ -125,7 +125,7 @@ def test_video_without_ffmpeg_names_the_package(pile_run, tmp_path):
 
 def test_a_dataset_sample_and_the_model_beside_it(dataset, model, tmp_path):
     plain = written(tmp_path / "s.png", "render", str(dataset), "--sample", "3")
-    with_model = written(tmp_path / "m.png", "render", str(dataset), "--sample", "3", "--model",
+    with_model = written(tmp_path / "m.png", "render", str(dataset), "--sample", "3", "--checkpoint",
                          str(model / "best.pt"))
     a, b = Image.open(plain), Image.open(with_model)
     assert b.size[1] > 1.7 * a.size[1]   # two more rows: prediction and error

@@ -17,7 +17,7 @@ import torch
 from ..grid.interpolate import bilinear
 from ..grid.spec import GridSpec
 from ..grid.splat import rasterize
-from .networks import build
+from .networks import build, check_network
 from .train import load_checkpoint
 
 
@@ -41,6 +41,7 @@ class Predictor:
         self.targets = list(ck["targets"])
         self.model = build(ck["network"])
         self.model.load_state_dict(ck["model"])
+        check_network(self.model, ck["network"])
         self.model.eval()
         torch.set_num_threads(threads or 1)
 

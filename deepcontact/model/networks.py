@@ -17,6 +17,9 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from ..plugins import PluginError
+from .arch import BUILTIN, NETWORKS
+
 # PyTorch notes that 'same' padding with the appendix's 2x2 kernels copies the input; it is right.
 warnings.filterwarnings("ignore", message="Using padding='same' with even kernel lengths")
 
@@ -92,16 +95,62 @@ class FCN(nn.Module):
         return self.head(x)[..., :h, :w]
 
 
+# --- The registry: built-ins and plug-ins alike ------------------------------------------------
+# A network factory is called with in_channels, out_channels, height, width (the grid) and those
+# of the config's other keys it declares; it returns a torch.nn.Module mapping a batch of input
+# images (B, in_channels, height, width) to impulse images (B, out_channels, height, width).
+
+# (the registry lives in model/arch.py, which imports no torch: the CLI reads its names)
+
+
+def _factory(name):
+    factory = NETWORKS.resolved(name)
+    if factory is None:   # a name read from a checkpoint never imports code by itself
+        raise PluginError(f"the network {name!r} is a plug-in: name it with --arch {name} to load it")
+    return factory
+
+
 def build(config):
-    """A network from its config dict (stored in checkpoints)."""
+    """A network from its config dict (stored in checkpoints): a built-in, or a plug-in loaded by
+    the user's explicit choice (NETWORKS.load)."""
+    import inspect
     name = config["model"]
-    if name == "thesis":
-        return ThesisCNN(config["in_channels"], config["out_channels"], config["height"], config["width"],
-                         dropout=config.get("dropout", 0.1), final_relu=config.get("final_relu", True))
-    if name == "fcn":
-        return FCN(config["in_channels"], config["out_channels"], width=config.get("fcn_width", 16),
-                   depth=config.get("fcn_depth", 3))
-    raise ValueError(f"unknown model {name!r}; choose thesis or fcn")
+    factory = _factory(name)
+    grid = {k: config[k] for k in ("in_channels", "out_channels", "height", "width")}
+    try:
+        wanted = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        wanted = {}
+    extra = {k: v for k, v in config.items() if k in wanted and k not in grid and k != "model"}
+    if name in BUILTIN:
+        return factory(**grid, **extra)
+    try:
+        return factory(**grid, **extra)
+    except Exception as e:
+        raise PluginError(f"the network {name!r} could not be built: {type(e).__name__}: {e}") from None
+
+
+def check_network(model, config, name=None):
+    """A plug-in network held to the contract: one zero batch in, impulse images of the grid's
+    shape out, finite; else one line naming it."""
+    if config["model"] in BUILTIN:
+        return
+    c, h, w = config["in_channels"], config["height"], config["width"]
+    want = (1, config["out_channels"], h, w)
+    try:
+        with torch.no_grad():
+            was = model.training
+            model.eval()
+            out = model(torch.zeros(1, c, h, w))
+            model.train(was)
+    except Exception as e:
+        raise PluginError(f"the network {config['model']!r} failed on a batch of shape (1, {c}, {h}, {w}): "
+                          f"{type(e).__name__}: {e}") from None
+    if not isinstance(out, torch.Tensor) or tuple(out.shape) != want:
+        raise PluginError(f"the network {config['model']!r} maps (1, {c}, {h}, {w}) to "
+                          f"{tuple(getattr(out, 'shape', ())) or type(out).__name__}; it must give {want}")
+    if not torch.isfinite(out).all():
+        raise PluginError(f"the network {config['model']!r} gives non-finite values for a zero input")
 
 
 def parameter_count(model):
@@ -119,8 +168,11 @@ CONFIG_LIMITS = {"in_channels": (1, 64), "out_channels": (1, 64), "height": (1, 
 
 def check_config(config):
     """Why a network config cannot be built, or None."""
-    if not isinstance(config, dict) or config.get("model") not in ("thesis", "fcn"):
-        return "the network is neither the thesis model nor fcn"
+    if not isinstance(config, dict) or not isinstance(config.get("model"), str):
+        return "the network config names no network"
+    if NETWORKS.resolved(config["model"]) is None:
+        return (f"the network {config['model']!r} is a plug-in: name it with --arch {config['model']} to load it "
+                "(a checkpoint never imports code by itself)")
     for key, (low, high) in CONFIG_LIMITS.items():
         value = config.get(key, low if key.startswith("fcn") else None)
         if type(value) is not int or not low <= value <= high:
@@ -134,9 +186,16 @@ def check_config(config):
 
 
 def on_meta(config):
-    """The network built on torch's meta device: shapes and counts, no memory."""
-    with torch.device("meta"):
-        return build(config)
+    """The network built on torch's meta device: shapes and counts, no memory (a plug-in must
+    allow it, as networks of plain torch layers do)."""
+    try:
+        with torch.device("meta"):
+            return build(config)
+    except PluginError:
+        raise
+    except Exception as e:
+        raise PluginError(f"the network {config['model']!r} cannot be built on torch's meta device (needed to "
+                          f"check its size before allocating it): {type(e).__name__}: {e}") from None
 
 
 def shape_problem(config, state):

@@ -28,7 +28,8 @@ from ..grid.dataset import GridDataset
 from ..grid.spec import GridSpec
 from ..resources import check_memory
 from . import losses
-from .networks import build, check_config, parameter_count, shape_problem, training_memory
+from .arch import NETWORKS
+from .networks import build, check_config, check_network, parameter_count, shape_problem, training_memory
 
 log = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
@@ -172,7 +173,7 @@ def checkpoint_problem(ck):
 _RANGES = {"batch_size": (1, 2 ** 31 - 1), "epochs": (1, 2 ** 31 - 1), "patience": (0, 2 ** 31 - 1),
            "seed": (0, 2 ** 31 - 1), "fcn_width": (1, 4096), "fcn_depth": (1, 12), "solver_sweeps": (0, 2 ** 31 - 1),
            "lr": (0, None), "weight_decay": (0, None), "momentum": (0, 1), "dropout": (0, 1)}
-_CHOICES = {"model": ("thesis", "fcn"), "optimizer": ("sgd", "adam")}
+_CHOICES = {"optimizer": ("sgd", "adam")}
 
 
 def config_problem(cfg):
@@ -192,6 +193,8 @@ def config_problem(cfg):
             return f"{k!r} must be from {lo} to {hi if hi is not None else 'any'}, not {v!r}"
         if k in _CHOICES and v not in _CHOICES[k]:
             return f"{k!r} must be one of {', '.join(_CHOICES[k])}, not {v!r}"
+        if k == "model" and not NETWORKS.is_name(v):
+            return f"'model' must name a network (thesis, fcn, or a plug-in), not {v!r}"
         if k == "targets" and (not v or not all(isinstance(t, str) for t in v)):
             return "'targets' must be a list of label channel names"
         if k == "loss" and v not in losses.LOSSES:
@@ -384,7 +387,9 @@ class Trainer:
         np.random.seed(cfg.seed)
         random.seed(cfg.seed)
         torch.use_deterministic_algorithms(True, warn_only=True)
-        self.model = build(net_cfg).to(device)
+        self.model = build(net_cfg)
+        check_network(self.model, net_cfg)   # (a plug-in held to the contract before the first batch)
+        self.model = self.model.to(device)
         self.opt = _optimizer(cfg, self.model)
         self.net = torch.nn.parallel.DistributedDataParallel(self.model) if world > 1 else self.model
         self.history, self.best, self.bad_epochs, self.start = [], math.inf, 0, 0

@@ -257,9 +257,9 @@ def make_starts(names, spec=None, predictor=None):
             wanted = {}
         given = {"spec": spec, "predictor": predictor}
         if "predictor" in wanted and predictor is None:
-            raise InputError(f"the start {name} needs a trained --model")
+            raise InputError(f"the start {name} needs a trained model (--checkpoint)")
         if "spec" in wanted and spec is None:
-            raise InputError(f"the start {name} needs a grid (--cell, --smoothing, --kernel, or a --model)")
+            raise InputError(f"the start {name} needs a grid (--cell, --smoothing, --kernel, or a --checkpoint)")
         try:
             start = factory(**{k: v for k, v in given.items() if k in wanted})
         except InputError:

@@ -1,1 +1,1 @@
-"""Example deepcontact plug-ins (docs/api.md): a warm start to copy and change."""
+"""Example deepcontact plug-ins (docs/api.md): a warm start and a network to copy and change."""
