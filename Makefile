@@ -119,7 +119,7 @@ $(STUDY)/report/report.md: $(STUDY)/model/done $(STUDY)/heldout/manifest.json
 		--overwrite -o $(STUDY)/report
 
 $(STUDY)/figures/figures.md: $(STUDY)/heldout/manifest.json
-	$(DC) study figures $(STUDY)/heldout -o $(STUDY)/figures --every 10 --overwrite
+	$(DC) study figures $(STUDY)/heldout -o $(STUDY)/figures --stop-on thesis --every 10 --overwrite
 
 # The hard-scene stability table of the README (about a minute).
 stability: setup

@@ -32,6 +32,7 @@ from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
 from deepcontact.solver.reference import reference_solution
 from deepcontact.studies.stability import FULL
+from deepcontact.protocol import current, protocol_line
 
 TOLERANCE, CAP = 1e-12, 100_000
 
@@ -129,6 +130,7 @@ def main():
     ap.add_argument("--every", type=int, default=5)
     ap.add_argument("--siconos", action="store_true")
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     if args.scene == "hard":
         return report_hard(args.every)
     for name in (["pile", "pyramid"] if args.scene == "both" else [args.scene]):

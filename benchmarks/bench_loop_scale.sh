@@ -8,6 +8,7 @@
 set -e
 OUT=${1:-/tmp/dc-bench-loop}
 DC="python3 -m deepcontact.cli.main"
+python3 -c "from deepcontact.protocol import current, protocol_line; print(protocol_line(current(jobs=1)))"
 BIG="--param count=1000 --param box=95 --param sigma=19"
 PGS="--solver pgs --tolerance 1e-4 --max-iterations 1000"
 run() {

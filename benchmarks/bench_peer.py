@@ -22,6 +22,7 @@ from pathlib import Path
 from bench_exact import problems, timed
 from deepcontact.scene.generators import generate
 from deepcontact.solver import fclib, peer
+from deepcontact.protocol import current, protocol_line
 
 OURS = ("none", "nncg", "newton", "subspace")
 
@@ -71,6 +72,7 @@ def main():
     ap.add_argument("--tolerances", default="1e-4,1e-8")
     ap.add_argument("--cap", type=int, default=100_000, help="our sweeps at most (Siconos: 100,000 iterations)")
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     if not peer.available():
         sys.exit("Siconos is not installed for /usr/bin/python3 (make setup installs python3-siconos)")
     tolerances = [float(t) for t in args.tolerances.split(",")]

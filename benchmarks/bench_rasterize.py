@@ -17,6 +17,7 @@ from deepcontact.grid.splat import (BODY_CHANNELS, CONTACT_CHANNELS, DEFAULT_INP
                                     rasterize_step)
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
+from deepcontact.protocol import current, protocol_line
 
 
 def python_loop(spec, bodies, contacts, channels):
@@ -46,6 +47,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=50)
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     scene = generate("pile", 0)
     spec = GridSpec.over(scene_box(scene), 0.5, 0.5)
     world = build_world(scene)

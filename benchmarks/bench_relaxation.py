@@ -34,6 +34,7 @@ from deepcontact.simulate.build import build_world
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem, contact_keys, impulses_by_key
 from deepcontact.solver.relaxation import AutoRelaxation
+from deepcontact.protocol import current, protocol_line
 
 SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
 
@@ -111,6 +112,7 @@ def main():
     ap.add_argument("--loop", action="store_true", help="our PGS in the loop instead of replay")
     ap.add_argument("--seeds", default="0", help="the scene's seeds, comma-separated (--loop; pooled)")
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     if args.loop:
         return loop(args.scene, args.repeats, [int(s) for s in args.seeds.split(",")])
     steps = steps_of(args.scene)

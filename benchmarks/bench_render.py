@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from PIL import Image
+from deepcontact.protocol import current, protocol_line
 
 DC = [sys.executable, "-m", "deepcontact.cli.main"]
 
@@ -29,6 +30,7 @@ def main():
     ap.add_argument("--out", default="/tmp/dc-bench-render")
     ap.add_argument("--repeats", type=int, default=2)
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     out = Path(args.out)
     run = out / "pile"
     simulate = best(["simulate", "pile", "-q", "--overwrite", "-o", str(run)], 1)

@@ -24,6 +24,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from deepcontact.protocol import current, protocol_line
 
 DC = [sys.executable, "-m", "deepcontact.cli.main"]
 
@@ -146,6 +147,7 @@ def main():
     ap.add_argument("--part", choices=("pile", "scale", "both"), default="both",
                     help="the thesis pile's whole commands, the scaling table, or both")
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"# bench_scale ({'quick' if args.quick else 'full'}), {os.cpu_count()} cores; "

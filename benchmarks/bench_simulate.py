@@ -24,6 +24,7 @@ import xml.etree.ElementTree as ET
 
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
+from deepcontact.protocol import current, protocol_line
 
 
 def best_of(repeats, fn):
@@ -93,6 +94,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--json")
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     scene = generate("pile", 0)
     n = scene.steps
     with tempfile.TemporaryDirectory() as tmp:

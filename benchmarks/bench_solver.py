@@ -19,6 +19,7 @@ from deepcontact.simulate.build import build_world
 from deepcontact.solver import lcp as L
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
+from deepcontact.protocol import current, protocol_line
 
 WARMUP_STEPS = 300
 
@@ -58,6 +59,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--iterations", type=int, default=500)
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     n, r = args.iterations, args.repeats
     scene = generate("pile", 0)
     _, bodies, contacts = world_at(scene, WARMUP_STEPS)

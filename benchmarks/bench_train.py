@@ -21,6 +21,7 @@ from deepcontact.model.networks import build, parameter_count
 from deepcontact.model.train import CHECKPOINT_FORMAT
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
+from deepcontact.protocol import current, protocol_line
 
 INPUTS = ["mass", "vx", "vy", "spin", "nx", "ny"]
 
@@ -65,6 +66,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--batches", type=int, default=5)
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     torch.set_num_threads(args.threads)
     scene = generate("pile", 0)
     world = build_world(scene)

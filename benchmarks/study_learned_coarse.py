@@ -38,6 +38,7 @@ from deepcontact._box2d import contact_rows
 from deepcontact.model import contact_graph as cg
 from deepcontact.solver.pgs import solve
 from study_learned_correction import datasets
+from deepcontact.protocol import current, protocol_line
 
 TOLERANCE, CAP = 1e-4, 1000
 
@@ -210,6 +211,7 @@ def main():
     ap.add_argument("--train", default="0,1")
     ap.add_argument("--steps", type=int, default=600)
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     train_set, test_set = datasets(args.train, args.steps)
     model = train(train_set, args.epochs, args.sweeps, args.cell, args.lr, seed=0)
     evaluate(model, test_set, args.sweeps, args.cell)

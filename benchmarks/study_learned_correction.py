@@ -30,6 +30,7 @@ from deepcontact.simulate.build import build_world
 from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
+from deepcontact.protocol import current, protocol_line
 
 SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
 
@@ -128,6 +129,7 @@ def main():
     ap.add_argument("--train", default="0,1,2,3")
     ap.add_argument("--steps", type=int, default=600)
     args = ap.parse_args()
+    print(protocol_line(current()) + "\n")   # how these times were taken
     train_set, test_set = datasets(args.train, args.steps)
     model = train(train_set, args.epochs, args.sweeps, args.batch, seed=0, lr=args.lr, rounds=args.rounds,
                   width=args.width)

@@ -5,7 +5,7 @@ from . import options
 
 
 @click.command()
-@click.argument("run_dir", type=click.Path())
+@click.argument("run_dir", metavar="RUN", type=click.Path())
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder to write (seed-NNNNNN/step-NNNNNN.hdf5 and index.json).")
 @click.option("--every", type=options.count(min=1), default=1, show_default=True,

@@ -68,11 +68,12 @@ def stability(out, fast, overwrite, verbose, quiet):
 
 
 @study.command()
-@click.argument("run", type=click.Path(file_okay=False))
+@click.argument("run", metavar="RUN", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Figures folder.")
 @click.option("--every", type=options.count(min=1), default=10, show_default=True, help="Use every N-th step.")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
-@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="thesis", show_default=True)
+@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual", show_default=True,
+              help="The stopping measure (residual, as everywhere; thesis: the thesis's largest change per sweep).")
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
 @options.overwrite
 @options.verbosity
@@ -86,7 +87,7 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, overwrite, verb
     \b
     Examples:
       dc study figures runs/heldout -o reports/figures
-      dc study figures runs/heldout -o reports/figures --stop-on residual --every 5
+      dc study figures runs/heldout -o reports/figures --stop-on thesis --every 5
     """
     from deepcontact import atomic
     from deepcontact.studies.figures import FIGURE_FILES, figures as make

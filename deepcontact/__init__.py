@@ -2,5 +2,54 @@
 
 The path of data is visible in the subpackages: ``scene`` (what to simulate) → ``simulate``
 (Box2D steps) → ``step`` (the per-step XML files) → grids, models, warm starts, solver, reports.
+
+The public API is the names below (docs/api.md), each imported only when first used (reading a
+step does not import torch)::
+
+    import deepcontact as dc
+    header, bodies, contacts = dc.read_step("runs/pile/seed-000000/step-000300.xml")
+    problem = dc.StepProblem.from_step(header, bodies, contacts)
+    solution = dc.solve(problem, tolerance=1e-4, max_iterations=1000)
 """
 __version__ = "0.1.0"
+
+# name -> (module, attribute): what `import deepcontact` offers, loaded on first use
+_PUBLIC = {
+    "read_run": ("deepcontact.step.run_folder", "read_run"),
+    "read_step": ("deepcontact.step.reader", "read_step"),
+    "read_scene": ("deepcontact.scene.xml", "read_scene"),
+    "generate": ("deepcontact.scene.generators", "generate"),
+    "simulate_run": ("deepcontact.simulate.run", "run"),   # (not "simulate": that is the subpackage)
+    "SceneSource": ("deepcontact.simulate.source", "SceneSource"),
+    "StepProblem": ("deepcontact.solver.problem", "StepProblem"),
+    "contact_keys": ("deepcontact.solver.problem", "contact_keys"),
+    "solve": ("deepcontact.solver.pgs", "solve"),
+    "reference_solution": ("deepcontact.solver.reference", "reference_solution"),
+    "GridSpec": ("deepcontact.grid.spec", "GridSpec"),
+    "GridDataset": ("deepcontact.grid.dataset", "GridDataset"),
+    "train": ("deepcontact.model.train", "train"),
+    "TrainConfig": ("deepcontact.model.train", "TrainConfig"),
+    "Predictor": ("deepcontact.model.inference", "Predictor"),
+    "NETWORKS": ("deepcontact.model.arch", "NETWORKS"),
+    "STARTS": ("deepcontact.warmstart.starts", "STARTS"),
+    "StartValue": ("deepcontact.warmstart.starts", "StartValue"),
+    "StepContext": ("deepcontact.warmstart.starts", "StepContext"),
+    "make_starts": ("deepcontact.warmstart.starts", "make_starts"),
+    "evaluate_starts": ("deepcontact.evaluate.replay", "evaluate"),
+    "InputError": ("deepcontact.errors", "InputError"),
+}
+__all__ = ["__version__", *_PUBLIC]
+
+
+def __getattr__(name):
+    if name not in _PUBLIC:
+        raise AttributeError(f"module 'deepcontact' has no attribute {name!r}")
+    import importlib
+    module, attribute = _PUBLIC[name]
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(__all__)

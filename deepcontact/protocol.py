@@ -64,6 +64,15 @@ def protocol(threads=DEFAULT_THREADS, jobs=1):
     }
 
 
+def current(jobs=1):
+    """The protocol of this process as it stands: torch's thread count if torch is in use."""
+    threads = DEFAULT_THREADS
+    if "torch" in sys.modules:
+        import torch
+        threads = torch.get_num_threads()
+    return protocol(threads, jobs)
+
+
 def protocol_line(p):
     """The protocol in one sentence, for a report."""
     v = p["versions"]

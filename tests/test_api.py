@@ -185,3 +185,23 @@ def test_old_spellings_still_work_and_say_they_are_deprecated(run, model, tmp_pa
     r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint", model / "best.pt",
                "-o", tmp_path / "r2")
     assert r.exit_code == 2 and "give one" in r.stderr
+
+
+def test_the_public_api_is_small_documented_and_lazy():
+    import deepcontact
+    assert sorted(dir(deepcontact)) == sorted(deepcontact.__all__)
+    for name in deepcontact.__all__[1:]:
+        obj = getattr(deepcontact, name)
+        doc = (obj.__doc__ or "").strip()
+        assert doc and not doc.startswith(f"{name}("), f"{name} has no docstring of its own"
+    with pytest.raises(AttributeError):
+        deepcontact.no_such_name
+
+
+def test_reading_and_solving_a_step_does_not_import_torch(run):
+    step = sorted(run.glob("seed-000000/step-*.xml"))[-1]
+    code = ("import sys, deepcontact as dc; h, b, c = dc.read_step(sys.argv[1]); "
+            "s = dc.solve(dc.StepProblem.from_step(h, b, c), tolerance=1e-4, max_iterations=1000); "
+            "print(s.iterations, 'torch' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code, str(step)], capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.split()[-1] == "False", r.stdout + r.stderr

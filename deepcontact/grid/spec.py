@@ -16,6 +16,9 @@ MAX_COORDINATE = 1e7      # m: ten times the farthest a scene may place a body
 
 @dataclass(frozen=True)
 class GridSpec:
+    """The grid a step is drawn on: origin (x0, y0), cell size d, nx x ny nodes, the SPH kernel and
+    smoothing length h; `over` makes one over a window, `from_dict` reads one from a file."""
+
     x0: float
     y0: float
     cell: float

@@ -15,8 +15,8 @@ def thesis(in_channels, out_channels, height, width, dropout=0.1, final_relu=Tru
 
 
 @NETWORKS.register("fcn")
-def fcn(in_channels, out_channels, height, width, fcn_width=16, fcn_depth=3):
-    """A fully convolutional encoder-decoder (any grid size)."""
+def fcn(in_channels, out_channels, height=None, width=None, fcn_width=16, fcn_depth=3):
+    """A fully convolutional encoder-decoder (any grid size: height and width are not needed)."""
     from .networks import FCN
     return FCN(in_channels, out_channels, width=fcn_width, depth=fcn_depth)
 

@@ -116,7 +116,7 @@ def build(config):
     import inspect
     name = config["model"]
     factory = _factory(name)
-    grid = {k: config[k] for k in ("in_channels", "out_channels", "height", "width")}
+    grid = {k: config[k] for k in ("in_channels", "out_channels", "height", "width") if k in config}
     try:
         wanted = inspect.signature(factory).parameters
     except (TypeError, ValueError):

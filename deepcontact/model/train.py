@@ -39,6 +39,9 @@ MODEL_FILES = atomic.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|
 
 @dataclass
 class TrainConfig:
+    """Everything a training run is: the network (`model`, a registered name), targets, loss,
+    optimizer and its settings, batches, epochs and seed; saved in every checkpoint."""
+
     model: str = "fcn"
     targets: list = field(default_factory=lambda: ["normal_impulse", "tangent_impulse"])
     loss: str = "masked"

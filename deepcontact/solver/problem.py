@@ -53,6 +53,10 @@ def _rows(index, bodies):
 
 @dataclass
 class StepProblem:
+    """One step's contact problem as Box2D poses it: the bodies, the contact points (manifolds,
+    normals, friction, restitution) and Box2D's own warm start; `from_step` / `from_step_file`
+    read it from a step file, and `solver.pgs.solve` solves it from any start."""
+
     bodies: dict                 # the columns BODY_KEYS, one row per body
     contacts: dict               # the columns CONTACT_KEYS plus row_a, row_b, one row per point
     dt: float

@@ -40,6 +40,9 @@ class StepContext:
 
 @dataclass
 class StartValue:
+    """What a start returns: one normal and one tangent impulse per contact point (float64,
+    N·s) and the seconds it spent by stage (reported as prediction time, not solving)."""
+
     normal: np.ndarray
     tangent: np.ndarray
     seconds: dict            # prediction time by stage (empty for free starts)
