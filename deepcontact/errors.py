@@ -4,7 +4,7 @@
 class InputError(Exception):
     """Bad input: the CLI prints ``path:line: message`` and exits non-zero, without a traceback."""
 
-    def __init__(self, message, path=None, line=None):
+    def __init__(self, message: str, path: object = None, line: int | None = None):
         super().__init__(message)
         self.message = message
         self.path = None if path is None else str(path)

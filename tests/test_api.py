@@ -205,3 +205,21 @@ def test_reading_and_solving_a_step_does_not_import_torch(run):
             "print(s.iterations, 'torch' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code, str(step)], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.split()[-1] == "False", r.stdout + r.stderr
+
+
+def test_every_public_function_has_type_hints():
+    import inspect
+    import deepcontact
+    missing = []
+    for name in deepcontact.__all__[1:]:
+        obj = getattr(deepcontact, name)
+        if hasattr(obj, "register"):   # a registry instance: its methods are documented in plugins.py
+            continue
+        f = obj.__init__ if inspect.isclass(obj) else obj
+        sig = inspect.signature(f)
+        missing += [f"{name}({p.name})" for p in sig.parameters.values()
+                    if p.name != "self" and p.annotation is inspect.Parameter.empty
+                    and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+        if not inspect.isclass(obj) and sig.return_annotation is inspect.Signature.empty:
+            missing.append(f"{name} -> ?")
+    assert missing == []

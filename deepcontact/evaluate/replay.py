@@ -10,6 +10,7 @@ whether the PSOR guard fell back, prediction and solve time, and with `budgets` 
 and reached residual of fixed sweep budgets.
 """
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -185,8 +186,10 @@ def evaluate_simulation(task):
     return rows
 
 
-def evaluate(run_dirs, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-             every=1, seed=0, progress=None, relaxations=(1.0,), budgets=False, accelerations=("none",), jobs=1):
+def evaluate(run_dirs: list, starts: dict, *, tolerance: float = 1e-4, max_iterations: int = 1000,
+             stop_on: str = "residual", mode: str = "float64", every: int = 1, seed: int = 0,
+             progress: Callable | None = None, relaxations: tuple = (1.0,), budgets: bool = False,
+             accelerations: tuple = ("none",), jobs: int = 1) -> list:
     """Rows for every (step, variant): each start with each acceleration and w. Runs must hold
     one kind of scene.
 

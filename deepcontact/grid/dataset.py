@@ -407,7 +407,7 @@ def _npy_bytes(array):
 class GridDataset:
     """A dataset folder, memory-mapped. `torch_dataset(split)` gives torch tensors."""
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         meta = self.path / "metadata.json"
         if not meta.is_file():

@@ -8,6 +8,7 @@ The step is rasterized with the dataset's recorded settings, the network predict
 images, bilinear interpolation takes them to the contact points, and the result is projected
 onto the friction cone. Time is reported per stage: rasterize, model, interpolate.
 """
+import os
 import time
 from dataclasses import dataclass
 
@@ -34,7 +35,7 @@ class Predictor:
     impulse images back to the contact points. threads: torch's threads, 1 unless asked (the
     timed default; torch's own, a thread per core, spins against other processes)."""
 
-    def __init__(self, checkpoint, threads=1):
+    def __init__(self, checkpoint: str | os.PathLike, threads: int = 1):
         ck = load_checkpoint(checkpoint)
         self.spec = GridSpec.from_dict(ck["dataset"]["grid"])   # (checked by load_checkpoint)
         self.inputs = list(ck["dataset"]["inputs"])

@@ -15,6 +15,7 @@ import os
 import pickle
 import random
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -259,8 +260,9 @@ def check_same_run(ck, meta, path, given, threads, dataset):
                           f"resume with --threads {ck['threads']}", "--threads")
 
 
-def train(dataset, out_dir, cfg: TrainConfig = None, resume=False, progress=None, threads=1, device="cpu",
-          overwrite=False, epochs=None, max_memory=None, given=()):
+def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConfig | None = None, resume: bool = False,
+          progress: Callable | None = None, threads: int = 1, device: str = "cpu", overwrite: bool = False,
+          epochs: int | None = None, max_memory: float | None = None, given: dict = ()) -> list[dict]:
     """Train; returns the history (a list of per-epoch metric dicts).
 
     Everything is checked before the output folder is touched. With `overwrite`, the new run is

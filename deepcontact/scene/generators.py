@@ -280,7 +280,8 @@ def _checked_params(name, params):
     return {**defaults, **given}, given
 
 
-def generate(name, seed=0, params=None, velocity_iterations=8, position_iterations=3) -> Scene:
+def generate(name: str, seed: int = 0, params: dict | None = None, velocity_iterations: int = 8,
+             position_iterations: int = 3) -> Scene:
     """Make a scene with a built-in generator. `params` maps names to values or strings.
 
     The scene is checked (scene.check.check_scene) before it is returned."""

@@ -1,5 +1,6 @@
 """Scene files: read (XSD-validated, then checked) and written (byte-stable)."""
 
+import os
 import numpy as np
 
 from .._box2d import format_floats
@@ -115,7 +116,7 @@ def _shape(el):
     return Edge(x1=_num(el, "x1"), y1=_num(el, "y1"), x2=_num(el, "x2"), y2=_num(el, "y2"), **common)
 
 
-def read_scene(path) -> Scene:
+def read_scene(path: str | os.PathLike) -> Scene:
     """Read, validate against schemas/scene.xsd and check a scene file. Raises InputError."""
     from .. import schema  # lxml: only needed when reading
     kind, tree, errors = schema.validate(path, "scene")

@@ -17,6 +17,7 @@ import math
 import os
 import re
 from collections import deque
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +33,7 @@ from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
 from .build import build_world, check_overlaps
 from . import stepping
-from .pgs_loop import PGSStepper, check_scene_for_loop
+from .pgs_loop import LoopOptions, PGSStepper, check_scene_for_loop
 
 log = logging.getLogger(__name__)
 
@@ -195,8 +196,9 @@ def _worker(args):
     return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop, compress=compress)
 
 
-def run(make_scene, seeds, out_dir, *, overwrite=False, skip_contactless=False, jobs=1, progress=None,
-        source=None, loop=None, max_disk=None, compress=False):
+def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, *, overwrite: bool = False,
+        skip_contactless: bool = False, jobs: int = 1, progress: Callable | None = None, source: str | None = None,
+        loop: LoopOptions | None = None, max_disk: float | None = None, compress: bool = False) -> dict:
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter

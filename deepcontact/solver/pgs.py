@@ -19,10 +19,14 @@ tolerance, capped at max_iterations. Measures (per sweep, see docs/solver.md, "M
              largest free relative velocity of the step (dimensionless)
 """
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._box2d import Acceleration, Mode, SolveOptions, solve_contacts
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from .problem import StepProblem
 
 MEASURES = ("thesis", "velocity", "residual")
 # none: plain (P)SOR sweeps. nncg: after each sweep the iterate also moves along a conjugate
@@ -76,9 +80,10 @@ def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="res
                         final_residual=final_residual, guard=guard)
 
 
-def solve(problem, start_normal=None, start_tangent=None, *, mode="float64", max_iterations=None,
-          tolerance=0.0, stop_on="residual", relaxation=1.0, history=False, prune=True,
-          final_residual=True, guard=True, accelerate="none") -> Solution:
+def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,
+          mode: str = "float64", max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
+          relaxation: float = 1.0, history: bool = False, prune: bool = True, final_residual: bool = True,
+          guard: bool = True, accelerate: str = "none") -> Solution:
     """Solve the step's contact problem from a start (default: Box2D's own warm start).
 
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs

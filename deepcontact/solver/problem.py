@@ -19,7 +19,7 @@ CONTACT_KEYS = SOLVER_CONTACT_FIELDS
 KEY_COLUMNS = ("fixture_a", "child_a", "fixture_b", "child_b", "id_key")
 
 
-def contact_keys(contacts):
+def contact_keys(contacts: dict) -> list[tuple]:
     """What identifies a contact point across steps, as Box2D matches them: both fixtures and
     child indices, and the feature id (a body pair alone is not enough: a circle in a corner
     touches two walls of one static body)."""

@@ -15,9 +15,14 @@ zero so that it does not depend on any start being compared. Exact solutions of 
 need not be unique, in impulses nor in body velocities (tests/test_peer.py: Siconos's Lemke
 solution of the same step can differ): judge a solution by its residual.
 """
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .pgs import Solution, solve
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from .problem import StepProblem
 
 TOLERANCE = 1e-12
 CAP = 100_000
@@ -31,8 +36,8 @@ PIVOT_POINTS = 250      # a dense tableau of 4 x points rows: beyond this Lemke 
 PERTURBATIONS = (0.0, 1e-12, 1e-10, 1e-8)   # of q, for the whole step's Lemke: degenerate steps need one
 
 
-def reference_solution(problem, tolerance=TOLERANCE, cap=CAP, relaxation=1.0, accelerate="newton",
-                       pivot=True) -> Solution:
+def reference_solution(problem: "StepProblem", tolerance: float = TOLERANCE, cap: int = CAP, relaxation: float = 1.0,
+                       accelerate: str = "newton", pivot: bool = True) -> Solution:
     """Solve from zero to the tolerance (float64; accelerate="none" is plain PGS, the reference
     before Newton; pivot: Lemke where Newton stalls)."""
     zero = np.zeros(problem.points)

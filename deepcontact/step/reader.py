@@ -6,6 +6,7 @@ finite (integers in range), and a problem is an InputError naming the file and l
 validate=True the XSD is checked in the same pass. step.reader_lxml is the slow reference that
 the tests hold this reader to, value for value.
 """
+import os
 from functools import lru_cache
 
 from .._box2d import StepFileError, StepSchema, read_step_file
@@ -22,7 +23,7 @@ def step_schema() -> StepSchema:
     return StepSchema(schema_path("step"))
 
 
-def read_step(path, validate=True):
+def read_step(path: str | os.PathLike, validate: bool = True) -> tuple[dict, dict, dict]:
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
     try:
         step = read_step_file(str(path), step_schema() if validate else None)

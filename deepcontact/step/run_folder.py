@@ -182,7 +182,8 @@ def simulation_folder(run_dir, name, manifest_path):
     return Path(run_dir) / name
 
 
-def read_run(run_dir, solver=None, purpose=None, unfinished=False):
+def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str | None = None,
+             unfinished: bool = False) -> Run:
     """A finished run: its manifest and each simulation's step files, counted against it.
 
     solver: refuse runs whose manifest names another solver ("box2d" or "pgs"); purpose says

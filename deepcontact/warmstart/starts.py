@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..grid.interpolate import bilinear
+from ..grid.spec import GridSpec
 from ..plugins import PluginError, Registry
 from ..grid.splat import splat_points
 
@@ -243,7 +244,7 @@ class Checked:
         return StartValue(normal, tangent, seconds)
 
 
-def make_starts(names, spec=None, predictor=None):
+def make_starts(names: list[str], spec: GridSpec | None = None, predictor: object = None) -> dict:
     """{name: start} for the names asked for: registered built-ins, installed plug-ins (entry
     points in group deepcontact.starts) or package.module:Name. Each factory gets the arguments
     it declares: spec (the grid) and predictor (the trained model). Plug-ins are checked on every
