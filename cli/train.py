@@ -106,7 +106,10 @@ def train(dataset, out, model, model_alias, targets, loss, optimizer, lr, weight
 
     def report(row):
         if not quiet:
-            extra = "".join(f" {k}={row[k]:.4g}" for k in sorted(row) if k.startswith("val"))
+            def shown(k):   # each contact RMSE beside what predicting 0 scores (the bar to clear)
+                zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
+                return f" {k}={row[k]:.4g}" + (f" (0 scores {zero:.4g})" if zero is not None and k != "val_loss" else "")
+            extra = "".join(shown(k) for k in sorted(row) if k.startswith("val") and not k.startswith("val_zero"))
             click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 

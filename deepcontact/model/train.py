@@ -328,7 +328,10 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
         trainer = Trainer(ds, cfg, net_cfg, device, world=world, rank=rank, kept=kept)
         if ck is not None:
             trainer.resume_from(ck)
-        elif rank == 0:
+        if rank == 0 and not len(trainer.val_idx):
+            log.warning("the dataset has no validation samples: best.pt is the epoch of the lowest training loss, "
+                        "and nothing says whether the network generalises (dc rasterize --validation F)")
+        if ck is None and rank == 0:
             params, _ = parameter_count(trainer.model)
             log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
                      len(trainer.train_idx), len(trainer.val_idx))
@@ -480,7 +483,23 @@ class Trainer:
         names = {0: "normal", 1: "tangent"}
         for j, col in enumerate(self.label_columns):
             out[f"val_contact_rmse_{names[col]}"] = float(math.sqrt(sq[j] / max(count, 1)))
+        out.update(self.zero_baseline())
         return out
+
+    def zero_baseline(self):
+        """The contact-point RMSE of predicting 0 on the validation samples, per target: what a
+        network must beat to have learned anything (computed once)."""
+        if not hasattr(self, "_zero"):
+            names = {0: "normal", 1: "tangent"}
+            sq, count = np.zeros(len(self.label_columns)), 0
+            for i in self.val_idx:
+                _, imp = self.ds.contacts(int(i))
+                if len(imp):
+                    sq += (np.array(imp)[:, self.label_columns] ** 2).sum(axis=0)
+                    count += len(imp)
+            self._zero = {f"val_zero_rmse_{names[col]}": float(math.sqrt(sq[j] / max(count, 1)))
+                          for j, col in enumerate(self.label_columns)}
+        return self._zero
 
     def checkpoint(self, epoch, dataset_path):
         """Everything a run needs to continue exactly: plain containers and tensors only."""
@@ -556,6 +575,7 @@ def plot_losses(history, stem):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
     fig, ax = plt.subplots(figsize=(6, 4))
     epochs = [r["epoch"] for r in history]
     ax.plot(epochs, [r["train_loss"] for r in history], label="training")
@@ -564,6 +584,7 @@ def plot_losses(history, stem):
     if any(r["train_loss"] > 0 for r in history):   # (a log axis needs a positive value)
         ax.set_yscale("log")
     ax.set_xlabel("epoch")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # (epochs are whole)
     ax.set_ylabel("loss")
     ax.legend()
     ax.grid(alpha=0.3)
