@@ -1,4 +1,5 @@
-"""dc export: a run's step problems in FCLIB's HDF5 format, for other contact solvers."""
+"""dc export: a run's step problems in FCLIB's HDF5 format, for other contact solvers, or the run
+as flat tables (CSV, Parquet)."""
 import click
 
 from . import options
@@ -7,9 +8,12 @@ from . import options
 @click.command()
 @click.argument("run_dir", metavar="RUN", type=click.Path())
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
-              help="Folder to write (seed-NNNNNN/step-NNNNNN.hdf5 and index.json).")
+              help="Folder to write (seed-NNNNNN/step-NNNNNN.hdf5 and index.json; or bodies and contacts tables).")
 @click.option("--every", type=options.count(min=1), default=1, show_default=True,
               help="Export every N-th step (steps without contacts are skipped).")
+@click.option("--format", "fmt", type=click.Choice(["fclib", "csv", "parquet"]), default="fclib", show_default=True,
+              help="fclib: each step's contact problem (HDF5); csv or parquet: the run as two flat tables, "
+                   "bodies and contacts, one row per body (contact point) per step (Parquet needs pyarrow).")
 @click.option("--solution", type=click.Choice(["reference", "recorded", "none"]), default="reference",
               show_default=True,
               help="Store as /solution: the exact reference (Newton, residual < 1e-12 where it gets "
@@ -17,7 +21,7 @@ from . import options
 @options.overwrite
 @options.verbosity
 @options.command("export")
-def export(run_dir, out, every, solution, overwrite, verbose, quiet):
+def export(run_dir, out, fmt, every, solution, overwrite, verbose, quiet):
     """Write each step's contact problem as an FCLIB local problem (2D).
 
     Each file holds W (the Delassus matrix J M^-1 J^T of the contact points
@@ -32,12 +36,25 @@ def export(run_dir, out, every, solution, overwrite, verbose, quiet):
       dc export runs/pile -o runs/pile-fclib --every 10
       dc export runs/pyramid -o runs/pyramid-fclib --solution recorded
       /usr/bin/python3 -c "import h5py; print(list(h5py.File('runs/pile-fclib/seed-000000/step-000010.hdf5')))"
+      dc export runs/pile -o runs/pile-table --format csv
+      python -c "import pandas; print(pandas.read_csv('runs/pile-table/contacts.csv').describe())"
     """
     from deepcontact.solver.fclib import export_run
     from deepcontact.step.run_folder import read_run
 
+    options.refuse_inapplicable([("solution", fmt == "fclib", "only applies to --format fclib")])
     total = len(read_run(run_dir).step_files)
     bar = options.progress_bar(quiet, total, "step", "export")
+    if fmt != "fclib":
+        from deepcontact.step.table import export_tables
+        try:
+            rows = export_tables(run_dir, out, fmt=fmt, every=every, overwrite=overwrite, progress=bar)
+        finally:
+            bar.close()
+        if not quiet:
+            click.echo(f"{out}: bodies.{fmt} ({rows['bodies']:,} rows), contacts.{fmt} ({rows['contacts']:,} rows)",
+                       err=True)
+        return
     try:
         index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite, progress=bar)
     finally:

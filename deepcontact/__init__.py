@@ -17,6 +17,7 @@ __version__ = "0.1.0"
 _PUBLIC = {
     "read_run": ("deepcontact.step.run_folder", "read_run"),
     "read_step": ("deepcontact.step.reader", "read_step"),
+    "run_tables": ("deepcontact.step.table", "run_tables"),
     "read_scene": ("deepcontact.scene.xml", "read_scene"),
     "generate": ("deepcontact.scene.generators", "generate"),
     "simulate_run": ("deepcontact.simulate.run", "run"),   # (not "simulate": that is the subpackage)

@@ -96,6 +96,7 @@ INAPPLICABLE = [
     (["render", "{run}", "-o", "{tmp}/p.gif"], "--sample", "2"),
     (["render", "{data}", "-o", "{tmp}/p.png"], "--color-by", "speed"),
     (["render", "{step}", "-o", "{tmp}/p.png"], "--threads", "2"),
+    (["export", "{run}", "--format", "csv", "-o", "{tmp}/t"], "--solution", "recorded"),
 ]
 
 

@@ -57,3 +57,34 @@ def test_training_shows_the_predict_zero_bar_and_warns_of_an_empty_split(run, da
                   "-o", alone).exit_code == 0
     r = invoke("train", alone, "--epochs", "1", "--width", "4", "--depth", "2", "-o", tmp_path / "m2")
     assert r.exit_code == 0 and "no validation samples" in r.stderr, r.stderr
+
+
+def test_a_run_as_flat_tables(run, tmp_path):
+    import numpy as np
+    import deepcontact
+    from deepcontact.step.reader import read_step
+    r = invoke("export", run, "--format", "csv", "--every", "10", "-q", "-o", tmp_path / "t")
+    assert r.exit_code == 0, r.stderr
+    with open(tmp_path / "t" / "contacts.csv") as f:
+        contacts = list(csv.DictReader(f))
+    with open(tmp_path / "t" / "bodies.csv") as f:
+        bodies = list(csv.DictReader(f))
+    bodies_api, contacts_api = deepcontact.run_tables(run, every=10)
+    assert len(bodies) == len(bodies_api["seed"]) and len(contacts) == len(contacts_api["seed"]) > 0
+    # every value is the step file's, exactly
+    last = contacts[-1]
+    step = run / f"seed-{int(last['seed']):06d}" / f"step-{int(last['step']):06d}.xml"
+    _, b, c = read_step(step)
+    assert float(last["normal_impulse"]) == float(c["normal_impulse"][-1])
+    assert float(last["position_y"]) == float(c["position"][-1, 1])
+    assert np.array_equal(bodies_api["velocity_x"][-len(b["index"]):], b["velocity"][:, 0])
+    for column in ("seed", "step", "time", "normal_x", "normal_y", "tangent_impulse", "friction"):
+        assert column in contacts[0]
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:   # the optional extra: without it, one line saying how to get it
+        r = invoke("export", run, "--format", "parquet", "-o", tmp_path / "p")
+        assert r.exit_code == 1 and "pyarrow" in r.stderr and not (tmp_path / "p").exists()
+    else:
+        r = invoke("export", run, "--format", "parquet", "--every", "10", "-q", "-o", tmp_path / "p")
+        assert r.exit_code == 0 and (tmp_path / "p" / "contacts.parquet").exists()
