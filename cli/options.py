@@ -135,11 +135,12 @@ class SeedRange(Parsed):
 
 
 class Shard(Parsed):
-    """I/N: every N-th item, starting at the I-th (0-based)."""
+    """I/N: every N-th item, starting at the I-th, counted from 0 (I = 0 .. N-1: a job array's task
+    index as it comes)."""
     name = "I/N"
 
     def parse(self, text):
-        problem = "must look like I/N with 0 <= I < N"
+        problem = "must look like I/N with 0 <= I < N (I counts from 0: --shard 0/4 ... --shard 3/4)"
         i, n = _two_whole_numbers(r"\s*(\d+)\s*/\s*(\d+)\s*", text, problem)
         if not i < n:
             raise ValueError(problem)

@@ -50,7 +50,9 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--steps", type=options.count(min=1), help="Override the scene's number of steps.")
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Random seed.")
 @click.option("--seeds", type=options.SeedRange(), help="Simulate every seed from A to B (inclusive).")
-@click.option("--shard", type=options.Shard(), help="Only every N-th seed, starting at the I-th (0-based).")
+@click.option("--shard", type=options.Shard(),
+              help="Only every N-th seed, starting at the I-th, I counted from 0: --seeds 0..149 --shard 0/4 keeps "
+                   "0, 4, 8, ... (a job array's task index; docs/scaling.md).")
 @click.option("--param", "params", multiple=True, type=options.KeyValue(),
               help="A generator parameter (repeatable); see --list.")
 @click.option("--iterations", type=options.count(), help="Override Box2D's velocity iterations per step.")

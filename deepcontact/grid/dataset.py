@@ -302,7 +302,9 @@ def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, prog
         outside = _write_arrays(tmp, sims, spec, s, jobs,
                                 progress(sum(len(sim.files) for sim in sims)) if progress is not None else None)
         if outside:
-            log.info("%d contact points lie outside the grid (interpolation clamps them to its edge)", outside)
+            log.info("%d contact points lie outside the grid: on a boxed scene these are the contacts on the box's "
+                     "walls, on or just beyond its edge where the grid ends (expected; interpolation clamps them "
+                     "to the edge)", outside)
         metadata = _metadata(out.resolve(), sims, manifests, spec, which, s, outside)
         atomic.write_text(tmp / "metadata.json", json.dumps(metadata, indent=2) + "\n")
     return metadata
