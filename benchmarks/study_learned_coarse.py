@@ -1,5 +1,5 @@
-"""Does a learned coarse space help PGS? (issue 16, item 6: "a learned coarse space, aggregation
-weights trained through the solve on the residual").
+"""Does a learned coarse space help PGS? A coarse space whose aggregation weights are trained
+through the solve, on the residual it leaves.
 
 The two-level correction: the step's contact points are grouped into square cells of --cell
 metres (the aggregates); each aggregate has one normal and one tangent mode, a pattern of impulse
