@@ -1,11 +1,11 @@
 """dc validate: step and scene files against schemas/."""
-import os
 import sys
 from itertools import groupby
 from pathlib import Path
 
 import click
 
+from deepcontact import atomic
 from deepcontact.errors import InputError, count
 
 from . import options
@@ -17,24 +17,12 @@ def is_xml(path):
     return path.name.endswith((".xml", ".xml.gz")) and not path.name.startswith(".")
 
 
-def _tree(top):
-    """Every path under top, walked with a stack (a tree of any depth; rglob recurses), folder
-    links not followed."""
-    stack = [top]
-    while stack:
-        with os.scandir(stack.pop()) as it:
-            for e in it:
-                if e.is_dir(follow_symlinks=False):
-                    stack.append(Path(e.path))
-                yield Path(e.path)
-
-
 def xml_files(paths):
     """Every *.xml and *.xml.gz file named or under a named folder. Anything by such a name that
     is not a regular file (a FIFO would block the parser forever) is refused."""
     for p in map(Path, paths):
         if p.is_dir():
-            found = sorted(q for q in _tree(p) if is_xml(q))
+            found = [q for q in (p / r for r in atomic.entries(p)) if is_xml(q)]   # (any depth, sorted)
         elif p.exists():
             found = [p]
         else:

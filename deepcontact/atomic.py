@@ -142,20 +142,23 @@ def _remove_quietly(path):
 # --- What an output folder holds: its record ----------------------------------------------------
 
 def entries(folder):
-    """Every entry under folder, relative and ``/``-separated, folders ending in ``/``, sorted;
-    symbolic links are listed, never followed."""
-    out = []
-
-    def walk(d, rel):
+    """Every entry under folder, relative and ``/``-separated, folders ending in ``/``, in sorted
+    depth-first order; symbolic links are listed, never followed. Walked with a stack, not by
+    recursion (os.walk and rglob recurse): a tree of any depth."""
+    def listing(d):
         with os.scandir(d) as it:
-            for e in sorted(it, key=lambda e: e.name):
-                r = f"{rel}{e.name}"
-                if e.is_dir(follow_symlinks=False):
-                    out.append(r + "/")
-                    walk(e.path, r + "/")
-                else:
-                    out.append(r)
-    walk(folder, "")
+            return iter(sorted(((e.name, e.path, e.is_dir(follow_symlinks=False)) for e in it)))
+    out, stack = [], [(listing(folder), "")]
+    while stack:
+        found, rel = stack[-1]
+        entry = next(found, None)
+        if entry is None:
+            stack.pop()
+            continue
+        name, full, is_dir = entry
+        out.append(f"{rel}{name}/" if is_dir else f"{rel}{name}")
+        if is_dir:
+            stack.append((listing(full), f"{rel}{name}/"))
     return out
 
 
@@ -164,7 +167,8 @@ def read_record(folder):
     ``temporary``, or None where there is none (or it is not one of ours)."""
     p = Path(folder) / RECORD
     try:
-        if not stat.S_ISREG(os.lstat(p).st_mode) or os.lstat(p).st_size > 1 << 30:
+        st = os.lstat(p)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > 1 << 30:
             return None
         rec = json.loads(p.read_bytes())
     except (OSError, ValueError, UnicodeDecodeError):
@@ -181,23 +185,13 @@ def _write_record(folder, command, state, files=(), temporary=()):
 
 
 class Owned:
-    """What one kind of output is called (``what``); which entries are the command's own is
-    decided by the record the command left inside the folder (`first_foreign`)."""
+    """What one kind of output is called (``what``) and, for the reader, what it holds
+    (``patterns``); which entries are the command's own is decided by the record the command left
+    inside the folder, never by these names."""
 
     def __init__(self, what, patterns=()):
         self.what = what
-        self.patterns = list(patterns)   # what it holds, for the reader (never used to decide)
-
-    def first_foreign(self, folder, command):
-        """The first path under folder (sorted) that dc `command` did not write there, or None."""
-        rec = read_record(folder)
-        if rec is None or rec["state"] != "done" or rec["command"] != command:
-            return None, rec
-        own = set(rec["files"]) | {RECORD}
-        for r in entries(folder):
-            if r not in own:
-                return os.path.join(folder, r.rstrip("/")), rec
-        return None, rec
+        self.patterns = list(patterns)
 
 
 class _InPlace:
@@ -358,7 +352,7 @@ def folder(path, command="dc"):
         with interrupts.held():
             # the journal first: from here on, a kill at any instruction is finished or undone by
             # the next command (recover), which finds the earlier output or the new one, whole
-            old = Path(tempfile.mktemp(prefix=f".{short_name(path.name)}.old-{os.getpid()}-", dir=path.parent))
+            old = tmp.with_name(tmp.name.replace(".partial-", ".old-", 1))   # (unique as tmp's name is)
             write_text(beside(path, "swap"), json.dumps({"old": old.name, "new": tmp.name}) + "\n")
             _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
             if os.path.lexists(path):
@@ -413,13 +407,15 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
         if existing and not existing_ok:
             if not overwrite:
                 raise InputError(f"output folder is not empty; {hint}", path)
-            foreign, rec = owned.first_foreign(path, command)
+            rec, held = read_record(path), entries(path)
             if rec is None or rec["state"] != "done":
-                first = os.path.join(path, entries(path)[0].rstrip("/"))
                 raise InputError(f"not written by dc {command}: refusing to replace {path} (it holds no record "
-                                 f"{RECORD} of a dc output; remove it yourself or choose another output)", first)
+                                 f"{RECORD} of a dc output; remove it yourself or choose another output)",
+                                 path / held[0].rstrip("/"))
             if rec["command"] != command:
                 raise InputError(f"written by dc {rec['command']}, not dc {command}: refusing to replace it", path)
+            own = set(rec["files"]) | {RECORD}
+            foreign = next((path / r.rstrip("/") for r in held if r not in own), None)
             if foreign is not None:
                 raise InputError(f"not written by dc {command}: refusing to replace {path} (--overwrite only "
                                  f"replaces a {owned.what} holding nothing but what dc {command} wrote)", foreign)
