@@ -20,7 +20,7 @@ from . import options
                    f"package.module:Name (docs/api.md).")
 @click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
               help="A checkpoint from dc train (the starts cnn, guarded, cnn-new).")
-@options.deprecated_alias("--model", "--checkpoint", "evaluate")
+@options.deprecated_alias("--model", "--checkpoint", "model")
 @click.option("--arch", type=options.PluginName(NETWORKS),
               help="Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
@@ -57,8 +57,8 @@ from . import options
 @options.overwrite
 @options.verbosity
 @options.command("evaluate")
-def evaluate(runs, out, starts, model, model_alias, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-             closed_loop, steps, relaxation, accelerate, budgets, jobs, threads, max_memory, overwrite, verbose,
+def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
+             seed, closed_loop, steps, relaxation, accelerate, budgets, jobs, threads, max_memory, overwrite, verbose,
              quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
@@ -90,7 +90,6 @@ def evaluate(runs, out, starts, model, model_alias, arch, tolerance, max_iterati
     from deepcontact.evaluate.report import REPORT_FILES
 
     from deepcontact.warmstart.starts import trait
-    model = options.take_alias(model, model_alias, "--model", "--checkpoint")
     if "all" in accelerate:
         accelerate = list(ACCELERATIONS)
     learned = [n for n in starts if trait(n, "needs_model")]
@@ -100,7 +99,6 @@ def evaluate(runs, out, starts, model, model_alias, arch, tolerance, max_iterati
         ("every", not closed_loop, "applies to replay; --closed-loop steps every step"),
         ("max_memory", not closed_loop, "applies to replay's convergence histories, not --closed-loop"),
         ("model", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
-        ("model_alias", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
         ("arch", bool(model), "only applies with --checkpoint"),
         ("cell", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("smoothing", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
@@ -142,12 +140,12 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
         from deepcontact.model.inference import Predictor
         predictor = Predictor(model, threads=threads)
         spec = predictor.spec
-    use_threads(threads)
     measured = protocol(threads, jobs)   # (the load average now, before the work adds to it)
     if "sph" in names and spec is None:
         sims, _ = collect(runs)
         spec, _ = grid_for(sims, cell, smoothing, kernel, True)
     table = make_starts(names, spec=spec, predictor=predictor)
+    use_threads(threads)   # (after the starts: a plug-in start may bring torch with it)
     if closed_loop:
         return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
                                quiet, accelerations, measured, jobs)
@@ -184,13 +182,11 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
                                       tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
                                       steps=steps, relaxations=relaxations, accelerations=accelerations)
     bar.close()
-    if len(sims) == 1:
-        results = per_simulation[0]
-    else:   # the pooled rows first, then each simulation's, named by its run and seed
-        results = pooled(per_simulation) + [
-            dataclasses.replace(r, start=f"{r.start} · {run} seed {s.seed}")
-            for (run, s), rows in zip(sims, per_simulation) for r in rows]
+    results = plotted = per_simulation[0] if len(sims) == 1 else pooled(per_simulation)
+    if len(sims) > 1:   # the pooled rows first (plotted), then each simulation's, named by its run and seed
+        results = plotted + [dataclasses.replace(r, start=f"{r.start} · {run} seed {s.seed}")
+                             for (run, s), rows in zip(sims, per_simulation) for r in rows]
     what = (f"{scenes[0].name}, {len(sims)} simulation{'s' if len(sims) != 1 else ''} of "
             f"{', '.join(map(str, runs))}")
     click.echo(write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured,
-                                 simulations=len(sims)))
+                                 simulations=len(sims), plotted=plotted))

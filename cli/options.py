@@ -168,9 +168,10 @@ overwrite = click.option("--overwrite", is_flag=True,
                          help="Replace existing output: the new output is built beside it and swapped in "
                          "only when complete, so a failed or interrupted run keeps the old one.")
 threads = click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
-                       help="torch threads per process for timed work (prediction, training). More than one "
-                       "spins against other processes: on a busy machine the times move by up to 100x. "
-                       "Recorded in every report.")
+                       help="torch threads per process (prediction, training). More than one spins against other "
+                       "processes, so on a busy machine times move by up to 100x; and the count changes the order "
+                       "of float sums, so training repeats exactly at one count. Never the machine's cores; "
+                       "recorded in every report and checkpoint.")
 jobs = click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
                     help="Worker processes.")
 
@@ -197,8 +198,7 @@ def command(name):
         @functools.wraps(f)
         def wrapper(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
-            for message in click.get_current_context().meta.get("dc_deprecated", []):
-                logging.getLogger("deepcontact.cli").warning("%s", message)
+            _take_aliases(name, kwargs)
             interrupts.install()
             atomic.completed.clear()
 
@@ -271,11 +271,10 @@ def check_grid_options(kernel, cell, smoothing):
 def refuse_inapplicable(rules):
     """One rule for every command: an option the user gave that does not apply to the chosen mode
     is refused (exit 2, naming it and why) rather than ignored. rules: (parameter name, whether it
-    applies, why not). Defaults never count: only what was typed (or set in the environment)."""
-    from click.core import ParameterSource
+    applies, why not). Defaults never count: only what was given (was_given)."""
     ctx = click.get_current_context()
     for name, applies, why in rules:
-        if applies or ctx.get_parameter_source(name) in (None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP):
+        if applies or not was_given(name):
             continue
         param = next(p for p in ctx.command.params if p.name == name)
         flag = max(param.opts, key=len)
@@ -284,23 +283,37 @@ def refuse_inapplicable(rules):
         raise click.UsageError(f"{flag} {why}")
 
 
-def deprecated_alias(old, new, command):
-    """A hidden option kept for an old spelling: it still works and says what replaces it."""
-    def warn(ctx, param, value):
-        if value is not None:   # (said once logging is set up, by the command's wrapper)
-            ctx.meta.setdefault("dc_deprecated", []).append(f"{old} is deprecated in dc {command}: use {new}")
-        return value
-    return click.option(old, f"{old.lstrip('-').replace('-', '_')}_alias", hidden=True, expose_value=True,
-                        callback=warn, help=f"Deprecated: {new}.")
-
-
-def take_alias(value, alias, name, new):
-    """The value of an option or of its deprecated alias (not both)."""
-    if alias is not None:
+def deprecated_alias(old, new, target):
+    """A hidden option kept for an old spelling of the option whose parameter is `target`: given,
+    it stands for that option (the command's wrapper puts its value there and says it is
+    deprecated); given with the new spelling, it is refused."""
+    def keep(ctx, param, value):
         if value is not None:
-            raise click.UsageError(f"{name} is the old spelling of {new}: give one")
-        return alias
-    return value
+            ctx.meta.setdefault("dc_aliases", []).append((old, new, target, value))
+        return value
+    return click.option(old, f"{old.lstrip('-').replace('-', '_')}_alias", hidden=True, expose_value=False,
+                        callback=keep, help=f"Deprecated: {new}.")
+
+
+def _take_aliases(name, kwargs):
+    """The deprecated spellings given, moved to the options they stand for (and said)."""
+    from click.core import ParameterSource
+    ctx = click.get_current_context()
+    for old, new, target, value in ctx.meta.get("dc_aliases", []):
+        if ctx.get_parameter_source(target) not in (ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP, None):
+            raise click.UsageError(f"{old} is the old spelling of {new}: give one")
+        logging.getLogger("deepcontact.cli").warning("%s is deprecated in dc %s: use %s", old, name, new)
+        kwargs[target] = value
+        ctx.meta.setdefault("dc_given", set()).add(target)
+
+
+def was_given(name):
+    """Whether the user gave the option whose parameter is `name` (typed, from the environment, or
+    by a deprecated spelling), not left it at its default."""
+    from click.core import ParameterSource
+    ctx = click.get_current_context()
+    return name in ctx.meta.get("dc_given", ()) or ctx.get_parameter_source(name) not in (
+        None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
 
 
 def load_network(arch):

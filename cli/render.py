@@ -44,15 +44,15 @@ def kind_of(path):
 @click.option("--sample", type=options.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
 @click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
               help="[dataset] A checkpoint from dc train: its prediction and error beside each label.")
-@options.deprecated_alias("--model", "--checkpoint", "render")
+@options.deprecated_alias("--model", "--checkpoint", "model")
 @click.option("--arch", type=options.PluginName(NETWORKS),
               help="[dataset] Load this network plug-in for a checkpoint that needs it.")
 @options.threads
 @options.overwrite
 @options.verbosity
 @options.command("render")
-def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, model_alias,
-           arch, threads, overwrite, verbose, quiet):
+def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, arch,
+           threads, overwrite, verbose, quiet):
     """Draw INPUT: a step file, a run, or a sample of a grid dataset.
 
     \b
@@ -79,7 +79,6 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
     """
     from deepcontact import atomic
 
-    model = options.take_alias(model, model_alias, "--model", "--checkpoint")
     kind = kind_of(input_path)
     suffix = Path(out).suffix.lower()
     movie = suffix in (".gif", ".mp4", ".webm", ".html")
@@ -87,7 +86,7 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
         [(name, kind == "run", "only applies to a run") for name in ("seed", "every", "compare")]
         + [("fps", kind == "run" and movie, "only applies to a run drawn as a movie or a viewer")]
         + [(name, kind == "dataset", "only applies to a grid dataset's sample")
-           for name in ("sample", "model", "model_alias")]
+           for name in ("sample", "model")]
         + [("arch", model is not None, "only applies with --checkpoint")]
         + [(name, kind != "dataset", "does not apply to a grid dataset's sample (it draws grid images)")
            for name in ("size", "window", "no_contacts", "color_by")]
@@ -107,9 +106,8 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
         raise click.BadParameter(f"a window narrower than {MIN_WINDOW:g} m shows nothing a step file resolves",
                                  param_hint="'--window'")
     out = Path(out)
-    atomic.check_replaceable(out)
+    atomic.check_replaceable(out)   # before any work or lock: a FIFO, device or folder is never replaced
     with atomic.locked(out):
-        atomic.check_replaceable(out)   # a FIFO, a device or a folder is never replaced by a picture
         if out.exists() and not overwrite:
             raise InputError("file exists; use --overwrite to replace it", out)
         if kind == "step":

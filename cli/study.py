@@ -102,7 +102,7 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, overwrite, verb
 @click.option("--epochs", type=options.count(min=1), default=10, show_default=True)
 @click.option("--arch", "model", type=click.Choice(["thesis", "fcn"]), default="fcn", show_default=True,
               help="The network trained three times.")
-@options.deprecated_alias("--model", "--arch", "study maps")
+@options.deprecated_alias("--model", "--arch", "model")
 @click.option("--width", type=options.count(min=1, max=4096), default=16, show_default=True, help="[fcn] Channels.")
 @click.option("--loss", type=click.Choice(["masked", "contacts", "mse", "solver"]), default="masked",
               show_default=True)
@@ -110,7 +110,7 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, overwrite, verb
 @options.overwrite
 @options.verbosity
 @options.command("study maps")
-def maps(dataset, out, epochs, model, model_alias, width, loss, seed, overwrite, verbose, quiet):
+def maps(dataset, out, epochs, model, width, loss, seed, overwrite, verbose, quiet):
     """One map or two: the same network trained on both impulse maps, and one per map.
 
     Trains three runs (joint, normal-only, tangent-only) into OUTPUT and
@@ -124,9 +124,6 @@ def maps(dataset, out, epochs, model, model_alias, width, loss, seed, overwrite,
     """
     from deepcontact import atomic
     from deepcontact.studies.maps import MAP_FILES, compare, write_comparison
-
-    if model_alias is not None:   # (--arch has a default: the old spelling wins when given)
-        model = model_alias
 
     with atomic.output_folder(out, MAP_FILES, overwrite, command="study maps") as work:
         rows = compare(dataset, work, model=model, fcn_width=width, epochs=epochs, loss=loss, optimizer="adam",

@@ -27,7 +27,7 @@ def torch_device(ctx, param, value):
 @click.option("--arch", "model", type=options.PluginName(NETWORKS), default="fcn", show_default=True,
               help="The network: thesis (the thesis's CNN, Table 5.1), fcn (a fully convolutional "
                    "encoder-decoder), an installed plug-in's name, or package.module:Name (docs/api.md).")
-@options.deprecated_alias("--model", "--arch", "train")
+@options.deprecated_alias("--model", "--arch", "model")
 @click.option("--targets", type=options.CommaList(), default="normal_impulse,tangent_impulse", show_default=True,
               help="Label channels to learn: both maps at once, or one (train one model per map).")
 @click.option("--loss", type=click.Choice(["masked", "contacts", "mse", "solver"]), default="masked",
@@ -46,9 +46,6 @@ def torch_device(ctx, param, value):
 @click.option("--patience", type=options.count(), default=0, show_default=True,
               help="Stop after this many epochs without improvement (0: never).")
 @click.option("--seed", type=options.count(), default=0, show_default=True)
-@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
-              help="CPU threads for torch. The count changes the order of float sums, so the same seed trains "
-              "the same weights at the same count: the default is fixed, never the machine's cores.")
 @click.option("--device", default="cpu", show_default=True, callback=torch_device,
               help="torch device, e.g. cuda when a GPU is present.")
 @click.option("--width", "fcn_width", type=options.count(min=1, max=4096), default=16, show_default=True,
@@ -57,11 +54,12 @@ def torch_device(ctx, param, value):
               help="[fcn] Down-sampling levels.")
 @click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
 @click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")
+@options.threads
 @options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("train")
-def train(dataset, out, model, model_alias, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
+def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
           threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, max_memory, overwrite, verbose,
           quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
@@ -81,21 +79,13 @@ def train(dataset, out, model, model_alias, targets, loss, optimizer, lr, weight
     """
     from deepcontact.model.train import TrainConfig, train as run
 
-    ctx = click.get_current_context()
-    from click.core import ParameterSource
-    if model_alias is not None:
-        if ctx.get_parameter_source("model") != ParameterSource.DEFAULT:
-            raise click.UsageError("--model is the old spelling of --arch: give one")
-        model = model_alias
-        ctx.params["model"] = model
-
     if overwrite and resume:
         raise click.UsageError("--resume and --overwrite contradict each other")
     if not resume:   # (with --resume, the run's own settings decide: train() compares what was given)
         options.refuse_inapplicable([
-            ("no_final_relu", model == "thesis", "only applies to --model thesis (the FCN has no final ReLU)"),
-            ("fcn_width", model == "fcn", "only applies to --model fcn"),
-            ("fcn_depth", model == "fcn", "only applies to --model fcn"),
+            ("no_final_relu", model == "thesis", "only applies to --arch thesis (the FCN has no final ReLU)"),
+            ("fcn_width", model == "fcn", "only applies to --arch fcn"),
+            ("fcn_depth", model == "fcn", "only applies to --arch fcn"),
             ("lr", optimizer == "adam", "only applies to --optimizer adam (SGD follows the thesis's schedule)"),
             ("solver_sweeps", loss == "solver", "only applies to --loss solver"),
         ])
@@ -113,12 +103,11 @@ def train(dataset, out, model, model_alias, targets, loss, optimizer, lr, weight
             click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 
-    fields = {"model": "model", "model_alias": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
+    fields = {"model": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
               "weight_decay": "weight_decay", "batch_size": "batch_size", "patience": "patience", "seed": "seed",
               "no_final_relu": "final_relu", "fcn_width": "fcn_width", "fcn_depth": "fcn_depth",
               "solver_sweeps": "solver_sweeps"}
-    given = {field: getattr(cfg, field) for param, field in fields.items()
-             if ctx.get_parameter_source(param) != click.core.ParameterSource.DEFAULT}
+    given = {field: getattr(cfg, field) for param, field in fields.items() if options.was_given(param)}
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
