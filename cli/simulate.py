@@ -138,9 +138,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     source.check_memory(1, max_memory)
     if write_scene:
         import os
-        atomic.check_replaceable(write_scene)
+        atomic.check_replaceable(write_scene)   # before the lock file: a device or a FIFO is never replaced
         with atomic.locked(write_scene):
-            atomic.check_replaceable(write_scene)   # a device or a FIFO is never replaced by a file
             if os.path.exists(write_scene) and not overwrite:
                 raise InputError("file exists; use --overwrite to replace it", write_scene)
             atomic.write_bytes(write_scene, to_xml(source(seed)))

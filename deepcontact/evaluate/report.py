@@ -75,10 +75,11 @@ def baseline(summary):
 
 
 def _oracle(name):
+    from ..errors import InputError
     from ..warmstart.starts import trait
     try:
         return trait(_base(name), "oracle")
-    except Exception:   # (a label that is no registered start: not an oracle)
+    except InputError:   # (a label that names no start it can load: not an oracle)
         return False
 
 
@@ -256,12 +257,12 @@ def _save(fig, stem):
     plt.close(fig)
 
 
-def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured=None, simulations=1):
-    """closed-loop.md (and .html), .json and the plot into the folder out; returns the table.
-    With several simulations, results hold the pooled rows first (one per start), then each
-    simulation's; the plot shows the pooled ones."""
+def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured=None, simulations=1,
+                      plotted=None):
+    """closed-loop.md (and .html), .json, summary.csv and the plot into the folder out; returns the
+    table. With several simulations, results hold the pooled rows first, then each simulation's;
+    plotted: the rows the plot shows (default all)."""
     text = loop_table(results)
-    rows_per_simulation = len(results) // (simulations + 1) if simulations > 1 else len(results)
     page = (f"# Closed loop: {what}\n\n"
             f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
@@ -278,7 +279,7 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
             + "\n\n" + text + "\n\n" + (protocol_line(measured) + "\n\n" if measured else "")
             + "![closed loop](closed-loop.png)\n")
     atomic.write_text(out / "closed-loop.md", page)
-    loop_plot(results[:rows_per_simulation], out / "closed-loop")
+    loop_plot(results if plotted is None else plotted, out / "closed-loop")
     atomic.write_text(out / "closed-loop.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                                    pictures=("closed-loop.png",)))
     buf = io.StringIO()

@@ -30,7 +30,8 @@ from ..grid.spec import GridSpec
 from ..resources import check_memory
 from . import losses
 from .arch import NETWORKS
-from .networks import build, check_config, check_network, parameter_count, shape_problem, training_memory
+from .networks import (CONFIG_LIMITS, build, check_config, check_network, parameter_count, shape_problem,
+                       training_memory)
 
 log = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
@@ -175,8 +176,9 @@ def checkpoint_problem(ck):
 
 # The training options' ranges, as the CLI takes them: (low, high), inclusive; None: open.
 _RANGES = {"batch_size": (1, 2 ** 31 - 1), "epochs": (1, 2 ** 31 - 1), "patience": (0, 2 ** 31 - 1),
-           "seed": (0, 2 ** 31 - 1), "fcn_width": (1, 4096), "fcn_depth": (1, 12), "solver_sweeps": (0, 2 ** 31 - 1),
-           "lr": (0, None), "weight_decay": (0, None), "momentum": (0, 1), "dropout": (0, 1)}
+           "seed": (0, 2 ** 31 - 1), "solver_sweeps": (0, 2 ** 31 - 1), "lr": (0, None), "weight_decay": (0, None),
+           "momentum": (0, 1), "dropout": (0, 1),
+           **{k: CONFIG_LIMITS[k] for k in ("fcn_width", "fcn_depth")}}   # (the network's own limits)
 _CHOICES = {"optimizer": ("sgd", "adam")}
 
 
@@ -255,7 +257,6 @@ def check_same_run(ck, meta, path, given, threads, dataset):
                 raise OptionError(f"--resume continues the run with its own settings: it has {name} = {own[name]!r}, "
                                   f"not {value!r} (leave the option out, or train a new run)", option)
     if "threads" in ck and ck["threads"] != (threads or 1):
-        from ..errors import OptionError
         raise OptionError(f"the run was trained with --threads {ck['threads']}, and the count changes the arithmetic: "
                           f"resume with --threads {ck['threads']}", "--threads")
 

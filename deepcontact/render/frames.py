@@ -123,18 +123,18 @@ def write_gif(out, frames_iter, fps):
     """An animated GIF, each frame encoded (its own 128-colour palette) and written as it comes:
     memory holds one frame, whatever the run's length."""
     from PIL import Image
-    count = 0
+    written = 0
     with atomic.open_for_write(out) as f:
         for rgb in frames_iter:
             frame = Image.fromarray(rgb).convert("P", palette=Image.ADAPTIVE, colors=128)
             buf = io.BytesIO()
             frame.save(buf, format="GIF", duration=round(1000 / fps), optimize=False)
-            f.write(_gif_frame(buf.getvalue(), first=count == 0))
-            count += 1
-        if not count:
+            f.write(_gif_frame(buf.getvalue(), first=written == 0))
+            written += 1
+        if not written:
             raise InputError("no frames to write", out)
         f.write(b"\x3b")   # the trailer
-    return count
+    return written
 
 
 def _gif_frame(data, first):

@@ -28,8 +28,9 @@ def _flat(arrays):
     return out
 
 
-def step_rows(run_dir: str | os.PathLike, every: int = 1):
-    """(seed, step, time, bodies columns, contacts columns) for every `every`-th step file of a run."""
+def step_tables(run_dir: str | os.PathLike, every: int = 1):
+    """For every `every`-th step file of a run, {"bodies": columns, "contacts": columns}: each
+    {column: 1-D array}, beginning with seed, step and time."""
     run = read_run(run_dir)
     for sim in run.simulations:
         for k, path in enumerate(sim.files):
@@ -37,20 +38,23 @@ def step_rows(run_dir: str | os.PathLike, every: int = 1):
                 continue
             header, bodies, contacts = read_step(path, validate=False)
             check_origin(header, sim.scene if sim.scene is not None else header["scene"], sim.seed, path)
-            yield sim.seed, int(header["index"]), float(header["time"]), _flat(bodies), _flat(contacts)
+            out = {}
+            for name, arrays in (("bodies", bodies), ("contacts", contacts)):
+                n = len(next(iter(arrays.values())))
+                out[name] = {"seed": np.full(n, sim.seed), "step": np.full(n, int(header["index"])),
+                             "time": np.full(n, float(header["time"])), **_flat(arrays)}
+            yield out
 
 
 def run_tables(run_dir: str | os.PathLike, every: int = 1) -> tuple[dict, dict]:
     """The run's bodies and contacts tables, in memory, as {column: numpy array}
     (`pandas.DataFrame(bodies)` makes a data frame of one)."""
-    tables = ({}, {})
-    for seed, step, time, *parts in step_rows(run_dir, every):
-        for table, part in zip(tables, parts):
-            n = len(next(iter(part.values()))) if part else 0
-            for name, values in {"seed": np.full(n, seed), "step": np.full(n, step), "time": np.full(n, time),
-                                 **part}.items():
-                table.setdefault(name, []).append(values)
-    return tuple({k: np.concatenate(v) for k, v in t.items()} for t in tables)
+    parts = {"bodies": {}, "contacts": {}}
+    for step in step_tables(run_dir, every):
+        for name, columns in step.items():
+            for column, values in columns.items():
+                parts[name].setdefault(column, []).append(values)
+    return tuple({k: np.concatenate(v) for k, v in parts[name].items()} for name in ("bodies", "contacts"))
 
 
 def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: str = "csv", every: int = 1,
@@ -61,8 +65,7 @@ def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: st
         raise InputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
     if fmt == "parquet":
         try:
-            import pyarrow
-            import pyarrow.parquet
+            import pyarrow  # noqa: F401
         except ImportError:
             raise InputError("Parquet needs pyarrow, which is not installed: pip install 'deepcontact[parquet]' "
                              "(or pip install pyarrow), or export --format csv") from None
@@ -70,16 +73,14 @@ def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: st
     with atomic.output_folder(out, TABLE_FILES, overwrite, command="export") as work:
         writers = {}
         try:
-            for seed, step, time, bodies, contacts in step_rows(run_dir, every):
+            for step in step_tables(run_dir, every):
                 if progress is not None:
                     progress.update(every)
-                for name, part in (("bodies", bodies), ("contacts", contacts)):
-                    n = len(next(iter(part.values())))
-                    columns = {"seed": np.full(n, seed), "step": np.full(n, step), "time": np.full(n, time), **part}
+                for name, columns in step.items():
                     if name not in writers:
-                        writers[name] = _writer(work / f"{name}.{fmt}", fmt, columns)
-                    writers[name].write(columns, n)
-                    rows[name] += n
+                        writers[name] = (_CSV if fmt == "csv" else _Parquet)(work / f"{name}.{fmt}")
+                    writers[name].write(columns)
+                    rows[name] += len(columns["seed"])
         finally:
             for w in writers.values():
                 w.close()
@@ -87,37 +88,37 @@ def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: st
 
 
 class _CSV:
-    def __init__(self, path, columns):
+    """Rows appended as they come (the values' repr: float32 values as the doubles they are)."""
+
+    def __init__(self, path):
         self.f = open(path, "w", newline="")
         self.w = csv.writer(self.f)
-        self.w.writerow(list(columns))
+        self.header = False
 
-    def write(self, columns, n):
-        text = {k: v.tolist() for k, v in columns.items()}   # (repr of float64/float32 values, exact)
-        self.w.writerows(zip(*text.values()))
+    def write(self, columns):
+        if not self.header:
+            self.w.writerow(list(columns))
+            self.header = True
+        self.w.writerows(zip(*(v.tolist() for v in columns.values())))
 
     def close(self):
         self.f.close()
 
 
 class _Parquet:
-    def __init__(self, path, columns):
-        import pyarrow.parquet as pq
-        self.pq = pq
-        self.writer = None
-        self.path = path
+    """One row group a step; the schema is the first step's."""
 
-    def write(self, columns, n):
+    def __init__(self, path):
+        self.path, self.writer = path, None
+
+    def write(self, columns):
         import pyarrow as pa
+        import pyarrow.parquet as pq
         table = pa.table(columns)
         if self.writer is None:
-            self.writer = self.pq.ParquetWriter(self.path, table.schema)
+            self.writer = pq.ParquetWriter(self.path, table.schema)
         self.writer.write_table(table)
 
     def close(self):
         if self.writer is not None:
             self.writer.close()
-
-
-def _writer(path, fmt, columns):
-    return _CSV(path, columns) if fmt == "csv" else _Parquet(path, columns)
