@@ -6,7 +6,7 @@ import click
 from deepcontact.errors import InputError
 from deepcontact.model.arch import NETWORKS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
-from deepcontact.solver.pgs import ACCELERATIONS
+from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS
 
 from . import options
 
@@ -42,7 +42,7 @@ from . import options
               show_default=True,
               help="Over-relaxation (PSOR) w in (0, 2) for every start, or auto (the w with the fewest sweeps on "
                    "the first 8 hard steps); several, comma-separated, compare them.")
-@click.option("--accelerate", type=options.CommaList(click.Choice(ACCELERATIONS + ("all",)), "none|nncg|newton|subspace[,...]|all"),
+@click.option("--accelerate", type=options.CommaList(options.PluginName(SOLVERS, extra=("all",)), "METHOD[,...]|all"),
               default="none", show_default=True,
               help="On top of the sweeps: none; nncg (conjugate directions); newton (sweeps, then "
                    "semismooth Newton steps on the whole step; float64); subspace (the same, each system "
@@ -91,7 +91,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
 
     from deepcontact.warmstart.starts import trait
     if "all" in accelerate:
-        accelerate = list(ACCELERATIONS)
+        accelerate = list(dict.fromkeys([a for a in accelerate if a != "all"] + list(BUILTIN_SOLVERS)))
     learned = [n for n in starts if trait(n, "needs_model")]
     sph_grid = "sph" in starts and not model
     options.refuse_inapplicable([
@@ -111,8 +111,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
     options.load_network(arch)
     if "sph" in starts and not model:
         options.check_grid_options(kernel, cell, smoothing)
-    if {"newton", "subspace"} & set(accelerate) and mode != "float64":
-        raise click.UsageError("--accelerate newton and subspace are float64 only: use --mode float64")
+    options.load_solvers(accelerate, mode)
 
     # Computed inside the output's lock; the report appears only when complete.
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep

@@ -71,12 +71,13 @@ class PluginName(click.ParamType):
     plug-in or package.module:Name. Only the form is checked here; loading is the command's."""
     name = "name"
 
-    def __init__(self, registry):
-        self.registry = registry
+    def __init__(self, registry, extra=()):
+        self.registry, self.extra = registry, tuple(extra)   # extra: words of the option's own (all)
 
     def convert(self, value, param, ctx):
-        if not self.registry.is_name(value):
-            self.fail(f"{value!r} is not a {self.registry.kind}: choose from {', '.join(self.registry.names())}, "
+        if value not in self.extra and not self.registry.is_name(value):
+            choices = ", ".join(self.registry.names() + list(self.extra))
+            self.fail(f"{value!r} is not a {self.registry.kind}: choose from {choices}, "
                       f"or name a plug-in as package.module:Name", param, ctx)
         return value
 
@@ -314,6 +315,17 @@ def was_given(name):
     ctx = click.get_current_context()
     return name in ctx.meta.get("dc_given", ()) or ctx.get_parameter_source(name) not in (
         None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
+
+
+def load_solvers(names, mode):
+    """--accelerate: plug-in solver methods loaded by the user's explicit choice; the float64-only
+    built-ins refused in float32 (one line, exit 2)."""
+    from deepcontact.solver.methods import SOLVERS, is_native
+    for name in names:
+        if not is_native(name):
+            SOLVERS.load(name)
+        elif getattr(SOLVERS.resolved(name), "float64_only", False) and mode != "float64":
+            raise click.UsageError(f"--accelerate {name} is float64 only: use --mode float64")
 
 
 def load_network(arch):

@@ -2,7 +2,7 @@
 import click
 
 from deepcontact.errors import InputError
-from deepcontact.solver.pgs import ACCELERATIONS
+from deepcontact.solver.methods import SOLVERS
 
 from . import options
 
@@ -31,8 +31,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
         raise click.UsageError("--mode exact is Box2D's PGS: it takes no --relaxation")
     if mode == "exact" and accelerate not in (None, "none"):
         raise click.UsageError("--mode exact is Box2D's PGS: it takes no --accelerate")
-    if accelerate in ("newton", "subspace") and mode == "float32":
-        raise click.UsageError(f"--accelerate {accelerate} is float64 only")
+    if accelerate is not None:
+        options.load_solvers([accelerate], mode)
     if relaxation == "auto" and not tolerance:
         raise click.UsageError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
     # A tolerance asks to converge: the cap is then dc evaluate's (1000), not the scene's 8 sweeps,
@@ -77,11 +77,12 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--relaxation", type=options.Relaxation(),
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "
                    "on the first 8 steps with contacts.")
-@click.option("--accelerate", type=click.Choice(ACCELERATIONS),
-              help="[pgs] nncg: conjugate directions on top of the sweeps (nonsmooth nonlinear conjugate "
-                   "gradient; float32/float64 modes); newton: sweeps, then semismooth Newton steps on the "
-                   "whole step (float64; without --tolerance it solves to 1e-12); subspace: the same, each "
-                   "system solved by conjugate gradients. Default none.")
+@click.option("--accelerate", type=options.PluginName(SOLVERS),
+              help="[pgs] The solver method: none (sweeps, the default); nncg: conjugate directions on top of the "
+                   "sweeps (nonsmooth nonlinear conjugate gradient; float32/float64 modes); newton: sweeps, then "
+                   "semismooth Newton steps on the whole step (float64; without --tolerance it solves to 1e-12); "
+                   "subspace: the same, each system solved by conjugate gradients; or a plug-in (an installed "
+                   "one's name, or package.module:Name; docs/api.md).")
 @options.jobs
 @options.max_memory
 @click.option("--max-disk", type=options.Finite(min=0, min_open=True), metavar="GB",

@@ -62,10 +62,11 @@ def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path)
     assert pip.returncode == 0, pip.stderr
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")]))
     r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", str(run), "--starts", "builtin,damped-builtin",
-                        "--every", "20", "--no-budgets", "-q", "-o", str(tmp_path / "r")],
-                       capture_output=True, text=True, env=env)
+                        "--accelerate", "none,damped-jacobi", "--max-iterations", "100", "--every", "20",
+                        "--no-budgets", "-q", "-o", str(tmp_path / "r")], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
-    assert "damped-builtin" in json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
+    assert {"damped-builtin", "damped-builtin+damped-jacobi"} <= set(
+        json.loads((tmp_path / "r" / "summary.json").read_text())["starts"])
     r = subprocess.run([sys.executable, "-m", "deepcontact", "train", str(dataset), "--arch", "tiny-conv", "--epochs",
                         "1", "-q", "-o", str(tmp_path / "m")], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
@@ -223,3 +224,79 @@ def test_every_public_function_has_type_hints():
         if not inspect.isclass(obj) and sig.return_annotation is inspect.Signature.empty:
             missing.append(f"{name} -> ?")
     assert missing == []
+
+
+def test_a_solver_method_plugin_runs_through_replay_the_closed_loop_and_simulate(run, tmp_path, example_on_path):
+    method = "dc_example_plugins.solvers:ProjectedJacobi"
+    r = invoke("evaluate", run, "--starts", "builtin", "--accelerate", f"none,{method}", "--every", "30",
+               "--max-iterations", "200", "-q", "-o", tmp_path / "replay")
+    assert r.exit_code == 0, r.stderr
+    summary = json.loads((tmp_path / "replay" / "summary.json").read_text())["starts"]
+    assert set(summary) == {"builtin", f"builtin+{method}"}
+    jacobi, sweeps = summary[f"builtin+{method}"], summary["builtin"]
+    # Jacobi moves every row from the same iterate: it needs more iterations than Gauss-Seidel's sweeps
+    assert jacobi["iterations_median"] > sweeps["iterations_median"] and jacobi["solve_ms_median"] > 0
+    r = invoke("evaluate", run, "--starts", "builtin", "--accelerate", method, "--closed-loop", "--steps", "10",
+               "--max-iterations", "100", "--no-budgets", "-q", "-o", tmp_path / "loop")
+    assert r.exit_code == 0, r.stderr
+    r = invoke("simulate", "pile", "--param", "count=6", "--steps", "12", "--solver", "pgs", "--accelerate", method,
+               "--tolerance", "1e-3", "--max-iterations", "300", "-q", "-o", tmp_path / "sim")
+    assert r.exit_code == 0, r.stderr
+    assert f'accelerate="{method}"' in (tmp_path / "sim" / "seed-000000" / "step-000011.xml").read_text()
+
+
+def test_a_solver_method_is_judged_by_the_projects_residual(run, example_on_path):
+    import deepcontact as dc
+    from deepcontact.step.run_folder import read_run
+    files = read_run(run).simulations[0].files
+    problem = dc.StepProblem.from_step_file(files[len(files) // 2])
+    method = "dc_example_plugins.solvers:ProjectedJacobi"
+    dc.SOLVERS.load(method)
+    solution = dc.solve(problem, tolerance=1e-3, max_iterations=500, accelerate=method, history=True)
+    assert solution.residual == dc.judge(problem, solution.normal_impulse, solution.tangent_impulse).residual
+    assert solution.history.shape == (solution.iterations, 3) and solution.history[-1, 2] == solution.residual
+
+
+BROKEN_SOLVERS = textwrap.dedent('''
+    import numpy as np
+    from deepcontact import MethodResult
+
+    class Raises:
+        def __call__(self, problem, normal, tangent, settings):
+            raise ArithmeticError("diverged")
+
+    class WrongShape:
+        def __call__(self, problem, normal, tangent, settings):
+            return MethodResult(normal[:-1], tangent, np.zeros(1))
+
+    class NotFinite:
+        def __call__(self, problem, normal, tangent, settings):
+            return MethodResult(normal * np.inf, tangent, np.zeros(1))
+
+    class Pulls:
+        def __call__(self, problem, normal, tangent, settings):
+            return MethodResult(-np.ones_like(normal), tangent, np.zeros(1))
+
+    class NoResult:
+        def __call__(self, problem, normal, tangent, settings):
+            return normal, tangent
+    ''')
+
+
+@pytest.mark.parametrize("name,needle", [("Raises", "raised ArithmeticError: diverged"), ("WrongShape", "shape"),
+                                         ("NotFinite", "non-finite"), ("Pulls", "cannot pull"),
+                                         ("NoResult", "not a deepcontact.solver.methods.MethodResult"),
+                                         ("Missing", "cannot be loaded")])
+def test_a_broken_solver_method_is_one_line_and_leaves_nothing(run, tmp_path, monkeypatch, name, needle):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "broken_solvers.py").write_text(BROKEN_SOLVERS)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    r = invoke("evaluate", run, "--starts", "builtin", "--accelerate", f"broken_solvers:{name}", "--every", "20",
+               "--no-budgets", "-o", tmp_path / "r")
+    sys.modules.pop("broken_solvers", None)
+    from deepcontact.solver import methods
+    methods._instances.pop(f"broken_solvers:{name}", None)
+    assert r.exit_code == 1 and "Traceback" not in r.stderr, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"broken_solvers:{name}" in lines[0] and needle in lines[0], lines
+    assert not (tmp_path / "r").exists()

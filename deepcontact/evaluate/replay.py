@@ -19,7 +19,8 @@ import numpy as np
 from .. import workers
 from ..errors import InputError
 from ..step.run_folder import read_run
-from ..solver.pgs import MEASURES, solve
+from ..solver.methods import GLOBAL, is_native, solve
+from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
@@ -64,7 +65,7 @@ class Variant:
     name: str                    # the start's name
     start: object
     relaxation: object = 1.0     # a float, or "auto" until resolved
-    accelerate: str = "none"     # or "nncg" (solver.pgs.ACCELERATIONS)
+    accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
 
 
 def variants(starts, relaxations=(1.0,), accelerations=("none",)):
@@ -219,15 +220,13 @@ def evaluate(run_dirs: list, starts: dict, *, tolerance: float = 1e-4, max_itera
     return rows
 
 
-GLOBAL = ("newton", "subspace")   # accelerations whose work is not only sweeps
-
-
 def _budgets(problem, value, mode, w, accelerate="none"):
     """Measured: the time of exactly b sweeps for every budget b (no early stop, no measuring on
     the way), and the residual after them (one traced run: the same iterates, since nothing in a
     solve depends on whether it is traced). A global method gets b sweeps and the Newton steps
-    between them, until 1e-12: its time and the residual it reached, from each timed solve."""
-    if accelerate in GLOBAL:
+    between them, until 1e-12 (a plug-in method: b iterations): its time and the residual it
+    reached, from each timed solve."""
+    if accelerate in GLOBAL or not is_native(accelerate):
         ms, residual = [], []
         for b in BUDGETS:
             t0 = time.perf_counter()

@@ -49,7 +49,7 @@ class Predictor:
     @torch.no_grad()
     def images(self, x):
         """The network's impulse images (targets, ny, nx) for one input image (inputs, ny, nx)."""
-        return self.model(torch.from_numpy(np.ascontiguousarray(x, np.float32))[None])[0].numpy()
+        return self.model(torch.from_numpy(np.require(x, np.float32, ['C', 'W']))[None])[0].numpy()
 
     def predict(self, bodies, contacts) -> Start:
         t0 = time.perf_counter()

@@ -9,8 +9,8 @@ continuous collision and sleeping off (time-of-impact sub-steps and sleeping isl
 or skipped inside Box2D), and Box2D's warm-start scale dtRatio held at exactly 1.
 
 Starts from zero or from Box2D's warm start run the whole step in one native call
-(deepcontact._box2d.pgs_step); a start made in Python, `garbage`, and the steps on which `auto`
-tries every w take the same path in pieces. The two give identical trajectories
+(deepcontact._box2d.pgs_step); a start made in Python, `garbage`, a plug-in solver method and the
+steps on which `auto` tries every w take the same path in pieces. The two give identical trajectories
 (tests/test_replay_and_loop.py).
 """
 from dataclasses import dataclass
@@ -19,7 +19,8 @@ import numpy as np
 
 from .._box2d import PGSStepSettings, StepSettings, pgs_step
 from ..errors import InputError
-from ..solver.pgs import Solution, solve
+from ..solver.methods import is_native, solve
+from ..solver.pgs import Solution
 from ..solver.pgs import options as solve_options
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
@@ -38,7 +39,7 @@ class LoopOptions:
     tolerance: float = 0.0
     stop_on: str = "residual"
     relaxation: object = 1.0     # w in (0, 2), or "auto" (solver.relaxation.AutoRelaxation)
-    accelerate: str = "none"     # or "nncg" (solver.pgs.ACCELERATIONS)
+    accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
 
 
 def unit_dt_ratio_inv(dt) -> np.float32:
@@ -89,7 +90,7 @@ class PGSStepper:
             self.solve_options = solve_options(
                 dt=scene.dt, mode=options.mode, max_iterations=options.max_iterations, tolerance=options.tolerance,
                 stop_on=options.stop_on, relaxation=1.0 if auto else options.relaxation,
-                accelerate=options.accelerate)
+                accelerate=options.accelerate if is_native(options.accelerate) else "none")
         except ValueError as e:
             raise InputError(str(e)) from None
         self.world, self.scene, self.options, self.record = world, scene, options, record
@@ -100,7 +101,9 @@ class PGSStepper:
         if auto:
             self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode,
                                              accelerate=options.accelerate)
-        self.native = native and start_fn is None and options.start in ("zero", "builtin")
+        # (a plug-in solver method is Python: its steps go through Python too)
+        self.native = native and start_fn is None and options.start in ("zero", "builtin") \
+            and is_native(options.accelerate)
         if self.native:
             self.settings = PGSStepSettings(
                 step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve),

@@ -13,8 +13,12 @@ Rows are ordered as Box2D visits them: per manifold, the tangent rows of its poi
 its normal rows.
 """
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from .problem import StepProblem
 
 FLT_EPSILON = float(np.finfo(np.float32).eps)
 
@@ -63,6 +67,8 @@ def world_manifold(mtype, local_normal, local_point, point_local, xf_a, xf_b, ra
 
 @dataclass
 class LCP:
+    """A step's contact problem as an explicit LCP (module docstring): one row per normal or
+    tangent impulse, in Box2D's order."""
     A: np.ndarray            # (rows, rows)
     b: np.ndarray            # (rows,)
     kind: np.ndarray         # 0 normal, 1 tangent
@@ -92,8 +98,9 @@ def velocities_after_gravity(problem):
     return v
 
 
-def build_lcp(problem, prune=True) -> LCP:
-    """The explicit LCP of the step, in float64, from the problem's float32 data."""
+def build_lcp(problem: "StepProblem", prune: bool = True) -> LCP:
+    """The explicit LCP of the step, in float64, from the problem's float32 data (dense: for
+    analysis, references and plug-in methods on small steps; rows as the module docstring says)."""
     bodies, c = problem.bodies, problem.contacts
     nb = len(bodies["angle"])
     inv_m = np.zeros(3 * nb)

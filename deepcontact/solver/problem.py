@@ -26,7 +26,7 @@ def contact_keys(contacts: dict) -> list[tuple]:
     return list(zip(*(contacts[k].tolist() for k in KEY_COLUMNS)))
 
 
-def impulses_by_key(keys, normal, tangent):
+def impulses_by_key(keys: list[tuple], normal: np.ndarray, tangent: np.ndarray) -> dict:
     """{contact key: (normal, tangent)}: a solution, to be matched to a later step's contacts."""
     return dict(zip(keys, zip(np.asarray(normal).tolist(), np.asarray(tangent).tolist())))
 

@@ -9,7 +9,7 @@ happen in. The solver's guard (pgs.solve) still drops w to 1 within any solve th
 """
 import numpy as np
 
-from .pgs import solve
+from .methods import solve
 
 CANDIDATES = (1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6, 1.7, 1.8, 1.9)
 TRIAL_STEPS = 8

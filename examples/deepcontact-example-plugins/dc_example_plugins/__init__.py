@@ -1,1 +1,2 @@
-"""Example deepcontact plug-ins (docs/api.md): a warm start and a network to copy and change."""
+"""Example deepcontact plug-ins (docs/api.md): a warm start, a network and a solver method to copy
+and change."""

@@ -1,0 +1,161 @@
+"""Solver methods: how a step's contact problem goes from a start to an answer (`--accelerate`).
+
+One registry, SOLVERS, holds the built-ins (the native solver's variants, solver/pgs.py) and the
+plug-ins a user names (entry point group ``deepcontact.solvers``, or ``package.module:Name``):
+
+    none      plain (P)SOR sweeps
+    nncg      sweeps plus conjugate directions
+    newton    sweeps, then semismooth Newton steps on the whole step (float64)
+    subspace  the same, each Newton system solved by conjugate gradients (float64)
+
+`solve` is the one switch: a built-in runs natively (and can run inside the native stepping
+loop); a plug-in is called as
+
+    method(problem, start_normal, start_tangent, settings) -> MethodResult
+
+with `settings` a SolveSettings, and its answer is checked (one impulse per contact point, finite, no
+pull), projected onto the friction cone, and judged by the project's own residual, never by the
+plug-in's word.
+"""
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .._box2d import Acceleration
+from ..errors import InputError
+from ..plugins import PluginError, Registry
+from .pgs import MEASURES, Solution
+from .pgs import solve as native_solve
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from .problem import StepProblem
+
+SOLVERS = Registry("solver method", "deepcontact.solvers")
+GLOBAL = ("newton", "subspace")   # built-ins whose work is not only sweeps (and which are float64 only)
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """What a solve is asked to do: stop once the residual (solver/pgs.py's measure, dimensionless)
+    falls below `tolerance`, or after `max_iterations` iterations (tolerance 0: exactly that many).
+    `relaxation` is the w the user asked for (a method may ignore it); `mode` is float32 or float64."""
+    mode: str = "float64"
+    max_iterations: int = 1000
+    tolerance: float = 0.0
+    relaxation: float = 1.0
+
+
+@dataclass
+class MethodResult:
+    """What a plug-in method returns: one normal and one tangent impulse per contact point (float64,
+    N·s) and the residual after each of its iterations (its length is the iteration count)."""
+    normal: np.ndarray
+    tangent: np.ndarray
+    residuals: np.ndarray
+
+
+class Native:
+    """A variant of the native solver, picked by its acceleration name."""
+    native = True
+
+    def __init__(self, accelerate):
+        self.accelerate = accelerate
+
+
+for _name in Acceleration.__members__:
+    SOLVERS.register(_name, lambda _n=_name: Native(_n), native=True, float64_only=_name in GLOBAL)
+BUILTIN = tuple(SOLVERS.builtin())
+_instances = {}
+
+
+def method(name):
+    """The method object named `name`: a built-in or a plug-in already loaded by an explicit choice
+    (SOLVERS.load, as the CLI does for the names it is given)."""
+    if name not in _instances:
+        factory = SOLVERS.resolved(name)
+        if factory is None:
+            factory = SOLVERS.load(name)
+        try:
+            _instances[name] = factory()
+        except Exception as e:
+            raise PluginError(f"the solver method {name!r} cannot be made: {type(e).__name__}: {e}") from None
+    return _instances[name]
+
+
+def is_native(name) -> bool:
+    """Whether `name` is one of the native solver's variants (which the native loop can run)."""
+    return name in BUILTIN
+
+
+def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> Solution:
+    """These impulses judged as an answer, without a sweep: their residual (every solve's measure,
+    `.residual`) and the body velocities they give (`.velocity`, `.omega`)."""
+    return native_solve(problem, normal, tangent, max_iterations=0)
+
+
+def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *, accelerate: str = "none", mode: str = "float64",
+          max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
+          relaxation: float = 1.0, history: bool = False, final_residual: bool = True, guard: bool = True,
+          prune: bool = True) -> Solution:
+    """Solve the step's contact problem from a start with the method `accelerate` (a built-in or a
+    loaded plug-in); the keywords as solver.pgs.solve's. A plug-in stops on the residual only and
+    runs in float32 or float64."""
+    if is_native(accelerate):
+        return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
+                            tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, history=history,
+                            final_residual=final_residual, guard=guard, accelerate=accelerate, prune=prune)
+    if mode == "exact":
+        raise InputError(f"the solver method {accelerate!r} cannot run in exact mode (Box2D's own PGS)")
+    if tolerance > 0 and stop_on != "residual":
+        raise InputError(f"the solver method {accelerate!r} stops on the residual only (--stop-on residual)")
+    n = problem.start_normal if start_normal is None else start_normal
+    t = problem.start_tangent if start_tangent is None else start_tangent
+    cap = problem.velocity_iterations if max_iterations is None else max_iterations
+    settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=float(relaxation))
+    try:
+        out = method(accelerate)(problem, np.array(n, np.float64), np.array(t, np.float64), settings)
+    except InputError:
+        raise
+    except Exception as e:   # the plug-in's own code: one line naming it
+        raise PluginError(f"the solver method {accelerate!r} raised {type(e).__name__}: {e}") from None
+    normal, tangent, residuals = _checked(accelerate, out, problem, cap)
+    after = judge(problem, normal, tangent)
+    if after.sanitized.get("implausible"):
+        raise PluginError(f"the solver method {accelerate!r} returned impulses no step could need (one alone would "
+                          f"move a contact faster than Box2D lets a body travel)")
+    # A tangent impulse beyond the friction bound is projected onto it, as any start's is (a sweep
+    # bounds the tangent by the normal impulse before its own update, so even PGS's last iterate can
+    # be a rounding outside): the answer reported is the one judged.
+    normal, tangent = after.normal_impulse, after.tangent_impulse
+    trace = np.full((len(residuals), len(MEASURES)), np.nan)
+    trace[:, MEASURES.index("residual")] = residuals
+    if len(residuals):   # the last iterate's residual is the project's, not the plug-in's
+        trace[-1, MEASURES.index("residual")] = after.residual
+    return Solution(normal_impulse=normal, tangent_impulse=tangent, velocity=after.velocity, omega=after.omega,
+                    iterations=len(residuals), history=trace if history else np.zeros((0, len(MEASURES))),
+                    residual=after.residual, sanitized={}, stats={}, relaxation=float(relaxation))
+
+
+def _checked(name, out, problem, cap):
+    """A plug-in's answer, or PluginError naming it and what is wrong."""
+    def wrong(what):
+        return PluginError(f"the solver method {name!r} {what}")
+
+    if not isinstance(out, MethodResult):
+        raise wrong(f"returned {type(out).__name__}, not a deepcontact.solver.methods.MethodResult")
+    try:
+        normal, tangent, residuals = (np.asarray(a, dtype=np.float64) for a in (out.normal, out.tangent, out.residuals))
+    except (TypeError, ValueError) as e:
+        raise wrong(f"returned something that is not numbers: {e}") from None
+    points = problem.points
+    for label, a in (("normal", normal), ("tangent", tangent)):
+        if a.shape != (points,):
+            raise wrong(f"returned {label} impulses of shape {a.shape}; the step has {points} contact points")
+        if not np.isfinite(a).all():
+            raise wrong(f"returned a non-finite {label} impulse")
+    if residuals.ndim != 1 or len(residuals) > cap:
+        raise wrong(f"returned {residuals.shape} residuals; one per iteration, at most {cap}")
+    if np.any(normal < 0):
+        raise wrong("returned a negative normal impulse (a contact cannot pull)")
+    return normal, tangent, residuals
