@@ -51,6 +51,8 @@ from . import options
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
+@click.option("--bands/--no-bands", default=None,
+              help="Draw the 10-90% band of every variant in convergence.png (default: only for up to 4 variants).")
 @options.jobs
 @options.threads
 @options.max_memory
@@ -58,8 +60,8 @@ from . import options
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-             seed, closed_loop, steps, relaxation, accelerate, budgets, jobs, threads, max_memory, overwrite, verbose,
-             quiet):
+             seed, closed_loop, steps, relaxation, accelerate, budgets, bands, jobs, threads, max_memory, overwrite,
+             verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 from zero to a residual of 1e-12:
@@ -104,6 +106,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         ("smoothing", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("kernel", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("seed", "random" in starts, "only applies to the random start"),
+        ("bands", not closed_loop, "applies to replay's convergence plot; --closed-loop draws none"),
     ])
     if learned and not model:
         raise click.BadParameter(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
@@ -123,11 +126,11 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
                      f"the convergence histories of {total:,} steps x {variants} variants up to {max_iterations:,} sweeps")
     with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
         _evaluate(runs, work, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs, threads)
+                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs, threads, bands)
 
 
 def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-              closed_loop, steps, relaxations, accelerations, budgets, quiet, jobs=1, threads=1):
+              closed_loop, steps, relaxations, accelerations, budgets, quiet, jobs=1, threads=1, bands=None):
     from deepcontact.protocol import protocol, use_threads
     from deepcontact.evaluate.replay import box2d_run, evaluate as run, summarize
     from deepcontact.evaluate.report import summary_table, write_report
@@ -158,7 +161,7 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
     settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, accelerate=accelerations,
                     model=model, tolerance=tolerance,
                     max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
-                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured)
+                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=bands)
     write_report(out, rows, summary, settings)
     click.echo(summary_table(summary))
 

@@ -96,10 +96,14 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
 
     def report(row):
         if not quiet:
-            def shown(k):   # each contact RMSE beside what predicting 0 scores (the bar to clear)
+            def shown(k):   # each contact RMSE between what predicting 0 scores and the grid's floor
                 zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
-                return f" {k}={row[k]:.4g}" + (f" (0 scores {zero:.4g})" if zero is not None and k != "val_loss" else "")
-            extra = "".join(shown(k) for k in sorted(row) if k.startswith("val") and not k.startswith("val_zero"))
+                floor = row.get(k.replace("val_contact_rmse_", "val_floor_rmse_"))
+                bars = ([f"0 scores {zero:.4g}"] if zero is not None else []) + \
+                       ([f"the grid's floor {floor:.4g}"] if floor is not None else [])
+                return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
+            extra = "".join(shown(k) for k in sorted(row)
+                            if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
             click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
                        f"({row['samples_per_second']:.0f} samples/s)", err=True)
 

@@ -52,7 +52,7 @@ def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp
     r = invoke("evaluate", run, "--starts", f"builtin,{start}", "--closed-loop", "--steps", "20", "--no-budgets",
                "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
-    assert start in (tmp_path / "loop" / "closed-loop.md").read_text()
+    assert start in (tmp_path / "loop" / "report.md").read_text()
 
 
 def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path):

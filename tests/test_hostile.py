@@ -191,7 +191,7 @@ def test_a_hostile_scene_name_is_text_in_every_page_and_picture(tmp_path_factory
     r = invoke("evaluate", tmp / "run", "--starts", "builtin", "--closed-loop", "--steps", "10", "--no-budgets",
                "-q", "-o", tmp / "loop")
     assert r.exit_code == 0, r.stderr
-    tree, scripts = scripts_of(tmp / "loop" / "closed-loop.html")
+    tree, scripts = scripts_of(tmp / "loop" / "report.html")
     assert scripts == [] and name in tree.findtext(".//title")
     assert len(list(tree.iter("img"))) + len(list(tree.iter("svg"))) == 1   # the one plot it drew
 
@@ -220,7 +220,7 @@ def test_no_injected_script_runs_in_a_real_browser(tmp_path):
     r = invoke("evaluate", tmp_path / "run", "--starts", "builtin", "--closed-loop", "--steps", "10", "--no-budgets",
                "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
-    for page in (tmp_path / "v.html", tmp_path / "loop" / "closed-loop.html"):
+    for page in (tmp_path / "v.html", tmp_path / "loop" / "report.html"):
         dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=2000",
                               "--dump-dom", page.resolve().as_uri()], capture_output=True, text=True, timeout=120,
                              check=True).stdout

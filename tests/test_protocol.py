@@ -38,7 +38,7 @@ def test_the_closed_loop_runs_every_simulation(run, tmp_path):
     args = ["evaluate", run, "--closed-loop", "--starts", "builtin", "--steps", "30", "--no-budgets", "-q"]
     assert invoke(*args, "-o", tmp_path / "one").exit_code == 0
     assert invoke(*args, "-j", "2", "-o", tmp_path / "two").exit_code == 0
-    text = (tmp_path / "one" / "closed-loop.md").read_text()
+    text = (tmp_path / "one" / "report.md").read_text()
     assert "2 simulations" in text and "seed 0" in text and "seed 1" in text, text
     rows = [line for line in text.splitlines() if line.startswith("| builtin")]
     assert len(rows) == 3   # pooled, then each simulation's

@@ -147,5 +147,5 @@ def test_dc_evaluate_relaxation_and_budgets(pile, tmp_path):
     r = dc("evaluate", str(pile), "--closed-loop", "--steps", "60", "--starts", "builtin", "--relaxation", "1.7",
            "-q", "-o", str(loop), timeout=600)
     assert r.returncode == 0, r.stderr
-    text = (loop / "closed-loop.md").read_text()
+    text = (loop / "report.md").read_text()
     assert "box2d 256 iterations" in text and "| builtin@1.7 |" in text and (loop / "closed-loop.png").exists()

@@ -43,7 +43,7 @@ def test_the_closed_loop_writes_a_summary_table_and_says_drift_is_chaotic(run, t
         rows = list(csv.DictReader(f))
     assert [row["start"] for row in rows][:2] == ["builtin", "prev"] or len(rows) == 6
     assert all(float(row["ms_per_step_median"]) > 0 for row in rows)
-    assert "A pile is chaotic" in (tmp_path / "loop" / "closed-loop.md").read_text()
+    assert "A pile is chaotic" in (tmp_path / "loop" / "report.md").read_text()
 
 
 def test_training_shows_the_predict_zero_bar_and_warns_of_an_empty_split(run, dataset, tmp_path):
@@ -88,3 +88,53 @@ def test_a_run_as_flat_tables(run, tmp_path):
     else:
         r = invoke("export", run, "--format", "parquet", "--every", "10", "-q", "-o", tmp_path / "p")
         assert r.exit_code == 0 and (tmp_path / "p" / "contacts.parquet").exists()
+
+
+def test_twelve_variants_are_twelve_styles_in_every_plot(run, tmp_path):
+    import re
+    r = invoke("evaluate", run, "--starts", "zero,builtin,prev,copy,sph,random", "--relaxation", "1,1.7",
+               "--every", "20", "-q", "-o", tmp_path / "r")
+    assert r.exit_code == 0, r.stderr
+    for plot in ("convergence", "iterations", "pareto"):
+        svg = (tmp_path / "r" / f"{plot}.svg").read_text()
+        # the lines matplotlib drew: each (colour, dash pattern) pair one variant's
+        drawn = set(re.findall(r'style="fill: none; (?:stroke-dasharray: ([\d.,\s]+); stroke-dashoffset: [\d.]+; )?'
+                               r'stroke: (#[0-9a-f]{6})', svg)) - {("", "#b0b0b0"), ("", "#000000")}   # (grid, frame)
+        assert len(drawn) >= 12, (plot, drawn)
+    from deepcontact.plotstyle import styles
+    names = [f"v{i}" for i in range(140)]
+    looks = {(s["color"], str(s["linestyle"]), s["marker"]) for s in styles(names).values()}
+    assert len(looks) == 140
+    r = invoke("evaluate", run, "--starts", "builtin,prev", "--no-budgets", "--closed-loop", "--bands",
+               "-o", tmp_path / "loop")
+    assert r.exit_code == 2 and "--bands" in r.stderr
+
+
+def test_log_axes_read_as_plain_numbers():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from deepcontact.plotstyle import readable_log_ticks
+    for low, high in ((2.8, 3.6), (0.015, 0.4), (1e-16, 1.0)):
+        fig, ax = plt.subplots()
+        ax.plot([1, 2], [low, high])
+        ax.set_yscale("log")
+        readable_log_ticks(ax.yaxis)
+        fig.canvas.draw()
+        low_view, high_view = ax.get_ylim()
+        labels = [t.get_text() for t in ax.yaxis.get_ticklabels(which="both")
+                  if t.get_text() and low_view <= t.get_position()[1] <= high_view]
+        plt.close(fig)
+        assert len(labels) >= 2 and not any("times" in t or "^" in t for t in labels), (low, high, labels)
+
+
+def test_training_shows_the_grids_floor_beside_predicting_zero(run, dataset, tmp_path):
+    r = invoke("train", dataset, "--epochs", "1", "--width", "4", "--depth", "2", "-o", tmp_path / "m")
+    assert r.exit_code == 0, r.stderr
+    assert "the grid's floor" in r.stderr, r.stderr
+    row = json.loads((tmp_path / "m" / "metrics.json").read_text())[0]
+    for target in ("normal", "tangent"):   # the label image read back beats predicting nothing
+        assert 0 < row[f"val_floor_rmse_{target}"] < row[f"val_zero_rmse_{target}"]
+    from deepcontact.studies.maps import table
+    text = table({"joint": {"epochs": 1, "best_epoch": 0, "seconds": 3.0, **row}})
+    assert "predicting 0" in text.splitlines()[0] and f"{row['val_floor_rmse_normal']:.4g}" in text

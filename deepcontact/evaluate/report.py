@@ -1,7 +1,11 @@
 """The evaluation report: markdown, CSV/JSON tables and plots (PNG and SVG).
 
-  convergence  median and 10-90% band of the stopping measure per iteration, per start
-               (the thesis's figures 3.7/3.8/5.7/5.9, with percentiles instead of a mean)
+  convergence  median (and for up to 4 variants, or --bands, the 10-90% band) of the stopping
+               measure per iteration, per start (the thesis's figures 3.7/3.8/5.7/5.9, with
+               percentiles instead of a mean)
+
+Every variant keeps one style (colour, line, marker) in every plot of a report; oracles are dashed
+and kept off the main scale (deepcontact/plotstyle.py).
   iterations   the distribution of iterations to tolerance per start (empirical CDF)
   pareto       what accuracy costs in time, measured: for fixed sweep budgets run without early
                stopping, the median residual reached against the median measured time per step
@@ -22,6 +26,7 @@ from ..escape import plot_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
 from .replay import BUDGETS, reference_summary
+from ..plotstyle import axis_floor, readable_log_ticks, show_bands, styles, with_markers
 
 # Everything a report folder holds (replay and closed loop): what --overwrite may replace.
 REPORT_FILES = atomic.Owned("report", [r"report\.(md|html)", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
@@ -190,63 +195,106 @@ def _any_positive(ax, axis):
     return any(np.any(np.isfinite(v) & (v > 0)) for v in values)
 
 
-def _finish(fig, ax, stem, xlabel, ylabel, title, ylog=True):
+def _finish(fig, ax, stem, xlabel, ylabel, title, ylog=True, floor=None, xlog=True):
     # A log axis needs a positive value to show: when every value is 0 (a solve that starts at
     # the exact answer), the axis stays linear and the plot says so.
-    if _any_positive(ax, "x"):
+    if xlog and _any_positive(ax, "x"):
         ax.set_xscale("log")
+        readable_log_ticks(ax.xaxis)
     if ylog and _any_positive(ax, "y"):
         ax.set_yscale("log")
+        if floor is not None:
+            ax.set_ylim(bottom=floor)
+        readable_log_ticks(ax.yaxis)
     elif ylog:
         ax.text(0.5, 0.5, "every value is 0", transform=ax.transAxes, ha="center", va="center")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(plot_text(title))
-    ax.legend(fontsize=8, ncol=2)
+    handles = len(ax.get_legend_handles_labels()[0])
+    if handles > 6:   # (many variants: the legend beside the plot, not over the lines)
+        fig.set_size_inches(9.5, 4.5)
+        ax.legend(fontsize=8, handlelength=3.2, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    else:
+        ax.legend(fontsize=8, handlelength=3.2)
     ax.grid(alpha=0.3, which="both")
     _save(fig, stem)
 
 
-def convergence_plot(rows, names, stem, title, tolerance, stop_on, cap=None):
-    """Median and 10-90% band of the stopping measure per sweep, one curve per start; a step
-    that stopped keeps its last value (it had converged, or hit the cap)."""
+def _label(name, oracles, floor, values):
+    """A legend label: the name, and for an oracle that says so (and that it runs off the scale)."""
+    if name not in oracles:
+        return plot_text(name)
+    v = np.asarray(values, float)
+    off = floor is not None and np.any(np.isfinite(v) & (v < floor))
+    return plot_text(name) + (" (oracle, below the axis)" if off else " (oracle)")
+
+
+def oracles_among(names):
+    """The names of starts that know the answer (drawn dashed and off the main scale)."""
+    return {n for n in names if _oracle(n)}
+
+
+def convergence_plot(rows, names, stem, title, tolerance, stop_on, cap=None, bands=None, style=None):
+    """Median (and, for a few variants or when asked, the 10-90% band) of the stopping measure per
+    sweep, one line per start in its own style; a step that stopped keeps its last value (it had
+    converged, or hit the cap). Oracles are dashed and kept off the main scale."""
     fig, ax = _axes()
-    for i, name in enumerate(names):
+    oracles = oracles_among(names)
+    style = style or styles(names, oracles)
+    curves = {}
+    for name in names:
         hs = [r.history for r in rows if r.start == name]
         n = max(len(h) for h in hs) if cap is None else min(cap + 1, max(len(h) for h in hs))
         m = np.array([np.concatenate([h[:n], np.full(n - len(h[:n]), h[-1])]) for h in hs])
         with warnings.catch_warnings():   # column 0 is all NaN unless the residual is the measure
             warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(m, axis=0)
-            lo, hi = np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0)
-        x = np.arange(n)
-        ax.plot(x[1:], med[1:], color=f"C{i % 10}", label=plot_text(name), marker="o" if n <= 4 else None)  # (1-sweep starts)
-        ax.fill_between(x[1:], lo[1:], hi[1:], color=f"C{i % 10}", alpha=0.12)
-    ax.axhline(tolerance, color="k", lw=0.8, ls="--")
-    _finish(fig, ax, stem, "PGS sweep", f"{stop_on} measure (median, 10-90%)", title)
+            curves[name] = (np.nanmedian(m, axis=0), np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0))
+    floor = axis_floor({n: c[0][1:] for n, c in curves.items()}, oracles)
+    band = show_bands([n for n in names if n not in oracles], bands)
+    for name, (med, lo, hi) in curves.items():
+        x = np.arange(len(med))
+        kw = with_markers(style[name], len(x) - 1)
+        if len(x) <= 5 and kw.get("marker") is None:
+            kw["marker"] = "o"   # (a start that needs one sweep is a point, not a line)
+        ax.plot(x[1:], med[1:], label=_label(name, oracles, floor, med[1:]), **kw)
+        if band and name not in oracles:
+            ax.fill_between(x[1:], lo[1:], hi[1:], color=style[name]["color"], alpha=0.12, linewidth=0)
+    ax.axhline(tolerance, color="k", lw=0.8, ls=(0, (1, 2)), label=f"tolerance {tolerance:g}")
+    _finish(fig, ax, stem, "PGS sweep", f"{stop_on} measure (median" + (", 10-90%)" if band else ")"), title,
+            floor=floor)
 
 
 def plots(out, rows, summary, settings, pareto):
     names = list(summary)
+    oracles = oracles_among(names)
+    style = styles(names, oracles)   # (one style per variant in every plot of the report)
     convergence_plot(rows, names, out / "convergence", "Convergence by warm start", settings["tolerance"],
-                     settings["stop_on"], cap=settings["max_iterations"])
+                     settings["stop_on"], cap=settings["max_iterations"], bands=settings.get("bands"), style=style)
 
     fig, ax = _axes()
-    for i, name in enumerate(names):
+    for name in names:
         it = np.sort([r.iterations for r in rows if r.start == name])
-        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post", color=f"C{i % 10}", label=plot_text(name))
+        kw = with_markers(style[name], len(it))
+        kw["marker"] = None
+        ax.step(np.maximum(it, 1), np.arange(1, len(it) + 1) / len(it), where="post",
+                label=_label(name, oracles, None, []), **kw)
     _finish(fig, ax, out / "iterations", "iterations to tolerance", "share of steps", "Iterations to tolerance",
             ylog=False)
 
     if not pareto:
         return
     fig, ax = _axes()
-    for i, (name, pts) in enumerate(pareto.items()):
-        pts = [p for p in pts if p and np.isfinite(p["residual"]) and p["residual"] > 0]
-        ax.plot([p["ms"] for p in pts], [p["residual"] for p in pts], marker="o", ms=3, color=f"C{i % 10}",
-                label=plot_text(name))
+    shown = {}
+    for name, pts in pareto.items():
+        shown[name] = [p for p in pts if p and np.isfinite(p["residual"]) and p["residual"] > 0]
+    floor = axis_floor({n: [p["residual"] for p in pts] for n, pts in shown.items()}, oracles)
+    for name, pts in shown.items():
+        kw = dict(style.get(name, {}), markersize=4)
+        values = [p["residual"] for p in pts]
+        ax.plot([p["ms"] for p in pts], values, label=_label(name, oracles, floor, values), **kw)
     _finish(fig, ax, out / "pareto", "measured time per step, prediction + a fixed number of sweeps (ms, median)",
-            "residual reached (median)", "What accuracy costs in time")
+            "residual reached (median)", "What accuracy costs in time", floor=floor)
 
 
 def _save(fig, stem):
@@ -259,7 +307,8 @@ def _save(fig, stem):
 
 def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured=None, simulations=1,
                       plotted=None):
-    """closed-loop.md (and .html), .json, summary.csv and the plot into the folder out; returns the
+    """report.md (and .html) and summary.csv as replay's, closed-loop.json and the plot closed-loop.png
+    into the folder out; returns the
     table. With several simulations, results hold the pooled rows first, then each simulation's;
     plotted: the rows the plot shows (default all)."""
     text = loop_table(results)
@@ -278,9 +327,9 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
                f"and energy error), the rows after them are each simulation's." if simulations > 1 else "")
             + "\n\n" + text + "\n\n" + (protocol_line(measured) + "\n\n" if measured else "")
             + "![closed loop](closed-loop.png)\n")
-    atomic.write_text(out / "closed-loop.md", page)
+    atomic.write_text(out / "report.md", page)
     loop_plot(results if plotted is None else plotted, out / "closed-loop")
-    atomic.write_text(out / "closed-loop.html", markdown_to_html(page, out, f"Closed loop: {what}",
+    atomic.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                                    pictures=("closed-loop.png",)))
     buf = io.StringIO()
     w = csv.writer(buf)
@@ -326,7 +375,9 @@ def loop_plot(results, stem):
                 label="Box2D, 1 ... 256 iterations")
         for r in box2d:
             ax.annotate(str(int(r.iterations[0])), (np.median(r.ms_per_step), r.drift.max()), fontsize=7)
-    for i, r in enumerate(ours):
-        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], "o", color=f"C{i % 10}", label=plot_text(r.start))
+    style = styles([r.start for r in ours], oracles_among([r.start for r in ours]))
+    for r in ours:
+        kw = dict(style[r.start], linestyle="none", markersize=6)
+        ax.plot([np.median(r.ms_per_step)], [r.drift.max()], label=plot_text(r.start), **kw)
     _finish(fig, ax, stem, "measured time per step (ms, median)", "largest drift from the reference trajectory (m)",
             "What accuracy costs in time, in the loop")

@@ -459,10 +459,14 @@ class Trainer:
 
     @torch.no_grad()
     def validate(self):
-        """Validation loss and the RMSE at the contact points, per target."""
+        """Validation loss and the RMSE at the contact points, per target, beside two yardsticks:
+        predicting 0 (val_zero_rmse_*: a network must beat it to have learned anything) and the
+        grid's floor (val_floor_rmse_*: the label image itself read back at the contacts, the best
+        any grid-predicting network can score)."""
         self.model.eval()
         total, seen = 0.0, 0
         sq = np.zeros(len(self.label_columns))
+        floor = None if hasattr(self, "_floor") else np.zeros(len(self.label_columns))
         count = 0
         spec = self.spec
         for b0 in range(0, len(self.val_idx), self.cfg.batch_size):
@@ -476,15 +480,23 @@ class Trainer:
                     pos, imp = self.ds.contacts(int(i))
                     if len(pos) == 0:
                         continue
-                    at = losses.bilinear_torch(pred[k], spec, torch.from_numpy(np.array(pos)).to(pred.device))
-                    at = at.cpu().numpy() * scale
-                    sq += ((at - np.array(imp)[:, self.label_columns].T) ** 2).sum(axis=1)
+                    pos = torch.from_numpy(np.array(pos)).to(pred.device)
+                    truth = np.array(imp)[:, self.label_columns].T
+                    at = losses.bilinear_torch(pred[k], spec, pos).cpu().numpy() * scale
+                    sq += ((at - truth) ** 2).sum(axis=1)
+                    if floor is not None:   # the label image itself read back: a perfect network's score
+                        exact = losses.bilinear_torch(y[k], spec, pos).cpu().numpy() * scale
+                        floor += ((exact - truth) ** 2).sum(axis=1)
                     count += len(pos)
         out = {"val_loss": total / max(seen, 1)}
         names = {0: "normal", 1: "tangent"}
+        if floor is not None:
+            self._floor = {f"val_floor_rmse_{names[col]}": float(math.sqrt(floor[j] / max(count, 1)))
+                           for j, col in enumerate(self.label_columns)}
         for j, col in enumerate(self.label_columns):
             out[f"val_contact_rmse_{names[col]}"] = float(math.sqrt(sq[j] / max(count, 1)))
         out.update(self.zero_baseline())
+        out.update(self._floor)
         return out
 
     def zero_baseline(self):
@@ -573,22 +585,43 @@ def write_metrics(out_dir, history):
 
 
 def plot_losses(history, stem):
+    """loss.png: the training and validation loss per epoch; beside it, where validation ran, the
+    RMSE at the contact points per target against predicting 0 and the grid's floor."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
-    fig, ax = plt.subplots(figsize=(6, 4))
+
+    from ..plotstyle import readable_log_ticks
+    rmse = [k[len("val_contact_rmse_"):] for k in history[0] if k.startswith("val_contact_rmse_")]
+    fig, axes = plt.subplots(1, 2 if rmse else 1, figsize=(11 if rmse else 6, 4), squeeze=False)
+    ax = axes[0][0]
     epochs = [r["epoch"] for r in history]
-    ax.plot(epochs, [r["train_loss"] for r in history], label="training")
+    ax.plot(epochs, [r["train_loss"] for r in history], label="training", marker="o", ms=3)
     if "val_loss" in history[0]:
-        ax.plot(epochs, [r["val_loss"] for r in history], label="validation")
+        ax.plot(epochs, [r["val_loss"] for r in history], label="validation", marker="s", ms=3, ls="--")
     if any(r["train_loss"] > 0 for r in history):   # (a log axis needs a positive value)
         ax.set_yscale("log")
-    ax.set_xlabel("epoch")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # (epochs are whole)
+        readable_log_ticks(ax.yaxis)
     ax.set_ylabel("loss")
-    ax.legend()
-    ax.grid(alpha=0.3)
+    ax.set_title("Loss")
+    if rmse:
+        ax = axes[0][1]
+        for i, target in enumerate(rmse):
+            colour = f"C{i + 2}"
+            ax.plot(epochs, [r[f"val_contact_rmse_{target}"] for r in history], color=colour, marker="o", ms=3,
+                    label=f"{target}: the network")
+            for key, ls, what in (("zero", "--", "predicting 0"), ("floor", ":", "the grid's floor")):
+                value = history[-1].get(f"val_{key}_rmse_{target}")
+                if value is not None:
+                    ax.axhline(value, color=colour, ls=ls, lw=1, label=f"{target}: {what}")
+        ax.set_ylabel("validation RMSE at the contacts (N·s)")
+        ax.set_title("Against predicting 0")
+    for ax in axes[0]:
+        ax.set_xlabel("epoch")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # (epochs are whole)
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
     fig.tight_layout()
     # through bytes and an atomic write: training writes in place, and an interrupted run must
     # not leave half a picture
