@@ -33,6 +33,10 @@ def kind_of(path):
               help="Width of the picture (or of each panel) in pixels.")
 @click.option("--window", type=options.Window(), help="The part of the world to draw (default: around the bodies).")
 @click.option("--no-contacts", is_flag=True, help="Draw no contact points or impulses.")
+@click.option("--impulse-scale", type=options.Finite(min=0, min_open=True), metavar="M",
+              help="Metres of arrow per N·s of impulse (default: the run's own, a median normal impulse drawn as "
+                   "1/30 of the width; the same for a step, a movie and a viewer of one run). Give one to compare "
+                   "pictures of different runs.")
 @click.option("--color-by", type=click.Choice(["type", "speed"]), default="type", show_default=True,
               help="Fill bodies by type (static, kinematic, dynamic) or by speed.")
 @click.option("--seed", type=options.count(), help="[run] The simulation to draw (default: the run's first).")
@@ -51,7 +55,7 @@ def kind_of(path):
 @options.overwrite
 @options.verbosity
 @options.command("render")
-def render(input_path, out, size, window, no_contacts, color_by, seed, every, fps, compare, sample, model, arch,
+def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, seed, every, fps, compare, sample, model, arch,
            threads, overwrite, verbose, quiet):
     """Draw INPUT: a step file, a run, or a sample of a grid dataset.
 
@@ -89,7 +93,8 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
            for name in ("sample", "model")]
         + [("arch", model is not None, "only applies with --checkpoint")]
         + [(name, kind != "dataset", "does not apply to a grid dataset's sample (it draws grid images)")
-           for name in ("size", "window", "no_contacts", "color_by")]
+           for name in ("size", "window", "no_contacts", "color_by", "impulse_scale")]
+        + [("impulse_scale", not no_contacts, "draws impulse arrows: it does not apply with --no-contacts")]
         + [("threads", model is not None, "only applies with --checkpoint (nothing else runs torch)")])
     options.load_network(arch)
     if suffix not in FORMS[kind]:
@@ -111,12 +116,13 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
         if out.exists() and not overwrite:
             raise InputError("file exists; use --overwrite to replace it", out)
         if kind == "step":
-            _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:])
+            _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:], impulse_scale)
         elif kind == "dataset":
             from deepcontact.render.panels import sample_panels
             atomic.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
         else:
-            _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet)
+            _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
+                 impulse_scale)
     if not quiet:
         click.echo(str(out))
 
@@ -124,22 +130,29 @@ def render(input_path, out, size, window, no_contacts, color_by, seed, every, fp
 MIN_WINDOW = 1e-4   # metres
 
 
-def _step(path, out, size, window, contacts, color_by, fmt):
+def _step(path, out, size, window, contacts, color_by, fmt, impulse_scale=None):
     from deepcontact import atomic
     from deepcontact.render.draw import Painter, Window
-    from deepcontact.render.frames import title, window_for
+    from deepcontact.render.frames import run_impulse_scale, title, window_for
     from deepcontact.render.shapes import read_shapes
     from deepcontact.step.reader import read_step
+    from deepcontact.step.run_folder import STEP_FILE
 
     header, bodies, contacts_ = read_step(path, validate=False)
     shapes = read_shapes(path)
     win = Window(*window) if window else window_for(shapes, [(header, bodies, contacts_)])
-    painter = Painter(shapes, win, size, contacts=contacts, color_by=color_by)
+    if impulse_scale is None and contacts:   # the simulation's scale, as its movie and viewer use
+        siblings = sorted((f for f in Path(path).parent.iterdir() if STEP_FILE.fullmatch(f.name)),
+                          key=lambda f: int(STEP_FILE.fullmatch(f.name).group(1)))
+        impulse_scale = run_impulse_scale(siblings or [path])
+    painter = Painter(shapes, win, size, contacts=contacts, color_by=color_by, impulse_scale=impulse_scale)
     painter.draw(bodies, contacts_, title(header, bodies, contacts_))
     atomic.write_bytes(out, painter.image_bytes(fmt))
 
 
-def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare, quiet):
+def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare, quiet, impulse_scale=None):
+    import logging
+
     from deepcontact import atomic
     from deepcontact.render.draw import Window
     from deepcontact.render.frames import frames, painter_for, simulation_files, write_gif, write_video
@@ -147,11 +160,16 @@ def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare,
     clip = simulation_files(path, seed, every)
     if out.suffix.lower() == ".html":
         from deepcontact.render.viewer import viewer_html
-        atomic.write_text(out, viewer_html(clip, size, fps))
+        atomic.write_text(out, viewer_html(clip, size, fps, impulse_scale=impulse_scale,
+                                           window=Window(*window) if window else None))
         return
     other = simulation_files(compare, seed, every) if compare else None
+    if other is not None and (other.scene, other.seed) != (clip.scene, clip.seed):
+        logging.getLogger("deepcontact.cli").warning(
+            "the runs compared are different simulations (%s seed %s against %s seed %s): the distance between "
+            "them measures that, not a solver", clip.scene, clip.seed, other.scene, other.seed)
     painter = painter_for(clip, size, contacts, color_by, Window(*window) if window else None,
-                          panels=2 if other else 1)
+                          panels=2 if other else 1, impulse_scale=impulse_scale)
     bar = options.progress_bar(quiet, len(clip.files), "frame", f"render {out.name}")
     stream = (bar.update(1) or f for f in frames(clip, painter, other))
     try:

@@ -166,7 +166,8 @@ def test_the_run_viewer_in_a_real_browser(pile_run, tmp_path):
     files = steps_of(pile_run)[::5]
     window, size = window_of(files[0], 480)
     for k in (len(files) // 2, len(files) - 1):
-        picture = screenshot(page, (size[0] + 340, size[1] + 40), tmp_path, f"#frame={k}")
+        # (arrows at 1/8 of their length: the check reads the pixel at each body's centre)
+        picture = screenshot(page, (size[0] + 340, size[1] + 40), tmp_path, f"#frame={k}&arrows=-3")
         assert (picture[:size[1], :size[0]] != 255).any(axis=2).mean() > 0.05
         assert_bodies_where_the_file_puts_them(picture, window, size, dynamic_circle_centres(files[k]))
 
@@ -193,3 +194,71 @@ def test_the_viewer_carries_the_solvers_numbers_where_the_run_recorded_them(tmp_
     last = data["frames"][-1]
     header = read_step(steps_of(run)[::10][-1])[0]["solve"]
     assert last["solve"] == {"iterations": int(header["iterations"]), "residual": float(header["residual"])}
+
+
+def viewer_data(page):
+    import re
+    return json.loads(re.search(r'<script id="data" type="application/json">(.*?)</script>', page.read_text(),
+                                flags=re.S).group(1))
+
+
+def test_one_impulse_scale_per_run_shared_by_step_movie_and_viewer(pile_run, tmp_path):
+    from deepcontact.render.frames import run_impulse_scale
+    files = steps_of(pile_run)
+    scale = run_impulse_scale(files)
+    # a robust statistic: at rest the median arrow is a readable length, not a pixel
+    _, _, contacts = read_step(files[-1])
+    window, size = window_of(files[-1], 640)
+    resting = np.median(np.abs(contacts["normal_impulse"])) * scale / (window.x1 - window.x0) * size[0]
+    assert resting > 8, resting
+    # the viewer carries the run's scale whatever --every, and a legend value
+    for every in ("3", "7"):
+        data = viewer_data(written(tmp_path / f"v{every}.html", "render", str(pile_run), "--every", every))
+        assert data["scale"] == pytest.approx(scale) and data["legend"] > 0
+    # a step PNG and a GIF frame drawn by default are the pictures drawn at the run's scale, given
+    step = files[len(files) // 2]
+    default = written(tmp_path / "a.png", "render", str(step)).read_bytes()
+    given = written(tmp_path / "b.png", "render", str(step), "--impulse-scale", repr(scale)).read_bytes()
+    assert default == given
+    other = written(tmp_path / "c.png", "render", str(step), "--impulse-scale", repr(4 * scale)).read_bytes()
+    assert other != default
+    gif = [written(tmp_path / f"{k}.gif", "render", str(pile_run), "--every", "40", *extra).read_bytes()
+           for k, extra in enumerate([(), ("--impulse-scale", repr(scale))])]
+    assert gif[0] == gif[1]
+    data = viewer_data(written(tmp_path / "g.html", "render", str(pile_run), "--impulse-scale", "0.5"))
+    assert data["scale"] == 0.5
+    option_error(dc("render", str(step), "--no-contacts", "--impulse-scale", "1", "-o", str(tmp_path / "n.png")),
+                 "--impulse-scale")
+
+
+@needs_browser
+def test_the_viewers_arrow_control_lengthens_the_arrows(pile_run, tmp_path):
+    page = written(tmp_path / "run.html", "render", str(pile_run), "--every", "10", "--size", "480")
+    files = steps_of(pile_run)[::10]
+    _, size = window_of(files[0], 480)
+    red = []
+    for arrows in ("0", "2"):
+        picture = screenshot(page, (size[0] + 340, size[1] + 40), tmp_path, f"#frame={len(files) - 1}&arrows={arrows}")
+        canvas = picture[:size[1], :size[0]].astype(int)
+        red.append(int(((canvas[..., 0] > 150) & (canvas[..., 1] < 80) & (canvas[..., 2] < 80)).sum()))
+    assert red[1] > 1.5 * red[0] > 0, red
+
+
+def test_comparing_different_simulations_warns(pile_run, tmp_path):
+    other = tmp_path / "other"
+    assert dc("simulate", "pile", "--seed", "5", "--steps", "20", "-q", "-o", str(other)).returncode == 0
+    r = dc("render", str(pile_run), "--compare", str(other), "--every", "10", "--size", "200", "-o",
+           str(tmp_path / "both.gif"))
+    assert r.returncode == 0 and "different simulations" in r.stderr, r.stderr
+
+
+def test_a_dataset_sample_shares_one_colour_range_names_its_split_and_warns_nothing(dataset, model):
+    import warnings
+    from deepcontact.render import panels
+    meta = json.loads((dataset / "metadata.json").read_text())
+    assert panels._split_of(meta, meta["split"]["validation"][0]) == "validation"
+    assert panels._split_of(meta, meta["split"]["train"][0]) == "train"
+    assert panels._range([np.array([0.0, 45.0]), np.array([-2.0, 7.0])]) == (-2.0, 45.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert panels.sample_panels(dataset, 0, model / "best.pt")[:4] == b"\x89PNG"

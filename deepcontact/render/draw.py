@@ -43,7 +43,8 @@ class Window:
 
 class Painter:
     """Draws steps of one simulation. impulse_scale: metres of arrow per N s of impulse
-    (None: from each step's largest); speed_max: the speed the colour map tops out at when
+    (None: from each step's own median; a run's pictures share its run's, frames.run_impulse_scale),
+    drawn with a legend arrow; speed_max: the speed the colour map tops out at when
     colouring by speed (None: each step's largest)."""
 
     def __init__(self, shapes, window, width=640, contacts=True, color_by="type", impulse_scale=None,
@@ -72,6 +73,8 @@ class Painter:
         self._bodies(ax, bodies)
         if self.contacts and len(contacts["position"]):
             self._contacts(ax, contacts)
+        if self.contacts and self.impulse_scale:
+            self._legend(ax)
         if title:
             size = min(9.0, max(5.0, self.size[0] / 70))   # small pictures, small print
             ax.text(0.01, 0.99, title, transform=ax.transAxes, va="top", ha="left", fontsize=size, family="monospace",
@@ -128,6 +131,18 @@ class Painter:
             ax.add_collection(LineCollection(np.stack([p.centres + 0.5 * u, p.centres + u], 1), colors=OUTLINE,
                                              linewidths=0.8))
 
+    def _legend(self, ax):
+        """The arrow of a round impulse in the upper-right corner, labelled: what the arrows mean."""
+        value = legend_impulse(self.impulse_scale, self.window)
+        w, h = self.window.x1 - self.window.x0, self.window.y1 - self.window.y0
+        length = value * self.impulse_scale
+        x, y = self.window.x1 - 0.02 * w - length, self.window.y1 - 0.03 * h
+        ax.quiver([x], [y], [length], [0], color="#b2182b", angles="xy", scale_units="xy",
+                  scale=1, width=0.004, headwidth=3, headlength=4, zorder=6)
+        size = min(8.0, max(5.0, self.size[0] / 80))
+        ax.text(x - 0.01 * w, y, f"{value:g} N·s (normal red, friction blue)", va="center", ha="right",
+                fontsize=size, parse_math=False, zorder=6, bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=1))
+
     def _contacts(self, ax, contacts):
         from matplotlib.colors import Normalize
         p = contacts["position"].astype(np.float64)
@@ -141,16 +156,33 @@ class Painter:
             keep = np.abs(values) > 0
             if not np.any(keep):
                 continue
-            v = direction[keep] * (values[keep] * scale)[:, None]
+            length = np.minimum(np.abs(values[keep]) * scale, (self.window.x1 - self.window.x0) * ARROW_LONGEST)
+            v = direction[keep] * (np.sign(values[keep]) * length)[:, None]
             size = np.abs(values[keep])
             top = float(size.max())   # the palest shade is kept off white: the map starts at -top/3
             ax.quiver(p[keep, 0], p[keep, 1], v[:, 0], v[:, 1], size, cmap=cmap, norm=Normalize(-top / 3, top),
                       angles="xy", scale_units="xy", scale=1, width=0.003, headwidth=3, headlength=4, zorder=4)
 
 
+ARROW_OF_MEDIAN = 1 / 30   # of the window's width: the arrow of the run's median normal impulse
+ARROW_LONGEST = 1 / 8      # of the window's width: no arrow is drawn longer (its colour still tells)
+
+
 def impulse_scale_for(normal_impulses, window):
-    """Metres of arrow per unit of impulse: the 99th percentile of the normal impulses given
-    draws as a twentieth of the window's width."""
+    """Metres of arrow per N·s: the median of the nonzero normal impulses given draws as a
+    thirtieth of the window's width. A median, not a maximum: a pile's landing impacts are a
+    hundred times its resting impulses, and scaled by them a resting arrow is a pixel long."""
     values = np.concatenate([np.abs(np.asarray(v, np.float64)) for v in normal_impulses]) if normal_impulses else []
-    top = float(np.percentile(values, 99)) if len(values) else 0.0
-    return (window.x1 - window.x0) / 20 / top if top > 0 else 0.0
+    values = np.asarray(values)[np.asarray(values) > 0]
+    typical = float(np.median(values)) if len(values) else 0.0
+    return (window.x1 - window.x0) * ARROW_OF_MEDIAN / typical if typical > 0 else 0.0
+
+
+def legend_impulse(scale, window):
+    """The round impulse (1, 2 or 5 times a power of ten, N·s) whose arrow is about a fifteenth of
+    the window's width: the legend's arrow."""
+    if not scale > 0:
+        return 0.0
+    target = (window.x1 - window.x0) / 15 / scale
+    power = 10 ** np.floor(np.log10(target))
+    return float(min((m * power for m in (1, 2, 5, 10)), key=lambda v: abs(np.log(v / target))))

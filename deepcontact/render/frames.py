@@ -31,6 +31,7 @@ class Clip:
     seed: int
     files: list          # every k-th step file
     total: int           # step files in the simulation
+    all_files: list = None   # every step file of the simulation (the impulse scale is the run's)
 
 
 def simulation_files(run_dir, seed=None, every=1):
@@ -49,7 +50,8 @@ def simulation_files(run_dir, seed=None, every=1):
     if not sims or not sims[0].files:
         raise InputError("no step files here (expected seed-NNNNNN/step-NNNNNN.xml)", run_dir)
     s = sims[0]
-    return Clip(path=run_dir, scene=s.scene, seed=s.seed, files=s.files[::every], total=len(s.files))
+    return Clip(path=run_dir, scene=s.scene, seed=s.seed, files=s.files[::every], total=len(s.files),
+                all_files=list(s.files))
 
 
 def read_frame(clip, path):
@@ -77,17 +79,33 @@ def window_for(shapes, frames):
                           max(b[2] for b in bounds), max(b[3] for b in bounds)))
 
 
-def painter_for(clip, width, contacts=True, color_by="type", window=None, panels=1):
+SCALE_SAMPLE = 48   # step files read for a run's impulse scale, spread evenly over the run
+
+
+def run_impulse_scale(files):
+    """One impulse scale (metres of arrow per N·s) for every picture of a simulation: PNG, movie
+    and viewer alike, whatever their window or --every. From the normal impulses of up to
+    SCALE_SAMPLE of its step files, spread evenly, against the window around its first and last
+    steps (draw.impulse_scale_for)."""
+    files = list(files)
+    if not files:
+        return 0.0
+    picked = [files[round(i)] for i in np.linspace(0, len(files) - 1, min(SCALE_SAMPLE, len(files)))]
+    steps = {f: read_step(f, validate=False) for f in dict.fromkeys([files[0], files[-1], *picked])}
+    window = window_for(read_shapes(files[0]), [steps[files[0]], steps[files[-1]]])
+    return impulse_scale_for([steps[f][2]["normal_impulse"] for f in picked], window)
+
+
+def painter_for(clip, width, contacts=True, color_by="type", window=None, panels=1, impulse_scale=None):
     """A Painter for a clip: shapes from its first step file, the window around its first and
-    last steps, one impulse scale for the whole clip (from a sample of its steps)."""
+    last steps, the run's impulse scale (run_impulse_scale) unless one is given."""
     shapes = read_shapes(clip.files[0])
     ends = [read_frame(clip, clip.files[0]), read_frame(clip, clip.files[-1])]
     window = window or window_for(shapes, ends)
-    sample = [read_frame(clip, f)[2]["normal_impulse"] for f in clip.files[:: max(1, len(clip.files) // 12)]]
     speeds = [np.hypot(*b["velocity"].T).max(initial=0.0) for _, b, _ in ends]
-    return Painter(shapes, window, width, contacts=contacts, color_by=color_by,
-                   impulse_scale=impulse_scale_for(sample, window), speed_max=max(max(speeds), 1e-6),
-                   panels=panels)
+    scale = impulse_scale or run_impulse_scale(clip.all_files or clip.files)
+    return Painter(shapes, window, width, contacts=contacts, color_by=color_by, impulse_scale=scale,
+                   speed_max=max(max(speeds), 1e-6), panels=panels)
 
 
 def distance(a, b):

@@ -16,17 +16,36 @@ def sample_panels(dataset, index, model=None, panel_px=220, threads=1):
         raise InputError(f"sample {index} is out of range: the dataset has {len(data)} samples (0 to {len(data) - 1})",
                          dataset)
     meta = data.metadata
-    x = np.asarray(data.arrays["inputs"][index], np.float32)
-    y = np.asarray(data.arrays["labels"][index], np.float32)
-    rows = [[(name, x[c], "viridis") for c, name in enumerate(meta["inputs"])],
-            [(name, y[c], "magma") for c, name in enumerate(meta["labels"])]]
-    if model is not None:
-        pred = _predict(model, meta, x, dataset, threads)
-        rows.append([(f"predicted {name}", pred[name], "magma") for name in meta["labels"] if name in pred])
-        rows.append([(f"error of {name}", pred[name] - y[c], "coolwarm") for c, name in enumerate(meta["labels"])
+    x = np.array(data.arrays["inputs"][index], np.float32)
+    y = np.array(data.arrays["labels"][index], np.float32)
+    pred = _predict(model, meta, x, dataset, threads) if model is not None else {}
+    # a label and its prediction share one colour range, so that their colours compare
+    ranges = {name: _range([y[c]] + ([pred[name]] if name in pred else [])) for c, name in enumerate(meta["labels"])}
+    rows = [[(name, x[c], "viridis", None) for c, name in enumerate(meta["inputs"])],
+            [(name, y[c], "magma", ranges[name]) for c, name in enumerate(meta["labels"])]]
+    if pred:
+        rows.append([(f"predicted {name}", pred[name], "magma", ranges[name]) for name in meta["labels"]
                      if name in pred])
-    return _figure(rows, panel_px, f"{dataset} · sample {index} (simulation {int(data.arrays['simulation'][index])}, "
+        rows.append([(f"error of {name}", pred[name] - y[c], "coolwarm", None) for c, name in enumerate(meta["labels"])
+                     if name in pred])
+    simulation = int(data.arrays["simulation"][index])
+    return _figure(rows, panel_px, f"{dataset} · sample {index} ({_split_of(meta, simulation)} simulation {simulation}, "
                                    f"step {int(data.arrays['step'][index])})", meta["grid"])
+
+
+def _range(images):
+    """(low, high) over the images, so that several panels share one colour scale."""
+    low = min(float(np.min(i)) for i in images)
+    high = max(float(np.max(i)) for i in images)
+    return (low, high if high > low else low + 1.0)
+
+
+def _split_of(meta, simulation):
+    """Which split a simulation is in: a training sample looks better than a validation one."""
+    for part in ("train", "validation"):
+        if simulation in meta["split"].get(part, []):
+            return part
+    return "unsplit"
 
 
 def _predict(model, meta, x, dataset, threads=1):
@@ -54,13 +73,13 @@ def _figure(rows, panel_px, title, grid):
     extent = (grid["x0"], grid["x0"] + (grid["nx"] - 1) * grid["cell"],
               grid["y0"], grid["y0"] + (grid["ny"] - 1) * grid["cell"])
     for r, row in enumerate(rows):
-        for c, (name, image, cmap) in enumerate(row):
+        for c, (name, image, cmap, limits) in enumerate(row):
             ax = fig.add_subplot(len(rows), cols, r * cols + c + 1)
             if cmap == "coolwarm":   # an error: symmetric about 0
                 top = float(np.abs(image).max()) or 1.0
-                shown = ax.imshow(image, origin="lower", cmap=cmap, vmin=-top, vmax=top, extent=extent)
-            else:
-                shown = ax.imshow(image, origin="lower", cmap=cmap, extent=extent)
+                limits = (-top, top)
+            low, high = limits if limits is not None else (None, None)
+            shown = ax.imshow(image, origin="lower", cmap=cmap, vmin=low, vmax=high, extent=extent)
             ax.set_title(name, fontsize=8, parse_math=False)
             ax.tick_params(labelsize=6)
             fig.colorbar(shown, ax=ax, shrink=0.75).ax.tick_params(labelsize=6)

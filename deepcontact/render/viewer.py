@@ -1,6 +1,8 @@
 """A run as one self-contained HTML page: the frames embedded as JSON, a canvas drawn by a few
 lines of script (no library, no network), play/pause, a step slider, toggles for contacts and
-impulses, and each step's numbers beside the canvas. `#frame=K` in the address opens frame K.
+impulses, an arrow-length control (x1/8 to x8 of the run's impulse scale, with a legend arrow), and
+each step's numbers beside the canvas. `#frame=K` in the address opens frame K; `#arrows=Z` sets
+the control to 2^Z.
 
 The canvas sits at the page's top-left corner and has the window's aspect ratio, so a world
 point maps to a pixel as in draw.Window.pixel (the tests check a screenshot there)."""
@@ -8,7 +10,7 @@ import numpy as np
 
 from .. import __version__
 from ..escape import fill, html_text, script_json
-from .draw import FILL
+from .draw import ARROW_LONGEST, FILL, legend_impulse
 from .frames import painter_for, read_frame
 
 
@@ -16,8 +18,10 @@ def _rounded(values, digits=4):
     return [round(float(v), digits) for v in np.asarray(values, np.float64).ravel()]
 
 
-def viewer_html(clip, width=640, fps=30):
-    painter = painter_for(clip, width)   # the window and impulse scale the pictures use
+def viewer_html(clip, width=640, fps=30, impulse_scale=None, window=None):
+    """The page for a clip: the window and the run's impulse scale as its pictures use them (or
+    those given); a slider scales the arrows by 1/8 to 8 in the page."""
+    painter = painter_for(clip, width, window=window, impulse_scale=impulse_scale)
     window, shapes = painter.window, painter.shapes
     frames = []
     for path in clip.files:
@@ -35,7 +39,8 @@ def viewer_html(clip, width=640, fps=30):
     data = {
         "scene": clip.scene, "seed": clip.seed, "run": str(clip.path), "steps": clip.total,
         "window": [window.x0, window.y0, window.x1, window.y1], "size": list(painter.size), "fps": fps,
-        "scale": painter.impulse_scale,
+        "scale": painter.impulse_scale, "legend": legend_impulse(painter.impulse_scale, window),
+        "longest": (window.x1 - window.x0) * ARROW_LONGEST,
         "fill": {str(k): v for k, v in FILL.items()},
         "circles": _rounded(shapes.circles), "edges": _rounded(shapes.edges),
         "polygons": [[int(b), _rounded(v)] for b, v in shapes.polygons],
@@ -66,7 +71,8 @@ body { margin: 0; font: 13px/1.4 system-ui, sans-serif; color: #222; }
     <button id="play" type="button">play</button>
     <label><input id="contacts" type="checkbox" checked> contacts</label>
     <label><input id="impulses" type="checkbox" checked> impulses</label><br>
-    <input id="slider" type="range" min="0" value="0">
+    <input id="slider" type="range" min="0" value="0"><br>
+    <label>arrows <input id="scale" type="range" min="-3" max="3" step="0.5" value="0"> <span id="scaled">x1</span></label>
   </div>
   <table id="numbers"></table>
   <p style="color:#777">deepcontact __VERSION__ · normal impulses red, friction blue</p>
@@ -111,6 +117,9 @@ function draw() {
       g.lineTo(px(c[0] + r * Math.cos(a)), py(c[1] + r * Math.sin(a))); g.stroke();
     }
   }
+  const scale = D.scale * zoom();
+  // an arrow no longer than the pictures' longest (its impulse is in the numbers, not the length)
+  const len = v => Math.sign(v) * Math.min(Math.abs(v) * scale, D.longest);
   if (document.getElementById("contacts").checked) {
     const arrows = document.getElementById("impulses").checked;
     for (let i = 0; i < f.contacts.length; i += 6) {
@@ -118,12 +127,20 @@ function draw() {
       if (arrows) {
         g.lineWidth = 1.5;
         g.strokeStyle = "#c92a2a"; g.beginPath(); g.moveTo(px(x), py(y));
-        g.lineTo(px(x + nx * ln * D.scale), py(y + ny * ln * D.scale)); g.stroke();
+        g.lineTo(px(x + nx * len(ln)), py(y + ny * len(ln))); g.stroke();
         g.strokeStyle = "#1c7ed6"; g.beginPath(); g.moveTo(px(x), py(y));
-        g.lineTo(px(x + ny * lt * D.scale), py(y - nx * lt * D.scale)); g.stroke();
+        g.lineTo(px(x + ny * len(lt)), py(y - nx * len(lt))); g.stroke();
         g.lineWidth = 1;
       }
       g.fillStyle = "#111111"; g.fillRect(px(x) - 1.5, py(y) - 1.5, 3, 3);
+    }
+    if (arrows && D.legend > 0) {   // the legend: the arrow of a round impulse, as the pictures draw it
+      const l = Math.min(D.legend * scale, D.longest) * k, x1 = W - 0.02 * W, x0 = x1 - l, y0 = 0.03 * H + 6;
+      g.fillStyle = "rgba(255,255,255,0.8)"; g.fillRect(x0 - 80, y0 - 10, l + 84, 20);
+      g.strokeStyle = "#c92a2a"; g.lineWidth = 2; g.beginPath(); g.moveTo(x0, y0); g.lineTo(x1, y0); g.stroke();
+      g.lineWidth = 1; g.fillStyle = "#222"; g.font = "11px system-ui, sans-serif"; g.textAlign = "right";
+      g.fillText(`${+(D.legend * Math.min(1, D.longest / (D.legend * scale))).toPrecision(3)} N·s`, x0 - 6, y0 + 4);
+      g.textAlign = "left";
     }
   }
   const rows = [["step", f.step + " (frame " + (frame + 1) + " of " + D.frames.length + ")"], ["time", f.time.toFixed(3) + " s"],
@@ -132,6 +149,13 @@ function draw() {
   document.getElementById("numbers").innerHTML = rows.map(([k, v]) => `<tr><td>${k}</td><td class="v">${v}</td></tr>`).join("");
   document.getElementById("slider").value = frame;
 }
+
+function zoom() { return Math.pow(2, +document.getElementById("scale").value); }
+document.getElementById("scale").addEventListener("input", () => {
+  const z = zoom();
+  document.getElementById("scaled").textContent = "x" + (z >= 1 ? z.toFixed(z % 1 ? 1 : 0) : "1/" + (1 / z).toFixed((1 / z) % 1 ? 1 : 0));
+  draw();
+});
 
 function show(k) { frame = Math.max(0, Math.min(D.frames.length - 1, k)); draw(); }
 document.getElementById("name").textContent = `${D.scene} · seed ${D.seed} · ${D.steps} step files`;
@@ -144,7 +168,8 @@ document.getElementById("play").addEventListener("click", e => {
   e.target.textContent = "pause";
   timer = setInterval(() => show(frame + 1 < D.frames.length ? frame + 1 : 0), 1000 / D.fps);
 });
-const m = /frame=(\\d+)/.exec(location.hash);
+const m = /frame=(\\d+)/.exec(location.hash), a = /arrows=(-?[\\d.]+)/.exec(location.hash);
+if (a) { document.getElementById("scale").value = a[1]; document.getElementById("scale").dispatchEvent(new Event("input")); }
 show(m ? +m[1] : 0);
 document.body.dataset.ready = "1";
 </script>

@@ -17,7 +17,7 @@ from ..errors import InputError, count
 
 MANIFEST = "manifest.json"
 _SIM_DIR = re.compile(r"seed-\d{6,}")
-_STEP_FILE = re.compile(r"step-(\d{6,})\.xml(\.gz)?")   # plain, or gzip (dc simulate --compress)
+STEP_FILE = re.compile(r"step-(\d{6,})\.xml(\.gz)?")   # plain, or gzip (dc simulate --compress)
 
 
 @dataclass
@@ -90,7 +90,7 @@ def step_files_in(folder):
     files, seen = [], {}
     with os.scandir(folder) as it:
         for e in it:
-            m = _STEP_FILE.fullmatch(e.name)
+            m = STEP_FILE.fullmatch(e.name)
             if m:
                 if not e.is_file():
                     raise InputError("not a regular file", e.path)
@@ -104,7 +104,7 @@ def step_files_in(folder):
 
 def step_index(path):
     """The step number in a step file's name (step-NNNNNN.xml or .xml.gz)."""
-    m = _STEP_FILE.fullmatch(Path(path).name)
+    m = STEP_FILE.fullmatch(Path(path).name)
     if m is None:
         raise InputError("not named like a step file (step-NNNNNN.xml)", path)
     return int(m.group(1))
