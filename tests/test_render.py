@@ -246,7 +246,8 @@ def test_the_viewers_arrow_control_lengthens_the_arrows(pile_run, tmp_path):
 
 def test_comparing_different_simulations_warns(pile_run, tmp_path):
     other = tmp_path / "other"
-    assert dc("simulate", "pile", "--seed", "5", "--steps", "20", "-q", "-o", str(other)).returncode == 0
+    steps = str(len(steps_of(pile_run)))
+    assert dc("simulate", "pile", "--seed", "5", "--steps", steps, "-q", "-o", str(other)).returncode == 0
     r = dc("render", str(pile_run), "--compare", str(other), "--every", "10", "--size", "200", "-o",
            str(tmp_path / "both.gif"))
     assert r.returncode == 0 and "different simulations" in r.stderr, r.stderr
