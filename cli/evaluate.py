@@ -169,7 +169,7 @@ def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode,
 def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet,
                     accelerations=("none",), measured=None, jobs=1):
     """Every simulation of every run given, its rows per seed and pooled over all of them."""
-    from deepcontact.evaluate.closed_loop import every_simulation, pooled
+    from deepcontact.evaluate.closed_loop import every_simulation, pooled, steps_stepped
     from deepcontact.evaluate.report import write_loop_report
     from deepcontact.evaluate.replay import box2d_run
     from deepcontact.scene.xml import read_scene
@@ -179,7 +179,8 @@ def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, 
     if len({scene.name for scene in scenes}) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted({sc.name for sc in scenes}))}); "
                          "the closed loop pools one kind of scene at a time")
-    bar = options.progress_bar(quiet, len(sims), "simulation", "closed loop")
+    variants = len(table) * len(relaxations) * len(accelerations)
+    bar = options.progress_bar(quiet, steps_stepped(scenes, variants, budgets, steps), "step", "closed loop")
     per_simulation = every_simulation(scenes, table, budgets=budgets, jobs=jobs, progress=bar.update,
                                       tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
                                       steps=steps, relaxations=relaxations, accelerations=accelerations)

@@ -18,10 +18,11 @@ from . import options
               show_default=True,
               help="Store as /solution: the exact reference (Newton, residual < 1e-12 where it gets "
                    "there), what the run's solver produced, or nothing.")
+@options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("export")
-def export(run_dir, out, fmt, every, solution, overwrite, verbose, quiet):
+def export(run_dir, out, fmt, every, solution, jobs, overwrite, verbose, quiet):
     """Write each step's contact problem as an FCLIB local problem (2D).
 
     Each file holds W (the Delassus matrix J M^-1 J^T of the contact points
@@ -34,6 +35,7 @@ def export(run_dir, out, fmt, every, solution, overwrite, verbose, quiet):
     \b
     Examples:
       dc export runs/pile -o runs/pile-fclib --every 10
+      dc export runs/thesis -o runs/thesis-fclib -j 2
       dc export runs/pyramid -o runs/pyramid-fclib --solution recorded
       /usr/bin/python3 -c "import h5py; print(list(h5py.File('runs/pile-fclib/seed-000000/step-000010.hdf5')))"
       dc export runs/pile -o runs/pile-table --format csv
@@ -43,12 +45,14 @@ def export(run_dir, out, fmt, every, solution, overwrite, verbose, quiet):
     from deepcontact.step.run_folder import read_run
 
     options.refuse_inapplicable([("solution", fmt == "fclib", "only applies to --format fclib")])
-    total = len(read_run(run_dir).step_files)
+    sims = read_run(run_dir).simulations
+    total = sum(len(s.files) if fmt == "fclib" else len(s.files[::every]) for s in sims)
     bar = options.progress_bar(quiet, total, "step", "export")
     if fmt != "fclib":
         from deepcontact.step.table import export_tables
         try:
-            rows = export_tables(run_dir, out, fmt=fmt, every=every, overwrite=overwrite, progress=bar)
+            rows = export_tables(run_dir, out, fmt=fmt, every=every, overwrite=overwrite, progress=bar.update,
+                                 jobs=jobs)
         finally:
             bar.close()
         if not quiet:
@@ -56,7 +60,8 @@ def export(run_dir, out, fmt, every, solution, overwrite, verbose, quiet):
                        err=True)
         return
     try:
-        index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite, progress=bar)
+        index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite, progress=bar.update,
+                           jobs=jobs)
     finally:
         bar.close()
     if not quiet:

@@ -52,11 +52,12 @@ def kind_of(path):
 @click.option("--arch", type=options.PluginName(NETWORKS),
               help="[dataset] Load this network plug-in for a checkpoint that needs it.")
 @options.threads
+@options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("render")
-def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, seed, every, fps, compare, sample, model, arch,
-           threads, overwrite, verbose, quiet):
+def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, seed, every, fps, compare, sample, model,
+           arch, threads, jobs, overwrite, verbose, quiet):
     """Draw INPUT: a step file, a run, or a sample of a grid dataset.
 
     \b
@@ -77,6 +78,7 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
       dc render runs/demo/seed-000000/step-000599.xml -o pile.png
       dc render runs/demo/seed-000000/step-000300.xml --color-by speed -o pile.svg
       dc render runs/demo -o pile.gif --every 4 --fps 25
+      dc render runs/demo -o pile.mp4 -j 2
       dc render runs/demo --compare runs/psor -o box2d-vs-psor.mp4 --every 2
       dc render runs/demo -o pile.html --every 2
       dc render data/thesis --sample 120 --checkpoint models/fcn/best.pt -o sample.png
@@ -95,7 +97,9 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         + [(name, kind != "dataset", "does not apply to a grid dataset's sample (it draws grid images)")
            for name in ("size", "window", "no_contacts", "color_by", "impulse_scale")]
         + [("impulse_scale", not no_contacts, "draws impulse arrows: it does not apply with --no-contacts")]
-        + [("threads", model is not None, "only applies with --checkpoint (nothing else runs torch)")])
+        + [("threads", model is not None, "only applies with --checkpoint (nothing else runs torch)")]
+        + [("jobs", kind == "run" and movie and suffix != ".html", "draws a movie's frames side by side: it only "
+                                                                    "applies to a run drawn as .gif, .mp4 or .webm")])
     options.load_network(arch)
     if suffix not in FORMS[kind]:
         every_form = sorted({s for forms in FORMS.values() for s in forms})
@@ -122,7 +126,7 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
             atomic.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
         else:
             _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
-                 impulse_scale)
+                 impulse_scale, jobs)
     if not quiet:
         click.echo(str(out))
 
@@ -150,12 +154,12 @@ def _step(path, out, size, window, contacts, color_by, fmt, impulse_scale=None):
     atomic.write_bytes(out, painter.image_bytes(fmt))
 
 
-def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare, quiet, impulse_scale=None):
+def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare, quiet, impulse_scale=None, jobs=1):
     import logging
 
     from deepcontact import atomic
     from deepcontact.render.draw import Window
-    from deepcontact.render.frames import frames, painter_for, simulation_files, write_gif, write_video
+    from deepcontact.render.frames import drawn, painter_for, simulation_files, write_gif, write_video
 
     clip = simulation_files(path, seed, every)
     if out.suffix.lower() == ".html":
@@ -171,10 +175,11 @@ def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare,
     painter = painter_for(clip, size, contacts, color_by, Window(*window) if window else None,
                           panels=2 if other else 1, impulse_scale=impulse_scale)
     bar = options.progress_bar(quiet, len(clip.files), "frame", f"render {out.name}")
-    stream = (bar.update(1) or f for f in frames(clip, painter, other))
+    gif = out.suffix.lower() == ".gif"
+    stream = drawn(clip, painter, other, jobs=jobs, gif_fps=fps if gif else None, progress=bar.update)
     try:
-        if out.suffix.lower() == ".gif":
-            write_gif(out, stream, fps)
+        if gif:
+            write_gif(out, stream)
         else:
             w, h = painter.size
             write_video(out, stream, fps, (w * (2 if other else 1), h))

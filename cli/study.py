@@ -26,10 +26,11 @@ def study():
 @study.command()
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Also write the table to this file.")
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs.")
+@options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study stability")
-def stability(out, fast, overwrite, verbose, quiet):
+def stability(out, fast, jobs, overwrite, verbose, quiet):
     """Run every hard scene with Box2D's solver and ours until it meets its criteria.
 
     Criteria (deepcontact/studies/stability.py): finite, penetration at rest
@@ -41,7 +42,7 @@ def stability(out, fast, overwrite, verbose, quiet):
     \b
     Examples:
       dc study stability --fast
-      dc study stability -o runs/stability.md --overwrite
+      dc study stability -o runs/stability.md --overwrite -j 2
     """
     import os
 
@@ -56,12 +57,11 @@ def stability(out, fast, overwrite, verbose, quiet):
         if out and os.path.exists(out) and not overwrite:
             raise InputError("file exists; use --overwrite to replace it", out)
         from deepcontact.protocol import protocol, protocol_line
-        measured = protocol()
+        measured = protocol(jobs=jobs)
         click.echo(S.HEADER)
-        rows = S.study(S.FAST if fast else S.FULL, log=click.echo)
+        rows = S.study(S.FAST if fast else S.FULL, log=click.echo, jobs=jobs)
         if out:
-            atomic.write_text(out, f"# Stability of the hard scenes ({'fast' if fast else 'full'} variants)\n\n"
-                              f"{protocol_line(measured)}\n\n" + S.table(rows))
+            atomic.write_text(out, S.markdown(rows, fast, protocol_line(measured)))
     failed = sum(not f.passed for _, f in rows)
     if failed:
         raise InputError(f"{failed} of {len(rows)} configurations never met their criteria (see the table)")
@@ -75,10 +75,11 @@ def stability(out, fast, overwrite, verbose, quiet):
 @click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual", show_default=True,
               help="The stopping measure (residual, as everywhere; thesis: the thesis's largest change per sweep).")
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
+@options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study figures")
-def figures(run, out, every, tolerance, stop_on, max_iterations, overwrite, verbose, quiet):
+def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite, verbose, quiet):
     """The thesis's figures 5.4-5.7 on RUN: h, d and the kernel of the SPH start, then every start.
 
     Writes fig-5.4 ... fig-5.7 (PNG and SVG) and figures.md with each
@@ -88,12 +89,19 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, overwrite, verb
     Examples:
       dc study figures runs/heldout -o reports/figures
       dc study figures runs/heldout -o reports/figures --stop-on thesis --every 5
+      dc study figures runs/heldout -o reports/figures -j 2
     """
     from deepcontact import atomic
-    from deepcontact.studies.figures import FIGURE_FILES, figures as make
+    from deepcontact.studies.figures import FIGURE_FILES, figures as make, step_files
 
     with atomic.output_folder(out, FIGURE_FILES, overwrite, command="study figures") as work:
-        click.echo(make(run, work, every=every, tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations))
+        bar = options.progress_bar(quiet, step_files(run), "step", "study figures")
+        try:
+            text = make(run, work, every=every, tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations,
+                        jobs=jobs, progress=bar.update)
+        finally:
+            bar.close()
+        click.echo(text)
 
 
 @study.command()

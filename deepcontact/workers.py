@@ -17,6 +17,15 @@ from multiprocessing.connection import Pipe, wait
 from .errors import Failure
 
 _PR_SET_PDEATHSIG = 1
+_report = None   # where progress() goes: a worker's pipe to its parent, or the serial run's callback
+
+
+def progress(n=1):
+    """Counts n units of a task's work as done, from inside the task: a worker sends it to its
+    parent, whose pool hands it to the command's progress callback; a serial run calls it at once.
+    So a bar moves per step, not per task, with any -j."""
+    if _report is not None:
+        _report(n)
 
 
 def _init_worker(parent):
@@ -32,7 +41,10 @@ def _init_worker(parent):
 
 
 def _serve(conn):
-    """A worker's loop: (fn, task) in, ("ok", result) or ("error", exception) out, until None."""
+    """A worker's loop: (fn, task) in, ("progress", n) as it goes, then ("ok", result) or
+    ("error", exception) out, until None."""
+    global _report
+    _report = lambda n: conn.send(("progress", n))   # noqa: E731 (one line, one job)
     while True:
         try:
             job = conn.recv()
@@ -52,10 +64,12 @@ def _serve(conn):
 
 
 class Pool:
-    """`jobs` forked workers; imap and imap_unordered as multiprocessing.Pool's."""
+    """`jobs` forked workers; imap and imap_unordered as multiprocessing.Pool's; on_progress(n)
+    receives what the tasks report through progress()."""
 
-    def __init__(self, jobs):
+    def __init__(self, jobs, on_progress=None):
         self.workers = []   # (pid, connection)
+        self.on_progress = on_progress
         parent = os.getpid()
         for _ in range(jobs):
             ours, theirs = Pipe()
@@ -92,12 +106,16 @@ class Pool:
                 break
         while busy:
             for conn in wait(list(busy)):
-                index = busy.pop(conn)
                 try:
                     status, value = conn.recv()
                 except EOFError:
                     raise Failure("a worker process died (killed by a signal, or out of memory?); nothing of this "
                                   "command's output was kept") from None
+                if status == "progress":   # (the task goes on)
+                    if self.on_progress is not None:
+                        self.on_progress(value)
+                    continue
+                index = busy.pop(conn)
                 if status == "error":
                     raise value
                 yield index, value
@@ -139,9 +157,10 @@ class Pool:
 
 
 @contextmanager
-def pool(jobs):
-    """A pool of `jobs` forked workers, killed and waited for if the block fails."""
-    p = Pool(jobs)
+def pool(jobs, progress=None):
+    """A pool of `jobs` forked workers, killed and waited for if the block fails; progress(n)
+    receives the tasks' progress() reports."""
+    p = Pool(jobs, progress)
     try:
         yield p
         p.close()
@@ -161,5 +180,18 @@ class _Serial:
 
 
 @contextmanager
-def serial():
-    yield _Serial()
+def serial(progress=None):
+    """The pool's interface in this process; progress(n) receives the tasks' progress() reports."""
+    global _report
+    before = _report
+    if progress is not None:   # (else a serial run inside a worker keeps reporting to the worker's parent)
+        _report = progress
+    try:
+        yield _Serial()
+    finally:
+        _report = before
+
+
+def for_jobs(jobs, tasks, progress=None):
+    """A pool of `jobs` workers when there is more than one job and task, else a serial run."""
+    return pool(jobs, progress) if jobs > 1 and len(tasks) > 1 else serial(progress)

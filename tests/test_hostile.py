@@ -459,7 +459,7 @@ def test_a_compressed_bomb_is_refused_early(tmp_path, megabytes):
 
 
 def test_the_gif_writer_holds_one_frame(tmp_path):
-    from deepcontact.render.frames import write_gif
+    from deepcontact.render.frames import gif_chunk, write_gif
     sizes = []
     out = tmp_path / "a.gif"
 
@@ -472,7 +472,7 @@ def test_the_gif_writer_holds_one_frame(tmp_path):
             sizes.append(partial[0].stat().st_size if partial else 0)
             shown.append(rng.integers(0, 4, (96, 128, 1), dtype=np.uint8).repeat(3, axis=2) * 60)   # (noise: >8 kB)
             yield shown[-1]
-    assert write_gif(out, frames(), 10) == 6
+    assert write_gif(out, (gif_chunk(rgb, 10, first=k == 0) for k, rgb in enumerate(frames()))) == 6
     assert all(b > a for a, b in zip(sizes[1:], sizes[2:]))   # each frame written before the next is drawn
     from PIL import Image
     im = Image.open(out)

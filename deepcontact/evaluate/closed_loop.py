@@ -86,6 +86,7 @@ def run_loop(scene, start_fn, options, steps, solved=None):
 def _follow(world, scene, steps, step, solved=None):
     trail, energies, iterations, seconds, deepest, finite = [], [], [], [], 0.0, True
     for done in stepping.steps(world, scene, step, steps):
+        workers.progress(1)
         seconds.append(done.seconds)
         if solved is not None:
             solved(done.solution)
@@ -119,13 +120,11 @@ def _compare(t, ref):
 
 
 def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
-                steps=None, progress=None, relaxations=(1.0,), reference=None, accelerations=("none",)):
+                steps=None, relaxations=(1.0,), reference=None, accelerations=("none",)):
     """Every start (with every acceleration and w) driving the scene; reference: a
-    reference_trajectory to reuse."""
+    reference_trajectory to reuse. Each step stepped is reported to workers.progress."""
     steps = steps or scene.steps
     ref = reference or reference_trajectory(scene, steps)
-    if progress:
-        progress(1)
     results = []
     for v in variants(starts, relaxations, accelerations):
         # Zero and Box2D's warm start need nothing from Python: the whole step is one native call.
@@ -139,12 +138,13 @@ def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
                                   ms_per_step=t.seconds * 1e3, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
                                   penetration=t.deepest, finite=t.finite, energy_error=err,
                                   relaxation=v.relaxation if v.relaxation != "auto" else float("nan")))
-        if progress:
-            progress(1)
     return results
 
 
-def box2d_iterations(scene, counts=(1, 2, 4, 8, 16, 32, 64, 128, 256), steps=None, reference=None):
+BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)   # Box2D's own solver's iterations, beside ours
+
+
+def box2d_iterations(scene, counts=BOX2D_COUNTS, steps=None, reference=None):
     """Box2D's own solver at fixed velocity iteration counts against the reference trajectory:
     drift, energy error and deepest contact, and the measured time per step (a run without
     recording; the contacts come from a second, identical, recorded run)."""
@@ -176,18 +176,20 @@ def loop_simulation(task):
     return results
 
 
+def steps_stepped(scenes, variants, budgets, steps=None):
+    """How many steps every_simulation steps (its progress bar's total): per simulation, the
+    reference, each variant, and with budgets Box2D at each iteration count twice (timed, recorded)."""
+    per = 1 + variants + (2 * len(BOX2D_COUNTS) if budgets else 0)
+    return sum((steps or scene.steps) * per for scene in scenes)
+
+
 def every_simulation(scenes, starts, *, budgets=False, jobs=1, progress=None, **options):
     """The closed loop on every scene (one per simulation: its seed's initial state), side by side
     in `jobs` worker processes; returns one list of LoopResult per scene, in order. options:
-    those of closed_loop. progress(n): n more simulations done."""
+    those of closed_loop. progress(n): n more steps stepped (steps_stepped in all)."""
     tasks = [(scene, starts, options, budgets) for scene in scenes]
-    out = []
-    with workers.pool(jobs) if jobs > 1 and len(tasks) > 1 else workers.serial() as pool:
-        for results in pool.imap(loop_simulation, tasks):
-            out.append(results)
-            if progress:
-                progress(1)
-    return out
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        return list(pool.imap(loop_simulation, tasks))
 
 
 def pooled(per_simulation):

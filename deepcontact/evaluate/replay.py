@@ -144,6 +144,7 @@ def evaluate_simulation(task):
     rows = []
     previous, before = set(), None
     for k, path in enumerate(files):
+        workers.progress(1)
         header, bodies, contacts = read_step(path, validate=False)
         check_origin(header, scene, sim_seed, path)
         keys = contact_keys(contacts)
@@ -196,7 +197,8 @@ def evaluate(run_dirs: list, starts: dict, *, tolerance: float = 1e-4, max_itera
 
     budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached.
     jobs > 1: simulations side by side in worker processes (the same rows, in the same order; the
-    times are each worker's own). progress(n) is called as n more step files are done."""
+    times are each worker's own). progress(n) is called as n more step files are done (each
+    step file as it is reached, in any worker)."""
     plan = _plan(run_dirs)
     table = variants(starts, relaxations, accelerations)
     tuned = {}
@@ -210,11 +212,9 @@ def evaluate(run_dirs: list, starts: dict, *, tolerance: float = 1e-4, max_itera
     settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
     tasks = [(sim, table, settings, every, seed, budgets) for sim in plan]
     rows = []
-    with workers.pool(jobs) if jobs > 1 and len(tasks) > 1 else workers.serial() as pool:
-        for task, simulation_rows in zip(tasks, pool.imap(evaluate_simulation, tasks)):
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        for simulation_rows in pool.imap(evaluate_simulation, tasks):
             rows.extend(simulation_rows)
-            if progress is not None:
-                progress(len(task[0][2]))
     if not rows:
         raise InputError("no steps with contacts to evaluate")
     return rows

@@ -298,10 +298,14 @@ def plots(out, rows, summary, settings, pareto):
 
 
 def _save(fig, stem):
+    """PNG and SVG, the same bytes for the same figure (no date, fixed SVG ids): a report made
+    with any -j is the same report."""
+    import matplotlib
     import matplotlib.pyplot as plt
     fig.tight_layout()
-    for ext in ("png", "svg"):
-        fig.savefig(f"{stem}.{ext}", dpi=110)
+    with matplotlib.rc_context({"svg.hashsalt": "deepcontact"}):
+        fig.savefig(f"{stem}.png", dpi=110)
+        fig.savefig(f"{stem}.svg", dpi=110, metadata={"Date": None})
     plt.close(fig)
 
 

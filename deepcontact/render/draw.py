@@ -51,6 +51,8 @@ class Painter:
                  speed_max=None, panels=1):
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
+        self._spec = dict(shapes=shapes, window=window, width=width, contacts=contacts, color_by=color_by,
+                          impulse_scale=impulse_scale, speed_max=speed_max, panels=panels)
         self.shapes, self.window, self.contacts, self.color_by = shapes, window, contacts, color_by
         self.impulse_scale, self.speed_max = impulse_scale, speed_max
         self.size = window.size(width)
@@ -64,6 +66,10 @@ class Painter:
             ax.set_ylim(window.y0, window.y1)
             ax.set_axis_off()
             ax.set_facecolor(BACKGROUND)
+
+    def spec(self):
+        """The arguments that make a painter like this one (a worker process draws with its own)."""
+        return dict(self._spec)
 
     def draw(self, bodies, contacts, title="", panel=0, progress=None):
         """Draws one step into a panel (replacing what it held)."""

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic
+from .. import atomic, workers
 from ..errors import InputError, count
 from ..step.reader import check_origin, read_step
 from ..step.run_folder import read_run, step_index
@@ -116,38 +116,74 @@ def distance(a, b):
     return float(np.max(np.hypot(*(a["position"][ia] - b["position"][ib]).astype(np.float64).T)))
 
 
-def frames(clip, painter, compare=None):
-    """RGB frames of the clip (and of the run compared, side by side, step for step)."""
-    others = {}
+def _others(compare):
+    return {} if compare is None else {step_index(f): f for f in compare.files}
+
+
+def _draw(clip, painter, k, compare, others):
+    """Frame k of the clip, drawn by the painter, as RGB."""
+    header, bodies, contacts = read_frame(clip, clip.files[k])
+    progress = (k + 1) / len(clip.files)
+    extra = ""
     if compare is not None:
-        others = {step_index(f): f for f in compare.files}
-    for k, path in enumerate(clip.files):
-        header, bodies, contacts = read_frame(clip, path)
-        progress = (k + 1) / len(clip.files)
-        extra = ""
-        if compare is not None:
-            other = others.get(header["index"])
-            if other is None:
-                raise InputError(f"the run compared has no step {header['index']}", compare.path)
-            h2, b2, c2 = read_frame(compare, other)
-            extra = f"max distance between the runs {distance(bodies, b2):.3g} m"
-            painter.draw(b2, c2, title(h2, b2, c2, extra) + f"\n{compare.path}", panel=1, progress=progress)
-        painter.draw(bodies, contacts, title(header, bodies, contacts, extra) + (f"\n{clip.path}" if compare else ""),
-                     panel=0, progress=progress)
-        yield painter.rgb()
+        other = others.get(header["index"])
+        if other is None:
+            raise InputError(f"the run compared has no step {header['index']}", compare.path)
+        h2, b2, c2 = read_frame(compare, other)
+        extra = f"max distance between the runs {distance(bodies, b2):.3g} m"
+        painter.draw(b2, c2, title(h2, b2, c2, extra) + f"\n{compare.path}", panel=1, progress=progress)
+    painter.draw(bodies, contacts, title(header, bodies, contacts, extra) + (f"\n{clip.path}" if compare else ""),
+                 panel=0, progress=progress)
+    return painter.rgb()
 
 
-def write_gif(out, frames_iter, fps):
-    """An animated GIF, each frame encoded (its own 128-colour palette) and written as it comes:
-    memory holds one frame, whatever the run's length."""
+_worker_painter = {}   # in a worker process: the painter it draws with, built once from its spec
+
+
+def _draw_task(task):
+    """A worker's frame: (clip, painter spec, k, compare, gif fps or None) -> RGB, or a GIF chunk."""
+    clip, spec, k, compare, gif_fps = task
+    if not _worker_painter:   # (a worker serves one command: one painter)
+        _worker_painter.update(painter=Painter(**spec), others=_others(compare))
+    rgb = _draw(clip, _worker_painter["painter"], k, compare, _worker_painter["others"])
+    workers.progress(1)
+    return rgb if gif_fps is None else gif_chunk(rgb, gif_fps, first=k == 0)
+
+
+def drawn(clip, painter, compare=None, jobs=1, gif_fps=None, progress=None):
+    """The clip's frames in order, drawn by `jobs` worker processes (each with a painter like this
+    one): RGB arrays, or with gif_fps the GIF chunks write_gif joins. The same frames with any
+    jobs. progress(n): n more frames drawn."""
+    if jobs <= 1 or len(clip.files) < 2:
+        others = _others(compare)
+        for k in range(len(clip.files)):
+            rgb = _draw(clip, painter, k, compare, others)
+            if progress is not None:
+                progress(1)
+            yield rgb if gif_fps is None else gif_chunk(rgb, gif_fps, first=k == 0)
+        return
+    spec = painter.spec()
+    tasks = [(clip, spec, k, compare, gif_fps) for k in range(len(clip.files))]
+    with workers.pool(jobs, progress) as pool:
+        yield from pool.imap(_draw_task, tasks)
+
+
+def gif_chunk(rgb, fps, first):
+    """One frame's bytes in an animated GIF (its own 128-colour palette)."""
     from PIL import Image
+    frame = Image.fromarray(rgb).convert("P", palette=Image.ADAPTIVE, colors=128)
+    buf = io.BytesIO()
+    frame.save(buf, format="GIF", duration=round(1000 / fps), optimize=False)
+    return _gif_frame(buf.getvalue(), first=first)
+
+
+def write_gif(out, chunks):
+    """An animated GIF from its frames' chunks (gif_chunk), each written as it comes: memory
+    holds one frame, whatever the run's length."""
     written = 0
     with atomic.open_for_write(out) as f:
-        for rgb in frames_iter:
-            frame = Image.fromarray(rgb).convert("P", palette=Image.ADAPTIVE, colors=128)
-            buf = io.BytesIO()
-            frame.save(buf, format="GIF", duration=round(1000 / fps), optimize=False)
-            f.write(_gif_frame(buf.getvalue(), first=written == 0))
+        for chunk in chunks:
+            f.write(chunk)
             written += 1
         if not written:
             raise InputError("no frames to write", out)

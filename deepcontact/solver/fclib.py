@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from .. import atomic
+from .. import atomic, workers
 from .._box2d import contact_rows
 from ..errors import InputError
 from ..step.run_folder import read_run
@@ -166,44 +166,54 @@ EXPORT_FILES = atomic.Owned("FCLIB export", [r"seed-\d{6,}/", r"seed-\d{6,}/step
 SOLUTIONS = ("reference", "recorded", "none")
 
 
-def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, progress=None):
+def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, progress=None, jobs=1):
     """Every `every`-th step of a run with contacts, as FCLIB local problems under
     out/seed-NNNNNN/step-NNNNNN.hdf5, each with the step's recorded start as its guess and, with
     solution="reference", the reference solution (or "recorded": what the run's solver produced)
     as /solution; out/index.json lists the files with their sizes and the solution's residual.
-    Written atomically (a partial export never stands). Returns the index."""
+    Written atomically (a partial export never stands). jobs > 1: steps side by side in worker
+    processes (the same files, byte for byte, and the same index). progress(n): n more step
+    files done. Returns the index."""
     if solution not in SOLUTIONS:
         raise InputError(f"solution must be one of {', '.join(SOLUTIONS)}, not {solution!r}")
     run = read_run(run_dir)
     if not run.step_files:
         raise InputError("the run has no step files", run_dir)
-    index = []
+    scene = run.manifest.get("scene", "scene")
     with atomic.output_folder(out, EXPORT_FILES, overwrite, command="export") as work:
+        tasks = []
         for sim in run.simulations:
             (work / sim.dir).mkdir()
-            for k, path in enumerate(sim.files):
-                if progress is not None:
-                    progress.update()
-                if k % every:
-                    continue
-                problem = StepProblem.from_step_file(path)
-                if not problem.points:
-                    continue
-                pair, stored = None, None   # the stored solution and its residual
-                if solution == "reference":
-                    s = reference_solution(problem)
-                    pair, stored = (s.normal_impulse, s.tangent_impulse), s.residual
-                elif solution == "recorded":
-                    pair = (problem.normal_impulse, problem.tangent_impulse)
-                name = f"{sim.dir}/{path.stem}.hdf5"
-                lp = local_problem(problem)
-                write_problem(problem, work / name, solution=pair, guess=(problem.start_normal, problem.start_tangent),
-                              title=f"{run.manifest.get('scene', 'scene')} seed {sim.seed} step {problem.index}", lp=lp)
-                if pair is not None and stored is None:
-                    stored = residual(lp, lp.reaction(*pair))
-                index.append({"file": name, "seed": sim.seed, "step": problem.index, "contacts": int(problem.points),
-                              "solution": solution, "residual": stored})
+            tasks += [(path, work, sim.dir, sim.seed, scene, solution, k % every == 0) for k, path in enumerate(sim.files)]
+        with workers.for_jobs(jobs, tasks, progress) as pool:
+            index = [entry for entry in pool.imap(_export_step, tasks) if entry is not None]
         atomic.write_text(work / "index.json", json.dumps({"format": "fclib_local", "spacedim": 2,
                                                            "problems": index}, indent=1) + "\n")
     return index
+
+
+def _export_step(task):
+    """One step file as a local problem in the export's folder: its index entry, or None (a step
+    left out by --every, or without contacts)."""
+    path, work, folder, seed, scene, solution, wanted = task
+    workers.progress(1)
+    if not wanted:
+        return None
+    problem = StepProblem.from_step_file(path)
+    if not problem.points:
+        return None
+    pair, stored = None, None   # the stored solution and its residual
+    if solution == "reference":
+        s = reference_solution(problem)
+        pair, stored = (s.normal_impulse, s.tangent_impulse), s.residual
+    elif solution == "recorded":
+        pair = (problem.normal_impulse, problem.tangent_impulse)
+    name = f"{folder}/{path.stem}.hdf5"
+    lp = local_problem(problem)
+    write_problem(problem, work / name, solution=pair, guess=(problem.start_normal, problem.start_tangent),
+                  title=f"{scene} seed {seed} step {problem.index}", lp=lp)
+    if pair is not None and stored is None:
+        stored = residual(lp, lp.reaction(*pair))
+    return {"file": name, "seed": seed, "step": problem.index, "contacts": int(problem.points),
+            "solution": solution, "residual": stored}
 

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from .. import atomic
+from .. import atomic, workers
 from ..errors import InputError
 from .reader import check_origin, read_step
 from .run_folder import read_run
@@ -28,22 +28,27 @@ def _flat(arrays):
     return out
 
 
-def step_tables(run_dir: str | os.PathLike, every: int = 1):
-    """For every `every`-th step file of a run, {"bodies": columns, "contacts": columns}: each
-    {column: 1-D array}, beginning with seed, step and time."""
+def step_tables(run_dir: str | os.PathLike, every: int = 1, jobs: int = 1, progress=None):
+    """For every `every`-th step file of a run, in order, {"bodies": columns, "contacts": columns}:
+    each {column: 1-D array}, beginning with seed, step and time. jobs > 1: read in worker
+    processes (the same tables). progress(n): n more step files read."""
     run = read_run(run_dir)
-    for sim in run.simulations:
-        for k, path in enumerate(sim.files):
-            if k % every:
-                continue
-            header, bodies, contacts = read_step(path, validate=False)
-            check_origin(header, sim.scene if sim.scene is not None else header["scene"], sim.seed, path)
-            out = {}
-            for name, arrays in (("bodies", bodies), ("contacts", contacts)):
-                n = len(next(iter(arrays.values())))
-                out[name] = {"seed": np.full(n, sim.seed), "step": np.full(n, int(header["index"])),
-                             "time": np.full(n, float(header["time"])), **_flat(arrays)}
-            yield out
+    tasks = [(path, sim.scene, sim.seed) for sim in run.simulations for path in sim.files[::every]]
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        yield from pool.imap(_step_columns, tasks)
+
+
+def _step_columns(task):
+    path, scene, seed = task
+    header, bodies, contacts = read_step(path, validate=False)
+    check_origin(header, scene if scene is not None else header["scene"], seed, path)
+    out = {}
+    for name, arrays in (("bodies", bodies), ("contacts", contacts)):
+        n = len(next(iter(arrays.values())))
+        out[name] = {"seed": np.full(n, seed), "step": np.full(n, int(header["index"])),
+                     "time": np.full(n, float(header["time"])), **_flat(arrays)}
+    workers.progress(1)
+    return out
 
 
 def run_tables(run_dir: str | os.PathLike, every: int = 1) -> tuple[dict, dict]:
@@ -58,9 +63,10 @@ def run_tables(run_dir: str | os.PathLike, every: int = 1) -> tuple[dict, dict]:
 
 
 def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: str = "csv", every: int = 1,
-                  overwrite: bool = False, progress=None) -> dict:
+                  overwrite: bool = False, progress=None, jobs: int = 1) -> dict:
     """bodies.FMT and contacts.FMT in the folder out (atomically), streamed step by step; returns
-    the row counts. Parquet needs pyarrow (the optional extra deepcontact[parquet])."""
+    the row counts. Parquet needs pyarrow (the optional extra deepcontact[parquet]). jobs > 1:
+    steps read in worker processes (the same bytes). progress(n): n more step files read."""
     if fmt not in FORMATS:
         raise InputError(f"format must be one of {', '.join(FORMATS)}, not {fmt!r}")
     if fmt == "parquet":
@@ -73,9 +79,7 @@ def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: st
     with atomic.output_folder(out, TABLE_FILES, overwrite, command="export") as work:
         writers = {}
         try:
-            for step in step_tables(run_dir, every):
-                if progress is not None:
-                    progress.update(every)
+            for step in step_tables(run_dir, every, jobs, progress):
                 for name, columns in step.items():
                     if name not in writers:
                         writers[name] = (_CSV if fmt == "csv" else _Parquet)(work / f"{name}.{fmt}")

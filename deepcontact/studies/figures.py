@@ -7,9 +7,9 @@
 
 Each is the median (and 10-90% band) of the stopping measure per PGS sweep over the run's steps.
 
-    dc study figures RUN -o OUTDIR [--every 10] [--tolerance 1e-4] [--stop-on thesis]
+    dc study figures RUN -o OUTDIR [--every 10] [--tolerance 1e-4] [--stop-on residual] [-j 2]
 """
-from .. import atomic
+from .. import atomic, workers
 from ..grid.dataset import collect
 from ..grid.spec import GridSpec
 from ..protocol import protocol, protocol_line
@@ -28,25 +28,41 @@ FIGURES = {
 FIGURE_FILES = atomic.Owned("figures folder", [r"figures\.md", r"fig-5\.[4-7]\.(png|svg)"])
 
 
-def figures(run, out, every=10, tolerance=1e-4, stop_on="thesis", max_iterations=1000):
-    """Figures 5.4-5.7 of the run into the folder out; returns the markdown text."""
+def figures(run, out, every=10, tolerance=1e-4, stop_on="residual", max_iterations=1000, jobs=1, progress=None):
+    """Figures 5.4-5.7 of the run into the folder out; returns the markdown text. jobs > 1: the
+    four figures' replays side by side in worker processes (the same figures: sweeps do not
+    depend on -j; the tables' times are each worker's own). progress(n): n more step files."""
     from ..errors import InputError
     sims, _ = collect([run])
     window = sims[0].box
     if window is None:
         raise InputError("the thesis's figures need a scene with a static box (the pile)", run)
     kw = dict(tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, every=every)
-    measured = protocol()
+    measured = protocol(jobs=jobs)
+    names = [*FIGURES, "fig-5.7"]
+    tasks = [(run, name, tuple(window), kw) for name in names]
     text = []
-    for fig, settings in FIGURES.items():
-        starts = {label: SPH(GridSpec.over(window, d, h, kernel)) for label, kernel, d, h in settings}
-        rows = evaluate([run], starts, **kw)
-        convergence_plot(rows, list(starts), out / fig, f"Thesis {fig[4:]}: the SPH start", tolerance, stop_on)
-        text += [f"## {fig}\n", summary_table(summarize(rows, starts, max_iterations)), ""]
-    starts = make_starts(["zero", "builtin", "copy", "sph"], spec=GridSpec.over(window, 0.5, 0.5))
-    rows = evaluate([run], starts, **kw)
-    convergence_plot(rows, list(starts), out / "fig-5.7", "Thesis 5.7: all starts", tolerance, stop_on)
-    text += ["## fig-5.7\n", summary_table(summarize(rows, starts, max_iterations)), "",
-             protocol_line(measured), ""]
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        for name, (starts, rows) in zip(names, pool.imap(_figure_rows, tasks)):
+            title = "Thesis 5.7: all starts" if name == "fig-5.7" else f"Thesis {name[4:]}: the SPH start"
+            convergence_plot(rows, starts, out / name, title, tolerance, stop_on)
+            text += [f"## {name}\n", summary_table(summarize(rows, starts, max_iterations)), ""]
+    text += [protocol_line(measured), ""]
     atomic.write_text(out / "figures.md", "\n".join(text) + "\n")
     return "\n".join(text)
+
+
+def step_files(run):
+    """How many step files the figures read (their progress bar's total): each figure reads the run once."""
+    from ..step.run_folder import read_run
+    return (len(FIGURES) + 1) * sum(len(s.files) for s in read_run(run).simulations)
+
+
+def _figure_rows(task):
+    """One figure's replay: (its start names, its rows); the starts are made here, in the worker."""
+    run, name, window, kw = task
+    if name == "fig-5.7":
+        starts = make_starts(["zero", "builtin", "copy", "sph"], spec=GridSpec.over(window, 0.5, 0.5))
+    else:
+        starts = {label: SPH(GridSpec.over(window, d, h, kernel)) for label, kernel, d, h in FIGURES[name]}
+    return list(starts), evaluate([run], starts, **kw)
