@@ -24,7 +24,7 @@ def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_pat
     r = dc("study", "stability", "--fast", "-q", "-o", str(out))
     assert r.returncode == 0, r.stderr
     table = out.read_text()
-    assert table.startswith("# Stability of the hard scenes (fast variants)") and "Measured with 1 torch thread" in table \
+    assert table.startswith("# Stability of the hard scenes: fast") and "Measured with 1 torch thread" in table \
         and "\n| scene | solver |" in table and "| stack" in table and "| bullet |" in table
     one_line_error(dc("study", "stability", "--fast", "-o", str(out)), out, "--overwrite")
 
