@@ -12,7 +12,7 @@ DC := $(PYTHON) -m deepcontact.cli.main
 DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos \
 	python3-h5py ffmpeg chromium
 
-.PHONY: setup demo test test-slow bench stability smoke smoke-pipeline study study-pipeline clean
+.PHONY: setup demo test test-quick test-slow bench stability smoke smoke-pipeline study study-pipeline clean
 
 # Debian packages: Box2D 2.4.1, Eigen (header-only sparse factorizations), libxml2 and zlib (the
 # native step-file reader) and pkg-config to build against them, a C++ compiler, xmllint (an
@@ -51,6 +51,11 @@ demo: setup
 
 test: setup
 	$(PYTHON) -m pytest -q -m "not slow"
+
+# The inner loop: everything but the audits, the studies, the pipeline group and the tests that
+# need a process of their own; stops at the first failure (tests/conftest.py marks the groups).
+test-quick: setup
+	$(PYTHON) -m pytest -q -x -m "not slow and not pipeline and not audit and not process and not study"
 
 test-slow: setup
 	$(PYTHON) -m pytest -q -m slow

@@ -7,6 +7,23 @@ import pytest
 from deepcontact.simulate.run import run as simulate_run
 from deepcontact.simulate.source import SceneSource
 
+# The audits of hostile input and of what a failure may lose, and the studies' fast runs: whole
+# modules, in `make test`, not in `make test-quick` (the inner loop).
+AUDITS = {"test_nothing_lost", "test_hostile", "test_mutations", "test_bad_input"}
+STUDIES = {"test_stability", "test_study"}   # the fast runs of dc study's measurements
+
+
+def pytest_collection_modifyitems(config, items):
+    """Marks the audits' and the studies' tests; runs the pipeline group (packaging, the smoke pipeline) last, so
+    that a quick failure elsewhere shows first."""
+    for item in items:
+        if item.module.__name__ in AUDITS:
+            item.add_marker(pytest.mark.audit)
+        if item.module.__name__ in STUDIES:
+            item.add_marker(pytest.mark.study)
+    items.sort(key=lambda item: item.get_closest_marker("pipeline") is not None)
+
+
 # A small pile: enough contacts (two-point manifolds on the walls included) to exercise every
 # field, fast enough for every test run.
 SMALL_PILE = dict(count="30", box="16", sigma="4", steps="150")
@@ -27,11 +44,38 @@ def pile_run(tmp_path_factory):
     return out
 
 
-def dc(*args, check=False, timeout=120):
-    """Run the installed `dc` as a user would; returns the CompletedProcess."""
+def dc(*args, check=False):
+    """`dc ARGS` run in this process (click's CliRunner): the exit code, stdout and stderr a shell
+    would see, as a CompletedProcess, without a process start (0.4 s each). A test that needs a
+    real process (signals, locks between processes, the environment, the installed entry point)
+    uses dc_process."""
+    import signal
+    import traceback
+
+    from click.testing import CliRunner
+
+    from deepcontact.cli.main import cli
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        result = CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=True)
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+    code, stderr = result.exit_code, result.stderr
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        # what a real process shows for an exception nobody caught: a traceback, exit 1
+        code, stderr = 1, stderr + "".join(traceback.format_exception(result.exception))
+    done = subprocess.CompletedProcess(["dc", *map(str, args)], code, result.stdout, stderr)
+    if check:
+        done.check_returncode()
+    return done
+
+
+def dc_process(*args, check=False, timeout=120, env=None):
+    """Run the installed `dc` in its own process, as a user would; returns the CompletedProcess."""
     exe = shutil.which("dc")
     cmd = [exe, *args] if exe else [sys.executable, "-m", "deepcontact.cli.main", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=check)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=check, env=env)
 
 
 def one_line_error(r, *needles):

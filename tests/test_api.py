@@ -55,6 +55,7 @@ def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp
     assert start in (tmp_path / "loop" / "report.md").read_text()
 
 
+@pytest.mark.pipeline
 def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path):
     target = tmp_path / "site"
     pip = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",

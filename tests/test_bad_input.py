@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import dc, one_line_error, option_error, snapshot
+from conftest import dc, dc_process, one_line_error, option_error, snapshot
 
 ROOT = Path(__file__).parent.parent
 SCENES = ROOT / "datasets" / "scenes"
@@ -310,13 +310,13 @@ def test_the_solver_loss_follows_only_the_datasets_own_sources(run, dataset, tmp
 @pytest.mark.parametrize("params", [["pyramid", "--param", "base=20000"],
                                     ["pile", "--param", "count=1000000", "--param", "box=3000"]])
 def test_scenes_too_large_for_memory(tmp_path, params):
-    r = dc("simulate", *params, "-o", str(tmp_path / "o"), timeout=60)
+    r = dc_process("simulate", *params, "-o", str(tmp_path / "o"), timeout=60)
     one_line_error(r, "GB of memory", "--max-memory")
     assert not (tmp_path / "o").exists()
 
 
 def test_grids_too_large_for_memory_and_the_override(run, tmp_path):
-    r = dc("rasterize", str(run), "--cell", "0.003", "-o", str(tmp_path / "d"), timeout=60)
+    r = dc_process("rasterize", str(run), "--cell", "0.003", "-o", str(tmp_path / "d"), timeout=60)
     one_line_error(r, "GB of memory", "d = 0.003")
     r = dc("rasterize", str(run), "-o", str(tmp_path / "d"), "--max-memory", "0.0001")
     one_line_error(r, "above the 0.0001 GB limit")

@@ -66,6 +66,7 @@ def test_unknown_starts_and_missing_model_are_clear_errors(pile_run, tmp_path):
     assert r.returncode == 1 and "manifest" in r.stderr
 
 
+@pytest.mark.pipeline
 def test_the_smoke_pipeline(tmp_path):
     if shutil.which("make") is None:
         pytest.skip("make is not installed")

@@ -29,7 +29,8 @@ SETTINGS = settings(max_examples=int(os.environ.get("DC_MUTATIONS", "12")), dead
                     derandomize="DC_MUTATIONS" not in os.environ,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-needs_browser = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make setup)")
+needs_browser = [pytest.mark.process,
+                 pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make setup)")]
 
 
 def assert_clean(result, out):
@@ -211,7 +212,8 @@ def test_only_pictures_the_command_drew_are_inlined(tmp_path):
     assert len(srcs) == 1 and srcs[0].startswith("data:image/svg+xml;base64,")   # the SVG, inert in an <img>
 
 
-@needs_browser
+@needs_browser[0]
+@needs_browser[1]
 def test_no_injected_script_runs_in_a_real_browser(tmp_path):
     name = " ".join(PAYLOADS[:3])
     scene = scene_named(name, tmp_path)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import dc, one_line_error, option_error, snapshot
+from conftest import dc, dc_process, one_line_error, option_error, snapshot
 from deepcontact import atomic
 
 PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
@@ -389,7 +389,7 @@ def test_a_fifo_named_like_a_step_file_is_refused(run, tmp_path):
     for args in (["validate", str(bad)], ["validate", str(fifo)], ["validate", "--replay", str(bad)],
                  ["rasterize", str(bad), "-o", str(tmp_path / "d")],
                  ["evaluate", str(bad), "--starts", "builtin", "-o", str(tmp_path / "r")]):
-        r = dc(*args, timeout=60)
+        r = dc_process(*args, timeout=60)
         one_line_error(r, fifo, "not a regular file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
@@ -405,7 +405,7 @@ def test_a_fifo_in_place_of_a_scene_or_checkpoint_is_refused(run, tmp_path):
                        (["evaluate", str(bad), "--closed-loop", "--starts", "builtin", "-o", str(tmp_path / "r")], scene),
                        (["evaluate", str(run), "--starts", "cnn", "--checkpoint", str(checkpoint), "-o", str(tmp_path / "r")],
                         checkpoint)):
-        one_line_error(dc(*args, timeout=60), fifo, "not a regular file")
+        one_line_error(dc_process(*args, timeout=60), fifo, "not a regular file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "run"]
 
 
@@ -513,7 +513,7 @@ def test_runaway_sizes_are_refused_before_anything_is_written(dataset, tmp_path)
     out = tmp_path / "o"
     option_error(dc("simulate", *PILE, "--steps", "99999999999999999999", "-o", str(out)), "--steps")
     one_line_error(dc("simulate", *PILE, "--steps", "2000000000", "-o", str(out)), "GB on disk")
-    one_line_error(dc("simulate", *PILE, "--seeds", "0..999999999", "-o", str(out), timeout=30), "GB on disk")
+    one_line_error(dc_process("simulate", *PILE, "--seeds", "0..999999999", "-o", str(out), timeout=30), "GB on disk")
     for option in ("--iterations", "--max-iterations"):
         option_error(dc("simulate", *PILE, "--solver", "pgs", option, str(2 ** 31), "-o", str(out)), option)
     option_error(dc("train", str(dataset), "--solver-sweeps", str(2 ** 31), "-o", str(out)), "--solver-sweeps")

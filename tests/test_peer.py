@@ -45,6 +45,7 @@ def exported(tmp_path_factory):
     return out
 
 
+@pytest.mark.process
 def test_our_exact_solution_and_siconos_lemke_both_solve_the_exported_problems(exported):
     results = peer.run([path for path, _, _ in exported], solver="lemke")
     assert len(results) == len(exported)

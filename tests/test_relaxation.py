@@ -132,7 +132,7 @@ def test_in_the_loop_prev_is_builtin_and_box2d_converges_with_iterations():
 def test_dc_evaluate_relaxation_and_budgets(pile, tmp_path):
     out = tmp_path / "report"
     r = dc("evaluate", str(pile), "--starts", "builtin,prev", "--relaxation", "1,1.7,auto", "--every", "60", "-q",
-           "-o", str(out), timeout=600)
+           "-o", str(out))
     assert r.returncode == 0, r.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["starts"]) == {f"{s}@{w}" for s in ("builtin", "prev") for w in ("1", "1.7", "auto")}
@@ -145,7 +145,7 @@ def test_dc_evaluate_relaxation_and_budgets(pile, tmp_path):
     assert "1024 sweeps" in text and "velocity error" in text and (out / "pareto.png").exists()
     loop = tmp_path / "loop"
     r = dc("evaluate", str(pile), "--closed-loop", "--steps", "60", "--starts", "builtin", "--relaxation", "1.7",
-           "-q", "-o", str(loop), timeout=600)
+           "-q", "-o", str(loop))
     assert r.returncode == 0, r.stderr
     text = (loop / "report.md").read_text()
     assert "box2d 256 iterations" in text and "| builtin@1.7 |" in text and (loop / "closed-loop.png").exists()

@@ -18,7 +18,8 @@ from deepcontact.step.reader import read_step
 from conftest import dc, one_line_error, option_error, written
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-needs_browser = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make setup)")
+needs_browser = [pytest.mark.process,
+                 pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make setup)")]
 needs_ffmpeg = pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="Debian's ffmpeg is not installed")
 
 
@@ -115,6 +116,7 @@ def test_an_mp4_holds_the_frames(pile_run, tmp_path):
     assert stream["codec_name"] == "h264" and int(stream["nb_read_frames"]) == len(steps_of(pile_run)[::15])
 
 
+@pytest.mark.process
 def test_video_without_ffmpeg_names_the_package(pile_run, tmp_path):
     env = dict(os.environ, PATH=str(tmp_path))   # no ffmpeg on this PATH
     r = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "render", str(pile_run), "-o",
@@ -158,7 +160,8 @@ def screenshot(page, size, tmp_path, fragment=""):
     return np.asarray(Image.open(shot).convert("RGB"))
 
 
-@needs_browser
+@needs_browser[0]
+@needs_browser[1]
 def test_the_run_viewer_in_a_real_browser(pile_run, tmp_path):
     page = written(tmp_path / "run.html", "render", str(pile_run), "--every", "5", "--size", "480")
     text = page.read_text()
@@ -172,7 +175,8 @@ def test_the_run_viewer_in_a_real_browser(pile_run, tmp_path):
         assert_bodies_where_the_file_puts_them(picture, window, size, dynamic_circle_centres(files[k]))
 
 
-@needs_browser
+@needs_browser[0]
+@needs_browser[1]
 def test_the_evaluate_report_page_in_a_real_browser(run, tmp_path):
     report = written(tmp_path / "r", "evaluate", str(run), "--starts", "zero,builtin", "--every", "20")
     page = report / "report.html"
@@ -231,7 +235,8 @@ def test_one_impulse_scale_per_run_shared_by_step_movie_and_viewer(pile_run, tmp
                  "--impulse-scale")
 
 
-@needs_browser
+@needs_browser[0]
+@needs_browser[1]
 def test_the_viewers_arrow_control_lengthens_the_arrows(pile_run, tmp_path):
     page = written(tmp_path / "run.html", "render", str(pile_run), "--every", "10", "--size", "480")
     files = steps_of(pile_run)[::10]

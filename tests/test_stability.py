@@ -10,7 +10,7 @@ from deepcontact.studies import stability as S
 
 @pytest.fixture(scope="module")
 def fast_study():
-    return {(d.case, d.solver, d.start): (d, f) for d, f in S.study(S.FAST)}
+    return {(d.case, d.solver, d.start): (d, f) for d, f in S.study(S.FAST, jobs=2)}   # (the same rows, tests/test_jobs.py)
 
 
 def test_every_hard_scene_passes_at_a_recorded_iteration_count(fast_study):

@@ -19,9 +19,12 @@ def test_dc_study_lists_the_studies():
         assert "Examples:" in dc("study", name, "--help").stdout
 
 
-def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_path):
+def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_path, monkeypatch):
+    from deepcontact.studies import stability as S
+    # (two of the fast cases: tests/test_stability.py runs the whole fast study, once)
+    monkeypatch.setattr(S, "FAST", [c for c in S.FAST if c.label in ("stack 8", "bullet")])
     out = tmp_path / "stability.md"
-    r = dc("study", "stability", "--fast", "-q", "-o", str(out))
+    r = dc("study", "stability", "--fast", "-j", "2", "-q", "-o", str(out))
     assert r.returncode == 0, r.stderr
     table = out.read_text()
     assert table.startswith("# Stability of the hard scenes: fast") and "Measured with 1 torch thread" in table \

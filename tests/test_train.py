@@ -167,6 +167,7 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
     assert np.isfinite(h[-1]["train_loss"])
 
 
+@pytest.mark.process
 def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     import shutil
     import subprocess
