@@ -70,7 +70,7 @@ def referenced(problem):
 
 def siconos_times(steps):
     """Seconds Siconos's Lemke takes per problem, and its residual by our measure."""
-    from deepcontact.solver import fclib, peer
+    from deepcontact.exchange import fclib, peer
     with tempfile.TemporaryDirectory() as tmp:
         paths = [fclib.write_problem(p, Path(tmp) / f"step-{i:04d}.hdf5") for i, p in enumerate(steps)]
         return peer.solve_files(paths, solver="lemke")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from bench_exact import problems, timed
 from deepcontact.scene.generators import generate
-from deepcontact.solver import fclib, peer
+from deepcontact.exchange import fclib, peer
 from deepcontact.protocol import current, protocol_line
 
 OURS = ("none", "nncg", "newton", "subspace")

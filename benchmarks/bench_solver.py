@@ -12,14 +12,18 @@ Usage: python benchmarks/bench_solver.py [--repeats N] [--iterations N]
 """
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
-from deepcontact.solver import lcp as L
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
 from deepcontact.protocol import current, protocol_line
+
+sys.path.insert(0, str(Path(__file__).parent.parent / "tests"))   # the slow reference lives with the tests
+import reference_lcp as L  # noqa: E402
 
 WARMUP_STEPS = 300
 

@@ -41,7 +41,7 @@ def export(run_dir, out, fmt, every, solution, jobs, overwrite, verbose, quiet):
       dc export runs/pile -o runs/pile-table --format csv
       python -c "import pandas; print(pandas.read_csv('runs/pile-table/contacts.csv').describe())"
     """
-    from deepcontact.solver.fclib import export_run
+    from deepcontact.exchange.fclib import export_run
     from deepcontact.step.run_folder import read_run
 
     options.refuse_inapplicable([("solution", fmt == "fclib", "only applies to --format fclib")])

@@ -130,7 +130,7 @@ def validate(paths, replay, jobs, verbose, quiet):
 
 
 def replay_runs(paths, quiet, jobs):
-    from deepcontact.solver.fidelity import replay_run, replayable_run
+    from deepcontact.evaluate.fidelity import replay_run, replayable_run
 
     failed = False
     for run_dir in paths:

@@ -6,7 +6,7 @@ import pytest
 from conftest import dc, option_error
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
-from deepcontact.solver import lcp as L
+import reference_lcp as L
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
 
@@ -85,7 +85,7 @@ def test_newton_in_the_loop_and_its_options(tmp_path):
 
 
 def test_lemke_solves_the_friction_lcp_of_a_step_to_machine_precision():
-    from deepcontact.solver import fclib, pivoting
+    from deepcontact.solver import local as fclib, pivoting
     for p in SAMPLE[:2] + SAMPLE[-1:]:
         lp = fclib.local_problem(p)
         M, q = pivoting.friction_lcp(lp)
@@ -124,7 +124,7 @@ def test_the_reference_pivots_where_newton_stalls_and_reaches_1e_12():
     Lemke on the neighbourhood of the contacts carrying that residual, then Newton, is exact (step
     245); on a step degenerate for Lemke (275: a ray on the whole step), with q perturbed."""
     from deepcontact.solver import pivoting, reference
-    from deepcontact.solver.fclib import local_problem
+    from deepcontact.solver.local import local_problem
     for p in HELD_OUT:
         newton = solve(p, zero(p), zero(p), tolerance=1e-12, max_iterations=reference.FIRST_SWEEPS,
                        accelerate="newton")
@@ -140,7 +140,7 @@ def test_the_reference_pivots_where_newton_stalls_and_reaches_1e_12():
 def test_a_neighbourhood_grows_through_dynamic_bodies_only():
     from deepcontact._box2d import contact_rows
     from deepcontact.solver import pivoting
-    from deepcontact.solver.fclib import local_problem, point_residuals
+    from deepcontact.solver.local import local_problem, point_residuals
     p = HELD_OUT[0]
     s = solve(p, zero(p), zero(p), tolerance=1e-12, max_iterations=300, accelerate="newton")
     lp = local_problem(p)

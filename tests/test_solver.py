@@ -6,7 +6,7 @@ from deepcontact import _box2d
 from deepcontact.scene.generators import generate
 from deepcontact.scene.xml import read_scene
 from deepcontact.simulate.build import build_world
-from deepcontact.solver import lcp as L
+import reference_lcp as L
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
 from pathlib import Path

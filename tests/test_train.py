@@ -182,3 +182,27 @@ def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     assert r.stderr.count("best.pt and last.pt written") == 1          # rank 0 alone reports and writes
     ck = load_checkpoint(out / "last.pt")
     assert ck["epoch"] == 1 and len(json.loads((out / "metrics.json").read_text())) == 2
+
+
+def test_the_training_residual_is_the_solvers_residual(tiny):
+    """One residual: the solver loss's (torch) equals the local problem's (numpy) and the native
+    solver's, at any impulses, on the same assembly."""
+    from deepcontact.grid.dataset import GridDataset
+    from deepcontact.solver.local import local_problem, residual
+    from deepcontact.solver.methods import judge
+    from deepcontact.solver.problem import StepProblem
+    ds = GridDataset(tiny)
+    loss = losses.SolverLoss(ds)
+    rng = np.random.default_rng(3)
+    for i in ds.indices()[::7]:
+        problem = StepProblem.from_step_file(ds.step_file(int(i)))
+        if not problem.points:
+            continue
+        lp = local_problem(problem)
+        mu = problem.contacts["friction"].astype(np.float64)
+        normal = rng.uniform(0, 2, problem.points)
+        tangent = rng.uniform(-1, 1, problem.points) * mu * normal
+        torch_residual = loss.residual(torch.as_tensor(normal), torch.as_tensor(tangent), loss.problem(int(i)))
+        numpy_residual = residual(lp, lp.reaction(normal, tangent))
+        assert float(torch_residual.abs().max()) == pytest.approx(numpy_residual, rel=1e-9)
+        assert judge(problem, normal, tangent).residual == pytest.approx(numpy_residual, rel=1e-3)

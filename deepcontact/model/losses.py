@@ -52,8 +52,8 @@ LOSSES = ("masked", "contacts", "mse", "solver")
 class SolverLoss:
     """Solver-aware loss: how far the predicted start is from solving the step's contact problem.
 
-    For each sample the step's explicit LCP (A, b, friction bounds; deepcontact.solver.lcp) is
-    built once from its step file and cached. The prediction, interpolated at the contact points
+    For each sample the step's local problem (W, q, friction bounds; deepcontact.solver.local) is
+    assembled once from its step file and cached, dense. The prediction, interpolated at the contact points
     and projected onto the feasible set (ln >= 0, |lt| <= mu ln), is relaxed by k damped
     projected-Jacobi sweeps, and the loss is the squared min-map residual of the LCP there
     (docs/solver.md: in velocity units, normalised by the step's largest free velocity).
@@ -80,13 +80,22 @@ class SolverLoss:
         return cached + biggest * 8 * 8 * (sweeps + 1)
 
     def problem(self, i):
+        """Sample i's contact problem as dense torch rows: the step's local problem (the one native
+        assembly, solver/local.py), a tangent row only where there is friction."""
         if i not in self.cache:
-            from ..solver.lcp import build_lcp
+            from ..solver.local import local_problem, residual_scale
             from ..solver.problem import StepProblem
-            lcp = build_lcp(StepProblem.from_step_file(self.ds.step_file(i)))
-            t = {name: torch.as_tensor(getattr(lcp, name)) for name in ("A", "b", "kind", "point", "normal_row",
-                                                                       "friction")}
-            t["scale"] = float(max(abs(lcp.b).max(), 1e-12)) if len(lcp.b) else 1.0
+            lp = local_problem(StepProblem.from_step_file(self.ds.step_file(i)))
+            m = len(lp.points)
+            kind = np.tile([0, 1], m)
+            keep = np.nonzero((kind == 0) | (np.repeat(lp.mu, 2) > 0))[0]   # (rows: per point normal, tangent)
+            renumber = np.full(2 * m, -1)
+            renumber[keep] = np.arange(len(keep))
+            t = {"A": lp.W[keep][:, keep].toarray(), "b": lp.q[keep], "kind": kind[keep],
+                 "point": np.repeat(lp.points, 2)[keep], "friction": np.repeat(lp.mu, 2)[keep],
+                 "normal_row": np.where(kind[keep] == 1, renumber[np.maximum(keep - 1, 0)], -1)}
+            t = {name: torch.as_tensor(value) for name, value in t.items()}
+            t["scale"] = residual_scale(lp) if m else 1.0
             self.cache[i] = t
         return self.cache[i]
 

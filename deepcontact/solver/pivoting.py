@@ -2,7 +2,7 @@
 where Newton stalls near, not at, an exact solution (a pivot between active sets is what it
 lacks; docs/solver.md).
 
-The step's local problem (solver/fclib.py: u = W r + q per point normal, tangent) becomes an LCP
+The step's local problem (solver/local.py: u = W r + q per point normal, tangent) becomes an LCP
 in z = (ln, l+, l-, beta), lt = l+ - l-, exact in 2D (the friction cone has two edges):
 
     w_n    =  A_nn ln + A_nt (l+ - l-) + q_n          >= 0  _|_ ln
@@ -20,7 +20,7 @@ answer of the step.
 import numpy as np
 
 from .._box2d import contact_rows, lemke as native_lemke
-from .fclib import LocalProblem, local_problem, point_residuals
+from .local import LocalProblem, local_problem, point_residuals
 
 PIVOTS_PER_ROW = 10
 

@@ -1,4 +1,4 @@
-"""A solver method as a plug-in: damped projected Jacobi on the step's explicit LCP.
+"""A solver method as a plug-in: damped projected Jacobi on the step's local problem.
 
 The contract (docs/api.md, "Bring your own solver method"): a class the registry calls with no
 arguments; the instance is called once per solve with the step's problem, a start (one float64
@@ -9,7 +9,7 @@ and judges it by its own residual, whatever the method reports.
 """
 import numpy as np
 
-from deepcontact import MethodResult, build_lcp, judge
+from deepcontact import MethodResult, local_problem, local_residual
 
 
 class ProjectedJacobi:
@@ -20,20 +20,17 @@ class ProjectedJacobi:
         self.damping = damping
 
     def __call__(self, problem, start_normal, start_tangent, settings):
-        lcp = build_lcp(problem)
-        normal_rows = lcp.kind == 0
-        lam = np.where(normal_rows, start_normal[lcp.point], start_tangent[lcp.point])
-        diagonal = np.where(np.diag(lcp.A) > 0, np.diag(lcp.A), np.inf)   # (rows no body can move: never updated)
-        n, t = np.array(start_normal), np.array(start_tangent)
+        lp = local_problem(problem)   # u = W r + q, per contact point its (normal, tangent) pair
+        diagonal = lp.W.diagonal()
+        diagonal = np.where(diagonal > 0, diagonal, np.inf)   # (rows no body can move: never updated)
+        r = lp.reaction(start_normal, start_tangent)
         residuals = []
         for _ in range(settings.max_iterations):
-            step = lam - self.damping * (lcp.A @ lam + lcp.b) / diagonal
-            lam = np.where(normal_rows, np.maximum(step, 0.0), step)
-            bound = lcp.friction * lam[np.maximum(lcp.normal_row, 0)]
-            lam = np.where(normal_rows, lam, np.clip(lam, -bound, bound))
-            n[lcp.point[normal_rows]] = lam[normal_rows]
-            t[lcp.point[~normal_rows]] = lam[~normal_rows]
-            residuals.append(judge(problem, n, t).residual)
+            x = r - self.damping * (lp.W @ r + lp.q) / diagonal
+            normal = np.maximum(x[0::2], 0.0)
+            r[0::2], r[1::2] = normal, np.clip(x[1::2], -lp.mu * normal, lp.mu * normal)
+            residuals.append(local_residual(lp, r))   # (deepcontact judges the answer again, natively)
             if residuals[-1] < settings.tolerance:
                 break
-        return MethodResult(normal=n, tangent=t, residuals=np.array(residuals))
+        normal, tangent = lp.impulses(r, problem.points)
+        return MethodResult(normal=normal, tangent=tangent, residuals=np.array(residuals))

@@ -1,7 +1,7 @@
-"""The step's contact problem as an explicit LCP, and a slow textbook PGS on it.
-
-For analysis and as the pure-Python reference the native solver is tested against. In
-impulse form (Box2D's units), with v* the velocities after gravity and damping:
+"""The step's contact problem as an explicit LCP, and a slow textbook PGS on it: the pure-Python
+reference the native assembly and solver are tested against (written from Box2D's sources and the
+thesis, independently of deepcontact/native and deepcontact/solver/local.py). In impulse form
+(Box2D's units), with v* the velocities after gravity and damping:
 
     A = J M^-1 J^T,    b = J v* - bias,
     normal rows:  0 <= l_n  complementary to  (A l + b)_n >= 0

@@ -1,5 +1,5 @@
 """Siconos as an independent peer: its 2D frictional-contact solvers run on our step problems,
-exported in FCLIB's format (solver/fclib.py), in a subprocess of Debian's own Python
+exported in FCLIB's format (exchange/fclib.py), in a subprocess of Debian's own Python
 (python3-siconos is built for /usr/bin/python3 and is never imported here).
 """
 import json

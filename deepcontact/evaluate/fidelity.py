@@ -8,8 +8,8 @@ from .. import workers
 from ..errors import InputError
 from ..step.reader import check_origin, read_step
 from ..step.run_folder import read_run
-from .pgs import solve
-from .problem import StepProblem
+from ..solver.pgs import solve
+from ..solver.problem import StepProblem
 
 
 @dataclass

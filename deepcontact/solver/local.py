@@ -1,0 +1,100 @@
+"""A step's contact problem as a local problem: u = W r + q over the contact points the solver
+uses (per point its normal row, then its tangent row), with Coulomb's law per point. W = J M^-1 J^T
+and q = J v* - bias come from the native assembly (deepcontact._box2d.contact_rows: lever arms,
+effective masses, restitution bias, the points Box2D drops left out), in float64: the one
+assembly every global method, the FCLIB export and the solver loss use. `residual` is the
+solver's own measure (the normalised min-map residual, docs/solver.md) on it.
+
+Coulomb's law in 2D, as PGS solves it: 0 <= r_n complementary to u_n >= 0; |r_t| <= mu r_n,
+u_t = 0 inside the bound and r_t = -mu r_n sign(u_t) when sliding.
+"""
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse as sp
+
+from .._box2d import contact_rows
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from .problem import StepProblem
+
+
+@dataclass
+class LocalProblem:
+    """A step's contact problem as u = W r + q (module docstring); r and u are per contact point
+    (normal, tangent) pairs, the point of each pair is `points[j]`, a row of StepProblem.contacts."""
+    W: sp.csc_matrix      # (2m, 2m), per contact point its normal row, then its tangent row
+    q: np.ndarray         # (2m,)
+    mu: np.ndarray        # (m,)
+    points: np.ndarray    # (m,) the problem's contact point (row of StepProblem.contacts) of each contact
+
+    def reaction(self, normal, tangent):
+        """Per-point impulses of the StepProblem as FCLIB's r."""
+        r = np.empty(2 * len(self.points))
+        r[0::2] = np.asarray(normal, np.float64)[self.points]
+        r[1::2] = np.asarray(tangent, np.float64)[self.points]
+        return r
+
+    def impulses(self, r, count):
+        """FCLIB's r back as per-point (normal, tangent) arrays of length count (0 where left out)."""
+        normal, tangent = np.zeros(count), np.zeros(count)
+        normal[self.points] = r[0::2]
+        tangent[self.points] = r[1::2]
+        return normal, tangent
+
+
+def local_problem(problem: "StepProblem") -> LocalProblem:
+    """The step's problem as a local problem (float64; sparse W), from the native assembly."""
+    rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
+    points = np.nonzero(rows["active"])[0]
+    m, nb = len(points), len(problem.bodies["inv_mass"])
+    normal = rows["normal"][points]
+    tangent = np.stack([normal[:, 1], -normal[:, 0]], axis=1)    # cross(normal, 1), as the solver
+    a, b = rows["row_a"][points], rows["row_b"][points]
+    r_a, r_b = rows["r_a"][points], rows["r_b"][points]
+    # J: rows (2 per point) x body dofs (vx, vy, w per body)
+    J_rows, J_cols, J_vals = [], [], []
+    for k, d in ((0, normal), (1, tangent)):
+        row = 2 * np.arange(m) + k
+        cross_a = r_a[:, 0] * d[:, 1] - r_a[:, 1] * d[:, 0]
+        cross_b = r_b[:, 0] * d[:, 1] - r_b[:, 1] * d[:, 0]
+        for body, sign, cross in ((a, -1.0, cross_a), (b, 1.0, cross_b)):
+            for dof, value in ((0, d[:, 0]), (1, d[:, 1]), (2, cross)):
+                J_rows.append(row)
+                J_cols.append(3 * body + dof)
+                J_vals.append(sign * value)
+    J = sp.csr_matrix((np.concatenate(J_vals), (np.concatenate(J_rows), np.concatenate(J_cols))),
+                      shape=(2 * m, 3 * nb))
+    inv_m = np.repeat(problem.bodies["inv_mass"].astype(np.float64), 3)
+    inv_m[2::3] = problem.bodies["inv_inertia"].astype(np.float64)
+    W = (J @ sp.diags(inv_m) @ J.T).tocsc()
+    W.sort_indices()
+    v = np.zeros(3 * nb)
+    v[0::3], v[1::3], v[2::3] = rows["velocity"][:, 0], rows["velocity"][:, 1], rows["omega"]
+    q = J @ v
+    q[0::2] -= rows["bias"][points]
+    return LocalProblem(W=W, q=q, mu=rows["friction"][points].astype(np.float64), points=points)
+
+
+def point_residuals(lp: LocalProblem, r: np.ndarray) -> np.ndarray:
+    """Per contact, the larger |F| of its normal and tangent rows (velocity units, unnormalised)."""
+    u = lp.W @ r + lp.q
+    k = lp.W.diagonal()
+    kn, kt = k[0::2], k[1::2]
+    rn, rt, un, ut = r[0::2], r[1::2], u[0::2], u[1::2]
+    fn = np.minimum(kn * rn, un)
+    hi = lp.mu * kt * rn
+    ft = kt * rt - np.clip(kt * rt - ut, -hi, hi)
+    ft = np.where(lp.mu > 0, ft, kt * rt)
+    return np.maximum(np.abs(fn), np.abs(ft))
+
+
+def residual_scale(lp: LocalProblem) -> float:
+    """The residual's denominator: the step's largest free relative velocity (of the rows solved)."""
+    return max(np.abs(lp.q[0::2]).max(initial=0.0), np.abs(np.where(lp.mu > 0, lp.q[1::2], 0.0)).max(initial=0.0), 1e-30)
+
+
+def residual(lp: LocalProblem, r: np.ndarray) -> float:
+    """The solver's normalised min-map residual of r on the local problem (docs/solver.md)."""
+    return float(point_residuals(lp, r).max(initial=0.0) / residual_scale(lp))
