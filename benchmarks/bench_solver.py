@@ -10,7 +10,6 @@ does not need (no friction: no tangent rows) saves.
 
 Usage: python benchmarks/bench_solver.py [--repeats N] [--iterations N]
 """
-import argparse
 import statistics
 import sys
 import time
@@ -20,10 +19,10 @@ from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
-from deepcontact.protocol import current, protocol_line
 
 sys.path.insert(0, str(Path(__file__).parent.parent / "tests"))   # the slow reference lives with the tests
 import reference_lcp as L  # noqa: E402
+from common import arguments  # noqa: E402
 
 WARMUP_STEPS = 300
 
@@ -59,11 +58,7 @@ def per_contact_iteration(t_n, t_2n, n, points):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--iterations", type=int, default=500)
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
+    args = arguments(__doc__, repeats=7, iterations=500)
     n, r = args.iterations, args.repeats
     scene = generate("pile", 0)
     _, bodies, contacts = world_at(scene, WARMUP_STEPS)

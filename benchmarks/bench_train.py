@@ -7,7 +7,6 @@ inputs, 2 x 61 x 61 labels), on this machine's CPU.
 
 Usage: python benchmarks/bench_train.py [--threads N] [--batches N]
 """
-import argparse
 import tempfile
 import time
 
@@ -21,7 +20,8 @@ from deepcontact.model.networks import build, parameter_count
 from deepcontact.model.train import CHECKPOINT_FORMAT
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
-from deepcontact.protocol import current, protocol_line
+
+from common import arguments
 
 INPUTS = ["mass", "vx", "vy", "spin", "nx", "ny"]
 
@@ -62,11 +62,7 @@ def inference(name, steps):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--batches", type=int, default=5)
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
+    args = arguments(__doc__, threads=2, batches=5)
     torch.set_num_threads(args.threads)
     scene = generate("pile", 0)
     world = build_world(scene)

@@ -48,23 +48,22 @@ def export(run_dir, out, fmt, every, solution, jobs, overwrite, verbose, quiet):
     sims = read_run(run_dir).simulations
     total = sum(len(s.files) if fmt == "fclib" else len(s.files[::every]) for s in sims)
     bar = options.progress_bar(quiet, total, "step", "export")
-    if fmt != "fclib":
-        from deepcontact.step.table import export_tables
-        try:
+    try:
+        if fmt == "fclib":
+            index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite,
+                               progress=bar.update, jobs=jobs)
+        else:
+            from deepcontact.step.table import export_tables
             rows = export_tables(run_dir, out, fmt=fmt, every=every, overwrite=overwrite, progress=bar.update,
                                  jobs=jobs)
-        finally:
-            bar.close()
-        if not quiet:
-            click.echo(f"{out}: bodies.{fmt} ({rows['bodies']:,} rows), contacts.{fmt} ({rows['contacts']:,} rows)",
-                       err=True)
-        return
-    try:
-        index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite, progress=bar.update,
-                           jobs=jobs)
     finally:
         bar.close()
-    if not quiet:
+    if quiet:
+        return
+    if fmt == "fclib":
         worst = max((p["residual"] for p in index if p["residual"] is not None), default=None)
         click.echo(f"{len(index)} problems in {out}" + ("" if worst is None else f"; worst stored residual {worst:.1e}"),
+                   err=True)
+    else:
+        click.echo(f"{out}: bodies.{fmt} ({rows['bodies']:,} rows), contacts.{fmt} ({rows['contacts']:,} rows)",
                    err=True)

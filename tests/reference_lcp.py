@@ -44,25 +44,25 @@ def world_manifold(mtype, local_normal, local_point, point_local, xf_a, xf_b, ra
         ca = point_a + radius_a * normal
         cb = point_b - radius_b * normal
         return normal, [0.5 * (ca + cb)]
-    if mtype == 1:
-        normal = qa @ local_normal
-        plane = qa @ local_point + pa
-        pts = []
-        for lp in point_local:
-            clip = qb @ lp + pb
-            ca = clip + (radius_a - (clip - plane) @ normal) * normal
-            cb = clip - radius_b * normal
-            pts.append(0.5 * (ca + cb))
-        return normal, pts
-    normal = qb @ local_normal
-    plane = qb @ local_point + pb
+    if mtype == 1:   # face of A: B's points clipped against it
+        return _face(xf_a, xf_b, local_normal, local_point, point_local, radius_a, radius_b)
+    normal, pts = _face(xf_b, xf_a, local_normal, local_point, point_local, radius_b, radius_a)
+    return -normal, pts   # (face of B: the normal points from A to B all the same)
+
+
+def _face(xf_ref, xf_inc, local_normal, local_point, point_local, radius_ref, radius_inc):
+    """A face manifold: the reference body's face normal, and per point the midpoint between the
+    incident body's clip point and its projection onto the reference face."""
+    (q_ref, p_ref), (q_inc, p_inc) = xf_ref, xf_inc
+    normal = q_ref @ local_normal
+    plane = q_ref @ local_point + p_ref
     pts = []
     for lp in point_local:
-        clip = qa @ lp + pa
-        cb = clip + (radius_b - (clip - plane) @ normal) * normal
-        ca = clip - radius_a * normal
-        pts.append(0.5 * (ca + cb))
-    return -normal, pts
+        clip = q_inc @ lp + p_inc
+        on_ref = clip + (radius_ref - (clip - plane) @ normal) * normal
+        on_inc = clip - radius_inc * normal
+        pts.append(0.5 * (on_ref + on_inc))
+    return normal, pts
 
 
 @dataclass

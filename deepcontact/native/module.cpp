@@ -56,21 +56,19 @@ py::dict to_dict(ContactState s) {
     return d;
 }
 
-dc::BodyView body_view(const py::dict& d) {
-    dc::BodyView v;
-    size_t n = static_cast<size_t>(-1);
-    DC_BODY_FIELDS(DC_COLUMN_FIELD)
-    v.n = n;
-    return v;
-}
-
-dc::ContactView contact_view(const py::dict& d) {
-    dc::ContactView v;
-    size_t n = static_cast<size_t>(-1);
-    DC_CONTACT_FIELDS(DC_COLUMN_FIELD)
-    v.n = n;
-    return v;
-}
+// A record table given as a dict of columns, viewed without a copy (each column's shape and type
+// checked by DC_COLUMN_FIELD); one function per record kind, from its field table.
+#define DC_VIEW_OF_DICT(fn, View, FIELDS)    \
+    View fn(const py::dict& d) {             \
+        View v;                              \
+        size_t n = static_cast<size_t>(-1);  \
+        FIELDS(DC_COLUMN_FIELD)              \
+        v.n = n;                             \
+        return v;                            \
+    }
+DC_VIEW_OF_DICT(body_view, dc::BodyView, DC_BODY_FIELDS)
+DC_VIEW_OF_DICT(contact_view, dc::ContactView, DC_CONTACT_FIELDS)
+#undef DC_VIEW_OF_DICT
 
 // A step file's header as step/reader_lxml.py gives it (numpy float32 scalars for its floats).
 py::dict to_dict(const dc::StepHeader& h) {
