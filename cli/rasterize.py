@@ -115,7 +115,7 @@ def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, ev
         return
     if not out:
         raise click.UsageError("--study needs -o REPORT_DIR")
-    window = (spec.x0, spec.y0, spec.x0 + (spec.nx - 1) * spec.cell, spec.y0 + (spec.ny - 1) * spec.cell)
+    window = (spec.x0, spec.y0, spec.x1, spec.y1)
     with atomic.output_folder(out, O.STUDY_FILES, overwrite, command="rasterize --study") as work:
         rows = O.study(steps, window, renormalize)
         click.echo(O.write_study(work, steps, rows, impulses, renormalize))

@@ -191,3 +191,22 @@ def test_study_cli_writes_table_and_plot(two_runs, tmp_path):
     assert (out / "sph-study.png").stat().st_size > 1000 and (out / "sph-study.svg").exists()
     table = (out / "sph-study.md").read_text()
     assert table.count("| fig 5.4") == 4 and table.count("| fig 5.5") == 3 and "spiky" in table
+
+
+def test_numpy_and_torch_bilinear_read_the_same_values():
+    """The two readers of a grid at points (the start's, numpy; the training loss's, torch) agree,
+    inside the grid, on its edges and outside it (clamped to the edge)."""
+    import torch
+    from deepcontact.grid.interpolate import bilinear
+    from deepcontact.grid.spec import GridSpec
+    from deepcontact.model.losses import bilinear_torch
+    spec = GridSpec(x0=-1.5, y0=2.0, cell=0.25, nx=13, ny=9, h=0.25)
+    rng = np.random.default_rng(5)
+    grid = rng.normal(size=(2, spec.ny, spec.nx))
+    points = np.concatenate([rng.uniform([spec.x0, spec.y0], [spec.x1, spec.y1], (200, 2)),
+                             [[spec.x0, spec.y0], [spec.x1, spec.y1], [spec.x1, spec.y0]],
+                             rng.uniform([spec.x0 - 1, spec.y0 - 1], [spec.x1 + 1, spec.y1 + 1], (50, 2))])
+    ours, outside = bilinear(grid, spec, points)
+    theirs = bilinear_torch(torch.as_tensor(grid), spec, torch.as_tensor(points)).numpy()
+    np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12)
+    assert outside == int(spec.outside(points).sum()) > 0

@@ -37,6 +37,7 @@ from ..errors import InputError, count, show_path
 from ..resources import check_disk, check_memory
 from ..scene.xml import read_scene
 from ..step.reader import check_origin, read_step_for_grid
+from ..step import run_folder
 from ..step.run_folder import MANIFEST, read_run, require_regular, simulation_folder, step_path
 from .spec import GridSpec, scene_box
 from .splat import check_channels, rasterize_step
@@ -53,17 +54,14 @@ ARRAY_LAYOUT = {"inputs": (np.float32, ("N", "C_in", "H", "W")), "labels": (np.f
 DATASET_FILES = atomic.Owned("dataset", ["metadata\\.json"] + [f"{name}\\.npy" for name in ARRAYS])
 
 
-@dataclass
-class Simulation:
-    run: str
-    dir: str
-    seed: int
-    scene: str
-    box: tuple
-    radius: float
-    files: list          # step files with contacts (or all, with include_contactless)
-    contacts: list       # contact points per file
-    extent: tuple = None  # where the bodies went over the run (the manifest's record)
+@dataclass(kw_only=True)
+class Simulation(run_folder.Simulation):
+    """A run folder's simulation (step/run_folder.py) as a dataset's source: its files are the
+    steps that become samples (those with contacts, unless asked for all), with the contact
+    points of each, and what the grid needs of its scene."""
+    run: str             # the run folder, as given
+    box: tuple           # the scene's static box (x0, y0, x1, y1), or None
+    radius: float        # the scene's smallest circle radius, or None
 
 
 def _contact_count(path):
@@ -125,9 +123,8 @@ def collect(run_dirs, include_contactless=False):
                 if n or include_contactless:
                     files.append(str(f))
                     counts.append(n)
-            sims.append(Simulation(run=str(run_dir), dir=e.dir, seed=e.seed, scene=scene.name,
-                                   box=scene_box(scene), radius=_smallest_radius(scene), files=files,
-                                   contacts=counts, extent=e.extent))
+            sims.append(Simulation(**{**vars(e), "files": files, "contacts": counts, "scene": scene.name},
+                                   run=str(run_dir), box=scene_box(scene), radius=_smallest_radius(scene)))
     if not sims:
         raise InputError("the runs hold no simulations")
     return sims, manifests
@@ -182,10 +179,7 @@ def _rasterize_steps(args):
         counts[k] = len(contacts["position"])
         positions.append(contacts["position"])
         impulses.append(np.stack([contacts["normal_impulse"], contacts["tangent_impulse"]], axis=1))
-        p = contacts["position"]
-        outside += int(np.count_nonzero((p[:, 0] < spec.x0) | (p[:, 1] < spec.y0)
-                                        | (p[:, 0] > spec.x0 + (spec.nx - 1) * spec.cell)
-                                        | (p[:, 1] > spec.y0 + (spec.ny - 1) * spec.cell)))
+        outside += int(np.count_nonzero(spec.outside(contacts["position"])))
     for (path, offset), images in zip(places, (xi, yl)):
         _write_at(path, offset, images)
     pos = np.concatenate(positions) if positions else np.empty((0, 2), np.float32)

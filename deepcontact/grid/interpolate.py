@@ -13,7 +13,7 @@ def bilinear(grid, spec, points):
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     fx = (p[:, 0] - spec.x0) / spec.cell
     fy = (p[:, 1] - spec.y0) / spec.cell
-    outside = int(np.count_nonzero((fx < 0) | (fx > spec.nx - 1) | (fy < 0) | (fy > spec.ny - 1)))
+    outside = int(np.count_nonzero(spec.outside(p)))
     fx = np.clip(fx, 0.0, spec.nx - 1)
     fy = np.clip(fy, 0.0, spec.ny - 1)
     ix = np.minimum(np.floor(fx).astype(np.int64), max(spec.nx - 2, 0))

@@ -65,7 +65,7 @@ def round_trip(steps, spec, label=""):
     """Errors of impulses → grid → bilinear back, over steps [(positions, normal, tangent, _)]."""
     err_n, err_t, ref_n, ref_t = [], [], [], []
     outside = 0
-    scale = 1.0 if spec.renormalize else spec.cell ** 2
+    scale = spec.impulse_scale
     t0 = time.perf_counter()
     backs = []
     for pos, n, t, _ in steps:

@@ -1,11 +1,14 @@
 """The grid a step is drawn on: origin, cell size d, node counts, kernel and smoothing length h.
 
 Nodes sit at origin + (ix d, iy d), ix = 0..nx-1, spanning the scene's box (the extent of its
-static bodies) or a given window: the thesis's 30 x 30 box at d = 0.5 has 61 x 61 nodes.
+static bodies) or a given window: the thesis's 30 x 30 box at d = 0.5 has 61 x 61 nodes. The spec
+owns the grid's contract: its span (x1, y1), which points lie outside it, and the scale from a grid
+value read back at a point to an impulse (impulse_scale).
 """
 import math
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
 
 from ..errors import InputError
 from .kernels import KERNELS, weight
@@ -31,6 +34,27 @@ class GridSpec:
     @property
     def shape(self):
         return (self.ny, self.nx)
+
+    @property
+    def x1(self):
+        """The far corner's x: the last node's (the grid spans x0 .. x1)."""
+        return self.x0 + (self.nx - 1) * self.cell
+
+    @property
+    def y1(self):
+        return self.y0 + (self.ny - 1) * self.cell
+
+    @property
+    def impulse_scale(self):
+        """What a grid value read back at a point is multiplied by to give an impulse (N·s): 1
+        for a renormalised splat (the kernel sums to 1 over the nodes), else the cell's area (the
+        value is an impulse density)."""
+        return 1.0 if self.renormalize else self.cell ** 2
+
+    def outside(self, points):
+        """Which points (n, 2) lie outside the grid's span (bilinear reads them at the edge)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        return (p[:, 0] < self.x0) | (p[:, 1] < self.y0) | (p[:, 0] > self.x1) | (p[:, 1] > self.y1)
 
     def as_dict(self):
         return asdict(self)

@@ -58,8 +58,7 @@ class Predictor:
         pred = self.images(x)
         t2 = time.perf_counter()
         values, _ = bilinear(pred, self.spec, contacts["position"])
-        if not self.spec.renormalize:
-            values = values * self.spec.cell ** 2
+        values = values * self.spec.impulse_scale
         n = len(contacts["position"])
         normal = values[self.targets.index("normal_impulse")] if "normal_impulse" in self.targets else np.zeros(n)
         tangent = values[self.targets.index("tangent_impulse")] if "tangent_impulse" in self.targets else np.zeros(n)

@@ -35,7 +35,7 @@ def bilinear_torch(grid, spec, points):
 def contact_mse(pred, positions, impulses, spec, label_columns):
     """Mean squared error at the contact points. positions/impulses: lists of tensors per sample;
     label_columns: for each output channel, its column in impulses (0 normal, 1 tangent)."""
-    scale = 1.0 if spec.renormalize else spec.cell ** 2
+    scale = spec.impulse_scale
     total, count = pred.new_zeros(()), 0
     for k in range(pred.shape[0]):
         if len(positions[k]) == 0:
@@ -117,7 +117,7 @@ class SolverLoss:
         return r / p["scale"]
 
     def __call__(self, pred, indices, spec, label_columns):
-        scale = 1.0 if spec.renormalize else spec.cell ** 2
+        scale = spec.impulse_scale
         total, count = pred.new_zeros(()), 0
         for k, i in enumerate(indices):
             p = self.problem(int(i))

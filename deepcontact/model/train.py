@@ -475,7 +475,7 @@ class Trainer:
             total += self.loss(pred, y, ids).item() * len(ids)
             seen += len(ids)
             if self.label_columns:
-                scale = 1.0 if spec.renormalize else spec.cell ** 2
+                scale = spec.impulse_scale
                 for k, i in enumerate(ids):
                     pos, imp = self.ds.contacts(int(i))
                     if len(pos) == 0:

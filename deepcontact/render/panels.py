@@ -6,6 +6,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..grid.dataset import GridDataset
+from ..grid.spec import GridSpec
 
 
 def sample_panels(dataset, index, model=None, panel_px=220, threads=1):
@@ -50,7 +51,6 @@ def _split_of(meta, simulation):
 
 def _predict(model, meta, x, dataset, threads=1):
     from ..model.inference import Predictor
-    from ..grid.spec import GridSpec
     p = Predictor(model, threads=threads)
     if list(p.inputs) != list(meta["inputs"]):
         raise InputError(f"the model reads channels {','.join(p.inputs)}, the dataset has "
@@ -70,8 +70,8 @@ def _figure(rows, panel_px, title, grid):
     fig = Figure(figsize=(cols * panel_px / dpi, len(rows) * panel_px / dpi + 0.4), dpi=dpi)
     FigureCanvasAgg(fig)
     fig.suptitle(title, fontsize=9, parse_math=False)   # (names are the user's text, not math)
-    extent = (grid["x0"], grid["x0"] + (grid["nx"] - 1) * grid["cell"],
-              grid["y0"], grid["y0"] + (grid["ny"] - 1) * grid["cell"])
+    spec = GridSpec.from_dict(grid)
+    extent = (spec.x0, spec.x1, spec.y0, spec.y1)
     for r, row in enumerate(rows):
         for c, (name, image, cmap, limits) in enumerate(row):
             ax = fig.add_subplot(len(rows), cols, r * cols + c + 1)

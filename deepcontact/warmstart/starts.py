@@ -107,8 +107,7 @@ class SPH:
         grid = splat_points(self.spec, pos, np.stack([ctx.reference.normal_impulse, ctx.reference.tangent_impulse], 1))
         t1 = time.perf_counter()
         back, _ = bilinear(grid, self.spec, pos)
-        if not self.spec.renormalize:
-            back = back * self.spec.cell ** 2
+        back = back * self.spec.impulse_scale
         t2 = time.perf_counter()
         return StartValue(back[0], back[1], {"rasterize": t1 - t0, "interpolate": t2 - t1})
 
