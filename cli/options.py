@@ -123,6 +123,17 @@ def _two_whole_numbers(pattern, text, problem):
     return int(m.group(1)), int(m.group(2))
 
 
+class SeedList(Parsed):
+    """Seeds separated by commas (0,1,2), as a tuple of whole numbers."""
+    name = "A,B,..."
+
+    def parse(self, text):
+        parts = [t.strip() for t in str(text).split(",")]
+        if not parts or not all(t.isdigit() and int(t) <= INT32_MAX for t in parts):
+            raise ValueError(f"must be seeds separated by commas (whole numbers 0 to {INT32_MAX}), got {text!r}")
+        return tuple(int(t) for t in parts)
+
+
 class SeedRange(Parsed):
     """A..B, inclusive, as a range (never a list: a billion seeds cost nothing until used)."""
     name = "A..B"

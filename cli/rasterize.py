@@ -1,7 +1,6 @@
 """dc rasterize: step files → grid datasets (SPH), and what the grid costs in accuracy."""
 import click
 
-from deepcontact.errors import InputError
 from deepcontact.grid.splat import ALL_CHANNELS
 
 from . import options
@@ -26,8 +25,8 @@ CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
 @click.option("--validation", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,
               help="Share of simulations held out for validation.")
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the split.")
-@click.option("--oracle", is_flag=True, help="Only report the SPH round trip for these settings.")
-@click.option("--study", is_flag=True, help="Sweep kernel x d x h (thesis figures 5.4-5.6) into -o.")
+@click.option("--oracle", is_flag=True, help="Deprecated: dc study oracle RUNS.")
+@click.option("--study", is_flag=True, help="Deprecated: dc study oracle RUNS --sweep -o DIR.")
 @click.option("--impulses", type=click.Choice(["reference", "recorded"]), default="reference", show_default=True,
               help="[--oracle/--study] Exact answers to push through the grid.")
 @click.option("--every", type=click.IntRange(min=1), default=10, show_default=True,
@@ -46,17 +45,15 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     train and validation are split by simulation. The grid's nodes span the
     scenes' box at spacing d (61 x 61 for the thesis's 30 x 30 box at d = 0.5).
 
-    --oracle pushes each step's exact impulses through the grid and back and
-    reports the error and the time; --study does it for the thesis's sweep of
-    h, d and kernels and writes a table and a plot.
+    The grid's own loss (each step's exact impulses through the grid and
+    back) is `dc study oracle`; --oracle and --study are its old spellings.
 
     \b
     Examples:
       dc rasterize runs/thesis -o data/thesis
       dc rasterize runs/a runs/b -o data/ab --kernel spiky --cell 0.25 --smoothing 0.25 -j 2
       dc rasterize runs/pile --inputs mass,vx,vy,spin,nx,ny --labels normal_impulse -o data/normal
-      dc rasterize runs/pile --oracle --impulses recorded
-      dc rasterize runs/pile --study -o reports/sph
+      dc study oracle runs/pile --impulses recorded
     """
     from deepcontact.grid.dataset import DatasetSettings, write_dataset
 
@@ -69,8 +66,14 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     options.check_grid_options(kernel, cell, smoothing)
     win = window
     if oracle or study:
-        return report(runs, out, kernel, cell, smoothing, renormalize, win, impulses, every, study, overwrite,
-                      quiet)
+        import logging
+
+        from .study import oracle_report
+        logging.getLogger("deepcontact.cli").warning(
+            "dc rasterize --%s is deprecated: use dc study oracle%s", "study" if study else "oracle",
+            " --sweep -o DIR" if study else "")
+        return oracle_report(runs, out, kernel, cell, smoothing, renormalize, win, impulses, every, study, overwrite,
+                             quiet)
     if not out:
         raise click.UsageError("missing -o/--output DATASET")
     bars = []
@@ -88,34 +91,9 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
             b.close()
     g = meta["grid"]
     if not quiet:
-        x1, y1 = g["x0"] + (g["nx"] - 1) * g["cell"], g["y0"] + (g["ny"] - 1) * g["cell"]
-        click.echo(f"{out}: {meta['samples']} samples, {g['nx']} x {g['ny']} grid over {g['x0']:g},{g['y0']:g},{x1:g},"
-                   f"{y1:g} ({meta['window']}), inputs {','.join(meta['inputs'])}, "
+        from deepcontact.grid.spec import GridSpec
+        grid = GridSpec.from_dict(g)
+        click.echo(f"{out}: {meta['samples']} samples, {g['nx']} x {g['ny']} grid over {g['x0']:g},{g['y0']:g},"
+                   f"{grid.x1:g},{grid.y1:g} ({meta['window']}), inputs {','.join(meta['inputs'])}, "
                    f"labels {','.join(meta['labels'])}; {len(meta['split']['train'])} training and "
                    f"{len(meta['split']['validation'])} validation simulations", err=True)
-
-
-def report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, every, study, overwrite, quiet):
-    from deepcontact import atomic
-    from deepcontact.grid import oracle as O
-    from deepcontact.grid.dataset import collect, grid_for
-
-    sims, _ = collect(runs)
-    spec, _ = grid_for(sims, cell, smoothing, kernel, renormalize, window)
-    files = [f for s in sims for f in s.files][::every]
-    bar = options.progress_bar(quiet, len(files), "step", f"{impulses} impulses")
-    steps = O.exact_impulses(files, impulses, log=lambda _: bar.update(1))
-    bar.close()
-    if not steps:
-        raise InputError("no steps with contacts to push through the grid")
-    if not study:
-        r = O.round_trip(steps, spec, "oracle")
-        click.echo(O.TABLE_HEADER)
-        click.echo(O.table_row(r))
-        return
-    if not out:
-        raise click.UsageError("--study needs -o REPORT_DIR")
-    window = (spec.x0, spec.y0, spec.x1, spec.y1)
-    with atomic.output_folder(out, O.STUDY_FILES, overwrite, command="rasterize --study") as work:
-        rows = O.study(steps, window, renormalize)
-        click.echo(O.write_study(work, steps, rows, impulses, renormalize))

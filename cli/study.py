@@ -1,5 +1,6 @@
 """dc study: the longer measurements (stability of the hard scenes, the thesis's figures, one map
-or two)."""
+or two, the grid's own loss, the learned correction and coarse space): every results table of
+docs/results.md that is not a `dc evaluate` report comes from one of these."""
 import click
 
 from . import options
@@ -10,9 +11,12 @@ def study():
     """Longer measurements built on the pipeline.
 
     \b
-    stability  the hard scenes under Box2D's solver and ours: the iterations each needs
-    figures    the thesis's convergence figures 5.4-5.7, regenerated with the SPH start
-    maps       one network for both impulse maps, or one per map
+    stability           the hard scenes under Box2D's solver and ours: the iterations each needs
+    figures             the thesis's convergence figures 5.4-5.7, regenerated with the SPH start
+    maps                one network for both impulse maps, or one per map
+    oracle              the grid's own loss: exact impulses through the grid and back
+    learned-correction  a learned correction of Box2D's warm start on the contact graph
+    learned-coarse      a learned coarse space between sweeps
 
     \b
     Examples:
@@ -20,6 +24,7 @@ def study():
       dc study stability -o runs/stability.md
       dc study figures runs/heldout -o reports/figures --every 10
       dc study maps data/thesis -o reports/maps --epochs 10
+      dc study oracle runs/pile --sweep -o reports/sph
     """
 
 
@@ -137,3 +142,125 @@ def maps(dataset, out, epochs, model, width, loss, seed, overwrite, verbose, qui
         rows = compare(dataset, work, model=model, fcn_width=width, epochs=epochs, loss=loss, optimizer="adam",
                        lr=1e-3, batch_size=64, seed=seed)
         click.echo(write_comparison(work, rows))
+
+
+@study.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.option("-o", "--output", "out", type=click.Path(file_okay=False), help="[--sweep] Report folder.")
+@click.option("--sweep", is_flag=True, help="The thesis's sweep of kernel x d x h (figures 5.4-5.6): a table and a plot.")
+@click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
+              show_default=True, help="SPH kernel.")
+@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d.")
+@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True,
+              help="Smoothing length h.")
+@click.option("--renormalize/--no-renormalize", default=True, show_default=True)
+@click.option("--window", type=options.Window(), help="Grid window (default: the scenes' box).")
+@click.option("--impulses", type=click.Choice(["reference", "recorded"]), default="reference", show_default=True,
+              help="Exact answers to push through the grid.")
+@click.option("--every", type=click.IntRange(min=1), default=10, show_default=True, help="Use every N-th step file.")
+@options.overwrite
+@options.verbosity
+@options.command("study oracle")
+def oracle(runs, out, sweep, kernel, cell, smoothing, renormalize, window, impulses, every, overwrite, verbose, quiet):
+    """The grid's own loss on RUNS: each step's exact impulses splatted onto
+    the grid and read back at the contacts, the error and the time; the
+    ceiling of any start learned on the grid.
+
+    \b
+    Examples:
+      dc study oracle runs/pile
+      dc study oracle runs/pile --impulses recorded --kernel spiky --cell 0.25 --smoothing 0.25
+      dc study oracle runs/pile --sweep -o reports/sph
+    """
+    options.refuse_inapplicable([
+        ("out", sweep, "only applies with --sweep (without it the table is printed)"),
+        *[(name, not sweep, "does not apply with --sweep (it sweeps kernel, d and h)")
+          for name in ("kernel", "cell", "smoothing")]])
+    options.check_grid_options(kernel, cell, smoothing)
+    oracle_report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, every, sweep, overwrite, quiet)
+
+
+def oracle_report(runs, out, kernel, cell, smoothing, renormalize, window, impulses, every, sweep, overwrite, quiet):
+    """dc study oracle's work (and dc rasterize --oracle/--study's, their old spellings)."""
+    from deepcontact import atomic
+    from deepcontact.studies import sph_oracle as O
+    from deepcontact.studies.sph_oracle import steps_of
+
+    if sweep and not out:
+        raise click.UsageError("--sweep needs -o REPORT_DIR")
+    bar = options.progress_bar(quiet, None, "step", f"{impulses} impulses")
+    try:
+        spec, steps, _ = steps_of(runs, cell, smoothing, kernel, renormalize, window, impulses, every,
+                                  log=lambda _: bar.update(1))
+    finally:
+        bar.close()
+    if not sweep:
+        click.echo(O.TABLE_HEADER)
+        click.echo(O.table_row(O.round_trip(steps, spec, "oracle")))
+        return
+    with atomic.output_folder(out, O.STUDY_FILES, overwrite, command="study oracle") as work:
+        rows = O.study(steps, (spec.x0, spec.y0, spec.x1, spec.y1), renormalize)
+        click.echo(O.write_study(work, steps, rows, impulses, renormalize))
+
+
+@study.command("learned-correction")
+@click.option("--epochs", type=options.count(min=1), default=6, show_default=True)
+@click.option("--sweeps", type=options.count(min=1), default=32, show_default=True,
+              help="Differentiable sweeps before the loss (8 misleads: it prefers zero to builtin).")
+@click.option("--batch", type=options.count(min=1), default=16, show_default=True)
+@click.option("--rounds", type=options.count(min=1), default=4, show_default=True, help="Message-passing rounds.")
+@click.option("--width", type=options.count(min=1, max=4096), default=32, show_default=True)
+@click.option("--lr", type=options.Finite(min=0, min_open=True), default=3e-4, show_default=True)
+@click.option("--train", "train_seeds", type=options.SeedList(), default="0,1,2,3", show_default=True,
+              help="Training seeds of the pile (held out: seed 1000).")
+@click.option("--steps", type=options.count(min=1), default=600, show_default=True)
+@options.threads
+@options.verbosity
+@options.command("study learned-correction")
+def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, steps, threads, verbose, quiet):
+    """Does a learned correction on the contact graph beat Box2D's warm start?
+    Trains it on piles driven by our PGS, then solves held-out steps from
+    builtin and from builtin + correction (docs/results.md). Minutes.
+
+    \b
+    Examples:
+      dc study learned-correction --train 0,1 --steps 300
+      dc study learned-correction --epochs 6 --sweeps 32
+    """
+    from deepcontact.protocol import protocol, protocol_line, use_threads
+    from deepcontact.studies.learned_correction import run
+    use_threads(threads)
+    click.echo(protocol_line(protocol(threads)) + "\n")
+    run(epochs=epochs, sweeps=sweeps, batch=batch, rounds=rounds, width=width, lr=lr, train_seeds=train_seeds,
+        steps=steps)
+
+
+@study.command("learned-coarse")
+@click.option("--cell", type=options.Finite(min=0, min_open=True), default=4.0, show_default=True,
+              help="Aggregate size (m).")
+@click.option("--sweeps", type=options.count(min=1), default=8, show_default=True,
+              help="Sweeps before and after the correction.")
+@click.option("--epochs", type=options.count(min=1), default=4, show_default=True)
+@click.option("--lr", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True,
+              help="(1e-3 made the surrogate loss rise.)")
+@click.option("--train", "train_seeds", type=options.SeedList(), default="0,1", show_default=True,
+              help="Training seeds of the pile (held out: seed 1000).")
+@click.option("--steps", type=options.count(min=1), default=600, show_default=True)
+@options.threads
+@options.verbosity
+@options.command("study learned-coarse")
+def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, verbose, quiet):
+    """Does a learned coarse space help PGS? Aggregation weights trained
+    through the solve, between sweeps, against sweeps alone and the unlearned
+    space (docs/results.md). Minutes.
+
+    \b
+    Examples:
+      dc study learned-coarse --train 0,1 --steps 300
+      dc study learned-coarse --cell 4 --sweeps 8 --epochs 4
+    """
+    from deepcontact.protocol import protocol, protocol_line, use_threads
+    from deepcontact.studies.learned_coarse import run
+    use_threads(threads)
+    click.echo(protocol_line(protocol(threads)) + "\n")
+    run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from deepcontact.model import contact_graph as cg
+from deepcontact.studies import contact_graph as cg
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 from deepcontact.solver.pgs import solve

@@ -97,6 +97,9 @@ INAPPLICABLE = [
     (["render", "{data}", "-o", "{tmp}/p.png"], "--color-by", "speed"),
     (["render", "{step}", "-o", "{tmp}/p.png"], "--threads", "2"),
     (["export", "{run}", "--format", "csv", "-o", "{tmp}/t"], "--solution", "recorded"),
+    (["study", "oracle", "{run}"], "-o", "{tmp}/x"),
+    (["study", "oracle", "{run}", "--sweep", "-o", "{tmp}/x"], "--kernel", "spiky"),
+    (["render", "{run}", "-o", "{tmp}/v.html"], "-j", "2"),
 ]
 
 

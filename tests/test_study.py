@@ -14,7 +14,7 @@ def run(tmp_path_factory):
 def test_dc_study_lists_the_studies():
     r = dc("study", "--help")
     assert r.returncode == 0 and "Examples:" in r.stdout
-    for name in ("stability", "figures", "maps"):
+    for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse"):
         assert name in r.stdout
         assert "Examples:" in dc("study", name, "--help").stdout
 
@@ -55,3 +55,16 @@ def test_one_map_or_two(run, tmp_path):
     assert (out / "normal-only" / "last.pt").exists() and (out / "tangent-only" / "best.pt").exists()
     r = dc("study", "maps", str(data), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite")
     assert r.returncode == 0, r.stderr
+
+
+def test_the_learned_studies_run_as_dc_study_commands():
+    """The two learned-start studies (docs/results.md) at toy size: the commands run end to end and
+    print their tables against builtin."""
+    r = dc("study", "learned-correction", "--train", "0", "--steps", "30", "--epochs", "1", "--sweeps", "2",
+           "--width", "8")
+    assert r.returncode == 0, r.stderr
+    assert "Measured with" in r.stdout and "builtin " in r.stdout and "learned@1.7" in r.stdout
+    r = dc("study", "learned-coarse", "--train", "0", "--steps", "30", "--epochs", "1", "--sweeps", "2")
+    assert r.returncode == 0, r.stderr
+    assert "| builtin | " in r.stdout and "| learned, if the residual falls |" in r.stdout
+    assert dc("study", "learned-coarse", "--train", "0,x").returncode == 2

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import atomic
+from ..grid.interpolate import bilinear
+from ..grid.splat import splat_points
 from ..solver.problem import StepProblem
 from ..solver.reference import reference_solution
-from .interpolate import bilinear
-from .splat import splat_points
 
 # Everything an SPH study folder holds: what --overwrite may replace.
 STUDY_FILES = atomic.Owned("SPH study", [r"sph-study\.(md|csv|png|svg)"])
@@ -36,6 +36,21 @@ class RoundTrip:
     tangent_max: float
     ms_per_step: float
     outside: int
+
+
+def steps_of(runs, cell, smoothing, kernel, renormalize=True, window=None, impulses="reference", every=10,
+             log=None):
+    """The grid these settings give over the runs, and the exact answers (exact_impulses) of every
+    `every`-th step file with contacts; log(path) per file read."""
+    from ..errors import InputError
+    from ..grid.dataset import collect, grid_for
+    sims, _ = collect(runs)
+    spec, _ = grid_for(sims, cell, smoothing, kernel, renormalize, window)
+    files = [f for s in sims for f in s.files][::every]
+    steps = exact_impulses(files, impulses, log=log)
+    if not steps:
+        raise InputError("no steps with contacts to push through the grid")
+    return spec, steps, len(files)
 
 
 def exact_impulses(step_files, source="reference", log=None):
@@ -99,7 +114,7 @@ STUDY = (
 
 
 def study(steps, window, renormalize=True, log=None):
-    from .spec import GridSpec
+    from ..grid.spec import GridSpec
     rows = []
     warm = GridSpec.over(window, STUDY[0][2], STUDY[0][3], STUDY[0][1], renormalize)
     round_trip(steps[:3], warm)        # first calls pay for loading and caches: not timed

@@ -9,14 +9,14 @@ velocities), restricted to the touching rows; the result is projected back onto 
 
 Unlearned, every point of an aggregate weighs 1 (piecewise constant: the correction tried and
 not kept in docs/results.md). Learned, the weights are exp() of the output of the contact-graph
-network (deepcontact.model.contact_graph.CorrectionNet, zero-initialised output: untrained, it is
+network (studies/contact_graph.py, CorrectionNet, zero-initialised output: untrained, it is
 the unlearned space exactly) from each point's state at the iterate, trained (Adam, fixed seed) on
 the log mean squared residual after --sweeps differentiable coloured Gauss-Seidel sweeps, the
 correction, and --sweeps more (the surrogate of contact_graph.py).
 
 Data: the 100-circle pile driven by our PGS in the loop (builtin start, residual < 1e-4, cap
 1000), training seeds --train, held-out seed 1000 (every second step), as in
-study_learned_correction.py.
+`dc study learned-correction`.
 
 Reported on the held-out steps, each solved by the real solver (float64 PGS, Box2D's order and
 block solver) to a residual of 1e-4 (cap 1000): builtin alone; and --sweeps sweeps, the
@@ -25,20 +25,17 @@ operators, network, Galerkin solve, the check), then sweeps to the tolerance, un
 learned: median sweeps, median time, how often the correction was kept, each against builtin in
 the same run.
 
-Usage: python benchmarks/study_learned_coarse.py [--cell 4] [--sweeps 8] [--epochs 4]
-       [--train 0,1] [--steps 600]
+    dc study learned-coarse [--cell 4] [--sweeps 8] [--epochs 4] [--train 0,1] [--steps 600]
 """
-import argparse
 import time
 
 import numpy as np
 import torch
 
-from deepcontact._box2d import contact_rows
-from deepcontact.model import contact_graph as cg
-from deepcontact.solver.pgs import solve
-from study_learned_correction import datasets
-from deepcontact.protocol import current, protocol_line
+from .._box2d import contact_rows
+from ..solver.pgs import solve
+from . import contact_graph as cg
+from .learned_correction import datasets
 
 TOLERANCE, CAP = 1e-4, 1000
 
@@ -202,20 +199,8 @@ def evaluate(model, steps, sweeps, cell):
         print(f"| {label} | {it:.0f} | {it / base_it:.2f}x | {ms * 1e3:.3f} | {ms / base_s:.2f}x | {kept} |")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cell", type=float, default=4.0, help="aggregate size, metres")
-    ap.add_argument("--sweeps", type=int, default=8, help="sweeps before and after the correction")
-    ap.add_argument("--epochs", type=int, default=4)
-    ap.add_argument("--lr", type=float, default=1e-4, help="1e-3 made the surrogate loss rise")
-    ap.add_argument("--train", default="0,1")
-    ap.add_argument("--steps", type=int, default=600)
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
-    train_set, test_set = datasets(args.train, args.steps)
-    model = train(train_set, args.epochs, args.sweeps, args.cell, args.lr, seed=0)
-    evaluate(model, test_set, args.sweeps, args.cell)
-
-
-if __name__ == "__main__":
-    main()
+def run(cell=4.0, sweeps=8, epochs=4, lr=1e-4, train_seeds=(0, 1), steps=600):
+    """The study, its tables printed (held-out seed 1000)."""
+    train_set, test_set = datasets(train_seeds, steps)
+    model = train(train_set, epochs, sweeps, cell, lr, seed=0)
+    evaluate(model, test_set, sweeps, cell)

@@ -4,7 +4,7 @@ Data: the 100-circle thesis pile driven by our PGS in the loop (builtin start, r
 cap 1000), where the builtin start is the previous step's solution at the tolerance. Training
 seeds --train (default 0-3), held-out seed 1000; every step with contacts.
 
-Model: deepcontact.model.contact_graph.CorrectionNet, trained (Adam, fixed seed) on the residual
+Model: studies/contact_graph.py's CorrectionNet, trained (Adam, fixed seed) on the residual
 after --sweeps differentiable coloured Gauss-Seidel sweeps from the corrected start.
 
 Reported on the held-out steps, each solved by the real solver (float64 PGS, Box2D's order and
@@ -15,22 +15,19 @@ graph assembly included), each as a ratio to builtin at w = 1.
 Result (docs/results.md, "Faster to the same accuracy"): no fewer sweeps than builtin, and a prediction
 that costs several solves. Takes about 2 minutes with --train 0,1 --steps 300, 7 with 0,1,2,3.
 
-Usage: python benchmarks/study_learned_correction.py [--epochs N] [--sweeps K] [--rounds R]
-       [--train 0,1,2,3] [--steps N] [--lr LR]
+    dc study learned-correction [--epochs N] [--sweeps K] [--rounds R] [--train 0,1,2,3] [--steps N] [--lr LR]
 """
-import argparse
 import time
 
 import numpy as np
 import torch
 
-from deepcontact.model import contact_graph as cg
-from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
-from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
-from deepcontact.solver.pgs import solve
-from deepcontact.solver.problem import StepProblem
-from deepcontact.protocol import current, protocol_line
+from ..scene.generators import generate
+from ..simulate.build import build_world
+from ..simulate.pgs_loop import LoopOptions, PGSStepper
+from ..solver.pgs import solve
+from ..solver.problem import StepProblem
+from . import contact_graph as cg
 
 SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
 
@@ -50,9 +47,9 @@ def loop_problems(seed, steps=600):
 
 
 def datasets(train, steps):
-    """The loop steps of the training seeds ("0,1") and every second step of held-out seed 1000."""
+    """The loop steps of the training seeds (0, 1, ...) and every second step of held-out seed 1000."""
     t0 = time.perf_counter()
-    train_set = [p for s in train.split(",") for p in loop_problems(int(s), steps)]
+    train_set = [p for seed in train for p in loop_problems(int(seed), steps)]
     test_set = loop_problems(1000, steps)[::2]
     print(f"data: {len(train_set)} training steps, {len(test_set)} held-out, {time.perf_counter() - t0:.1f} s",
           flush=True)
@@ -117,24 +114,8 @@ def evaluate(model, problems):
               f"{(ms + extra) * 1e3:>13.3f} {(ms + extra) / base_s:>6.2f}")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--epochs", type=int, default=6)
-    ap.add_argument("--sweeps", type=int, default=32, help="differentiable sweeps before the loss (8 misleads: "
-                                                          "it prefers zero to builtin)")
-    ap.add_argument("--batch", type=int, default=16)
-    ap.add_argument("--rounds", type=int, default=4, help="message-passing rounds")
-    ap.add_argument("--width", type=int, default=32)
-    ap.add_argument("--lr", type=float, default=3e-4)
-    ap.add_argument("--train", default="0,1,2,3")
-    ap.add_argument("--steps", type=int, default=600)
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
-    train_set, test_set = datasets(args.train, args.steps)
-    model = train(train_set, args.epochs, args.sweeps, args.batch, seed=0, lr=args.lr, rounds=args.rounds,
-                  width=args.width)
+def run(epochs=6, sweeps=32, batch=16, rounds=4, width=32, lr=3e-4, train_seeds=(0, 1, 2, 3), steps=600):
+    """The study, its table printed (held-out seed 1000)."""
+    train_set, test_set = datasets(train_seeds, steps)
+    model = train(train_set, epochs, sweeps, batch, seed=0, lr=lr, rounds=rounds, width=width)
     evaluate(model, test_set)
-
-
-if __name__ == "__main__":
-    main()
