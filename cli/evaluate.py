@@ -25,13 +25,13 @@ from . import options
               help="Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
-@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual",
+@click.option("--stop-on", type=options.choice("stop_on"), default="residual",
               show_default=True, help="The measure the tolerance applies to (docs/solver.md: Measuring convergence).")
-@click.option("--mode", type=click.Choice(["float32", "float64"]), default="float64", show_default=True)
+@click.option("--mode", type=options.choice("mode", leave_out=("exact",)), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
 @click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] Cell size d.")
 @click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] h.")
-@click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
+@click.option("--kernel", type=options.choice("kernel"), default="poly6",
               show_default=True, help="[sph without --checkpoint] SPH kernel.")
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the random start.")
 @click.option("--closed-loop", is_flag=True,

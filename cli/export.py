@@ -14,7 +14,7 @@ from . import options
 @click.option("--format", "fmt", type=click.Choice(["fclib", "csv", "parquet"]), default="fclib", show_default=True,
               help="fclib: each step's contact problem (HDF5); csv or parquet: the run as two flat tables, "
                    "bodies and contacts, one row per body (contact point) per step (Parquet needs pyarrow).")
-@click.option("--solution", type=click.Choice(["reference", "recorded", "none"]), default="reference",
+@click.option("--solution", type=options.choice("solution"), default="reference",
               show_default=True,
               help="Store as /solution: the exact reference (Newton, residual < 1e-12 where it gets "
                    "there), what the run's solver produced, or nothing.")

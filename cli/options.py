@@ -328,6 +328,40 @@ def was_given(name):
         None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
 
 
+def vocabulary(name):
+    """A choice option's words, from the library table that owns them (one spelling everywhere)."""
+    if name == "stop_on":
+        from deepcontact.solver.pgs import MEASURES
+        return list(MEASURES)
+    if name == "mode":
+        from deepcontact.solver.pgs import MODES
+        return list(MODES)
+    if name == "kernel":
+        from deepcontact.grid.kernels import KERNELS
+        return list(KERNELS)
+    if name == "loss":
+        from deepcontact.model.choices import LOSSES
+        return list(LOSSES)
+    if name == "optimizer":
+        from deepcontact.model.choices import OPTIMIZERS
+        return list(OPTIMIZERS)
+    if name == "loop_start":
+        from deepcontact.simulate.pgs_loop import STARTS
+        return list(STARTS)
+    if name == "impulses":
+        from deepcontact.studies.sph_oracle import SOURCES
+        return list(SOURCES)
+    if name == "solution":
+        from deepcontact.exchange.fclib import SOLUTIONS
+        return list(SOLUTIONS)
+    raise KeyError(name)
+
+
+def choice(name, leave_out=()):
+    """click.Choice over vocabulary(name), less the words a command does not take."""
+    return click.Choice([w for w in vocabulary(name) if w not in leave_out])
+
+
 def load_solvers(names, mode):
     """--accelerate: plug-in solver methods loaded by the user's explicit choice; the float64-only
     built-ins refused in float32 (one line, exit 2)."""

@@ -11,7 +11,7 @@ CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder (or report folder with --study).")
-@click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
+@click.option("--kernel", type=options.choice("kernel"), default="poly6",
               show_default=True, help="SPH kernel (2D-normalised).")
 @click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d (node spacing).")
 @click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Smoothing length h (support).")
@@ -27,7 +27,7 @@ CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the split.")
 @click.option("--oracle", is_flag=True, help="Deprecated: dc study oracle RUNS.")
 @click.option("--study", is_flag=True, help="Deprecated: dc study oracle RUNS --sweep -o DIR.")
-@click.option("--impulses", type=click.Choice(["reference", "recorded"]), default="reference", show_default=True,
+@click.option("--impulses", type=options.choice("impulses"), default="reference", show_default=True,
               help="[--oracle/--study] Exact answers to push through the grid.")
 @click.option("--every", type=click.IntRange(min=1), default=10, show_default=True,
               help="[--oracle/--study] Use every N-th step file.")

@@ -65,14 +65,14 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
 @click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
               help="Box2D's own velocity solver, or the project's PGS in the loop.")
-@click.option("--start", type=click.Choice(["zero", "builtin", "garbage"]),
+@click.option("--start", type=options.choice("loop_start"),
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
-@click.option("--mode", type=click.Choice(["exact", "float32", "float64"]),
+@click.option("--mode", type=options.choice("mode"),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
 @click.option("--tolerance", type=options.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
 @click.option("--max-iterations", type=options.count(),
               help="[pgs] Sweep cap (default: 1000 with --tolerance, as dc evaluate's; else the scene's).")
-@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]),
+@click.option("--stop-on", type=options.choice("stop_on"),
               help="[pgs] The measure the tolerance applies to (default residual).")
 @click.option("--relaxation", type=options.Relaxation(),
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "

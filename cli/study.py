@@ -3,6 +3,8 @@ or two, the grid's own loss, the learned correction and coarse space): every res
 docs/results.md that is not a `dc evaluate` report comes from one of these."""
 import click
 
+from deepcontact.model.arch import NETWORKS
+
 from . import options
 
 
@@ -77,7 +79,7 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Figures folder.")
 @click.option("--every", type=options.count(min=1), default=10, show_default=True, help="Use every N-th step.")
 @click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
-@click.option("--stop-on", type=click.Choice(["thesis", "velocity", "residual"]), default="residual", show_default=True,
+@click.option("--stop-on", type=options.choice("stop_on"), default="residual", show_default=True,
               help="The stopping measure (residual, as everywhere; thesis: the thesis's largest change per sweep).")
 @click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
 @options.jobs
@@ -113,11 +115,11 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite
 @click.argument("dataset", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Comparison folder.")
 @click.option("--epochs", type=options.count(min=1), default=10, show_default=True)
-@click.option("--arch", "model", type=click.Choice(["thesis", "fcn"]), default="fcn", show_default=True,
+@click.option("--arch", "model", type=click.Choice(NETWORKS.builtin()), default="fcn", show_default=True,
               help="The network trained three times.")
 @options.deprecated_alias("--model", "--arch", "model")
 @click.option("--width", type=options.count(min=1, max=4096), default=16, show_default=True, help="[fcn] Channels.")
-@click.option("--loss", type=click.Choice(["masked", "contacts", "mse", "solver"]), default="masked",
+@click.option("--loss", type=options.choice("loss"), default="masked",
               show_default=True)
 @click.option("--seed", type=options.count(), default=0, show_default=True)
 @options.overwrite
@@ -148,14 +150,14 @@ def maps(dataset, out, epochs, model, width, loss, seed, overwrite, verbose, qui
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", type=click.Path(file_okay=False), help="[--sweep] Report folder.")
 @click.option("--sweep", is_flag=True, help="The thesis's sweep of kernel x d x h (figures 5.4-5.6): a table and a plot.")
-@click.option("--kernel", type=click.Choice(["poly6", "spiky", "cubic", "gaussian"]), default="poly6",
+@click.option("--kernel", type=options.choice("kernel"), default="poly6",
               show_default=True, help="SPH kernel.")
 @click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d.")
 @click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True,
               help="Smoothing length h.")
 @click.option("--renormalize/--no-renormalize", default=True, show_default=True)
 @click.option("--window", type=options.Window(), help="Grid window (default: the scenes' box).")
-@click.option("--impulses", type=click.Choice(["reference", "recorded"]), default="reference", show_default=True,
+@click.option("--impulses", type=options.choice("impulses"), default="reference", show_default=True,
               help="Exact answers to push through the grid.")
 @click.option("--every", type=click.IntRange(min=1), default=10, show_default=True, help="Use every N-th step file.")
 @options.overwrite

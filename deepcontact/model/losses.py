@@ -9,6 +9,8 @@
 import numpy as np
 import torch
 
+from . import choices
+
 
 def masked_mse(pred, target):
     mask = (target != 0).to(pred.dtype)
@@ -46,7 +48,7 @@ def contact_mse(pred, positions, impulses, spec, label_columns):
     return total / max(count, 1)
 
 
-LOSSES = ("masked", "contacts", "mse", "solver")
+LOSSES = choices.LOSSES   # (the names live where the command line can read them without torch)
 
 
 class SolverLoss:

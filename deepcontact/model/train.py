@@ -30,6 +30,7 @@ from ..grid.spec import GridSpec
 from ..resources import check_memory
 from . import losses
 from .arch import NETWORKS
+from .choices import OPTIMIZERS
 from .networks import (CONFIG_LIMITS, build, check_config, check_network, parameter_count, shape_problem,
                        training_memory)
 
@@ -179,7 +180,7 @@ _RANGES = {"batch_size": (1, 2 ** 31 - 1), "epochs": (1, 2 ** 31 - 1), "patience
            "seed": (0, 2 ** 31 - 1), "solver_sweeps": (0, 2 ** 31 - 1), "lr": (0, None), "weight_decay": (0, None),
            "momentum": (0, 1), "dropout": (0, 1),
            **{k: CONFIG_LIMITS[k] for k in ("fcn_width", "fcn_depth")}}   # (the network's own limits)
-_CHOICES = {"optimizer": ("sgd", "adam")}
+_CHOICES = {"optimizer": OPTIMIZERS}
 
 
 def config_problem(cfg):

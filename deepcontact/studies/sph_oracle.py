@@ -53,6 +53,9 @@ def steps_of(runs, cell, smoothing, kernel, renormalize=True, window=None, impul
     return spec, steps, len(files)
 
 
+SOURCES = ("reference", "recorded")   # the exact answers pushed through the grid
+
+
 def exact_impulses(step_files, source="reference", log=None):
     """[(positions, normal, tangent)] per step: the reference solution or the recorded impulses."""
     from ..step.reader import read_step_for_grid
