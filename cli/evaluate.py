@@ -1,9 +1,6 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
-import dataclasses
-
 import click
 
-from deepcontact.errors import InputError
 from deepcontact.model.arch import NETWORKS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS
@@ -116,80 +113,26 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         options.check_grid_options(kernel, cell, smoothing)
     options.load_solvers(accelerate, mode)
 
-    # Computed inside the output's lock; the report appears only when complete.
+    from deepcontact.evaluate.command import EvaluateSettings, history_bytes, run_evaluation
+    settings = EvaluateSettings(
+        runs=list(runs), starts=list(starts), checkpoint=model, tolerance=tolerance, max_iterations=max_iterations,
+        stop_on=stop_on, mode=mode, every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
+        closed_loop=closed_loop, steps=steps, relaxations=tuple(relaxation), accelerations=tuple(accelerate),
+        budgets=budgets, bands=bands, jobs=jobs, threads=threads)
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep
-        from deepcontact.evaluate.replay import box2d_run
         from deepcontact.resources import check_memory
-        total = sum(-(-len(s.files) // every) for r in runs for s in box2d_run(r).simulations)
-        variants = len(starts) * len(relaxation) * len(accelerate)
-        check_memory(total * variants * (max_iterations + 1) * 8 * 2, max_memory,
-                     f"the convergence histories of {total:,} steps x {variants} variants up to {max_iterations:,} sweeps")
+        needed, what = history_bytes(settings)
+        check_memory(needed, max_memory, what)
+    bars = []
+
+    def bar(total, unit):
+        bars.append(options.progress_bar(quiet, total, unit, "closed loop" if closed_loop else "evaluate"))
+        return bars[-1].update
+    # Computed inside the output's lock; the report appears only when complete.
     with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
-        _evaluate(runs, work, starts, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-                  seed, closed_loop, steps, relaxation, accelerate, budgets, quiet, jobs, threads, bands)
-
-
-def _evaluate(runs, out, names, model, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel, seed,
-              closed_loop, steps, relaxations, accelerations, budgets, quiet, jobs=1, threads=1, bands=None):
-    from deepcontact.protocol import protocol, use_threads
-    from deepcontact.evaluate.replay import box2d_run, evaluate as run, summarize
-    from deepcontact.evaluate.report import summary_table, write_report
-    from deepcontact.warmstart.starts import make_starts
-    from deepcontact.grid.dataset import collect, grid_for
-
-    predictor, spec = None, None
-    if model:
-        from deepcontact.model.inference import Predictor
-        predictor = Predictor(model, threads=threads)
-        spec = predictor.spec
-    measured = protocol(threads, jobs)   # (the load average now, before the work adds to it)
-    if "sph" in names and spec is None:
-        sims, _ = collect(runs)
-        spec, _ = grid_for(sims, cell, smoothing, kernel, True)
-    table = make_starts(names, spec=spec, predictor=predictor)
-    use_threads(threads)   # (after the starts: a plug-in start may bring torch with it)
-    if closed_loop:
-        return run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets,
-                               quiet, accelerations, measured, jobs)
-    total = sum(len(s.files) for r in runs for s in box2d_run(r).simulations)
-    bar = options.progress_bar(quiet, total, "step", "evaluate")
-    rows = run(runs, table, tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
-               every=every, seed=seed, progress=bar.update,
-               relaxations=relaxations, budgets=budgets, accelerations=accelerations, jobs=jobs)
-    bar.close()
-    summary = summarize(rows, table, max_iterations)
-    settings = dict(runs=[str(r) for r in runs], starts=names, relaxation=relaxations, accelerate=accelerations,
-                    model=model, tolerance=tolerance,
-                    max_iterations=max_iterations, stop_on=stop_on, mode=mode, every=every,
-                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=bands)
-    write_report(out, rows, summary, settings)
-    click.echo(summary_table(summary))
-
-
-def run_closed_loop(runs, out, table, tolerance, max_iterations, stop_on, mode, steps, relaxations, budgets, quiet,
-                    accelerations=("none",), measured=None, jobs=1):
-    """Every simulation of every run given, its rows per seed and pooled over all of them."""
-    from deepcontact.evaluate.closed_loop import every_simulation, pooled, steps_stepped
-    from deepcontact.evaluate.report import write_loop_report
-    from deepcontact.evaluate.replay import box2d_run
-    from deepcontact.scene.xml import read_scene
-
-    sims = [(r, s) for r in runs for s in box2d_run(r).simulations]
-    scenes = [read_scene(s.scene_file()) for _, s in sims]
-    if len({scene.name for scene in scenes}) > 1:
-        raise InputError(f"the runs hold different scenes ({', '.join(sorted({sc.name for sc in scenes}))}); "
-                         "the closed loop pools one kind of scene at a time")
-    variants = len(table) * len(relaxations) * len(accelerations)
-    bar = options.progress_bar(quiet, steps_stepped(scenes, variants, budgets, steps), "step", "closed loop")
-    per_simulation = every_simulation(scenes, table, budgets=budgets, jobs=jobs, progress=bar.update,
-                                      tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, mode=mode,
-                                      steps=steps, relaxations=relaxations, accelerations=accelerations)
-    bar.close()
-    results = plotted = per_simulation[0] if len(sims) == 1 else pooled(per_simulation)
-    if len(sims) > 1:   # the pooled rows first (plotted), then each simulation's, named by its run and seed
-        results = plotted + [dataclasses.replace(r, start=f"{r.start} · {run} seed {s.seed}")
-                             for (run, s), rows in zip(sims, per_simulation) for r in rows]
-    what = (f"{scenes[0].name}, {len(sims)} simulation{'s' if len(sims) != 1 else ''} of "
-            f"{', '.join(map(str, runs))}")
-    click.echo(write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured,
-                                 simulations=len(sims), plotted=plotted))
+        try:
+            table = run_evaluation(settings, work, bar)
+        finally:
+            for b in bars:
+                b.close()
+    click.echo(table)

@@ -1,0 +1,110 @@
+"""`dc evaluate`'s work as one library call: the settings as one value, the starts made, replay
+or the closed loop run over every simulation given, the report written into a folder."""
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass
+class EvaluateSettings:
+    """What to compare and how (the options of `dc evaluate`, checked by the command)."""
+    runs: list                      # run folders of one kind of scene
+    starts: list                    # start names (built-ins, installed plug-ins, package.module:Name)
+    checkpoint: str | None = None   # a trained model, for the starts that use one
+    tolerance: float = 1e-4
+    max_iterations: int = 1000
+    stop_on: str = "residual"
+    mode: str = "float64"
+    every: int = 1                  # replay: every N-th step
+    cell: float = 0.5               # the sph start's grid, without a checkpoint
+    smoothing: float = 0.5
+    kernel: str = "poly6"
+    seed: int = 0                   # of the random start
+    closed_loop: bool = False
+    steps: int | None = None        # closed loop: steps to simulate (default the scene's)
+    relaxations: tuple = (1.0,)
+    accelerations: tuple = ("none",)
+    budgets: bool = True
+    bands: bool | None = None
+    jobs: int = 1
+    threads: int = 1
+
+    @property
+    def variants(self):
+        return len(self.starts) * len(self.relaxations) * len(self.accelerations)
+
+
+def history_bytes(s: EvaluateSettings):
+    """What replay's convergence histories hold at most (bytes) and a line saying of what."""
+    from .replay import box2d_run
+    total = sum(-(-len(sim.files) // s.every) for r in s.runs for sim in box2d_run(r).simulations)
+    return (total * s.variants * (s.max_iterations + 1) * 8 * 2,
+            f"the convergence histories of {total:,} steps x {s.variants} variants up to {s.max_iterations:,} sweeps")
+
+
+def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str:
+    """Replay (or the closed loop) into the report folder out; returns the summary table.
+    bar(total, unit) gives a progress callback for that many units."""
+    from ..grid.dataset import collect, grid_for
+    from ..protocol import protocol, use_threads
+    from ..warmstart.starts import make_starts
+
+    predictor, spec = None, None
+    if s.checkpoint:
+        from ..model.inference import Predictor
+        predictor = Predictor(s.checkpoint, threads=s.threads)
+        spec = predictor.spec
+    measured = protocol(s.threads, s.jobs)   # (the load average now, before the work adds to it)
+    if "sph" in s.starts and spec is None:
+        sims, _ = collect(s.runs)
+        spec, _ = grid_for(sims, s.cell, s.smoothing, s.kernel, True)
+    table = make_starts(s.starts, spec=spec, predictor=predictor)
+    use_threads(s.threads)   # (after the starts: a plug-in start may bring torch with it)
+    progress = bar or (lambda total, unit: None)
+    if s.closed_loop:
+        return _closed_loop(s, out, table, measured, progress)
+    return _replay(s, out, table, measured, progress)
+
+
+def _replay(s, out, table, measured, progress):
+    from .replay import box2d_run, evaluate, summarize
+    from .report import summary_table, write_report
+    total = sum(len(sim.files) for r in s.runs for sim in box2d_run(r).simulations)
+    rows = evaluate(s.runs, table, tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on,
+                    mode=s.mode, every=s.every, seed=s.seed, progress=progress(total, "step"),
+                    relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
+    summary = summarize(rows, table, s.max_iterations)
+    settings = dict(runs=[str(r) for r in s.runs], starts=s.starts, relaxation=s.relaxations,
+                    accelerate=s.accelerations, model=s.checkpoint, tolerance=s.tolerance,
+                    max_iterations=s.max_iterations, stop_on=s.stop_on, mode=s.mode, every=s.every,
+                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=s.bands)
+    write_report(out, rows, summary, settings)
+    return summary_table(summary)
+
+
+def _closed_loop(s, out, table, measured, progress):
+    """Every simulation of every run given, its rows per seed and pooled over all of them."""
+    from ..errors import InputError
+    from ..scene.xml import read_scene
+    from .closed_loop import every_simulation, pooled, steps_stepped
+    from .replay import box2d_run
+    from .report import write_loop_report
+
+    sims = [(r, sim) for r in s.runs for sim in box2d_run(r).simulations]
+    scenes = [read_scene(sim.scene_file()) for _, sim in sims]
+    if len({scene.name for scene in scenes}) > 1:
+        raise InputError(f"the runs hold different scenes ({', '.join(sorted({sc.name for sc in scenes}))}); "
+                         "the closed loop pools one kind of scene at a time")
+    per_simulation = every_simulation(
+        scenes, table, budgets=s.budgets, jobs=s.jobs,
+        progress=progress(steps_stepped(scenes, s.variants, s.budgets, s.steps), "step"),
+        tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on, mode=s.mode, steps=s.steps,
+        relaxations=s.relaxations, accelerations=s.accelerations)
+    results = plotted = per_simulation[0] if len(sims) == 1 else pooled(per_simulation)
+    if len(sims) > 1:   # the pooled rows first (plotted), then each simulation's, named by its run and seed
+        results = plotted + [dataclasses.replace(r, start=f"{r.start} · {run} seed {sim.seed}")
+                             for (run, sim), rows in zip(sims, per_simulation) for r in rows]
+    what = (f"{scenes[0].name}, {len(sims)} simulation{'s' if len(sims) != 1 else ''} of "
+            f"{', '.join(map(str, s.runs))}")
+    return write_loop_report(out, results, what, s.stop_on, s.tolerance, s.max_iterations, s.mode, measured,
+                             simulations=len(sims), plotted=plotted)
