@@ -29,13 +29,16 @@ class Registry:
 
     def register(self, name, factory=None, **traits):
         """Registers factory under name (lower case, digits and '-'); usable as a decorator.
-        traits: what the rest of the pipeline may ask of it (see the kind's contract)."""
+        factory may be "package.module:Name", imported when first used (a built-in whose module
+        needs what its registry must not import, torch say). traits: what the rest of the
+        pipeline may ask of it (see the kind's contract)."""
         if not _NAME.fullmatch(name):
             raise ValueError(f"a {self.kind} name is lower case letters, digits and '-': {name!r}")
 
         def add(f):
-            for key, value in traits.items():
-                setattr(f, key, value)
+            if not isinstance(f, str):
+                for key, value in traits.items():
+                    setattr(f, key, value)
             self._builtin[name] = f
             return f
         return add if factory is None else add(factory)
@@ -58,7 +61,7 @@ class Registry:
     def load(self, name):
         """The factory named `name`; PluginError naming it if it cannot be had."""
         if name in self._builtin:
-            return self._builtin[name]
+            return self._builtin_factory(name)
         found = self.installed().get(name)
         if found is None and not _TARGET.fullmatch(name):
             raise PluginError(f"unknown {self.kind} {name!r}: choose from {', '.join(self.names())}, or name one "
@@ -80,4 +83,11 @@ class Registry:
     def resolved(self, name):
         """The factory of a built-in or of a plug-in already loaded by an explicit choice (load),
         or None: what a name read from a file may resolve to, so that a file never imports code."""
-        return self._builtin.get(name) or self._loaded.get(name)
+        return self._builtin_factory(name) if name in self._builtin else self._loaded.get(name)
+
+    def _builtin_factory(self, name):
+        f = self._builtin[name]
+        if isinstance(f, str):   # a built-in named by its place: imported now, once
+            module, _, attribute = f.partition(":")
+            f = self._builtin[name] = getattr(importlib.import_module(module), attribute)
+        return f

@@ -28,3 +28,44 @@ def test_no_floor_imports_one_above_it():
 def test_every_package_has_its_floor():
     packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists()}
     assert packages == set(FLOORS)
+
+
+def test_no_module_imports_itself_back():
+    """No import cycle among the package's modules (module-level imports, relative and absolute):
+    a cycle hidden by a local import is still a cycle in the design, so imports inside functions
+    count too."""
+    import ast
+    modules = {}
+    for f in PACKAGE.rglob("*.py"):
+        parts = f.relative_to(PACKAGE.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        modules[name] = f
+    graph = {}
+    for name, f in modules.items():
+        package = name if f.name == "__init__.py" else name.rpartition(".")[0]
+        found = set()
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")
+                    base = ".".join(up[:len(up) - node.level + 1] + ([base] if base else []))
+                for alias in node.names:
+                    target = f"{base}.{alias.name}"
+                    found.add(target if target in modules else base)
+            elif isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+        graph[name] = {m for m in found if m in modules and m != name and not name.startswith(m + ".")
+                       and not m.startswith(name + ".")}
+    cycles = []
+
+    def visit(node, path, done):
+        for nxt in sorted(graph[node]):
+            if nxt in path:
+                cycles.append(" -> ".join(path[path.index(nxt):] + [nxt]))
+            elif nxt not in done:
+                done.add(nxt)
+                visit(nxt, path + [nxt], done)
+    for start in sorted(graph):
+        visit(start, [start], {start})
+    assert not cycles, sorted(set(cycles))[:10]

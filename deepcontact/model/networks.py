@@ -231,3 +231,14 @@ def training_memory(config, batch_size, optimizer="adam"):
     for h in hooks:
         h.remove()
     return params * (2 + (2 if optimizer == "adam" else 1)) + 2 * activations
+
+
+def thesis(in_channels, out_channels, height, width, dropout=0.1, final_relu=True):
+    """The thesis's CNN (Table 5.1, Appendix C): the built-in network "thesis"."""
+    return ThesisCNN(in_channels, out_channels, height, width, dropout=dropout, final_relu=final_relu)
+
+
+def fcn(in_channels, out_channels, height=None, width=None, fcn_width=16, fcn_depth=3):
+    """A fully convolutional encoder-decoder (any grid size: height and width are not needed): the
+    built-in network "fcn"."""
+    return FCN(in_channels, out_channels, width=fcn_width, depth=fcn_depth)
