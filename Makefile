@@ -12,7 +12,7 @@ DC := $(PYTHON) -m deepcontact.cli.main
 DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos \
 	python3-h5py ffmpeg chromium
 
-.PHONY: setup demo test test-quick test-slow bench stability smoke smoke-pipeline study study-pipeline clean
+.PHONY: setup demo test test-quick test-slow bench studies stability smoke smoke-pipeline study study-pipeline clean
 
 # Debian packages: Box2D 2.4.1, Eigen (header-only sparse factorizations), libxml2 and zlib (the
 # native step-file reader) and pkg-config to build against them, a C++ compiler, xmllint (an
@@ -67,13 +67,18 @@ bench: setup
 	$(PYTHON) benchmarks/bench_scale.py
 	$(PYTHON) benchmarks/bench_render.py
 	$(PYTHON) benchmarks/bench_predict.py
-	$(PYTHON) benchmarks/bench_relaxation.py --scene pile
-	$(PYTHON) benchmarks/bench_relaxation.py --scene pyramid
-	$(PYTHON) benchmarks/bench_relaxation.py --scene pile --loop --seeds 0,1,2,3 --repeats 2
-	$(PYTHON) benchmarks/bench_exact.py --siconos
-	$(PYTHON) benchmarks/bench_exact.py --scene hard --every 1
-	$(PYTHON) benchmarks/bench_peer.py
 	sh benchmarks/bench_loop_scale.sh
+
+# The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).
+studies: setup
+	$(DC) study relaxation --scene pile
+	$(DC) study relaxation --scene pyramid
+	$(DC) study relaxation --scene pile --loop --seeds 0,1,2,3 --repeats 2
+	$(DC) study exact --siconos
+	$(DC) study exact --scene hard --every 1
+	$(DC) study peer
+	$(DC) study learned-correction
+	$(DC) study learned-coarse
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).

@@ -19,6 +19,9 @@ def study():
     oracle              the grid's own loss: exact impulses through the grid and back
     learned-correction  a learned correction of Box2D's warm start on the contact graph
     learned-coarse      a learned coarse space between sweeps
+    relaxation          time to the same accuracy: over-relaxation, NNCG, Newton, prev
+    exact               the reference solutions: time to 1e-12, pivots, the hard scenes
+    peer                our solver against Siconos (NSGS, Lemke) on the same problems
 
     \b
     Examples:
@@ -229,10 +232,8 @@ def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, st
       dc study learned-correction --train 0,1 --steps 300
       dc study learned-correction --epochs 6 --sweeps 32
     """
-    from deepcontact.protocol import protocol, protocol_line, use_threads
     from deepcontact.studies.learned_correction import run
-    use_threads(threads)
-    click.echo(protocol_line(protocol(threads)) + "\n")
+    _print_study(threads)
     run(epochs=epochs, sweeps=sweeps, batch=batch, rounds=rounds, width=width, lr=lr, train_seeds=train_seeds,
         steps=steps)
 
@@ -261,8 +262,89 @@ def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, verbos
       dc study learned-coarse --train 0,1 --steps 300
       dc study learned-coarse --cell 4 --sweeps 8 --epochs 4
     """
-    from deepcontact.protocol import protocol, protocol_line, use_threads
     from deepcontact.studies.learned_coarse import run
+    _print_study(threads)
+    run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps)
+
+
+def _print_study(threads):
+    from deepcontact.protocol import protocol, protocol_line, use_threads
     use_threads(threads)
     click.echo(protocol_line(protocol(threads)) + "\n")
-    run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps)
+
+
+@study.command()
+@click.option("--scene", type=click.Choice(["pile", "pyramid"]), default="pile", show_default=True)
+@click.option("--repeats", type=options.count(min=1), default=3, show_default=True,
+              help="Timings per step (the best is kept).")
+@click.option("--loop", is_flag=True, help="Our PGS driving the scene instead of replaying its settled steps.")
+@click.option("--seeds", type=options.SeedList(), help="[--loop] The scene's seeds, pooled (default 0).")
+@options.threads
+@options.verbosity
+@options.command("study relaxation")
+def relaxation(scene, repeats, loop, seeds, threads, verbose, quiet):
+    """Time to the same accuracy (residual 1e-4): Box2D's warm start against
+    over-relaxation, NNCG, Newton and subspace steps and the prev start, as
+    median sweeps and solve time against builtin in the same run
+    (docs/results.md, "Faster to the same accuracy").
+
+    \b
+    Examples:
+      dc study relaxation --scene pile
+      dc study relaxation --scene pyramid --repeats 2
+      dc study relaxation --scene pile --loop --seeds 0,1,2,3 --repeats 2
+    """
+    from deepcontact.studies.relaxation import run
+    options.refuse_inapplicable([("seeds", loop, "only applies with --loop")])
+    _print_study(threads)
+    run(scene, repeats, (seeds or (0,)) if loop else None)
+
+
+@study.command()
+@click.option("--scene", type=click.Choice(["pile", "pyramid", "both", "hard"]), default="both", show_default=True,
+              help="hard: the stability study's full-size hard scenes.")
+@click.option("--every", type=options.count(min=1), default=5, show_default=True, help="Use every N-th step.")
+@click.option("--siconos", is_flag=True, help="Siconos's Lemke on the same steps too (Debian's python3-siconos).")
+@options.threads
+@options.verbosity
+@options.command("study exact")
+def exact(scene, every, siconos, threads, verbose, quiet):
+    """The reference solutions: how long reaching a residual of 1e-12 takes
+    (sweeps, Newton, Lemke's pivots where Newton stalls), on held-out pile and
+    pyramid steps or on the hard scenes (docs/results.md, "Exact answers").
+
+    \b
+    Examples:
+      dc study exact --siconos
+      dc study exact --scene hard --every 1
+    """
+    from deepcontact.studies.exact import run
+    options.refuse_inapplicable([("siconos", scene != "hard", "does not apply to --scene hard")])
+    _print_study(threads)
+    run(scene, every, siconos)
+
+
+@study.command()
+@click.option("--scene", type=click.Choice(["pile", "pyramid", "both", "pyramid40"]), default="both",
+              show_default=True)
+@click.option("--every", type=options.count(min=1), default=5, show_default=True, help="[pile] Use every N-th step.")
+@click.option("--tolerances", type=options.CommaList(options.Finite(min=0, min_open=True), "TOL[,...]"),
+              default="1e-4,1e-8", show_default=True)
+@click.option("--cap", type=options.count(min=1), default=100_000, show_default=True,
+              help="Our sweeps at most (Siconos: 100,000 iterations).")
+@options.threads
+@options.verbosity
+@options.command("study peer")
+def peer(scene, every, tolerances, cap, threads, verbose, quiet):
+    """Our solver against Siconos's NSGS and Lemke on the same exported
+    problems, from zero to each tolerance (docs/results.md, "Against Siconos").
+    Needs Debian's python3-siconos (make setup).
+
+    \b
+    Examples:
+      dc study peer
+      dc study peer --scene pyramid40 --tolerances 1e-4
+    """
+    from deepcontact.studies.peer import run
+    _print_study(threads)
+    run(scene, every, tuple(tolerances), cap)

@@ -14,7 +14,8 @@ def run(tmp_path_factory):
 def test_dc_study_lists_the_studies():
     r = dc("study", "--help")
     assert r.returncode == 0 and "Examples:" in r.stdout
-    for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse"):
+    for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse", "relaxation",
+                 "exact", "peer"):
         assert name in r.stdout
         assert "Examples:" in dc("study", name, "--help").stdout
 
@@ -68,3 +69,16 @@ def test_the_learned_studies_run_as_dc_study_commands():
     assert r.returncode == 0, r.stderr
     assert "| builtin | " in r.stdout and "| learned, if the residual falls |" in r.stdout
     assert dc("study", "learned-coarse", "--train", "0,x").returncode == 2
+
+
+def test_every_study_module_imports_and_the_exact_study_runs():
+    import importlib
+    import pkgutil
+    import deepcontact.studies as studies
+    for info in pkgutil.iter_modules(studies.__path__):
+        importlib.import_module(f"deepcontact.studies.{info.name}")
+    r = dc("study", "exact", "--scene", "pile", "--every", "150")
+    assert r.returncode == 0, r.stderr
+    assert "Measured with" in r.stdout and "| reference: Newton, then local pivots where it stalls |" in r.stdout
+    assert dc("study", "exact", "--scene", "hard", "--siconos").returncode == 2
+    assert dc("study", "relaxation", "--seeds", "0,1").returncode == 2

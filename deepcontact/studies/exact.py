@@ -15,9 +15,8 @@ With --scene hard, the reference alone on every `--every`-th step of each scene 
 study (`dc study stability`): how many steps it solves exactly, how many it pivoted, the worst
 residual and the time.
 
-Usage: python benchmarks/bench_exact.py [--scene pile|pyramid|both|hard] [--every 5] [--siconos]
+    dc study exact [--scene pile|pyramid|both|hard] [--every 5] [--siconos]
 """
-import argparse
 import statistics
 import sys
 import tempfile
@@ -26,13 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
-from deepcontact.solver.pgs import solve
-from deepcontact.solver.problem import StepProblem
-from deepcontact.solver.reference import reference_solution
-from deepcontact.studies.stability import FULL
-from deepcontact.protocol import current, protocol_line
+from ..scene.generators import generate
+from ..simulate.build import build_world
+from ..solver.pgs import solve
+from ..solver.problem import StepProblem
+from ..solver.reference import reference_solution
+from .stability import FULL
 
 TOLERANCE, CAP = 1e-12, 100_000
 
@@ -70,7 +68,7 @@ def referenced(problem):
 
 def siconos_times(steps):
     """Seconds Siconos's Lemke takes per problem, and its residual by our measure."""
-    from deepcontact.exchange import fclib, peer
+    from ..exchange import fclib, peer
     with tempfile.TemporaryDirectory() as tmp:
         paths = [fclib.write_problem(p, Path(tmp) / f"step-{i:04d}.hdf5") for i, p in enumerate(steps)]
         return peer.solve_files(paths, solver="lemke")
@@ -124,19 +122,10 @@ def report_hard(every):
         sys.stdout.flush()
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="both", choices=["pile", "pyramid", "both", "hard"])
-    ap.add_argument("--every", type=int, default=5)
-    ap.add_argument("--siconos", action="store_true")
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
-    if args.scene == "hard":
-        return report_hard(args.every)
-    for name in (["pile", "pyramid"] if args.scene == "both" else [args.scene]):
-        report(name, problems(name, args.every), args.siconos)
+def run(scene="both", every=5, siconos=False):
+    """The study's tables, printed: the pile and the pyramid (or one of them), or the hard scenes."""
+    if scene == "hard":
+        return report_hard(every)
+    for name in (["pile", "pyramid"] if scene == "both" else [scene]):
+        report(name, problems(name, every), siconos)
     sys.stdout.flush()
-
-
-if __name__ == "__main__":
-    main()

@@ -21,20 +21,18 @@ interleaved, best of --repeats per step (auto's trials, every w on the first 8 h
 one step in 50, included). --seeds 0,1,... pools several trajectories (default 0): the pile is
 chaotic, and one trajectory's median says little about the next.
 
-Usage: python benchmarks/bench_relaxation.py [--scene pile|pyramid] [--repeats N] [--loop [--seeds 0,1]]
+    dc study relaxation [--scene pile|pyramid] [--repeats N] [--loop [--seeds 0,1]]
 """
-import argparse
 import statistics
 import time
 
 import numpy as np
 
-from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
-from deepcontact.solver.pgs import solve
-from deepcontact.solver.problem import StepProblem, contact_keys, impulses_by_key
-from deepcontact.solver.relaxation import AutoRelaxation
-from deepcontact.protocol import current, protocol_line
+from ..scene.generators import generate
+from ..simulate.build import build_world
+from ..solver.pgs import solve
+from ..solver.problem import StepProblem, contact_keys, impulses_by_key
+from ..solver.relaxation import AutoRelaxation
 
 SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
 
@@ -105,17 +103,12 @@ def loop_one(name, repeats, seed):
     return {k: list(v) for k, v in seconds.items()}, sweeps
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="pile", choices=["pile", "pyramid"])
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--loop", action="store_true", help="our PGS in the loop instead of replay")
-    ap.add_argument("--seeds", default="0", help="the scene's seeds, comma-separated (--loop; pooled)")
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
-    if args.loop:
-        return loop(args.scene, args.repeats, [int(s) for s in args.seeds.split(",")])
-    steps = steps_of(args.scene)
+def run(scene="pile", repeats=3, loop_seeds=None):
+    """The study's table, printed: replay of the scene's settled steps, or with loop_seeds (a list
+    of seeds) our PGS driving the scene, pooled over those seeds."""
+    if loop_seeds:
+        return loop(scene, repeats, list(loop_seeds))
+    steps = steps_of(scene)
     tuner = AutoRelaxation(SETTINGS["tolerance"], SETTINGS["stop_on"], SETTINGS["max_iterations"])
     for _, p, _ in steps[::max(1, len(steps) // 32)]:
         if not tuner.tuned:
@@ -145,18 +138,14 @@ def main():
                   "builtin+subspace@1.7": (p.start_normal, p.start_tangent, 1.7, "subspace"),
                   "prev+subspace": (pn, pt, 1.0, "subspace")}
         for name, (n, t, w, accelerate) in starts.items():
-            rows[name].append(timed(p, n, t, w, args.repeats, accelerate))
-        rows["no sweep (fixed cost)"].append(timed(p, None, None, 1.0, args.repeats, cap=0))
+            rows[name].append(timed(p, n, t, w, repeats, accelerate))
+        rows["no sweep (fixed cost)"].append(timed(p, None, None, 1.0, repeats, cap=0))
     base_it = statistics.median(i for i, _, _ in rows["builtin"])
     base_s = statistics.median(s for _, s, _ in rows["builtin"])
-    print(f"{args.scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
+    print(f"{scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
     print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7} {'factorizations':>15}")
     for name, r in rows.items():
         it = statistics.median(i for i, _, _ in r)
         ms = statistics.median(s for _, s, _ in r)
         fact = statistics.median(f for _, _, f in r)
         print(f"{name:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>10.3f} {ms / base_s:>7.2f} {fact:>15.0f}")
-
-
-if __name__ == "__main__":
-    main()

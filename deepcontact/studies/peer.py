@@ -10,19 +10,18 @@ Every answer is judged by the same measure, our normalised min-map residual (Sic
 Siconos side's own code, which reproduces ours): NSGS's own stopping error is not ours, so a
 solver "reaches" a tolerance only if its answer's residual is below it.
 
-Usage: python benchmarks/bench_peer.py [--scene pile|pyramid|both|pyramid40] [--every 5] [--tolerances 1e-4,1e-8]
+    dc study peer [--scene pile|pyramid|both|pyramid40] [--every 5] [--tolerances 1e-4,1e-8]
        [--cap 100000]
 """
-import argparse
 import statistics
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_exact import problems, timed
-from deepcontact.scene.generators import generate
-from deepcontact.exchange import fclib, peer
-from deepcontact.protocol import current, protocol_line
+from ..errors import InputError
+from ..exchange import fclib, peer
+from ..scene.generators import generate
+from .exact import problems, timed
 
 OURS = ("none", "nncg", "newton", "subspace")
 
@@ -65,22 +64,11 @@ def report(name, steps, tolerances, cap):
                 row("Siconos Lemke", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results])
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="both", choices=["pile", "pyramid", "both", "pyramid40"])
-    ap.add_argument("--every", type=int, default=5)
-    ap.add_argument("--tolerances", default="1e-4,1e-8")
-    ap.add_argument("--cap", type=int, default=100_000, help="our sweeps at most (Siconos: 100,000 iterations)")
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
+def run(scene="both", every=5, tolerances=(1e-4, 1e-8), cap=100_000):
+    """The study's tables, printed."""
     if not peer.available():
-        sys.exit("Siconos is not installed for /usr/bin/python3 (make setup installs python3-siconos)")
-    tolerances = [float(t) for t in args.tolerances.split(",")]
-    if args.scene == "pyramid40":
-        return report("pyramid40", first_steps(40, 5), tolerances, args.cap)
-    for name in (["pile", "pyramid"] if args.scene == "both" else [args.scene]):
-        report(name, problems(name, args.every if name == "pile" else 50), tolerances, args.cap)
-
-
-if __name__ == "__main__":
-    main()
+        raise InputError("Siconos is not installed for /usr/bin/python3 (make setup installs python3-siconos)")
+    if scene == "pyramid40":
+        return report("pyramid40", first_steps(40, 5), list(tolerances), cap)
+    for name in (["pile", "pyramid"] if scene == "both" else [scene]):
+        report(name, problems(name, every if name == "pile" else 50), list(tolerances), cap)
