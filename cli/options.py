@@ -328,33 +328,24 @@ def was_given(name):
         None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
 
 
+# The library table each choice option's words come from: (module, attribute).
+VOCABULARIES = {
+    "stop_on": ("deepcontact.solver.pgs", "MEASURES"),
+    "mode": ("deepcontact.solver.pgs", "MODES"),
+    "kernel": ("deepcontact.grid.kernels", "KERNELS"),
+    "loss": ("deepcontact.model.choices", "LOSSES"),
+    "optimizer": ("deepcontact.model.choices", "OPTIMIZERS"),
+    "loop_start": ("deepcontact.simulate.pgs_loop", "STARTS"),
+    "impulses": ("deepcontact.studies.sph_oracle", "SOURCES"),
+    "solution": ("deepcontact.exchange.fclib", "SOLUTIONS"),
+}
+
+
 def vocabulary(name):
     """A choice option's words, from the library table that owns them (one spelling everywhere)."""
-    if name == "stop_on":
-        from deepcontact.solver.pgs import MEASURES
-        return list(MEASURES)
-    if name == "mode":
-        from deepcontact.solver.pgs import MODES
-        return list(MODES)
-    if name == "kernel":
-        from deepcontact.grid.kernels import KERNELS
-        return list(KERNELS)
-    if name == "loss":
-        from deepcontact.model.choices import LOSSES
-        return list(LOSSES)
-    if name == "optimizer":
-        from deepcontact.model.choices import OPTIMIZERS
-        return list(OPTIMIZERS)
-    if name == "loop_start":
-        from deepcontact.simulate.pgs_loop import STARTS
-        return list(STARTS)
-    if name == "impulses":
-        from deepcontact.studies.sph_oracle import SOURCES
-        return list(SOURCES)
-    if name == "solution":
-        from deepcontact.exchange.fclib import SOLUTIONS
-        return list(SOLUTIONS)
-    raise KeyError(name)
+    import importlib
+    module, attribute = VOCABULARIES[name]
+    return list(getattr(importlib.import_module(module), attribute))
 
 
 def choice(name, leave_out=()):

@@ -208,6 +208,19 @@ def oracle_report(runs, out, kernel, cell, smoothing, renormalize, window, impul
         click.echo(O.write_study(work, steps, rows, impulses, renormalize))
 
 
+def learned_study(name, seeds):
+    """What both learned-start studies take: the pile's training seeds and steps, threads, -v/-q."""
+    def bundle(f):
+        for option in reversed([
+                click.option("--train", "train_seeds", type=options.SeedList(), default=seeds, show_default=True,
+                             help="Training seeds of the pile (held out: seed 1000)."),
+                click.option("--steps", type=options.count(min=1), default=600, show_default=True),
+                options.threads, options.verbosity, options.command(f"study {name}")]):
+            f = option(f)
+        return f
+    return bundle
+
+
 @study.command("learned-correction")
 @click.option("--epochs", type=options.count(min=1), default=6, show_default=True)
 @click.option("--sweeps", type=options.count(min=1), default=32, show_default=True,
@@ -216,12 +229,7 @@ def oracle_report(runs, out, kernel, cell, smoothing, renormalize, window, impul
 @click.option("--rounds", type=options.count(min=1), default=4, show_default=True, help="Message-passing rounds.")
 @click.option("--width", type=options.count(min=1, max=4096), default=32, show_default=True)
 @click.option("--lr", type=options.Finite(min=0, min_open=True), default=3e-4, show_default=True)
-@click.option("--train", "train_seeds", type=options.SeedList(), default="0,1,2,3", show_default=True,
-              help="Training seeds of the pile (held out: seed 1000).")
-@click.option("--steps", type=options.count(min=1), default=600, show_default=True)
-@options.threads
-@options.verbosity
-@options.command("study learned-correction")
+@learned_study("learned-correction", "0,1,2,3")
 def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, steps, threads, verbose, quiet):
     """Does a learned correction on the contact graph beat Box2D's warm start?
     Trains it on piles driven by our PGS, then solves held-out steps from
@@ -246,12 +254,7 @@ def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, st
 @click.option("--epochs", type=options.count(min=1), default=4, show_default=True)
 @click.option("--lr", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True,
               help="(1e-3 made the surrogate loss rise.)")
-@click.option("--train", "train_seeds", type=options.SeedList(), default="0,1", show_default=True,
-              help="Training seeds of the pile (held out: seed 1000).")
-@click.option("--steps", type=options.count(min=1), default=600, show_default=True)
-@options.threads
-@options.verbosity
-@options.command("study learned-coarse")
+@learned_study("learned-coarse", "0,1")
 def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, verbose, quiet):
     """Does a learned coarse space help PGS? Aggregation weights trained
     through the solve, between sweeps, against sweeps alone and the unlearned

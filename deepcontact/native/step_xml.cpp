@@ -25,31 +25,30 @@ public:
         if (!std::isfinite(v))
             throw std::domain_error(std::string("non-finite ") + name + " in " + what_ + " " +
                                     std::to_string(index_));
-        out_ += ' ';
-        out_ += name;
-        out_ += "=\"";
-        append_float(out_, v);
-        out_ += '"';
-        return *this;
+        append_float(open(name), v);
+        return close();
     }
     Attrs& i(const char* name, int64_t v) {
-        out_ += ' ';
-        out_ += name;
-        out_ += "=\"";
-        append_int(out_, v);
-        out_ += '"';
-        return *this;
+        append_int(open(name), v);
+        return close();
     }
     Attrs& s(const char* name, const char* v) {
+        open(name) += v;
+        return close();
+    }
+
+private:
+    std::string& open(const char* name) {   // ` name="`: the value follows
         out_ += ' ';
         out_ += name;
         out_ += "=\"";
-        out_ += v;
+        return out_;
+    }
+    Attrs& close() {
         out_ += '"';
         return *this;
     }
 
-private:
     std::string& out_;
     const char* what_;
     int64_t index_;
