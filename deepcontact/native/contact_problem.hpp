@@ -146,6 +146,23 @@ struct ContactProblem {
     size_t points = 0;
 };
 
+// A face manifold's points (b2WorldManifold::Initialize): each of the incident body's clip points
+// halfway between it and its projection onto the reference body's face; returns the face normal.
+// (Box2D adds the two in the order A, B; addition commutes, so the bits are Box2D's either way.)
+template <class R>
+V2<R> face_points(const Xf<R>& ref, R radius_ref, const Xf<R>& inc, R radius_inc, V2<R> local_normal,
+                  V2<R> local_point, const V2<R>* point_local, int count, V2<R>* points) {
+    const V2<R> normal = mul(ref.q, local_normal);
+    const V2<R> plane = mul(ref, local_point);
+    for (int i = 0; i < count; ++i) {
+        V2<R> clip = mul(inc, point_local[i]);
+        V2<R> on_ref = clip + (radius_ref - dot(clip - plane, normal)) * normal;
+        V2<R> on_inc = clip - radius_inc * normal;
+        points[i] = R(0.5) * (on_ref + on_inc);
+    }
+    return normal;
+}
+
 // Box2D's b2WorldManifold::Initialize.
 template <class R>
 void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>* point_local, int count,
@@ -169,24 +186,9 @@ void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>
         V2<R> cB = pointB - radiusB * normal;
         points[0] = R(0.5) * (cA + cB);
     } else if (type == 1) {  // face A
-        normal = mul(xfA.q, local_normal);
-        V2<R> plane = mul(xfA, local_point);
-        for (int i = 0; i < count; ++i) {
-            V2<R> clip = mul(xfB, point_local[i]);
-            V2<R> cA = clip + (radiusA - dot(clip - plane, normal)) * normal;
-            V2<R> cB = clip - radiusB * normal;
-            points[i] = R(0.5) * (cA + cB);
-        }
-    } else {  // face B
-        normal = mul(xfB.q, local_normal);
-        V2<R> plane = mul(xfB, local_point);
-        for (int i = 0; i < count; ++i) {
-            V2<R> clip = mul(xfA, point_local[i]);
-            V2<R> cB = clip + (radiusB - dot(clip - plane, normal)) * normal;
-            V2<R> cA = clip - radiusA * normal;
-            points[i] = R(0.5) * (cA + cB);
-        }
-        normal = -normal;
+        normal = face_points(xfA, radiusA, xfB, radiusB, local_normal, local_point, point_local, count, points);
+    } else {  // face B: the normal still points from A to B
+        normal = -face_points(xfB, radiusB, xfA, radiusA, local_normal, local_point, point_local, count, points);
     }
 }
 

@@ -18,6 +18,16 @@
 
 namespace dc {
 
+// An impulse P applied at a contact point's lever arms to its two bodies, in b2ContactSolver's
+// order and arithmetic (the exact mode depends on both).
+template <class R, class Point>
+inline void apply_impulse(V2<R> P, const Point& p, R mA, R iA, R mB, R iB, V2<R>& vA, R& wA, V2<R>& vB, R& wB) {
+    vA = vA - mA * P;
+    wA -= iA * cross(p.rA, P);
+    vB = vB + mB * P;
+    wB += iB * cross(p.rB, P);
+}
+
 // What a sweep measures, to stop on (docs/solver.md, "Measuring convergence").
 enum class Measure { none, thesis, velocity, residual };
 // exact: float32, Box2D's arithmetic and order, starts used as given (Box2D's solver, bit for
@@ -350,11 +360,7 @@ private:
                     R new_impulse = clamp_box2d(p.tangent_impulse + lambda, -max_friction, max_friction);
                     lambda = new_impulse - p.tangent_impulse;
                     p.tangent_impulse = new_impulse;
-                    V2<R> P = lambda * tangent;
-                    vA = vA - mA * P;
-                    wA -= iA * cross(p.rA, P);
-                    vB = vB + mB * P;
-                    wB += iB * cross(p.rB, P);
+                    apply_impulse(lambda * tangent, p, mA, iA, mB, iB, vA, wA, vB, wB);
                 }
             }
 
@@ -369,11 +375,7 @@ private:
                     R new_impulse = sum > R(0) ? sum : R(0);
                     lambda = new_impulse - p.normal_impulse;
                     p.normal_impulse = new_impulse;
-                    V2<R> P = lambda * normal;
-                    vA = vA - mA * P;
-                    wA -= iA * cross(p.rA, P);
-                    vB = vB + mB * P;
-                    wB += iB * cross(p.rB, P);
+                    apply_impulse(lambda * normal, p, mA, iA, mB, iB, vA, wA, vB, wB);
                 }
             } else {
                 block_solve<Relax>(m, vA, wA, vB, wB, w);
