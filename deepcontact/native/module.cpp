@@ -6,6 +6,7 @@
 
 #include <string>
 
+#include "step_names.hpp"
 #include "pyarrays.hpp"
 #include "step_read.hpp"
 #include "step_xml.hpp"
@@ -148,11 +149,44 @@ void require(const py::array& a, size_t n, size_t width, const char* name) {
 
 }  // namespace
 
+// An enumerated field's names as a list (None for a field that is not enumerated).
+py::object enum_names(const char* const* names) {
+    if (names == nullptr) return py::none();
+    py::list out;
+    for (int i = 0; i < dc::kEnumNames; ++i) out.append(names[i]);
+    return out;
+}
+
 PYBIND11_MODULE(_box2d, m) {
     dc::bind_solver(m);
     dc::bind_grid(m);
     bind_step_reader(m);
     m.doc() = "Box2D 2.4.1 (Debian's libbox2d) for deepcontact: worlds stepped whole, state as numpy arrays.";
+    // The step file's names (step_names.hpp), for the lxml reference reader: (element, attribute,
+    // field, component, presence, an enumerated field's names or None, the field's dtype and width)
+    // per row, in the file's order.
+    py::dict body_types, contact_types;
+#define DC_TYPE_OF(types, T, name, width, solver) types[#name] = py::make_tuple(py::dtype::of<T>(), width);
+#define DC_BODY_TYPE(...) DC_TYPE_OF(body_types, __VA_ARGS__)
+#define DC_CONTACT_TYPE(...) DC_TYPE_OF(contact_types, __VA_ARGS__)
+    DC_BODY_FIELDS(DC_BODY_TYPE)
+    DC_CONTACT_FIELDS(DC_CONTACT_TYPE)
+    py::list body_xml, contact_xml;
+#define DC_XML_ROW(list, types, element, attr, field, component, presence, names)                  \
+    list.append(py::make_tuple(element, attr, #field, component, #presence, enum_names(names),        \
+                               types[#field].cast<py::tuple>()[0], types[#field].cast<py::tuple>()[1]));
+#define DC_BODY_XML_ROW(...) DC_XML_ROW(body_xml, body_types, __VA_ARGS__)
+#define DC_CONTACT_XML_ROW(...) DC_XML_ROW(contact_xml, contact_types, __VA_ARGS__)
+    DC_BODY_XML(DC_BODY_XML_ROW)
+    DC_CONTACT_XML(DC_CONTACT_XML_ROW)
+#undef DC_BODY_XML_ROW
+#undef DC_CONTACT_XML_ROW
+#undef DC_XML_ROW
+#undef DC_BODY_TYPE
+#undef DC_CONTACT_TYPE
+#undef DC_TYPE_OF
+    m.attr("STEP_BODY_XML") = body_xml;
+    m.attr("STEP_CONTACT_XML") = contact_xml;
     m.attr("box2d_version") = DC_BOX2D_VERSION;  // from pkg-config at build time
     m.attr("box2d_runtime_version") = std::to_string(b2_version.major) + "." + std::to_string(b2_version.minor) +
                                        "." + std::to_string(b2_version.revision);

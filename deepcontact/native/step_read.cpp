@@ -1,4 +1,5 @@
 #include "step_read.hpp"
+#include "step_names.hpp"
 
 #include <fcntl.h>
 #include <libxml/parser.h>
@@ -170,67 +171,38 @@ struct Field {
     const char* attr;
     Column<State> column;
     int width = 1, component = 0;
-    bool optional = false;   // written only where not zero
+    bool optional = false;   // the file may leave it out (step_names.hpp: presence)
 };
 
-const char* const kBodyTypes[] = {"static", "kinematic", "dynamic"};
-const char* const kManifoldTypes[] = {"circles", "face_a", "face_b"};
+struct BodyWidths {
+    DC_BODY_FIELDS(DC_WIDTH_FIELD)
+};
+struct ContactWidths {
+    DC_CONTACT_FIELDS(DC_WIDTH_FIELD)
+};
 
+// A column of a record, or an enumerated one read by its names.
+template <class State, class T>
+Column<State> column_of(std::vector<T> State::*member, const char* const* names) {
+    if constexpr (std::is_same_v<T, int8_t>)
+        if (names != nullptr) return EnumColumn<State>{member, names, kEnumNames};
+    return member;
+}
+
+// The field tables, from the step file's names (step_names.hpp).
 using B = BodyState;
-const Field<B> kBodyFields[] = {
-    {".", "index", &B::index},
-    {".", "type", EnumColumn<B>{&B::type, kBodyTypes, 3}},
-    {"mass", "value", &B::mass},
-    {"mass", "inverse", &B::inv_mass},
-    {"position", "x", &B::position, 2, 0},
-    {"position", "y", &B::position, 2, 1},
-    {"center", "x", &B::center, 2, 0},
-    {"center", "y", &B::center, 2, 1},
-    {"local_center", "x", &B::local_center, 2, 0, true},
-    {"local_center", "y", &B::local_center, 2, 1, true},
-    {"velocity", "x", &B::velocity, 2, 0},
-    {"velocity", "y", &B::velocity, 2, 1},
-    {"orientation", "theta", &B::angle},
-    {"inertia", "value", &B::inertia},
-    {"inertia", "inverse", &B::inv_inertia},
-    {"spin", "omega", &B::omega},
-    {"damping", "linear", &B::linear_damping, 1, 0, true},
-    {"damping", "angular", &B::angular_damping, 1, 0, true},
-};
+#define DC_BODY_READ(element, attr, field, component, presence, names)                                \
+    Field<B>{element, attr, column_of<B>(&B::field, names), BodyWidths::field, component,           \
+             Presence::presence != Presence::always},
+const Field<B> kBodyFields[] = {DC_BODY_XML(DC_BODY_READ)};
+#undef DC_BODY_READ
 
 using C = ContactState;
-const Field<C> kContactFields[] = {
-    {".", "master", &C::body_a},
-    {".", "slave", &C::body_b},
-    {".", "manifold", &C::manifold},
-    {".", "point", &C::point},
-    {".", "points", &C::point_count},
-    {".", "island", &C::island},
-    {".", "id", &C::id_key},
-    {"fixtures", "master", &C::fixture_a},
-    {"fixtures", "master_child", &C::child_a},
-    {"fixtures", "slave", &C::fixture_b},
-    {"fixtures", "slave_child", &C::child_b},
-    {"position", "x", &C::position, 2, 0},
-    {"position", "y", &C::position, 2, 1},
-    {"normal", "x", &C::normal, 2, 0},
-    {"normal", "y", &C::normal, 2, 1},
-    {"separation", "value", &C::separation},
-    {"material", "friction", &C::friction},
-    {"material", "restitution", &C::restitution},
-    {"material", "threshold", &C::restitution_threshold},
-    {"impulse", "n", &C::normal_impulse},
-    {"impulse", "t", &C::tangent_impulse},
-    {"start", "n", &C::start_normal_impulse},
-    {"start", "t", &C::start_tangent_impulse},
-    {"manifold", "type", EnumColumn<C>{&C::manifold_type, kManifoldTypes, 3}},
-    {"manifold", "nx", &C::local_normal, 2, 0},
-    {"manifold", "ny", &C::local_normal, 2, 1},
-    {"manifold", "x", &C::local_point, 2, 0},
-    {"manifold", "y", &C::local_point, 2, 1},
-    {"manifold", "px", &C::point_local, 2, 0},
-    {"manifold", "py", &C::point_local, 2, 1},
-};
+#define DC_CONTACT_READ(element, attr, field, component, presence, names)                             \
+    Field<C>{element, attr, column_of<C>(&C::field, names), ContactWidths::field, component,        \
+             Presence::presence != Presence::always},
+const Field<C> kContactFields[] = {DC_CONTACT_XML(DC_CONTACT_READ)};
+#undef DC_CONTACT_READ
 static_assert(std::size(kContactFields) <= 64 && std::size(kBodyFields) <= 64, "one bit per field");
 
 bool named(const xmlChar* name, const char* want) {

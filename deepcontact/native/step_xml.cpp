@@ -1,15 +1,14 @@
 #include "step_xml.hpp"
+#include "step_names.hpp"
 
 #include <charconv>
+#include <cstring>
 #include <cmath>
 #include <stdexcept>
 #include <utility>
 
 namespace dc {
 namespace {
-
-const char* const kBodyType[] = {"static", "kinematic", "dynamic"};
-const char* const kManifoldType[] = {"circles", "face_a", "face_b"};
 
 void append_int(std::string& out, int64_t value) {
     char buf[24];
@@ -54,6 +53,74 @@ private:
     int64_t index_;
 };
 
+// One attribute of a row, from a column of a view: a float (finite), an integer, or a name.
+void put(Attrs& a, const char* attr, const float* column, size_t i, const char* const*) { a.f(attr, column[i]); }
+template <class T>
+void put(Attrs& a, const char* attr, const T* column, size_t i, const char* const* names) {
+    if (names != nullptr) {
+        if (column[i] < 0 || column[i] >= kEnumNames) throw std::out_of_range(std::string("bad ") + attr);
+        a.s(attr, names[column[i]]);
+    } else {
+        a.i(attr, static_cast<int64_t>(column[i]));
+    }
+}
+
+// The attributes of a record's row, from the step file's names (step_names.hpp): its own
+// attributes on the row element, then one empty element per group of attributes.
+template <class View>
+struct Emit {
+    const char* element;
+    const char* attr;
+    Presence presence;
+    void (*put)(Attrs&, const char*, const View&, size_t);
+    bool (*nonzero)(const View&, size_t);
+};
+
+struct BodyWidths {
+    DC_BODY_FIELDS(DC_WIDTH_FIELD)
+};
+struct ContactWidths {
+    DC_CONTACT_FIELDS(DC_WIDTH_FIELD)
+};
+
+#define DC_EMIT(View, Widths, element, attr, field, component, presence, names)                       \
+    Emit<View>{element, attr, Presence::presence,                                                     \
+               [](Attrs& a, const char* at, const View& v, size_t k) {                               \
+                   put(a, at, v.field, Widths::field * k + component, names);                        \
+               },                                                                                     \
+               [](const View& v, size_t k) { return v.field[Widths::field * k + component] != 0; }},
+#define DC_EMIT_BODY(...) DC_EMIT(BodyView, BodyWidths, __VA_ARGS__)
+#define DC_EMIT_CONTACT(...) DC_EMIT(ContactView, ContactWidths, __VA_ARGS__)
+const Emit<BodyView> kBodyEmit[] = {DC_BODY_XML(DC_EMIT_BODY)};
+const Emit<ContactView> kContactEmit[] = {DC_CONTACT_XML(DC_EMIT_CONTACT)};
+#undef DC_EMIT_BODY
+#undef DC_EMIT_CONTACT
+#undef DC_EMIT
+
+bool same(const char* a, const char* b) { return std::strcmp(a, b) == 0; }
+
+// Writes row k's own attributes (those of element "."), closes its start tag, and writes its
+// child elements; declared: whether the scene declares the effects of Presence::declared rows.
+template <class View, size_t N>
+void write_row(std::string& out, Attrs& a, const Emit<View> (&table)[N], const View& v, size_t k, bool declared) {
+    size_t i = 0;
+    for (; i < N && same(table[i].element, "."); ++i) table[i].put(a, table[i].attr, v, k);
+    out += ">\n";
+    while (i < N) {
+        size_t end = i;
+        bool any = false;
+        while (end < N && same(table[end].element, table[i].element)) any |= table[end++].nonzero(v, k);
+        const Presence p = table[i].presence;
+        if (p == Presence::always || (p == Presence::nonzero && any) || (p == Presence::declared && declared)) {
+            out += "      <";
+            out += table[i].element;
+            for (; i < end; ++i) table[i].put(a, table[i].attr, v, k);
+            out += "/>\n";
+        }
+        i = end;
+    }
+}
+
 }  // namespace
 
 void append_float(std::string& out, float value) {
@@ -89,36 +156,9 @@ std::string StepWriter::render(int64_t index, double time, float dt_ratio, const
         const int32_t idx = b.index[k];
         if (idx < 0 || static_cast<size_t>(idx) >= shapes_.size())
             throw std::out_of_range("body index " + std::to_string(idx) + " has no shape");
-        if (b.type[k] < 0 || b.type[k] > 2) throw std::out_of_range("bad body type");
         Attrs a(out, "body", idx);
         out += "    <body";
-        a.i("index", idx).s("type", kBodyType[b.type[k]]);
-        out += ">\n      <mass";
-        a.f("value", b.mass[k]).f("inverse", b.inv_mass[k]);
-        out += "/>\n      <position";
-        a.f("x", b.position[2 * k]).f("y", b.position[2 * k + 1]);
-        out += "/>\n      <center";
-        a.f("x", b.center[2 * k]).f("y", b.center[2 * k + 1]);
-        out += "/>\n";
-        if (b.local_center[2 * k] != 0.0f || b.local_center[2 * k + 1] != 0.0f) {
-            out += "      <local_center";
-            a.f("x", b.local_center[2 * k]).f("y", b.local_center[2 * k + 1]);
-            out += "/>\n";
-        }
-        out += "      <velocity";
-        a.f("x", b.velocity[2 * k]).f("y", b.velocity[2 * k + 1]);
-        out += "/>\n      <orientation";
-        a.f("theta", b.angle[k]);
-        out += "/>\n      <inertia";
-        a.f("value", b.inertia[k]).f("inverse", b.inv_inertia[k]);
-        out += "/>\n      <spin";
-        a.f("omega", b.omega[k]);
-        out += "/>\n";
-        if (damping_) {
-            out += "      <damping";
-            a.f("linear", b.linear_damping[k]).f("angular", b.angular_damping[k]);
-            out += "/>\n";
-        }
+        write_row(out, a, kBodyEmit, b, k, damping_);
         out += shapes_[idx];
         out += "    </body>\n";
     }
@@ -126,34 +166,11 @@ std::string StepWriter::render(int64_t index, double time, float dt_ratio, const
     append_int(out, static_cast<int64_t>(c.n));
     out += "\">\n";
     for (size_t k = 0; k < c.n; ++k) {
-        if (c.manifold_type[k] < 0 || c.manifold_type[k] > 2) throw std::out_of_range("bad manifold type");
         Attrs a(out, "contact", static_cast<int64_t>(k));
         out += "    <contact";
-        a.i("index", static_cast<int64_t>(k)).i("master", c.body_a[k]).i("slave", c.body_b[k]);
-        a.i("manifold", c.manifold[k]).i("point", c.point[k]).i("points", c.point_count[k]);
-        a.i("island", c.island[k]).i("id", c.id_key[k]);
-        out += ">\n      <fixtures";
-        a.i("master", c.fixture_a[k]).i("master_child", c.child_a[k]);
-        a.i("slave", c.fixture_b[k]).i("slave_child", c.child_b[k]);
-        out += "/>\n      <position";
-        a.f("x", c.position[2 * k]).f("y", c.position[2 * k + 1]);
-        out += "/>\n      <normal";
-        a.f("x", c.normal[2 * k]).f("y", c.normal[2 * k + 1]);
-        out += "/>\n      <separation";
-        a.f("value", c.separation[k]);
-        out += "/>\n      <material";
-        a.f("friction", c.friction[k]).f("restitution", c.restitution[k]);
-        a.f("threshold", c.restitution_threshold[k]);
-        out += "/>\n      <impulse";
-        a.f("n", c.normal_impulse[k]).f("t", c.tangent_impulse[k]);
-        out += "/>\n      <start";
-        a.f("n", c.start_normal_impulse[k]).f("t", c.start_tangent_impulse[k]);
-        out += "/>\n      <manifold";
-        a.s("type", kManifoldType[c.manifold_type[k]]);
-        a.f("nx", c.local_normal[2 * k]).f("ny", c.local_normal[2 * k + 1]);
-        a.f("x", c.local_point[2 * k]).f("y", c.local_point[2 * k + 1]);
-        a.f("px", c.point_local[2 * k]).f("py", c.point_local[2 * k + 1]);
-        out += "/>\n    </contact>\n";
+        a.i("index", static_cast<int64_t>(k));   // (its row in the file, not a recorded field)
+        write_row(out, a, kContactEmit, c, k, true);
+        out += "    </contact>\n";
     }
     out += "  </contacts>\n</step>\n";
     return out;

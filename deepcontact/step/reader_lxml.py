@@ -1,4 +1,5 @@
-"""The reference step-file reader: lxml, a tree and one XPath query per column.
+"""The reference step-file reader: lxml, a tree and one XPath query per column, the names from
+the table the writer and the native reader use (native/step_names.hpp, exported by the module).
 
 Slow (10-60 times simulating and writing a step) and kept for that reason: it is independent of
 the native streaming reader (deepcontact/native/step_read.cpp, behind step.reader), which the
@@ -8,32 +9,27 @@ present and finite, and a problem is an InputError naming the file (and line).
 import numpy as np
 
 from .. import schema
+from .._box2d import STEP_BODY_XML, STEP_CONTACT_XML
 from ..errors import InputError, show_path
 
-_MANIFOLD = {"circles": 0, "face_a": 1, "face_b": 2}
 INT32_MAX = 2 ** 31 - 1   # every count and index in a step file (schemas/common.xsd: count)
-_TYPE = {"static": 0, "kinematic": 1, "dynamic": 2}
 
-# key: (child element, attributes); "." is an attribute of the <body>/<contact> element itself
-_BODY_ALL = {"position": ("position", ("x", "y")), "center": ("center", ("x", "y")),
-             "velocity": ("velocity", ("x", "y")), "angle": ("orientation", ("theta",)),
-             "omega": ("spin", ("omega",)), "mass": ("mass", ("value",)), "inv_mass": ("mass", ("inverse",)),
-             "inertia": ("inertia", ("value",)), "inv_inertia": ("inertia", ("inverse",))}
-_CONTACT_ALL = {"position": ("position", ("x", "y")), "normal": ("normal", ("x", "y")),
-                "separation": ("separation", ("value",)), "friction": ("material", ("friction",)),
-                "restitution": ("material", ("restitution",)), "restitution_threshold": ("material", ("threshold",)),
-                "normal_impulse": ("impulse", ("n",)), "tangent_impulse": ("impulse", ("t",)),
-                "start_normal_impulse": ("start", ("n",)), "start_tangent_impulse": ("start", ("t",)),
-                "local_normal": ("manifold", ("nx", "ny")), "local_point": ("manifold", ("x", "y")),
-                "point_local": ("manifold", ("px", "py"))}
-_CONTACT_INT = {"manifold": (".", "manifold", np.int32), "island": (".", "island", np.int32),
-                "point": (".", "point", np.int8), "point_count": (".", "points", np.int8),
-                "body_a": (".", "master", np.int32), "body_b": (".", "slave", np.int32),
-                "id_key": (".", "id", np.uint32), "fixture_a": ("fixtures", "master", np.int32),
-                "child_a": ("fixtures", "master_child", np.int32), "fixture_b": ("fixtures", "slave", np.int32),
-                "child_b": ("fixtures", "slave_child", np.int32)}
-_BODY_GRID = {k: _BODY_ALL[k] for k in ("center", "velocity", "mass", "omega")}
-_CONTACT_GRID = {k: _CONTACT_ALL[k] for k in ("position", "normal", "normal_impulse", "tangent_impulse")}
+
+def _fields(rows):
+    """{field: (element, attributes by component, dtype, names or None, presence)} from the step
+    file's names (native/step_names.hpp, the table the writer and the native reader use too)."""
+    out = {}
+    for element, attr, field, component, presence, names, dtype, width in rows:
+        entry = out.setdefault(field, (element, [None] * width, np.dtype(dtype), names, presence))
+        entry[1][component] = attr
+    return {field: (e, tuple(attrs), dtype, names, presence) for field, (e, attrs, dtype, names, presence) in out.items()}
+
+
+_BODY = _fields(STEP_BODY_XML)
+_CONTACT = _fields(STEP_CONTACT_XML)
+# what rasterizing needs of a step
+_BODY_GRID = ("center", "velocity", "mass", "omega", "type")
+_CONTACT_GRID = ("position", "normal", "normal_impulse", "tangent_impulse")
 
 
 def _parse(path, validate):
@@ -149,15 +145,40 @@ class _Columns:
     def _name(self, element):
         return self.child if element == "." else element
 
-    def read(self, spec):
-        return {key: self.floats(element, attrs) for key, (element, attrs) in spec.items()}
+    def read(self, fields, only=None):
+        """The columns of every field (or of those named in `only`) the file must hold for each row."""
+        out = {}
+        for field, (element, attrs, dtype, names, presence) in fields.items():
+            if presence != "always" or (only is not None and field not in only):
+                continue
+            if names is not None:
+                out[field] = self.named(element, attrs[0], names)
+            elif dtype.kind == "f":
+                out[field] = self.floats(element, attrs)
+            else:
+                out[field] = self.ints(element, attrs[0], dtype)
+        return out
 
+    def named(self, element, attr, names):
+        values = np.array([names.index(v) if v in names else -1 for v in self.text(element, attr)], dtype=np.int8)
+        if np.any(values < 0):
+            raise InputError(f"a <{self._name(element)} {attr}> is not one of {', '.join(names)}", self.path)
+        return values
 
-def _types(cols):
-    t = np.array([_TYPE.get(v, -1) for v in cols.text(".", "type")], dtype=np.int8)
-    if np.any(t < 0):
-        raise InputError("a body has an unknown type", cols.path)
-    return t
+    def optional(self, fields, key):
+        """The columns of the fields whose elements the file may leave out (0 where it does), each
+        row found by its `key` attribute (a body's index)."""
+        rows = {int(i): k for k, i in enumerate(self.text(".", key))}
+        out = {}
+        for field, (element, attrs, dtype, names, presence) in fields.items():
+            if presence == "always":
+                continue
+            column = np.zeros((self.n, len(attrs)) if len(attrs) > 1 else self.n, dtype)
+            for el in self.root.xpath(f"{self.base}[{element}]"):
+                found = el.find(element)
+                column[rows[int(el.get(key))]] = [found.get(a) for a in attrs] if len(attrs) > 1 else found.get(attrs[0])
+            out[field] = column
+        return out
 
 
 def read_step(path, validate=True):
@@ -175,21 +196,8 @@ def read_step(path, validate=True):
                   solve=dict(h.find("solve").attrib) if h.find("solve") is not None else None)
 
     bc = _Columns(root, path, "bodies", "body")
-    b = bc.read(_BODY_ALL)
-    b["index"] = bc.ints(".", "index", np.int32)
-    b["type"] = _types(bc)
-    row = {int(i): k for k, i in enumerate(b["index"])}
-    # optional elements, written only where they are not zero
-    b["local_center"] = np.zeros((bc.n, 2), np.float32)
-    for el in root.xpath("bodies/body[local_center]"):
-        lc = el.find("local_center")
-        b["local_center"][row[int(el.get("index"))]] = (lc.get("x"), lc.get("y"))
-    b["linear_damping"] = np.zeros(bc.n, np.float32)
-    b["angular_damping"] = np.zeros(bc.n, np.float32)
-    for el in root.xpath("bodies/body[damping]"):
-        d = el.find("damping")
-        k = row[int(el.get("index"))]
-        b["linear_damping"][k], b["angular_damping"][k] = d.get("linear"), d.get("angular")
+    b = bc.read(_BODY)
+    b.update(bc.optional(_BODY, "index"))   # (elements written only where not zero, or declared)
     b["gravity_scale"] = np.ones(bc.n, np.float32)   # scenes have no per-body gravity scale
     try:
         radius = dict(zip(map(int, root.xpath("bodies/body/shape/*/@fixture")),
@@ -198,11 +206,7 @@ def read_step(path, validate=True):
         raise InputError("a shape's fixture or radius is not a number", path) from None
 
     cc = _Columns(root, path, "contacts", "contact")
-    c = cc.read(_CONTACT_ALL)
-    c.update({key: cc.ints(element, attr, dtype) for key, (element, attr, dtype) in _CONTACT_INT.items()})
-    c["manifold_type"] = np.array([_MANIFOLD.get(v, -1) for v in cc.text("manifold", "type")], dtype=np.int8)
-    if np.any(c["manifold_type"] < 0):
-        raise InputError("a contact has an unknown manifold type", path)
+    c = cc.read(_CONTACT)
     try:
         c["radius_a"] = np.array([radius[f] for f in c["fixture_a"].tolist()], np.float32)
         c["radius_b"] = np.array([radius[f] for f in c["fixture_b"].tolist()], np.float32)
@@ -214,9 +218,7 @@ def read_step(path, validate=True):
 def read_step_for_grid(path):
     """The fields rasterizing needs, checked, without schema validation."""
     root = _parse(path, validate=False)
-    bc = _Columns(root, path, "bodies", "body")
-    bodies = bc.read(_BODY_GRID)
-    bodies["type"] = _types(bc)
-    contacts = _Columns(root, path, "contacts", "contact").read(_CONTACT_GRID)
+    bodies = _Columns(root, path, "bodies", "body").read(_BODY, _BODY_GRID)
+    contacts = _Columns(root, path, "contacts", "contact").read(_CONTACT, _CONTACT_GRID)
     header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path))
     return header, bodies, contacts

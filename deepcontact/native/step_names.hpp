@@ -1,0 +1,78 @@
+// The step file's names: which attribute of which element holds which field of a record
+// (records.hpp), one table per record, in the order the file writes them. The writer
+// (step_xml.cpp), the native reader (step_read.cpp) and, through the module, the lxml reference
+// reader (step/reader_lxml.py) all take their names from here: a new recorded field is a row
+// here and one in records.hpp.
+//
+// X(element, attribute, field, component, presence, names)
+//   element    "." for an attribute of the row element (<body>, <contact>) itself
+//   component  which value of a 2-wide field (0: x, 1: y)
+//   presence   always; nonzero: the element is written only where one of its values is not 0;
+//              declared: only when the scene declares the effect (damping)
+//   names      for an enumerated field, its names in order (else nullptr)
+#pragma once
+
+#include <cstdint>
+
+namespace dc {
+
+enum class Presence : int8_t { always, nonzero, declared };
+
+inline const char* const kBodyTypeNames[] = {"static", "kinematic", "dynamic"};
+inline const char* const kManifoldTypeNames[] = {"circles", "face_a", "face_b"};
+inline constexpr int kEnumNames = 3;   // names in each of the tables above
+
+}  // namespace dc
+
+#define DC_BODY_XML(X)                                                     \
+    X(".", "index", index, 0, always, nullptr)                             \
+    X(".", "type", type, 0, always, dc::kBodyTypeNames)                    \
+    X("mass", "value", mass, 0, always, nullptr)                           \
+    X("mass", "inverse", inv_mass, 0, always, nullptr)                     \
+    X("position", "x", position, 0, always, nullptr)                       \
+    X("position", "y", position, 1, always, nullptr)                       \
+    X("center", "x", center, 0, always, nullptr)                           \
+    X("center", "y", center, 1, always, nullptr)                           \
+    X("local_center", "x", local_center, 0, nonzero, nullptr)              \
+    X("local_center", "y", local_center, 1, nonzero, nullptr)              \
+    X("velocity", "x", velocity, 0, always, nullptr)                       \
+    X("velocity", "y", velocity, 1, always, nullptr)                       \
+    X("orientation", "theta", angle, 0, always, nullptr)                   \
+    X("inertia", "value", inertia, 0, always, nullptr)                     \
+    X("inertia", "inverse", inv_inertia, 0, always, nullptr)               \
+    X("spin", "omega", omega, 0, always, nullptr)                          \
+    X("damping", "linear", linear_damping, 0, declared, nullptr)           \
+    X("damping", "angular", angular_damping, 0, declared, nullptr)
+
+// (A contact's own `index` attribute is its row in the file, not a recorded field.)
+#define DC_CONTACT_XML(X)                                                  \
+    X(".", "master", body_a, 0, always, nullptr)                           \
+    X(".", "slave", body_b, 0, always, nullptr)                            \
+    X(".", "manifold", manifold, 0, always, nullptr)                       \
+    X(".", "point", point, 0, always, nullptr)                             \
+    X(".", "points", point_count, 0, always, nullptr)                      \
+    X(".", "island", island, 0, always, nullptr)                           \
+    X(".", "id", id_key, 0, always, nullptr)                               \
+    X("fixtures", "master", fixture_a, 0, always, nullptr)                 \
+    X("fixtures", "master_child", child_a, 0, always, nullptr)             \
+    X("fixtures", "slave", fixture_b, 0, always, nullptr)                  \
+    X("fixtures", "slave_child", child_b, 0, always, nullptr)              \
+    X("position", "x", position, 0, always, nullptr)                       \
+    X("position", "y", position, 1, always, nullptr)                       \
+    X("normal", "x", normal, 0, always, nullptr)                           \
+    X("normal", "y", normal, 1, always, nullptr)                           \
+    X("separation", "value", separation, 0, always, nullptr)               \
+    X("material", "friction", friction, 0, always, nullptr)                \
+    X("material", "restitution", restitution, 0, always, nullptr)          \
+    X("material", "threshold", restitution_threshold, 0, always, nullptr)  \
+    X("impulse", "n", normal_impulse, 0, always, nullptr)                  \
+    X("impulse", "t", tangent_impulse, 0, always, nullptr)                 \
+    X("start", "n", start_normal_impulse, 0, always, nullptr)              \
+    X("start", "t", start_tangent_impulse, 0, always, nullptr)             \
+    X("manifold", "type", manifold_type, 0, always, dc::kManifoldTypeNames) \
+    X("manifold", "nx", local_normal, 0, always, nullptr)                  \
+    X("manifold", "ny", local_normal, 1, always, nullptr)                  \
+    X("manifold", "x", local_point, 0, always, nullptr)                    \
+    X("manifold", "y", local_point, 1, always, nullptr)                    \
+    X("manifold", "px", point_local, 0, always, nullptr)                   \
+    X("manifold", "py", point_local, 1, always, nullptr)
