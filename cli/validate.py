@@ -1,71 +1,11 @@
 """dc validate: step and scene files against schemas/."""
 import sys
-from itertools import groupby
-from pathlib import Path
 
 import click
 
-from deepcontact import atomic
-from deepcontact.errors import InputError, count
+from deepcontact.errors import count
 
 from . import options
-
-CHUNK = 50   # files a worker checks per task
-
-
-def is_xml(path):
-    return path.name.endswith((".xml", ".xml.gz")) and not path.name.startswith(".")
-
-
-def xml_files(paths):
-    """Every *.xml and *.xml.gz file named or under a named folder. Anything by such a name that
-    is not a regular file (a FIFO would block the parser forever) is refused."""
-    for p in map(Path, paths):
-        if p.is_dir():
-            found = [q for q in (p / r for r in atomic.entries(p)) if is_xml(q)]   # (any depth, sorted)
-        elif p.exists():
-            found = [p]
-        else:
-            raise InputError("no such file or folder", p)
-        for q in found:
-            if not q.is_file():
-                raise InputError("not a regular file", q)
-        yield from found
-
-
-def check_files(chunk):
-    """[(path, error lines)] for [(path, origin)]: one worker's share of a simulation folder."""
-    from deepcontact.scene.xml import read_scene
-    from deepcontact.simulate.build import check_overlaps
-    from deepcontact.step.check import check_file
-
-    out = []
-    for path, origin in chunk:
-        kind, errors = check_file(path, origin)
-        if not errors and kind == "scene":   # what the schema cannot see
-            try:
-                check_overlaps(read_scene(path), path)
-            except InputError as e:
-                errors = [f"{e.path}:{e.line or 0}:0: {e.message}"]
-        out.append((path, errors))
-    return out
-
-
-def origins(paths):
-    """step file -> (scene, seed) of the simulation it lies in, for the runs among paths; and the
-    error lines of runs whose manifest does not match their folders."""
-    from deepcontact.step.run_folder import MANIFEST, read_run
-
-    origin, errors = {}, []
-    for run in (Path(p) for p in paths):
-        if (run / MANIFEST).is_file():
-            try:
-                r = read_run(run)
-            except InputError as e:
-                errors.append(f"{e.path}:{e.line or 0}:0: {e.message}")
-                continue
-            origin.update({f.resolve(): (r.manifest.get("scene"), s.seed) for s in r.simulations for f in s.files})
-    return origin, errors
 
 
 @click.command()
@@ -101,31 +41,15 @@ def validate(paths, replay, jobs, verbose, quiet):
     """
     if replay:
         return replay_runs(paths, quiet, jobs)
-    from deepcontact import workers
+    from deepcontact.simulate.validate import validate as check
 
-    files = list(xml_files(paths))
-    if not files:
-        raise InputError(f"no XML files found in {', '.join(paths)}")
-    origin, errors = origins(paths)
-    invalid = len(errors)
-    for line in errors:
-        click.echo(line)
-    # tasks of up to CHUNK files of one folder (a simulation), in file order: the report reads the
-    # same with any -j
-    chunks = [[(f, origin.get(f.resolve())) for f in group[i:i + CHUNK]]
-              for group in (list(g) for _, g in groupby(files, key=lambda f: f.parent))
-              for i in range(0, len(group), CHUNK)]
-    bar = options.progress_bar(quiet or len(files) < 50, len(files), "file", "validate")
-    with workers.pool(jobs) if jobs > 1 and len(chunks) > 1 else workers.serial() as pool:
-        for checked in pool.imap(check_files, chunks):
-            for _, lines in checked:
-                invalid += bool(lines)
-                for line in lines:
-                    click.echo(line)
-            bar.update(len(checked))
-    bar.close()
+    bar = options.progress_bar(quiet, None, "file", "validate")
+    try:
+        files, invalid = check(paths, click.echo, jobs=jobs, progress=bar.update)
+    finally:
+        bar.close()
     if not quiet:
-        click.echo(f"{count(len(files), 'file')} checked, {invalid} invalid", err=True)
+        click.echo(f"{count(files, 'file')} checked, {invalid} invalid", err=True)
     sys.exit(1 if invalid else 0)
 
 
