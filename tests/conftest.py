@@ -1,6 +1,8 @@
 import shutil
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -22,6 +24,57 @@ def pytest_collection_modifyitems(config, items):
         if item.module.__name__ in STUDIES:
             item.add_marker(pytest.mark.study)
     items.sort(key=lambda item: item.get_closest_marker("pipeline") is not None)
+
+
+# What the pipeline group runs in processes of its own (the wheel, the smoke pipeline), started as
+# soon as the run is known (pytest_collection_finish), so that it works on the second core beside
+# the other tests rather than after them; the tests wait for it and check what it made.
+STARTED = {}
+ROOT = Path(__file__).parent.parent
+
+
+def wheel_command(out):
+    # No build isolation and no dependencies: CI has no network; the build tools are installed.
+    return [sys.executable, "-m", "pip", "wheel", "-q", "--no-build-isolation", "--no-deps", "-w", str(out), str(ROOT)]
+
+
+def smoke_command(out):
+    return ["make", "-s", "-C", str(ROOT), "smoke-pipeline", f"SMOKE={out / 'smoke'}"]
+
+
+BACKGROUND = {"wheel": ("test_packaging", wheel_command), "smoke": ("test_evaluate", smoke_command)}
+
+
+def start(name, out):
+    """BACKGROUND[name] into the folder out, its output to out/log (a pipe nobody reads could fill
+    and stall it); returns (process, out)."""
+    with open(out / "log", "w") as log:
+        STARTED[name] = (subprocess.Popen(BACKGROUND[name][1](out), stdout=log, stderr=subprocess.STDOUT), out)
+    return STARTED[name]
+
+
+def finished(name, tmp_path_factory):
+    """The finished background job `name` (started now if the run did not start it): its folder."""
+    proc, out = STARTED.get(name) or start(name, tmp_path_factory.mktemp(name))
+    proc.wait(timeout=900)
+    assert proc.returncode == 0, (out / "log").read_text()[-4000:]
+    return out
+
+
+def pytest_collection_finish(session):
+    modules = {item.module.__name__ for item in session.items if item.get_closest_marker("pipeline")}
+    for name, (module, _) in BACKGROUND.items():
+        if module in modules and (name != "smoke" or shutil.which("make")):
+            start(name, Path(tempfile.mkdtemp(prefix=f"dc-{name}-")))
+
+
+def pytest_sessionfinish(session):
+    for proc, out in STARTED.values():
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        shutil.rmtree(out, ignore_errors=True)
+    STARTED.clear()
 
 
 # A small pile: enough contacts (two-point manifolds on the walls included) to exercise every

@@ -14,11 +14,9 @@ pytestmark = pytest.mark.pipeline
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory):
-    out = tmp_path_factory.mktemp("wheel")
-    # No build isolation and no dependencies: CI has no network; the build tools are installed.
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-build-isolation", "--no-deps", "-w", str(out),
-                    str(ROOT)], check=True, capture_output=True, text=True, timeout=900)
-    (whl,) = out.glob("deepcontact-*.whl")
+    """The wheel `pip wheel .` builds (started when the run began: conftest.BACKGROUND)."""
+    from conftest import finished
+    (whl,) = finished("wheel", tmp_path_factory).glob("deepcontact-*.whl")
     return whl
 
 
