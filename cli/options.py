@@ -353,15 +353,15 @@ def choice(name, leave_out=()):
     return click.Choice([w for w in vocabulary(name) if w not in leave_out])
 
 
-def load_solvers(names, mode):
-    """--accelerate: plug-in solver methods loaded by the user's explicit choice; the float64-only
-    built-ins refused in float32 (one line, exit 2)."""
-    from deepcontact.solver.methods import SOLVERS, is_native
+def load_solvers(names, mode=None):
+    """--accelerate: plug-in solver methods loaded by the user's explicit choice; with mode, each
+    checked against it (solver.methods.check_mode: exit 2)."""
+    from deepcontact.solver.methods import SOLVERS, check_mode, is_native
     for name in names:
         if not is_native(name):
             SOLVERS.load(name)
-        elif getattr(SOLVERS.resolved(name), "float64_only", False) and mode != "float64":
-            raise click.UsageError(f"--accelerate {name} is float64 only: use --mode float64")
+        elif mode is not None:
+            check_mode(name, mode)
 
 
 def load_network(arch):

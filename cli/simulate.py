@@ -25,23 +25,18 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
         if used:
             raise click.UsageError(f"{', '.join(used)} only appl{'ies' if len(used) == 1 else 'y'} with --solver pgs")
         return None
-    from deepcontact.simulate.pgs_loop import LoopOptions
-    mode = mode or "float64"
-    if mode == "exact" and relaxation not in (None, 1.0):
-        raise click.UsageError("--mode exact is Box2D's PGS: it takes no --relaxation")
-    if mode == "exact" and accelerate not in (None, "none"):
-        raise click.UsageError("--mode exact is Box2D's PGS: it takes no --accelerate")
+    from deepcontact.simulate.pgs_loop import DEFAULT_TOLERANCE_CAP, LoopOptions, check_options
     if accelerate is not None:
-        options.load_solvers([accelerate], mode)
-    if relaxation == "auto" and not tolerance:
-        raise click.UsageError("--relaxation auto counts sweeps to a tolerance: give --tolerance")
+        options.load_solvers([accelerate])
     # A tolerance asks to converge: the cap is then dc evaluate's (1000), not the scene's 8 sweeps,
     # which would stop nearly every step short of it without a word.
-    from deepcontact.simulate.pgs_loop import DEFAULT_TOLERANCE_CAP
     cap = max_iterations if max_iterations is not None else DEFAULT_TOLERANCE_CAP if tolerance else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
-    return LoopOptions(start=start or "builtin", mode=mode, max_iterations=cap, tolerance=tolerance or 0.0,
-                       stop_on=stop_on or "residual", relaxation=relaxation or 1.0, accelerate=accelerate or "none")
+    loop = LoopOptions(start=start or "builtin", mode=mode or "float64", max_iterations=cap,
+                       tolerance=tolerance or 0.0, stop_on=stop_on or "residual", relaxation=relaxation or 1.0,
+                       accelerate=accelerate or "none")
+    check_options(loop)   # (the library's rules: exit 2 naming the option)
+    return loop
 
 
 @click.command()

@@ -100,6 +100,8 @@ INAPPLICABLE = [
     (["study", "oracle", "{run}"], "-o", "{tmp}/x"),
     (["study", "oracle", "{run}", "--sweep", "-o", "{tmp}/x"], "--kernel", "spiky"),
     (["render", "{run}", "-o", "{tmp}/v.html"], "-j", "2"),
+    (["simulate", "pile", "--solver", "pgs", "--mode", "exact", "-o", "{tmp}/s"], "--relaxation", "1.3"),
+    (["simulate", "pile", "--solver", "pgs", "--mode", "exact", "-o", "{tmp}/s"], "--accelerate", "nncg"),
 ]
 
 
@@ -112,3 +114,25 @@ def test_an_option_that_does_not_apply_is_refused(run, dataset, model, tmp_path,
     assert r.exit_code == 2 and "Traceback" not in r.stderr, (argv, r.stderr)
     assert option in r.stderr and ("appl" in r.stderr or "give one" in r.stderr or "is Box2D" in r.stderr), r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []   # refused before anything was written
+
+
+def test_the_loops_rules_are_the_librarys_for_the_command_line_and_code_alike():
+    """One check of the loop's options (simulate.pgs_loop.check_options): dc simulate exits 2 with
+    it, and a PGSStepper built in code refuses the same options with the same words."""
+    import pytest
+    from deepcontact.errors import OptionError
+    from deepcontact.scene.generators import generate
+    from deepcontact.simulate.build import build_world
+    from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper, check_options
+    cases = [(dict(mode="exact", relaxation=1.3), "--relaxation"), (dict(mode="exact", relaxation="auto",
+             tolerance=1e-4), "--relaxation"), (dict(mode="exact", accelerate="nncg"), "--accelerate"),
+             (dict(mode="float32", accelerate="newton"), "--accelerate"), (dict(relaxation="auto"), "--relaxation"),
+             (dict(start="lucky"), "--start")]
+    scene = generate("pile", 0, {"count": 4, "steps": 5})
+    for kw, option in cases:
+        with pytest.raises(OptionError) as e:
+            check_options(LoopOptions(**kw))
+        assert e.value.option == option
+        with pytest.raises(OptionError):
+            PGSStepper(build_world(scene), scene, LoopOptions(**kw))
+    check_options(LoopOptions(mode="float64", relaxation="auto", tolerance=1e-4, accelerate="newton"))

@@ -42,6 +42,22 @@ class LoopOptions:
     accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
 
 
+def check_options(o: LoopOptions, own_start=False) -> None:
+    """The rules of the loop's options, checked once for the command line and the library alike;
+    OptionError naming the option that breaks one. own_start: the caller makes the starts."""
+    from ..errors import OptionError
+    from ..solver.methods import check_mode
+    if not own_start and o.start not in STARTS:
+        raise OptionError(f"unknown start {o.start!r}; choose from {', '.join(STARTS)}", "--start")
+    if o.mode == "exact" and o.relaxation != 1.0:
+        raise OptionError("--mode exact is Box2D's PGS: it takes no over-relaxation", "--relaxation")
+    if o.mode == "exact" and o.accelerate != "none":
+        raise OptionError("--mode exact is Box2D's PGS: it takes no acceleration", "--accelerate")
+    check_mode(o.accelerate, o.mode)
+    if o.relaxation == "auto" and not o.tolerance:
+        raise OptionError("auto counts sweeps to a tolerance: give --tolerance", "--relaxation")
+
+
 def unit_dt_ratio_inv(dt) -> np.float32:
     """A float32 x with float32(x * dt) == 1 exactly, so Box2D applies written impulses as they are."""
     dt = np.float32(dt)
@@ -80,12 +96,9 @@ class PGSStepper:
         the bodies and contacts of each step (step files need them; a timed loop does not).
         native=False steps in pieces through Python even where one native call could."""
         self.start_fn = start_fn
-        if start_fn is None and options.start not in STARTS:
-            raise InputError(f"unknown start {options.start!r}; choose from {', '.join(STARTS)}")
+        check_options(options, own_start=start_fn is not None)
         check_scene_for_loop(scene)
         auto = options.relaxation == "auto"
-        if auto and options.mode == "exact":
-            raise InputError("exact mode is Box2D's PGS: no over-relaxation, no acceleration")
         try:
             self.solve_options = solve_options(
                 dt=scene.dt, mode=options.mode, max_iterations=options.max_iterations, tolerance=options.tolerance,

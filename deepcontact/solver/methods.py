@@ -83,6 +83,14 @@ def method(name):
     return _instances[name]
 
 
+def check_mode(name: str, mode: str) -> None:
+    """The rule a solver method puts on the arithmetic: newton and subspace are float64 only.
+    OptionError (naming --accelerate) where it is broken."""
+    from ..errors import OptionError
+    if is_native(name) and getattr(SOLVERS.resolved(name), "float64_only", False) and mode != "float64":
+        raise OptionError(f"{name} is float64 only: use --mode float64", "--accelerate")
+
+
 def is_native(name) -> bool:
     """Whether `name` is one of the native solver's variants (which the native loop can run)."""
     return name in BUILTIN
