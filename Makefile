@@ -34,6 +34,7 @@ $(STAMPS)/system:
 $(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml $(NATIVE)
 	$(PYTHON) -m pip install -q torch==2.13.0
 	$(PYTHON) -m pip install -q "setuptools>=64" wheel "pybind11>=2.11"
+	$(PYTHON) -m pip install -q pyb2d3==0.11.1   # Box2D v3.1.1's headers and library: the second engine
 	$(PYTHON) -m pip install -q --no-build-isolation -e ".[test]"
 	@touch $@
 

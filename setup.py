@@ -53,6 +53,26 @@ ext = Pybind11Extension(
     extra_compile_args=["-O2", "-ffp-contract=off"],
 )
 
+# Box2D v3 (3.1), from the pyb2d3 wheel's headers and static library, where it is installed (make
+# setup installs it): a second engine in the same module (native/world3.cpp). Found without
+# importing pyb2d3.
+def box2d3():
+    import importlib.util
+    from pathlib import Path
+    spec = importlib.util.find_spec("pyb2d3")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    site = Path(list(spec.submodule_search_locations)[0]).parent
+    header, library = site / "include" / "box2d" / "box2d.h", site / "lib64" / "libbox2d.a"
+    return (header, library) if header.is_file() and library.is_file() else None
+
+
+v3 = box2d3()
+if v3 is not None:
+    ext.sources.append("deepcontact/native/world3.cpp")
+    ext.define_macros += [("DC_HAVE_BOX2D3", "1"), ("DC_BOX2D3_H", f'"{v3[0]}"')]
+    ext.extra_objects = [str(v3[1])]
+
 # Every package under deepcontact/ (a new one cannot be forgotten), plus the two folders that
 # setup.cfg's package_dir maps into it.
 packages = find_packages(include=["deepcontact", "deepcontact.*"]) + ["deepcontact.cli", "deepcontact.schemas"]

@@ -7,6 +7,9 @@
 #include <string>
 
 #include "step_names.hpp"
+#ifdef DC_HAVE_BOX2D3
+#include "world3.hpp"
+#endif
 #include "pyarrays.hpp"
 #include "step_read.hpp"
 #include "step_xml.hpp"
@@ -193,6 +196,72 @@ PYBIND11_MODULE(_box2d, m) {
     m.attr("linear_slop") = b2_linearSlop;
     m.attr("polygon_radius") = b2_polygonRadius;
     m.attr("max_polygon_vertices") = b2_maxPolygonVertices;
+
+#ifdef DC_HAVE_BOX2D3
+    // Box2D v3 (3.1, the pyb2d3 wheel's library): the soft step, beside 2.4.1 (world3.hpp).
+    m.attr("box2d3_version") = dc::box2d3_version();
+    py::class_<dc::World3>(m, "World3")
+        .def(py::init([](float gx, float gy, int substeps, float hertz, float damping_ratio, float push_speed,
+                         bool warm_starting, float restitution_threshold, bool sleeping, bool continuous) {
+                 return std::make_unique<dc::World3>(
+                     gx, gy, dc::SoftStep{substeps, hertz, damping_ratio, push_speed, warm_starting},
+                     restitution_threshold, sleeping, continuous);
+             }),
+             py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f, py::arg("substeps") = 4,
+             py::arg("contact_hertz") = 30.0f, py::arg("damping_ratio") = 10.0f, py::arg("push_speed") = 3.0f,
+             py::arg("warm_starting") = true, py::arg("restitution_threshold") = 1.0f, py::arg("sleeping") = false,
+             py::arg("continuous") = false)
+        .def(
+            "add_body",
+            [](dc::World3& w, int type, float x, float y, float angle, float vx, float vy, float omega,
+               float linear_damping, float angular_damping, bool fixed_rotation, bool bullet) {
+                if (type < 0 || type > 2) throw py::value_error("type must be 0 (static), 1 (kinematic) or 2");
+                return w.add_body({type, x, y, angle, vx, vy, omega, linear_damping, angular_damping, fixed_rotation,
+                                   bullet});
+            },
+            py::arg("type"), py::arg("x"), py::arg("y"), py::arg("angle") = 0.0f, py::arg("vx") = 0.0f,
+            py::arg("vy") = 0.0f, py::arg("omega") = 0.0f, py::arg("linear_damping") = 0.0f,
+            py::arg("angular_damping") = 0.0f, py::arg("fixed_rotation") = false, py::arg("bullet") = false)
+        .def(
+            "add_circle",
+            [](dc::World3& w, int body, float radius, float cx, float cy, float density, float friction,
+               float restitution, float threshold) {
+                w.add_circle(body, radius, cx, cy, {density, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("radius"), py::arg("x") = 0.0f, py::arg("y") = 0.0f, py::arg("density") = 0.0f,
+            py::arg("friction") = 0.0f, py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "add_polygon",
+            [](dc::World3& w, int body, F32 vertices, float density, float friction, float restitution,
+               float threshold) {
+                if (vertices.ndim() != 2 || vertices.shape(1) != 2)
+                    throw py::value_error("vertices must have shape (n, 2)");
+                w.add_polygon(body, std::vector<float>(vertices.data(), vertices.data() + vertices.size()),
+                              {density, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("vertices"), py::arg("density") = 0.0f, py::arg("friction") = 0.0f,
+            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "add_edge",
+            [](dc::World3& w, int body, float x1, float y1, float x2, float y2, float friction, float restitution,
+               float threshold) { w.add_edge(body, x1, y1, x2, y2, {0.0f, friction, restitution, threshold}); },
+            py::arg("body"), py::arg("x1"), py::arg("y1"), py::arg("x2"), py::arg("y2"), py::arg("friction") = 0.0f,
+            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "step",
+            [](dc::World3& w, float dt) {
+                if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
+                py::gil_scoped_release release;
+                w.step(dt);
+            },
+            py::arg("dt"))
+        .def("bodies", [](const dc::World3& w) { return to_dict(w.bodies()); })
+        .def("contact_points", [](const dc::World3& w) {
+            float normal = 0.0f, total = 0.0f;
+            const std::size_t n = w.contact_points(&normal, &total);
+            return py::make_tuple(n, normal, total);
+        });
+#endif
 
     py::class_<dc::World>(m, "World")
         .def(py::init<float, float>(), py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f)

@@ -12,12 +12,18 @@ def build_world(scene) -> World:
     e = scene.effects
     gravity = e.gravity if e.gravity is not None else (0.0, 0.0)
     linear, angular = e.damping if e.damping is not None else (0.0, 0.0)
-    threshold = e.restitution_threshold
     world = World(*gravity)
     world.continuous = e.continuous
     world.sleeping = scene.solver.sleeping
     world.warm_starting = scene.solver.warm_starting
     world.block_solve = scene.solver.block_solve
+    _add_bodies(world, scene, linear, angular)
+    return world
+
+
+def _add_bodies(world, scene, linear, angular):
+    """The scene's bodies and shapes into a world of either engine (the same calls)."""
+    threshold = scene.effects.restitution_threshold
     for b in scene.bodies:
         dynamic = b.type == "dynamic"
         index = world.add_body(_TYPE[b.type], b.x, b.y, angle=b.angle, vx=b.vx, vy=b.vy, omega=b.omega,
@@ -34,6 +40,24 @@ def build_world(scene) -> World:
                                   **material)
             else:
                 world.add_edge(index, s.x1, s.y1, s.x2, s.y2, **material)
+
+
+def build_world3(scene, substeps=4, contact_hertz=30.0, damping_ratio=10.0, push_speed=3.0,
+                 warm_starting=True):
+    """The scene as a Box2D v3 world (the soft step: `substeps` per step; v3's defaults), with the
+    same bodies, shapes, materials and effects as build_world's. InputError where this build has
+    no Box2D v3 (pyb2d3 was not installed when the module was built)."""
+    from .. import _box2d
+    if not hasattr(_box2d, "World3"):
+        raise InputError("this build has no Box2D v3: install pyb2d3==0.11.1 and rebuild (make setup)")
+    e = scene.effects
+    gravity = e.gravity if e.gravity is not None else (0.0, 0.0)
+    linear, angular = e.damping if e.damping is not None else (0.0, 0.0)
+    world = _box2d.World3(*gravity, substeps=substeps, contact_hertz=contact_hertz, damping_ratio=damping_ratio,
+                          push_speed=push_speed, warm_starting=warm_starting,
+                          restitution_threshold=e.restitution_threshold, sleeping=scene.solver.sleeping,
+                          continuous=e.continuous)
+    _add_bodies(world, scene, linear, angular)
     return world
 
 

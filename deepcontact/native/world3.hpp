@@ -1,0 +1,51 @@
+// A Box2D v3 (3.1, from the pyb2d3 wheel) world built from a scene and stepped with v3's soft
+// step (substeps), its bodies handed back as the same flat arrays as a 2.4.1 world's. v3's types
+// stay in world3.cpp, inside a namespace of their own: both engines live in this one module.
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "state.hpp"
+
+namespace dc {
+
+struct SoftStep {
+    int substeps = 4;
+    float contact_hertz = 30.0f;
+    float damping_ratio = 10.0f;
+    float push_speed = 3.0f;   // m/s: how fast v3 pushes overlapping bodies apart
+    bool warm_starting = true;
+};
+
+class World3 {
+public:
+    World3(float gravity_x, float gravity_y, const SoftStep& soft, float restitution_threshold, bool sleeping,
+           bool continuous);
+    ~World3();
+    World3(const World3&) = delete;
+    World3& operator=(const World3&) = delete;
+
+    int add_body(const BodySpec& spec);
+    void add_circle(int body, float radius, float cx, float cy, const Material& m);
+    void add_polygon(int body, const std::vector<float>& xy, const Material& m);
+    void add_edge(int body, float x1, float y1, float x2, float y2, const Material& m);
+
+    void step(float dt);
+    BodyState bodies() const;
+    // The manifold points of the contacts of every dynamic body (a contact of two dynamic bodies
+    // counted from each): their count, the sum of their normal impulses (the last substep's, N s)
+    // and of their total normal impulses (v3's: everything applied in the step, the relax pass's
+    // and restitution's included).
+    std::size_t contact_points(float* normal_impulse, float* total_normal_impulse) const;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+std::string box2d3_version();
+
+}  // namespace dc
