@@ -69,6 +69,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_render.py
 	$(PYTHON) benchmarks/bench_predict.py
 	sh benchmarks/bench_loop_scale.sh
+	$(PYTHON) benchmarks/bench_engines.py
 
 # The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).
 studies: setup

@@ -1,0 +1,79 @@
+"""Does stepping a Box2D v3 world through the project cost what stepping it bare costs?
+
+The thesis pile (100 circles in a box, 600 steps at dt = 0.01, 4 substeps, sleeping and continuous
+collision off, one thread) stepped two ways in the same run, best of --repeats: through the
+project (simulate.build.build_world3, native/world3.cpp, the soft step called from Python once a
+step) and bare through pyb2d3's own Python API, built from the same scene. The goal: the project's
+time within 1.2x of the bare one. The final positions are compared too (the same engine, the same
+bodies: the same trajectory, or nearly: pyb2d3 sets its own defaults).
+
+Usage: python benchmarks/bench_engines.py [--repeats N] [--steps N]
+"""
+import time
+
+import numpy as np
+import pyb2d3 as b2
+
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world3
+
+from common import arguments
+
+
+def bare_world(scene):
+    """The scene's bodies through pyb2d3's API (the pile has circles and edges)."""
+    world = b2.World(gravity=tuple(scene.effects.gravity))
+    world.sleeping_enabled = False
+    world.continuous_enabled = False
+    bodies = []
+    for body in scene.bodies:
+        if body.type == "static":
+            made = world.create_static_body(position=(body.x, body.y))
+        else:
+            made = world.create_dynamic_body(position=(body.x, body.y), linear_velocity=(body.vx, body.vy))
+        for s in body.shapes:
+            sd = b2.shape_def(density=getattr(s, "density", 0.0),
+                              material=b2.surface_material(friction=scene.friction_of(s),
+                                                           restitution=scene.restitution_of(s)))
+            if s.kind == "circle":
+                c = b2.Circle()
+                c.center, c.radius = (s.x, s.y), s.radius
+                made.create_circle_shape(sd, c)
+            elif s.kind == "edge":
+                seg = b2.Segment()
+                seg.point1, seg.point2 = (s.x1, s.y1), (s.x2, s.y2)
+                made.create_segment_shape(sd, seg)
+            else:
+                raise SystemExit(f"this benchmark builds circles and edges, not {s.kind}")
+        bodies.append(made)
+    return world, bodies
+
+
+def timed(step, steps):
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return time.perf_counter() - t0
+
+
+def main():
+    args = arguments(__doc__, repeats=3, steps=600)
+    scene = generate("pile", 0)
+    ours, bare = [], []
+    for _ in range(args.repeats):   # interleaved: both see the same machine
+        world = build_world3(scene, substeps=4)
+        ours.append(timed(lambda: world.step(scene.dt), args.steps))
+        mine = world.bodies()["position"]
+        bw, bodies = bare_world(scene)
+        bare.append(timed(lambda: bw.step(scene.dt, 4), args.steps))
+        theirs = np.array([[p.x, p.y] for p in (body.position for body in bodies)])
+    o, t = min(ours), min(bare)
+    print(f"the pile, {args.steps} steps, 4 substeps, best of {args.repeats}:")
+    print(f"  through the project   {1e3 * o / args.steps:.3f} ms a step")
+    print(f"  bare pyb2d3           {1e3 * t / args.steps:.3f} ms a step")
+    print(f"  ratio                 {o / t:.2f}x (goal: at most 1.2x)")
+    print(f"  largest difference of a final position: {np.abs(mine - theirs).max():.3g} m")
+
+
+if __name__ == "__main__":
+    main()
