@@ -197,10 +197,50 @@ PYBIND11_MODULE(_box2d, m) {
     m.attr("polygon_radius") = b2_polygonRadius;
     m.attr("max_polygon_vertices") = b2_maxPolygonVertices;
 
+    // The calls a scene is built with, one binding for both engines (state.hpp: SceneWorld).
+    py::class_<dc::SceneWorld>(m, "SceneWorld")
+        .def(
+            "add_body",
+            [](dc::SceneWorld& w, int type, float x, float y, float angle, float vx, float vy, float omega,
+               float linear_damping, float angular_damping, bool fixed_rotation, bool bullet) {
+                dc::BodySpec s{type, x, y, angle, vx, vy, omega, linear_damping, angular_damping, fixed_rotation, bullet};
+                return w.add_body(s);
+            },
+            py::arg("type"), py::arg("x"), py::arg("y"), py::arg("angle") = 0.0f, py::arg("vx") = 0.0f,
+            py::arg("vy") = 0.0f, py::arg("omega") = 0.0f, py::arg("linear_damping") = 0.0f,
+            py::arg("angular_damping") = 0.0f, py::arg("fixed_rotation") = false, py::arg("bullet") = false)
+        .def(
+            "add_circle",
+            [](dc::SceneWorld& w, int body, float radius, float cx, float cy, float density, float friction,
+               float restitution, float threshold) {
+                return w.add_circle(body, radius, cx, cy, {density, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("radius"), py::arg("x") = 0.0f, py::arg("y") = 0.0f, py::arg("density") = 0.0f,
+            py::arg("friction") = 0.0f, py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "add_polygon",
+            [](dc::SceneWorld& w, int body, F32 vertices, float density, float friction, float restitution,
+               float threshold) {
+                if (vertices.ndim() != 2 || vertices.shape(1) != 2)
+                    throw py::value_error("vertices must have shape (n, 2)");
+                std::vector<float> xy(vertices.data(), vertices.data() + vertices.size());
+                return w.add_polygon(body, xy, {density, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("vertices"), py::arg("density") = 0.0f, py::arg("friction") = 0.0f,
+            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
+        .def(
+            "add_edge",
+            [](dc::SceneWorld& w, int body, float x1, float y1, float x2, float y2, float friction, float restitution,
+               float threshold) {
+                return w.add_edge(body, x1, y1, x2, y2, {0.0f, friction, restitution, threshold});
+            },
+            py::arg("body"), py::arg("x1"), py::arg("y1"), py::arg("x2"), py::arg("y2"), py::arg("friction") = 0.0f,
+            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f);
+
 #ifdef DC_HAVE_BOX2D3
     // Box2D v3 (3.1, the pyb2d3 wheel's library): the soft step, beside 2.4.1 (world3.hpp).
     m.attr("box2d3_version") = dc::box2d3_version();
-    py::class_<dc::World3>(m, "World3")
+    py::class_<dc::World3, dc::SceneWorld>(m, "World3")
         .def(py::init([](float gx, float gy, int substeps, float hertz, float damping_ratio, float push_speed,
                          bool warm_starting, float restitution_threshold, bool sleeping, bool continuous) {
                  return std::make_unique<dc::World3>(
@@ -211,42 +251,6 @@ PYBIND11_MODULE(_box2d, m) {
              py::arg("contact_hertz") = 30.0f, py::arg("damping_ratio") = 10.0f, py::arg("push_speed") = 3.0f,
              py::arg("warm_starting") = true, py::arg("restitution_threshold") = 1.0f, py::arg("sleeping") = false,
              py::arg("continuous") = false)
-        .def(
-            "add_body",
-            [](dc::World3& w, int type, float x, float y, float angle, float vx, float vy, float omega,
-               float linear_damping, float angular_damping, bool fixed_rotation, bool bullet) {
-                if (type < 0 || type > 2) throw py::value_error("type must be 0 (static), 1 (kinematic) or 2");
-                return w.add_body({type, x, y, angle, vx, vy, omega, linear_damping, angular_damping, fixed_rotation,
-                                   bullet});
-            },
-            py::arg("type"), py::arg("x"), py::arg("y"), py::arg("angle") = 0.0f, py::arg("vx") = 0.0f,
-            py::arg("vy") = 0.0f, py::arg("omega") = 0.0f, py::arg("linear_damping") = 0.0f,
-            py::arg("angular_damping") = 0.0f, py::arg("fixed_rotation") = false, py::arg("bullet") = false)
-        .def(
-            "add_circle",
-            [](dc::World3& w, int body, float radius, float cx, float cy, float density, float friction,
-               float restitution, float threshold) {
-                w.add_circle(body, radius, cx, cy, {density, friction, restitution, threshold});
-            },
-            py::arg("body"), py::arg("radius"), py::arg("x") = 0.0f, py::arg("y") = 0.0f, py::arg("density") = 0.0f,
-            py::arg("friction") = 0.0f, py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
-        .def(
-            "add_polygon",
-            [](dc::World3& w, int body, F32 vertices, float density, float friction, float restitution,
-               float threshold) {
-                if (vertices.ndim() != 2 || vertices.shape(1) != 2)
-                    throw py::value_error("vertices must have shape (n, 2)");
-                w.add_polygon(body, std::vector<float>(vertices.data(), vertices.data() + vertices.size()),
-                              {density, friction, restitution, threshold});
-            },
-            py::arg("body"), py::arg("vertices"), py::arg("density") = 0.0f, py::arg("friction") = 0.0f,
-            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
-        .def(
-            "add_edge",
-            [](dc::World3& w, int body, float x1, float y1, float x2, float y2, float friction, float restitution,
-               float threshold) { w.add_edge(body, x1, y1, x2, y2, {0.0f, friction, restitution, threshold}); },
-            py::arg("body"), py::arg("x1"), py::arg("y1"), py::arg("x2"), py::arg("y2"), py::arg("friction") = 0.0f,
-            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
         .def(
             "step",
             [](dc::World3& w, float dt) {
@@ -263,45 +267,8 @@ PYBIND11_MODULE(_box2d, m) {
         });
 #endif
 
-    py::class_<dc::World>(m, "World")
+    py::class_<dc::World, dc::SceneWorld>(m, "World")
         .def(py::init<float, float>(), py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f)
-        .def(
-            "add_body",
-            [](dc::World& w, int type, float x, float y, float angle, float vx, float vy, float omega,
-               float linear_damping, float angular_damping, bool fixed_rotation, bool bullet) {
-                dc::BodySpec s{type, x, y, angle, vx, vy, omega, linear_damping, angular_damping, fixed_rotation, bullet};
-                return w.add_body(s);
-            },
-            py::arg("type"), py::arg("x"), py::arg("y"), py::arg("angle") = 0.0f, py::arg("vx") = 0.0f,
-            py::arg("vy") = 0.0f, py::arg("omega") = 0.0f, py::arg("linear_damping") = 0.0f,
-            py::arg("angular_damping") = 0.0f, py::arg("fixed_rotation") = false, py::arg("bullet") = false)
-        .def(
-            "add_circle",
-            [](dc::World& w, int body, float radius, float cx, float cy, float density, float friction,
-               float restitution, float threshold) {
-                return w.add_circle(body, radius, cx, cy, {density, friction, restitution, threshold});
-            },
-            py::arg("body"), py::arg("radius"), py::arg("x") = 0.0f, py::arg("y") = 0.0f, py::arg("density") = 0.0f,
-            py::arg("friction") = 0.0f, py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
-        .def(
-            "add_polygon",
-            [](dc::World& w, int body, F32 vertices, float density, float friction, float restitution,
-               float threshold) {
-                if (vertices.ndim() != 2 || vertices.shape(1) != 2)
-                    throw py::value_error("vertices must have shape (n, 2)");
-                std::vector<float> xy(vertices.data(), vertices.data() + vertices.size());
-                return w.add_polygon(body, xy, {density, friction, restitution, threshold});
-            },
-            py::arg("body"), py::arg("vertices"), py::arg("density") = 0.0f, py::arg("friction") = 0.0f,
-            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
-        .def(
-            "add_edge",
-            [](dc::World& w, int body, float x1, float y1, float x2, float y2, float friction, float restitution,
-               float threshold) {
-                return w.add_edge(body, x1, y1, x2, y2, {0.0f, friction, restitution, threshold});
-            },
-            py::arg("body"), py::arg("x1"), py::arg("y1"), py::arg("x2"), py::arg("y2"), py::arg("friction") = 0.0f,
-            py::arg("restitution") = 0.0f, py::arg("restitution_threshold") = 1.0f)
         .def("remove_body", &dc::World::remove_body, py::arg("index"))
         .def(
             "step",

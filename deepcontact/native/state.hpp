@@ -38,4 +38,15 @@ struct ContactState {
     size_t size() const { return manifold.size(); }
 };
 
+// What a scene is built into, whatever the engine: the calls simulate/build.py makes.
+class SceneWorld {
+public:
+    virtual ~SceneWorld() = default;
+    virtual int add_body(const BodySpec& spec) = 0;   // returns the body's index (scene order)
+    // each returns the shape's index in the world (scene order)
+    virtual int add_circle(int body, float radius, float cx, float cy, const Material& m) = 0;
+    virtual int add_polygon(int body, const std::vector<float>& xy, const Material& m) = 0;
+    virtual int add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) = 0;
+};
+
 }  // namespace dc

@@ -16,17 +16,17 @@
 
 namespace dc {
 
-class World {
+class World : public SceneWorld {
 public:
     World(float gravity_x, float gravity_y);
-    ~World();
+    ~World() override;
     World(const World&) = delete;
     World& operator=(const World&) = delete;
 
-    int add_body(const BodySpec& spec);
-    int add_circle(int body, float radius, float cx, float cy, const Material& m);
-    int add_polygon(int body, const std::vector<float>& xy, const Material& m);
-    int add_edge(int body, float x1, float y1, float x2, float y2, const Material& m);
+    int add_body(const BodySpec& spec) override;
+    int add_circle(int body, float radius, float cx, float cy, const Material& m) override;
+    int add_polygon(int body, const std::vector<float>& xy, const Material& m) override;
+    int add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) override;
     void remove_body(int body);
 
     // One Box2D step. With record, the body state before the step and the solved

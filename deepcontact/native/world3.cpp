@@ -21,6 +21,7 @@ namespace dc {
 struct World3::Impl {
     v3::b2WorldId world;
     std::vector<v3::b2BodyId> bodies;   // scene index order
+    int shapes = 0;
     SoftStep soft;
     float restitution_threshold;
 };
@@ -73,13 +74,15 @@ v3::b2ShapeDef shape_def(const Material& m) {
 
 }  // namespace
 
-void World3::add_circle(int body, float radius, float cx, float cy, const Material& m) {
+int World3::add_circle(int body, float radius, float cx, float cy, const Material& m) {
+    if (!(radius > 0.0f)) throw std::invalid_argument("circle radius must be positive");
     const v3::b2ShapeDef def = shape_def(m);
     const v3::b2Circle circle{v3::b2Vec2{cx, cy}, radius};
     v3::b2CreateCircleShape(impl_->bodies.at(body), &def, &circle);
+    return impl_->shapes++;
 }
 
-void World3::add_polygon(int body, const std::vector<float>& xy, const Material& m) {
+int World3::add_polygon(int body, const std::vector<float>& xy, const Material& m) {
     std::vector<v3::b2Vec2> points;
     for (std::size_t i = 0; i + 1 < xy.size(); i += 2) points.push_back(v3::b2Vec2{xy[i], xy[i + 1]});
     const v3::b2Hull hull = v3::b2ComputeHull(points.data(), static_cast<int>(points.size()));
@@ -87,12 +90,14 @@ void World3::add_polygon(int body, const std::vector<float>& xy, const Material&
     const v3::b2Polygon polygon = v3::b2MakePolygon(&hull, 0.0f);
     const v3::b2ShapeDef def = shape_def(m);
     v3::b2CreatePolygonShape(impl_->bodies.at(body), &def, &polygon);
+    return impl_->shapes++;
 }
 
-void World3::add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) {
+int World3::add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) {
     const v3::b2Segment segment{v3::b2Vec2{x1, y1}, v3::b2Vec2{x2, y2}};
     const v3::b2ShapeDef def = shape_def(m);
     v3::b2CreateSegmentShape(impl_->bodies.at(body), &def, &segment);
+    return impl_->shapes++;
 }
 
 void World3::step(float dt) { v3::b2World_Step(impl_->world, dt, impl_->soft.substeps); }

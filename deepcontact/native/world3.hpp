@@ -20,18 +20,18 @@ struct SoftStep {
     bool warm_starting = true;
 };
 
-class World3 {
+class World3 : public SceneWorld {
 public:
     World3(float gravity_x, float gravity_y, const SoftStep& soft, float restitution_threshold, bool sleeping,
            bool continuous);
-    ~World3();
+    ~World3() override;
     World3(const World3&) = delete;
     World3& operator=(const World3&) = delete;
 
-    int add_body(const BodySpec& spec);
-    void add_circle(int body, float radius, float cx, float cy, const Material& m);
-    void add_polygon(int body, const std::vector<float>& xy, const Material& m);
-    void add_edge(int body, float x1, float y1, float x2, float y2, const Material& m);
+    int add_body(const BodySpec& spec) override;
+    int add_circle(int body, float radius, float cx, float cy, const Material& m) override;
+    int add_polygon(int body, const std::vector<float>& xy, const Material& m) override;
+    int add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) override;
 
     void step(float dt);
     BodyState bodies() const;
