@@ -61,3 +61,18 @@ def test_an_unbuildable_polygon_is_one_error():
     body = world.add_body(2, 0.0, 0.0)
     with pytest.raises(ValueError, match="cannot hull"):
         world.add_polygon(body, np.array([[0, 0], [1, 0], [2, 0]], np.float32), density=1.0)
+
+
+def test_the_stability_criteria_judge_a_v3_run():
+    """A hard scene run under v3 through the stability study's own measure (studies/stability.py):
+    the pyramid stands; the 8-box stack's top drifts more than 1 cm at any substep count (v3's
+    soft step is weaker on tall stacks than 2.4.1's block solver, as its author says)."""
+    from deepcontact.studies import stability as S
+    cases = {c.label: c for c in S.FAST}
+    pyramid = S.run_case(cases["pyramid 6"], "box2d3", "builtin", 4)
+    assert pyramid.finite and pyramid.passed and pyramid.solver == "box2d3"
+    for substeps in (4, 32):
+        stack = S.run_case(cases["stack 8"], "box2d3", "builtin", substeps)
+        assert stack.finite and stack.top_drift > S.TOP_DRIFT_LIMIT and not stack.passed
+    removal = S.run_case(cases["warm-start energy"], "box2d3", "builtin", 4)   # (a body removed mid-run)
+    assert removal.finite

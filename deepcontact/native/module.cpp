@@ -260,6 +260,16 @@ PYBIND11_MODULE(_box2d, m) {
             },
             py::arg("dt"))
         .def("bodies", [](const dc::World3& w) { return to_dict(w.bodies()); })
+        .def("remove_body", &dc::World3::remove_body, py::arg("index"))
+        .def("contacts",
+             [](const dc::World3& w) {
+                 auto columns = w.contact_columns();
+                 py::dict d;
+                 const char* names[] = {"separation", "normal_impulse", "tangent_impulse", "total_normal_impulse"};
+                 for (int i = 0; i < 4; ++i)
+                     d[names[i]] = py::array_t<float>(static_cast<py::ssize_t>(columns[i].size()), columns[i].data());
+                 return d;
+             })
         .def("contact_points", [](const dc::World3& w) {
             float normal = 0.0f, total = 0.0f;
             const std::size_t n = w.contact_points(&normal, &total);

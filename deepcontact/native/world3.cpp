@@ -11,6 +11,7 @@
 
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 namespace v3 {
 #include DC_BOX2D3_H
@@ -102,10 +103,40 @@ int World3::add_edge(int body, float x1, float y1, float x2, float y2, const Mat
 
 void World3::step(float dt) { v3::b2World_Step(impl_->world, dt, impl_->soft.substeps); }
 
+void World3::remove_body(int body) {
+    v3::b2BodyId& b = impl_->bodies.at(body);
+    if (!v3::b2Body_IsValid(b)) throw std::invalid_argument("body " + std::to_string(body) + " was removed already");
+    v3::b2DestroyBody(b);
+}
+
+std::vector<std::vector<float>> World3::contact_columns() const {
+    std::vector<std::vector<float>> out(4);
+    std::vector<v3::b2ContactData> data;
+    for (std::size_t i = 0; i < impl_->bodies.size(); ++i) {
+        const v3::b2BodyId b = impl_->bodies[i];
+        if (!v3::b2Body_IsValid(b)) continue;
+        data.resize(static_cast<std::size_t>(v3::b2Body_GetContactCapacity(b)));
+        const int n = v3::b2Body_GetContactData(b, data.data(), static_cast<int>(data.size()));
+        for (int k = 0; k < n; ++k) {
+            // each contact once: from the body of shape A
+            if (v3::b2Shape_GetBody(data[k].shapeIdA).index1 != b.index1) continue;
+            const v3::b2Manifold& m = data[k].manifold;
+            for (int j = 0; j < m.pointCount; ++j) {
+                out[0].push_back(m.points[j].separation);
+                out[1].push_back(m.points[j].normalImpulse);
+                out[2].push_back(m.points[j].tangentImpulse);
+                out[3].push_back(m.points[j].totalNormalImpulse);
+            }
+        }
+    }
+    return out;
+}
+
 BodyState World3::bodies() const {
     BodyState s;
     for (std::size_t i = 0; i < impl_->bodies.size(); ++i) {
         const v3::b2BodyId b = impl_->bodies[i];
+        if (!v3::b2Body_IsValid(b)) continue;   // (removed)
         const v3::b2Vec2 p = v3::b2Body_GetPosition(b), c = v3::b2Body_GetWorldCenterOfMass(b);
         const v3::b2Vec2 lc = v3::b2Body_GetLocalCenterOfMass(b), v = v3::b2Body_GetLinearVelocity(b);
         const float mass = v3::b2Body_GetMass(b), inertia = v3::b2Body_GetRotationalInertia(b);
@@ -134,7 +165,7 @@ std::size_t World3::contact_points(float* normal_impulse, float* total_normal_im
     float normal = 0.0f, total = 0.0f;
     std::vector<v3::b2ContactData> data;
     for (const v3::b2BodyId b : impl_->bodies) {
-        if (v3::b2Body_GetType(b) != v3::b2_dynamicBody) continue;
+        if (!v3::b2Body_IsValid(b) || v3::b2Body_GetType(b) != v3::b2_dynamicBody) continue;
         data.resize(static_cast<std::size_t>(v3::b2Body_GetContactCapacity(b)));
         const int n = v3::b2Body_GetContactData(b, data.data(), static_cast<int>(data.size()));
         for (int k = 0; k < n; ++k) {

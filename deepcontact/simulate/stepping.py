@@ -39,6 +39,17 @@ def box2d(world, scene, velocity_iterations=None, record=True):
     return step
 
 
+def box2d3(world, scene):
+    """A step function for a Box2D v3 world (build.build_world3: the soft step, its substeps as
+    the world was built): the contact points after the step (separation, impulses), no step file
+    records (v3's are not written yet)."""
+    def step():
+        world.step(scene.dt)
+        contacts = world.contacts()
+        return LoopStep(None, contacts, None, deepest(contacts), dt_ratio=1.0)
+    return step
+
+
 def steps(world, scene, step, count=None, after_removal=None):
     """Yields a Stepped for each of count (default: the scene's) steps of step(), a function
     returning a LoopStep (`box2d(...)`, or a PGSStepper's step), with the scene's removal
