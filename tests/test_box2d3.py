@@ -1,5 +1,4 @@
-"""Box2D v3 (3.1, the pyb2d3 wheel's library) in the same module as 2.4.1 (issue 29, the first
-part): a scene builds into a v3 world with the same calls, steps with the soft step, and hands
+"""Box2D v3 (3.1, the pyb2d3 wheel's library) in the same module as 2.4.1: a scene builds into a v3 world with the same calls, steps with the soft step, and hands
 its bodies back as 2.4.1's world does. Checked against physics, not against 2.4.1's numbers (the
 engines solve differently)."""
 import numpy as np
