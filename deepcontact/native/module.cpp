@@ -269,12 +269,7 @@ PYBIND11_MODULE(_box2d, m) {
                  for (int i = 0; i < 4; ++i)
                      d[names[i]] = py::array_t<float>(static_cast<py::ssize_t>(columns[i].size()), columns[i].data());
                  return d;
-             })
-        .def("contact_points", [](const dc::World3& w) {
-            float normal = 0.0f, total = 0.0f;
-            const std::size_t n = w.contact_points(&normal, &total);
-            return py::make_tuple(n, normal, total);
-        });
+             });
 #endif
 
     py::class_<dc::World, dc::SceneWorld>(m, "World")

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <utility>
+#include <vector>
 
 namespace dc {
 namespace {
@@ -97,27 +98,45 @@ const Emit<ContactView> kContactEmit[] = {DC_CONTACT_XML(DC_EMIT_CONTACT)};
 #undef DC_EMIT_CONTACT
 #undef DC_EMIT
 
-bool same(const char* a, const char* b) { return std::strcmp(a, b) == 0; }
+// A table's rows grouped by element, found once per table (not once per row written): the row
+// element's own attributes [0, own), then one [begin, end) per child element.
+struct Groups {
+    size_t own = 0;
+    std::vector<std::pair<size_t, size_t>> children;
+};
 
-// Writes row k's own attributes (those of element "."), closes its start tag, and writes its
-// child elements; declared: whether the scene declares the effects of Presence::declared rows.
+template <class View, size_t N>
+const Groups& groups(const Emit<View> (&table)[N]) {
+    static const Groups g = [&] {
+        Groups out;
+        while (out.own < N && std::strcmp(table[out.own].element, ".") == 0) ++out.own;
+        for (size_t i = out.own; i < N;) {
+            size_t end = i;
+            while (end < N && std::strcmp(table[end].element, table[i].element) == 0) ++end;
+            out.children.emplace_back(i, end);
+            i = end;
+        }
+        return out;
+    }();
+    return g;
+}
+
+// Writes row k's own attributes, closes its start tag, and writes its child elements; declared:
+// whether the scene declares the effects of Presence::declared rows.
 template <class View, size_t N>
 void write_row(std::string& out, Attrs& a, const Emit<View> (&table)[N], const View& v, size_t k, bool declared) {
-    size_t i = 0;
-    for (; i < N && same(table[i].element, "."); ++i) table[i].put(a, table[i].attr, v, k);
+    const Groups& g = groups(table);
+    for (size_t i = 0; i < g.own; ++i) table[i].put(a, table[i].attr, v, k);
     out += ">\n";
-    while (i < N) {
-        size_t end = i;
-        bool any = false;
-        while (end < N && same(table[end].element, table[i].element)) any |= table[end++].nonzero(v, k);
-        const Presence p = table[i].presence;
-        if (p == Presence::always || (p == Presence::nonzero && any) || (p == Presence::declared && declared)) {
-            out += "      <";
-            out += table[i].element;
-            for (; i < end; ++i) table[i].put(a, table[i].attr, v, k);
-            out += "/>\n";
-        }
-        i = end;
+    for (const auto& [begin, end] : g.children) {
+        const Presence p = table[begin].presence;
+        bool shown = p == Presence::always || (p == Presence::declared && declared);
+        for (size_t i = begin; p == Presence::nonzero && !shown && i < end; ++i) shown = table[i].nonzero(v, k);
+        if (!shown) continue;
+        out += "      <";
+        out += table[begin].element;
+        for (size_t i = begin; i < end; ++i) table[i].put(a, table[i].attr, v, k);
+        out += "/>\n";
     }
 }
 

@@ -160,28 +160,6 @@ BodyState World3::bodies() const {
     return s;
 }
 
-std::size_t World3::contact_points(float* normal_impulse, float* total_normal_impulse) const {
-    std::size_t points = 0;
-    float normal = 0.0f, total = 0.0f;
-    std::vector<v3::b2ContactData> data;
-    for (const v3::b2BodyId b : impl_->bodies) {
-        if (!v3::b2Body_IsValid(b) || v3::b2Body_GetType(b) != v3::b2_dynamicBody) continue;
-        data.resize(static_cast<std::size_t>(v3::b2Body_GetContactCapacity(b)));
-        const int n = v3::b2Body_GetContactData(b, data.data(), static_cast<int>(data.size()));
-        for (int k = 0; k < n; ++k) {
-            const v3::b2Manifold& m = data[k].manifold;
-            for (int j = 0; j < m.pointCount; ++j) {
-                normal += m.points[j].normalImpulse;
-                total += m.points[j].totalNormalImpulse;
-            }
-            points += static_cast<std::size_t>(m.pointCount);
-        }
-    }
-    *normal_impulse = normal;
-    *total_normal_impulse = total;
-    return points;
-}
-
 std::string box2d3_version() {
     const v3::b2Version v = v3::b2GetVersion();
     return std::to_string(v.major) + "." + std::to_string(v.minor) + "." + std::to_string(v.revision);

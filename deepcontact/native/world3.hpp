@@ -39,11 +39,6 @@ public:
     // Every manifold point of every touching contact, once: separation (m), the last substep's
     // normal and tangent impulses and v3's total normal impulse (N s), as columns.
     std::vector<std::vector<float>> contact_columns() const;
-    // The manifold points of the contacts of every dynamic body (a contact of two dynamic bodies
-    // counted from each): their count, the sum of their normal impulses (the last substep's, N s)
-    // and of their total normal impulses (v3's: everything applied in the step, the relax pass's
-    // and restitution's included).
-    std::size_t contact_points(float* normal_impulse, float* total_normal_impulse) const;
 
 private:
     struct Impl;
