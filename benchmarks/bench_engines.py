@@ -16,6 +16,7 @@ import pyb2d3 as b2
 
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world3
+from deepcontact.step.engines import SoftStep
 
 from common import arguments
 
@@ -61,7 +62,7 @@ def main():
     scene = generate("pile", 0)
     ours, bare = [], []
     for _ in range(args.repeats):   # interleaved: both see the same machine
-        world = build_world3(scene, substeps=4)
+        world = build_world3(scene, SoftStep(substeps=4))
         ours.append(timed(lambda: world.step(scene.dt), args.steps))
         mine = world.bodies()["position"]
         bw, bodies = bare_world(scene)

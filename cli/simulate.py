@@ -58,8 +58,16 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--write-scene", type=click.Path(dir_okay=False),
               help="Write the scene (for --seed) to this file and stop.")
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
+@click.option("--engine", type=click.Choice(["box2d", "box2d3"]), default="box2d", show_default=True,
+              help="box2d: Box2D 2.4.1 (Debian's); box2d3: Box2D v3 (3.1, the soft step; docs/engines.md).")
+@click.option("--substeps", type=options.count(min=1), help="[box2d3] Substeps per step (default 4).")
+@click.option("--contact-hertz", type=options.Finite(min=0, min_open=True),
+              help="[box2d3] Soft contact stiffness in Hz (default 30).")
+@click.option("--damping-ratio", type=options.Finite(min=0), help="[box2d3] Soft contact damping ratio (default 10).")
+@click.option("--push-speed", type=options.Finite(min=0),
+              help="[box2d3] The most speed (m/s) used to push overlapping bodies apart (default 3).")
 @click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
-              help="Box2D's own velocity solver, or the project's PGS in the loop.")
+              help="Box2D 2.4.1's own velocity solver, or the project's PGS in the loop.")
 @click.option("--start", type=options.choice("loop_start"),
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
 @click.option("--mode", type=options.choice("mode"),
@@ -86,9 +94,9 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @options.verbosity
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, compress, write_scene,
-             list_generators, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
+             list_generators, engine, substeps, contact_hertz, damping_ratio, push_speed, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
              max_memory, max_disk, overwrite, verbose, quiet):
-    """Simulate SCENE in Box2D and record every step as XML.
+    """Simulate SCENE in Box2D (2.4.1, or v3 with --engine box2d3) and record every step as XML.
 
     SCENE is a scene file (schemas/scene.xsd) or a built-in generator: pile (the
     thesis world), stack, pyramid, mass-ratio, card-house, arch, confined,
@@ -107,6 +115,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
       dc simulate my-scene.xml --steps 100 -o runs/mine
       dc simulate pile --solver pgs --start zero --tolerance 1e-4 --max-iterations 1000 -o runs/pgs
       dc simulate pile --solver pgs --tolerance 1e-4 --max-iterations 1000 --accelerate nncg --relaxation 1.3 -o runs/cg
+      dc simulate pile --engine box2d3 -o runs/pile-v3
+      dc simulate stack --engine box2d3 --substeps 8 -o runs/stack-v3
     """
     from deepcontact import atomic
     from deepcontact.scene.generators import GENERATORS, parameters
@@ -119,8 +129,13 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         ("seed", not given_seeds, "and --seeds: give one (--seed for one simulation, --seeds A..B for several)"),
         ("shard", given_seeds, "only applies with --seeds (it splits their range)"),
         ("out_dir", not write_scene, "does not apply with --write-scene (it writes the scene and stops)"),
-        ("iterations", solver == "box2d", "is Box2D's solver's velocity iterations; with --solver pgs the cap is "
-                                          "--max-iterations"),
+        ("iterations", solver == "box2d" and engine == "box2d",
+         "is Box2D 2.4.1's velocity iterations; with --solver pgs the cap is --max-iterations, and Box2D v3 "
+         "(--engine box2d3) has substeps (--substeps)"),
+        ("solver", engine == "box2d", "pgs steps Box2D 2.4.1 worlds; Box2D v3 (--engine box2d3) has its own "
+                                      "soft step"),
+        *((name, engine == "box2d3", "only applies with --engine box2d3")
+          for name in ("substeps", "contact_hertz", "damping_ratio", "push_speed")),
     ])
     if list_generators:   # (no SCENE needed)
         for name in GENERATORS:
@@ -148,7 +163,13 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
                         source(chosen[0]) if chosen else None, accelerate)
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
+    soft = None
+    if engine == "box2d3":
+        from deepcontact.step.engines import SoftStep
+        given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
+                 "push_speed": push_speed}
+        soft = SoftStep(**{k: v for k, v in given.items() if v is not None})
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
-        progress=bar, source=scene, loop=loop, max_disk=max_disk, compress=compress)
+        progress=bar, source=scene, loop=loop, max_disk=max_disk, compress=compress, soft=soft)
     if not quiet:
         click.echo(f"{out_dir}", err=False)

@@ -29,8 +29,8 @@ class ReplayReport:
 
 def replayable_run(run_dir):
     """The run --replay checks: finished (its step files checked against the manifest) or not."""
-    run = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver; this "
-                   "run used --solver pgs", unfinished=True)
+    run = read_run(run_dir, solver="box2d", purpose="--replay checks runs stepped by Box2D's own solver",
+                   unfinished=True)
     if not run.step_files:
         raise InputError("no step files found (expected seed-*/step-*.xml)", run_dir)
     return run

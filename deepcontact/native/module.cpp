@@ -86,11 +86,12 @@ py::dict to_dict(const dc::StepHeader& h) {
     d["dt_ratio"] = f32(h.dt_ratio);
     std::vector<float> g(h.gravity, h.gravity + 2);
     d["gravity"] = own(std::move(g), 2);
-    d["velocity_iterations"] = h.velocity_iterations;
-    d["position_iterations"] = h.position_iterations;
+    d["velocity_iterations"] = h.has_iterations ? py::object(py::int_(h.velocity_iterations)) : py::object(py::none());
+    d["position_iterations"] = h.has_iterations ? py::object(py::int_(h.position_iterations)) : py::object(py::none());
     d["solver"] = h.solver;
     d["effects"] = h.effects;
     d["versions"] = h.versions;
+    d["soft_step"] = h.soft_step.empty() ? py::object(py::none()) : py::object(py::cast(h.soft_step));
     d["solve"] = h.has_solve ? py::object(py::cast(h.solve)) : py::object(py::none());
     return d;
 }
@@ -253,23 +254,26 @@ PYBIND11_MODULE(_box2d, m) {
              py::arg("continuous") = false)
         .def(
             "step",
-            [](dc::World3& w, float dt) {
+            [](dc::World3& w, float dt, bool record) -> py::object {
                 if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
-                py::gil_scoped_release release;
-                w.step(dt);
+                if (!record) {
+                    py::gil_scoped_release release;
+                    w.step(dt);
+                    return py::none();
+                }
+                std::pair<BodyState, ContactState> done;
+                {
+                    py::gil_scoped_release release;
+                    done = w.step_recorded(dt);
+                }
+                return py::make_tuple(to_dict(std::move(done.first)), to_dict(std::move(done.second)));
             },
-            py::arg("dt"))
+            py::arg("dt"), py::arg("record") = false,
+            "One soft step. With record=True returns (bodies before the step, contacts solved in it).")
         .def("bodies", [](const dc::World3& w) { return to_dict(w.bodies()); })
         .def("remove_body", &dc::World3::remove_body, py::arg("index"))
-        .def("contacts",
-             [](const dc::World3& w) {
-                 auto columns = w.contact_columns();
-                 py::dict d;
-                 const char* names[] = {"separation", "normal_impulse", "tangent_impulse", "total_normal_impulse"};
-                 for (int i = 0; i < 4; ++i)
-                     d[names[i]] = py::array_t<float>(static_cast<py::ssize_t>(columns[i].size()), columns[i].data());
-                 return d;
-             });
+        .def("contacts", [](const dc::World3& w) { return to_dict(w.contacts()); },
+             "The touching contacts' points as a step file records them (the last step's manifolds).");
 #endif
 
     py::class_<dc::World, dc::SceneWorld>(m, "World")
@@ -333,8 +337,14 @@ PYBIND11_MODULE(_box2d, m) {
         .def_property_readonly("fixture_count", &dc::World::fixture_count);
 
     py::class_<dc::StepWriter>(m, "StepWriter")
-        .def(py::init<std::string, std::string, std::vector<std::string>, bool>(), py::arg("root_attributes"),
-             py::arg("header"), py::arg("shapes"), py::arg("damping"))
+        .def(py::init([](std::string root, std::string header, std::vector<std::string> shapes, bool damping,
+                         const std::string& engine) {
+                 if (engine != "box2d" && engine != "box2d3") throw py::value_error("engine must be box2d or box2d3");
+                 return std::make_unique<dc::StepWriter>(std::move(root), std::move(header), std::move(shapes), damping,
+                                                         engine == "box2d3" ? dc::Engine::box2d3 : dc::Engine::box2d);
+             }),
+             py::arg("root_attributes"), py::arg("header"), py::arg("shapes"), py::arg("damping"),
+             py::arg("engine") = "box2d")
         .def(
             "render",
             [](const dc::StepWriter& w, int64_t index, double time, float dt_ratio, const py::dict& bodies,

@@ -27,7 +27,8 @@
 // One row per manifold point of every contact the velocity solver sees, in island order: the
 // manifold in body frames, the world manifold, the material, the shapes' collision radii, the
 // solver's first iterate and what it produced. (The solver names bodies by row, not by scene
-// index: ContactColumns adds row_a and row_b.)
+// index: ContactColumns adds row_a and row_b.) The last three are Box2D v3's alone (zero in a
+// 2.4.1 step): its total normal impulse over the substeps and the point from each body's origin.
 #define DC_CONTACT_FIELDS(X)                 \
     X(int32_t, manifold, 1, 1)               \
     X(int32_t, island, 1, 0)                 \
@@ -55,7 +56,10 @@
     X(float, start_normal_impulse, 1, 0)     \
     X(float, start_tangent_impulse, 1, 0)    \
     X(float, normal_impulse, 1, 0)           \
-    X(float, tangent_impulse, 1, 0)
+    X(float, tangent_impulse, 1, 0)          \
+    X(float, total_normal_impulse, 1, 0)     \
+    X(float, anchor_a, 2, 0)                 \
+    X(float, anchor_b, 2, 0)
 
 // Generators for the tables. DC_IF_##solver keeps a solver row's text and drops the others'.
 #define DC_IF_0(...)

@@ -8,7 +8,9 @@
 //   element    "." for an attribute of the row element (<body>, <contact>) itself
 //   component  which value of a 2-wide field (0: x, 1: y)
 //   presence   always; nonzero: the element is written only where one of its values is not 0;
-//              declared: only when the scene declares the effect (damping)
+//              declared: only when the scene declares the effect (damping); box2d, box2d3: only
+//              in the steps of that engine (2.4.1's warm start and local manifold; v3's total
+//              impulse and anchors)
 //   names      for an enumerated field, its names in order (else nullptr)
 #pragma once
 
@@ -16,7 +18,17 @@
 
 namespace dc {
 
-enum class Presence : int8_t { always, nonzero, declared };
+enum class Presence : int8_t { always, nonzero, declared, box2d, box2d3 };
+
+// The engine a step file comes from (its <solver name>): which engine's rows it holds.
+enum class Engine : int8_t { box2d, box2d3 };
+
+// Whether a row of the given presence is in every file of an engine (nonzero and declared rows
+// are decided per row or per scene).
+constexpr bool required_in(Presence p, Engine e) {
+    return p == Presence::always || (p == Presence::box2d && e == Engine::box2d) ||
+           (p == Presence::box2d3 && e == Engine::box2d3);
+}
 
 inline const char* const kBodyTypeNames[] = {"static", "kinematic", "dynamic"};
 inline const char* const kManifoldTypeNames[] = {"circles", "face_a", "face_b"};
@@ -67,12 +79,17 @@ inline constexpr int kEnumNames = 3;   // names in each of the tables above
     X("material", "threshold", restitution_threshold, 0, always, nullptr)  \
     X("impulse", "n", normal_impulse, 0, always, nullptr)                  \
     X("impulse", "t", tangent_impulse, 0, always, nullptr)                 \
-    X("start", "n", start_normal_impulse, 0, always, nullptr)              \
-    X("start", "t", start_tangent_impulse, 0, always, nullptr)             \
-    X("manifold", "type", manifold_type, 0, always, dc::kManifoldTypeNames) \
-    X("manifold", "nx", local_normal, 0, always, nullptr)                  \
-    X("manifold", "ny", local_normal, 1, always, nullptr)                  \
-    X("manifold", "x", local_point, 0, always, nullptr)                    \
-    X("manifold", "y", local_point, 1, always, nullptr)                    \
-    X("manifold", "px", point_local, 0, always, nullptr)                   \
-    X("manifold", "py", point_local, 1, always, nullptr)
+    X("start", "n", start_normal_impulse, 0, box2d, nullptr)               \
+    X("start", "t", start_tangent_impulse, 0, box2d, nullptr)              \
+    X("total", "n", total_normal_impulse, 0, box2d3, nullptr)              \
+    X("manifold", "type", manifold_type, 0, box2d, dc::kManifoldTypeNames)  \
+    X("manifold", "nx", local_normal, 0, box2d, nullptr)                   \
+    X("manifold", "ny", local_normal, 1, box2d, nullptr)                   \
+    X("manifold", "x", local_point, 0, box2d, nullptr)                     \
+    X("manifold", "y", local_point, 1, box2d, nullptr)                     \
+    X("manifold", "px", point_local, 0, box2d, nullptr)                    \
+    X("manifold", "py", point_local, 1, box2d, nullptr)                    \
+    X("anchors", "ax", anchor_a, 0, box2d3, nullptr)                       \
+    X("anchors", "ay", anchor_a, 1, box2d3, nullptr)                       \
+    X("anchors", "bx", anchor_b, 0, box2d3, nullptr)                       \
+    X("anchors", "by", anchor_b, 1, box2d3, nullptr)

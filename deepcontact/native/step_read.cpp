@@ -171,7 +171,7 @@ struct Field {
     const char* attr;
     Column<State> column;
     int width = 1, component = 0;
-    bool optional = false;   // the file may leave it out (step_names.hpp: presence)
+    Presence presence = Presence::always;   // whether every row of a file holds it (step_names.hpp)
 };
 
 struct BodyWidths {
@@ -193,14 +193,14 @@ Column<State> column_of(std::vector<T> State::*member, const char* const* names)
 using B = BodyState;
 #define DC_BODY_READ(element, attr, field, component, presence, names)                                \
     Field<B>{element, attr, column_of<B>(&B::field, names), BodyWidths::field, component,           \
-             Presence::presence != Presence::always},
+             Presence::presence},
 const Field<B> kBodyFields[] = {DC_BODY_XML(DC_BODY_READ)};
 #undef DC_BODY_READ
 
 using C = ContactState;
 #define DC_CONTACT_READ(element, attr, field, component, presence, names)                             \
     Field<C>{element, attr, column_of<C>(&C::field, names), ContactWidths::field, component,        \
-             Presence::presence != Presence::always},
+             Presence::presence},
 const Field<C> kContactFields[] = {DC_CONTACT_XML(DC_CONTACT_READ)};
 #undef DC_CONTACT_READ
 static_assert(std::size(kContactFields) <= 64 && std::size(kBodyFields) <= 64, "one bit per field");
@@ -229,8 +229,14 @@ class Rows {
 public:
     template <size_t N>
     Rows(const Field<State> (&fields)[N], const char* row_element) : fields_(fields), count_(N), row_(row_element) {
-        for (size_t i = 0; i < N; ++i)
-            if (!fields[i].optional) required_ |= uint64_t(1) << i;
+        require(Engine::box2d);
+    }
+
+    // The fields every row of a step of this engine holds (the others may be left out: 0).
+    void require(Engine engine) {
+        required_ = 0;
+        for (size_t i = 0; i < count_; ++i)
+            if (required_in(fields_[i].presence, engine)) required_ |= uint64_t(1) << i;
     }
 
     void begin(State& s, size_t row) {
@@ -348,8 +354,10 @@ private:
 
 enum class At : uint8_t { Outside, Step, Header, Bodies, Body, Shape, Contacts, Contact, Other };
 
-// What a <header> must hold (a <solve> line may follow them).
-const char* const kHeaderParts[] = {"gravity", "iterations", "solver", "effects", "versions"};
+// What a <header> must hold (a <solve> line may follow them): 2.4.1's <iterations> or v3's
+// <soft_step>, as <solver name> says.
+const char* const kHeaderParts[] = {"gravity", "iterations", "solver", "soft_step", "effects", "versions"};
+constexpr uint32_t kIterationsPart = 1u << 1, kSoftStepPart = 1u << 3;
 
 struct Problem {
     std::string message;
@@ -385,6 +393,11 @@ struct Reader {
 
     long line() const { return ctxt ? xmlSAX2GetLineNumber(ctxt) : 0; }
 
+    Engine engine() const {
+        const auto name = out.header.solver.find("name");
+        return name != out.header.solver.end() && name->second == "box2d3" ? Engine::box2d3 : Engine::box2d;
+    }
+
     void fail(std::string message, long at = -1) {
         if (problem.message.empty()) problem = {std::move(message), at < 0 ? line() : at, 0};
         xmlStopParser(ctxt);
@@ -414,6 +427,7 @@ struct Reader {
                     here = At::Contacts;
                     contacts_line = line();
                     contacts_count = count_of(name, n_attributes, attributes);
+                    contacts.require(engine());
                     if (contacts_count > 0)
                         contacts.reserve(out.contacts, static_cast<size_t>(std::min<int64_t>(contacts_count, 1 << 20)));
                 }
@@ -554,6 +568,7 @@ struct Reader {
             });
             if (!(x && y) && problem.message.empty()) fail("<gravity> lacks x or y");
         } else if (named(name, "iterations")) {
+            h.has_iterations = true;
             for_each_attribute(n, attributes, [&](const Attribute& a) {
                 if (named(a.name, "velocity")) x = whole(h.velocity_iterations, "iterations", "velocity", a.value);
                 if (named(a.name, "position")) y = whole(h.position_iterations, "iterations", "position", a.value);
@@ -561,6 +576,8 @@ struct Reader {
             if (!(x && y) && problem.message.empty()) fail("<iterations> lacks velocity or position");
         } else if (named(name, "solver")) {
             copy(h.solver);
+        } else if (named(name, "soft_step")) {
+            copy(h.soft_step);
         } else if (named(name, "effects")) {
             copy(h.effects);
         } else if (named(name, "versions")) {
@@ -601,8 +618,9 @@ struct Reader {
     void finish() {
         if (!problem.message.empty()) return;
         if (header_line == 0) return fail("<step> has no <header>", 1);
+        const uint32_t other_engine = engine() == Engine::box2d3 ? kIterationsPart : kSoftStepPart;
         for (size_t k = 0; k < std::size(kHeaderParts); ++k)
-            if (!(header_seen >> k & 1))
+            if (!(header_seen >> k & 1) && !(other_engine >> k & 1))
                 return fail(std::string("<header> has no <") + kHeaderParts[k] + ">", header_line);
         if (bodies_line < 0) return fail("no <bodies> element", 1);
         if (contacts_line < 0) return fail("no <contacts> element", 1);

@@ -33,8 +33,10 @@ struct StepHeader {
     int64_t seed = 0, index = 0;
     float time = 0, dt = 0, dt_ratio = 0;
     float gravity[2] = {0, 0};
+    bool has_iterations = false;   // (a v3 step has none: its <soft_step> says how it stepped)
     int64_t velocity_iterations = 0, position_iterations = 0;
     Attributes solver, effects, versions;
+    Attributes soft_step;   // <soft_step>: a Box2D v3 step's settings (empty for 2.4.1)
     bool has_solve = false;
     Attributes solve;       // <solve>: how the project's solver stepped it (iterations, residual, ...)
 };

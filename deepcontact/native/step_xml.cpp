@@ -122,15 +122,16 @@ const Groups& groups(const Emit<View> (&table)[N]) {
 }
 
 // Writes row k's own attributes, closes its start tag, and writes its child elements; declared:
-// whether the scene declares the effects of Presence::declared rows.
+// whether the scene declares the effects of Presence::declared rows; engine: whose rows to write.
 template <class View, size_t N>
-void write_row(std::string& out, Attrs& a, const Emit<View> (&table)[N], const View& v, size_t k, bool declared) {
+void write_row(std::string& out, Attrs& a, const Emit<View> (&table)[N], const View& v, size_t k, bool declared,
+               Engine engine) {
     const Groups& g = groups(table);
     for (size_t i = 0; i < g.own; ++i) table[i].put(a, table[i].attr, v, k);
     out += ">\n";
     for (const auto& [begin, end] : g.children) {
         const Presence p = table[begin].presence;
-        bool shown = p == Presence::always || (p == Presence::declared && declared);
+        bool shown = required_in(p, engine) || (p == Presence::declared && declared);
         for (size_t i = begin; p == Presence::nonzero && !shown && i < end; ++i) shown = table[i].nonzero(v, k);
         if (!shown) continue;
         out += "      <";
@@ -149,9 +150,9 @@ void append_float(std::string& out, float value) {
 }
 
 StepWriter::StepWriter(std::string root_attributes, std::string header, std::vector<std::string> shapes,
-                       bool damping)
+                       bool damping, Engine engine)
     : root_attributes_(std::move(root_attributes)), header_(std::move(header)), shapes_(std::move(shapes)),
-      damping_(damping) {}
+      damping_(damping), engine_(engine) {}
 
 std::string StepWriter::render(int64_t index, double time, float dt_ratio, const BodyView& b,
                                const ContactView& c, const std::string& extra_header) const {
@@ -177,7 +178,7 @@ std::string StepWriter::render(int64_t index, double time, float dt_ratio, const
             throw std::out_of_range("body index " + std::to_string(idx) + " has no shape");
         Attrs a(out, "body", idx);
         out += "    <body";
-        write_row(out, a, kBodyEmit, b, k, damping_);
+        write_row(out, a, kBodyEmit, b, k, damping_, engine_);
         out += shapes_[idx];
         out += "    </body>\n";
     }
@@ -188,7 +189,7 @@ std::string StepWriter::render(int64_t index, double time, float dt_ratio, const
         Attrs a(out, "contact", static_cast<int64_t>(k));
         out += "    <contact";
         a.i("index", static_cast<int64_t>(k));   // (its row in the file, not a recorded field)
-        write_row(out, a, kContactEmit, c, k, true);
+        write_row(out, a, kContactEmit, c, k, true, engine_);
         out += "    </contact>\n";
     }
     out += "  </contacts>\n</step>\n";

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "records.hpp"
+#include "step_names.hpp"
 
 namespace dc {
 
@@ -27,9 +28,10 @@ class StepWriter {
 public:
     // root_attributes: the attributes of <step> common to every step of a simulation;
     // header: the <header> element's opening and common lines (render adds the per-step
-    // extra_header and closes it); shapes[i]: the <shape> element of body i.
+    // extra_header and closes it); shapes[i]: the <shape> element of body i; damping: whether
+    // the scene declares it; engine: which engine's rows the contacts hold (step_names.hpp).
     StepWriter(std::string root_attributes, std::string header, std::vector<std::string> shapes,
-               bool damping);
+               bool damping, Engine engine = Engine::box2d);
     // Raises std::domain_error naming the field if any value is NaN or infinite.
     std::string render(int64_t index, double time, float dt_ratio, const BodyView& bodies,
                        const ContactView& contacts, const std::string& extra_header) const;
@@ -38,6 +40,7 @@ private:
     std::string root_attributes_, header_;
     std::vector<std::string> shapes_;
     bool damping_;
+    Engine engine_;
 };
 
 // Appends the shortest round-trip text of a float32 value.

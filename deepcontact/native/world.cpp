@@ -341,6 +341,9 @@ void World::emit(ContactState& s, b2Contact* c, int island, int manifold, const 
         s.start_tangent_impulse.push_back(start ? (*start)[2 * j + 1] : 0.0f);
         s.normal_impulse.push_back(p.normalImpulse);
         s.tangent_impulse.push_back(p.tangentImpulse);
+        s.total_normal_impulse.push_back(0.0f);   // (v3's fields: no 2.4.1 counterpart)
+        s.anchor_a.insert(s.anchor_a.end(), {0.0f, 0.0f});
+        s.anchor_b.insert(s.anchor_b.end(), {0.0f, 0.0f});
     }
 }
 

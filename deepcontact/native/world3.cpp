@@ -9,6 +9,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -20,9 +21,20 @@ namespace v3 {
 namespace dc {
 
 struct World3::Impl {
+    struct ShapeInfo {
+        int32_t body = -1, number = -1;   // scene indices of its body and of the shape
+        float friction = 0, restitution = 0, radius = 0;
+    };
     v3::b2WorldId world;
     std::vector<v3::b2BodyId> bodies;   // scene index order
-    int shapes = 0;
+    std::vector<ShapeInfo> shapes;      // by v3's shape id (index1)
+    int shape_count = 0;
+
+    int add(int body, v3::b2ShapeId id, const Material& m, float radius) {
+        if (shapes.size() <= static_cast<std::size_t>(id.index1)) shapes.resize(id.index1 + 1);
+        shapes[id.index1] = ShapeInfo{body, shape_count, m.friction, m.restitution, radius};
+        return shape_count++;
+    }
     SoftStep soft;
     float restitution_threshold;
 };
@@ -79,8 +91,7 @@ int World3::add_circle(int body, float radius, float cx, float cy, const Materia
     if (!(radius > 0.0f)) throw std::invalid_argument("circle radius must be positive");
     const v3::b2ShapeDef def = shape_def(m);
     const v3::b2Circle circle{v3::b2Vec2{cx, cy}, radius};
-    v3::b2CreateCircleShape(impl_->bodies.at(body), &def, &circle);
-    return impl_->shapes++;
+    return impl_->add(body, v3::b2CreateCircleShape(impl_->bodies.at(body), &def, &circle), m, radius);
 }
 
 int World3::add_polygon(int body, const std::vector<float>& xy, const Material& m) {
@@ -90,18 +101,22 @@ int World3::add_polygon(int body, const std::vector<float>& xy, const Material& 
     if (hull.count == 0) throw std::invalid_argument("a polygon Box2D v3 cannot hull (collinear or too small)");
     const v3::b2Polygon polygon = v3::b2MakePolygon(&hull, 0.0f);
     const v3::b2ShapeDef def = shape_def(m);
-    v3::b2CreatePolygonShape(impl_->bodies.at(body), &def, &polygon);
-    return impl_->shapes++;
+    return impl_->add(body, v3::b2CreatePolygonShape(impl_->bodies.at(body), &def, &polygon), m, 0.0f);
 }
 
 int World3::add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) {
     const v3::b2Segment segment{v3::b2Vec2{x1, y1}, v3::b2Vec2{x2, y2}};
     const v3::b2ShapeDef def = shape_def(m);
-    v3::b2CreateSegmentShape(impl_->bodies.at(body), &def, &segment);
-    return impl_->shapes++;
+    return impl_->add(body, v3::b2CreateSegmentShape(impl_->bodies.at(body), &def, &segment), m, 0.0f);
 }
 
 void World3::step(float dt) { v3::b2World_Step(impl_->world, dt, impl_->soft.substeps); }
+
+std::pair<BodyState, ContactState> World3::step_recorded(float dt) {
+    BodyState before = bodies();
+    step(dt);
+    return {std::move(before), contacts()};
+}
 
 void World3::remove_body(int body) {
     v3::b2BodyId& b = impl_->bodies.at(body);
@@ -109,25 +124,106 @@ void World3::remove_body(int body) {
     v3::b2DestroyBody(b);
 }
 
-std::vector<std::vector<float>> World3::contact_columns() const {
-    std::vector<std::vector<float>> out(4);
+namespace {
+
+// Islands as 2.4.1 numbers them: bodies joined by contacts, never through a static body,
+// numbered in the order the contacts first reach them.
+std::vector<int32_t> islands_of(const ContactState& c, const std::vector<int8_t>& is_static) {
+    std::vector<int32_t> parent(is_static.size());
+    for (std::size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int32_t>(i);
+    auto root = [&](int32_t i) {
+        while (parent[i] != i) i = parent[i] = parent[parent[i]];
+        return i;
+    };
+    for (std::size_t k = 0; k < c.size(); ++k) {
+        const int32_t a = c.body_a[k], b = c.body_b[k];
+        if (!is_static[a] && !is_static[b]) parent[root(a)] = root(b);
+    }
+    std::vector<int32_t> number(parent.size(), -1), out(c.size());
+    int32_t next = 0;
+    for (std::size_t k = 0; k < c.size(); ++k) {
+        const int32_t body = is_static[c.body_a[k]] ? c.body_b[k] : c.body_a[k];
+        int32_t& n = number[root(body)];
+        if (n < 0) n = next++;
+        out[k] = n;
+    }
+    return out;
+}
+
+}  // namespace
+
+ContactState World3::contacts() const {
+    ContactState s;
     std::vector<v3::b2ContactData> data;
+    std::vector<int8_t> is_static(impl_->bodies.size(), 0);
+    int32_t manifold = 0;
     for (std::size_t i = 0; i < impl_->bodies.size(); ++i) {
         const v3::b2BodyId b = impl_->bodies[i];
         if (!v3::b2Body_IsValid(b)) continue;
+        is_static[i] = v3::b2Body_GetType(b) == v3::b2_staticBody;
         data.resize(static_cast<std::size_t>(v3::b2Body_GetContactCapacity(b)));
         const int n = v3::b2Body_GetContactData(b, data.data(), static_cast<int>(data.size()));
         for (int k = 0; k < n; ++k) {
+            const v3::b2ShapeId sa = data[k].shapeIdA, sb = data[k].shapeIdB;
             // each contact once: from the body of shape A
-            if (v3::b2Shape_GetBody(data[k].shapeIdA).index1 != b.index1) continue;
+            if (v3::b2Shape_GetBody(sa).index1 != b.index1) continue;
             const v3::b2Manifold& m = data[k].manifold;
+            if (m.pointCount == 0) continue;
+            const Impl::ShapeInfo& a = impl_->shapes.at(sa.index1), &c = impl_->shapes.at(sb.index1);
+            // v3's default mixing rules (b2MixFriction, b2MixRestitution), as 2.4.1's
+            const float friction = std::sqrt(a.friction * c.friction);
+            const float restitution = std::max(a.restitution, c.restitution);
             for (int j = 0; j < m.pointCount; ++j) {
-                out[0].push_back(m.points[j].separation);
-                out[1].push_back(m.points[j].normalImpulse);
-                out[2].push_back(m.points[j].tangentImpulse);
-                out[3].push_back(m.points[j].totalNormalImpulse);
+                const v3::b2ManifoldPoint& p = m.points[j];
+                s.manifold.push_back(manifold);
+                s.island.push_back(0);
+                s.point.push_back(static_cast<int8_t>(j));
+                s.point_count.push_back(static_cast<int8_t>(m.pointCount));
+                s.manifold_type.push_back(0);   // (2.4.1's local manifold: v3 has none)
+                s.body_a.push_back(a.body);
+                s.body_b.push_back(c.body);
+                s.fixture_a.push_back(a.number);
+                s.fixture_b.push_back(c.number);
+                s.child_a.push_back(0);
+                s.child_b.push_back(0);
+                s.id_key.push_back(p.id);
+                s.local_normal.insert(s.local_normal.end(), {0.0f, 0.0f});
+                s.local_point.insert(s.local_point.end(), {0.0f, 0.0f});
+                s.point_local.insert(s.point_local.end(), {0.0f, 0.0f});
+                s.position.insert(s.position.end(), {p.point.x, p.point.y});
+                s.normal.insert(s.normal.end(), {m.normal.x, m.normal.y});
+                s.separation.push_back(p.separation);
+                s.friction.push_back(friction);
+                s.restitution.push_back(restitution);
+                s.restitution_threshold.push_back(impl_->restitution_threshold);
+                s.radius_a.push_back(a.radius);
+                s.radius_b.push_back(c.radius);
+                s.start_normal_impulse.push_back(0.0f);
+                s.start_tangent_impulse.push_back(0.0f);
+                s.normal_impulse.push_back(p.normalImpulse);
+                s.tangent_impulse.push_back(p.tangentImpulse);
+                s.total_normal_impulse.push_back(p.totalNormalImpulse);
+                s.anchor_a.insert(s.anchor_a.end(), {p.anchorA.x, p.anchorA.y});
+                s.anchor_b.insert(s.anchor_b.end(), {p.anchorB.x, p.anchorB.y});
             }
+            ++manifold;
         }
+    }
+    s.island = islands_of(s, is_static);
+    // island order (a manifold's points stay together), manifolds renumbered in it
+    std::vector<std::size_t> order(s.size());
+    for (std::size_t k = 0; k < order.size(); ++k) order[k] = k;
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) { return s.island[x] < s.island[y]; });
+    ContactState out;
+#define DC_PERMUTE(T, name, width, solver)                                          \
+    out.name.reserve(s.name.size());                                                \
+    for (std::size_t k : order)                                                     \
+        out.name.insert(out.name.end(), s.name.begin() + width * k, s.name.begin() + width * (k + 1));
+    DC_CONTACT_FIELDS(DC_PERMUTE)
+#undef DC_PERMUTE
+    for (std::size_t k = 0, next = 0; k < out.size(); ++k) {
+        if (k > 0 && s.manifold[order[k]] != s.manifold[order[k - 1]]) ++next;
+        out.manifold[k] = static_cast<int32_t>(next);
     }
     return out;
 }

@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "state.hpp"
@@ -34,11 +35,14 @@ public:
     int add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) override;
 
     void step(float dt);
+    // One step, recorded as a step file holds it: the bodies before it, its contacts.
+    std::pair<BodyState, ContactState> step_recorded(float dt);
     void remove_body(int body);
     BodyState bodies() const;
-    // Every manifold point of every touching contact, once: separation (m), the last substep's
-    // normal and tangent impulses and v3's total normal impulse (N s), as columns.
-    std::vector<std::vector<float>> contact_columns() const;
+    // Every manifold point of every touching contact once, as a step file records it: the
+    // manifold the last step solved (its points where the bodies were before the step) and
+    // the impulses of its last substep, v3's total normal impulse, in island order.
+    ContactState contacts() const;
 
 private:
     struct Impl;

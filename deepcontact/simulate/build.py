@@ -3,6 +3,7 @@ import numpy as np
 
 from .._box2d import World
 from ..errors import InputError
+from ..step.engines import SoftStep
 from ..scene.check import overlap_tolerance
 
 _TYPE = {"static": 0, "kinematic": 1, "dynamic": 2}
@@ -42,19 +43,21 @@ def _add_bodies(world, scene, linear, angular):
                 world.add_edge(index, s.x1, s.y1, s.x2, s.y2, **material)
 
 
-def build_world3(scene, substeps=4, contact_hertz=30.0, damping_ratio=10.0, push_speed=3.0,
-                 warm_starting=True):
-    """The scene as a Box2D v3 world (the soft step: `substeps` per step; v3's defaults), with the
-    same bodies, shapes, materials and effects as build_world's. InputError where this build has
-    no Box2D v3 (pyb2d3 was not installed when the module was built)."""
+def build_world3(scene, soft=None):
+    """The scene as a Box2D v3 world stepped with the soft step `soft` (a step.engines.SoftStep;
+    v3's defaults if None), with the same bodies, shapes, materials and effects as build_world's;
+    warm starting, sleeping and continuous collision as the scene says. InputError where this
+    build has no Box2D v3 (pyb2d3 was not installed when the module was built)."""
     from .. import _box2d
     if not hasattr(_box2d, "World3"):
         raise InputError("this build has no Box2D v3: install pyb2d3==0.11.1 and rebuild (make setup)")
+    soft = SoftStep() if soft is None else soft
     e = scene.effects
     gravity = e.gravity if e.gravity is not None else (0.0, 0.0)
     linear, angular = e.damping if e.damping is not None else (0.0, 0.0)
-    world = _box2d.World3(*gravity, substeps=substeps, contact_hertz=contact_hertz, damping_ratio=damping_ratio,
-                          push_speed=push_speed, warm_starting=warm_starting,
+    world = _box2d.World3(*gravity, substeps=soft.substeps, contact_hertz=soft.contact_hertz,
+                          damping_ratio=soft.damping_ratio, push_speed=soft.push_speed,
+                          warm_starting=scene.solver.warm_starting,
                           restitution_threshold=e.restitution_threshold, sleeping=scene.solver.sleeping,
                           continuous=e.continuous)
     _add_bodies(world, scene, linear, angular)

@@ -31,7 +31,7 @@ from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
-from .build import build_world, check_overlaps
+from .build import build_world, build_world3, check_overlaps
 from . import stepping
 from .pgs_loop import LoopOptions, PGSStepper, check_scene_for_loop
 
@@ -118,17 +118,22 @@ def _solve_xml(options, solution):
 
 
 def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None,
-                   compress=False) -> SimulationResult:
+                   compress=False, soft=None) -> SimulationResult:
     """Simulate one scene into out_dir (which must exist). on_step(k) is called after each step.
 
     loop: LoopOptions to step with the project's PGS instead of Box2D's own solver.
+    soft: a SoftStep (step.engines) to step with Box2D v3 instead of 2.4.1 (not with loop).
     compress: write step-NNNNNN.xml.gz (gzip) instead of plain XML."""
     out_dir = Path(out_dir)
     scene_xml = to_xml(scene)
     atomic.write_bytes(out_dir / "scene.xml", scene_xml)
-    world = build_world(scene)
-    writer = step_writer(scene, seed, "box2d" if loop is None else "pgs")
-    step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
+    if soft is not None:
+        world = build_world3(scene, soft)
+        step = stepping.box2d3(world, scene)
+    else:
+        world = build_world(scene)
+        step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
+    writer = step_writer(scene, seed, "box2d" if loop is None else "pgs", soft)
     extent = Extent(scene)
     per_file = []   # contact points of each file written (a skipped step has none)
     capped = 0
@@ -191,26 +196,33 @@ def prepare_output(out_dir, seeds):
 
 
 def _worker(args):
-    make_scene, seed, out_dir, skip, loop, compress = args
+    make_scene, seed, out_dir, skip, loop, compress, soft = args
     scene = make_scene(seed)
-    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop, compress=compress)
+    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop, compress=compress,
+                          soft=soft)
 
 
 def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, *, overwrite: bool = False,
         skip_contactless: bool = False, jobs: int = 1, progress: Callable | None = None, source: str | None = None,
-        loop: LoopOptions | None = None, max_disk: float | None = None, compress: bool = False) -> dict:
+        loop: LoopOptions | None = None, max_disk: float | None = None, compress: bool = False,
+        soft=None) -> dict:
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
     of steps (or progress is None). max_disk: refuse runs estimated above this many GB (the free
-    space is always a limit). compress: gzip every step file. Returns the manifest as a dict."""
+    space is always a limit). compress: gzip every step file. soft: a SoftStep (step.engines) to
+    step with Box2D v3 (None: Box2D 2.4.1). Returns the manifest as a dict."""
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
+    if soft is not None and loop is not None:
+        raise InputError("the project's solver in the loop steps Box2D 2.4.1 worlds, not Box2D v3")
     # Build (and check) the first scene before touching the output folder.
     first = make_scene(seeds[0])
     check_overlaps(first, source)
     if loop is not None:
         check_scene_for_loop(first, source)
+    if soft is not None:
+        build_world3(first, soft)   # (a polygon v3 cannot hull is refused here, naming it)
     out_dir = Path(out_dir)
     with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
         # (by fixtures as well as bodies: a body of many fixtures makes many contact points)
@@ -219,7 +231,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
         check_disk(len(seeds) * first.steps * per_step, out_dir, max_disk,
                    f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
-                             progress, source, loop, compress)
+                             progress, source, loop, compress, soft)
     log.info("wrote %s, %s to %s", count(len(manifest["simulations"]), "simulation"),
              count(sum(r["files"] for r in manifest["simulations"]), "step file"), os.fspath(out_dir))
     capped = sum(r.get("capped") or 0 for r in manifest["simulations"])
@@ -230,22 +242,24 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     return manifest
 
 
-def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop, compress):
+def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop, compress, soft):
     if progress is not None:
         progress = progress(first.steps * len(seeds))
     try:
         results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop,
-                                compress)
+                                compress, soft)
     finally:
         if progress is not None:
             progress.close()
-    return write_manifest(out_dir, first, source=source, solver="box2d" if loop is None else "pgs",
+    solver = "box2d3" if soft is not None else "box2d" if loop is None else "pgs"
+    return write_manifest(out_dir, first, source=source, solver=solver,
                           pgs=None if loop is None else dict(loop.__dict__), skip_contactless=skip_contactless,
                           compression="gzip" if compress else "none",
-                          simulations=[r.__dict__ for r in results])
+                          simulations=[r.__dict__ for r in results], soft=soft)
 
 
-def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop, compress):
+def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop, compress,
+                  soft):
     results = []
     if jobs <= 1:
         for seed in seeds:
@@ -254,12 +268,12 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
                 check_overlaps(scene, source)
             tick = (lambda k: progress.update(1)) if progress is not None else None
             results.append(run_simulation(scene, out_dir / sim_dirname(seed), seed, skip_contactless, tick,
-                                          loop=loop, compress=compress))
+                                          loop=loop, compress=compress, soft=soft))
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
         with workers.pool(jobs) as pool:
-            tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop, compress) for seed in seeds)
+            tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop, compress, soft) for seed in seeds)
             for r in pool.imap_unordered(_worker, tasks):
                 results.append(r)
                 if progress is not None:

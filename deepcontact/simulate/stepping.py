@@ -39,14 +39,18 @@ def box2d(world, scene, velocity_iterations=None, record=True):
     return step
 
 
-def box2d3(world, scene):
+def box2d3(world, scene, record=True):
     """A step function for a Box2D v3 world (build.build_world3: the soft step, its substeps as
-    the world was built): the contact points after the step (separation, impulses), no step file
-    records (v3's are not written yet)."""
+    the world was built). Recording, it gives what a step file holds: the bodies before the step
+    and its contact points (the manifolds the step solved, the last substep's impulses); without,
+    the contact points alone (the measures need their separations)."""
     def step():
-        world.step(scene.dt)
-        contacts = world.contacts()
-        return LoopStep(None, contacts, None, deepest(contacts), dt_ratio=1.0)
+        if record:
+            bodies, contacts = world.step(scene.dt, record=True)
+        else:
+            world.step(scene.dt)
+            bodies, contacts = None, world.contacts()
+        return LoopStep(bodies, contacts, None, deepest(contacts), dt_ratio=1.0)
     return step
 
 

@@ -51,6 +51,12 @@ def _rows(index, bodies):
     return rows.astype(np.int32)
 
 
+# Why a v3 step has no contact problem here (replay, dc validate --replay, dc evaluate, export).
+V3_REFUSED = ("a Box2D v3 step (solver box2d3): its soft step (substeps, soft contacts, a relax pass) does "
+              "not pose Box2D 2.4.1's contact problem, which replaying and evaluating solve; simulate with "
+              "--engine box2d for that")
+
+
 @dataclass
 class StepProblem:
     """One step's contact problem as Box2D poses it: the bodies, the contact points (manifolds,
@@ -99,7 +105,11 @@ class StepProblem:
 
     @classmethod
     def from_step(cls, header, bodies, contacts, path=None):
-        """From what step.reader.read_step returns; errors name `path`."""
+        """From what step.reader.read_step returns; errors name `path`. A Box2D v3 step is refused:
+        its soft step (substeps, soft contacts, relax) is not the contact problem posed here."""
+        from ..step.engines import engine_of
+        if engine_of(header) == "box2d3":
+            raise InputError(V3_REFUSED, path)
         block = header["solver"].get("block_solve")
         if block not in ("true", "false", "1", "0"):
             raise InputError(f"<solver block_solve> must be true or false, got {block!r}", path)

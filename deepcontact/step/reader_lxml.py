@@ -145,11 +145,12 @@ class _Columns:
     def _name(self, element):
         return self.child if element == "." else element
 
-    def read(self, fields, only=None):
-        """The columns of every field (or of those named in `only`) the file must hold for each row."""
+    def read(self, fields, only=None, engine="box2d"):
+        """The columns of every field (or of those named in `only`) a file of this engine must
+        hold for each row."""
         out = {}
         for field, (element, attrs, dtype, names, presence) in fields.items():
-            if presence != "always" or (only is not None and field not in only):
+            if presence not in ("always", engine) or (only is not None and field not in only):
                 continue
             if names is not None:
                 out[field] = self.named(element, attrs[0], names)
@@ -165,18 +166,21 @@ class _Columns:
             raise InputError(f"a <{self._name(element)} {attr}> is not one of {', '.join(names)}", self.path)
         return values
 
-    def optional(self, fields, key):
-        """The columns of the fields whose elements the file may leave out (0 where it does), each
-        row found by its `key` attribute (a body's index)."""
+    def optional(self, fields, key, engine="box2d"):
+        """The columns of the fields whose elements a file of this engine may leave out (0 where it
+        does), each row found by its `key` attribute (a body's index, a contact's row)."""
         rows = {int(i): k for k, i in enumerate(self.text(".", key))}
         out = {}
         for field, (element, attrs, dtype, names, presence) in fields.items():
-            if presence == "always":
+            if presence in ("always", engine):
                 continue
             column = np.zeros((self.n, len(attrs)) if len(attrs) > 1 else self.n, dtype)
             for el in self.root.xpath(f"{self.base}[{element}]"):
                 found = el.find(element)
-                column[rows[int(el.get(key))]] = [found.get(a) for a in attrs] if len(attrs) > 1 else found.get(attrs[0])
+                values = [found.get(a) for a in attrs]
+                if names is not None:
+                    values = [names.index(v) for v in values]
+                column[rows[int(el.get(key))]] = values if len(attrs) > 1 else values[0]
             out[field] = column
         return out
 
@@ -185,19 +189,25 @@ def read_step(path, validate=True):
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
     root = _parse(path, validate)
     h = _child(root, "header", path)
-    gravity, iterations = _child(h, "gravity", path), _child(h, "iterations", path)
+    solver = dict(_child(h, "solver", path).attrib)
+    engine = "box2d3" if solver.get("name") == "box2d3" else "box2d"
+    gravity = _child(h, "gravity", path)
+    # 2.4.1's step says its iterations; a v3 step its soft step's settings
+    iterations = _child(h, "iterations", path) if engine == "box2d" else None
+    soft = _child(h, "soft_step", path) if engine == "box2d3" else None
     header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path),
                   time=_float(root, "time", path), dt=_float(root, "dt", path), dt_ratio=_float(root, "dt_ratio", path),
                   gravity=np.array([_float(gravity, "x", path), _float(gravity, "y", path)], np.float32),
-                  velocity_iterations=_count(iterations, "velocity", path),
-                  position_iterations=_count(iterations, "position", path),
-                  solver=dict(_child(h, "solver", path).attrib), effects=dict(_child(h, "effects", path).attrib),
+                  velocity_iterations=None if iterations is None else _count(iterations, "velocity", path),
+                  position_iterations=None if iterations is None else _count(iterations, "position", path),
+                  solver=solver, effects=dict(_child(h, "effects", path).attrib),
                   versions=dict(_child(h, "versions", path).attrib),
-                  solve=dict(h.find("solve").attrib) if h.find("solve") is not None else None)
+                  solve=dict(h.find("solve").attrib) if h.find("solve") is not None else None,
+                  soft_step=None if soft is None else dict(soft.attrib))
 
     bc = _Columns(root, path, "bodies", "body")
-    b = bc.read(_BODY)
-    b.update(bc.optional(_BODY, "index"))   # (elements written only where not zero, or declared)
+    b = bc.read(_BODY, engine=engine)
+    b.update(bc.optional(_BODY, "index", engine))   # (elements written only where not zero, or declared)
     b["gravity_scale"] = np.ones(bc.n, np.float32)   # scenes have no per-body gravity scale
     try:
         radius = dict(zip(map(int, root.xpath("bodies/body/shape/*/@fixture")),
@@ -206,7 +216,8 @@ def read_step(path, validate=True):
         raise InputError("a shape's fixture or radius is not a number", path) from None
 
     cc = _Columns(root, path, "contacts", "contact")
-    c = cc.read(_CONTACT)
+    c = cc.read(_CONTACT, engine=engine)
+    c.update(cc.optional(_CONTACT, "index", engine))   # (the other engine's elements: 0)
     try:
         c["radius_a"] = np.array([radius[f] for f in c["fixture_a"].tolist()], np.float32)
         c["radius_b"] = np.array([radius[f] for f in c["fixture_b"].tolist()], np.float32)

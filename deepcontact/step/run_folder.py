@@ -127,13 +127,16 @@ def require_regular(path):
     return path
 
 
-def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, simulations, compression="none"):
+def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, simulations, compression="none",
+                   soft=None):
     """The run's manifest, written last (its presence means the run is complete); returns it.
     scene: the first simulation's scene; simulations: one dict per simulation (seed, dir,
-    steps, files, contact_points, scene_sha256, extent)."""
+    steps, files, contact_points, scene_sha256, extent); soft: a Box2D v3 run's SoftStep."""
     from .. import __version__, atomic
     from .._box2d import box2d_version
     from ..scene.xml import fmt
+    if soft is not None:
+        from .._box2d import box2d3_version as box2d_version
     manifest = {
         "format": 1,
         "kind": "deepcontact-run",
@@ -143,8 +146,10 @@ def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, sim
         "params": scene.params,
         "solver": solver,
         "pgs": pgs,
-        "velocity_iterations": scene.solver.velocity_iterations,
-        "position_iterations": scene.solver.position_iterations,
+        "engine": "box2d" if soft is None else "box2d3",
+        "velocity_iterations": scene.solver.velocity_iterations if soft is None else None,
+        "position_iterations": scene.solver.position_iterations if soft is None else None,
+        **({} if soft is None else {"soft_step": dict(soft.__dict__)}),
         "dt": float(fmt(scene.dt)),
         "skip_contactless": skip_contactless,
         "compression": compression,
@@ -182,6 +187,11 @@ def simulation_folder(run_dir, name, manifest_path):
     return Path(run_dir) / name
 
 
+# What stepped a run, by its manifest's solver (for messages).
+STEPPED_BY = {"box2d": "Box2D 2.4.1's own solver", "pgs": "the project's solver (--solver pgs)",
+              "box2d3": "Box2D v3 (--engine box2d3), whose soft step does not pose 2.4.1's contact problem"}
+
+
 def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str | None = None,
              unfinished: bool = False) -> Run:
     """A finished run: its manifest and each simulation's step files, counted against it.
@@ -198,7 +208,8 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
     m = read_manifest(run_dir)
     path = run_dir / MANIFEST
     if solver is not None and m.get("solver", "box2d") != solver:
-        raise InputError(purpose or f"this needs a run of the {solver} solver", path)
+        raise InputError(f"{purpose or f'this needs a run of the {solver} solver'}; this run was stepped by "
+                         f"{STEPPED_BY.get(m.get('solver'), repr(m.get('solver')))}", path)
     sims, seen = [], {}
     for i, e in enumerate(m["simulations"]):
         if not isinstance(e, dict):

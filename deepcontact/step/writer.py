@@ -7,6 +7,7 @@ from .. import __version__
 from .._box2d import StepWriter, box2d_version, polygon_radius
 from ..scene.xml import fmt
 from ..xmltext import quoteattr
+from .engines import RELAX_ITERATIONS, V3_SOLVER
 
 FORMAT = 1
 # gzip level of compressed runs: level 1 makes a pile step about 6x smaller at under a
@@ -18,7 +19,7 @@ def _bool(v):
     return "true" if v else "false"
 
 
-def _shape_xml(scene, fixture, shape):
+def _shape_xml(scene, fixture, shape, skin):
     friction = fmt(scene.friction_of(shape))
     restitution = fmt(scene.restitution_of(shape))
     tail = f' friction="{friction}" restitution="{restitution}" fixture="{fixture}"'
@@ -27,45 +28,61 @@ def _shape_xml(scene, fixture, shape):
                 f'density="{fmt(shape.density)}"{tail}/>\n')
     if shape.kind == "edge":
         return (f'        <edge x1="{fmt(shape.x1)}" y1="{fmt(shape.y1)}" x2="{fmt(shape.x2)}" '
-                f'y2="{fmt(shape.y2)}" radius="{fmt(polygon_radius)}"{tail}/>\n')
+                f'y2="{fmt(shape.y2)}" radius="{fmt(skin)}"{tail}/>\n')
     verts = "".join(f'          <vertex x="{fmt(x)}" y="{fmt(y)}"/>\n' for x, y in shape.vertices)
-    return (f'        <polygon density="{fmt(shape.density)}" radius="{fmt(polygon_radius)}"{tail}>\n'
+    return (f'        <polygon density="{fmt(shape.density)}" radius="{fmt(skin)}"{tail}>\n'
             f'{verts}        </polygon>\n')
 
 
-def body_shapes(scene):
-    """The <shape> element of every body, by body index, with fixture indices."""
+def body_shapes(scene, soft=None):
+    """The <shape> element of every body, by body index, with fixture indices; soft: a Box2D v3
+    run's SoftStep (its polygons and segments have no skin: radius 0)."""
+    skin = polygon_radius if soft is None else 0.0
     out, fixture = [], 0
     for body in scene.bodies:
         parts = []
         for shape in body.shapes:
-            parts.append(_shape_xml(scene, fixture, shape))
+            parts.append(_shape_xml(scene, fixture, shape, skin))
             fixture += 1
         out.append("      <shape>\n" + "".join(parts) + "      </shape>\n")
     return out
 
 
-def header_xml(scene, solver="box2d"):
+def header_xml(scene, solver="box2d", soft=None):
+    """The <header>'s lines common to every step; soft: a Box2D v3 run's SoftStep (solver is
+    then box2d3, and <soft_step> takes the place of <iterations>)."""
     e, s = scene.effects, scene.solver
     g = e.gravity if e.gravity is not None else (0.0, 0.0)
     on = set(e.names())
     effects = " ".join(f'{n}="{_bool(n in on)}"'
                        for n in ("gravity", "friction", "restitution", "damping", "continuous"))
+    if soft is None:
+        iterations, engine_lines = f'    <iterations velocity="{s.velocity_iterations}" position="{s.position_iterations}"/>\n', ""
+        version = box2d_version
+    else:
+        from .._box2d import box2d3_version
+        solver, iterations, version = V3_SOLVER, "", box2d3_version
+        engine_lines = (f'    <soft_step substeps="{soft.substeps}" contact_hertz="{fmt(soft.contact_hertz)}" '
+                        f'damping_ratio="{fmt(soft.damping_ratio)}" push_speed="{fmt(soft.push_speed)}" '
+                        f'restitution_threshold="{fmt(e.restitution_threshold)}" '
+                        f'relax_iterations="{RELAX_ITERATIONS}"/>\n')
     return ("  <header>\n"
             f'    <gravity x="{fmt(g[0])}" y="{fmt(g[1])}"/>\n'
-            f'    <iterations velocity="{s.velocity_iterations}" position="{s.position_iterations}"/>\n'
+            f"{iterations}"
             f'    <solver name={quoteattr(solver)} warm_starting="{_bool(s.warm_starting)}" '
-            f'block_solve="{_bool(s.block_solve)}" continuous="{_bool(e.continuous)}" '
+            f'block_solve="{_bool(s.block_solve and soft is None)}" continuous="{_bool(e.continuous)}" '
             f'sleeping="{_bool(s.sleeping)}"/>\n'
+            f"{engine_lines}"
             f"    <effects {effects}/>\n"
-            f'    <versions deepcontact="{__version__}" box2d="{box2d_version}"/>\n')
+            f'    <versions deepcontact="{__version__}" box2d="{version}"/>\n')
     # (the native writer closes <header> after any per-step lines, such as <solve>)
 
 
-def step_writer(scene, seed, solver="box2d") -> StepWriter:
+def step_writer(scene, seed, solver="box2d", soft=None) -> StepWriter:
+    """The writer of a simulation's steps; soft: a Box2D v3 run's SoftStep (None: 2.4.1)."""
     root = f' format="{FORMAT}" scene={quoteattr(scene.name)} seed="{seed}" dt="{fmt(scene.dt)}"'
-    return StepWriter(root, header_xml(scene, solver), body_shapes(scene),
-                      scene.effects.damping is not None)
+    return StepWriter(root, header_xml(scene, solver, soft), body_shapes(scene, soft),
+                      scene.effects.damping is not None, "box2d" if soft is None else "box2d3")
 
 
 def step_filename(index: int, compress=False) -> str:

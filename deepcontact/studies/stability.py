@@ -26,6 +26,7 @@ from .._box2d import linear_slop
 from ..scene.generators import generate
 from ..simulate import stepping
 from ..simulate.build import build_world, build_world3
+from ..step.engines import SoftStep
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.metrics import deepest, energy
 
@@ -114,8 +115,8 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
         step = PGSStepper(world, scene, LoopOptions(start=start, mode="float64", max_iterations=iterations,
                                                     relaxation=relaxation, accelerate=accelerate)).step
     elif solver == "box2d3":   # Box2D v3: the count is its substeps
-        world = build_world3(scene, substeps=iterations)
-        step = stepping.box2d3(world, scene)
+        world = build_world3(scene, SoftStep(substeps=iterations))
+        step = stepping.box2d3(world, scene, record=False)
     else:
         step = stepping.box2d(world, scene, iterations)
     bodies = world.bodies()

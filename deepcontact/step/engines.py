@@ -1,0 +1,40 @@
+"""The engines a run can be stepped by, and how a step file says which.
+
+Box2D 2.4.1 (Debian's, the default: its velocity solver, or the project's with `--solver pgs`)
+and Box2D v3 (3.1, the pyb2d3 wheel's library: the soft step). A step file names its engine in
+`<solver name>` (box2d or pgs: 2.4.1; box2d3: v3) and holds that engine's own elements
+(native/step_names.hpp)."""
+from dataclasses import dataclass
+
+from ..errors import InputError
+
+ENGINES = ("box2d", "box2d3")
+V3_SOLVER = "box2d3"   # <solver name> of a Box2D v3 step
+RELAX_ITERATIONS = 1   # relax iterations per substep: a constant of v3's library (solver.c), not a setting
+
+
+@dataclass(frozen=True)
+class SoftStep:
+    """Box2D v3's soft step, as `dc simulate --engine box2d3` runs it (v3's defaults).
+
+    substeps: per step (v3's `subStepCount`); contact_hertz, damping_ratio: the soft contact's
+    stiffness and damping; push_speed: the most speed (m/s) v3 uses to push overlapping bodies
+    apart. Warm starting, sleeping and continuous collision come from the scene, as for 2.4.1."""
+    substeps: int = 4
+    contact_hertz: float = 30.0
+    damping_ratio: float = 10.0
+    push_speed: float = 3.0
+
+    def __post_init__(self):
+        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+            raise InputError(f"substeps must be a whole number >= 1, got {self.substeps!r}")
+        if not self.contact_hertz > 0:
+            raise InputError(f"contact hertz must be positive, got {self.contact_hertz!r}")
+        for name in ("damping_ratio", "push_speed"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"{name.replace('_', ' ')} must be >= 0, got {getattr(self, name)!r}")
+
+
+def engine_of(header) -> str:
+    """The engine a step file's header (a reader's dict) names: box2d or box2d3."""
+    return "box2d3" if header["solver"].get("name") == V3_SOLVER else "box2d"
