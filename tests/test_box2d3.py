@@ -77,3 +77,130 @@ def test_the_stability_criteria_judge_a_v3_run():
         assert stack.finite and stack.top_drift > S.TOP_DRIFT_LIMIT and not stack.passed
     removal = S.run_case(cases["warm-start energy"], "box2d3", "builtin", 4)   # (a body removed mid-run)
     assert removal.finite
+
+
+# --- dc simulate --engine box2d3 and the rest of the pipeline ---------------------------------
+
+from pathlib import Path  # noqa: E402
+
+from conftest import dc, one_line_error, option_error, simulated, written  # noqa: E402
+
+from deepcontact.scene.generators import GENERATORS  # noqa: E402
+from deepcontact.step import reader_lxml  # noqa: E402
+from deepcontact.step.reader import read_step  # noqa: E402
+
+SCENE_FILES = sorted((Path(__file__).parent.parent / "datasets" / "scenes").glob("*.xml"))
+V3_PILE = ["pile", "--engine", "box2d3", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5",
+           "--steps", "120"]
+
+
+@pytest.fixture(scope="module")
+def v3_run(tmp_path_factory):
+    return simulated(tmp_path_factory, "v3", *V3_PILE)
+
+
+@pytest.mark.parametrize("scene", [*GENERATORS, *(str(p) for p in SCENE_FILES)],
+                         ids=[*GENERATORS, *(p.stem for p in SCENE_FILES)])
+def test_every_scene_simulates_under_v3_and_its_steps_validate(tmp_path, scene):
+    out = written(tmp_path / "run", "simulate", scene, "--engine", "box2d3", "--steps", "4")
+    r = dc("validate", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    header = read_step(next(out.glob("seed-*/step-000003.xml")))[0]
+    assert header["solver"]["name"] == "box2d3" and header["versions"]["box2d"] == _box2d.box2d3_version
+    assert header["soft_step"]["substeps"] == "4" and header["velocity_iterations"] is None
+
+
+def test_a_v3_step_reads_the_same_through_both_readers_and_holds_v3_fields(v3_run):
+    path = sorted(v3_run.glob("seed-*/step-*.xml"))[-1]
+    native, reference = read_step(path), reader_lxml.read_step(path)
+    for a, b in zip(native[1:], reference[1:]):
+        assert a.keys() == b.keys()
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert native[0]["soft_step"] == reference[0]["soft_step"]
+    c = native[2]
+    assert len(c["manifold"]) > 10
+    # v3's fields are written; 2.4.1's are not (read back as 0)
+    assert (c["total_normal_impulse"] > 0).any() and (c["anchor_b"] != 0).any()
+    assert not c["start_normal_impulse"].any() and not c["local_normal"].any()
+    text = path.read_text()
+    assert "<total n=" in text and "<anchors " in text and "<start " not in text and "<manifold " not in text
+    # the contact points are where the bodies were before the step: anchor_a from body a's origin
+    bodies = native[1]
+    rows = {int(i): k for k, i in enumerate(bodies["index"])}
+    a = np.array([rows[i] for i in c["body_a"]])
+    np.testing.assert_allclose(bodies["position"][a] + c["anchor_a"], c["position"], atol=1e-4)
+
+
+def test_a_step_missing_its_engines_fields_is_refused(v3_run, pile_run, tmp_path):
+    from deepcontact.errors import InputError
+    v3 = sorted(v3_run.glob("seed-*/step-*.xml"))[-1].read_text()
+    cut = tmp_path / "step-000001.xml"
+    cut.write_text(v3.replace("<total n=", "<totl n=", 1))
+    with pytest.raises(InputError, match="has no <total n=...>"):
+        read_step(cut, validate=False)
+    old = sorted(pile_run.glob("seed-*/step-*.xml"))[-1].read_text()
+    cut.write_text(old.replace("<iterations ", "<soft_step ", 1))
+    with pytest.raises(InputError, match="<header> has no <iterations>"):
+        read_step(cut, validate=False)
+
+
+def test_options_of_one_engine_are_refused_with_the_other(tmp_path):
+    out = str(tmp_path / "x")
+    for option in (["--substeps", "8"], ["--contact-hertz", "60"], ["--damping-ratio", "1"], ["--push-speed", "1"]):
+        option_error(dc("simulate", "pile", *option, "-o", out), option[0], "--engine box2d3")
+    option_error(dc("simulate", "pile", "--engine", "box2d3", "--iterations", "20", "-o", out), "--iterations")
+    option_error(dc("simulate", "pile", "--engine", "box2d3", "--solver", "pgs", "-o", out), "--solver")
+    option_error(dc("simulate", "pile", "--engine", "box2d3", "--substeps", "0", "-o", out), "--substeps")
+    assert not Path(out).exists()
+
+
+def test_substeps_and_tuning_reach_the_engine(tmp_path):
+    out = written(tmp_path / "run", "simulate", *V3_PILE[:-1], "20", "--substeps", "2", "--contact-hertz", "60",
+                  "--push-speed", "1.5")
+    header = read_step(next(out.glob("seed-*/step-000010.xml")))[0]
+    assert header["soft_step"]["substeps"] == "2" and header["soft_step"]["contact_hertz"] == "60"
+    assert header["soft_step"]["push_speed"] == "1.5"
+    import json
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["engine"] == "box2d3" and manifest["soft_step"]["substeps"] == 2
+    # the same seed and settings, the same bytes
+    again = written(tmp_path / "again", "simulate", *V3_PILE[:-1], "20", "--substeps", "2", "--contact-hertz", "60",
+                    "--push-speed", "1.5")
+    for f in sorted(out.glob("seed-*/step-*.xml")):
+        assert f.read_bytes() == (again / f.relative_to(out)).read_bytes()
+
+
+def test_replay_and_evaluate_refuse_a_v3_run_in_one_line(v3_run, tmp_path):
+    one_line_error(dc("validate", "--replay", v3_run), "Box2D v3", "2.4.1's contact problem")
+    one_line_error(dc("evaluate", v3_run, "-o", tmp_path / "e"), "Box2D v3", "2.4.1's contact problem")
+    from deepcontact.errors import InputError
+    from deepcontact.solver.problem import StepProblem
+    with pytest.raises(InputError, match="soft step"):
+        StepProblem.from_step_file(sorted(v3_run.glob("seed-*/step-*.xml"))[-1])
+
+
+def test_a_v3_run_rasterizes_trains_and_renders(v3_run, tmp_path):
+    data = written(tmp_path / "data", "rasterize", v3_run, "--cell", "1")
+    assert dc("train", data, "--epochs", "1", "--batch-size", "8", "-q", "-o", tmp_path / "m").returncode == 0
+    for picture in ("step.png", "run.gif"):
+        source = sorted(v3_run.glob("seed-*/step-*.xml"))[-1] if picture == "step.png" else v3_run
+        r = dc("render", source, "--every", "20", "-o", tmp_path / picture) if picture == "run.gif" else \
+            dc("render", source, "-o", tmp_path / picture)
+        assert r.returncode == 0 and (tmp_path / picture).stat().st_size > 1000, r.stderr
+
+
+def test_a_thin_card_builds_in_v3_as_a_box():
+    """v3's hull welds vertices closer than 5 mm: a 4 mm card is made as a box instead, and
+    stands on its edge as it does in 2.4.1."""
+    world = _box2d.World3(0.0, -10.0)
+    ground = world.add_body(0, 0.0, 0.0)
+    world.add_edge(ground, -5.0, 0.0, 5.0, 0.0, friction=0.7)
+    card = world.add_body(2, 0.0, 0.5)
+    world.add_polygon(card, np.array([[-0.002, -0.5], [0.002, -0.5], [0.002, 0.5], [-0.002, 0.5]], np.float32),
+                      density=1.0, friction=0.7)
+    b = world.bodies()
+    assert b["mass"][card] == pytest.approx(0.004, rel=1e-4)             # 4 mm x 1 m at density 1
+    for _ in range(60):
+        world.step(1 / 60)
+    assert world.bodies()["position"][card, 1] == pytest.approx(0.5, abs=5e-3)

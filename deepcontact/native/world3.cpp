@@ -94,12 +94,38 @@ int World3::add_circle(int body, float radius, float cx, float cy, const Materia
     return impl_->add(body, v3::b2CreateCircleShape(impl_->bodies.at(body), &def, &circle), m, radius);
 }
 
+namespace {
+
+// v3's hull welds vertices closer than its linear slop (5 mm), so a thin card cannot be hulled;
+// a rectangle is made as a box instead (b2MakeOffsetBox takes no hull). False if not a rectangle.
+bool rectangle(const std::vector<v3::b2Vec2>& p, v3::b2Polygon& out) {
+    if (p.size() != 4) return false;
+    const v3::b2Vec2 u{p[1].x - p[0].x, p[1].y - p[0].y}, w{p[3].x - p[0].x, p[3].y - p[0].y};
+    const float lu = std::hypot(u.x, u.y), lw = std::hypot(w.x, w.y);
+    if (!(lu > 0.0f && lw > 0.0f)) return false;
+    const float scale = std::max(lu, lw), tolerance = 1e-5f * scale;
+    // the fourth corner closes the parallelogram and the corner is square
+    if (std::abs(p[0].x + u.x + w.x - p[2].x) > tolerance || std::abs(p[0].y + u.y + w.y - p[2].y) > tolerance ||
+        std::abs(u.x * w.x + u.y * w.y) > tolerance * scale)
+        return false;
+    const v3::b2Vec2 center{0.5f * (p[0].x + p[2].x), 0.5f * (p[0].y + p[2].y)};
+    out = v3::b2MakeOffsetBox(0.5f * lu, 0.5f * lw, center, v3::b2MakeRot(std::atan2(u.y, u.x)));
+    return true;
+}
+
+}  // namespace
+
 int World3::add_polygon(int body, const std::vector<float>& xy, const Material& m) {
     std::vector<v3::b2Vec2> points;
     for (std::size_t i = 0; i + 1 < xy.size(); i += 2) points.push_back(v3::b2Vec2{xy[i], xy[i + 1]});
     const v3::b2Hull hull = v3::b2ComputeHull(points.data(), static_cast<int>(points.size()));
-    if (hull.count == 0) throw std::invalid_argument("a polygon Box2D v3 cannot hull (collinear or too small)");
-    const v3::b2Polygon polygon = v3::b2MakePolygon(&hull, 0.0f);
+    v3::b2Polygon polygon;
+    if (hull.count > 0) {
+        polygon = v3::b2MakePolygon(&hull, 0.0f);
+    } else if (!rectangle(points, polygon)) {
+        throw std::invalid_argument("a polygon Box2D v3 cannot hull (collinear, or vertices closer than its "
+                                    "linear slop, 5 mm)");
+    }
     const v3::b2ShapeDef def = shape_def(m);
     return impl_->add(body, v3::b2CreatePolygonShape(impl_->bodies.at(body), &def, &polygon), m, 0.0f);
 }
