@@ -68,6 +68,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_scale.py
 	$(PYTHON) benchmarks/bench_render.py
 	$(PYTHON) benchmarks/bench_predict.py
+	$(PYTHON) benchmarks/bench_engines.py
 	sh benchmarks/bench_loop_scale.sh
 	$(PYTHON) benchmarks/bench_engines.py
 
