@@ -14,6 +14,7 @@ def study():
 
     \b
     stability           the hard scenes under Box2D's solver and ours: the iterations each needs
+    engines             accuracy against time: Box2D 2.4.1, Box2D v3 and the project's solver
     figures             the thesis's convergence figures 5.4-5.7, regenerated with the SPH start
     maps                one network for both impulse maps, or one per map
     oracle              the grid's own loss: exact impulses through the grid and back
@@ -46,8 +47,10 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
     Criteria (deepcontact/studies/stability.py): finite, penetration at rest
     within 3 linear slops, no energy gained, a stack's top within 1 cm. Where
     a configuration fails at the scene's 8 iterations, the count is doubled
-    until it passes; the table gives that count. Exit 1 if any configuration
-    never passes.
+    until it passes; the table gives that count. Box2D v3's rows count
+    substeps (4 to 64), from its own rest. Exit 1 if any configuration of Box2D
+    2.4.1 or ours never passes, or a v3 run becomes non-finite (v3 rows short
+    of the criteria are listed on stderr).
 
     \b
     Examples:
@@ -72,9 +75,69 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
         rows = S.study(S.FAST if fast else S.FULL, log=click.echo, jobs=jobs)
         if out:
             atomic.write_text(out, S.markdown(rows, fast, protocol_line(measured)))
-    failed = sum(not f.passed for _, f in rows)
+    # Box2D v3's rows are measured, not required: its soft contacts are what they are (a
+    # non-finite state would still be a failure of ours)
+    v3 = [f for _, f in rows if f.solver == "box2d3"]
+    short = [f.case for f in v3 if not f.passed]
+    if short:
+        click.echo(f"Box2D v3 meets the criteria on {len(v3) - len(short)} of {len(v3)} scenes up to "
+                   f"{S.V3_CAP} substeps; not on: {', '.join(short)} (see the table)", err=True)
+    failed = sum(not f.passed for _, f in rows if f.solver != "box2d3") + sum(not f.finite for f in v3)
     if failed:
         raise InputError(f"{failed} of {len(rows)} configurations never met their criteria (see the table)")
+
+
+@study.command()
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder for engines.md, engines.csv and a Pareto plot per scene.")
+@click.option("--fast", is_flag=True, help="The small variants the test suite runs (stability's, and a 30-circle pile).")
+@click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
+              help="Only these scenes, by their labels in the table (e.g. 'stack 20,pyramid 20').")
+@options.jobs
+@options.overwrite
+@options.verbosity
+@options.command("study engines")
+def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
+    """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
+    iterations, Box2D v3 at 1-16 substeps (and without warm starting), the
+    project's solver to residuals 1e-2 ... 1e-8, on the thesis pile and every
+    hard scene, each judged by the stability criteria and its drift from the
+    reference trajectory (docs/results.md, "Engines").
+
+    Writes engines.md (the cheapest passing setting of each engine per scene,
+    and a table per scene), engines.csv and pareto-SCENE.png. Times are one
+    thread's; -j runs scenes side by side (each time is then taken beside
+    another process: use -j 1 for the published table).
+
+    \b
+    Examples:
+      dc study engines --fast -o reports/engines-fast
+      dc study engines -o reports/engines --scenes 'stack 20,mass ratio 400:1'
+    """
+    from deepcontact import atomic
+    from deepcontact.errors import InputError
+    from deepcontact.protocol import protocol, protocol_line
+    from deepcontact.studies import engines as E
+
+    cases = E.FAST if fast else E.FULL
+    if scenes:
+        known = {c.label: c for c in cases}
+        unknown = [s for s in scenes if s not in known]
+        if unknown:
+            raise click.BadParameter(f"no scene {unknown[0]!r} here; the scenes are: {', '.join(known)}",
+                                     param_hint="--scenes")
+        cases = [known[s] for s in scenes]
+    with atomic.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
+        measured = protocol(jobs=jobs)
+        bar = options.progress_bar(quiet, E.tasks_count(cases), "setting", "study engines")
+        try:
+            rows = E.study(cases, jobs=jobs, progress=bar.update)
+        finally:
+            bar.close()
+        if not rows:
+            raise InputError("no setting applies to the chosen scenes")
+        E.write(rows, work, fast, protocol_line(measured))
+    click.echo(E.verdict_table(rows))
 
 
 @study.command()

@@ -26,7 +26,7 @@ def test_a_resting_circle_carries_its_weight_each_step():
     for _ in range(240):
         world.step(dt)
     b = world.bodies()
-    assert b["position"][ball, 1] == pytest.approx(1.0, abs=0.01)        # on the ground's top at y = 0.5
+    assert b["position"][ball, 1] == pytest.approx(1.01, abs=1e-3)   # on the ground's top at y = 0.5, and its 1 cm skin
     assert abs(b["velocity"][ball]).max() < 1e-3
     c = world.contacts()
     points, last_substep, total = len(c["separation"]), float(c["normal_impulse"].sum()), \
@@ -191,16 +191,21 @@ def test_a_v3_run_rasterizes_trains_and_renders(v3_run, tmp_path):
 
 
 def test_a_thin_card_builds_in_v3_as_a_box():
-    """v3's hull welds vertices closer than 5 mm: a 4 mm card is made as a box instead, and
-    stands on its edge as it does in 2.4.1."""
+    """v3's hull welds vertices closer than 5 mm: a 4 mm card is made as a box instead (with the
+    polygon skin both engines give it), weighs what 2.4.1 says and lies on the ground where the
+    skins touch."""
     world = _box2d.World3(0.0, -10.0)
     ground = world.add_body(0, 0.0, 0.0)
     world.add_edge(ground, -5.0, 0.0, 5.0, 0.0, friction=0.7)
-    card = world.add_body(2, 0.0, 0.5)
-    world.add_polygon(card, np.array([[-0.002, -0.5], [0.002, -0.5], [0.002, 0.5], [-0.002, 0.5]], np.float32),
+    skin = _box2d.polygon_radius
+    card = world.add_body(2, 0.0, 0.002 + 2 * skin)
+    world.add_polygon(card, np.array([[-0.5, -0.002], [0.5, -0.002], [0.5, 0.002], [-0.5, 0.002]], np.float32),
                       density=1.0, friction=0.7)
-    b = world.bodies()
-    assert b["mass"][card] == pytest.approx(0.004, rel=1e-4)             # 4 mm x 1 m at density 1
+    w2 = _box2d.World(0.0, -10.0)
+    w2.add_body(2, 0.0, 0.0)
+    w2.add_polygon(0, np.array([[-0.5, -0.002], [0.5, -0.002], [0.5, 0.002], [-0.5, 0.002]], np.float32), density=1.0)
+    for key in ("mass", "inertia"):
+        assert world.bodies()[key][card] == pytest.approx(w2.bodies()[key][0], rel=1e-5)   # the skin weighs nothing
     for _ in range(60):
         world.step(1 / 60)
-    assert world.bodies()["position"][card, 1] == pytest.approx(0.5, abs=5e-3)
+    assert world.bodies()["position"][card, 1] == pytest.approx(0.002 + 2 * skin, abs=1e-3)

@@ -17,6 +17,8 @@ def test_every_hard_scene_passes_at_a_recorded_iteration_count(fast_study):
     pgs = sum(solver == "pgs" for solver, *_ in S.CONFIGS)
     assert len(fast_study) == len(S.FAST) * len(S.CONFIGS) - pgs   # the bullet needs Box2D's own solver
     for key, (default, found) in fast_study.items():
+        if key[1] == "box2d3":
+            continue   # (test_box2d_v3_on_the_hard_scenes)
         assert found.passed, (key, found)
         assert found.finite and found.penetration <= S.PENETRATION_LIMIT
         assert found.energy_rise <= found.energy_allowed
@@ -82,8 +84,33 @@ def test_penetration_is_measured_at_rest_and_peaks_reported(fast_study):
     assert not math.isnan(stack.top_drift) and stack.top_drift < S.TOP_DRIFT_LIMIT
 
 
+def test_box2d_v3_on_the_hard_scenes(fast_study):
+    """Box2D v3 under the same criteria, from its own rest: stable everywhere (finite; what rests
+    comes to rest); it meets the criteria on the pyramid, card house, arch, confined circles and
+    the bullet at its default 4 substeps. Its soft contacts give way under load at any substep
+    count up to the cap: the stack's top sinks past 1 cm, the heavy circle of a large mass ratio
+    past 1.5 cm, and the heavy top's sinking, released when it is removed, lifts the rest beyond
+    the energy allowance. Bounded, not unstable."""
+    v3 = {case: found for (case, solver, _), (_, found) in fast_study.items() if solver == "box2d3"}
+    assert set(v3) == {c.label for c in S.FAST}
+    for case, found in v3.items():
+        assert found.finite, (case, found)
+        if case not in ("confined 64", "bullet"):   # (no gravity, no friction: never rests; a shot flying off)
+            assert found.final_speed < 0.05, (case, found)
+    for case in ("pyramid 6", "card house 2", "arch 5", "confined 64", "bullet"):
+        assert v3[case].passed and v3[case].iterations == S.V3_SUBSTEPS, (case, v3[case])
+    stack = v3["stack 8"]
+    assert not stack.passed and stack.iterations == S.V3_CAP and S.TOP_DRIFT_LIMIT < stack.top_drift < 0.05
+    for case in ("mass ratio 100:1", "mass ratio 400:1"):
+        r = v3[case]
+        assert not r.passed and r.iterations == S.V3_CAP and S.PENETRATION_LIMIT < r.penetration < 0.2, (case, r)
+    removal = v3["warm-start energy"]
+    assert not removal.passed and removal.penetration <= S.PENETRATION_LIMIT
+    assert removal.energy_allowed < removal.energy_rise < 1.0
+
+
 @pytest.mark.slow
 def test_full_size_hard_scenes():
     rows = S.study(S.FULL)
-    failed = [f for _, f in rows if not f.passed]
+    failed = [f for _, f in rows if not f.passed and f.solver != "box2d3"]
     assert not failed, [S.format_row(d, f) for d, f in rows if not f.passed]

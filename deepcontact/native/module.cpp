@@ -243,15 +243,17 @@ PYBIND11_MODULE(_box2d, m) {
     m.attr("box2d3_version") = dc::box2d3_version();
     py::class_<dc::World3, dc::SceneWorld>(m, "World3")
         .def(py::init([](float gx, float gy, int substeps, float hertz, float damping_ratio, float push_speed,
-                         bool warm_starting, float restitution_threshold, bool sleeping, bool continuous) {
+                         bool warm_starting, float restitution_threshold, bool sleeping, bool continuous, float skin) {
                  return std::make_unique<dc::World3>(
                      gx, gy, dc::SoftStep{substeps, hertz, damping_ratio, push_speed, warm_starting},
-                     restitution_threshold, sleeping, continuous);
+                     restitution_threshold, sleeping, continuous, skin);
              }),
              py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f, py::arg("substeps") = 4,
              py::arg("contact_hertz") = 30.0f, py::arg("damping_ratio") = 10.0f, py::arg("push_speed") = 3.0f,
              py::arg("warm_starting") = true, py::arg("restitution_threshold") = 1.0f, py::arg("sleeping") = false,
-             py::arg("continuous") = false)
+             py::arg("continuous") = false, py::arg("skin") = b2_polygonRadius,
+             "A Box2D v3 world. skin: the radius polygons and edges are rounded by (default 2.4.1's\n"
+             "polygon radius: both engines collide the same shapes; 0 for v3's sharp ones).")
         .def(
             "step",
             [](dc::World3& w, float dt, bool record) -> py::object {

@@ -27,8 +27,30 @@ struct World3::Impl {
     };
     v3::b2WorldId world;
     std::vector<v3::b2BodyId> bodies;   // scene index order
+    std::vector<bool> fixed_rotation;   // by body
+    std::vector<std::vector<v3::b2MassData>> masses;   // by body: its shapes' (sharp) mass data
     std::vector<ShapeInfo> shapes;      // by v3's shape id (index1)
     int shape_count = 0;
+    float skin = 0.0f;
+
+    // A dynamic body's mass from its shapes as 2.4.1 computes it (a polygon's skin carries no
+    // mass there): v3 would weigh the rounded polygon.
+    void set_mass(int body) {
+        const v3::b2BodyId id = bodies.at(body);
+        if (v3::b2Body_GetType(id) != v3::b2_dynamicBody) return;
+        float mass = 0.0f, inertia = 0.0f;
+        v3::b2Vec2 center{0.0f, 0.0f};
+        for (const v3::b2MassData& m : masses[body]) {
+            mass += m.mass;
+            center.x += m.mass * m.center.x;
+            center.y += m.mass * m.center.y;
+            inertia += m.rotationalInertia;   // about the body origin
+        }
+        if (mass > 0.0f) center = v3::b2Vec2{center.x / mass, center.y / mass};
+        inertia -= mass * (center.x * center.x + center.y * center.y);   // about the centre of mass
+        if (fixed_rotation[body] || !(inertia > 0.0f)) inertia = 0.0f;
+        v3::b2Body_SetMassData(id, v3::b2MassData{mass, center, inertia});
+    }
 
     int add(int body, v3::b2ShapeId id, const Material& m, float radius) {
         if (shapes.size() <= static_cast<std::size_t>(id.index1)) shapes.resize(id.index1 + 1);
@@ -40,8 +62,10 @@ struct World3::Impl {
 };
 
 World3::World3(float gravity_x, float gravity_y, const SoftStep& soft, float restitution_threshold, bool sleeping,
-               bool continuous)
+               bool continuous, float skin)
     : impl_(std::make_unique<Impl>()) {
+    if (!(skin >= 0.0f)) throw std::invalid_argument("the polygon skin must be >= 0");
+    impl_->skin = skin;
     if (soft.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
     v3::b2WorldDef def = v3::b2DefaultWorldDef();
     def.gravity = v3::b2Vec2{gravity_x, gravity_y};
@@ -72,6 +96,8 @@ int World3::add_body(const BodySpec& s) {
     def.fixedRotation = s.fixed_rotation;
     def.isBullet = s.bullet;
     impl_->bodies.push_back(v3::b2CreateBody(impl_->world, &def));
+    impl_->fixed_rotation.push_back(s.fixed_rotation);
+    impl_->masses.emplace_back();
     return static_cast<int>(impl_->bodies.size()) - 1;
 }
 
@@ -80,6 +106,7 @@ namespace {
 v3::b2ShapeDef shape_def(const Material& m) {
     v3::b2ShapeDef def = v3::b2DefaultShapeDef();
     def.density = m.density;
+    def.updateBodyMass = false;   // (World3::Impl::set_mass)
     def.material.friction = m.friction;
     def.material.restitution = m.restitution;
     return def;
@@ -91,7 +118,10 @@ int World3::add_circle(int body, float radius, float cx, float cy, const Materia
     if (!(radius > 0.0f)) throw std::invalid_argument("circle radius must be positive");
     const v3::b2ShapeDef def = shape_def(m);
     const v3::b2Circle circle{v3::b2Vec2{cx, cy}, radius};
-    return impl_->add(body, v3::b2CreateCircleShape(impl_->bodies.at(body), &def, &circle), m, radius);
+    const int number = impl_->add(body, v3::b2CreateCircleShape(impl_->bodies.at(body), &def, &circle), m, radius);
+    impl_->masses.at(body).push_back(v3::b2ComputeCircleMass(&circle, m.density));
+    impl_->set_mass(body);
+    return number;
 }
 
 namespace {
@@ -119,21 +149,33 @@ int World3::add_polygon(int body, const std::vector<float>& xy, const Material& 
     std::vector<v3::b2Vec2> points;
     for (std::size_t i = 0; i + 1 < xy.size(); i += 2) points.push_back(v3::b2Vec2{xy[i], xy[i + 1]});
     const v3::b2Hull hull = v3::b2ComputeHull(points.data(), static_cast<int>(points.size()));
-    v3::b2Polygon polygon;
+    v3::b2Polygon sharp;
     if (hull.count > 0) {
-        polygon = v3::b2MakePolygon(&hull, 0.0f);
-    } else if (!rectangle(points, polygon)) {
+        sharp = v3::b2MakePolygon(&hull, 0.0f);
+    } else if (!rectangle(points, sharp)) {
         throw std::invalid_argument("a polygon Box2D v3 cannot hull (collinear, or vertices closer than its "
                                     "linear slop, 5 mm)");
     }
+    // 2.4.1's skin as a rounded polygon: both engines collide the same shape
+    v3::b2Polygon polygon = sharp;
+    polygon.radius = impl_->skin;
     const v3::b2ShapeDef def = shape_def(m);
-    return impl_->add(body, v3::b2CreatePolygonShape(impl_->bodies.at(body), &def, &polygon), m, 0.0f);
+    const int number =
+        impl_->add(body, v3::b2CreatePolygonShape(impl_->bodies.at(body), &def, &polygon), m, impl_->skin);
+    impl_->masses.at(body).push_back(v3::b2ComputePolygonMass(&sharp, m.density));
+    impl_->set_mass(body);
+    return number;
 }
 
 int World3::add_edge(int body, float x1, float y1, float x2, float y2, const Material& m) {
-    const v3::b2Segment segment{v3::b2Vec2{x1, y1}, v3::b2Vec2{x2, y2}};
-    const v3::b2ShapeDef def = shape_def(m);
-    return impl_->add(body, v3::b2CreateSegmentShape(impl_->bodies.at(body), &def, &segment), m, 0.0f);
+    const v3::b2ShapeDef def = shape_def(m);   // (an edge has no mass in either engine)
+    if (impl_->skin == 0.0f) {
+        const v3::b2Segment segment{v3::b2Vec2{x1, y1}, v3::b2Vec2{x2, y2}};
+        return impl_->add(body, v3::b2CreateSegmentShape(impl_->bodies.at(body), &def, &segment), m, 0.0f);
+    }
+    // 2.4.1's edge has the polygon skin too: a capsule of that radius
+    const v3::b2Capsule capsule{v3::b2Vec2{x1, y1}, v3::b2Vec2{x2, y2}, impl_->skin};
+    return impl_->add(body, v3::b2CreateCapsuleShape(impl_->bodies.at(body), &def, &capsule), m, impl_->skin);
 }
 
 void World3::step(float dt) { v3::b2World_Step(impl_->world, dt, impl_->soft.substeps); }

@@ -23,8 +23,10 @@ struct SoftStep {
 
 class World3 : public SceneWorld {
 public:
+    // skin: the radius every polygon and edge is rounded by (2.4.1's b2_polygonRadius makes both
+    // engines collide the same shapes; 0: v3's sharp polygons and segments); masses ignore it.
     World3(float gravity_x, float gravity_y, const SoftStep& soft, float restitution_threshold, bool sleeping,
-           bool continuous);
+           bool continuous, float skin);
     ~World3() override;
     World3(const World3&) = delete;
     World3& operator=(const World3&) = delete;

@@ -17,9 +17,12 @@ from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
 
 
-# Boxes come to rest with their 1 cm skins overlapping by the linear slop: placing them that far
-# apart from the start keeps a stack from being pushed up as it settles.
-REST_GAP = 2 * polygon_radius - linear_slop
+# Boxes come to rest in Box2D 2.4.1 with their 1 cm skins overlapping by the linear slop: placing
+# them that far apart from the start keeps a stack from being pushed up as it settles. (Box2D v3
+# rests skins touching, overlap 0: the generators that place resting contacts take `overlap`.)
+def _rest_gap(overlap):
+    """The distance between resting polygon surfaces whose skins overlap by `overlap`."""
+    return 2 * polygon_radius - overlap
 
 
 def _effects(gravity, friction, restitution=0.0, continuous=False):
@@ -79,23 +82,26 @@ def pile(seed, count=100, box=30.0, radius=1.0, sigma=6.0, density=1.0, friction
                 bodies=[_walls(box, box)] + circles)
 
 
-def stack(seed, count=20, size=1.0, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60, steps=600):
+def stack(seed, count=20, size=1.0, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60, steps=600,
+          overlap=linear_slop):
     """A vertical stack of `count` boxes on the ground."""
-    pitch = size + REST_GAP
-    boxes = [_dynamic(0.0, REST_GAP + size / 2 + i * pitch, _box(size / 2, size / 2, density))
+    gap = _rest_gap(overlap)
+    pitch = size + gap
+    boxes = [_dynamic(0.0, gap + size / 2 + i * pitch, _box(size / 2, size / 2, density))
              for i in range(count)]
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=[_ground()] + boxes)
 
 
 def pyramid(seed, base=20, size=1.0, gap=0.05, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60,
-            steps=600):
+            steps=600, overlap=linear_slop):
     """A pyramid of boxes, `base` wide: base (base + 1) / 2 boxes in all."""
+    rest = _rest_gap(overlap)
     pitch = size * (1.0 + gap)
     boxes = []
     for row in range(base):
         n = base - row
         for j in range(n):
-            boxes.append(_dynamic((j - (n - 1) / 2) * pitch, REST_GAP + size / 2 + row * (size + REST_GAP),
+            boxes.append(_dynamic((j - (n - 1) / 2) * pitch, rest + size / 2 + row * (size + rest),
                                   _box(size / 2, size / 2, density)))
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps,
                 bodies=[_ground(max(40.0, base * pitch))] + boxes)
@@ -113,7 +119,7 @@ def mass_ratio(seed, ratio=100.0, radius=0.5, density=1.0, friction=0.6, gravity
 
 
 def card_house(seed, levels=3, length=1.0, thickness=0.004, tilt=15.0, density=1.0, friction=0.7,
-               gravity=9.81, dt=1 / 60, steps=600):
+               gravity=9.81, dt=1 / 60, steps=600, overlap=linear_slop):
     """A house of cards: `levels` rows of leaning pairs with flat cards across.
 
     Other engines use 1 mm cards; Box2D 2.4.1 welds polygon vertices closer than 2.5 mm (half
@@ -124,33 +130,35 @@ def card_house(seed, levels=3, length=1.0, thickness=0.004, tilt=15.0, density=1
     card = _box(t, a, density)
     flat = _box(a, t, density)
     bodies = [_ground()]
-    base_y = REST_GAP                       # every resting pair of surfaces starts REST_GAP apart
+    gap = _rest_gap(overlap)
+    base_y = gap                            # every resting pair of surfaces starts `gap` apart
     for level in range(levels):
         n = levels - level
         apexes = [(j - (n - 1) / 2) * spacing for j in range(n)]
         cy = base_y + a * math.cos(phi) + t * math.sin(phi)
-        dx = a * math.sin(phi) + t * math.cos(phi) + REST_GAP / (2 * math.cos(phi))
+        dx = a * math.sin(phi) + t * math.cos(phi) + gap / (2 * math.cos(phi))
         for xa in apexes:
             bodies.append(_dynamic(xa - dx, cy, card, angle=-phi))   # leaning right
             bodies.append(_dynamic(xa + dx, cy, card, angle=phi))    # leaning left
         top = base_y + 2 * a * math.cos(phi) + 2 * t * math.sin(phi)
         for left, right in zip(apexes, apexes[1:]):
-            bodies.append(_dynamic((left + right) / 2, top + REST_GAP + t, flat))
-        base_y = top + REST_GAP + 2 * t + REST_GAP
+            bodies.append(_dynamic((left + right) / 2, top + gap + t, flat))
+        base_y = top + gap + 2 * t + gap
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies)
 
 
 def arch(seed, blocks=9, inner=4.0, thickness=1.0, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60,
-         steps=600):
+         steps=600, overlap=linear_slop):
     """A semicircular arch of `blocks` voussoirs standing on the ground, held by friction."""
     bodies = [_ground()]
     outer = inner + thickness
+    gap = _rest_gap(overlap)
 
     def face(theta, side):
-        # a radial face, moved REST_GAP / 2 off the joint so neighbours start at resting distance
+        # a radial face, moved gap / 2 off the joint so neighbours start at resting distance
         u = np.array([math.cos(theta), math.sin(theta)])
-        off = side * (REST_GAP / 2) * np.array([-math.sin(theta), math.cos(theta)])
-        lift = np.array([0.0, REST_GAP / 2])
+        off = side * (gap / 2) * np.array([-math.sin(theta), math.cos(theta)])
+        lift = np.array([0.0, gap / 2])
         return inner * u + off + lift, outer * u + off + lift
 
     for i in range(blocks):
@@ -192,9 +200,10 @@ def warm_start_energy(seed, radius=0.5, density=1.0, top_density=100.0, remove_s
 
 
 def bullet(seed, stack=10, size=1.0, speed=120.0, radius=0.25, density=1.0, bullet_density=20.0,
-           friction=0.6, gravity=9.81, dt=1 / 60, steps=300):
+           friction=0.6, gravity=9.81, dt=1 / 60, steps=300, overlap=linear_slop):
     """A small fast circle (a Box2D bullet, continuous collision on) fired into a stack of boxes."""
-    boxes = [_dynamic(0.0, REST_GAP + size / 2 + i * (size + REST_GAP), _box(size / 2, size / 2, density))
+    gap = _rest_gap(overlap)
+    boxes = [_dynamic(0.0, gap + size / 2 + i * (size + gap), _box(size / 2, size / 2, density))
              for i in range(stack)]
     shot = _dynamic(-15.0, size * stack / 2, Circle(radius=f32(radius), density=f32(bullet_density)),
                     vx=f32(speed), bullet=True)

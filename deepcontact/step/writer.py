@@ -34,10 +34,10 @@ def _shape_xml(scene, fixture, shape, skin):
             f'{verts}        </polygon>\n')
 
 
-def body_shapes(scene, soft=None):
-    """The <shape> element of every body, by body index, with fixture indices; soft: a Box2D v3
-    run's SoftStep (its polygons and segments have no skin: radius 0)."""
-    skin = polygon_radius if soft is None else 0.0
+def body_shapes(scene):
+    """The <shape> element of every body, by body index, with fixture indices (polygons and edges
+    with Box2D's skin, which a v3 world gives them too)."""
+    skin = polygon_radius
     out, fixture = [], 0
     for body in scene.bodies:
         parts = []
@@ -81,7 +81,7 @@ def header_xml(scene, solver="box2d", soft=None):
 def step_writer(scene, seed, solver="box2d", soft=None) -> StepWriter:
     """The writer of a simulation's steps; soft: a Box2D v3 run's SoftStep (None: 2.4.1)."""
     root = f' format="{FORMAT}" scene={quoteattr(scene.name)} seed="{seed}" dt="{fmt(scene.dt)}"'
-    return StepWriter(root, header_xml(scene, solver, soft), body_shapes(scene, soft),
+    return StepWriter(root, header_xml(scene, solver, soft), body_shapes(scene),
                       scene.effects.damping is not None, "box2d" if soft is None else "box2d3")
 
 

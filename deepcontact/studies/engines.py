@@ -1,0 +1,317 @@
+"""What accuracy costs in time, across engines: Box2D 2.4.1, Box2D v3 and the project's solver
+on the same scenes from the same initial state.
+
+Families (each a line of settings, cheapest first):
+  Box2D 2.4.1   its velocity solver at 1, 2, 4, ..., 256 iterations a step
+  Box2D v3      the soft step at 1, 2, 4, 8, 16 substeps; at 4 substeps with warm starting off
+                (v3's relax pass is a constant of its library, one per substep: it cannot be
+                switched off without rebuilding Box2D v3)
+  project       the project's solver in the loop (float64 sweeps from Box2D's warm start, as
+                `dc simulate --solver pgs --tolerance T`) to residuals 1e-2 ... 1e-8, 1000 sweeps
+                at most a step (steps stopped by the cap are counted)
+
+Each setting is judged by the stability study's criteria (studies/stability.py: finite, at rest
+within 3 linear slops, no energy gained beyond its allowance, a stack's top within 1 cm) and
+measured: time per step (a second run without recording, one thread), the drift from the
+reference trajectory (every step solved to a residual of 1e-12; none where the project's solver
+cannot step the scene: continuous collision), the deepest contact at rest (a heavy body's
+sinking), the energy rise, the stack top's drift and the fastest body at the end (rest).
+
+    dc study engines [--fast] -o DIR
+"""
+import csv
+import io
+import math
+import re
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .. import atomic, workers
+from ..evaluate.closed_loop import reference_trajectory
+from ..simulate import stepping
+from ..simulate.pgs_loop import LoopStep
+from ..solver.metrics import drift
+from . import stability as S
+
+BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
+SUBSTEPS = (1, 2, 4, 8, 16)
+TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
+SWEEP_CAP = 1000   # as dc simulate --solver pgs --tolerance (pgs_loop.DEFAULT_TOLERANCE_CAP)
+FAMILIES = ("Box2D 2.4.1", "Box2D v3", "project")
+
+FULL = [S.Case("thesis pile", "pile", {}), *S.FULL]
+# What `dc study engines -o DIR` writes (what --overwrite may replace).
+ENGINE_FILES = atomic.Owned("engines study folder", [r"engines\.md", r"engines\.csv", r"pareto-[a-z0-9-]+\.png"])
+FAST = [S.Case("pile 30", "pile", dict(count=30, box=16.0, sigma=4.0, steps=240)), *S.FAST]
+
+
+@dataclass(frozen=True)
+class Setting:
+    family: str
+    label: str
+    solver: str            # stability.stepper's: box2d, box2d3 or pgs
+    count: int             # iterations, substeps, or the sweep cap
+    tolerance: float = 0.0
+    warm_starting: bool = True
+    rest: str = "own"      # own: from where the engine rests resting contacts; box2d: 2.4.1's (stability.own_rest)
+    variant: bool = False  # an ablation beside the family's sweep (not a candidate for the cheapest)
+
+
+def settings():
+    """Every setting of every family, in the order of the tables."""
+    out = [Setting("Box2D 2.4.1", f"{n} iterations", "box2d", n) for n in BOX2D_COUNTS]
+    out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in SUBSTEPS]
+    out.append(Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True))
+    out.append(Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True))
+    out += [Setting("project", f"residual {t:g}", "pgs", SWEEP_CAP, tolerance=t) for t in TOLERANCES]
+    return out
+
+
+@dataclass
+class Row:
+    scene: str
+    family: str
+    setting: str
+    passed: bool
+    finite: bool
+    ms_per_step: float        # mean over the run, stepped without recording
+    drift: float              # largest over the run, from the reference trajectory (m); nan: none
+    penetration: float        # deepest at rest (m)
+    peak_penetration: float
+    energy_rise: float
+    energy_allowed: float
+    top_drift: float          # stacks (m); nan otherwise
+    final_speed: float        # the fastest body at the end (m/s)
+    capped: int               # project: steps stopped by the sweep cap short of the tolerance
+    variant: bool = False     # an ablation (Setting.variant)
+
+
+def applicable(case, setting):
+    if setting.rest != "own" and S.own_rest(case, setting.solver) == S.own_rest(case, "box2d"):
+        return False   # (the same scene as the setting from its own rest)
+    return S.applicable(case, setting.solver)
+
+
+def params_of(case, setting):
+    """The scene parameters a setting runs from."""
+    return S.own_rest(case, setting.solver if setting.rest == "own" else setting.rest)
+
+
+def step_ms(case, setting):
+    """Mean wall time of a step (ms), stepped without recording: the engine's own time."""
+    scene = S.case_scene(case, setting.warm_starting, params_of(case, setting))
+    world, step = S.stepper(scene, setting.solver, "builtin", setting.count, tolerance=setting.tolerance,
+                            record=False)
+    if setting.solver == "box2d3":   # the soft step alone (the study's step also reads the contacts)
+        def step():
+            world.step(scene.dt)
+            return LoopStep(None, None, None, 0.0, dt_ratio=1.0)
+    seconds = [done.seconds for done in stepping.steps(world, scene, step)]
+    return 1e3 * float(np.mean(seconds)) if seconds else float("nan")
+
+
+def run_scene(case, chosen=None):
+    """Every applicable setting on one case, against one reference trajectory."""
+    chosen = settings() if chosen is None else chosen
+    references = {}   # by the parameters a setting starts from: each against its own initial state
+
+    def reference_of(params):
+        key = repr(sorted(params.items()))
+        if key not in references:
+            scene = S.case_scene(case, params=params)
+            references[key] = reference_trajectory(scene, scene.steps).positions
+        return references[key]
+
+    rows = []
+    for setting in chosen:
+        if not applicable(case, setting):
+            continue
+        trail = []
+        params = params_of(case, setting)
+        r = S.run_case(case, setting.solver, "builtin", setting.count, tolerance=setting.tolerance,
+                       warm_starting=setting.warm_starting, trail=trail, params=params)
+        far = float("nan")
+        reference = reference_of(params) if S.applicable(case, "pgs") else None
+        if reference is not None:
+            n = min(len(trail), len(reference))
+            far = max((drift(trail[k], reference[k]) for k in range(n)), default=0.0)
+            if not r.finite:
+                far = float("inf")
+        rows.append(Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
+                        finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
+                        drift=far, penetration=r.penetration, peak_penetration=r.peak_penetration,
+                        energy_rise=r.energy_rise, energy_allowed=r.energy_allowed, top_drift=r.top_drift,
+                        final_speed=r.final_speed, capped=r.capped, variant=setting.variant))
+        workers.progress(1)
+    return rows
+
+
+def study(cases, jobs=1, progress=None, chosen=None):
+    """Rows of every case (in order); cases side by side in `jobs` worker processes."""
+    tasks = [(case, chosen) for case in cases]
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        return [row for rows in pool.imap(_scene_task, tasks) for row in rows]
+
+
+def _scene_task(task):
+    return run_scene(*task)
+
+
+def tasks_count(cases, chosen=None):
+    chosen = settings() if chosen is None else chosen
+    return sum(applicable(c, s) for c in cases for s in chosen)
+
+
+# --- reports -------------------------------------------------------------------------------
+
+def cheapest(rows):
+    """{family: the passing row of its sweep (not an ablation) with the least time per step, or
+    None} of one scene's rows."""
+    out = {}
+    for family in FAMILIES:
+        mine = [r for r in rows if r.family == family and not r.variant]
+        if not mine:
+            continue
+        ok = [r for r in mine if r.passed and math.isfinite(r.ms_per_step)]
+        out[family] = min(ok, key=lambda r: r.ms_per_step) if ok else None
+    return out
+
+
+def _most(rows, family):
+    """The last setting of a family's sweep (for "none up to ...")."""
+    return [r for r in rows if r.family == family and not r.variant][-1].setting
+
+
+def _fmt(v, scale=1.0, digits=3):
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return ""
+    if isinstance(v, float) and math.isinf(v):
+        return "inf"
+    return f"{v * scale:.{digits}g}"
+
+
+TABLE_HEADER = ("| family | setting | passes | ms / step | drift from reference (cm) | penetration at rest (cm) | "
+                "energy rise / allowed (J) | top drift (cm) | fastest at end (m/s) | capped steps |\n"
+                "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+
+
+def scene_table(rows):
+    lines = [TABLE_HEADER]
+    for r in rows:
+        lines.append(f"| {r.family} | {r.setting} | {'yes' if r.passed else 'no'} | {_fmt(r.ms_per_step)} | "
+                     f"{_fmt(r.drift, 100)} | {_fmt(r.penetration, 100)} | "
+                     f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)} | {_fmt(r.top_drift, 100)} | "
+                     f"{_fmt(r.final_speed)} | {r.capped if r.family == 'project' else ''} |")
+    return "\n".join(lines) + "\n"
+
+
+def verdict_table(rows):
+    """One line per scene: the cheapest passing setting of each family and its time per step."""
+    scenes = list(dict.fromkeys(r.scene for r in rows))
+    lines = ["| scene | " + " | ".join(FAMILIES) + " |", "| --- |" + " --- |" * len(FAMILIES)]
+    for scene in scenes:
+        mine = [r for r in rows if r.scene == scene]
+        best = cheapest(mine)
+        cells = []
+        for family in FAMILIES:
+            if family not in best:
+                cells.append("n/a")
+            elif best[family] is None:
+                cells.append(f"none up to {_most(mine, family)}")
+            else:
+                b = best[family]
+                cells.append(f"{b.setting}: {_fmt(b.ms_per_step)} ms")
+        lines.append(f"| {scene} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(rows):
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    names = [f.name for f in fields(Row)]
+    w.writerow(names)
+    for r in rows:
+        w.writerow([getattr(r, n) for n in names])
+    return out.getvalue()
+
+
+def slug(scene):
+    return re.sub(r"[^a-z0-9]+", "-", scene.lower()).strip("-")
+
+
+def _short(row):
+    """A point's label on the plot: its count, tolerance or ablation."""
+    if row.variant:
+        return "no warm start" if "warm" in row.setting else "from 2.4.1's rest"
+    return row.setting.split()[0] if row.family != "project" else row.setting.split()[-1]
+
+
+def pareto_plot(rows, path):
+    """Time per step against drift from the reference, one line per family; hollow markers fail
+    the scene's criteria."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..plotstyle import readable_log_ticks, styles
+    style = styles(list(FAMILIES))
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    plotted = False
+    for family in FAMILIES:
+        mine = [r for r in rows if r.family == family and math.isfinite(r.ms_per_step) and math.isfinite(r.drift)
+                and r.drift > 0]
+        if not mine:
+            continue
+        s = dict(style[family])
+        sweep = [r for r in mine if not r.variant]
+        ax.plot([r.ms_per_step for r in sweep], [r.drift * 100 for r in sweep], color=s["color"],
+                linestyle=s["linestyle"], linewidth=s["linewidth"], label=family)
+        for r in mine:   # an ablation: a lone marker, its label beside it
+            ax.plot(r.ms_per_step, r.drift * 100, marker="*" if r.variant else s["marker"], color=s["color"],
+                    markersize=8 if r.variant else 6, markerfacecolor=s["color"] if r.passed else "white",
+                    linestyle="none")
+            ax.annotate(_short(r), (r.ms_per_step, r.drift * 100), textcoords="offset points", xytext=(4, 3),
+                        fontsize=6, color=s["color"])
+        plotted = True
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("time per step (ms, one thread)")
+    ax.set_ylabel("largest drift from the reference (cm)")
+    ax.set_title(f"{rows[0].scene}: accuracy against time\n(labels: iterations, substeps, residual; "
+                 "hollow: fails the criteria; stars: v3 ablations)", fontsize=8)
+    if plotted:
+        ax.legend(fontsize=8)
+        readable_log_ticks(ax.xaxis)
+        readable_log_ticks(ax.yaxis)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(rows, fast, protocol_text, pictures=True):
+    setting = "fast (the test suite's small variants)" if fast else "full"
+    parts = [f"# Accuracy against time across engines: {setting}\n",
+             __doc__.split("\n\n")[0].replace("\n", " ") + ".\n",
+             f"Criteria: {S.CRITERIA}\n", protocol_text + "\n",
+             "## The cheapest setting of each family that meets the criteria\n", verdict_table(rows)]
+    for scene in dict.fromkeys(r.scene for r in rows):
+        mine = [r for r in rows if r.scene == scene]
+        parts.append(f"## {scene}\n")
+        if pictures:
+            parts.append(f"![{scene}](pareto-{slug(scene)}.png)\n")
+        parts.append(scene_table(mine))
+    return "\n".join(parts)
+
+
+def write(rows, out_dir, fast, protocol_text):
+    """engines.md, engines.csv and a Pareto plot per scene into out_dir (an open output folder)."""
+    from pathlib import Path
+    out_dir = Path(out_dir)
+    for scene in dict.fromkeys(r.scene for r in rows):
+        pareto_plot([r for r in rows if r.scene == scene], out_dir / f"pareto-{slug(scene)}.png")
+    atomic.write_text(out_dir / "engines.csv", csv_text(rows))
+    text = markdown(rows, fast, protocol_text)
+    atomic.write_text(out_dir / "engines.md", text)
+    return text
