@@ -180,6 +180,16 @@ def test_replay_and_evaluate_refuse_a_v3_run_in_one_line(v3_run, tmp_path):
         StepProblem.from_step_file(sorted(v3_run.glob("seed-*/step-*.xml"))[-1])
 
 
+def test_a_v3_runs_table_holds_v3s_columns_not_2_4_1s(v3_run, pile_run, tmp_path):
+    from deepcontact import run_tables
+    _, v3 = run_tables(v3_run)
+    _, old = run_tables(pile_run)
+    assert {"total_normal_impulse", "anchor_a_x", "anchor_b_y"} <= set(v3) and "start_normal_impulse" not in v3
+    assert "manifold_type" not in v3 and "local_normal_x" not in v3
+    assert {"start_normal_impulse", "manifold_type"} <= set(old) and "total_normal_impulse" not in old
+    one_line_error(dc("export", v3_run, "-o", tmp_path / "fclib"), "Box2D v3")   # (FCLIB: a 2.4.1 problem)
+
+
 def test_a_v3_run_rasterizes_trains_and_renders(v3_run, tmp_path):
     data = written(tmp_path / "data", "rasterize", v3_run, "--cell", "1")
     assert dc("train", data, "--epochs", "1", "--batch-size", "8", "-q", "-o", tmp_path / "m").returncode == 0

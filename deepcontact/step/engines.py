@@ -38,3 +38,11 @@ class SoftStep:
 def engine_of(header) -> str:
     """The engine a step file's header (a reader's dict) names: box2d or box2d3."""
     return "box2d3" if header["solver"].get("name") == V3_SOLVER else "box2d"
+
+
+def foreign_fields(engine) -> frozenset:
+    """The contact fields a step of `engine` does not record (the other engine's, read back as 0):
+    from the step file's names table (native/step_names.hpp)."""
+    from .._box2d import STEP_CONTACT_XML
+    other = "box2d3" if engine == "box2d" else "box2d"
+    return frozenset(row[2] for row in STEP_CONTACT_XML if row[4] == other)

@@ -1,7 +1,8 @@
 """A run as two flat tables, one row per body per step and one per contact point per step, for
 pandas, R or a spreadsheet (`pandas.read_xml` cannot: a step file's values are attributes of
 child elements). Columns: `seed`, `step`, `time`, then every array the step reader gives, a
-2-vector split into `_x` and `_y` (docs/formats.md lists them)."""
+2-vector split into `_x` and `_y` (docs/formats.md lists them); a Box2D 2.4.1 run's tables leave
+out Box2D v3's columns and a v3 run's leave out 2.4.1's (what the engine does not record)."""
 import csv
 import os
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from .. import atomic, workers
 from ..errors import InputError
+from .engines import engine_of, foreign_fields
 from .reader import check_origin, read_step
 from .run_folder import read_run
 
@@ -43,6 +45,8 @@ def _step_columns(task):
     header, bodies, contacts = read_step(path, validate=False)
     check_origin(header, scene if scene is not None else header["scene"], seed, path)
     out = {}
+    foreign = foreign_fields(engine_of(header))   # (the other engine's columns: not recorded)
+    contacts = {k: v for k, v in contacts.items() if k not in foreign}
     for name, arrays in (("bodies", bodies), ("contacts", contacts)):
         n = len(next(iter(arrays.values())))
         out[name] = {"seed": np.full(n, seed), "step": np.full(n, int(header["index"])),
