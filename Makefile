@@ -82,6 +82,7 @@ studies: setup
 	$(DC) study peer
 	$(DC) study learned-correction
 	$(DC) study learned-coarse
+	$(DC) study engines -o $(RUNS)/engines --overwrite
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).

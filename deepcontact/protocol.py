@@ -49,7 +49,7 @@ def _version(package):
 
 def protocol(threads=DEFAULT_THREADS, jobs=1):
     """A dict of how this process measures: threads, -j, versions, CPU, load, command line."""
-    from . import __version__
+    from . import __version__, _box2d
     from ._box2d import box2d_version
     try:
         load = [round(v, 2) for v in os.getloadavg()]
@@ -58,7 +58,8 @@ def protocol(threads=DEFAULT_THREADS, jobs=1):
     return {
         "threads": threads, "jobs": jobs,
         "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": _version("numpy"),
-                     "torch": _version("torch"), "python": platform.python_version()},
+                     "torch": _version("torch"), "python": platform.python_version(),
+                     "box2d3": getattr(_box2d, "box2d3_version", None)},
         "cpu": cpu_model(), "cores": os.cpu_count(), "load_average": load,
         "command": command_line, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
@@ -80,5 +81,6 @@ def protocol_line(p):
     command = f" Command: `{p['command']}`." if p.get("command") else ""
     return (f"Measured with {p['threads']} torch thread{'s' if p['threads'] != 1 else ''} per process and "
             f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {p['cpu']} ({p['cores']} cores; "
-            f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}, numpy "
+            f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}"
+            f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}, numpy "
             f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}")

@@ -272,3 +272,20 @@ def test_the_engines_study_refuses_an_unknown_scene(tmp_path):
     option_error(dc("study", "engines", "--fast", "--scenes", "stack 99", "-o", tmp_path / "x"), "--scenes",
                  "stack 8")
     assert not (tmp_path / "x").exists()
+
+
+def test_resting_contacts_start_where_each_engine_rests_them():
+    """2.4.1 rests skins one linear slop into each other (the generators' default); v3 pushes any
+    overlap out and rests them touching (overlap 0), so the studies start v3 there."""
+    from deepcontact.studies import stability as S
+    skin, slop = _box2d.polygon_radius, _box2d.linear_slop
+    for overlap, gap in ((None, 2 * skin - slop), (0.0, 2 * skin)):
+        scene = generate("stack", 0, {"count": 3} if overlap is None else {"count": 3, "overlap": overlap})
+        ys = [b.y for b in scene.bodies[1:]]
+        assert ys[0] == pytest.approx(gap + 0.5, abs=1e-6) and np.diff(ys) == pytest.approx([1 + gap] * 2, abs=1e-6)
+    case = S.Case("stack 3", "stack", {"count": 3, "steps": 120}, stack_top=True)
+    assert S.own_rest(case, "box2d3") == {"count": 3, "steps": 120, "overlap": 0.0}
+    assert S.own_rest(case, "box2d") == case.params and S.own_rest(S.Case("p", "pile", {}), "box2d3") == {}
+    own = S.run_case(case, "box2d3", "builtin", 4)
+    lifted = S.run_case(case, "box2d3", "builtin", 4, params=case.params)   # from 2.4.1's rest
+    assert own.energy_rise < 0.01 < lifted.energy_rise

@@ -108,13 +108,15 @@ def pyramid(seed, base=20, size=1.0, gap=0.05, density=1.0, friction=0.6, gravit
 
 
 def mass_ratio(seed, ratio=100.0, radius=0.5, density=1.0, friction=0.6, gravity=9.81, dt=1 / 60,
-               steps=600):
-    """A heavy circle resting on a light one: equal density, areas (and masses) `ratio` : 1."""
+               steps=600, overlap=polygon_radius):
+    """A heavy circle resting on a light one: equal density, areas (and masses) `ratio` : 1. The
+    light one starts `overlap` into the ground's skin (default all of it: on the edge itself)."""
     big = radius * math.sqrt(ratio)
+    lift = polygon_radius - overlap
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=[
         _ground(),
-        _dynamic(0.0, radius, Circle(radius=f32(radius), density=f32(density))),
-        _dynamic(0.0, 2 * radius + big, Circle(radius=f32(big), density=f32(density))),
+        _dynamic(0.0, radius + lift, Circle(radius=f32(radius), density=f32(density))),
+        _dynamic(0.0, 2 * radius + big + lift, Circle(radius=f32(big), density=f32(density))),
     ])
 
 
@@ -189,11 +191,13 @@ def confined(seed, count=625, radius=0.5, spacing=1.25, speed=1.0, density=1.0, 
 
 
 def warm_start_energy(seed, radius=0.5, density=1.0, top_density=100.0, remove_step=120, friction=0.6,
-                      gravity=9.81, dt=1 / 60, steps=360):
+                      gravity=9.81, dt=1 / 60, steps=360, overlap=polygon_radius):
     """Three stacked circles; the heavy top one is removed at `remove_step`. The warm start of
-    the remaining contacts still carries its weight: that must not launch the others."""
+    the remaining contacts still carries its weight: that must not launch the others. The lowest
+    starts `overlap` into the ground's skin (default all of it: on the edge itself)."""
+    lift = polygon_radius - overlap
     bodies = [_ground()] + [
-        _dynamic(0.0, radius * (2 * i + 1), Circle(radius=f32(radius), density=f32(d)))
+        _dynamic(0.0, radius * (2 * i + 1) + lift, Circle(radius=f32(radius), density=f32(d)))
         for i, d in enumerate((density, density, top_density))]
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps, bodies=bodies,
                 events=[RemoveEvent(step=remove_step, body=3)])

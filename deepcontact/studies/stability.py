@@ -120,8 +120,9 @@ def label(start, relaxation, accelerate="none"):
 def own_rest(case: Case, solver: str) -> dict:
     """The case's parameters with its resting contacts placed where the engine rests them: Box2D
     2.4.1 (and the project's solver, which keeps its position correction) one linear slop into
-    each other's skins, the generators' default; Box2D v3 skins touching (overlap 0: v3 pushes any
-    overlap out, which would lift a stack from 2.4.1's rest)."""
+    each other's skins, the generators' default (a circle on the ground: on the edge itself, its
+    skin overlapped whole); Box2D v3 skins touching (overlap 0: v3 pushes any overlap out, which
+    would lift a stack from 2.4.1's rest)."""
     if solver == "box2d3" and "overlap" in parameters(case.generator) and "overlap" not in case.params:
         return {**case.params, "overlap": 0.0}
     return case.params
