@@ -1,5 +1,6 @@
 """What accuracy costs in time, across engines: Box2D 2.4.1, Box2D v3 and the project's solver
-on the same scenes from the same initial state.
+on the same scenes, each engine from its own rest (stability.own_rest: the resting contacts of
+a scene start where that engine rests them; they differ by one linear slop).
 
 Families (each a line of settings, cheapest first):
   Box2D 2.4.1   its velocity solver at 1, 2, 4, ..., 256 iterations a step
@@ -11,11 +12,13 @@ Families (each a line of settings, cheapest first):
                 at most a step (steps stopped by the cap are counted)
 
 Each setting is judged by the stability study's criteria (studies/stability.py: finite, at rest
-within 3 linear slops, no energy gained beyond its allowance, a stack's top within 1 cm) and
-measured: time per step (a second run without recording, one thread), the drift from the
-reference trajectory (every step solved to a residual of 1e-12; none where the project's solver
-cannot step the scene: continuous collision), the deepest contact at rest (a heavy body's
-sinking), the energy rise, the stack top's drift and the fastest body at the end (rest).
+within 3 linear slops, no energy gained beyond its allowance, a stack's top within 1 cm, at rest
+at the end) and measured: time per step (a second run without recording, one thread), the drift
+from the reference trajectory (every step from the same initial state solved to a residual of
+1e-12; none where the project's solver cannot step the scene: continuous collision), the deepest
+contact at rest (a heavy body's sinking), the energy rise, the stack top's drift and the fastest
+body at the end. On a chaotic scene (a pile, the confined circles) any difference grows until
+the bodies are a body's size apart: drift there measures chaos, not accuracy.
 
     dc study engines [--fast] -o DIR
 """
@@ -294,7 +297,7 @@ def pareto_plot(rows, path):
 def markdown(rows, fast, protocol_text, pictures=True):
     setting = "fast (the test suite's small variants)" if fast else "full"
     parts = [f"# Accuracy against time across engines: {setting}\n",
-             __doc__.split("\n\n")[0].replace("\n", " ") + ".\n",
+             __doc__.split("\n\n")[0].replace("\n", " ").rstrip(".") + ".\n",
              f"Criteria: {S.CRITERIA}\n", protocol_text + "\n",
              "## The cheapest setting of each family that meets the criteria\n", verdict_table(rows)]
     for scene in dict.fromkeys(r.scene for r in rows):
