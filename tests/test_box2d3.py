@@ -258,7 +258,8 @@ def test_the_cheapest_passing_setting_of_each_family():
         return E.Row("s", family, setting, passed, True, ms, 0.1, 0.0, 0.0, 0.0, 1.0, float("nan"), 0.0, 0,
                      variant)
     rows = [row("Box2D 2.4.1", "1 iterations", False, 0.1), row("Box2D 2.4.1", "2 iterations", True, 0.3),
-            row("Box2D 2.4.1", "4 iterations", True, 0.2),   # (timing noise: the cheaper one wins)
+            row("Box2D 2.4.1", "4 iterations", True, 0.2),   # (cheaper though more effort: it wins)
+            row("Box2D 2.4.1", "8 iterations", True, 0.199),  # (within 5%: a tie, to the least effort)
             row("Box2D v3", "1 substeps", False, 0.1), row("Box2D v3", "16 substeps", False, 0.9),
             row("Box2D v3", "4 substeps, no warm start", True, 0.05, variant=True)]
     best = E.cheapest(rows)

@@ -169,16 +169,24 @@ def tasks_count(cases, chosen=None):
 
 # --- reports -------------------------------------------------------------------------------
 
+TIE = 0.05   # times within 5% of each other are one time (timing noise on microsecond steps)
+
+
 def cheapest(rows):
     """{family: the passing row of its sweep (not an ablation) with the least time per step, or
-    None} of one scene's rows."""
+    None} of one scene's rows. Rows within TIE of the least time count as tied, and the tie goes
+    to the least effort (the first in the sweep's order)."""
     out = {}
     for family in FAMILIES:
         mine = [r for r in rows if r.family == family and not r.variant]
         if not mine:
             continue
         ok = [r for r in mine if r.passed and math.isfinite(r.ms_per_step)]
-        out[family] = min(ok, key=lambda r: r.ms_per_step) if ok else None
+        if not ok:
+            out[family] = None
+            continue
+        least = min(r.ms_per_step for r in ok)
+        out[family] = next(r for r in ok if r.ms_per_step <= least * (1 + TIE))
     return out
 
 
