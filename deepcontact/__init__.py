@@ -22,6 +22,7 @@ _PUBLIC = {
     "generate": ("deepcontact.scene.generators", "generate"),
     "simulate_run": ("deepcontact.simulate.run", "run"),   # (not "simulate": that is the subpackage)
     "SceneSource": ("deepcontact.simulate.source", "SceneSource"),
+    "SoftStep": ("deepcontact.step.engines", "SoftStep"),
     "StepProblem": ("deepcontact.solver.problem", "StepProblem"),
     "contact_keys": ("deepcontact.solver.problem", "contact_keys"),
     "impulses_by_key": ("deepcontact.solver.problem", "impulses_by_key"),

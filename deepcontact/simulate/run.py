@@ -29,6 +29,7 @@ from ..errors import InputError, count
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
+from ..step.engines import SoftStep
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
 from .build import build_world, build_world3, check_overlaps
@@ -205,7 +206,7 @@ def _worker(args):
 def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, *, overwrite: bool = False,
         skip_contactless: bool = False, jobs: int = 1, progress: Callable | None = None, source: str | None = None,
         loop: LoopOptions | None = None, max_disk: float | None = None, compress: bool = False,
-        soft=None) -> dict:
+        soft: SoftStep | None = None) -> dict:
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
