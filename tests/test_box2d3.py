@@ -81,6 +81,7 @@ def test_the_stability_criteria_judge_a_v3_run():
 
 # --- dc simulate --engine box2d3 and the rest of the pipeline ---------------------------------
 
+import re  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from conftest import dc, one_line_error, option_error, simulated, written  # noqa: E402
@@ -246,9 +247,10 @@ def test_the_engines_study_writes_its_tables_and_plots(tmp_path):
     box2d = [float(row["drift"]) for row in stack if row["family"] == "Box2D 2.4.1"]
     assert box2d[-1] < box2d[0] / 100
     text = (out / "engines.md").read_text()
-    assert "| stack 8 | 16 iterations:" in text and "none up to 16 substeps" in text
+    # (which passing setting is cheapest is a matter of measured time: not asserted here)
+    verdict = r"\| stack 8 \| (16|32|64|128|256) iterations: [0-9.e-]+ ms \| none up to 16 substeps \| residual "
+    assert re.search(verdict, text) and re.search(verdict, r.stdout), text
     assert "![stack 8](pareto-stack-8.png)" in text and "Measured with" in text
-    assert "stack 8 | 16 iterations" in r.stdout
 
 
 def test_the_cheapest_passing_setting_of_each_family():
