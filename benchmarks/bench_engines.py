@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pyb2d3 as b2
 
+from deepcontact._box2d import polygon_radius
 from deepcontact.scene.generators import generate
 from deepcontact.simulate import stepping
 from deepcontact.simulate.build import build_world, build_world3
@@ -34,7 +35,8 @@ from common import arguments
 
 
 def bare_world(scene):
-    """The scene's bodies through pyb2d3's API (the pile has circles and edges)."""
+    """The scene's bodies through pyb2d3's API (the pile has circles and edges; each edge a capsule
+    of 2.4.1's skin, as the project builds it: the same world)."""
     world = b2.World(gravity=tuple(scene.effects.gravity))
     world.sleeping_enabled = False
     world.continuous_enabled = False
@@ -52,10 +54,10 @@ def bare_world(scene):
                 c = b2.Circle()
                 c.center, c.radius = (s.x, s.y), s.radius
                 made.create_circle_shape(sd, c)
-            elif s.kind == "edge":
-                seg = b2.Segment()
-                seg.point1, seg.point2 = (s.x1, s.y1), (s.x2, s.y2)
-                made.create_segment_shape(sd, seg)
+            elif s.kind == "edge":   # with 2.4.1's skin, as the project's v3 world builds it
+                cap = b2.Capsule()
+                cap.center1, cap.center2, cap.radius = (s.x1, s.y1), (s.x2, s.y2), polygon_radius
+                made.create_capsule_shape(sd, cap)
             else:
                 raise SystemExit(f"this benchmark builds circles and edges, not {s.kind}")
         bodies.append(made)
