@@ -1,0 +1,113 @@
+"""How the project's solver methods scale with the size of a pile: time and iterations per step
+to a residual of 1e-4 at 100, 1000 and 10,000 circles, and the fitted exponent of time against
+body count (the baseline any new global method is measured against).
+
+Each pile is stepped by Box2D 2.4.1 (in memory) until it has settled (the step counts below), and
+its last --samples steps are solved by: PGS (sweeps), PSOR at w = 1.7, NNCG (conjugate
+directions), sweeps then Newton steps, sweeps then subspace minimization; float64, one thread,
+cap --cap iterations. Twice: from zero (the pile's own difficulty: a sweep carries information
+about one contact further, and a settled pile of N circles is about sqrt(N) layers deep) and from
+Box2D's warm start (what the loop sees at rest, where the warm start is nearly the answer).
+Reported per start, method and size: the median time and iterations over the samples, and how
+many reached the tolerance; the exponent is the slope of log(median time) on log(bodies) over
+the sizes where every sample converged.
+
+Usage: python benchmarks/bench_solver_scale.py [--samples N] [--cap N] [--quick]
+"""
+import argparse
+import math
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from deepcontact.protocol import current, protocol_line
+from deepcontact.simulate import stepping
+from deepcontact.simulate.build import build_world
+from deepcontact.simulate.source import SceneSource
+from deepcontact.solver.methods import solve
+from deepcontact.solver.problem import StepProblem
+
+# name: (bodies, generator parameters, steps until settled)
+FULL = {
+    "pile 100": (100, {}, 1000),
+    "pile 1,000": (1000, {"count": "1000", "box": "95", "sigma": "19"}, 1500),
+    "pile 10,000": (10000, {"count": "10000", "box": "300", "sigma": "60"}, 2000),
+}
+QUICK = {"pile 100": (100, {}, 600), "pile 1,000": (1000, {"count": "1000", "box": "95", "sigma": "19"}, 800)}
+STARTS = ("zero", "Box2D's warm start")
+# label: (accelerate, relaxation)
+METHODS = {"PGS": ("none", 1.0), "PSOR 1.7": ("none", 1.7), "NNCG": ("nncg", 1.0), "Newton": ("newton", 1.0),
+           "subspace": ("subspace", 1.0)}
+TOLERANCE = 1e-4
+
+
+def settled_problems(params, steps, samples):
+    """The contact problems of the last `samples` of `steps` Box2D steps of the pile (seed 0),
+    stepped in memory (a 10,000-circle run's files would be 12 GB)."""
+    scene = SceneSource("pile", params, steps)(0)
+    world = build_world(scene)
+    stepped = stepping.box2d(world, scene, record=False)
+    for _ in range(steps - samples):
+        stepped()
+    problems = []
+    for k in range(steps - samples, steps):
+        bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
+                                      record=True)
+        problems.append(StepProblem.from_arrays(bodies, contacts, dt=float(scene.dt),
+                                                gravity=scene.effects.gravity, block_solve=scene.solver.block_solve,
+                                                velocity_iterations=scene.solver.velocity_iterations, index=k))
+    return problems
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--samples", type=int, default=3)
+    ap.add_argument("--cap", type=int, default=100_000)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    print(protocol_line(current()) + "\n")
+    sizes = QUICK if args.quick else FULL
+    table = {}   # (start, method, size) -> (median ms, median iterations, converged, samples)
+    contacts = {}
+    for name, (bodies, params, steps) in sizes.items():
+        problems = settled_problems(params, steps, args.samples)
+        contacts[name] = statistics.median(len(p.start_normal) for p in problems)
+        for start in STARTS:
+            for label, (accelerate, w) in METHODS.items():
+                times, iterations, converged = [], [], 0
+                for p in problems:
+                    n, t = (np.zeros_like(p.start_normal), np.zeros_like(p.start_tangent)) if start == "zero" \
+                        else (p.start_normal, p.start_tangent)
+                    t0 = time.perf_counter()
+                    s = solve(p, n, t, accelerate=accelerate, relaxation=w, max_iterations=args.cap,
+                              tolerance=TOLERANCE)
+                    times.append(time.perf_counter() - t0)
+                    iterations.append(s.iterations)
+                    converged += bool(s.residual <= TOLERANCE)
+                row = (1e3 * statistics.median(times), statistics.median(iterations), converged, len(problems))
+                table[start, label, name] = row
+                print(f"  {name}, from {start}, {label}: {row[0]:.1f} ms, {row[1]:.0f} iterations, "
+                      f"{converged}/{len(problems)} converged", file=sys.stderr, flush=True)
+    names = list(sizes)
+    for start in STARTS:
+        print(f"\nFrom {start}: time per step to a residual of {TOLERANCE:g} (median of {args.samples} settled "
+              f"steps; cap {args.cap:,} iterations):\n")
+        print("| method | " + " | ".join(f"{n} ({contacts[n]:,.0f} contact points)" for n in names) +
+              " | exponent (time ~ bodies^k) |")
+        print("| --- |" + " ---: |" * (len(names) + 1))
+        for label in METHODS:
+            cells, xs, ys = [], [], []
+            for n in names:
+                ms, its, ok, total = table[start, label, n]
+                cells.append(f"{ms:.1f} ms, {its:.0f} it" + ("" if ok == total else f" ({ok}/{total} converged)"))
+                if ok == total and ms > 0:
+                    xs.append(math.log(sizes[n][0]))
+                    ys.append(math.log(ms))
+            k = f"{np.polyfit(xs, ys, 1)[0]:.2f}" if len(xs) >= 2 else "n/a"
+            print(f"| {label} | " + " | ".join(cells) + f" | {k} |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
