@@ -101,7 +101,7 @@ def writing(scene, args):
     for _ in range(args.repeats):
         for name, s in engines.items():
             world = build_world(scene) if s is None else build_world3(scene, s)
-            step = stepping.box2d(world, scene, record=False) if s is None else (lambda w=world: w.step(scene.dt))
+            step = (stepping.box2d if s is None else stepping.box2d3)(world, scene, record=False)
             bare = timed(step, args.steps)
             with tempfile.TemporaryDirectory() as tmp:
                 t0 = time.perf_counter()

@@ -22,7 +22,6 @@ from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
 from deepcontact.simulate import stepping
 from deepcontact.simulate.build import build_world, build_world3
-from deepcontact.simulate.pgs_loop import LoopStep
 from deepcontact.step.engines import SoftStep
 
 # name: (generator, parameters, steps)
@@ -40,10 +39,7 @@ def engine_ms(generator, params, steps, engine):
     scene = generate(generator, 0, {**params, "steps": str(steps)})
     if engine == "box2d3":
         world = build_world3(scene, SoftStep())
-
-        def bare():
-            world.step(scene.dt)
-            return LoopStep(None, None, None, 0.0, dt_ratio=1.0)
+        bare = stepping.box2d3(world, scene, record=False)
     else:
         world = build_world(scene)
         bare = stepping.box2d(world, scene, record=False)

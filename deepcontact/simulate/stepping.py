@@ -41,15 +41,14 @@ def box2d(world, scene, velocity_iterations=None, record=True):
 
 def box2d3(world, scene, record=True):
     """A step function for a Box2D v3 world (build.build_world3: the soft step, its substeps as
-    the world was built). Recording, it gives what a step file holds: the bodies before the step
-    and its contact points (the manifolds the step solved, the last substep's impulses); without,
-    the contact points alone (the measures need their separations)."""
+    the world was built), as box2d's: recording, what a step file holds (the bodies before the
+    step, its contact points: the manifolds the step solved, the last substep's impulses);
+    without, the soft step alone (the engine's own time)."""
     def step():
-        if record:
-            bodies, contacts = world.step(scene.dt, record=True)
-        else:
+        if not record:
             world.step(scene.dt)
-            bodies, contacts = None, world.contacts()
+            return LoopStep(None, None, None, 0.0, dt_ratio=1.0)
+        bodies, contacts = world.step(scene.dt, record=True)
         return LoopStep(bodies, contacts, None, deepest(contacts), dt_ratio=1.0)
     return step
 

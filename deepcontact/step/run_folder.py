@@ -132,11 +132,9 @@ def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, sim
     """The run's manifest, written last (its presence means the run is complete); returns it.
     scene: the first simulation's scene; simulations: one dict per simulation (seed, dir,
     steps, files, contact_points, scene_sha256, extent); soft: a Box2D v3 run's SoftStep."""
-    from .. import __version__, atomic
-    from .._box2d import box2d_version
+    from .. import __version__, _box2d, atomic
     from ..scene.xml import fmt
-    if soft is not None:
-        from .._box2d import box2d3_version as box2d_version
+    version = _box2d.box2d_version if soft is None else _box2d.box2d3_version
     manifest = {
         "format": 1,
         "kind": "deepcontact-run",
@@ -153,7 +151,7 @@ def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, sim
         "dt": float(fmt(scene.dt)),
         "skip_contactless": skip_contactless,
         "compression": compression,
-        "versions": {"deepcontact": __version__, "box2d": box2d_version},
+        "versions": {"deepcontact": __version__, "box2d": version},
         "simulations": simulations,
     }
     atomic.write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2) + "\n")

@@ -33,7 +33,6 @@ import numpy as np
 from .. import atomic, workers
 from ..evaluate.closed_loop import reference_trajectory
 from ..simulate import stepping
-from ..simulate.pgs_loop import LoopStep
 from ..solver.metrics import drift
 from . import stability as S
 
@@ -107,10 +106,6 @@ def step_ms(case, setting):
     scene = S.case_scene(case, setting.warm_starting, params_of(case, setting))
     world, step = S.stepper(scene, setting.solver, "builtin", setting.count, tolerance=setting.tolerance,
                             record=False)
-    if setting.solver == "box2d3":   # the soft step alone (the study's step also reads the contacts)
-        def step():
-            world.step(scene.dt)
-            return LoopStep(None, None, None, 0.0, dt_ratio=1.0)
     seconds = [done.seconds for done in stepping.steps(world, scene, step)]
     return 1e3 * float(np.mean(seconds)) if seconds else float("nan")
 

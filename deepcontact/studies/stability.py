@@ -142,7 +142,7 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
     scene.solver.velocity_iterations = iterations
     if solver == "box2d3":
         world = build_world3(scene, SoftStep(substeps=iterations))
-        return world, stepping.box2d3(world, scene, record=False)
+        return world, stepping.box2d3(world, scene, record=record)
     world = build_world(scene)
     if solver == "pgs":
         options = LoopOptions(start=start, mode="float64", max_iterations=iterations, tolerance=tolerance,
