@@ -14,6 +14,7 @@
 #include <type_traits>
 
 #include "contact_problem.hpp"
+#include "bodyspace.hpp"
 #include "newton.hpp"
 
 namespace dc {
@@ -37,7 +38,9 @@ enum class Mode { exact, float32, float64 };
 // newton: a few sweeps to settle which contacts touch and slide, then semismooth Newton steps on
 // the whole step (newton.hpp), back to sweeps whenever a Newton step fails.
 // subspace: the same with each Newton system solved inexactly by conjugate gradients.
-enum class Acceleration { none, nncg, newton, subspace };
+// bodyspace: a few sweeps, then augmented-Lagrangian iterations on the bodies' velocities
+// (bodyspace.hpp), back to sweeps whenever one fails to lower the residual.
+enum class Acceleration { none, nncg, newton, subspace, bodyspace };
 
 struct SolveOptions {
     Mode mode = Mode::float64;
@@ -65,10 +68,11 @@ inline void check(const SolveOptions& o) {
     if (!(o.max_velocity >= 0.0)) throw std::invalid_argument("max_velocity must be >= 0");
     if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
-    const bool global = o.accelerate == Acceleration::newton || o.accelerate == Acceleration::subspace;
-    if (global && o.mode != Mode::float64) throw std::invalid_argument("newton and subspace are float64 only");
+    const bool global = o.accelerate == Acceleration::newton || o.accelerate == Acceleration::subspace ||
+                        o.accelerate == Acceleration::bodyspace;
+    if (global && o.mode != Mode::float64) throw std::invalid_argument("newton, subspace and bodyspace are float64 only");
     if (global && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))
-        throw std::invalid_argument("newton and subspace stop on the residual (tolerance 0: exact, 1e-12)");
+        throw std::invalid_argument("newton, subspace and bodyspace stop on the residual (tolerance 0: exact, 1e-12)");
 }
 
 struct SanitizeReport {
@@ -83,7 +87,9 @@ struct SolveReport {
     double velocity = std::numeric_limits<double>::quiet_NaN();  // they were tracked
     int relaxation_fallback = 0;   // the sweep after which over-relaxation was dropped (0: never)
     int factorizations = 0;        // Newton steps tried (each factorizes one sparse system)
-    int newton_fallbacks = 0;      // Newton steps that failed, after which sweeps went on
+    int newton_fallbacks = 0;      // Newton steps (or outer iterations) that failed, after which sweeps went on
+    int newton_iterations = 0;     // bodyspace: Newton iterations on the bodies' momentum balance
+    int outer_iterations = 0;      // bodyspace: outer (multiplier and friction bound) iterations
     SanitizeReport sanitized;
 };
 
@@ -115,6 +121,11 @@ public:
         if constexpr (std::is_same_v<R, double>)
             if (opt.accelerate == Acceleration::newton || opt.accelerate == Acceleration::subspace) {
                 solve_newton(opt, rep);
+                return rep;
+            }
+        if constexpr (std::is_same_v<R, double>)
+            if (opt.accelerate == Acceleration::bodyspace) {
+                solve_bodyspace(opt, rep);
                 return rep;
             }
         // The change of the iterate is needed only to report it or to stop on it.
@@ -228,7 +239,10 @@ private:
     static constexpr int kSweepsAfterFailure = 1024;  // at most, doubling from 4 at each failure
     static constexpr int kNewtonLimit = 200;
     static constexpr double kNewtonProgress = 0.5;
-    static constexpr double kExact = 1e-12;   // what newton solves to without a tolerance  // systems factorized per solve, then sweeps alone
+    static constexpr double kExact = 1e-12;   // what newton and bodyspace solve to without a tolerance
+    static constexpr double kBodySpaceGuard = 10.0;
+    static constexpr int kBodySpaceStall = 5;
+    static constexpr double kPenalty = 10.0;  // bodyspace's first rho times k: a row's own mass, tenfold
 
     // Sweeps (PSOR at w) settle the active set; Newton steps finish while they lower the merit.
     // After a Newton step fails, twice as many sweeps as before run first (sweeps are cheap and
@@ -272,6 +286,71 @@ private:
                 }
             }
         }
+        rep.residual = residual;
+    }
+
+    // Sweeps settle which contacts touch; outer iterations in body space finish while each lowers
+    // the residual (an outer iteration counts as one iteration of the cap). One that does not is
+    // undone, and twice as many sweeps as before run first.
+    void solve_bodyspace(const SolveOptions& opt, SolveReport& rep) {
+        BodySpace body(pb_, scale_, kPenalty);
+        BodySpaceWork work;
+        const R w = R(opt.relaxation);
+        const double tolerance = opt.tolerance > 0 ? opt.tolerance : kExact;
+        double residual = this->residual();
+        auto record = [&] {
+            if (opt.history) rep.history.insert(rep.history.end(), {std::nan(""), std::nan(""), residual});
+        };
+        std::vector<BodyVelocity<R>> kept_velocity;
+        int sweeps = kSweepsBeforeNewton;
+        while (residual >= tolerance && rep.iterations < opt.max_iterations) {
+            const int now = std::min(sweeps, opt.max_iterations - rep.iterations);
+            for (int k = 0; k < now; ++k) {
+                if (opt.relaxation != 1.0)
+                    sweep<true>(w);
+                else
+                    sweep<false>(w);
+                ++rep.iterations;
+                if (opt.history) {
+                    residual = this->residual();
+                    record();
+                }
+            }
+            residual = this->residual();
+            // The outer iteration is linear and not monotone in the largest row's residual: it goes
+            // on while it stays within kBodySpaceGuard of the best residual and finds a new best
+            // at least every kBodySpaceStall iterations.
+            double best = residual;
+            int since_best = 0;
+            while (residual >= tolerance && rep.iterations < opt.max_iterations) {
+                kept_velocity = pb_.velocity;
+                save_impulses();
+                const double before = residual;
+                const bool stepped = body.outer(residual, tolerance, work);
+                ++rep.iterations;
+                if (stepped) {
+                    residual = this->residual();
+                    body.progress(before, residual);
+                }
+                since_best = stepped && residual < best ? 0 : since_best + 1;
+                best = std::min(best, residual);
+                if (!stepped || !(residual <= kBodySpaceGuard * best) || since_best >= kBodySpaceStall) {
+                    if (stepped && !(residual < before)) {  // undone: sweeps go on from where they were
+                        pb_.velocity = kept_velocity;
+                        restore_impulses();
+                        residual = before;
+                    }
+                    ++rep.newton_fallbacks;
+                    record();
+                    sweeps = std::min(2 * sweeps, kSweepsAfterFailure);
+                    break;
+                }
+                record();
+            }
+        }
+        rep.factorizations = work.factorizations;
+        rep.newton_iterations = work.newton;
+        rep.outer_iterations = work.outer;
         rep.residual = residual;
     }
 
@@ -479,6 +558,14 @@ private:
                 pt = b * pt + dt;
             }
         }
+    }
+
+    void restore_impulses() {
+        for (auto& m : pb_.manifolds)
+            for (int j = 0; j < m.count; ++j) {
+                m.p[j].normal_impulse = saved_[2 * (m.first + j)];
+                m.p[j].tangent_impulse = saved_[2 * (m.first + j) + 1];
+            }
     }
 
     void save_impulses() {

@@ -122,6 +122,8 @@ py::dict report_dict(const SolveReport& rep, const ProblemStats& stats) {
     out["relaxation_fallback"] = rep.relaxation_fallback;
     out["factorizations"] = rep.factorizations;
     out["newton_fallbacks"] = rep.newton_fallbacks;
+    out["newton_iterations"] = rep.newton_iterations;
+    out["outer_iterations"] = rep.outer_iterations;
     py::dict san;
     san["nonfinite"] = rep.sanitized.nonfinite;
     san["negative"] = rep.sanitized.negative;
@@ -282,10 +284,11 @@ void bind_options(py::module_& m) {
     bind_enum<Acceleration>(
         m, "Acceleration",
         {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}, {"newton", Acceleration::newton},
-         {"subspace", Acceleration::subspace}},
+         {"subspace", Acceleration::subspace}, {"bodyspace", Acceleration::bodyspace}},
         "none: plain (P)SOR sweeps; nncg: nonsmooth nonlinear conjugate gradient; newton: sweeps,\n"
         "then semismooth Newton steps on the whole step (float64, stops on the residual); subspace:\n"
-        "the same with each system solved inexactly by conjugate gradients.");
+        "the same with each system solved inexactly by conjugate gradients; bodyspace: sweeps, then\n"
+        "augmented-Lagrangian iterations on the bodies' velocities (float64, stops on the residual).");
     bind_enum<LoopStart>(m, "LoopStart", {{"zero", LoopStart::zero}, {"builtin", LoopStart::builtin}},
                          "Where a step of the native loop starts PGS: zero or Box2D's carried impulses.");
 

@@ -29,6 +29,7 @@ from ..errors import InputError, count
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
+from ..solver.methods import GLOBAL
 from ..step.engines import SoftStep
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
@@ -112,10 +113,16 @@ def _solve_xml(options, solution):
         iterations, residual, w = solution.iterations, solution.residual, solution.relaxation
         sanitized = sum(solution.sanitized.values())
     residual = residual if np.isfinite(residual) else 0.0
+    work = ""
+    if o.accelerate in GLOBAL:   # a global method's work is more than its iterations
+        s = solution
+        counts = (0, 0, 0, 0) if s is None else (s.factorizations, s.newton_iterations, s.outer_iterations,
+                                                 s.newton_fallbacks)
+        work = (' factorizations="%d" newton_iterations="%d" outer_iterations="%d" fallbacks="%d"' % counts)
     return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
             f'max_iterations="{o.max_iterations}" relaxation="{fmt(w)}" accelerate="{o.accelerate}" '
             f'iterations="{iterations}" '
-            f'residual="{fmt(residual)}" sanitized="{sanitized}"/>\n')
+            f'residual="{fmt(residual)}" sanitized="{sanitized}"{work}/>\n')
 
 
 def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None,

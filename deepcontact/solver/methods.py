@@ -7,6 +7,7 @@ plug-ins a user names (entry point group ``deepcontact.solvers``, or ``package.m
     nncg      sweeps plus conjugate directions
     newton    sweeps, then semismooth Newton steps on the whole step (float64)
     subspace  the same, each Newton system solved by conjugate gradients (float64)
+    bodyspace sweeps, then augmented-Lagrangian iterations on the bodies' velocities (float64)
 
 `solve` is the one switch: a built-in runs natively (and can run inside the native stepping
 loop); a plug-in is called as
@@ -32,7 +33,7 @@ if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
 
 SOLVERS = Registry("solver method", "deepcontact.solvers")
-GLOBAL = ("newton", "subspace")   # built-ins whose work is not only sweeps (and which are float64 only)
+GLOBAL = ("newton", "subspace", "bodyspace")   # built-ins whose work is not only sweeps (and which are float64 only)
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ def method(name):
 
 
 def check_mode(name: str, mode: str) -> None:
-    """The rule a solver method puts on the arithmetic: newton and subspace are float64 only.
+    """The rule a solver method puts on the arithmetic: newton, subspace and bodyspace are float64 only.
     OptionError (naming --accelerate) where it is broken."""
     from ..errors import OptionError
     if is_native(name) and getattr(SOLVERS.resolved(name), "float64_only", False) and mode != "float64":

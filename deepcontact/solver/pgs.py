@@ -51,8 +51,10 @@ class Solution:
     stats: dict
     relaxation_fallback: int = 0   # the sweep after which over-relaxation fell back to w = 1 (0: never)
     relaxation: float = 1.0        # the w it was asked to use
-    factorizations: int = 0        # Newton steps tried, each one sparse factorization (accelerate="newton")
-    newton_fallbacks: int = 0      # of those, the steps that failed and handed back to sweeps
+    factorizations: int = 0        # sparse factorizations (newton: one per Newton step tried; bodyspace: per Newton iteration)
+    newton_fallbacks: int = 0      # Newton steps (bodyspace: outer iterations) that failed and handed back to sweeps
+    newton_iterations: int = 0     # bodyspace: Newton iterations on the bodies' momentum balance
+    outer_iterations: int = 0      # bodyspace: outer iterations (multipliers and friction bounds updated)
     pivoted: bool = False          # the reference finished by Lemke's pivoting (solver/reference.py)
 
     @classmethod
@@ -63,7 +65,8 @@ class Solution:
                    iterations=out["iterations"], history=out["history"], residual=out["residual"],
                    sanitized=out["sanitized"], stats=out["stats"], relaxation_fallback=out["relaxation_fallback"],
                    relaxation=float(relaxation), factorizations=out["factorizations"],
-                   newton_fallbacks=out["newton_fallbacks"])
+                   newton_fallbacks=out["newton_fallbacks"],
+                   newton_iterations=out["newton_iterations"], outer_iterations=out["outer_iterations"])
 
     def measure(self, name):
         return self.history[:, MEASURES.index(name)]
