@@ -58,6 +58,20 @@ def test_our_exact_solution_and_siconos_lemke_both_solve_the_exported_problems(e
         assert theirs["info"] == 0 and theirs["residual"] < 1e-9, path.name
 
 
+@pytest.mark.process
+def test_the_solve_in_body_space_is_judged_a_solution_on_the_siconos_side(exported, tmp_path):
+    from deepcontact.solver.methods import solve
+    paths, ours = [], []
+    for path, problem, _ in exported:
+        zero = np.zeros(problem.points)
+        s = solve(problem, zero, zero, tolerance=1e-10, max_iterations=20_000, accelerate="bodyspace")
+        ours.append(s.residual)
+        paths.append(fclib.write_problem(problem, tmp_path / path.name, solution=(s.normal_impulse, s.tangent_impulse)))
+    for path, residual, theirs in zip(paths, ours, peer.run(paths, solver="lemke")):
+        assert residual < 1e-10, path.name
+        assert theirs["stored_residual"] == pytest.approx(residual, rel=1e-3, abs=1e-12), path.name
+
+
 def test_the_export_is_the_problem_our_solver_solves(exported):
     for path, problem, ours in exported:
         lp = fclib.read_problem(path)
