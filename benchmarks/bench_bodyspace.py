@@ -1,0 +1,93 @@
+"""The solve in body space (accelerate="bodyspace") on the problems it was built for, against the
+method each is measured by, in one run:
+
+1. exact: the base-20 pyramid's 14 settling steps (8-10, 15-18, 32-36, 52-53) on which no other
+   method of the project reaches 1e-12 (docs/results.md), from zero, cap 100,000 iterations,
+   against the contact-space Newton with the same cap;
+2. the first five steps with contacts of a base-40 pyramid (820 boxes) from zero to 1e-4,
+   against subspace minimization (the method that meets it today);
+3. the 100-circle pile settled (its last steps of 1,000) from zero and from Box2D's warm start to
+   1e-4, against PSOR at w = 1.7 (the fastest there today).
+
+Per method: steps that reach the tolerance, median and total time, and the work: iterations
+(sweeps plus outer iterations), factorizations, Newton iterations, outer iterations and fallbacks
+to sweeps. float64, one thread.
+
+Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|all]
+"""
+import argparse
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from deepcontact.protocol import current, protocol_line
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.solver.methods import solve
+from deepcontact.solver.problem import StepProblem
+
+SETTLING = (8, 9, 10, 15, 16, 17, 18, 32, 33, 34, 35, 36, 52, 53)
+
+
+def scene_problems(generator, params, wanted, seed=0):
+    scene = generate(generator, seed, params)
+    world = build_world(scene)
+    out = []
+    for k in range(max(wanted) + 1):
+        bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
+                                      record=True)
+        if k in wanted and len(contacts["manifold"]):
+            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
+                                               gravity=scene.effects.gravity or (0.0, 0.0),
+                                               block_solve=scene.solver.block_solve))
+    return out
+
+
+def table(title, problems, methods, tolerance, cap, start="zero"):
+    print(f"\n{title}: {len(problems)} steps, {statistics.mean(p.points for p in problems):.0f} contact points "
+          f"on average; from {start} to {tolerance:g}, cap {cap:,} iterations\n")
+    print("| method | reach it | worst residual | median ms | total s | iterations (median) | factorizations "
+          "(median) | Newton iterations (median) | outer iterations (median) | fallbacks (total) |")
+    print("| --- |" + " ---: |" * 9)
+    for label, (accelerate, w) in methods.items():
+        runs = []
+        for p in problems:
+            n, t = (np.zeros(p.points), np.zeros(p.points)) if start == "zero" else (p.start_normal, p.start_tangent)
+            t0 = time.perf_counter()
+            s = solve(p, n, t, accelerate=accelerate, relaxation=w, max_iterations=cap, tolerance=tolerance)
+            runs.append((time.perf_counter() - t0, s))
+            print(f"  {label} step {p.index}: {runs[-1][0]:.3f} s, residual {s.residual:.1e}", file=sys.stderr, flush=True)
+        times = [t for t, _ in runs]
+        sols = [s for _, s in runs]
+
+        def med(f):
+            return statistics.median(f(s) for s in sols)
+        print(f"| {label} | {sum(s.residual < tolerance for s in sols)} of {len(sols)} | "
+              f"{max(s.residual for s in sols):.1e} | {1e3 * statistics.median(times):.1f} | {sum(times):.2f} | "
+              f"{med(lambda s: s.iterations):.0f} | {med(lambda s: s.factorizations):.0f} | "
+              f"{med(lambda s: s.newton_iterations):.0f} | {med(lambda s: s.outer_iterations):.0f} | "
+              f"{sum(s.newton_fallbacks for s in sols)} |", flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "all"), default="all")
+    args = ap.parse_args()
+    print(protocol_line(current(jobs=1)))
+    body = {"bodyspace": ("bodyspace", 1.0)}
+    if args.part in ("exact", "all"):
+        table("Base-20 pyramid, its settling steps", scene_problems("pyramid", {"base": 20}, SETTLING),
+              {"Newton": ("newton", 1.0), **body}, 1e-12, 100_000)
+    if args.part in ("pyramid40", "all"):
+        first = scene_problems("pyramid", {"base": 40, "steps": 5}, range(5))
+        table("Base-40 pyramid, its first steps", first, {"subspace": ("subspace", 1.0), **body}, 1e-4, 100_000)
+    if args.part in ("pile100", "all"):
+        settled = scene_problems("pile", {}, range(997, 1000))
+        for start in ("zero", "Box2D's warm start"):
+            table("100-circle pile, settled", settled, {"PSOR 1.7": ("none", 1.7), **body}, 1e-4, 100_000, start)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
