@@ -4,7 +4,8 @@ body count (the baseline any new global method is measured against).
 
 Each pile is stepped by Box2D 2.4.1 (in memory) until it has settled (the step counts below), and
 its last --samples steps are solved by: PGS (sweeps), PSOR at w = 1.7, NNCG (conjugate
-directions), sweeps then Newton steps, sweeps then subspace minimization; float64, one thread,
+directions), sweeps then Newton steps, sweeps then subspace minimization, sweeps then the solve
+in body space (its iterations: sweeps plus outer iterations); float64, one thread,
 cap --cap iterations. Twice: from zero (the pile's own difficulty: a sweep carries information
 about one contact further, and a settled pile of N circles is about sqrt(N) layers deep) and from
 Box2D's warm start (what the loop sees at rest, where the warm start is nearly the answer).
@@ -12,7 +13,7 @@ Reported per start, method and size: the median time and iterations over the sam
 many reached the tolerance; the exponent is the slope of log(median time) on log(bodies) over
 the sizes where every sample converged.
 
-Usage: python benchmarks/bench_solver_scale.py [--samples N] [--cap N] [--quick]
+Usage: python benchmarks/bench_solver_scale.py [--samples N] [--cap N] [--quick] [--methods PGS,...]
 """
 import argparse
 import math
@@ -39,7 +40,7 @@ QUICK = {"pile 100": (100, {}, 600), "pile 1,000": (1000, {"count": "1000", "box
 STARTS = ("zero", "Box2D's warm start")
 # label: (accelerate, relaxation)
 METHODS = {"PGS": ("none", 1.0), "PSOR 1.7": ("none", 1.7), "NNCG": ("nncg", 1.0), "Newton": ("newton", 1.0),
-           "subspace": ("subspace", 1.0)}
+           "subspace": ("subspace", 1.0), "body space": ("bodyspace", 1.0)}
 TOLERANCE = 1e-4
 
 
@@ -66,7 +67,9 @@ def main():
     ap.add_argument("--samples", type=int, default=3)
     ap.add_argument("--cap", type=int, default=100_000)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated labels of METHODS to run")
     args = ap.parse_args()
+    methods = {label: METHODS[label] for label in args.methods.split(",")}
     print(protocol_line(current()) + "\n")
     sizes = QUICK if args.quick else FULL
     table = {}   # (start, method, size) -> (median ms, median iterations, converged, samples)
@@ -75,7 +78,7 @@ def main():
         problems = settled_problems(params, steps, args.samples)
         contacts[name] = statistics.median(len(p.start_normal) for p in problems)
         for start in STARTS:
-            for label, (accelerate, w) in METHODS.items():
+            for label, (accelerate, w) in methods.items():
                 times, iterations, converged = [], [], 0
                 for p in problems:
                     n, t = (np.zeros_like(p.start_normal), np.zeros_like(p.start_tangent)) if start == "zero" \
@@ -97,7 +100,7 @@ def main():
         print("| method | " + " | ".join(f"{n} ({contacts[n]:,.0f} contact points)" for n in names) +
               " | exponent (time ~ bodies^k) |")
         print("| --- |" + " ---: |" * (len(names) + 1))
-        for label in METHODS:
+        for label in methods:
             cells, xs, ys = [], [], []
             for n in names:
                 ms, its, ok, total = table[start, label, n]
