@@ -14,6 +14,7 @@ many reached the tolerance; the exponent is the slope of log(median time) on log
 the sizes where every sample converged.
 
 Usage: python benchmarks/bench_solver_scale.py [--samples N] [--cap N] [--quick] [--methods PGS,...]
+       [--sizes 100,1000]
 """
 import argparse
 import math
@@ -68,10 +69,13 @@ def main():
     ap.add_argument("--cap", type=int, default=100_000)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated labels of METHODS to run")
+    ap.add_argument("--sizes", help="comma-separated body counts of the piles to run, e.g. 100,1000 (default: all)")
     args = ap.parse_args()
     methods = {label: METHODS[label] for label in args.methods.split(",")}
     print(protocol_line(current()) + "\n")
     sizes = QUICK if args.quick else FULL
+    if args.sizes:
+        sizes = {name: size for name, size in sizes.items() if str(size[0]) in args.sizes.split(",")}
     table = {}   # (start, method, size) -> (median ms, median iterations, converged, samples)
     contacts = {}
     for name, (bodies, params, steps) in sizes.items():
