@@ -98,3 +98,15 @@ def test_in_the_loop_its_step_files_validate_and_carry_its_work(tmp_path):
     assert all(int(s["factorizations"]) == int(s["newton_iterations"]) for s in solves)
     option_error(dc("simulate", "pyramid", "--solver", "pgs", "--mode", "float32", "--accelerate", "bodyspace",
                     "-o", str(tmp_path / "bad")), "float64 only")
+
+
+def test_the_reference_ends_with_it_and_is_exact_on_a_settling_pyramid_step():
+    """Step 8 of the base-20 pyramid: too wide to pivot, and Newton stalls on it (docs/results.md);
+    the reference's last stage, the solve in body space, is exact."""
+    from deepcontact.solver.reference import reference_solution
+    p, = problems("pyramid", dict(base=20), (8,))
+    r = reference_solution(p)
+    assert r.residual < 1e-12
+    assert r.outer_iterations > 0 and not r.pivoted   # it was the solve in body space that got there
+    lcp = L.build_lcp(p)
+    assert L.natural_residual(lcp, r.normal_impulse, r.tangent_impulse) / np.abs(lcp.b).max() < 1e-11

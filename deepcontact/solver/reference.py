@@ -8,7 +8,8 @@ FIRST_SWEEPS without an exact answer the reference pivots (solver/pivoting.py): 
 the neighbourhood of the contacts that carry the residual, the others held, then Newton from
 there; a wider neighbourhood; the whole step (up to PIVOT_POINTS contact points), as it is and
 with q slightly perturbed (a degenerate step's ties end Lemke on a ray or a wrong basis); and
-last Newton from the best answer to the cap. The best answer is kept (Solution.pivoted says that a
+last the solve in body space (accelerate="bodyspace") from zero to the cap, which is exact on most
+of the settling pyramid steps too wide to pivot. The best answer is kept (Solution.pivoted says that a
 pivot led to it). The residual reached, the sweeps, factorizations and fallbacks are part of the
 answer: reports count the steps that still miss 1e-12 rather than pretending. It starts from
 zero so that it does not depend on any start being compared. Exact solutions of a frictional step
@@ -54,7 +55,8 @@ def _newton(problem, normal, tangent, sweeps, tolerance, relaxation=1.0, acceler
 
 def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> Solution:
     """From Newton's answer s, if it misses the tolerance: pivots (local, wider, whole), each
-    followed by Newton, then Newton to the cap; the best answer, its work summed."""
+    followed by Newton, then the solve in body space from zero to the cap; the best answer, its
+    work summed."""
     if s.residual < tolerance:
         return s
     from .pivoting import StepPivots, lemke_tableau
@@ -78,18 +80,20 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
         if best.residual < tolerance:
             return _summed(best, work)
     left = cap - sum(w.iterations for w in work)
-    if left > 0:
-        t = _newton(problem, best.normal_impulse, best.tangent_impulse, left, tolerance)
+    if left > 0:   # last, the solve in body space from zero: it is exact on steps too wide to pivot
+        zero = np.zeros(problem.points)
+        t = _newton(problem, zero, zero, left, tolerance, accelerate="bodyspace")
         work.append(t)
         if t.residual < best.residual:
-            t.pivoted = best.pivoted
             best = t
     return _summed(best, work)
 
 
 def _summed(best: Solution, work) -> Solution:
-    """best, carrying the sweeps, factorizations and fallbacks of every solve that led to it."""
+    """best, carrying the iterations, factorizations and fallbacks of every solve that led to it."""
     best.iterations = sum(w.iterations for w in work)
     best.factorizations = sum(w.factorizations for w in work)
     best.newton_fallbacks = sum(w.newton_fallbacks for w in work)
+    best.newton_iterations = sum(w.newton_iterations for w in work)
+    best.outer_iterations = sum(w.outer_iterations for w in work)
     return best
