@@ -9,9 +9,9 @@ in body space (its iterations: sweeps plus outer iterations); float64, one threa
 cap --cap iterations. Twice: from zero (the pile's own difficulty: a sweep carries information
 about one contact further, and a settled pile of N circles is about sqrt(N) layers deep) and from
 Box2D's warm start (what the loop sees at rest, where the warm start is nearly the answer).
-Reported per start, method and size: the median time and iterations over the samples, and how
-many reached the tolerance; the exponent is the slope of log(median time) on log(bodies) over
-the sizes where every sample converged.
+Reported per start, method and size: the median time, iterations and (global methods) sparse
+factorizations over the samples, and how many reached the tolerance; the exponent is the slope of
+log(median time) on log(bodies) over the sizes where every sample converged.
 
 Usage: python benchmarks/bench_solver_scale.py [--samples N] [--cap N] [--quick] [--methods PGS,...]
        [--sizes 100,1000]
@@ -83,7 +83,7 @@ def main():
         contacts[name] = statistics.median(len(p.start_normal) for p in problems)
         for start in STARTS:
             for label, (accelerate, w) in methods.items():
-                times, iterations, converged = [], [], 0
+                times, iterations, factorizations, converged = [], [], [], 0
                 for p in problems:
                     n, t = (np.zeros_like(p.start_normal), np.zeros_like(p.start_tangent)) if start == "zero" \
                         else (p.start_normal, p.start_tangent)
@@ -92,8 +92,10 @@ def main():
                               tolerance=TOLERANCE)
                     times.append(time.perf_counter() - t0)
                     iterations.append(s.iterations)
+                    factorizations.append(s.factorizations)
                     converged += bool(s.residual <= TOLERANCE)
-                row = (1e3 * statistics.median(times), statistics.median(iterations), converged, len(problems))
+                row = (1e3 * statistics.median(times), statistics.median(iterations), converged, len(problems),
+                       statistics.median(factorizations))
                 table[start, label, name] = row
                 print(f"  {name}, from {start}, {label}: {row[0]:.1f} ms, {row[1]:.0f} iterations, "
                       f"{converged}/{len(problems)} converged", file=sys.stderr, flush=True)
@@ -107,8 +109,9 @@ def main():
         for label in methods:
             cells, xs, ys = [], [], []
             for n in names:
-                ms, its, ok, total = table[start, label, n]
-                cells.append(f"{ms:.1f} ms, {its:.0f} it" + ("" if ok == total else f" ({ok}/{total} converged)"))
+                ms, its, ok, total, fact = table[start, label, n]
+                cells.append(f"{ms:.1f} ms, {its:.0f} it" + (f", {fact:.0f} fact" if fact else "") +
+                             ("" if ok == total else f" ({ok}/{total} converged)"))
                 if ok == total and ms > 0:
                     xs.append(math.log(sizes[n][0]))
                     ys.append(math.log(ms))
