@@ -1,23 +1,24 @@
 // A solve in body space (float64): the unknowns are the bodies' velocities, not the impulses.
 //
-// The step's problem is an augmented-Lagrangian fixed point. For multipliers lambda_k (the
+// The step's problem as an augmented-Lagrangian fixed point. For multipliers lambda_k (the
 // impulses of the last outer iteration) and a penalty rho per row (c over the row's effective
 // inverse mass k, so rho has the units of a mass), the impulses are a function of the velocities:
 //   normal:  ln(v) = max(0, ln_k - rho_n u_n(v))
 //   tangent: lt(v) = clamp(lt_k - rho_t u_t(v), -mu ln(v), mu ln(v))
 // with u = J v - bias the rows' velocities. The inner problem is Newton's method on the bodies'
 // momentum balance g(v) = M (v - v*) - J^T lambda(v) = 0; its Jacobian M + J^T D J (D: -d lambda/du
-// on the rows that touch or stick, and a sliding row's dependence on its normal) is positive
-// definite however many contacts are redundant, but not symmetric where points slide, so it is
-// factorized by a sparse LU (a symmetric system that holds sliding rows at their bound is
-// Cholesky's, and it diverged on the settling pile: docs/solver.md, "A solve in body space").
-// An outer iteration sets lambda_k = lambda(v) and measures the residual: at a fixed point,
-// lambda(v) = lambda_k, every row is complementary and the step's LCP is solved.
+// on the rows that touch or stick, and a sliding row's dependence on its normal) is regular
+// however many contacts are redundant, but not symmetric where points slide, so a sparse LU
+// factorizes it. (Fixing the friction bounds per outer iteration, or dropping the sliding
+// coupling, makes it Cholesky's; neither converged on the settling pile: docs/solver.md.)
+// An outer iteration sets lambda_k = lambda(v): at a fixed point every row is complementary and
+// the step's LCP is solved.
 //
-// The outer iteration is a proximal point on the impulses (its rate is 1 / (1 + rho sigma) on a
-// mode of the Delassus operator of eigenvalue sigma), so it is linear; sweeps run first, as for
-// the contact-space Newton, and run again (twice as many) after an outer iteration that fails to
-// lower the residual. Every factorization, Newton iteration, outer iteration and fallback counts.
+// The outer iteration is a proximal point on the impulses, linear at a rate of about
+// 1 / (1 + rho sigma) on a mode of the Delassus operator of eigenvalue sigma: a heavier penalty
+// takes fewer outer iterations and more Newton iterations (a stiffer, more kinked inner problem),
+// so c adapts. pgs.hpp's solve_bodyspace runs sweeps first and between failures, and counts every
+// factorization, Newton iteration, outer iteration and fallback.
 #pragma once
 
 #include <algorithm>
@@ -102,8 +103,6 @@ public:
     void progress(double before, double after) {
         if (after > 0.5 * before) c_ = std::min(kHeaviest, c_ * kPenaltyStep);
     }
-
-    double penalty() const { return c_; }
 
 private:
     static constexpr double kLightest = 1.0, kHeaviest = 1e5, kPenaltyStep = 4.0;
