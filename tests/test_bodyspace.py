@@ -4,27 +4,10 @@ counted, in the loop and in a step file."""
 import numpy as np
 import pytest
 
-from conftest import dc, option_error
+from conftest import dc, option_error, step_problems as problems
 import reference_lcp as L
-from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
 from deepcontact.solver.methods import judge, solve
-from deepcontact.solver.problem import StepProblem
 from deepcontact.step.reader import read_step
-
-
-def problems(generator, params, wanted):
-    scene = generate(generator, 0, params)
-    world = build_world(scene)
-    out = []
-    for k in range(max(wanted) + 1):
-        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
-        if k in wanted and len(contacts["manifold"]):
-            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
-                                               gravity=scene.effects.gravity or (0.0, 0.0),
-                                               block_solve=scene.solver.block_solve))
-    return out
-
 
 # a settling pile (sliding and rolling contacts), a pyramid of boxes from its initial gaps (two-point
 # manifolds, the block solver's redundant pairs), a stack, and the 400:1 mass ratio

@@ -3,29 +3,17 @@ conjugate gradients (accelerate="subspace"), checked against the explicit LCP in
 import numpy as np
 import pytest
 
-from conftest import dc, option_error
-from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
+from conftest import dc, option_error, step_problems
 import reference_lcp as L
 from deepcontact.solver.pgs import solve
-from deepcontact.solver.problem import StepProblem
 
 
 def problems(generator, params, wanted):
-    return problems_of_seed(generator, 0, params, wanted)
+    return step_problems(generator, params, wanted)
 
 
 def problems_of_seed(generator, seed, params, wanted):
-    scene = generate(generator, seed, params)
-    world = build_world(scene)
-    out = []
-    for k in range(max(wanted) + 1):
-        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
-        if k in wanted and len(contacts["manifold"]):
-            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
-                                               gravity=scene.effects.gravity or (0.0, 0.0),
-                                               block_solve=scene.solver.block_solve))
-    return out
+    return step_problems(generator, params, wanted, seed)
 
 
 SAMPLE = (problems("pile", dict(count=30, box=16.0, sigma=4.0), (100, 200, 300))

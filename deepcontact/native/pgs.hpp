@@ -244,6 +244,24 @@ private:
     static constexpr int kBodySpaceStall = 5;
     static constexpr double kPenalty = 10.0;  // bodyspace's first rho times k: a row's own mass, tenfold
 
+    // `count` sweeps (PSOR at w), each an iteration of the cap, then the residual; with history,
+    // the residual after each sweep is recorded.
+    template <class Record>
+    void settle(int count, R w, const SolveOptions& opt, SolveReport& rep, double& residual, Record& record) {
+        for (int k = 0; k < count; ++k) {
+            if (opt.relaxation != 1.0)
+                sweep<true>(w);
+            else
+                sweep<false>(w);
+            ++rep.iterations;
+            if (opt.history) {
+                residual = this->residual();
+                record();
+            }
+        }
+        residual = this->residual();
+    }
+
     // Sweeps (PSOR at w) settle the active set; Newton steps finish while they lower the merit.
     // After a Newton step fails, twice as many sweeps as before run first (sweeps are cheap and
     // change which contacts touch and slide; a factorization costs a hundred sweeps).
@@ -257,19 +275,7 @@ private:
         };
         int sweeps = kSweepsBeforeNewton;
         while (residual >= tolerance && rep.iterations < opt.max_iterations) {
-            const int now = std::min(sweeps, opt.max_iterations - rep.iterations);
-            for (int k = 0; k < now; ++k) {
-                if (opt.relaxation != 1.0)
-                    sweep<true>(w);
-                else
-                    sweep<false>(w);
-                ++rep.iterations;
-                if (opt.history) {
-                    residual = this->residual();
-                    record();
-                }
-            }
-            residual = this->residual();
+            settle(std::min(sweeps, opt.max_iterations - rep.iterations), w, opt, rep, residual, record);
             while (residual >= tolerance && newton.factorizations() < kNewtonLimit) {
                 const double before = residual;
                 const bool stepped = newton.step();
@@ -304,19 +310,7 @@ private:
         std::vector<BodyVelocity<R>> kept_velocity;
         int sweeps = kSweepsBeforeNewton;
         while (residual >= tolerance && rep.iterations < opt.max_iterations) {
-            const int now = std::min(sweeps, opt.max_iterations - rep.iterations);
-            for (int k = 0; k < now; ++k) {
-                if (opt.relaxation != 1.0)
-                    sweep<true>(w);
-                else
-                    sweep<false>(w);
-                ++rep.iterations;
-                if (opt.history) {
-                    residual = this->residual();
-                    record();
-                }
-            }
-            residual = this->residual();
+            settle(std::min(sweeps, opt.max_iterations - rep.iterations), w, opt, rep, residual, record);
             // The outer iteration is linear and not monotone in the largest row's residual: it goes
             // on while it stays within kBodySpaceGuard of the best residual and finds a new best
             // at least every kBodySpaceStall iterations.
