@@ -51,8 +51,11 @@ def axis_floor(values_by_name, oracles):
     if not len(fair):
         return None
     low = float(fair.min())
-    below = [n for n, v in values_by_name.items() if n in oracles and np.nanmin(np.where(np.asarray(v, float) > 0,
-                                                                                           v, np.inf)) < low / 10]
+    def lowest(v):   # an oracle's smallest positive value (an oracle without one reaches nothing)
+        v = np.asarray(v, float).ravel()
+        v = v[np.isfinite(v) & (v > 0)]
+        return v.min() if len(v) else np.inf
+    below = [n for n, v in values_by_name.items() if n in oracles and lowest(v) < low / 10]
     return low / 3 if below else None
 
 

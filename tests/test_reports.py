@@ -4,6 +4,8 @@ summary.csv and its caveat on chaotic drift."""
 import csv
 import json
 
+import pytest
+
 from test_mutations import invoke
 
 
@@ -138,3 +140,10 @@ def test_training_shows_the_grids_floor_beside_predicting_zero(run, dataset, tmp
     from deepcontact.studies.maps import table
     text = table({"joint": {"epochs": 1, "best_epoch": 0, "seconds": 3.0, **row}})
     assert "predicting 0" in text.splitlines()[0] and f"{row['val_floor_rmse_normal']:.4g}" in text
+
+
+def test_an_oracle_curve_without_a_value_leaves_the_axis_alone():
+    # (the copy oracle with a global method converges in 0 iterations: its curve past the start is empty)
+    from deepcontact.plotstyle import axis_floor
+    assert axis_floor({"builtin": [1e-3, 1e-5], "copy": []}, {"copy"}) is None
+    assert axis_floor({"builtin": [1e-3, 1e-5], "copy": [0.0, 1e-15]}, {"copy"}) == pytest.approx(1e-5 / 3)
