@@ -70,7 +70,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_predict.py
 	$(PYTHON) benchmarks/bench_engines.py
 	sh benchmarks/bench_loop_scale.sh
-	$(PYTHON) benchmarks/bench_engines.py
+	$(PYTHON) benchmarks/bench_bodyspace.py
 
 # The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).
 studies: setup
@@ -83,6 +83,7 @@ studies: setup
 	$(DC) study learned-correction
 	$(DC) study learned-coarse
 	$(DC) study engines -o $(RUNS)/engines --overwrite
+	$(PYTHON) benchmarks/bench_solver_scale.py --samples 2 --sizes 100,1000
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).
