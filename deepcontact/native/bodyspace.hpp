@@ -23,6 +23,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include <Eigen/SparseCore>
@@ -155,8 +156,10 @@ private:
                         q.fixed_t += jt[c] * vel;
                     }
                 }
-                q.kn = p.k_normal;
-                q.kt = p.k_tangent;
+                // (a row no unknown moves has no penalty: c / infinity = 0 keeps its impulse)
+                const double inf = std::numeric_limits<double>::infinity();
+                q.kn = p.k_normal > 0 ? p.k_normal : inf;
+                q.kt = p.k_tangent > 0 ? p.k_tangent : inf;
                 q.bias = p.bias;
                 points_.push_back(q);
             }
