@@ -98,23 +98,19 @@ public:
     // cheaper here) where no point slides and H is symmetric, by a sparse LU where one does.
     // false if the factorization fails.
     bool direction(const Eigen::Map<const Eigen::VectorXd>& g, Eigen::VectorXd& dv) {
-        if (!sliding_) {
-            if (!analyzed_ldlt_) {
-                ldlt_.analyzePattern(H_);
-                analyzed_ldlt_ = true;
-            }
-            ldlt_.factorize(H_);
-            if (ldlt_.info() != Eigen::Success) return false;
-            dv = ldlt_.solve(-g);
-        } else {
-            if (!analyzed_lu_) {
-                lu_.analyzePattern(H_);
-                analyzed_lu_ = true;
-            }
-            lu_.factorize(H_);
-            if (lu_.info() != Eigen::Success) return false;
-            dv = lu_.solve(-g);
+        return sliding_ ? solved(lu_, analyzed_lu_, g, dv) : solved(ldlt_, analyzed_ldlt_, g, dv);
+    }
+
+    // H_ factorized by `solver` (its pattern analysed the first time), dv = -H^-1 g.
+    template <class Solver>
+    bool solved(Solver& solver, bool& analyzed, const Eigen::Map<const Eigen::VectorXd>& g, Eigen::VectorXd& dv) {
+        if (!analyzed) {
+            solver.analyzePattern(H_);
+            analyzed = true;
         }
+        solver.factorize(H_);
+        if (solver.info() != Eigen::Success) return false;
+        dv = solver.solve(-g);
         return dv.allFinite();
     }
 
