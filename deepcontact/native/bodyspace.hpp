@@ -36,8 +36,7 @@
 namespace dc {
 
 struct BodySpaceWork {
-    int factorizations = 0;   // sparse factorizations, Cholesky or LU (one per Newton iteration)
-    int newton = 0;           // Newton iterations on the momentum balance
+    int newton = 0;           // Newton iterations on the momentum balance, one factorization each
     int outer = 0;            // outer (multiplier) iterations
 };
 
@@ -62,29 +61,32 @@ public:
         body_impulse(lambda_k_, tmp_);
         for (int d = 0; d < dofs_; ++d) vstar_[d] = v_[d] - tmp_[d] / mass_[d];
         const double target = std::max(0.1 * std::max(tolerance, residual), 1e-15) * scale_;
-        for (int it = 0; it < kInnerLimit; ++it) {
-            const double f0 = balance(v_, g_);
-            if (largest_ <= target) break;
+        // (balance() leaves lambda_, y_ and largest_ at its v; a step taken keeps its trial's)
+        double f = balance(v_, g_);
+        for (int it = 0; it < kInnerLimit && largest_ > target; ++it) {
             assemble();
-            ++work.factorizations;
             ++work.newton;
             Eigen::Map<const Eigen::VectorXd> g(g_.data(), dofs_);
             Eigen::VectorXd dv;
             if (!direction(g, dv)) break;
             // Armijo on |g|^2_{M^-1}, halving
-            double alpha = 1.0;
             bool accepted = false;
-            for (; alpha >= kSmallestStep; alpha *= 0.5) {
+            for (double alpha = 1.0; alpha >= kSmallestStep; alpha *= 0.5) {
                 for (int d = 0; d < dofs_; ++d) trial_[d] = v_[d] + alpha * dv[d];
-                if (balance(trial_, trial_g_) <= (1.0 - 1e-4 * alpha) * f0) {
+                const double trial = balance(trial_, trial_g_);
+                if (trial <= (1.0 - 1e-4 * alpha) * f) {
+                    std::swap(v_, trial_);
+                    std::swap(g_, trial_g_);
+                    f = trial;
                     accepted = true;
                     break;
                 }
             }
-            if (!accepted) break;
-            std::swap(v_, trial_);
+            if (!accepted) {
+                balance(v_, g_);   // back to v_'s impulses from the last trial's
+                break;
+            }
         }
-        balance(v_, g_);
         if (largest_ > target) {  // the inner problem too stiff for Newton from here: a lighter penalty next time
             c_ = std::max(kLightest, c_ / kPenaltyStep);
             return false;

@@ -59,6 +59,11 @@ struct SolveOptions {
     bool float64() const { return mode == Mode::float64; }
 };
 
+// The methods whose work is not only sweeps: float64 only, stopping on the residual.
+inline bool is_global(Acceleration a) {
+    return a == Acceleration::newton || a == Acceleration::subspace || a == Acceleration::bodyspace;
+}
+
 // The one check of a solve's options; throws std::invalid_argument (ValueError in Python).
 inline void check(const SolveOptions& o) {
     if (o.max_iterations < 0) throw std::invalid_argument("max_iterations must be >= 0");
@@ -68,8 +73,7 @@ inline void check(const SolveOptions& o) {
     if (!(o.max_velocity >= 0.0)) throw std::invalid_argument("max_velocity must be >= 0");
     if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
-    const bool global = o.accelerate == Acceleration::newton || o.accelerate == Acceleration::subspace ||
-                        o.accelerate == Acceleration::bodyspace;
+    const bool global = is_global(o.accelerate);
     if (global && o.mode != Mode::float64) throw std::invalid_argument("newton, subspace and bodyspace are float64 only");
     if (global && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))
         throw std::invalid_argument("newton, subspace and bodyspace stop on the residual (tolerance 0: exact, 1e-12)");
@@ -119,13 +123,11 @@ public:
         if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) scale_ = free_velocity_scale();
         warm_start();
         if constexpr (std::is_same_v<R, double>)
-            if (opt.accelerate == Acceleration::newton || opt.accelerate == Acceleration::subspace) {
-                solve_newton(opt, rep);
-                return rep;
-            }
-        if constexpr (std::is_same_v<R, double>)
-            if (opt.accelerate == Acceleration::bodyspace) {
-                solve_bodyspace(opt, rep);
+            if (is_global(opt.accelerate)) {
+                if (opt.accelerate == Acceleration::bodyspace)
+                    solve_bodyspace(opt, rep);
+                else
+                    solve_newton(opt, rep);
                 return rep;
             }
         // The change of the iterate is needed only to report it or to stop on it.
@@ -342,8 +344,7 @@ private:
                 record();
             }
         }
-        rep.factorizations = work.factorizations;
-        rep.newton_iterations = work.newton;
+        rep.factorizations = rep.newton_iterations = work.newton;   // one factorization per Newton iteration
         rep.outer_iterations = work.outer;
         rep.residual = residual;
     }
