@@ -22,27 +22,14 @@ import time
 
 import numpy as np
 
+from bench_solver_scale import settled_problems
 from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
 from deepcontact.solver.methods import solve
-from deepcontact.solver.problem import StepProblem
+from deepcontact.studies.exact import problems
+from deepcontact.studies.peer import first_steps
 
 SETTLING = (8, 9, 10, 15, 16, 17, 18, 32, 33, 34, 35, 36, 52, 53)
-
-
-def scene_problems(generator, params, wanted, seed=0):
-    scene = generate(generator, seed, params)
-    world = build_world(scene)
-    out = []
-    for k in range(max(wanted) + 1):
-        bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
-                                      record=True)
-        if k in wanted and len(contacts["manifold"]):
-            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
-                                               gravity=scene.effects.gravity or (0.0, 0.0),
-                                               block_solve=scene.solver.block_solve))
-    return out
 
 
 def table(title, problems, methods, tolerance, cap, start="zero"):
@@ -78,13 +65,14 @@ def main():
     print(protocol_line(current(jobs=1)))
     body = {"bodyspace": ("bodyspace", 1.0)}
     if args.part in ("exact", "all"):
-        table("Base-20 pyramid, its settling steps", scene_problems("pyramid", {"base": 20}, SETTLING),
-              {"Newton": ("newton", 1.0), **body}, 1e-12, 100_000)
+        scene = generate("pyramid", 0, {"base": 20, "steps": max(SETTLING) + 1})
+        settling = [p for p in problems("pyramid", 1, [scene]) if p.index in SETTLING]
+        table("Base-20 pyramid, its settling steps", settling, {"Newton": ("newton", 1.0), **body}, 1e-12, 100_000)
     if args.part in ("pyramid40", "all"):
-        first = scene_problems("pyramid", {"base": 40, "steps": 5}, range(5))
-        table("Base-40 pyramid, its first steps", first, {"subspace": ("subspace", 1.0), **body}, 1e-4, 100_000)
+        table("Base-40 pyramid, its first steps", first_steps(40, 5), {"subspace": ("subspace", 1.0), **body}, 1e-4,
+              100_000)
     if args.part in ("pile100", "all"):
-        settled = scene_problems("pile", {}, range(997, 1000))
+        settled = settled_problems({}, 1000, 3)   # (steps 997-999)
         for start in ("zero", "Box2D's warm start"):
             table("100-circle pile, settled", settled, {"PSOR 1.7": ("none", 1.7), **body}, 1e-4, 100_000, start)
 
