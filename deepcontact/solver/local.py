@@ -44,8 +44,12 @@ class LocalProblem:
         return normal, tangent
 
 
-def local_problem(problem: "StepProblem") -> LocalProblem:
-    """The step's problem as a local problem (float64; sparse W), from the native assembly."""
+def jacobian(problem: "StepProblem"):
+    """The step's contact rows in body space, from the native assembly (float64):
+    (J, inv_m, v, rows, points). J (sparse, 2m x 3 bodies) maps the bodies' velocities (vx, vy, w
+    per body) to the rows' relative velocities, per contact point its normal row, then its tangent
+    row; inv_m the dofs' inverse masses and inertias; v the velocities before the contact impulses
+    (v*); rows the native assembly; points the problem's contact points solved."""
     rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
     points = np.nonzero(rows["active"])[0]
     m, nb = len(points), len(problem.bodies["inv_mass"])
@@ -53,7 +57,6 @@ def local_problem(problem: "StepProblem") -> LocalProblem:
     tangent = np.stack([normal[:, 1], -normal[:, 0]], axis=1)    # cross(normal, 1), as the solver
     a, b = rows["row_a"][points], rows["row_b"][points]
     r_a, r_b = rows["r_a"][points], rows["r_b"][points]
-    # J: rows (2 per point) x body dofs (vx, vy, w per body)
     J_rows, J_cols, J_vals = [], [], []
     for k, d in ((0, normal), (1, tangent)):
         row = 2 * np.arange(m) + k
@@ -68,10 +71,16 @@ def local_problem(problem: "StepProblem") -> LocalProblem:
                       shape=(2 * m, 3 * nb))
     inv_m = np.repeat(problem.bodies["inv_mass"].astype(np.float64), 3)
     inv_m[2::3] = problem.bodies["inv_inertia"].astype(np.float64)
-    W = (J @ sp.diags(inv_m) @ J.T).tocsc()
-    W.sort_indices()
     v = np.zeros(3 * nb)
     v[0::3], v[1::3], v[2::3] = rows["velocity"][:, 0], rows["velocity"][:, 1], rows["omega"]
+    return J, inv_m, v, rows, points
+
+
+def local_problem(problem: "StepProblem") -> LocalProblem:
+    """The step's problem as a local problem (float64; sparse W), from the native assembly."""
+    J, inv_m, v, rows, points = jacobian(problem)
+    W = (J @ sp.diags(inv_m) @ J.T).tocsc()
+    W.sort_indices()
     q = J @ v
     q[0::2] -= rows["bias"][points]
     return LocalProblem(W=W, q=q, mu=rows["friction"][points].astype(np.float64), points=points)

@@ -1,0 +1,280 @@
+"""Two more global families, by the work they need to reach 1e-4 on the loop's 1000-circle pile.
+
+The solve in body space (accelerate="bodyspace") needs tens to hundreds of factorizations a step
+(docs/results.md). Two other families answer the obvious questions about that; they are numpy
+prototypes here, not solvers of the project, and count work rather than time:
+
+1. ADMM on the impulses (as in Tasora et al. 2021 and Carpentier et al. 2024): its linear step
+   (W + R) r = ... is solved in body space by Woodbury, (W + R)^-1 = R^-1 - R^-1 J (M + J^T R^-1 J)^-1
+   J^T R^-1, with one factorization of a symmetric positive definite matrix for the whole solve;
+   each iteration is a substitution with that factor and a projection on the friction cones.
+   Coulomb's law by De Saxce's shift (mu |u_t| added to the normal velocity), updated every
+   iteration. R per point is rho k (k: the point's normal effective inverse mass). Plain, and with
+   Anderson acceleration (memory 5) on the iteration's fixed point.
+2. An augmented Lagrangian in body space like the solver's, but with the friction cone projected
+   and De Saxce's shift held for an outer iteration: each inner problem is then the minimisation
+   of a convex C1 function, its Newton systems are symmetric positive definite (Cholesky's case
+   always, where the solver's own are not wherever a point slides), and its line search is exact.
+   A fixed penalty c (rho = c / k per point; on these steps 100 to 300 took the fewest
+   factorizations of 10 to 3000), at most 60 outer iterations of at most 60 Newton iterations.
+
+The problems: the 1000-circle pile of the loop (`pile --param count=1000 --param box=95 --param
+sigma=19 --seed 9`) stepped by Box2D 2.4.1 at its 8 iterations, steps 300 to 800 every 100, each
+from Box2D's warm start, against PSOR at w = 1.7 and the solver's own solve in body space
+(native, float64). Residual: the project's
+(solver/local.py).
+
+Usage: python benchmarks/bench_global_families.py [--steps 300,400,...] [--cap 3000]
+"""
+import argparse
+import statistics
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spl
+
+from deepcontact.protocol import current, protocol_line
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.solver import pgs
+from deepcontact.solver.local import jacobian, local_problem, residual
+from deepcontact.solver.methods import solve
+from deepcontact.solver.problem import StepProblem
+
+TOLERANCE = 1e-4
+PILE = {"count": 1000, "box": 95, "sigma": 19}
+
+
+def loop_problems(steps, seed=9):
+    """The pile's contact problems at `steps`, stepped by Box2D 2.4.1 at 8 iterations."""
+    scene = generate("pile", seed, PILE)
+    world = build_world(scene)
+    out = []
+    for k in range(max(steps) + 1):
+        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
+        if k in steps:
+            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
+                                               gravity=scene.effects.gravity or (0.0, 0.0),
+                                               block_solve=scene.solver.block_solve))
+    return out
+
+
+class Rows:
+    """A step in body space: u = J x + q for x = v - v* on the dofs that can move, the local
+    problem lp (W, q, mu) and each point's normal effective inverse mass k."""
+
+    def __init__(self, problem):
+        J, inv_m, _, _, _ = jacobian(problem)
+        movable = inv_m > 0
+        self.J, self.inv_m = J[:, movable].tocsc(), inv_m[movable]
+        self.mass = 1.0 / self.inv_m
+        self.lp = local_problem(problem)
+        self.mu = self.lp.mu
+        self.k = self.lp.W.diagonal()[0::2]
+
+    def velocity(self, x):
+        return self.J @ x + self.lp.q
+
+    def shift(self, u):
+        """De Saxce's shift: mu |u_t| on each normal row."""
+        s = np.zeros_like(u)
+        s[0::2] = self.mu * np.abs(u[1::2])
+        return s
+
+
+def cone(w, mu):
+    """Euclidean projection of w (per point normal, tangent) onto {|t| <= mu n}, and per point the
+    piece it falls on (0: the polar cone, 1: an edge, 2: inside) and the sign of its tangent."""
+    n, t = w[0::2], w[1::2]
+    inside = np.abs(t) <= mu * n
+    polar = mu * np.abs(t) <= -n
+    edge = (n + mu * np.abs(t)) / (1 + mu * mu)
+    sign = np.where(t >= 0, 1.0, -1.0)
+    p = np.empty_like(w)
+    p[0::2] = np.where(inside, n, np.where(polar, 0.0, edge))
+    p[1::2] = np.where(inside, t, np.where(polar, 0.0, mu * edge * sign))
+    return p, np.where(inside, 2, np.where(polar, 0, 1)), sign
+
+
+def admm(rows, start, rho=1.0, relax=1.6, anderson=0, cap=3000, check=5):
+    """ADMM from the impulses `start`: (reached, iterations, factorizations, residual)."""
+    lp, J = rows.lp, rows.J
+    R = rho * np.repeat(rows.k, 2)
+    factor = spl.splu((sp.diags(rows.mass) + J.T @ sp.diags(1.0 / R) @ J).tocsc(), permc_spec="MMD_AT_PLUS_A")
+
+    def linear(b):     # (W + R)^-1 b, by Woodbury in body space
+        y = b / R
+        return y - (J @ factor.solve(J.T @ y)) / R
+
+    def iterate(state):   # one ADMM iteration on (z, y); y ends as minus the shifted velocity
+        z, y = state[:len(R)], state[len(R):]
+        u = lp.W @ z + lp.q
+        r = linear(R * z - y - (lp.q + rows.shift(u)))
+        r = relax * r + (1 - relax) * z
+        z_next = cone(r + y / R, rows.mu)[0]
+        return np.concatenate([z_next, y + R * (r - z_next)])
+
+    z = cone(start, rows.mu)[0]
+    u = lp.W @ z + lp.q
+    state = np.concatenate([z, -(u + rows.shift(u))])
+    metric = np.concatenate([np.sqrt(R), 1 / np.sqrt(R)])   # ADMM's own norm
+    xs, gs = [], []
+    for it in range(1, cap + 1):
+        image = iterate(state)
+        if anderson:
+            xs.append(state)
+            gs.append((image - state) * metric)
+            del xs[:-anderson - 1], gs[:-anderson - 1]
+        if len(gs) > 1:   # Anderson (type II) on the last few residuals
+            dg = np.stack([b - a for a, b in zip(gs, gs[1:])], 1)
+            dx = np.stack([b - a for a, b in zip(xs, xs[1:])], 1)
+            gamma = np.linalg.lstsq(dg, gs[-1], rcond=None)[0]
+            state = image - (dx + dg / metric[:, None]) @ gamma
+        else:
+            state = image
+        state[:len(R)] = cone(state[:len(R)], rows.mu)[0]
+        if it % check == 0 and residual(lp, state[:len(R)]) <= TOLERANCE:
+            return True, it, 1, residual(lp, state[:len(R)])
+    return False, cap, 1, residual(lp, state[:len(R)])
+
+
+def cone_lagrangian(rows, start, c=100.0, outer_cap=60, inner_cap=60):
+    """The augmented Lagrangian with the cone projected, from `start`:
+    (reached, outer iterations, factorizations, residual)."""
+    lp, J, mass, mu = rows.lp, rows.J, rows.mass, rows.mu
+    rho = np.repeat(c / rows.k, 2)
+    lam = start.copy()
+    x = rows.inv_m * (J.T @ lam)
+    res, factorizations, outer = residual(lp, lam), 0, 0
+    while res > TOLERANCE and outer < outer_cap:
+        outer += 1
+        lam_k, s = lam, rows.shift(rows.velocity(x))
+
+        def impulses(x):
+            return cone(lam_k - rho * (rows.velocity(x) + s), mu)
+
+        def value(x, p):   # the inner problem's objective
+            return 0.5 * x @ (mass * x) + 0.5 * np.sum(p * p / rho)
+
+        p, piece, sign = impulses(x)
+        f = value(x, p)
+        for _ in range(inner_cap):
+            g = mass * x - J.T @ p
+            dx = -spl.splu(hessian(rows, rho, piece, sign)).solve(g)
+            factorizations += 1
+            alpha = exact_step(rows, x, dx, g, impulses, rho)
+            x_next = x + alpha * dx
+            p_next, piece_next, sign_next = impulses(x_next)
+            f_next = value(x_next, p_next)
+            if f_next > f:
+                break
+            same = np.array_equal(piece_next, piece)
+            x, p, piece, sign, f = x_next, p_next, piece_next, sign_next, f_next
+            if same and abs(alpha - 1) < 1e-6:
+                break   # the same pieces and a full step: the piecewise quadratic's minimum
+        lam = p
+        res = residual(lp, lam)
+    return res <= TOLERANCE, outer, factorizations, res
+
+
+def hessian(rows, rho, piece, sign):
+    """M + J^T D J, D per point rho times the Jacobian of the cone's projection on its piece."""
+    mu, m = rows.mu, len(rows.mu)
+    on_edge = piece == 1
+    nn = np.where(piece == 2, 1.0, np.where(on_edge, 1 / (1 + mu ** 2), 0.0))
+    tt = np.where(piece == 2, 1.0, np.where(on_edge, mu ** 2 / (1 + mu ** 2), 0.0))
+    nt = np.where(on_edge, sign * mu / (1 + mu ** 2), 0.0)
+    n, t, r = 2 * np.arange(m), 2 * np.arange(m) + 1, rho[0::2]
+    D = sp.csr_matrix((np.concatenate([r * nn, r * tt, r * nt, r * nt]),
+                       (np.concatenate([n, t, n, t]), np.concatenate([n, t, t, n]))), shape=(2 * m, 2 * m))
+    return (sp.diags(rows.mass) + rows.J.T @ D @ rows.J).tocsc()
+
+
+def exact_step(rows, x, dx, g, impulses, rho):
+    """The minimum along dx of the convex piecewise quadratic: safeguarded Newton on its slope."""
+    Jdx, mu = rows.J @ dx, rows.mu
+    jn, jt = Jdx[0::2], Jdx[1::2]
+
+    def slope(a):
+        p, piece, sign = impulses(x + a * dx)
+        edge = (jn + sign * mu * jt) ** 2 / (1 + mu * mu)
+        curvature = dx @ (rows.mass * dx) + np.sum(rho[0::2] * np.where(piece == 2, jn * jn + jt * jt,
+                                                                        np.where(piece == 1, edge, 0.0)))
+        return dx @ (rows.mass * (x + a * dx)) - Jdx @ p, curvature
+
+    lo, hi, a = 0.0, None, 1.0
+    for _ in range(60):
+        d1, d2 = slope(a)
+        if abs(d1) <= 1e-10 * abs(g @ dx):
+            break
+        if d1 < 0:
+            lo = a
+        else:
+            hi = a
+        if hi is None:
+            a = max(a - d1 / d2, 2 * a)
+            continue
+        newton = a - d1 / d2
+        a = newton if lo < newton < hi else 0.5 * (lo + hi)
+        if hi - lo < 1e-12 * hi:
+            break
+    return a
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", default="300,400,500,600,700,800")
+    ap.add_argument("--cap", type=int, default=3000, help="iterations of PSOR and ADMM")
+    args = ap.parse_args()
+    print(protocol_line(current()) + "\n")
+    problems = loop_problems([int(s) for s in args.steps.split(",")])
+    methods = {
+        "PSOR 1.7 (sweeps)": lambda p, rows, r0: psor(p, args.cap),
+        "bodyspace, the solver's (sweeps and outer iterations)": lambda p, rows, r0: bodyspace(p, args.cap),
+        "ADMM, rho 1 (iterations)": lambda p, rows, r0: admm(rows, r0, cap=args.cap),
+        "ADMM + Anderson 5 (iterations)": lambda p, rows, r0: admm(rows, r0, anderson=5, cap=args.cap),
+        "cone AL, c 100 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=100.0),
+        "cone AL, c 300 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=300.0),
+    }
+    results = {name: [] for name in methods}
+    for p in problems:
+        rows = Rows(p)
+        r0 = rows.lp.reaction(p.start_normal, p.start_tangent)
+        for name, run in methods.items():
+            results[name].append(run(p, rows, r0))
+    print(f"The 1000-circle pile, steps {args.steps} ({statistics.median(len(Rows(p).mu) for p in problems):.0f} "
+          f"contact points, median), from Box2D's warm start to {TOLERANCE:g}:\n")
+    sizes = [(Rows(p).J.nnz, factor_size(Rows(p))) for p in problems]
+    print(f"Work per iteration (median nonzeros): a sweep reads and writes along each of J's "
+          f"{statistics.median(j for j, _ in sizes):,.0f} once each; an ADMM iteration, done in body space, "
+          f"would use each 4 times (W z as J M^-1 J^T z, and Woodbury's two products) and substitute "
+          f"forward and back through the factor's {statistics.median(f for _, f in sizes):,.0f} "
+          f"(L and U, minimum degree on the symmetric pattern).\n")
+    print("| method | reach it | iterations (median; per step) | factorizations (median) | worst residual |")
+    print("| --- | ---: | --- | ---: | ---: |")
+    for name, rs in results.items():
+        reached = sum(r[0] for r in rs)
+        its = ", ".join(str(r[1]) for r in rs)
+        print(f"| {name} | {reached} of {len(rs)} | {statistics.median(r[1] for r in rs):.0f}; {its} | "
+              f"{statistics.median(r[2] for r in rs):.0f} | {max(r[3] for r in rs):.1e} |")
+
+
+def factor_size(rows):
+    """Nonzeros of the LU (L + U) of ADMM's body-space matrix."""
+    lu = spl.splu((sp.diags(rows.mass) + rows.J.T @ sp.diags(1.0 / np.repeat(rows.k, 2)) @ rows.J).tocsc(),
+                  permc_spec="MMD_AT_PLUS_A")
+    return lu.L.nnz + lu.U.nnz
+
+
+def psor(problem, cap):
+    s = pgs.solve(problem, tolerance=TOLERANCE, max_iterations=cap, relaxation=1.7)
+    return s.residual <= TOLERANCE, s.iterations, 0, s.residual
+
+
+def bodyspace(problem, cap):
+    s = solve(problem, accelerate="bodyspace", tolerance=TOLERANCE, max_iterations=cap)
+    return s.residual <= TOLERANCE, s.iterations, s.factorizations, s.residual
+
+
+if __name__ == "__main__":
+    main()
