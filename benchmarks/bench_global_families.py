@@ -24,7 +24,10 @@ from Box2D's warm start, against PSOR at w = 1.7 and the solver's own solve in b
 (native, float64). Residual: the project's
 (solver/local.py).
 
-Usage: python benchmarks/bench_global_families.py [--steps 300,400,...] [--cap 3000]
+Part 2 takes the cone AL to the base-20 pyramid's settling steps 8, 15, 32 and 52 from zero to
+1e-12, where the solver's own solve in body space is the reference's last stage.
+
+Usage: python benchmarks/bench_global_families.py [--part pile|exact|all] [--steps 300,400,...] [--cap 3000]
 """
 import argparse
 import statistics
@@ -96,7 +99,7 @@ def cone(w, mu):
     return p, np.where(inside, 2, np.where(polar, 0, 1)), sign
 
 
-def admm(rows, start, rho=1.0, relax=1.6, anderson=0, cap=3000, check=5):
+def admm(rows, start, rho=1.0, relax=1.6, anderson=0, cap=3000, check=5, tolerance=TOLERANCE):
     """ADMM from the impulses `start`: (reached, iterations, factorizations, residual)."""
     lp, J = rows.lp, rows.J
     R = rho * np.repeat(rows.k, 2)
@@ -133,12 +136,12 @@ def admm(rows, start, rho=1.0, relax=1.6, anderson=0, cap=3000, check=5):
         else:
             state = image
         state[:len(R)] = cone(state[:len(R)], rows.mu)[0]
-        if it % check == 0 and residual(lp, state[:len(R)]) <= TOLERANCE:
+        if it % check == 0 and residual(lp, state[:len(R)]) <= tolerance:
             return True, it, 1, residual(lp, state[:len(R)])
     return False, cap, 1, residual(lp, state[:len(R)])
 
 
-def cone_lagrangian(rows, start, c=100.0, outer_cap=60, inner_cap=60):
+def cone_lagrangian(rows, start, c=100.0, outer_cap=60, inner_cap=60, tolerance=TOLERANCE):
     """The augmented Lagrangian with the cone projected, from `start`:
     (reached, outer iterations, factorizations, residual)."""
     lp, J, mass, mu = rows.lp, rows.J, rows.mass, rows.mu
@@ -146,7 +149,7 @@ def cone_lagrangian(rows, start, c=100.0, outer_cap=60, inner_cap=60):
     lam = start.copy()
     x = rows.inv_m * (J.T @ lam)
     res, factorizations, outer = residual(lp, lam), 0, 0
-    while res > TOLERANCE and outer < outer_cap:
+    while res > tolerance and outer < outer_cap:
         outer += 1
         lam_k, s = lam, rows.shift(rows.velocity(x))
 
@@ -174,7 +177,7 @@ def cone_lagrangian(rows, start, c=100.0, outer_cap=60, inner_cap=60):
                 break   # the same pieces and a full step: the piecewise quadratic's minimum
         lam = p
         res = residual(lp, lam)
-    return res <= TOLERANCE, outer, factorizations, res
+    return res <= tolerance, outer, factorizations, res
 
 
 def hessian(rows, rho, piece, sign):
@@ -223,10 +226,19 @@ def exact_step(rows, x, dx, g, impulses, rho):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", default="300,400,500,600,700,800")
-    ap.add_argument("--cap", type=int, default=3000, help="iterations of PSOR and ADMM")
+    ap.add_argument("--part", choices=("pile", "exact", "all"), default="all")
+    ap.add_argument("--steps", default="300,400,500,600,700,800", help="the pile's steps")
+    ap.add_argument("--cap", type=int, default=3000, help="iterations of PSOR and ADMM on the pile")
     args = ap.parse_args()
     print(protocol_line(current()) + "\n")
+    if args.part in ("pile", "all"):
+        pile(args)
+    if args.part in ("exact", "all"):
+        exact()
+
+
+def pile(args):
+    """Part 1: the loop's pile to 1e-4 from Box2D's warm start."""
     problems = loop_problems([int(s) for s in args.steps.split(",")])
     methods = {
         "PSOR 1.7 (sweeps)": lambda p, rows, r0: psor(p, args.cap),
@@ -236,20 +248,46 @@ def main():
         "cone AL, c 100 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=100.0),
         "cone AL, c 300 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=300.0),
     }
-    results = {name: [] for name in methods}
-    for p in problems:
-        rows = Rows(p)
-        r0 = rows.lp.reaction(p.start_normal, p.start_tangent)
-        for name, run in methods.items():
-            results[name].append(run(p, rows, r0))
-    print(f"The 1000-circle pile, steps {args.steps} ({statistics.median(len(Rows(p).mu) for p in problems):.0f} "
-          f"contact points, median), from Box2D's warm start to {TOLERANCE:g}:\n")
     sizes = [(Rows(p).J.nnz, factor_size(Rows(p))) for p in problems]
+    print(f"The 1000-circle pile, steps {args.steps} ({statistics.median(len(Rows(p).mu) for p in problems):.0f} "
+          f"contact points, median), from Box2D's warm start to {TOLERANCE:g}.\n")
     print(f"Work per iteration (median nonzeros): a sweep reads and writes along each of J's "
           f"{statistics.median(j for j, _ in sizes):,.0f} once each; an ADMM iteration, done in body space, "
           f"would use each 4 times (W z as J M^-1 J^T z, and Woodbury's two products) and substitute "
           f"forward and back through the factor's {statistics.median(f for _, f in sizes):,.0f} "
           f"(L and U, minimum degree on the symmetric pattern).\n")
+    report(problems, methods, lambda rows, p: rows.lp.reaction(p.start_normal, p.start_tangent))
+
+
+def exact():
+    """Part 2: the base-20 pyramid's settling steps from zero to 1e-12, where the solver's own
+    solve in body space is the reference's last stage (docs/results.md)."""
+    from deepcontact.studies.exact import problems as exact_problems
+    steps = (8, 15, 32, 52)
+    scene = generate("pyramid", 0, {"base": 20, "steps": max(steps) + 1})
+    problems = [p for p in exact_problems("pyramid", 1, [scene]) if p.index in steps]
+    zero = (lambda p: (np.zeros_like(p.start_normal), np.zeros_like(p.start_tangent)))
+    methods = {
+        "bodyspace, the solver's (sweeps and outer iterations)":
+            lambda p, rows, r0: bodyspace(p, 100_000, zero(p), tolerance=1e-12),
+        "cone AL, c 100 (outer iterations)":
+            lambda p, rows, r0: cone_lagrangian(rows, r0, c=100.0, outer_cap=200, tolerance=1e-12),
+        "cone AL, c 1000 (outer iterations)":
+            lambda p, rows, r0: cone_lagrangian(rows, r0, c=1000.0, outer_cap=200, tolerance=1e-12),
+    }
+    print(f"\nThe base-20 pyramid, settling steps {', '.join(map(str, steps))}, from zero to 1e-12 "
+          f"(the solver's cap 100,000 iterations; the cone AL's 200 outer iterations).\n")
+    report(problems, methods, lambda rows, p: np.zeros(2 * len(rows.mu)))
+
+
+def report(problems, methods, start):
+    """Runs every method on every problem and prints the table."""
+    results = {name: [] for name in methods}
+    for p in problems:
+        rows = Rows(p)
+        r0 = start(rows, p)
+        for name, run in methods.items():
+            results[name].append(run(p, rows, r0))
     print("| method | reach it | iterations (median; per step) | factorizations (median) | worst residual |")
     print("| --- | ---: | --- | ---: | ---: |")
     for name, rs in results.items():
@@ -271,9 +309,9 @@ def psor(problem, cap):
     return s.residual <= TOLERANCE, s.iterations, 0, s.residual
 
 
-def bodyspace(problem, cap):
-    s = solve(problem, accelerate="bodyspace", tolerance=TOLERANCE, max_iterations=cap)
-    return s.residual <= TOLERANCE, s.iterations, s.factorizations, s.residual
+def bodyspace(problem, cap, start=None, tolerance=TOLERANCE):
+    s = solve(problem, *(start or (None, None)), accelerate="bodyspace", tolerance=tolerance, max_iterations=cap)
+    return s.residual <= tolerance, s.iterations, s.factorizations, s.residual
 
 
 if __name__ == "__main__":
