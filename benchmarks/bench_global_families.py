@@ -30,6 +30,7 @@ Part 2 takes the cone AL to the base-20 pyramid's settling steps 8, 15, 32 and 5
 Usage: python benchmarks/bench_global_families.py [--part pile|exact|all] [--steps 300,400,...] [--cap 3000]
 """
 import argparse
+import math
 import statistics
 
 import numpy as np
@@ -38,28 +39,19 @@ import scipy.sparse.linalg as spl
 
 from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
-from deepcontact.simulate.build import build_world
 from deepcontact.solver import pgs
 from deepcontact.solver.local import jacobian, local_problem, residual
 from deepcontact.solver.methods import solve
-from deepcontact.solver.problem import StepProblem
+from deepcontact.studies.exact import problems as exact_problems
 
 TOLERANCE = 1e-4
 PILE = {"count": 1000, "box": 95, "sigma": 19}
 
 
 def loop_problems(steps, seed=9):
-    """The pile's contact problems at `steps`, stepped by Box2D 2.4.1 at 8 iterations."""
-    scene = generate("pile", seed, PILE)
-    world = build_world(scene)
-    out = []
-    for k in range(max(steps) + 1):
-        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
-        if k in steps:
-            out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
-                                               gravity=scene.effects.gravity or (0.0, 0.0),
-                                               block_solve=scene.solver.block_solve))
-    return out
+    """The pile's contact problems at `steps`, stepped by Box2D 2.4.1 at its 8 iterations."""
+    scene = generate("pile", seed, {**PILE, "steps": max(steps) + 1})
+    return [p for p in exact_problems("pile", math.gcd(*steps), [scene]) if p.index in steps]
 
 
 class Rows:
@@ -262,7 +254,6 @@ def pile(args):
 def exact():
     """Part 2: the base-20 pyramid's settling steps from zero to 1e-12, where the solver's own
     solve in body space is the reference's last stage (docs/results.md)."""
-    from deepcontact.studies.exact import problems as exact_problems
     steps = (8, 15, 32, 52)
     scene = generate("pyramid", 0, {"base": 20, "steps": max(steps) + 1})
     problems = [p for p in exact_problems("pyramid", 1, [scene]) if p.index in steps]
