@@ -21,8 +21,7 @@ prototypes here, not solvers of the project, and count work rather than time:
 The problems: the 1000-circle pile of the loop (`pile --param count=1000 --param box=95 --param
 sigma=19 --seed 9`) stepped by Box2D 2.4.1 at its 8 iterations, steps 300 to 800 every 100, each
 from Box2D's warm start, against PSOR at w = 1.7 and the solver's own solve in body space
-(native, float64). Residual: the project's
-(solver/local.py).
+(native, float64). Residual: the project's (solver/local.py).
 
 Part 2 takes the cone AL to the base-20 pyramid's settling steps 8, 15, 32 and 52 from zero to
 1e-12, where the solver's own solve in body space is the reference's last stage.
@@ -59,11 +58,12 @@ class Rows:
     problem lp (W, q, mu) and each point's normal effective inverse mass k."""
 
     def __init__(self, problem):
-        J, inv_m, _, _, _ = jacobian(problem)
+        body_rows = jacobian(problem)
+        J, inv_m = body_rows[:2]
         movable = inv_m > 0
         self.J, self.inv_m = J[:, movable].tocsc(), inv_m[movable]
         self.mass = 1.0 / self.inv_m
-        self.lp = local_problem(problem)
+        self.lp = local_problem(problem, body_rows)
         self.mu = self.lp.mu
         self.k = self.lp.W.diagonal()[0::2]
 
@@ -95,7 +95,7 @@ def admm(rows, start, rho=1.0, relax=1.6, anderson=0, cap=3000, check=5, toleran
     """ADMM from the impulses `start`: (reached, iterations, factorizations, residual)."""
     lp, J = rows.lp, rows.J
     R = rho * np.repeat(rows.k, 2)
-    factor = spl.splu((sp.diags(rows.mass) + J.T @ sp.diags(1.0 / R) @ J).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    factor = admm_factor(rows, R)
 
     def linear(b):     # (W + R)^-1 b, by Woodbury in body space
         y = b / R
@@ -240,15 +240,16 @@ def pile(args):
         "cone AL, c 100 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=100.0),
         "cone AL, c 300 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=300.0),
     }
-    sizes = [(Rows(p).J.nnz, factor_size(Rows(p))) for p in problems]
-    print(f"The 1000-circle pile, steps {args.steps} ({statistics.median(len(Rows(p).mu) for p in problems):.0f} "
+    rows = [Rows(p) for p in problems]
+    factors = [admm_factor(r, np.repeat(r.k, 2)) for r in rows]
+    print(f"The 1000-circle pile, steps {args.steps} ({statistics.median(len(r.mu) for r in rows):.0f} "
           f"contact points, median), from Box2D's warm start to {TOLERANCE:g}.\n")
     print(f"Work per iteration (median nonzeros): a sweep reads and writes along each of J's "
-          f"{statistics.median(j for j, _ in sizes):,.0f} once each; an ADMM iteration, done in body space, "
+          f"{statistics.median(r.J.nnz for r in rows):,.0f} once each; an ADMM iteration, done in body space, "
           f"would use each 4 times (W z as J M^-1 J^T z, and Woodbury's two products) and substitute "
-          f"forward and back through the factor's {statistics.median(f for _, f in sizes):,.0f} "
+          f"forward and back through the factor's {statistics.median(f.L.nnz + f.U.nnz for f in factors):,.0f} "
           f"(L and U, minimum degree on the symmetric pattern).\n")
-    report(problems, methods, lambda rows, p: rows.lp.reaction(p.start_normal, p.start_tangent))
+    report(problems, rows, methods, lambda rows, p: rows.lp.reaction(p.start_normal, p.start_tangent))
 
 
 def exact():
@@ -268,14 +269,13 @@ def exact():
     }
     print(f"\nThe base-20 pyramid, settling steps {', '.join(map(str, steps))}, from zero to 1e-12 "
           f"(the solver's cap 100,000 iterations; the cone AL's 200 outer iterations).\n")
-    report(problems, methods, lambda rows, p: np.zeros(2 * len(rows.mu)))
+    report(problems, [Rows(p) for p in problems], methods, lambda rows, p: np.zeros(2 * len(rows.mu)))
 
 
-def report(problems, methods, start):
-    """Runs every method on every problem and prints the table."""
+def report(problems, body_rows, methods, start):
+    """Runs every method on every problem (its Rows in body_rows) and prints the table."""
     results = {name: [] for name in methods}
-    for p in problems:
-        rows = Rows(p)
+    for p, rows in zip(problems, body_rows):
         r0 = start(rows, p)
         for name, run in methods.items():
             results[name].append(run(p, rows, r0))
@@ -288,11 +288,11 @@ def report(problems, methods, start):
               f"{statistics.median(r[2] for r in rs):.0f} | {max(r[3] for r in rs):.1e} |")
 
 
-def factor_size(rows):
-    """Nonzeros of the LU (L + U) of ADMM's body-space matrix."""
-    lu = spl.splu((sp.diags(rows.mass) + rows.J.T @ sp.diags(1.0 / np.repeat(rows.k, 2)) @ rows.J).tocsc(),
-                  permc_spec="MMD_AT_PLUS_A")
-    return lu.L.nnz + lu.U.nnz
+def admm_factor(rows, R):
+    """The factorization of ADMM's body-space matrix M + J^T R^-1 J (minimum degree on its
+    symmetric pattern)."""
+    return spl.splu((sp.diags(rows.mass) + rows.J.T @ sp.diags(1.0 / R) @ rows.J).tocsc(),
+                    permc_spec="MMD_AT_PLUS_A")
 
 
 def psor(problem, cap):
@@ -300,8 +300,8 @@ def psor(problem, cap):
     return s.residual <= TOLERANCE, s.iterations, 0, s.residual
 
 
-def bodyspace(problem, cap, start=None, tolerance=TOLERANCE):
-    s = solve(problem, *(start or (None, None)), accelerate="bodyspace", tolerance=tolerance, max_iterations=cap)
+def bodyspace(problem, cap, start=(None, None), tolerance=TOLERANCE):
+    s = solve(problem, *start, accelerate="bodyspace", tolerance=tolerance, max_iterations=cap)
     return s.residual <= tolerance, s.iterations, s.factorizations, s.residual
 
 
