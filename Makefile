@@ -62,6 +62,7 @@ test-slow: setup
 	$(PYTHON) -m pytest -q -m slow
 
 bench: setup
+	$(PYTHON) benchmarks/bench_startup.py
 	$(PYTHON) benchmarks/bench_simulate.py
 	$(PYTHON) benchmarks/bench_solver.py
 	$(PYTHON) benchmarks/bench_rasterize.py

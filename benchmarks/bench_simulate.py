@@ -49,7 +49,10 @@ def whole_process(tmp):
     # which adds its own start-up time on some machines).
     exe = os.path.join(os.path.dirname(sys.executable), "dc")
     cmd = [exe] if os.path.exists(exe) else [sys.executable, "-m", "deepcontact.cli.main"]
-    subprocess.run(cmd + ["simulate", "pile", "-q", "-o", out], check=True)
+    # Bytecode cached as on a user's machine, even where PYTHONDONTWRITEBYTECODE is set.
+    env = dict(os.environ, PYTHONPYCACHEPREFIX=os.path.join(tmp, "pycache"))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    subprocess.run(cmd + ["simulate", "pile", "-q", "-o", out], check=True, env=env)
 
 
 def thesis_style_xml(bodies, contacts):

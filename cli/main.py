@@ -1,19 +1,51 @@
-"""`dc`: the deepcontact command-line suite."""
+"""`dc`: the deepcontact command-line suite.
+
+Each subcommand's module is imported only when that subcommand runs (or shows its own help), so
+`dc simulate` never pays for torch, scipy or matplotlib, and `dc --help` for none of them: the
+listing below is written here, and tests/test_startup.py holds it equal to each command's own
+first help line.
+"""
+import importlib
+
 import click
 
 from deepcontact import __version__
 
-from .evaluate import evaluate
-from .export import export
-from .rasterize import rasterize
-from .render import render
-from .simulate import simulate
-from .study import study
-from .train import train
-from .validate import validate
+# name -> (module under deepcontact.cli, the short help `dc --help` lists), in the pipeline's order
+COMMANDS = {
+    "simulate": ("simulate", "Simulate SCENE in Box2D (2.4.1, or v3 with --engine box2d3) and record every step as XML."),
+    "validate": ("validate", "Check step and scene files against the XSD schemas in schemas/."),
+    "rasterize": ("rasterize", "Turn the step files of RUNS into SPH grid images for training."),
+    "train": ("train", "Train a network mapping the input images of DATASET to its impulse images."),
+    "evaluate": ("evaluate", "Solve every recorded step of RUNS from every start and compare."),
+    "study": ("study", "Longer measurements built on the pipeline."),
+    "export": ("export", "Write each step's contact problem as an FCLIB local problem (2D)."),
+    "render": ("render", "Draw INPUT: a step file, a run, or a sample of a grid dataset."),
+}
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class LazyGroup(click.Group):
+    """A click group whose subcommands are imported when first asked for (click's documented
+    lazy-loading pattern); its own --help lists them from COMMANDS without importing any."""
+
+    def list_commands(self, ctx):
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx, name):
+        if name not in COMMANDS:
+            return None
+        module = importlib.import_module(f"{__package__}.{COMMANDS[name][0]}")
+        return getattr(module, name)
+
+    def format_commands(self, ctx, formatter):
+        limit = formatter.width - 6 - max(len(name) for name in COMMANDS)
+        rows = [(name, click.utils.make_default_short_help(COMMANDS[name][1], limit))
+                for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="dc")
 def cli():
     """Study Box2D's contact solver and warm-start it with learned impulses.
@@ -23,16 +55,6 @@ def cli():
     problems to other solvers (FCLIB); `dc render` draws steps, runs and grid
     samples. Each subcommand has its own --help with examples.
     """
-
-
-cli.add_command(simulate)
-cli.add_command(validate)
-cli.add_command(rasterize)
-cli.add_command(train)
-cli.add_command(evaluate)
-cli.add_command(study)
-cli.add_command(export)
-cli.add_command(render)
 
 
 def main():

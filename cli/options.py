@@ -262,10 +262,32 @@ def command(name):
 
 def progress_bar(quiet, total, unit, desc):
     """A tqdm bar on stderr; a silent one when quiet or when stderr is no terminal (every bar
-    takes update() and close(), so callers need not ask which)."""
+    takes update() and close(), so callers need not ask which). The silent one is not tqdm's:
+    a command in a pipeline or a Makefile need not import it."""
+    if quiet or not _is_terminal(sys.stderr):
+        return SilentBar()
     from tqdm import tqdm
-    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False,
-                disable=True if quiet else None)
+    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False)
+
+
+def _is_terminal(stream):
+    try:
+        return stream is not None and stream.isatty()
+    except (OSError, ValueError):   # closed
+        return False
+
+
+class SilentBar:
+    """What progress_bar gives when nothing is shown: counts, says nothing."""
+
+    def __init__(self):
+        self.n = 0
+
+    def update(self, n=1):
+        self.n += n
+
+    def close(self):
+        pass
 
 
 max_memory = click.option("--max-memory", type=Finite(min=0, min_open=True), metavar="GB",

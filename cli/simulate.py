@@ -159,8 +159,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         raise click.UsageError("missing -o/--output OUTDIR")
     chosen = seed_list(seed, seeds, shard)
     source.check_memory(min(jobs, max(len(chosen), 1)), max_memory)
-    loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation,
-                        source(chosen[0]) if chosen else None, accelerate)
+    first = source(chosen[0]) if chosen and solver == "pgs" else None   # (its iterations: the loop's cap)
+    loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
     soft = None

@@ -6,7 +6,6 @@ line or in code); nothing read from a file ever imports code.
 """
 import importlib
 import re
-from importlib.metadata import entry_points
 
 from .errors import InputError
 
@@ -49,6 +48,7 @@ class Registry:
 
     def installed(self):
         """{name: entry point} of the installed packages' plug-ins of this kind."""
+        from importlib.metadata import entry_points   # (scans every installed package: only when asked)
         return {ep.name: ep for ep in entry_points(group=self.group)}
 
     def names(self):

@@ -1,11 +1,10 @@
-"""XSD validation of scene and step files with lxml, errors as ``path:line:col: message``."""
+"""XSD validation of scene and step files with lxml, errors as ``path:line:col: message``.
+lxml is imported by the functions that parse: reading a step file natively needs only its path."""
 import errno
 import os
 import stat
 from functools import lru_cache
 from importlib import resources
-
-from lxml import etree
 
 from ._box2d import DOCTYPE_REFUSED   # one text, shared with the native reader
 from .errors import one_line, show_path
@@ -14,7 +13,8 @@ KINDS = ("scene", "step")
 
 
 @lru_cache(maxsize=None)
-def schema(kind: str) -> etree.XMLSchema:
+def schema(kind: str) -> "etree.XMLSchema":
+    from lxml import etree
     if kind not in KINDS:
         raise ValueError(f"no schema for {kind!r}")
     path = resources.files("deepcontact.schemas") / f"{kind}.xsd"
@@ -33,11 +33,10 @@ def parse(path):
     is not a regular file (a FIFO would block the parser forever)."""
     if not stat.S_ISREG(os.stat(path).st_mode):
         raise OSError(errno.EINVAL, "not a regular file", str(path))
+    from lxml import etree
     parser = etree.XMLParser(remove_blank_text=False, resolve_entities=False, no_network=True, load_dtd=False,
                              huge_tree=False)
     return etree.parse(str(path), parser)
-
-
 
 
 def has_doctype(tree):
@@ -52,6 +51,7 @@ def validate(path, kind=None):
 
 
 def _validate(path, kind):
+    from lxml import etree
     shown = show_path(path)
     try:
         tree = parse(path)

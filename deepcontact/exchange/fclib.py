@@ -11,16 +11,20 @@ then groups 1..N with u, r).
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from .. import atomic, workers
 from ..errors import InputError
-from ..solver.local import LocalProblem, local_problem, residual
 from ..solver.problem import StepProblem
-from ..solver.reference import reference_solution
 from ..step.run_folder import read_run
+
+if TYPE_CHECKING:
+    from ..solver.local import LocalProblem
+
+# scipy (the local problem's sparse W) is imported by the functions that build or read one, so
+# that `dc export --help` and the option's vocabulary below cost no more than the CLI.
 
 
 def write_problem(problem, path, *, solution=None, guess=None, title="", description="", lp=None):
@@ -28,6 +32,7 @@ def write_problem(problem, path, *, solution=None, guess=None, title="", descrip
     tangent) pairs) to path as an FCLIB local problem, atomically; returns path. lp: the step's
     local_problem, where the caller has it already."""
     import h5py
+    from ..solver.local import local_problem
     path = Path(path)
     lp = local_problem(problem) if lp is None else lp
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
@@ -64,9 +69,11 @@ def write_problem(problem, path, *, solution=None, guess=None, title="", descrip
     return path
 
 
-def read_problem(path) -> LocalProblem:
+def read_problem(path) -> "LocalProblem":
     """An FCLIB local problem written by write_problem (points numbered 0..m-1)."""
     import h5py
+    import scipy.sparse as sp
+    from ..solver.local import LocalProblem
     with h5py.File(path, "r") as f:
         W = f["fclib_local/W"]
         n = int(W["n"][0])
@@ -109,6 +116,8 @@ def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, 
 def _export_step(task):
     """One step file as a local problem in the export's folder: its index entry, or None (a step
     left out by --every, or without contacts)."""
+    from ..solver.local import local_problem, residual
+    from ..solver.reference import reference_solution
     path, work, folder, seed, scene, solution, wanted = task
     workers.progress(1)
     if not wanted:

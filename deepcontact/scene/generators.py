@@ -52,6 +52,24 @@ def _dynamic(x, y, shape, angle=0.0, **kw):
     return Body(type="dynamic", x=f32(x), y=f32(y), angle=f32(angle), shapes=[shape], **kw)
 
 
+def _squared_distances(a, b):
+    """|a_i - b_j|^2 for every pair, as (a - b) ** 2 summed over x and y (the same bits as one
+    pair at a time)."""
+    dx = a[:, None, 0] - b[None, :, 0]
+    dy = a[:, None, 1] - b[None, :, 1]
+    return dx * dx + dy * dy
+
+
+def _clear_of(placed, candidates, min_d2, chunk=1 << 20):
+    """Per candidate, whether it is at least sqrt(min_d2) from every placed centre (in chunks of
+    about `chunk` distances, so a 10,000-circle pile needs no large matrix)."""
+    clear = np.ones(len(candidates), dtype=bool)
+    step = max(1, chunk // max(len(placed), 1))
+    for i in range(0, len(candidates) if len(placed) else 0, step):
+        clear[i:i + step] = _squared_distances(placed, candidates[i:i + step]).min(axis=0) >= min_d2
+    return clear
+
+
 def pile(seed, count=100, box=30.0, radius=1.0, sigma=6.0, density=1.0, friction=0.2,
          gravity=9.81, dt=0.01, steps=600):
     """The thesis world: `count` circles at Gaussian positions (no overlap) falling in a box."""
@@ -70,13 +88,20 @@ def pile(seed, count=100, box=30.0, radius=1.0, sigma=6.0, density=1.0, friction
                              f"overlap in a {box} box (sigma {sigma}); use fewer or smaller circles")
         batch = rng.normal(box / 2.0, sigma, size=(256, 2))
         drawn += len(batch)
-        for p in batch[np.all((batch >= lo) & (batch <= hi), axis=1)]:
-            if placed and np.min(np.sum((centres[:placed] - p) ** 2, axis=1)) < min_d2:
+        batch = batch[np.all((batch >= lo) & (batch <= hi), axis=1)]
+        # Sequential placement, each candidate kept if clear of every circle placed before it.
+        # The distances are computed a batch at a time (to the circles placed before the batch,
+        # and within the batch), each the same sum as one at a time, so the same circles.
+        blocked = ~_clear_of(centres[:placed], batch, min_d2)
+        within = _squared_distances(batch, batch) < min_d2
+        for i, p in enumerate(batch):
+            if blocked[i]:
                 continue
             centres[placed] = p
             placed += 1
             if placed == count:
                 break
+            blocked |= within[i]
     circles = [_dynamic(x, y, Circle(radius=f32(radius), density=f32(density))) for x, y in centres]
     return dict(effects=_effects(gravity, friction), dt=dt, steps=steps,
                 bodies=[_walls(box, box)] + circles)
