@@ -15,6 +15,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import stat
 import tempfile
 from contextlib import contextmanager
@@ -23,6 +24,8 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 RECORD = ".dc-output.json"
+RECORD_MAX = 64 << 20   # bytes: a record lists every file (a 600-step, 1,000-seed run's is about 21 MB)
+JOURNAL_MAX = 4096      # bytes: a journal names two folders
 NAME_MAX = 255     # bytes in one file name (Linux, macOS)
 _SPARE = 40        # room left for the longest suffix we add (".partial-PID-XXXXXXXX", ".PID.tmp")
 
@@ -51,6 +54,48 @@ def beside(path, kind):
     """The path of our ``.NAME.KIND`` file or folder beside path."""
     path = Path(path)
     return path.parent / f".{short_name(path.name)}.{kind}"
+
+
+# --- The names this module makes: a control file's claim is acted on only for these -------------
+# A journal, a lock's list or a record is a claim, not an order: whatever it names is touched only
+# if it is a name this module would have made for that output, of the right kind on disk.
+
+def own_name(path, kind, name):
+    """Whether name is one this module makes beside the output path: kind "partial" or "old" (a
+    folder: ``.NAME.partial-PID-XXXX``), or "tmp" (a temporary file: ``.NAME.XXXX.tmp``)."""
+    if not isinstance(name, str):
+        return False
+    stem = re.escape(f".{short_name(Path(path).name)}.")
+    tail = r"[A-Za-z0-9_]+\.tmp" if kind == "tmp" else re.escape(kind) + r"-\d+-[A-Za-z0-9_]+"
+    return re.fullmatch(stem + tail, name) is not None
+
+
+def _temporary_name(name):
+    """A temporary file's name as write_bytes makes it inside a folder written in place."""
+    return isinstance(name, str) and re.fullmatch(r"\.[^/\x00]+\.\d+\.tmp", name) is not None
+
+
+def _kind(p):
+    """What is at p, links not followed: "file", "folder", "other" (link, FIFO, device) or None."""
+    try:
+        mode = os.lstat(p).st_mode
+    except OSError:
+        return None
+    return "file" if stat.S_ISREG(mode) else "folder" if stat.S_ISDIR(mode) else "other"
+
+
+def _our_folder(p, empty_ok=False, command=None):
+    """p is a real folder (no link) that holds our record (of `command`, where given), or
+    (empty_ok) holds nothing."""
+    if _kind(p) != "folder":
+        return False
+    rec = read_record(p)
+    if rec is not None:
+        return command is None or rec["command"] == command
+    try:
+        return empty_ok and not os.listdir(p)
+    except OSError:
+        return False
 
 
 def check_replaceable(path):
@@ -168,7 +213,7 @@ def read_record(folder):
     p = Path(folder) / RECORD
     try:
         st = os.lstat(p)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > 1 << 30:
+        if not stat.S_ISREG(st.st_mode) or st.st_size > RECORD_MAX:
             return None
         rec = json.loads(p.read_bytes())
     except (OSError, ValueError, UnicodeDecodeError):
@@ -205,7 +250,10 @@ class _InPlace:
         # temporary files a killed run of ours left: ours to remove
         for name in (rec["temporary"] if mine else ()):
             p = self.folder / name
-            if p.is_file() and not p.is_symlink():
+            if not _temporary_name(name) or _kind(p) not in ("file", None):
+                log.warning("left %s alone: the record %s lists it as a temporary file, but it is not one dc "
+                            "writes there", p if _temporary_name(name) else repr(name), RECORD)
+            elif _kind(p) == "file":
                 log.info("removing %s, left by an interrupted earlier run", p)
                 _remove_quietly(p)
         self.temporary = set()
@@ -263,7 +311,10 @@ def locked(path):
         noted = []
     for name in noted if isinstance(noted, list) else ():
         p = Path(path).parent / str(name)
-        if "/" not in str(name) and p.is_file() and not p.is_symlink():
+        if not own_name(path, "tmp", name) or _kind(p) not in ("file", None):
+            log.warning("left %r alone: the lock file %s lists it, but it is not a temporary file dc makes "
+                        "for %s", name, lock.name, Path(path).name)
+        elif _kind(p) == "file":
             log.info("removing %s, left by an interrupted earlier run", p)
             _remove_quietly(p)
     os.ftruncate(fd, 0)
@@ -292,41 +343,75 @@ def note_temporary(path, tmp):
         os.ftruncate(fd, len(data))
 
 
-def recover(path):
+def recover(path, command=None):
     """Finishes or undoes what a killed earlier command left beside path (called under its lock,
     so no running command owns any of it): a replacement cut between its renames is undone (the
     earlier output restored) or, when the new output is in place, finished; partial folders that
-    hold our record are removed. Nothing without our record or journal is touched."""
+    hold our record (of `command`, where given) are removed. Nothing without our record or journal is
+    touched, and a journal or record is a claim, checked, never an order (own_name, _read_journal)."""
     import shutil
     path = Path(path)
     journal = beside(path, "swap")
-    if journal.is_file() and not journal.is_symlink():
-        try:
-            j = json.loads(journal.read_bytes())
-            old, new = (path.parent / j[k] if isinstance(j[k], str) and "/" not in j[k] and j[k].startswith(".")
-                        else None for k in ("old", "new"))
-        except (OSError, ValueError, KeyError, TypeError):
-            old = new = None
-        if not os.path.lexists(path) and old is not None and old.is_dir() and not old.is_symlink():
+    claims = _read_journal(journal, path)
+    if claims is not None:
+        old, new = (path.parent / claims[k] for k in ("old", "new"))
+        old_ours, new_ours = _our_folder(old, empty_ok=True, command=command), _our_folder(new, command=command)
+        if not os.path.lexists(path) and old_ours:
             # killed between the renames: the earlier output is the only copy, and comes back
             os.replace(old, path)
             log.warning("restored %s from %s: an earlier replacement was interrupted before the new output "
                         "was in place", path, old.name)
-        elif old is not None and old.is_dir() and not old.is_symlink():
+        elif old_ours:
             # killed after the swap, while the earlier output was being removed
             log.info("removing %s, the output an interrupted replacement had already replaced", old)
             shutil.rmtree(old, ignore_errors=True)
-        if new is not None and new.is_dir() and not new.is_symlink():   # never swapped in: ours, unfinished
+        if new_ours:   # never swapped in: ours, unfinished
             log.info("removing %s, left by an interrupted earlier run", new)
             shutil.rmtree(new, ignore_errors=True)
+        for p, ours in ((old, old_ours), (new, new_ours)):
+            if not ours and os.path.lexists(p) and p != path:
+                log.warning("left %s alone: the journal %s names it, but it holds no record of dc's", p,
+                            journal.name)
         _remove_quietly(journal)
-    prefix = f".{short_name(path.name)}.partial-"
     for p in path.parent.iterdir() if path.parent.is_dir() else ():
-        if p.name.startswith(prefix) and p.is_dir() and not p.is_symlink():
-            rec = read_record(p)
-            if rec is not None and rec["state"] == "partial":
+        if own_name(path, "partial", p.name) and _our_folder(p, command=command):
+            if read_record(p)["state"] == "partial":
                 log.info("removing %s, left by an interrupted earlier run", p)
                 shutil.rmtree(p, ignore_errors=True)
+
+
+def _read_journal(journal, path):
+    """The folders a journal beside path names, {"old": name, "new": name}, or None if there is no
+    journal. One that is not a regular file, or does not name two folders of the kinds `folder`
+    makes for path, is refused (InputError) and left as it is: nothing it names is touched."""
+    import errno
+    from .errors import InputError
+    kind = _kind(journal)
+    if kind is None:
+        return None
+    refuse = f"the journal {journal.name} beside it"
+    if kind != "file":
+        raise InputError(f"{refuse} is not a regular file (a link, folder, FIFO or device): nothing was done; "
+                         f"remove it", path)
+    try:
+        fd = os.open(journal, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        try:
+            data = os.read(fd, JOURNAL_MAX + 1) if stat.S_ISREG(os.fstat(fd).st_mode) else None
+        finally:
+            os.close(fd)
+        claims = json.loads(data) if data is not None and len(data) <= JOURNAL_MAX else None
+    except OSError as e:
+        if e.errno == errno.ENOENT:
+            return None
+        raise InputError(f"{refuse} cannot be read: {e.strerror or e}; nothing was done", path) from None
+    except (ValueError, UnicodeDecodeError):
+        claims = None
+    if not (isinstance(claims, dict) and own_name(path, "old", claims.get("old"))
+            and own_name(path, "partial", claims.get("new"))):
+        what = {k: claims.get(k) for k in ("old", "new")} if isinstance(claims, dict) else "no two folders"
+        raise InputError(f"{refuse} is not one dc wrote (it names {what}, not folders dc makes for "
+                         f"{path.name}): nothing it names was touched; remove it", path)
+    return claims
 
 
 @contextmanager
@@ -402,7 +487,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", path) from None
     with locked(path):
-        recover(path)
+        recover(path, command)
         existing = path.is_dir() and any(path.iterdir())
         if existing and not existing_ok:
             if not overwrite:

@@ -15,6 +15,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 _held = 0          # depth of held() blocks the main thread is in
 _pending = None    # the signal that came while held
+_received = None   # the first stop signal since install(), raised or not
 
 
 class Terminated(KeyboardInterrupt):
@@ -26,10 +27,11 @@ class Terminated(KeyboardInterrupt):
 
 
 def _on_signal(signum, frame):
-    global _pending
+    global _pending, _received
     # The clean-up this starts must not itself be cut short by a second signal.
     for s in STOP_SIGNALS:
         signal.signal(s, signal.SIG_IGN)
+    _received = _received or signum
     if _held:
         _pending = signum
         return
@@ -38,16 +40,27 @@ def _on_signal(signum, frame):
 
 def install():
     """Stop signals raise Terminated from now on (in the main thread)."""
-    global _pending
-    _pending = None
+    global _pending, _received
+    _pending = _received = None
     for s in STOP_SIGNALS:
         signal.signal(s, _on_signal)
 
 
+def check():
+    """Raises Terminated if a stop signal came and its exception was swallowed on the way (a bare
+    ``except:`` in a library's code, a plug-in's): called where the command must not go on past
+    a stop, such as before an output is swapped in."""
+    if _received is not None:
+        raise Terminated(_received)
+
+
 @contextmanager
 def held():
-    """A block that a stop signal does not interrupt: it is raised as the block is left."""
+    """A block that a stop signal does not interrupt: it is raised as the block is left. A stop
+    that came before it (and was swallowed) is raised on entry (check)."""
     global _held, _pending
+    if not _held:
+        check()
     _held += 1
     try:
         yield

@@ -304,7 +304,7 @@ def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, 
     outputs = {"run": copy(run, tmp_path / "run"), "data": copy(dataset, tmp_path / "data"),
                "model": copy(model, tmp_path / "model")}
     commands = {"run": ["simulate", "pile", "--seeds", "0..40", "--overwrite", "-q", "-o", "run"],
-                "data": ["rasterize", str(run), "--cell", "0.1", "--smoothing", "0.1", "--overwrite", "-q",
+                "data": ["rasterize", str(run), "--cell", "0.05", "--smoothing", "0.05", "--overwrite", "-q",
                          "-o", "data", "--max-memory", "20"],
                 "model": ["train", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2", "--overwrite",
                           "-q", "-o", "model"]}
