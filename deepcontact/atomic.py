@@ -98,6 +98,13 @@ def _our_folder(p, empty_ok=False, command=None):
         return False
 
 
+def umask():
+    """This process's umask (read by setting it, and set back at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def check_replaceable(path):
     """Refuses (InputError) an output path that is there but is not a regular file: a folder, a
     device, a FIFO or a socket is never replaced by a file, and a symbolic link never followed."""
@@ -130,7 +137,7 @@ def write_bytes(path, data: bytes):
         if record is not None:
             record.enter(name, os.path.basename(tmp))
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o666)   # (less the umask)
         try:
             view = memoryview(data)
             while view:
@@ -165,7 +172,7 @@ def open_for_write(path, mode="wb"):
     path = Path(path)
     check_replaceable(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{short_name(path.name)}.", suffix=".tmp", dir=path.parent)
-    os.fchmod(fd, 0o644)   # (as write_bytes: mkstemp's 0600 is for secrets)
+    os.fchmod(fd, 0o666 & ~umask())   # (as write_bytes: mkstemp's 0600 is for secrets)
     if _locks and os.path.abspath(path) in _locks:
         note_temporary(path, tmp)
     try:
@@ -276,11 +283,16 @@ class _InPlace:
 
 @contextmanager
 def locked(path):
-    """Holds an exclusive lock on ``.NAME.lock`` beside path, or refuses at once."""
+    """Holds an exclusive lock on ``.NAME.lock`` beside path, or refuses at once. The folder path
+    goes in is made first, as for every output (`dc render -o figures/x.png`)."""
     import errno
     import fcntl
     from .errors import InputError
     lock = beside(path, "lock")
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
     while True:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
@@ -428,6 +440,7 @@ def folder(path, command="dc"):
     path = Path(path)
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{short_name(path.name)}.partial-{os.getpid()}-", dir=path.parent))
+        os.chmod(tmp, 0o777 & ~umask())   # the output's own mode, as mkdir gives: mkdtemp's 0700 is for secrets
         _write_record(tmp, command, "partial")
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", path) from None

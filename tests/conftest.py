@@ -1,3 +1,4 @@
+import os
 import shutil
 import subprocess
 import sys
@@ -124,11 +125,23 @@ def dc(*args, check=False):
     return done
 
 
+def installed(script):
+    """The console script `script` installed beside this interpreter (not the first one on PATH:
+    `make test PYTHON=venv/bin/python` runs with the venv not activated), or None."""
+    exe = Path(sys.executable).parent / script
+    return str(exe) if exe.is_file() and os.access(exe, os.X_OK) else None
+
+
+def dc_command():
+    """The installed `dc` as a command line: the console script, or this interpreter's -m."""
+    exe = installed("dc")
+    return [exe] if exe else [sys.executable, "-m", "deepcontact.cli.main"]
+
+
 def dc_process(*args, check=False, timeout=120, env=None):
     """Run the installed `dc` in its own process, as a user would; returns the CompletedProcess."""
-    exe = shutil.which("dc")
-    cmd = [exe, *args] if exe else [sys.executable, "-m", "deepcontact.cli.main", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=check, env=env)
+    return subprocess.run([*dc_command(), *args], capture_output=True, text=True, timeout=timeout, check=check,
+                          env=env)
 
 
 def one_line_error(r, *needles):

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import dc, dc_process, one_line_error, option_error, snapshot
+from conftest import dc, dc_command, dc_process, one_line_error, option_error, snapshot
 
 ROOT = Path(__file__).parent.parent
 SCENES = ROOT / "datasets" / "scenes"
@@ -98,7 +98,7 @@ def test_train_overwrite_refuses_a_folder_that_is_no_training_run(dataset, tmp_p
 def test_an_interrupted_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
     old = copy_run(run, tmp_path)
     before = snapshot(old)
-    cmd = [shutil.which("dc"), "simulate", *PILE, "--steps", "100000", "--overwrite", "-q", "-o", str(old)]
+    cmd = [*dc_command(), "simulate", *PILE, "--steps", "100000", "--overwrite", "-q", "-o", str(old)]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
     while time.time() < deadline and not any((tmp_path / n).is_dir() and any((tmp_path / n).rglob("step-*.xml"))

@@ -11,6 +11,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -681,3 +682,29 @@ def test_messages_stay_on_one_line(run, tmp_path):
     r = dc("validate", str(step))
     assert r.returncode == 1 and len(r.stdout.strip().splitlines()) >= 1
     assert all(len(x) <= 600 for x in r.stdout.strip().splitlines())
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o027, 0o077])
+def test_outputs_honour_the_umask(run, dataset, tmp_path, mask):
+    """Colleagues on a cluster read each other's runs: an output folder and its files get the modes
+    the user's umask gives (mkdtemp's 0700 is for secrets)."""
+    saved = os.umask(mask)
+    try:
+        assert dc("simulate", *PILE, "--steps", "3", "-q", "-o", str(tmp_path / "run")).returncode == 0
+        assert dc("render", str(next(Path(run).glob("seed-*/step-000100.xml"))), "-q",
+                  "-o", str(tmp_path / "pic.png")).returncode == 0
+        assert dc("rasterize", str(run), "--cell", "1", "--smoothing", "1", "-q",
+                  "-o", str(tmp_path / "data")).returncode == 0
+    finally:
+        os.umask(saved)
+    for p in [tmp_path / "run", *(tmp_path / "run").rglob("*"), tmp_path / "pic.png", tmp_path / "data",
+              *(tmp_path / "data").rglob("*")]:
+        expected = (0o777 if p.is_dir() else 0o666) & ~mask
+        assert stat.S_IMODE(os.stat(p).st_mode) == expected, (p, oct(os.stat(p).st_mode), oct(expected))
+
+
+def test_render_makes_the_folder_its_picture_goes_in(run, tmp_path):
+    step = next(Path(run).glob("seed-*/step-000100.xml"))
+    r = dc("render", str(step), "-q", "-o", str(tmp_path / "figures" / "new" / "x.png"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "figures" / "new" / "x.png").stat().st_size > 0

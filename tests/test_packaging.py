@@ -1,5 +1,6 @@
 """The package as a user gets it from `pip install .`: a wheel, installed in a fresh venv, runs."""
 import os
+import site
 import subprocess
 import sys
 import venv
@@ -31,10 +32,14 @@ def test_the_wheel_holds_every_package(wheel):
 
 def test_the_wheel_runs_in_a_fresh_venv(wheel, tmp_path):
     env_dir = tmp_path / "venv"
-    # the dependencies (numpy, torch, ...) come from this interpreter's site-packages; deepcontact
-    # itself only from the wheel, which the venv's own site-packages puts first
-    venv.create(env_dir, system_site_packages=True, with_pip=False)
+    # the dependencies (numpy, torch, ...) come from this interpreter's site-packages (a .pth file:
+    # system_site_packages would take the base interpreter's, which a venv's python is not);
+    # deepcontact itself only from the wheel, which the venv's own site-packages puts first
+    venv.create(env_dir, with_pip=False)
     py = env_dir / "bin" / "python"
+    own = subprocess.run([str(py), "-c", "import site; print(site.getsitepackages()[0])"], check=True,
+                         capture_output=True, text=True).stdout.strip()
+    Path(own, "deps-of-the-test.pth").write_text("\n".join(site.getsitepackages()) + "\n")
     subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", str(wheel)],
                    check=True, capture_output=True, text=True, timeout=300)
     where = subprocess.run([str(py), "-c", "import deepcontact; print(deepcontact.__file__)"], cwd=tmp_path,

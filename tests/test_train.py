@@ -169,11 +169,10 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
 
 @pytest.mark.process
 def test_data_parallel_training_under_torchrun(tiny, tmp_path):
-    import shutil
     import subprocess
-    torchrun = shutil.which("torchrun")
-    if torchrun is None:
-        pytest.skip("torchrun is not installed")
+    from conftest import installed
+    torchrun = installed("torchrun")   # (torch's own, beside this interpreter: a venv need not be activated)
+    assert torchrun is not None, "torch installs torchrun beside the interpreter"
     out = tmp_path / "ddp"
     r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", str(tiny), "-o",
                         str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
