@@ -708,3 +708,43 @@ def test_render_makes_the_folder_its_picture_goes_in(run, tmp_path):
     r = dc("render", str(step), "-q", "-o", str(tmp_path / "figures" / "new" / "x.png"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "figures" / "new" / "x.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("args", [["--engine", "box2d3", "--substeps", "2147483647"],
+                                  ["--solver", "pgs", "--max-iterations", "2147483647"],
+                                  ["--iterations", "2147483647"]])
+def test_iteration_counts_that_would_run_for_hours_are_refused_before_work(tmp_path, args):
+    r = dc("simulate", *PILE, "--steps", "3", "-q", "-o", str(tmp_path / "run"), *args)
+    one_line_error(r, "2,147,483,647", "body-iterations a step")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args", [
+    # a fixed count of ten million sweeps a step: hours for the run, every step in the native sweeps
+    ["simulate", *PILE, "--steps", "300", "--solver", "pgs", "--max-iterations", "10000000", "-q", "-o", "out"],
+])
+def test_a_native_solve_stops_within_a_second_of_a_signal(run, tmp_path, args):
+    """The sweeps run with the GIL released; they poll for signals (native/interrupt.hpp)."""
+    proc = start([str(run) if a == "RUN" else a for a in args], tmp_path)
+    time.sleep(3)   # (in the sweeps by now: the cap and the tolerance keep it there for hours)
+    assert proc.poll() is None
+    sent = time.time()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert time.time() - sent < 1.5 and proc.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_native_solve_called_from_python_takes_ctrl_c(run):
+    """The library alone (no dc handlers): Python's own SIGINT handler stops a native solve."""
+    import threading
+    import deepcontact as dcl
+    from deepcontact.solver.problem import StepProblem
+    problem = StepProblem.from_step_file(next(Path(run).glob("seed-*/step-000100.xml")))
+    timer = threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    began = time.time()
+    with pytest.raises(KeyboardInterrupt):
+        dcl.solve(problem, tolerance=1e-300, max_iterations=2 ** 31 - 1, stop_on="none")
+    assert time.time() - began < 1.5

@@ -15,6 +15,8 @@
 #include <cmath>
 #include <vector>
 
+#include "interrupt.hpp"
+
 namespace dc {
 
 struct LemkeResult {
@@ -107,6 +109,7 @@ inline LemkeResult lemke(const double* M, const double* q, int n, int max_pivots
     basis[r] = z0;
     std::vector<int> rows, ties;
     for (out.pivots = 1; out.pivots <= max_pivots; ++out.pivots) {
+        poll_signals();
         const int entering = leaving < n ? leaving + n : leaving - n;  // the complement
         entering_column(entering);
         double largest = 1.0;

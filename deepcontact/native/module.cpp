@@ -6,6 +6,7 @@
 
 #include <string>
 
+#include "interrupt.hpp"
 #include "step_names.hpp"
 #ifdef DC_HAVE_BOX2D3
 #include "world3.hpp"
@@ -161,7 +162,21 @@ py::object enum_names(const char* const* names) {
     return out;
 }
 
+void dc::check_signals() {
+    py::gil_scoped_acquire gil;
+    if (PyErr_CheckSignals() != 0) throw Interrupted{};  // (the handler's exception stays set)
+}
+
 PYBIND11_MODULE(_box2d, m) {
+    // A native loop stopped by a signal (interrupt.hpp): the exception Python's handler raised is
+    // already set; it is what the call raises.
+    py::register_exception_translator([](std::exception_ptr p) {
+        try {
+            if (p) std::rethrow_exception(p);
+        } catch (const dc::Interrupted&) {
+            if (!PyErr_Occurred()) PyErr_SetNone(PyExc_KeyboardInterrupt);
+        }
+    });
     dc::bind_solver(m);
     dc::bind_grid(m);
     bind_step_reader(m);

@@ -15,6 +15,7 @@
 
 #include "contact_problem.hpp"
 #include "bodyspace.hpp"
+#include "interrupt.hpp"
 #include "newton.hpp"
 
 namespace dc {
@@ -279,6 +280,7 @@ private:
         while (residual >= tolerance && rep.iterations < opt.max_iterations) {
             settle(std::min(sweeps, opt.max_iterations - rep.iterations), w, opt, rep, residual, record);
             while (residual >= tolerance && newton.factorizations() < kNewtonLimit) {
+                poll_signals();
                 const double before = residual;
                 const bool stepped = newton.step();
                 rep.factorizations = newton.factorizations();
@@ -319,6 +321,7 @@ private:
             double best = residual;
             int since_best = 0;
             while (residual >= tolerance && rep.iterations < opt.max_iterations) {
+                poll_signals();
                 kept_velocity = pb_.velocity;
                 save_impulses();
                 const double before = residual;
@@ -414,6 +417,7 @@ private:
     // b2ContactSolver::SolveVelocityConstraints, with optional over-relaxation.
     template <bool Relax>
     void sweep(R w) {
+        poll_signals();  // (every loop of every method sweeps)
         for (auto& m : pb_.manifolds) {
             auto& A = pb_.velocity[m.a];
             auto& B = pb_.velocity[m.b];

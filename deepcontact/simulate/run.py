@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import atomic, interrupts, workers
 from ..errors import InputError, count
-from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
+from ..resources import COMPRESSION_RATIO, check_disk, check_step_work, step_bytes
 from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
 from ..solver.methods import GLOBAL
@@ -210,6 +210,19 @@ def _worker(args):
                           soft=soft)
 
 
+def check_work(scene, loop=None, soft=None):
+    """Refuses iteration counts whose step would run for hours (resources.check_step_work)."""
+    bodies = len(scene.bodies)
+    if soft is not None:
+        check_step_work(bodies, soft.substeps, f"{soft.substeps:,} substeps a step")
+    elif loop is not None:
+        check_step_work(bodies, loop.max_iterations, f"a cap of {loop.max_iterations:,} sweeps a step")
+    else:
+        iterations = scene.solver.velocity_iterations + scene.solver.position_iterations
+        check_step_work(bodies, iterations, f"{scene.solver.velocity_iterations:,} velocity and "
+                                            f"{scene.solver.position_iterations:,} position iterations a step")
+
+
 def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, *, overwrite: bool = False,
         skip_contactless: bool = False, jobs: int = 1, progress: Callable | None = None, source: str | None = None,
         loop: LoopOptions | None = None, max_disk: float | None = None, compress: bool = False,
@@ -227,6 +240,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     # Build (and check) the first scene before touching the output folder.
     first = make_scene(seeds[0])
     check_overlaps(first, source)
+    check_work(first, loop, soft)
     if loop is not None:
         check_scene_for_loop(first, source)
     if soft is not None:
