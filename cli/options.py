@@ -208,7 +208,13 @@ def command(name):
     SIGTERM and SIGHUP → clean-up and exit 128 + signal; tracebacks only with -v."""
     def decorate(f):
         @functools.wraps(f)
-        def wrapper(*args, verbose=0, quiet=0, **kwargs):
+        def wrapper(*args, **kwargs):
+            try:
+                return run(*args, **kwargs)
+            finally:   # (in-process callers, the tests: the next command starts afresh)
+                interrupts.uninstall()
+
+        def run(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
             _take_aliases(name, kwargs)
             interrupts.install()
@@ -219,6 +225,10 @@ def command(name):
                 sys.exit(1)
             try:
                 return f(*args, verbose=verbose, quiet=quiet, **kwargs)
+            except SystemExit as e:   # not ours (a command ends with click's Exit): a library or a plug-in's
+                if verbose:
+                    raise
+                fail(f"something the command ran called sys.exit({e.code!r}) (a plug-in?); -v shows where")
             except OptionError as e:
                 if verbose:
                     raise
@@ -229,6 +239,11 @@ def command(name):
                     raise
                 fail(e)
             except KeyboardInterrupt as e:
+                if not interrupts.user_stopped():   # raised by code, not by a stop signal
+                    if verbose:
+                        raise
+                    fail("something the command ran raised KeyboardInterrupt itself, with no stop signal "
+                         "(a plug-in?); -v shows where")
                 signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
                 if atomic.completed:   # the signal waited for a swap to finish
                     click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}) after its output was "

@@ -1,6 +1,4 @@
 """dc validate: step and scene files against schemas/."""
-import sys
-
 import click
 
 from deepcontact.errors import count
@@ -50,7 +48,7 @@ def validate(paths, replay, jobs, verbose, quiet):
         bar.close()
     if not quiet:
         click.echo(f"{count(files, 'file')} checked, {invalid} invalid", err=True)
-    sys.exit(1 if invalid else 0)
+    click.get_current_context().exit(1 if invalid else 0)
 
 
 def replay_runs(paths, quiet, jobs):
@@ -65,4 +63,4 @@ def replay_runs(paths, quiet, jobs):
         click.echo(f"{run_dir}: {report.steps} steps, {report.points} contact points replayed; "
                    f"largest difference {report.max_difference:.9g}: {verdict}")
         failed |= not report.exact
-    sys.exit(1 if failed else 0)
+    click.get_current_context().exit(1 if failed else 0)

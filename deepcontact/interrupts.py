@@ -16,6 +16,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _held = 0          # depth of held() blocks the main thread is in
 _pending = None    # the signal that came while held
 _received = None   # the first stop signal since install(), raised or not
+_installed = False # whether install() has run in this process (dc's commands; not a library caller)
+_guests = 0        # depth of plug-in calls in progress (plugins.guest)
 
 
 class Terminated(KeyboardInterrupt):
@@ -28,9 +30,10 @@ class Terminated(KeyboardInterrupt):
 
 def _on_signal(signum, frame):
     global _pending, _received
-    # The clean-up this starts must not itself be cut short by a second signal.
+    # The clean-up this starts must not itself be cut short by a second signal; only a plug-in
+    # that swallowed the first (and goes on) is stopped again (_on_repeat).
     for s in STOP_SIGNALS:
-        signal.signal(s, signal.SIG_IGN)
+        signal.signal(s, _on_repeat)
     _received = _received or signum
     if _held:
         _pending = signum
@@ -38,12 +41,51 @@ def _on_signal(signum, frame):
     raise Terminated(signum)
 
 
+def _on_repeat(signum, frame):
+    """A stop after the first: ignored while the command cleans up, raised in a plug-in's code."""
+    if _guests and not _held:
+        raise Terminated(_received or signum)
+
+
 def install():
     """Stop signals raise Terminated from now on (in the main thread)."""
-    global _pending, _received
+    global _pending, _received, _installed
     _pending = _received = None
+    _installed = True
     for s in STOP_SIGNALS:
         signal.signal(s, _on_signal)
+
+
+def uninstall():
+    """The command is over: what it received is forgotten (the handlers are its caller's to put
+    back, as the test helper and the end of the process do)."""
+    global _pending, _received, _installed
+    _pending = _received = None
+    _installed = False
+
+
+def user_stopped():
+    """Whether a KeyboardInterrupt now is the user's stop: a signal came (or dc's handlers are not
+    installed, so Python's own raised it), not a plug-in raising it itself."""
+    return _received is not None or not _installed
+
+
+@contextmanager
+def guest_code():
+    """Marks a plug-in's call: the stop-signal handlers it changes are put back as it returns."""
+    global _guests
+    try:
+        saved = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    except ValueError:   # not the main thread: no handlers to keep
+        saved = {}
+    _guests += 1
+    try:
+        yield
+    finally:
+        _guests -= 1
+        for s, handler in saved.items():
+            if signal.getsignal(s) not in (handler, _on_signal, _on_repeat):
+                signal.signal(s, handler)
 
 
 def check():

@@ -6,6 +6,7 @@ line or in code); nothing read from a file ever imports code.
 """
 import importlib
 import re
+from contextlib import contextmanager
 
 from .errors import InputError
 
@@ -15,6 +16,42 @@ _TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
 
 class PluginError(InputError):
     """A plug-in that cannot be found, imported or used: one line naming it and what is wrong."""
+
+
+@contextmanager
+def guest(what, doing="raised"):
+    """Runs a plug-in's code (`what` names it: "the start 'x'"). Whatever leaves it becomes one
+    PluginError, "{what} {doing} {Type}: {message}", chained to the original (so -v shows its file
+    and line): an exception, sys.exit(), a KeyboardInterrupt it raised itself (the user's own stop
+    passes through). As it returns, the signal handlers and the working folder it changed are put
+    back, and a stop signal it swallowed is raised."""
+    import os
+    from . import interrupts
+    try:
+        cwd = os.getcwd()
+    except OSError:
+        cwd = None
+    try:
+        with interrupts.guest_code():
+            yield
+    except InputError:   # ours already (a PluginError, or a check the plug-in called)
+        raise
+    except KeyboardInterrupt as e:
+        if interrupts.user_stopped():
+            raise
+        raise PluginError(f"{what} raised KeyboardInterrupt itself (no stop signal came)") from e
+    except SystemExit as e:
+        raise PluginError(f"{what} called sys.exit({e.code!r}): a plug-in cannot end the command") from e
+    except BaseException as e:   # (GeneratorExit and the like as well: nothing of a guest's passes as ours)
+        raise PluginError(f"{what} {doing} {type(e).__name__}: {e}") from e
+    finally:
+        if cwd is not None:
+            try:
+                if os.getcwd() != cwd:
+                    os.chdir(cwd)
+            except OSError:
+                os.chdir(cwd)
+    interrupts.check()
 
 
 class Registry:
@@ -68,13 +105,10 @@ class Registry:
                               f"as package.module:Name")
         target = found.value if found is not None else name
         module, _, attribute = target.partition(":")
-        try:
+        with guest(f"the {self.kind} plug-in {name!r}", f"cannot be loaded ({target}):"):
             obj = importlib.import_module(module)
             for part in attribute.split("."):
                 obj = getattr(obj, part)
-        except Exception as e:   # the plug-in's own code raised while importing: say so, in one line
-            raise PluginError(f"the {self.kind} plug-in {name!r} cannot be loaded ({target}): "
-                              f"{type(e).__name__}: {e}") from None
         if not callable(obj):
             raise PluginError(f"the {self.kind} plug-in {name!r} ({target}) is not a class or function")
         self._loaded[name] = obj

@@ -326,8 +326,11 @@ def test_grids_too_large_for_memory_and_the_override(run, tmp_path):
 
 # the minor ones -------------------------------------------------------------------------------
 
-def test_write_scene_into_a_missing_folder_names_the_file(tmp_path):
-    target = tmp_path / "no" / "such" / "scene.xml"
+def test_write_scene_makes_its_folder_and_names_the_file_where_it_cannot(tmp_path):
+    made = tmp_path / "new" / "folder" / "scene.xml"   # every output's folder is made, as -o's are
+    assert dc("simulate", "pile", "--write-scene", str(made)).returncode == 0 and made.stat().st_size > 0
+    (tmp_path / "a-file").write_text("in the way")
+    target = tmp_path / "a-file" / "scene.xml"
     line = one_line_error(dc("simulate", "pile", "--write-scene", str(target)), target)
     assert ".tmp" not in line
 

@@ -491,7 +491,8 @@ def test_estimates_come_before_the_work(run, dataset, tmp_path):
     r = invoke("train", dataset, "--loss", "solver", "--solver-sweeps", "5", "--max-memory", "0.000001",
                "--epochs", "1", "--width", "4", "--depth", "2", "-o", tmp_path / "m")
     one_line(r, 1, "solver loss")
-    r = invoke("study", "stability", "--fast", "-o", tmp_path / "no" / "such" / "folder" / "t.md")
+    (tmp_path / "a-file").write_text("in the way")   # (a missing folder is made: a file cannot be)
+    r = invoke("study", "stability", "--fast", "-o", tmp_path / "a-file" / "folder" / "t.md")
     one_line(r, 1, "cannot write there")
     assert "configurations" not in r.stdout     # refused before the study, not after it
     r = invoke("render", run, "--window", "0,0,0.00001,0.00001", "-o", tmp_path / "w.gif")

@@ -17,7 +17,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from ..plugins import PluginError
+from ..plugins import PluginError, guest
 from .arch import BUILTIN, NETWORKS
 
 # PyTorch notes that 'same' padding with the appendix's 2x2 kernels copies the input; it is right.
@@ -124,10 +124,8 @@ def build(config):
     extra = {k: v for k, v in config.items() if k in wanted and k not in grid and k != "model"}
     if name in BUILTIN:
         return factory(**grid, **extra)
-    try:
+    with guest(f"the network {name!r}", "could not be built:"):
         return factory(**grid, **extra)
-    except Exception as e:
-        raise PluginError(f"the network {name!r} could not be built: {type(e).__name__}: {e}") from None
 
 
 def check_network(model, config, name=None):
@@ -137,15 +135,12 @@ def check_network(model, config, name=None):
         return
     c, h, w = config["in_channels"], config["height"], config["width"]
     want = (1, config["out_channels"], h, w)
-    try:
-        with torch.no_grad():
-            was = model.training
-            model.eval()
-            out = model(torch.zeros(1, c, h, w))
-            model.train(was)
-    except Exception as e:
-        raise PluginError(f"the network {config['model']!r} failed on a batch of shape (1, {c}, {h}, {w}): "
-                          f"{type(e).__name__}: {e}") from None
+    with guest(f"the network {config['model']!r}", f"failed on a batch of shape (1, {c}, {h}, {w}):"), \
+            torch.no_grad():
+        was = model.training
+        model.eval()
+        out = model(torch.zeros(1, c, h, w))
+        model.train(was)
     if not isinstance(out, torch.Tensor) or tuple(out.shape) != want:
         raise PluginError(f"the network {config['model']!r} maps (1, {c}, {h}, {w}) to "
                           f"{tuple(getattr(out, 'shape', ())) or type(out).__name__}; it must give {want}")
@@ -188,14 +183,9 @@ def check_config(config):
 def on_meta(config):
     """The network built on torch's meta device: shapes and counts, no memory (a plug-in must
     allow it, as networks of plain torch layers do)."""
-    try:
-        with torch.device("meta"):
-            return build(config)
-    except PluginError:
-        raise
-    except Exception as e:
-        raise PluginError(f"the network {config['model']!r} cannot be built on torch's meta device (needed to "
-                          f"check its size before allocating it): {type(e).__name__}: {e}") from None
+    with guest(f"the network {config['model']!r}", "cannot be built on torch's meta device (needed to check its "
+                                                      "size before allocating it):"), torch.device("meta"):
+        return build(config)
 
 
 def shape_problem(config, state):

@@ -27,6 +27,7 @@ from .. import __version__, atomic
 from ..errors import InputError
 from ..grid.dataset import GridDataset
 from ..grid.spec import GridSpec
+from ..plugins import guest
 from ..resources import check_memory
 from . import losses
 from .arch import NETWORKS
@@ -533,12 +534,19 @@ class Trainer:
         """The remaining epochs, writing last.pt (every epoch), best.pt (on improvement) and the
         metrics into work (rank 0); early stopping after `patience` epochs without improvement."""
         cfg = self.cfg
+        # a plug-in network's code runs in every batch (forward and backward): what leaves it is
+        # one line naming it (plugins.guest)
+        from contextlib import nullcontext
+        from .networks import BUILTIN
+        guarded = (lambda: nullcontext()) if cfg.model in BUILTIN else (lambda: guest(f"the network {cfg.model!r}"))
         for epoch in range(self.start, cfg.epochs):
             try:
-                row = self.run_epoch(epoch)
+                with guarded():
+                    row = self.run_epoch(epoch)
             except TrainingDiverged as e:
                 raise TrainingDiverged(e.message, out_dir) from None
-            row.update(self.validate() if len(self.val_idx) else {})
+            with guarded():
+                row.update(self.validate() if len(self.val_idx) else {})
             self.history.append(row)
             score = row.get("val_loss", row["train_loss"])
             improved = score < self.best

@@ -25,7 +25,7 @@ import numpy as np
 
 from .._box2d import Acceleration
 from ..errors import InputError
-from ..plugins import PluginError, Registry
+from ..plugins import PluginError, Registry, guest
 from .pgs import MEASURES, Solution
 from .pgs import solve as native_solve
 
@@ -77,10 +77,8 @@ def method(name):
         factory = SOLVERS.resolved(name)
         if factory is None:
             factory = SOLVERS.load(name)
-        try:
+        with guest(f"the solver method {name!r}", "cannot be made:"):
             _instances[name] = factory()
-        except Exception as e:
-            raise PluginError(f"the solver method {name!r} cannot be made: {type(e).__name__}: {e}") from None
     return _instances[name]
 
 
@@ -122,12 +120,11 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     t = problem.start_tangent if start_tangent is None else start_tangent
     cap = problem.velocity_iterations if max_iterations is None else max_iterations
     settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=float(relaxation))
-    try:
-        out = method(accelerate)(problem, np.array(n, np.float64), np.array(t, np.float64), settings)
-    except InputError:
-        raise
-    except Exception as e:   # the plug-in's own code: one line naming it
-        raise PluginError(f"the solver method {accelerate!r} raised {type(e).__name__}: {e}") from None
+    solver = method(accelerate)
+    # its own copy of the step: what it changes there, no other method and no later row sees
+    import copy
+    with guest(f"the solver method {accelerate!r}"):
+        out = solver(copy.deepcopy(problem), np.array(n, np.float64), np.array(t, np.float64), settings)
     normal, tangent, residuals = _checked(accelerate, out, problem, cap)
     after = judge(problem, normal, tangent)
     if after.sanitized.get("implausible"):

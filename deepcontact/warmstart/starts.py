@@ -14,6 +14,7 @@
     guarded   whichever of cnn / builtin / zero has the smallest residual before iterating
     cnn-new   builtin where a contact persists from the previous step, cnn only for new ones
 """
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -22,7 +23,7 @@ import numpy as np
 from ..errors import InputError
 from ..grid.interpolate import bilinear
 from ..grid.spec import GridSpec
-from ..plugins import PluginError, Registry
+from ..plugins import PluginError, Registry, guest
 from ..grid.splat import splat_points
 
 
@@ -218,12 +219,13 @@ class Checked:
         self.name, self.start = name, start
 
     def __call__(self, ctx):
-        try:
-            value = self.start(ctx)
-        except InputError:
-            raise
-        except Exception as e:
-            raise PluginError(f"the start {self.name!r} raised {type(e).__name__}: {e}") from None
+        # a copy of the step (its cache kept): whatever the start does to it, no other start and
+        # no later row sees
+        import copy
+        seen = dataclasses.replace(ctx, **{f.name: copy.deepcopy(getattr(ctx, f.name))
+                                           for f in dataclasses.fields(ctx) if f.name != "cache"})
+        with guest(f"the start {self.name!r}"):
+            value = self.start(seen)
         n = ctx.problem.points
         try:
             normal = np.asarray(value.normal, np.float64)
@@ -263,11 +265,7 @@ def make_starts(names: list[str], spec: GridSpec | None = None, predictor: objec
             raise InputError(f"the start {name} needs a trained model (--checkpoint)")
         if "spec" in wanted and spec is None:
             raise InputError(f"the start {name} needs a grid (--cell, --smoothing, --kernel, or a --checkpoint)")
-        try:
+        with guest(f"the start {name!r}", "could not be made:"):
             start = factory(**{k: v for k, v in given.items() if k in wanted})
-        except InputError:
-            raise
-        except Exception as e:
-            raise PluginError(f"the start {name!r} could not be made: {type(e).__name__}: {e}") from None
         out[name] = start if name in NAMES else Checked(name, start)
     return out

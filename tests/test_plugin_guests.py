@@ -1,0 +1,257 @@
+"""Plug-ins are guests (issue 37): whatever a start, a solver method or a network does (sys.exit,
+a KeyboardInterrupt of its own, an exception at import or at call, editing the problem it is
+handed, moving the working folder, swallowing a stop signal, taking over the signal handlers), the
+command ends in one line naming it (exit 1), or goes on unharmed; the user's own Ctrl-C stays 130.
+
+The misbehaviours are generated: each one in each kind of plug-in, at import and at call."""
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import dc
+
+pytestmark = pytest.mark.audit
+
+# What a plug-in may do wrong, as the body of the call (or of the module, at import).
+MISDEEDS = {
+    "exit0": "sys.exit(0)",
+    "exit3": "sys.exit(3)",
+    "interrupt": "raise KeyboardInterrupt",
+    "error": "raise RuntimeError('broken')",
+    "base": "raise GeneratorExit",
+}
+
+START = """
+import os, sys, signal
+import numpy as np
+from deepcontact.warmstart.starts import StartValue
+{at_import}
+class Start:
+    def __call__(self, ctx):
+        {at_call}
+        return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {{}})
+"""
+
+METHOD = """
+import os, sys, signal
+import numpy as np
+from deepcontact.solver.methods import MethodResult
+{at_import}
+class Method:
+    def __call__(self, problem, normal, tangent, settings):
+        {at_call}
+        return MethodResult(normal, tangent, np.zeros(1))
+"""
+
+NETWORK = """
+import os, sys, signal
+import torch
+from torch import nn
+{at_import}
+calls = [0]
+class Net(nn.Module):
+    def __init__(self, in_channels, out_channels, height, width):
+        super().__init__()
+        self.conv = nn.Conv2d(in_channels, out_channels, 1)
+    def forward(self, x):
+        calls[0] += 1
+        if calls[0] > 2:   # (past the contract's check: in training)
+            {at_call}
+        return self.conv(x)
+"""
+
+
+def write_module(tmp_path, monkeypatch, name, template, at_import="", at_call="pass"):
+    mods = tmp_path / "mods"
+    mods.mkdir(exist_ok=True)
+    (mods / f"{name}.py").write_text(template.format(at_import=at_import, at_call=at_call))
+    monkeypatch.syspath_prepend(str(mods))
+    sys.modules.pop(name, None)
+
+
+def forget(name):
+    from deepcontact.model.arch import NETWORKS
+    from deepcontact.solver import methods
+    from deepcontact.warmstart.starts import STARTS
+    sys.modules.pop(name, None)
+    for registry in (STARTS, methods.SOLVERS, NETWORKS):
+        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith(name)}
+    methods._instances = {k: v for k, v in methods._instances.items() if not k.startswith(name)}
+
+
+def one_line_naming(r, name):
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert len(lines) == 1 and "Traceback" not in r.stderr and name in lines[0], r.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize("when", ["import", "call"])
+@pytest.mark.parametrize("misdeed", sorted(MISDEEDS))
+def test_a_start_that_misbehaves_is_one_line_naming_it(run, tmp_path, monkeypatch, misdeed, when):
+    name = f"guest_start_{misdeed}_{when}"
+    code = MISDEEDS[misdeed]
+    write_module(tmp_path, monkeypatch, name, START, **{"at_import" if when == "import" else "at_call": code})
+    try:
+        r = dc("evaluate", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-q",
+               "-o", tmp_path / "r")
+    finally:
+        forget(name)
+    line = one_line_naming(r, f"{name}:Start")
+    assert not (tmp_path / "r").exists()
+    if misdeed.startswith("exit"):
+        assert "sys.exit" in line
+
+
+@pytest.mark.parametrize("misdeed", sorted(MISDEEDS))
+def test_a_solver_method_that_misbehaves_is_one_line_naming_it(run, tmp_path, monkeypatch, misdeed):
+    name = f"guest_method_{misdeed}"
+    write_module(tmp_path, monkeypatch, name, METHOD, at_call=MISDEEDS[misdeed])
+    try:
+        r = dc("evaluate", run, "--starts", "builtin", "--accelerate", f"{name}:Method", "--every", "40",
+               "--no-budgets", "-q", "-o", tmp_path / "r")
+        one_line_naming(r, f"{name}:Method")
+        r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5", "--steps",
+               "150", "--solver", "pgs", "--accelerate", f"{name}:Method", "-q", "-o", tmp_path / "s")
+        one_line_naming(r, f"{name}:Method")
+    finally:
+        forget(name)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("misdeed", sorted(MISDEEDS))
+def test_a_network_that_misbehaves_in_training_is_one_line_naming_it(dataset, tmp_path, monkeypatch, misdeed):
+    name = f"guest_net_{misdeed}"
+    write_module(tmp_path, monkeypatch, name, NETWORK, at_call=MISDEEDS[misdeed])
+    try:
+        r = dc("train", dataset, "--arch", f"{name}:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+    finally:
+        forget(name)
+    one_line_naming(r, f"{name}:Net")
+    assert not (tmp_path / "m").exists()
+
+
+EDITS = ["problem.contacts['local_normal'][:] = 0.5", "problem.bodies['velocity'][:] = 99.0",
+         "problem.start_normal[:] = 1e3", "problem.dt = 1.0", "problem.bodies.clear()"]
+
+
+@pytest.mark.parametrize("edit", EDITS)
+def test_what_a_method_does_to_its_problem_no_other_row_sees(run, tmp_path, monkeypatch, edit):
+    """A method (or start) that edits the problem in place changes no built-in row after it."""
+    clean = dc("evaluate", run, "--starts", "builtin,zero", "--every", "40", "--no-budgets", "-q",
+               "-o", tmp_path / "clean")
+    assert clean.returncode == 0, clean.stderr
+    name = "guest_editor"
+    write_module(tmp_path, monkeypatch, name, METHOD, at_call=edit)
+    start_edit = edit.replace("problem.", "ctx.problem.")
+    write_module(tmp_path, monkeypatch, "guest_start_editor", START, at_call=start_edit)
+    try:
+        r = dc("evaluate", run, "--starts", "guest_start_editor:Start,builtin,zero", "--accelerate",
+               f"{name}:Method,none", "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "dirty")
+    finally:
+        forget(name)
+        forget("guest_start_editor")
+    assert r.returncode == 0, r.stderr
+    rows = lambda folder: json.loads((folder / "summary.json").read_text())["starts"]   # noqa: E731
+    before, after = rows(tmp_path / "clean"), rows(tmp_path / "dirty")
+    assert set(before) <= set(after)
+    for key in before:   # the built-in rows computed after the plug-ins: the same answers
+        for measure in ("iterations_median", "residual_median", "error_median", "velocity_error_median"):
+            assert after[key][measure] == before[key][measure], (key, measure)
+
+
+def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, monkeypatch):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    write_module(tmp_path, monkeypatch, "guest_mover", START, at_call=f"os.chdir({str(elsewhere)!r})")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    try:
+        r = dc("evaluate", run, "--starts", "builtin,guest_mover:Start", "--every", "40", "--no-budgets", "-q",
+               "-o", "report")
+    finally:
+        forget("guest_mover")
+    assert r.returncode == 0, r.stderr
+    assert (work / "report" / "report.md").exists() and list(elsewhere.iterdir()) == []
+    assert Path.cwd() == work
+
+
+SWALLOWER = """
+import signal, time
+import numpy as np
+from deepcontact.warmstart.starts import StartValue
+class Start:
+    def __call__(self, ctx):
+        {body}
+        return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {{}})
+"""
+SWALLOWS = {
+    # catches the stop and goes on: stopped when it returns
+    "catches": "try:\n            time.sleep(0.2)\n        except BaseException:\n            pass",
+    # takes the handlers over for good: put back when it returns
+    "ignores": "time.sleep(0.05); signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+               "signal.signal(signal.SIGINT, signal.SIG_IGN)",
+    # catches the first and then never returns on its own: the second stop ends it
+    "loops": "try:\n            time.sleep(0.2)\n        except BaseException:\n            while True: time.sleep(0.01)",
+}
+
+
+@pytest.mark.parametrize("kind", sorted(SWALLOWS))
+def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "guest_swallow.py").write_text(SWALLOWER.format(body=SWALLOWS[kind]))
+    env = {**__import__("os").environ, "PYTHONPATH": str(mods)}
+    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", str(run), "--starts",
+                             "builtin,guest_swallow:Start", "--no-budgets", "-q", "-o", str(tmp_path / "r")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    time.sleep(4)
+    proc.send_signal(signal.SIGTERM)
+    if kind == "loops":
+        time.sleep(1)
+        proc.send_signal(signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mods"]
+
+
+def test_the_users_own_ctrl_c_in_a_plugin_is_130(run, tmp_path):
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "guest_slow.py").write_text(SWALLOWER.format(body="time.sleep(0.05)"))
+    env = {**__import__("os").environ, "PYTHONPATH": str(mods)}
+    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", str(run), "--starts",
+                             "guest_slow:Start", "--no-budgets", "-q", "-o", str(tmp_path / "r")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    time.sleep(4)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and "interrupted (SIGINT)" in err, err
+
+
+def test_the_plugins_error_is_chained_to_its_own(tmp_path, monkeypatch):
+    """-v shows the plug-in's traceback: the PluginError is chained to what it raised, and names it."""
+    from deepcontact.plugins import PluginError, guest
+    from deepcontact.solver.methods import SOLVERS
+    write_module(tmp_path, monkeypatch, "guest_chain", METHOD, at_call="raise ValueError('deep inside')")
+    try:
+        method = SOLVERS.load("guest_chain:Method")()
+        with pytest.raises(PluginError) as info, guest("the solver method 'guest_chain:Method'"):
+            method(None, np.zeros(1), np.zeros(1), None)
+    finally:
+        forget("guest_chain")
+    assert isinstance(info.value.__cause__, ValueError)
+    assert "guest_chain:Method" in str(info.value) and "deep inside" in str(info.value)
+    assert info.value.__cause__.__traceback__.tb_next is not None   # (its own frames: file and line)
