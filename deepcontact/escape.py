@@ -44,3 +44,47 @@ def fill(template, **values):
     """template with each __NAME__ replaced by values[NAME] in one pass: a value holding
     '__OTHER__' is left as it is, never filled in turn."""
     return re.sub(r"__([A-Z]+)__", lambda m: values[m.group(1)] if m.group(1) in values else m.group(), template)
+
+
+# --- Markdown and CSV: the reports' other two contexts --------------------------------------------
+
+_MD_SPECIAL = re.compile(r"([\\`*_\[\]<>|!~&#])")
+
+
+def md_text(text):
+    """Text for a markdown report (a paragraph or a table cell), shown as written: every character
+    that could start markup, a link, an image, raw HTML or a cell boundary is backslash-escaped
+    (CommonMark's and GitHub's rule; html.markdown_to_html reads it back), and a line break is a
+    space (a name never starts a block)."""
+    return _MD_SPECIAL.sub(r"\\\1", re.sub(r"[\r\n\u2028\u2029]+", " ", str(text)))
+
+
+_FORMULA = ("=", "+", "-", "@", "\t", "\r", "|")
+
+
+def csv_cell(value):
+    """A value for a CSV cell that a spreadsheet shows as text: a string that starts with a
+    formula's first character (=, +, -, @, tab, CR, |) gets a leading quote (the usual rule,
+    OWASP's), unless it is a plain number ("-0.5" stays a number). Other values pass unchanged."""
+    if not isinstance(value, str) or not value.startswith(_FORMULA):
+        return value
+    try:
+        float(value)
+        return value
+    except ValueError:
+        return "'" + value
+
+
+class CsvWriter:
+    """csv.writer whose every cell goes through csv_cell: the project's one way to write CSV."""
+
+    def __init__(self, f, **kwargs):
+        import csv
+        self._w = csv.writer(f, **kwargs)
+
+    def writerow(self, row):
+        return self._w.writerow([csv_cell(v) for v in row])
+
+    def writerows(self, rows):
+        for row in rows:
+            self.writerow(row)

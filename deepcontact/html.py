@@ -24,15 +24,40 @@ code { background: #f4f4f4; padding: 0 0.2em; }
 """
 
 
+_ESCAPED = re.compile(r"\\([!-/:-@\[-`{-~])")   # markdown's backslash escapes (escape.md_text)
+
+
 def _inline(text):
-    """Escapes text, then turns `code` and **bold** into tags."""
-    out = html_text(text)
+    """Escapes text, then turns `code` and **bold** into tags; a backslash-escaped character is
+    that character, as text (never markup: escape.md_text's names and paths)."""
+    kept = []
+
+    def keep(m):
+        kept.append(m.group(1))
+        return f"\x00{len(kept) - 1}\x00"
+    out = html_text(_ESCAPED.sub(keep, text.replace("\x00", "")))
     out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
-    return re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", out)
+    out = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", out)
+    return re.sub("\x00(\\d+)\x00", lambda m: html_text(kept[int(m.group(1))]), out)
 
 
 def _cells(line):
-    return [c.strip() for c in line.strip().strip("|").split("|")]
+    """A table row's cells: split at each | that is not backslash-escaped."""
+    cells, cell, chars = [], [], iter(line.strip())
+    for c in chars:
+        if c == "\\":
+            cell.append(c + next(chars, ""))
+        elif c == "|":
+            cells.append("".join(cell))
+            cell = []
+        else:
+            cell.append(c)
+    cells.append("".join(cell))
+    if cells and not cells[0].strip():
+        cells = cells[1:]
+    if cells and not cells[-1].strip():
+        cells = cells[:-1]
+    return [c.strip() for c in cells]
 
 
 def _figure(alt, target, folder):

@@ -13,7 +13,6 @@ and kept off the main scale (deepcontact/plotstyle.py).
   closed-loop  each start driving the simulation: iterations, time, drift and energy error
                against the reference trajectory, with Box2D's own solver at 1-256 iterations
 """
-import csv
 import io
 import json
 import warnings
@@ -22,7 +21,7 @@ import numpy as np
 
 from .. import atomic
 from ..errors import count
-from ..escape import plot_text
+from ..escape import CsvWriter, md_text, plot_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
 from .replay import BUDGETS, reference_summary
@@ -37,7 +36,7 @@ REPORT_FILES = atomic.Owned("report", [r"report\.(md|html)", r"(summary|steps)\.
 def write_report(out, rows, summary, settings):
     out.mkdir(parents=True, exist_ok=True)
     buf = io.StringIO()
-    w = csv.writer(buf)
+    w = CsvWriter(buf)
     w.writerow(["run", "seed", "step", "points", "start", "relaxation", "iterations", "capped", "fallback", "residual",
                 "error", "velocity_error", "predict_ms", "solve_ms", "reference_residual", "reference_pivoted"])
     for r in rows:
@@ -49,7 +48,7 @@ def write_report(out, rows, summary, settings):
     settings = dict(settings, reference=reference_summary(rows))
     atomic.write_text(out / "summary.json", json.dumps({"settings": settings, "starts": summary}, indent=2) + "\n")
     buf = io.StringIO()
-    w = csv.writer(buf)
+    w = CsvWriter(buf)
     keys = list(next(iter(summary.values())))
     w.writerow(["start"] + keys)
     for name, s in summary.items():
@@ -97,13 +96,13 @@ def verdict(summary):
     best = min(fair, key=lambda n: (fair[n]["at_cap"], fair[n]["total_ms_median"]))
     b, base = fair[best], baseline(summary)
     text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
-            f"oracles left out) is **{best}**: {b['total_ms_median']:.3f} ms, {count(round(b['iterations_median']), 'sweep')}")
+            f"oracles left out) is **{md_text(best)}**: {b['total_ms_median']:.3f} ms, {count(round(b['iterations_median']), 'sweep')}")
     if base is not None and base != best:
         r = summary[base]
         text += (f", {b['total_ms_median'] / max(r['total_ms_median'], 1e-12):.2f}x the time and "
-                 f"{b['iterations_median'] / max(r['iterations_median'], 1e-12):.2f}x the sweeps of {base}")
+                 f"{b['iterations_median'] / max(r['iterations_median'], 1e-12):.2f}x the sweeps of {md_text(base)}")
     elif base == best:
-        text += f"; nothing beats {base}, Box2D's own warm start"
+        text += f"; nothing beats {md_text(base)}, Box2D's own warm start"
     if b["at_cap"] > 0:
         text += f" ({100 * b['at_cap']:.0f}% of its steps stopped at the cap)"
     return text + "."
@@ -120,7 +119,7 @@ def summary_table(summary):
     head += ["median impulse error", "median velocity error (m/s)"] + (["w fell back"] if fell else [])
     lines = ["| " + " | ".join(head) + " |", "| --- |" + " ---: |" * (len(head) - 1)]
     for name, s in summary.items():
-        cells = [f"{name}{' (oracle)' if _oracle(name) else ''}", f"{s['steps']}", f"{s['iterations_median']:.0f}",
+        cells = [f"{md_text(name)}{' (oracle)' if _oracle(name) else ''}", f"{s['steps']}", f"{s['iterations_median']:.0f}",
                  f"{s['iterations_p80']:.0f}", f"{s['iterations_p95']:.0f}", f"{100 * s['at_cap']:.0f}%"]
         if factor:
             cells.append(f"{s.get('factorizations_median', 0):.0f}")
@@ -140,7 +139,7 @@ def markdown(summary, settings, pareto):
     ref = s["reference"]
     line = verdict(summary)
     text = ["# Warm starts compared\n", *([line + "\n"] if line else []),
-            f"Runs: {', '.join(s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
+            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
             f"Errors are against each step's reference solution (float64 from zero, PGS sweeps, Newton steps and, "
             f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it "
@@ -163,7 +162,7 @@ def markdown(summary, settings, pareto):
                  "| --- |" + " ---: |" * len(BUDGETS)]
         for name, pts in pareto.items():
             cells = [f"{p['residual']:.2g} @ {p['ms']:.3f} ms" for p in pts]
-            text.append(f"| {name} | " + " | ".join(cells) + " |")
+            text.append(f"| {md_text(name)} | " + " | ".join(cells) + " |")
     return "\n".join(text) + "\n"
 
 
@@ -316,7 +315,7 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
     table. With several simulations, results hold the pooled rows first, then each simulation's;
     plotted: the rows the plot shows (default all)."""
     text = loop_table(results)
-    page = (f"# Closed loop: {what}\n\n"
+    page = (f"# Closed loop: {md_text(what)}\n\n"
             f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
@@ -336,7 +335,7 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
     atomic.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                                    pictures=("closed-loop.png",)))
     buf = io.StringIO()
-    w = csv.writer(buf)
+    w = CsvWriter(buf)
     w.writerow(["start", "steps", "iterations_median", "iterations_p80", "iterations_max", "ms_per_step_median",
                 "predict_ms_median", "final_drift_m", "max_drift_m", "energy_error", "deepest_contact_m", "finite"])
     for r in results:
@@ -361,7 +360,7 @@ def loop_table(results):
     for r in results:
         it = r.iterations[r.iterations > 0] if np.any(r.iterations > 0) else r.iterations
         pred = float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0
-        lines.append(f"| {r.start} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | {it.max():.0f} | "
+        lines.append(f"| {md_text(r.start)} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | {it.max():.0f} | "
                      f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "
                      f"{r.drift.max() if len(r.drift) else float('nan'):.3g} | {r.energy_error:.2g} | "
                      f"{100 * r.penetration:.2f} | {'yes' if r.finite else 'NO'} |")

@@ -6,7 +6,6 @@ the model config, weights, optimizer state, epoch, every RNG state, the history 
 dataset's metadata, so `resume` continues as if never stopped, and the same seed gives the same
 weights. With WORLD_SIZE set (torchrun), training is data-parallel over gloo; rank 0 alone writes.
 """
-import csv
 import io
 import json
 import logging
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..escape import CsvWriter
 from .. import __version__, atomic
 from ..errors import InputError
 from ..grid.dataset import GridDataset
@@ -586,9 +586,9 @@ def _output_folder(out_dir, overwrite, replace, resume, rank):
 def write_metrics(out_dir, history):
     keys = sorted({k for row in history for k in row}, key=lambda k: (k != "epoch", k))
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=keys)
-    w.writeheader()
-    w.writerows(history)
+    w = CsvWriter(buf)
+    w.writerow(keys)
+    w.writerows([row.get(k, "") for k in keys] for row in history)
     atomic.write_text(out_dir / "metrics.csv", buf.getvalue())
     atomic.write_text(out_dir / "metrics.json", json.dumps(history, indent=1) + "\n")
 

@@ -3,11 +3,11 @@ pandas, R or a spreadsheet (`pandas.read_xml` cannot: a step file's values are a
 child elements). Columns: `seed`, `step`, `time`, then every array the step reader gives, a
 2-vector split into `_x` and `_y` (docs/formats.md lists them); a Box2D 2.4.1 run's tables leave
 out Box2D v3's columns and a v3 run's leave out 2.4.1's (what the engine does not record)."""
-import csv
 import os
 
 import numpy as np
 
+from ..escape import CsvWriter
 from .. import atomic, workers
 from ..errors import InputError
 from .engines import engine_of, foreign_fields
@@ -100,7 +100,7 @@ class _CSV:
 
     def __init__(self, path):
         self.f = open(path, "w", newline="")
-        self.w = csv.writer(self.f)
+        self.w = CsvWriter(self.f)
         self.header = False
 
     def write(self, columns):

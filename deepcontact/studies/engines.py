@@ -22,7 +22,6 @@ the bodies are a body's size apart: drift there measures chaos, not accuracy.
 
     dc study engines [--fast] -o DIR
 """
-import csv
 import io
 import math
 import re
@@ -30,6 +29,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..escape import CsvWriter
 from .. import atomic, workers
 from ..evaluate.closed_loop import reference_trajectory
 from ..simulate import stepping
@@ -235,7 +235,7 @@ def verdict_table(rows):
 
 def csv_text(rows):
     out = io.StringIO()
-    w = csv.writer(out, lineterminator="\n")
+    w = CsvWriter(out, lineterminator="\n")
     names = [f.name for f in fields(Row)]
     w.writerow(names)
     for r in rows:

@@ -168,11 +168,11 @@ def plot(rows, path_stem):
 
 def write_study(out, steps, rows, impulses, renormalize):
     """sph-study.md (the table), .csv and the plot into the folder out; returns the table."""
-    import csv
     import io
+    from ..escape import CsvWriter
     table = TABLE_HEADER + "\n" + "\n".join(table_row(r) for r in rows) + "\n"
     buf = io.StringIO()
-    w = csv.writer(buf)
+    w = CsvWriter(buf)
     w.writerow(list(RoundTrip.__dataclass_fields__))
     for r in rows:
         w.writerow(list(r.__dict__.values()))
