@@ -182,8 +182,8 @@ overwrite = click.option("--overwrite", is_flag=True,
 threads = click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
                        help="torch threads per process (prediction, training). More than one spins against other "
                        "processes, so on a busy machine times move by up to 100x; and the count changes the order "
-                       "of float sums, so training repeats exactly at one count. Never the machine's cores; "
-                       "recorded in every report and checkpoint.")
+                       "of float sums, so training takes 1 only (it repeats exactly; torchrun spreads it over "
+                       "processes). Never the machine's cores; recorded in every report and checkpoint.")
 jobs = click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
                     help="Worker processes.")
 

@@ -193,5 +193,7 @@ def serial(progress=None):
 
 
 def for_jobs(jobs, tasks, progress=None):
-    """A pool of `jobs` workers when there is more than one job and task, else a serial run."""
-    return pool(jobs, progress) if jobs > 1 and len(tasks) > 1 else serial(progress)
+    """A pool of `jobs` workers (no more than there are tasks: -j 100000 forks no more than the
+    work needs) when there is more than one job and task, else a serial run."""
+    jobs = min(jobs, len(tasks))
+    return pool(jobs, progress) if jobs > 1 else serial(progress)

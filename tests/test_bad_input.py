@@ -116,7 +116,7 @@ def test_a_failing_simulate_overwrite_keeps_the_earlier_run(run, tmp_path):
     old = copy_run(run, tmp_path)
     before = snapshot(old)
     r = dc("simulate", *PILE, "--param", "radius=-1", "--overwrite", "-o", str(old))
-    one_line_error(r, "radius must be positive")
+    option_error(r, "--param", "radius must be positive")
     assert snapshot(old) == before
 
 
@@ -165,10 +165,13 @@ def test_a_shape_lost_to_rounding_is_refused(tmp_path):
                                           ("density=0", "density must be positive"),
                                           ("density=-1", "density must be positive"),
                                           ("friction=-0.5", "friction must not be negative"),
-                                          ("count=1e6", "count")])
+                                          ("count=1e6", "count"), ("count=-1", "count must be positive"),
+                                          ("count=abc", "not a whole number"), ("nosuch=1", "no parameter")])
 def test_bad_generator_parameters(tmp_path, param, needle):
+    """--param values are option values: exit 2 naming the option (issue 37), as count=abc's."""
     r = dc("simulate", "pile", "--param", param, "--steps", "2", "-o", str(tmp_path / "out"))
-    one_line_error(r, needle)
+    option_error(r, "--param", needle)
+    assert len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
 
 

@@ -38,13 +38,13 @@ def replayable_run(run_dir):
 
 def replay_simulation(task):
     """(steps, points, [(difference, path)] of the steps replayed) for one simulation's files."""
-    scene, seed, files = task
+    (scene, engine), seed, files = task
     steps = points = 0
     differences = []
     for path in files:
         header, bodies, contacts = read_step(path, validate=False)
         if scene is not None:
-            check_origin(header, scene, seed, path)
+            check_origin(header, scene, seed, path, engine)
         problem = StepProblem.from_step(header, bodies, contacts, path)
         if problem.points == 0:
             continue
@@ -61,8 +61,8 @@ def replay_run(run_dir, on_file=None, jobs=1) -> ReplayReport:
     """Every step of a run replayed; jobs > 1 replays simulations side by side (same report).
     on_file(path) is called for every step file read."""
     report = ReplayReport(run=str(run_dir))
-    tasks = [(sim.scene, sim.seed, sim.files) for sim in replayable_run(run_dir).simulations]
-    with workers.pool(jobs) if jobs > 1 and len(tasks) > 1 else workers.serial() as pool:
+    tasks = [((sim.scene, sim.engine), sim.seed, sim.files) for sim in replayable_run(run_dir).simulations]
+    with workers.for_jobs(jobs, tasks) as pool:
         for task, (steps, points, differences) in zip(tasks, pool.imap(replay_simulation, tasks)):
             report.steps += steps
             report.points += points

@@ -95,7 +95,7 @@ def _plan(run_dirs):
         sims = box2d_run(run).simulations
         scenes[str(run)] = sims[0].scene
         for s in sims:
-            plan.append((str(run), s.seed, s.files, s.scene))
+            plan.append((str(run), s.seed, s.files, (s.scene, s.engine)))
     if len(set(scenes.values())) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted(map(str, set(scenes.values()))))}); "
                          f"evaluate one kind of scene at a time")
@@ -137,7 +137,7 @@ def _velocity_error(solution, reference):
 def evaluate_simulation(task):
     """The rows of one simulation: (run, seed, files, scene), the variants, the solver settings,
     every, seed, budgets."""
-    (run, sim_seed, files, scene), table, settings, every, seed, budgets = task
+    (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
     mode, max_iterations, tolerance, stop_on = (settings[k] for k in ("mode", "max_iterations", "tolerance", "stop_on"))
     measure = MEASURES.index(stop_on)
     wants_prev = any(isinstance(v.start, Previous) for v in table)
@@ -146,7 +146,7 @@ def evaluate_simulation(task):
     for k, path in enumerate(files):
         workers.progress(1)
         header, bodies, contacts = read_step(path, validate=False)
-        check_origin(header, scene, sim_seed, path)
+        check_origin(header, scene, sim_seed, path, engine)
         keys = contact_keys(contacts)
         persisted = np.array([key in previous for key in keys], dtype=bool)
         previous, earlier, before = set(keys), before, (header, bodies, contacts, path)

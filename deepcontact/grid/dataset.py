@@ -165,7 +165,7 @@ def _rasterize_steps(args):
     the dataset's image files at their rows (`places`: (path, byte offset) for inputs and labels;
     the images never travel back through a pipe). Returns step numbers, contact positions and
     impulses, and how many contact points fell outside the grid."""
-    spec, inputs, labels, files, scene, seed, places = args
+    spec, inputs, labels, files, (scene, engine), seed, places = args
     xi = np.empty((len(files), len(inputs), spec.ny, spec.nx), np.float32)
     yl = np.empty((len(files), len(labels), spec.ny, spec.nx), np.float32)
     steps = np.empty(len(files), np.int32)
@@ -173,7 +173,7 @@ def _rasterize_steps(args):
     positions, impulses, outside = [], [], 0
     for k, path in enumerate(files):
         header, bodies, contacts = read_step_for_grid(path)
-        check_origin(header, scene, seed, path)
+        check_origin(header, scene, seed, path, engine)
         xi[k], yl[k] = rasterize_step(spec, bodies, contacts, inputs, labels)
         steps[k] = header["index"]
         counts[k] = len(contacts["position"])
@@ -340,10 +340,10 @@ def _write_arrays(tmp, sims, spec, s, jobs, progress):
     tasks, start = [], 0
     for i, first in chunks:
         files = sims[i].files[first:first + CHUNK]
-        tasks.append((spec, s.inputs, s.labels, files, sims[i].scene, sims[i].seed,
+        tasks.append((spec, s.inputs, s.labels, files, (sims[i].scene, sims[i].engine), sims[i].seed,
                       [images[name].place(start) for name in ("inputs", "labels")]))
         start += len(files)
-    with workers.pool(jobs) if jobs > 1 else workers.serial() as pool:
+    with workers.for_jobs(jobs, tasks) as pool:
         for (i, first), (steps, found, pos, imp, out_count) in zip(chunks, pool.imap(_rasterize_steps, tasks)):
             k = len(steps)
             arrays["simulation"][row:row + k] = i

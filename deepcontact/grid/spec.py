@@ -17,6 +17,35 @@ MAX_NODES = 4096 * 4096   # 64 MiB per float32 channel
 MAX_COORDINATE = 1e7      # m: ten times the farthest a scene may place a body
 
 
+class GridError(InputError, ValueError):
+    """A grid that cannot be: one line saying what is wrong."""
+
+
+def _grid_problem(g):
+    """Why the grid g cannot be, or None."""
+    for k in ("x0", "y0", "cell", "h"):
+        v = getattr(g, k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            return f"grid {k!r} must be a finite number, not {v!r}"
+    x0, y0, cell, h = g.x0, g.y0, g.cell, g.h
+    if cell <= 0 or h <= 0:
+        return f"grid 'cell' and 'h' must be positive, not {cell:g} and {h:g}"
+    if max(abs(x0), abs(y0)) > MAX_COORDINATE or cell < 1e-6 * max(1.0, abs(x0), abs(y0)):
+        # (scenes lie within 1e6 m; float32 nodes this far out, or this close, would coincide)
+        return (f"grid origin {x0:g},{y0:g} must lie within {MAX_COORDINATE:g} m, its cell "
+                f"{cell:g} m above a millionth of it")
+    nx, ny = g.nx, g.ny
+    if not all(type(n) is int and n > 0 for n in (nx, ny)) or nx * ny > MAX_NODES:
+        return f"grid 'nx' and 'ny' must be positive integers, at most {MAX_NODES:,} nodes in all"
+    if max(nx, ny) * cell > 2 * MAX_COORDINATE:
+        return f"the grid spans {max(nx, ny) * cell:g} m, more than {2 * MAX_COORDINATE:g}"
+    if not isinstance(g.kernel, str) or g.kernel not in KERNELS:
+        return f"grid 'kernel' must be one of {', '.join(KERNELS)}, not {g.kernel!r}"
+    if not isinstance(g.renormalize, bool):
+        return "grid 'renormalize' must be true or false"
+    return node_weight_problem(g.kernel, cell, h)
+
+
 @dataclass(frozen=True)
 class GridSpec:
     """The grid a step is drawn on: origin (x0, y0), cell size d, nx x ny nodes, the SPH kernel and
@@ -30,6 +59,13 @@ class GridSpec:
     h: float
     kernel: str = "poly6"
     renormalize: bool = True
+
+    def __post_init__(self):
+        """Every grid is checked as it is made, however it is made (from_dict, over, a library
+        caller): GridError (a ValueError and an InputError) saying what is wrong."""
+        problem = _grid_problem(self)
+        if problem:
+            raise GridError(problem)
 
     @property
     def shape(self):
@@ -78,26 +114,8 @@ class GridSpec:
                 raise ValueError(f"grid {k!r} must be a finite number, not {v!r}")
             return float(v)
         x0, y0, cell, h = number("x0"), number("y0"), number("cell"), number("h")
-        if cell <= 0 or h <= 0:
-            raise ValueError(f"grid 'cell' and 'h' must be positive, not {cell:g} and {h:g}")
-        if max(abs(x0), abs(y0)) > MAX_COORDINATE or cell < 1e-6 * max(1.0, abs(x0), abs(y0)):
-            # (scenes lie within 1e6 m; float32 nodes this far out, or this close, would coincide)
-            raise ValueError(f"grid origin {x0:g},{y0:g} must lie within {MAX_COORDINATE:g} m, its cell "
-                             f"{cell:g} m above a millionth of it")
-        nx, ny = d["nx"], d["ny"]
-        if not all(type(n) is int and n > 0 for n in (nx, ny)) or nx * ny > MAX_NODES:
-            raise ValueError(f"grid 'nx' and 'ny' must be positive integers, at most {MAX_NODES:,} nodes in all")
-        if max(nx, ny) * cell > 2 * MAX_COORDINATE:
-            raise ValueError(f"the grid spans {max(nx, ny) * cell:g} m, more than {2 * MAX_COORDINATE:g}")
-        kernel, renormalize = d.get("kernel", "poly6"), d.get("renormalize", True)
-        if not isinstance(kernel, str) or kernel not in KERNELS:
-            raise ValueError(f"grid 'kernel' must be one of {', '.join(KERNELS)}, not {kernel!r}")
-        if not isinstance(renormalize, bool):
-            raise ValueError("grid 'renormalize' must be true or false")
-        problem = node_weight_problem(kernel, cell, h)
-        if problem:
-            raise ValueError(problem)
-        return cls(x0=x0, y0=y0, cell=cell, nx=nx, ny=ny, h=h, kernel=kernel, renormalize=renormalize)
+        return cls(x0=x0, y0=y0, cell=cell, nx=d["nx"], ny=d["ny"], h=h, kernel=d.get("kernel", "poly6"),
+                   renormalize=d.get("renormalize", True))
 
     @classmethod
     def over(cls, window, cell, h, kernel="poly6", renormalize=True):

@@ -63,6 +63,26 @@ class TrainConfig:
     fcn_depth: int = 3
     solver_sweeps: int = 0           # solver loss: relaxation sweeps before the residual
 
+    def __post_init__(self):
+        """The same limits as dc train's options (OptionError naming the flag): a library caller
+        cannot train a checkpoint that --resume would refuse."""
+        from ..errors import OptionError
+        for name, low, high, low_open in (("lr", 0.0, math.inf, True), ("momentum", 0.0, 1.0, False),
+                                          ("weight_decay", 0.0, math.inf, False), ("dropout", 0.0, 1.0, False)):
+            value = getattr(self, name)
+            ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                  and (value > low if low_open else value >= low) and value <= high and not (name == "dropout" and value == 1))
+            if not ok:
+                raise OptionError(f"{name.replace('_', ' ')} must be a finite number in "
+                                  f"{'(' if low_open else '['}{low:g}, {high:g}{')' if name == 'dropout' or high == math.inf else ']'}"
+                                  f", got {value!r}", "--" + name.replace("_", "-"))
+        for name, low in (("batch_size", 1), ("epochs", 1), ("patience", 0), ("seed", 0), ("fcn_width", 1),
+                          ("fcn_depth", 1), ("solver_sweeps", 0)):
+            value = getattr(self, name)
+            if type(value) is not int or not low <= value <= 2 ** 31 - 1:
+                raise OptionError(f"{name.replace('_', ' ')} must be a whole number from {low} to {2 ** 31 - 1}, "
+                                  f"got {value!r}", "--" + name.replace("_", "-"))
+
 
 def thesis_lr(epoch):
     """The thesis's Algorithm 4. Its conditions overlap (epoch > 300 and 300 < epoch < 500); read
@@ -271,7 +291,14 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
     Everything is checked before the output folder is touched. With `overwrite`, the new run is
     built beside the old one and replaces it only when it finishes. `epochs` overrides the
     configuration's (or, with `resume`, the checkpoint's) number of epochs. max_memory: refuse a
-    network and batch estimated to need more GB (default resources.DEFAULT_MAX_MEMORY_GB)."""
+    network and batch estimated to need more GB (default resources.DEFAULT_MAX_MEMORY_GB).
+    threads: torch's threads, 1: the count changes the order of float sums (1 and 2 threads
+    trained weights 1.3e-4 apart), and the same seed must give the same weights on any machine;
+    more processes (torchrun) are the way to train on more cores."""
+    from ..errors import OptionError
+    if threads not in (None, 0, 1):
+        raise OptionError(f"training runs on one thread (the count changes the arithmetic, so weights would not "
+                          f"repeat exactly); got {threads} (use torchrun for more cores)", "--threads")
     if threads:
         torch.set_num_threads(threads)
     try:

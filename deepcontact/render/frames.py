@@ -164,7 +164,7 @@ def drawn(clip, painter, compare=None, jobs=1, gif_fps=None, progress=None):
         return
     spec = painter.spec()
     tasks = [(clip, spec, k, compare, gif_fps) for k in range(len(clip.files))]
-    with workers.pool(jobs, progress) as pool:
+    with workers.pool(max(1, min(jobs, len(tasks))), progress) as pool:
         yield from pool.imap(_draw_task, tasks)
 
 

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .._box2d import linear_slop, polygon_radius
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
 
@@ -271,9 +271,9 @@ def _convert(name, key, text, default):
     except ValueError:
         kind = {"int": "whole number", "float": "number", "bool": "true or false"}.get(type(default).__name__,
                                                                                      type(default).__name__)
-        raise InputError(f"generator {name!r}: parameter {key}={text!r} is not a {kind}") from None
+        raise OptionError(f"generator {name!r}: parameter {key}={text!r} is not a {kind}", "--param") from None
     if isinstance(value, float) and not math.isfinite(value):
-        raise InputError(f"generator {name!r}: parameter {key} must be finite")
+        raise OptionError(f"generator {name!r}: parameter {key} must be finite", "--param")
     return value
 
 
@@ -303,18 +303,18 @@ def _checked_params(name, params):
     given = {}
     for key, value in (params or {}).items():
         if key not in defaults:
-            raise InputError(f"generator {name!r} has no parameter {key!r}; "
-                             f"its parameters are {', '.join(defaults)}")
+            raise OptionError(f"generator {name!r} has no parameter {key!r}; "
+                             f"its parameters are {', '.join(defaults)}", "--param")
         given[key] = _convert(name, key, value, defaults[key]) if isinstance(value, str) else value
     for key, value in given.items():
         if isinstance(value, bool):
             continue
         if key in _POSITIVE and not value > 0:
-            raise InputError(f"generator {name!r}: {key} must be positive, got {value}")
+            raise OptionError(f"generator {name!r}: {key} must be positive, got {value}", "--param")
         if key not in _POSITIVE and not value >= 0:
-            raise InputError(f"generator {name!r}: {key} must not be negative, got {value}")
+            raise OptionError(f"generator {name!r}: {key} must not be negative, got {value}", "--param")
         if not abs(value) <= _MAX_PARAM:
-            raise InputError(f"generator {name!r}: {key}={value:g} is too large (at most {_MAX_PARAM:g})")
+            raise OptionError(f"generator {name!r}: {key}={value:g} is too large (at most {_MAX_PARAM:g})", "--param")
     return {**defaults, **given}, given
 
 

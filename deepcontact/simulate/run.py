@@ -210,6 +210,21 @@ def _worker(args):
                           soft=soft)
 
 
+SEED_MAX = 2 ** 31 - 1   # what a step file's seed holds (and --seed takes)
+
+
+def check_seeds(seeds):
+    """Seeds are whole numbers from 0 to SEED_MAX, each once (a range is checked at its ends)."""
+    from ..errors import OptionError
+    ends = (seeds[0], seeds[-1]) if isinstance(seeds, range) else seeds
+    bad = next((s for s in ends if isinstance(s, bool) or not isinstance(s, (int, np.integer))
+                or not 0 <= s <= SEED_MAX), None)
+    if bad is not None:
+        raise OptionError(f"a seed is a whole number from 0 to {SEED_MAX}, got {bad!r}", "--seed")
+    if not isinstance(seeds, range) and len(set(int(s) for s in seeds)) != len(seeds):
+        raise OptionError("a seed is listed twice (each simulation's folder is its seed's)", "--seed")
+
+
 def check_work(scene, loop=None, soft=None):
     """Refuses iteration counts whose step would run for hours (resources.check_step_work)."""
     bodies = len(scene.bodies)
@@ -235,6 +250,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     step with Box2D v3 (None: Box2D 2.4.1). Returns the manifest as a dict."""
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
+    check_seeds(seeds)
     if soft is not None and loop is not None:
         raise InputError("the project's solver in the loop steps Box2D 2.4.1 worlds, not Box2D v3")
     # Build (and check) the first scene before touching the output folder.
@@ -294,7 +310,7 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
-        with workers.pool(jobs) as pool:
+        with workers.pool(min(jobs, len(seeds))) as pool:
             tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop, compress, soft) for seed in seeds)
             for r in pool.imap_unordered(_worker, tasks):
                 results.append(r)

@@ -62,7 +62,8 @@ def origins(paths):
             except InputError as e:
                 errors.append(f"{e.path}:{e.line or 0}:0: {e.message}")
                 continue
-            origin.update({f.resolve(): (r.manifest.get("scene"), s.seed) for s in r.simulations for f in s.files})
+            origin.update({f.resolve(): (r.manifest.get("scene"), s.seed, s.engine) for s in r.simulations
+                           for f in s.files})
     return origin, errors
 
 

@@ -13,8 +13,8 @@ MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
 
 def check_file(path, origin=None):
-    """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed) of the simulation
-    the file lies in, or None."""
+    """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed, engine) of the
+    simulation the file lies in, or None."""
     shown = show_path(path)
     try:
         root, scene, seed, errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)
@@ -27,9 +27,10 @@ def check_file(path, origin=None):
     lines = [one_line(f"{shown}:{line}:{column}: {message}") for line, column, message in sorted(errors)]
     if not lines:
         try:   # what the schema cannot say: manifolds whole, the file where it belongs
-            read_step(path, validate=False)
+            header = read_step(path, validate=False)[0]
             if origin is not None:
-                check_origin({"scene": scene, "seed": seed}, *origin, path)
+                scene_of, seed_of, engine = origin
+                check_origin({**header, "scene": scene, "seed": seed}, scene_of, seed_of, path, engine)
         except InputError as e:
             lines = [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
     return "step", lines

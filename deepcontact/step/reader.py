@@ -69,13 +69,18 @@ def read_step_for_grid(path):
     return header, {k: bodies[k] for k in _GRID_BODY}, {k: contacts[k] for k in _GRID_CONTACT}
 
 
-def check_origin(header, scene, seed, path):
-    """A step file belongs where it lies: the simulation's scene name and seed, and the step its
-    name gives (a step copied over its neighbour would be read twice)."""
+def check_origin(header, scene, seed, path, engine=None):
+    """A step file belongs where it lies: the simulation's scene name and seed, its engine (where
+    the run's manifest names one), and the step its name gives (a step copied over its neighbour
+    would be read twice)."""
+    from .engines import engine_of
     from .run_folder import step_index
     if header["scene"] != scene or header["seed"] != seed:
         raise InputError(f"the step file is of scene {header['scene']!r} seed {header['seed']}, but lies in a "
                          f"simulation of scene {scene!r} seed {seed} (copied from another run?)", path, 1)
+    if engine is not None and "solver" in header and engine_of(header) != engine:
+        raise InputError(f"the step file was stepped by {engine_of(header)}, but lies in a run of {engine} (copied "
+                         f"from another run?)", path, 1)
     if "index" in header and header["index"] != step_index(path):
         raise InputError(f"the step file is step {header['index']} by its header, but is named step "
                          f"{step_index(path)} (copied over another step?)", path, 1)

@@ -30,6 +30,7 @@ class Simulation:
     scene: str = None      # the scene's name, which each step file must repeat (None: not known)
     contacts: list = None  # contact points of each step file, where the manifest records them
     scene_sha256: str = None   # the hash of its scene.xml the manifest recorded
+    engine: str = None     # box2d or box2d3, which each step file's header must name (None: not known)
 
     def scene_file(self):
         """Its scene.xml, a regular file whose bytes are the ones the run recorded (an edited
@@ -233,5 +234,5 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
             raise InputError(f"simulation {i}: 'scene_sha256' must be 64 hexadecimal digits", path)
         sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
                                scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path),
-                               scene_sha256=digest))
+                               scene_sha256=digest, engine=m.get("engine", "box2d")))
     return Run(path=run_dir, manifest=m, simulations=sims)

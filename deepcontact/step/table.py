@@ -35,15 +35,15 @@ def step_tables(run_dir: str | os.PathLike, every: int = 1, jobs: int = 1, progr
     each {column: 1-D array}, beginning with seed, step and time. jobs > 1: read in worker
     processes (the same tables). progress(n): n more step files read."""
     run = read_run(run_dir)
-    tasks = [(path, sim.scene, sim.seed) for sim in run.simulations for path in sim.files[::every]]
+    tasks = [(path, (sim.scene, sim.engine), sim.seed) for sim in run.simulations for path in sim.files[::every]]
     with workers.for_jobs(jobs, tasks, progress) as pool:
         yield from pool.imap(_step_columns, tasks)
 
 
 def _step_columns(task):
-    path, scene, seed = task
+    path, (scene, engine), seed = task
     header, bodies, contacts = read_step(path, validate=False)
-    check_origin(header, scene if scene is not None else header["scene"], seed, path)
+    check_origin(header, scene if scene is not None else header["scene"], seed, path, engine)
     out = {}
     foreign = foreign_fields(engine_of(header))   # (the other engine's columns: not recorded)
     contacts = {k: v for k, v in contacts.items() if k not in foreign}

@@ -199,8 +199,15 @@ def evaluate(model, steps, sweeps, cell):
         print(f"| {label} | {it:.0f} | {it / base_it:.2f}x | {ms * 1e3:.3f} | {ms / base_s:.2f}x | {kept} |")
 
 
+MIN_CELL = 1e-3   # metres: a coarse cell finer than a millimetre groups nothing (and 1e-300 divides by zero)
+
+
 def run(cell=4.0, sweeps=8, epochs=4, lr=1e-4, train_seeds=(0, 1), steps=600):
     """The study, its tables printed (held-out seed 1000)."""
+    from ..errors import OptionError
+    if not MIN_CELL <= cell < float("inf"):
+        raise OptionError(f"a coarse cell must be at least {MIN_CELL:g} m, got {cell:g}", "--cell")
+
     train_set, test_set = datasets(train_seeds, steps)
     model = train(train_set, epochs, sweeps, cell, lr, seed=0)
     evaluate(model, test_set, sweeps, cell)
