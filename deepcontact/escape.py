@@ -48,14 +48,15 @@ def fill(template, **values):
 
 # --- Markdown and CSV: the reports' other two contexts --------------------------------------------
 
-_MD_SPECIAL = re.compile(r"([\\`*_\[\]<>|!~&#])")
+_MD_SPECIAL = re.compile(r"([\\`*\[\]<>|!&])")
 
 
 def md_text(text):
     """Text for a markdown report (a paragraph or a table cell), shown as written: every character
-    that could start markup, a link, an image, raw HTML or a cell boundary is backslash-escaped
-    (CommonMark's and GitHub's rule; html.markdown_to_html reads it back), and a line break is a
-    space (a name never starts a block)."""
+    that could start code, bold, a link, an image, raw HTML, an entity or a cell boundary is
+    backslash-escaped (CommonMark's and GitHub's rule; html.markdown_to_html reads it back), and a
+    line break is a space (a name never starts a block, so # and list marks stay). Underscores
+    stay as typed: inside a word (plug_in_names) no renderer takes them for emphasis."""
     return _MD_SPECIAL.sub(r"\\\1", re.sub(r"[\r\n\u2028\u2029]+", " ", str(text)))
 
 
