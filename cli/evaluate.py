@@ -135,4 +135,5 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         finally:
             for b in bars:
                 b.close()
-    click.echo(table)
+    if options.stdout_is_open():   # (the table is report.md's: a closed stdout loses nothing)
+        click.echo(table)

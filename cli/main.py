@@ -61,6 +61,14 @@ def main():
     import shlex
     import sys
     from deepcontact import protocol
+    from .options import ClosedStdout
+    # A closed standard stream (`2>&-`, `>&-`): the logs go nowhere rather than fail the work, and
+    # data meant for a closed stdout is an error (one line, exit 1), never silently dropped.
+    if sys.stderr is None:
+        import os
+        sys.stderr = open(os.devnull, "w")
+    if sys.stdout is None:
+        sys.stdout = ClosedStdout()
     protocol.command_line = shlex.join(["dc", *sys.argv[1:]])   # recorded in every report
     cli(prog_name="dc")
 

@@ -1,6 +1,7 @@
 """Options and behaviour shared by every `dc` subcommand (rasterio style): -v/-q counted into
 one log level, logs and progress on stderr, clean one-line errors unless -v."""
 import functools
+import io
 import logging
 import signal
 import sys
@@ -186,6 +187,34 @@ threads = click.option("--threads", type=click.IntRange(min=1), default=1, show_
                        "processes). Never the machine's cores; recorded in every report and checkpoint.")
 jobs = click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
                     help="Worker processes.")
+
+
+class ClosedStdout(io.TextIOBase):
+    """What sys.stdout is when the shell closed it (`>&-`): writing data to it fails, in one line."""
+
+    def writable(self):
+        return True
+
+    def write(self, text):
+        import errno
+        raise OSError(errno.EBADF, "standard output is closed: nothing to write this command's output to")
+
+
+def stdout_is_open():
+    return not isinstance(sys.stdout, ClosedStdout)
+
+
+def require_stdout(alternative):
+    """Refuses, before any work, a command whose only output would go to a closed stdout."""
+    if not stdout_is_open():
+        raise click.UsageError(f"standard output is closed, and it is where this output goes: {alternative}")
+
+
+def show_output(text, quiet):
+    """The line naming what a command wrote (stdout): not shown with -q, nor to a closed stdout
+    (the output itself is complete; the line only says where it is)."""
+    if not quiet and stdout_is_open():
+        click.echo(text)
 
 
 def log_level(verbose, quiet):

@@ -90,7 +90,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
         for b in bars:
             b.close()
     g = meta["grid"]
-    if not quiet:
+    if not quiet and options.stdout_is_open():
         from deepcontact.grid.spec import GridSpec
         grid = GridSpec.from_dict(g)
         click.echo(f"{out}: {meta['samples']} samples, {g['nx']} x {g['ny']} grid over {g['x0']:g},{g['y0']:g},"

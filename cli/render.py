@@ -127,8 +127,7 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         else:
             _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
                  impulse_scale, jobs)
-    if not quiet:
-        click.echo(str(out))
+    options.show_output(str(out), quiet)
 
 
 MIN_WINDOW = 1e-4   # metres

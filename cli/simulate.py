@@ -171,5 +171,4 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         soft = SoftStep(**{k: v for k, v in given.items() if v is not None})
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, loop=loop, max_disk=max_disk, compress=compress, soft=soft)
-    if not quiet:
-        click.echo(f"{out_dir}", err=False)
+    options.show_output(f"{out_dir}", quiet)

@@ -57,6 +57,8 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
       dc study stability --fast
       dc study stability -o runs/stability.md --overwrite -j 2
     """
+    if not out:
+        options.require_stdout("give -o FILE")
     import os
 
     from deepcontact import atomic

@@ -38,7 +38,13 @@ def history_bytes(s: EvaluateSettings):
     """What replay's convergence histories hold at most (bytes) and a line saying of what."""
     from .replay import box2d_run
     total = sum(-(-len(sim.files) // s.every) for r in s.runs for sim in box2d_run(r).simulations)
-    return (total * s.variants * (s.max_iterations + 1) * 8 * 2,
+    # kept: a float per sweep for each step and variant (counted twice, for the copies made on the
+    # way); and while one step is solved, its whole trace: the native record (3 doubles a sweep, up
+    # to twice that as the vector grows) and its numpy copy (a row of MEASURES a sweep). The
+    # convergence plot draws at most report.PLOT_POINTS sweeps, whatever the cap.
+    kept = total * s.variants * (s.max_iterations + 1) * 8 * 2
+    tracing = (s.max_iterations + 1) * 8 * (2 * 3 + 4)
+    return (kept + tracing,
             f"the convergence histories of {total:,} steps x {s.variants} variants up to {s.max_iterations:,} sweeps")
 
 

@@ -234,6 +234,17 @@ def oracles_among(names):
     return {n for n in names if _oracle(n)}
 
 
+PLOT_POINTS = 2000   # sweeps drawn per curve at most: more than a figure's width in pixels
+
+
+def plotted_sweeps(n):
+    """The sweep indices 0 .. n-1 a curve draws: every one up to PLOT_POINTS, else PLOT_POINTS of
+    them spread evenly (the first and last always)."""
+    if n <= PLOT_POINTS:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, PLOT_POINTS).round().astype(np.int64))
+
+
 def convergence_plot(rows, names, stem, title, tolerance, stop_on, cap=None, bands=None, style=None):
     """Median (and, for a few variants or when asked, the 10-90% band) of the stopping measure per
     sweep, one line per start in its own style; a step that stopped keeps its last value (it had
@@ -245,14 +256,17 @@ def convergence_plot(rows, names, stem, title, tolerance, stop_on, cap=None, ban
     for name in names:
         hs = [r.history for r in rows if r.start == name]
         n = max(len(h) for h in hs) if cap is None else min(cap + 1, max(len(h) for h in hs))
-        m = np.array([np.concatenate([h[:n], np.full(n - len(h[:n]), h[-1])]) for h in hs])
+        # at most PLOT_POINTS sweeps drawn (a million-sweep history would be a matrix of steps x
+        # sweeps, and a line no screen shows): each step's value at those sweeps, or its last
+        x = plotted_sweeps(n)
+        m = np.array([h[np.minimum(x, len(h) - 1)] for h in hs])
         with warnings.catch_warnings():   # column 0 is all NaN unless the residual is the measure
             warnings.simplefilter("ignore", RuntimeWarning)
-            curves[name] = (np.nanmedian(m, axis=0), np.nanpercentile(m, 10, axis=0), np.nanpercentile(m, 90, axis=0))
-    floor = axis_floor({n: c[0][1:] for n, c in curves.items()}, oracles)
+            curves[name] = (x, np.nanmedian(m, axis=0), np.nanpercentile(m, 10, axis=0),
+                            np.nanpercentile(m, 90, axis=0))
+    floor = axis_floor({n: c[1][1:] for n, c in curves.items()}, oracles)
     band = show_bands([n for n in names if n not in oracles], bands)
-    for name, (med, lo, hi) in curves.items():
-        x = np.arange(len(med))
+    for name, (x, med, lo, hi) in curves.items():
         kw = with_markers(style[name], len(x) - 1)
         if len(x) <= 5 and kw.get("marker") is None:
             kw["marker"] = "o"   # (a start that needs one sweep is a point, not a line)

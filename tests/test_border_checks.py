@@ -1,0 +1,120 @@
+"""Checks at the border (issue 37): option values finite in the precision they are kept in, step
+files held to their run's engine, -j capped by the work, closed standard streams, and the library
+refusing what the CLI refuses, with the project's error types."""
+import math
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import dc, dc_command, one_line_error, option_error
+from deepcontact.errors import InputError, OptionError
+
+pytestmark = pytest.mark.audit
+
+PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
+
+
+@pytest.mark.parametrize("flag", ["--contact-hertz", "--damping-ratio", "--push-speed"])
+@pytest.mark.parametrize("value", ["1e39", "1e308", "3.5e38"])
+def test_soft_step_values_beyond_float32_are_option_errors(tmp_path, flag, value):
+    r = dc("simulate", *PILE, "--engine", "box2d3", "--steps", "3", flag, value, "-q", "-o", tmp_path / "run")
+    option_error(r, flag, "float32")
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_library_refuses_what_the_cli_refuses():
+    from deepcontact.grid.spec import GridSpec
+    from deepcontact.model.train import TrainConfig
+    from deepcontact.step.engines import SoftStep
+    for bad in (dict(contact_hertz=1e39), dict(damping_ratio=math.nan), dict(push_speed=-1.0), dict(substeps=0),
+                dict(substeps=True), dict(contact_hertz="30")):
+        with pytest.raises(OptionError):
+            SoftStep(**bad)
+    for bad in (dict(lr=math.nan), dict(lr=0.0), dict(momentum=2.0), dict(dropout=1.0), dict(batch_size=0),
+                dict(epochs=1.5), dict(seed=-1), dict(weight_decay=math.inf)):
+        with pytest.raises(OptionError):
+            TrainConfig(**bad)
+    for bad in (dict(cell=math.nan), dict(nx=-1), dict(h=0.0), dict(kernel="nope"), dict(nx=10 ** 9, ny=10 ** 9)):
+        with pytest.raises(ValueError) as info:
+            GridSpec(**{**dict(x0=0.0, y0=0.0, cell=0.5, nx=10, ny=10, h=0.5), **bad})
+        assert isinstance(info.value, InputError)
+    GridSpec(x0=0.0, y0=0.0, cell=0.5, nx=10, ny=10, h=0.5)   # (a good one is made)
+
+
+def test_seeds_the_step_files_cannot_hold_are_refused_by_the_library(tmp_path):
+    import deepcontact as dcl
+    source = dcl.SceneSource("pile", {"count": "12", "box": "12", "sigma": "2.5"}, 3)
+    for seeds in ([2 ** 40], [-1], [0, 0], [1.5], range(2 ** 31 - 1, 2 ** 31 + 1)):
+        with pytest.raises(OptionError):
+            dcl.simulate_run(source, seeds, tmp_path / "run")
+        assert not (tmp_path / "run").exists()
+
+
+def test_a_step_of_another_engine_in_a_run_is_refused(tmp_path):
+    assert dc("simulate", *PILE, "--steps", "120", "-q", "-o", tmp_path / "v2").returncode == 0
+    assert dc("simulate", *PILE, "--steps", "120", "--engine", "box2d3", "-q", "-o", tmp_path / "v3").returncode == 0
+    run = shutil.copytree(tmp_path / "v2", tmp_path / "mixed")
+    step = "seed-000000/step-000100.xml"
+    shutil.copy(tmp_path / "v3" / step, run / step)
+    for args in (["evaluate", run, "--starts", "zero", "--every", "50", "--no-budgets", "-q", "-o", tmp_path / "r"],
+                 ["export", run, "--format", "csv", "-q", "-o", tmp_path / "t"]):
+        one_line_error(dc(*args), "stepped by box2d3", step)
+    r = dc("validate", "-q", run)
+    assert r.returncode == 1 and "stepped by box2d3, but lies in a run of box2d" in r.stdout + r.stderr
+
+
+def test_jobs_beyond_the_work_fork_no_more_workers(tmp_path, monkeypatch):
+    from deepcontact import workers
+    made = []
+    real = workers.Pool.__init__
+
+    def counting(self, jobs, on_progress=None):
+        made.append(jobs)
+        real(self, jobs, on_progress)
+    monkeypatch.setattr(workers.Pool, "__init__", counting)
+    r = dc("simulate", *PILE, "--steps", "20", "--seeds", "0..1", "-j", "100000", "-q", "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    assert made == [2]
+
+
+def test_a_coarse_cell_too_fine_to_group_anything_is_an_option_error():
+    option_error(dc("study", "learned-coarse", "--cell", "1e-300"), "--cell", "at least")
+
+
+def test_training_takes_one_thread(dataset, tmp_path):
+    option_error(dc("train", dataset, "--threads", "2", "--epochs", "1", "-q", "-o", tmp_path / "m"), "--threads")
+    assert not (tmp_path / "m").exists()
+
+
+def closed(stream, *args, cwd):
+    """`dc ARGS` with the shell's `>&-` (stream 1) or `2>&-` (stream 2)."""
+    return subprocess.run(["bash", "-c", f'exec "$@" {stream}>&-', "_", *dc_command(), *map(str, args)],
+                          cwd=cwd, timeout=300, text=True, stdout=None if stream == 1 else subprocess.PIPE,
+                          stderr=None if stream == 2 else subprocess.PIPE)
+
+
+def test_closed_standard_streams(run, tmp_path):
+    # stderr closed: the logs go nowhere, the work is done
+    r = closed(2, "simulate", *PILE, "--steps", "5", "-o", "quiet-run", cwd=tmp_path)
+    assert r.returncode == 0 and (tmp_path / "quiet-run" / "manifest.json").exists()
+    # stdout closed where it is the only output: refused before the study
+    r = closed(1, "study", "stability", "--fast", cwd=tmp_path)
+    assert r.returncode == 2 and "standard output is closed" in r.stderr
+    # stdout closed where the output is a folder: the folder is written, exit 0
+    r = closed(1, "evaluate", run, "--starts", "zero", "--every", "60", "--no-budgets", "-o", "report", cwd=tmp_path)
+    assert r.returncode == 0 and (tmp_path / "report" / "report.md").exists(), r.stderr
+
+
+def test_a_long_history_draws_a_thin_curve(run, tmp_path):
+    """The convergence plot draws at most PLOT_POINTS sweeps a curve, whatever the cap: a cap of
+    ten million held a steps x sweeps matrix and wrote a 15 MB SVG before."""
+    from deepcontact.evaluate.report import PLOT_POINTS, plotted_sweeps
+    assert list(plotted_sweeps(5)) == [0, 1, 2, 3, 4]
+    x = plotted_sweeps(10 ** 7)
+    assert len(x) <= PLOT_POINTS and x[0] == 0 and x[-1] == 10 ** 7 - 1 and np.all(np.diff(x) > 0)
+    r = dc("evaluate", run, "--starts", "zero", "--tolerance", "1e-300", "--max-iterations", "300000", "--every", "60",
+           "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "r" / "convergence.svg").stat().st_size < 2_000_000
