@@ -284,7 +284,7 @@ def command(name):
             except MemoryError:
                 if verbose:
                     raise
-                fail("out of memory; lower the size of the work (or --max-memory to be refused earlier)")
+                fail(out_of_memory(kwargs))
             except OSError as e:
                 if verbose:
                     raise
@@ -299,9 +299,26 @@ def command(name):
             except Exception as e:   # a promise kept even where a check is missing: one line, no traceback
                 if verbose:
                     raise
+                if _out_of_memory(e):   # torch's ("DefaultCPUAllocator: can't allocate memory"), a RuntimeError
+                    fail(out_of_memory(kwargs))
                 fail(f"{type(e).__name__}: {e} (not a message of ours: please report it; -v shows where it came from)")
         return wrapper
     return decorate
+
+
+def out_of_memory(kwargs):
+    """The one line for an allocation that failed; with --threads above 1, the threads are named
+    first (each holds buffers of its own), not the work."""
+    threads = kwargs.get("threads") or 1
+    return ("out of memory" + (f" with --threads {threads}: each thread holds buffers of its own, so try "
+                               f"--threads 1 first; else" if threads > 1 else ";")
+            + " lower the size of the work (or --max-memory to be refused earlier)")
+
+
+def _out_of_memory(e):
+    """Whether an exception (torch's RuntimeError, say) is an allocation that failed."""
+    text = str(e).lower()
+    return "can't allocate memory" in text or "out of memory" in text or "bad_alloc" in text
 
 
 def progress_bar(quiet, total, unit, desc):

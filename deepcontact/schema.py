@@ -28,15 +28,49 @@ def schema_path(kind: str) -> str:
         return str(p)
 
 
+# A compressed file inflates to at most this many times its size (at least MIN_INFLATED bytes):
+# the native reader's bound (native/step_read.cpp), so lxml, which inflates gzip by itself, is
+# held to it too. Our step files inflate about 6x.
+MAX_RATIO = 64
+MIN_INFLATED = 16 << 20
+
+
 def parse(path):
-    """Parse an XML file, keeping line numbers. Raises etree.XMLSyntaxError, or OSError for what
-    is not a regular file (a FIFO would block the parser forever)."""
-    if not stat.S_ISREG(os.stat(path).st_mode):
+    """Parse an XML file (or a gzip-compressed one, inflated within MAX_RATIO), keeping line
+    numbers. Raises etree.XMLSyntaxError, or OSError for what is not a regular file (a FIFO would
+    block the parser forever) or inflates past the bound."""
+    st = os.stat(path)
+    if not stat.S_ISREG(st.st_mode):
         raise OSError(errno.EINVAL, "not a regular file", str(path))
     from lxml import etree
     parser = etree.XMLParser(remove_blank_text=False, resolve_entities=False, no_network=True, load_dtd=False,
                              huge_tree=False)
+    with open(path, "rb") as f:
+        if f.read(2) == b"\x1f\x8b":
+            import io
+            return etree.parse(io.BytesIO(_inflated(path, max(MIN_INFLATED, MAX_RATIO * st.st_size))), parser)
     return etree.parse(str(path), parser)
+
+
+def _inflated(path, limit):
+    """A gzip file's bytes, or OSError once they pass `limit` (before holding more than it)."""
+    import zlib
+    out, size = [], 0
+    inflate = zlib.decompressobj(16 + zlib.MAX_WBITS)
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 16):
+            try:
+                piece = inflate.decompress(chunk, limit + 1 - size)
+                while piece:
+                    out.append(piece)
+                    size += len(piece)
+                    if size > limit:
+                        raise OSError(errno.EFBIG, f"inflates to more than {MAX_RATIO} times its compressed size",
+                                      str(path))
+                    piece = inflate.decompress(inflate.unconsumed_tail, limit + 1 - size)
+            except zlib.error as e:
+                raise OSError(errno.EINVAL, f"a damaged compressed file ({e})", str(path)) from None
+    return b"".join(out)
 
 
 def has_doctype(tree):

@@ -118,3 +118,52 @@ def test_a_long_history_draws_a_thin_curve(run, tmp_path):
            "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "r" / "convergence.svg").stat().st_size < 2_000_000
+
+
+def test_lxml_inflates_a_compressed_file_within_the_native_readers_bound(tmp_path):
+    """lxml inflates gzip by itself: a small compressed scene must not become gigabytes in it."""
+    import gzip
+    from deepcontact import schema
+    scene = tmp_path / "scene.xml"
+    assert dc("simulate", "stack", "--param", "count=2", "--write-scene", scene).returncode == 0
+    text = scene.read_bytes()
+    with gzip.open(tmp_path / "fine.xml", "wb") as g:
+        g.write(text)
+    assert schema.validate(tmp_path / "fine.xml")[2] == []   # (a compressed scene is read as before)
+    with gzip.open(tmp_path / "bomb.xml", "wb") as g:
+        g.write(text.replace(b"</scene>", b"<!--" + b" " * (200 << 20) + b"-->\n</scene>"))
+    assert (tmp_path / "bomb.xml").stat().st_size < 1 << 20
+    errors = schema.validate(tmp_path / "bomb.xml")[2]
+    assert len(errors) == 1 and "inflates to more than 64 times" in errors[0]
+
+
+def test_a_polygon_box2d_v3_cannot_hull_is_one_line_naming_its_line(tmp_path):
+    scene = tmp_path / "scene.xml"
+    assert dc("simulate", "stack", "--param", "count=2", "--write-scene", scene).returncode == 0
+    text = scene.read_text()
+    first, end = text.index("<polygon"), text.index("</polygon>")
+    sliver = ('<polygon density="1"><vertex x="-0.5" y="-0.5"/><vertex x="0.5" y="-0.5"/>'
+              '<vertex x="0" y="-0.4999"/>')
+    scene.write_text(text[:first] + sliver + text[end:])
+    line = one_line_error(dc("simulate", scene, "--engine", "box2d3", "--steps", "3", "-q", "-o", tmp_path / "run"),
+                          "cannot hull")
+    assert f"{scene}:" in line and "not a message of ours" not in line
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_an_allocation_torch_refuses_is_out_of_memory_naming_the_threads(threads):
+    import click
+    from click.testing import CliRunner
+    from deepcontact.cli import options
+
+    @click.command()
+    @click.option("--threads", type=int, default=1)
+    @options.verbosity
+    @options.command("probe")
+    def probe(threads, verbose, quiet):
+        raise RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory: you "
+                           "tried to allocate 1099511627776 bytes.")
+    r = CliRunner().invoke(probe, ["--threads", str(threads)])
+    assert r.exit_code == 1 and "out of memory" in r.stderr and "not a message of ours" not in r.stderr
+    assert ("--threads 2" in r.stderr) == (threads == 2)

@@ -22,8 +22,9 @@ def build_world(scene) -> World:
     return world
 
 
-def _add_bodies(world, scene, linear, angular):
-    """The scene's bodies and shapes into a world of either engine (the same calls)."""
+def _add_bodies(world, scene, linear, angular, path=None):
+    """The scene's bodies and shapes into a world of either engine (the same calls); a shape the
+    engine refuses is an InputError naming the body (and, from a scene file at path, its line)."""
     threshold = scene.effects.restitution_threshold
     for b in scene.bodies:
         dynamic = b.type == "dynamic"
@@ -37,13 +38,16 @@ def _add_bodies(world, scene, linear, angular):
             if s.kind == "circle":
                 world.add_circle(index, s.radius, s.x, s.y, density=s.density, **material)
             elif s.kind == "polygon":
-                world.add_polygon(index, np.asarray(s.vertices, dtype=np.float32), density=s.density,
-                                  **material)
+                try:
+                    world.add_polygon(index, np.asarray(s.vertices, dtype=np.float32), density=s.density,
+                                      **material)
+                except ValueError as e:   # (v3's hull refuses slivers 2.4.1 takes: the engine's own words)
+                    raise InputError(f"body {index}: {e}", path, s.line) from None
             else:
                 world.add_edge(index, s.x1, s.y1, s.x2, s.y2, **material)
 
 
-def build_world3(scene, soft=None):
+def build_world3(scene, soft=None, path=None):
     """The scene as a Box2D v3 world stepped with the soft step `soft` (a step.engines.SoftStep;
     v3's defaults if None), with the same bodies, shapes, materials and effects as build_world's;
     warm starting, sleeping and continuous collision as the scene says. InputError where this
@@ -60,7 +64,7 @@ def build_world3(scene, soft=None):
                           warm_starting=scene.solver.warm_starting,
                           restitution_threshold=e.restitution_threshold, sleeping=scene.solver.sleeping,
                           continuous=e.continuous)
-    _add_bodies(world, scene, linear, angular)
+    _add_bodies(world, scene, linear, angular, path)
     return world
 
 

@@ -260,7 +260,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     if loop is not None:
         check_scene_for_loop(first, source)
     if soft is not None:
-        build_world3(first, soft)   # (a polygon v3 cannot hull is refused here, naming it)
+        build_world3(first, soft, source)   # (a polygon v3 cannot hull is refused here, naming it)
     out_dir = Path(out_dir)
     with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
         # (by fixtures as well as bodies: a body of many fixtures makes many contact points)
