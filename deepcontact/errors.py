@@ -1,8 +1,9 @@
 """Errors about the user's input: one line naming the file (and line) and what is wrong."""
 
 
-class InputError(Exception):
-    """Bad input: the CLI prints ``path:line: message`` and exits non-zero, without a traceback."""
+class InputError(ValueError):
+    """Bad input: the CLI prints ``path:line: message`` and exits non-zero, without a traceback.
+    A ValueError, so that a library caller may catch what Python's own checks would raise."""
 
     def __init__(self, message: str, path: object = None, line: int | None = None):
         super().__init__(message)

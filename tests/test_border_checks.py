@@ -167,3 +167,35 @@ def test_an_allocation_torch_refuses_is_out_of_memory_naming_the_threads(threads
     r = CliRunner().invoke(probe, ["--threads", str(threads)])
     assert r.exit_code == 1 and "out of memory" in r.stderr and "not a message of ours" not in r.stderr
     assert ("--threads 2" in r.stderr) == (threads == 2)
+
+
+def test_the_public_api_raises_the_projects_errors_in_one_line(pile_run):
+    """What the audit found raising builtins' TypeError, KeyError, AttributeError or a pybind11
+    signature dump: InputError (a ValueError), one line; option values as OptionError naming the flag."""
+    import deepcontact as dcl
+    problem = dcl.StepProblem.from_step_file(next(pile_run.glob("seed-*/step-000100.xml")))
+    calls = {
+        "read_run(None)": (lambda: dcl.read_run(None), None),
+        "generate(seed=-1)": (lambda: dcl.generate("pile", -1), "--seed"),
+        "generate(seed='a')": (lambda: dcl.generate("pile", "a"), "--seed"),
+        "solve(tolerance='x')": (lambda: dcl.solve(problem, tolerance="x"), "--tolerance"),
+        "solve(tolerance=nan)": (lambda: dcl.solve(problem, tolerance=math.nan), "--tolerance"),
+        "solve(max_iterations=-1)": (lambda: dcl.solve(problem, max_iterations=-1), "--max-iterations"),
+        "solve(max_iterations=2**40)": (lambda: dcl.solve(problem, max_iterations=2 ** 40), "--max-iterations"),
+        "solve(relaxation=3)": (lambda: dcl.solve(problem, relaxation=3.0), "--relaxation"),
+        "solve(mode='x')": (lambda: dcl.solve(problem, mode="x"), "--mode"),
+        "solve(stop_on='x')": (lambda: dcl.solve(problem, stop_on="x", tolerance=1e-4), "--stop-on"),
+        "solve(wrong start)": (lambda: dcl.solve(problem, np.zeros(3), np.zeros(3)), None),
+        "solve(None)": (lambda: dcl.solve(None), None),
+        "judge(wrong)": (lambda: dcl.judge(problem, np.zeros(2), np.zeros(2)), None),
+        "reference_solution(None)": (lambda: dcl.reference_solution(None), None),
+        "local_problem(None)": (lambda: dcl.local_problem(None), None),
+        "contact_keys({})": (lambda: dcl.contact_keys({}), None),
+        "from_arrays({}, {})": (lambda: dcl.StepProblem.from_arrays({}, {}, dt=0.01, gravity=(0, -9.81)), None),
+    }
+    for name, (call, flag) in calls.items():
+        with pytest.raises(InputError) as info:
+            call()
+        assert isinstance(info.value, ValueError) and "\n" not in str(info.value), name
+        if flag:
+            assert isinstance(info.value, OptionError) and info.value.option == flag, (name, info.value)

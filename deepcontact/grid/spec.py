@@ -17,8 +17,8 @@ MAX_NODES = 4096 * 4096   # 64 MiB per float32 channel
 MAX_COORDINATE = 1e7      # m: ten times the farthest a scene may place a body
 
 
-class GridError(InputError, ValueError):
-    """A grid that cannot be: one line saying what is wrong."""
+class GridError(InputError):
+    """A grid that cannot be: one line saying what is wrong (an InputError, so a ValueError)."""
 
 
 def _grid_problem(g):

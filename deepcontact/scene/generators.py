@@ -323,6 +323,8 @@ def generate(name: str, seed: int = 0, params: dict | None = None, velocity_iter
     """Make a scene with a built-in generator. `params` maps names to values or strings.
 
     The scene is checked (scene.check.check_scene) before it is returned."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= 2 ** 31 - 1:
+        raise OptionError(f"a seed is a whole number from 0 to {2 ** 31 - 1}, got {seed!r}", "--seed")
     _, given = _checked_params(name, params)
     parts = GENERATORS[name](seed, **given)
     scene = Scene(name=name, dt=f32(parts["dt"]), steps=int(parts["steps"]),

@@ -79,6 +79,8 @@ def jacobian(problem: "StepProblem"):
 def local_problem(problem: "StepProblem", body_rows: tuple | None = None) -> LocalProblem:
     """The step's problem as a local problem (float64; sparse W), from the native assembly;
     body_rows: jacobian(problem), where the caller has it already."""
+    from .pgs import require_problem
+    require_problem(problem)
     J, inv_m, v, rows, points = jacobian(problem) if body_rows is None else body_rows
     W = (J @ sp.diags(inv_m) @ J.T).tocsc()
     W.sort_indices()

@@ -24,6 +24,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._box2d import Acceleration, Mode, SolveOptions, solve_contacts
+from ..errors import InputError
+
+
+def require_problem(problem):
+    """A StepProblem, or InputError saying what was given instead (a library caller's None)."""
+    from .problem import StepProblem
+    if not isinstance(problem, StepProblem):
+        raise InputError(f"expected a StepProblem (StepProblem.from_step_file, .from_arrays), got "
+                         f"{type(problem).__name__}")
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
@@ -76,11 +85,33 @@ def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="res
             history=False, final_residual=True, guard=True, accelerate="none") -> SolveOptions:
     """The native solver's options (checked there, once): names become its enums, a tolerance of
     0 means a fixed sweep count, and a start that alone would move a contact faster than Box2D
-    lets a body travel in a step (dt) counts as implausible."""
-    return SolveOptions(mode=mode, max_iterations=max_iterations, tolerance=tolerance,
-                        stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
-                        accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
-                        final_residual=final_residual, guard=guard)
+    lets a body travel in a step (dt) counts as implausible. A bad value is an OptionError naming
+    the flag that sets it (the native check's words), as the CLI's."""
+    from ..errors import OptionError
+    real = (int, float, np.integer, np.floating)
+    for name, value, kinds in (("max_iterations", max_iterations, (int, np.integer)), ("tolerance", tolerance, real),
+                               ("relaxation", relaxation, real)):
+        if isinstance(value, bool) or not isinstance(value, kinds):
+            raise OptionError(f"{name} must be a number, got {value!r}", _flag(name))
+    if not 0 <= max_iterations <= 2 ** 31 - 1:
+        raise OptionError(f"max_iterations must be from 0 to {2 ** 31 - 1}, got {max_iterations}", "--max-iterations")
+    if stop_on not in MEASURES + ("none",):
+        raise OptionError(f"stop_on must be one of {', '.join(MEASURES)}, not {stop_on!r}", "--stop-on")
+    try:
+        return SolveOptions(mode=mode, max_iterations=max_iterations, tolerance=tolerance,
+                            stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
+                            accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
+                            final_residual=final_residual, guard=guard)
+    except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
+        field = str(e).split()[0] if str(e) else ""
+        raise OptionError(str(e), _flag(field) if field in _FLAGS else None) from None
+
+
+_FLAGS = ("mode", "max_iterations", "tolerance", "stop_on", "relaxation", "accelerate")
+
+
+def _flag(field):
+    return "--" + field.replace("_", "-")
 
 
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,
@@ -92,12 +123,16 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
     tenfold above its best continues as plain PGS (checked every 4 sweeps;
     Solution.relaxation_fallback says when). A solve always ends on a sweep's projected iterate.
-    Bad options raise ValueError."""
+    Bad options raise OptionError (an InputError naming the flag)."""
+    require_problem(problem)
     opts = options(dt=problem.dt, mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation,
                    history=history, final_residual=final_residual, guard=guard, accelerate=accelerate,
                    max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
-    out = solve_contacts(problem.bodies, problem.contacts, np.asarray(n, dtype=np.float64),
-                         np.asarray(t, dtype=np.float64), problem.settings(prune), opts)
+    try:
+        out = solve_contacts(problem.bodies, problem.contacts, np.asarray(n, dtype=np.float64),
+                             np.asarray(t, dtype=np.float64), problem.settings(prune), opts)
+    except ValueError as e:   # the native shape checks ("start impulses must have one value per ...")
+        raise InputError(str(e)) from None
     return Solution.from_native(out, relaxation)

@@ -23,7 +23,18 @@ def contact_keys(contacts: dict) -> list[tuple]:
     """What identifies a contact point across steps, as Box2D matches them: both fixtures and
     child indices, and the feature id (a body pair alone is not enough: a circle in a corner
     touches two walls of one static body)."""
-    return list(zip(*(contacts[k].tolist() for k in KEY_COLUMNS)))
+    _require_columns(contacts, KEY_COLUMNS, "contacts")
+    return list(zip(*(np.asarray(contacts[k]).tolist() for k in KEY_COLUMNS)))
+
+
+def _require_columns(table, names, what):
+    """InputError naming the columns a table (a dict of arrays) lacks."""
+    from ..errors import InputError
+    if not isinstance(table, dict):
+        raise InputError(f"{what} must be a dict of arrays (as read_step returns), got {type(table).__name__}")
+    missing = [k for k in names if k not in table]
+    if missing:
+        raise InputError(f"{what} lack the columns {', '.join(missing)} (as read_step returns them)")
 
 
 def impulses_by_key(keys: list[tuple], normal: np.ndarray, tangent: np.ndarray) -> dict:
@@ -87,6 +98,9 @@ class StepProblem:
     @classmethod
     def from_arrays(cls, bodies, contacts, *, dt, gravity, block_solve=True, velocity_iterations=8, index=0):
         """From the arrays of World.step(record=True) or of step.reader.read_step."""
+        _require_columns(bodies, ("index", *BODY_KEYS), "bodies")
+        _require_columns(contacts, (*CONTACT_KEYS, "body_a", "body_b", *KEY_COLUMNS, "start_normal_impulse",
+                                    "start_tangent_impulse", "normal_impulse", "tangent_impulse"), "contacts")
         c = {k: np.ascontiguousarray(contacts[k]) for k in CONTACT_KEYS}
         c["row_a"], c["row_b"] = (_rows(bodies["index"], contacts[k]) for k in ("body_a", "body_b"))
         b = {k: np.ascontiguousarray(bodies[k]) for k in BODY_KEYS}

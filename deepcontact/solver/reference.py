@@ -41,6 +41,8 @@ def reference_solution(problem: "StepProblem", tolerance: float = TOLERANCE, cap
                        accelerate: str = "newton", pivot: bool = True) -> Solution:
     """Solve from zero to the tolerance (float64; accelerate="none" is plain PGS, the reference
     before Newton; pivot: Lemke where Newton stalls)."""
+    from .pgs import require_problem
+    require_problem(problem)
     zero = np.zeros(problem.points)
     pivoting = pivot and accelerate == "newton"
     s = _newton(problem, zero, zero, min(cap, FIRST_SWEEPS) if pivoting else cap, tolerance,
