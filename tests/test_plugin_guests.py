@@ -255,3 +255,29 @@ def test_the_plugins_error_is_chained_to_its_own(tmp_path, monkeypatch):
     assert isinstance(info.value.__cause__, ValueError)
     assert "guest_chain:Method" in str(info.value) and "deep inside" in str(info.value)
     assert info.value.__cause__.__traceback__.tb_next is not None   # (its own frames: file and line)
+
+
+@pytest.mark.parametrize("misdeed", ["exit0", "interrupt"])
+def test_a_start_that_misbehaves_in_a_worker_is_one_line_naming_it(run, tmp_path, monkeypatch, misdeed):
+    """With -j 2 the start runs in worker processes: the same one line, from the parent."""
+    name = f"guest_worker_{misdeed}"
+    write_module(tmp_path, monkeypatch, name, START, at_call=MISDEEDS[misdeed])
+    try:
+        r = dc("evaluate", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-j", "2",
+               "-q", "-o", tmp_path / "r")
+    finally:
+        forget(name)
+    one_line_naming(r, f"{name}:Start")
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_network_that_reads_values_on_the_meta_device_is_one_line_naming_it(dataset, tmp_path, monkeypatch):
+    """Its memory is estimated on torch's meta device, where .item() has no value to read."""
+    name = "guest_net_item"
+    write_module(tmp_path, monkeypatch, name, NETWORK.replace("calls[0] += 1", "calls[0] += 1\n        "
+                                                                "float(x.sum().item())"))
+    try:
+        r = dc("train", dataset, "--arch", f"{name}:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+    finally:
+        forget(name)
+    assert "meta device" in one_line_naming(r, f"{name}:Net")

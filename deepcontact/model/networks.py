@@ -217,7 +217,9 @@ def training_memory(config, batch_size, optimizer="adam"):
             activations += output.numel() * output.element_size()
     hooks = [m.register_forward_hook(count) for m in model.modules()]
     x = torch.empty(batch_size, config["in_channels"], config["height"], config["width"], device="meta")
-    model(x)
+    with guest(f"the network {config['model']!r}", "cannot run on torch's meta device (needed to estimate its "
+                                                   "memory before allocating it; no .item() there):"):
+        model(x)
     for h in hooks:
         h.remove()
     return params * (2 + (2 if optimizer == "adam" else 1)) + 2 * activations
