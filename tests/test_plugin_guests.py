@@ -204,15 +204,21 @@ SWALLOWS = {
 }
 
 
-@pytest.mark.parametrize("kind", sorted(SWALLOWS))
-def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
+def evaluating_with(run, tmp_path, name, body, starts):
+    """dc evaluate in a process of its own, with the start `name` (SWALLOWER with `body`)."""
+    import os
     mods = tmp_path / "mods"
     mods.mkdir()
-    (mods / "guest_swallow.py").write_text(SWALLOWER.format(body=SWALLOWS[kind]))
-    env = {**__import__("os").environ, "PYTHONPATH": str(mods)}
-    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", str(run), "--starts",
-                             "builtin,guest_swallow:Start", "--no-budgets", "-q", "-o", str(tmp_path / "r")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    (mods / f"{name}.py").write_text(SWALLOWER.format(body=body))
+    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", str(run), "--starts", starts,
+                             "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(mods)},
+                            cwd=tmp_path)
+
+
+@pytest.mark.parametrize("kind", sorted(SWALLOWS))
+def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
+    proc = evaluating_with(run, tmp_path, "guest_swallow", SWALLOWS[kind], "builtin,guest_swallow:Start")
     time.sleep(4)
     proc.send_signal(signal.SIGTERM)
     if kind == "loops":
@@ -228,13 +234,7 @@ def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
 
 
 def test_the_users_own_ctrl_c_in_a_plugin_is_130(run, tmp_path):
-    mods = tmp_path / "mods"
-    mods.mkdir()
-    (mods / "guest_slow.py").write_text(SWALLOWER.format(body="time.sleep(0.05)"))
-    env = {**__import__("os").environ, "PYTHONPATH": str(mods)}
-    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", str(run), "--starts",
-                             "guest_slow:Start", "--no-budgets", "-q", "-o", str(tmp_path / "r")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    proc = evaluating_with(run, tmp_path, "guest_slow", "time.sleep(0.05)", "guest_slow:Start")
     time.sleep(4)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
