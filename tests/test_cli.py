@@ -65,15 +65,16 @@ def test_bad_input_is_one_line_without_traceback(tmp_path):
     bad_scene = tmp_path / "bad.xml"
     bad_scene.write_text('<scene name="x" format="1"><world dt="-1" steps="3"/><effects/><bodies/></scene>')
     cases = [
-        (["simulate", "piles", "-o", str(tmp_path / "o1")], "neither a scene file nor a generator"),
-        (["simulate", "pile", "--param", "radius=big", "-o", str(tmp_path / "o2")], "is not a number"),
-        (["simulate", "pile", "--param", "nope=1", "-o", str(tmp_path / "o3")], "no parameter 'nope'"),
-        (["simulate", str(bad_scene), "-o", str(tmp_path / "o4")], f"{bad_scene}:1:"),
-        (["simulate", "pile", "-o", "/proc/nope"], "cannot write there"),
+        (["simulate", "piles", "-o", str(tmp_path / "o1")], "neither a scene file nor a generator", 1),
+        # (--param values are option values: exit 2, naming the option)
+        (["simulate", "pile", "--param", "radius=big", "-o", str(tmp_path / "o2")], "is not a number", 2),
+        (["simulate", "pile", "--param", "nope=1", "-o", str(tmp_path / "o3")], "no parameter 'nope'", 2),
+        (["simulate", str(bad_scene), "-o", str(tmp_path / "o4")], f"{bad_scene}:1:", 1),
+        (["simulate", "pile", "-o", "/proc/nope"], "cannot write there", 1),
     ]
-    for args, expected in cases:
+    for args, expected, code in cases:
         r = dc(*args)
-        assert r.returncode == 1, (args, r.stderr)
+        assert r.returncode == code, (args, r.stderr)
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and expected in lines[0], (args, r.stderr)
         assert "Traceback" not in r.stderr
