@@ -11,10 +11,13 @@ from . import options
 @click.option("--replay", is_flag=True,
               help="PATHS are run folders: re-solve every step with the project's Box2D-exact PGS "
                    "and compare with the impulses Box2D produced (exit 1 unless identical).")
+@click.option("--residuals", is_flag=True,
+              help="Also hold every step a solver of ours stepped (--solver pgs) to its own record: a residual "
+                   "above the tolerance its <solve> names is an error line (exit 1), whatever the method said.")
 @options.jobs
 @options.verbosity
 @options.command("validate")
-def validate(paths, replay, jobs, verbose, quiet):
+def validate(paths, replay, residuals, jobs, verbose, quiet):
     """Check step and scene files against the XSD schemas in schemas/.
 
     Folders are searched for *.xml and *.xml.gz files. Every error is printed
@@ -36,7 +39,9 @@ def validate(paths, replay, jobs, verbose, quiet):
       dc validate runs/pile/seed-000000/step-000042.xml
       dc validate my-scene.xml
       dc validate --replay -j 2 runs/pile
+      dc validate --residuals runs/psor
     """
+    options.refuse_inapplicable([("residuals", not replay, "checks the step files' records; --replay re-solves")])
     if replay:
         return replay_runs(paths, quiet, jobs)
     from deepcontact.simulate.validate import validate as check
@@ -46,9 +51,38 @@ def validate(paths, replay, jobs, verbose, quiet):
         files, invalid = check(paths, click.echo, jobs=jobs, progress=bar.update)
     finally:
         bar.close()
+    above = residuals_above(paths, quiet) if residuals else 0
     if not quiet:
-        click.echo(f"{count(files, 'file')} checked, {invalid} invalid", err=True)
-    click.get_current_context().exit(1 if invalid else 0)
+        click.echo(f"{count(files, 'file')} checked, {invalid} invalid"
+                   + (f"; {count(above, 'step')} with a residual above its tolerance" if residuals else ""), err=True)
+    click.get_current_context().exit(1 if invalid or above else 0)
+
+
+def residuals_above(paths, quiet):
+    """The step files under paths whose recorded residual is above their recorded tolerance (a
+    line each on stdout, as an error); how many."""
+    import math
+    from pathlib import Path
+    from deepcontact.errors import InputError
+    from deepcontact.step.reader import read_step
+    from deepcontact.step.run_folder import STEP_FILE
+    above = 0
+    for root in paths:
+        root = Path(root)
+        files = [root] if root.is_file() else sorted(p for p in root.rglob("step-*.xml*") if STEP_FILE.fullmatch(p.name))
+        for path in files:
+            try:
+                solve = read_step(path, validate=False)[0].get("solve")
+            except InputError:
+                continue   # (the schema pass above has said what is wrong with it)
+            if not solve or solve.get("stop_on") != "residual":
+                continue
+            residual, tolerance = float(solve["residual"]), float(solve["tolerance"])
+            if tolerance > 0 and not (residual <= tolerance) and math.isfinite(residual):
+                above += 1
+                click.echo(f"{path}:0:0: the step's residual {residual:.3g} is above its tolerance {tolerance:g} "
+                           f"(<solve iterations=\"{solve.get('iterations')}\">)")
+    return above
 
 
 def replay_runs(paths, quiet, jobs):

@@ -39,7 +39,8 @@ def test_the_orderings_an_honest_comparison_must_show(rows_and_summary):
     assert med["bad"] > med["zero"]                          # a bad start is worse than none
     assert s["copy"]["error_median"] < 1e-9
     assert all(v["residual_median"] < 1e-4 or v["at_cap"] > 0 for v in s.values())
-    assert s["sph"]["predict_ms_median"] > 0 and s["zero"]["predict_ms_median"] == 0
+    # (every start's whole call is timed by the caller: zero's is the call itself, sph's rasterizes)
+    assert 0 < s["zero"]["predict_ms_median"] < s["sph"]["predict_ms_median"]
 
 
 def test_every_step_is_solved_from_every_start(rows_and_summary):

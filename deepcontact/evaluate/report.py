@@ -89,10 +89,19 @@ def _oracle(name):
 
 def verdict(summary):
     """One line: the start with the smallest median time per step to the tolerance (prediction
-    included; oracles, which know the answer, left out), with its ratio to Box2D's warm start."""
-    fair = {n: s for n, s in summary.items() if not _oracle(n)}
-    if not fair:
+    included), with its ratio to Box2D's warm start. Left out: oracles, which know the answer, and
+    every variant that ended a step above the tolerance by our residual (it did not converge,
+    whatever it said)."""
+    candidates = {n: s for n, s in summary.items() if not _oracle(n)}
+    if not candidates:
         return None
+    fair = {n: s for n, s in candidates.items() if not s.get("above", 0)}
+    unconverged = [n for n in candidates if n not in fair]
+    left_out = (f" Left out, as they ended steps above the tolerance (by our residual): "
+                f"{', '.join(md_text(n) for n in unconverged)}." if unconverged else "")
+    if not fair:
+        return ("**Verdict**: no start reached the tolerance on every step (by our residual), so none is "
+                "named." + left_out)
     best = min(fair, key=lambda n: (fair[n]["at_cap"], fair[n]["total_ms_median"]))
     b, base = fair[best], baseline(summary)
     text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
@@ -105,7 +114,7 @@ def verdict(summary):
         text += f"; nothing beats {md_text(base)}, Box2D's own warm start"
     if b["at_cap"] > 0:
         text += f" ({100 * b['at_cap']:.0f}% of its steps stopped at the cap)"
-    return text + "."
+    return text + "." + left_out
 
 
 def summary_table(summary):
@@ -114,13 +123,18 @@ def summary_table(summary):
     ref = summary.get(base)
     factor = any(s.get("factorizations_median", 0) for s in summary.values())
     fell = any(s.get("fallbacks", 0) for s in summary.values())
-    head = ["start", "steps", "median iterations", "p80", "p95", "at the cap"] + (["factorizations"] if factor else [])
+    head = ["start", "steps", "median iterations", "p80", "p95", "at the cap", "above tolerance",
+            "residual (median / p95)"] + (["factorizations"] if factor else [])
     head += ["predict ms", "solve ms", "total ms"] + (["sweeps vs builtin", "time vs builtin"] if ref else [])
     head += ["median impulse error", "median velocity error (m/s)"] + (["w fell back"] if fell else [])
     lines = ["| " + " | ".join(head) + " |", "| --- |" + " ---: |" * (len(head) - 1)]
     for name, s in summary.items():
-        cells = [f"{md_text(name)}{' (oracle)' if _oracle(name) else ''}", f"{s['steps']}", f"{s['iterations_median']:.0f}",
-                 f"{s['iterations_p80']:.0f}", f"{s['iterations_p95']:.0f}", f"{100 * s['at_cap']:.0f}%"]
+        marks = ([" (oracle)"] if _oracle(name) else []) + ([" (Python)"] if s.get("python") else []) \
+            + ([" (did not converge)"] if s.get("above", 0) else [])
+        cells = [md_text(name) + "".join(marks), f"{s['steps']}", f"{s['iterations_median']:.0f}",
+                 f"{s['iterations_p80']:.0f}", f"{s['iterations_p95']:.0f}", f"{100 * s['at_cap']:.0f}%",
+                 f"{100 * s.get('above', 0):.0f}%",
+                 f"{s['residual_median']:.2g} / {s.get('residual_p95', s['residual_median']):.2g}"]
         if factor:
             cells.append(f"{s.get('factorizations_median', 0):.0f}")
         cells += [f"{s['predict_ms_median']:.3f}", f"{s['solve_ms_median']:.3f}", f"{s['total_ms_median']:.3f}"]
