@@ -77,3 +77,60 @@ def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, conte
     assert summary["builtin"]["predict_ms_median"] < 1.0
     report = (tmp_path / "r" / "report.md").read_text()
     assert "is **builtin**" in next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+
+
+def rows_of(times, seed=0):
+    """Replay rows with the given per-variant per-step solve times (ms), three repeats each, the
+    repeats drawn around the time with 10% noise."""
+    import numpy as np
+    from deepcontact.evaluate.replay import Row
+    rng = np.random.default_rng(seed)
+    out = []
+    for name, per_step in times.items():
+        for step, t in enumerate(per_step):
+            reps = t * (1 + 0.1 * rng.standard_normal(3))
+            out.append(Row(run="r", seed=0, step=step, points=10, start=name, iterations=10, capped=False,
+                           residual=1e-5, error=0.0, velocity_error=0.0, predict_ms=0.0,
+                           solve_ms=float(np.median(reps)), history=np.zeros(1), solve_ms_repeats=reps))
+    return out
+
+
+def test_the_same_time_under_two_names_is_no_clear_winner():
+    import numpy as np
+    from deepcontact.evaluate.noise import judge
+    from deepcontact.evaluate.replay import summarize
+    steps = np.random.default_rng(1).uniform(0.05, 0.2, 40)   # steps differ; the variants do not
+    rows = rows_of({"builtin": steps, "twin": steps})
+    noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
+    ratio, lo, hi = noise["vs_base"]["twin"]
+    assert lo < 1 < hi and not noise["clear"]
+    assert noise["aa"][1] < 1 < noise["aa"][2]
+
+
+def test_a_start_twice_as_fast_is_a_clear_winner_and_the_report_says_how_sure():
+    import numpy as np
+    from deepcontact.evaluate.noise import judge
+    from deepcontact.evaluate.replay import summarize
+    from deepcontact.evaluate.report import verdict
+    steps = np.random.default_rng(2).uniform(0.05, 0.2, 40)
+    rows = rows_of({"builtin": steps, "fast": steps / 2, "zero": steps * 1.5})
+    summary = summarize(rows, None, 1000)
+    noise = judge(rows, summary, "builtin", lambda name: False)
+    assert noise["best"] == "fast" and noise["runner_up"] == "builtin" and noise["clear"]
+    assert noise["vs_base"]["fast"][2] < 1
+    line = verdict(summary, noise)
+    assert "is **fast**" in line and "A/A noise floor" in line and "95% intervals" in line
+    twins = rows_of({"builtin": steps, "fast": steps / 2, "fast-too": steps / 2}, seed=3)
+    summary = summarize(twins, None, 1000)
+    line = verdict(summary, judge(twins, summary, "builtin", lambda name: False))
+    assert line.startswith("**Verdict**: no clear winner within noise") and "runner-up" in line
+
+
+def test_every_report_states_its_intervals_and_noise_floor(run, tmp_path):
+    r = dc("evaluate", run, "--starts", "zero,builtin", "--every", "10", "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    report = (tmp_path / "r" / "report.md").read_text()
+    verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    assert "A/A" in verdict and "intervals over the steps" in verdict
+    settings = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]
+    assert set(settings["noise"]["vs_base"]) == {"zero", "builtin"} and len(settings["noise"]["aa"]) == 3

@@ -74,7 +74,7 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
 
 def _replay(s, out, table, measured, progress):
     from .replay import box2d_run, evaluate, summarize
-    from .report import summary_table, write_report
+    from .report import noise_of, summary_table, write_report
     total = sum(len(sim.files) for r in s.runs for sim in box2d_run(r).simulations)
     rows = evaluate(s.runs, table, tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on,
                     mode=s.mode, every=s.every, seed=s.seed, progress=progress(total, "step"),
@@ -83,9 +83,10 @@ def _replay(s, out, table, measured, progress):
     settings = dict(runs=[str(r) for r in s.runs], starts=s.starts, relaxation=s.relaxations,
                     accelerate=s.accelerations, model=s.checkpoint, tolerance=s.tolerance,
                     max_iterations=s.max_iterations, stop_on=s.stop_on, mode=s.mode, every=s.every,
-                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=s.bands)
+                    steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=s.bands,
+                    noise=noise_of(rows, summary))
     write_report(out, rows, summary, settings)
-    return summary_table(summary)
+    return summary_table(summary, settings["noise"])
 
 
 def _closed_loop(s, out, table, measured, progress):

@@ -52,7 +52,13 @@ class Row:
     budget_residual: np.ndarray = None  # the residual after them
     factorizations: int = 0   # sparse systems a global method factorized or solved (newton, subspace)
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
+    solve_ms_repeats: np.ndarray = None   # each of the REPEATS timed solves (solve_ms is their median)
 
+
+# Every variant's solve is timed this many times, the variants interleaved round by round (so a
+# busy moment of the machine touches them all alike); a step's time is the median. Box2D's warm
+# start's repeats also give the noise floor (its first timing against its second: A/A).
+REPEATS = 3
 
 # Fixed sweep budgets for "what accuracy costs in time", each timed on its own.
 BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
@@ -159,15 +165,13 @@ def evaluate_simulation(task):
                           persisted=persisted, seed=seed,
                           previous=previous_solution(earlier, header["index"], settings) if wants_prev else None)
         ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
+        step_rows = []
         for v in table:
             t0 = time.perf_counter()   # the whole call, timed here: a start's own report is a breakdown
             value = v.start(ctx)
             predict_s = time.perf_counter() - t0
             kw = dict(settings, relaxation=v.relaxation, accelerate=v.accelerate)
             traced = solve(problem, value.normal, value.tangent, history=True, **kw)
-            t0 = time.perf_counter()
-            solve(problem, value.normal, value.tangent, final_residual=False, **kw)
-            solve_s = time.perf_counter() - t0
             got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
             hist = traced.history[:, measure]
             # the measure before any sweep exists only for the residual (the others are changes)
@@ -180,7 +184,7 @@ def evaluate_simulation(task):
                       residual=traced.residual,
                       error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
                       velocity_error=_velocity_error(traced, reference),
-                      predict_ms=predict_s * 1e3, solve_ms=solve_s * 1e3,
+                      predict_ms=predict_s * 1e3, solve_ms=0.0,
                       history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
                       accelerate=v.accelerate,
                       fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual,
@@ -188,8 +192,24 @@ def evaluate_simulation(task):
                       factorizations=traced.factorizations)
             if budgets:
                 row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation, v.accelerate)
-            rows.append(row)
+            step_rows.append((row, value, kw))
+        _time_interleaved(problem, step_rows)
+        rows.extend(row for row, _, _ in step_rows)
     return rows
+
+
+def _time_interleaved(problem, step_rows):
+    """Each variant's untraced solve timed REPEATS times, round by round across the variants; a
+    row's solve_ms is the median of its repeats."""
+    times = np.empty((len(step_rows), REPEATS))
+    for rep in range(REPEATS):
+        for i, (row, value, kw) in enumerate(step_rows):
+            t0 = time.perf_counter()
+            solve(problem, value.normal, value.tangent, final_residual=False, **kw)
+            times[i, rep] = (time.perf_counter() - t0) * 1e3
+    for i, (row, _, _) in enumerate(step_rows):
+        row.solve_ms_repeats = times[i]
+        row.solve_ms = float(np.median(times[i]))
 
 
 def evaluate(run_dirs: list, starts: dict, *, tolerance: float = 1e-4, max_iterations: int = 1000,

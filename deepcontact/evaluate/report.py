@@ -24,6 +24,7 @@ from ..errors import count
 from ..escape import CsvWriter, md_text, plot_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
+from .noise import judge
 from .replay import BUDGETS, reference_summary
 from ..plotstyle import axis_floor, readable_log_ticks, show_bands, styles, with_markers
 
@@ -46,6 +47,8 @@ def write_report(out, rows, summary, settings):
                     int(r.reference_pivoted)])
     atomic.write_text(out / "steps.csv", buf.getvalue())
     settings = dict(settings, reference=reference_summary(rows))
+    if "noise" not in settings:
+        settings["noise"] = noise_of(rows, summary)
     atomic.write_text(out / "summary.json", json.dumps({"settings": settings, "starts": summary}, indent=2) + "\n")
     buf = io.StringIO()
     w = CsvWriter(buf)
@@ -87,7 +90,12 @@ def _oracle(name):
         return False
 
 
-def verdict(summary):
+def _interval(triple):
+    ratio, lo, hi = triple
+    return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]"
+
+
+def verdict(summary, noise=None):
     """One line: the start with the smallest median time per step to the tolerance (prediction
     included), with its ratio to Box2D's warm start. Left out: oracles, which know the answer, and
     every variant that ended a step above the tolerance by our residual (it did not converge,
@@ -104,6 +112,16 @@ def verdict(summary):
                 "named." + left_out)
     best = min(fair, key=lambda n: (fair[n]["at_cap"], fair[n]["total_ms_median"]))
     b, base = fair[best], baseline(summary)
+    if noise and noise.get("best") == best and not noise["clear"]:
+        runner = noise.get("runner_up")
+        text = (f"**Verdict**: no clear winner within noise. The fastest start to the tolerance (median time per "
+                f"step, prediction included; oracles left out) is {md_text(best)}"
+                + (f", at {_interval(noise['vs_base'][best])} of {md_text(base)}'s time" if best != base else "")
+                + (f"; against the runner-up {md_text(runner)} it takes {_interval(noise['best_vs_runner_up'])}"
+                   if runner else "")
+                + f"; {md_text(base)} timed against itself (A/A) measured {_interval(noise['aa'])} "
+                f"({100 * noise['level']:.0f}% intervals over the steps).")
+        return text + left_out
     text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
             f"oracles left out) is **{md_text(best)}**: {b['total_ms_median']:.3f} ms, {count(round(b['iterations_median']), 'sweep')}")
     if base is not None and base != best:
@@ -114,11 +132,23 @@ def verdict(summary):
         text += f"; nothing beats {md_text(base)}, Box2D's own warm start"
     if b["at_cap"] > 0:
         text += f" ({100 * b['at_cap']:.0f}% of its steps stopped at the cap)"
+    if noise and noise.get("best") == best:
+        parts = ([f"time {_interval(noise['vs_base'][best])} of {md_text(base)}'s"] if best != base else []) \
+            + ([f"{_interval(noise['best_vs_runner_up'])} of the runner-up {md_text(noise['runner_up'])}'s"]
+               if noise.get("runner_up") else []) + [f"A/A noise floor {_interval(noise['aa'])}"]
+        text += f" ({'; '.join(parts)}; {100 * noise['level']:.0f}% intervals over the steps)"
     return text + "." + left_out
 
 
-def summary_table(summary):
-    """The replay table: one row per variant, ratios to Box2D's warm start, no column of zeros."""
+def noise_of(rows, summary):
+    """The intervals the verdict and the table state (noise.judge, with this report's baseline
+    and oracles)."""
+    return judge(rows, summary, baseline(summary), _oracle)
+
+
+def summary_table(summary, noise=None):
+    """The replay table: one row per variant, ratios to Box2D's warm start (with their intervals
+    where noise is given), no column of zeros."""
     base = baseline(summary)
     ref = summary.get(base)
     factor = any(s.get("factorizations_median", 0) for s in summary.values())
@@ -139,8 +169,9 @@ def summary_table(summary):
             cells.append(f"{s.get('factorizations_median', 0):.0f}")
         cells += [f"{s['predict_ms_median']:.3f}", f"{s['solve_ms_median']:.3f}", f"{s['total_ms_median']:.3f}"]
         if ref:
-            cells += [f"{s['iterations_median'] / max(ref['iterations_median'], 1e-12):.2f}x",
-                      f"{s['total_ms_median'] / max(ref['total_ms_median'], 1e-12):.2f}x"]
+            timed = (_interval(noise["vs_base"][name]) if noise and name in noise.get("vs_base", {})
+                     else f"{s['total_ms_median'] / max(ref['total_ms_median'], 1e-12):.2f}x")
+            cells += [f"{s['iterations_median'] / max(ref['iterations_median'], 1e-12):.2f}x", timed]
         cells += [f"{s['error_median']:.3g}", f"{s['velocity_error_median']:.3g}"]
         if fell:
             cells.append(f"{100 * s['fallbacks']:.0f}%")
@@ -151,7 +182,7 @@ def summary_table(summary):
 def markdown(summary, settings, pareto):
     s = settings
     ref = s["reference"]
-    line = verdict(summary)
+    line = verdict(summary, s.get("noise"))
     text = ["# Warm starts compared\n", *([line + "\n"] if line else []),
             f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
@@ -161,7 +192,7 @@ def markdown(summary, settings, pareto):
             f"{ref['worst_residual']:.2g}). Exact solutions of a frictional step need not be unique, in impulses nor "
             f"in body velocities: the residual is the honest per-step measure, and the impulse and velocity errors "
             f"against one reference are informative, not ground truth.\n",
-            summary_table(summary), "",
+            summary_table(summary, s.get("noise")), "",
             *([protocol_line(s["protocol"]) + "\n"] if s.get("protocol") else []),
             "Oracles (they know the answer): copy, copy2, copy0, sph. `@w`: over-relaxed (PSOR) with that w; "
             "'w fell back': solves where the guard returned to w = 1. Times are medians per step (total: "
