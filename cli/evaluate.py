@@ -3,7 +3,7 @@ import click
 
 from deepcontact.model.arch import NETWORKS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
-from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS
+from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS, methods_help
 
 from . import options
 
@@ -41,10 +41,8 @@ from . import options
                    "the first 8 hard steps); several, comma-separated, compare them.")
 @click.option("--accelerate", type=options.CommaList(options.PluginName(SOLVERS, extra=("all",)), "METHOD[,...]|all"),
               default="none", show_default=True,
-              help="On top of the sweeps: none; nncg (conjugate directions); newton (sweeps, then "
-                   "semismooth Newton steps on the whole step; float64); subspace (the same, each system "
-                   "solved by conjugate gradients). Several, comma-separated, or all, compare them (each "
-                   "with every w).")
+              help=f"The solver method: {methods_help()}. Several, comma-separated, or all (every built-in), "
+                   f"compare them (each with every w).")
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")

@@ -2,7 +2,7 @@
 import click
 
 from deepcontact.errors import InputError
-from deepcontact.solver.methods import SOLVERS
+from deepcontact.solver.methods import SOLVERS, methods_help
 
 from . import options
 
@@ -81,11 +81,8 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "
                    "on the first 8 steps with contacts.")
 @click.option("--accelerate", type=options.PluginName(SOLVERS),
-              help="[pgs] The solver method: none (sweeps, the default); nncg: conjugate directions on top of the "
-                   "sweeps (nonsmooth nonlinear conjugate gradient; float32/float64 modes); newton: sweeps, then "
-                   "semismooth Newton steps on the whole step (float64; without --tolerance it solves to 1e-12); "
-                   "subspace: the same, each system solved by conjugate gradients; or a plug-in (an installed "
-                   "one's name, or package.module:Name; docs/api.md).")
+              help=f"[pgs] The solver method (default none): {methods_help()}. Without --tolerance, the global "
+                   f"methods solve to 1e-12.")
 @options.jobs
 @options.max_memory
 @click.option("--max-disk", type=options.Finite(min=0, min_open=True), metavar="GB",

@@ -134,3 +134,84 @@ def test_every_report_states_its_intervals_and_noise_floor(run, tmp_path):
     assert "A/A" in verdict and "intervals over the steps" in verdict
     settings = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]
     assert set(settings["noise"]["vs_base"]) == {"zero", "builtin"} and len(settings["noise"]["aa"]) == 3
+
+
+SEERS = textwrap.dedent("""
+    import numpy as np
+    from deepcontact.warmstart.starts import StartValue
+    from deepcontact.solver.problem import contact_keys
+
+    SEEN = []
+
+    class Peeker:
+        '''Reads Box2D's recorded answer of the very step it starts, without saying so.'''
+        def __call__(self, ctx):
+            return StartValue(ctx.contacts["normal_impulse"].copy(), ctx.contacts["tangent_impulse"].copy(), {})
+
+    class DeclaredPeeker(Peeker):
+        needs_recorded = True
+
+    class ScaledPrevious:
+        '''0.9 of the previous step's converged solution: needs ctx.previous, whatever else is listed.'''
+        def __call__(self, ctx):
+            pairs = [ctx.previous.get(k, (0.0, 0.0)) for k in contact_keys(ctx.contacts)]
+            n = 0.9 * np.array([p[0] for p in pairs], float)
+            t = 0.9 * np.array([p[1] for p in pairs], float)
+            return StartValue(n, t, {})
+
+    class Recorder:
+        '''Says what it was given, per call, and by which instance.'''
+        def __call__(self, ctx):
+            SEEN.append((id(self), ctx.variant, ctx.index, ctx.trajectory, ctx.reference is None,
+                         "normal_impulse" in ctx.contacts, ctx.problem.normal_impulse is None))
+            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
+    """)
+
+
+@pytest.fixture
+def seers(tmp_path, monkeypatch):
+    (tmp_path / "seers").mkdir()
+    (tmp_path / "seers" / "seers.py").write_text(SEERS)
+    monkeypatch.syspath_prepend(str(tmp_path / "seers"))
+    yield
+    from deepcontact.warmstart.starts import STARTS
+    sys.modules.pop("seers", None)
+    STARTS._loaded = {k: v for k, v in STARTS._loaded.items() if not k.startswith("seers")}
+
+
+def test_a_start_never_sees_the_answer_of_its_step_unless_it_asks_and_then_it_is_an_oracle(run, tmp_path, seers):
+    r = dc("evaluate", run, "--starts", "builtin,seers:Peeker", "--every", "20", "--no-budgets", "-q",
+           "-o", tmp_path / "r")
+    assert r.returncode == 1 and "seers:Peeker" in r.stderr and "normal_impulse" in r.stderr, r.stderr
+    r = dc("evaluate", run, "--starts", "builtin,seers:DeclaredPeeker", "--every", "20", "--no-budgets", "-q",
+           "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    report = (tmp_path / "r" / "report.md").read_text()
+    assert "| seers:DeclaredPeeker (oracle) |" in report
+    verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    assert "DeclaredPeeker" not in verdict
+
+
+def test_the_previous_solution_is_there_whatever_else_is_listed(run, tmp_path, seers):
+    r = dc("evaluate", run, "--starts", "zero,seers:ScaledPrevious", "--every", "1", "--no-budgets", "-q",
+           "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    rows = [line.split(",") for line in (tmp_path / "r" / "steps.csv").read_text().splitlines()[1:]]
+    zero = {(row[1], row[2]): int(row[6]) for row in rows if row[4] == "zero"}
+    scaled = {(row[1], row[2]): int(row[6]) for row in rows if row[4] == "seers:ScaledPrevious"}
+    assert sum(scaled.values()) < sum(zero.values())   # it had something to start from
+
+
+def test_each_variant_has_its_own_start_and_the_context_says_where_it_is(run, seers):
+    import deepcontact as dcl
+    import seers as mod
+    starts = dcl.make_starts(["seers:Recorder"])
+    dcl.evaluate_starts([run], starts, every=40, relaxations=(1.0, 1.7))
+    variants = {}
+    for instance, variant, index, trajectory, no_reference, recorded, problem_answer_hidden in mod.SEEN:
+        variants.setdefault(variant, set()).add(instance)
+        assert trajectory == "replay" and no_reference and not recorded and problem_answer_hidden
+        assert index % 40 == 0
+    assert set(variants) == {"seers:Recorder@1", "seers:Recorder@1.7"}
+    assert all(len(ids) == 1 for ids in variants.values())
+    assert variants["seers:Recorder@1"] != variants["seers:Recorder@1.7"]

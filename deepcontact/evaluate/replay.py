@@ -9,6 +9,7 @@ against the step's reference solution (in impulses, and in body velocities after
 whether the PSOR guard fell back, prediction and solve time, and with `budgets` the measured time
 and reached residual of fixed sweep budgets.
 """
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,7 +26,7 @@ from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
 from ..step.reader import check_origin, read_step
-from ..warmstart.starts import Previous, StepContext
+from ..warmstart.starts import StepContext, seen_by
 
 
 @dataclass
@@ -79,9 +80,22 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
     """Every start with every acceleration and every w; labels are the start names, with "+nncg"
     when accelerated and "@w" unless w is only 1."""
     plain = list(relaxations) == [1.0]
-    return [Variant(name + ("" if a == "none" else f"+{a}")
-                    + ("" if plain else f"@{w if w == 'auto' else format(w, 'g')}"), name, start, w, a)
-            for a in accelerations for w in relaxations for name, start in starts.items()]
+    out, used = [], set()
+    for a in accelerations:
+        for w in relaxations:
+            for name, start in starts.items():
+                # each variant its own instance of a plug-in start: a stateful one cannot carry what it
+                # saw in one variant into another (the built-ins keep no state of their own)
+                own = copy.deepcopy(start) if name in used and _plugin(name) else start
+                used.add(name)
+                out.append(Variant(name + ("" if a == "none" else f"+{a}")
+                                   + ("" if plain else f"@{w if w == 'auto' else format(w, 'g')}"), name, own, w, a))
+    return out
+
+
+def _plugin(name):
+    from ..warmstart.starts import NAMES
+    return name not in NAMES
 
 
 def box2d_run(run_dir):
@@ -147,7 +161,6 @@ def evaluate_simulation(task):
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
     mode, max_iterations, tolerance, stop_on = (settings[k] for k in ("mode", "max_iterations", "tolerance", "stop_on"))
     measure = MEASURES.index(stop_on)
-    wants_prev = any(isinstance(v.start, Previous) for v in table)
     rows = []
     previous, before = set(), None
     for k, path in enumerate(files):
@@ -161,14 +174,16 @@ def evaluate_simulation(task):
             continue
         problem = StepProblem.from_step(header, bodies, contacts, path)
         reference = reference_solution(problem)
+        # every start sees what it would in the loop: the step before its solve and the previous
+        # step's converged solution, whatever else is listed; the step's answer only if it asks
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
-                          persisted=persisted, seed=seed,
-                          previous=previous_solution(earlier, header["index"], settings) if wants_prev else None)
+                          persisted=persisted, seed=seed, index=int(header["index"]), trajectory="replay",
+                          previous=previous_solution(earlier, header["index"], settings))
         ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
         step_rows = []
         for v in table:
             t0 = time.perf_counter()   # the whole call, timed here: a start's own report is a breakdown
-            value = v.start(ctx)
+            value = v.start(seen_by(v.name, ctx, v.label, v.start))
             predict_s = time.perf_counter() - t0
             kw = dict(settings, relaxation=v.relaxation, accelerate=v.accelerate)
             traced = solve(problem, value.normal, value.tangent, history=True, **kw)

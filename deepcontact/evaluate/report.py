@@ -83,9 +83,9 @@ def baseline(summary):
 
 def _oracle(name):
     from ..errors import InputError
-    from ..warmstart.starts import trait
+    from ..warmstart.starts import is_oracle
     try:
-        return trait(_base(name), "oracle")
+        return is_oracle(_base(name))
     except InputError:   # (a label that names no start it can load: not an oracle)
         return False
 
@@ -194,7 +194,8 @@ def markdown(summary, settings, pareto):
             f"against one reference are informative, not ground truth.\n",
             summary_table(summary, s.get("noise")), "",
             *([protocol_line(s["protocol"]) + "\n"] if s.get("protocol") else []),
-            "Oracles (they know the answer): copy, copy2, copy0, sph. `@w`: over-relaxed (PSOR) with that w; "
+            f"Oracles (they ask for the step's answer, so they know it): "
+            f"{', '.join(md_text(n) for n in summary if _oracle(n)) or 'none here'}. `@w`: over-relaxed (PSOR) with that w; "
             "'w fell back': solves where the guard returned to w = 1. Times are medians per step (total: "
             "prediction plus solve of each step, then the median); prediction includes rasterizing, the network "
             "and interpolating where a start needs them. 'vs builtin': the median against Box2D's own warm start's.\n",

@@ -69,6 +69,21 @@ for _name in Acceleration.__members__:
 BUILTIN = tuple(SOLVERS.builtin())
 _instances = {}
 
+# What each built-in method is, in a word or two: the CLI's help lists them from here.
+DESCRIBED = {
+    "none": "sweeps alone",
+    "nncg": "conjugate directions on top of the sweeps",
+    "newton": "sweeps, then semismooth Newton steps on the whole step; float64",
+    "subspace": "the same, each system solved by conjugate gradients; float64",
+    "bodyspace": "an augmented Lagrangian on the bodies' velocities; float64",
+}
+
+
+def methods_help():
+    """Every built-in method with what it is, and that plug-ins are accepted (a command's help)."""
+    return ("; ".join(f"{name} ({DESCRIBED.get(name, 'a built-in method')})" for name in BUILTIN)
+            + "; or a plug-in: an installed one's name, or package.module:Name (docs/api.md)")
+
 
 def method(name):
     """The method object named `name`: a built-in or a plug-in already loaded by an explicit choice

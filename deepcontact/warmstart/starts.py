@@ -29,15 +29,49 @@ from ..grid.splat import splat_points
 
 @dataclass
 class StepContext:
-    """What a start may look at: the recorded step and its reference solution."""
+    """What a start may look at (docs/api.md, "What a start sees"): the step as it stands before
+    its solve, and the converged solution of the step before. The step's own answer (its
+    reference solution, and in replay the impulses Box2D recorded for it) only for a start that
+    asks for it (needs_reference, needs_recorded), which makes it an oracle (seen_by)."""
     problem: object          # solver.problem.StepProblem
     bodies: dict
     contacts: dict
-    reference: object        # solver.pgs.Solution (float64, to 1e-12)
+    reference: object        # solver.pgs.Solution (float64, to 1e-12); None unless asked for
     persisted: np.ndarray    # True where the contact point existed in the previous step
     seed: int = 0
-    previous: dict = None    # {contact key: (normal, tangent)} of the previous step's solution
+    previous: dict = None    # {contact key: (normal, tangent)} of the previous step's converged solution
     cache: dict = field(default_factory=dict)
+    index: int = 0           # the step's index in its simulation
+    variant: str = ""        # the variant this call is for (the start with its w and method)
+    trajectory: str = "replay"   # "replay" (recorded steps) or "loop" (the start drives the simulation)
+
+
+ANSWER_COLUMNS = ("normal_impulse", "tangent_impulse")   # a step's recorded answer, in its contacts
+
+
+def asks(name, start, key):
+    """Whether a start asks for `key` (needs_reference, needs_recorded): its registered trait, or
+    its object's own (a start made under a label of its own, as dc study figures does)."""
+    from ..plugins import PluginError
+    if getattr(getattr(start, "start", start), key, False):   # (a Checked plug-in: its object)
+        return True
+    try:
+        return trait(name, key)
+    except PluginError:
+        return False
+
+
+def seen_by(name, ctx, variant="", start=None):
+    """ctx as the start `name` (the object `start`) may see it: without the step's reference
+    solution unless it asks for it (needs_reference), without the impulses recorded for the step
+    (Box2D's answer in replay) unless it asks for them (needs_recorded)."""
+    changes = {"variant": variant}
+    if not asks(name, start, "needs_reference"):
+        changes["reference"] = None
+    if not asks(name, start, "needs_recorded"):
+        changes["contacts"] = {k: v for k, v in ctx.contacts.items() if k not in ANSWER_COLUMNS}
+        changes["problem"] = dataclasses.replace(ctx.problem, normal_impulse=None, tangent_impulse=None)
+    return dataclasses.replace(ctx, **changes)
 
 
 @dataclass
@@ -84,6 +118,7 @@ class Previous:
 
 class Copy:
     """The step's reference solution, optionally rounded (an oracle: it is the answer)."""
+    needs_reference = True
 
     def __init__(self, decimals=None):
         self.decimals = decimals
@@ -98,6 +133,7 @@ class Copy:
 class SPH:
     """The reference solution splatted onto the grid and interpolated back: the grid's own loss,
     the best any grid-learned start can do (an oracle)."""
+    needs_reference = True
 
     def __init__(self, spec):
         self.spec = spec
@@ -129,6 +165,7 @@ class CNN:
 
 class Random:
     """Uniform impulses of the step's scale, friction inside the cone, seeded per step."""
+    needs_reference = True   # (its scale is the reference's: it peeks, so it is an oracle)
 
     def __call__(self, ctx):
         rng = np.random.default_rng([ctx.seed, ctx.problem.index])
@@ -184,17 +221,19 @@ class CNNNew:
 
 # --- The registry: built-ins and plug-ins alike ------------------------------------------------
 # A factory takes keyword arguments it declares from {spec, predictor} (the grid of --cell/--model,
-# the trained model) and returns a start: a callable ctx -> StartValue. Traits: oracle (knows the
-# answer), needs_model (a trained checkpoint), needs_reference (reads ctx.reference in the loop).
+# the trained model) and returns a start: a callable ctx -> StartValue. Traits: needs_model (a
+# trained checkpoint), needs_reference (reads ctx.reference), needs_recorded (reads the step's
+# recorded impulses), oracle (knows the answer some other way). A start that asks for the answer
+# is an oracle (is_oracle), whatever its name.
 
 STARTS = Registry("start", "deepcontact.starts")
 STARTS.register("zero", lambda: Zero())
 STARTS.register("builtin", lambda: Builtin())
 STARTS.register("prev", lambda: Previous())
-STARTS.register("copy", lambda: Copy(), oracle=True, needs_reference=True)
-STARTS.register("copy2", lambda: Copy(2), oracle=True, needs_reference=True)
-STARTS.register("copy0", lambda: Copy(0), oracle=True, needs_reference=True)
-STARTS.register("sph", lambda spec: SPH(spec), oracle=True, needs_reference=True)
+STARTS.register("copy", lambda: Copy(), needs_reference=True)
+STARTS.register("copy2", lambda: Copy(2), needs_reference=True)
+STARTS.register("copy0", lambda: Copy(0), needs_reference=True)
+STARTS.register("sph", lambda spec: SPH(spec), needs_reference=True)
 STARTS.register("cnn", lambda predictor: CNN(predictor), needs_model=True)
 STARTS.register("random", lambda: Random(), needs_reference=True)
 STARTS.register("bad", lambda: Bad())
@@ -202,13 +241,22 @@ STARTS.register("guarded", lambda predictor: Guarded(CNN(predictor)), needs_mode
 STARTS.register("cnn-new", lambda predictor: CNNNew(CNN(predictor)), needs_model=True)
 
 NAMES = tuple(STARTS.builtin())
-ORACLES = tuple(n for n in NAMES if getattr(STARTS.load(n), "oracle", False))
 NEEDS_MODEL = tuple(n for n in NAMES if getattr(STARTS.load(n), "needs_model", False))
 
 
 def trait(name, key):
-    """A start's trait (oracle, needs_model, needs_reference), False where it does not say."""
+    """A start's trait (oracle, needs_model, needs_reference, needs_recorded), False where it
+    does not say."""
     return bool(getattr(STARTS.load(name), key, False))
+
+
+def is_oracle(name):
+    """Whether a start knows the answer: it asks for the step's reference or recorded impulses,
+    or says so (derived from what it asks for, never from a list of names)."""
+    return any(trait(name, key) for key in ("oracle", "needs_reference", "needs_recorded"))
+
+
+ORACLES = tuple(n for n in NAMES if is_oracle(n))
 
 
 class Checked:
@@ -239,7 +287,11 @@ class Checked:
                 raise PluginError(f"the start {self.name!r} returned {what} impulses of shape {a.shape}; the step "
                                   f"has {n} contact points, so ({n},)")
             if not np.all(np.isfinite(a)):
-                raise PluginError(f"the start {self.name!r} returned a non-finite {what} impulse")
+                raise PluginError(f"the start {self.name!r} returned a non-finite {what} impulse (step "
+                                  f"{ctx.problem.index})")
+        if np.any(normal < 0):   # (held as a method's answer is: a contact only pushes)
+            raise PluginError(f"the start {self.name!r} returned a negative normal impulse (step {ctx.problem.index}): "
+                              f"a contact only pushes")
         if not all(np.isfinite(v) and v >= 0 for v in seconds.values()):
             raise PluginError(f"the start {self.name!r} returned prediction seconds that are not finite and >= 0")
         return StartValue(normal, tangent, seconds)
