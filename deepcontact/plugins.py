@@ -79,6 +79,28 @@ class Registry:
             return f
         return add if factory is None else add(factory)
 
+    def origin(self, name):
+        """Where the thing named `name` comes from, for the record (manifests, reports):
+        {"origin": "built-in" or "plug-in", "target": "module:Name", and for a plug-in from an
+        installed package its "distribution" and "version"}. Nothing is imported for it: a name
+        not loaded yet is {"origin": "not loaded"}."""
+        factory = self.resolved(name)
+        if factory is None:
+            return {"origin": "not loaded", "name": name}
+        module = getattr(factory, "__module__", None) or ""
+        target = f"{module}:{getattr(factory, '__qualname__', getattr(factory, '__name__', '?'))}"
+        if module == "deepcontact" or module.startswith("deepcontact."):
+            return {"origin": "built-in", "name": name, "target": target}
+        out = {"origin": "plug-in", "name": name, "target": target, "distribution": None, "version": None}
+        try:
+            from importlib.metadata import packages_distributions, version
+            dists = packages_distributions().get(module.split(".")[0]) or []
+            if dists:
+                out["distribution"], out["version"] = dists[0], version(dists[0])
+        except Exception:   # (metadata that cannot be read says nothing of the plug-in itself)
+            pass
+        return out
+
     def builtin(self):
         """The names registered in code, in registration order."""
         return list(self._builtin)

@@ -215,3 +215,23 @@ def test_each_variant_has_its_own_start_and_the_context_says_where_it_is(run, se
     assert set(variants) == {"seers:Recorder@1", "seers:Recorder@1.7"}
     assert all(len(ids) == 1 for ids in variants.values())
     assert variants["seers:Recorder@1"] != variants["seers:Recorder@1.7"]
+
+
+def test_every_variant_says_where_it_comes_from(run, tmp_path, contestants):
+    r = dc("evaluate", run, "--starts", "builtin,contestants:HidesItsCost", "--accelerate", "none,contestants:Liar",
+           "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
+    assert summary["builtin"]["start_origin"]["origin"] == "built-in"
+    assert summary["builtin"]["method_origin"] == {**summary["builtin"]["method_origin"], "origin": "built-in",
+                                                   "runs": "native"}
+    liar = summary["builtin+contestants:Liar"]["method_origin"]
+    assert liar["origin"] == "plug-in" and liar["target"] == "contestants:Liar" and liar["runs"] == "python"
+    assert summary["contestants:HidesItsCost"]["start_origin"]["target"] == "contestants:HidesItsCost"
+    report = (tmp_path / "r" / "report.md").read_text()
+    assert "Plug-ins: " in report and "contestants:Liar" in report
+    r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5", "--steps", "20",
+           "--solver", "pgs", "--tolerance", "1e-4", "--accelerate", "contestants:Liar", "-q", "-o", tmp_path / "s")
+    assert r.returncode == 0, r.stderr
+    pgs = json.loads((tmp_path / "s" / "manifest.json").read_text())["pgs"]
+    assert pgs["accelerate_origin"]["origin"] == "plug-in" and pgs["accelerate_origin"]["runs"] == "python"

@@ -80,6 +80,7 @@ def _replay(s, out, table, measured, progress):
                     mode=s.mode, every=s.every, seed=s.seed, progress=progress(total, "step"),
                     relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
     summary = summarize(rows, table, s.max_iterations)
+    _record_origins(summary, table)
     settings = dict(runs=[str(r) for r in s.runs], starts=s.starts, relaxation=s.relaxations,
                     accelerate=s.accelerations, model=s.checkpoint, tolerance=s.tolerance,
                     max_iterations=s.max_iterations, stop_on=s.stop_on, mode=s.mode, every=s.every,
@@ -87,6 +88,19 @@ def _replay(s, out, table, measured, progress):
                     noise=noise_of(rows, summary))
     write_report(out, rows, summary, settings)
     return summary_table(summary, settings["noise"])
+
+
+def _record_origins(summary, table):
+    """Each variant's start and solver method, where they come from (built-in, or a plug-in with
+    its target, distribution and version): in summary.json and the report."""
+    from ..solver.methods import SOLVERS, is_native
+    from ..warmstart.starts import STARTS
+    from .report import _base
+    for name, s in summary.items():
+        s["start_origin"] = STARTS.origin(_base(name))
+        method = SOLVERS.origin(s["accelerate"])
+        method["runs"] = "native" if is_native(s["accelerate"]) else "python"
+        s["method_origin"] = method
 
 
 def _closed_loop(s, out, table, measured, progress):

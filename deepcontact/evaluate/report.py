@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from .. import atomic
+from .. import __version__, atomic
 from ..errors import count
 from ..escape import CsvWriter, md_text, plot_text
 from ..html import markdown_to_html
@@ -55,7 +55,7 @@ def write_report(out, rows, summary, settings):
     keys = list(next(iter(summary.values())))
     w.writerow(["start"] + keys)
     for name, s in summary.items():
-        w.writerow([name] + [s[k] if isinstance(s[k], str) else f"{s[k]:.6g}" for k in keys])
+        w.writerow([name] + [_csv_value(s[k]) for k in keys])
     atomic.write_text(out / "summary.csv", buf.getvalue())
     pareto = pareto_points(rows, summary)
     if pareto:
@@ -66,6 +66,15 @@ def write_report(out, rows, summary, settings):
     # the same tables and plots in one page that reads offline (SVG inline)
     atomic.write_text(out / "report.html", markdown_to_html(text, out, "Warm starts compared",
                                                           pictures=("convergence.png", "iterations.png", "pareto.png")))
+
+
+def _csv_value(value):
+    """A summary value as a CSV cell: text as it is, a record (an origin) as JSON, a number to 6 digits."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (dict, list)) or value is None:
+        return json.dumps(value, sort_keys=True)
+    return f"{value:.6g}"
 
 
 def _base(label):
@@ -199,6 +208,7 @@ def markdown(summary, settings, pareto):
             "'w fell back': solves where the guard returned to w = 1. Times are medians per step (total: "
             "prediction plus solve of each step, then the median); prediction includes rasterizing, the network "
             "and interpolating where a start needs them. 'vs builtin': the median against Box2D's own warm start's.\n",
+            *provenance(summary),
             "![convergence](convergence.png)\n", "![iterations](iterations.png)\n"]
     if pareto:
         text += ["![pareto](pareto.png)\n", "## What accuracy costs in time\n",
@@ -210,6 +220,19 @@ def markdown(summary, settings, pareto):
             cells = [f"{p['residual']:.2g} @ {p['ms']:.3f} ms" for p in pts]
             text.append(f"| {md_text(name)} | " + " | ".join(cells) + " |")
     return "\n".join(text) + "\n"
+
+
+def provenance(summary):
+    """A line naming where each plug-in in the report comes from (none: no line)."""
+    seen = {}
+    for s in summary.values():
+        for key in ("start_origin", "method_origin"):
+            o = s.get(key) or {}
+            if o.get("origin") == "plug-in":
+                where = (f"{o['distribution']} {o['version']}" if o.get("distribution")
+                         else "not from an installed package")
+                seen[o["name"]] = f"{md_text(o['name'])} ({md_text(o['target'])}; {md_text(where)})"
+    return [f"Plug-ins: {'; '.join(seen.values())}. Built-ins are deepcontact {__version__}'s.\n"] if seen else []
 
 
 def pareto_points(rows, summary):

@@ -293,6 +293,13 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     return manifest
 
 
+def _origin(accelerate):
+    """Where the loop's solver method comes from (the manifest's record: a plug-in's target,
+    distribution and version)."""
+    from ..solver.methods import SOLVERS, is_native
+    return dict(SOLVERS.origin(accelerate), runs="native" if is_native(accelerate) else "python")
+
+
 def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop, compress, soft):
     if progress is not None:
         progress = progress(first.steps * len(seeds))
@@ -304,7 +311,8 @@ def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progres
             progress.close()
     solver = "box2d3" if soft is not None else "box2d" if loop is None else "pgs"
     return write_manifest(out_dir, first, source=source, solver=solver,
-                          pgs=None if loop is None else dict(loop.__dict__), skip_contactless=skip_contactless,
+                          pgs=None if loop is None else dict(loop.__dict__, accelerate_origin=_origin(loop.accelerate)),
+                          skip_contactless=skip_contactless,
                           compression="gzip" if compress else "none",
                           simulations=[r.__dict__ for r in results], soft=soft)
 
