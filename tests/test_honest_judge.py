@@ -235,3 +235,18 @@ def test_every_variant_says_where_it_comes_from(run, tmp_path, contestants):
     assert r.returncode == 0, r.stderr
     pgs = json.loads((tmp_path / "s" / "manifest.json").read_text())["pgs"]
     assert pgs["accelerate_origin"]["origin"] == "plug-in" and pgs["accelerate_origin"]["runs"] == "python"
+
+
+def test_the_closed_loop_report_decides_too(run, tmp_path, contestants):
+    r = dc("evaluate", run, "--closed-loop", "--starts", "zero,builtin,copy", "--accelerate", "none,contestants:Liar",
+           "--steps", "150", "--no-budgets", "-q", "-o", tmp_path / "loop")
+    assert r.returncode == 0, r.stderr
+    report = (tmp_path / "loop" / "report.md").read_text()
+    verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    assert "A/A noise floor" in verdict and "intervals over the steps" in verdict
+    assert "Liar" not in verdict.split("Left out")[0] and "copy" not in verdict.split("Left out")[0]
+    header = next(line for line in report.splitlines() if line.startswith("| start |"))
+    assert "residual (median / p95)" in header and "above tolerance" in header
+    liar = next(line for line in report.splitlines() if line.startswith("| builtin+contestants:Liar"))
+    assert "(did not converge)" in liar
+    assert "| copy (oracle) |" in report

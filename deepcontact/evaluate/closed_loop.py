@@ -41,6 +41,11 @@ class LoopResult:
     finite: bool
     energy_error: float = float("nan")   # max over steps of |E - E_ref|, relative to |E_ref| at step 0
     relaxation: float = 1.0
+    residuals: np.ndarray = None   # per step, the project's residual of the solution applied (NaN: no contact,
+                                   # or Box2D's own solver)
+    ms_again: np.ndarray = None    # Box2D's warm start only: the same run timed a second time (A/A)
+    oracle: bool = False           # the start asks for the step's answer (starts.is_oracle)
+    ours: bool = True              # the project's solver (False: Box2D's own at k iterations)
 
 
 class _Adapter:
@@ -77,23 +82,27 @@ class Trajectory:
     seconds: np.ndarray
     deepest: float
     finite: bool
+    residuals: np.ndarray = None
 
 
-def run_loop(scene, start_fn, options, steps, solved=None):
-    """start_fn None: options.start, stepped in one native call per step."""
+def run_loop(scene, start_fn, options, steps, solved=None, report=True):
+    """start_fn None: options.start, stepped in one native call per step. report: each step to
+    workers.progress (not for the A/A run, which the progress total does not count)."""
     world = build_world(scene)
     stepper = PGSStepper(world, scene, options, start_fn=start_fn, record=False)
-    return _follow(world, scene, steps, stepper.step, solved)
+    return _follow(world, scene, steps, stepper.step, solved, report)
 
 
-def _follow(world, scene, steps, step, solved=None):
-    trail, energies, iterations, seconds, deepest, finite = [], [], [], [], 0.0, True
+def _follow(world, scene, steps, step, solved=None, report=True):
+    trail, energies, iterations, seconds, residuals, deepest, finite = [], [], [], [], [], 0.0, True
     for done in stepping.steps(world, scene, step, steps):
-        workers.progress(1)
+        if report:
+            workers.progress(1)
         seconds.append(done.seconds)
         if solved is not None:
             solved(done.solution)
         iterations.append(0 if done.solution is None else done.solution.iterations)
+        residuals.append(np.nan if done.solution is None else done.solution.residual)
         b = world.bodies()
         if not (np.all(np.isfinite(b["position"])) and np.all(np.isfinite(b["velocity"]))):
             finite = False
@@ -101,7 +110,8 @@ def _follow(world, scene, steps, step, solved=None):
         deepest = max(deepest, done.deepest)
         trail.append(positions(b))
         energies.append(energy(b, scene.effects.gravity or (0.0, 0.0)))
-    return Trajectory(trail, np.array(energies), np.array(iterations), np.array(seconds), deepest, finite)
+    return Trajectory(trail, np.array(energies), np.array(iterations), np.array(seconds), deepest, finite,
+                      np.array(residuals, dtype=np.float64))
 
 
 def reference_trajectory(scene, steps):
@@ -136,12 +146,26 @@ def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
                               tolerance=tolerance, stop_on=stop_on, relaxation=v.relaxation, accelerate=v.accelerate)
         adapter = _Adapter(v.name, v.start)
         t = run_loop(scene, None if native else adapter, options, steps, solved=None if native else adapter.solved)
+        again = None
+        if v.name == "builtin" and v.relaxation in (1, 1.0) and v.accelerate == "none":
+            # the noise floor: the same run, timed again (A/A)
+            again = run_loop(scene, None, options, steps, report=False).seconds * 1e3
         drift, err = _compare(t, ref)
         results.append(LoopResult(start=v.label, steps=len(t.iterations), iterations=t.iterations,
                                   ms_per_step=t.seconds * 1e3, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
                                   penetration=t.deepest, finite=t.finite, energy_error=err,
-                                  relaxation=v.relaxation if v.relaxation != "auto" else float("nan")))
+                                  relaxation=v.relaxation if v.relaxation != "auto" else float("nan"),
+                                  residuals=t.residuals, ms_again=again, oracle=_is_oracle(v.name)))
     return results
+
+
+def _is_oracle(name):
+    from ..plugins import PluginError
+    from ..warmstart.starts import is_oracle
+    try:
+        return is_oracle(name)
+    except PluginError:
+        return False
 
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)   # Box2D's own solver's iterations, beside ours
@@ -162,7 +186,8 @@ def box2d_iterations(scene, counts=BOX2D_COUNTS, steps=None, reference=None):
         results.append(LoopResult(start=f"box2d {k} iterations", steps=len(timed.positions),
                                   iterations=np.full(len(timed.positions), k), ms_per_step=timed.seconds * 1e3,
                                   predict_ms=np.zeros(0), drift=drift, penetration=recorded.deepest,
-                                  finite=timed.finite and recorded.finite, energy_error=err))
+                                  finite=timed.finite and recorded.finite, energy_error=err,
+                                  residuals=np.full(len(timed.positions), np.nan), ours=False))
     return results
 
 
@@ -209,5 +234,9 @@ def pooled(per_simulation):
             predict_ms=np.concatenate([r.predict_ms for r in same]),
             drift=np.max([r.drift[:n] for r in same], axis=0) if n else np.zeros(0),
             penetration=max(r.penetration for r in same), finite=all(r.finite for r in same),
-            energy_error=max(r.energy_error for r in same)))
+            energy_error=max(r.energy_error for r in same),
+            residuals=np.concatenate([r.residuals for r in same]) if all(r.residuals is not None for r in same)
+            else None,
+            ms_again=np.concatenate([r.ms_again for r in same]) if all(r.ms_again is not None for r in same)
+            else None))
     return rows

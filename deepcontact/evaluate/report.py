@@ -397,8 +397,10 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
     into the folder out; returns the
     table. With several simulations, results hold the pooled rows first, then each simulation's;
     plotted: the rows the plot shows (default all)."""
-    text = loop_table(results)
-    page = (f"# Closed loop: {md_text(what)}\n\n"
+    text = loop_table(results, tolerance if stop_on == "residual" else None)
+    pooled = results[:len(results) // (simulations + 1)] if simulations > 1 else results   # (the verdict's rows)
+    line = loop_verdict(pooled, tolerance if stop_on == "residual" else None)
+    page = (f"# Closed loop: {md_text(what)}\n\n" + (line + "\n\n" if line else "") +
             f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
@@ -435,15 +437,70 @@ def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mo
     return text
 
 
-def loop_table(results):
-    """One row per start (and w) and per Box2D iteration count."""
-    lines = ["| start | steps | median iterations | p80 | max | ms per step (median) | of which prediction | "
+def _loop_residuals(r):
+    """The residuals of a loop row's steps that had contacts (none for Box2D's own solver)."""
+    res = np.asarray(r.residuals if r.residuals is not None else [], np.float64)
+    return res[np.isfinite(res)]
+
+
+def _loop_above(r, tolerance):
+    """The share of a row's steps whose residual ended above the tolerance (None: not judged)."""
+    res = _loop_residuals(r)
+    return None if tolerance is None or not len(res) else float(np.mean(res > tolerance))
+
+
+def loop_verdict(results, tolerance):
+    """The closed loop's verdict, as replay's: the fastest of the project's variants per step that
+    stayed finite and never ended a step above the tolerance (oracles left out), against Box2D's
+    warm start and the runner-up with 95% intervals over the steps, and builtin timed against
+    itself (A/A); a winner is named only beyond noise. None without Box2D's warm start."""
+    from .noise import ratio_interval
+    base = next((r for r in results if r.ms_again is not None), None)
+    if base is None:
+        return None
+    candidates = [r for r in results if r.ours and not r.oracle]
+    fair = [r for r in candidates if r.finite and not _loop_above(r, tolerance)]
+    left = [r.start for r in candidates if r not in fair]
+    left_out = (f" Left out, as they ended steps above the tolerance or left float32: "
+                f"{', '.join(md_text(n) for n in left)}." if left else "")
+    aa = ratio_interval(base.ms_per_step, base.ms_again)
+    if not fair:
+        return "**Verdict**: no start reached the tolerance on every step of the loop, so none is named." + left_out
+    fair.sort(key=lambda r: float(np.median(r.ms_per_step)))
+    best, runner = fair[0], (fair[1] if len(fair) > 1 else None)
+
+    def paired(a, b):
+        n = min(len(a.ms_per_step), len(b.ms_per_step))
+        return ratio_interval(a.ms_per_step[:n], b.ms_per_step[:n])
+    vs_base = paired(best, base) if best is not base else None
+    vs_runner = paired(best, runner) if runner is not None else None
+    clear = (vs_base is None or vs_base[2] < 1) and (vs_runner is None or vs_runner[2] < 1)
+    parts = ([f"{_interval(vs_base)} of {md_text(base.start)}'s time per step"] if vs_base else []) \
+        + ([f"{_interval(vs_runner)} of the runner-up {md_text(runner.start)}'s"] if vs_runner else []) \
+        + [f"A/A noise floor {_interval(aa)}"]
+    head = ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
+            f"**{md_text(best.start)}**" if clear else
+            f"**Verdict**: no clear winner within noise. The fastest start per step of the loop is {md_text(best.start)}")
+    return f"{head} ({'; '.join(parts)}; 95% intervals over the steps)." + left_out
+
+
+def loop_table(results, tolerance=None):
+    """One row per start (and w) and per Box2D iteration count, with the project's residual of
+    each (median / p95) and the share of steps above the tolerance where it is judged."""
+    lines = ["| start | steps | median iterations | p80 | max | residual (median / p95) | above tolerance | "
+             "ms per step (median) | of which prediction | "
              "final drift (m) | max drift (m) | energy error | deepest contact (cm) | finite |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
     for r in results:
         it = r.iterations[r.iterations > 0] if np.any(r.iterations > 0) else r.iterations
         pred = float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0
-        lines.append(f"| {md_text(r.start)} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | {it.max():.0f} | "
+        res = _loop_residuals(r)
+        above = _loop_above(r, tolerance)
+        judged = (f"{np.median(res):.2g} / {np.percentile(res, 95):.2g}" if len(res) else "-",
+                  "-" if above is None else f"{100 * above:.0f}%")
+        marks = (" (oracle)" if r.oracle else "") + (" (did not converge)" if above else "")
+        lines.append(f"| {md_text(r.start)}{marks} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | "
+                     f"{it.max():.0f} | {judged[0]} | {judged[1]} | "
                      f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "
                      f"{r.drift.max() if len(r.drift) else float('nan'):.3g} | {r.energy_error:.2g} | "
                      f"{100 * r.penetration:.2f} | {'yes' if r.finite else 'NO'} |")
