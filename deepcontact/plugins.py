@@ -121,6 +121,8 @@ class Registry:
         """The factory named `name`; PluginError naming it if it cannot be had."""
         if name in self._builtin:
             return self._builtin_factory(name)
+        if name in self._loaded:   # (loaded once: the scan of installed packages costs ~10 ms)
+            return self._loaded[name]
         found = self.installed().get(name)
         if found is None and not _TARGET.fullmatch(name):
             raise PluginError(f"unknown {self.kind} {name!r}: choose from {', '.join(self.names())}, or name one "

@@ -71,7 +71,19 @@ def seen_by(name, ctx, variant="", start=None):
     if not asks(name, start, "needs_recorded"):
         changes["contacts"] = {k: v for k, v in ctx.contacts.items() if k not in ANSWER_COLUMNS}
         changes["problem"] = dataclasses.replace(ctx.problem, normal_impulse=None, tangent_impulse=None)
-    return dataclasses.replace(ctx, **changes)
+    out = dataclasses.replace(ctx, **changes)
+    return private_copy(out) if isinstance(start, Checked) else out
+
+
+def private_copy(ctx):
+    """A plug-in's own copy of the step (its cache kept): whatever the start does to it, no other
+    start and no later row sees. Made by the caller before the clock starts: it is the platform's
+    work, not the start's."""
+    import copy
+    out = dataclasses.replace(ctx, **{f.name: copy.deepcopy(getattr(ctx, f.name))
+                                      for f in dataclasses.fields(ctx) if f.name != "cache"})
+    out._private = True
+    return out
 
 
 @dataclass
@@ -267,11 +279,7 @@ class Checked:
         self.name, self.start = name, start
 
     def __call__(self, ctx):
-        # a copy of the step (its cache kept): whatever the start does to it, no other start and
-        # no later row sees
-        import copy
-        seen = dataclasses.replace(ctx, **{f.name: copy.deepcopy(getattr(ctx, f.name))
-                                           for f in dataclasses.fields(ctx) if f.name != "cache"})
+        seen = ctx if getattr(ctx, "_private", False) else private_copy(ctx)
         with guest(f"the start {self.name!r}"):
             value = self.start(seen)
         n = ctx.problem.points
