@@ -68,6 +68,11 @@ def write_report(out, rows, summary, settings):
                                                           pictures=("convergence.png", "iterations.png", "pareto.png")))
 
 
+def _share(x):
+    """A share as a percentage, where any at all shows ("<1%", never a "0%" that hides a step)."""
+    return "<1%" if 0 < x < 0.005 else f"{100 * x:.0f}%"
+
+
 def _csv_value(value):
     """A summary value as a CSV cell: text as it is, a record (an origin) as JSON, a number to 6 digits."""
     if isinstance(value, str):
@@ -172,7 +177,7 @@ def summary_table(summary, noise=None):
             + ([" (did not converge)"] if s.get("above", 0) else [])
         cells = [md_text(name) + "".join(marks), f"{s['steps']}", f"{s['iterations_median']:.0f}",
                  f"{s['iterations_p80']:.0f}", f"{s['iterations_p95']:.0f}", f"{100 * s['at_cap']:.0f}%",
-                 f"{100 * s.get('above', 0):.0f}%",
+                 _share(s.get("above", 0)),
                  f"{s['residual_median']:.2g} / {s.get('residual_p95', s['residual_median']):.2g}"]
         if factor:
             cells.append(f"{s.get('factorizations_median', 0):.0f}")
@@ -497,7 +502,7 @@ def loop_table(results, tolerance=None):
         res = _loop_residuals(r)
         above = _loop_above(r, tolerance)
         judged = (f"{np.median(res):.2g} / {np.percentile(res, 95):.2g}" if len(res) else "-",
-                  "-" if above is None else f"{100 * above:.0f}%")
+                  "-" if above is None else _share(above))
         marks = (" (oracle)" if r.oracle else "") + (" (did not converge)" if above else "")
         lines.append(f"| {md_text(r.start)}{marks} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | "
                      f"{it.max():.0f} | {judged[0]} | {judged[1]} | "
