@@ -281,3 +281,15 @@ def test_a_network_that_reads_values_on_the_meta_device_is_one_line_naming_it(da
     finally:
         forget(name)
     assert "meta device" in one_line_naming(r, f"{name}:Net")
+
+
+def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, monkeypatch):
+    from deepcontact.model.train import load_checkpoint
+    write_module(tmp_path, monkeypatch, "guest_net_fine", NETWORK)
+    try:
+        r = dc("train", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+        assert r.returncode == 0, r.stderr
+        origin = load_checkpoint(tmp_path / "m" / "last.pt")["network_origin"]   # (while it is loaded)
+    finally:
+        forget("guest_net_fine")
+    assert origin["origin"] == "plug-in" and origin["target"] == "guest_net_fine:Net"

@@ -555,6 +555,9 @@ class Trainer:
             "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
             "dataset_path": dataset_path, "threads": torch.get_num_threads(),
             "versions": {"deepcontact": __version__, "torch": str(torch.__version__), "numpy": str(np.__version__)},
+            # where the network comes from: built-in, or a plug-in's target, distribution and version
+            # (a record only: a checkpoint never imports code by itself)
+            "network_origin": NETWORKS.origin(self.cfg.model),
         }
 
     def fit(self, work, progress=None, dataset_path="", out_dir=None):
