@@ -168,7 +168,7 @@ def test_a_shape_lost_to_rounding_is_refused(tmp_path):
                                           ("count=1e6", "count"), ("count=-1", "count must be positive"),
                                           ("count=abc", "not a whole number"), ("nosuch=1", "no parameter")])
 def test_bad_generator_parameters(tmp_path, param, needle):
-    """--param values are option values: exit 2 naming the option (issue 37), as count=abc's."""
+    """--param values are option values: exit 2 naming the option, as count=abc's."""
     r = dc("simulate", "pile", "--param", param, "--steps", "2", "-o", str(tmp_path / "out"))
     option_error(r, "--param", needle)
     assert len(r.stderr.strip().splitlines()) == 1

@@ -1,4 +1,4 @@
-"""Checks at the border (issue 37): option values finite in the precision they are kept in, step
+"""Checks at the border: option values finite in the precision they are kept in, step
 files held to their run's engine, -j capped by the work, closed standard streams, and the library
 refusing what the CLI refuses, with the project's error types."""
 import math

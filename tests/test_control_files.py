@@ -1,4 +1,4 @@
-"""The files dc trusts are claims, not orders (issue 37): a replacement journal (.NAME.swap), a lock
+"""The files dc trusts are claims, not orders: a replacement journal (.NAME.swap), a lock
 file's list of temporary names (.NAME.lock) and an output's record (.dc-output.json) can be
 planted by anyone who can put a small file beside an output (an unpacked archive, a shared folder,
 a repository). What they name is touched only if it is a name dc itself would have made for that

@@ -1,4 +1,4 @@
-"""An honest judge (issue 38, in part): contestants that lie about converging or about their cost
+"""An honest judge: contestants that lie about converging or about their cost
 do not fool the verdict. The judge measures for itself: convergence by the project's residual
 (never by what a method reports), time by the wall clock around the whole call."""
 import json

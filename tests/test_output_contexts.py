@@ -1,4 +1,4 @@
-"""Every output context escaped (issue 37): a run path or a plug-in's name is the user's text, and
+"""Every output context escaped: a run path or a plug-in's name is the user's text, and
 lands in CSV cells (which a spreadsheet would evaluate), markdown reports (where it could become a
 live remote image, raw HTML or a shifted table) and HTML pages. Each reaches its reader as text."""
 import csv

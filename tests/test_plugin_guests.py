@@ -1,4 +1,4 @@
-"""Plug-ins are guests (issue 37): whatever a start, a solver method or a network does (sys.exit,
+"""Plug-ins are guests: whatever a start, a solver method or a network does (sys.exit,
 a KeyboardInterrupt of its own, an exception at import or at call, editing the problem it is
 handed, moving the working folder, swallowing a stop signal, taking over the signal handlers), the
 command ends in one line naming it (exit 1), or goes on unharmed; the user's own Ctrl-C stays 130.

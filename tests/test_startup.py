@@ -1,5 +1,5 @@
 """Start-up: each `dc` command imports what it needs and nothing heavier, so that a Makefile calling
-it hundreds of times does not pay for torch, scipy or matplotlib at each call (issue 40). The times
+it hundreds of times does not pay for torch, scipy or matplotlib at each call. The times
 are benchmarks/bench_startup.py's; these tests hold the import sets, which a new top-level import
 would change silently.
 
