@@ -48,41 +48,13 @@ def validate(paths, replay, residuals, jobs, verbose, quiet):
 
     bar = options.progress_bar(quiet, None, "file", "validate")
     try:
-        files, invalid = check(paths, click.echo, jobs=jobs, progress=bar.update)
+        files, invalid, above = check(paths, click.echo, jobs=jobs, progress=bar.update, residuals=residuals)
     finally:
         bar.close()
-    above = residuals_above(paths, quiet) if residuals else 0
     if not quiet:
         click.echo(f"{count(files, 'file')} checked, {invalid} invalid"
                    + (f"; {count(above, 'step')} with a residual above its tolerance" if residuals else ""), err=True)
-    click.get_current_context().exit(1 if invalid or above else 0)
-
-
-def residuals_above(paths, quiet):
-    """The step files under paths whose recorded residual is above their recorded tolerance (a
-    line each on stdout, as an error); how many."""
-    import math
-    from pathlib import Path
-    from deepcontact.errors import InputError
-    from deepcontact.step.reader import read_step
-    from deepcontact.step.run_folder import STEP_FILE
-    above = 0
-    for root in paths:
-        root = Path(root)
-        files = [root] if root.is_file() else sorted(p for p in root.rglob("step-*.xml*") if STEP_FILE.fullmatch(p.name))
-        for path in files:
-            try:
-                solve = read_step(path, validate=False)[0].get("solve")
-            except InputError:
-                continue   # (the schema pass above has said what is wrong with it)
-            if not solve or solve.get("stop_on") != "residual":
-                continue
-            residual, tolerance = float(solve["residual"]), float(solve["tolerance"])
-            if tolerance > 0 and not (residual <= tolerance) and math.isfinite(residual):
-                above += 1
-                click.echo(f"{path}:0:0: the step's residual {residual:.3g} is above its tolerance {tolerance:g} "
-                           f"(<solve iterations=\"{solve.get('iterations')}\">)")
-    return above
+    click.get_current_context().exit(1 if invalid else 0)
 
 
 def replay_runs(paths, quiet, jobs):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .. import atomic, workers
 from ..errors import InputError
+from ..step.check import ABOVE
 
 CHUNK = 50   # files a worker checks per task
 
@@ -31,15 +32,17 @@ def xml_files(paths):
         yield from found
 
 
-def check_files(chunk):
-    """[(path, error lines)] for [(path, origin)]: one worker's share of a simulation folder."""
+def check_files(task):
+    """[(path, error lines)] for ([(path, origin)], residuals): one worker's share of a simulation
+    folder."""
     from ..scene.xml import read_scene
     from ..step.check import check_file
     from .build import check_overlaps
 
+    chunk, residuals = task
     out = []
     for path, origin in chunk:
-        kind, errors = check_file(path, origin)
+        kind, errors = check_file(path, origin, residuals)
         if not errors and kind == "scene":   # what the schema cannot see
             try:
                 check_overlaps(read_scene(path), path)
@@ -67,14 +70,16 @@ def origins(paths):
     return origin, errors
 
 
-def validate(paths, report, jobs=1, progress=None):
+def validate(paths, report, jobs=1, progress=None, residuals=False):
     """Checks every file of paths; report(line) gets each error line, in file order whatever
-    `jobs`; progress(n): n more files checked. Returns (files checked, invalid files and runs)."""
+    `jobs`; progress(n): n more files checked. residuals: also each step's recorded residual
+    against its recorded tolerance (step.check.residual_above). Returns (files checked, invalid
+    files and runs, steps above their tolerance)."""
     files = list(xml_files(paths))
     if not files:
         raise InputError(f"no XML files found in {', '.join(map(str, paths))}")
     origin, errors = origins(paths)
-    invalid = len(errors)
+    invalid, above = len(errors), 0
     for line in errors:
         report(line)
     # tasks of up to CHUNK files of one folder (a simulation), in file order
@@ -82,11 +87,12 @@ def validate(paths, report, jobs=1, progress=None):
               for group in (list(g) for _, g in groupby(files, key=lambda f: f.parent))
               for i in range(0, len(group), CHUNK)]
     with workers.for_jobs(jobs, chunks) as pool:
-        for checked in pool.imap(check_files, chunks):
+        for checked in pool.imap(check_files, [(chunk, residuals) for chunk in chunks]):
             for _, lines in checked:
                 invalid += bool(lines)
+                above += any(ABOVE in line for line in lines)
                 for line in lines:
                     report(line)
             if progress is not None:
                 progress(len(checked))
-    return len(files), invalid
+    return len(files), invalid, above
