@@ -98,6 +98,19 @@ def _our_folder(p, empty_ok=False, command=None):
         return False
 
 
+def _remove_claimed(folder, name, ours, why):
+    """A temporary file a control file claims a killed run left in folder: removed if `name` is
+    one dc makes there (ours) and a regular file; anything else left alone, said in one line (why).
+    A name that is not ours is never looked up (it may be a path elsewhere, or hold a NUL)."""
+    p = folder / name if ours else None
+    kind = _kind(p) if ours else None
+    if not ours or kind not in ("file", None):
+        log.warning("left %s alone: %s", p if ours else repr(name), why)
+    elif kind == "file":
+        log.info("removing %s, left by an interrupted earlier run", p)
+        _remove_quietly(p)
+
+
 def umask():
     """This process's umask (read by setting it, and set back at once)."""
     mask = os.umask(0o022)
@@ -256,13 +269,8 @@ class _InPlace:
         self.files = set(rec["files"]) if mine else set()
         # temporary files a killed run of ours left: ours to remove
         for name in (rec["temporary"] if mine else ()):
-            p = self.folder / name
-            if not _temporary_name(name) or _kind(p) not in ("file", None):
-                log.warning("left %s alone: the record %s lists it as a temporary file, but it is not one dc "
-                            "writes there", p if _temporary_name(name) else repr(name), RECORD)
-            elif _kind(p) == "file":
-                log.info("removing %s, left by an interrupted earlier run", p)
-                _remove_quietly(p)
+            _remove_claimed(self.folder, name, _temporary_name(name),
+                            f"the record {RECORD} lists it as a temporary file, but it is not one dc writes there")
         self.temporary = set()
         self.save()
 
@@ -322,13 +330,9 @@ def locked(path):
     except (OSError, ValueError, UnicodeDecodeError):
         noted = []
     for name in noted if isinstance(noted, list) else ():
-        p = Path(path).parent / str(name)
-        if not own_name(path, "tmp", name) or _kind(p) not in ("file", None):
-            log.warning("left %r alone: the lock file %s lists it, but it is not a temporary file dc makes "
-                        "for %s", name, lock.name, Path(path).name)
-        elif _kind(p) == "file":
-            log.info("removing %s, left by an interrupted earlier run", p)
-            _remove_quietly(p)
+        _remove_claimed(Path(path).parent, name, own_name(path, "tmp", name),
+                        f"the lock file {lock.name} lists it, but it is not a temporary file dc makes for "
+                        f"{Path(path).name}")
     os.ftruncate(fd, 0)
     key = os.path.abspath(path)
     _locks[key] = (fd, [])

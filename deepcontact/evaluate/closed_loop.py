@@ -24,7 +24,7 @@ from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
 from .replay import variants
-from ..warmstart.starts import Checked, StepContext, private_copy, trait
+from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
 
 NATIVE_STARTS = ("zero", "builtin")
 
@@ -158,17 +158,8 @@ def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="
                                   ms_per_step=t.seconds * 1e3, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
                                   penetration=t.deepest, finite=t.finite, energy_error=err,
                                   relaxation=v.relaxation if v.relaxation != "auto" else float("nan"),
-                                  residuals=t.residuals, ms_again=again, oracle=_is_oracle(v.name)))
+                                  residuals=t.residuals, ms_again=again, oracle=is_oracle(v.name)))
     return results
-
-
-def _is_oracle(name):
-    from ..plugins import PluginError
-    from ..warmstart.starts import is_oracle
-    try:
-        return is_oracle(name)
-    except PluginError:
-        return False
 
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)   # Box2D's own solver's iterations, beside ours

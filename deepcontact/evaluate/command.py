@@ -93,14 +93,12 @@ def _replay(s, out, table, measured, progress):
 def _record_origins(summary, table):
     """Each variant's start and solver method, where they come from (built-in, or a plug-in with
     its target, distribution and version): in summary.json and the report."""
-    from ..solver.methods import SOLVERS, is_native
+    from ..solver.methods import method_origin
     from ..warmstart.starts import STARTS
     from .report import _base
     for name, s in summary.items():
         s["start_origin"] = STARTS.origin(_base(name))
-        method = SOLVERS.origin(s["accelerate"])
-        method["runs"] = "native" if is_native(s["accelerate"]) else "python"
-        s["method_origin"] = method
+        s["method_origin"] = method_origin(s["accelerate"])
 
 
 def _closed_loop(s, out, table, measured, progress):

@@ -95,13 +95,9 @@ def baseline(summary):
     return None
 
 
-def _oracle(name):
-    from ..errors import InputError
+def _oracle(label):
     from ..warmstart.starts import is_oracle
-    try:
-        return is_oracle(_base(name))
-    except InputError:   # (a label that names no start it can load: not an oracle)
-        return False
+    return is_oracle(_base(label))
 
 
 def _interval(triple):

@@ -29,7 +29,7 @@ from ..errors import InputError, count
 from ..resources import COMPRESSION_RATIO, check_disk, check_step_work, step_bytes
 from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
-from ..solver.methods import GLOBAL
+from ..solver.methods import GLOBAL, method_origin
 from ..step.engines import SoftStep
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
@@ -293,13 +293,6 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     return manifest
 
 
-def _origin(accelerate):
-    """Where the loop's solver method comes from (the manifest's record: a plug-in's target,
-    distribution and version)."""
-    from ..solver.methods import SOLVERS, is_native
-    return dict(SOLVERS.origin(accelerate), runs="native" if is_native(accelerate) else "python")
-
-
 def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop, compress, soft):
     if progress is not None:
         progress = progress(first.steps * len(seeds))
@@ -311,7 +304,8 @@ def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progres
             progress.close()
     solver = "box2d3" if soft is not None else "box2d" if loop is None else "pgs"
     return write_manifest(out_dir, first, source=source, solver=solver,
-                          pgs=None if loop is None else dict(loop.__dict__, accelerate_origin=_origin(loop.accelerate)),
+                          pgs=None if loop is None else dict(loop.__dict__,
+                                                             accelerate_origin=method_origin(loop.accelerate)),
                           skip_contactless=skip_contactless,
                           compression="gzip" if compress else "none",
                           simulations=[r.__dict__ for r in results], soft=soft)

@@ -79,6 +79,12 @@ DESCRIBED = {
 }
 
 
+def method_origin(name):
+    """Where the solver method `name` comes from (SOLVERS.origin) and whether it runs natively or
+    in Python: the record manifests and reports keep."""
+    return dict(SOLVERS.origin(name), runs="native" if is_native(name) else "python")
+
+
 def methods_help():
     """Every built-in method with what it is, and that plug-ins are accepted (a command's help)."""
     return ("; ".join(f"{name} ({DESCRIBED.get(name, 'a built-in method')})" for name in BUILTIN)

@@ -52,7 +52,6 @@ ANSWER_COLUMNS = ("normal_impulse", "tangent_impulse")   # a step's recorded ans
 def asks(name, start, key):
     """Whether a start asks for `key` (needs_reference, needs_recorded): its registered trait, or
     its object's own (a start made under a label of its own, as dc study figures does)."""
-    from ..plugins import PluginError
     if getattr(getattr(start, "start", start), key, False):   # (a Checked plug-in: its object)
         return True
     try:
@@ -242,12 +241,13 @@ STARTS = Registry("start", "deepcontact.starts")
 STARTS.register("zero", lambda: Zero())
 STARTS.register("builtin", lambda: Builtin())
 STARTS.register("prev", lambda: Previous())
-STARTS.register("copy", lambda: Copy(), needs_reference=True)
-STARTS.register("copy2", lambda: Copy(2), needs_reference=True)
-STARTS.register("copy0", lambda: Copy(0), needs_reference=True)
-STARTS.register("sph", lambda spec: SPH(spec), needs_reference=True)
+# (what a built-in asks for is its class's to say; the registry's trait reads it from there)
+STARTS.register("copy", lambda: Copy(), needs_reference=Copy.needs_reference)
+STARTS.register("copy2", lambda: Copy(2), needs_reference=Copy.needs_reference)
+STARTS.register("copy0", lambda: Copy(0), needs_reference=Copy.needs_reference)
+STARTS.register("sph", lambda spec: SPH(spec), needs_reference=SPH.needs_reference)
 STARTS.register("cnn", lambda predictor: CNN(predictor), needs_model=True)
-STARTS.register("random", lambda: Random(), needs_reference=True)
+STARTS.register("random", lambda: Random(), needs_reference=Random.needs_reference)
 STARTS.register("bad", lambda: Bad())
 STARTS.register("guarded", lambda predictor: Guarded(CNN(predictor)), needs_model=True)
 STARTS.register("cnn-new", lambda predictor: CNNNew(CNN(predictor)), needs_model=True)
@@ -264,8 +264,12 @@ def trait(name, key):
 
 def is_oracle(name):
     """Whether a start knows the answer: it asks for the step's reference or recorded impulses,
-    or says so (derived from what it asks for, never from a list of names)."""
-    return any(trait(name, key) for key in ("oracle", "needs_reference", "needs_recorded"))
+    or says so (derived from what it asks for, never from a list of names). A name no registry
+    resolves (a label of its own, as dc study figures gives) is no oracle."""
+    try:
+        return any(trait(name, key) for key in ("oracle", "needs_reference", "needs_recorded"))
+    except PluginError:
+        return False
 
 
 ORACLES = tuple(n for n in NAMES if is_oracle(n))
