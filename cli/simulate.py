@@ -36,6 +36,9 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
                        tolerance=tolerance or 0.0, stop_on=stop_on or "residual", relaxation=relaxation or 1.0,
                        accelerate=accelerate or "none")
     check_options(loop)   # (the library's rules: exit 2 naming the option)
+    from deepcontact.solver.methods import takes_relaxation
+    if not takes_relaxation(loop.accelerate):
+        loop.relaxation = None   # (recorded as not taken, not as a w of 1)
     return loop
 
 

@@ -235,6 +235,24 @@ def test_every_variant_says_where_it_comes_from(run, tmp_path, contestants):
     assert r.returncode == 0, r.stderr
     pgs = json.loads((tmp_path / "s" / "manifest.json").read_text())["pgs"]
     assert pgs["accelerate_origin"]["origin"] == "plug-in" and pgs["accelerate_origin"]["runs"] == "python"
+    # every step says so too, and records no w for a method that takes none
+    from deepcontact.step.reader import read_step
+    header = read_step(tmp_path / "s" / "seed-000000" / "step-000010.xml")[0]["solve"]
+    assert header["origin"] == "plug-in" and header["target"] == "contestants:Liar" and "relaxation" not in header
+    assert pgs["relaxation"] is None
+    assert dc("validate", tmp_path / "s").returncode == 0
+
+
+def test_a_method_that_takes_no_relaxation_is_not_recorded_as_using_one(run, tmp_path, contestants):
+    r = dc("simulate", "pile", "--steps", "5", "--solver", "pgs", "--tolerance", "1e-4", "--relaxation", "1.7",
+           "--accelerate", "contestants:Liar", "-q", "-o", tmp_path / "s")
+    assert r.returncode == 2 and "takes no over-relaxation" in r.stderr and "--relaxation" in r.stderr
+    r = dc("evaluate", run, "--starts", "builtin", "--accelerate", "none,contestants:Liar", "--relaxation", "1,1.7",
+           "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
+    assert set(summary) == {"builtin@1", "builtin@1.7", "builtin+contestants:Liar"}
+    assert summary["builtin+contestants:Liar"]["relaxation"] is None and summary["builtin@1.7"]["relaxation"] == 1.7
 
 
 def test_the_closed_loop_report_decides_too(run, tmp_path, contestants):
@@ -250,3 +268,25 @@ def test_the_closed_loop_report_decides_too(run, tmp_path, contestants):
     liar = next(line for line in report.splitlines() if line.startswith("| builtin+contestants:Liar"))
     assert "(did not converge)" in liar
     assert "| copy (oracle) |" in report
+
+
+@pytest.mark.parametrize("accelerate,relaxation", [("none", 1.0), ("none", 1.7), ("nncg", 1.0), ("newton", 1.0)])
+def test_the_solver_and_the_judge_agree_on_the_same_impulses(run, accelerate, relaxation):
+    """One residual: `judge` measures impulses as given, so a solve's answer (whose tangents can lie
+    just outside the friction cone, as Box2D's do) is judged to the residual the solve reported.
+    Before, the judge clamped them onto the cone first and the two differed (9.59e-5 against 9.99e-5)."""
+    import numpy as np
+    import deepcontact as dcl
+    from deepcontact.step.run_folder import read_run
+    files = read_run(run).simulations[0].files
+    outside = 0
+    for f in files[5::6]:
+        problem = dcl.StepProblem.from_step_file(f)
+        s = dcl.solve(problem, tolerance=1e-4, max_iterations=40, relaxation=relaxation, accelerate=accelerate)
+        mu = np.asarray(problem.contacts["friction"], np.float64)
+        outside += int(np.sum(np.abs(s.tangent_impulse) > mu * s.normal_impulse))
+        judged = dcl.judge(problem, s.normal_impulse, s.tangent_impulse)
+        assert judged.sanitized["cone"] == 0
+        assert judged.residual == pytest.approx(s.residual, rel=1e-9, abs=1e-15), f.name
+    if accelerate == "none" and relaxation == 1.0:
+        assert outside > 0   # (the case the judge used to clamp is among them)

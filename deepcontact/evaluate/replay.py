@@ -72,24 +72,27 @@ class Variant:
     label: str
     name: str                    # the start's name
     start: object
-    relaxation: object = 1.0     # a float, or "auto" until resolved
+    relaxation: object = 1.0     # a float, "auto" until resolved, or None for a method that takes no w
     accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
 
 
 def variants(starts, relaxations=(1.0,), accelerations=("none",)):
     """Every start with every acceleration and every w; labels are the start names, with "+nncg"
     when accelerated and "@w" unless w is only 1."""
+    from ..solver.methods import takes_relaxation
     plain = list(relaxations) == [1.0]
     out, used = [], set()
     for a in accelerations:
-        for w in relaxations:
+        # a plug-in method that takes no w runs once, with no w recorded for it
+        for w in relaxations if takes_relaxation(a) else (None,):
             for name, start in starts.items():
                 # each variant its own instance of a plug-in start: a stateful one cannot carry what it
                 # saw in one variant into another (the built-ins keep no state of their own)
                 own = copy.deepcopy(start) if name in used and _plugin(name) else start
                 used.add(name)
                 out.append(Variant(name + ("" if a == "none" else f"+{a}")
-                                   + ("" if plain else f"@{w if w == 'auto' else format(w, 'g')}"), name, own, w, a))
+                                   + ("" if plain or w is None else f"@{w if w == 'auto' else format(w, 'g')}"),
+                                   name, own, w, a))
     return out
 
 
@@ -201,7 +204,7 @@ def evaluate_simulation(task):
                       error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
                       velocity_error=_velocity_error(traced, reference),
                       predict_ms=predict_s * 1e3, solve_ms=0.0,
-                      history=np.concatenate([[first], hist]), relaxation=float(v.relaxation),
+                      history=np.concatenate([[first], hist]), relaxation=None if v.relaxation is None else float(v.relaxation),
                       accelerate=v.accelerate,
                       fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual,
                       reference_pivoted=reference.pivoted,

@@ -41,7 +41,7 @@ def write_report(out, rows, summary, settings):
     w.writerow(["run", "seed", "step", "points", "start", "relaxation", "iterations", "capped", "fallback", "residual",
                 "error", "velocity_error", "predict_ms", "solve_ms", "reference_residual", "reference_pivoted"])
     for r in rows:
-        w.writerow([r.run, r.seed, r.step, r.points, r.start, f"{r.relaxation:g}", r.iterations, int(r.capped),
+        w.writerow([r.run, r.seed, r.step, r.points, r.start, "" if r.relaxation is None else f"{r.relaxation:g}", r.iterations, int(r.capped),
                     int(r.fallback), f"{r.residual:.6g}", f"{r.error:.6g}", f"{r.velocity_error:.6g}",
                     f"{r.predict_ms:.6g}", f"{r.solve_ms:.6g}", f"{r.reference_residual:.6g}",
                     int(r.reference_pivoted)])

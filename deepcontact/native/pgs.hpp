@@ -55,6 +55,8 @@ struct SolveOptions {
                                    // than this are implausible (0: no such check)
     bool final_residual = true;    // report the residual at the end (one extra pass)
     bool guard = true;             // over-relaxation falls back to w = 1 if the residual climbs
+    bool cone = true;              // a start's tangent beyond the friction cone is clamped onto it;
+                                   // false to judge an answer as given (its excess is residual)
 
     bool sanitize() const { return mode != Mode::exact; }  // exact reproduces Box2D, bad starts too
     bool float64() const { return mode == Mode::float64; }
@@ -380,7 +382,7 @@ private:
                         n = t = 0;
                     }
                     const double bound = double(m.friction) * n;
-                    if (std::abs(t) > bound) {
+                    if (opt.cone && std::abs(t) > bound) {
                         ++rep.cone;
                         t = std::clamp(t, -bound, bound);
                     }

@@ -317,7 +317,8 @@ void bind_options(py::module_& m) {
         .def_readwrite("max_velocity", &SolveOptions::max_velocity,
                        "starts that alone change a contact velocity by more are implausible (0: no check)")
         .def_readwrite("final_residual", &SolveOptions::final_residual, "report the residual at the end")
-        .def_readwrite("guard", &SolveOptions::guard, "fall back to w = 1 if the residual climbs tenfold");
+        .def_readwrite("guard", &SolveOptions::guard, "fall back to w = 1 if the residual climbs tenfold")
+        .def_readwrite("cone", &SolveOptions::cone, "clamp a start's tangents onto the friction cone (false: judge as given)");
 
     py::class_<PGSStepSettings> loop(m, "PGSStepSettings", "One step of the native loop (checked on construction and use).");
     enum_field(loop, "start", &PGSStepSettings::start);

@@ -38,7 +38,8 @@ class LoopOptions:
     max_iterations: int = 8
     tolerance: float = 0.0
     stop_on: str = "residual"
-    relaxation: object = 1.0     # w in (0, 2), or "auto" (solver.relaxation.AutoRelaxation)
+    relaxation: object = 1.0     # w in (0, 2), "auto" (solver.relaxation.AutoRelaxation), or None: a
+                                 # plug-in method that takes no w
     accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
 
 
@@ -46,7 +47,7 @@ def check_options(o: LoopOptions, own_start=False) -> None:
     """The rules of the loop's options, checked once for the command line and the library alike;
     OptionError naming the option that breaks one. own_start: the caller makes the starts."""
     from ..errors import OptionError
-    from ..solver.methods import check_mode
+    from ..solver.methods import check_mode, takes_relaxation
     if not own_start and o.start not in STARTS:
         raise OptionError(f"unknown start {o.start!r}; choose from {', '.join(STARTS)}", "--start")
     if o.mode == "exact" and o.relaxation != 1.0:
@@ -54,6 +55,9 @@ def check_options(o: LoopOptions, own_start=False) -> None:
     if o.mode == "exact" and o.accelerate != "none":
         raise OptionError("--mode exact is Box2D's PGS: it takes no acceleration", "--accelerate")
     check_mode(o.accelerate, o.mode)
+    if not takes_relaxation(o.accelerate) and o.relaxation not in (None, 1.0):
+        raise OptionError(f"the solver method {o.accelerate} takes no over-relaxation (its class does not say "
+                          f"takes_relaxation = True)", "--relaxation")
     if o.relaxation == "auto" and not o.tolerance:
         raise OptionError("auto counts sweeps to a tolerance: give --tolerance", "--relaxation")
 
@@ -102,7 +106,7 @@ class PGSStepper:
         try:
             self.solve_options = solve_options(
                 dt=scene.dt, mode=options.mode, max_iterations=options.max_iterations, tolerance=options.tolerance,
-                stop_on=options.stop_on, relaxation=1.0 if auto else options.relaxation,
+                stop_on=options.stop_on, relaxation=1.0 if auto or options.relaxation is None else options.relaxation,
                 accelerate=options.accelerate if is_native(options.accelerate) else "none")
         except ValueError as e:
             raise InputError(str(e)) from None

@@ -11,6 +11,7 @@ The run is built in a partial folder beside OUTDIR and appears under its name on
 (`atomic.output_folder`): an interrupted or failed run leaves nothing, and an earlier run it was
 to replace (--overwrite) as it was.
 """
+import functools
 import hashlib
 import logging
 import math
@@ -108,7 +109,7 @@ class SimulationResult:
 
 def _solve_xml(options, solution):
     o = options
-    w = 1.0 if o.relaxation == "auto" else o.relaxation
+    w = 1.0 if o.relaxation == "auto" else o.relaxation   # (None: the method takes no w)
     if solution is None:
         iterations, residual, sanitized = 0, 0.0, 0
     else:
@@ -121,10 +122,20 @@ def _solve_xml(options, solution):
         counts = (0, 0, 0, 0) if s is None else (s.factorizations, s.newton_iterations, s.outer_iterations,
                                                  s.newton_fallbacks)
         work = (' factorizations="%d" newton_iterations="%d" outer_iterations="%d" fallbacks="%d"' % counts)
+    relaxation = "" if w is None else f' relaxation="{fmt(w)}"'
     return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
-            f'max_iterations="{o.max_iterations}" relaxation="{fmt(w)}" accelerate="{o.accelerate}" '
+            f'max_iterations="{o.max_iterations}"{relaxation} accelerate="{o.accelerate}"{_origin_xml(o.accelerate)} '
             f'iterations="{iterations}" '
             f'residual="{fmt(residual)}" sanitized="{sanitized}"{work}/>\n')
+
+
+@functools.lru_cache(maxsize=None)
+def _origin_xml(accelerate):
+    """The <solve> attributes saying where the method comes from (method_origin), once per name."""
+    from xml.sax.saxutils import quoteattr
+    o = method_origin(accelerate)
+    keys = ("origin",) if o["origin"] == "built-in" else ("origin", "target", "distribution", "version")
+    return "".join(f" {k}={quoteattr(str(o[k]))}" for k in keys if o.get(k) is not None)
 
 
 def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None,

@@ -40,11 +40,12 @@ GLOBAL = ("newton", "subspace", "bodyspace")   # built-ins whose work is not onl
 class SolveSettings:
     """What a solve is asked to do: stop once the residual (solver/pgs.py's measure, dimensionless)
     falls below `tolerance`, or after `max_iterations` iterations (tolerance 0: exactly that many).
-    `relaxation` is the w the user asked for (a method may ignore it); `mode` is float32 or float64."""
+    `relaxation` is the w the user asked for, given only to a method that declares
+    `takes_relaxation = True` (None otherwise); `mode` is float32 or float64."""
     mode: str = "float64"
     max_iterations: int = 1000
     tolerance: float = 0.0
-    relaxation: float = 1.0
+    relaxation: float | None = 1.0
 
 
 @dataclass
@@ -77,6 +78,16 @@ DESCRIBED = {
     "subspace": "the same, each system solved by conjugate gradients; float64",
     "bodyspace": "an augmented Lagrangian on the bodies' velocities; float64",
 }
+
+
+def takes_relaxation(name) -> bool:
+    """Whether the method `name` uses an over-relaxation w: every built-in does; a plug-in only when
+    its class says `takes_relaxation = True` (otherwise its settings carry relaxation None, and no w
+    is recorded for it)."""
+    if is_native(name):
+        return True
+    factory = SOLVERS.resolved(name)
+    return bool(getattr(factory, "takes_relaxation", False))
 
 
 def method_origin(name):
@@ -118,8 +129,10 @@ def is_native(name) -> bool:
 
 def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> Solution:
     """These impulses judged as an answer, without a sweep: their residual (every solve's measure,
-    `.residual`) and the body velocities they give (`.velocity`, `.omega`)."""
-    return native_solve(problem, normal, tangent, max_iterations=0)
+    `.residual`) and the body velocities they give (`.velocity`, `.omega`). They are measured as
+    given: a tangent beyond the friction cone is not clamped, its excess counts in the residual, so
+    a solve's answer is judged to the residual the solve reported."""
+    return native_solve(problem, normal, tangent, max_iterations=0, cone=False)
 
 
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *, accelerate: str = "none", mode: str = "float64",
@@ -130,6 +143,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     loaded plug-in); the keywords as solver.pgs.solve's. A plug-in stops on the residual only and
     runs in float32 or float64."""
     if is_native(accelerate):
+        relaxation = 1.0 if relaxation is None else relaxation
         return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
                             tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, history=history,
                             final_residual=final_residual, guard=guard, accelerate=accelerate, prune=prune)
@@ -140,7 +154,12 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
     cap = problem.velocity_iterations if max_iterations is None else max_iterations
-    settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=float(relaxation))
+    taken = takes_relaxation(accelerate)
+    if not taken and relaxation not in (None, 1.0):
+        raise InputError(f"the solver method {accelerate!r} takes no over-relaxation (its class does not say "
+                         f"takes_relaxation = True): leave w at 1")
+    relaxation = float(1.0 if relaxation is None else relaxation) if taken else None
+    settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=relaxation)
     solver = method(accelerate)
     # its own copy of the step: what it changes there, no other method and no later row sees
     import copy
@@ -151,17 +170,13 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     if after.sanitized.get("implausible"):
         raise PluginError(f"the solver method {accelerate!r} returned impulses no step could need (one alone would "
                           f"move a contact faster than Box2D lets a body travel)")
-    # A tangent impulse beyond the friction bound is projected onto it, as any start's is (a sweep
-    # bounds the tangent by the normal impulse before its own update, so even PGS's last iterate can
-    # be a rounding outside): the answer reported is the one judged.
-    normal, tangent = after.normal_impulse, after.tangent_impulse
     trace = np.full((len(residuals), len(MEASURES)), np.nan)
     trace[:, MEASURES.index("residual")] = residuals
     if len(residuals):   # the last iterate's residual is the project's, not the plug-in's
         trace[-1, MEASURES.index("residual")] = after.residual
     return Solution(normal_impulse=normal, tangent_impulse=tangent, velocity=after.velocity, omega=after.omega,
                     iterations=len(residuals), history=trace if history else np.zeros((0, len(MEASURES))),
-                    residual=after.residual, sanitized={}, stats={}, relaxation=float(relaxation))
+                    residual=after.residual, sanitized={}, stats={}, relaxation=relaxation)
 
 
 def _checked(name, out, problem, cap):

@@ -59,7 +59,7 @@ class Solution:
     sanitized: dict
     stats: dict
     relaxation_fallback: int = 0   # the sweep after which over-relaxation fell back to w = 1 (0: never)
-    relaxation: float = 1.0        # the w it was asked to use
+    relaxation: float | None = 1.0  # the w it was asked to use (None: a plug-in method that takes none)
     factorizations: int = 0        # sparse factorizations (newton: one per Newton step tried; bodyspace: per Newton iteration)
     newton_fallbacks: int = 0      # Newton steps (bodyspace: outer iterations) that failed and handed back to sweeps
     newton_iterations: int = 0     # bodyspace: Newton iterations on the bodies' momentum balance
@@ -82,7 +82,7 @@ class Solution:
 
 
 def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="residual", relaxation=1.0,
-            history=False, final_residual=True, guard=True, accelerate="none") -> SolveOptions:
+            history=False, final_residual=True, guard=True, accelerate="none", cone=True) -> SolveOptions:
     """The native solver's options (checked there, once): names become its enums, a tolerance of
     0 means a fixed sweep count, and a start that alone would move a contact faster than Box2D
     lets a body travel in a step (dt) counts as implausible. A bad value is an OptionError naming
@@ -101,7 +101,7 @@ def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="res
         return SolveOptions(mode=mode, max_iterations=max_iterations, tolerance=tolerance,
                             stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
                             accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
-                            final_residual=final_residual, guard=guard)
+                            final_residual=final_residual, guard=guard, cone=cone)
     except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
         field = str(e).split()[0] if str(e) else ""
         raise OptionError(str(e), _flag(field) if field in _FLAGS else None) from None
@@ -117,16 +117,19 @@ def _flag(field):
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,
           mode: str = "float64", max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, prune: bool = True, final_residual: bool = True,
-          guard: bool = True, accelerate: str = "none") -> Solution:
+          guard: bool = True, accelerate: str = "none", cone: bool = True) -> Solution:
     """Solve the step's contact problem from a start (default: Box2D's own warm start).
 
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
     tenfold above its best continues as plain PGS (checked every 4 sweeps;
-    Solution.relaxation_fallback says when). A solve always ends on a sweep's projected iterate.
+    Solution.relaxation_fallback says when). A solve ends on a sweep's iterate, whose tangents can
+    lie just outside the friction cone (as Box2D's do): the residual counts the excess. A start is
+    projected onto the cone before use (cone=False: taken as given, which is how `judge` measures
+    an answer, so it agrees with the solve that made it).
     Bad options raise OptionError (an InputError naming the flag)."""
     require_problem(problem)
     opts = options(dt=problem.dt, mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation,
-                   history=history, final_residual=final_residual, guard=guard, accelerate=accelerate,
+                   history=history, final_residual=final_residual, guard=guard, accelerate=accelerate, cone=cone,
                    max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
