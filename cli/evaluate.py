@@ -20,10 +20,7 @@ from . import options
 @options.deprecated_alias("--model", "--checkpoint", "model")
 @click.option("--arch", type=options.PluginName(NETWORKS),
               help="Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
-@click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
-@click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
-@click.option("--stop-on", type=options.choice("stop_on"), default="residual",
-              show_default=True, help="The measure the tolerance applies to (docs/solver.md: Measuring convergence).")
+@options.solve_to_tolerance
 @click.option("--mode", type=options.choice("mode", leave_out=("exact",)), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
 @click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] Cell size d.")

@@ -351,6 +351,21 @@ class SilentBar:
         pass
 
 
+def solve_to_tolerance(f):
+    """--tolerance, --max-iterations and --stop-on of a command that solves every step to a
+    tolerance (dc evaluate, the studies), their defaults read from solver/settings.py."""
+    from deepcontact.solver.settings import CAP, TOLERANCE
+    for option in reversed((
+            click.option("--tolerance", type=Finite(min=0, min_open=True), default=TOLERANCE, show_default=True,
+                         help="Stop once the measure falls below this."),
+            click.option("--max-iterations", type=count(min=1), default=CAP, show_default=True,
+                         help="Sweep cap."),
+            click.option("--stop-on", type=choice("stop_on"), default="residual", show_default=True,
+                         help="The measure the tolerance applies to (docs/solver.md: Measuring convergence)."))):
+        f = option(f)
+    return f
+
+
 max_memory = click.option("--max-memory", type=Finite(min=0, min_open=True), metavar="GB",
                           help="Refuse work estimated to need more memory than this (default 8).")
 

@@ -3,6 +3,7 @@ import click
 
 from deepcontact.errors import InputError
 from deepcontact.solver.methods import SOLVERS, methods_help
+from deepcontact.solver.settings import CAP
 
 from . import options
 
@@ -25,12 +26,13 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
         if used:
             raise click.UsageError(f"{', '.join(used)} only appl{'ies' if len(used) == 1 else 'y'} with --solver pgs")
         return None
-    from deepcontact.simulate.pgs_loop import DEFAULT_TOLERANCE_CAP, LoopOptions, check_options
+    from deepcontact.simulate.pgs_loop import LoopOptions, check_options
+    from deepcontact.solver.settings import CAP
     if accelerate is not None:
         options.load_solvers([accelerate])
-    # A tolerance asks to converge: the cap is then dc evaluate's (1000), not the scene's 8 sweeps,
+    # A tolerance asks to converge: the cap is then dc evaluate's (CAP), not the scene's 8 sweeps,
     # which would stop nearly every step short of it without a word.
-    cap = max_iterations if max_iterations is not None else DEFAULT_TOLERANCE_CAP if tolerance else (
+    cap = max_iterations if max_iterations is not None else CAP if tolerance else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
     loop = LoopOptions(start=start or "builtin", mode=mode or "float64", max_iterations=cap,
                        tolerance=tolerance or 0.0, stop_on=stop_on or "residual", relaxation=relaxation or 1.0,
@@ -77,7 +79,7 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
 @click.option("--tolerance", type=options.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
 @click.option("--max-iterations", type=options.count(),
-              help="[pgs] Sweep cap (default: 1000 with --tolerance, as dc evaluate's; else the scene's).")
+              help=f"[pgs] Sweep cap (default: {CAP} with --tolerance, as dc evaluate's; else the scene's).")
 @click.option("--stop-on", type=options.choice("stop_on"),
               help="[pgs] The measure the tolerance applies to (default residual).")
 @click.option("--relaxation", type=options.Relaxation(),

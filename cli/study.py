@@ -146,10 +146,7 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
 @click.argument("run", metavar="RUN", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Figures folder.")
 @click.option("--every", type=options.count(min=1), default=10, show_default=True, help="Use every N-th step.")
-@click.option("--tolerance", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True)
-@click.option("--stop-on", type=options.choice("stop_on"), default="residual", show_default=True,
-              help="The stopping measure (residual, as everywhere; thesis: the thesis's largest change per sweep).")
-@click.option("--max-iterations", type=options.count(min=1), default=1000, show_default=True)
+@options.solve_to_tolerance
 @options.jobs
 @options.overwrite
 @options.verbosity

@@ -32,7 +32,7 @@ _PUBLIC = {
     "LocalProblem": ("deepcontact.solver.local", "LocalProblem"),
     "local_residual": ("deepcontact.solver.local", "residual"),
     "SOLVERS": ("deepcontact.solver.methods", "SOLVERS"),
-    "SolveSettings": ("deepcontact.solver.methods", "SolveSettings"),
+    "SolveSettings": ("deepcontact.solver.settings", "SolveSettings"),
     "MethodResult": ("deepcontact.solver.methods", "MethodResult"),
     "reference_solution": ("deepcontact.solver.reference", "reference_solution"),
     "GridSpec": ("deepcontact.grid.spec", "GridSpec"),

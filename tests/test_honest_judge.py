@@ -290,3 +290,27 @@ def test_the_solver_and_the_judge_agree_on_the_same_impulses(run, accelerate, re
         assert judged.residual == pytest.approx(s.residual, rel=1e-9, abs=1e-15), f.name
     if accelerate == "none" and relaxation == 1.0:
         assert outside > 0   # (the case the judge used to clamp is among them)
+
+
+def test_with_v_a_failing_plug_in_shows_its_own_traceback(run, tmp_path, monkeypatch):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "failing.py").write_text(textwrap.dedent("""
+        class Diverges:
+            def __call__(self, problem, normal, tangent, settings):
+                raise ArithmeticError("diverged")
+        """))
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    try:
+        quiet = dc("evaluate", run, "--starts", "builtin", "--accelerate", "failing:Diverges", "--every", "40",
+                   "--no-budgets", "-o", tmp_path / "r")
+        loud = dc("evaluate", run, "--starts", "builtin", "--accelerate", "failing:Diverges", "--every", "40",
+                  "--no-budgets", "-v", "-o", tmp_path / "r")
+    finally:
+        from deepcontact.solver import methods
+        sys.modules.pop("failing", None)
+        methods._instances.pop("failing:Diverges", None)
+        methods.SOLVERS._loaded.pop("failing:Diverges", None)
+    assert quiet.returncode == loud.returncode == 1
+    assert "Traceback" not in quiet.stderr and len(quiet.stderr.strip().splitlines()) == 1
+    # the plug-in's own frame, file and line, chained under the one line
+    assert "Traceback" in loud.stderr and "failing.py\", line 4" in loud.stderr and "ArithmeticError" in loud.stderr

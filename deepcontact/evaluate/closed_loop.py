@@ -23,6 +23,7 @@ from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
+from ..solver.settings import CAP, TOLERANCE
 from .replay import variants
 from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
 
@@ -135,7 +136,7 @@ def _compare(t, ref):
     return distance, err
 
 
-def closed_loop(scene, starts, *, tolerance=1e-4, max_iterations=1000, stop_on="residual", mode="float64",
+def closed_loop(scene, starts, *, tolerance=TOLERANCE, max_iterations=CAP, stop_on="residual", mode="float64",
                 steps=None, relaxations=(1.0,), reference=None, accelerations=("none",)):
     """Every start (with every acceleration and w) driving the scene; reference: a
     reference_trajectory to reuse. Each step stepped is reported to workers.progress."""

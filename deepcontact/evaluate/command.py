@@ -4,6 +4,8 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from ..solver.settings import CAP, TOLERANCE
+
 
 @dataclass
 class EvaluateSettings:
@@ -11,8 +13,8 @@ class EvaluateSettings:
     runs: list                      # run folders of one kind of scene
     starts: list                    # start names (built-ins, installed plug-ins, package.module:Name)
     checkpoint: str | None = None   # a trained model, for the starts that use one
-    tolerance: float = 1e-4
-    max_iterations: int = 1000
+    tolerance: float = TOLERANCE
+    max_iterations: int = CAP
     stop_on: str = "residual"
     mode: str = "float64"
     every: int = 1                  # replay: every N-th step

@@ -25,6 +25,7 @@ from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
+from ..solver.settings import CAP, TOLERANCE
 from ..step.reader import check_origin, read_step
 from ..warmstart.starts import StepContext, seen_by
 
@@ -231,7 +232,7 @@ def _time_interleaved(problem, step_rows):
         row.solve_ms = float(np.median(times[i]))
 
 
-def evaluate(run_dirs: list, starts: dict, *, tolerance: float = 1e-4, max_iterations: int = 1000,
+def evaluate(run_dirs: list, starts: dict, *, tolerance: float = TOLERANCE, max_iterations: int = CAP,
              stop_on: str = "residual", mode: str = "float64", every: int = 1, seed: int = 0,
              progress: Callable | None = None, relaxations: tuple = (1.0,), budgets: bool = False,
              accelerations: tuple = ("none",), jobs: int = 1) -> list:

@@ -26,7 +26,6 @@ from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 
 STARTS = ("zero", "builtin", "garbage")
-DEFAULT_TOLERANCE_CAP = 1000   # sweeps, when a tolerance is asked for and no cap (dc evaluate's default too)
 # A deliberately broken start, for stability tests: huge, not a number, negative, in turn.
 GARBAGE = np.array([1e30, np.nan, -1.0])
 

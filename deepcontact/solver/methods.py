@@ -14,8 +14,8 @@ loop); a plug-in is called as
 
     method(problem, start_normal, start_tangent, settings) -> MethodResult
 
-with `settings` a SolveSettings, and its answer is checked (one impulse per contact point, finite, no
-pull), projected onto the friction cone, and judged by the project's own residual, never by the
+with `settings` a SolveSettings (solver/settings.py), and its answer is checked (one impulse per
+contact point, finite, no pull) and judged as given by the project's own residual, never by the
 plug-in's word.
 """
 from dataclasses import dataclass
@@ -28,24 +28,13 @@ from ..errors import InputError
 from ..plugins import PluginError, Registry, guest
 from .pgs import MEASURES, Solution
 from .pgs import solve as native_solve
+from .settings import SolveSettings
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
 
 SOLVERS = Registry("solver method", "deepcontact.solvers")
 GLOBAL = ("newton", "subspace", "bodyspace")   # built-ins whose work is not only sweeps (and which are float64 only)
-
-
-@dataclass(frozen=True)
-class SolveSettings:
-    """What a solve is asked to do: stop once the residual (solver/pgs.py's measure, dimensionless)
-    falls below `tolerance`, or after `max_iterations` iterations (tolerance 0: exactly that many).
-    `relaxation` is the w the user asked for, given only to a method that declares
-    `takes_relaxation = True` (None otherwise); `mode` is float32 or float64."""
-    mode: str = "float64"
-    max_iterations: int = 1000
-    tolerance: float = 0.0
-    relaxation: float | None = 1.0
 
 
 @dataclass
@@ -159,7 +148,8 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         raise InputError(f"the solver method {accelerate!r} takes no over-relaxation (its class does not say "
                          f"takes_relaxation = True): leave w at 1")
     relaxation = float(1.0 if relaxation is None else relaxation) if taken else None
-    settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=relaxation)
+    settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=relaxation,
+                             accelerate=accelerate, guard=guard)
     solver = method(accelerate)
     # its own copy of the step: what it changes there, no other method and no later row sees
     import copy

@@ -25,6 +25,7 @@ import numpy as np
 
 from .._box2d import Acceleration, Mode, SolveOptions, solve_contacts
 from ..errors import InputError
+from .settings import SolveSettings
 
 
 def require_problem(problem):
@@ -42,9 +43,6 @@ MEASURES = ("thesis", "velocity", "residual")
 # direction (nonsmooth nonlinear conjugate gradient, Silcowitz, Niebe and Erleben 2010).
 ACCELERATIONS = tuple(Acceleration.__members__)
 MODES = tuple(Mode.__members__)
-# Box2D moves a body at most b2_maxTranslation = 2 m per step; a start that alone would change a
-# contact's velocity by more than twice that speed is not an impulse the step could need.
-MAX_TRANSLATION = 2.0
 
 
 @dataclass
@@ -83,35 +81,11 @@ class Solution:
 
 def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="residual", relaxation=1.0,
             history=False, final_residual=True, guard=True, accelerate="none", cone=True) -> SolveOptions:
-    """The native solver's options (checked there, once): names become its enums, a tolerance of
-    0 means a fixed sweep count, and a start that alone would move a contact faster than Box2D
-    lets a body travel in a step (dt) counts as implausible. A bad value is an OptionError naming
-    the flag that sets it (the native check's words), as the CLI's."""
-    from ..errors import OptionError
-    real = (int, float, np.integer, np.floating)
-    for name, value, kinds in (("max_iterations", max_iterations, (int, np.integer)), ("tolerance", tolerance, real),
-                               ("relaxation", relaxation, real)):
-        if isinstance(value, bool) or not isinstance(value, kinds):
-            raise OptionError(f"{name} must be a number, got {value!r}", _flag(name))
-    if max_iterations > 2 ** 31 - 1:   # (the native int: the rest of the range is the native check's)
-        raise OptionError(f"max_iterations must be at most {2 ** 31 - 1}, got {max_iterations}", "--max-iterations")
-    if not isinstance(stop_on, str):
-        raise OptionError(f"stop_on must be a measure's name, got {stop_on!r}", "--stop-on")
-    try:
-        return SolveOptions(mode=mode, max_iterations=max_iterations, tolerance=tolerance,
-                            stop_on=stop_on if tolerance > 0 else "none", relaxation=relaxation,
-                            accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
-                            final_residual=final_residual, guard=guard, cone=cone)
-    except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
-        field = str(e).split()[0] if str(e) else ""
-        raise OptionError(str(e), _flag(field) if field in _FLAGS else None) from None
-
-
-_FLAGS = ("mode", "max_iterations", "tolerance", "stop_on", "relaxation", "accelerate")
-
-
-def _flag(field):
-    return "--" + field.replace("_", "-")
+    """The native solver's options for these keywords: SolveSettings (solver/settings.py) checks
+    them and makes the struct; a bad value is an OptionError naming the flag that sets it."""
+    return SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on,
+                         relaxation=relaxation, accelerate=accelerate, guard=guard).native(
+        dt=dt, history=history, final_residual=final_residual, cone=cone)
 
 
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,

@@ -34,12 +34,12 @@ from .. import atomic, workers
 from ..evaluate.closed_loop import reference_trajectory
 from ..simulate import stepping
 from ..solver.metrics import drift
+from ..solver.settings import CAP
 from . import stability as S
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
-SWEEP_CAP = 1000   # as dc simulate --solver pgs --tolerance (pgs_loop.DEFAULT_TOLERANCE_CAP)
 FAMILIES = ("Box2D 2.4.1", "Box2D v3", "project")
 
 # (a pile is not asked to be still at the end: its circles may still roll)
@@ -67,7 +67,7 @@ def settings():
     out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in SUBSTEPS]
     out.append(Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True))
     out.append(Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True))
-    out += [Setting("project", f"residual {t:g}", "pgs", SWEEP_CAP, tolerance=t) for t in TOLERANCES]
+    out += [Setting("project", f"residual {t:g}", "pgs", CAP, tolerance=t) for t in TOLERANCES]
     return out
 
 

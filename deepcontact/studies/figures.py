@@ -13,6 +13,7 @@ from .. import atomic, workers
 from ..grid.dataset import collect
 from ..grid.spec import GridSpec
 from ..protocol import protocol, protocol_line
+from ..solver.settings import CAP, TOLERANCE
 from ..evaluate.replay import evaluate, summarize
 from ..evaluate.report import convergence_plot, summary_table
 from ..warmstart.starts import SPH, make_starts
@@ -28,7 +29,7 @@ FIGURES = {
 FIGURE_FILES = atomic.Owned("figures folder", [r"figures\.md", r"fig-5\.[4-7]\.(png|svg)"])
 
 
-def figures(run, out, every=10, tolerance=1e-4, stop_on="residual", max_iterations=1000, jobs=1, progress=None):
+def figures(run, out, every=10, tolerance=TOLERANCE, stop_on="residual", max_iterations=CAP, jobs=1, progress=None):
     """Figures 5.4-5.7 of the run into the folder out; returns the markdown text. jobs > 1: the
     four figures' replays side by side in worker processes (the same figures: sweeps do not
     depend on -j; the tables' times are each worker's own). progress(n): n more step files."""

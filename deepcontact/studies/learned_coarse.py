@@ -34,10 +34,10 @@ import torch
 
 from .._box2d import contact_rows
 from ..solver.pgs import solve
+from ..solver.settings import CAP, TOLERANCE
 from . import contact_graph as cg
 from .learned_correction import datasets
 
-TOLERANCE, CAP = 1e-4, 1000
 
 
 class Coarse:

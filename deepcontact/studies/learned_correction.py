@@ -27,16 +27,17 @@ from ..simulate.build import build_world
 from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.pgs import solve
 from ..solver.problem import StepProblem
+from ..solver.settings import CAP, TOLERANCE
 from . import contact_graph as cg
 
-SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
+SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual")
 
 
 def loop_problems(seed, steps=600):
     """The problems the loop solved, each with the start it was given (the builtin start)."""
     scene = generate("pile", seed, {})
-    stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=1000,
-                                                                tolerance=1e-4, relaxation=1.0))
+    stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=CAP,
+                                                                tolerance=TOLERANCE, relaxation=1.0))
     out = []
     for k in range(steps):
         done = stepper.step()

@@ -33,8 +33,9 @@ from ..simulate.build import build_world
 from ..solver.pgs import solve
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.relaxation import AutoRelaxation
+from ..solver.settings import CAP, TOLERANCE
 
-SETTINGS = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
+SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual")
 
 
 def steps_of(name):
@@ -88,8 +89,8 @@ def loop_one(name, repeats, seed):
     for _ in range(repeats):
         for label, w, accelerate in LOOP_VARIANTS:
             scene = generate(name, seed, {})
-            stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=1000,
-                                                                        tolerance=1e-4, relaxation=w,
+            stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=CAP,
+                                                                        tolerance=TOLERANCE, relaxation=w,
                                                                         accelerate=accelerate),
                                  record=False)
             times, its = [], []

@@ -1,0 +1,87 @@
+"""What a solve is asked to do, as one frozen value: from a command's options down to the native
+struct (`native`), checked once, on construction.
+
+TOLERANCE and CAP are the defaults of every command and function that solves to a tolerance
+(dc evaluate, dc simulate --solver pgs --tolerance, the studies): named here and nowhere else.
+"""
+from dataclasses import dataclass, replace
+
+TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
+CAP = 1000         # sweeps at most when a tolerance is asked for (a scene's own 8 would stop short of it)
+
+# Box2D moves a body at most b2_maxTranslation = 2 m per step; a start that alone would change a
+# contact's velocity by more than twice that speed is not an impulse the step could need.
+MAX_TRANSLATION = 2.0
+
+# The option that sets each field, for the one-line errors (OptionError names it).
+FLAGS = {"mode": "--mode", "max_iterations": "--max-iterations", "tolerance": "--tolerance",
+         "stop_on": "--stop-on", "relaxation": "--relaxation", "accelerate": "--accelerate"}
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """A solve's settings: stop once the measure `stop_on` (solver/pgs.py) falls below `tolerance`,
+    or after `max_iterations` iterations (tolerance 0: exactly that many); `mode` float32, float64
+    or exact (Box2D's own PGS); `relaxation` the over-relaxation w (a number in (0, 2), "auto" where
+    a caller tunes it, or None for a plug-in method that takes none); `accelerate` the solver method
+    (solver.methods); `guard` drops over-relaxation when the residual climbs tenfold.
+
+    Constructing one checks it (the native solver's own rules): an OptionError naming the flag.
+    A plug-in method receives one (with relaxation None unless it takes a w)."""
+    mode: str = "float64"
+    max_iterations: int = CAP
+    tolerance: float = 0.0
+    stop_on: str = "residual"
+    relaxation: float | str | None = 1.0
+    accelerate: str = "none"
+    guard: bool = True
+
+    def __post_init__(self):
+        from ..errors import OptionError
+        real = (int, float)
+        for name, kinds in (("max_iterations", (int,)), ("tolerance", real)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, kinds + _numpy_kinds(name)):
+                raise OptionError(f"{name} must be a number, got {value!r}", FLAGS[name])
+        if not (self.relaxation is None or self.relaxation == "auto" or
+                (isinstance(self.relaxation, real + _numpy_kinds("tolerance")) and not isinstance(self.relaxation, bool))):
+            raise OptionError(f"relaxation must be a number, got {self.relaxation!r}", FLAGS["relaxation"])
+        if self.max_iterations > 2 ** 31 - 1:   # (the native int: the rest of the range is the native check's)
+            raise OptionError(f"max_iterations must be at most {2 ** 31 - 1}, got {self.max_iterations}",
+                              FLAGS["max_iterations"])
+        if not isinstance(self.stop_on, str):
+            raise OptionError(f"stop_on must be a measure's name, got {self.stop_on!r}", FLAGS["stop_on"])
+        # the native rules, checked where they are written (a plug-in method's name stands as
+        # plain sweeps: its own rules are its own)
+        from .._box2d import Acceleration
+        self._native(1.0, self.accelerate if self.accelerate in Acceleration.__members__ else "none")
+
+    def native(self, *, dt, history=False, final_residual=True, cone=True):
+        """The native solver's SolveOptions for a step of length dt (the only place one is made):
+        names become its enums, a tolerance of 0 a fixed sweep count, and a start that alone would
+        move a contact faster than Box2D lets a body travel counts as implausible. "auto" and
+        None stand as w = 1 (a caller that tunes w sets it per solve). OptionError for a method
+        the native solver does not have."""
+        return self._native(dt, self.accelerate, history, final_residual, cone)
+
+    def _native(self, dt, accelerate, history=False, final_residual=True, cone=True):
+        from .._box2d import SolveOptions
+        from ..errors import OptionError
+        w = 1.0 if self.relaxation is None or self.relaxation == "auto" else self.relaxation
+        try:
+            return SolveOptions(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
+                                stop_on=self.stop_on if self.tolerance > 0 else "none", relaxation=w,
+                                accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
+                                final_residual=final_residual, guard=self.guard, cone=cone)
+        except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
+            field = str(e).split()[0] if str(e) else ""
+            raise OptionError(str(e), FLAGS.get(field)) from None
+
+    def but(self, **changes) -> "SolveSettings":
+        """These settings with some fields changed (checked again)."""
+        return replace(self, **changes)
+
+
+def _numpy_kinds(name):
+    import numpy as np
+    return (np.integer,) if name == "max_iterations" else (np.integer, np.floating)
