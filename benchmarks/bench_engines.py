@@ -26,8 +26,8 @@ import pyb2d3 as b2
 
 from deepcontact._box2d import polygon_radius
 from deepcontact.scene.generators import generate
-from deepcontact.simulate import stepping
-from deepcontact.simulate.build import build_world, build_world3
+from deepcontact.simulate.build import build_world3
+from deepcontact.simulate.engines import Box2D, Box2D3
 from deepcontact.simulate.run import run_simulation
 from deepcontact.step.engines import SoftStep
 
@@ -94,18 +94,18 @@ def main():
 def writing(scene, args):
     """The cost of writing step files under each engine, against stepping alone, same run."""
     soft = SoftStep(substeps=4)
-    engines = {"Box2D 2.4.1": None, "Box2D v3": soft}
+    engines = {"Box2D 2.4.1": Box2D(), "Box2D v3": Box2D3(soft)}
     costs = {name: [] for name in engines}
     sizes = {}
     scene = dataclasses.replace(scene, steps=args.steps)
     for _ in range(args.repeats):
-        for name, s in engines.items():
-            world = build_world(scene) if s is None else build_world3(scene, s)
-            step = (stepping.box2d if s is None else stepping.box2d3)(world, scene, record=False)
+        for name, engine in engines.items():
+            world = engine.build(scene)
+            step = engine.stepper(world, scene, record=False)
             bare = timed(step, args.steps)
             with tempfile.TemporaryDirectory() as tmp:
                 t0 = time.perf_counter()
-                run_simulation(scene, tmp, 0, soft=s)
+                run_simulation(scene, tmp, 0, engine=engine)
                 full = time.perf_counter() - t0
                 sizes[name] = sum(f.stat().st_size for f in Path(tmp).glob("step-*.xml"))
             costs[name].append((full - bare, bare, full))

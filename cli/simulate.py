@@ -165,12 +165,14 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
-    soft = None
+    from deepcontact.simulate.engines import Box2D, Box2D3
     if engine == "box2d3":
         from deepcontact.step.engines import SoftStep
         given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
                  "push_speed": push_speed}
-        soft = SoftStep(**{k: v for k, v in given.items() if v is not None})
+        stepper = Box2D3(SoftStep(**{k: v for k, v in given.items() if v is not None}))
+    else:
+        stepper = Box2D(solver=loop)
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
-        progress=bar, source=scene, loop=loop, max_disk=max_disk, compress=compress, soft=soft)
+        progress=bar, source=scene, engine=stepper, max_disk=max_disk, compress=compress)
     options.show_output(f"{out_dir}", quiet)

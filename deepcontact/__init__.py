@@ -23,6 +23,9 @@ _PUBLIC = {
     "simulate_run": ("deepcontact.simulate.run", "run"),   # (not "simulate": that is the subpackage)
     "SceneSource": ("deepcontact.simulate.source", "SceneSource"),
     "SoftStep": ("deepcontact.step.engines", "SoftStep"),
+    "World": ("deepcontact.simulate.world", "World"),
+    "Box2D": ("deepcontact.simulate.engines", "Box2D"),
+    "Box2D3": ("deepcontact.simulate.engines", "Box2D3"),
     "StepProblem": ("deepcontact.solver.problem", "StepProblem"),
     "contact_keys": ("deepcontact.solver.problem", "contact_keys"),
     "impulses_by_key": ("deepcontact.solver.problem", "impulses_by_key"),
@@ -37,6 +40,7 @@ _PUBLIC = {
     "reference_solution": ("deepcontact.solver.reference", "reference_solution"),
     "GridSpec": ("deepcontact.grid.spec", "GridSpec"),
     "GridDataset": ("deepcontact.grid.dataset", "GridDataset"),
+    "rasterize": ("deepcontact.grid.splat", "rasterize"),
     "train": ("deepcontact.model.train", "train"),
     "TrainConfig": ("deepcontact.model.train", "TrainConfig"),
     "Predictor": ("deepcontact.model.inference", "Predictor"),
@@ -46,6 +50,7 @@ _PUBLIC = {
     "StepContext": ("deepcontact.warmstart.starts", "StepContext"),
     "make_starts": ("deepcontact.warmstart.starts", "make_starts"),
     "evaluate_starts": ("deepcontact.evaluate.replay", "evaluate"),
+    "closed_loop": ("deepcontact.evaluate.closed_loop", "closed_loop"),
     "InputError": ("deepcontact.errors", "InputError"),
 }
 __all__ = ["__version__", *_PUBLIC]

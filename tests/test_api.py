@@ -31,6 +31,7 @@ def test_the_api_page_runs_as_written(capsys):
     out = capsys.readouterr().out
     assert re.search(r"builtin\s+median\s+\d+ sweeps", out) and "mine" in out and "overshoot" in out, out
     assert re.search(r"\d+ weights", out), out
+    assert re.search(r"step 79: \d+ contact points, \d+ iterations", out) and "grids (2, 33, 33)" in out, out
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ counts: what its accuracy costs in time.
 """
 import time
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from ..scene.model import Scene
 from ..solver.settings import CAP, TOLERANCE
 from .replay import variants
 from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
@@ -136,10 +140,15 @@ def _compare(t, ref):
     return distance, err
 
 
-def closed_loop(scene, starts, *, tolerance=TOLERANCE, max_iterations=CAP, stop_on="residual", mode="float64",
-                steps=None, relaxations=(1.0,), reference=None, accelerations=("none",)):
-    """Every start (with every acceleration and w) driving the scene; reference: a
-    reference_trajectory to reuse. Each step stepped is reported to workers.progress."""
+def closed_loop(scene: "Scene", starts: dict, *, tolerance: float = TOLERANCE, max_iterations: int = CAP,
+                stop_on: str = "residual", mode: str = "float64", steps: int | None = None,
+                relaxations: tuple = (1.0,), reference: object = None,
+                accelerations: tuple = ("none",)) -> list:
+    """Every start (a make_starts table) with every acceleration and w driving the scene from its
+    first state for `steps` steps (the scene's by default), solved to `tolerance` within
+    `max_iterations` sweeps: one LoopResult each (iterations, times, drift from the reference
+    trajectory, penetration, energy, residuals). reference: a reference_trajectory to reuse. Each
+    step stepped is reported to workers.progress."""
     steps = steps or scene.steps
     ref = reference or reference_trajectory(scene, steps)
     results = []

@@ -1,9 +1,15 @@
 """Bodies and contacts of a step → grid channels (the native splatter does the work)."""
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .._box2d import splat as _splat
 from ..errors import InputError
 from .kernels import KERNELS
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from .spec import GridSpec
 
 # Channel name → (particles, how to get the value per particle)
 BODY_CHANNELS = {
@@ -48,11 +54,13 @@ def rasterize_step(spec, bodies, contacts, inputs, labels):
     return grids[:len(inputs)], grids[[names.index(n) for n in labels]]
 
 
-def rasterize(spec, bodies, contacts, channels):
-    """The named channels of one step, (len(channels), H, W) float32.
-
-    Body channels are splatted from the centres of mass of dynamic and kinematic bodies,
-    contact channels from the contact points."""
+def rasterize(spec: "GridSpec", bodies: dict, contacts: dict,
+              channels: "Sequence[str]" = DEFAULT_INPUTS + DEFAULT_LABELS) -> np.ndarray:
+    """The named channels of one step (bodies and contacts as a step file or World.step gives
+    them) on the grid `spec`: (len(channels), H, W) float32. Body channels are splatted from the
+    centres of mass of dynamic and kinematic bodies, contact channels from the contact points;
+    the names are ALL_CHANNELS' (by default the network's inputs, then its labels)."""
+    channels = list(channels)
     out = np.empty((len(channels), spec.ny, spec.nx), dtype=np.float32)
     moving = bodies["type"] != 0
     body_names = [n for n in channels if n in BODY_CHANNELS]

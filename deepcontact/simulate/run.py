@@ -11,7 +11,6 @@ The run is built in a partial folder beside OUTDIR and appears under its name on
 (`atomic.output_folder`): an interrupted or failed run leaves nothing, and an earlier run it was
 to replace (--overwrite) as it was.
 """
-import functools
 import hashlib
 import logging
 import math
@@ -27,16 +26,14 @@ import numpy as np
 
 from .. import atomic, interrupts, workers
 from ..errors import InputError, count
-from ..resources import COMPRESSION_RATIO, check_disk, check_step_work, step_bytes
+from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from .._box2d import NonFiniteError
 from ..scene.xml import fmt, to_xml
-from ..solver.methods import GLOBAL, method_origin
-from ..step.engines import SoftStep
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
-from .build import build_world, build_world3, check_overlaps
+from .build import check_overlaps
 from . import stepping
-from .pgs_loop import LoopOptions, PGSStepper, check_scene_for_loop
+from .engines import Box2D, Box2D3  # noqa: F401  (Box2D3: the annotations)
 
 log = logging.getLogger(__name__)
 
@@ -107,54 +104,19 @@ class SimulationResult:
                                   # any reason (the cap, a fallback, a method that stopped early): ours, judged
 
 
-def _solve_xml(options, solution):
-    o = options
-    w = 1.0 if o.relaxation == "auto" else o.relaxation   # (None: the method takes no w)
-    if solution is None:
-        iterations, residual, sanitized = 0, 0.0, 0
-    else:
-        iterations, residual, w = solution.iterations, solution.residual, solution.relaxation
-        sanitized = sum(solution.sanitized.values())
-    residual = residual if np.isfinite(residual) else 0.0
-    work = ""
-    if o.accelerate in GLOBAL:   # a global method's work is more than its iterations
-        s = solution
-        counts = (0, 0, 0, 0) if s is None else (s.factorizations, s.newton_iterations, s.outer_iterations,
-                                                 s.newton_fallbacks)
-        work = (' factorizations="%d" newton_iterations="%d" outer_iterations="%d" fallbacks="%d"' % counts)
-    relaxation = "" if w is None else f' relaxation="{fmt(w)}"'
-    return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
-            f'max_iterations="{o.max_iterations}"{relaxation} accelerate="{o.accelerate}"{_origin_xml(o.accelerate)} '
-            f'iterations="{iterations}" '
-            f'residual="{fmt(residual)}" sanitized="{sanitized}"{work}/>\n')
-
-
-@functools.lru_cache(maxsize=None)
-def _origin_xml(accelerate):
-    """The <solve> attributes saying where the method comes from (method_origin), once per name."""
-    from xml.sax.saxutils import quoteattr
-    o = method_origin(accelerate)
-    keys = ("origin",) if o["origin"] == "built-in" else ("origin", "target", "distribution", "version")
-    return "".join(f" {k}={quoteattr(str(o[k]))}" for k in keys if o.get(k) is not None)
-
-
-def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, loop=None,
-                   compress=False, soft=None) -> SimulationResult:
-    """Simulate one scene into out_dir (which must exist). on_step(k) is called after each step.
-
-    loop: LoopOptions to step with the project's PGS instead of Box2D's own solver.
-    soft: a SoftStep (step.engines) to step with Box2D v3 instead of 2.4.1 (not with loop).
-    compress: write step-NNNNNN.xml.gz (gzip) instead of plain XML."""
+def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, engine=None,
+                   compress=False) -> SimulationResult:
+    """Simulate one scene into out_dir (which must exist) with `engine` (engines.Box2D() if None).
+    on_step(k) is called after each step. compress: write step-NNNNNN.xml.gz (gzip) instead of
+    plain XML."""
+    engine = Box2D() if engine is None else engine
     out_dir = Path(out_dir)
     scene_xml = to_xml(scene)
     atomic.write_bytes(out_dir / "scene.xml", scene_xml)
-    if soft is not None:
-        world = build_world3(scene, soft)
-        step = stepping.box2d3(world, scene)
-    else:
-        world = build_world(scene)
-        step = stepping.box2d(world, scene) if loop is None else PGSStepper(world, scene, loop).step
-    writer = step_writer(scene, seed, "box2d" if loop is None else "pgs", soft)
+    world = engine.build(scene)
+    step = engine.stepper(world, scene)
+    loop = engine.solver
+    writer = step_writer(scene, seed, engine.name, engine.soft)
     extent = Extent(scene)
     per_file = []   # contact points of each file written (a skipped step has none)
     capped = above = 0
@@ -178,17 +140,11 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, l
                 k, bodies, contacts = done.index, done.bodies, done.contacts
                 extent.add(bodies)
                 n = len(contacts["manifold"])
-                sol = done.solution
-                if loop is not None and loop.tolerance > 0 and sol is not None and \
-                        sol.iterations >= loop.max_iterations and \
-                        (loop.stop_on != "residual" or not sol.residual <= loop.tolerance):
-                    capped += 1   # stopped by the cap, not by the tolerance
-                if loop is not None and loop.tolerance > 0 and loop.stop_on == "residual" and sol is not None \
-                        and sol.residual > loop.tolerance:
-                    above += 1    # (the residual is the project's: a plug-in method's answer is judged)
+                at_cap, over = _short_of_tolerance(loop, done.solution)
+                capped, above = capped + at_cap, above + over
                 with interrupts.held():
                     if n or not skip_contactless:
-                        extra = "" if loop is None else _solve_xml(loop, done.solution)
+                        extra = engine.solve_line(done.solution)
                         pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
                         per_file.append(n)
                     while pending and (len(pending) > 8 or pending[0].done()):
@@ -221,11 +177,21 @@ def prepare_output(out_dir, seeds):
     return out_dir
 
 
+def _short_of_tolerance(loop, solution):
+    """(stopped by the cap short of the tolerance, ended with a residual above it) for one step of
+    the project's solver with a tolerance, each 0 or 1. The residual is the project's: a plug-in
+    method's answer is judged, whatever it reported."""
+    if loop is None or not loop.tolerance > 0 or solution is None:
+        return 0, 0
+    on_residual = loop.stop_on == "residual"
+    at_cap = solution.iterations >= loop.max_iterations and not (on_residual and solution.residual <= loop.tolerance)
+    return int(at_cap), int(on_residual and solution.residual > loop.tolerance)
+
+
 def _worker(args):
-    make_scene, seed, out_dir, skip, loop, compress, soft = args
+    make_scene, seed, out_dir, skip, engine, compress = args
     scene = make_scene(seed)
-    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, loop=loop, compress=compress,
-                          soft=soft)
+    return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, engine=engine, compress=compress)
 
 
 SEED_MAX = 2 ** 31 - 1   # what a step file's seed holds (and --seed takes)
@@ -243,42 +209,24 @@ def check_seeds(seeds):
         raise OptionError("a seed is listed twice (each simulation's folder is its seed's)", "--seed")
 
 
-def check_work(scene, loop=None, soft=None):
-    """Refuses iteration counts whose step would run for hours (resources.check_step_work)."""
-    bodies = len(scene.bodies)
-    if soft is not None:
-        check_step_work(bodies, soft.substeps, f"{soft.substeps:,} substeps a step")
-    elif loop is not None:
-        check_step_work(bodies, loop.max_iterations, f"a cap of {loop.max_iterations:,} sweeps a step")
-    else:
-        iterations = scene.solver.velocity_iterations + scene.solver.position_iterations
-        check_step_work(bodies, iterations, f"{scene.solver.velocity_iterations:,} velocity and "
-                                            f"{scene.solver.position_iterations:,} position iterations a step")
-
-
 def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, *, overwrite: bool = False,
         skip_contactless: bool = False, jobs: int = 1, progress: Callable | None = None, source: str | None = None,
-        loop: LoopOptions | None = None, max_disk: float | None = None, compress: bool = False,
-        soft: SoftStep | None = None) -> dict:
+        engine: "Box2D | Box2D3 | None" = None, max_disk: float | None = None, compress: bool = False) -> dict:
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
     of steps (or progress is None). max_disk: refuse runs estimated above this many GB (the free
-    space is always a limit). compress: gzip every step file. soft: a SoftStep (step.engines) to
-    step with Box2D v3 (None: Box2D 2.4.1). Returns the manifest as a dict."""
+    space is always a limit). compress: gzip every step file. engine: what steps the worlds
+    (simulate.engines: Box2D(), the default; Box2D(solver=LoopOptions(...)); Box2D3(SoftStep())).
+    Returns the manifest as a dict."""
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
     check_seeds(seeds)
-    if soft is not None and loop is not None:
-        raise InputError("the project's solver in the loop steps Box2D 2.4.1 worlds, not Box2D v3")
+    engine = Box2D() if engine is None else engine
     # Build (and check) the first scene before touching the output folder.
     first = make_scene(seeds[0])
     check_overlaps(first, source)
-    check_work(first, loop, soft)
-    if loop is not None:
-        check_scene_for_loop(first, source)
-    if soft is not None:
-        build_world3(first, soft, source)   # (a polygon v3 cannot hull is refused here, naming it)
+    engine.check(first, source)
     out_dir = Path(out_dir)
     with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
         # (by fixtures as well as bodies: a body of many fixtures makes many contact points)
@@ -287,9 +235,14 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
         check_disk(len(seeds) * first.steps * per_step, out_dir, max_disk,
                    f"{len(seeds):,} simulations of {first.steps:,} steps")
         manifest = _run_into(prepare_output(work, seeds), make_scene, first, seeds, skip_contactless, jobs,
-                             progress, source, loop, compress, soft)
+                             progress, source, engine, compress)
     log.info("wrote %s, %s to %s", count(len(manifest["simulations"]), "simulation"),
              count(sum(r["files"] for r in manifest["simulations"]), "step file"), os.fspath(out_dir))
+    _warn_short_of_tolerance(manifest, engine.solver)
+    return manifest
+
+
+def _warn_short_of_tolerance(manifest, loop):
     capped = sum(r.get("capped") or 0 for r in manifest["simulations"])
     above = sum(r.get("above_tolerance") or 0 for r in manifest["simulations"])
     if above > capped:   # (a step at the cap is said below; these ended above for another reason too)
@@ -301,29 +254,24 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
         log.warning("%d of %d steps stopped at the cap of %d sweeps before the %s measure fell below %g (raise "
                     "--max-iterations; each step file's <solve> says where it stopped)", capped,
                     sum(r["steps"] for r in manifest["simulations"]), loop.max_iterations, loop.stop_on, loop.tolerance)
-    return manifest
 
 
-def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, loop, compress, soft):
+def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progress, source, engine, compress):
     if progress is not None:
         progress = progress(first.steps * len(seeds))
     try:
-        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop,
-                                compress, soft)
+        results = _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, engine,
+                                compress)
     finally:
         if progress is not None:
             progress.close()
-    solver = "box2d3" if soft is not None else "box2d" if loop is None else "pgs"
-    return write_manifest(out_dir, first, source=source, solver=solver,
-                          pgs=None if loop is None else dict(loop.__dict__,
-                                                             accelerate_origin=method_origin(loop.accelerate)),
+    return write_manifest(out_dir, first, source=source, solver=engine.name, **engine.manifest(),
                           skip_contactless=skip_contactless,
                           compression="gzip" if compress else "none",
-                          simulations=[r.__dict__ for r in results], soft=soft)
+                          simulations=[r.__dict__ for r in results], soft=engine.soft)
 
 
-def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, loop, compress,
-                  soft):
+def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, engine, compress):
     results = []
     if jobs <= 1:
         for seed in seeds:
@@ -332,12 +280,12 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
                 check_overlaps(scene, source)
             tick = (lambda k: progress.update(1)) if progress is not None else None
             results.append(run_simulation(scene, out_dir / sim_dirname(seed), seed, skip_contactless, tick,
-                                          loop=loop, compress=compress, soft=soft))
+                                          engine=engine, compress=compress))
     else:
         for seed in seeds[1:]:
             check_overlaps(make_scene(seed), source)
         with workers.pool(min(jobs, len(seeds))) as pool:
-            tasks = ((make_scene, seed, str(out_dir), skip_contactless, loop, compress, soft) for seed in seeds)
+            tasks = ((make_scene, seed, str(out_dir), skip_contactless, engine, compress) for seed in seeds)
             for r in pool.imap_unordered(_worker, tasks):
                 results.append(r)
                 if progress is not None:

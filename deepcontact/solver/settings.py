@@ -21,7 +21,8 @@ FLAGS = {"mode": "--mode", "max_iterations": "--max-iterations", "tolerance": "-
 @dataclass(frozen=True)
 class SolveSettings:
     """A solve's settings: stop once the measure `stop_on` (solver/pgs.py) falls below `tolerance`,
-    or after `max_iterations` iterations (tolerance 0: exactly that many); `mode` float32, float64
+    or after `max_iterations` iterations (tolerance 0: exactly that many; by default, a residual of
+    TOLERANCE within CAP sweeps); `mode` float32, float64
     or exact (Box2D's own PGS); `relaxation` the over-relaxation w (a number in (0, 2), "auto" where
     a caller tunes it, or None for a plug-in method that takes none); `accelerate` the solver method
     (solver.methods); `guard` drops over-relaxation when the residual climbs tenfold.
@@ -30,7 +31,7 @@ class SolveSettings:
     A plug-in method receives one (with relaxation None unless it takes a w)."""
     mode: str = "float64"
     max_iterations: int = CAP
-    tolerance: float = 0.0
+    tolerance: float = TOLERANCE
     stop_on: str = "residual"
     relaxation: float | str | None = 1.0
     accelerate: str = "none"

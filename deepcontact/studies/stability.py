@@ -27,9 +27,9 @@ from .. import workers
 from .._box2d import linear_slop
 from ..scene.generators import generate, parameters
 from ..simulate import stepping
-from ..simulate.build import build_world, build_world3
+from ..simulate.engines import Box2D, Box2D3
 from ..step.engines import SoftStep
-from ..simulate.pgs_loop import LoopOptions, PGSStepper
+from ..simulate.pgs_loop import LoopOptions
 from ..solver.metrics import deepest, energy, positions
 
 PENETRATION_LIMIT = 3 * linear_slop
@@ -140,15 +140,12 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
     iterations), box2d3 (v3 at `iterations` substeps) or pgs (the project's solver, `iterations`
     sweeps at most, stopping at the residual `tolerance` if it is > 0)."""
     scene.solver.velocity_iterations = iterations
-    if solver == "box2d3":
-        world = build_world3(scene, SoftStep(substeps=iterations))
-        return world, stepping.box2d3(world, scene, record=record)
-    world = build_world(scene)
-    if solver == "pgs":
-        options = LoopOptions(start=start, mode="float64", max_iterations=iterations, tolerance=tolerance,
-                              relaxation=relaxation, accelerate=accelerate)
-        return world, PGSStepper(world, scene, options, record=record).step
-    return world, stepping.box2d(world, scene, iterations, record=record)
+    engine = (Box2D3(SoftStep(substeps=iterations)) if solver == "box2d3" else
+              Box2D(solver=LoopOptions(start=start, mode="float64", max_iterations=iterations, tolerance=tolerance,
+                                       relaxation=relaxation, accelerate=accelerate)) if solver == "pgs" else
+              Box2D(velocity_iterations=iterations))
+    world = engine.build(scene)
+    return world, engine.stepper(world, scene, record=record)
 
 
 def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.0, accelerate="none", *,

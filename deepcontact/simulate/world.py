@@ -1,0 +1,53 @@
+"""A scene's world stepped in memory, one step per call: what a notebook reaches for (pymunk's
+`Space.step`, MuJoCo's `mj_step`), over the same engines, stepping loop and arrays `dc simulate`
+writes to step files."""
+import os
+import sys
+
+from typing import TYPE_CHECKING
+
+from .build import check_overlaps
+from .engines import Box2D
+from .stepping import Stepped, steps
+
+if TYPE_CHECKING:   # (for the annotations only)
+    from ..scene.model import Scene
+    from .engines import Box2D3
+
+
+class World:
+    """The world of `scene` (a Scene, or a scene file's path) stepped by `engine` (simulate.engines:
+    Box2D() by default, Box2D(solver=SolveSettings(...)) for the project's solver with any method,
+    Box2D3(SoftStep()) for Box2D v3).
+
+    Each `step()` applies the scene's removal events due, steps once and returns a Stepped: the
+    bodies before the step and the contacts the solver saw (arrays, as a step file records them),
+    the project's Solution (or None) and the step's wall time. `bodies()` is the state now. A scene
+    the engine cannot step is refused when the world is made (InputError, one line)."""
+
+    def __init__(self, scene: "Scene | str | os.PathLike", engine: "Box2D | Box2D3 | None" = None,
+                 record: bool = True):
+        if isinstance(scene, (str, os.PathLike)):
+            from ..scene.xml import read_scene
+            scene = read_scene(scene)
+        self.scene = scene
+        self.engine = Box2D() if engine is None else engine
+        check_overlaps(scene)
+        self.engine.check(scene)
+        self._world = self.engine.build(scene)
+        # (stepped on past the scene's own count as long as asked: the removals are at their steps)
+        self._steps = steps(self._world, scene, self.engine.stepper(self._world, scene, record), count=sys.maxsize)
+        self.index = 0   # the next step's number
+
+    def step(self) -> Stepped:
+        """One step: its index, bodies (before it), contacts, solution, deepest penetration, seconds."""
+        done = next(self._steps)
+        self.index = done.index + 1
+        return done
+
+    def bodies(self) -> dict:
+        """Every body's state now (position, angle, velocity, omega, ...), as arrays."""
+        return self._world.bodies()
+
+    def __repr__(self):
+        return f"World({self.scene.name!r}, {self.engine!r}, step {self.index})"
