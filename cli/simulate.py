@@ -27,7 +27,6 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
             raise click.UsageError(f"{', '.join(used)} only appl{'ies' if len(used) == 1 else 'y'} with --solver pgs")
         return None
     from deepcontact.simulate.pgs_loop import LoopOptions, check_options
-    from deepcontact.solver.settings import CAP
     if accelerate is not None:
         options.load_solvers([accelerate])
     # A tolerance asks to converge: the cap is then dc evaluate's (CAP), not the scene's 8 sweeps,
@@ -38,9 +37,6 @@ def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
                        tolerance=tolerance or 0.0, stop_on=stop_on or "residual", relaxation=relaxation or 1.0,
                        accelerate=accelerate or "none")
     check_options(loop)   # (the library's rules: exit 2 naming the option)
-    from deepcontact.solver.methods import takes_relaxation
-    if not takes_relaxation(loop.accelerate):
-        loop.relaxation = None   # (recorded as not taken, not as a w of 1)
     return loop
 
 

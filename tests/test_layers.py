@@ -69,3 +69,15 @@ def test_no_module_imports_itself_back():
     for start in sorted(graph):
         visit(start, [start], {start})
     assert not cycles, sorted(set(cycles))[:10]
+
+
+def test_the_native_readme_lists_every_native_file():
+    native = PACKAGE / "native"
+    text = (native / "README.md").read_text()
+    named = set()
+    for cell in re.findall(r"^\| `([^`]+)` \|", text, flags=re.M):
+        stem, _, exts = cell.partition(".{")
+        named |= {f"{stem}.{e}" for e in exts.rstrip("}").split(",")} if exts else {cell}
+    files = {f.name for f in native.iterdir() if f.suffix in (".hpp", ".cpp")}
+    assert files - named == set(), f"native/README.md does not list {sorted(files - named)}"
+    assert named - files == set(), f"native/README.md lists files that are gone: {sorted(named - files)}"

@@ -125,82 +125,22 @@ public:
         // The residual is normalised by the free velocities, taken before the warm start.
         if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) scale_ = free_velocity_scale();
         warm_start();
-        if constexpr (std::is_same_v<R, double>)
-            if (is_global(opt.accelerate)) {
-                if (opt.accelerate == Acceleration::bodyspace)
-                    solve_bodyspace(opt, rep);
-                else
-                    solve_newton(opt, rep);
-                return rep;
-            }
-        // The change of the iterate is needed only to report it or to stop on it.
-        const bool track = opt.history || opt.stop_on != Measure::none;
-        const bool track_change = opt.history || opt.stop_on == Measure::thesis || opt.stop_on == Measure::velocity;
-        const R w = R(opt.relaxation);
-        bool relax = opt.relaxation != 1.0;
-        bool conjugate = opt.accelerate == Acceleration::nncg;
-        if (conjugate) {
-            direction_.assign(2 * pb_.points, R(0));
-            last_change_ = -1.0;
-        }
-        const bool residual_each_sweep = opt.history || opt.stop_on == Measure::residual;
-        double best = std::numeric_limits<double>::infinity();
-        bool residual_is_current = false;  // computed after the last sweep: no extra pass needed
-        double last_residual = 0.0;
-        for (int it = 0; it < opt.max_iterations; ++it) {
-            if (track_change || conjugate) save_impulses();
-            if (relax)
-                sweep<true>(w);
-            else
-                sweep<false>(w);
-            rep.iterations = it + 1;
-            double residual = 0.0;
-            // (the guard looks every kGuardEvery sweeps whatever else is measured, so a solve
-            // takes the same iterates with and without history)
-            const bool guard_now = (relax || conjugate) && opt.guard && (it + 1) % kGuardEvery == 0;
-            residual_is_current = residual_each_sweep || guard_now;
-            if (residual_is_current) {
-                residual = this->residual();
-                last_residual = residual;
-                if (guard_now) {
-                    if (!(residual <= kRelaxationGuard * best)) {
-                        relax = false;
-                        conjugate = false;
-                        rep.relaxation_fallback = it + 1;
-                    }
-                    best = std::min(best, residual);
-                }
-            }
-            // (never after the last sweep, nor once converged: a solve ends on a projected iterate)
-            const bool more = it + 1 < opt.max_iterations;
-            if (!track) {
-                if (conjugate && more) conjugate_step();
-                continue;
-            }
-            double thesis = 0, velocity = 0;
-            if (track_change) {
-                sweep_change(thesis, velocity);
-                rep.thesis = thesis;
-                rep.velocity = velocity;
-            }
-            if (opt.history) {
-                rep.history.push_back(thesis);
-                rep.history.push_back(velocity);
-                rep.history.push_back(residual);
-            }
-            const double value = opt.stop_on == Measure::thesis     ? thesis
-                                 : opt.stop_on == Measure::velocity ? velocity
-                                 : opt.stop_on == Measure::residual ? residual
-                                                                    : 0.0;
-            if (opt.stop_on != Measure::none && value < opt.tolerance) break;
-            if (conjugate && more) conjugate_step();
-        }
-        rep.residual = !opt.final_residual  ? std::numeric_limits<double>::quiet_NaN()
-                       : residual_is_current ? last_residual
-                                             : residual();
+        run_method(opt, rep);
         return rep;
     }
 
+    // The one switch: each method's driver (the global ones are float64 only, by the options' check).
+    void run_method(const SolveOptions& opt, SolveReport& rep) {
+        if constexpr (std::is_same_v<R, double>) {
+            switch (opt.accelerate) {
+                case Acceleration::newton:
+                case Acceleration::subspace: solve_newton(opt, rep); return;
+                case Acceleration::bodyspace: solve_bodyspace(opt, rep); return;
+                default: break;
+            }
+        }
+        solve_sweeps(opt, rep);
+    }
     // The normalised min-map residual of the LCP at the current iterate (see docs/solver.md).
     double residual() const {
         double worst = 0;
@@ -249,15 +189,90 @@ private:
     static constexpr int kBodySpaceStall = 5;
     static constexpr double kPenalty = 10.0;  // bodyspace's first rho times k: a row's own mass, tenfold
 
+    // What the sweeps driver tracks across sweeps: which accelerations still run, the best
+    // residual the guard has seen, and whether the last residual measured is the iterate's.
+    struct SweepState {
+        bool relax, conjugate;
+        double best = std::numeric_limits<double>::infinity();
+        bool residual_is_current = false;  // computed after the last sweep: no extra pass needed
+        double last_residual = 0.0;
+    };
+
+    // PGS, PSOR and NNCG: sweeps until the chosen measure falls below the tolerance or the cap.
+    // Over-relaxation and conjugate directions drop to plain sweeps if the residual climbs (guard).
+    void solve_sweeps(const SolveOptions& opt, SolveReport& rep) {
+        // The change of the iterate is needed only to report it or to stop on it.
+        const bool track = opt.history || opt.stop_on != Measure::none;
+        const bool track_change = opt.history || opt.stop_on == Measure::thesis || opt.stop_on == Measure::velocity;
+        SweepState st{opt.relaxation != 1.0, opt.accelerate == Acceleration::nncg};
+        if (st.conjugate) {
+            direction_.assign(2 * pb_.points, R(0));
+            last_change_ = -1.0;
+        }
+        for (int it = 0; it < opt.max_iterations; ++it) {
+            if (track_change || st.conjugate) save_impulses();
+            sweep(st.relax, R(opt.relaxation));
+            rep.iterations = it + 1;
+            const double residual = measure_residual(opt, it, st, rep);
+            // (never after the last sweep, nor once converged: a solve ends on a projected iterate)
+            const bool more = it + 1 < opt.max_iterations;
+            if (track && converged(opt, residual, track_change, rep)) break;
+            if (st.conjugate && more) conjugate_step();
+        }
+        rep.residual = !opt.final_residual      ? std::numeric_limits<double>::quiet_NaN()
+                       : st.residual_is_current ? st.last_residual
+                                                : residual();
+    }
+
+    // The residual after sweep `it`, where history or the stopping rule needs it or the guard
+    // looks (every kGuardEvery sweeps, whatever else is measured, so a solve takes the same
+    // iterates with and without history); 0 where nothing needs it. The guard drops over-
+    // relaxation and conjugate directions when the residual climbs tenfold above its best.
+    double measure_residual(const SolveOptions& opt, int it, SweepState& st, SolveReport& rep) {
+        const bool guard_now = (st.relax || st.conjugate) && opt.guard && (it + 1) % kGuardEvery == 0;
+        st.residual_is_current = opt.history || opt.stop_on == Measure::residual || guard_now;
+        if (!st.residual_is_current) return 0.0;
+        const double residual = this->residual();
+        st.last_residual = residual;
+        if (guard_now) {
+            if (!(residual <= kRelaxationGuard * st.best)) {
+                st.relax = st.conjugate = false;
+                rep.relaxation_fallback = it + 1;
+            }
+            st.best = std::min(st.best, residual);
+        }
+        return residual;
+    }
+
+    // Records the sweep's measures (history, the last change) and says whether the chosen one is
+    // below the tolerance.
+    bool converged(const SolveOptions& opt, double residual, bool track_change, SolveReport& rep) {
+        double thesis = 0, velocity = 0;
+        if (track_change) {
+            sweep_change(thesis, velocity);
+            rep.thesis = thesis;
+            rep.velocity = velocity;
+        }
+        if (opt.history) rep.history.insert(rep.history.end(), {thesis, velocity, residual});
+        const double value = opt.stop_on == Measure::thesis     ? thesis
+                             : opt.stop_on == Measure::velocity ? velocity
+                                                                : residual;
+        return opt.stop_on != Measure::none && value < opt.tolerance;
+    }
+
+    void sweep(bool relax, R w) {
+        if (relax)
+            sweep<true>(w);
+        else
+            sweep<false>(w);
+    }
+
     // `count` sweeps (PSOR at w), each an iteration of the cap, then the residual; with history,
     // the residual after each sweep is recorded.
     template <class Record>
     void settle(int count, R w, const SolveOptions& opt, SolveReport& rep, double& residual, Record& record) {
         for (int k = 0; k < count; ++k) {
-            if (opt.relaxation != 1.0)
-                sweep<true>(w);
-            else
-                sweep<false>(w);
+            sweep(opt.relaxation != 1.0, w);
             ++rep.iterations;
             if (opt.history) {
                 residual = this->residual();

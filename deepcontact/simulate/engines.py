@@ -8,12 +8,14 @@ function, checks a scene against its own rules, and says what its step files and
 `dc simulate`, `run`, `run_simulation` and `World` take one; no caller infers the engine from
 which keywords are set.
 """
+import dataclasses
 import functools
 import math
 from xml.sax.saxutils import quoteattr
 
 from ..resources import check_step_work
 from ..scene.xml import fmt
+from ..solver.methods import takes_relaxation
 from ..solver.settings import SolveSettings
 from ..step.engines import SoftStep
 from . import stepping
@@ -35,6 +37,8 @@ class Box2D:
                                  accelerate=solver.accelerate)
         if solver is not None:
             check_options(solver)
+            if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
+                solver = dataclasses.replace(solver, relaxation=None)
         self.solver = solver
         self.velocity_iterations = velocity_iterations
 

@@ -136,20 +136,10 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
                             tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, history=history,
                             final_residual=final_residual, guard=guard, accelerate=accelerate, prune=prune)
-    if mode == "exact":
-        raise InputError(f"the solver method {accelerate!r} cannot run in exact mode (Box2D's own PGS)")
-    if tolerance > 0 and stop_on != "residual":
-        raise InputError(f"the solver method {accelerate!r} stops on the residual only (--stop-on residual)")
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
     cap = problem.velocity_iterations if max_iterations is None else max_iterations
-    taken = takes_relaxation(accelerate)
-    if not taken and relaxation not in (None, 1.0):
-        raise InputError(f"the solver method {accelerate!r} takes no over-relaxation (its class does not say "
-                         f"takes_relaxation = True): leave w at 1")
-    relaxation = float(1.0 if relaxation is None else relaxation) if taken else None
-    settings = SolveSettings(mode=mode, max_iterations=int(cap), tolerance=float(tolerance), relaxation=relaxation,
-                             accelerate=accelerate, guard=guard)
+    settings = _plugin_settings(accelerate, mode, int(cap), float(tolerance), stop_on, relaxation, guard)
     solver = method(accelerate)
     # its own copy of the step: what it changes there, no other method and no later row sees
     import copy
@@ -166,7 +156,23 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         trace[-1, MEASURES.index("residual")] = after.residual
     return Solution(normal_impulse=normal, tangent_impulse=tangent, velocity=after.velocity, omega=after.omega,
                     iterations=len(residuals), history=trace if history else np.zeros((0, len(MEASURES))),
-                    residual=after.residual, sanitized={}, stats={}, relaxation=relaxation)
+                    residual=after.residual, sanitized={}, stats={}, relaxation=settings.relaxation)
+
+
+def _plugin_settings(name, mode, cap, tolerance, stop_on, relaxation, guard):
+    """The SolveSettings a plug-in method is handed, or InputError for what it cannot be asked:
+    exact mode, a stop on another measure than the residual, a w it does not take."""
+    if mode == "exact":
+        raise InputError(f"the solver method {name!r} cannot run in exact mode (Box2D's own PGS)")
+    if tolerance > 0 and stop_on != "residual":
+        raise InputError(f"the solver method {name!r} stops on the residual only (--stop-on residual)")
+    taken = takes_relaxation(name)
+    if not taken and relaxation not in (None, 1.0):
+        raise InputError(f"the solver method {name!r} takes no over-relaxation (its class does not say "
+                         f"takes_relaxation = True): leave w at 1")
+    relaxation = float(1.0 if relaxation is None else relaxation) if taken else None
+    return SolveSettings(mode=mode, max_iterations=cap, tolerance=tolerance, relaxation=relaxation, accelerate=name,
+                         guard=guard)
 
 
 def _checked(name, out, problem, cap):
