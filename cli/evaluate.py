@@ -100,20 +100,15 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         ("seed", "random" in starts, "only applies to the random start"),
         ("bands", not closed_loop, "applies to replay's convergence plot; --closed-loop draws none"),
     ])
-    if learned and not model:
-        raise click.BadParameter(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
-                                 param_hint="'--checkpoint'")
     options.load_network(arch)
-    if "sph" in starts and not model:
-        options.check_grid_options(kernel, cell, smoothing)
-    options.load_solvers(accelerate, mode)
+    options.load_solvers(accelerate)
 
     from deepcontact.evaluate.command import EvaluateSettings, history_bytes, run_evaluation
     settings = EvaluateSettings(
         runs=list(runs), starts=list(starts), checkpoint=model, tolerance=tolerance, max_iterations=max_iterations,
         stop_on=stop_on, mode=mode, every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
         closed_loop=closed_loop, steps=steps, relaxations=tuple(relaxation), accelerations=tuple(accelerate),
-        budgets=budgets, bands=bands, jobs=jobs, threads=threads)
+        budgets=budgets, bands=bands, jobs=jobs, threads=threads).checked()   # (the library's rules: exit 2)
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep
         from deepcontact.resources import check_memory
         needed, what = history_bytes(settings)

@@ -76,3 +76,52 @@ def test_the_smoke_pipeline(tmp_path_factory):
         assert (report / name).exists(), name
     text = (report / "report.md").read_text()
     assert "| cnn |" in text and "| guarded |" in text and "What accuracy costs in time" in text
+
+
+def test_evaluate_reads_each_run_once_and_takes_the_sph_window_from_the_manifest(tmp_path, monkeypatch):
+    """The run folders are read once (the Run objects passed down), and the sph start's grid
+    comes from the manifest's static box, the same grid the dataset writer draws, without
+    reading the runs as a dataset."""
+    from conftest import dc, simulate
+    from deepcontact.evaluate import replay
+    from deepcontact.grid import dataset
+    run = tmp_path / "run"
+    simulate(run, seeds=(0, 1))
+    sims, _ = dataset.collect([run])
+    expected, _ = dataset.grid_for(sims, 0.5, 0.5, "poly6", True)
+    reads, real = [], replay.read_run
+    monkeypatch.setattr(replay, "read_run", lambda path, **kw: reads.append(path) or real(path, **kw))
+    monkeypatch.setattr(dataset, "collect", lambda *a, **k: pytest.fail("read as a dataset"))
+    grids = []
+    from deepcontact.warmstart import starts
+    real_make = starts.make_starts
+    monkeypatch.setattr(starts, "make_starts", lambda names, spec=None, predictor=None:
+                        grids.append(spec) or real_make(names, spec=spec, predictor=predictor))
+    r = dc("evaluate", run, "--starts", "builtin,sph", "--every", "10", "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    assert len(reads) == 1 and grids == [expected]
+
+
+@pytest.mark.parametrize("changes,flag,words", [
+    (dict(starts=["cnn"]), "--checkpoint", "need a trained model"),
+    (dict(starts=["sph"], cell=0.5, smoothing=1e-30), "--cell", "cannot carry"),
+    (dict(mode="float32", accelerations=("newton",)), "--accelerate", "float64 only"),
+    (dict(relaxations=(2.5,)), "--relaxation", "relaxation must be in (0, 2)"),
+])
+def test_evaluate_settings_check_their_own_rules_for_the_cli_and_a_library_caller(tmp_path, changes, flag, words):
+    from conftest import dc
+    from deepcontact.errors import OptionError
+    from deepcontact.evaluate.command import EvaluateSettings
+    with pytest.raises(OptionError) as e:
+        EvaluateSettings(runs=[tmp_path], **{"starts": ["builtin"], **changes}).checked()
+    assert words in str(e.value) and flag in str(e.value)
+    args = {"starts": ",".join(changes.get("starts", ["builtin"]))}
+    cli = ["--starts", args["starts"]]
+    if "cell" in changes:
+        cli += ["--cell", "0.5", "--smoothing", "1e-30"]
+    if "mode" in changes:
+        cli += ["--mode", "float32", "--accelerate", "newton"]
+    if "relaxations" in changes:
+        cli += ["--relaxation", "2.5"]
+    r = dc("evaluate", tmp_path, *cli, "-o", tmp_path / "r")
+    assert r.returncode == 2 and words in r.stderr, r.stderr

@@ -2,7 +2,7 @@
 or the closed loop run over every simulation given, the report written into a folder."""
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..solver.settings import CAP, TOLERANCE
 
@@ -30,16 +30,61 @@ class EvaluateSettings:
     bands: bool | None = None
     jobs: int = 1
     threads: int = 1
+    _read: list = field(default=None, repr=False, compare=False)
 
     @property
     def variants(self):
         return len(self.starts) * len(self.relaxations) * len(self.accelerations)
 
+    def checked(self) -> "EvaluateSettings":
+        """These settings, or OptionError naming the flag of the first rule they break (the same
+        one line for the command line and a library caller): the solve settings (SolveSettings'
+        rules, each method against the mode), a model for the starts that need one, a grid the
+        sph start can draw."""
+        from ..errors import OptionError
+        from ..grid.spec import node_weight_problem
+        from ..solver.methods import check_mode
+        from ..solver.settings import SolveSettings
+        from ..warmstart.starts import trait
+        for w in self.relaxations:
+            SolveSettings(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
+                          stop_on=self.stop_on, relaxation=w)
+        for method in self.accelerations:
+            check_mode(method, self.mode)
+        learned = [n for n in self.starts if trait(n, "needs_model")]
+        if learned and not self.checkpoint:
+            raise OptionError(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
+                              "--checkpoint")
+        problem = "sph" in self.starts and not self.checkpoint and node_weight_problem(self.kernel, self.cell,
+                                                                                       self.smoothing)
+        if problem:
+            raise OptionError(problem, "--cell")
+        return self
+
+    def read_runs(self) -> list:
+        """The runs, each read (and checked) once, the first time they are asked for: a
+        step.run_folder.Run each, passed down to replay and the closed loop."""
+        if self._read is None:
+            from .replay import box2d_runs
+            self._read = box2d_runs(self.runs)
+        return self._read
+
+    def sph_grid(self):
+        """The sph start's grid without a checkpoint: over the window the manifests record (the
+        scenes' static box, else where the bodies went), as dc rasterize draws it; runs from before
+        manifests recorded the box are read as a dataset would read them."""
+        from ..grid.dataset import collect, grid_for
+        runs = self.read_runs()
+        if all("static_box" in e for r in runs for e in r.manifest["simulations"]):
+            sims = [sim for r in runs for sim in r.simulations]
+        else:
+            sims, _ = collect(self.runs)
+        return grid_for(sims, self.cell, self.smoothing, self.kernel, True)[0]
+
 
 def history_bytes(s: EvaluateSettings):
     """What replay's convergence histories hold at most (bytes) and a line saying of what."""
-    from .replay import box2d_run
-    total = sum(-(-len(sim.files) // s.every) for r in s.runs for sim in box2d_run(r).simulations)
+    total = sum(-(-len(sim.files) // s.every) for r in s.read_runs() for sim in r.simulations)
     # kept: a float per sweep for each step and variant (counted twice, for the copies made on the
     # way); and while one step is solved, its whole trace: the native record (3 doubles a sweep, up
     # to twice that as the vector grows) and its numpy copy (a row of MEASURES a sweep). The
@@ -53,7 +98,6 @@ def history_bytes(s: EvaluateSettings):
 def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str:
     """Replay (or the closed loop) into the report folder out; returns the summary table.
     bar(total, unit) gives a progress callback for that many units."""
-    from ..grid.dataset import collect, grid_for
     from ..protocol import protocol, use_threads
     from ..warmstart.starts import make_starts
 
@@ -64,8 +108,7 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
         spec = predictor.spec
     measured = protocol(s.threads, s.jobs)   # (the load average now, before the work adds to it)
     if "sph" in s.starts and spec is None:
-        sims, _ = collect(s.runs)
-        spec, _ = grid_for(sims, s.cell, s.smoothing, s.kernel, True)
+        spec = s.sph_grid()
     table = make_starts(s.starts, spec=spec, predictor=predictor)
     use_threads(s.threads)   # (after the starts: a plug-in start may bring torch with it)
     progress = bar or (lambda total, unit: None)
@@ -75,10 +118,10 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
 
 
 def _replay(s, out, table, measured, progress):
-    from .replay import box2d_run, evaluate, summarize
+    from .replay import evaluate, summarize
     from .report import noise_of, summary_table, write_report
-    total = sum(len(sim.files) for r in s.runs for sim in box2d_run(r).simulations)
-    rows = evaluate(s.runs, table, tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on,
+    total = sum(len(sim.files) for r in s.read_runs() for sim in r.simulations)
+    rows = evaluate(s.read_runs(), table, tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on,
                     mode=s.mode, every=s.every, seed=s.seed, progress=progress(total, "step"),
                     relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
     summary = summarize(rows, table, s.max_iterations)
@@ -108,10 +151,9 @@ def _closed_loop(s, out, table, measured, progress):
     from ..errors import InputError
     from ..scene.xml import read_scene
     from .closed_loop import every_simulation, pooled, steps_stepped
-    from .replay import box2d_run
     from .report import write_loop_report
 
-    sims = [(r, sim) for r in s.runs for sim in box2d_run(r).simulations]
+    sims = [(r.path, sim) for r in s.read_runs() for sim in r.simulations]
     scenes = [read_scene(sim.scene_file()) for _, sim in sims]
     if len({scene.name for scene in scenes}) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted({sc.name for sc in scenes}))}); "

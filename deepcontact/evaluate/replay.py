@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import workers
 from ..errors import InputError
-from ..step.run_folder import read_run
+from ..step.run_folder import Run, read_run
 from ..solver.methods import GLOBAL, is_native, solve
 from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
@@ -111,16 +111,27 @@ def box2d_run(run_dir):
     return run
 
 
-def _plan(run_dirs):
-    scenes, plan, seen = {}, [], set()
-    for run in run_dirs:
-        if Path(run).resolve() in seen:
-            raise InputError("this run is given twice", run)
-        seen.add(Path(run).resolve())
-        sims = box2d_run(run).simulations
-        scenes[str(run)] = sims[0].scene
+def box2d_runs(runs):
+    """Each run (a folder, or a Run already read) read once and checked (box2d_run); a run given
+    twice is refused."""
+    out, seen = [], set()
+    for run in runs:
+        read = run if isinstance(run, Run) else box2d_run(run)
+        key = Path(read.path).resolve()
+        if key in seen:
+            raise InputError("this run is given twice", read.path)
+        seen.add(key)
+        out.append(read)
+    return out
+
+
+def _plan(runs):
+    scenes, plan = {}, []
+    for run in box2d_runs(runs):
+        sims = run.simulations
+        scenes[str(run.path)] = sims[0].scene
         for s in sims:
-            plan.append((str(run), s.seed, s.files, (s.scene, s.engine)))
+            plan.append((str(run.path), s.seed, s.files, (s.scene, s.engine)))
     if len(set(scenes.values())) > 1:
         raise InputError(f"the runs hold different scenes ({', '.join(sorted(map(str, set(scenes.values()))))}); "
                          f"evaluate one kind of scene at a time")

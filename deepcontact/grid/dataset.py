@@ -132,8 +132,9 @@ def collect(run_dirs, include_contactless=False):
 
 def default_window(sims, pad):
     """The scenes' static box where they have one (the same for all), else the extent of every
-    body over the runs, widened by pad on each side; and a phrase saying which it is."""
-    boxes = {s.box for s in sims}
+    body over the runs, widened by pad on each side; and a phrase saying which it is. `sims`: the
+    dataset's simulations (their `box`) or a run's (the manifest's `static_box`)."""
+    boxes = {getattr(s, "box", None) or s.static_box for s in sims}
     if None not in boxes:
         if len(boxes) > 1:
             raise InputError(f"the simulations have different boxes ({', '.join(map(str, sorted(boxes)))}); "

@@ -156,10 +156,8 @@ class GridSpec:
 
 
 def scene_box(scene):
-    """(x0, y0, x1, y1) of the static bodies' shapes, or None if there are none or they enclose
-    no area (a ground line: the pyramid, the stack)."""
-    box = scene.static_extent()
-    return box if box is not None and box[2] > box[0] and box[3] > box[1] else None
+    """(x0, y0, x1, y1) of the static bodies' shapes, or None (Scene.static_box)."""
+    return scene.static_box()
 
 
 def node_weight_problem(kernel, cell, h):

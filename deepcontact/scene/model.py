@@ -130,6 +130,12 @@ class Scene:
     params: dict = field(default_factory=dict)
     lines: dict = field(default_factory=dict, compare=False)   # element -> line, for a file's errors
 
+    def static_box(self):
+        """(x0, y0, x1, y1) of the static bodies' shapes, or None if there are none or they enclose
+        no area (a ground line: the pyramid, the stack): the box a grid is drawn over."""
+        box = self.static_extent()
+        return box if box is not None and box[2] > box[0] and box[3] > box[1] else None
+
     def static_extent(self):
         """(x0, y0, x1, y1) of the static bodies' shapes in the world, or None if there are none."""
         pts = []

@@ -98,6 +98,7 @@ class SimulationResult:
     contact_points: int
     scene_sha256: str
     extent: list = None   # [x0, y0, x1, y1] the bodies stayed in over the run
+    static_box: list = None   # [x0, y0, x1, y1] of the static shapes (Scene.static_box), or None: a grid's window
     file_contact_points: list = None   # contact points of each step file written, in order
     capped: int = None   # --solver pgs with a tolerance: steps that stopped at the sweep cap short of it
     above_tolerance: int = None   # --solver pgs, residual tolerance: steps whose residual ended above it, for
@@ -161,6 +162,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=len(per_file),
                             contact_points=sum(per_file), scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
                             extent=extent.as_list(), file_contact_points=per_file,
+                            static_box=_box_list(scene.static_box()),
                             capped=capped if loop is not None and loop.tolerance > 0 else None,
                             above_tolerance=above if loop is not None and loop.tolerance > 0
                             and loop.stop_on == "residual" else None)
@@ -175,6 +177,10 @@ def prepare_output(out_dir, seeds):
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", out_dir) from None
     return out_dir
+
+
+def _box_list(box):
+    return None if box is None else [float(fmt(v)) for v in box]
 
 
 def _short_of_tolerance(loop, solution):

@@ -31,6 +31,7 @@ class Simulation:
     contacts: list = None  # contact points of each step file, where the manifest records them
     scene_sha256: str = None   # the hash of its scene.xml the manifest recorded
     engine: str = None     # box2d or box2d3, which each step file's header must name (None: not known)
+    static_box: tuple = None   # (x0, y0, x1, y1) of the scene's static shapes, where the manifest records it
 
     def scene_file(self):
         """Its scene.xml, a regular file whose bytes are the ones the run recorded (an edited
@@ -60,14 +61,14 @@ def _int(entry, key, index, path):
     return value
 
 
-def _extent(entry, index, path):
-    value = entry.get("extent")
+def _extent(entry, index, path, key="extent"):
+    value = entry.get(key)
     if value is None:
         return None
     ok = (isinstance(value, list) and len(value) == 4
           and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
     if not ok or value[0] > value[2] or value[1] > value[3]:
-        raise InputError(f"simulation {index}: 'extent' must be [x0, y0, x1, y1], finite, got {value!r}", path)
+        raise InputError(f"simulation {index}: {key!r} must be [x0, y0, x1, y1], finite, got {value!r}", path)
     return tuple(float(v) for v in value)
 
 
@@ -236,5 +237,6 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
             raise InputError(f"simulation {i}: 'scene_sha256' must be 64 hexadecimal digits", path)
         sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
                                scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path),
-                               scene_sha256=digest, engine=m.get("engine", "box2d")))
+                               scene_sha256=digest, engine=m.get("engine", "box2d"),
+                               static_box=_extent(e, i, path, "static_box")))
     return Run(path=run_dir, manifest=m, simulations=sims)
