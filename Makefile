@@ -84,6 +84,7 @@ studies: setup
 	$(DC) study learned-correction
 	$(DC) study learned-coarse
 	$(DC) study engines -o $(RUNS)/engines --overwrite
+	$(DC) study amortize -o $(RUNS)/amortize --overwrite
 	$(PYTHON) benchmarks/bench_solver_scale.py --samples 2 --sizes 100,1000
 	$(PYTHON) benchmarks/bench_global_families.py
 

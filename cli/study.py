@@ -23,6 +23,7 @@ def study():
     relaxation          time to the same accuracy: over-relaxation, NNCG, Newton, prev
     exact               the reference solutions: time to 1e-12, pivots, the hard scenes
     peer                our solver against Siconos (NSGS, Lemke) on the same problems
+    amortize            what a factor reused across steps could buy on 1,000 and 10,000 circles
 
     \b
     Examples:
@@ -336,6 +337,43 @@ def _print_study(threads):
     from deepcontact.protocol import protocol, protocol_line, use_threads
     use_threads(threads)
     click.echo(protocol_line(protocol(threads)) + "\n")
+
+
+@study.command()
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder for amortize.md and amortize.csv.")
+@click.option("--fast", is_flag=True, help="A 100-circle pile (the test suite's).")
+@options.overwrite
+@options.verbosity
+@options.command("study amortize")
+def amortize(out, fast, overwrite, verbose, quiet):
+    """What amortizing the body-space operator across steps could buy, measured
+    on settled piles of 1,000 and 10,000 circles: one factorization against one
+    Box2D step, contact points that change state per step, PCG iterations with a
+    factor 1, 4 and 16 steps old, and a low-rank update's rank and time
+    (docs/results.md, "Amortizing the body-space operator"). One thread.
+
+    \b
+    Examples:
+      dc study amortize --fast -o reports/amortize-fast
+      dc study amortize -o reports/amortize
+    """
+    from deepcontact import atomic
+    from deepcontact.protocol import protocol, protocol_line, use_threads
+    from deepcontact.studies import amortize as A
+    use_threads(1)
+    piles = A.FAST if fast else A.FULL
+    with atomic.output_folder(out, A.AMORTIZE_FILES, overwrite, command="study amortize") as work:
+        measured = protocol(1)
+        bar = options.progress_bar(quiet, sum(settle + samples for _, settle, samples in piles.values()), "step",
+                                   "study amortize")
+        try:
+            result = A.run(piles, progress=bar.update)
+        finally:
+            bar.close()
+        result.protocol = protocol_line(measured)
+        result.write(work)
+    options.show_output(f"{out}/amortize.md", quiet)
 
 
 @study.command()

@@ -15,7 +15,7 @@ def test_dc_study_lists_the_studies():
     r = dc("study", "--help")
     assert r.returncode == 0 and "Examples:" in r.stdout
     for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse", "relaxation",
-                 "exact", "peer"):
+                 "exact", "peer", "amortize"):
         assert name in r.stdout
         assert "Examples:" in dc("study", name, "--help").stdout
 
@@ -82,3 +82,22 @@ def test_every_study_module_imports_and_the_exact_study_runs():
     assert "Measured with" in r.stdout and "| reference: Newton, then local pivots where it stalls |" in r.stdout
     assert dc("study", "exact", "--scene", "hard", "--siconos").returncode == 2
     assert dc("study", "relaxation", "--seeds", "0,1").returncode == 2
+
+
+def test_the_amortize_study_measures_what_a_reused_factor_buys(tmp_path):
+    """The fast amortize study (a 100-circle pile) writes its tables; what it measures holds
+    together: a factor reused across steps preconditions in few iterations, and the low-rank
+    update for the contacts that changed state brings the previous factor's solve much closer."""
+    import csv
+    out = tmp_path / "amortize"
+    r = dc("study", "amortize", "--fast", "-q", "-o", out)
+    assert r.returncode == 0, r.stderr
+    rows = {row["measure"]: (float(row["median"]), float(row["p90"]))
+            for row in csv.DictReader((out / "amortize.csv").open())}
+    assert rows["factorization ms"][0] > 0 and rows["Box2D step ms (8 iterations)"][0] > 0
+    assert 0 < rows["PCG iterations, factor 1 step old"][0] < 100
+    assert rows["update rank (rows)"][0] <= 2 * rows["contact points"][0]
+    assert rows["Woodbury relative residual"][1] < 0.01 * rows["previous factor alone: relative residual"][0]
+    assert "| pile 100 | points any per step |" in (out / "amortize.md").read_text()
+    r = dc("study", "amortize", "--fast", "-q", "-o", out)
+    assert r.returncode == 1 and "overwrite" in r.stderr
