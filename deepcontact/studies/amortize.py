@@ -53,6 +53,8 @@ class PileMeasures:
     dofs: int = 0                             # the moving bodies' degrees of freedom
     points: list = field(default_factory=list)        # contact points per step
     factor_ms: list = field(default_factory=list)     # one factorization of A
+    solve_ms: list = field(default_factory=list)      # one solve with that factor
+    pcg_ms: list = field(default_factory=list)        # the PCG solve with the factor of the step before
     fill: list = field(default_factory=list)          # nonzeros of L + U over nonzeros of A
     changes: dict = field(default_factory=lambda: {k: [] for k in ("new", "gone", "push", "slide", "any")})
     pcg: dict = field(default_factory=lambda: {lag: [] for lag in LAGS})   # iterations, per lag
@@ -73,7 +75,8 @@ class AmortizeResult:
         """(label, measure, median, p90) for every measure of every pile."""
         out = []
         for p in self.piles:
-            per_step = {"contact points": p.points, "factorization ms": p.factor_ms, "fill (L+U / A)": p.fill,
+            per_step = {"contact points": p.points, "factorization ms": p.factor_ms, "solve with the factor ms": p.solve_ms,
+                        "PCG ms, factor 1 step old": p.pcg_ms, "fill (L+U / A)": p.fill,
                         **{f"points {k} per step": v for k, v in p.changes.items()},
                         **{f"PCG iterations, factor {lag} step{'s' if lag > 1 else ''} old": v
                            for lag, v in p.pcg.items()},
@@ -135,6 +138,9 @@ def _measure(label, params, settle, samples, progress):
         t0 = time.perf_counter()
         factor = _factor(step.A)
         out.factor_ms.append(1e3 * (time.perf_counter() - t0))
+        t0 = time.perf_counter()
+        factor.solve(step.b)
+        out.solve_ms.append(1e3 * (time.perf_counter() - t0))
         out.fill.append((factor.L.nnz + factor.U.nnz) / max(step.A.nnz, 1))
         if before is not None:
             for key, n in _changes(before, step).items():
@@ -143,7 +149,10 @@ def _measure(label, params, settle, samples, progress):
         history.append(factor)
         for lag in LAGS:
             if len(history) > lag:
+                t0 = time.perf_counter()
                 out.pcg[lag].append(_pcg_iterations(step, history[-1 - lag]))
+                if lag == 1:
+                    out.pcg_ms.append(1e3 * (time.perf_counter() - t0))
         history = history[-(max(LAGS) + 1):]
         before = step
     return out
