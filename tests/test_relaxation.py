@@ -92,12 +92,14 @@ def test_the_reference_does_not_depend_on_the_start(hard_problems):
 
 def test_prev_starts_from_the_previous_steps_solution_by_contact_key(pile):
     path = sorted(pile.glob("seed-*/step-*.xml"))[250]
-    settings = dict(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
+    from deepcontact.solver.settings import SolveSettings
+    settings = SolveSettings(mode="float64", max_iterations=1000, tolerance=1e-4, stop_on="residual")
     index = int(path.stem[5:])
     before = path.parent / f"step-{index - 1:06d}.xml"
     h, b, c = read_step(before)
     prev = previous_solution((h, b, c, before), index, settings)
-    solved = solve(StepProblem.from_step(h, b, c), **settings)
+    from deepcontact.solver.methods import solve as solve_with
+    solved = solve_with(StepProblem.from_step(h, b, c), settings=settings)
     assert prev == dict(zip(contact_keys(c), zip(solved.normal_impulse.tolist(), solved.tangent_impulse.tolist())))
     assert previous_solution(None, 0, settings) == {}
     assert previous_solution((h, b, c, before), index + 1, settings) == {}   # not the step just before

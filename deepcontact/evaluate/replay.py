@@ -25,7 +25,7 @@ from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
-from ..solver.settings import CAP, TOLERANCE
+from ..solver.settings import CAP, TOLERANCE, SolveSettings
 from ..step.reader import check_origin, read_step
 from ..warmstart.starts import StepContext, seen_by
 
@@ -153,7 +153,7 @@ def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float
     return tuner.w
 
 
-def previous_solution(before, index, settings):
+def previous_solution(before, index, settings: SolveSettings):
     """{contact key: (normal, tangent)} of the step before step `index`, solved from its builtin
     start to the same tolerance: the `prev` start's source. `before` is that step as read
     (header, bodies, contacts, path), or None; a step whose predecessor is not the step just before
@@ -161,7 +161,7 @@ def previous_solution(before, index, settings):
     if before is None or before[0]["index"] != index - 1 or len(before[2]["manifold"]) == 0:
         return {}
     header, bodies, contacts, path = before
-    s = solve(StepProblem.from_step(header, bodies, contacts, path), **settings)
+    s = solve(StepProblem.from_step(header, bodies, contacts, path), settings=settings)
     return impulses_by_key(contact_keys(contacts), s.normal_impulse, s.tangent_impulse)
 
 
@@ -174,7 +174,7 @@ def evaluate_simulation(task):
     """The rows of one simulation: (run, seed, files, scene), the variants, the solver settings,
     every, seed, budgets."""
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
-    mode, max_iterations, tolerance, stop_on = (settings[k] for k in ("mode", "max_iterations", "tolerance", "stop_on"))
+    mode, max_iterations, tolerance, stop_on = settings.mode, settings.max_iterations, settings.tolerance, settings.stop_on
     measure = MEASURES.index(stop_on)
     rows = []
     previous, before = set(), None
@@ -201,7 +201,7 @@ def evaluate_simulation(task):
             t0 = time.perf_counter()   # the whole call, timed here: a start's own report is a breakdown
             value = v.start(seen)
             predict_s = time.perf_counter() - t0
-            kw = dict(settings, relaxation=v.relaxation, accelerate=v.accelerate)
+            kw = dict(settings=settings.but(relaxation=v.relaxation, accelerate=v.accelerate))
             traced = solve(problem, value.normal, value.tangent, history=True, **kw)
             got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
             hist = traced.history[:, measure]
@@ -264,7 +264,7 @@ def evaluate(run_dirs: list, starts: dict, *, tolerance: float = TOLERANCE, max_
                                                       max_iterations=max_iterations, mode=mode,
                                                       accelerate=v.accelerate)
             v.relaxation = tuned[v.accelerate]
-    settings = dict(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
+    settings = SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
     tasks = [(sim, table, settings, every, seed, budgets) for sim in plan]
     rows = []
     with workers.for_jobs(jobs, tasks, progress) as pool:

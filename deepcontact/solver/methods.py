@@ -127,10 +127,16 @@ def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> So
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *, accelerate: str = "none", mode: str = "float64",
           max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, final_residual: bool = True, guard: bool = True,
-          prune: bool = True) -> Solution:
+          prune: bool = True, settings: SolveSettings | None = None) -> Solution:
     """Solve the step's contact problem from a start with the method `accelerate` (a built-in or a
-    loaded plug-in); the keywords as solver.pgs.solve's. A plug-in stops on the residual only and
-    runs in float32 or float64."""
+    loaded plug-in); the keywords as solver.pgs.solve's, or `settings` (a SolveSettings: its mode,
+    cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in
+    stops on the residual only and runs in float32 or float64."""
+    if settings is not None:
+        return solve(problem, start_normal, start_tangent, accelerate=settings.accelerate, mode=settings.mode,
+                     max_iterations=settings.max_iterations, tolerance=settings.tolerance, stop_on=settings.stop_on,
+                     relaxation=settings.relaxation, guard=settings.guard, history=history,
+                     final_residual=final_residual, prune=prune)
     if is_native(accelerate):
         relaxation = 1.0 if relaxation is None else relaxation
         return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
