@@ -4,6 +4,7 @@ struct (`native`), checked once, on construction.
 TOLERANCE and CAP are the defaults of every command and function that solves to a tolerance
 (dc evaluate, dc simulate --solver pgs --tolerance, the studies): named here and nowhere else.
 """
+import functools
 from dataclasses import dataclass, replace
 
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
@@ -38,6 +39,10 @@ class SolveSettings:
     guard: bool = True
 
     def __post_init__(self):
+        key = tuple((type(v), v) for v in (self.mode, self.max_iterations, self.tolerance, self.stop_on,
+                                            self.relaxation, self.accelerate, self.guard))
+        if key in _CHECKED:   # (a solve makes one per call: the same request, types and all, is checked once)
+            return
         from ..errors import OptionError
         real = (int, float)
         for name, kinds in (("max_iterations", (int,)), ("tolerance", real)):
@@ -56,6 +61,9 @@ class SolveSettings:
         # plain sweeps: its own rules are its own)
         from .._box2d import Acceleration
         self._native(1.0, self.accelerate if self.accelerate in Acceleration.__members__ else "none")
+        if len(_CHECKED) > 4096:
+            _CHECKED.clear()
+        _CHECKED.add(key)
 
     def native(self, *, dt, history=False, final_residual=True, cone=True):
         """The native solver's SolveOptions for a step of length dt (the only place one is made):
@@ -66,21 +74,30 @@ class SolveSettings:
         return self._native(dt, self.accelerate, history, final_residual, cone)
 
     def _native(self, dt, accelerate, history=False, final_residual=True, cone=True):
-        from .._box2d import SolveOptions
-        from ..errors import OptionError
         w = 1.0 if self.relaxation is None or self.relaxation == "auto" else self.relaxation
         try:
-            return SolveOptions(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
+            return _solve_options()(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
                                 stop_on=self.stop_on if self.tolerance > 0 else "none", relaxation=w,
                                 accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
                                 final_residual=final_residual, guard=self.guard, cone=cone)
         except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
+            from ..errors import OptionError
             field = str(e).split()[0] if str(e) else ""
             raise OptionError(str(e), FLAGS.get(field)) from None
 
     def but(self, **changes) -> "SolveSettings":
         """These settings with some fields changed (checked again)."""
         return replace(self, **changes)
+
+
+_CHECKED = set()   # requests already checked (frozen values: equal ones pass the same checks)
+
+
+@functools.lru_cache(maxsize=None)
+def _solve_options():
+    """The native struct's type, imported on first use (the CLI's help never loads the module)."""
+    from .._box2d import SolveOptions
+    return SolveOptions
 
 
 def _numpy_kinds(name):
