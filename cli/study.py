@@ -304,9 +304,8 @@ def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, st
       dc study learned-correction --epochs 6 --sweeps 32
     """
     from deepcontact.studies.learned_correction import run
-    _print_study(threads)
     run(epochs=epochs, sweeps=sweeps, batch=batch, rounds=rounds, width=width, lr=lr, train_seeds=train_seeds,
-        steps=steps)
+        steps=steps, out=_study_text(threads))
 
 
 @study.command("learned-coarse")
@@ -329,14 +328,17 @@ def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, verbos
       dc study learned-coarse --cell 4 --sweeps 8 --epochs 4
     """
     from deepcontact.studies.learned_coarse import run
-    _print_study(threads)
-    run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps)
+    run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps, out=_study_text(threads))
 
 
-def _print_study(threads):
+def _study_text(threads):
+    """The StudyText a text study reports into, each line echoed to stdout as it comes, after the
+    line saying how its times were taken."""
     from deepcontact.protocol import protocol, protocol_line, use_threads
+    from deepcontact.studies.text import StudyText
     use_threads(threads)
     click.echo(protocol_line(protocol(threads)) + "\n")
+    return StudyText(sink=lambda text: click.echo(text, nl=False))
 
 
 @study.command()
@@ -399,8 +401,7 @@ def relaxation(scene, repeats, loop, seeds, threads, verbose, quiet):
     """
     from deepcontact.studies.relaxation import run
     options.refuse_inapplicable([("seeds", loop, "only applies with --loop")])
-    _print_study(threads)
-    run(scene, repeats, (seeds or (0,)) if loop else None)
+    run(scene, repeats, (seeds or (0,)) if loop else None, out=_study_text(threads))
 
 
 @study.command()
@@ -423,8 +424,7 @@ def exact(scene, every, siconos, threads, verbose, quiet):
     """
     from deepcontact.studies.exact import run
     options.refuse_inapplicable([("siconos", scene != "hard", "does not apply to --scene hard")])
-    _print_study(threads)
-    run(scene, every, siconos)
+    run(scene, every, siconos, out=_study_text(threads))
 
 
 @study.command()
@@ -449,5 +449,4 @@ def peer(scene, every, tolerances, cap, threads, verbose, quiet):
       dc study peer --scene pyramid40 --tolerances 1e-4
     """
     from deepcontact.studies.peer import run
-    _print_study(threads)
-    run(scene, every, tuple(tolerances), cap)
+    run(scene, every, tuple(tolerances), cap, out=_study_text(threads))

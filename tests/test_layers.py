@@ -81,3 +81,15 @@ def test_the_native_readme_lists_every_native_file():
     files = {f.name for f in native.iterdir() if f.suffix in (".hpp", ".cpp")}
     assert files - named == set(), f"native/README.md does not list {sorted(files - named)}"
     assert named - files == set(), f"native/README.md lists files that are gone: {sorted(named - files)}"
+
+
+def test_no_library_code_prints():
+    """Data goes to files and to what the caller is given (a study's StudyText, a report); logs and
+    progress to the logger. Only the CLI writes to stdout."""
+    import ast
+    calls = []
+    for f in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "print":
+                calls.append(f"{f.relative_to(PACKAGE)}:{node.lineno}")
+    assert calls == []

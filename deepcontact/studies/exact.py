@@ -18,7 +18,6 @@ residual and the time.
     dc study exact [--scene pile|pyramid|both|hard] [--every 5] [--siconos]
 """
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from ..solver.pgs import solve
 from ..solver.problem import StepProblem
 from ..solver.reference import reference_solution
 from .stability import FULL
+from .text import StudyText
 
 TOLERANCE, CAP = 1e-12, 100_000
 
@@ -74,15 +74,15 @@ def siconos_times(steps):
         return peer.solve_files(paths, solver="lemke")
 
 
-def report(name, steps, use_siconos):
+def report(name, steps, use_siconos, out):
     pgs = [timed(p, "none") for p in steps]
     newton = [timed(p, "newton") for p in steps]
     hard = [i for i, (s, _) in enumerate(pgs) if s.iterations >= CAP]
-    print(f"\n{name}: {len(steps)} steps, {sum(p.points for p in steps) / len(steps):.0f} contact points on average, "
+    out(f"\n{name}: {len(steps)} steps, {sum(p.points for p in steps) / len(steps):.0f} contact points on average, "
           f"{len(hard)} where PGS stops at its cap")
-    print("| solver | reach 1e-12 | worst residual | median ms | total s | on PGS's capped steps: median ms | "
+    out("| solver | reach 1e-12 | worst residual | median ms | total s | on PGS's capped steps: median ms | "
           "factorizations (median) | fallbacks (total) |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    out("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     base_median = statistics.median(t for _, t in pgs)
     base_hard = statistics.median(pgs[i][1] for i in hard) if hard else float("nan")
     rows = [("PGS from zero (reference until now)", pgs), ("proximal Newton (accelerate newton)", newton),
@@ -94,38 +94,40 @@ def report(name, steps, use_siconos):
         worst = max(s.residual for s, _ in runs)
         fact = statistics.median(s.factorizations for s, _ in runs)
         falls = sum(s.newton_fallbacks for s, _ in runs)
-        print(f"| {label} | {reached} | {worst:.1e} | {med * 1e3:.2f} ({med / base_median:.2f}x) | "
+        out(f"| {label} | {reached} | {worst:.1e} | {med * 1e3:.2f} ({med / base_median:.2f}x) | "
               f"{sum(t for _, t in runs):.2f} | {hard_ms * 1e3:.1f} ({hard_ms / base_hard:.3f}x) | {fact:.0f} | {falls} |")
     if use_siconos:
         times, residuals = siconos_times(steps)
         med = statistics.median(times)
         hard_ms = statistics.median(times[i] for i in hard) if hard else float("nan")
         reached = sum(r < TOLERANCE for r in residuals)
-        print(f"| Siconos fc2d Lemke (subprocess; solve time only) | {reached} | {max(residuals):.1e} | "
+        out(f"| Siconos fc2d Lemke (subprocess; solve time only) | {reached} | {max(residuals):.1e} | "
               f"{med * 1e3:.2f} ({med / base_median:.2f}x) | {sum(times):.2f} | {hard_ms * 1e3:.1f} "
               f"({hard_ms / base_hard:.3f}x) | | |")
 
 
-def report_hard(every):
+def report_hard(every, out):
     """The reference on every `every`-th step of each scene of the stability study."""
     which = "every step" if every == 1 else f"one step in {every}"
-    print(f"\nthe reference on {which} of the stability study's scenes (to 1e-12, from zero)")
-    print("| scene | steps | contact points (mean) | reach 1e-12 | pivoted | worst residual | total s |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    out(f"\nthe reference on {which} of the stability study's scenes (to 1e-12, from zero)")
+    out("| scene | steps | contact points (mean) | reach 1e-12 | pivoted | worst residual | total s |")
+    out("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for case in FULL:
         steps = problems(case.generator, every, [generate(case.generator, 0, case.params)])
         runs = [referenced(p) for p in steps]
         misses = [f"step {p.index}: {s.residual:.1e}" for p, (s, _) in zip(steps, runs) if s.residual >= TOLERANCE]
-        print(f"| {case.label} | {len(steps)} | {statistics.mean(p.points for p in steps):.0f} | "
+        out(f"| {case.label} | {len(steps)} | {statistics.mean(p.points for p in steps):.0f} | "
               f"{len(steps) - len(misses)} | {sum(s.pivoted for s, _ in runs)} | {max(s.residual for s, _ in runs):.1e} | "
               f"{sum(t for _, t in runs):.3f} |" + (f" misses: {'; '.join(misses[:5])}" if misses else ""))
-        sys.stdout.flush()
 
 
-def run(scene="both", every=5, siconos=False):
-    """The study's tables, printed: the pile and the pyramid (or one of them), or the hard scenes."""
+def run(scene="both", every=5, siconos=False, out=None) -> StudyText:
+    """The study's tables (a StudyText; `out` one to add to): the pile and the pyramid (or one of
+    them), or the hard scenes."""
+    out = StudyText() if out is None else out
     if scene == "hard":
-        return report_hard(every)
+        report_hard(every, out)
+        return out
     for name in (["pile", "pyramid"] if scene == "both" else [scene]):
-        report(name, problems(name, every), siconos)
-    sys.stdout.flush()
+        report(name, problems(name, every), siconos, out)
+    return out

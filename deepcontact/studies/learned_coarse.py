@@ -37,6 +37,7 @@ from ..solver.pgs import solve
 from ..solver.settings import CAP, TOLERANCE
 from . import contact_graph as cg
 from .learned_correction import datasets
+from .text import StudyText, progress
 
 
 
@@ -124,8 +125,7 @@ def train(steps, epochs, sweeps, cell, lr, seed, batch=8):
     with torch.no_grad():
         plain = np.mean([surrogate_loss("none", c, sweeps).item() for c in ops])
         unlearned = np.mean([surrogate_loss(None, c, sweeps).item() for c in ops])
-    print(f"surrogate loss on the training steps: sweeps alone {plain:.3f}, unlearned coarse {unlearned:.3f}",
-          flush=True)
+    progress(f"surrogate loss on the training steps: sweeps alone {plain:.3f}, unlearned coarse {unlearned:.3f}")
     for epoch in range(epochs):
         t0, total = time.perf_counter(), 0.0
         order = rng.permutation(len(ops))
@@ -135,7 +135,7 @@ def train(steps, epochs, sweeps, cell, lr, seed, batch=8):
             value.backward()
             opt.step()
             total += value.item() * len(order[i:i + batch])
-        print(f"epoch {epoch + 1}: learned {total / len(ops):.3f}, {time.perf_counter() - t0:.0f} s", flush=True)
+        progress(f"epoch {epoch + 1}: learned {total / len(ops):.3f}, {time.perf_counter() - t0:.0f} s")
     return model
 
 
@@ -174,7 +174,7 @@ VARIANTS = {"unlearned, always": (False, True), "unlearned, if the residual fall
             "learned, always": (True, True), "learned, if the residual falls": (True, False)}
 
 
-def evaluate(model, steps, sweeps, cell):
+def evaluate(model, steps, sweeps, cell, out):
     rows = {"builtin": []} | {label: [] for label in VARIANTS}
     surrogate = {"sweeps alone": [], "unlearned": [], "learned": []}
     for p in steps:
@@ -188,26 +188,28 @@ def evaluate(model, steps, sweeps, cell):
             rows[label].append(two_level(p, model if learned else None, sweeps, cell, always))
     base_it = np.median([r[0] for r in rows["builtin"]])
     base_s = np.median([r[1] for r in rows["builtin"]])
-    print(f"\nheld-out: {len(steps)} loop steps of seed 1000, residual < {TOLERANCE:g}, cap {CAP}; "
+    out(f"\nheld-out: {len(steps)} loop steps of seed 1000, residual < {TOLERANCE:g}, cap {CAP}; "
           f"cells of {cell:g} m, correction after {sweeps} sweeps")
-    print("surrogate loss on them: " + ", ".join(f"{k} {np.mean(v):.3f}" for k, v in surrogate.items()))
-    print("| start | median sweeps | vs builtin | median ms (correction included) | vs builtin | correction kept |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    out("surrogate loss on them: " + ", ".join(f"{k} {np.mean(v):.3f}" for k, v in surrogate.items()))
+    out("| start | median sweeps | vs builtin | median ms (correction included) | vs builtin | correction kept |")
+    out("| --- | ---: | ---: | ---: | ---: | ---: |")
     for label, r in rows.items():
         it, ms = np.median([x[0] for x in r]), np.median([x[1] for x in r])
         kept = f"{sum(x[2] for x in r)} of {len(r)}" if label != "builtin" else ""
-        print(f"| {label} | {it:.0f} | {it / base_it:.2f}x | {ms * 1e3:.3f} | {ms / base_s:.2f}x | {kept} |")
+        out(f"| {label} | {it:.0f} | {it / base_it:.2f}x | {ms * 1e3:.3f} | {ms / base_s:.2f}x | {kept} |")
 
 
 MIN_CELL = 1e-3   # metres: a coarse cell finer than a millimetre groups nothing (and 1e-300 divides by zero)
 
 
-def run(cell=4.0, sweeps=8, epochs=4, lr=1e-4, train_seeds=(0, 1), steps=600):
-    """The study, its tables printed (held-out seed 1000)."""
+def run(cell=4.0, sweeps=8, epochs=4, lr=1e-4, train_seeds=(0, 1), steps=600, out=None) -> StudyText:
+    """The study's tables (a StudyText; `out` one to add to), on held-out seed 1000."""
     from ..errors import OptionError
     if not MIN_CELL <= cell < float("inf"):
         raise OptionError(f"a coarse cell must be at least {MIN_CELL:g} m, got {cell:g}", "--cell")
 
     train_set, test_set = datasets(train_seeds, steps)
+    out = StudyText() if out is None else out
     model = train(train_set, epochs, sweeps, cell, lr, seed=0)
-    evaluate(model, test_set, sweeps, cell)
+    evaluate(model, test_set, sweeps, cell, out)
+    return out

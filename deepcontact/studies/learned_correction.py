@@ -29,6 +29,7 @@ from ..solver.pgs import solve
 from ..solver.problem import StepProblem
 from ..solver.settings import CAP, TOLERANCE
 from . import contact_graph as cg
+from .text import StudyText, progress
 
 SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual")
 
@@ -52,8 +53,7 @@ def datasets(train, steps):
     t0 = time.perf_counter()
     train_set = [p for seed in train for p in loop_problems(int(seed), steps)]
     test_set = loop_problems(1000, steps)[::2]
-    print(f"data: {len(train_set)} training steps, {len(test_set)} held-out, {time.perf_counter() - t0:.1f} s",
-          flush=True)
+    progress(f"data: {len(train_set)} training steps, {len(test_set)} held-out, {time.perf_counter() - t0:.1f} s")
     return train_set, test_set
 
 
@@ -78,11 +78,11 @@ def train(problems, epochs, sweeps, batch, seed, lr=3e-4, rounds=2, width=32):
         msg = f"epoch {epoch + 1}: loss {total / len(graphs):.3f}"
         if epoch == 0:
             msg += f" (builtin {base / len(graphs):.3f})"
-        print(msg + f", {time.perf_counter() - t0:.1f} s", flush=True)
+        progress(msg + f", {time.perf_counter() - t0:.1f} s")
     return model
 
 
-def evaluate(model, problems):
+def evaluate(model, problems, out):
     rows = {label: [] for label in ("builtin", "learned", "builtin@1.7", "learned@1.7")}
     predict = []
     for p in problems:
@@ -103,20 +103,23 @@ def evaluate(model, problems):
             rows[label].append((s.iterations, best))
     base_it = np.median([i for i, _ in rows["builtin"]])
     base_s = np.median([s for _, s in rows["builtin"]])
-    print(f"held-out: {len(problems)} loop steps, residual < 1e-4, cap 1000; "
+    out(f"held-out: {len(problems)} loop steps, residual < 1e-4, cap 1000; "
           f"prediction {np.median(predict) * 1e3:.3f} ms median (Python + torch)")
-    print(f"{'start':<14} {'median sweeps':>14} {'ratio':>6} {'median solve ms':>16} {'ratio':>6} "
+    out(f"{'start':<14} {'median sweeps':>14} {'ratio':>6} {'median solve ms':>16} {'ratio':>6} "
           f"{'+ prediction':>13} {'ratio':>6}")
     for label, r in rows.items():
         it = np.median([i for i, _ in r])
         ms = np.median([s for _, s in r])
         extra = np.median(predict) if label.startswith("learned") else 0.0
-        print(f"{label:<14} {it:>14.0f} {it / base_it:>6.2f} {ms * 1e3:>16.3f} {ms / base_s:>6.2f} "
+        out(f"{label:<14} {it:>14.0f} {it / base_it:>6.2f} {ms * 1e3:>16.3f} {ms / base_s:>6.2f} "
               f"{(ms + extra) * 1e3:>13.3f} {(ms + extra) / base_s:>6.2f}")
 
 
-def run(epochs=6, sweeps=32, batch=16, rounds=4, width=32, lr=3e-4, train_seeds=(0, 1, 2, 3), steps=600):
-    """The study, its table printed (held-out seed 1000)."""
+def run(epochs=6, sweeps=32, batch=16, rounds=4, width=32, lr=3e-4, train_seeds=(0, 1, 2, 3), steps=600,
+        out=None) -> StudyText:
+    """The study's table (a StudyText; `out` one to add to), on held-out seed 1000."""
+    out = StudyText() if out is None else out
     train_set, test_set = datasets(train_seeds, steps)
     model = train(train_set, epochs, sweeps, batch, seed=0, lr=lr, rounds=rounds, width=width)
-    evaluate(model, test_set)
+    evaluate(model, test_set, out)
+    return out

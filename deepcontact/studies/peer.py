@@ -15,7 +15,6 @@ solver "reaches" a tolerance only if its answer's residual is below it.
        [--cap 100000]
 """
 import statistics
-import sys
 import tempfile
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from ..errors import InputError
 from ..exchange import fclib, peer
 from ..scene.generators import generate
 from .exact import problems, timed
+from .text import StudyText
 
 OURS = ("none", "nncg", "newton", "subspace", "bodyspace")
 
@@ -32,12 +32,11 @@ def ours(steps, accelerate, tolerance, cap):
     return [t for _, t in runs], [s.residual for s, _ in runs]
 
 
-def row(label, tolerance, times, residuals):
+def row(label, tolerance, times, residuals, out):
     reached = sum(r < tolerance for r in residuals)
     med = statistics.median(times)
-    print(f"| {tolerance:g} | {label} | {reached} of {len(times)} | {max(residuals):.1e} | {med * 1e3:.2f} | "
+    out(f"| {tolerance:g} | {label} | {reached} of {len(times)} | {max(residuals):.1e} | {med * 1e3:.2f} | "
           f"{sum(times):.2f} |")
-    sys.stdout.flush()
 
 
 def first_steps(base, count):
@@ -46,30 +45,34 @@ def first_steps(base, count):
     return problems("pyramid", 1, [scene])
 
 
-def report(name, steps, tolerances, cap):
-    print(f"\n{name}: {len(steps)} steps, {statistics.mean(p.points for p in steps):.0f} contact points on average")
-    print("| tolerance | solver | reach it (our residual) | worst residual | median ms | total s |")
-    print("| ---: | --- | ---: | ---: | ---: | ---: |")
+def report(name, steps, tolerances, cap, out):
+    out(f"\n{name}: {len(steps)} steps, {statistics.mean(p.points for p in steps):.0f} contact points on average")
+    out("| tolerance | solver | reach it (our residual) | worst residual | median ms | total s |")
+    out("| ---: | --- | ---: | ---: | ---: | ---: |")
     with tempfile.TemporaryDirectory() as tmp:
         paths = [fclib.write_problem(p, Path(tmp) / f"step-{i:04d}.hdf5") for i, p in enumerate(steps)
                  if name != "pyramid40"]
         for tolerance in tolerances:
             for accelerate in OURS:
-                row(f"ours, {accelerate}", tolerance, *ours(steps, accelerate, tolerance, cap))
+                row(f"ours, {accelerate}", tolerance, *ours(steps, accelerate, tolerance, cap), out)
             if name == "pyramid40":
                 continue
             results = peer.run(paths, "nsgs", tolerance)
-            row("Siconos NSGS", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results])
+            row("Siconos NSGS", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results], out)
             if name == "pile":   # Lemke on the pyramid's 1,600-row dense problems takes minutes a step
                 results = peer.run(paths, "lemke", tolerance)
-                row("Siconos Lemke", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results])
+                row("Siconos Lemke", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results],
+                    out)
 
 
-def run(scene="both", every=5, tolerances=(1e-4, 1e-8), cap=100_000):
-    """The study's tables, printed."""
+def run(scene="both", every=5, tolerances=(1e-4, 1e-8), cap=100_000, out=None) -> StudyText:
+    """The study's tables (a StudyText; `out` one to add to)."""
     if not peer.available():
         raise InputError("Siconos is not installed for /usr/bin/python3 (make setup installs python3-siconos)")
+    out = StudyText() if out is None else out
     if scene == "pyramid40":
-        return report("pyramid40", first_steps(40, 5), list(tolerances), cap)
+        report("pyramid40", first_steps(40, 5), list(tolerances), cap, out)
+        return out
     for name in (["pile", "pyramid"] if scene == "both" else [scene]):
-        report(name, problems(name, every if name == "pile" else 50), list(tolerances), cap)
+        report(name, problems(name, every if name == "pile" else 50), list(tolerances), cap, out)
+    return out

@@ -34,6 +34,7 @@ from ..solver.pgs import solve
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import CAP, TOLERANCE
+from .text import StudyText
 
 SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual")
 
@@ -65,7 +66,7 @@ LOOP_VARIANTS = (("builtin", 1.0, "none"), ("builtin@1.7", 1.7, "none"), ("built
                  ("builtin+nncg", 1.0, "nncg"), ("builtin+nncg@1.3", 1.3, "nncg"))
 
 
-def loop(name, repeats, seeds=(0,)):
+def loop(name, repeats, seeds=(0,), out=None):
     """Every variant in the loop on every seed; medians over all steps of all seeds (a pile is
     chaotic: one trajectory's median says little about the next)."""
     seconds, sweeps = {}, {}
@@ -74,13 +75,13 @@ def loop(name, repeats, seeds=(0,)):
         for label in s:
             seconds.setdefault(label, []).extend(s[label])
             sweeps.setdefault(label, []).extend(i[label])
-    print(f"{name} seeds {','.join(map(str, seeds))}, our PGS in the loop: {len(seconds['builtin'])} steps, "
+    out(f"{name} seeds {','.join(map(str, seeds))}, our PGS in the loop: {len(seconds['builtin'])} steps, "
           f"residual < 1e-4, cap 1000")
-    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
+    out(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
     base_it, base_ms = np.median(sweeps["builtin"]), np.median(seconds["builtin"])
     for label, _, _ in LOOP_VARIANTS:
         it, ms = np.median(sweeps[label]), np.median(seconds[label])
-        print(f"{label:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>15.3f} {ms / base_ms:>7.2f}")
+        out(f"{label:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>15.3f} {ms / base_ms:>7.2f}")
 
 
 def loop_one(name, repeats, seed):
@@ -104,11 +105,13 @@ def loop_one(name, repeats, seed):
     return {k: list(v) for k, v in seconds.items()}, sweeps
 
 
-def run(scene="pile", repeats=3, loop_seeds=None):
-    """The study's table, printed: replay of the scene's settled steps, or with loop_seeds (a list
-    of seeds) our PGS driving the scene, pooled over those seeds."""
+def run(scene="pile", repeats=3, loop_seeds=None, out=None) -> StudyText:
+    """The study's table (a StudyText; `out` one to add to): replay of the scene's settled steps,
+    or with loop_seeds (a list of seeds) our PGS driving the scene, pooled over those seeds."""
+    out = StudyText() if out is None else out
     if loop_seeds:
-        return loop(scene, repeats, list(loop_seeds))
+        loop(scene, repeats, list(loop_seeds), out)
+        return out
     steps = steps_of(scene)
     tuner = AutoRelaxation(SETTINGS["tolerance"], SETTINGS["stop_on"], SETTINGS["max_iterations"])
     for _, p, _ in steps[::max(1, len(steps) // 32)]:
@@ -143,10 +146,11 @@ def run(scene="pile", repeats=3, loop_seeds=None):
         rows["no sweep (fixed cost)"].append(timed(p, None, None, 1.0, repeats, cap=0))
     base_it = statistics.median(i for i, _, _ in rows["builtin"])
     base_s = statistics.median(s for _, s, _ in rows["builtin"])
-    print(f"{scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
-    print(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7} {'factorizations':>15}")
+    out(f"{scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
+    out(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7} {'factorizations':>15}")
     for name, r in rows.items():
         it = statistics.median(i for i, _, _ in r)
         ms = statistics.median(s for _, s, _ in r)
         fact = statistics.median(f for _, _, f in r)
-        print(f"{name:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>10.3f} {ms / base_s:>7.2f} {fact:>15.0f}")
+        out(f"{name:<24} {it:>14.0f} {it / base_it:>7.2f} {ms * 1e3:>10.3f} {ms / base_s:>7.2f} {fact:>15.0f}")
+    return out
