@@ -22,12 +22,10 @@ import time
 
 import numpy as np
 
-from bench_solver_scale import settled_problems
 from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
 from deepcontact.solver.methods import solve
-from deepcontact.studies.exact import problems
-from deepcontact.studies.peer import first_steps
+from deepcontact.simulate.problems import problems
 
 SETTLING = (8, 9, 10, 15, 16, 17, 18, 32, 33, 34, 35, 36, 52, 53)
 
@@ -66,13 +64,13 @@ def main():
     body = {"bodyspace": ("bodyspace", 1.0)}
     if args.part in ("exact", "all"):
         scene = generate("pyramid", 0, {"base": 20, "steps": max(SETTLING) + 1})
-        settling = [p for p in problems("pyramid", 1, [scene]) if p.index in SETTLING]
+        settling = [p for _, p in problems(scene) if p.index in SETTLING]
         table("Base-20 pyramid, its settling steps", settling, {"Newton": ("newton", 1.0), **body}, 1e-12, 100_000)
     if args.part in ("pyramid40", "all"):
-        table("Base-40 pyramid, its first steps", first_steps(40, 5), {"subspace": ("subspace", 1.0), **body}, 1e-4,
-              100_000)
+        first = [p for _, p in problems(generate("pyramid", 0, {"base": 40, "steps": 5}))]
+        table("Base-40 pyramid, its first steps", first, {"subspace": ("subspace", 1.0), **body}, 1e-4, 100_000)
     if args.part in ("pile100", "all"):
-        settled = settled_problems({}, 1000, 3)   # (steps 997-999)
+        settled = [p for _, p in problems(generate("pile", 0, {"steps": 1000}), first=997)]   # (steps 997-999)
         for start in ("zero", "Box2D's warm start"):
             table("100-circle pile, settled", settled, {"PSOR 1.7": ("none", 1.7), **body}, 1e-4, 100_000, start)
 

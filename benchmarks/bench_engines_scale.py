@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_scale import timed
+from common import timed
 from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
 from deepcontact.simulate import stepping

@@ -41,7 +41,7 @@ from deepcontact.scene.generators import generate
 from deepcontact.solver import pgs
 from deepcontact.solver.local import jacobian, local_problem, residual
 from deepcontact.solver.methods import solve
-from deepcontact.studies.exact import problems as exact_problems
+from deepcontact.simulate.problems import problems as step_problems
 
 TOLERANCE = 1e-4
 PILE = {"count": 1000, "box": 95, "sigma": 19}
@@ -50,7 +50,7 @@ PILE = {"count": 1000, "box": 95, "sigma": 19}
 def loop_problems(steps, seed=9):
     """The pile's contact problems at `steps`, stepped by Box2D 2.4.1 at its 8 iterations."""
     scene = generate("pile", seed, {**PILE, "steps": max(steps) + 1})
-    return [p for p in exact_problems("pile", math.gcd(*steps), [scene]) if p.index in steps]
+    return [p for _, p in step_problems(scene, every=math.gcd(*steps)) if p.index in steps]
 
 
 class Rows:
@@ -257,7 +257,7 @@ def exact():
     solve in body space is the reference's last stage (docs/results.md)."""
     steps = (8, 15, 32, 52)
     scene = generate("pyramid", 0, {"base": 20, "steps": max(steps) + 1})
-    problems = [p for p in exact_problems("pyramid", 1, [scene]) if p.index in steps]
+    problems = [p for _, p in step_problems(scene) if p.index in steps]
     zero = (lambda p: (np.zeros_like(p.start_normal), np.zeros_like(p.start_tangent)))
     methods = {
         "bodyspace, the solver's (sweeps and outer iterations)":

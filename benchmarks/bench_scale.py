@@ -20,13 +20,11 @@ import json
 import os
 import shutil
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 from deepcontact.protocol import current, protocol_line
 
-DC = [sys.executable, "-m", "deepcontact.cli.main"]
+from common import timed
 
 # name: (dc simulate arguments, steps, evaluate --every)
 FULL = {
@@ -41,19 +39,6 @@ QUICK = {
     "pile 1,000": (["pile", "--param", "count=1000", "--param", "box=95", "--param", "sigma=19"], 20, 10),
     "pyramid 20": (["pyramid", "--param", "base=20"], 20, 10),
 }
-
-
-def timed(args):
-    """(wall seconds, peak resident MB) of one whole command, which must succeed. The peak is
-    measured by GNU time around the command: a child forked from this (large) process would count
-    this process's memory at the fork as its own."""
-    t = time.perf_counter()
-    proc = subprocess.run(["/usr/bin/time", "-f", "%M", *DC, *args], stdout=subprocess.DEVNULL,
-                          stderr=subprocess.PIPE, text=True)
-    wall = time.perf_counter() - t
-    if proc.returncode != 0:
-        sys.exit(f"failed: dc {' '.join(args)}\n{proc.stderr[-2000:]}")
-    return wall, int(proc.stderr.strip().splitlines()[-1]) / 1024
 
 
 def best(args, repeats):

@@ -93,3 +93,13 @@ def test_no_library_code_prints():
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "print":
                 calls.append(f"{f.relative_to(PACKAGE)}:{node.lineno}")
     assert calls == []
+
+
+def test_benchmarks_import_no_study_and_no_other_benchmark():
+    """benchmarks/ only times: what it steps and solves comes from the library's own builders
+    (simulate.problems), and what two scripts share lives in common.py."""
+    wrong = []
+    for f in sorted((PACKAGE.parent / "benchmarks").glob("*.py")):
+        for name in re.findall(r"^\s*(?:from|import) ((?:deepcontact\.studies|bench_)[\w.]*)", f.read_text(), flags=re.M):
+            wrong.append(f"{f.name} imports {name}")
+    assert wrong == []

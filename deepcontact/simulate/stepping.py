@@ -73,3 +73,4 @@ def steps(world, scene, step, count=None, after_removal=None):
         dt_ratio = done.dt_ratio if done.dt_ratio is not None else (0.0 if k == 0 else 1.0)
         yield Stepped(index=k, bodies=done.bodies, contacts=done.contacts, solution=done.solution,
                       dt_ratio=dt_ratio, deepest=done.deepest, seconds=seconds)
+

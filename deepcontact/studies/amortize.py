@@ -30,7 +30,8 @@ from ..escape import CsvWriter
 from ..simulate.source import SceneSource
 from ..simulate.world import World
 from ..solver.local import jacobian
-from ..solver.problem import StepProblem, contact_keys
+from ..simulate.problems import step_problem
+from ..solver.problem import contact_keys
 
 AMORTIZE_FILES = atomic.Owned("amortize study folder", [r"amortize\.md", r"amortize\.csv"])
 PENALTY = 10.0        # D per acting row: its own mass (1 / k) times this, as the native solve's first rho
@@ -176,10 +177,7 @@ def _body_space(scene, done):
     """A = M + J^T D J of a recorded step, over its moving bodies' degrees of freedom."""
     import scipy.sparse as sp
     contacts = done.contacts
-    problem = StepProblem.from_arrays(done.bodies, contacts, dt=float(scene.dt), gravity=scene.effects.gravity,
-                                      block_solve=scene.solver.block_solve,
-                                      velocity_iterations=scene.solver.velocity_iterations)
-    J, inv_m, v, rows, points = jacobian(problem)
+    J, inv_m, v, rows, points = jacobian(step_problem(scene, done))
     moving = inv_m > 0
     J = J.tocsc()[:, moving].tocsr()
     mass = 1.0 / inv_m[moving]

@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from ..scene.generators import generate
-from ..simulate.build import build_world
+from ..simulate.problems import problems as step_problems
 from ..solver.pgs import solve
-from ..solver.problem import StepProblem
 from ..solver.reference import reference_solution
 from .stability import FULL
 from .text import StudyText
@@ -38,17 +37,7 @@ TOLERANCE, CAP = 1e-12, 100_000
 def problems(name, every, scenes=None):
     if scenes is None:
         scenes = [generate("pile", s, {}) for s in (1000, 1001)] if name == "pile" else [generate("pyramid", 0, {"base": 20})]
-    out = []
-    for scene in scenes:
-        world = build_world(scene)
-        for k in range(scene.steps):
-            bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
-                                          record=True)
-            if k % every == 0 and len(contacts["manifold"]):
-                out.append(StepProblem.from_arrays(bodies, contacts, dt=scene.dt, index=k,
-                                                   gravity=scene.effects.gravity or (0.0, 0.0),
-                                                   block_solve=scene.solver.block_solve))
-    return out
+    return [problem for scene in scenes for _, problem in step_problems(scene, every=every)]
 
 
 def timed(problem, accelerate, tolerance=TOLERANCE, cap=CAP):

@@ -23,10 +23,10 @@ import numpy as np
 import torch
 
 from ..scene.generators import generate
-from ..simulate.build import build_world
-from ..simulate.pgs_loop import LoopOptions, PGSStepper
+from ..simulate.problems import problems as step_problems
+from ..simulate.engines import Box2D
+from ..simulate.pgs_loop import LoopOptions
 from ..solver.pgs import solve
-from ..solver.problem import StepProblem
 from ..solver.settings import CAP, TOLERANCE
 from . import contact_graph as cg
 from .text import StudyText, progress
@@ -37,15 +37,8 @@ SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on
 def loop_problems(seed, steps=600):
     """The problems the loop solved, each with the start it was given (the builtin start)."""
     scene = generate("pile", seed, {})
-    stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=CAP,
-                                                                tolerance=TOLERANCE, relaxation=1.0))
-    out = []
-    for k in range(steps):
-        done = stepper.step()
-        if done.solution is not None and k > 0:
-            out.append(StepProblem.from_arrays(done.bodies, done.contacts, dt=scene.dt,
-                                               gravity=scene.effects.gravity, index=k))
-    return out
+    engine = Box2D(solver=LoopOptions(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, relaxation=1.0))
+    return [problem for _, problem in step_problems(scene, engine, first=1, count=steps)]
 
 
 def datasets(train, steps):

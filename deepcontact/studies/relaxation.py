@@ -29,9 +29,10 @@ import time
 import numpy as np
 
 from ..scene.generators import generate
+from ..simulate.problems import problems as step_problems
 from ..simulate.build import build_world
 from ..solver.pgs import solve
-from ..solver.problem import StepProblem, contact_keys, impulses_by_key
+from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import CAP, TOLERANCE
 from .text import StudyText
@@ -41,14 +42,8 @@ SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on
 
 def steps_of(name):
     scene = generate(name, 0, {})
-    world = build_world(scene)
-    out = []
-    for k in range(600):
-        bodies, contacts = world.step(scene.dt, 8, 3, record=True)
-        if k >= 299 and len(contacts["manifold"]):
-            out.append((k, StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
-                                                   velocity_iterations=8), contact_keys(contacts)))
-    return out
+    return [(done.index, problem, contact_keys(done.contacts))
+            for done, problem in step_problems(scene, first=299, count=600)]
 
 
 def timed(problem, n, t, w, repeats, accelerate="none", cap=SETTINGS["max_iterations"]):
