@@ -85,8 +85,8 @@ studies: setup
 	$(DC) study learned-coarse
 	$(DC) study engines -o $(RUNS)/engines --overwrite
 	$(DC) study amortize -o $(RUNS)/amortize --overwrite
-	$(PYTHON) benchmarks/bench_solver_scale.py --samples 2 --sizes 100,1000
-	$(PYTHON) benchmarks/bench_global_families.py
+	$(DC) study scale --samples 2 --sizes 100,1000
+	$(DC) study global-families
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).

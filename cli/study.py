@@ -24,6 +24,8 @@ def study():
     exact               the reference solutions: time to 1e-12, pivots, the hard scenes
     peer                our solver against Siconos (NSGS, Lemke) on the same problems
     amortize            what a factor reused across steps could buy on 1,000 and 10,000 circles
+    scale               every method's time to 1e-4 as the pile grows (100 to 10,000 circles)
+    global-families     ADMM and a cone augmented Lagrangian, as prototypes, against the solver's
 
     \b
     Examples:
@@ -376,6 +378,64 @@ def amortize(out, fast, overwrite, verbose, quiet):
         result.protocol = protocol_line(measured)
         result.write(work)
     options.show_output(f"{out}/amortize.md", quiet)
+
+
+@study.command()
+@click.option("--samples", type=options.count(min=1), default=3, show_default=True,
+              help="Settled steps solved per pile.")
+@click.option("--cap", type=options.count(min=1), default=100_000, show_default=True, help="Iterations at most.")
+@click.option("--quick", is_flag=True, help="Shorter settling, and no 10,000-circle pile.")
+@click.option("--methods", type=options.CommaList(click.STRING, "LABEL[,...]"),
+              help="Only these methods, by their labels (PGS, PSOR 1.7, NNCG, Newton, subspace, body space).")
+@click.option("--sizes", type=options.CommaList(click.INT, "N[,...]"),
+              help="Only the piles of these body counts (100, 1000, 10000).")
+@options.threads
+@options.verbosity
+@options.command("study scale")
+def scale(samples, cap, quick, methods, sizes, threads, verbose, quiet):
+    """How the solver methods scale with the pile: time and iterations per
+    step to a residual of 1e-4 at 100, 1,000 and 10,000 circles, from zero
+    and from Box2D's warm start, and the fitted exponent of time against
+    bodies (docs/results.md, "As the pile grows").
+
+    \b
+    Examples:
+      dc study scale --samples 2 --sizes 100,1000
+      dc study scale --samples 2 --sizes 10000 --methods 'PSOR 1.7,body space' --cap 2000
+    """
+    from deepcontact.studies import scale as S
+    unknown = [m for m in methods or () if m not in S.METHODS]
+    if unknown:
+        raise click.BadParameter(f"no method {unknown[0]!r}; the methods are: {', '.join(S.METHODS)}",
+                                 param_hint="--methods")
+    S.run(samples=samples, cap=cap, quick=quick, methods=tuple(methods or S.METHODS), sizes=sizes,
+          out=_study_text(threads))
+
+
+@study.command("global-families")
+@click.option("--part", type=click.Choice(["pile", "exact", "all"]), default="all", show_default=True,
+              help="pile: the 1000-circle pile to 1e-4; exact: the base-20 pyramid's settling steps to 1e-12.")
+@click.option("--steps", type=options.CommaList(options.count(), "K[,...]"), default="300,400,500,600,700,800",
+              show_default=True, help="[pile] The pile's steps.")
+@click.option("--cap", type=options.count(min=1), default=3000, show_default=True,
+              help="[pile] Iterations of PSOR and ADMM at most.")
+@options.threads
+@options.verbosity
+@options.command("study global-families")
+def global_families(part, steps, cap, threads, verbose, quiet):
+    """Two other global families as numpy prototypes, by the work they need:
+    ADMM on the impulses (plain and with Anderson acceleration) and an
+    augmented Lagrangian with the friction cone projected, against PSOR and
+    the solver's own solve in body space (docs/results.md, "Two other global
+    families, as prototypes").
+
+    \b
+    Examples:
+      dc study global-families --part pile --steps 300,500 --cap 3000
+      dc study global-families --part exact
+    """
+    from deepcontact.studies.global_families import run
+    run(part, tuple(steps), cap, out=_study_text(threads))
 
 
 @study.command()

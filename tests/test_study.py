@@ -15,7 +15,7 @@ def test_dc_study_lists_the_studies():
     r = dc("study", "--help")
     assert r.returncode == 0 and "Examples:" in r.stdout
     for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse", "relaxation",
-                 "exact", "peer", "amortize"):
+                 "exact", "peer", "amortize", "scale", "global-families"):
         assert name in r.stdout
         assert "Examples:" in dc("study", name, "--help").stdout
 
@@ -101,3 +101,13 @@ def test_the_amortize_study_measures_what_a_reused_factor_buys(tmp_path):
     assert "| pile 100 | points any per step |" in (out / "amortize.md").read_text()
     r = dc("study", "amortize", "--fast", "-q", "-o", out)
     assert r.returncode == 1 and "overwrite" in r.stderr
+
+
+def test_the_scale_study_runs_as_a_dc_study_command():
+    """The scaling table (once a benchmark script, now a study) at toy size: a settled 100-circle
+    pile, one step, PSOR, from zero and from Box2D's warm start."""
+    r = dc("study", "scale", "--quick", "--samples", "1", "--sizes", "100", "--methods", "PSOR 1.7", "-q")
+    assert r.returncode == 0, r.stderr
+    assert "Measured with" in r.stdout and r.stdout.count("| PSOR 1.7 | ") == 2 and "From zero" in r.stdout
+    r = dc("study", "scale", "--methods", "Nope")
+    assert r.returncode == 2 and "no method 'Nope'" in r.stderr

@@ -13,23 +13,20 @@ Reported per start, method and size: the median time, iterations and (global met
 factorizations over the samples, and how many reached the tolerance; the exponent is the slope of
 log(median time) on log(bodies) over the sizes where every sample converged.
 
-Usage: python benchmarks/bench_solver_scale.py [--samples N] [--cap N] [--quick] [--methods PGS,...]
-       [--sizes 100,1000]
+Run as `dc study scale [--samples N] [--cap N] [--quick] [--methods PGS,...] [--sizes 100,1000]`.
 """
-import argparse
 import math
 import statistics
-import sys
 import time
 
 import numpy as np
 
-from deepcontact.protocol import current, protocol_line
-from deepcontact.simulate import stepping
-from deepcontact.simulate.build import build_world
-from deepcontact.simulate.source import SceneSource
-from deepcontact.solver.methods import solve
-from deepcontact.solver.problem import StepProblem
+from ..simulate import stepping
+from ..simulate.problems import step_problem
+from ..simulate.source import SceneSource
+from ..solver.methods import solve
+from ..solver.settings import TOLERANCE
+from .text import StudyText, progress
 
 # name: (bodies, generator parameters, steps until settled)
 FULL = {
@@ -42,44 +39,39 @@ STARTS = ("zero", "Box2D's warm start")
 # label: (accelerate, relaxation)
 METHODS = {"PGS": ("none", 1.0), "PSOR 1.7": ("none", 1.7), "NNCG": ("nncg", 1.0), "Newton": ("newton", 1.0),
            "subspace": ("subspace", 1.0), "body space": ("bodyspace", 1.0)}
-TOLERANCE = 1e-4
 
 
 def settled_problems(params, steps, samples):
     """The contact problems of the last `samples` of `steps` Box2D steps of the pile (seed 0),
-    stepped in memory (a 10,000-circle run's files would be 12 GB)."""
+    stepped in memory (a 10,000-circle run's files would be 12 GB), unrecorded until then."""
+    from ..simulate.engines import Box2D
     scene = SceneSource("pile", params, steps)(0)
-    world = build_world(scene)
-    stepped = stepping.box2d(world, scene, record=False)
-    for _ in range(steps - samples):
-        stepped()
-    problems = []
-    for k in range(steps - samples, steps):
-        bodies, contacts = world.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
-                                      record=True)
-        problems.append(StepProblem.from_arrays(bodies, contacts, dt=float(scene.dt),
-                                                gravity=scene.effects.gravity, block_solve=scene.solver.block_solve,
-                                                velocity_iterations=scene.solver.velocity_iterations, index=k))
-    return problems
+    engine = Box2D()
+    world = engine.build(scene)
+    bare, recording = engine.stepper(world, scene, record=False), engine.stepper(world, scene)
+    first, k = steps - samples, -1
+
+    def step():
+        nonlocal k
+        k += 1
+        return (recording if k >= first else bare)()
+    return [step_problem(scene, done) for done in stepping.steps(world, scene, step, steps) if done.index >= first]
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--samples", type=int, default=3)
-    ap.add_argument("--cap", type=int, default=100_000)
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated labels of METHODS to run")
-    ap.add_argument("--sizes", help="comma-separated body counts of the piles to run, e.g. 100,1000 (default: all)")
-    args = ap.parse_args()
-    methods = {label: METHODS[label] for label in args.methods.split(",")}
-    print(protocol_line(current()) + "\n")
-    sizes = QUICK if args.quick else FULL
-    if args.sizes:
-        sizes = {name: size for name, size in sizes.items() if str(size[0]) in args.sizes.split(",")}
+def run(samples=3, cap=100_000, quick=False, methods=tuple(METHODS), sizes=None, out=None) -> StudyText:
+    """The tables (a StudyText; `out` one to add to): per start, method and pile size, the median
+    time, iterations and factorizations to TOLERANCE, and the fitted exponent. `sizes`: body
+    counts to keep (default all)."""
+    out = StudyText() if out is None else out
+    methods = {label: METHODS[label] for label in methods}
+    piles = QUICK if quick else FULL
+    if sizes:
+        piles = {name: size for name, size in piles.items() if size[0] in set(sizes)}
+    sizes = piles
     table = {}   # (start, method, size) -> (median ms, median iterations, converged, samples)
     contacts = {}
     for name, (bodies, params, steps) in sizes.items():
-        problems = settled_problems(params, steps, args.samples)
+        problems = settled_problems(params, steps, samples)
         contacts[name] = statistics.median(len(p.start_normal) for p in problems)
         for start in STARTS:
             for label, (accelerate, w) in methods.items():
@@ -88,7 +80,7 @@ def main():
                     n, t = (np.zeros_like(p.start_normal), np.zeros_like(p.start_tangent)) if start == "zero" \
                         else (p.start_normal, p.start_tangent)
                     t0 = time.perf_counter()
-                    s = solve(p, n, t, accelerate=accelerate, relaxation=w, max_iterations=args.cap,
+                    s = solve(p, n, t, accelerate=accelerate, relaxation=w, max_iterations=cap,
                               tolerance=TOLERANCE)
                     times.append(time.perf_counter() - t0)
                     iterations.append(s.iterations)
@@ -97,15 +89,15 @@ def main():
                 row = (1e3 * statistics.median(times), statistics.median(iterations), converged, len(problems),
                        statistics.median(factorizations))
                 table[start, label, name] = row
-                print(f"  {name}, from {start}, {label}: {row[0]:.1f} ms, {row[1]:.0f} iterations, "
-                      f"{converged}/{len(problems)} converged", file=sys.stderr, flush=True)
+                progress(f"{name}, from {start}, {label}: {row[0]:.1f} ms, {row[1]:.0f} iterations, "
+                         f"{converged}/{len(problems)} converged")
     names = list(sizes)
     for start in STARTS:
-        print(f"\nFrom {start}: time per step to a residual of {TOLERANCE:g} (median of {args.samples} settled "
-              f"steps; cap {args.cap:,} iterations):\n")
-        print("| method | " + " | ".join(f"{n} ({contacts[n]:,.0f} contact points)" for n in names) +
+        out(f"\nFrom {start}: time per step to a residual of {TOLERANCE:g} (median of {samples} settled "
+            f"steps; cap {cap:,} iterations):\n")
+        out("| method | " + " | ".join(f"{n} ({contacts[n]:,.0f} contact points)" for n in names) +
               " | exponent (time ~ bodies^k) |")
-        print("| --- |" + " ---: |" * (len(names) + 1))
+        out("| --- |" + " ---: |" * (len(names) + 1))
         for label in methods:
             cells, xs, ys = [], [], []
             for n in names:
@@ -116,8 +108,5 @@ def main():
                     xs.append(math.log(sizes[n][0]))
                     ys.append(math.log(ms))
             k = f"{np.polyfit(xs, ys, 1)[0]:.2f}" if len(xs) >= 2 else "n/a"
-            print(f"| {label} | " + " | ".join(cells) + f" | {k} |")
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+            out(f"| {label} | " + " | ".join(cells) + f" | {k} |")
+    return out

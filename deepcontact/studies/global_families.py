@@ -26,9 +26,8 @@ from Box2D's warm start, against PSOR at w = 1.7 and the solver's own solve in b
 Part 2 takes the cone AL to the base-20 pyramid's settling steps 8, 15, 32 and 52 from zero to
 1e-12, where the solver's own solve in body space is the reference's last stage.
 
-Usage: python benchmarks/bench_global_families.py [--part pile|exact|all] [--steps 300,400,...] [--cap 3000]
+Run as `dc study global-families [--part pile|exact|all] [--steps 300,400,...] [--cap 3000]`.
 """
-import argparse
 import math
 import statistics
 
@@ -36,14 +35,13 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from deepcontact.protocol import current, protocol_line
-from deepcontact.scene.generators import generate
-from deepcontact.solver import pgs
-from deepcontact.solver.local import jacobian, local_problem, residual
-from deepcontact.solver.methods import solve
-from deepcontact.simulate.problems import problems as step_problems
-
-TOLERANCE = 1e-4
+from ..scene.generators import generate
+from ..simulate.problems import problems as step_problems
+from ..solver import pgs
+from ..solver.local import jacobian, local_problem, residual
+from ..solver.methods import solve
+from ..solver.settings import TOLERANCE
+from .text import StudyText
 PILE = {"count": 1000, "box": 95, "sigma": 19}
 
 
@@ -216,43 +214,45 @@ def exact_step(rows, x, dx, g, impulses, rho):
     return a
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=("pile", "exact", "all"), default="all")
-    ap.add_argument("--steps", default="300,400,500,600,700,800", help="the pile's steps")
-    ap.add_argument("--cap", type=int, default=3000, help="iterations of PSOR and ADMM on the pile")
-    args = ap.parse_args()
-    print(protocol_line(current()) + "\n")
-    if args.part in ("pile", "all"):
-        pile(args)
-    if args.part in ("exact", "all"):
-        exact()
+PARTS = ("pile", "exact", "all")
+PILE_STEPS = (300, 400, 500, 600, 700, 800)
 
 
-def pile(args):
+def run(part="all", steps=PILE_STEPS, cap=3000, out=None) -> StudyText:
+    """The tables (a StudyText; `out` one to add to): part 1 on the pile's `steps` (PSOR and ADMM
+    at most `cap` iterations), part 2 on the pyramid's settling steps."""
+    out = StudyText() if out is None else out
+    if part in ("pile", "all"):
+        pile(list(steps), cap, out)
+    if part in ("exact", "all"):
+        exact(out)
+    return out
+
+
+def pile(steps, cap, out):
     """Part 1: the loop's pile to 1e-4 from Box2D's warm start."""
-    problems = loop_problems([int(s) for s in args.steps.split(",")])
+    problems = loop_problems(steps)
     methods = {
-        "PSOR 1.7 (sweeps)": lambda p, rows, r0: psor(p, args.cap),
-        "bodyspace, the solver's (sweeps and outer iterations)": lambda p, rows, r0: bodyspace(p, args.cap),
-        "ADMM, rho 1 (iterations)": lambda p, rows, r0: admm(rows, r0, cap=args.cap),
-        "ADMM + Anderson 5 (iterations)": lambda p, rows, r0: admm(rows, r0, anderson=5, cap=args.cap),
+        "PSOR 1.7 (sweeps)": lambda p, rows, r0: psor(p, cap),
+        "bodyspace, the solver's (sweeps and outer iterations)": lambda p, rows, r0: bodyspace(p, cap),
+        "ADMM, rho 1 (iterations)": lambda p, rows, r0: admm(rows, r0, cap=cap),
+        "ADMM + Anderson 5 (iterations)": lambda p, rows, r0: admm(rows, r0, anderson=5, cap=cap),
         "cone AL, c 100 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=100.0),
         "cone AL, c 300 (outer iterations)": lambda p, rows, r0: cone_lagrangian(rows, r0, c=300.0),
     }
     rows = [Rows(p) for p in problems]
     factors = [admm_factor(r, np.repeat(r.k, 2)) for r in rows]
-    print(f"The 1000-circle pile, steps {args.steps} ({statistics.median(len(r.mu) for r in rows):.0f} "
+    out(f"The 1000-circle pile, steps {','.join(map(str, steps))} ({statistics.median(len(r.mu) for r in rows):.0f} "
           f"contact points, median), from Box2D's warm start to {TOLERANCE:g}.\n")
-    print(f"Work per iteration (median nonzeros): a sweep reads and writes along each of J's "
+    out(f"Work per iteration (median nonzeros): a sweep reads and writes along each of J's "
           f"{statistics.median(r.J.nnz for r in rows):,.0f} once each; an ADMM iteration, done in body space, "
           f"would use each 4 times (W z as J M^-1 J^T z, and Woodbury's two products) and substitute "
           f"forward and back through the factor's {statistics.median(f.L.nnz + f.U.nnz for f in factors):,.0f} "
           f"(L and U, minimum degree on the symmetric pattern).\n")
-    report(problems, rows, methods, lambda rows, p: rows.lp.reaction(p.start_normal, p.start_tangent))
+    report(problems, rows, methods, lambda rows, p: rows.lp.reaction(p.start_normal, p.start_tangent), out)
 
 
-def exact():
+def exact(out):
     """Part 2: the base-20 pyramid's settling steps from zero to 1e-12, where the solver's own
     solve in body space is the reference's last stage (docs/results.md)."""
     steps = (8, 15, 32, 52)
@@ -267,24 +267,24 @@ def exact():
         "cone AL, c 1000 (outer iterations)":
             lambda p, rows, r0: cone_lagrangian(rows, r0, c=1000.0, outer_cap=200, tolerance=1e-12),
     }
-    print(f"\nThe base-20 pyramid, settling steps {', '.join(map(str, steps))}, from zero to 1e-12 "
+    out(f"\nThe base-20 pyramid, settling steps {', '.join(map(str, steps))}, from zero to 1e-12 "
           f"(the solver's cap 100,000 iterations; the cone AL's 200 outer iterations).\n")
-    report(problems, [Rows(p) for p in problems], methods, lambda rows, p: np.zeros(2 * len(rows.mu)))
+    report(problems, [Rows(p) for p in problems], methods, lambda rows, p: np.zeros(2 * len(rows.mu)), out)
 
 
-def report(problems, body_rows, methods, start):
-    """Runs every method on every problem (its Rows in body_rows) and prints the table."""
+def report(problems, body_rows, methods, start, out):
+    """Runs every method on every problem (its Rows in body_rows) and adds the table to `out`."""
     results = {name: [] for name in methods}
     for p, rows in zip(problems, body_rows):
         r0 = start(rows, p)
         for name, run in methods.items():
             results[name].append(run(p, rows, r0))
-    print("| method | reach it | iterations (median; per step) | factorizations (median) | worst residual |")
-    print("| --- | ---: | --- | ---: | ---: |")
+    out("| method | reach it | iterations (median; per step) | factorizations (median) | worst residual |")
+    out("| --- | ---: | --- | ---: | ---: |")
     for name, rs in results.items():
         reached = sum(r[0] for r in rs)
         its = ", ".join(str(r[1]) for r in rs)
-        print(f"| {name} | {reached} of {len(rs)} | {statistics.median(r[1] for r in rs):.0f}; {its} | "
+        out(f"| {name} | {reached} of {len(rs)} | {statistics.median(r[1] for r in rs):.0f}; {its} | "
               f"{statistics.median(r[2] for r in rs):.0f} | {max(r[3] for r in rs):.1e} |")
 
 
@@ -304,6 +304,3 @@ def bodyspace(problem, cap, start=(None, None), tolerance=TOLERANCE):
     s = solve(problem, *start, accelerate="bodyspace", tolerance=tolerance, max_iterations=cap)
     return s.residual <= tolerance, s.iterations, s.factorizations, s.residual
 
-
-if __name__ == "__main__":
-    main()
