@@ -25,3 +25,20 @@ def problems(scene, engine=None, *, every=1, first=0, count=None):
     for done in steps(world, scene, engine.stepper(world, scene), count):
         if done.index >= first and (done.index - first) % every == 0 and len(done.contacts["manifold"]):
             yield done, step_problem(scene, done)
+
+
+def recorded_between(scene, first, last, count=None):
+    """Yields every Stepped of the scene stepped by Box2D 2.4.1's own solver through the one
+    stepping loop for `count` steps (the scene's by default), with bodies and contacts recorded only
+    for the steps first <= index < last: the rest run unrecorded, at Box2D's own speed (recording
+    leaves the trajectory as it is)."""
+    engine = Box2D()
+    world = engine.build(scene)
+    bare, recording = engine.stepper(world, scene, record=False), engine.stepper(world, scene)
+    k = -1
+
+    def step():
+        nonlocal k
+        k += 1
+        return (recording if first <= k < last else bare)()
+    yield from steps(world, scene, step, count)

@@ -27,10 +27,9 @@ import numpy as np
 
 from .. import atomic
 from ..escape import CsvWriter
+from ..simulate.problems import recorded_between, step_problem
 from ..simulate.source import SceneSource
-from ..simulate.world import World
 from ..solver.local import jacobian
-from ..simulate.problems import step_problem
 from ..solver.problem import contact_keys
 
 AMORTIZE_FILES = atomic.Owned("amortize study folder", [r"amortize\.md", r"amortize\.csv"])
@@ -117,22 +116,17 @@ def run(piles=None, progress=None) -> AmortizeResult:
 
 
 def _measure(label, params, settle, samples, progress):
+    # one pile: unrecorded until settled, the measured steps recorded, then 8 unrecorded steps timed
     scene = SceneSource("pile", params, settle + samples + 8)(0)
-    timed = World(scene, record=False)
-    for _ in range(settle):
-        timed.step()
-    box2d = [timed.step().seconds for _ in range(8)]
-    world = World(scene)
-    for _ in range(settle):
-        world.step()
-        if progress:
+    out = PileMeasures(label, len(scene.bodies), math.nan)
+    history, before, box2d = [], None, []
+    for done in recorded_between(scene, settle, settle + samples):
+        if progress and done.index < settle + samples:
             progress(1)
-    out = PileMeasures(label, len(scene.bodies), 1e3 * float(np.median(box2d)))
-    history, before = [], None
-    for _ in range(samples):
-        done = world.step()
-        if progress:
-            progress(1)
+        if done.index >= settle + samples:
+            box2d.append(done.seconds)
+        if not settle <= done.index < settle + samples:
+            continue
         step = _body_space(scene, done)
         out.dofs = step.size
         out.points.append(step.points)
@@ -156,6 +150,7 @@ def _measure(label, params, settle, samples, progress):
                     out.pcg_ms.append(1e3 * (time.perf_counter() - t0))
         history = history[-(max(LAGS) + 1):]
         before = step
+    out.box2d_ms = 1e3 * float(np.median(box2d))
     return out
 
 

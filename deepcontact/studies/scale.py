@@ -21,8 +21,7 @@ import time
 
 import numpy as np
 
-from ..simulate import stepping
-from ..simulate.problems import step_problem
+from ..simulate.problems import recorded_between, step_problem
 from ..simulate.source import SceneSource
 from ..solver.methods import solve
 from ..solver.settings import TOLERANCE
@@ -44,18 +43,9 @@ METHODS = {"PGS": ("none", 1.0), "PSOR 1.7": ("none", 1.7), "NNCG": ("nncg", 1.0
 def settled_problems(params, steps, samples):
     """The contact problems of the last `samples` of `steps` Box2D steps of the pile (seed 0),
     stepped in memory (a 10,000-circle run's files would be 12 GB), unrecorded until then."""
-    from ..simulate.engines import Box2D
     scene = SceneSource("pile", params, steps)(0)
-    engine = Box2D()
-    world = engine.build(scene)
-    bare, recording = engine.stepper(world, scene, record=False), engine.stepper(world, scene)
-    first, k = steps - samples, -1
-
-    def step():
-        nonlocal k
-        k += 1
-        return (recording if k >= first else bare)()
-    return [step_problem(scene, done) for done in stepping.steps(world, scene, step, steps) if done.index >= first]
+    return [step_problem(scene, done) for done in recorded_between(scene, steps - samples, steps, steps)
+            if done.index >= steps - samples]
 
 
 def run(samples=3, cap=100_000, quick=False, methods=tuple(METHODS), sizes=None, out=None) -> StudyText:
