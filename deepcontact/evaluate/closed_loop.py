@@ -24,12 +24,12 @@ from ..simulate.pgs_loop import LoopOptions, PGSStepper
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
+from ..solver.settings import CAP, TOLERANCE
+from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
+from .replay import variants
 
 if TYPE_CHECKING:   # (for the annotations only)
     from ..scene.model import Scene
-from ..solver.settings import CAP, TOLERANCE
-from .replay import variants
-from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
 
 NATIVE_STARTS = ("zero", "builtin")
 

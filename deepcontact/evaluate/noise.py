@@ -40,6 +40,13 @@ def _paired(x, y):
     return [x[k] for k in keys], [y[k] for k in keys]
 
 
+def ranked(summary, is_oracle):
+    """The variants a verdict may name, fastest first: no oracle, and none that ended a step above
+    the tolerance by our residual; fewest steps at the cap, then the smallest median time."""
+    return sorted((n for n, s in summary.items() if not is_oracle(n) and not s.get("above", 0)),
+                  key=lambda n: (summary[n]["at_cap"], summary[n]["total_ms_median"]))
+
+
 def judge(rows, summary, base, is_oracle):
     """What the verdict may say, measured: each variant's time against `base` with its interval,
     the A/A noise floor of `base`, and the best fair variant (not an oracle, never above the
@@ -53,8 +60,7 @@ def judge(rows, summary, base, is_oracle):
     out = {"base": base, "level": LEVEL, "resamples": RESAMPLES, "vs_base": against,
            "aa": list(ratio_interval(first, second, rng)), "best": None, "runner_up": None, "best_vs_runner_up": None,
            "clear": False}
-    fair = sorted((n for n, s in summary.items() if not is_oracle(n) and not s.get("above", 0)),
-                  key=lambda n: (summary[n]["at_cap"], summary[n]["total_ms_median"]))
+    fair = ranked(summary, is_oracle)
     if not fair:
         return out
     best = fair[0]

@@ -24,7 +24,7 @@ from ..errors import count
 from ..escape import CsvWriter, md_text, plot_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
-from .noise import judge
+from .noise import judge, ranked
 from .replay import BUDGETS, reference_summary
 from ..plotstyle import axis_floor, readable_log_ticks, show_bands, styles, with_markers
 
@@ -110,18 +110,18 @@ def verdict(summary, noise=None):
     included), with its ratio to Box2D's warm start. Left out: oracles, which know the answer, and
     every variant that ended a step above the tolerance by our residual (it did not converge,
     whatever it said)."""
-    candidates = {n: s for n, s in summary.items() if not _oracle(n)}
+    candidates = [n for n in summary if not _oracle(n)]
     if not candidates:
         return None
-    fair = {n: s for n, s in candidates.items() if not s.get("above", 0)}
+    fair = ranked(summary, _oracle)
     unconverged = [n for n in candidates if n not in fair]
     left_out = (f" Left out, as they ended steps above the tolerance (by our residual): "
                 f"{', '.join(md_text(n) for n in unconverged)}." if unconverged else "")
     if not fair:
         return ("**Verdict**: no start reached the tolerance on every step (by our residual), so none is "
                 "named." + left_out)
-    best = min(fair, key=lambda n: (fair[n]["at_cap"], fair[n]["total_ms_median"]))
-    b, base = fair[best], baseline(summary)
+    best = fair[0]
+    b, base = summary[best], baseline(summary)
     if noise and noise.get("best") == best and not noise["clear"]:
         runner = noise.get("runner_up")
         text = (f"**Verdict**: no clear winner within noise. The fastest start to the tolerance (median time per "
