@@ -104,9 +104,11 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
     options.load_solvers(accelerate)
 
     from deepcontact.evaluate.command import EvaluateSettings, history_bytes, run_evaluation
+    from deepcontact.solver.settings import SolveSettings
     settings = EvaluateSettings(
-        runs=list(runs), starts=list(starts), checkpoint=model, tolerance=tolerance, max_iterations=max_iterations,
-        stop_on=stop_on, mode=mode, every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
+        runs=list(runs), starts=list(starts), checkpoint=model,
+        solve=SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on),
+        every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
         closed_loop=closed_loop, steps=steps, relaxations=tuple(relaxation), accelerations=tuple(accelerate),
         budgets=budgets, bands=bands, jobs=jobs, threads=threads).checked()   # (the library's rules: exit 2)
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep

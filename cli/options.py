@@ -453,8 +453,9 @@ def choice(name, leave_out=()):
 
 def load_solvers(names, mode=None):
     """--accelerate: plug-in solver methods loaded by the user's explicit choice; with mode, each
-    checked against it (solver.methods.check_mode: exit 2)."""
-    from deepcontact.solver.methods import SOLVERS, check_mode, is_native
+    checked against it (solver.settings.check_mode: exit 2)."""
+    from deepcontact.solver.methods import SOLVERS, is_native
+    from deepcontact.solver.settings import check_mode
     for name in names:
         if not is_native(name):
             SOLVERS.load(name)

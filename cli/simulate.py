@@ -3,7 +3,7 @@ import click
 
 from deepcontact.errors import InputError
 from deepcontact.solver.methods import SOLVERS, methods_help
-from deepcontact.solver.settings import CAP
+from deepcontact.solver.settings import CAP, SolveSettings
 
 from . import options
 
@@ -17,27 +17,26 @@ def seed_list(seed, seeds, shard):
     return chosen
 
 
-def loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first_scene, accelerate=None):
-    """LoopOptions for --solver pgs (None for box2d); pgs options without it are an error."""
+def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first_scene, accelerate=None):
+    """The Box2D 2.4.1 engine --solver asks for: Box2D's own solver, or the project's with its
+    SolveSettings and start (--solver pgs); pgs options without it are an error."""
+    from deepcontact.simulate.engines import Box2D
     given = {"--start": start, "--mode": mode, "--tolerance": tolerance, "--max-iterations": max_iterations,
              "--stop-on": stop_on, "--relaxation": relaxation, "--accelerate": accelerate}
     if solver == "box2d":
         used = [k for k, v in given.items() if v is not None]
         if used:
             raise click.UsageError(f"{', '.join(used)} only appl{'ies' if len(used) == 1 else 'y'} with --solver pgs")
-        return None
-    from deepcontact.simulate.pgs_loop import LoopOptions, check_options
+        return Box2D()
     if accelerate is not None:
         options.load_solvers([accelerate])
     # A tolerance asks to converge: the cap is then dc evaluate's (CAP), not the scene's 8 sweeps,
     # which would stop nearly every step short of it without a word.
     cap = max_iterations if max_iterations is not None else CAP if tolerance else (
         first_scene.solver.velocity_iterations if first_scene is not None else 8)
-    loop = LoopOptions(start=start or "builtin", mode=mode or "float64", max_iterations=cap,
-                       tolerance=tolerance or 0.0, stop_on=stop_on or "residual", relaxation=relaxation or 1.0,
-                       accelerate=accelerate or "none")
-    check_options(loop)   # (the library's rules: exit 2 naming the option)
-    return loop
+    settings = SolveSettings(mode=mode or "float64", max_iterations=cap, tolerance=tolerance or 0.0,
+                             stop_on=stop_on or "residual", relaxation=relaxation or 1.0, accelerate=accelerate or "none")
+    return Box2D(solver=settings, start=start or "builtin")   # (the library's rules: exit 2 naming the option)
 
 
 @click.command()
@@ -158,17 +157,17 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     chosen = seed_list(seed, seeds, shard)
     source.check_memory(min(jobs, max(len(chosen), 1)), max_memory)
     first = source(chosen[0]) if chosen and solver == "pgs" else None   # (its iterations: the loop's cap)
-    loop = loop_options(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
+    box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
-    from deepcontact.simulate.engines import Box2D, Box2D3
+    from deepcontact.simulate.engines import Box2D3
     if engine == "box2d3":
         from deepcontact.step.engines import SoftStep
         given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
                  "push_speed": push_speed}
         stepper = Box2D3(SoftStep(**{k: v for k, v in given.items() if v is not None}))
     else:
-        stepper = Box2D(solver=loop)
+        stepper = box2d
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, engine=stepper, max_disk=max_disk, compress=compress)
     options.show_output(f"{out_dir}", quiet)

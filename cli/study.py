@@ -167,13 +167,14 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite
       dc study figures runs/heldout -o reports/figures -j 2
     """
     from deepcontact import atomic
+    from deepcontact.solver.settings import SolveSettings
     from deepcontact.studies.figures import FIGURE_FILES, figures as make, step_files
 
     with atomic.output_folder(out, FIGURE_FILES, overwrite, command="study figures") as work:
         bar = options.progress_bar(quiet, step_files(run), "step", "study figures")
         try:
-            text = make(run, work, every=every, tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations,
-                        jobs=jobs, progress=bar.update)
+            settings = SolveSettings(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations)
+            text = make(run, work, every=every, settings=settings, jobs=jobs, progress=bar.update)
         finally:
             bar.close()
         click.echo(text)

@@ -7,6 +7,7 @@ import pytest
 from conftest import dc
 from deepcontact.errors import InputError
 from deepcontact.evaluate.replay import evaluate, summarize
+from deepcontact.solver.settings import SolveSettings
 from deepcontact.warmstart.starts import make_starts
 from deepcontact.grid.spec import GridSpec
 
@@ -26,7 +27,7 @@ def settled_pile(tmp_path_factory):
 def rows_and_summary(settled_pile):
     starts = make_starts(["zero", "builtin", "copy", "copy2", "sph", "bad", "random"],
                          spec=GridSpec.over((0, 0, 16, 16), 0.5, 0.5))
-    rows = evaluate([settled_pile], starts, tolerance=1e-4, max_iterations=3000, every=10)
+    rows = evaluate([settled_pile], starts, settings=SolveSettings(tolerance=1e-4, max_iterations=3000), every=10)
     return rows, summarize(rows, starts, 3000)
 
 
@@ -105,7 +106,7 @@ def test_evaluate_reads_each_run_once_and_takes_the_sph_window_from_the_manifest
 @pytest.mark.parametrize("changes,flag,words", [
     (dict(starts=["cnn"]), "--checkpoint", "need a trained model"),
     (dict(starts=["sph"], cell=0.5, smoothing=1e-30), "--cell", "cannot carry"),
-    (dict(mode="float32", accelerations=("newton",)), "--accelerate", "float64 only"),
+    (dict(solve=SolveSettings(mode="float32"), accelerations=("newton",)), "--accelerate", "float64 only"),
     (dict(relaxations=(2.5,)), "--relaxation", "relaxation must be in (0, 2)"),
 ])
 def test_evaluate_settings_check_their_own_rules_for_the_cli_and_a_library_caller(tmp_path, changes, flag, words):
@@ -119,7 +120,7 @@ def test_evaluate_settings_check_their_own_rules_for_the_cli_and_a_library_calle
     cli = ["--starts", args["starts"]]
     if "cell" in changes:
         cli += ["--cell", "0.5", "--smoothing", "1e-30"]
-    if "mode" in changes:
+    if "solve" in changes:
         cli += ["--mode", "float32", "--accelerate", "newton"]
     if "relaxations" in changes:
         cli += ["--relaxation", "2.5"]

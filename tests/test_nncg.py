@@ -8,7 +8,8 @@ from conftest import dc
 from deepcontact.errors import InputError
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
-from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
+from deepcontact.simulate.pgs_loop import PGSStepper
+from deepcontact.solver.settings import SolveSettings
 from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem
 from deepcontact.solver.reference import reference_solution
@@ -75,7 +76,7 @@ def test_exact_mode_takes_no_acceleration(problems):
         solve(problems[0], accelerate="anderson")
     scene = generate("pile", 0, dict(count=10))
     with pytest.raises(InputError, match="exact"):
-        PGSStepper(build_world(scene), scene, LoopOptions(mode="exact", accelerate="nncg"))
+        PGSStepper(build_world(scene), scene, SolveSettings(mode="exact", tolerance=0, accelerate="nncg"))
 
 
 def test_simulate_and_evaluate_with_nncg(tmp_path):

@@ -120,22 +120,30 @@ def test_an_option_that_does_not_apply_is_refused(run, dataset, model, tmp_path,
 
 
 def test_the_loops_rules_are_the_librarys_for_the_command_line_and_code_alike():
-    """One check of the loop's options (simulate.pgs_loop.check_options): dc simulate exits 2 with
-    it, and a PGSStepper built in code refuses the same options with the same words."""
+    """One check of the loop's options (SolveSettings' own and simulate.pgs_loop.check_loop's): dc
+    simulate exits 2 with it, and a PGSStepper built in code refuses the same options with the same
+    words."""
     import pytest
     from deepcontact.errors import OptionError
     from deepcontact.scene.generators import generate
     from deepcontact.simulate.build import build_world
-    from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper, check_options
+    from deepcontact.simulate.pgs_loop import PGSStepper, check_loop
+    from deepcontact.solver.settings import SolveSettings
     cases = [(dict(mode="exact", relaxation=1.3), "--relaxation"), (dict(mode="exact", relaxation="auto",
              tolerance=1e-4), "--relaxation"), (dict(mode="exact", accelerate="nncg"), "--accelerate"),
-             (dict(mode="float32", accelerate="newton"), "--accelerate"), (dict(relaxation="auto"), "--relaxation"),
-             (dict(start="lucky"), "--start")]
+             (dict(mode="float32", accelerate="newton"), "--accelerate"),
+             (dict(relaxation="auto", tolerance=0), "--relaxation"), (dict(start="lucky"), "--start")]
     scene = generate("pile", 0, {"count": 4, "steps": 5})
+
+    def loop(kw):   # (made and checked as the loop would: the settings first, then the loop's rules)
+        kw = dict(kw)
+        start = kw.pop("start", "builtin")
+        check_loop(SolveSettings(**kw), start)
+        return SolveSettings(**kw), start
     for kw, option in cases:
         with pytest.raises(OptionError) as e:
-            check_options(LoopOptions(**kw))
+            loop(kw)
         assert e.value.option == option
         with pytest.raises(OptionError):
-            PGSStepper(build_world(scene), scene, LoopOptions(**kw))
-    check_options(LoopOptions(mode="float64", relaxation="auto", tolerance=1e-4, accelerate="newton"))
+            PGSStepper(build_world(scene), scene, *loop(kw))
+    loop(dict(mode="float64", relaxation="auto", tolerance=1e-4, accelerate="newton"))

@@ -14,6 +14,7 @@ from deepcontact.solver.pgs import solve
 from deepcontact.solver.problem import StepProblem, contact_keys
 from deepcontact.solver.reference import reference_solution
 from deepcontact.solver.relaxation import AutoRelaxation, best_w, parse_relaxation
+from deepcontact.solver.settings import SolveSettings
 from deepcontact.step.reader import read_step
 
 SMALL = ["pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4"]
@@ -73,7 +74,7 @@ def test_auto_picks_the_w_with_the_fewest_median_sweeps():
 
 
 def test_auto_skips_easy_steps_and_retunes(hard_problems):
-    tuner = AutoRelaxation(1e-4, "residual", 3000, trial_steps=2, retune_every=3)
+    tuner = AutoRelaxation(SolveSettings(tolerance=1e-4, max_iterations=3000), trial_steps=2, retune_every=3)
     easy = hard_problems[0]
     tuner(easy, reference_solution(easy).normal_impulse, reference_solution(easy).tangent_impulse)  # 1 sweep
     assert tuner.trials == []

@@ -7,7 +7,8 @@ import pytest
 from conftest import dc
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
-from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
+from deepcontact.simulate.pgs_loop import PGSStepper
+from deepcontact.solver.settings import SolveSettings
 from deepcontact.step.reader import read_step
 
 SCENES = Path(__file__).parent.parent / "datasets" / "scenes"
@@ -46,10 +47,10 @@ def test_replay_refuses_what_it_cannot_check(tmp_path):
     assert r.returncode == 1 and "Box2D's own solver" in r.stderr
 
 
-def run_both(scene, steps, options):
+def run_both(scene, steps, settings):
     """Box2D's solver and ours side by side: per step, (max position difference, same impulses)."""
     ours, theirs = build_world(scene), build_world(scene)
-    stepper = PGSStepper(ours, scene, options)
+    stepper = PGSStepper(ours, scene, settings, "builtin")
     out = []
     for _ in range(steps):
         _, c_theirs = theirs.step(scene.dt, scene.solver.velocity_iterations, scene.solver.position_iterations,
@@ -68,14 +69,14 @@ def test_exact_mode_in_the_loop_follows_box2d_up_to_the_divergence_point():
     # are Box2D's to the bit, but Box2D then applies them in one warm-start pass instead of eight
     # sweeps of increments, which rounds differently: positions part at float32 rounding level.
     scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
-    steps = run_both(scene, 150, LoopOptions(start="builtin", mode="exact", max_iterations=8))
+    steps = run_both(scene, 150, SolveSettings(mode="exact", max_iterations=8, tolerance=0))
     first = next(k for k, (_, _, n) in enumerate(steps) if n)
     assert all(d == 0.0 and same for d, same, _ in steps[:first])
     assert steps[first][1]                          # same impulses, bit for bit
     assert steps[first][0] < 1e-6                   # positions part by rounding only
     # A stack stays together: after 300 steps the two are within 10 micrometres.
     stack = generate("stack", 0, dict(count=10))
-    steps = run_both(stack, 300, LoopOptions(start="builtin", mode="exact", max_iterations=8))
+    steps = run_both(stack, 300, SolveSettings(mode="exact", max_iterations=8, tolerance=0))
     assert max(d for d, _, _ in steps) < 1e-5
 
 
@@ -116,9 +117,9 @@ def test_the_native_loop_step_matches_the_step_in_pieces(scene, start, mode, w):
     # One native call per step (pgs_step) against the same step taken in pieces through Python:
     # the same trajectory and the same recorded step, array for array, bit for bit.
     s = generate(scene, 0, dict(count=30, box=16.0, sigma=4.0) if scene == "pile" else dict(base=6))
-    options = LoopOptions(start=start, mode=mode, max_iterations=200 if mode != "exact" else 8,
-                          tolerance=1e-4 if mode != "exact" else 0.0, relaxation=w)
-    native, pieces = (PGSStepper(build_world(s), s, options, native=n) for n in (True, False))
+    settings = SolveSettings(mode=mode, max_iterations=200 if mode != "exact" else 8,
+                             tolerance=1e-4 if mode != "exact" else 0.0, relaxation=w)
+    native, pieces = (PGSStepper(build_world(s), s, settings, start, native=n) for n in (True, False))
     assert native.native and not pieces.native
     solved = in_one_call = 0
     for _ in range(120):

@@ -14,8 +14,9 @@ from deepcontact.solver.settings import CAP, TOLERANCE, SolveSettings
     (dict(max_iterations="many"), "--max-iterations", "must be a number"),
     (dict(max_iterations=-1), "--max-iterations", "max_iterations must be >= 0"),
     (dict(tolerance=float("nan")), "--tolerance", "tolerance must be finite"),
-    (dict(mode="exact", relaxation=1.5), None, "exact mode is Box2D's PGS"),
-    (dict(mode="float32", accelerate="newton"), None, "float64 only"),
+    (dict(mode="exact", relaxation=1.5), "--relaxation", "exact is Box2D's PGS"),
+    (dict(mode="exact", accelerate="nncg"), "--accelerate", "exact is Box2D's PGS"),
+    (dict(mode="float32", accelerate="newton"), "--accelerate", "float64 only"),
 ])
 def test_a_bad_request_is_refused_on_construction_naming_its_flag(changes, flag, words):
     with pytest.raises(OptionError) as e:
@@ -48,7 +49,7 @@ def test_every_command_that_solves_to_a_tolerance_takes_its_defaults_from_the_se
         assert defaults["tolerance"] == TOLERANCE and defaults["max_iterations"] == CAP, command.name
     from deepcontact.evaluate.command import EvaluateSettings
     s = EvaluateSettings(runs=[], starts=[])
-    assert (s.tolerance, s.max_iterations) == (TOLERANCE, CAP)
+    assert (s.solve.tolerance, s.solve.max_iterations) == (TOLERANCE, CAP)
 
 
 def test_a_plug_in_method_receives_the_settings_object(run):

@@ -203,8 +203,8 @@ def test_bad_options_are_refused_once_natively_naming_the_option():
                             (dict(mode="float32", accelerate="newton"), "float64 only"),
                             (dict(mode="float32", accelerate="bodyspace"), "float64 only"),
                             (dict(tolerance=1e-3, stop_on="energy"), "stop_on must be one of none, thesis"),
-                            (dict(mode="exact", relaxation=1.3), "exact mode is Box2D's PGS"),
-                            (dict(mode="exact", accelerate="nncg"), "exact mode is Box2D's PGS"),
+                            (dict(mode="exact", relaxation=1.3), "exact is Box2D's PGS"),
+                            (dict(mode="exact", accelerate="nncg"), "exact is Box2D's PGS"),
                             (dict(max_iterations=-1), "max_iterations must be >= 0"),
                             (dict(tolerance=float("nan")), "tolerance must be finite")]:
         with pytest.raises(ValueError, match=message):

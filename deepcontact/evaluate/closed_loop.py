@@ -20,11 +20,11 @@ import numpy as np
 from .. import workers
 from ..simulate import stepping
 from ..simulate.build import build_world
-from ..simulate.pgs_loop import LoopOptions, PGSStepper
+from ..simulate.pgs_loop import PGSStepper
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
-from ..solver.settings import CAP, TOLERANCE
+from ..solver.settings import SolveSettings
 from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
 from .replay import variants
 
@@ -93,11 +93,12 @@ class Trajectory:
     residuals: np.ndarray = None
 
 
-def run_loop(scene, start_fn, options, steps, solved=None, report=True):
-    """start_fn None: options.start, stepped in one native call per step. report: each step to
-    workers.progress (not for the A/A run, which the progress total does not count)."""
+def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True):
+    """The scene stepped `steps` times with the project's solver (a SolveSettings) from `start_fn`,
+    or, if None, from `start`, in one native call per step. report: each step to workers.progress
+    (not for the A/A run, which the progress total does not count)."""
     world = build_world(scene)
-    stepper = PGSStepper(world, scene, options, start_fn=start_fn, record=False)
+    stepper = PGSStepper(world, scene, settings, start, start_fn=start_fn, record=False)
     return _follow(world, scene, steps, stepper.step, solved, report)
 
 
@@ -124,7 +125,7 @@ def _follow(world, scene, steps, step, solved=None, report=True):
 
 def reference_trajectory(scene, steps):
     """The scene stepped with every step's reference solution (float64 PGS to 1e-12)."""
-    exact = LoopOptions(start="builtin", mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
+    exact = SolveSettings(mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
 
     def reference_fn(bodies, contacts, problem, builtin_n, builtin_t):
         r = reference_solution(problem)
@@ -140,13 +141,13 @@ def _compare(t, ref):
     return distance, err
 
 
-def closed_loop(scene: "Scene", starts: dict, *, tolerance: float = TOLERANCE, max_iterations: int = CAP,
-                stop_on: str = "residual", mode: str = "float64", steps: int | None = None,
-                relaxations: tuple = (1.0,), reference: object = None,
+def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = SolveSettings(),
+                steps: int | None = None, relaxations: tuple = (1.0,), reference: object = None,
                 accelerations: tuple = ("none",)) -> list:
     """Every start (a make_starts table) with every acceleration and w driving the scene from its
-    first state for `steps` steps (the scene's by default), solved to `tolerance` within
-    `max_iterations` sweeps: one LoopResult each (iterations, times, drift from the reference
+    first state for `steps` steps (the scene's by default), each step solved as `settings` asks
+    (by default to a residual of TOLERANCE within CAP sweeps; each variant's w and method replace
+    its own): one LoopResult each (iterations, times, drift from the reference
     trajectory, penetration, energy, residuals). reference: a reference_trajectory to reuse. Each
     step stepped is reported to workers.progress."""
     steps = steps or scene.steps
@@ -155,14 +156,15 @@ def closed_loop(scene: "Scene", starts: dict, *, tolerance: float = TOLERANCE, m
     for v in variants(starts, relaxations, accelerations):
         # Zero and Box2D's warm start need nothing from Python: the whole step is one native call.
         native = v.name in NATIVE_STARTS
-        options = LoopOptions(start=v.name if native else "builtin", mode=mode, max_iterations=max_iterations,
-                              tolerance=tolerance, stop_on=stop_on, relaxation=v.relaxation, accelerate=v.accelerate)
+        asked = settings.but(relaxation=v.relaxation, accelerate=v.accelerate)
+        start = v.name if native else "builtin"
         adapter = _Adapter(v.name, v.start)
-        t = run_loop(scene, None if native else adapter, options, steps, solved=None if native else adapter.solved)
+        t = run_loop(scene, None if native else adapter, asked, steps, start,
+                     solved=None if native else adapter.solved)
         again = None
         if v.name == "builtin" and v.relaxation in (1, 1.0) and v.accelerate == "none":
             # the noise floor: the same run, timed again (A/A)
-            again = run_loop(scene, None, options, steps, report=False).seconds * 1e3
+            again = run_loop(scene, None, asked, steps, start, report=False).seconds * 1e3
         drift, err = _compare(t, ref)
         results.append(LoopResult(start=v.label, steps=len(t.iterations), iterations=t.iterations,
                                   ms_per_step=t.seconds * 1e3, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,

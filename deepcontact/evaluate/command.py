@@ -4,7 +4,7 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from ..solver.settings import CAP, TOLERANCE
+from ..solver.settings import SolveSettings
 
 
 @dataclass
@@ -13,10 +13,8 @@ class EvaluateSettings:
     runs: list                      # run folders of one kind of scene
     starts: list                    # start names (built-ins, installed plug-ins, package.module:Name)
     checkpoint: str | None = None   # a trained model, for the starts that use one
-    tolerance: float = TOLERANCE
-    max_iterations: int = CAP
-    stop_on: str = "residual"
-    mode: str = "float64"
+    solve: SolveSettings = SolveSettings()   # every solve's mode, tolerance, cap and measure (a variant's
+                                             # w and method replace its own)
     every: int = 1                  # replay: every N-th step
     cell: float = 0.5               # the sph start's grid, without a checkpoint
     smoothing: float = 0.5
@@ -43,14 +41,12 @@ class EvaluateSettings:
         sph start can draw."""
         from ..errors import OptionError
         from ..grid.spec import node_weight_problem
-        from ..solver.methods import check_mode
-        from ..solver.settings import SolveSettings
+        from ..solver.settings import check_mode
         from ..warmstart.starts import trait
         for w in self.relaxations:
-            SolveSettings(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
-                          stop_on=self.stop_on, relaxation=w)
+            self.solve.but(relaxation=w)
         for method in self.accelerations:
-            check_mode(method, self.mode)
+            check_mode(method, self.solve.mode)
         learned = [n for n in self.starts if trait(n, "needs_model")]
         if learned and not self.checkpoint:
             raise OptionError(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
@@ -89,10 +85,10 @@ def history_bytes(s: EvaluateSettings):
     # way); and while one step is solved, its whole trace: the native record (3 doubles a sweep, up
     # to twice that as the vector grows) and its numpy copy (a row of MEASURES a sweep). The
     # convergence plot draws at most report.PLOT_POINTS sweeps, whatever the cap.
-    kept = total * s.variants * (s.max_iterations + 1) * 8 * 2
-    tracing = (s.max_iterations + 1) * 8 * (2 * 3 + 4)
+    kept = total * s.variants * (s.solve.max_iterations + 1) * 8 * 2
+    tracing = (s.solve.max_iterations + 1) * 8 * (2 * 3 + 4)
     return (kept + tracing,
-            f"the convergence histories of {total:,} steps x {s.variants} variants up to {s.max_iterations:,} sweeps")
+            f"the convergence histories of {total:,} steps x {s.variants} variants up to {s.solve.max_iterations:,} sweeps")
 
 
 def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str:
@@ -121,14 +117,13 @@ def _replay(s, out, table, measured, progress):
     from .replay import evaluate, summarize
     from .report import noise_of, summary_table, write_report
     total = sum(len(sim.files) for r in s.read_runs() for sim in r.simulations)
-    rows = evaluate(s.read_runs(), table, tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on,
-                    mode=s.mode, every=s.every, seed=s.seed, progress=progress(total, "step"),
+    rows = evaluate(s.read_runs(), table, settings=s.solve, every=s.every, seed=s.seed, progress=progress(total, "step"),
                     relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
-    summary = summarize(rows, table, s.max_iterations)
+    summary = summarize(rows, table, s.solve.max_iterations)
     _record_origins(summary, table)
     settings = dict(runs=[str(r) for r in s.runs], starts=s.starts, relaxation=s.relaxations,
-                    accelerate=s.accelerations, model=s.checkpoint, tolerance=s.tolerance,
-                    max_iterations=s.max_iterations, stop_on=s.stop_on, mode=s.mode, every=s.every,
+                    accelerate=s.accelerations, model=s.checkpoint, tolerance=s.solve.tolerance,
+                    max_iterations=s.solve.max_iterations, stop_on=s.solve.stop_on, mode=s.solve.mode, every=s.every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=s.bands,
                     noise=noise_of(rows, summary))
     write_report(out, rows, summary, settings)
@@ -161,13 +156,12 @@ def _closed_loop(s, out, table, measured, progress):
     per_simulation = every_simulation(
         scenes, table, budgets=s.budgets, jobs=s.jobs,
         progress=progress(steps_stepped(scenes, s.variants, s.budgets, s.steps), "step"),
-        tolerance=s.tolerance, max_iterations=s.max_iterations, stop_on=s.stop_on, mode=s.mode, steps=s.steps,
-        relaxations=s.relaxations, accelerations=s.accelerations)
+        settings=s.solve, steps=s.steps, relaxations=s.relaxations, accelerations=s.accelerations)
     results = plotted = per_simulation[0] if len(sims) == 1 else pooled(per_simulation)
     if len(sims) > 1:   # the pooled rows first (plotted), then each simulation's, named by its run and seed
         results = plotted + [dataclasses.replace(r, start=f"{r.start} · {run} seed {sim.seed}")
                              for (run, sim), rows in zip(sims, per_simulation) for r in rows]
     what = (f"{scenes[0].name}, {len(sims)} simulation{'s' if len(sims) != 1 else ''} of "
             f"{', '.join(map(str, s.runs))}")
-    return write_loop_report(out, results, what, s.stop_on, s.tolerance, s.max_iterations, s.mode, measured,
+    return write_loop_report(out, results, what, s.solve, measured,
                              simulations=len(sims), plotted=plotted)

@@ -25,7 +25,7 @@ from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
-from ..solver.settings import CAP, TOLERANCE, SolveSettings
+from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
 from ..warmstart.starts import StepContext, seen_by
 
@@ -138,10 +138,11 @@ def _plan(runs):
     return plan
 
 
-def tune_relaxation(run_dirs, *, tolerance, stop_on, max_iterations, mode="float64", accelerate="none"):
-    """The w `auto` picks for these runs: AutoRelaxation from builtin starts, on steps spread
-    evenly over the first simulation (a replay knows the whole run; the loop only its past)."""
-    tuner = AutoRelaxation(tolerance, stop_on, max_iterations, mode, accelerate=accelerate)
+def tune_relaxation(run_dirs, settings: SolveSettings):
+    """The w `auto` picks for these runs (solving with `settings`): AutoRelaxation from builtin
+    starts, on steps spread evenly over the first simulation (a replay knows the whole run; the
+    loop only its past)."""
+    tuner = AutoRelaxation(settings)
     _, _, files, _ = _plan(run_dirs)[0]
     stride = max(1, len(files) // (4 * tuner.trial_steps))
     for path in files[stride // 2::stride]:
@@ -243,12 +244,12 @@ def _time_interleaved(problem, step_rows):
         row.solve_ms = float(np.median(times[i]))
 
 
-def evaluate(run_dirs: list, starts: dict, *, tolerance: float = TOLERANCE, max_iterations: int = CAP,
-             stop_on: str = "residual", mode: str = "float64", every: int = 1, seed: int = 0,
+def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSettings(), every: int = 1, seed: int = 0,
              progress: Callable | None = None, relaxations: tuple = (1.0,), budgets: bool = False,
              accelerations: tuple = ("none",), jobs: int = 1) -> list:
     """Rows for every (step, variant): each start with each acceleration and w. Runs must hold
-    one kind of scene.
+    one kind of scene. settings: what every solve is asked (its mode, tolerance, cap and
+    measure; each variant's w and method replace its own).
 
     budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached.
     jobs > 1: simulations side by side in worker processes (the same rows, in the same order; the
@@ -260,11 +261,8 @@ def evaluate(run_dirs: list, starts: dict, *, tolerance: float = TOLERANCE, max_
     for v in table:
         if v.relaxation == "auto":
             if v.accelerate not in tuned:
-                tuned[v.accelerate] = tune_relaxation(run_dirs, tolerance=tolerance, stop_on=stop_on,
-                                                      max_iterations=max_iterations, mode=mode,
-                                                      accelerate=v.accelerate)
+                tuned[v.accelerate] = tune_relaxation(run_dirs, settings.but(accelerate=v.accelerate))
             v.relaxation = tuned[v.accelerate]
-    settings = SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on)
     tasks = [(sim, table, settings, every, seed, budgets) for sim in plan]
     rows = []
     with workers.for_jobs(jobs, tasks, progress) as pool:

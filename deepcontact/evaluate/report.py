@@ -392,17 +392,17 @@ def _save(fig, stem):
     plt.close(fig)
 
 
-def write_loop_report(out, results, what, stop_on, tolerance, max_iterations, mode, measured=None, simulations=1,
-                      plotted=None):
+def write_loop_report(out, results, what, settings, measured=None, simulations=1, plotted=None):
     """report.md (and .html) and summary.csv as replay's, closed-loop.json and the plot closed-loop.png
-    into the folder out; returns the
-    table. With several simulations, results hold the pooled rows first, then each simulation's;
+    into the folder out; returns the table. settings: the SolveSettings every step was solved
+    with (a variant's w and method aside). With several simulations, results hold the pooled rows first, then each simulation's;
     plotted: the rows the plot shows (default all)."""
+    stop_on, tolerance = settings.stop_on, settings.tolerance
     text = loop_table(results, tolerance if stop_on == "residual" else None)
     pooled = results[:len(results) // (simulations + 1)] if simulations > 1 else results   # (the verdict's rows)
     line = loop_verdict(pooled, tolerance if stop_on == "residual" else None)
     page = (f"# Closed loop: {md_text(what)}\n\n" + (line + "\n\n" if line else "") +
-            f"Stopping: {stop_on} < {tolerance:g}, at most {max_iterations} sweeps, {mode}. Drift: "
+            f"Stopping: {stop_on} < {tolerance:g}, at most {settings.max_iterations} sweeps, {settings.mode}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
             f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "

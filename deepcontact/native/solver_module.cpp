@@ -289,6 +289,9 @@ void bind_options(py::module_& m) {
         "then semismooth Newton steps on the whole step (float64, stops on the residual); subspace:\n"
         "the same with each system solved inexactly by conjugate gradients; bodyspace: sweeps, then\n"
         "augmented-Lagrangian iterations on the bodies' velocities (float64, stops on the residual).");
+    m.def("is_global", &is_global, py::arg("accelerate"),
+          "Whether a method's work is more than sweeps (a global step over the whole problem): such a\n"
+          "method is float64 only and stops on the residual (the traits the Python layer reads).");
     bind_enum<LoopStart>(m, "LoopStart", {{"zero", LoopStart::zero}, {"builtin", LoopStart::builtin}},
                          "Where a step of the native loop starts PGS: zero or Box2D's carried impulses.");
 

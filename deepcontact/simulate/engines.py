@@ -2,13 +2,13 @@
 function, checks a scene against its own rules, and says what its step files and manifest record.
 
     Box2D()                    Box2D 2.4.1 with its own velocity solver (the scene's iterations)
-    Box2D(solver=LoopOptions)  Box2D 2.4.1 stepped with the project's solver (`--solver pgs`)
+    Box2D(solver=SolveSettings(...), start="builtin")
+                               Box2D 2.4.1 stepped with the project's solver (`--solver pgs`)
     Box2D3(SoftStep())         Box2D v3's soft step (`--engine box2d3`)
 
 `dc simulate`, `run`, `run_simulation` and `World` take one; no caller infers the engine from
 which keywords are set.
 """
-import dataclasses
 import functools
 import math
 from xml.sax.saxutils import quoteattr
@@ -20,26 +20,22 @@ from ..solver.settings import SolveSettings
 from ..step.engines import SoftStep
 from . import stepping
 from .build import build_world, build_world3
-from .pgs_loop import LoopOptions, PGSStepper, check_options, check_scene_for_loop
+from .pgs_loop import PGSStepper, check_loop, check_scene_for_loop
 
 
 class Box2D:
     """Box2D 2.4.1 (Debian's). Without `solver`, its own velocity solver at the scene's iterations
-    (or `velocity_iterations`); with `solver` (a SolveSettings, or the loop's LoopOptions), the
-    project's solver in the loop from `start` (builtin: Box2D's warm start; zero; garbage), with
-    the settings and the method it says (docs/solver.md, "The loop")."""
+    (or `velocity_iterations`); with `solver` (a SolveSettings), the project's solver in the loop
+    from `start` (builtin: Box2D's warm start; zero; garbage), with the settings and the method it
+    says (docs/solver.md, "The loop")."""
 
-    def __init__(self, solver: "SolveSettings | LoopOptions | None" = None, start: str = "builtin",
+    def __init__(self, solver: SolveSettings | None = None, start: str = "builtin",
                  velocity_iterations: int | None = None):
-        if isinstance(solver, SolveSettings):
-            solver = LoopOptions(start=start, mode=solver.mode, max_iterations=solver.max_iterations,
-                                 tolerance=solver.tolerance, stop_on=solver.stop_on, relaxation=solver.relaxation,
-                                 accelerate=solver.accelerate)
         if solver is not None:
-            check_options(solver)
+            check_loop(solver, start)
             if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
-                solver = dataclasses.replace(solver, relaxation=None)
-        self.solver = solver
+                solver = solver.but(relaxation=None)
+        self.solver, self.start = solver, start
         self.velocity_iterations = velocity_iterations
 
     @property
@@ -70,11 +66,11 @@ class Box2D:
         """A function stepping `world` once, returning a pgs_loop.LoopStep (stepping.steps runs it)."""
         if self.solver is None:
             return stepping.box2d(world, scene, self.velocity_iterations, record=record)
-        return PGSStepper(world, scene, self.solver, record=record).step
+        return PGSStepper(world, scene, self.solver, self.start, record=record).step
 
     def solve_line(self, solution) -> str:
         """The line a step file's header gets for how the step was solved (`<solve>`), or ""."""
-        return "" if self.solver is None else _solve_xml(self.solver, solution)
+        return "" if self.solver is None else _solve_xml(self.solver, self.start, solution)
 
     def manifest(self) -> dict:
         """What the run's manifest records of the engine besides its name: the project's solver's
@@ -82,10 +78,14 @@ class Box2D:
         from ..solver.methods import method_origin
         if self.solver is None:
             return {"pgs": None}
-        return {"pgs": dict(self.solver.__dict__, accelerate_origin=method_origin(self.solver.accelerate))}
+        o = self.solver
+        return {"pgs": dict(start=self.start, mode=o.mode, max_iterations=o.max_iterations, tolerance=o.tolerance,
+                            stop_on=o.stop_on, relaxation=o.relaxation, accelerate=o.accelerate,
+                            accelerate_origin=method_origin(o.accelerate),
+                            **({} if o.guard else {"guard": False}))}   # (the guard is on unless said)
 
     def __repr__(self):
-        return f"Box2D(solver={self.solver!r})" if self.solver is not None else "Box2D()"
+        return f"Box2D(solver={self.solver!r}, start={self.start!r})" if self.solver is not None else "Box2D()"
 
 
 class Box2D3:
@@ -118,7 +118,7 @@ class Box2D3:
         return f"Box2D3({self.soft!r})"
 
 
-def _solve_xml(options, solution):
+def _solve_xml(options, start, solution):
     """A step header's `<solve>` line: the options the step was solved with, where its method comes
     from, and what the solve did (iterations, the residual, a global method's work)."""
     from ..solver.methods import GLOBAL
@@ -137,7 +137,7 @@ def _solve_xml(options, solution):
                                                  s.newton_fallbacks)
         work = (' factorizations="%d" newton_iterations="%d" outer_iterations="%d" fallbacks="%d"' % counts)
     relaxation = "" if w is None else f' relaxation="{fmt(w)}"'
-    return (f'    <solve start="{o.start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
+    return (f'    <solve start="{start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
             f'max_iterations="{o.max_iterations}"{relaxation} accelerate="{o.accelerate}"{_origin_xml(o.accelerate)} '
             f'iterations="{iterations}" '
             f'residual="{fmt(residual)}" sanitized="{sanitized}"{work}/>\n')

@@ -21,38 +21,25 @@ from .._box2d import PGSStepSettings, StepSettings, pgs_step
 from ..errors import InputError
 from ..solver.methods import is_native, solve
 from ..solver.pgs import Solution
-from ..solver.pgs import options as solve_options
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
+from ..solver.settings import SolveSettings
 
 STARTS = ("zero", "builtin", "garbage")
 # A deliberately broken start, for stability tests: huge, not a number, negative, in turn.
 GARBAGE = np.array([1e30, np.nan, -1.0])
 
 
-@dataclass
-class LoopOptions:
-    start: str = "builtin"
-    mode: str = "float64"
-    max_iterations: int = 8
-    tolerance: float = 0.0
-    stop_on: str = "residual"
-    relaxation: object = 1.0     # w in (0, 2), "auto" (solver.relaxation.AutoRelaxation), or None: a
-                                 # plug-in method that takes no w
-    accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
-
-
-def check_options(o: LoopOptions, own_start=False) -> None:
-    """The rules of the loop's options, checked once for the command line and the library alike;
-    OptionError naming the option that breaks one. own_start: the caller makes the starts."""
+def check_loop(settings: SolveSettings, start: str = "builtin", own_start=False) -> None:
+    """The loop's own rules over a solve's settings, checked once for the command line and the
+    library alike; OptionError naming the option that breaks one. own_start: the caller makes the
+    starts."""
     from ..errors import OptionError
-    from ..solver.methods import check_mode, takes_relaxation
-    if not own_start and o.start not in STARTS:
-        raise OptionError(f"unknown start {o.start!r}; choose from {', '.join(STARTS)}", "--start")
-    if o.mode == "exact" and o.relaxation != 1.0:
-        raise OptionError("--mode exact is Box2D's PGS: it takes no over-relaxation", "--relaxation")
-    if o.mode == "exact" and o.accelerate != "none":
-        raise OptionError("--mode exact is Box2D's PGS: it takes no acceleration", "--accelerate")
+    from ..solver.methods import takes_relaxation
+    from ..solver.settings import check_mode
+    o = settings
+    if not own_start and start not in STARTS:
+        raise OptionError(f"unknown start {start!r}; choose from {', '.join(STARTS)}", "--start")
     check_mode(o.accelerate, o.mode)
     if not takes_relaxation(o.accelerate) and o.relaxation not in (None, 1.0):
         raise OptionError(f"the solver method {o.accelerate} takes no over-relaxation (its class does not say "
@@ -93,37 +80,34 @@ class LoopStep:
 class PGSStepper:
     """Steps a world with the project's PGS; step() returns a LoopStep."""
 
-    def __init__(self, world, scene, options: LoopOptions, start_fn=None, record=True, native=True):
-        """start_fn(bodies, contacts, problem, builtin_n, builtin_t) -> (normal, tangent), if given,
-        makes the first iterate instead of options.start (dc evaluate --closed-loop). record: keep
-        the bodies and contacts of each step (step files need them; a timed loop does not).
-        native=False steps in pieces through Python even where one native call could."""
+    def __init__(self, world, scene, settings: SolveSettings, start="builtin", start_fn=None, record=True,
+                 native=True):
+        """settings: the solve's (its mode, tolerance, cap, w and method); start: zero, builtin
+        (Box2D's warm start) or garbage. start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+        -> (normal, tangent), if given, makes the first iterate instead (dc evaluate --closed-loop).
+        record: keep the bodies and contacts of each step (step files need them; a timed loop does
+        not). native=False steps in pieces through Python even where one native call could."""
         self.start_fn = start_fn
-        check_options(options, own_start=start_fn is not None)
+        check_loop(settings, start, own_start=start_fn is not None)
         check_scene_for_loop(scene)
-        auto = options.relaxation == "auto"
-        try:
-            self.solve_options = solve_options(
-                dt=scene.dt, mode=options.mode, max_iterations=options.max_iterations, tolerance=options.tolerance,
-                stop_on=options.stop_on, relaxation=1.0 if auto or options.relaxation is None else options.relaxation,
-                accelerate=options.accelerate if is_native(options.accelerate) else "none")
-        except ValueError as e:
-            raise InputError(str(e)) from None
-        self.world, self.scene, self.options, self.record = world, scene, options, record
+        auto = settings.relaxation == "auto"
+        # (w: "auto" and None stand as 1; a plug-in method's steps sweep nothing natively)
+        native_part = settings if is_native(settings.accelerate) else settings.but(accelerate="none")
+        self.solve_options = native_part.native(dt=scene.dt)
+        self.world, self.scene, self.settings, self.start, self.record = world, scene, settings, start, record
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
         self.first = True
-        self.relaxation = options.relaxation
+        self.relaxation = settings.relaxation
         if auto:
-            self.relaxation = AutoRelaxation(options.tolerance, options.stop_on, options.max_iterations, options.mode,
-                                             accelerate=options.accelerate)
+            self.relaxation = AutoRelaxation(settings)
         # (a plug-in solver method is Python: its steps go through Python too)
-        self.native = native and start_fn is None and options.start in ("zero", "builtin") \
-            and is_native(options.accelerate)
+        self.native = native and start_fn is None and start in ("zero", "builtin") \
+            and is_native(settings.accelerate)
         if self.native:
-            self.settings = PGSStepSettings(
+            self.step_settings = PGSStepSettings(
                 step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve),
-                solve=self.solve_options, start=options.start, warm_scale=0.0, inv_dt0=self.inv_dt,
+                solve=self.solve_options, start=start, warm_scale=0.0, inv_dt0=self.inv_dt,
                 position_iterations=scene.solver.position_iterations, record=record)
         world.find_new_contacts()   # Step would do this itself, after our Collide
 
@@ -138,11 +122,11 @@ class PGSStepper:
         return done
 
     def _native_step(self, w):
-        self.settings.warm_scale = 0.0 if self.first else 1.0
+        self.step_settings.warm_scale = 0.0 if self.first else 1.0
         if w != self.solve_options.relaxation:
             self.solve_options.relaxation = w
-            self.settings.solve = self.solve_options
-        out = pgs_step(self.world, self.settings)
+            self.step_settings.solve = self.solve_options
+        out = pgs_step(self.world, self.step_settings)
         self.first = False
         solution = None if out is None else Solution.from_native(out, w)
         deepest = 0.0 if out is None else out["deepest"]
@@ -158,7 +142,7 @@ class PGSStepper:
         return LoopStep(before, recorded, solution, deepest)
 
     def _python_step(self):
-        world, scene, o = self.world, self.scene, self.options
+        world, scene, o = self.world, self.scene, self.settings
         bodies = world.bodies()
         world.collide()
         contacts = world.contacts()
@@ -175,9 +159,9 @@ class PGSStepper:
         if self.start_fn is not None:
             start_n, start_t = (np.zeros(0), np.zeros(0)) if problem is None else \
                 self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
-        elif o.start == "builtin":
+        elif self.start == "builtin":
             start_n, start_t = builtin_n, builtin_t
-        elif o.start == "garbage":
+        elif self.start == "garbage":
             start_n = np.resize(GARBAGE, len(builtin_n))
             start_t = np.roll(start_n, 1)
         else:
@@ -186,8 +170,7 @@ class PGSStepper:
         solution = None
         if problem is not None:
             w = self.relaxation(problem, start_n, start_t) if callable(self.relaxation) else self.relaxation
-            solution = solve(problem, start_n, start_t, mode=o.mode, max_iterations=o.max_iterations,
-                             tolerance=o.tolerance, stop_on=o.stop_on, relaxation=w, accelerate=o.accelerate)
+            solution = solve(problem, start_n, start_t, settings=o.but(relaxation=w))
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt
@@ -199,7 +182,7 @@ class PGSStepper:
         before, recorded = out
         # What Box2D applied is what we wrote; record our start as the step's start.
         # (a garbage start is recorded as sanitised: no NaN ever reaches a file)
-        used_n, used_t = (start_n, start_t) if o.start != "garbage" else (np.zeros_like(builtin_n),) * 2
+        used_n, used_t = (start_n, start_t) if self.start != "garbage" else (np.zeros_like(builtin_n),) * 2
         if len(used_n) != len(builtin_n):
             used_n, used_t = np.zeros_like(builtin_n), np.zeros_like(builtin_t)
         recorded["start_normal_impulse"] = used_n.astype(np.float32)

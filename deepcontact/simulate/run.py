@@ -223,7 +223,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
     of steps (or progress is None). max_disk: refuse runs estimated above this many GB (the free
     space is always a limit). compress: gzip every step file. engine: what steps the worlds
-    (simulate.engines: Box2D(), the default; Box2D(solver=LoopOptions(...)); Box2D3(SoftStep())).
+    (simulate.engines: Box2D(), the default; Box2D(solver=SolveSettings(...), start=...); Box2D3(SoftStep())).
     Returns the manifest as a dict."""
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._box2d import Acceleration
+from .._box2d import Acceleration, is_global
 from ..errors import InputError
 from ..plugins import PluginError, Registry, guest
 from .pgs import MEASURES, Solution
@@ -34,7 +34,8 @@ if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
 
 SOLVERS = Registry("solver method", "deepcontact.solvers")
-GLOBAL = ("newton", "subspace", "bodyspace")   # built-ins whose work is not only sweeps (and which are float64 only)
+# built-ins whose work is not only sweeps (and which are float64 only): the native table says which
+GLOBAL = tuple(name for name, a in Acceleration.__members__.items() if is_global(a))
 
 
 @dataclass
@@ -55,7 +56,7 @@ class Native:
 
 
 for _name in Acceleration.__members__:
-    SOLVERS.register(_name, lambda _n=_name: Native(_n), native=True, float64_only=_name in GLOBAL)
+    SOLVERS.register(_name, lambda _n=_name: Native(_n), native=True)
 BUILTIN = tuple(SOLVERS.builtin())
 _instances = {}
 
@@ -101,14 +102,6 @@ def method(name):
         with guest(f"the solver method {name!r}", "cannot be made:"):
             _instances[name] = factory()
     return _instances[name]
-
-
-def check_mode(name: str, mode: str) -> None:
-    """The rule a solver method puts on the arithmetic: newton, subspace and bodyspace are float64 only.
-    OptionError (naming --accelerate) where it is broken."""
-    from ..errors import OptionError
-    if is_native(name) and getattr(SOLVERS.resolved(name), "float64_only", False) and mode != "float64":
-        raise OptionError(f"{name} is float64 only: use --mode float64", "--accelerate")
 
 
 def is_native(name) -> bool:

@@ -30,10 +30,9 @@ def parse_relaxation(text):
     return w
 
 
-def sweeps_by_w(problem, start_n, start_t, *, tolerance, stop_on, max_iterations, mode="float64", accelerate="none"):
-    """{w: sweeps to the tolerance} for every candidate w, from the same start."""
-    return {w: solve(problem, start_n, start_t, mode=mode, max_iterations=max_iterations, tolerance=tolerance,
-                     stop_on=stop_on, relaxation=w, final_residual=False, accelerate=accelerate).iterations
+def sweeps_by_w(problem, start_n, start_t, settings):
+    """{w: sweeps to the settings' tolerance} for every candidate w, from the same start."""
+    return {w: solve(problem, start_n, start_t, settings=settings.but(relaxation=w), final_residual=False).iterations
             for w in CANDIDATES}
 
 
@@ -49,10 +48,9 @@ class AutoRelaxation:
     """Tunes w on the first TRIAL_STEPS hard problems it is shown, then keeps trying one problem
     in every RETUNE_EVERY and follows the best w over the last TRIAL_STEPS trials."""
 
-    def __init__(self, tolerance, stop_on, max_iterations, mode="float64", trial_steps=TRIAL_STEPS,
-                 retune_every=RETUNE_EVERY, accelerate="none"):
-        self.settings = dict(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations, mode=mode,
-                             accelerate=accelerate)
+    def __init__(self, settings, trial_steps=TRIAL_STEPS, retune_every=RETUNE_EVERY):
+        """settings: the SolveSettings each trial solves with (its w aside)."""
+        self.settings = settings
         self.trial_steps, self.retune_every = trial_steps, retune_every
         self.trials = []
         self.seen = 0
@@ -67,7 +65,7 @@ class AutoRelaxation:
 
     def wants_trial(self):
         """Whether the next problem will be tried at every candidate (else it is solved at self.w)."""
-        return self.settings["tolerance"] > 0 and (not self.tuned or (self.seen + 1) % self.retune_every == 0)
+        return self.settings.tolerance > 0 and (not self.tuned or (self.seen + 1) % self.retune_every == 0)
 
     def solved_without_trial(self):
         """Counts a problem solved at self.w elsewhere (the native loop), as __call__ would have."""
@@ -78,7 +76,7 @@ class AutoRelaxation:
         trying = self.wants_trial()
         self.seen += 1
         if trying:
-            trial = sweeps_by_w(problem, start_n, start_t, **self.settings)
+            trial = sweeps_by_w(problem, start_n, start_t, self.settings)
             # a problem plain PGS solves in a few sweeps (the first touch of a falling body) is
             # not what relaxation is for, and says nothing about the settled scene to come
             if trial[1.0] > INFORMATIVE:

@@ -57,6 +57,11 @@ class SolveSettings:
                               FLAGS["max_iterations"])
         if not isinstance(self.stop_on, str):
             raise OptionError(f"stop_on must be a measure's name, got {self.stop_on!r}", FLAGS["stop_on"])
+        if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
+            raise OptionError("--mode exact is Box2D's PGS: it takes no over-relaxation", FLAGS["relaxation"])
+        if self.mode == "exact" and self.accelerate != "none":
+            raise OptionError("--mode exact is Box2D's PGS: it takes no acceleration", FLAGS["accelerate"])
+        check_mode(self.accelerate, self.mode)   # (the native rule, but naming the flag)
         # the native rules, checked where they are written (a plug-in method's name stands as
         # plain sweeps: its own rules are its own)
         from .._box2d import Acceleration
@@ -88,6 +93,17 @@ class SolveSettings:
     def but(self, **changes) -> "SolveSettings":
         """These settings with some fields changed (checked again)."""
         return replace(self, **changes)
+
+
+def check_mode(accelerate: str, mode: str) -> None:
+    """The rule a method puts on the arithmetic: the native table's global methods (newton,
+    subspace, bodyspace) are float64 only. OptionError naming --accelerate where it is broken (a
+    plug-in method's name passes: its rules are its own)."""
+    from .._box2d import Acceleration, is_global
+    if accelerate in Acceleration.__members__ and is_global(Acceleration.__members__[accelerate]) \
+            and mode != "float64":
+        from ..errors import OptionError
+        raise OptionError(f"{accelerate} is float64 only: use --mode float64", FLAGS["accelerate"])
 
 
 _CHECKED = set()   # requests already checked (frozen values: equal ones pass the same checks)

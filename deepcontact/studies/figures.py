@@ -13,7 +13,7 @@ from .. import atomic, workers
 from ..grid.dataset import collect
 from ..grid.spec import GridSpec
 from ..protocol import protocol, protocol_line
-from ..solver.settings import CAP, TOLERANCE
+from ..solver.settings import SolveSettings
 from ..evaluate.replay import evaluate, summarize
 from ..evaluate.report import convergence_plot, summary_table
 from ..warmstart.starts import SPH, make_starts
@@ -29,8 +29,9 @@ FIGURES = {
 FIGURE_FILES = atomic.Owned("figures folder", [r"figures\.md", r"fig-5\.[4-7]\.(png|svg)"])
 
 
-def figures(run, out, every=10, tolerance=TOLERANCE, stop_on="residual", max_iterations=CAP, jobs=1, progress=None):
-    """Figures 5.4-5.7 of the run into the folder out; returns the markdown text. jobs > 1: the
+def figures(run, out, every=10, settings=SolveSettings(), jobs=1, progress=None):
+    """Figures 5.4-5.7 of the run into the folder out, each step solved as `settings` asks;
+    returns the markdown text. jobs > 1: the
     four figures' replays side by side in worker processes (the same figures: sweeps do not
     depend on -j; the tables' times are each worker's own). progress(n): n more step files."""
     from ..errors import InputError
@@ -38,7 +39,7 @@ def figures(run, out, every=10, tolerance=TOLERANCE, stop_on="residual", max_ite
     window = sims[0].box
     if window is None:
         raise InputError("the thesis's figures need a scene with a static box (the pile)", run)
-    kw = dict(tolerance=tolerance, max_iterations=max_iterations, stop_on=stop_on, every=every)
+    kw = dict(settings=settings, every=every)
     measured = protocol(jobs=jobs)
     names = [*FIGURES, "fig-5.7"]
     tasks = [(run, name, tuple(window), kw) for name in names]
@@ -46,8 +47,8 @@ def figures(run, out, every=10, tolerance=TOLERANCE, stop_on="residual", max_ite
     with workers.for_jobs(jobs, tasks, progress) as pool:
         for name, (starts, rows) in zip(names, pool.imap(_figure_rows, tasks)):
             title = "Thesis 5.7: all starts" if name == "fig-5.7" else f"Thesis {name[4:]}: the SPH start"
-            convergence_plot(rows, starts, out / name, title, tolerance, stop_on)
-            text += [f"## {name}\n", summary_table(summarize(rows, starts, max_iterations)), ""]
+            convergence_plot(rows, starts, out / name, title, settings.tolerance, settings.stop_on)
+            text += [f"## {name}\n", summary_table(summarize(rows, starts, settings.max_iterations)), ""]
     text += [protocol_line(measured), ""]
     atomic.write_text(out / "figures.md", "\n".join(text) + "\n")
     return "\n".join(text)

@@ -25,19 +25,18 @@ import torch
 from ..scene.generators import generate
 from ..simulate.problems import problems as step_problems
 from ..simulate.engines import Box2D
-from ..simulate.pgs_loop import LoopOptions
-from ..solver.pgs import solve
-from ..solver.settings import CAP, TOLERANCE
+from ..solver.methods import solve
+from ..solver.settings import SolveSettings
 from . import contact_graph as cg
 from .text import StudyText, progress
 
-SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual")
+SETTINGS = SolveSettings()   # (float64, to a residual of TOLERANCE within CAP sweeps)
 
 
 def loop_problems(seed, steps=600):
     """The problems the loop solved, each with the start it was given (the builtin start)."""
     scene = generate("pile", seed, {})
-    engine = Box2D(solver=LoopOptions(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, relaxation=1.0))
+    engine = Box2D(solver=SETTINGS)
     return [problem for _, problem in step_problems(scene, engine, first=1, count=steps)]
 
 
@@ -91,7 +90,7 @@ def evaluate(model, problems, out):
             best = float("inf")
             for _ in range(3):
                 t0 = time.perf_counter()
-                s = solve(p, sn, st, relaxation=w, final_residual=False, **SETTINGS)
+                s = solve(p, sn, st, settings=SETTINGS.but(relaxation=w), final_residual=False)
                 best = min(best, time.perf_counter() - t0)
             rows[label].append((s.iterations, best))
     base_it = np.median([i for i, _ in rows["builtin"]])

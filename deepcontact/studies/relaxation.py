@@ -31,13 +31,13 @@ import numpy as np
 from ..scene.generators import generate
 from ..simulate.problems import problems as step_problems
 from ..simulate.build import build_world
-from ..solver.pgs import solve
+from ..solver.methods import solve
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.relaxation import AutoRelaxation
-from ..solver.settings import CAP, TOLERANCE
+from ..solver.settings import SolveSettings
 from .text import StudyText
 
-SETTINGS = dict(mode="float64", max_iterations=CAP, tolerance=TOLERANCE, stop_on="residual")
+SETTINGS = SolveSettings()   # (float64, to a residual of TOLERANCE within CAP sweeps)
 
 
 def steps_of(name):
@@ -46,13 +46,13 @@ def steps_of(name):
             for done, problem in step_problems(scene, first=299, count=600)]
 
 
-def timed(problem, n, t, w, repeats, accelerate="none", cap=SETTINGS["max_iterations"]):
+def timed(problem, n, t, w, repeats, accelerate="none", cap=SETTINGS.max_iterations):
     """(sweeps, best of `repeats` solve times, factorizations); cap=0 times a solve with no sweep."""
     best = float("inf")
+    asked = SETTINGS.but(relaxation=w, accelerate=accelerate, max_iterations=cap)
     for _ in range(repeats):
         t0 = time.perf_counter()
-        s = solve(problem, n, t, relaxation=w, final_residual=False, accelerate=accelerate,
-                  **dict(SETTINGS, max_iterations=cap))
+        s = solve(problem, n, t, settings=asked, final_residual=False)
         best = min(best, time.perf_counter() - t0)
     return s.iterations, best, s.factorizations
 
@@ -80,14 +80,12 @@ def loop(name, repeats, seeds=(0,), out=None):
 
 
 def loop_one(name, repeats, seed):
-    from deepcontact.simulate.pgs_loop import LoopOptions, PGSStepper
+    from deepcontact.simulate.pgs_loop import PGSStepper
     seconds, sweeps = {}, {}
     for _ in range(repeats):
         for label, w, accelerate in LOOP_VARIANTS:
             scene = generate(name, seed, {})
-            stepper = PGSStepper(build_world(scene), scene, LoopOptions(mode="float64", max_iterations=CAP,
-                                                                        tolerance=TOLERANCE, relaxation=w,
-                                                                        accelerate=accelerate),
+            stepper = PGSStepper(build_world(scene), scene, SETTINGS.but(relaxation=w, accelerate=accelerate),
                                  record=False)
             times, its = [], []
             for _ in range(scene.steps):
@@ -108,7 +106,7 @@ def run(scene="pile", repeats=3, loop_seeds=None, out=None) -> StudyText:
         loop(scene, repeats, list(loop_seeds), out)
         return out
     steps = steps_of(scene)
-    tuner = AutoRelaxation(SETTINGS["tolerance"], SETTINGS["stop_on"], SETTINGS["max_iterations"])
+    tuner = AutoRelaxation(SETTINGS)
     for _, p, _ in steps[::max(1, len(steps) // 32)]:
         if not tuner.tuned:
             tuner(p, p.start_normal, p.start_tangent)
@@ -120,7 +118,7 @@ def run(scene="pile", repeats=3, loop_seeds=None, out=None) -> StudyText:
     for (k0, p0, keys0), (k, p, keys) in zip(steps, steps[1:]):
         if k != k0 + 1 or (k - 300) % 10:
             continue
-        s0 = solve(p0, **SETTINGS)
+        s0 = solve(p0, settings=SETTINGS)
         previous = impulses_by_key(keys0, s0.normal_impulse, s0.tangent_impulse)
         pn, pt = (np.array(v) for v in zip(*[previous.get(key, (0.0, 0.0)) for key in keys]))
         starts = {"builtin": (p.start_normal, p.start_tangent, 1.0, "none"),

@@ -28,8 +28,8 @@ from .._box2d import linear_slop
 from ..scene.generators import generate, parameters
 from ..simulate import stepping
 from ..simulate.engines import Box2D, Box2D3
+from ..solver.settings import SolveSettings
 from ..step.engines import SoftStep
-from ..simulate.pgs_loop import LoopOptions
 from ..solver.metrics import deepest, energy, positions
 
 PENETRATION_LIMIT = 3 * linear_slop
@@ -141,8 +141,8 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
     sweeps at most, stopping at the residual `tolerance` if it is > 0)."""
     scene.solver.velocity_iterations = iterations
     engine = (Box2D3(SoftStep(substeps=iterations)) if solver == "box2d3" else
-              Box2D(solver=LoopOptions(start=start, mode="float64", max_iterations=iterations, tolerance=tolerance,
-                                       relaxation=relaxation, accelerate=accelerate)) if solver == "pgs" else
+              Box2D(solver=SolveSettings(mode="float64", max_iterations=iterations, tolerance=tolerance,
+                                         relaxation=relaxation, accelerate=accelerate), start=start) if solver == "pgs" else
               Box2D(velocity_iterations=iterations))
     world = engine.build(scene)
     return world, engine.stepper(world, scene, record=record)
