@@ -1,8 +1,10 @@
 import os
+import shlex
 import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -27,9 +29,10 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: item.get_closest_marker("pipeline") is not None)
 
 
-# What the pipeline group runs in processes of its own (the wheel, the smoke pipeline), started as
-# soon as the run is known (pytest_collection_finish), so that it works on the second core beside
-# the other tests rather than after them; the tests wait for it and check what it made.
+# What the pipeline group runs in processes of its own (the wheel, the smoke pipeline), started once
+# as soon as the run is known (pytest_collection_finish; by the first of `-n 2`'s workers), so that
+# it works beside the other tests rather than after them; the tests, in whichever worker, wait for
+# it (its rc file) and check what it made.
 STARTED = {}
 ROOT = Path(__file__).parent.parent
 
@@ -48,33 +51,58 @@ BACKGROUND = {"wheel": ("test_packaging", wheel_command), "smoke": ("test_evalua
 
 def start(name, out):
     """BACKGROUND[name] into the folder out, its output to out/log (a pipe nobody reads could fill
-    and stall it); returns (process, out)."""
+    and stall it) and its exit status to out/rc when it ends; returns out."""
+    out.mkdir(parents=True, exist_ok=True)
+    command = " ".join(shlex.quote(str(a)) for a in BACKGROUND[name][1](out))
     with open(out / "log", "w") as log:
-        STARTED[name] = (subprocess.Popen(BACKGROUND[name][1](out), stdout=log, stderr=subprocess.STDOUT), out)
-    return STARTED[name]
+        STARTED[name] = (subprocess.Popen(["sh", "-c", f"{command}; echo $? > rc.part && mv rc.part rc"], cwd=out,
+                                          stdout=log, stderr=subprocess.STDOUT), out)
+    return out
 
 
-def finished(name, tmp_path_factory):
-    """The finished background job `name` (started now if the run did not start it): its folder."""
-    proc, out = STARTED.get(name) or start(name, tmp_path_factory.mktemp(name))
-    proc.wait(timeout=900)
-    assert proc.returncode == 0, (out / "log").read_text()[-4000:]
+def _shared(config, name):
+    """The folder a background job of this test run lives in, the same for every xdist worker: in
+    the run's own temporary folder (pytest keeps the last few runs' and removes older ones)."""
+    base = config._tmp_path_factory.getbasetemp()
+    return (base.parent if hasattr(config, "workerinput") else base) / f"background-{name}"
+
+
+def finished(name, config):
+    """The finished background job `name`, started when the run began (by the first xdist worker
+    if there are several: the job is found by its folder) or now: its folder."""
+    out = _shared(config, name)
+    if name not in STARTED and not out.exists():
+        start(name, out)
+    deadline = time.monotonic() + 900
+    while not (out / "rc").exists():   # (perhaps another worker's process: its rc file says it ended)
+        assert time.monotonic() < deadline, f"{name} did not finish within 900 s"
+        time.sleep(0.2)
+    assert (out / "rc").read_text().strip() == "0", (out / "log").read_text()[-4000:]
     return out
 
 
 def pytest_collection_finish(session):
+    """Starts the pipeline group's jobs (once per test run: in the first xdist worker alone)."""
+    if getattr(session.config, "workerinput", {}).get("workerid", "gw0") != "gw0":
+        return
     modules = {item.module.__name__ for item in session.items if item.get_closest_marker("pipeline")}
     for name, (module, _) in BACKGROUND.items():
         if module in modules and (name != "smoke" or shutil.which("make")):
-            start(name, Path(tempfile.mkdtemp(prefix=f"dc-{name}-")))
+            start(name, _shared(session.config, name))
 
 
-def pytest_sessionfinish(session):
-    for proc, out in STARTED.values():
+def pytest_sessionfinish(session, exitstatus):
+    """Stops this process's background jobs: at once if the run was cut short; under xdist,
+    after they end otherwise (another worker may still wait for one)."""
+    for proc, _ in STARTED.values():
+        if proc.poll() is None and exitstatus == 0 and hasattr(session.config, "workerinput"):
+            try:
+                proc.wait(timeout=900)
+            except subprocess.TimeoutExpired:
+                pass
         if proc.poll() is None:
             proc.kill()
         proc.wait()
-        shutil.rmtree(out, ignore_errors=True)
     STARTED.clear()
 
 

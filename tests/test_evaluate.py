@@ -66,12 +66,12 @@ def test_unknown_starts_and_missing_model_are_clear_errors(pile_run, tmp_path):
 
 
 @pytest.mark.pipeline
-def test_the_smoke_pipeline(tmp_path_factory):
+def test_the_smoke_pipeline(request):
     """make smoke-pipeline (started when the run began: conftest.BACKGROUND) made a full report."""
     if shutil.which("make") is None:
         pytest.skip("make is not installed")
     from conftest import finished
-    report = finished("smoke", tmp_path_factory) / "smoke" / "report"
+    report = finished("smoke", request.config) / "smoke" / "report"
     for name in ("report.md", "summary.csv", "summary.json", "steps.csv", "pareto.json", "convergence.png",
                  "convergence.svg", "iterations.png", "pareto.png", "pareto.svg"):
         assert (report / name).exists(), name

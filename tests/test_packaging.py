@@ -14,10 +14,10 @@ pytestmark = pytest.mark.pipeline
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory):
+def wheel(request):
     """The wheel `pip wheel .` builds (started when the run began: conftest.BACKGROUND)."""
     from conftest import finished
-    (whl,) = finished("wheel", tmp_path_factory).glob("deepcontact-*.whl")
+    (whl,) = finished("wheel", request.config).glob("deepcontact-*.whl")
     return whl
 
 

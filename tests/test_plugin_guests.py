@@ -142,12 +142,18 @@ EDITS = ["problem.contacts['local_normal'][:] = 0.5", "problem.bodies['velocity'
          "problem.start_normal[:] = 1e3", "problem.dt = 1.0", "problem.bodies.clear()"]
 
 
+@pytest.fixture(scope="module")
+def clean(run, tmp_path_factory):
+    """The built-in rows with no guest beside them: a report folder."""
+    out = tmp_path_factory.mktemp("clean") / "report"
+    r = dc("evaluate", run, "--starts", "builtin,zero", "--every", "40", "--no-budgets", "-q", "-o", out)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
 @pytest.mark.parametrize("edit", EDITS)
-def test_what_a_method_does_to_its_problem_no_other_row_sees(run, tmp_path, monkeypatch, edit):
+def test_what_a_method_does_to_its_problem_no_other_row_sees(run, clean, tmp_path, monkeypatch, edit):
     """A method (or start) that edits the problem in place changes no built-in row after it."""
-    clean = dc("evaluate", run, "--starts", "builtin,zero", "--every", "40", "--no-budgets", "-q",
-               "-o", tmp_path / "clean")
-    assert clean.returncode == 0, clean.stderr
     name = "guest_editor"
     write_module(tmp_path, monkeypatch, name, METHOD, at_call=edit)
     start_edit = edit.replace("problem.", "ctx.problem.")
@@ -160,7 +166,7 @@ def test_what_a_method_does_to_its_problem_no_other_row_sees(run, tmp_path, monk
         forget("guest_start_editor")
     assert r.returncode == 0, r.stderr
     rows = lambda folder: json.loads((folder / "summary.json").read_text())["starts"]   # noqa: E731
-    before, after = rows(tmp_path / "clean"), rows(tmp_path / "dirty")
+    before, after = rows(clean), rows(tmp_path / "dirty")
     assert set(before) <= set(after)
     for key in before:   # the built-in rows computed after the plug-ins: the same answers
         for measure in ("iterations_median", "residual_median", "error_median", "velocity_error_median"):
