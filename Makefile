@@ -87,6 +87,7 @@ studies: setup
 	$(DC) study learned-coarse
 	$(DC) study engines -o $(RUNS)/engines --overwrite
 	$(DC) study amortize -o $(RUNS)/amortize --overwrite
+	$(DC) study frontier -o $(RUNS)/frontier --overwrite
 	$(DC) study scale --samples 2 --sizes 100,1000
 	$(DC) study global-families
 

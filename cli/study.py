@@ -146,6 +146,66 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
 
 
 @study.command()
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
+              help="Folder for frontier.md, frontier.csv and a plot per scene.")
+@click.option("--fast", is_flag=True, help="The small variants the test suite runs (a 30-circle pile, a base-5 pyramid).")
+@click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
+              help="Only these scenes, by their labels in the table (e.g. 'pile 1000,pyramid 40').")
+@click.option("--samples", type=options.count(min=1), default=4, show_default=True,
+              help="Recorded steps per scene the one-step error is measured on (2 with --fast).")
+@options.jobs
+@options.overwrite
+@options.verbosity
+@options.command("study frontier")
+def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
+    """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
+    at 1-16 substeps and the project's PGS, PSOR and NNCG to residuals 1e-2 ...
+    1e-8 and at fixed budgets, on piles of 1,000 and 10,000 circles, confined
+    circles and pyramids of 820 and 5,050 boxes, each judged by its one-step
+    residual from the same recorded states, its velocity error against the
+    reference step, and the stability criteria (docs/results.md, "The frontier
+    at scale").
+
+    Writes frontier.md (for each engine setting, the cheapest project setting
+    at least as accurate, and a table per scene), frontier.csv and
+    frontier-SCENE.png. Times are one thread's; -j runs scenes side by side
+    (each time then taken beside another process). The full study takes hours.
+
+    \b
+    Examples:
+      dc study frontier --fast -o reports/frontier-fast
+      dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40'
+    """
+    from deepcontact import atomic
+    from deepcontact.errors import InputError
+    from deepcontact.protocol import protocol, protocol_line
+    from deepcontact.studies import frontier as F
+
+    cases = F.FAST if fast else F.SCALE
+    if scenes:
+        known = {c.label: c for c in cases}
+        unknown = [s for s in scenes if s not in known]
+        if unknown:
+            raise click.BadParameter(f"no scene {unknown[0]!r} here; the scenes are: {', '.join(known)}",
+                                     param_hint="--scenes")
+        cases = [known[s] for s in scenes]
+    chosen = F.settings(fast)
+    if fast and not options.was_given("samples"):
+        samples = F.FAST_SAMPLES
+    with atomic.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:
+        measured = protocol(jobs=jobs)
+        bar = options.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier")
+        try:
+            rows, lines = F.study(cases, chosen, samples, jobs=jobs, progress=bar.update)
+        finally:
+            bar.close()
+        if not rows:
+            raise InputError("no setting applies to the chosen scenes")
+        F.write(rows, lines, work, fast, protocol_line(measured))
+    click.echo(F.summary_table(rows))
+
+
+@study.command()
 @click.argument("run", metavar="RUN", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Figures folder.")
 @click.option("--every", type=options.count(min=1), default=10, show_default=True, help="Use every N-th step.")

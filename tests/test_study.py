@@ -15,7 +15,7 @@ def test_dc_study_lists_the_studies():
     r = dc("study", "--help")
     assert r.returncode == 0 and "Examples:" in r.stdout
     for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse", "relaxation",
-                 "exact", "peer", "amortize", "scale", "global-families"):
+                 "exact", "peer", "amortize", "scale", "global-families", "frontier"):
         assert name in r.stdout
         assert "Examples:" in dc("study", name, "--help").stdout
 
@@ -111,3 +111,35 @@ def test_the_scale_study_runs_as_a_dc_study_command():
     assert "Measured with" in r.stdout and r.stdout.count("| PSOR 1.7 | ") == 2 and "From zero" in r.stdout
     r = dc("study", "scale", "--methods", "Nope")
     assert r.returncode == 2 and "no method 'Nope'" in r.stderr
+
+
+def test_the_frontier_study_judges_every_setting_by_one_residual(tmp_path):
+    """The fast frontier (a 30-circle pile, a base-5 pyramid): its tables and plots are written,
+    and what it measures holds together: Box2D's 8 iterations, replayed bit for bit, and the
+    project's 8 float64 sweeps from the same warm start reach the same one-step residual to float32
+    rounding; a project setting that stopped below its tolerance on every timed step has a one-step
+    residual below it too; v3 has none; every engine setting gets a line in the summary."""
+    import csv
+    out = tmp_path / "frontier"
+    r = dc("study", "frontier", "--fast", "-q", "-o", out)
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader((out / "frontier.csv").open()))
+    assert {row["scene"] for row in rows} == {"pile 30", "pyramid 5"}
+    for scene in ("pile 30", "pyramid 5"):
+        mine = {(row["family"], row["setting"]): row for row in rows if row["scene"] == scene}
+        box2d, ours = (float(mine[k]["residual_median"]) for k in (("Box2D 2.4.1", "8 iterations"),
+                                                                     ("PGS", "8 sweeps")))
+        assert box2d == pytest.approx(ours, rel=1e-2, abs=1e-5), scene   # (float32 rounding near 0)
+        for (family, setting), row in mine.items():
+            if family == "Box2D v3":
+                assert row["residual_median"] == "nan"
+            elif setting.startswith("residual"):
+                assert float(row["residual_max"]) < float(setting.split()[1])
+            assert float(row["ms_per_step"]) > 0
+    text = (out / "frontier.md").read_text()
+    engine_rows = sum(row["family"] in ("Box2D 2.4.1", "Box2D v3") for row in rows)
+    summary = text.split("## For each engine setting")[1].split("\n## ")[0]
+    assert summary.count("\n| pile 30 | Box2D") + summary.count("\n| pyramid 5 | Box2D") == engine_rows
+    assert (out / "frontier-pile-30.png").stat().st_size > 0 and (out / "frontier-pyramid-5.png").stat().st_size > 0
+    r = dc("study", "frontier", "--scenes", "pile 7", "-o", tmp_path / "none")
+    assert r.returncode == 2 and "no scene 'pile 7'" in r.stderr

@@ -1,0 +1,364 @@
+"""What accuracy costs at scale: the frontier of time per step against accuracy on scenes of
+hundreds to thousands of bodies, Box2D 2.4.1 and v3 beside the project's solver.
+
+Families (each a line of settings, cheapest first):
+  Box2D 2.4.1   its velocity solver at 1, 2, 4, ..., 256 iterations a step
+  Box2D v3      the soft step at 1, 2, 4, 8, 16 substeps
+  PGS, PSOR 1.7, NNCG
+                the project's solver in the loop from Box2D's warm start (float64; plain, at
+                w = 1.7, with conjugate directions) to residuals 1e-2 ... 1e-8 within 1000 sweeps,
+                and PGS and PSOR at fixed budgets of 8, 32 and 128 sweeps
+
+Accuracy by measures that chaos does not swamp (a pile's trajectory drifts from any other by a
+body's size whatever the solver: drift measures chaos there):
+  one-step residual   from the same recorded states (Box2D 2.4.1 at the scene's 8 iterations,
+                      `samples` steps spread over the run's second half, each from Box2D's warm
+                      start), the setting's step solved and judged by the project's residual (the
+                      min-map residual every solve reports); Box2D 2.4.1 at k iterations is its own
+                      PGS replayed bit for bit (mode exact). Median and largest over the samples.
+  velocity error      of that step against the reference step (the exact solver, float64 to
+                      1e-12, its own residual stated: at a thousand bodies it may stop short), the
+                      largest over the bodies, median over the samples. Exact solutions of a
+                      frictional step need not be unique, even in body velocity: the residual is
+                      the measure, this one its illustration.
+  the stability criteria, penetration and energy rise of a whole run (studies/stability.py),
+                      and, for the project, the steps the sweep cap stopped above the tolerance.
+v3's step is a soft step of another contact model: it has no one-step residual here, and is
+judged by the criteria and its penetration. The time per step is the mean of a second, unrecorded
+run (one thread). A reference trajectory (every step solved to 1e-12) is not made at this scale:
+one such solve of the 1000-circle pile took 14-15 s, 3 hours for a run.
+
+    dc study frontier [--fast] -o DIR
+"""
+import io
+import math
+import re
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .. import atomic, workers
+from ..escape import CsvWriter
+from ..simulate import stepping
+from ..simulate.problems import problems
+from ..solver.methods import solve
+from ..solver.reference import reference_solution
+from ..solver.settings import CAP, SolveSettings
+from . import stability as S
+
+BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
+SUBSTEPS = (1, 2, 4, 8, 16)
+TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
+BUDGETS = (8, 32, 128)
+PROJECT = (("PGS", 1.0, "none"), ("PSOR 1.7", 1.7, "none"), ("NNCG", 1.0, "nncg"))
+FAMILIES = ("Box2D 2.4.1", "Box2D v3", *(name for name, _, _ in PROJECT))
+ENGINES = ("Box2D 2.4.1", "Box2D v3")
+REFERENCE_POINTS = 2500   # a reference step above this many contact points is not solved (minutes each)
+
+SCALE = [
+    S.Case("pile 1000", "pile", dict(count=1000, box=95.0, sigma=19.0, steps=400), rests=False),
+    S.Case("pile 10000", "pile", dict(count=10000, box=300.0, sigma=60.0, steps=400), rests=False),
+    S.Case("confined 625", "confined", dict(count=625), rests=False),
+    S.Case("confined 2500", "confined", dict(count=2500), rests=False),
+    S.Case("pyramid 40", "pyramid", dict(base=40)),
+    S.Case("pyramid 5050", "pyramid", dict(base=100)),
+]
+FAST = [
+    S.Case("pile 30", "pile", dict(count=30, box=16.0, sigma=4.0, steps=240), rests=False),
+    S.Case("pyramid 5", "pyramid", dict(base=5, steps=120)),
+]
+FAST_SAMPLES = 2
+# What `dc study frontier -o DIR` writes (what --overwrite may replace).
+FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
+
+
+@dataclass(frozen=True)
+class Setting:
+    family: str
+    label: str
+    solver: str            # stability.stepper's: box2d, box2d3 or pgs
+    count: int             # iterations, substeps, or the sweep cap
+    tolerance: float = 0.0
+    relaxation: float = 1.0
+    accelerate: str = "none"
+
+    @property
+    def solve_settings(self) -> SolveSettings:
+        """How this setting solves one step: Box2D 2.4.1's own PGS (exact) or the project's."""
+        if self.solver == "box2d":
+            return SolveSettings(mode="exact", max_iterations=self.count, tolerance=0.0)
+        return SolveSettings(max_iterations=self.count, tolerance=self.tolerance, relaxation=self.relaxation,
+                             accelerate=self.accelerate)
+
+
+def settings(fast=False):
+    """Every setting of every family, in the order of the tables (fewer with fast)."""
+    counts, substeps, tolerances, budgets = ((1, 8, 64), (1, 4), (1e-2, 1e-4), (8,)) if fast else \
+        (BOX2D_COUNTS, SUBSTEPS, TOLERANCES, BUDGETS)
+    out = [Setting("Box2D 2.4.1", f"{n} iterations", "box2d", n) for n in counts]
+    out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in substeps]
+    for family, w, method in PROJECT:
+        out += [Setting(family, f"{n} sweeps", "pgs", n, 0.0, w, method) for n in budgets if method == "none"]
+        out += [Setting(family, f"residual {t:g}", "pgs", CAP, t, w, method) for t in tolerances]
+    return out
+
+
+@dataclass
+class Row:
+    scene: str
+    family: str
+    setting: str
+    passed: bool
+    finite: bool
+    ms_per_step: float        # mean over an unrecorded run
+    residual_median: float    # one-step residual over the samples; nan for v3
+    residual_max: float
+    velocity_error: float     # median over the samples of the largest |v - v_ref| (m/s); nan: no reference
+    penetration: float        # deepest at rest (m)
+    energy_rise: float
+    energy_allowed: float
+    capped: int               # project: steps the sweep cap stopped above the tolerance
+    samples: int
+
+
+@dataclass
+class Sample:
+    problem: object
+    reference: object        # Solution, or None above REFERENCE_POINTS
+
+
+def samples_of(case, count):
+    """`count` step problems of the case stepped by Box2D 2.4.1 at its own iterations, spread over
+    the run's second half, each with its reference solution (None where too large to solve)."""
+    scene = S.case_scene(case)
+    first = scene.steps // 2
+    every = max(1, (scene.steps - first) // max(count, 1))
+    chosen = []
+    for _, problem in problems(scene, first=first, every=every):
+        reference = reference_solution(problem) if problem.points <= REFERENCE_POINTS else None
+        chosen.append(Sample(problem, reference))
+        if len(chosen) == count:
+            break
+    return chosen
+
+
+def one_step(setting, samples):
+    """(median residual, largest residual, median velocity error) of the setting's step on the samples."""
+    if setting.solver == "box2d3" or not samples:
+        return float("nan"), float("nan"), float("nan")
+    asked = setting.solve_settings
+    residuals, errors = [], []
+    for s in samples:
+        solution = solve(s.problem, settings=asked)
+        residuals.append(solution.residual)
+        if s.reference is not None and len(s.reference.velocity):
+            errors.append(float(np.abs(solution.velocity - s.reference.velocity).max()))
+    return (float(np.median(residuals)), float(np.max(residuals)),
+            float(np.median(errors)) if errors else float("nan"))
+
+
+def step_ms(case, setting):
+    """Mean wall time of a step (ms), stepped without recording: the engine's own time."""
+    scene = S.case_scene(case, params=S.own_rest(case, setting.solver))
+    world, step = S.stepper(scene, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
+                            tolerance=setting.tolerance, record=False)
+    seconds = [done.seconds for done in stepping.steps(world, scene, step)]
+    return 1e3 * float(np.mean(seconds)) if seconds else float("nan")
+
+
+def run_scene(case, chosen, samples):
+    """Every applicable setting on one case (Rows, in order)."""
+    picked = samples_of(case, samples)
+    rows = []
+    for setting in chosen:
+        if not S.applicable(case, setting.solver):
+            continue
+        r = S.run_case(case, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
+                       tolerance=setting.tolerance)
+        median, largest, error = one_step(setting, picked)
+        rows.append(Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
+                        finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
+                        residual_median=median, residual_max=largest, velocity_error=error,
+                        penetration=r.penetration, energy_rise=r.energy_rise, energy_allowed=r.energy_allowed,
+                        capped=r.capped, samples=len(picked)))
+        workers.progress(1)
+    return rows, _reference_line(case, picked)
+
+
+def _reference_line(case, picked):
+    solved = [s.reference for s in picked if s.reference is not None]
+    if not picked:
+        return f"{case.label}: no step with contact points to sample."
+    points = ", ".join(str(s.problem.points) for s in picked)
+    if not solved:
+        return (f"{case.label}: {len(picked)} sampled steps ({points} contact points); no reference step (above "
+                f"{REFERENCE_POINTS:,} points): no velocity error.")
+    worst = max(s.residual for s in solved)
+    return (f"{case.label}: {len(picked)} sampled steps ({points} contact points); the reference steps reached "
+            f"a residual of {worst:.1e} at worst.")
+
+
+def study(cases, chosen, samples, jobs=1, progress=None):
+    """(rows of every case in order, a line per case on its reference steps); cases side by side
+    in `jobs` worker processes."""
+    tasks = [(case, chosen, samples) for case in cases]
+    rows, lines = [], []
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        for scene_rows, line in pool.imap(_scene_task, tasks):
+            rows += scene_rows
+            lines.append(line)
+    return rows, lines
+
+
+def _scene_task(task):
+    return run_scene(*task)
+
+
+def tasks_count(cases, chosen):
+    return sum(S.applicable(c, s.solver) for c in cases for s in chosen)
+
+
+# --- reports -------------------------------------------------------------------------------
+
+def _project(row):
+    return row.family not in ENGINES
+
+
+def matches(rows):
+    """For each engine setting of one scene, the cheapest project setting at least as accurate: by
+    the one-step residual (median and largest) against Box2D 2.4.1, by penetration at rest against
+    v3 (its step has no residual here), and passing the criteria where the engine setting does.
+    (engine row, project row or None)."""
+    out = []
+    ours = [r for r in rows if _project(r) and r.finite and math.isfinite(r.ms_per_step)]
+    for e in rows:
+        if _project(e) or not math.isfinite(e.ms_per_step):
+            continue
+        if e.family == "Box2D 2.4.1":
+            good = [r for r in ours if r.residual_median <= e.residual_median and r.residual_max <= e.residual_max]
+        else:
+            good = [r for r in ours if r.penetration <= e.penetration]
+        good = [r for r in good if r.passed or not e.passed]
+        out.append((e, min(good, key=lambda r: r.ms_per_step) if good else None))
+    return out
+
+
+def _fmt(v, scale=1.0, digits=3):
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return ""
+    if isinstance(v, float) and math.isinf(v):
+        return "inf"
+    return f"{v * scale:.{digits}g}"
+
+
+def summary_table(rows):
+    """One line per engine setting of every scene: the cheapest project setting at least as
+    accurate and the ratio of its time to the engine's."""
+    lines = ["| scene | engine setting | passes | ms / step | one-step residual (median / largest) | cheapest project "
+             "setting at least as accurate | passes | ms / step | time ratio |",
+             "| --- | --- | --- | ---: | ---: | --- | --- | ---: | ---: |"]
+    for scene in dict.fromkeys(r.scene for r in rows):
+        for e, p in matches([r for r in rows if r.scene == scene]):
+            accuracy = (f"{_fmt(e.residual_median)} / {_fmt(e.residual_max)}" if e.family == "Box2D 2.4.1"
+                        else f"penetration {_fmt(e.penetration, 100)} cm")
+            ours = "none" if p is None else f"{p.family}, {p.setting}"
+            lines.append(f"| {scene} | {e.family}, {e.setting} | {'yes' if e.passed else 'no'} | "
+                         f"{_fmt(e.ms_per_step)} | {accuracy} | {ours} | "
+                         f"{'' if p is None else ('yes' if p.passed else 'no')} | {'' if p is None else _fmt(p.ms_per_step)} | "
+                         f"{'' if p is None else _fmt(p.ms_per_step / e.ms_per_step, digits=2) + 'x'} |")
+    return "\n".join(lines) + "\n"
+
+
+TABLE_HEADER = ("| family | setting | passes | ms / step | one-step residual (median / largest) | velocity error (m/s) | "
+                "penetration at rest (cm) | energy rise / allowed (J) | capped steps |\n"
+                "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+
+
+def scene_table(rows):
+    lines = [TABLE_HEADER]
+    for r in rows:
+        lines.append(f"| {r.family} | {r.setting} | {'yes' if r.passed else 'no'} | {_fmt(r.ms_per_step)} | "
+                     f"{_fmt(r.residual_median)} / {_fmt(r.residual_max)} | {_fmt(r.velocity_error)} | "
+                     f"{_fmt(r.penetration, 100)} | {_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)} | "
+                     f"{r.capped if _project(r) else ''} |")
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(rows):
+    out = io.StringIO()
+    w = CsvWriter(out, lineterminator="\n")
+    names = [f.name for f in fields(Row)]
+    w.writerow(names)
+    for r in rows:
+        w.writerow([getattr(r, n) for n in names])
+    return out.getvalue()
+
+
+def slug(scene):
+    return re.sub(r"[^a-z0-9]+", "-", scene.lower()).strip("-")
+
+
+def frontier_plot(rows, path):
+    """Time per step against the one-step residual, one line per family with a residual (v3 has
+    none); hollow markers fail the scene's criteria."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..plotstyle import readable_log_ticks, styles
+    style = styles(list(FAMILIES))
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    plotted = False
+    for family in FAMILIES:
+        mine = [r for r in rows if r.family == family and math.isfinite(r.ms_per_step) and r.residual_median > 0]
+        if not mine:
+            continue
+        s = style[family]
+        ax.plot([r.ms_per_step for r in mine], [r.residual_median for r in mine], color=s["color"],
+                linestyle=s["linestyle"], linewidth=s["linewidth"], label=family)
+        for r in mine:
+            ax.plot(r.ms_per_step, r.residual_median, marker=s["marker"], color=s["color"], linestyle="none",
+                    markerfacecolor=s["color"] if r.passed else "white")
+            ax.annotate(r.setting.split()[0] if r.family == "Box2D 2.4.1" or "sweeps" in r.setting
+                        else r.setting.split()[-1], (r.ms_per_step, r.residual_median), textcoords="offset points",
+                        xytext=(4, 3), fontsize=6, color=s["color"])
+        plotted = True
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("time per step (ms, one thread)")
+    ax.set_ylabel("one-step residual (median over the samples)")
+    ax.set_title(f"{rows[0].scene}: accuracy against time\n(labels: iterations, sweeps, tolerance; "
+                 "hollow: fails the criteria)", fontsize=8)
+    if plotted:
+        ax.legend(fontsize=8)
+        readable_log_ticks(ax.xaxis)
+        readable_log_ticks(ax.yaxis)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(rows, lines, fast, protocol_text):
+    setting = "fast (the test suite's small variants)" if fast else "full"
+    parts = [f"# What accuracy costs at scale: {setting}\n",
+             __doc__.split("\n\n")[0].replace("\n", " ").rstrip(".") + ".\n",
+             f"Criteria: {S.CRITERIA}\n", protocol_text + "\n", "Samples: " + " ".join(lines) + "\n",
+             "## For each engine setting, the cheapest project setting at least as accurate\n",
+             summary_table(rows)]
+    for scene in dict.fromkeys(r.scene for r in rows):
+        parts += [f"## {scene}\n", f"![{scene}](frontier-{slug(scene)}.png)\n",
+                  scene_table([r for r in rows if r.scene == scene])]
+    return "\n".join(parts)
+
+
+def write(rows, lines, out_dir, fast, protocol_text):
+    """frontier.md, frontier.csv and a plot per scene into out_dir (an open output folder)."""
+    from pathlib import Path
+    out_dir = Path(out_dir)
+    for scene in dict.fromkeys(r.scene for r in rows):
+        frontier_plot([r for r in rows if r.scene == scene], out_dir / f"frontier-{slug(scene)}.png")
+    atomic.write_text(out_dir / "frontier.csv", csv_text(rows))
+    text = markdown(rows, lines, fast, protocol_text)
+    atomic.write_text(out_dir / "frontier.md", text)
+    return text
