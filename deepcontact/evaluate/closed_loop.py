@@ -19,8 +19,7 @@ import numpy as np
 
 from .. import workers
 from ..simulate import stepping
-from ..simulate.build import build_world
-from ..simulate.pgs_loop import PGSStepper
+from ..simulate.engines import Box2D
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
@@ -97,9 +96,9 @@ def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, rep
     """The scene stepped `steps` times with the project's solver (a SolveSettings) from `start_fn`,
     or, if None, from `start`, in one native call per step. report: each step to workers.progress
     (not for the A/A run, which the progress total does not count)."""
-    world = build_world(scene)
-    stepper = PGSStepper(world, scene, settings, start, start_fn=start_fn, record=False)
-    return _follow(world, scene, steps, stepper.step, solved, report)
+    engine = Box2D(solver=settings, start=start, start_fn=start_fn)
+    world = engine.build(scene)
+    return _follow(world, scene, steps, engine.stepper(world, scene, record=False), solved, report)
 
 
 def _follow(world, scene, steps, step, solved=None, report=True):
@@ -185,9 +184,10 @@ def box2d_iterations(scene, counts=BOX2D_COUNTS, steps=None, reference=None):
     ref = reference or reference_trajectory(scene, steps)
     results = []
     for k in counts:
-        bare, rec = build_world(scene), build_world(scene)
-        timed = _follow(bare, scene, steps, stepping.box2d(bare, scene, k, record=False))
-        recorded = _follow(rec, scene, steps, stepping.box2d(rec, scene, k))
+        engine = Box2D(velocity_iterations=k)
+        bare, rec = engine.build(scene), engine.build(scene)
+        timed = _follow(bare, scene, steps, engine.stepper(bare, scene, record=False))
+        recorded = _follow(rec, scene, steps, engine.stepper(rec, scene))
         drift, err = _compare(timed, ref)
         results.append(LoopResult(start=f"box2d {k} iterations", steps=len(timed.positions),
                                   iterations=np.full(len(timed.positions), k), ms_per_step=timed.seconds * 1e3,

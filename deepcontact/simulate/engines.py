@@ -27,15 +27,17 @@ class Box2D:
     """Box2D 2.4.1 (Debian's). Without `solver`, its own velocity solver at the scene's iterations
     (or `velocity_iterations`); with `solver` (a SolveSettings), the project's solver in the loop
     from `start` (builtin: Box2D's warm start; zero; garbage), with the settings and the method it
-    says (docs/solver.md, "The loop")."""
+    says (docs/solver.md, "The loop"). start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+    -> (normal, tangent), if given, makes each step's first iterate instead (the closed loop's starts;
+    no step file records one)."""
 
     def __init__(self, solver: SolveSettings | None = None, start: str = "builtin",
-                 velocity_iterations: int | None = None):
+                 velocity_iterations: int | None = None, start_fn=None):
         if solver is not None:
-            check_loop(solver, start)
+            check_loop(solver, start, own_start=start_fn is not None)
             if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
                 solver = solver.but(relaxation=None)
-        self.solver, self.start = solver, start
+        self.solver, self.start, self.start_fn = solver, start, start_fn
         self.velocity_iterations = velocity_iterations
 
     @property
@@ -66,7 +68,7 @@ class Box2D:
         """A function stepping `world` once, returning a pgs_loop.LoopStep (stepping.steps runs it)."""
         if self.solver is None:
             return stepping.box2d(world, scene, self.velocity_iterations, record=record)
-        return PGSStepper(world, scene, self.solver, self.start, record=record).step
+        return PGSStepper(world, scene, self.solver, self.start, start_fn=self.start_fn, record=record).step
 
     def solve_line(self, solution) -> str:
         """The line a step file's header gets for how the step was solved (`<solve>`), or ""."""

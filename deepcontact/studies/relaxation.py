@@ -30,7 +30,6 @@ import numpy as np
 
 from ..scene.generators import generate
 from ..simulate.problems import problems as step_problems
-from ..simulate.build import build_world
 from ..solver.methods import solve
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.relaxation import AutoRelaxation
@@ -80,17 +79,17 @@ def loop(name, repeats, seeds=(0,), out=None):
 
 
 def loop_one(name, repeats, seed):
-    from deepcontact.simulate.pgs_loop import PGSStepper
+    from deepcontact.simulate.engines import Box2D
     seconds, sweeps = {}, {}
     for _ in range(repeats):
         for label, w, accelerate in LOOP_VARIANTS:
             scene = generate(name, seed, {})
-            stepper = PGSStepper(build_world(scene), scene, SETTINGS.but(relaxation=w, accelerate=accelerate),
-                                 record=False)
+            engine = Box2D(solver=SETTINGS.but(relaxation=w, accelerate=accelerate))
+            stepper = engine.stepper(engine.build(scene), scene, record=False)
             times, its = [], []
             for _ in range(scene.steps):
                 t0 = time.perf_counter()
-                solution = stepper.step().solution
+                solution = stepper().solution
                 times.append(time.perf_counter() - t0)
                 its.append(0 if solution is None else solution.iterations)
             seconds[label] = np.minimum(seconds[label], times) if label in seconds else np.array(times)
