@@ -29,7 +29,7 @@ from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world3
 from deepcontact.simulate.engines import Box2D, Box2D3
 from deepcontact.simulate.run import run_simulation
-from deepcontact.step.engines import SoftStep
+from deepcontact.simulate.engines import SoftStep
 
 from common import arguments
 

@@ -22,7 +22,7 @@ from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
 from deepcontact.simulate import stepping
 from deepcontact.simulate.build import build_world, build_world3
-from deepcontact.step.engines import SoftStep
+from deepcontact.simulate.engines import SoftStep
 
 # name: (generator, parameters, steps)
 FULL = {

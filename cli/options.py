@@ -351,6 +351,38 @@ class SilentBar:
         pass
 
 
+def pick_cases(cases, labels):
+    """--scenes: the study's cases with these labels, in the order given (all of them without);
+    a label it does not have is a bad option value (exit 2, listing the labels it has)."""
+    if not labels:
+        return cases
+    known = {c.label: c for c in cases}
+    unknown = [s for s in labels if s not in known]
+    if unknown:
+        raise click.BadParameter(f"no scene {unknown[0]!r} here; the scenes are: {', '.join(known)}",
+                                 param_hint="--scenes")
+    return [known[s] for s in labels]
+
+
+class SoftStepOption(click.Option):
+    """An option of Box2D v3's soft step (--substeps, --contact-hertz, ...): its help states v3's
+    own default, read from the library when the help is shown (simulate.engines.SoftStep)."""
+
+    def get_help_record(self, ctx):
+        from deepcontact.errors import InputError
+        from deepcontact.simulate.engines import soft_step_defaults
+        try:
+            default = soft_step_defaults()[self.name]
+        except InputError:   # (a build without v3: the option is refused when used)
+            return super().get_help_record(ctx)
+        plain = self.help
+        self.help = f"{plain} (default {default:g}: Box2D v3's own)"
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.help = plain
+
+
 def solve_to_tolerance(f):
     """--tolerance, --max-iterations and --stop-on of a command that solves every step to a
     tolerance (dc evaluate, the studies), their defaults read from solver/settings.py."""

@@ -60,12 +60,13 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
 @click.option("--engine", type=click.Choice(["box2d", "box2d3"]), default="box2d", show_default=True,
               help="box2d: Box2D 2.4.1 (Debian's); box2d3: Box2D v3 (3.1, the soft step; docs/engines.md).")
-@click.option("--substeps", type=options.count(min=1), help="[box2d3] Substeps per step (default 4).")
-@click.option("--contact-hertz", type=options.Finite(min=0, min_open=True),
-              help="[box2d3] Soft contact stiffness in Hz (default 30).")
-@click.option("--damping-ratio", type=options.Finite(min=0), help="[box2d3] Soft contact damping ratio (default 10).")
-@click.option("--push-speed", type=options.Finite(min=0),
-              help="[box2d3] The most speed (m/s) used to push overlapping bodies apart (default 3).")
+@click.option("--substeps", cls=options.SoftStepOption, type=options.count(min=1), help="[box2d3] Substeps per step.")
+@click.option("--contact-hertz", cls=options.SoftStepOption, type=options.Finite(min=0, min_open=True),
+              help="[box2d3] Soft contact stiffness in Hz.")
+@click.option("--damping-ratio", cls=options.SoftStepOption, type=options.Finite(min=0),
+              help="[box2d3] Soft contact damping ratio.")
+@click.option("--push-speed", cls=options.SoftStepOption, type=options.Finite(min=0),
+              help="[box2d3] The most speed (m/s) used to push overlapping bodies apart.")
 @click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
               help="Box2D 2.4.1's own velocity solver, or the project's PGS in the loop.")
 @click.option("--start", type=options.choice("loop_start"),
@@ -162,7 +163,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
     from deepcontact.simulate.engines import Box2D3
     if engine == "box2d3":
-        from deepcontact.step.engines import SoftStep
+        from deepcontact.simulate.engines import SoftStep
         given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
                  "push_speed": push_speed}
         stepper = Box2D3(SoftStep(**{k: v for k, v in given.items() if v is not None}))

@@ -124,14 +124,7 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
     from deepcontact.protocol import protocol, protocol_line
     from deepcontact.studies import engines as E
 
-    cases = E.FAST if fast else E.FULL
-    if scenes:
-        known = {c.label: c for c in cases}
-        unknown = [s for s in scenes if s not in known]
-        if unknown:
-            raise click.BadParameter(f"no scene {unknown[0]!r} here; the scenes are: {', '.join(known)}",
-                                     param_hint="--scenes")
-        cases = [known[s] for s in scenes]
+    cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
     with atomic.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
         bar = options.progress_bar(quiet, E.tasks_count(cases), "setting", "study engines")
@@ -181,14 +174,7 @@ def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
     from deepcontact.protocol import protocol, protocol_line
     from deepcontact.studies import frontier as F
 
-    cases = F.FAST if fast else F.SCALE
-    if scenes:
-        known = {c.label: c for c in cases}
-        unknown = [s for s in scenes if s not in known]
-        if unknown:
-            raise click.BadParameter(f"no scene {unknown[0]!r} here; the scenes are: {', '.join(known)}",
-                                     param_hint="--scenes")
-        cases = [known[s] for s in scenes]
+    cases = options.pick_cases(F.FAST if fast else F.SCALE, scenes)
     chosen = F.settings(fast)
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES

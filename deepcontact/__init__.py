@@ -22,7 +22,7 @@ _PUBLIC = {
     "generate": ("deepcontact.scene.generators", "generate"),
     "simulate_run": ("deepcontact.simulate.run", "run"),   # (not "simulate": that is the subpackage)
     "SceneSource": ("deepcontact.simulate.source", "SceneSource"),
-    "SoftStep": ("deepcontact.step.engines", "SoftStep"),
+    "SoftStep": ("deepcontact.simulate.engines", "SoftStep"),
     "World": ("deepcontact.simulate.world", "World"),
     "Box2D": ("deepcontact.simulate.engines", "Box2D"),
     "Box2D3": ("deepcontact.simulate.engines", "Box2D3"),

@@ -7,6 +7,7 @@ import pytest
 from deepcontact import _box2d
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world, build_world3
+from deepcontact.simulate.engines import SoftStep
 
 pytestmark = pytest.mark.skipif(not hasattr(_box2d, "World3"),
                                 reason="built without Box2D v3 (make setup installs pyb2d3)")
@@ -41,7 +42,7 @@ def test_a_resting_circle_carries_its_weight_each_step():
 
 def test_a_generated_scene_builds_and_settles_under_both_engines():
     scene = generate("pile", 0, {"count": 30, "box": 16, "sigma": 4})
-    w2, w3 = build_world(scene), build_world3(scene)
+    w2, w3 = build_world(scene), build_world3(scene, SoftStep())
     b2, b3 = w2.bodies(), w3.bodies()
     for key in ("index", "type", "mass", "inertia", "inv_mass", "local_center"):   # the same bodies
         np.testing.assert_allclose(b2[key], b3[key], rtol=1e-5, atol=1e-6, err_msg=key)
@@ -292,3 +293,18 @@ def test_resting_contacts_start_where_each_engine_rests_them():
     own = S.run_case(case, "box2d3", "builtin", 4)
     lifted = S.run_case(case, "box2d3", "builtin", 4, params=case.params)   # from 2.4.1's rest
     assert own.energy_rise < 0.01 < lifted.energy_rise
+
+
+def test_the_soft_steps_defaults_are_v3s_own_and_the_help_prints_them():
+    """SoftStep's defaults come from Box2D v3's library (b2DefaultWorldDef), not a copy: 3.1's are
+    30 Hz, a damping ratio of 10 and 3 m/s, at the 4 substeps its samples step; `dc simulate
+    --help` prints what the library says."""
+    from deepcontact.simulate.engines import soft_step_defaults
+    native = _box2d.soft_step_defaults()
+    assert native == {"substeps": 4, "contact_hertz": 30.0, "damping_ratio": 10.0, "push_speed": 3.0}
+    assert SoftStep() == SoftStep(**native) == SoftStep(**soft_step_defaults())
+    assert SoftStep(substeps=8).contact_hertz == native["contact_hertz"]
+    text = " ".join(dc("simulate", "--help").stdout.split()).split("Options:", 1)[1]
+    for flag, name in (("--substeps", "substeps"), ("--contact-hertz", "contact_hertz"),
+                       ("--damping-ratio", "damping_ratio"), ("--push-speed", "push_speed")):
+        assert f"(default {native[name]:g}: Box2D v3's own)" in text.split(flag, 1)[1].split(" --", 1)[0], flag

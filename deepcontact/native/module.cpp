@@ -256,6 +256,19 @@ PYBIND11_MODULE(_box2d, m) {
 #ifdef DC_HAVE_BOX2D3
     // Box2D v3 (3.1, the pyb2d3 wheel's library): the soft step, beside 2.4.1 (world3.hpp).
     m.attr("box2d3_version") = dc::box2d3_version();
+    const dc::SoftStep v3_defaults = dc::default_soft_step();
+    m.def(
+        "soft_step_defaults",
+        [] {
+            const dc::SoftStep s = dc::default_soft_step();
+            py::dict d;
+            d["substeps"] = s.substeps;
+            d["contact_hertz"] = s.contact_hertz;
+            d["damping_ratio"] = s.damping_ratio;
+            d["push_speed"] = s.push_speed;
+            return d;
+        },
+        "Box2D v3's soft step defaults (b2DefaultWorldDef's; substeps: its samples' 4).");
     py::class_<dc::World3, dc::SceneWorld>(m, "World3")
         .def(py::init([](float gx, float gy, int substeps, float hertz, float damping_ratio, float push_speed,
                          bool warm_starting, float restitution_threshold, bool sleeping, bool continuous, float skin) {
@@ -263,8 +276,9 @@ PYBIND11_MODULE(_box2d, m) {
                      gx, gy, dc::SoftStep{substeps, hertz, damping_ratio, push_speed, warm_starting},
                      restitution_threshold, sleeping, continuous, skin);
              }),
-             py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f, py::arg("substeps") = 4,
-             py::arg("contact_hertz") = 30.0f, py::arg("damping_ratio") = 10.0f, py::arg("push_speed") = 3.0f,
+             py::arg("gravity_x") = 0.0f, py::arg("gravity_y") = 0.0f, py::arg("substeps") = v3_defaults.substeps,
+             py::arg("contact_hertz") = v3_defaults.contact_hertz,
+             py::arg("damping_ratio") = v3_defaults.damping_ratio, py::arg("push_speed") = v3_defaults.push_speed,
              py::arg("warm_starting") = true, py::arg("restitution_threshold") = 1.0f, py::arg("sleeping") = false,
              py::arg("continuous") = false, py::arg("skin") = b2_polygonRadius,
              "A Box2D v3 world. skin: the radius polygons and edges are rounded by (default 2.4.1's\n"

@@ -61,6 +61,15 @@ struct World3::Impl {
     float restitution_threshold;
 };
 
+SoftStep default_soft_step() {
+    const v3::b2WorldDef def = v3::b2DefaultWorldDef();
+    SoftStep soft;
+    soft.contact_hertz = def.contactHertz;
+    soft.damping_ratio = def.contactDampingRatio;
+    soft.push_speed = def.maxContactPushSpeed;
+    return soft;
+}
+
 World3::World3(float gravity_x, float gravity_y, const SoftStep& soft, float restitution_threshold, bool sleeping,
                bool continuous, float skin)
     : impl_(std::make_unique<Impl>()) {

@@ -13,13 +13,17 @@
 
 namespace dc {
 
+// The soft step's settings; default_soft_step() fills them from v3's own b2DefaultWorldDef.
 struct SoftStep {
-    int substeps = 4;
-    float contact_hertz = 30.0f;
-    float damping_ratio = 10.0f;
-    float push_speed = 3.0f;   // m/s: how fast v3 pushes overlapping bodies apart
+    int substeps = 4;          // b2World_Step's sub-step count: v3 has no default, its samples use 4
+    float contact_hertz = 0.0f;
+    float damping_ratio = 0.0f;
+    float push_speed = 0.0f;   // m/s: how fast v3 pushes overlapping bodies apart
     bool warm_starting = true;
 };
+
+// v3's defaults (b2DefaultWorldDef's contactHertz, contactDampingRatio, maxContactPushSpeed).
+SoftStep default_soft_step();
 
 class World3 : public SceneWorld {
 public:

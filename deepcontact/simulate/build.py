@@ -3,7 +3,6 @@ import numpy as np
 
 from .._box2d import World
 from ..errors import InputError
-from ..step.engines import SoftStep
 from ..scene.check import overlap_tolerance
 
 _TYPE = {"static": 0, "kinematic": 1, "dynamic": 2}
@@ -47,15 +46,13 @@ def _add_bodies(world, scene, linear, angular, path=None):
                 world.add_edge(index, s.x1, s.y1, s.x2, s.y2, **material)
 
 
-def build_world3(scene, soft=None, path=None):
-    """The scene as a Box2D v3 world stepped with the soft step `soft` (a step.engines.SoftStep;
-    v3's defaults if None), with the same bodies, shapes, materials and effects as build_world's;
+def build_world3(scene, soft, path=None):
+    """The scene as a Box2D v3 world stepped with the soft step `soft` (a simulate.engines.SoftStep), with the same bodies, shapes, materials and effects as build_world's;
     warm starting, sleeping and continuous collision as the scene says. InputError where this
     build has no Box2D v3 (pyb2d3 was not installed when the module was built)."""
     from .. import _box2d
     if not hasattr(_box2d, "World3"):
         raise InputError("this build has no Box2D v3: install pyb2d3==0.11.1 and rebuild (make setup)")
-    soft = SoftStep() if soft is None else soft
     e = scene.effects
     gravity = e.gravity if e.gravity is not None else (0.0, 0.0)
     linear, angular = e.damping if e.damping is not None else (0.0, 0.0)

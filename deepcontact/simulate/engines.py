@@ -9,18 +9,74 @@ function, checks a scene against its own rules, and says what its step files and
 `dc simulate`, `run`, `run_simulation` and `World` take one; no caller infers the engine from
 which keywords are set.
 """
+from collections.abc import Callable
 import functools
 import math
+import struct
+from dataclasses import dataclass
 from xml.sax.saxutils import quoteattr
 
+from ..errors import InputError
 from ..resources import check_step_work
 from ..scene.xml import fmt
 from ..solver.methods import takes_relaxation
 from ..solver.settings import SolveSettings
-from ..step.engines import SoftStep
 from . import stepping
 from .build import build_world, build_world3
 from .pgs_loop import PGSStepper, check_loop, check_scene_for_loop
+
+
+def _float32(value):
+    """value as Box2D's float32 holds it (inf beyond its range)."""
+    try:
+        return struct.unpack("f", struct.pack("f", value))[0]
+    except OverflowError:
+        return math.inf
+
+
+@dataclass(frozen=True)
+class SoftStep:
+    """Box2D v3's soft step, as `dc simulate --engine box2d3` runs it.
+
+    substeps: per step (v3's `subStepCount`); contact_hertz, damping_ratio: the soft contact's
+    stiffness and damping; push_speed: the most speed (m/s) v3 uses to push overlapping bodies
+    apart. What is not given is v3's own default, read from its library (b2DefaultWorldDef; 4
+    substeps, as its samples step). Warm starting, sleeping and continuous collision come from
+    the scene, as for 2.4.1."""
+    substeps: int = None
+    contact_hertz: float = None
+    damping_ratio: float = None
+    push_speed: float = None
+
+    def __post_init__(self):
+        for name, value in soft_step_defaults().items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
+        # (OptionError names the flag: dc simulate exits 2 on these, as for any bad option value,
+        # and a library caller gets the same one line)
+        from ..errors import OptionError
+        if not (isinstance(self.substeps, int) and not isinstance(self.substeps, bool) and self.substeps >= 1):
+            raise OptionError(f"substeps must be a whole number >= 1, got {self.substeps!r}", "--substeps")
+        for name, lowest in (("contact_hertz", "positive"), ("damping_ratio", ">= 0"), ("push_speed", ">= 0")):
+            value = getattr(self, name)
+            flag = "--" + name.replace("_", "-")
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise OptionError(f"{name.replace('_', ' ')} must be a number, got {value!r}", flag)
+            if not (value > 0 if lowest == "positive" else value >= 0):
+                raise OptionError(f"{name.replace('_', ' ')} must be {lowest}, got {value!r}", flag)
+            if not math.isfinite(_float32(value)):   # v3 takes float32: 1e39 would be inf there
+                raise OptionError(f"{name.replace('_', ' ')} {value!r} is beyond float32 (Box2D v3's floats: at "
+                                  f"most about 3.4e38)", flag)
+
+
+@functools.lru_cache(maxsize=None)
+def soft_step_defaults() -> dict:
+    """Box2D v3's own soft step defaults, from its library (b2DefaultWorldDef), as SoftStep's fields;
+    InputError where this build has no Box2D v3."""
+    from .. import _box2d
+    if not hasattr(_box2d, "soft_step_defaults"):
+        raise InputError("this build has no Box2D v3: install pyb2d3==0.11.1 and rebuild (make setup)")
+    return dict(_box2d.soft_step_defaults())
 
 
 class Box2D:
@@ -32,7 +88,7 @@ class Box2D:
     no step file records one)."""
 
     def __init__(self, solver: SolveSettings | None = None, start: str = "builtin",
-                 velocity_iterations: int | None = None, start_fn=None):
+                 velocity_iterations: int | None = None, start_fn: Callable | None = None):
         if solver is not None:
             check_loop(solver, start, own_start=start_fn is not None)
             if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
@@ -92,7 +148,7 @@ class Box2D:
 
 class Box2D3:
     """Box2D v3 (3.1, the pyb2d3 wheel's library) stepping with its soft step `soft` (v3's
-    defaults if None: step.engines.SoftStep)."""
+    defaults if None: SoftStep)."""
     name = engine = "box2d3"
     solver = None
 

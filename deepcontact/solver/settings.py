@@ -43,6 +43,22 @@ class SolveSettings:
                                             self.relaxation, self.accelerate, self.guard))
         if key in _CHECKED:   # (a solve makes one per call: the same request, types and all, is checked once)
             return
+        self._check_types()
+        if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
+            raise _error("--mode exact is Box2D's PGS: it takes no over-relaxation", "relaxation")
+        if self.mode == "exact" and self.accelerate != "none":
+            raise _error("--mode exact is Box2D's PGS: it takes no acceleration", "accelerate")
+        check_mode(self.accelerate, self.mode)   # (the native rule, but naming the flag)
+        # the native rules, checked where they are written (a plug-in method's name stands as
+        # plain sweeps: its own rules are its own)
+        from .._box2d import Acceleration
+        self._native(1.0, self.accelerate if self.accelerate in Acceleration.__members__ else "none")
+        if len(_CHECKED) > 4096:
+            _CHECKED.clear()
+        _CHECKED.add(key)
+
+    def _check_types(self):
+        """OptionError for a field of the wrong type (before the native struct would refuse it)."""
         from ..errors import OptionError
         real = (int, float)
         for name, kinds in (("max_iterations", (int,)), ("tolerance", real)):
@@ -57,18 +73,6 @@ class SolveSettings:
                               FLAGS["max_iterations"])
         if not isinstance(self.stop_on, str):
             raise OptionError(f"stop_on must be a measure's name, got {self.stop_on!r}", FLAGS["stop_on"])
-        if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
-            raise OptionError("--mode exact is Box2D's PGS: it takes no over-relaxation", FLAGS["relaxation"])
-        if self.mode == "exact" and self.accelerate != "none":
-            raise OptionError("--mode exact is Box2D's PGS: it takes no acceleration", FLAGS["accelerate"])
-        check_mode(self.accelerate, self.mode)   # (the native rule, but naming the flag)
-        # the native rules, checked where they are written (a plug-in method's name stands as
-        # plain sweeps: its own rules are its own)
-        from .._box2d import Acceleration
-        self._native(1.0, self.accelerate if self.accelerate in Acceleration.__members__ else "none")
-        if len(_CHECKED) > 4096:
-            _CHECKED.clear()
-        _CHECKED.add(key)
 
     def native(self, *, dt, history=False, final_residual=True, cone=True):
         """The native solver's SolveOptions for a step of length dt (the only place one is made):
@@ -95,6 +99,11 @@ class SolveSettings:
         return replace(self, **changes)
 
 
+def _error(message, field):
+    from ..errors import OptionError
+    return OptionError(message, FLAGS[field])
+
+
 def check_mode(accelerate: str, mode: str) -> None:
     """The rule a method puts on the arithmetic: the native table's global methods (newton,
     subspace, bodyspace) are float64 only. OptionError naming --accelerate where it is broken (a
@@ -102,8 +111,7 @@ def check_mode(accelerate: str, mode: str) -> None:
     from .._box2d import Acceleration, is_global
     if accelerate in Acceleration.__members__ and is_global(Acceleration.__members__[accelerate]) \
             and mode != "float64":
-        from ..errors import OptionError
-        raise OptionError(f"{accelerate} is float64 only: use --mode float64", FLAGS["accelerate"])
+        raise _error(f"{accelerate} is float64 only: use --mode float64", "accelerate")
 
 
 _CHECKED = set()   # requests already checked (frozen values: equal ones pass the same checks)

@@ -22,20 +22,18 @@ the bodies are a body's size apart: drift there measures chaos, not accuracy.
 
     dc study engines [--fast] -o DIR
 """
-import io
 import math
-import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..escape import CsvWriter
 from .. import atomic, workers
 from ..evaluate.closed_loop import reference_trajectory
 from ..simulate import stepping
 from ..solver.metrics import drift
 from ..solver.settings import CAP
 from . import stability as S
+from .tables import accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
@@ -190,27 +188,17 @@ def _most(rows, family):
     return [r for r in rows if r.family == family and not r.variant][-1].setting
 
 
-def _fmt(v, scale=1.0, digits=3):
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return ""
-    if isinstance(v, float) and math.isinf(v):
-        return "inf"
-    return f"{v * scale:.{digits}g}"
-
-
-TABLE_HEADER = ("| family | setting | passes | ms / step | drift from reference (cm) | penetration at rest (cm) | "
-                "energy rise / allowed (J) | top drift (cm) | fastest at end (m/s) | capped steps |\n"
-                "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
+           ("passes", lambda r: "yes" if r.passed else "no"), ("ms / step", lambda r: _fmt(r.ms_per_step)),
+           ("drift from reference (cm)", lambda r: _fmt(r.drift, 100)),
+           ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),
+           ("energy rise / allowed (J)", lambda r: f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)}"),
+           ("top drift (cm)", lambda r: _fmt(r.top_drift, 100)), ("fastest at end (m/s)", lambda r: _fmt(r.final_speed)),
+           ("capped steps", lambda r: r.capped if r.family == "project" else "")]
 
 
 def scene_table(rows):
-    lines = [TABLE_HEADER]
-    for r in rows:
-        lines.append(f"| {r.family} | {r.setting} | {'yes' if r.passed else 'no'} | {_fmt(r.ms_per_step)} | "
-                     f"{_fmt(r.drift, 100)} | {_fmt(r.penetration, 100)} | "
-                     f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)} | {_fmt(r.top_drift, 100)} | "
-                     f"{_fmt(r.final_speed)} | {r.capped if r.family == 'project' else ''} |")
-    return "\n".join(lines) + "\n"
+    return markdown_table(COLUMNS, rows)
 
 
 def verdict_table(rows):
@@ -233,20 +221,6 @@ def verdict_table(rows):
     return "\n".join(lines) + "\n"
 
 
-def csv_text(rows):
-    out = io.StringIO()
-    w = CsvWriter(out, lineterminator="\n")
-    names = [f.name for f in fields(Row)]
-    w.writerow(names)
-    for r in rows:
-        w.writerow([getattr(r, n) for n in names])
-    return out.getvalue()
-
-
-def slug(scene):
-    return re.sub(r"[^a-z0-9]+", "-", scene.lower()).strip("-")
-
-
 def _short(row):
     """A point's label on the plot: its count, tolerance or ablation."""
     if row.variant:
@@ -256,45 +230,12 @@ def _short(row):
 
 def pareto_plot(rows, path):
     """Time per step against drift from the reference, one line per family; hollow markers fail
-    the scene's criteria."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..plotstyle import readable_log_ticks, styles
-    style = styles(list(FAMILIES))
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    plotted = False
-    for family in FAMILIES:
-        mine = [r for r in rows if r.family == family and math.isfinite(r.ms_per_step) and math.isfinite(r.drift)
-                and r.drift > 0]
-        if not mine:
-            continue
-        s = dict(style[family])
-        sweep = [r for r in mine if not r.variant]
-        ax.plot([r.ms_per_step for r in sweep], [r.drift * 100 for r in sweep], color=s["color"],
-                linestyle=s["linestyle"], linewidth=s["linewidth"], label=family)
-        for r in mine:   # an ablation: a lone marker, its label beside it
-            ax.plot(r.ms_per_step, r.drift * 100, marker="*" if r.variant else s["marker"], color=s["color"],
-                    markersize=8 if r.variant else 6, markerfacecolor=s["color"] if r.passed else "white",
-                    linestyle="none")
-            ax.annotate(_short(r), (r.ms_per_step, r.drift * 100), textcoords="offset points", xytext=(4, 3),
-                        fontsize=6, color=s["color"])
-        plotted = True
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("time per step (ms, one thread)")
-    ax.set_ylabel("largest drift from the reference (cm)")
-    ax.set_title(f"{rows[0].scene}: accuracy against time\n(labels: iterations, substeps, residual; "
-                 "hollow: fails the criteria; stars: v3 ablations)", fontsize=8)
-    if plotted:
-        ax.legend(fontsize=8)
-        readable_log_ticks(ax.xaxis)
-        readable_log_ticks(ax.yaxis)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    the scene's criteria, stars are v3's ablations."""
+    points = {f: [(r.ms_per_step, r.drift * 100, r.passed, _short(r), r.variant) for r in rows if r.family == f]
+              for f in FAMILIES}
+    accuracy_plot(FAMILIES, points, path, "largest drift from the reference (cm)",
+                  f"{rows[0].scene}: accuracy against time\n(labels: iterations, substeps, residual; "
+                  "hollow: fails the criteria; stars: v3 ablations)")
 
 
 def markdown(rows, fast, protocol_text, pictures=True):
@@ -318,7 +259,7 @@ def write(rows, out_dir, fast, protocol_text):
     out_dir = Path(out_dir)
     for scene in dict.fromkeys(r.scene for r in rows):
         pareto_plot([r for r in rows if r.scene == scene], out_dir / f"pareto-{slug(scene)}.png")
-    atomic.write_text(out_dir / "engines.csv", csv_text(rows))
+    atomic.write_text(out_dir / "engines.csv", csv_text(rows, Row))
     text = markdown(rows, fast, protocol_text)
     atomic.write_text(out_dir / "engines.md", text)
     return text

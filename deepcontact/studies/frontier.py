@@ -30,21 +30,19 @@ one such solve of the 1000-circle pile took 14-15 s, 3 hours for a run.
 
     dc study frontier [--fast] -o DIR
 """
-import io
 import math
-import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import atomic, workers
-from ..escape import CsvWriter
 from ..simulate import stepping
 from ..simulate.problems import problems
 from ..solver.methods import solve
 from ..solver.reference import reference_solution
 from ..solver.settings import CAP, SolveSettings
 from . import stability as S
+from .tables import accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
@@ -229,26 +227,21 @@ def matches(rows):
     the one-step residual (median and largest) against Box2D 2.4.1, by penetration at rest against
     v3 (its step has no residual here), and passing the criteria where the engine setting does.
     (engine row, project row or None)."""
-    out = []
     ours = [r for r in rows if _project(r) and r.finite and math.isfinite(r.ms_per_step)]
-    for e in rows:
-        if _project(e) or not math.isfinite(e.ms_per_step):
-            continue
-        if e.family == "Box2D 2.4.1":
-            good = [r for r in ours if r.residual_median <= e.residual_median and r.residual_max <= e.residual_max]
-        else:
-            good = [r for r in ours if r.penetration <= e.penetration]
-        good = [r for r in good if r.passed or not e.passed]
+    out = []
+    for e in (r for r in rows if not _project(r) and math.isfinite(r.ms_per_step)):
+        good = [r for r in ours if _as_accurate(r, e)]
         out.append((e, min(good, key=lambda r: r.ms_per_step) if good else None))
     return out
 
 
-def _fmt(v, scale=1.0, digits=3):
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return ""
-    if isinstance(v, float) and math.isinf(v):
-        return "inf"
-    return f"{v * scale:.{digits}g}"
+def _as_accurate(ours, engine):
+    """Whether a project row is at least as accurate as an engine's (matches' rule)."""
+    if engine.passed and not ours.passed:
+        return False
+    if engine.family == "Box2D 2.4.1":
+        return ours.residual_median <= engine.residual_median and ours.residual_max <= engine.residual_max
+    return ours.penetration <= engine.penetration
 
 
 def summary_table(rows):
@@ -269,74 +262,29 @@ def summary_table(rows):
     return "\n".join(lines) + "\n"
 
 
-TABLE_HEADER = ("| family | setting | passes | ms / step | one-step residual (median / largest) | velocity error (m/s) | "
-                "penetration at rest (cm) | energy rise / allowed (J) | capped steps |\n"
-                "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
+           ("passes", lambda r: "yes" if r.passed else "no"), ("ms / step", lambda r: _fmt(r.ms_per_step)),
+           ("one-step residual (median / largest)", lambda r: f"{_fmt(r.residual_median)} / {_fmt(r.residual_max)}"),
+           ("velocity error (m/s)", lambda r: _fmt(r.velocity_error)),
+           ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),
+           ("energy rise / allowed (J)", lambda r: f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)}"),
+           ("capped steps", lambda r: r.capped if _project(r) else "")]
 
 
 def scene_table(rows):
-    lines = [TABLE_HEADER]
-    for r in rows:
-        lines.append(f"| {r.family} | {r.setting} | {'yes' if r.passed else 'no'} | {_fmt(r.ms_per_step)} | "
-                     f"{_fmt(r.residual_median)} / {_fmt(r.residual_max)} | {_fmt(r.velocity_error)} | "
-                     f"{_fmt(r.penetration, 100)} | {_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)} | "
-                     f"{r.capped if _project(r) else ''} |")
-    return "\n".join(lines) + "\n"
-
-
-def csv_text(rows):
-    out = io.StringIO()
-    w = CsvWriter(out, lineterminator="\n")
-    names = [f.name for f in fields(Row)]
-    w.writerow(names)
-    for r in rows:
-        w.writerow([getattr(r, n) for n in names])
-    return out.getvalue()
-
-
-def slug(scene):
-    return re.sub(r"[^a-z0-9]+", "-", scene.lower()).strip("-")
+    return markdown_table(COLUMNS, rows)
 
 
 def frontier_plot(rows, path):
     """Time per step against the one-step residual, one line per family with a residual (v3 has
     none); hollow markers fail the scene's criteria."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..plotstyle import readable_log_ticks, styles
-    style = styles(list(FAMILIES))
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    plotted = False
-    for family in FAMILIES:
-        mine = [r for r in rows if r.family == family and math.isfinite(r.ms_per_step) and r.residual_median > 0]
-        if not mine:
-            continue
-        s = style[family]
-        ax.plot([r.ms_per_step for r in mine], [r.residual_median for r in mine], color=s["color"],
-                linestyle=s["linestyle"], linewidth=s["linewidth"], label=family)
-        for r in mine:
-            ax.plot(r.ms_per_step, r.residual_median, marker=s["marker"], color=s["color"], linestyle="none",
-                    markerfacecolor=s["color"] if r.passed else "white")
-            ax.annotate(r.setting.split()[0] if r.family == "Box2D 2.4.1" or "sweeps" in r.setting
-                        else r.setting.split()[-1], (r.ms_per_step, r.residual_median), textcoords="offset points",
-                        xytext=(4, 3), fontsize=6, color=s["color"])
-        plotted = True
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("time per step (ms, one thread)")
-    ax.set_ylabel("one-step residual (median over the samples)")
-    ax.set_title(f"{rows[0].scene}: accuracy against time\n(labels: iterations, sweeps, tolerance; "
-                 "hollow: fails the criteria)", fontsize=8)
-    if plotted:
-        ax.legend(fontsize=8)
-        readable_log_ticks(ax.xaxis)
-        readable_log_ticks(ax.yaxis)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    def label(r):   # iterations or sweeps; a tolerance
+        return r.setting.split()[0] if r.family == "Box2D 2.4.1" or "sweeps" in r.setting else r.setting.split()[-1]
+    points = {f: [(r.ms_per_step, r.residual_median, r.passed, label(r), False) for r in rows if r.family == f]
+              for f in FAMILIES}
+    accuracy_plot(FAMILIES, points, path, "one-step residual (median over the samples)",
+                  f"{rows[0].scene}: accuracy against time\n(labels: iterations, sweeps, tolerance; "
+                  "hollow: fails the criteria)")
 
 
 def markdown(rows, lines, fast, protocol_text):
@@ -358,7 +306,7 @@ def write(rows, lines, out_dir, fast, protocol_text):
     out_dir = Path(out_dir)
     for scene in dict.fromkeys(r.scene for r in rows):
         frontier_plot([r for r in rows if r.scene == scene], out_dir / f"frontier-{slug(scene)}.png")
-    atomic.write_text(out_dir / "frontier.csv", csv_text(rows))
+    atomic.write_text(out_dir / "frontier.csv", csv_text(rows, Row))
     text = markdown(rows, lines, fast, protocol_text)
     atomic.write_text(out_dir / "frontier.md", text)
     return text

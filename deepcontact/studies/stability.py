@@ -27,9 +27,8 @@ from .. import workers
 from .._box2d import linear_slop
 from ..scene.generators import generate, parameters
 from ..simulate import stepping
-from ..simulate.engines import Box2D, Box2D3
+from ..simulate.engines import Box2D, Box2D3, SoftStep
 from ..solver.settings import SolveSettings
-from ..step.engines import SoftStep
 from ..solver.metrics import deepest, energy, positions
 
 PENETRATION_LIMIT = 3 * linear_slop
