@@ -33,7 +33,7 @@ from ..simulate import stepping
 from ..solver.metrics import drift
 from ..solver.settings import CAP
 from . import stability as S
-from .tables import accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
+from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
@@ -70,13 +70,7 @@ def settings():
 
 
 @dataclass
-class Row:
-    scene: str
-    family: str
-    setting: str
-    passed: bool
-    finite: bool
-    ms_per_step: float        # mean over the run, stepped without recording
+class Row(SettingRow):
     drift: float              # largest over the run, from the reference trajectory (m); nan: none
     penetration: float        # deepest at rest (m)
     peak_penetration: float

@@ -42,7 +42,7 @@ from ..solver.methods import solve
 from ..solver.reference import reference_solution
 from ..solver.settings import CAP, SolveSettings
 from . import stability as S
-from .tables import accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
+from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
@@ -102,13 +102,7 @@ def settings(fast=False):
 
 
 @dataclass
-class Row:
-    scene: str
-    family: str
-    setting: str
-    passed: bool
-    finite: bool
-    ms_per_step: float        # mean over an unrecorded run
+class Row(SettingRow):
     residual_median: float    # one-step residual over the samples; nan for v3
     residual_max: float
     velocity_error: float     # median over the samples of the largest |v - v_ref| (m/s); nan: no reference

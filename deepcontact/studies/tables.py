@@ -3,9 +3,21 @@ a CSV of dataclass rows, and the plot of families of settings (engines, frontier
 import io
 import math
 import re
-from dataclasses import fields
+from dataclasses import dataclass, fields
 
 from ..escape import CsvWriter
+
+
+@dataclass
+class SettingRow:
+    """What every accuracy-against-time study says of one setting on one scene (its own rows add
+    their measures after these)."""
+    scene: str
+    family: str
+    setting: str
+    passed: bool         # met the scene's criteria (studies/stability.py)
+    finite: bool
+    ms_per_step: float   # mean over a run stepped without recording
 
 
 def fmt(v, scale=1.0, digits=3):
