@@ -54,7 +54,7 @@ ENGINES = ("Box2D 2.4.1", "Box2D v3")
 REFERENCE_POINTS = 2500   # a reference step above this many contact points is not solved (minutes each)
 
 SCALE = [
-    S.Case("pile 1000", "pile", dict(count=1000, box=95.0, sigma=19.0, steps=400), rests=False),
+    S.Case("pile 1000", "pile", dict(count=1000, box=95.0, sigma=19.0, steps=800), rests=False),
     S.Case("pile 10000", "pile", dict(count=10000, box=300.0, sigma=60.0, steps=400), rests=False),
     S.Case("confined 625", "confined", dict(count=625), rests=False),
     S.Case("confined 2500", "confined", dict(count=2500), rests=False),
