@@ -74,6 +74,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_engines.py
 	sh benchmarks/bench_loop_scale.sh
 	$(PYTHON) benchmarks/bench_bodyspace.py
+	$(PYTHON) benchmarks/bench_loop_parts.py
 
 # The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).
 studies: setup
