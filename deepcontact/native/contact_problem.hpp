@@ -35,6 +35,7 @@ template <class R>
 struct Rot {
     R s, c;
     explicit Rot(R angle) : s(std::sin(angle)), c(std::cos(angle)) {}  // sinf/cosf for float
+    Rot() : s(0), c(1) {}
 };
 template <class R> inline V2<R> mul(const Rot<R>& q, V2<R> v) { return {q.c * v.x - q.s * v.y, q.s * v.x + q.c * v.y}; }
 template <class R>
@@ -223,6 +224,18 @@ ContactProblem<R> assemble(const BodyColumns& bc, const ContactColumns& cc, cons
     }
 
     // b2ContactSolver::InitializeVelocityConstraints, manifold by manifold in the given order.
+    // Each body's rotation is computed once (a body touches several manifolds; the same angle
+    // gives the same sine and cosine, so the result is Box2D's bit for bit).
+    std::vector<Rot<R>> rotation(bc.n);
+    std::vector<uint8_t> rotated(bc.n, 0);
+    auto rot = [&](int32_t i) -> const Rot<R>& {
+        if (!rotated[i]) {
+            rotation[i] = Rot<R>(R(bc.angle[i]));
+            rotated[i] = 1;
+        }
+        return rotation[i];
+    };
+    pb.manifolds.reserve(cc.n);   // (at most one a point)
     size_t k = 0;
     while (k < cc.n) {
         const int32_t m_id = cc.manifold[k];
@@ -254,7 +267,7 @@ ContactProblem<R> assemble(const BodyColumns& bc, const ContactColumns& cc, cons
 
         const V2<R> cA{R(bc.center[2 * a]), R(bc.center[2 * a + 1])};
         const V2<R> cB{R(bc.center[2 * b]), R(bc.center[2 * b + 1])};
-        Xf<R> xfA{{0, 0}, Rot<R>(R(bc.angle[a]))}, xfB{{0, 0}, Rot<R>(R(bc.angle[b]))};
+        Xf<R> xfA{{0, 0}, rot(a)}, xfB{{0, 0}, rot(b)};
         xfA.p = cA - mul(xfA.q, V2<R>{R(bc.local_center[2 * a]), R(bc.local_center[2 * a + 1])});
         xfB.p = cB - mul(xfB.q, V2<R>{R(bc.local_center[2 * b]), R(bc.local_center[2 * b + 1])});
         V2<R> point_local[2], points[2];
