@@ -65,6 +65,7 @@
 #define DC_IF_0(...)
 #define DC_IF_1(...) __VA_ARGS__
 #define DC_VECTOR_FIELD(T, name, width, solver) std::vector<T> name;
+#define DC_RESERVE_FIELD(T, name, width, solver) name.reserve(rows * (width));
 #define DC_POINTER_FIELD(T, name, width, solver) const T* name = nullptr;
 #define DC_WIDTH_FIELD(T, name, width, solver) static constexpr int name = width;
 #define DC_SOLVER_POINTER_FIELD(T, name, width, solver) DC_IF_##solver(const T* name = nullptr;)

@@ -30,12 +30,17 @@ struct BodyState {
     DC_BODY_FIELDS(DC_VECTOR_FIELD)
     std::vector<uint8_t> fixed_rotation;   // read by tests and tools, never written to a step file
     size_t size() const { return index.size(); }
+    void reserve(size_t rows) {
+        DC_BODY_FIELDS(DC_RESERVE_FIELD)
+        fixed_rotation.reserve(rows);
+    }
 };
 
 // One row per manifold point of every contact the velocity solver sees (records.hpp).
 struct ContactState {
     DC_CONTACT_FIELDS(DC_VECTOR_FIELD)
     size_t size() const { return manifold.size(); }
+    void reserve(size_t rows) { DC_CONTACT_FIELDS(DC_RESERVE_FIELD) }
 };
 
 // What a scene is built into, whatever the engine: the calls simulate/build.py makes.

@@ -171,7 +171,7 @@ void World::set_inv_dt0(float value) { world_.get()->*member(WorldInvDt0()) = va
 BodyState World::bodies() const {
     BodyState s;
     const size_t n = live_bodies_;
-    s.index.reserve(n);
+    s.reserve(n);
     for (b2Body* b : bodies_) {
         if (b == nullptr) continue;
         s.index.push_back(body_index(b));
@@ -352,7 +352,9 @@ void World::emit(ContactState& s, b2Contact* c, int island, int manifold, const 
 // static bodies. Used between the pieces of a step run by our own solver (no sleeping there).
 ContactState World::gather() {
     ContactState s;
+    s.reserve(2 * static_cast<size_t>(world_->GetContactCount()));   // (at most two points a contact)
     gathered_.clear();
+    gathered_.reserve(2 * static_cast<size_t>(world_->GetContactCount()));
     std::vector<char> body_seen(bodies_.size(), 0);
     std::unordered_set<const b2Contact*> contact_seen;
     std::vector<b2Body*> stack;
