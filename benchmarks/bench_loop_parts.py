@@ -7,7 +7,8 @@ native call: Collide, gather, PGS from Box2D's warm start, write back, Step with
 iterations) at a fixed number of sweeps. Then the loop's pieces, as the step in pieces through
 Python takes them, each timed on the same state: the bodies and contacts read out, Collide, the
 problem posed, the solve at 0 and 8 sweeps (its fixed cost and the sweeps), and Box2D's Step with
-0 velocity iterations (integration, its own Collide, islands, position correction). Medians over
+0 velocity iterations (integration, its own Collide, islands, position correction); and one
+sweep's cost, from solves of the last state at 64 and 512 sweeps. Medians over
 the steps; ratios to Box2D's step in the same run.
 
 Usage: python benchmarks/bench_loop_parts.py [--steps N] [--sweeps N]
@@ -67,6 +68,11 @@ def main():
         world.set_manifold_impulses(s.normal_impulse.astype(np.float32), s.tangent_impulse.astype(np.float32))
         world.inv_dt0 = inv
         timed("Step, 0 velocity iterations", lambda: world.step(scene.dt, 0, scene.solver.position_iterations))
+    for n in (64, 512):   # a sweep's own cost: the difference over the last state's problem
+        many = SolveSettings(max_iterations=n, tolerance=0)
+        for _ in range(5):
+            timed(f"solve, {n} sweeps", lambda: solve(problem, *start, settings=many, final_residual=False))
+    sweep = (np.median(times["solve, 512 sweeps"]) - np.median(times["solve, 64 sweeps"])) / 448
     base = float(np.median(times["Box2D's step, 8 iterations"]))
     print(f"the 1000-circle pile, {len(world.contacts()['manifold']):,} contact points at the end, "
           f"{args.steps} steps each")
@@ -74,6 +80,7 @@ def main():
     for name, values in times.items():
         ms = float(np.median(values))
         print(f"{name:56s} {ms * 1e3:10.3f} {ms / base:12.2f}x")
+    print(f"{'one float64 sweep (from 64 and 512 sweeps)':56s} {sweep * 1e3:10.3f} {sweep / base:12.2f}x")
 
 
 if __name__ == "__main__":
