@@ -4,6 +4,7 @@ and zlib.
 Everything else about the package lives in setup.cfg.
 """
 import glob
+import os
 import shlex
 import subprocess
 import sys
@@ -77,6 +78,15 @@ if v3 is not None:
 # setup.cfg's package_dir maps into it.
 packages = find_packages(include=["deepcontact", "deepcontact.*"]) + ["deepcontact.cli", "deepcontact.schemas"]
 
+
+def stale(obj, src):
+    """Whether an object file must be compiled again: it is older than its source, than any of
+    the native headers (no per-file header tracking: any header counts) or than this file (the
+    flags). A wheel built after `pip install -e .` reuses that build's objects."""
+    inputs = [src, __file__, *glob.glob("deepcontact/native/*.hpp")]
+    return os.stat(obj).st_mtime < max(os.stat(p).st_mtime for p in inputs)
+
+
 # The seven translation units compile side by side (DC_BUILD_JOBS overrides the core count).
-ParallelCompile("DC_BUILD_JOBS").install()
+ParallelCompile("DC_BUILD_JOBS", needs_recompile=stale).install()
 setup(ext_modules=[ext], packages=packages)
