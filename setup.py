@@ -82,7 +82,8 @@ packages = find_packages(include=["deepcontact", "deepcontact.*"]) + ["deepconta
 def stale(obj, src):
     """Whether an object file must be compiled again: it is older than its source, than any of
     the native headers (no per-file header tracking: any header counts) or than this file (the
-    flags). A wheel built after `pip install -e .` reuses that build's objects."""
+    flags). `python3 setup.py build_ext --inplace` after a change to one .cpp compiles that file
+    alone. (pip's editable and wheel builds start from an empty build folder: they compile all.)"""
     inputs = [src, __file__, *glob.glob("deepcontact/native/*.hpp")]
     return os.stat(obj).st_mtime < max(os.stat(p).st_mtime for p in inputs)
 
