@@ -1,6 +1,8 @@
 """dc study: the longer measurements (stability of the hard scenes, the thesis's figures, one map
 or two, the grid's own loss, the learned correction and coarse space): every results table of
 docs/results.md that is not a `dc evaluate` report comes from one of these."""
+import contextlib
+
 import click
 
 from deepcontact.model.arch import NETWORKS
@@ -320,6 +322,38 @@ def oracle_report(runs, out, kernel, cell, smoothing, renormalize, window, impul
         click.echo(O.write_study(work, steps, rows, impulses, renormalize))
 
 
+def text_report(f):
+    """What a study that reports in text takes: --threads, and -o FILE with --overwrite (its report
+    also written to FILE, atomically, once the study ends; checked and locked before it starts)."""
+    f = options.overwrite(f)
+    f = click.option("-o", "--output", "output", type=click.Path(dir_okay=False),
+                     help="Also write the report to this file (once the study ends).")(f)
+    return options.threads(f)
+
+
+@contextlib.contextmanager
+def _text_report(threads, output=None, overwrite=False):
+    """The StudyText a text study reports into, each line echoed to stdout as it comes after the
+    line saying how its times were taken; with `output`, the whole report written there at the end."""
+    import os
+
+    from deepcontact import atomic
+    from deepcontact.errors import InputError
+    from deepcontact.protocol import protocol, protocol_line, use_threads
+    from deepcontact.studies.text import StudyText
+    if output:   # checked (and locked) before the study, not after it
+        atomic.check_replaceable(output)
+    with atomic.locked(output) if output else contextlib.nullcontext():
+        if output and os.path.exists(output) and not overwrite:
+            raise InputError("file exists; use --overwrite to replace it", output)
+        use_threads(threads)
+        text = StudyText(sink=lambda part: click.echo(part, nl=False))
+        text(protocol_line(protocol(threads)) + "\n")
+        yield text
+        if output:
+            atomic.write_text(output, text.text())
+
+
 def learned_study(name, seeds):
     """What both learned-start studies take: the pile's training seeds and steps, threads, -v/-q."""
     def bundle(f):
@@ -327,7 +361,7 @@ def learned_study(name, seeds):
                 click.option("--train", "train_seeds", type=options.SeedList(), default=seeds, show_default=True,
                              help="Training seeds of the pile (held out: seed 1000)."),
                 click.option("--steps", type=options.count(min=1), default=600, show_default=True),
-                options.threads, options.verbosity, options.command(f"study {name}")]):
+                text_report, options.verbosity, options.command(f"study {name}")]):
             f = option(f)
         return f
     return bundle
@@ -342,7 +376,8 @@ def learned_study(name, seeds):
 @click.option("--width", type=options.count(min=1, max=4096), default=32, show_default=True)
 @click.option("--lr", type=options.Finite(min=0, min_open=True), default=3e-4, show_default=True)
 @learned_study("learned-correction", "0,1,2,3")
-def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, steps, threads, verbose, quiet):
+def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, steps, threads, output, overwrite,
+                       verbose, quiet):
     """Does a learned correction on the contact graph beat Box2D's warm start?
     Trains it on piles driven by our PGS, then solves held-out steps from
     builtin and from builtin + correction (docs/results.md). Minutes.
@@ -353,8 +388,9 @@ def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, st
       dc study learned-correction --epochs 6 --sweeps 32
     """
     from deepcontact.studies.learned_correction import run
-    run(epochs=epochs, sweeps=sweeps, batch=batch, rounds=rounds, width=width, lr=lr, train_seeds=train_seeds,
-        steps=steps, out=_study_text(threads))
+    with _text_report(threads, output, overwrite) as text:
+        run(epochs=epochs, sweeps=sweeps, batch=batch, rounds=rounds, width=width, lr=lr, train_seeds=train_seeds,
+            steps=steps, out=text)
 
 
 @study.command("learned-coarse")
@@ -366,7 +402,7 @@ def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, st
 @click.option("--lr", type=options.Finite(min=0, min_open=True), default=1e-4, show_default=True,
               help="(1e-3 made the surrogate loss rise.)")
 @learned_study("learned-coarse", "0,1")
-def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, verbose, quiet):
+def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, output, overwrite, verbose, quiet):
     """Does a learned coarse space help PGS? Aggregation weights trained
     through the solve, between sweeps, against sweeps alone and the unlearned
     space (docs/results.md). Minutes.
@@ -377,17 +413,8 @@ def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, verbos
       dc study learned-coarse --cell 4 --sweeps 8 --epochs 4
     """
     from deepcontact.studies.learned_coarse import run
-    run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps, out=_study_text(threads))
-
-
-def _study_text(threads):
-    """The StudyText a text study reports into, each line echoed to stdout as it comes, after the
-    line saying how its times were taken."""
-    from deepcontact.protocol import protocol, protocol_line, use_threads
-    from deepcontact.studies.text import StudyText
-    use_threads(threads)
-    click.echo(protocol_line(protocol(threads)) + "\n")
-    return StudyText(sink=lambda text: click.echo(text, nl=False))
+    with _text_report(threads, output, overwrite) as text:
+        run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps, out=text)
 
 
 @study.command()
@@ -436,10 +463,10 @@ def amortize(out, fast, overwrite, verbose, quiet):
               help="Only these methods, by their labels (PGS, PSOR 1.7, NNCG, Newton, subspace, body space).")
 @click.option("--sizes", type=options.CommaList(click.INT, "N[,...]"),
               help="Only the piles of these body counts (100, 1000, 10000).")
-@options.threads
+@text_report
 @options.verbosity
 @options.command("study scale")
-def scale(samples, cap, quick, methods, sizes, threads, verbose, quiet):
+def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbose, quiet):
     """How the solver methods scale with the pile: time and iterations per
     step to a residual of 1e-4 at 100, 1,000 and 10,000 circles, from zero
     and from Box2D's warm start, and the fitted exponent of time against
@@ -455,8 +482,8 @@ def scale(samples, cap, quick, methods, sizes, threads, verbose, quiet):
     if unknown:
         raise click.BadParameter(f"no method {unknown[0]!r}; the methods are: {', '.join(S.METHODS)}",
                                  param_hint="--methods")
-    S.run(samples=samples, cap=cap, quick=quick, methods=tuple(methods or S.METHODS), sizes=sizes,
-          out=_study_text(threads))
+    with _text_report(threads, output, overwrite) as text:
+        S.run(samples=samples, cap=cap, quick=quick, methods=tuple(methods or S.METHODS), sizes=sizes, out=text)
 
 
 @study.command("global-families")
@@ -466,10 +493,10 @@ def scale(samples, cap, quick, methods, sizes, threads, verbose, quiet):
               show_default=True, help="[pile] The pile's steps.")
 @click.option("--cap", type=options.count(min=1), default=3000, show_default=True,
               help="[pile] Iterations of PSOR and ADMM at most.")
-@options.threads
+@text_report
 @options.verbosity
 @options.command("study global-families")
-def global_families(part, steps, cap, threads, verbose, quiet):
+def global_families(part, steps, cap, threads, output, overwrite, verbose, quiet):
     """Two other global families as numpy prototypes, by the work they need:
     ADMM on the impulses (plain and with Anderson acceleration) and an
     augmented Lagrangian with the friction cone projected, against PSOR and
@@ -482,7 +509,8 @@ def global_families(part, steps, cap, threads, verbose, quiet):
       dc study global-families --part exact
     """
     from deepcontact.studies.global_families import run
-    run(part, tuple(steps), cap, out=_study_text(threads))
+    with _text_report(threads, output, overwrite) as text:
+        run(part, tuple(steps), cap, out=text)
 
 
 @study.command()
@@ -491,10 +519,10 @@ def global_families(part, steps, cap, threads, verbose, quiet):
               help="Timings per step (the best is kept).")
 @click.option("--loop", is_flag=True, help="Our PGS driving the scene instead of replaying its settled steps.")
 @click.option("--seeds", type=options.SeedList(), help="[--loop] The scene's seeds, pooled (default 0).")
-@options.threads
+@text_report
 @options.verbosity
 @options.command("study relaxation")
-def relaxation(scene, repeats, loop, seeds, threads, verbose, quiet):
+def relaxation(scene, repeats, loop, seeds, threads, output, overwrite, verbose, quiet):
     """Time to the same accuracy (residual 1e-4): Box2D's warm start against
     over-relaxation, NNCG, Newton and subspace steps and the prev start, as
     median sweeps and solve time against builtin in the same run
@@ -508,7 +536,8 @@ def relaxation(scene, repeats, loop, seeds, threads, verbose, quiet):
     """
     from deepcontact.studies.relaxation import run
     options.refuse_inapplicable([("seeds", loop, "only applies with --loop")])
-    run(scene, repeats, (seeds or (0,)) if loop else None, out=_study_text(threads))
+    with _text_report(threads, output, overwrite) as text:
+        run(scene, repeats, (seeds or (0,)) if loop else None, out=text)
 
 
 @study.command()
@@ -516,10 +545,10 @@ def relaxation(scene, repeats, loop, seeds, threads, verbose, quiet):
               help="hard: the stability study's full-size hard scenes.")
 @click.option("--every", type=options.count(min=1), default=5, show_default=True, help="Use every N-th step.")
 @click.option("--siconos", is_flag=True, help="Siconos's Lemke on the same steps too (Debian's python3-siconos).")
-@options.threads
+@text_report
 @options.verbosity
 @options.command("study exact")
-def exact(scene, every, siconos, threads, verbose, quiet):
+def exact(scene, every, siconos, threads, output, overwrite, verbose, quiet):
     """The reference solutions: how long reaching a residual of 1e-12 takes
     (sweeps, Newton, Lemke's pivots where Newton stalls), on held-out pile and
     pyramid steps or on the hard scenes (docs/results.md, "Exact answers").
@@ -531,7 +560,8 @@ def exact(scene, every, siconos, threads, verbose, quiet):
     """
     from deepcontact.studies.exact import run
     options.refuse_inapplicable([("siconos", scene != "hard", "does not apply to --scene hard")])
-    run(scene, every, siconos, out=_study_text(threads))
+    with _text_report(threads, output, overwrite) as text:
+        run(scene, every, siconos, out=text)
 
 
 @study.command()
@@ -542,10 +572,10 @@ def exact(scene, every, siconos, threads, verbose, quiet):
               default="1e-4,1e-8", show_default=True)
 @click.option("--cap", type=options.count(min=1), default=100_000, show_default=True,
               help="Our sweeps at most (Siconos: 100,000 iterations).")
-@options.threads
+@text_report
 @options.verbosity
 @options.command("study peer")
-def peer(scene, every, tolerances, cap, threads, verbose, quiet):
+def peer(scene, every, tolerances, cap, threads, output, overwrite, verbose, quiet):
     """Our solver against Siconos's NSGS and Lemke on the same exported
     problems, from zero to each tolerance (docs/results.md, "Against Siconos").
     Needs Debian's python3-siconos (make setup).
@@ -556,4 +586,5 @@ def peer(scene, every, tolerances, cap, threads, verbose, quiet):
       dc study peer --scene pyramid40 --tolerances 1e-4
     """
     from deepcontact.studies.peer import run
-    run(scene, every, tuple(tolerances), cap, out=_study_text(threads))
+    with _text_report(threads, output, overwrite) as text:
+        run(scene, every, tuple(tolerances), cap, out=text)

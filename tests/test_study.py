@@ -103,12 +103,21 @@ def test_the_amortize_study_measures_what_a_reused_factor_buys(tmp_path):
     assert r.returncode == 1 and "overwrite" in r.stderr
 
 
-def test_the_scale_study_runs_as_a_dc_study_command():
+def test_the_scale_study_runs_as_a_dc_study_command(tmp_path):
     """The scaling table (once a benchmark script, now a study) at toy size: a settled 100-circle
-    pile, one step, PSOR, from zero and from Box2D's warm start."""
+    pile, one step, PSOR, from zero and from Box2D's warm start; with -o FILE its report is also
+    written there, as every text study's is."""
     r = dc("study", "scale", "--quick", "--samples", "1", "--sizes", "100", "--methods", "PSOR 1.7", "-q")
     assert r.returncode == 0, r.stderr
     assert "Measured with" in r.stdout and r.stdout.count("| PSOR 1.7 | ") == 2 and "From zero" in r.stdout
+    # -o FILE: the same report, written once the study ends; never replaced unasked
+    report = tmp_path / "scale.md"
+    r = dc("study", "scale", "--quick", "--samples", "1", "--sizes", "100", "--methods", "PSOR 1.7", "-q",
+           "-o", report)
+    assert r.returncode == 0, r.stderr
+    assert report.read_text() == r.stdout and r.stdout.count("| PSOR 1.7 | ") == 2
+    r = dc("study", "scale", "--quick", "--samples", "1", "--sizes", "100", "-q", "-o", report)
+    assert r.returncode == 1 and "--overwrite" in r.stderr and str(report) in r.stderr
     r = dc("study", "scale", "--methods", "Nope")
     assert r.returncode == 2 and "no method 'Nope'" in r.stderr
 
