@@ -21,8 +21,7 @@ from common import timed
 from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
 from deepcontact.simulate import stepping
-from deepcontact.simulate.build import build_world, build_world3
-from deepcontact.simulate.engines import SoftStep
+from deepcontact.simulate.engines import Box2D, Box2D3, SoftStep
 
 # name: (generator, parameters, steps)
 FULL = {
@@ -37,12 +36,9 @@ ENGINES = {"Box2D 2.4.1": "box2d", "Box2D v3": "box2d3"}
 def engine_ms(generator, params, steps, engine):
     """Mean ms of a step of the engine alone (no recording)."""
     scene = generate(generator, 0, {**params, "steps": str(steps)})
-    if engine == "box2d3":
-        world = build_world3(scene, SoftStep())
-        bare = stepping.box2d3(world, scene, record=False)
-    else:
-        world = build_world(scene)
-        bare = stepping.box2d(world, scene, record=False)
+    stepper = Box2D3(SoftStep()) if engine == "box2d3" else Box2D()
+    world = stepper.build(scene)
+    bare = stepper.stepper(world, scene, record=False)
     t = time.perf_counter()
     for _ in stepping.steps(world, scene, bare):
         pass
