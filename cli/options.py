@@ -483,16 +483,13 @@ def choice(name, leave_out=()):
     return click.Choice([w for w in vocabulary(name) if w not in leave_out])
 
 
-def load_solvers(names, mode=None):
-    """--accelerate: plug-in solver methods loaded by the user's explicit choice; with mode, each
-    checked against it (solver.settings.check_mode: exit 2)."""
+def load_solvers(names):
+    """--accelerate: plug-in solver methods loaded by the user's explicit choice (a method's rules
+    against the other options are the SolveSettings' the command then makes)."""
     from deepcontact.solver.methods import SOLVERS, is_native
-    from deepcontact.solver.settings import check_mode
     for name in names:
         if not is_native(name):
             SOLVERS.load(name)
-        elif mode is not None:
-            check_mode(name, mode)
 
 
 def load_network(arch):

@@ -41,12 +41,11 @@ class EvaluateSettings:
         sph start can draw."""
         from ..errors import OptionError
         from ..grid.spec import node_weight_problem
-        from ..solver.settings import check_mode
         from ..warmstart.starts import trait
-        for w in self.relaxations:
+        for w in self.relaxations:   # (made, a SolveSettings checks itself: each w, each method)
             self.solve.but(relaxation=w)
         for method in self.accelerations:
-            check_mode(method, self.solve.mode)
+            self.solve.but(accelerate=method)
         learned = [n for n in self.starts if trait(n, "needs_model")]
         if learned and not self.checkpoint:
             raise OptionError(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",

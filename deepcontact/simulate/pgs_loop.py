@@ -31,16 +31,14 @@ GARBAGE = np.array([1e30, np.nan, -1.0])
 
 
 def check_loop(settings: SolveSettings, start: str = "builtin", own_start=False) -> None:
-    """The loop's own rules over a solve's settings, checked once for the command line and the
-    library alike; OptionError naming the option that breaks one. own_start: the caller makes the
-    starts."""
+    """The loop's own rules over a solve's settings (which checked their own when made), checked
+    once for the command line and the library alike; OptionError naming the option that breaks
+    one. own_start: the caller makes the starts."""
     from ..errors import OptionError
     from ..solver.methods import takes_relaxation
-    from ..solver.settings import check_mode
     o = settings
     if not own_start and start not in STARTS:
         raise OptionError(f"unknown start {start!r}; choose from {', '.join(STARTS)}", "--start")
-    check_mode(o.accelerate, o.mode)
     if not takes_relaxation(o.accelerate) and o.relaxation not in (None, 1.0):
         raise OptionError(f"the solver method {o.accelerate} takes no over-relaxation (its class does not say "
                           f"takes_relaxation = True)", "--relaxation")

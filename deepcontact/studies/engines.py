@@ -54,6 +54,8 @@ class Setting:
     solver: str            # stability.stepper's: box2d, box2d3 or pgs
     count: int             # iterations, substeps, or the sweep cap
     tolerance: float = 0.0
+    relaxation: float = 1.0   # the project's over-relaxation w and solver method
+    accelerate: str = "none"
     warm_starting: bool = True
     rest: str = "own"      # own: from where the engine rests resting contacts; box2d: 2.4.1's (stability.own_rest)
     variant: bool = False  # an ablation beside the family's sweep (not a candidate for the cheapest)
@@ -96,8 +98,8 @@ def params_of(case, setting):
 def step_ms(case, setting):
     """Mean wall time of a step (ms), stepped without recording: the engine's own time."""
     scene = S.case_scene(case, setting.warm_starting, params_of(case, setting))
-    world, step = S.stepper(scene, setting.solver, "builtin", setting.count, tolerance=setting.tolerance,
-                            record=False)
+    world, step = S.stepper(scene, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
+                            tolerance=setting.tolerance, record=False)
     seconds = [done.seconds for done in stepping.steps(world, scene, step)]
     return 1e3 * float(np.mean(seconds)) if seconds else float("nan")
 

@@ -36,12 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import atomic, workers
-from ..simulate import stepping
 from ..simulate.problems import problems
 from ..solver.methods import solve
 from ..solver.reference import reference_solution
 from ..solver.settings import CAP, SolveSettings
 from . import stability as S
+from .engines import Setting, applicable, step_ms
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
@@ -70,23 +70,12 @@ FAST_SAMPLES = 2
 FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
 
 
-@dataclass(frozen=True)
-class Setting:
-    family: str
-    label: str
-    solver: str            # stability.stepper's: box2d, box2d3 or pgs
-    count: int             # iterations, substeps, or the sweep cap
-    tolerance: float = 0.0
-    relaxation: float = 1.0
-    accelerate: str = "none"
-
-    @property
-    def solve_settings(self) -> SolveSettings:
-        """How this setting solves one step: Box2D 2.4.1's own PGS (exact) or the project's."""
-        if self.solver == "box2d":
-            return SolveSettings(mode="exact", max_iterations=self.count, tolerance=0.0)
-        return SolveSettings(max_iterations=self.count, tolerance=self.tolerance, relaxation=self.relaxation,
-                             accelerate=self.accelerate)
+def solve_settings(setting) -> SolveSettings:
+    """How a setting solves one step: Box2D 2.4.1's own PGS (exact) or the project's."""
+    if setting.solver == "box2d":
+        return SolveSettings(mode="exact", max_iterations=setting.count, tolerance=0.0)
+    return SolveSettings(max_iterations=setting.count, tolerance=setting.tolerance, relaxation=setting.relaxation,
+                         accelerate=setting.accelerate)
 
 
 def settings(fast=False):
@@ -138,7 +127,7 @@ def one_step(setting, samples):
     """(median residual, largest residual, median velocity error) of the setting's step on the samples."""
     if setting.solver == "box2d3" or not samples:
         return float("nan"), float("nan"), float("nan")
-    asked = setting.solve_settings
+    asked = solve_settings(setting)
     residuals, errors = [], []
     for s in samples:
         solution = solve(s.problem, settings=asked)
@@ -149,21 +138,12 @@ def one_step(setting, samples):
             float(np.median(errors)) if errors else float("nan"))
 
 
-def step_ms(case, setting):
-    """Mean wall time of a step (ms), stepped without recording: the engine's own time."""
-    scene = S.case_scene(case, params=S.own_rest(case, setting.solver))
-    world, step = S.stepper(scene, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
-                            tolerance=setting.tolerance, record=False)
-    seconds = [done.seconds for done in stepping.steps(world, scene, step)]
-    return 1e3 * float(np.mean(seconds)) if seconds else float("nan")
-
-
 def run_scene(case, chosen, samples):
     """Every applicable setting on one case (Rows, in order)."""
     picked = samples_of(case, samples)
     rows = []
     for setting in chosen:
-        if not S.applicable(case, setting.solver):
+        if not applicable(case, setting):
             continue
         r = S.run_case(case, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
                        tolerance=setting.tolerance)
@@ -207,7 +187,7 @@ def _scene_task(task):
 
 
 def tasks_count(cases, chosen):
-    return sum(S.applicable(c, s.solver) for c in cases for s in chosen)
+    return sum(applicable(c, s) for c in cases for s in chosen)
 
 
 # --- reports -------------------------------------------------------------------------------
