@@ -442,14 +442,17 @@ def folder(path, command="dc"):
     from . import interrupts
     from .errors import InputError
     path = Path(path)
+    tmp, swapped = None, False
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{short_name(path.name)}.partial-{os.getpid()}-", dir=path.parent))
-        os.chmod(tmp, 0o777 & ~umask())   # the output's own mode, as mkdir gives: mkdtemp's 0700 is for secrets
-        _write_record(tmp, command, "partial")
-    except OSError as e:
-        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
-    swapped = False
-    try:
+        # held: a stop signal between making the folder and owning it would leave it behind
+        with interrupts.held():
+            try:
+                tmp = Path(tempfile.mkdtemp(prefix=f".{short_name(path.name)}.partial-{os.getpid()}-",
+                                            dir=path.parent))
+                os.chmod(tmp, 0o777 & ~umask())   # the output's own mode: mkdtemp's 0700 is for secrets
+                _write_record(tmp, command, "partial")
+            except OSError as e:
+                raise InputError(f"cannot write there: {e.strerror or e}", path) from None
         yield tmp
         with interrupts.held():
             # the journal first: from here on, a kill at any instruction is finished or undone by
@@ -466,7 +469,7 @@ def folder(path, command="dc"):
                 shutil.rmtree(old, ignore_errors=True)
             _remove_quietly(beside(path, "swap"))
     except BaseException:
-        if not swapped:
+        if tmp is not None and not swapped:
             shutil.rmtree(tmp, ignore_errors=True)
         raise
 
@@ -489,6 +492,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
     it; a folder it created is removed again if it holds nothing but the record. existing_ok: an
     existing output is written into (resuming) without overwrite. hint: what the message for an
     output that is there already suggests."""
+    from . import interrupts
     from .errors import InputError
     path = Path(path)
     if path.is_symlink():
@@ -526,14 +530,15 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
                 yield tmp
             return
         created = not path.exists()
-        path.mkdir(exist_ok=True)
         key = os.path.abspath(path)
-        _in_place[key] = record = _InPlace(path, command)
         try:
+            with interrupts.held():   # a stop between making the folder and owning it would leave it
+                path.mkdir(exist_ok=True)
+                _in_place[key] = record = _InPlace(path, command)
             with _named(path, path):
                 yield path
         except BaseException:
-            if created and set(os.listdir(path)) <= {RECORD}:
+            if created and path.is_dir() and set(os.listdir(path)) <= {RECORD}:
                 _remove_quietly(path / RECORD)
                 path.rmdir()
                 _in_place.pop(key, None)

@@ -352,6 +352,32 @@ def test_a_signal_inside_a_held_block_is_raised_as_it_is_left():
             signal.signal(s, handler)
 
 
+@pytest.mark.parametrize("in_place", [False, True])
+def test_a_signal_while_the_output_folder_is_being_made_leaves_nothing(tmp_path, monkeypatch, in_place):
+    """The window between making the partial (or in-place) folder and owning it: a stop signal
+    that lands while its record is written is raised, and the folder goes with it."""
+    from deepcontact import interrupts
+    real = atomic._write_record if not in_place else atomic._InPlace.__init__
+
+    def signalled(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)                  # the handler has run: the stop is pending, not raised
+        return real(*args, **kwargs)
+    monkeypatch.setattr(*((atomic, "_write_record") if not in_place else (atomic._InPlace, "__init__")), signalled)
+    saved = {s: signal.getsignal(s) for s in interrupts.STOP_SIGNALS}
+    try:
+        interrupts.install()
+        with pytest.raises(interrupts.Terminated):
+            with atomic.output_folder(tmp_path / "out", atomic.Owned("test output", [r"x"]), command="test",
+                                      in_place=in_place):
+                raise AssertionError("the block ran: the signal was lost")
+    finally:
+        interrupts.uninstall()
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+    assert leftovers(tmp_path) == [] and not (tmp_path / "out").exists()
+
+
 def test_a_signal_to_a_fresh_run_leaves_nothing(dataset, tmp_path):
     proc = start(["simulate", "pile", "--seeds", "0..40", "-q", "-o", "run"], tmp_path)
     wait_for(lambda: any(tmp_path.glob(".run.partial-*/seed-*/step-*.xml")))
