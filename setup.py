@@ -8,8 +8,9 @@ import os
 import shlex
 import subprocess
 import sys
+import sysconfig
 
-from pybind11.setup_helpers import ParallelCompile, Pybind11Extension
+from pybind11.setup_helpers import ParallelCompile, Pybind11Extension, build_ext
 from setuptools import find_packages, setup
 
 
@@ -83,11 +84,24 @@ def stale(obj, src):
     """Whether an object file must be compiled again: it is older than its source, than any of
     the native headers (no per-file header tracking: any header counts) or than this file (the
     flags). `python3 setup.py build_ext --inplace` after a change to one .cpp compiles that file
-    alone. (pip's editable and wheel builds start from an empty build folder: they compile all.)"""
+    alone, and pip's wheel build after its editable install compiles nothing (BuildExt)."""
     inputs = [src, __file__, *glob.glob("deepcontact/native/*.hpp")]
     return os.stat(obj).st_mtime < max(os.stat(p).st_mtime for p in inputs)
 
 
+class BuildExt(build_ext):
+    """The objects go to one folder whoever builds: pip's editable install and its wheel build
+    would each compile in a folder of their own (the editable one temporary), so the wheel the tests
+    build after `make setup` compiled the module a second time; now it links what `stale` keeps."""
+
+    def finalize_options(self):
+        super().finalize_options()
+        # (one per interpreter and platform: an object compiled against another Python's headers
+        # is not stale by its date, and must not be linked)
+        here = os.path.dirname(os.path.abspath(__file__))
+        self.build_temp = os.path.join(here, "build", f"native.{sysconfig.get_platform()}-{sys.implementation.cache_tag}")
+
+
 # The seven translation units compile side by side (DC_BUILD_JOBS overrides the core count).
 ParallelCompile("DC_BUILD_JOBS", needs_recompile=stale).install()
-setup(ext_modules=[ext], packages=packages)
+setup(ext_modules=[ext], packages=packages, cmdclass={"build_ext": BuildExt})
