@@ -238,3 +238,18 @@ def test_the_solver_reads_exactly_its_columns_of_the_record_tables():
         with pytest.raises(KeyError, match=f"missing array '{key}'"):
             _box2d.contact_rows(problem.bodies, {k: v for k, v in problem.contacts.items() if k != key},
                                 problem.settings())
+
+
+@pytest.mark.parametrize("name", ["pile", "boxes-and-circles", "pyramid"])
+def test_the_body_rows_are_the_python_references_jacobian(name):
+    """native/body_rows.hpp, which Newton, the body-space solve and solver.local.jacobian read,
+    against the slow reference's J, derived in Python from the recorded contacts."""
+    from deepcontact.solver.local import jacobian
+    for problem, _ in recorded_steps(scenes()[name], steps=60, every=20):
+        lcp = L.build_lcp(problem, prune=False)
+        J, _, _, rows, points = jacobian(problem)
+        for kind, offset in ((0, 0), (1, 1)):   # normal rows, tangent rows
+            ours = J.toarray()[offset::2]
+            ref = lcp.J[lcp.kind == kind]
+            assert np.array_equal(lcp.point[lcp.kind == kind], points)
+            assert np.allclose(ours, ref, rtol=0, atol=1e-12 * max(1.0, np.abs(ref).max())), (name, kind)

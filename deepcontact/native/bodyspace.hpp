@@ -18,7 +18,7 @@
 // The outer iteration is a proximal point on the impulses, linear at a rate of about
 // 1 / (1 + rho sigma) on a mode of the Delassus operator of eigenvalue sigma: a heavier penalty
 // takes fewer outer iterations and more Newton iterations (a stiffer, more kinked inner problem),
-// so c adapts. pgs.hpp's solve_bodyspace runs sweeps first and between failures, and counts every
+// so c adapts. method_bodyspace.hpp's driver runs sweeps first and between failures, and counts every
 // factorization, Newton iteration, outer iteration and fallback.
 #pragma once
 
@@ -31,6 +31,7 @@
 #include <Eigen/SparseCholesky>
 #include <Eigen/SparseLU>
 
+#include "body_rows.hpp"
 #include "contact_problem.hpp"
 
 namespace dc {
@@ -152,16 +153,16 @@ private:
                         mass_.push_back(1.0 / (c < 2 ? im : ii));
                     }
             }
+        const std::vector<BodyRow> rows = body_rows(pb_);
         for (auto& m : pb_.manifolds) {
-            const V2<double> n = m.normal, t = cross(m.normal, 1.0);
             for (int j = 0; j < m.count; ++j) {
                 const auto& p = m.p[j];
                 Point q{};
                 q.m = &m;
                 q.j = j;
                 q.tangent = m.friction_row;
-                const double jn[6] = {-n.x, -n.y, -cross(p.rA, n), n.x, n.y, cross(p.rB, n)};
-                const double jt[6] = {-t.x, -t.y, -cross(p.rA, t), t.x, t.y, cross(p.rB, t)};
+                const double* jn = rows[m.first + j].normal;
+                const double* jt = rows[m.first + j].tangent;
                 for (int c = 0; c < 6; ++c) {
                     const int body = c < 3 ? m.a : m.b;
                     q.dof[c] = dof_of_[3 * body + c % 3];

@@ -27,6 +27,7 @@
 #include <cmath>
 #include <vector>
 
+#include "body_rows.hpp"
 #include "contact_problem.hpp"
 
 namespace dc {
@@ -81,34 +82,31 @@ private:
     static constexpr int kCgIterations = 50;
     static constexpr double kCgReduction = 0.1;
 
-    // A row of the problem: its point, direction and Jacobian on the two bodies (vx, vy, w each).
+    // A row of the problem: its point, and its Jacobian on the two bodies (j[0..2] on a's vx, vy,
+    // w; j[3..5] on b's), from the step's body rows.
     struct Row {
         ContactManifold<double>* m;
         int j;
         bool tangent;
         int normal;          // for a tangent row, the row of its point's normal impulse
-        double ja[3], jb[3];
+        const double* jac;
         double k, bias;
     };
 
     void layout() {
+        body_rows_ = body_rows(pb_);
         for (auto& m : pb_.manifolds) {
-            const V2<double> tangent = cross(m.normal, 1.0);
             for (int j = 0; j < m.count; ++j) {
                 const auto& p = m.p[j];
+                const BodyRow& jac = body_rows_[m.first + j];
                 const int normal_row = static_cast<int>(rows_.size());
-                rows_.push_back(row(m, j, false, -1, m.normal, p.k_normal, p.bias));
-                if (m.friction_row) rows_.push_back(row(m, j, true, normal_row, tangent, p.k_tangent, 0.0));
+                rows_.push_back(Row{&m, j, false, -1, jac.normal, p.k_normal, p.bias});
+                if (m.friction_row) rows_.push_back(Row{&m, j, true, normal_row, jac.tangent, p.k_tangent, 0.0});
             }
         }
         for (const Row& r : rows_) largest_k_ = std::max(largest_k_, r.k);
         if (!(largest_k_ > 0)) largest_k_ = 1.0;
         dv_.resize(3 * pb_.velocity.size());
-    }
-
-    static Row row(ContactManifold<double>& m, int j, bool tangent, int normal, V2<double> d, double k, double bias) {
-        const auto& p = m.p[j];
-        return Row{&m, j, tangent, normal, {-d.x, -d.y, -cross(p.rA, d)}, {d.x, d.y, cross(p.rB, d)}, k, bias};
     }
 
     double& impulse(const Row& r) const {
@@ -130,8 +128,8 @@ private:
             const Row& r = rows_[i];
             const auto& m = *r.m;
             for (int c = 0; c < 3; ++c) {
-                dv_[3 * m.a + c] += (c < 2 ? m.mA : m.iA) * r.ja[c] * di;
-                dv_[3 * m.b + c] += (c < 2 ? m.mB : m.iB) * r.jb[c] * di;
+                dv_[3 * m.a + c] += (c < 2 ? m.mA : m.iA) * r.jac[c] * di;
+                dv_[3 * m.b + c] += (c < 2 ? m.mB : m.iB) * r.jac[3 + c] * di;
             }
         }
     }
@@ -141,7 +139,7 @@ private:
         const double* da = &dv_[3 * r.m->a];
         const double* db = &dv_[3 * r.m->b];
         double s = 0;
-        for (int c = 0; c < 3; ++c) s += r.ja[c] * da[c] + r.jb[c] * db[c];
+        for (int c = 0; c < 3; ++c) s += r.jac[c] * da[c] + r.jac[3 + c] * db[c];
         return s;
     }
 
@@ -153,8 +151,8 @@ private:
             const Row& r = rows_[i];
             const auto& A = pb_.velocity[r.m->a];
             const auto& B = pb_.velocity[r.m->b];
-            w[i] = r.ja[0] * A.v.x + r.ja[1] * A.v.y + r.ja[2] * A.w + r.jb[0] * B.v.x + r.jb[1] * B.v.y +
-                   r.jb[2] * B.w - r.bias + row_change(r);
+            w[i] = r.jac[0] * A.v.x + r.jac[1] * A.v.y + r.jac[2] * A.w + r.jac[3] * B.v.x + r.jac[4] * B.v.y +
+                   r.jac[5] * B.w - r.bias + row_change(r);
         }
     }
 
@@ -270,8 +268,8 @@ private:
                 for (int k = 0; k < 3; ++k) {
                     const double wa = weighted ? (k < 2 ? m.mA : m.iA) : 1.0;
                     const double wb = weighted ? (k < 2 ? m.mB : m.iB) : 1.0;
-                    if (wa * r.ja[k] != 0.0) t.emplace_back(3 * m.a + k, col, c * wa * r.ja[k]);
-                    if (wb * r.jb[k] != 0.0) t.emplace_back(3 * m.b + k, col, c * wb * r.jb[k]);
+                    if (wa * r.jac[k] != 0.0) t.emplace_back(3 * m.a + k, col, c * wa * r.jac[k]);
+                    if (wb * r.jac[3 + k] != 0.0) t.emplace_back(3 * m.b + k, col, c * wb * r.jac[3 + k]);
                 }
             };
             for (size_t i = 0; i < n; ++i) {
@@ -369,6 +367,7 @@ private:
     double largest_k_ = 0.0;
     double rho_ = kLightest;
     int factorizations_ = 0;
+    std::vector<BodyRow> body_rows_;
     std::vector<Row> rows_;
     std::vector<double> base_, w_, x_, wx_, trial_, trial_w_, delta_, dv_;
     Eigen::SparseLU<Eigen::SparseMatrix<double>> lu_;

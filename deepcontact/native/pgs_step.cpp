@@ -28,7 +28,7 @@ template <class R>
 void solve_step(const BodyColumns& bc, const ContactColumns& cc, const PGSStepSettings& s,
                 const std::vector<double>& start_n, const std::vector<double>& start_t, PGSStepReport& out) {
     ContactProblem<R> pb = assemble<R>(bc, cc, s.step);
-    out.solve = PGS<R>(pb).solve(start_n.data(), start_t.data(), s.solve);
+    out.solve = solve(pb, start_n.data(), start_t.data(), s.solve);
     out.stats = pb.stats;
     // A point Box2D drops from an ill-conditioned pair keeps its start, as in solve_contacts.
     out.normal_impulse = start_n;

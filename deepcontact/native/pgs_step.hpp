@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "contact_problem.hpp"
-#include "pgs.hpp"
+#include "solve.hpp"
 #include "world.hpp"
 
 namespace dc {

@@ -10,7 +10,7 @@
 
 #include "contact_problem.hpp"
 #include "lemke.hpp"
-#include "pgs.hpp"
+#include "solve.hpp"
 #include "pgs_step.hpp"
 #include "pyarrays.hpp"
 
@@ -163,7 +163,7 @@ py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettin
     {
         py::gil_scoped_release release;
         pb = assemble<R>(bc, cc, st);
-        rep = PGS<R>(pb).solve(sn, stt, opt);
+        rep = solve(pb, sn, stt, opt);
     }
     py::dict out = report_dict(rep, pb.stats);
     R* normal = new_column<R>(out, "normal_impulse", cc.n);
@@ -229,6 +229,13 @@ py::dict rows_dict(const ContactProblem<double>& pb, size_t points) {
             friction[k] = m.friction;
         }
     }
+    // the rows' Jacobians in body space (body_rows.hpp): per point its normal row, then its tangent row
+    double* jacobian = new_column<double>(out, "jacobian", points, 12);
+    const std::vector<BodyRow> rows = body_rows(pb);
+    for (size_t k = 0; k < rows.size(); ++k) {
+        std::copy(rows[k].normal, rows[k].normal + 6, jacobian + 12 * k);
+        std::copy(rows[k].tangent, rows[k].tangent + 6, jacobian + 12 * k + 6);
+    }
     body_velocities(pb, out);
     return out;
 }
@@ -242,7 +249,7 @@ py::dict contact_rows(const py::dict& bodies, const py::dict& contacts, const St
     {
         py::gil_scoped_release release;
         pb = assemble<double>(bc, cc, step);
-        scale = PGS<double>(pb).free_velocity_scale();  // no impulse applied yet
+        scale = Sweeps<double>(pb).free_velocity_scale();  // no impulse applied yet
     }
     py::dict out = rows_dict(pb, cc.n);
     out["scale"] = scale;
@@ -363,7 +370,8 @@ void bind_solver(py::module_& m) {
           "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
     m.def("contact_rows", &contact_rows, py::arg("bodies"), py::arg("contacts"), py::arg("step"),
           "The rows of one step's contact problem as the solver assembles them (float64): per contact\n"
-          "point the lever arms, normal, effective inverse masses, bias; per body the velocity before\n"
+          "point the lever arms, normal, effective inverse masses, bias and its two rows' Jacobians in body\n"
+          "space (jacobian: normal then tangent, on a's vx, vy, w then b's); per body the velocity before\n"
           "any impulse; and the free-velocity scale the residual is divided by.");
     m.def("lemke", &lemke_lcp, py::arg("M"), py::arg("q"), py::arg("max_pivots"),
           "Lemke's complementary pivoting on w = M z + q (dense M, float64): (z, pivots), z None on a\n"

@@ -211,7 +211,9 @@ void World::step(float dt, int velocity_iterations, int position_iterations, boo
     if (record) {
         recorded_bodies_ = bodies();
         // The solver rebuilds transforms from the sweep, exactly like SynchronizeTransform.
-        record_xf_.assign(bodies_.size(), b2Transform());
+        b2Transform identity;
+        identity.SetIdentity();   // (b2Transform() leaves it uninitialised; a freed body's slot keeps this)
+        record_xf_.assign(bodies_.size(), identity);
         for (b2Body* b : bodies_)
             if (b != nullptr) record_xf_[body_index(b)] = b->GetTransform();
         recorded_contacts_ = ContactState();

@@ -53,20 +53,14 @@ def jacobian(problem: "StepProblem"):
     rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
     points = np.nonzero(rows["active"])[0]
     m, nb = len(points), len(problem.bodies["inv_mass"])
-    normal = rows["normal"][points]
-    tangent = np.stack([normal[:, 1], -normal[:, 0]], axis=1)    # cross(normal, 1), as the solver
+    jac = rows["jacobian"][points].reshape(m, 2, 6)   # (native/body_rows.hpp: normal, tangent rows)
     a, b = rows["row_a"][points], rows["row_b"][points]
-    r_a, r_b = rows["r_a"][points], rows["r_b"][points]
     J_rows, J_cols, J_vals = [], [], []
-    for k, d in ((0, normal), (1, tangent)):
-        row = 2 * np.arange(m) + k
-        cross_a = r_a[:, 0] * d[:, 1] - r_a[:, 1] * d[:, 0]
-        cross_b = r_b[:, 0] * d[:, 1] - r_b[:, 1] * d[:, 0]
-        for body, sign, cross in ((a, -1.0, cross_a), (b, 1.0, cross_b)):
-            for dof, value in ((0, d[:, 0]), (1, d[:, 1]), (2, cross)):
-                J_rows.append(row)
-                J_cols.append(3 * body + dof)
-                J_vals.append(sign * value)
+    for k in (0, 1):
+        for c in range(6):
+            J_rows.append(2 * np.arange(m) + k)
+            J_cols.append(3 * (a if c < 3 else b) + c % 3)
+            J_vals.append(jac[:, k, c])
     J = sp.csr_matrix((np.concatenate(J_vals), (np.concatenate(J_rows), np.concatenate(J_cols))),
                       shape=(2 * m, 3 * nb))
     inv_m = np.repeat(problem.bodies["inv_mass"].astype(np.float64), 3)

@@ -1,0 +1,47 @@
+// The solve of one step's contact problem: the start loaded, the warm start applied, then one
+// switch to the method's driver, one file each (solver2d's shape):
+//   method_sweeps.hpp     PGS (Box2D's velocity solver), PSOR and NNCG
+//   method_newton.hpp     newton, subspace: proximal semismooth Newton on the whole step
+//   method_bodyspace.hpp  bodyspace: augmented-Lagrangian iterations on the bodies' velocities
+// all over the one sweep kernel (sweeps.hpp). Adding a method: a driver file and a case here.
+#pragma once
+
+#include <type_traits>
+
+#include "contact_problem.hpp"
+#include "method_bodyspace.hpp"
+#include "method_newton.hpp"
+#include "method_sweeps.hpp"
+#include "solve_options.hpp"
+#include "sweeps.hpp"
+
+namespace dc {
+
+// The one switch (the global methods are float64 only, by the options' check).
+template <class R>
+void run_method(Sweeps<R>& k, const SolveOptions& opt, SolveReport& rep) {
+    if constexpr (std::is_same_v<R, double>) {
+        switch (opt.accelerate) {
+            case Acceleration::newton:
+            case Acceleration::subspace: solve_newton(k, opt, rep); return;
+            case Acceleration::bodyspace: solve_bodyspace(k, opt, rep); return;
+            default: break;
+        }
+    }
+    solve_sweeps(k, opt, rep);
+}
+
+// start_n/start_t: the first iterate per contact point, in the caller's row order.
+template <class R, class S>
+SolveReport solve(ContactProblem<R>& pb, const S* start_n, const S* start_t, const SolveOptions& opt) {
+    SolveReport rep;
+    Sweeps<R> k(pb);
+    k.load_start(start_n, start_t, opt, rep.sanitized);
+    // The residual is normalised by the free velocities, taken before the warm start.
+    if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) k.measure_scale();
+    k.warm_start();
+    run_method(k, opt, rep);
+    return rep;
+}
+
+}  // namespace dc
