@@ -6,28 +6,34 @@ import contextlib
 import click
 
 from deepcontact.model.arch import NETWORKS
+from deepcontact.studies import STUDIES
 
 from . import options
 
 
-@click.group()
-def study():
-    """Longer measurements built on the pipeline.
+class StudyGroup(click.Group):
+    """`dc study`, built from the one table of studies (deepcontact.studies.STUDIES): its commands
+    in the table's order, its help's list from the table's lines."""
 
-    \b
-    stability           the hard scenes under Box2D's solver and ours: the iterations each needs
-    engines             accuracy against time: Box2D 2.4.1, Box2D v3 and the project's solver
-    figures             the thesis's convergence figures 5.4-5.7, regenerated with the SPH start
-    maps                one network for both impulse maps, or one per map
-    oracle              the grid's own loss: exact impulses through the grid and back
-    learned-correction  a learned correction of Box2D's warm start on the contact graph
-    learned-coarse      a learned coarse space between sweeps
-    relaxation          time to the same accuracy: over-relaxation, NNCG, Newton, prev
-    exact               the reference solutions: time to 1e-12, pivots, the hard scenes
-    peer                our solver against Siconos (NSGS, Lemke) on the same problems
-    amortize            what a factor reused across steps could buy on 1,000 and 10,000 circles
-    scale               every method's time to 1e-4 as the pile grows (100 to 10,000 circles)
-    global-families     ADMM and a cone augmented Lagrangian, as prototypes, against the solver's
+    def list_commands(self, ctx):
+        return [s.name for s in STUDIES if s.name in self.commands]
+
+    def format_help_text(self, ctx, formatter):
+        super().format_help_text(ctx, formatter)
+        with formatter.section("Studies"):
+            formatter.write_dl([(s.name, s.summary) for s in STUDIES])
+
+    def format_commands(self, ctx, formatter):
+        pass   # (the list above says what each does)
+
+
+@click.group(cls=StudyGroup)
+def study():
+    """Longer measurements built on the pipeline: every results table of
+    docs/results.md that is not a `dc evaluate` report comes from one of these.
+    With -o, a study writes a folder (tables, CSV and plots), a file (its
+    table) or a text report (also echoed to stdout as it comes); a study whose
+    verdict is a failure says so in one line and exits 1.
 
     \b
     Examples:
@@ -64,19 +70,11 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
     """
     if not out:
         options.require_stdout("give -o FILE")
-    import os
-
     from deepcontact import atomic
-    from deepcontact.errors import InputError
+    from deepcontact.protocol import protocol, protocol_line
     from deepcontact.studies import stability as S
 
-    from contextlib import nullcontext
-    if out:   # checked (and locked) before the study, not after it
-        atomic.check_replaceable(out)
-    with atomic.locked(out) if out else nullcontext():
-        if out and os.path.exists(out) and not overwrite:
-            raise InputError("file exists; use --overwrite to replace it", out)
-        from deepcontact.protocol import protocol, protocol_line
+    with output_file(out, overwrite):
         measured = protocol(jobs=jobs)
         click.echo(S.HEADER)
         rows = S.study(S.FAST if fast else S.FULL, log=click.echo, jobs=jobs)
@@ -91,7 +89,8 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
                    f"{S.V3_CAP} substeps; not on: {', '.join(short)} (see the table)", err=True)
     failed = sum(not f.passed for _, f in rows if f.solver != "box2d3") + sum(not f.finite for f in v3)
     if failed:
-        raise InputError(f"{failed} of {len(rows)} configurations never met their criteria (see the table)")
+        from deepcontact.errors import StudyFailed
+        raise StudyFailed(f"{failed} of {len(rows)} configurations never met their criteria (see the table)")
 
 
 @study.command()
@@ -122,7 +121,7 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
       dc study engines -o reports/engines --scenes 'stack 20,mass ratio 400:1'
     """
     from deepcontact import atomic
-    from deepcontact.errors import InputError
+    from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
     from deepcontact.studies import engines as E
 
@@ -135,7 +134,7 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
         finally:
             bar.close()
         if not rows:
-            raise InputError("no setting applies to the chosen scenes")
+            raise OptionError("no setting applies to the chosen scenes", "--scenes")
         E.write(rows, work, fast, protocol_line(measured))
     click.echo(E.verdict_table(rows))
 
@@ -172,7 +171,7 @@ def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
       dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40'
     """
     from deepcontact import atomic
-    from deepcontact.errors import InputError
+    from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
     from deepcontact.studies import frontier as F
 
@@ -188,7 +187,7 @@ def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
         finally:
             bar.close()
         if not rows:
-            raise InputError("no setting applies to the chosen scenes")
+            raise OptionError("no setting applies to the chosen scenes", "--scenes")
         F.write(rows, lines, work, fast, protocol_line(measured))
     click.echo(F.summary_table(rows))
 
@@ -332,20 +331,32 @@ def text_report(f):
 
 
 @contextlib.contextmanager
-def _text_report(threads, output=None, overwrite=False):
-    """The StudyText a text study reports into, each line echoed to stdout as it comes after the
-    line saying how its times were taken; with `output`, the whole report written there at the end."""
+def output_file(path, overwrite):
+    """The one way a study's -o FILE is claimed: checked and locked before the study starts (a
+    file there is replaced only with --overwrite), written by the block, atomically, at its end.
+    None: no file (the block still runs)."""
     import os
 
     from deepcontact import atomic
     from deepcontact.errors import InputError
+    if not path:
+        yield
+        return
+    atomic.check_replaceable(path)
+    with atomic.locked(path):
+        if os.path.exists(path) and not overwrite:
+            raise InputError("file exists; use --overwrite to replace it", path)
+        yield
+
+
+@contextlib.contextmanager
+def _text_report(threads, output=None, overwrite=False):
+    """The StudyText a text study reports into, each line echoed to stdout as it comes after the
+    line saying how its times were taken; with `output`, the whole report written there at the end."""
+    from deepcontact import atomic
     from deepcontact.protocol import protocol, protocol_line, use_threads
     from deepcontact.studies.text import StudyText
-    if output:   # checked (and locked) before the study, not after it
-        atomic.check_replaceable(output)
-    with atomic.locked(output) if output else contextlib.nullcontext():
-        if output and os.path.exists(output) and not overwrite:
-            raise InputError("file exists; use --overwrite to replace it", output)
+    with output_file(output, overwrite):
         use_threads(threads)
         text = StudyText(sink=lambda part: click.echo(part, nl=False))
         text(protocol_line(protocol(threads)) + "\n")

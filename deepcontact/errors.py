@@ -26,6 +26,11 @@ class Failure(Exception):
     prints the message on one line and exits 1."""
 
 
+class StudyFailed(Failure):
+    """A study that ran to its end and whose verdict is a failure (a configuration that never met
+    its criteria): its report is written; the CLI prints the line and exits 1."""
+
+
 class OptionError(InputError):
     """Options that do not fit the input (or each other): the CLI exits 2, as for a bad option value."""
 

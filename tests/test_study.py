@@ -71,6 +71,23 @@ def test_the_learned_studies_run_as_dc_study_commands():
     assert dc("study", "learned-coarse", "--train", "0,x").returncode == 2
 
 
+def test_dc_study_is_built_from_the_one_table_of_studies():
+    """Every `dc study` command is a row of deepcontact.studies.STUDIES (and every row a command),
+    in the table's order, its module importable, and its -o what the row says it writes."""
+    import importlib
+    from click.testing import CliRunner
+    from deepcontact.cli.study import study
+    from deepcontact.studies import STUDIES
+    assert study.list_commands(None) == [s.name for s in STUDIES] and set(study.commands) == {s.name for s in STUDIES}
+    helped = CliRunner().invoke(study, ["--help"]).output
+    for row in STUDIES:
+        importlib.import_module(f"deepcontact.studies.{row.module}")
+        assert row.name in helped and row.summary.split()[0] in helped
+        (out,) = [p for p in study.commands[row.name].params if "-o" in getattr(p, "opts", ())]
+        assert row.writes in ("folder", "file", "text")
+        assert (out.type.dir_okay, out.type.file_okay) == ((True, False) if row.writes == "folder" else (False, True)), row
+
+
 def test_every_study_module_imports_and_the_exact_study_runs():
     import importlib
     import pkgutil
