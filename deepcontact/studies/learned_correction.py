@@ -95,7 +95,7 @@ def evaluate(model, problems, out):
             rows[label].append((s.iterations, best))
     base_it = np.median([i for i, _ in rows["builtin"]])
     base_s = np.median([s for _, s in rows["builtin"]])
-    out(f"held-out: {len(problems)} loop steps, residual < 1e-4, cap 1000; "
+    out(f"held-out: {len(problems)} loop steps, residual < {SETTINGS.tolerance:g}, cap {SETTINGS.max_iterations}; "
           f"prediction {np.median(predict) * 1e3:.3f} ms median (Python + torch)")
     out(f"{'start':<14} {'median sweeps':>14} {'ratio':>6} {'median solve ms':>16} {'ratio':>6} "
           f"{'+ prediction':>13} {'ratio':>6}")

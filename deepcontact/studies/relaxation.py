@@ -70,7 +70,7 @@ def loop(name, repeats, seeds=(0,), out=None):
             seconds.setdefault(label, []).extend(s[label])
             sweeps.setdefault(label, []).extend(i[label])
     out(f"{name} seeds {','.join(map(str, seeds))}, our PGS in the loop: {len(seconds['builtin'])} steps, "
-          f"residual < 1e-4, cap 1000")
+          f"residual < {SETTINGS.tolerance:g}, cap {SETTINGS.max_iterations}")
     out(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms/step':>15} {'ratio':>7}")
     base_it, base_ms = np.median(sweeps["builtin"]), np.median(seconds["builtin"])
     for label, _, _ in LOOP_VARIANTS:
@@ -138,7 +138,8 @@ def run(scene="pile", repeats=3, loop_seeds=None, out=None) -> StudyText:
         rows["no sweep (fixed cost)"].append(timed(p, None, None, 1.0, repeats, cap=0))
     base_it = statistics.median(i for i, _, _ in rows["builtin"])
     base_s = statistics.median(s for _, s, _ in rows["builtin"])
-    out(f"{scene}: {len(rows['builtin'])} settled steps, residual < 1e-4, cap 1000")
+    out(f"{scene}: {len(rows['builtin'])} settled steps, residual < {SETTINGS.tolerance:g}, "
+        f"cap {SETTINGS.max_iterations}")
     out(f"{'start':<24} {'median sweeps':>14} {'ratio':>7} {'median ms':>10} {'ratio':>7} {'factorizations':>15}")
     for name, r in rows.items():
         it = statistics.median(i for i, _, _ in r)
