@@ -29,9 +29,10 @@ class StudyGroup(click.Group):
 
 @click.group(cls=StudyGroup)
 def study():
-    """Longer measurements built on the pipeline: every results table of
-    docs/results.md that is not a `dc evaluate` report comes from one of these.
-    With -o, a study writes a folder (tables, CSV and plots), a file (its
+    """Longer measurements built on the pipeline.
+
+    Every results table of docs/results.md that is not a `dc evaluate` report
+    comes from one of these. With -o, a study writes a folder (tables, CSV and plots), a file (its
     table) or a text report (also echoed to stdout as it comes); a study whose
     verdict is a failure says so in one line and exits 1.
 
