@@ -63,7 +63,27 @@ def test_written_arrays_read_back_bit_for_bit():
 finite32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 
 
-@settings(max_examples=2000, deadline=None)
+def _shortest(text, values):
+    """Each text no longer than Python's shortest repr of its float64 value (plus an exponent's
+    sign and padding): the shortest round-tripping text, not merely a round-tripping one."""
+    return all(len(t.replace("e+", "e").replace("e-0", "e-")) <= len(repr(float(v))) + 4 for t, v in zip(text, values))
+
+
+def test_float32_text_round_trips_exactly_over_random_bit_patterns():
+    """200,000 random float32 bit patterns (every exponent, subnormals and -0.0 among them) and the
+    extremes: text and back gives the same bits."""
+    bits = np.random.default_rng(0).integers(0, 2 ** 32, size=200_000, dtype=np.uint64).astype(np.uint32)
+    extremes = [0.0, -0.0, np.finfo(np.float32).max, -np.finfo(np.float32).max, np.finfo(np.float32).tiny,
+                np.finfo(np.float32).smallest_subnormal, 1.0, 0.1, 16777217.0]
+    a = np.concatenate([bits.view(np.float32), np.array(extremes, np.float32)])
+    a = a[np.isfinite(a)]
+    text = _box2d.format_floats(a)
+    back = np.array(text, dtype=np.float32)
+    assert np.array_equal(a.view(np.uint32), back.view(np.uint32))
+    assert _shortest(text, a)
+
+
+@settings(max_examples=200, deadline=None)
 @given(st.lists(finite32, min_size=1, max_size=20))
 def test_float32_text_round_trips_exactly(values):
     a = np.array(values, dtype=np.float32)
