@@ -61,11 +61,9 @@ bool outer_iterations(Sweeps<double>& k, BodySpace& body, BodySpaceWork& work, c
 inline void solve_bodyspace(Sweeps<double>& k, const SolveOptions& opt, SolveReport& rep) {
     BodySpace body(k.problem(), k.scale(), kPenalty);
     BodySpaceWork work;
-    const double tolerance = opt.tolerance > 0 ? opt.tolerance : kExactTolerance;
+    const double tolerance = global_tolerance(opt);
     double residual = k.residual();
-    auto record = [&] {
-        if (opt.history) rep.history.insert(rep.history.end(), {std::nan(""), std::nan(""), residual});
-    };
+    auto record = [&] { record_residual(opt, rep, residual); };
     int sweeps = kSettleFirst;
     while (residual >= tolerance && rep.iterations < opt.max_iterations) {
         k.settle(std::min(sweeps, opt.max_iterations - rep.iterations), opt.relaxation, opt, rep, residual, record);

@@ -19,11 +19,9 @@ constexpr double kNewtonProgress = 0.5;    // a step must at least halve the res
 inline void solve_newton(Sweeps<double>& k, const SolveOptions& opt, SolveReport& rep) {
     Newton newton(k.problem(), k.scale(), opt.accelerate == Acceleration::subspace);
     const double w = opt.relaxation;
-    const double tolerance = opt.tolerance > 0 ? opt.tolerance : kExactTolerance;
+    const double tolerance = global_tolerance(opt);
     double residual = k.residual();
-    auto record = [&] {
-        if (opt.history) rep.history.insert(rep.history.end(), {std::nan(""), std::nan(""), residual});
-    };
+    auto record = [&] { record_residual(opt, rep, residual); };
     int sweeps = kSettleFirst;
     while (residual >= tolerance && rep.iterations < opt.max_iterations) {
         k.settle(std::min(sweeps, opt.max_iterations - rep.iterations), w, opt, rep, residual, record);

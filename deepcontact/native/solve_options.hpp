@@ -83,4 +83,13 @@ struct SolveReport {
 // What the global methods solve to when given no tolerance.
 constexpr double kExactTolerance = 1e-12;
 
+// The tolerance a global method stops at: the one asked, or exact.
+inline double global_tolerance(const SolveOptions& o) { return o.tolerance > 0 ? o.tolerance : kExactTolerance; }
+
+// What a global method's history records after a step of its own: the residual alone (a sweep's
+// change is a sweep's measure).
+inline void record_residual(const SolveOptions& o, SolveReport& rep, double residual) {
+    if (o.history) rep.history.insert(rep.history.end(), {std::nan(""), std::nan(""), residual});
+}
+
 }  // namespace dc
