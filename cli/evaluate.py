@@ -45,6 +45,9 @@ from . import options
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
 @click.option("--bands/--no-bands", default=None,
               help="Draw the 10-90% band of every variant in convergence.png (default: only for up to 4 variants).")
+@click.option("--plots/--no-plots", default=True, show_default=True,
+              help="Draw the report's pictures (PNG and SVG); --no-plots writes its tables alone (on a small run, "
+                   "a tenth of the time: docs/results.md).")
 @options.jobs
 @options.threads
 @options.max_memory
@@ -52,8 +55,8 @@ from . import options
 @options.verbosity
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-             seed, closed_loop, steps, relaxation, accelerate, budgets, bands, jobs, threads, max_memory, overwrite,
-             verbose, quiet):
+             seed, closed_loop, steps, relaxation, accelerate, budgets, bands, plots, jobs, threads, max_memory,
+             overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 from zero to a residual of 1e-12:
@@ -79,6 +82,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
       dc evaluate runs/pile --starts builtin --accelerate none,nncg --relaxation 1,1.3 --closed-loop -o r/nncg
       dc evaluate runs/pile --starts builtin,prev --accelerate all --tolerance 1e-4 --every 5 -o r/global
       dc evaluate runs/heldout --starts zero,builtin,prev -j 2 -o r/fast
+      dc evaluate runs/pile --starts builtin,prev --no-plots --no-budgets -o r/tables
     """
     from deepcontact import atomic
     from deepcontact.evaluate.report import REPORT_FILES
@@ -99,6 +103,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         ("kernel", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("seed", "random" in starts, "only applies to the random start"),
         ("bands", not closed_loop, "applies to replay's convergence plot; --closed-loop draws none"),
+        ("bands", plots, "applies to the convergence plot, which --no-plots leaves out"),
     ])
     options.load_network(arch)
     options.load_solvers(accelerate)
@@ -110,7 +115,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         solve=SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on),
         every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
         closed_loop=closed_loop, steps=steps, relaxations=tuple(relaxation), accelerations=tuple(accelerate),
-        budgets=budgets, bands=bands, jobs=jobs, threads=threads).checked()   # (the library's rules: exit 2)
+        budgets=budgets, bands=bands, plots=plots, jobs=jobs, threads=threads).checked()   # (the library's rules: exit 2)
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep
         from deepcontact.resources import check_memory
         needed, what = history_bytes(settings)

@@ -44,13 +44,13 @@ def example_on_path(monkeypatch):
 
 def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp_path, example_on_path):
     start = "dc_example_plugins.starts:DampedBuiltin"
-    r = invoke("evaluate", run, "--starts", f"builtin,{start}", "--every", "20", "--no-budgets", "-q",
+    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,{start}", "--every", "20", "--no-budgets", "-q",
                "-o", tmp_path / "replay")
     assert r.exit_code == 0, r.stderr
     summary = json.loads((tmp_path / "replay" / "summary.json").read_text())["starts"]
     assert set(summary) == {"builtin", start}
     assert summary[start]["iterations_median"] > 0 and summary[start]["predict_ms_median"] >= 0
-    r = invoke("evaluate", run, "--starts", f"builtin,{start}", "--closed-loop", "--steps", "20", "--no-budgets",
+    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,{start}", "--closed-loop", "--steps", "20", "--no-budgets",
                "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     assert start in (tmp_path / "loop" / "report.md").read_text()
@@ -63,7 +63,7 @@ def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path)
                           "--target", str(target), str(EXAMPLE)], capture_output=True, text=True)
     assert pip.returncode == 0, pip.stderr
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", str(run), "--starts", "builtin,damped-builtin",
+    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", "--no-plots", str(run), "--starts", "builtin,damped-builtin",
                         "--accelerate", "none,damped-jacobi", "--max-iterations", "100", "--every", "20",
                         "--no-budgets", "-q", "-o", str(tmp_path / "r")], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
@@ -72,7 +72,7 @@ def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path)
     r = subprocess.run([sys.executable, "-m", "deepcontact", "train", str(dataset), "--arch", "tiny-conv", "--epochs",
                         "1", "-q", "-o", str(tmp_path / "m")], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
-    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", str(run), "--starts", "cnn", "--checkpoint",
+    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint",
                         str(tmp_path / "m" / "best.pt"), "--arch", "tiny-conv", "--every", "30", "--no-budgets", "-q",
                         "-o", str(tmp_path / "r2")], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
@@ -114,7 +114,7 @@ def test_a_broken_start_is_one_line_and_leaves_nothing(run, tmp_path, monkeypatc
     (tmp_path / "mods").mkdir()
     (tmp_path / "mods" / "broken_starts.py").write_text(BROKEN)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
-    r = invoke("evaluate", run, "--starts", f"builtin,broken_starts:{name}", "--every", "20", "--no-budgets",
+    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,broken_starts:{name}", "--every", "20", "--no-budgets",
                "-o", tmp_path / "r")
     sys.modules.pop("broken_starts", None)
     assert r.exit_code == 1 and "Traceback" not in r.stderr, r.stderr
@@ -182,10 +182,10 @@ def test_a_broken_network_is_one_line(dataset, tmp_path, monkeypatch, name, need
 
 
 def test_old_spellings_still_work_and_say_they_are_deprecated(run, model, tmp_path):
-    r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40", "--no-budgets",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40", "--no-budgets",
                "-q", "-o", tmp_path / "r")
     assert r.exit_code == 0 and "--model is deprecated in dc evaluate: use --checkpoint" in r.stderr, r.stderr
-    r = invoke("evaluate", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint", model / "best.pt",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint", model / "best.pt",
                "-o", tmp_path / "r2")
     assert r.exit_code == 2 and "give one" in r.stderr
 
@@ -230,7 +230,7 @@ def test_every_public_function_has_type_hints():
 
 def test_a_solver_method_plugin_runs_through_replay_the_closed_loop_and_simulate(run, tmp_path, example_on_path):
     method = "dc_example_plugins.solvers:ProjectedJacobi"
-    r = invoke("evaluate", run, "--starts", "builtin", "--accelerate", f"none,{method}", "--every", "30",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", f"none,{method}", "--every", "30",
                "--max-iterations", "200", "-q", "-o", tmp_path / "replay")
     assert r.exit_code == 0, r.stderr
     summary = json.loads((tmp_path / "replay" / "summary.json").read_text())["starts"]
@@ -238,7 +238,7 @@ def test_a_solver_method_plugin_runs_through_replay_the_closed_loop_and_simulate
     jacobi, sweeps = summary[f"builtin+{method}"], summary["builtin"]
     # Jacobi moves every row from the same iterate: it needs more iterations than Gauss-Seidel's sweeps
     assert jacobi["iterations_median"] > sweeps["iterations_median"] and jacobi["solve_ms_median"] > 0
-    r = invoke("evaluate", run, "--starts", "builtin", "--accelerate", method, "--closed-loop", "--steps", "10",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", method, "--closed-loop", "--steps", "10",
                "--max-iterations", "100", "--no-budgets", "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     r = invoke("simulate", "pile", "--param", "count=6", "--steps", "12", "--solver", "pgs", "--accelerate", method,
@@ -293,7 +293,7 @@ def test_a_broken_solver_method_is_one_line_and_leaves_nothing(run, tmp_path, mo
     (tmp_path / "mods").mkdir()
     (tmp_path / "mods" / "broken_solvers.py").write_text(BROKEN_SOLVERS)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
-    r = invoke("evaluate", run, "--starts", "builtin", "--accelerate", f"broken_solvers:{name}", "--every", "20",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", f"broken_solvers:{name}", "--every", "20",
                "--no-budgets", "-o", tmp_path / "r")
     sys.modules.pop("broken_solvers", None)
     from deepcontact.solver import methods

@@ -47,7 +47,7 @@ def test_a_crafted_checkpoint_runs_no_code(run, model, tmp_path):
     marker = tmp_path / "pwned"
     evil = tmp_path / "evil.pt"
     torch.save({"format": 2, "model": _Payload(marker)}, evil)
-    r = dc("evaluate", str(run), "--starts", "cnn", "--checkpoint", str(evil), "-o", str(tmp_path / "r"))
+    r = dc("evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint", str(evil), "-o", str(tmp_path / "r"))
     one_line_error(r, evil, "refused")
     part = tmp_path / "part"
     shutil.copytree(model, part)
@@ -197,7 +197,7 @@ def test_damaged_manifests(run, tmp_path, change, needle, command):
     if command == "rasterize":
         r = dc("rasterize", str(bad), "-o", str(tmp_path / "data"))
     elif command == "evaluate":
-        r = dc("evaluate", str(bad), "--starts", "zero", "-o", str(tmp_path / "report"))
+        r = dc("evaluate", "--no-plots", str(bad), "--starts", "zero", "-o", str(tmp_path / "report"))
     else:
         r = dc("validate", "--replay", str(bad))
     one_line_error(r, manifest, needle)
@@ -220,7 +220,7 @@ def test_a_contact_naming_a_missing_body(run, tmp_path):
     i = text.index('master="', text.index("<contact ")) + len('master="')
     step.write_text(text[:i] + "999" + text[text.index('"', i):])
     one_line_error(dc("validate", "--replay", str(bad)), step, "body 999")
-    one_line_error(dc("evaluate", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")), step, "body 999")
+    one_line_error(dc("evaluate", "--no-plots", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")), step, "body 999")
 
 
 def test_entities_and_doctypes_are_refused(tmp_path):
@@ -238,7 +238,7 @@ def test_entities_and_doctypes_are_refused(tmp_path):
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
 def test_non_finite_tolerances(run, tmp_path, value):
-    r = dc("evaluate", str(run), "--starts", "zero", "--tolerance", value, "-o", str(tmp_path / "r"))
+    r = dc("evaluate", "--no-plots", str(run), "--starts", "zero", "--tolerance", value, "-o", str(tmp_path / "r"))
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "not a finite number" in r.stderr or "not in the range" in r.stderr
     assert not (tmp_path / "r").exists()
@@ -250,7 +250,7 @@ def test_a_step_file_deleted_from_a_run(run, tmp_path):
     gone.unlink()
     folder = bad / "seed-000001"
     for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")], ["validate", "--replay", str(bad)],
-                 ["evaluate", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")]):
+                 ["evaluate", "--no-plots", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")]):
         one_line_error(dc(*args), folder, "holds 119 step files, the manifest recorded 120")
     r = dc("validate", str(bad))
     assert r.returncode == 1 and "manifest recorded 120" in r.stdout
@@ -283,7 +283,7 @@ def test_evaluate_when_every_residual_is_zero(tmp_path):
 def test_manifest_paths_stay_inside_the_run(run, tmp_path, where):
     bad = edit_manifest(run, tmp_path, lambda m: m["simulations"][0].update(dir=where))
     for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")], ["validate", "--replay", str(bad)],
-                 ["evaluate", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")]):
+                 ["evaluate", "--no-plots", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")]):
         one_line_error(dc(*args), bad / "manifest.json", "paths leading elsewhere are refused")
 
 
@@ -387,7 +387,7 @@ def test_make_uses_the_given_python():
 
 def test_bad_relaxations(run, tmp_path):
     for value, needle in (("2.5", "must be in (0, 2) or auto"), (",", "give at least one value"), ("fast", "auto")):
-        option_error(dc("evaluate", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), "--relaxation", needle)
+        option_error(dc("evaluate", "--no-plots", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), "--relaxation", needle)
     option_error(dc("simulate", *PILE, "--solver", "pgs", "--relaxation", "auto", "-o", str(tmp_path / "s")),
                  "give --tolerance")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()

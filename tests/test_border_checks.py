@@ -58,7 +58,7 @@ def test_a_step_of_another_engine_in_a_run_is_refused(tmp_path):
     run = shutil.copytree(tmp_path / "v2", tmp_path / "mixed")
     step = "seed-000000/step-000100.xml"
     shutil.copy(tmp_path / "v3" / step, run / step)
-    for args in (["evaluate", run, "--starts", "zero", "--every", "50", "--no-budgets", "-q", "-o", tmp_path / "r"],
+    for args in (["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50", "--no-budgets", "-q", "-o", tmp_path / "r"],
                  ["export", run, "--format", "csv", "-q", "-o", tmp_path / "t"]):
         one_line_error(dc(*args), "stepped by box2d3", step)
     r = dc("validate", "-q", run)
@@ -103,7 +103,7 @@ def test_closed_standard_streams(run, tmp_path):
     r = closed(1, "study", "stability", "--fast", cwd=tmp_path)
     assert r.returncode == 2 and "standard output is closed" in r.stderr
     # stdout closed where the output is a folder: the folder is written, exit 0
-    r = closed(1, "evaluate", run, "--starts", "zero", "--every", "60", "--no-budgets", "-o", "report", cwd=tmp_path)
+    r = closed(1, "evaluate", "--no-plots", run, "--starts", "zero", "--every", "60", "--no-budgets", "-o", "report", cwd=tmp_path)
     assert r.returncode == 0 and (tmp_path / "report" / "report.md").exists(), r.stderr
 
 

@@ -175,7 +175,7 @@ def test_substeps_and_tuning_reach_the_engine(tmp_path):
 
 def test_replay_and_evaluate_refuse_a_v3_run_in_one_line(v3_run, tmp_path):
     one_line_error(dc("validate", "--replay", v3_run), "Box2D v3", "2.4.1's contact problem")
-    one_line_error(dc("evaluate", v3_run, "-o", tmp_path / "e"), "Box2D v3", "2.4.1's contact problem")
+    one_line_error(dc("evaluate", "--no-plots", v3_run, "-o", tmp_path / "e"), "Box2D v3", "2.4.1's contact problem")
     from deepcontact.errors import InputError
     from deepcontact.solver.problem import StepProblem
     with pytest.raises(InputError, match="soft step"):

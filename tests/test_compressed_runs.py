@@ -47,7 +47,7 @@ def test_every_reader_takes_a_compressed_run(runs, tmp_path):
     for name in ("inputs", "labels", "contact_impulse", "contact_offsets"):
         assert np.array_equal(np.load(a / f"{name}.npy"), np.load(b / f"{name}.npy")), name
     assert GridDataset(b).step_file(5).name.endswith(".xml.gz")
-    evaluated = [written(tmp_path / f"r{k}", "evaluate", str(run), "--starts", "zero,builtin", "--every", "20",
+    evaluated = [written(tmp_path / f"r{k}", "evaluate", "--no-plots", str(run), "--starts", "zero,builtin", "--every", "20",
                          "--no-budgets") for k, run in enumerate(runs)]
     rows = [[(r["seed"], r["step"], r["start"], r["iterations"], r["residual"])
              for r in csv.DictReader(open(e / "steps.csv"))] for e in evaluated]
@@ -76,7 +76,7 @@ def test_a_damaged_compressed_step_is_one_line(runs, tmp_path):
     step = sorted(bad.glob("seed-000001/step-*.xml.gz"))[-1]
     step.write_bytes(step.read_bytes()[:-40])   # cut: the gzip trailer and some data gone
     for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")], ["validate", "--replay", str(bad)],
-                 ["evaluate", str(bad), "--starts", "zero", "--every", "200", "-o", str(tmp_path / "r")]):
+                 ["evaluate", "--no-plots", str(bad), "--starts", "zero", "--every", "200", "-o", str(tmp_path / "r")]):
         one_line_error(dc(*args), step)
     r = dc("validate", str(bad))
     assert r.returncode == 1 and str(step) in r.stdout and "Traceback" not in r.stderr
@@ -92,7 +92,7 @@ def test_jobs_change_nothing_in_what_validate_and_evaluate_report(runs, tmp_path
     assert one.returncode == two.returncode == 1 and one.stdout == two.stdout and str(victim) in one.stdout
     one, two = (dc("validate", "--replay", "-j", j, str(plain)) for j in ("1", "2"))
     assert one.returncode == two.returncode == 0 and one.stdout == two.stdout
-    reports = [written(tmp_path / f"e{j}", "evaluate", str(plain), "--starts", "zero,builtin,prev", "--every", "15",
+    reports = [written(tmp_path / f"e{j}", "evaluate", "--no-plots", str(plain), "--starts", "zero,builtin,prev", "--every", "15",
                        "--no-budgets", "-j", j) for j in ("1", "2")]
     rows = [[(r["seed"], r["step"], r["start"], r["iterations"], r["residual"], r["error"])
              for r in csv.DictReader(open(e / "steps.csv"))] for e in reports]

@@ -59,9 +59,9 @@ def test_unknown_starts_and_missing_model_are_clear_errors(pile_run, tmp_path):
         make_starts(["zero", "lucky"])
     with pytest.raises(InputError, match="needs? a trained model"):
         make_starts(["cnn"])
-    r = dc("evaluate", str(pile_run), "--starts", "zero,nope", "-o", str(tmp_path / "r"))
+    r = dc("evaluate", "--no-plots", str(pile_run), "--starts", "zero,nope", "-o", str(tmp_path / "r"))
     assert r.returncode == 2 and "nope" in r.stderr and not (tmp_path / "r").exists()   # a bad option value
-    r = dc("evaluate", str(tmp_path), "-o", str(tmp_path / "r2"))
+    r = dc("evaluate", "--no-plots", str(tmp_path), "-o", str(tmp_path / "r2"))
     assert r.returncode == 1 and "manifest" in r.stderr
 
 
@@ -124,5 +124,23 @@ def test_evaluate_settings_check_their_own_rules_for_the_cli_and_a_library_calle
         cli += ["--mode", "float32", "--accelerate", "newton"]
     if "relaxations" in changes:
         cli += ["--relaxation", "2.5"]
-    r = dc("evaluate", tmp_path, *cli, "-o", tmp_path / "r")
+    r = dc("evaluate", "--no-plots", tmp_path, *cli, "-o", tmp_path / "r")
     assert r.returncode == 2 and words in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("loop", [False, True])
+def test_no_plots_writes_the_tables_alone(pile_run, tmp_path, loop):
+    """--no-plots: the same tables, no picture, and no page that points at one."""
+    extra = ["--closed-loop", "--steps", "20"] if loop else ["--every", "50"]
+    for flag, out in (("--plots", tmp_path / "full"), ("--no-plots", tmp_path / "tables")):
+        r = dc("evaluate", pile_run, "--starts", "zero,builtin", "--no-budgets", *extra, flag, "-q", "-o", out)
+        assert r.returncode == 0, r.stderr
+    drawn = {p.name for p in (tmp_path / "full").iterdir() if p.suffix in (".png", ".svg")}
+    assert drawn and not any(p.suffix in (".png", ".svg") for p in (tmp_path / "tables").iterdir())
+    for page in ("report.md", "report.html"):
+        text = (tmp_path / "tables" / page).read_text()
+        assert ".png" not in text and "<svg" not in text, page
+    assert (tmp_path / "full" / "summary.csv").exists() and (tmp_path / "tables" / "summary.csv").exists()
+    if not loop:
+        r = dc("evaluate", pile_run, "--starts", "zero", "--bands", "--no-plots", "-o", tmp_path / "x")
+        assert r.returncode == 2 and "--bands" in r.stderr and "--no-plots" in r.stderr

@@ -68,7 +68,7 @@ def test_newton_in_the_loop_and_its_options(tmp_path):
     assert len(list((tmp_path / "run" / "seed-000000").glob("step-*.xml"))) == 30
     option_error(dc("simulate", "pyramid", "--solver", "pgs", "--mode", "float32", "--accelerate", "newton",
                     "-o", str(tmp_path / "bad")), "float64 only")
-    option_error(dc("evaluate", str(tmp_path / "run"), "--mode", "float32", "--accelerate", "all",
+    option_error(dc("evaluate", "--no-plots", str(tmp_path / "run"), "--mode", "float32", "--accelerate", "all",
                     "-o", str(tmp_path / "r")), "float64 only")
 
 

@@ -58,10 +58,10 @@ def test_overwrite_refuses_a_dataset_folder_holding_user_files(run, dataset, tmp
 
 def test_overwrite_refuses_report_and_training_folders_with_foreign_files(run, dataset, model, tmp_path):
     report = tmp_path / "report"
-    assert dc("evaluate", str(run), "--starts", "builtin", "--every", "40", "--no-budgets", "-q",
+    assert dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40", "--no-budgets", "-q",
               "-o", str(report)).returncode == 0
     (report / "analysis.ipynb").write_text("{}")
-    r = dc("evaluate", str(run), "--starts", "builtin", "--every", "40", "--overwrite", "-q", "-o", str(report))
+    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40", "--overwrite", "-q", "-o", str(report))
     one_line_error(r, report / "analysis.ipynb", "not written by dc evaluate")
     assert (report / "analysis.ipynb").exists() and (report / "report.md").exists()
     trained = copy(model, tmp_path / "model")
@@ -205,7 +205,7 @@ def test_a_second_command_on_a_locked_output_refuses(run, dataset, tmp_path):
     for args, out in ((["rasterize", str(run), "--cell", "1", "--smoothing", "1"], tmp_path / "data"),
                       (["train", str(dataset), *TINY_TRAIN], tmp_path / "model"),
                       (["simulate", *PILE, "--steps", "5"], tmp_path / "run"),
-                      (["evaluate", str(run), "--starts", "builtin", "--every", "40"], tmp_path / "report")):
+                      (["evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40"], tmp_path / "report")):
         with held(out):
             r = dc(*args, "-o", str(out))
         one_line_error(r, out, "another dc command is writing this output")
@@ -419,7 +419,7 @@ def test_a_fifo_named_like_a_step_file_is_refused(run, tmp_path):
     os.mkfifo(fifo)
     for args in (["validate", str(bad)], ["validate", str(fifo)], ["validate", "--replay", str(bad)],
                  ["rasterize", str(bad), "-o", str(tmp_path / "d")],
-                 ["evaluate", str(bad), "--starts", "builtin", "-o", str(tmp_path / "r")]):
+                 ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "-o", str(tmp_path / "r")]):
         r = dc_process(*args, timeout=60)
         one_line_error(r, fifo, "not a regular file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
@@ -433,8 +433,8 @@ def test_a_fifo_in_place_of_a_scene_or_checkpoint_is_refused(run, tmp_path):
     checkpoint = tmp_path / "model.pt"
     os.mkfifo(checkpoint)
     for args, fifo in ((["validate", str(scene)], scene), (["rasterize", str(bad), "-o", str(tmp_path / "d")], scene),
-                       (["evaluate", str(bad), "--closed-loop", "--starts", "builtin", "-o", str(tmp_path / "r")], scene),
-                       (["evaluate", str(run), "--starts", "cnn", "--checkpoint", str(checkpoint), "-o", str(tmp_path / "r")],
+                       (["evaluate", "--no-plots", str(bad), "--closed-loop", "--starts", "builtin", "-o", str(tmp_path / "r")], scene),
+                       (["evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint", str(checkpoint), "-o", str(tmp_path / "r")],
                         checkpoint)):
         one_line_error(dc_process(*args, timeout=60), fifo, "not a regular file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "run"]
@@ -449,7 +449,7 @@ def test_a_wrong_contacts_count_names_the_step_file(run, tmp_path):
         end = text.index('"', start_ + 17)
         step.write_text(text[:start_] + f'<contacts count="{count}' + text[end:])
         for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")],
-                     ["evaluate", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+                     ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
                      ["validate", "--replay", str(bad)]):
             one_line_error(dc(*args), step, needle)
     assert not (tmp_path / "d").exists() and not (tmp_path / "r").exists()
@@ -469,7 +469,7 @@ def test_step_file_integers_are_checked_alike_by_the_schema_and_the_readers(run,
     step.write_text(text)
     r = dc("validate", str(step))
     assert r.returncode == 1 and "not a valid value of the atomic type 'count'" in r.stdout, r.stdout
-    readers = [["evaluate", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+    readers = [["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
                ["validate", "--replay", str(bad)]]
     if "master" not in pattern:    # rasterizing reads no body numbers of contacts
         readers.append(["rasterize", str(bad), "-o", str(tmp_path / "d")])
@@ -486,7 +486,7 @@ def test_a_step_file_copied_from_another_simulation_is_refused(run, tmp_path):
     r = dc("validate", "-q", str(bad))
     assert r.returncode == 1 and "seed 7, but lies in a simulation of scene 'pile' seed 0" in r.stdout
     for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")],
-                 ["evaluate", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+                 ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
                  ["validate", "--replay", str(bad)]):
         one_line_error(dc(*args), step, "copied from another run")
 
@@ -498,7 +498,7 @@ def test_one_simulation_twice_is_refused(run, tmp_path):
     (bad / "manifest.json").write_text(json.dumps(manifest))
     one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), bad / "manifest.json", "same dir")
     one_line_error(dc("rasterize", str(run), str(run), "-o", str(tmp_path / "d")), run, "given twice")
-    one_line_error(dc("evaluate", str(run), str(run), "--starts", "builtin", "-o", str(tmp_path / "r")), run,
+    one_line_error(dc("evaluate", "--no-plots", str(run), str(run), "--starts", "builtin", "-o", str(tmp_path / "r")), run,
                    "given twice")
     assert not (tmp_path / "r").exists()
     assert not (tmp_path / "d").exists()
@@ -644,7 +644,7 @@ def test_a_tampered_checkpoint_is_refused_before_a_network_is_built(run, dataset
     before = snapshot(bad)
     one_line_error(dc("train", str(dataset), "-o", str(bad), "--resume"), bad / "last.pt")
     if "training config" not in needle:
-        one_line_error(dc("evaluate", str(run), "--starts", "cnn", "--checkpoint", str(bad / "last.pt"),
+        one_line_error(dc("evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint", str(bad / "last.pt"),
                           "-o", str(tmp_path / "r")), bad / "last.pt", "refused", needle)
     assert snapshot(bad) == before and not (tmp_path / "r").exists()
 
@@ -690,12 +690,12 @@ def test_the_closed_loop_follows_removals_and_empty_scenes(tmp_path):
     assert result.finite and result.steps == 40 and np.all(np.isfinite(result.drift))
     run = tmp_path / "wse"
     assert dc("simulate", "warm-start-energy", "--steps", "160", "-q", "-o", str(run)).returncode == 0
-    r = dc("evaluate", str(run), "--closed-loop", "--starts", "builtin", "--no-budgets", "-q", "-o", str(tmp_path / "r"))
+    r = dc("evaluate", "--no-plots", str(run), "--closed-loop", "--starts", "builtin", "--no-budgets", "-q", "-o", str(tmp_path / "r"))
     assert r.returncode == 0, r.stderr
     empty = tmp_path / "empty.xml"
     empty.write_text('<scene name="empty" format="1"><world dt="0.01" steps="20"/><effects/><bodies/></scene>')
     assert dc("simulate", str(empty), "-q", "-o", str(tmp_path / "e")).returncode == 0
-    r = dc("evaluate", str(tmp_path / "e"), "--closed-loop", "--starts", "builtin", "-q", "-o", str(tmp_path / "re"))
+    r = dc("evaluate", "--no-plots", str(tmp_path / "e"), "--closed-loop", "--starts", "builtin", "-q", "-o", str(tmp_path / "re"))
     assert r.returncode == 0, r.stderr
 
 

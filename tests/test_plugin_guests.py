@@ -100,7 +100,7 @@ def test_a_start_that_misbehaves_is_one_line_naming_it(run, tmp_path, monkeypatc
     code = MISDEEDS[misdeed]
     write_module(tmp_path, monkeypatch, name, START, **{"at_import" if when == "import" else "at_call": code})
     try:
-        r = dc("evaluate", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-q",
+        r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-q",
                "-o", tmp_path / "r")
     finally:
         forget(name)
@@ -115,7 +115,7 @@ def test_a_solver_method_that_misbehaves_is_one_line_naming_it(run, tmp_path, mo
     name = f"guest_method_{misdeed}"
     write_module(tmp_path, monkeypatch, name, METHOD, at_call=MISDEEDS[misdeed])
     try:
-        r = dc("evaluate", run, "--starts", "builtin", "--accelerate", f"{name}:Method", "--every", "40",
+        r = dc("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", f"{name}:Method", "--every", "40",
                "--no-budgets", "-q", "-o", tmp_path / "r")
         one_line_naming(r, f"{name}:Method")
         r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5", "--steps",
@@ -146,7 +146,7 @@ EDITS = ["problem.contacts['local_normal'][:] = 0.5", "problem.bodies['velocity'
 def clean(run, tmp_path_factory):
     """The built-in rows with no guest beside them: a report folder."""
     out = tmp_path_factory.mktemp("clean") / "report"
-    r = dc("evaluate", run, "--starts", "builtin,zero", "--every", "40", "--no-budgets", "-q", "-o", out)
+    r = dc("evaluate", "--no-plots", run, "--starts", "builtin,zero", "--every", "40", "--no-budgets", "-q", "-o", out)
     assert r.returncode == 0, r.stderr
     return out
 
@@ -159,7 +159,7 @@ def test_what_a_method_does_to_its_problem_no_other_row_sees(run, clean, tmp_pat
     start_edit = edit.replace("problem.", "ctx.problem.")
     write_module(tmp_path, monkeypatch, "guest_start_editor", START, at_call=start_edit)
     try:
-        r = dc("evaluate", run, "--starts", "guest_start_editor:Start,builtin,zero", "--accelerate",
+        r = dc("evaluate", "--no-plots", run, "--starts", "guest_start_editor:Start,builtin,zero", "--accelerate",
                f"{name}:Method,none", "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "dirty")
     finally:
         forget(name)
@@ -181,7 +181,7 @@ def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, mo
     work.mkdir()
     monkeypatch.chdir(work)
     try:
-        r = dc("evaluate", run, "--starts", "builtin,guest_mover:Start", "--every", "40", "--no-budgets", "-q",
+        r = dc("evaluate", "--no-plots", run, "--starts", "builtin,guest_mover:Start", "--every", "40", "--no-budgets", "-q",
                "-o", "report")
     finally:
         forget("guest_mover")
@@ -216,7 +216,7 @@ def evaluating_with(run, tmp_path, name, body, starts):
     mods = tmp_path / "mods"
     mods.mkdir()
     (mods / f"{name}.py").write_text(SWALLOWER.format(body=body))
-    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", str(run), "--starts", starts,
+    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run), "--starts", starts,
                              "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(mods)},
                             cwd=tmp_path)
@@ -269,7 +269,7 @@ def test_a_start_that_misbehaves_in_a_worker_is_one_line_naming_it(run, tmp_path
     name = f"guest_worker_{misdeed}"
     write_module(tmp_path, monkeypatch, name, START, at_call=MISDEEDS[misdeed])
     try:
-        r = dc("evaluate", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-j", "2",
+        r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-j", "2",
                "-q", "-o", tmp_path / "r")
     finally:
         forget(name)

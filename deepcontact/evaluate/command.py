@@ -26,6 +26,7 @@ class EvaluateSettings:
     accelerations: tuple = ("none",)
     budgets: bool = True
     bands: bool | None = None
+    plots: bool = True              # the report's pictures (PNG and SVG); False: its tables alone
     jobs: int = 1
     threads: int = 1
     _read: list = field(default=None, repr=False, compare=False)
@@ -124,7 +125,7 @@ def _replay(s, out, table, measured, progress):
                     accelerate=s.accelerations, model=s.checkpoint, tolerance=s.solve.tolerance,
                     max_iterations=s.solve.max_iterations, stop_on=s.solve.stop_on, mode=s.solve.mode, every=s.every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=s.bands,
-                    noise=noise_of(rows, summary))
+                    plots=s.plots, noise=noise_of(rows, summary))
     write_report(out, rows, summary, settings)
     return summary_table(summary, settings["noise"])
 
@@ -163,4 +164,4 @@ def _closed_loop(s, out, table, measured, progress):
     what = (f"{scenes[0].name}, {len(sims)} simulation{'s' if len(sims) != 1 else ''} of "
             f"{', '.join(map(str, s.runs))}")
     return write_loop_report(out, results, what, s.solve, measured,
-                             simulations=len(sims), plotted=plotted)
+                             simulations=len(sims), plotted=plotted, plots=s.plots)

@@ -60,12 +60,14 @@ def write_report(out, rows, summary, settings):
     pareto = pareto_points(rows, summary)
     if pareto:
         atomic.write_text(out / "pareto.json", json.dumps(pareto, indent=1) + "\n")
-    plots(out, rows, summary, settings, pareto)
+    drawn = settings.get("plots", True)
+    if drawn:
+        plots(out, rows, summary, settings, pareto)
     text = markdown(summary, settings, pareto)
     atomic.write_text(out / "report.md", text)
     # the same tables and plots in one page that reads offline (SVG inline)
-    atomic.write_text(out / "report.html", markdown_to_html(text, out, "Warm starts compared",
-                                                          pictures=("convergence.png", "iterations.png", "pareto.png")))
+    atomic.write_text(out / "report.html", markdown_to_html(
+        text, out, "Warm starts compared", pictures=("convergence.png", "iterations.png", "pareto.png") if drawn else ()))
 
 
 def _share(x):
@@ -209,10 +211,12 @@ def markdown(summary, settings, pareto):
             "'w fell back': solves where the guard returned to w = 1. Times are medians per step (total: "
             "prediction plus solve of each step, then the median); prediction includes rasterizing, the network "
             "and interpolating where a start needs them. 'vs builtin': the median against Box2D's own warm start's.\n",
-            *provenance(summary),
-            "![convergence](convergence.png)\n", "![iterations](iterations.png)\n"]
+            *provenance(summary)]
+    drawn = s.get("plots", True)
+    if drawn:
+        text += ["![convergence](convergence.png)\n", "![iterations](iterations.png)\n"]
     if pareto:
-        text += ["![pareto](pareto.png)\n", "## What accuracy costs in time\n",
+        text += [*(["![pareto](pareto.png)\n"] if drawn else []), "## What accuracy costs in time\n",
                  "Measured: each step solved with exactly that many sweeps (no early stop); the median residual "
                  "reached and the median measured time per step, prediction included:\n",
                  "| start | " + " | ".join(f"{b} sweeps" for b in BUDGETS) + " |",
@@ -392,11 +396,11 @@ def _save(fig, stem):
     plt.close(fig)
 
 
-def write_loop_report(out, results, what, settings, measured=None, simulations=1, plotted=None):
+def write_loop_report(out, results, what, settings, measured=None, simulations=1, plotted=None, plots=True):
     """report.md (and .html) and summary.csv as replay's, closed-loop.json and the plot closed-loop.png
     into the folder out; returns the table. settings: the SolveSettings every step was solved
     with (a variant's w and method aside). With several simulations, results hold the pooled rows first, then each simulation's;
-    plotted: the rows the plot shows (default all)."""
+    plotted: the rows the plot shows (default all); plots False: no plot."""
     stop_on, tolerance = settings.stop_on, settings.tolerance
     text = loop_table(results, tolerance if stop_on == "residual" else None)
     pooled = results[:len(results) // (simulations + 1)] if simulations > 1 else results   # (the verdict's rows)
@@ -415,11 +419,12 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
                f"every simulation; the drift at each step the largest of any simulation's; the worst penetration "
                f"and energy error), the rows after them are each simulation's." if simulations > 1 else "")
             + "\n\n" + text + "\n\n" + (protocol_line(measured) + "\n\n" if measured else "")
-            + "![closed loop](closed-loop.png)\n")
+            + ("![closed loop](closed-loop.png)\n" if plots else ""))
     atomic.write_text(out / "report.md", page)
-    loop_plot(results if plotted is None else plotted, out / "closed-loop")
+    if plots:
+        loop_plot(results if plotted is None else plotted, out / "closed-loop")
     atomic.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
-                                                                   pictures=("closed-loop.png",)))
+                                                            pictures=("closed-loop.png",) if plots else ()))
     buf = io.StringIO()
     w = CsvWriter(buf)
     w.writerow(["start", "steps", "iterations_median", "iterations_p80", "iterations_max", "ms_per_step_median",
