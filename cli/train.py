@@ -54,14 +54,16 @@ def torch_device(ctx, param, value):
               help="[fcn] Down-sampling levels.")
 @click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
 @click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")
+@click.option("--plots/--no-plots", default=True, show_default=True,
+              help="Draw loss.png/svg at the end; --no-plots writes the checkpoints and metrics alone.")
 @options.threads
 @options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("train")
 def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
-          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, max_memory, overwrite, verbose,
-          quiet):
+          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, plots, max_memory, overwrite,
+          verbose, quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
 
     Writes OUTPUT/last.pt and best.pt (atomically, every epoch), metrics.csv and
@@ -115,7 +117,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
-                  given=given)
+                  given=given, plots=plots)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

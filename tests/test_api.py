@@ -174,7 +174,7 @@ def test_a_broken_network_is_one_line(dataset, tmp_path, monkeypatch, name, need
     (tmp_path / "mods").mkdir()
     (tmp_path / "mods" / "broken_nets.py").write_text(BROKEN_NETS)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
-    r = invoke("train", dataset, "--arch", f"broken_nets:{name}", "--epochs", "1", "-o", tmp_path / "m")
+    r = invoke("train", "--no-plots", dataset, "--arch", f"broken_nets:{name}", "--epochs", "1", "-o", tmp_path / "m")
     sys.modules.pop("broken_nets", None)
     lines = r.stderr.strip().splitlines()
     assert r.exit_code == 1 and len(lines) == 1 and needle in lines[0] and "Traceback" not in r.stderr, r.stderr

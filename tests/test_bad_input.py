@@ -70,7 +70,7 @@ def test_train_overwrite_with_a_bad_dataset_keeps_the_old_model(model, tmp_path)
     old = tmp_path / "model"
     shutil.copytree(model, old)
     before = snapshot(old)
-    r = dc("train", str(tmp_path / "nothing"), "-o", str(old), "--overwrite", "--epochs", "1")
+    r = dc("train", "--no-plots", str(tmp_path / "nothing"), "-o", str(old), "--overwrite", "--epochs", "1")
     one_line_error(r, "not a dataset")
     assert snapshot(old) == before
 
@@ -90,7 +90,7 @@ def test_train_overwrite_refuses_a_folder_that_is_no_training_run(dataset, tmp_p
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "thesis.tex").write_text("precious")
-    r = dc("train", str(dataset), "-o", str(mine), "--overwrite", "--epochs", "1")
+    r = dc("train", "--no-plots", str(dataset), "-o", str(mine), "--overwrite", "--epochs", "1")
     one_line_error(r, mine / "thesis.tex", "not written by dc train")
     assert (mine / "thesis.tex").read_text() == "precious"
 
@@ -208,7 +208,7 @@ def test_metadata_that_is_not_an_object(dataset, tmp_path):
     bad = tmp_path / "data"
     shutil.copytree(dataset, bad)
     (bad / "metadata.json").write_text("[1, 2, 3]")
-    r = dc("train", str(bad), "-o", str(tmp_path / "m"), "--epochs", "1")
+    r = dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), "--epochs", "1")
     one_line_error(r, bad / "metadata.json", "JSON object")
     assert not (tmp_path / "m").exists()
 
@@ -343,7 +343,7 @@ def test_a_truncated_array_names_the_file(dataset, tmp_path):
     shutil.copytree(dataset, bad)
     labels = bad / "labels.npy"
     labels.write_bytes(labels.read_bytes()[:200])
-    one_line_error(dc("train", str(bad), "-o", str(tmp_path / "m"), "--epochs", "1"), labels)
+    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), "--epochs", "1"), labels)
 
 
 def test_smoothing_length_must_be_finite(run, tmp_path):

@@ -84,7 +84,7 @@ def test_a_coarse_cell_too_fine_to_group_anything_is_an_option_error():
 
 
 def test_training_takes_one_thread(dataset, tmp_path):
-    option_error(dc("train", dataset, "--threads", "2", "--epochs", "1", "-q", "-o", tmp_path / "m"), "--threads")
+    option_error(dc("train", "--no-plots", dataset, "--threads", "2", "--epochs", "1", "-q", "-o", tmp_path / "m"), "--threads")
     assert not (tmp_path / "m").exists()
 
 

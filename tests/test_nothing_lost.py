@@ -25,7 +25,7 @@ from conftest import dc, dc_process, one_line_error, option_error, snapshot
 from deepcontact import atomic
 
 PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
-TINY_TRAIN = ["--epochs", "1", "--width", "4", "--depth", "2", "-q"]
+TINY_TRAIN = ["--epochs", "1", "--width", "4", "--depth", "2", "--no-plots", "-q"]
 
 
 def leftovers(parent):
@@ -307,7 +307,7 @@ def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, 
     commands = {"run": ["simulate", "pile", "--seeds", "0..40", "--overwrite", "-q", "-o", "run"],
                 "data": ["rasterize", str(run), "--cell", "0.05", "--smoothing", "0.05", "--overwrite", "-q",
                          "-o", "data", "--max-memory", "20"],
-                "model": ["train", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2", "--overwrite",
+                "model": ["train", "--no-plots", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2", "--overwrite",
                           "-q", "-o", "model"]}
     for name, args in commands.items():
         before = snapshot(outputs[name])
@@ -547,11 +547,11 @@ def test_runaway_sizes_are_refused_before_anything_is_written(dataset, tmp_path)
     one_line_error(dc_process("simulate", *PILE, "--seeds", "0..999999999", "-o", str(out), timeout=30), "GB on disk")
     for option in ("--iterations", "--max-iterations"):
         option_error(dc("simulate", *PILE, "--solver", "pgs", option, str(2 ** 31), "-o", str(out)), option)
-    option_error(dc("train", str(dataset), "--solver-sweeps", str(2 ** 31), "-o", str(out)), "--solver-sweeps")
-    option_error(dc("train", str(dataset), "--width", "100000", "-o", str(out)), "--width")
-    one_line_error(dc("train", str(dataset), "--width", "4000", "--depth", "8", "-o", str(out)),
+    option_error(dc("train", "--no-plots", str(dataset), "--solver-sweeps", str(2 ** 31), "-o", str(out)), "--solver-sweeps")
+    option_error(dc("train", "--no-plots", str(dataset), "--width", "100000", "-o", str(out)), "--width")
+    one_line_error(dc("train", "--no-plots", str(dataset), "--width", "4000", "--depth", "8", "-o", str(out)),
                    "GB of memory", "--max-memory")
-    one_line_error(dc("train", str(dataset), "--width", "64", "--max-memory", "0.01", "-o", str(out)), "GB of memory")
+    one_line_error(dc("train", "--no-plots", str(dataset), "--width", "64", "--max-memory", "0.01", "-o", str(out)), "GB of memory")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -601,7 +601,7 @@ def tamper_metadata(dataset, tmp_path, change):
 ])
 def test_a_dataset_array_that_does_not_fit_its_metadata_is_refused(dataset, tmp_path, name, change, needle):
     bad = tamper_array(dataset, tmp_path, name, change)
-    one_line_error(dc("train", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / f"{name}.npy", needle)
+    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / f"{name}.npy", needle)
     assert not (tmp_path / "m").exists()
 
 
@@ -614,7 +614,7 @@ def test_a_dataset_array_that_does_not_fit_its_metadata_is_refused(dataset, tmp_
 ])
 def test_metadata_of_the_wrong_type_is_refused(dataset, tmp_path, change, needle):
     bad = tamper_metadata(dataset, tmp_path, change)
-    one_line_error(dc("train", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / "metadata.json", needle)
+    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / "metadata.json", needle)
 
 
 def test_a_nan_in_a_dataset_names_the_array_and_what_was_kept(dataset, tmp_path):
@@ -623,7 +623,7 @@ def test_a_nan_in_a_dataset_names_the_array_and_what_was_kept(dataset, tmp_path)
         a[3, 0, 2, 2] = np.nan
         return a
     bad = tamper_array(dataset, tmp_path, "labels", poison)
-    r = dc("train", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN)
+    r = dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN)
     one_line_error(r, bad / "labels.npy", "sample 3", "no checkpoint was written")
     assert not (tmp_path / "m").exists()
 

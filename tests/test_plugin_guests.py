@@ -131,7 +131,7 @@ def test_a_network_that_misbehaves_in_training_is_one_line_naming_it(dataset, tm
     name = f"guest_net_{misdeed}"
     write_module(tmp_path, monkeypatch, name, NETWORK, at_call=MISDEEDS[misdeed])
     try:
-        r = dc("train", dataset, "--arch", f"{name}:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+        r = dc("train", "--no-plots", dataset, "--arch", f"{name}:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
     finally:
         forget(name)
     one_line_naming(r, f"{name}:Net")
@@ -283,7 +283,7 @@ def test_a_network_that_reads_values_on_the_meta_device_is_one_line_naming_it(da
     write_module(tmp_path, monkeypatch, name, NETWORK.replace("calls[0] += 1", "calls[0] += 1\n        "
                                                                 "float(x.sum().item())"))
     try:
-        r = dc("train", dataset, "--arch", f"{name}:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+        r = dc("train", "--no-plots", dataset, "--arch", f"{name}:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
     finally:
         forget(name)
     assert "meta device" in one_line_naming(r, f"{name}:Net")
@@ -293,7 +293,7 @@ def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, mo
     from deepcontact.model.train import load_checkpoint
     write_module(tmp_path, monkeypatch, "guest_net_fine", NETWORK)
     try:
-        r = dc("train", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+        r = dc("train", "--no-plots", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
         assert r.returncode == 0, r.stderr
         origin = load_checkpoint(tmp_path / "m" / "last.pt")["network_origin"]   # (while it is loaded)
     finally:

@@ -174,7 +174,7 @@ def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     torchrun = installed("torchrun")   # (torch's own, beside this interpreter: a venv need not be activated)
     assert torchrun is not None, "torch installs torchrun beside the interpreter"
     out = tmp_path / "ddp"
-    r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", str(tiny), "-o",
+    r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", "--no-plots", str(tiny), "-o",
                         str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
                         "--optimizer", "adam"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -205,3 +205,20 @@ def test_the_training_residual_is_the_solvers_residual(tiny):
         numpy_residual = residual(lp, lp.reaction(normal, tangent))
         assert float(torch_residual.abs().max()) == pytest.approx(numpy_residual, rel=1e-9)
         assert judge(problem, normal, tangent).residual == pytest.approx(numpy_residual, rel=1e-3)
+
+
+def test_no_plots_trains_without_the_loss_plot_and_a_resume_keeps_them_agreeing(dataset, tmp_path):
+    """--no-plots: the checkpoints and metrics alone; resuming a run that has a loss plot with
+    --no-plots is refused (the plot would no longer match the metrics), and without it the plot
+    is redrawn."""
+    from conftest import dc
+    args = ["--epochs", "1", "--width", "4", "--depth", "2", "-q"]
+    r = dc("train", dataset, "--no-plots", *args, "-o", tmp_path / "bare")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "bare" / "last.pt").exists() and not list((tmp_path / "bare").glob("loss.*"))
+    assert dc("train", dataset, *args, "-o", tmp_path / "drawn").returncode == 0
+    r = dc("train", dataset, "--resume", "--epochs", "2", "--no-plots", "-q", "-o", tmp_path / "drawn")
+    assert r.returncode == 2 and "--no-plots" in r.stderr
+    before = (tmp_path / "drawn" / "loss.svg").read_bytes()
+    assert dc("train", dataset, "--resume", "--epochs", "2", "-q", "-o", tmp_path / "drawn").returncode == 0
+    assert (tmp_path / "drawn" / "loss.svg").read_bytes() != before

@@ -285,7 +285,7 @@ def check_same_run(ck, meta, path, given, threads, dataset):
 
 def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConfig | None = None, resume: bool = False,
           progress: Callable | None = None, threads: int = 1, device: str = "cpu", overwrite: bool = False,
-          epochs: int | None = None, max_memory: float | None = None, given: dict = ()) -> list[dict]:
+          epochs: int | None = None, max_memory: float | None = None, given: dict = (), plots: bool = True) -> list[dict]:
     """Train; returns the history (a list of per-epoch metric dicts).
 
     Everything is checked before the output folder is touched. With `overwrite`, the new run is
@@ -294,7 +294,9 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
     network and batch estimated to need more GB (default resources.DEFAULT_MAX_MEMORY_GB).
     threads: torch's threads, 1: the count changes the order of float sums (1 and 2 threads
     trained weights 1.3e-4 apart), and the same seed must give the same weights on any machine;
-    more processes (torchrun) are the way to train on more cores."""
+    more processes (torchrun) are the way to train on more cores. plots: draw loss.png/svg at the
+    end (False: none; refused when resuming a run that has one, which would no longer match its
+    metrics)."""
     from ..errors import OptionError
     if threads not in (None, 0, 1):
         raise OptionError(f"training runs on one thread (the count changes the arithmetic, so weights would not "
@@ -320,6 +322,9 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
             raise InputError(f"refused: the training config does not fit this version ({e})", last) from None
         check_compatible(ck, meta, last)
         check_same_run(ck, meta, last, given, threads, dataset)
+        if not plots and any((out_dir / f"loss.{ext}").exists() for ext in ("png", "svg")):
+            raise OptionError("the run has a loss plot from before, which its new epochs would leave behind: "
+                              "resume without --no-plots to redraw it", "--no-plots")
     cfg = cfg or TrainConfig()
     if epochs is not None:
         cfg.epochs = epochs
@@ -365,7 +370,7 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
             params, _ = parameter_count(trainer.model)
             log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
                      len(trainer.train_idx), len(trainer.val_idx))
-        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir)
+        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir, plots=plots)
         if world > 1:
             torch.distributed.barrier()   # no rank leaves while rank 0 still writes
             torch.distributed.destroy_process_group()
@@ -560,9 +565,10 @@ class Trainer:
             "network_origin": NETWORKS.origin(self.cfg.model),
         }
 
-    def fit(self, work, progress=None, dataset_path="", out_dir=None):
+    def fit(self, work, progress=None, dataset_path="", out_dir=None, plots=True):
         """The remaining epochs, writing last.pt (every epoch), best.pt (on improvement) and the
-        metrics into work (rank 0); early stopping after `patience` epochs without improvement."""
+        metrics into work (rank 0), and at the end the loss plot (unless not plots); early stopping
+        after `patience` epochs without improvement."""
         cfg = self.cfg
         # a plug-in network's code runs in every batch (forward and backward): what leaves it is
         # one line naming it (plugins.guest)
@@ -594,7 +600,7 @@ class Trainer:
             if cfg.patience and self.bad_epochs >= cfg.patience:
                 log.info("no improvement for %d epochs: stopping after epoch %d", self.bad_epochs, epoch)
                 break
-        if self.rank == 0 and self.history:
+        if self.rank == 0 and self.history and plots:
             plot_losses(self.history, work / "loss")
         return self.history
 
