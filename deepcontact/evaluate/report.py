@@ -425,6 +425,16 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
         loop_plot(results if plotted is None else plotted, out / "closed-loop")
     atomic.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                             pictures=("closed-loop.png",) if plots else ()))
+    _loop_summary_csv(out, results)
+    atomic.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "results": [{
+        "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
+        "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
+        "energy_error": r.energy_error, "finite": r.finite} for r in results]}) + "\n")
+    return text
+
+
+def _loop_summary_csv(out, results):
+    """summary.csv of a closed loop: a row per result."""
     buf = io.StringIO()
     w = CsvWriter(buf)
     w.writerow(["start", "steps", "iterations_median", "iterations_p80", "iterations_max", "ms_per_step_median",
@@ -436,11 +446,6 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
                     float(r.drift[-1]) if len(r.drift) else "", float(r.drift.max()) if len(r.drift) else "",
                     r.energy_error, r.penetration, r.finite])
     atomic.write_text(out / "summary.csv", buf.getvalue())
-    atomic.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "results": [{
-        "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
-        "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
-        "energy_error": r.energy_error, "finite": r.finite} for r in results]}) + "\n")
-    return text
 
 
 def _loop_residuals(r):
