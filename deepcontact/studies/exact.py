@@ -27,11 +27,10 @@ import numpy as np
 from ..scene.generators import generate
 from ..simulate.problems import problems as step_problems
 from ..solver.pgs import solve
-from ..solver.reference import reference_solution
+from ..solver.reference import CAP, TOLERANCE, reference_solution   # (the reference's own exactness)
 from .stability import FULL
 from .text import StudyText
 
-TOLERANCE, CAP = 1e-12, 100_000
 
 
 def problems(name, every, scenes=None):
