@@ -50,7 +50,8 @@ def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp
     summary = json.loads((tmp_path / "replay" / "summary.json").read_text())["starts"]
     assert set(summary) == {"builtin", start}
     assert summary[start]["iterations_median"] > 0 and summary[start]["predict_ms_median"] >= 0
-    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,{start}", "--closed-loop", "--steps", "20", "--no-budgets",
+    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,{start}", "--closed-loop", "--steps", "20",
+               "--no-budgets",
                "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     assert start in (tmp_path / "loop" / "report.md").read_text()
@@ -63,19 +64,18 @@ def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path)
                           "--target", str(target), str(EXAMPLE)], capture_output=True, text=True)
     assert pip.returncode == 0, pip.stderr
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", "--no-plots", str(run), "--starts", "builtin,damped-builtin",
-                        "--accelerate", "none,damped-jacobi", "--max-iterations", "100", "--every", "20",
-                        "--no-budgets", "-q", "-o", str(tmp_path / "r")], capture_output=True, text=True, env=env)
+    def dc_there(*args):   # (a process of its own: entry points are read from the installed distributions)
+        return subprocess.run([sys.executable, "-m", "deepcontact", *map(str, args)], capture_output=True, text=True,
+                              env=env)
+    r = dc_there("train", dataset, "--arch", "tiny-conv", "--epochs", "1", "--no-plots", "-q", "-o", tmp_path / "m")
     assert r.returncode == 0, r.stderr
-    assert {"damped-builtin", "damped-builtin+damped-jacobi"} <= set(
+    # one evaluation finds all three kinds: a start, a solver method and (for the checkpoint) a network
+    r = dc_there("evaluate", "--no-plots", run, "--starts", "builtin,damped-builtin,cnn", "--checkpoint",
+                 tmp_path / "m" / "best.pt", "--arch", "tiny-conv", "--accelerate", "none,damped-jacobi",
+                 "--max-iterations", "100", "--every", "20", "--no-budgets", "-q", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    assert {"damped-builtin", "damped-builtin+damped-jacobi", "cnn", "cnn+damped-jacobi"} <= set(
         json.loads((tmp_path / "r" / "summary.json").read_text())["starts"])
-    r = subprocess.run([sys.executable, "-m", "deepcontact", "train", str(dataset), "--arch", "tiny-conv", "--epochs",
-                        "1", "-q", "-o", str(tmp_path / "m")], capture_output=True, text=True, env=env)
-    assert r.returncode == 0, r.stderr
-    r = subprocess.run([sys.executable, "-m", "deepcontact", "evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint",
-                        str(tmp_path / "m" / "best.pt"), "--arch", "tiny-conv", "--every", "30", "--no-budgets", "-q",
-                        "-o", str(tmp_path / "r2")], capture_output=True, text=True, env=env)
-    assert r.returncode == 0, r.stderr
 
 
 BROKEN = textwrap.dedent('''
@@ -114,7 +114,8 @@ def test_a_broken_start_is_one_line_and_leaves_nothing(run, tmp_path, monkeypatc
     (tmp_path / "mods").mkdir()
     (tmp_path / "mods" / "broken_starts.py").write_text(BROKEN)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
-    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,broken_starts:{name}", "--every", "20", "--no-budgets",
+    r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,broken_starts:{name}", "--every", "20",
+               "--no-budgets",
                "-o", tmp_path / "r")
     sys.modules.pop("broken_starts", None)
     assert r.exit_code == 1 and "Traceback" not in r.stderr, r.stderr
@@ -182,10 +183,12 @@ def test_a_broken_network_is_one_line(dataset, tmp_path, monkeypatch, name, need
 
 
 def test_old_spellings_still_work_and_say_they_are_deprecated(run, model, tmp_path):
-    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40", "--no-budgets",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40",
+               "--no-budgets",
                "-q", "-o", tmp_path / "r")
     assert r.exit_code == 0 and "--model is deprecated in dc evaluate: use --checkpoint" in r.stderr, r.stderr
-    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint", model / "best.pt",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint",
+               model / "best.pt",
                "-o", tmp_path / "r2")
     assert r.exit_code == 2 and "give one" in r.stderr
 
@@ -238,7 +241,8 @@ def test_a_solver_method_plugin_runs_through_replay_the_closed_loop_and_simulate
     jacobi, sweeps = summary[f"builtin+{method}"], summary["builtin"]
     # Jacobi moves every row from the same iterate: it needs more iterations than Gauss-Seidel's sweeps
     assert jacobi["iterations_median"] > sweeps["iterations_median"] and jacobi["solve_ms_median"] > 0
-    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", method, "--closed-loop", "--steps", "10",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", method, "--closed-loop",
+               "--steps", "10",
                "--max-iterations", "100", "--no-budgets", "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     r = invoke("simulate", "pile", "--param", "count=6", "--steps", "12", "--solver", "pgs", "--accelerate", method,
@@ -293,7 +297,8 @@ def test_a_broken_solver_method_is_one_line_and_leaves_nothing(run, tmp_path, mo
     (tmp_path / "mods").mkdir()
     (tmp_path / "mods" / "broken_solvers.py").write_text(BROKEN_SOLVERS)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
-    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", f"broken_solvers:{name}", "--every", "20",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", f"broken_solvers:{name}",
+               "--every", "20",
                "--no-budgets", "-o", tmp_path / "r")
     sys.modules.pop("broken_solvers", None)
     from deepcontact.solver import methods

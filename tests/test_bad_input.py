@@ -220,7 +220,8 @@ def test_a_contact_naming_a_missing_body(run, tmp_path):
     i = text.index('master="', text.index("<contact ")) + len('master="')
     step.write_text(text[:i] + "999" + text[text.index('"', i):])
     one_line_error(dc("validate", "--replay", str(bad)), step, "body 999")
-    one_line_error(dc("evaluate", "--no-plots", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")), step, "body 999")
+    one_line_error(dc("evaluate", "--no-plots", str(bad), "--starts", "zero", "-o", str(tmp_path / "r")), step,
+                   "body 999")
 
 
 def test_entities_and_doctypes_are_refused(tmp_path):
@@ -387,7 +388,8 @@ def test_make_uses_the_given_python():
 
 def test_bad_relaxations(run, tmp_path):
     for value, needle in (("2.5", "must be in (0, 2) or auto"), (",", "give at least one value"), ("fast", "auto")):
-        option_error(dc("evaluate", "--no-plots", str(run), "--relaxation", value, "-o", str(tmp_path / "r")), "--relaxation", needle)
+        option_error(dc("evaluate", "--no-plots", str(run), "--relaxation", value, "-o", str(tmp_path / "r")),
+                     "--relaxation", needle)
     option_error(dc("simulate", *PILE, "--solver", "pgs", "--relaxation", "auto", "-o", str(tmp_path / "s")),
                  "give --tolerance")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()

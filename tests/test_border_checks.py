@@ -58,7 +58,8 @@ def test_a_step_of_another_engine_in_a_run_is_refused(tmp_path):
     run = shutil.copytree(tmp_path / "v2", tmp_path / "mixed")
     step = "seed-000000/step-000100.xml"
     shutil.copy(tmp_path / "v3" / step, run / step)
-    for args in (["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50", "--no-budgets", "-q", "-o", tmp_path / "r"],
+    for args in (["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50", "--no-budgets", "-q", "-o",
+                  tmp_path / "r"],
                  ["export", run, "--format", "csv", "-q", "-o", tmp_path / "t"]):
         one_line_error(dc(*args), "stepped by box2d3", step)
     r = dc("validate", "-q", run)
@@ -84,7 +85,8 @@ def test_a_coarse_cell_too_fine_to_group_anything_is_an_option_error():
 
 
 def test_training_takes_one_thread(dataset, tmp_path):
-    option_error(dc("train", "--no-plots", dataset, "--threads", "2", "--epochs", "1", "-q", "-o", tmp_path / "m"), "--threads")
+    option_error(dc("train", "--no-plots", dataset, "--threads", "2", "--epochs", "1", "-q", "-o", tmp_path / "m"),
+                 "--threads")
     assert not (tmp_path / "m").exists()
 
 
@@ -103,7 +105,8 @@ def test_closed_standard_streams(run, tmp_path):
     r = closed(1, "study", "stability", "--fast", cwd=tmp_path)
     assert r.returncode == 2 and "standard output is closed" in r.stderr
     # stdout closed where the output is a folder: the folder is written, exit 0
-    r = closed(1, "evaluate", "--no-plots", run, "--starts", "zero", "--every", "60", "--no-budgets", "-o", "report", cwd=tmp_path)
+    r = closed(1, "evaluate", "--no-plots", run, "--starts", "zero", "--every", "60", "--no-budgets", "-o", "report",
+               cwd=tmp_path)
     assert r.returncode == 0 and (tmp_path / "report" / "report.md").exists(), r.stderr
 
 

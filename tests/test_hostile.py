@@ -250,7 +250,8 @@ def test_a_tampered_checkpoints_bookkeeping_is_one_line(model, dataset, tmp_path
         d = d[p]
     d[last] = value
     torch.save(ck, tmp / "last.pt")
-    r = invoke("evaluate", "--no-plots", dataset.parent / "run", "--starts", "cnn", "--checkpoint", tmp / "last.pt", "--every", "60",
+    r = invoke("evaluate", "--no-plots", dataset.parent / "run", "--starts", "cnn", "--checkpoint", tmp / "last.pt",
+               "--every", "60",
                "--no-budgets", "-q", "-o", tmp / "r")
     assert_clean(r, tmp / "r")
     shutil.copytree(model, tmp / "m")
@@ -375,7 +376,8 @@ def test_a_copied_run_edited_scene_copied_step_and_zeroed_count_are_refused(run,
         f.write("\n")
     one_line(invoke("rasterize", edited, "--cell", "1", "--smoothing", "1", "-o", tmp_path / "d2"), 1,
              "changed since the run")
-    one_line(invoke("evaluate", "--no-plots", edited, "--closed-loop", "--starts", "builtin", "--steps", "5", "-o", tmp_path / "e"),
+    one_line(invoke("evaluate", "--no-plots", edited, "--closed-loop", "--starts", "builtin", "--steps", "5", "-o",
+                    tmp_path / "e"),
              1, "changed since the run")
     manifest = json.loads((run / "manifest.json").read_text())
     counts = manifest["simulations"][0]["file_contact_points"]
@@ -485,7 +487,8 @@ def test_the_gif_writer_holds_one_frame(tmp_path):
 
 
 def test_estimates_come_before_the_work(run, dataset, tmp_path):
-    one_line(invoke("evaluate", "--no-plots", run, "--starts", "zero,builtin", "--max-iterations", "100000000", "-o", tmp_path / "r"),
+    one_line(invoke("evaluate", "--no-plots", run, "--starts", "zero,builtin", "--max-iterations", "100000000", "-o",
+                    tmp_path / "r"),
              1, "convergence histories", "--max-memory")
     assert not (tmp_path / "r").exists()
     r = invoke("train", dataset, "--loss", "solver", "--solver-sweeps", "5", "--max-memory", "0.000001",

@@ -157,7 +157,8 @@ def test_mutated_metadata_is_trained_on_or_refused_cleanly(base, tmp_path, data)
     try:
         meta_path.write_text(json.dumps(meta))
         out = tmp_path / "model"
-        result = invoke("train", base / "data", "-o", out, "--epochs", "1", "--width", "4", "--depth", "2", "--no-plots", "-q")
+        result = invoke("train", base / "data", "-o", out, "--epochs", "1", "--width", "4", "--depth", "2",
+                        "--no-plots", "-q")
         assert_clean(result, out)
         if result.exit_code == 0:   # (tmp_path is shared by the examples)
             shutil.rmtree(out)

@@ -94,9 +94,11 @@ def test_simulate_and_evaluate_with_nncg(tmp_path):
     assert r.returncode != 0 and "--solver pgs" in r.stderr
     run = tmp_path / "run"
     assert dc("simulate", *SMALL, "--steps", "120", "-q", "-o", str(run)).returncode == 0
-    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--accelerate", "none,nncg", "--every", "40", "--no-budgets",
+    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--accelerate", "none,nncg", "--every", "40",
+           "--no-budgets",
            "-q", "-o", str(tmp_path / "rep"))
     assert r.returncode == 0, r.stderr
     assert "builtin+nncg" in r.stdout
-    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--accelerate", "nncg,anderson", "-o", str(tmp_path / "x"))
+    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--accelerate", "nncg,anderson", "-o",
+           str(tmp_path / "x"))
     assert r.returncode == 2 and "--accelerate" in r.stderr and "Traceback" not in r.stderr

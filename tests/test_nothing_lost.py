@@ -61,7 +61,8 @@ def test_overwrite_refuses_report_and_training_folders_with_foreign_files(run, d
     assert dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40", "--no-budgets", "-q",
               "-o", str(report)).returncode == 0
     (report / "analysis.ipynb").write_text("{}")
-    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40", "--overwrite", "-q", "-o", str(report))
+    r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40", "--overwrite", "-q", "-o",
+           str(report))
     one_line_error(r, report / "analysis.ipynb", "not written by dc evaluate")
     assert (report / "analysis.ipynb").exists() and (report / "report.md").exists()
     trained = copy(model, tmp_path / "model")
@@ -205,7 +206,8 @@ def test_a_second_command_on_a_locked_output_refuses(run, dataset, tmp_path):
     for args, out in ((["rasterize", str(run), "--cell", "1", "--smoothing", "1"], tmp_path / "data"),
                       (["train", str(dataset), *TINY_TRAIN], tmp_path / "model"),
                       (["simulate", *PILE, "--steps", "5"], tmp_path / "run"),
-                      (["evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40"], tmp_path / "report")):
+                      (["evaluate", "--no-plots", str(run), "--starts", "builtin", "--every", "40"],
+                       tmp_path / "report")):
         with held(out):
             r = dc(*args, "-o", str(out))
         one_line_error(r, out, "another dc command is writing this output")
@@ -307,7 +309,8 @@ def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, 
     commands = {"run": ["simulate", "pile", "--seeds", "0..40", "--overwrite", "-q", "-o", "run"],
                 "data": ["rasterize", str(run), "--cell", "0.05", "--smoothing", "0.05", "--overwrite", "-q",
                          "-o", "data", "--max-memory", "20"],
-                "model": ["train", "--no-plots", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2", "--overwrite",
+                "model": ["train", "--no-plots", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2",
+                          "--overwrite",
                           "-q", "-o", "model"]}
     for name, args in commands.items():
         before = snapshot(outputs[name])
@@ -433,8 +436,10 @@ def test_a_fifo_in_place_of_a_scene_or_checkpoint_is_refused(run, tmp_path):
     checkpoint = tmp_path / "model.pt"
     os.mkfifo(checkpoint)
     for args, fifo in ((["validate", str(scene)], scene), (["rasterize", str(bad), "-o", str(tmp_path / "d")], scene),
-                       (["evaluate", "--no-plots", str(bad), "--closed-loop", "--starts", "builtin", "-o", str(tmp_path / "r")], scene),
-                       (["evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint", str(checkpoint), "-o", str(tmp_path / "r")],
+                       (["evaluate", "--no-plots", str(bad), "--closed-loop", "--starts", "builtin", "-o",
+                         str(tmp_path / "r")], scene),
+                       (["evaluate", "--no-plots", str(run), "--starts", "cnn", "--checkpoint", str(checkpoint), "-o",
+                         str(tmp_path / "r")],
                         checkpoint)):
         one_line_error(dc_process(*args, timeout=60), fifo, "not a regular file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "run"]
@@ -449,7 +454,8 @@ def test_a_wrong_contacts_count_names_the_step_file(run, tmp_path):
         end = text.index('"', start_ + 17)
         step.write_text(text[:start_] + f'<contacts count="{count}' + text[end:])
         for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")],
-                     ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+                     ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o",
+                      str(tmp_path / "r")],
                      ["validate", "--replay", str(bad)]):
             one_line_error(dc(*args), step, needle)
     assert not (tmp_path / "d").exists() and not (tmp_path / "r").exists()
@@ -486,7 +492,8 @@ def test_a_step_file_copied_from_another_simulation_is_refused(run, tmp_path):
     r = dc("validate", "-q", str(bad))
     assert r.returncode == 1 and "seed 7, but lies in a simulation of scene 'pile' seed 0" in r.stdout
     for args in (["rasterize", str(bad), "-o", str(tmp_path / "d")],
-                 ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o", str(tmp_path / "r")],
+                 ["evaluate", "--no-plots", str(bad), "--starts", "builtin", "--every", "200", "-o",
+                  str(tmp_path / "r")],
                  ["validate", "--replay", str(bad)]):
         one_line_error(dc(*args), step, "copied from another run")
 
@@ -498,7 +505,8 @@ def test_one_simulation_twice_is_refused(run, tmp_path):
     (bad / "manifest.json").write_text(json.dumps(manifest))
     one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), bad / "manifest.json", "same dir")
     one_line_error(dc("rasterize", str(run), str(run), "-o", str(tmp_path / "d")), run, "given twice")
-    one_line_error(dc("evaluate", "--no-plots", str(run), str(run), "--starts", "builtin", "-o", str(tmp_path / "r")), run,
+    one_line_error(dc("evaluate", "--no-plots", str(run), str(run), "--starts", "builtin", "-o", str(tmp_path / "r")),
+                   run,
                    "given twice")
     assert not (tmp_path / "r").exists()
     assert not (tmp_path / "d").exists()
@@ -547,11 +555,13 @@ def test_runaway_sizes_are_refused_before_anything_is_written(dataset, tmp_path)
     one_line_error(dc_process("simulate", *PILE, "--seeds", "0..999999999", "-o", str(out), timeout=30), "GB on disk")
     for option in ("--iterations", "--max-iterations"):
         option_error(dc("simulate", *PILE, "--solver", "pgs", option, str(2 ** 31), "-o", str(out)), option)
-    option_error(dc("train", "--no-plots", str(dataset), "--solver-sweeps", str(2 ** 31), "-o", str(out)), "--solver-sweeps")
+    option_error(dc("train", "--no-plots", str(dataset), "--solver-sweeps", str(2 ** 31), "-o", str(out)),
+                 "--solver-sweeps")
     option_error(dc("train", "--no-plots", str(dataset), "--width", "100000", "-o", str(out)), "--width")
     one_line_error(dc("train", "--no-plots", str(dataset), "--width", "4000", "--depth", "8", "-o", str(out)),
                    "GB of memory", "--max-memory")
-    one_line_error(dc("train", "--no-plots", str(dataset), "--width", "64", "--max-memory", "0.01", "-o", str(out)), "GB of memory")
+    one_line_error(dc("train", "--no-plots", str(dataset), "--width", "64", "--max-memory", "0.01", "-o", str(out)),
+                   "GB of memory")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -601,7 +611,8 @@ def tamper_metadata(dataset, tmp_path, change):
 ])
 def test_a_dataset_array_that_does_not_fit_its_metadata_is_refused(dataset, tmp_path, name, change, needle):
     bad = tamper_array(dataset, tmp_path, name, change)
-    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / f"{name}.npy", needle)
+    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / f"{name}.npy",
+                   needle)
     assert not (tmp_path / "m").exists()
 
 
@@ -614,7 +625,8 @@ def test_a_dataset_array_that_does_not_fit_its_metadata_is_refused(dataset, tmp_
 ])
 def test_metadata_of_the_wrong_type_is_refused(dataset, tmp_path, change, needle):
     bad = tamper_metadata(dataset, tmp_path, change)
-    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / "metadata.json", needle)
+    one_line_error(dc("train", "--no-plots", str(bad), "-o", str(tmp_path / "m"), *TINY_TRAIN), bad / "metadata.json",
+                   needle)
 
 
 def test_a_nan_in_a_dataset_names_the_array_and_what_was_kept(dataset, tmp_path):
@@ -690,12 +702,14 @@ def test_the_closed_loop_follows_removals_and_empty_scenes(tmp_path):
     assert result.finite and result.steps == 40 and np.all(np.isfinite(result.drift))
     run = tmp_path / "wse"
     assert dc("simulate", "warm-start-energy", "--steps", "160", "-q", "-o", str(run)).returncode == 0
-    r = dc("evaluate", "--no-plots", str(run), "--closed-loop", "--starts", "builtin", "--no-budgets", "-q", "-o", str(tmp_path / "r"))
+    r = dc("evaluate", "--no-plots", str(run), "--closed-loop", "--starts", "builtin", "--no-budgets", "-q", "-o",
+           str(tmp_path / "r"))
     assert r.returncode == 0, r.stderr
     empty = tmp_path / "empty.xml"
     empty.write_text('<scene name="empty" format="1"><world dt="0.01" steps="20"/><effects/><bodies/></scene>')
     assert dc("simulate", str(empty), "-q", "-o", str(tmp_path / "e")).returncode == 0
-    r = dc("evaluate", "--no-plots", str(tmp_path / "e"), "--closed-loop", "--starts", "builtin", "-q", "-o", str(tmp_path / "re"))
+    r = dc("evaluate", "--no-plots", str(tmp_path / "e"), "--closed-loop", "--starts", "builtin", "-q", "-o",
+           str(tmp_path / "re"))
     assert r.returncode == 0, r.stderr
 
 

@@ -100,7 +100,8 @@ def test_a_start_that_misbehaves_is_one_line_naming_it(run, tmp_path, monkeypatc
     code = MISDEEDS[misdeed]
     write_module(tmp_path, monkeypatch, name, START, **{"at_import" if when == "import" else "at_call": code})
     try:
-        r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-q",
+        r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets",
+               "-q",
                "-o", tmp_path / "r")
     finally:
         forget(name)
@@ -181,7 +182,8 @@ def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, mo
     work.mkdir()
     monkeypatch.chdir(work)
     try:
-        r = dc("evaluate", "--no-plots", run, "--starts", "builtin,guest_mover:Start", "--every", "40", "--no-budgets", "-q",
+        r = dc("evaluate", "--no-plots", run, "--starts", "builtin,guest_mover:Start", "--every", "40", "--no-budgets",
+               "-q",
                "-o", "report")
     finally:
         forget("guest_mover")
@@ -216,7 +218,8 @@ def evaluating_with(run, tmp_path, name, body, starts):
     mods = tmp_path / "mods"
     mods.mkdir()
     (mods / f"{name}.py").write_text(SWALLOWER.format(body=body))
-    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run), "--starts", starts,
+    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run),
+                             "--starts", starts,
                              "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(mods)},
                             cwd=tmp_path)
@@ -269,7 +272,8 @@ def test_a_start_that_misbehaves_in_a_worker_is_one_line_naming_it(run, tmp_path
     name = f"guest_worker_{misdeed}"
     write_module(tmp_path, monkeypatch, name, START, at_call=MISDEEDS[misdeed])
     try:
-        r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets", "-j", "2",
+        r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets",
+               "-j", "2",
                "-q", "-o", tmp_path / "r")
     finally:
         forget(name)
@@ -293,7 +297,8 @@ def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, mo
     from deepcontact.model.train import load_checkpoint
     write_module(tmp_path, monkeypatch, "guest_net_fine", NETWORK)
     try:
-        r = dc("train", "--no-plots", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o", tmp_path / "m")
+        r = dc("train", "--no-plots", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o",
+               tmp_path / "m")
         assert r.returncode == 0, r.stderr
         origin = load_checkpoint(tmp_path / "m" / "last.pt")["network_origin"]   # (while it is loaded)
     finally:

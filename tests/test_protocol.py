@@ -13,7 +13,8 @@ from test_mutations import invoke
 
 
 def test_every_evaluate_report_records_its_protocol(run, tmp_path):
-    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "30", "--no-budgets", "--threads", "2", "-q",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "30", "--no-budgets", "--threads", "2",
+               "-q",
                "-o", tmp_path / "r")
     assert r.exit_code == 0, r.stderr
     p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
@@ -30,7 +31,8 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
 
 def test_the_default_is_one_thread_whatever_the_machine(run, model, tmp_path):
     torch.set_num_threads(2)   # torch's default on a larger machine: the command's own default wins
-    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--checkpoint", model / "best.pt", "--every", "40", "--no-budgets", "-q",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--checkpoint", model / "best.pt", "--every", "40",
+               "--no-budgets", "-q",
                "-o", tmp_path / "r")
     assert r.exit_code == 0, r.stderr
     assert torch.get_num_threads() == 1
@@ -38,7 +40,8 @@ def test_the_default_is_one_thread_whatever_the_machine(run, model, tmp_path):
 
 
 def test_the_closed_loop_runs_every_simulation(run, tmp_path):
-    args = ["evaluate", "--no-plots", run, "--closed-loop", "--starts", "builtin", "--steps", "30", "--no-budgets", "-q"]
+    args = ["evaluate", "--no-plots", run, "--closed-loop", "--starts", "builtin", "--steps", "30", "--no-budgets",
+            "-q"]
     assert invoke(*args, "-o", tmp_path / "one").exit_code == 0
     assert invoke(*args, "-j", "2", "-o", tmp_path / "two").exit_code == 0
     text = (tmp_path / "one" / "report.md").read_text()

@@ -85,7 +85,8 @@ def test_dc_study_is_built_from_the_one_table_of_studies():
         assert row.name in helped and row.summary.split()[0] in helped
         (out,) = [p for p in study.commands[row.name].params if "-o" in getattr(p, "opts", ())]
         assert row.writes in ("folder", "file", "text")
-        assert (out.type.dir_okay, out.type.file_okay) == ((True, False) if row.writes == "folder" else (False, True)), row
+        folder = row.writes == "folder"
+        assert (out.type.dir_okay, out.type.file_okay) == (folder, not folder), row
 
 
 def test_every_study_module_imports_and_the_exact_study_runs():

@@ -62,7 +62,7 @@ SMALL = dict(model="fcn", fcn_width=4, fcn_depth=2, batch_size=8, optimizer="ada
 
 def test_a_tiny_model_overfits_a_tiny_dataset(tiny, tmp_path):
     torch.set_num_threads(2)
-    history = train(tiny, tmp_path / "m", TrainConfig(**dict(SMALL, epochs=120, batch_size=32, lr=1e-2)))
+    history = train(tiny, tmp_path / "m", TrainConfig(**dict(SMALL, epochs=120, batch_size=32, lr=1e-2)), plots=False)
     first, last = history[0]["train_loss"], min(r["train_loss"] for r in history)
     assert last < first / 100, (first, last)
 
@@ -89,14 +89,15 @@ def test_resume_gives_the_uninterrupted_weights_and_same_seed_same_weights(tiny,
 
 
 def test_one_map_models_and_the_contacts_loss(tiny, tmp_path):
-    h = train(tiny, tmp_path / "n", TrainConfig(**dict(SMALL, epochs=1, targets=["normal_impulse"], loss="contacts")))
+    h = train(tiny, tmp_path / "n", TrainConfig(**dict(SMALL, epochs=1, targets=["normal_impulse"], loss="contacts")),
+              plots=False)
     assert "val_contact_rmse_normal" in h[0] and "val_contact_rmse_tangent" not in h[0]
     ck = load_checkpoint(tmp_path / "n" / "best.pt")
     assert ck["network"]["out_channels"] == 1 and ck["targets"] == ["normal_impulse"]
 
 
 def test_inference_returns_feasible_impulses_for_every_contact(tiny, tmp_path):
-    train(tiny, tmp_path / "m", TrainConfig(**dict(SMALL, epochs=1)))
+    train(tiny, tmp_path / "m", TrainConfig(**dict(SMALL, epochs=1)), plots=False)
     predictor = Predictor(tmp_path / "m" / "best.pt")
     scene = generate("pile", 5, dict(count=12, box=12.0, sigma=2.5))
     world = build_world(scene)
@@ -111,7 +112,7 @@ def test_inference_returns_feasible_impulses_for_every_contact(tiny, tmp_path):
 
 
 def test_bad_checkpoints_and_mismatched_datasets(tiny, tmp_path):
-    train(tiny, tmp_path / "m", TrainConfig(**dict(SMALL, epochs=1)))
+    train(tiny, tmp_path / "m", TrainConfig(**dict(SMALL, epochs=1)), plots=False)
     good = tmp_path / "m" / "last.pt"
     broken = tmp_path / "broken.pt"
     broken.write_bytes(good.read_bytes()[:1000])
@@ -163,7 +164,7 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
     relaxed = losses.SolverLoss(ds, sweeps=5).residual(torch.zeros(problem.points, dtype=torch.float64),
                                                       torch.zeros(problem.points, dtype=torch.float64), p)
     assert (relaxed ** 2).sum() < (at_zero ** 2).sum()
-    h = train(tiny, tmp_path / "s", TrainConfig(**dict(SMALL, epochs=2, loss="solver")))
+    h = train(tiny, tmp_path / "s", TrainConfig(**dict(SMALL, epochs=2, loss="solver")), plots=False)
     assert np.isfinite(h[-1]["train_loss"])
 
 
@@ -174,7 +175,8 @@ def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     torchrun = installed("torchrun")   # (torch's own, beside this interpreter: a venv need not be activated)
     assert torchrun is not None, "torch installs torchrun beside the interpreter"
     out = tmp_path / "ddp"
-    r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", "--no-plots", str(tiny), "-o",
+    r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", "--no-plots",
+                        str(tiny), "-o",
                         str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
                         "--optimizer", "adam"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
