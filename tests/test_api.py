@@ -51,8 +51,7 @@ def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp
     assert set(summary) == {"builtin", start}
     assert summary[start]["iterations_median"] > 0 and summary[start]["predict_ms_median"] >= 0
     r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,{start}", "--closed-loop", "--steps", "20",
-               "--no-budgets",
-               "-q", "-o", tmp_path / "loop")
+               "--no-budgets", "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     assert start in (tmp_path / "loop" / "report.md").read_text()
 
@@ -115,8 +114,7 @@ def test_a_broken_start_is_one_line_and_leaves_nothing(run, tmp_path, monkeypatc
     (tmp_path / "mods" / "broken_starts.py").write_text(BROKEN)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
     r = invoke("evaluate", "--no-plots", run, "--starts", f"builtin,broken_starts:{name}", "--every", "20",
-               "--no-budgets",
-               "-o", tmp_path / "r")
+               "--no-budgets", "-o", tmp_path / "r")
     sys.modules.pop("broken_starts", None)
     assert r.exit_code == 1 and "Traceback" not in r.stderr, r.stderr
     lines = r.stderr.strip().splitlines()
@@ -184,12 +182,10 @@ def test_a_broken_network_is_one_line(dataset, tmp_path, monkeypatch, name, need
 
 def test_old_spellings_still_work_and_say_they_are_deprecated(run, model, tmp_path):
     r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--every", "40",
-               "--no-budgets",
-               "-q", "-o", tmp_path / "r")
+               "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.exit_code == 0 and "--model is deprecated in dc evaluate: use --checkpoint" in r.stderr, r.stderr
     r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--model", model / "best.pt", "--checkpoint",
-               model / "best.pt",
-               "-o", tmp_path / "r2")
+               model / "best.pt", "-o", tmp_path / "r2")
     assert r.exit_code == 2 and "give one" in r.stderr
 
 
@@ -242,8 +238,7 @@ def test_a_solver_method_plugin_runs_through_replay_the_closed_loop_and_simulate
     # Jacobi moves every row from the same iterate: it needs more iterations than Gauss-Seidel's sweeps
     assert jacobi["iterations_median"] > sweeps["iterations_median"] and jacobi["solve_ms_median"] > 0
     r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", method, "--closed-loop",
-               "--steps", "10",
-               "--max-iterations", "100", "--no-budgets", "-q", "-o", tmp_path / "loop")
+               "--steps", "10", "--max-iterations", "100", "--no-budgets", "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     r = invoke("simulate", "pile", "--param", "count=6", "--steps", "12", "--solver", "pgs", "--accelerate", method,
                "--tolerance", "1e-3", "--max-iterations", "300", "-q", "-o", tmp_path / "sim")
@@ -298,8 +293,7 @@ def test_a_broken_solver_method_is_one_line_and_leaves_nothing(run, tmp_path, mo
     (tmp_path / "mods" / "broken_solvers.py").write_text(BROKEN_SOLVERS)
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
     r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", f"broken_solvers:{name}",
-               "--every", "20",
-               "--no-budgets", "-o", tmp_path / "r")
+               "--every", "20", "--no-budgets", "-o", tmp_path / "r")
     sys.modules.pop("broken_solvers", None)
     from deepcontact.solver import methods
     methods._instances.pop(f"broken_solvers:{name}", None)

@@ -48,8 +48,7 @@ def test_every_reader_takes_a_compressed_run(runs, tmp_path):
         assert np.array_equal(np.load(a / f"{name}.npy"), np.load(b / f"{name}.npy")), name
     assert GridDataset(b).step_file(5).name.endswith(".xml.gz")
     evaluated = [written(tmp_path / f"r{k}", "evaluate", "--no-plots", str(run), "--starts", "zero,builtin", "--every",
-                         "20",
-                         "--no-budgets") for k, run in enumerate(runs)]
+                         "20", "--no-budgets") for k, run in enumerate(runs)]
     rows = [[(r["seed"], r["step"], r["start"], r["iterations"], r["residual"])
              for r in csv.DictReader(open(e / "steps.csv"))] for e in evaluated]
     assert rows[0] == rows[1] and rows[0]
@@ -94,8 +93,7 @@ def test_jobs_change_nothing_in_what_validate_and_evaluate_report(runs, tmp_path
     one, two = (dc("validate", "--replay", "-j", j, str(plain)) for j in ("1", "2"))
     assert one.returncode == two.returncode == 0 and one.stdout == two.stdout
     reports = [written(tmp_path / f"e{j}", "evaluate", "--no-plots", str(plain), "--starts", "zero,builtin,prev",
-                       "--every", "15",
-                       "--no-budgets", "-j", j) for j in ("1", "2")]
+                       "--every", "15", "--no-budgets", "-j", j) for j in ("1", "2")]
     rows = [[(r["seed"], r["step"], r["start"], r["iterations"], r["residual"], r["error"])
              for r in csv.DictReader(open(e / "steps.csv"))] for e in reports]
     assert rows[0] == rows[1] and len({r[0] for r in rows[0]}) == 2

@@ -44,8 +44,7 @@ def contestants(tmp_path, monkeypatch):
 
 def test_a_method_that_stops_early_is_never_the_winner(run, tmp_path, contestants):
     r = dc("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", "none,contestants:Liar", "--every",
-           "20",
-           "--no-budgets", "-q", "-o", tmp_path / "r")
+           "20", "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
     liar = next(name for name in summary if "Liar" in name)
@@ -71,8 +70,7 @@ def test_a_loop_run_by_a_method_that_stops_early_says_so_and_validate_finds_it(t
 
 def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, contestants):
     r = dc("evaluate", "--no-plots", run, "--starts", "builtin,contestants:HidesItsCost", "--every", "20",
-           "--no-budgets", "-q",
-           "-o", tmp_path / "r")
+           "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
     assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 3.0
@@ -187,8 +185,7 @@ def test_a_start_never_sees_the_answer_of_its_step_unless_it_asks_and_then_it_is
            "-o", tmp_path / "r")
     assert r.returncode == 1 and "seers:Peeker" in r.stderr and "normal_impulse" in r.stderr, r.stderr
     r = dc("evaluate", "--no-plots", run, "--starts", "builtin,seers:DeclaredPeeker", "--every", "20", "--no-budgets",
-           "-q",
-           "-o", tmp_path / "r")
+           "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     report = (tmp_path / "r" / "report.md").read_text()
     assert "| seers:DeclaredPeeker (oracle) |" in report
@@ -223,8 +220,7 @@ def test_each_variant_has_its_own_start_and_the_context_says_where_it_is(run, se
 
 def test_every_variant_says_where_it_comes_from(run, tmp_path, contestants):
     r = dc("evaluate", "--no-plots", run, "--starts", "builtin,contestants:HidesItsCost", "--accelerate",
-           "none,contestants:Liar",
-           "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "r")
+           "none,contestants:Liar", "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
     assert summary["builtin"]["start_origin"]["origin"] == "built-in"
@@ -253,8 +249,7 @@ def test_a_method_that_takes_no_relaxation_is_not_recorded_as_using_one(run, tmp
            "--accelerate", "contestants:Liar", "-q", "-o", tmp_path / "s")
     assert r.returncode == 2 and "takes no over-relaxation" in r.stderr and "--relaxation" in r.stderr
     r = dc("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", "none,contestants:Liar",
-           "--relaxation", "1,1.7",
-           "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "r")
+           "--relaxation", "1,1.7", "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
     assert set(summary) == {"builtin@1", "builtin@1.7", "builtin+contestants:Liar"}
@@ -263,8 +258,7 @@ def test_a_method_that_takes_no_relaxation_is_not_recorded_as_using_one(run, tmp
 
 def test_the_closed_loop_report_decides_too(run, tmp_path, contestants):
     r = dc("evaluate", "--no-plots", run, "--closed-loop", "--starts", "zero,builtin,copy", "--accelerate",
-           "none,contestants:Liar",
-           "--steps", "150", "--no-budgets", "-q", "-o", tmp_path / "loop")
+           "none,contestants:Liar", "--steps", "150", "--no-budgets", "-q", "-o", tmp_path / "loop")
     assert r.returncode == 0, r.stderr
     report = (tmp_path / "loop" / "report.md").read_text()
     verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
@@ -309,11 +303,9 @@ def test_with_v_a_failing_plug_in_shows_its_own_traceback(run, tmp_path, monkeyp
     monkeypatch.syspath_prepend(str(tmp_path / "mods"))
     try:
         quiet = dc("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", "failing:Diverges", "--every",
-                   "40",
-                   "--no-budgets", "-o", tmp_path / "r")
+                   "40", "--no-budgets", "-o", tmp_path / "r")
         loud = dc("evaluate", "--no-plots", run, "--starts", "builtin", "--accelerate", "failing:Diverges", "--every",
-                  "40",
-                  "--no-budgets", "-v", "-o", tmp_path / "r")
+                  "40", "--no-budgets", "-v", "-o", tmp_path / "r")
     finally:
         from deepcontact.solver import methods
         sys.modules.pop("failing", None)

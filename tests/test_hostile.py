@@ -251,8 +251,7 @@ def test_a_tampered_checkpoints_bookkeeping_is_one_line(model, dataset, tmp_path
     d[last] = value
     torch.save(ck, tmp / "last.pt")
     r = invoke("evaluate", "--no-plots", dataset.parent / "run", "--starts", "cnn", "--checkpoint", tmp / "last.pt",
-               "--every", "60",
-               "--no-budgets", "-q", "-o", tmp / "r")
+               "--every", "60", "--no-budgets", "-q", "-o", tmp / "r")
     assert_clean(r, tmp / "r")
     shutil.copytree(model, tmp / "m")
     shutil.copy(tmp / "last.pt", tmp / "m" / "last.pt")

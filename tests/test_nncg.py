@@ -95,8 +95,7 @@ def test_simulate_and_evaluate_with_nncg(tmp_path):
     run = tmp_path / "run"
     assert dc("simulate", *SMALL, "--steps", "120", "-q", "-o", str(run)).returncode == 0
     r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--accelerate", "none,nncg", "--every", "40",
-           "--no-budgets",
-           "-q", "-o", str(tmp_path / "rep"))
+           "--no-budgets", "-q", "-o", str(tmp_path / "rep"))
     assert r.returncode == 0, r.stderr
     assert "builtin+nncg" in r.stdout
     r = dc("evaluate", "--no-plots", str(run), "--starts", "builtin", "--accelerate", "nncg,anderson", "-o",

@@ -310,8 +310,7 @@ def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, 
                 "data": ["rasterize", str(run), "--cell", "0.05", "--smoothing", "0.05", "--overwrite", "-q",
                          "-o", "data", "--max-memory", "20"],
                 "model": ["train", "--no-plots", str(dataset), "--epochs", "500", "--width", "4", "--depth", "2",
-                          "--overwrite",
-                          "-q", "-o", "model"]}
+                          "--overwrite", "-q", "-o", "model"]}
     for name, args in commands.items():
         before = snapshot(outputs[name])
         proc = start(args, tmp_path)
@@ -506,8 +505,7 @@ def test_one_simulation_twice_is_refused(run, tmp_path):
     one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), bad / "manifest.json", "same dir")
     one_line_error(dc("rasterize", str(run), str(run), "-o", str(tmp_path / "d")), run, "given twice")
     one_line_error(dc("evaluate", "--no-plots", str(run), str(run), "--starts", "builtin", "-o", str(tmp_path / "r")),
-                   run,
-                   "given twice")
+                   run, "given twice")
     assert not (tmp_path / "r").exists()
     assert not (tmp_path / "d").exists()
 

@@ -101,8 +101,7 @@ def test_a_start_that_misbehaves_is_one_line_naming_it(run, tmp_path, monkeypatc
     write_module(tmp_path, monkeypatch, name, START, **{"at_import" if when == "import" else "at_call": code})
     try:
         r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets",
-               "-q",
-               "-o", tmp_path / "r")
+               "-q", "-o", tmp_path / "r")
     finally:
         forget(name)
     line = one_line_naming(r, f"{name}:Start")
@@ -183,8 +182,7 @@ def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, mo
     monkeypatch.chdir(work)
     try:
         r = dc("evaluate", "--no-plots", run, "--starts", "builtin,guest_mover:Start", "--every", "40", "--no-budgets",
-               "-q",
-               "-o", "report")
+               "-q", "-o", "report")
     finally:
         forget("guest_mover")
     assert r.returncode == 0, r.stderr
@@ -273,8 +271,7 @@ def test_a_start_that_misbehaves_in_a_worker_is_one_line_naming_it(run, tmp_path
     write_module(tmp_path, monkeypatch, name, START, at_call=MISDEEDS[misdeed])
     try:
         r = dc("evaluate", "--no-plots", run, "--starts", f"builtin,{name}:Start", "--every", "40", "--no-budgets",
-               "-j", "2",
-               "-q", "-o", tmp_path / "r")
+               "-j", "2", "-q", "-o", tmp_path / "r")
     finally:
         forget(name)
     one_line_naming(r, f"{name}:Start")

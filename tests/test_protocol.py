@@ -14,8 +14,7 @@ from test_mutations import invoke
 
 def test_every_evaluate_report_records_its_protocol(run, tmp_path):
     r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "30", "--no-budgets", "--threads", "2",
-               "-q",
-               "-o", tmp_path / "r")
+               "-q", "-o", tmp_path / "r")
     assert r.exit_code == 0, r.stderr
     p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
     assert p["threads"] == 2 and p["jobs"] == 1 and p["cpu"] and p["cores"] >= 1
@@ -32,8 +31,7 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
 def test_the_default_is_one_thread_whatever_the_machine(run, model, tmp_path):
     torch.set_num_threads(2)   # torch's default on a larger machine: the command's own default wins
     r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--checkpoint", model / "best.pt", "--every", "40",
-               "--no-budgets", "-q",
-               "-o", tmp_path / "r")
+               "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.exit_code == 0, r.stderr
     assert torch.get_num_threads() == 1
     assert json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]["threads"] == 1

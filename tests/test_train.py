@@ -176,8 +176,7 @@ def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     assert torchrun is not None, "torch installs torchrun beside the interpreter"
     out = tmp_path / "ddp"
     r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", "--no-plots",
-                        str(tiny), "-o",
-                        str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
+                        str(tiny), "-o", str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
                         "--optimizer", "adam"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stderr.count("best.pt and last.pt written") == 1          # rank 0 alone reports and writes
