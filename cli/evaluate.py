@@ -102,8 +102,8 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         ("smoothing", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("kernel", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
         ("seed", "random" in starts, "only applies to the random start"),
-        ("bands", not closed_loop, "applies to replay's convergence plot; --closed-loop draws none"),
-        ("bands", plots, "applies to the convergence plot, which --no-plots leaves out"),
+        ("bands", plots and not closed_loop, "applies to replay's convergence plot, which --closed-loop and "
+                                             "--no-plots leave out"),
     ])
     options.load_network(arch)
     options.load_solvers(accelerate)
@@ -115,7 +115,8 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         solve=SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on),
         every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
         closed_loop=closed_loop, steps=steps, relaxations=tuple(relaxation), accelerations=tuple(accelerate),
-        budgets=budgets, bands=bands, plots=plots, jobs=jobs, threads=threads).checked()   # (the library's rules: exit 2)
+        budgets=budgets, bands=bands, plots=plots, jobs=jobs,
+        threads=threads).checked()   # (the library's rules: exit 2)
     if not closed_loop:   # each solve keeps its convergence history, up to a value per sweep
         from deepcontact.resources import check_memory
         needed, what = history_bytes(settings)

@@ -351,7 +351,7 @@ def output_file(path, overwrite):
 
 
 @contextlib.contextmanager
-def _text_report(threads, output=None, overwrite=False):
+def _study_text(threads, output=None, overwrite=False):
     """The StudyText a text study reports into, each line echoed to stdout as it comes after the
     line saying how its times were taken; with `output`, the whole report written there at the end."""
     from deepcontact import atomic
@@ -400,7 +400,7 @@ def learned_correction(epochs, sweeps, batch, rounds, width, lr, train_seeds, st
       dc study learned-correction --epochs 6 --sweeps 32
     """
     from deepcontact.studies.learned_correction import run
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         run(epochs=epochs, sweeps=sweeps, batch=batch, rounds=rounds, width=width, lr=lr, train_seeds=train_seeds,
             steps=steps, out=text)
 
@@ -425,7 +425,7 @@ def learned_coarse(cell, sweeps, epochs, lr, train_seeds, steps, threads, output
       dc study learned-coarse --cell 4 --sweeps 8 --epochs 4
     """
     from deepcontact.studies.learned_coarse import run
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         run(cell=cell, sweeps=sweeps, epochs=epochs, lr=lr, train_seeds=train_seeds, steps=steps, out=text)
 
 
@@ -494,7 +494,7 @@ def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbo
     if unknown:
         raise click.BadParameter(f"no method {unknown[0]!r}; the methods are: {', '.join(S.METHODS)}",
                                  param_hint="--methods")
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         S.run(samples=samples, cap=cap, quick=quick, methods=tuple(methods or S.METHODS), sizes=sizes, out=text)
 
 
@@ -521,7 +521,7 @@ def global_families(part, steps, cap, threads, output, overwrite, verbose, quiet
       dc study global-families --part exact
     """
     from deepcontact.studies.global_families import run
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         run(part, tuple(steps), cap, out=text)
 
 
@@ -548,7 +548,7 @@ def relaxation(scene, repeats, loop, seeds, threads, output, overwrite, verbose,
     """
     from deepcontact.studies.relaxation import run
     options.refuse_inapplicable([("seeds", loop, "only applies with --loop")])
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         run(scene, repeats, (seeds or (0,)) if loop else None, out=text)
 
 
@@ -572,7 +572,7 @@ def exact(scene, every, siconos, threads, output, overwrite, verbose, quiet):
     """
     from deepcontact.studies.exact import run
     options.refuse_inapplicable([("siconos", scene != "hard", "does not apply to --scene hard")])
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         run(scene, every, siconos, out=text)
 
 
@@ -598,5 +598,5 @@ def peer(scene, every, tolerances, cap, threads, output, overwrite, verbose, qui
       dc study peer --scene pyramid40 --tolerances 1e-4
     """
     from deepcontact.studies.peer import run
-    with _text_report(threads, output, overwrite) as text:
+    with _study_text(threads, output, overwrite) as text:
         run(scene, every, tuple(tolerances), cap, out=text)

@@ -323,13 +323,24 @@ def test_a_signal_leaves_the_earlier_output_and_no_partial_folder(run, dataset, 
         assert leftovers(tmp_path) == [], name
 
 
-def test_a_signal_inside_a_held_block_is_raised_as_it_is_left():
-    """The mechanism behind the writer threads of dc simulate: a stop signal never unwinds the
-    main thread out of a block that waits on locks shared with other threads."""
+@contextmanager
+def stop_signals_handled():
+    """dc's stop-signal handlers installed in this (test) process, and the test's own back after."""
     from deepcontact import interrupts
     saved = {s: signal.getsignal(s) for s in interrupts.STOP_SIGNALS}
     try:
         interrupts.install()
+        yield interrupts
+    finally:
+        interrupts.uninstall()
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+
+
+def test_a_signal_inside_a_held_block_is_raised_as_it_is_left():
+    """The mechanism behind the writer threads of dc simulate: a stop signal never unwinds the
+    main thread out of a block that waits on locks shared with other threads."""
+    with stop_signals_handled() as interrupts:
         finished = False
         with pytest.raises(interrupts.Terminated) as raised:
             with interrupts.held():
@@ -348,35 +359,24 @@ def test_a_signal_inside_a_held_block_is_raised_as_it_is_left():
             os.kill(os.getpid(), signal.SIGHUP)
             time.sleep(0.05)
             raise AssertionError("not interrupted")
-    finally:
-        interrupts.uninstall()
-        for s, handler in saved.items():
-            signal.signal(s, handler)
 
 
-@pytest.mark.parametrize("in_place", [False, True])
-def test_a_signal_while_the_output_folder_is_being_made_leaves_nothing(tmp_path, monkeypatch, in_place):
+@pytest.mark.parametrize("in_place,owner,name", [(False, atomic, "_write_record"), (True, atomic._InPlace, "__init__")])
+def test_a_signal_while_the_output_folder_is_being_made_leaves_nothing(tmp_path, monkeypatch, in_place, owner, name):
     """The window between making the partial (or in-place) folder and owning it: a stop signal
     that lands while its record is written is raised, and the folder goes with it."""
-    from deepcontact import interrupts
-    real = atomic._write_record if not in_place else atomic._InPlace.__init__
+    real = getattr(owner, name)
 
     def signalled(*args, **kwargs):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(0.05)                  # the handler has run: the stop is pending, not raised
         return real(*args, **kwargs)
-    monkeypatch.setattr(*((atomic, "_write_record") if not in_place else (atomic._InPlace, "__init__")), signalled)
-    saved = {s: signal.getsignal(s) for s in interrupts.STOP_SIGNALS}
-    try:
-        interrupts.install()
+    monkeypatch.setattr(owner, name, signalled)
+    with stop_signals_handled() as interrupts:
         with pytest.raises(interrupts.Terminated):
             with atomic.output_folder(tmp_path / "out", atomic.Owned("test output", [r"x"]), command="test",
                                       in_place=in_place):
                 raise AssertionError("the block ran: the signal was lost")
-    finally:
-        interrupts.uninstall()
-        for s, handler in saved.items():
-            signal.signal(s, handler)
     assert leftovers(tmp_path) == [] and not (tmp_path / "out").exists()
 
 

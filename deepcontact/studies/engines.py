@@ -31,7 +31,7 @@ from .. import atomic, workers
 from ..evaluate.closed_loop import reference_trajectory
 from ..simulate import stepping
 from ..solver.metrics import drift
-from ..solver.settings import CAP
+from ..solver.settings import CAP, SolveSettings
 from . import stability as S
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
@@ -59,6 +59,15 @@ class Setting:
     warm_starting: bool = True
     rest: str = "own"      # own: from where the engine rests resting contacts; box2d: 2.4.1's (stability.own_rest)
     variant: bool = False  # an ablation beside the family's sweep (not a candidate for the cheapest)
+
+    @property
+    def solve_settings(self) -> SolveSettings:
+        """How this setting solves one step: Box2D 2.4.1's own PGS (exact) or the project's (v3 has
+        no step problem of 2.4.1's kind)."""
+        if self.solver == "box2d":
+            return SolveSettings(mode="exact", max_iterations=self.count, tolerance=0.0)
+        return SolveSettings(max_iterations=self.count, tolerance=self.tolerance, relaxation=self.relaxation,
+                             accelerate=self.accelerate)
 
 
 def settings():

@@ -32,7 +32,6 @@ from .stability import FULL
 from .text import StudyText
 
 
-
 def problems(name, every, scenes=None):
     if scenes is None:
         scenes = [generate("pile", s, {}) for s in (1000, 1001)] if name == "pile" else [generate("pyramid", 0, {"base": 20})]

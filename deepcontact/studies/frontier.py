@@ -39,7 +39,7 @@ from .. import atomic, workers
 from ..simulate.problems import problems
 from ..solver.methods import solve
 from ..solver.reference import reference_solution
-from ..solver.settings import CAP, SolveSettings
+from ..solver.settings import CAP
 from . import stability as S
 from .engines import Setting, applicable, step_ms
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
@@ -68,14 +68,6 @@ FAST = [
 FAST_SAMPLES = 2
 # What `dc study frontier -o DIR` writes (what --overwrite may replace).
 FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
-
-
-def solve_settings(setting) -> SolveSettings:
-    """How a setting solves one step: Box2D 2.4.1's own PGS (exact) or the project's."""
-    if setting.solver == "box2d":
-        return SolveSettings(mode="exact", max_iterations=setting.count, tolerance=0.0)
-    return SolveSettings(max_iterations=setting.count, tolerance=setting.tolerance, relaxation=setting.relaxation,
-                         accelerate=setting.accelerate)
 
 
 def settings(fast=False):
@@ -127,7 +119,7 @@ def one_step(setting, samples):
     """(median residual, largest residual, median velocity error) of the setting's step on the samples."""
     if setting.solver == "box2d3" or not samples:
         return float("nan"), float("nan"), float("nan")
-    asked = solve_settings(setting)
+    asked = setting.solve_settings
     residuals, errors = [], []
     for s in samples:
         solution = solve(s.problem, settings=asked)
