@@ -6,9 +6,12 @@ thread needs, it leaves that lock held: unwinding out of Future.result() left th
 condition held, and the writer thread finishing that future waited for it while the command
 waited for the writer thread, forever (`dc simulate` under load, SIGTERM ignored thereafter).
 Code that waits on such locks runs inside held(): a signal that comes meanwhile is raised when
-the block is left instead.
+the block is left instead. Raised where Python cannot raise it (a weakref callback, a finalizer:
+"Exception ignored in ..."), it is sent again, to be raised where the command is (_unraisable).
 """
+import os
 import signal
+import sys
 from contextlib import contextmanager
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -18,6 +21,7 @@ _pending = None    # the signal that came while held
 _received = None   # the first stop signal since install(), raised or not
 _installed = False # whether install() has run in this process (dc's commands; not a library caller)
 _guests = 0        # depth of plug-in calls in progress (plugins.guest)
+_hook = None       # Python's unraisable hook, while install()'s is in place
 
 
 class Terminated(KeyboardInterrupt):
@@ -47,21 +51,40 @@ def _on_repeat(signum, frame):
         raise Terminated(_received or signum)
 
 
+def _unraisable(unraisable):
+    """A Terminated raised where Python can only print it (the signal came while a weakref callback
+    or a finalizer ran, e.g. an import lock's): not printed, but sent again, so that it is raised in
+    the command's own code, whose clean-up it starts."""
+    if isinstance(unraisable.exc_value, Terminated):
+        import _thread
+        for s in STOP_SIGNALS:
+            signal.signal(s, _on_signal)
+        # From a new thread, which runs once this hook has returned and given up the GIL: a signal
+        # handled in here would be unraisable too. (threading.Thread.start waits for the thread.)
+        _thread.start_new_thread(os.kill, (os.getpid(), unraisable.exc_value.signum))
+        return
+    (_hook or sys.__unraisablehook__)(unraisable)
+
+
 def install():
     """Stop signals raise Terminated from now on (in the main thread)."""
-    global _pending, _received, _installed
+    global _pending, _received, _installed, _hook
     _pending = _received = None
     _installed = True
     for s in STOP_SIGNALS:
         signal.signal(s, _on_signal)
+    if sys.unraisablehook is not _unraisable:
+        _hook, sys.unraisablehook = sys.unraisablehook, _unraisable
 
 
 def uninstall():
     """The command is over: what it received is forgotten (the handlers are its caller's to put
     back, as the test helper and the end of the process do)."""
-    global _pending, _received, _installed
+    global _pending, _received, _installed, _hook
     _pending = _received = None
     _installed = False
+    if sys.unraisablehook is _unraisable:
+        sys.unraisablehook, _hook = _hook or sys.__unraisablehook__, None
 
 
 def user_stopped():

@@ -790,3 +790,28 @@ def test_a_native_solve_called_from_python_takes_ctrl_c(run):
     with pytest.raises(KeyboardInterrupt):
         dcl.solve(problem, tolerance=1e-300, max_iterations=2 ** 31 - 1, stop_on="none")
     assert time.time() - began < 1.5
+
+
+def test_a_signal_that_lands_in_a_weakref_callback_is_raised_in_the_commands_code(capfd):
+    """Python cannot raise an exception out of a weakref callback (an import lock's, say): it
+    prints "Exception ignored in ..." with a traceback and goes on. A stop signal that lands there
+    is sent again and raised where the command is, with nothing printed."""
+    import weakref
+
+    class Thing:
+        pass
+
+    def callback(_):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)   # the handler runs in here, and its exception cannot leave
+
+    with stop_signals_handled() as interrupts:
+        with pytest.raises(interrupts.Terminated) as raised:
+            thing = Thing()
+            ref = weakref.ref(thing, callback)
+            del thing
+            for _ in range(100):   # (the signal is sent again: raised at the next bytecode here)
+                time.sleep(0.01)
+            raise AssertionError(f"not raised ({ref})")
+    assert raised.value.signum == signal.SIGTERM
+    assert "Exception ignored" not in capfd.readouterr().err
