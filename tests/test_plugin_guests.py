@@ -191,12 +191,13 @@ def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, mo
 
 
 SWALLOWER = """
-import signal, time
+import pathlib, signal, time
 import numpy as np
 from deepcontact.warmstart.starts import StartValue
 class Start:
     def __call__(self, ctx):
         {body}
+        pathlib.Path(__file__).with_name("called").touch()   # (the test's cue: one call is done)
         return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {{}})
 """
 SWALLOWS = {
@@ -211,22 +212,26 @@ SWALLOWS = {
 
 
 def evaluating_with(run, tmp_path, name, body, starts):
-    """dc evaluate in a process of its own, with the start `name` (SWALLOWER with `body`)."""
+    """dc evaluate in a process of its own, with the start `name` (SWALLOWER with `body`), once
+    the start has returned from its first call."""
     import os
     mods = tmp_path / "mods"
     mods.mkdir()
     (mods / f"{name}.py").write_text(SWALLOWER.format(body=body))
-    return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run),
+    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run),
                              "--starts", starts,
                              "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(mods)},
                             cwd=tmp_path)
+    deadline = time.monotonic() + 60
+    while not (mods / "called").exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return proc
 
 
 @pytest.mark.parametrize("kind", sorted(SWALLOWS))
 def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
     proc = evaluating_with(run, tmp_path, "guest_swallow", SWALLOWS[kind], "builtin,guest_swallow:Start")
-    time.sleep(4)
     proc.send_signal(signal.SIGTERM)
     if kind == "loops":
         time.sleep(1)
@@ -242,7 +247,6 @@ def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
 
 def test_the_users_own_ctrl_c_in_a_plugin_is_130(run, tmp_path):
     proc = evaluating_with(run, tmp_path, "guest_slow", "time.sleep(0.05)", "guest_slow:Start")
-    time.sleep(4)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130 and "interrupted (SIGINT)" in err, err
