@@ -20,13 +20,20 @@ STUDIES = {"test_stability", "test_study"}   # the fast runs of dc study's measu
 
 def pytest_collection_modifyitems(config, items):
     """Marks the audits' and the studies' tests; runs the pipeline group (packaging, the smoke pipeline) last, so
-    that a quick failure elsewhere shows first."""
+    that a quick failure elsewhere shows first, and within it the tests that wait for a background job
+    last of all, so that the job has had the longest to run (and no long test trails the rest)."""
     for item in items:
         if item.module.__name__ in AUDITS:
             item.add_marker(pytest.mark.audit)
         if item.module.__name__ in STUDIES:
             item.add_marker(pytest.mark.study)
-    items.sort(key=lambda item: item.get_closest_marker("pipeline") is not None)
+    waiting = {module for module, _ in BACKGROUND.values()}
+
+    def group(item):
+        if item.get_closest_marker("pipeline") is None:
+            return 0
+        return 2 if item.module.__name__ in waiting else 1
+    items.sort(key=group)
 
 
 # What the pipeline group runs in processes of its own (the wheel, the smoke pipeline), started once

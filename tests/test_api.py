@@ -57,17 +57,25 @@ def test_a_start_by_module_path_runs_through_replay_and_the_closed_loop(run, tmp
 
 
 @pytest.mark.pipeline
-def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path):
+def test_an_installed_plugin_is_found_by_its_entry_point(run, dataset, tmp_path, monkeypatch):
     target = tmp_path / "site"
     pip = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
                           "--target", str(target), str(EXAMPLE)], capture_output=True, text=True)
     assert pip.returncode == 0, pip.stderr
+    # Here, with the installed distribution on the path (entry points are read from sys.path when asked) ...
+    from deepcontact.model.arch import NETWORKS
+    monkeypatch.syspath_prepend(str(target))
+    try:
+        r = invoke("train", dataset, "--arch", "tiny-conv", "--epochs", "1", "--no-plots", "-q", "-o", tmp_path / "m")
+    finally:
+        NETWORKS._loaded.clear()
+        for name in [m for m in sys.modules if m.startswith("dc_example_plugins")]:
+            del sys.modules[name]
+    assert r.exit_code == 0, r.stderr
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")]))
-    def dc_there(*args):   # (a process of its own: entry points are read from the installed distributions)
+    def dc_there(*args):   # ... and in a process of its own, which has seen nothing but its own path
         return subprocess.run([sys.executable, "-m", "deepcontact", *map(str, args)], capture_output=True, text=True,
                               env=env)
-    r = dc_there("train", dataset, "--arch", "tiny-conv", "--epochs", "1", "--no-plots", "-q", "-o", tmp_path / "m")
-    assert r.returncode == 0, r.stderr
     # one evaluation finds all three kinds: a start, a solver method and (for the checkpoint) a network
     r = dc_there("evaluate", "--no-plots", run, "--starts", "builtin,damped-builtin,cnn", "--checkpoint",
                  tmp_path / "m" / "best.pt", "--arch", "tiny-conv", "--accelerate", "none,damped-jacobi",

@@ -1,14 +1,9 @@
 """`dc study`: the longer measurements as subcommands, with the same output rules as the rest."""
 import pytest
 
-from conftest import dc, one_line_error, simulated
+from conftest import dc, one_line_error
 
-PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    return simulated(tmp_path_factory, "study", *PILE, "--steps", "120", "--seeds", "0..1")
+# (run and dataset: the session's small pile and its grids, tests/conftest.py)
 
 
 def test_dc_study_lists_the_studies():
@@ -45,16 +40,13 @@ def test_the_thesis_figures_of_a_run(run, tmp_path):
                    "not written by dc study figures")
 
 
-def test_one_map_or_two(run, tmp_path):
-    data = tmp_path / "data"
-    assert dc("rasterize", str(run), "-o", str(data), "--cell", "1", "--smoothing", "1", "--validation", "0.5",
-              "-q").returncode == 0
+def test_one_map_or_two(dataset, tmp_path):
     out = tmp_path / "maps"
-    r = dc("study", "maps", str(data), "-o", str(out), "--epochs", "1", "--width", "4", "-q")
+    r = dc("study", "maps", str(dataset), "-o", str(out), "--epochs", "1", "--width", "4", "-q")
     assert r.returncode == 0, r.stderr
     assert "| joint | 1 |" in (out / "compare.md").read_text()
     assert (out / "normal-only" / "last.pt").exists() and (out / "tangent-only" / "best.pt").exists()
-    r = dc("study", "maps", str(data), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite")
+    r = dc("study", "maps", str(dataset), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite")
     assert r.returncode == 0, r.stderr
 
 
