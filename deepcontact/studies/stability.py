@@ -186,7 +186,7 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
             trail.append(positions(bodies))
         arrays = [bodies["position"], bodies["velocity"], bodies["omega"], contacts["normal_impulse"],
                   contacts["tangent_impulse"]]
-        if not all(np.all(np.isfinite(a)) for a in arrays):
+        if not all(np.isfinite(a).all() for a in arrays):
             finite = False
             break
         depth = deepest(contacts)
