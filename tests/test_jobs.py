@@ -46,13 +46,21 @@ def test_an_export_is_the_same_bytes_with_any_jobs(run, tmp_path, fmt):
 
 
 def test_study_figures_are_the_same_pictures_with_any_jobs(run, tmp_path):
+    from conftest import dc, one_line_error
     for jobs in ("1", "2"):
         r = invoke("study", "figures", run, "--every", "40", "-j", jobs, "-q", "-o", tmp_path / jobs)
         assert r.exit_code == 0, r.stderr
-    same_tree(tmp_path / "1", tmp_path / "2", leave_out=["figures.md"])   # (its times are each run's own)
+    out = tmp_path / "1"
+    assert {p.name for p in out.iterdir()} == {"figures.md", ".dc-output.json"} | {
+        f"fig-5.{k}.{e}" for k in (4, 5, 6, 7) for e in ("png", "svg")}
+    assert "## fig-5.7" in (out / "figures.md").read_text()
+    same_tree(out, tmp_path / "2", leave_out=["figures.md"])   # (its times are each run's own)
     tables = [[line.split("|")[1:4] for line in (tmp_path / j / "figures.md").read_text().splitlines()
                if line.startswith("| ") and "start" not in line] for j in "12"]
     assert tables[0] == tables[1]   # the starts and their sweeps
+    (out / "mine.txt").write_text("mine")
+    one_line_error(dc("study", "figures", str(run), "-o", str(out), "--overwrite"), out / "mine.txt",
+                   "not written by dc study figures")
 
 
 def test_a_movie_is_the_same_bytes_with_any_jobs(pile_run, tmp_path):

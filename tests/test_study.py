@@ -28,16 +28,7 @@ def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_pat
     one_line_error(dc("study", "stability", "--fast", "-o", str(out)), out, "--overwrite")
 
 
-def test_the_thesis_figures_of_a_run(run, tmp_path):
-    out = tmp_path / "figures"
-    r = dc("study", "figures", str(run), "-o", str(out), "--every", "40", "-q")
-    assert r.returncode == 0, r.stderr
-    assert {p.name for p in out.iterdir()} == {"figures.md", ".dc-output.json"} | {
-        f"fig-5.{k}.{e}" for k in (4, 5, 6, 7) for e in ("png", "svg")}
-    assert "## fig-5.7" in (out / "figures.md").read_text()
-    (out / "mine.txt").write_text("mine")
-    one_line_error(dc("study", "figures", str(run), "-o", str(out), "--overwrite"), out / "mine.txt",
-                   "not written by dc study figures")
+# (dc study figures: tests/test_jobs.py, its files with -j 1 and -j 2)
 
 
 def test_one_map_or_two(dataset, tmp_path):
