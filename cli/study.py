@@ -499,12 +499,13 @@ def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbo
 
 
 @study.command("global-families")
-@click.option("--part", type=click.Choice(["pile", "exact", "all"]), default="all", show_default=True,
-              help="pile: the 1000-circle pile to 1e-4; exact: the base-20 pyramid's settling steps to 1e-12.")
+@click.option("--part", type=click.Choice(["pile", "exact", "two-level", "all"]), default="all", show_default=True,
+              help="pile: the 1000-circle pile to 1e-4; exact: the base-20 pyramid's settling steps to 1e-12; "
+                   "two-level: where PGS stalls on the pile, and a coarse correction or a local exact solve after it.")
 @click.option("--steps", type=options.CommaList(options.count(), "K[,...]"), default="300,400,500,600,700,800",
-              show_default=True, help="[pile] The pile's steps.")
+              show_default=True, help="[pile, two-level] The pile's steps.")
 @click.option("--cap", type=options.count(min=1), default=3000, show_default=True,
-              help="[pile] Iterations of PSOR and ADMM at most.")
+              help="[pile, two-level] Iterations of PSOR and ADMM, sweeps of the two-level tries, at most.")
 @text_report
 @options.verbosity
 @options.command("study global-families")
@@ -513,12 +514,15 @@ def global_families(part, steps, cap, threads, output, overwrite, verbose, quiet
     ADMM on the impulses (plain and with Anderson acceleration) and an
     augmented Lagrangian with the friction cone projected, against PSOR and
     the solver's own solve in body space (docs/results.md, "Two other global
-    families, as prototypes").
+    families, as prototypes"); and two second levels after PGS's sweeps, a
+    coarse correction on aggregates of bodies and Lemke's method on the
+    worst contacts' neighbourhood (docs/results.md, "Where PGS stalls").
 
     \b
     Examples:
       dc study global-families --part pile --steps 300,500 --cap 3000
       dc study global-families --part exact
+      dc study global-families --part two-level --steps 500 -o two-level.md
     """
     from deepcontact.studies.global_families import run
     with _study_text(threads, output, overwrite) as text:

@@ -153,3 +153,27 @@ def test_the_frontier_study_judges_every_setting_by_one_residual(tmp_path):
     assert (out / "frontier-pile-30.png").stat().st_size > 0 and (out / "frontier-pyramid-5.png").stat().st_size > 0
     r = dc("study", "frontier", "--scenes", "pile 7", "-o", tmp_path / "none")
     assert r.returncode == 2 and "no scene 'pile 7'" in r.stderr
+
+
+def test_a_second_level_after_pgs_is_kept_only_where_it_lowers_the_residual():
+    """dc study global-families --part two-level on a small pile's step: Lemke on the worst
+    neighbourhood finishes a step that 64 sweeps alone do not (on the 1000-circle pile it never
+    helps: docs/results.md), and a coarse correction is offered only where it lowers the residual."""
+    from conftest import step_problems
+    from deepcontact.solver.methods import judge
+    from deepcontact.solver.settings import TOLERANCE
+    from deepcontact.studies import global_families as G
+    p = step_problems("pile", dict(count=100), [200])[0]
+    plain = G.second_level(p, 64, None, 64)
+    assert not plain.reached and plain.sweeps == 64 and plain.tries == plain.kept == 0
+    local = G.second_level(p, 64, G.LocalExact(p), 16)
+    assert local.reached and local.residual <= TOLERANCE and local.kept == local.tries == 1 and local.sweeps < 64
+    normal, tangent, before, _ = G._sweeps(p, 16)
+    assert judge(p, *G.LocalExact(p)(normal, tangent)).residual < before / 2   # (then a few sweeps finish it)
+    coarse = G.CoarseCorrection(p)
+    for sweeps in (2, 8, 32):
+        normal, tangent, before, _ = G._sweeps(p, sweeps)
+        after = coarse(normal, tangent)
+        assert after is None or judge(p, *after).residual < before
+    outcome = G.second_level(p, 64, coarse, 8, stall=32)
+    assert outcome.tries == 7 and outcome.kept <= outcome.tries and outcome.at_stall is not None

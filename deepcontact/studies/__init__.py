@@ -30,5 +30,5 @@ STUDIES = (
     Study("amortize", "amortize", "what a factor reused across steps could buy on 1,000 and 10,000 circles", "folder"),
     Study("scale", "scale", "every method's time to 1e-4 as the pile grows (100 to 10,000 circles)", "text"),
     Study("global-families", "global_families", "ADMM and a cone augmented Lagrangian, as prototypes, against the "
-          "solver's", "text"),
+          "solver's; where PGS stalls, and two second levels after it", "text"),
 )

@@ -26,10 +26,24 @@ from Box2D's warm start, against PSOR at w = 1.7 and the solver's own solve in b
 Part 2 takes the cone AL to the base-20 pyramid's settling steps 8, 15, 32 and 52 from zero to
 1e-12, where the solver's own solve in body space is the reference's last stage.
 
-Run as `dc study global-families [--part pile|exact|all] [--steps 300,400,...] [--cap 3000]`.
+Part 3 (two-level) asks where PGS's residual on the same pile steps stalls, and whether a second
+level mends it, without a factorization of the whole step:
+
+3. A coarse correction: bodies grouped into aggregates by square cells of side AGGREGATE, one
+   coarse unknown per pair of aggregates (and per aggregate, inside) scaling the current impulses
+   of the contact points between them; the Galerkin system on the rows that must hold (active
+   normal rows, sticking tangent rows) solved densely, the result projected on the friction cones,
+   kept only where it lowers the residual (at full, half or quarter length). After every
+   COARSE_EVERY sweeps.
+4. A local exact solve: Lemke's method on the contact points above the tolerance and one ring of
+   contacts around them, the rest held (solver/pivoting.py, StepPivots.local, the reference's
+   fallback), kept only where it lowers the residual. After every POLISH_EVERY sweeps.
+
+Run as `dc study global-families [--part pile|exact|two-level|all] [--steps 300,400,...] [--cap 3000]`.
 """
 import math
 import statistics
+import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -38,8 +52,9 @@ import scipy.sparse.linalg as spl
 from ..scene.generators import generate
 from ..simulate.problems import problems as step_problems
 from ..solver import pgs
-from ..solver.local import jacobian, local_problem, residual
-from ..solver.methods import solve
+from ..solver.local import jacobian, local_problem, point_residuals, residual
+from ..solver.methods import judge, solve
+from ..solver.pivoting import StepPivots
 from ..solver.settings import TOLERANCE
 from .text import StudyText
 PILE = {"count": 1000, "box": 95, "sigma": 19}
@@ -214,18 +229,21 @@ def exact_step(rows, x, dx, g, impulses, rho):
     return a
 
 
-PARTS = ("pile", "exact", "all")
+PARTS = ("pile", "exact", "two-level", "all")
 PILE_STEPS = (300, 400, 500, 600, 700, 800)
 
 
 def run(part="all", steps=PILE_STEPS, cap=3000, out=None) -> StudyText:
     """The tables (a StudyText; `out` one to add to): part 1 on the pile's `steps` (PSOR and ADMM
-    at most `cap` iterations), part 2 on the pyramid's settling steps."""
+    at most `cap` iterations), part 2 on the pyramid's settling steps, part 3 (two-level) on the
+    pile's `steps` (at most `cap` sweeps)."""
     out = StudyText() if out is None else out
     if part in ("pile", "all"):
         pile(list(steps), cap, out)
     if part in ("exact", "all"):
         exact(out)
+    if part in ("two-level", "all"):
+        two_level(list(steps), cap, out)
     return out
 
 
@@ -304,3 +322,156 @@ def bodyspace(problem, cap, start=(None, None), tolerance=TOLERANCE):
     s = solve(problem, *start, accelerate="bodyspace", tolerance=tolerance, max_iterations=cap)
     return s.residual <= tolerance, s.iterations, s.factorizations, s.residual
 
+
+
+# --- Part 3: two levels ---------------------------------------------------------------------------
+AGGREGATE = 6.0      # m: the side of the cells grouping bodies into aggregates (3 of the pile's circles across)
+COARSE_EVERY = 8     # sweeps between two coarse corrections
+POLISH_EVERY = 200   # sweeps between two local exact solves
+POLISH_MOST = 200    # contact points at most in a local exact solve (a pivot costs (4 x points)^2)
+STALL = 1000         # the sweeps after which the residual's spread is shown
+
+
+def two_level(steps, cap, out):
+    """Part 3: where PGS stalls on the pile, and a coarse correction or a local exact solve after
+    its sweeps (module docstring), each kept only where it lowers the residual."""
+    problems = loop_problems(steps)
+    stall = min(STALL, cap)
+    out(f"\nThe 1000-circle pile, steps {','.join(map(str, steps))}, from Box2D's warm start to {TOLERANCE:g}, "
+        f"at most {cap} sweeps; the second levels are numpy prototypes (their times are not the native solver's).\n")
+    out(f"| step | contact points | above {TOLERANCE:g} after {stall} sweeps | after {cap} | "
+        f"worst after {stall} (x {TOLERANCE:g}) | where (height, median; the pile's top) |")
+    out("| ---: | ---: | ---: | ---: | ---: | --- |")
+    for p in problems:
+        lp = local_problem(p)
+        spread = {k: point_residuals(lp, lp.reaction(*_sweeps(p, k)[:2])) / _scale(lp) for k in (stall, cap)}
+        above = spread[stall] > TOLERANCE
+        height = p.bodies["center"][:, 1].astype(np.float64)
+        at = height[p.contacts["row_a"][lp.points]]
+        out(f"| {p.index} | {len(lp.points)} | {above.sum()} | {(spread[cap] > TOLERANCE).sum()} | "
+            f"{spread[stall].max() / TOLERANCE:.1f} | {np.median(at[above]) if above.any() else 0:.1f} m; "
+            f"{height.max():.1f} m |")
+    methods = {"PGS": lambda p: second_level(p, cap, None, stall, stall),
+               "PGS + coarse correction on aggregates":
+                   lambda p: second_level(p, cap, CoarseCorrection(p), COARSE_EVERY, stall),
+               "PGS + Lemke on the worst neighbourhood":
+                   lambda p: second_level(p, cap, LocalExact(p), POLISH_EVERY, stall)}
+    out("")
+    out(f"| method | reach it | sweeps (per step) | second-level tries, kept (all steps) | "
+        f"residual after {stall} sweeps (median) | worst residual | time a step (median) |")
+    out("| --- | ---: | --- | ---: | ---: | ---: | ---: |")
+    for name, method in methods.items():
+        rs = [method(p) for p in problems]
+        out(f"| {name} | {sum(r.reached for r in rs)} of {len(rs)} | {', '.join(str(r.sweeps) for r in rs)} | "
+            f"{sum(r.tries for r in rs)}, {sum(r.kept for r in rs)} | "
+            f"{statistics.median(r.at_stall for r in rs):.1e} | {max(r.residual for r in rs):.1e} | "
+            f"{_ms(statistics.median(r.seconds for r in rs))} |")
+
+
+def _ms(seconds):
+    ms = seconds * 1e3
+    return f"{ms:,.0f} ms" if ms >= 10 else f"{ms:.2g} ms"
+
+
+def _sweeps(problem, count, start=(None, None)):
+    """(normal, tangent, residual) after `count` float64 PGS sweeps from `start` (Box2D's warm start)."""
+    s = solve(problem, *start, tolerance=TOLERANCE, max_iterations=count)
+    return s.normal_impulse.astype(np.float64), s.tangent_impulse.astype(np.float64), s.residual, s.iterations
+
+
+def _scale(lp):
+    from ..solver.local import residual_scale
+    return residual_scale(lp)
+
+
+class Outcome:
+    def __init__(self, reached, sweeps, tries, kept, at_stall, residual, seconds):
+        self.reached, self.sweeps, self.tries, self.kept = reached, sweeps, tries, kept
+        self.at_stall, self.residual, self.seconds = at_stall, residual, seconds
+
+
+def second_level(problem, cap, level, every, stall=STALL):
+    """PGS in runs of `every` sweeps from Box2D's warm start, `level(normal, tangent)` (a better
+    (normal, tangent) or None) between two runs, until the tolerance or `cap` sweeps; the
+    residual is also taken as `stall` sweeps are passed."""
+    t0 = time.perf_counter()
+    normal, tangent = problem.start_normal, problem.start_tangent
+    sweeps = tries = kept = 0
+    at_stall = None
+    while True:
+        normal, tangent, res, done = _sweeps(problem, min(every, cap - sweeps), (normal, tangent))
+        sweeps += done
+        if at_stall is None and (sweeps >= stall or res <= TOLERANCE):
+            at_stall = res
+        if res <= TOLERANCE or sweeps >= cap:
+            break
+        if level is None:
+            continue
+        tries += 1
+        better = level(normal, tangent)
+        if better is not None and judge(problem, *better).residual < res:
+            normal, tangent = better
+            kept += 1
+    return Outcome(res <= TOLERANCE, sweeps, tries, kept, at_stall, res, time.perf_counter() - t0)
+
+
+class CoarseCorrection:
+    """A Galerkin correction on aggregates of bodies (module docstring, 3): one unknown per pair of
+    aggregates scaling the current impulses of the points between them."""
+
+    def __init__(self, problem, cell=AGGREGATE):
+        self.problem = problem
+        self.lp = lp = local_problem(problem)
+        center = problem.bodies["center"].astype(np.float64)
+        key = np.floor(center / cell).astype(np.int64)
+        _, aggregate = np.unique(key, axis=0, return_inverse=True)
+        aggregate = np.where(problem.bodies["type"] == 2, aggregate.ravel() + 1, 0)   # static bodies: one group
+        a, b = aggregate[problem.contacts["row_a"][lp.points]], aggregate[problem.contacts["row_b"][lp.points]]
+        _, self.pair = np.unique(np.minimum(a, b) * (aggregate.max() + 1) + np.maximum(a, b), return_inverse=True)
+
+    def __call__(self, normal, tangent):
+        lp, m = self.lp, len(self.lp.points)
+        r = lp.reaction(normal, tangent)
+        rn, rt = r[0::2], r[1::2]
+        active = np.nonzero(rn > 0)[0]
+        sticking = np.nonzero((rn > 0) & (np.abs(rt) < lp.mu * rn * (1 - 1e-9)))[0]
+        # a column per pair: the current impulses of its active points, normal and tangent together
+        P = sp.csr_matrix((np.concatenate([rn[active], rt[active]]),
+                           (np.concatenate([2 * active, 2 * active + 1]), np.concatenate([self.pair[active]] * 2))),
+                          shape=(2 * m, self.pair.max() + 1))
+        P = P[:, np.unique(self.pair[active])]
+        held = np.zeros(2 * m)
+        held[2 * active], held[2 * sticking + 1] = 1.0, 1.0   # the rows whose velocity must vanish
+        Ps = sp.diags(held) @ P
+        y = np.linalg.lstsq((Ps.T @ (lp.W @ P)).toarray(), -(Ps.T @ (lp.W @ r + lp.q)), rcond=None)[0]
+        d = P @ y
+        best, best_res = None, residual(lp, r)
+        for length in (1.0, 0.5, 0.25):
+            trial = cone_clamped(r + length * d, lp.mu)
+            res = residual(lp, trial)
+            if res < best_res:
+                best, best_res = trial, res
+                break
+        return None if best is None else lp.impulses(best, self.problem.points)
+
+
+def cone_clamped(r, mu):
+    """r with negative normals set to 0 and tangents clamped to the friction bound."""
+    out = np.empty_like(r)
+    out[0::2] = np.maximum(r[0::2], 0.0)
+    out[1::2] = np.clip(r[1::2], -mu * out[0::2], mu * out[0::2])
+    return out
+
+
+class LocalExact:
+    """Lemke's method on the points above the tolerance and one ring around them, the rest held
+    (module docstring, 4)."""
+
+    def __init__(self, problem):
+        self.pivots = StepPivots(problem)
+
+    def __call__(self, normal, tangent):
+        lp = self.pivots.lp
+        f = point_residuals(lp, lp.reaction(normal, tangent))
+        share = TOLERANCE * _scale(lp) / max(f.max(), 1e-300)   # the points above the tolerance
+        return self.pivots.local(normal, tangent, rings=1, share=share, most=POLISH_MOST)
