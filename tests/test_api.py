@@ -133,7 +133,7 @@ def test_a_broken_start_is_one_line_and_leaves_nothing(run, tmp_path, monkeypatc
 def test_a_network_plugin_trains_evaluates_and_draws_and_is_never_loaded_by_a_checkpoint(
         run, dataset, tmp_path, example_on_path):
     net = "dc_example_plugins.networks:TinyConv"
-    r = invoke("train", dataset, "--arch", net, "--epochs", "1", "-q", "-o", tmp_path / "m")
+    r = invoke("train", dataset, "--arch", net, "--epochs", "1", "--no-plots", "-q", "-o", tmp_path / "m")
     assert r.exit_code == 0, r.stderr
     ck = tmp_path / "m" / "best.pt"
     from deepcontact.model.arch import NETWORKS
@@ -141,11 +141,11 @@ def test_a_network_plugin_trains_evaluates_and_draws_and_is_never_loaded_by_a_ch
     r = invoke("evaluate", run, "--starts", "cnn", "--checkpoint", ck, "--every", "30", "--no-budgets",
                "-o", tmp_path / "r")
     assert r.exit_code == 1 and "name it with --arch" in r.stderr and not (tmp_path / "r").exists(), r.stderr
-    r = invoke("evaluate", run, "--starts", "builtin,cnn", "--checkpoint", ck, "--arch", net, "--every", "30",
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin,cnn", "--checkpoint", ck, "--arch", net, "--every", "30",
                "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.exit_code == 0, r.stderr
-    r = invoke("evaluate", run, "--starts", "cnn", "--checkpoint", ck, "--arch", net, "--closed-loop", "--steps", "15",
-               "--no-budgets", "-q", "-o", tmp_path / "loop")
+    r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--checkpoint", ck, "--arch", net, "--closed-loop",
+               "--steps", "15", "--no-budgets", "-q", "-o", tmp_path / "loop")
     assert r.exit_code == 0, r.stderr
     r = invoke("render", dataset, "--sample", "0", "--checkpoint", ck, "--arch", net, "-q", "-o", tmp_path / "s.png")
     assert r.exit_code == 0 and (tmp_path / "s.png").stat().st_size > 1000, r.stderr

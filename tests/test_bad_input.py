@@ -359,8 +359,8 @@ def test_smoothing_length_must_be_finite(run, tmp_path):
 def test_resume_takes_a_new_epoch_count(dataset, tmp_path):
     out = tmp_path / "m"
     base = ["--width", "4", "--depth", "2", "-q"]
-    assert dc("train", str(dataset), "-o", str(out), "--epochs", "1", *base).returncode == 0
-    assert dc("train", str(dataset), "-o", str(out), "--resume", "--epochs", "3", "-q").returncode == 0
+    assert dc("train", str(dataset), "-o", str(out), "--epochs", "1", "--no-plots", *base).returncode == 0
+    assert dc("train", str(dataset), "-o", str(out), "--resume", "--epochs", "3", "--no-plots", "-q").returncode == 0
     assert [r["epoch"] for r in json.loads((out / "metrics.json").read_text())] == [0, 1, 2]
 
 

@@ -98,7 +98,8 @@ def test_evaluate_reads_each_run_once_and_takes_the_sph_window_from_the_manifest
     real_make = starts.make_starts
     monkeypatch.setattr(starts, "make_starts", lambda names, spec=None, predictor=None:
                         grids.append(spec) or real_make(names, spec=spec, predictor=predictor))
-    r = dc("evaluate", run, "--starts", "builtin,sph", "--every", "10", "--no-budgets", "-q", "-o", tmp_path / "r")
+    r = dc("evaluate", "--no-plots", run, "--starts", "builtin,sph", "--every", "10", "--no-budgets", "-q",
+           "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     assert len(reads) == 1 and grids == [expected]
 

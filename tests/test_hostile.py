@@ -312,7 +312,7 @@ def test_manifold_points_out_of_order_are_one_line(boxes_run, tmp_path_factory, 
         return
     body = "".join("".join(lines[a:b]) for a, b in (spans[k] for k in order))
     step.write_text("".join(lines[:spans[0][0]]) + body + "".join(lines[spans[-1][1]:]))
-    for args in (["validate", run], ["evaluate", run, "--starts", "builtin", "-q", "-o", tmp / "r"],
+    for args in (["validate", run], ["evaluate", "--no-plots", run, "--starts", "builtin", "-q", "-o", tmp / "r"],
                  ["export", run, "-q", "-o", tmp / "x"]):
         r = invoke(*args)
         assert_clean(r, None)
