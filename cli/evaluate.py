@@ -45,9 +45,8 @@ from . import options
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
 @click.option("--bands/--no-bands", default=None,
               help="Draw the 10-90% band of every variant in convergence.png (default: only for up to 4 variants).")
-@click.option("--plots/--no-plots", default=True, show_default=True,
-              help="Draw the report's pictures (PNG and SVG); --no-plots writes its tables alone (on a small run, "
-                   "a tenth of the time: docs/results.md).")
+@options.plots("Draw the report's pictures (PNG and SVG); --no-plots writes its tables alone (on a small run, "
+               "a tenth of the time: docs/results.md).")
 @options.jobs
 @options.threads
 @options.max_memory

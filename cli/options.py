@@ -177,6 +177,11 @@ def verbosity(f):
     return f
 
 
+def plots(what):
+    """--plots/--no-plots, on by default: `what` says what is drawn and what --no-plots leaves."""
+    return click.option("--plots/--no-plots", default=True, show_default=True, help=what)
+
+
 overwrite = click.option("--overwrite", is_flag=True,
                          help="Replace existing output: the new output is built beside it and swapped in "
                          "only when complete, so a failed or interrupted run keeps the old one.")

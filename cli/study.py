@@ -239,10 +239,11 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite
 @click.option("--loss", type=options.choice("loss"), default="masked",
               show_default=True)
 @click.option("--seed", type=options.count(), default=0, show_default=True)
+@options.plots("Draw each run's loss.png/svg; --no-plots writes the checkpoints, metrics and comparison alone.")
 @options.overwrite
 @options.verbosity
 @options.command("study maps")
-def maps(dataset, out, epochs, model, width, loss, seed, overwrite, verbose, quiet):
+def maps(dataset, out, epochs, model, width, loss, seed, plots, overwrite, verbose, quiet):
     """One map or two: the same network trained on both impulse maps, and one per map.
 
     Trains three runs (joint, normal-only, tangent-only) into OUTPUT and
@@ -259,7 +260,7 @@ def maps(dataset, out, epochs, model, width, loss, seed, overwrite, verbose, qui
 
     with atomic.output_folder(out, MAP_FILES, overwrite, command="study maps") as work:
         rows = compare(dataset, work, model=model, fcn_width=width, epochs=epochs, loss=loss, optimizer="adam",
-                       lr=1e-3, batch_size=64, seed=seed)
+                       lr=1e-3, batch_size=64, seed=seed, plots=plots)
         click.echo(write_comparison(work, rows))
 
 

@@ -54,8 +54,7 @@ def torch_device(ctx, param, value):
               help="[fcn] Down-sampling levels.")
 @click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
 @click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")
-@click.option("--plots/--no-plots", default=True, show_default=True,
-              help="Draw loss.png/svg at the end; --no-plots writes the checkpoints and metrics alone.")
+@options.plots("Draw loss.png/svg at the end; --no-plots writes the checkpoints and metrics alone.")
 @options.threads
 @options.max_memory
 @options.overwrite

@@ -37,8 +37,11 @@ def test_one_map_or_two(dataset, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "| joint | 1 |" in (out / "compare.md").read_text()
     assert (out / "normal-only" / "last.pt").exists() and (out / "tangent-only" / "best.pt").exists()
-    r = dc("study", "maps", str(dataset), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite")
+    assert (out / "joint" / "loss.png").exists()
+    r = dc("study", "maps", str(dataset), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite",
+           "--no-plots")
     assert r.returncode == 0, r.stderr
+    assert (out / "joint" / "best.pt").exists() and not list(out.glob("*/loss.*"))   # (the old run's went with it)
 
 
 def test_the_learned_studies_run_as_dc_study_commands():

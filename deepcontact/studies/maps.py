@@ -16,12 +16,14 @@ ARMS = {"joint": ["normal_impulse", "tangent_impulse"], "normal only": ["normal_
         "tangent only": ["tangent_impulse"]}
 
 
-def compare(dataset, out, **config):
+def compare(dataset, out, plots=True, **config):
+    """Trains the three arms into `out` (each with its loss plot unless `plots` is false) and
+    returns their rows: epochs, seconds, best epoch and its RMSEs at the contact points."""
     out = Path(out)
     rows = {}
     for name, targets in ARMS.items():
         t = time.perf_counter()
-        history = train(dataset, out / name.replace(" ", "-"), TrainConfig(targets=targets, **config))
+        history = train(dataset, out / name.replace(" ", "-"), TrainConfig(targets=targets, **config), plots=plots)
         best = min(history, key=lambda r: r.get("val_loss", r["train_loss"]))
         rows[name] = {"epochs": len(history), "seconds": time.perf_counter() - t, "best_epoch": best["epoch"],
                       **{k: v for k, v in best.items() if k.startswith(("val_contact_rmse", "val_zero_rmse",
