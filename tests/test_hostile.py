@@ -271,7 +271,7 @@ def test_tampered_grid_metadata_is_one_line(dataset, tmp_path_factory, key, valu
     meta = json.loads((data / "metadata.json").read_text())
     meta["grid"][key] = value
     (data / "metadata.json").write_text(json.dumps(meta))
-    for args in (["train", data, "--epochs", "1", "--width", "4", "--depth", "2", "-q", "-o", tmp / "m"],
+    for args in (["train", data, "--epochs", "1", "--width", "4", "--depth", "2", "--no-plots", "-q", "-o", tmp / "m"],
                  ["render", data, "--sample", "0", "-q", "-o", tmp / "p.png"]):
         r = invoke(*args)
         assert_clean(r, tmp / "m")
