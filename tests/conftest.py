@@ -232,7 +232,8 @@ def dataset(run):
 
 @pytest.fixture(scope="session")
 def model(dataset):
-    return written(dataset.parent / "model", "train", str(dataset), "--epochs", "1", "--width", "4", "--depth", "2")
+    return written(dataset.parent / "model", "train", str(dataset), "--epochs", "1", "--width", "4", "--depth", "2",
+                   "--no-plots")   # (a resume draws one)
 
 
 def step_problems(generator, params, wanted, seed=0):

@@ -78,11 +78,12 @@ def test_train_overwrite_with_a_bad_dataset_keeps_the_old_model(model, tmp_path)
 def test_train_overwrite_replaces_the_run_when_it_finishes(dataset, model, tmp_path):
     old = tmp_path / "model"
     shutil.copytree(model, old)
-    (old / "loss.svg").write_text("from the old run")
+    (old / "metrics.csv").write_text("from the old run")
     r = dc("train", str(dataset), "-o", str(old), "--overwrite", "--epochs", "2", "--width", "4", "--depth", "2",
            "-q")
     assert r.returncode == 0, r.stderr
-    assert (old / "loss.svg").read_text() != "from the old run" and len(json.loads((old / "metrics.json").read_text())) == 2
+    assert (old / "metrics.csv").read_text() != "from the old run" and len(json.loads((old / "metrics.json").read_text())) == 2
+    assert (old / "loss.svg").exists()   # (the new run's plot; the session's model has none)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]   # no partial folder left
 
 
