@@ -44,6 +44,7 @@ Run as `dc study global-families [--part pile|exact|two-level|all] [--steps 300,
 import math
 import statistics
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,7 +53,7 @@ import scipy.sparse.linalg as spl
 from ..scene.generators import generate
 from ..simulate.problems import problems as step_problems
 from ..solver import pgs
-from ..solver.local import jacobian, local_problem, point_residuals, residual
+from ..solver.local import jacobian, local_problem, point_residuals, residual, residual_scale
 from ..solver.methods import judge, solve
 from ..solver.pivoting import StepPivots
 from ..solver.settings import TOLERANCE
@@ -344,7 +345,7 @@ def two_level(steps, cap, out):
     out("| ---: | ---: | ---: | ---: | ---: | --- |")
     for p in problems:
         lp = local_problem(p)
-        spread = {k: point_residuals(lp, lp.reaction(*_sweeps(p, k)[:2])) / _scale(lp) for k in (stall, cap)}
+        spread = {k: point_residuals(lp, lp.reaction(*_sweeps(p, k)[:2])) / residual_scale(lp) for k in (stall, cap)}
         above = spread[stall] > TOLERANCE
         height = p.bodies["center"][:, 1].astype(np.float64)
         at = height[p.contacts["row_a"][lp.points]]
@@ -374,20 +375,24 @@ def _ms(seconds):
 
 
 def _sweeps(problem, count, start=(None, None)):
-    """(normal, tangent, residual) after `count` float64 PGS sweeps from `start` (Box2D's warm start)."""
+    """(normal, tangent, residual, sweeps done) after at most `count` float64 PGS sweeps from
+    `start` (Box2D's warm start), stopping at the tolerance."""
     s = solve(problem, *start, tolerance=TOLERANCE, max_iterations=count)
     return s.normal_impulse.astype(np.float64), s.tangent_impulse.astype(np.float64), s.residual, s.iterations
 
 
-def _scale(lp):
-    from ..solver.local import residual_scale
-    return residual_scale(lp)
-
-
+@dataclass
 class Outcome:
-    def __init__(self, reached, sweeps, tries, kept, at_stall, residual, seconds):
-        self.reached, self.sweeps, self.tries, self.kept = reached, sweeps, tries, kept
-        self.at_stall, self.residual, self.seconds = at_stall, residual, seconds
+    """One step's run of second_level: whether it reached the tolerance, the sweeps, the second
+    level's tries and how many were kept, the residual at the stall count and at the end, the
+    time (s)."""
+    reached: bool
+    sweeps: int
+    tries: int
+    kept: int
+    at_stall: float
+    residual: float
+    seconds: float
 
 
 def second_level(problem, cap, level, every, stall=STALL):
@@ -444,15 +449,12 @@ class CoarseCorrection:
         held[2 * active], held[2 * sticking + 1] = 1.0, 1.0   # the rows whose velocity must vanish
         Ps = sp.diags(held) @ P
         y = np.linalg.lstsq((Ps.T @ (lp.W @ P)).toarray(), -(Ps.T @ (lp.W @ r + lp.q)), rcond=None)[0]
-        d = P @ y
-        best, best_res = None, residual(lp, r)
-        for length in (1.0, 0.5, 0.25):
+        d, before = P @ y, residual(lp, r)
+        for length in (1.0, 0.5, 0.25):   # the first length that lowers the residual
             trial = cone_clamped(r + length * d, lp.mu)
-            res = residual(lp, trial)
-            if res < best_res:
-                best, best_res = trial, res
-                break
-        return None if best is None else lp.impulses(best, self.problem.points)
+            if residual(lp, trial) < before:
+                return lp.impulses(trial, self.problem.points)
+        return None
 
 
 def cone_clamped(r, mu):
@@ -473,5 +475,5 @@ class LocalExact:
     def __call__(self, normal, tangent):
         lp = self.pivots.lp
         f = point_residuals(lp, lp.reaction(normal, tangent))
-        share = TOLERANCE * _scale(lp) / max(f.max(), 1e-300)   # the points above the tolerance
+        share = TOLERANCE * residual_scale(lp) / max(f.max(), 1e-300)   # the points above the tolerance
         return self.pivots.local(normal, tangent, rings=1, share=share, most=POLISH_MOST)
