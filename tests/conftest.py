@@ -113,6 +113,15 @@ def pytest_sessionfinish(session, exitstatus):
     STARTED.clear()
 
 
+def wait_for(predicate, seconds=60):
+    """Polls until predicate() is true; AssertionError after `seconds`."""
+    deadline = time.time() + seconds
+    while not predicate():
+        if time.time() > deadline:
+            raise AssertionError("timed out waiting")
+        time.sleep(0.02)
+
+
 # A small pile: enough contacts (two-point manifolds on the walls included) to exercise every
 # field, fast enough for every test run.
 SMALL_PILE = dict(count="30", box="16", sigma="4", steps="150")

@@ -5,6 +5,7 @@ import filecmp
 
 import pytest
 
+from conftest import dc, one_line_error
 from test_mutations import invoke
 
 
@@ -46,7 +47,6 @@ def test_an_export_is_the_same_bytes_with_any_jobs(run, tmp_path, fmt):
 
 
 def test_study_figures_are_the_same_pictures_with_any_jobs(run, tmp_path):
-    from conftest import dc, one_line_error
     for jobs in ("1", "2"):
         r = invoke("study", "figures", run, "--every", "40", "-j", jobs, "-q", "-o", tmp_path / jobs)
         assert r.exit_code == 0, r.stderr

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import dc, dc_process, one_line_error, option_error, snapshot
+from conftest import dc, dc_process, one_line_error, option_error, snapshot, wait_for
 from deepcontact import atomic
 
 PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
@@ -278,14 +278,6 @@ def test_a_full_disk_while_writing_is_one_line_naming_the_file(run, tmp_path, in
 def start(args, cwd):
     return subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", *args], cwd=cwd, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-
-
-def wait_for(predicate, seconds=60):
-    deadline = time.time() + seconds
-    while not predicate():
-        if time.time() > deadline:
-            raise AssertionError("timed out waiting")
-        time.sleep(0.02)
 
 
 def children(pid):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import dc
+from conftest import dc, wait_for
 
 pytestmark = pytest.mark.audit
 
@@ -223,9 +223,7 @@ def evaluating_with(run, tmp_path, name, body, starts):
                              "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(mods)},
                             cwd=tmp_path)
-    deadline = time.monotonic() + 60
-    while not (mods / "called").exists() and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_for(lambda: (mods / "called").exists() or proc.poll() is not None)
     return proc
 
 
