@@ -343,26 +343,27 @@ def two_level(steps, cap, out):
     out(f"| step | contact points | above {TOLERANCE:g} after {stall} sweeps | after {cap} | "
         f"worst after {stall} (x {TOLERANCE:g}) | where (height, median; the pile's top) |")
     out("| ---: | ---: | ---: | ---: | ---: | --- |")
-    for p in problems:
+    plain = [second_level(p, cap, None, stall, stall) for p in problems]   # (also the table's PGS row)
+    for p, run in zip(problems, plain):
         lp = local_problem(p)
-        spread = {k: point_residuals(lp, lp.reaction(*_sweeps(p, k)[:2])) / residual_scale(lp) for k in (stall, cap)}
+        spread = {k: point_residuals(lp, lp.reaction(*impulses)) / residual_scale(lp)
+                  for k, impulses in ((stall, run.stalled), (cap, run.impulses))}
         above = spread[stall] > TOLERANCE
         height = p.bodies["center"][:, 1].astype(np.float64)
         at = height[p.contacts["row_a"][lp.points]]
         out(f"| {p.index} | {len(lp.points)} | {above.sum()} | {(spread[cap] > TOLERANCE).sum()} | "
             f"{spread[stall].max() / TOLERANCE:.1f} | {np.median(at[above]) if above.any() else 0:.1f} m; "
             f"{height.max():.1f} m |")
-    methods = {"PGS": lambda p: second_level(p, cap, None, stall, stall),
-               "PGS + coarse correction on aggregates":
-                   lambda p: second_level(p, cap, CoarseCorrection(p), COARSE_EVERY, stall),
-               "PGS + Lemke on the worst neighbourhood":
-                   lambda p: second_level(p, cap, LocalExact(p), POLISH_EVERY, stall)}
+    runs = {"PGS": plain,
+            "PGS + coarse correction on aggregates":
+                [second_level(p, cap, CoarseCorrection(p), COARSE_EVERY, stall) for p in problems],
+            "PGS + Lemke on the worst neighbourhood":
+                [second_level(p, cap, LocalExact(p), POLISH_EVERY, stall) for p in problems]}
     out("")
     out(f"| method | reach it | sweeps (per step) | second-level tries, kept (all steps) | "
         f"residual after {stall} sweeps (median) | worst residual | time a step (median) |")
     out("| --- | ---: | --- | ---: | ---: | ---: | ---: |")
-    for name, method in methods.items():
-        rs = [method(p) for p in problems]
+    for name, rs in runs.items():
         out(f"| {name} | {sum(r.reached for r in rs)} of {len(rs)} | {', '.join(str(r.sweeps) for r in rs)} | "
             f"{sum(r.tries for r in rs)}, {sum(r.kept for r in rs)} | "
             f"{statistics.median(r.at_stall for r in rs):.1e} | {max(r.residual for r in rs):.1e} | "
@@ -385,7 +386,7 @@ def _sweeps(problem, count, start=(None, None)):
 class Outcome:
     """One step's run of second_level: whether it reached the tolerance, the sweeps, the second
     level's tries and how many were kept, the residual at the stall count and at the end, the
-    time (s)."""
+    time (s), and the (normal, tangent) impulses at the stall count and at the end."""
     reached: bool
     sweeps: int
     tries: int
@@ -393,6 +394,8 @@ class Outcome:
     at_stall: float
     residual: float
     seconds: float
+    stalled: tuple
+    impulses: tuple
 
 
 def second_level(problem, cap, level, every, stall=STALL):
@@ -402,12 +405,12 @@ def second_level(problem, cap, level, every, stall=STALL):
     t0 = time.perf_counter()
     normal, tangent = problem.start_normal, problem.start_tangent
     sweeps = tries = kept = 0
-    at_stall = None
+    at_stall = stalled = None
     while True:
         normal, tangent, res, done = _sweeps(problem, min(every, cap - sweeps), (normal, tangent))
         sweeps += done
         if at_stall is None and (sweeps >= stall or res <= TOLERANCE):
-            at_stall = res
+            at_stall, stalled = res, (normal, tangent)
         if res <= TOLERANCE or sweeps >= cap:
             break
         if level is None:
@@ -417,7 +420,8 @@ def second_level(problem, cap, level, every, stall=STALL):
         if better is not None and judge(problem, *better).residual < res:
             normal, tangent = better
             kept += 1
-    return Outcome(res <= TOLERANCE, sweeps, tries, kept, at_stall, res, time.perf_counter() - t0)
+    return Outcome(res <= TOLERANCE, sweeps, tries, kept, at_stall, res, time.perf_counter() - t0, stalled,
+                   (normal, tangent))
 
 
 class CoarseCorrection:
