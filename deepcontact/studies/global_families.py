@@ -340,20 +340,8 @@ def two_level(steps, cap, out):
     stall = min(STALL, cap)
     out(f"\nThe 1000-circle pile, steps {','.join(map(str, steps))}, from Box2D's warm start to {TOLERANCE:g}, "
         f"at most {cap} sweeps; the second levels are numpy prototypes (their times are not the native solver's).\n")
-    out(f"| step | contact points | above {TOLERANCE:g} after {stall} sweeps | after {cap} | "
-        f"worst after {stall} (x {TOLERANCE:g}) | where (height, median; the pile's top) |")
-    out("| ---: | ---: | ---: | ---: | ---: | --- |")
-    plain = [second_level(p, cap, None, stall, stall) for p in problems]   # (also the table's PGS row)
-    for p, run in zip(problems, plain):
-        lp = local_problem(p)
-        spread = {k: point_residuals(lp, lp.reaction(*impulses)) / residual_scale(lp)
-                  for k, impulses in ((stall, run.stalled), (cap, run.impulses))}
-        above = spread[stall] > TOLERANCE
-        height = p.bodies["center"][:, 1].astype(np.float64)
-        at = height[p.contacts["row_a"][lp.points]]
-        out(f"| {p.index} | {len(lp.points)} | {above.sum()} | {(spread[cap] > TOLERANCE).sum()} | "
-            f"{spread[stall].max() / TOLERANCE:.1f} | {np.median(at[above]) if above.any() else 0:.1f} m; "
-            f"{height.max():.1f} m |")
+    plain = [second_level(p, cap, None, stall, stall) for p in problems]   # (also the methods table's PGS row)
+    stall_table(problems, plain, stall, cap, out)
     runs = {"PGS": plain,
             "PGS + coarse correction on aggregates":
                 [second_level(p, cap, CoarseCorrection(p), COARSE_EVERY, stall) for p in problems],
@@ -368,6 +356,24 @@ def two_level(steps, cap, out):
             f"{sum(r.tries for r in rs)}, {sum(r.kept for r in rs)} | "
             f"{statistics.median(r.at_stall for r in rs):.1e} | {max(r.residual for r in rs):.1e} | "
             f"{_ms(statistics.median(r.seconds for r in rs))} |")
+
+
+def stall_table(problems, plain, stall, cap, out):
+    """Where PGS's residual sits on each step after `stall` sweeps and at the end (of `cap`): the
+    points above the tolerance, the worst, and their height in the pile. plain: PGS's Outcomes."""
+    out(f"| step | contact points | above {TOLERANCE:g} after {stall} sweeps | after {cap} | "
+        f"worst after {stall} (x {TOLERANCE:g}) | where (height, median; the pile's top) |")
+    out("| ---: | ---: | ---: | ---: | ---: | --- |")
+    for p, run in zip(problems, plain):
+        lp = local_problem(p)
+        at_stall, at_end = (point_residuals(lp, lp.reaction(*impulses)) / residual_scale(lp)
+                            for impulses in (run.stalled, run.impulses))
+        above = at_stall > TOLERANCE
+        height = p.bodies["center"][:, 1].astype(np.float64)
+        at = height[p.contacts["row_a"][lp.points]]
+        out(f"| {p.index} | {len(lp.points)} | {above.sum()} | {(at_end > TOLERANCE).sum()} | "
+            f"{at_stall.max() / TOLERANCE:.1f} | {np.median(at[above]) if above.any() else 0:.1f} m; "
+            f"{height.max():.1f} m |")
 
 
 def _ms(seconds):
