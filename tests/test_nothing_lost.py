@@ -436,6 +436,20 @@ def test_a_fifo_in_place_of_a_scene_or_checkpoint_is_refused(run, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "run"]
 
 
+def test_a_checkpoint_that_cannot_be_one_is_refused_by_the_settings_check(run, tmp_path):
+    """EvaluateSettings.checked() refuses the path before anything imports torch to read it."""
+    from deepcontact.errors import InputError
+    from deepcontact.evaluate.command import EvaluateSettings
+    fifo, text, folder = tmp_path / "fifo.pt", tmp_path / "text.pt", tmp_path / "folder.pt"
+    os.mkfifo(fifo)
+    text.write_text("not torch's")
+    folder.mkdir()
+    for path, needle in ((fifo, "not a regular file"), (text, "not a file torch.save writes"),
+                         (folder, "a folder"), (tmp_path / "gone.pt", "no such checkpoint")):
+        with pytest.raises(InputError, match=needle):
+            EvaluateSettings(runs=[str(run)], starts=["cnn"], checkpoint=str(path)).checked()
+
+
 def test_a_wrong_contacts_count_names_the_step_file(run, tmp_path):
     for count, needle in (("999", "but it holds"), ("0", 'count="0"> but it holds')):
         bad = copy(run, tmp_path / f"run{count}")

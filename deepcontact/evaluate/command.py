@@ -39,9 +39,11 @@ class EvaluateSettings:
         """These settings, or OptionError naming the flag of the first rule they break (the same
         one line for the command line and a library caller): the solve settings (SolveSettings'
         rules, each method against the mode), a model for the starts that need one, a grid the
-        sph start can draw."""
+        sph start can draw; and InputError for a checkpoint path that cannot be one (before torch
+        is imported to read it)."""
         from ..errors import OptionError
         from ..grid.spec import node_weight_problem
+        from ..model.checkpoint_file import checkpoint_file
         from ..warmstart.starts import trait
         for w in self.relaxations:   # (made, a SolveSettings checks itself: each w, each method)
             self.solve.but(relaxation=w)
@@ -51,6 +53,8 @@ class EvaluateSettings:
         if learned and not self.checkpoint:
             raise OptionError(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
                               "--checkpoint")
+        if self.checkpoint:
+            checkpoint_file(self.checkpoint)
         problem = "sph" in self.starts and not self.checkpoint and node_weight_problem(self.kernel, self.cell,
                                                                                        self.smoothing)
         if problem:

@@ -24,6 +24,7 @@ import torch
 
 from ..escape import CsvWriter
 from .. import __version__, atomic
+from .checkpoint_file import checkpoint_file
 from ..errors import InputError
 from ..grid.dataset import GridDataset
 from ..grid.spec import GridSpec
@@ -120,22 +121,13 @@ def _set_rng_state(state):
 def load_checkpoint(path):
     """A checkpoint, loaded without running any code it might carry (weights_only)."""
     import warnings
-    path = Path(path)
-    if path.exists() and not (path.is_file() or path.is_dir()):   # a FIFO would block torch.load
-        raise InputError("not a regular file", path)
-    if path.is_file():
-        with open(path, "rb") as f:
-            magic = f.read(4)
-        if magic[:2] != b"PK" and magic[:1] != b"\x80":   # torch's zip format, or a legacy pickle
-            raise InputError("not a checkpoint: not a file torch.save writes (a picture? another file?)", path)
+    path = checkpoint_file(path)
     try:
         with warnings.catch_warnings():   # torch's own advice on weights_only is not for our users
             warnings.simplefilter("ignore")
             ck = torch.load(path, map_location="cpu", weights_only=True)
-    except FileNotFoundError:
+    except (FileNotFoundError, IsADirectoryError):   # (gone or replaced since the check)
         raise InputError("no such checkpoint", path) from None
-    except IsADirectoryError:
-        raise InputError("a folder, not a checkpoint file", path) from None
     except pickle.UnpicklingError:
         raise InputError("refused: the checkpoint holds objects other than tensors and plain containers "
                          "(loading it could run code)", path) from None

@@ -1,0 +1,23 @@
+"""What a checkpoint file must be before torch reads it, checked without importing torch: a
+command refuses a wrong path in a fraction of a second instead of after torch's import."""
+from pathlib import Path
+
+from ..errors import InputError
+
+
+def checkpoint_file(path) -> Path:
+    """path as a Path, or InputError for what cannot be a checkpoint: nothing there, a folder, not
+    a regular file (a FIFO would block torch.load forever), or a file whose first bytes are not
+    torch.save's (its zip format or a legacy pickle)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such checkpoint", path)
+    if path.is_dir():
+        raise InputError("a folder, not a checkpoint file", path)
+    if not path.is_file():
+        raise InputError("not a regular file", path)
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic[:2] != b"PK" and magic[:1] != b"\x80":
+        raise InputError("not a checkpoint: not a file torch.save writes (a picture? another file?)", path)
+    return path
