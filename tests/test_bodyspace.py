@@ -1,6 +1,7 @@
 """The solve in body space (accelerate="bodyspace"): augmented-Lagrangian iterations on the
 bodies' velocities after a few sweeps, checked against the explicit LCP in Python, its work
-counted, in the loop and in a step file."""
+counted, in the loop and in a step file; and its lagged variant (accelerate="lagged"), each Newton
+system preconditioned by a factor kept from an earlier one (in the native loop, an earlier step)."""
 import numpy as np
 import pytest
 
@@ -15,17 +16,21 @@ SAMPLE = (problems("pile", dict(count=30, box=16.0, sigma=4.0), (100, 200)) + pr
           + problems("stack", dict(count=8), (50,)) + problems("mass-ratio", dict(ratio=400.0), (100,)))
 
 
+METHODS = ("bodyspace", "lagged")
+
+
 def zero(p):
     return np.zeros(p.points)
 
 
-@pytest.fixture(scope="module")
-def solved():
-    return [solve(p, zero(p), zero(p), tolerance=1e-8, max_iterations=20_000, accelerate="bodyspace") for p in SAMPLE]
+@pytest.fixture(scope="module", params=METHODS)
+def solved(request):
+    """(the method, its answers on SAMPLE)"""
+    return request.param, [solve(p, zero(p), zero(p), tolerance=1e-8, max_iterations=20_000, accelerate=request.param) for p in SAMPLE]
 
 
 def test_its_answers_are_judged_by_the_explicit_lcp_and_reach_the_tolerance(solved):
-    for p, s in zip(SAMPLE, solved):
+    for p, s in zip(SAMPLE, solved[1]):
         lcp = L.build_lcp(p)
         python = L.natural_residual(lcp, s.normal_impulse, s.tangent_impulse) / np.abs(lcp.b).max()
         assert python == pytest.approx(s.residual, rel=1e-3, abs=1e-12), p.index
@@ -42,44 +47,59 @@ def p_friction(p):
 
 
 def test_its_work_is_counted(solved):
+    method, solved = solved
     global_work = 0
     for p, s in zip(SAMPLE, solved):
-        # one factorization per Newton iteration, and Newton iterations only inside outer ones
-        assert s.factorizations == s.newton_iterations
+        # bodyspace: one factorization per Newton iteration; lagged: one at most (the factor
+        # serves later systems); Newton iterations only inside outer ones
+        if method == "bodyspace":
+            assert s.factorizations == s.newton_iterations
+        else:
+            assert 1 <= s.factorizations <= s.newton_iterations or s.newton_iterations == 0
         assert s.newton_iterations == 0 or s.outer_iterations >= 1
         # an outer iteration is an iteration of the cap, as a sweep is
         assert s.iterations >= s.outer_iterations
         global_work += s.outer_iterations
     assert global_work > 0   # (the sample needs more than the first sweeps)
+    if method == "lagged":   # the factor is kept: far fewer factorizations than systems
+        assert sum(s.factorizations for s in solved) * 4 < sum(s.newton_iterations for s in solved)
 
 
-def test_without_a_tolerance_it_solves_to_1e_12_or_says_why_not():
+@pytest.mark.parametrize("method", METHODS)
+def test_without_a_tolerance_it_solves_to_1e_12_or_says_why_not(method):
     p = SAMPLE[4]   # the stack
-    s = solve(p, zero(p), zero(p), max_iterations=20_000, accelerate="bodyspace")
+    s = solve(p, zero(p), zero(p), max_iterations=20_000, accelerate=method)
     assert s.residual < 1e-12
-    capped = solve(SAMPLE[2], zero(SAMPLE[2]), zero(SAMPLE[2]), tolerance=1e-12, max_iterations=6, accelerate="bodyspace")
+    capped = solve(SAMPLE[2], zero(SAMPLE[2]), zero(SAMPLE[2]), tolerance=1e-12, max_iterations=6, accelerate=method)
     assert capped.iterations == 6 and capped.residual > 1e-12   # the cap holds, and the report says where it ended
 
 
-def test_from_an_exact_answer_it_does_no_work():
+@pytest.mark.parametrize("method", METHODS)
+def test_from_an_exact_answer_it_does_no_work(method):
     p = SAMPLE[2]
-    exact = solve(p, zero(p), zero(p), tolerance=1e-10, max_iterations=20_000, accelerate="bodyspace")
-    again = solve(p, exact.normal_impulse, exact.tangent_impulse, tolerance=1e-8, max_iterations=100, accelerate="bodyspace")
+    exact = solve(p, zero(p), zero(p), tolerance=1e-10, max_iterations=20_000, accelerate=method)
+    again = solve(p, exact.normal_impulse, exact.tangent_impulse, tolerance=1e-8, max_iterations=100, accelerate=method)
     assert again.iterations == 0 and again.factorizations == 0 and again.residual == pytest.approx(exact.residual)
 
 
-def test_in_the_loop_its_step_files_validate_and_carry_its_work(tmp_path):
+@pytest.mark.parametrize("method", METHODS)
+def test_in_the_loop_its_step_files_validate_and_carry_its_work(tmp_path, method):
     out = tmp_path / "run"
-    r = dc("simulate", "pyramid", "--param", "base=4", "--steps", "30", "--solver", "pgs", "--accelerate", "bodyspace",
+    r = dc("simulate", "pyramid", "--param", "base=4", "--steps", "30", "--solver", "pgs", "--accelerate", method,
            "--start", "zero", "--tolerance", "1e-8", "--max-iterations", "2000", "-q", "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert dc("validate", str(out)).returncode == 0
     solves = [read_step(f)[0]["solve"] for f in sorted((out / "seed-000000").glob("step-*.xml"))]
-    assert all(s["accelerate"] == "bodyspace" for s in solves)
+    assert all(s["accelerate"] == method for s in solves)
     assert all(float(s["residual"]) < 1e-8 for s in solves)
     assert sum(int(s["outer_iterations"]) for s in solves) > 0
-    assert all(int(s["factorizations"]) == int(s["newton_iterations"]) for s in solves)
-    option_error(dc("simulate", "pyramid", "--solver", "pgs", "--mode", "float32", "--accelerate", "bodyspace",
+    factorizations = [int(s["factorizations"]) for s in solves]
+    newton = [int(s["newton_iterations"]) for s in solves]
+    if method == "bodyspace":
+        assert factorizations == newton
+    else:   # the loop carries the factor from step to step: most steps make none
+        assert 0 < sum(factorizations) < sum(n > 0 for n in newton) / 2
+    option_error(dc("simulate", "pyramid", "--solver", "pgs", "--mode", "float32", "--accelerate", method,
                     "-o", str(tmp_path / "bad")), "float64 only")
 
 
@@ -93,3 +113,19 @@ def test_the_reference_ends_with_it_and_is_exact_on_a_settling_pyramid_step():
     assert r.outer_iterations > 0 and not r.pivoted   # it was the solve in body space that got there
     lcp = L.build_lcp(p)
     assert L.natural_residual(lcp, r.normal_impulse, r.tangent_impulse) / np.abs(lcp.b).max() < 1e-11
+
+
+def test_in_replay_each_step_reaches_the_tolerance_and_the_lagged_factor_serves(pile_run, tmp_path):
+    """dc evaluate replays every 10th step with both methods (each step cold: replay carries nothing
+    from one step to the next)."""
+    import csv
+    out = tmp_path / "report"
+    r = dc("evaluate", "--no-plots", str(pile_run), "--starts", "builtin", "--accelerate", ",".join(METHODS),
+           "--tolerance", "1e-6", "--max-iterations", "2000", "--every", "10", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert [row["accelerate"] for row in rows] == list(METHODS)
+    for row in rows:
+        assert float(row["above"]) == 0 and float(row["residual_p95"]) < 1e-6, row["accelerate"]
+    bodyspace, lagged = (float(row["factorizations_median"]) for row in rows)
+    assert lagged < bodyspace

@@ -199,7 +199,7 @@ def test_bad_problem_arrays_are_refused():
 def test_bad_options_are_refused_once_natively_naming_the_option():
     problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
     for kwargs, message in [(dict(mode="float16"), "mode must be one of exact, float32, float64, not 'float16'"),
-                            (dict(accelerate="apgd"), "accelerate must be one of none, nncg, newton, subspace, bodyspace, not 'apgd'"),
+                            (dict(accelerate="apgd"), "accelerate must be one of none, nncg, newton, subspace, bodyspace, lagged, not 'apgd'"),
                             (dict(mode="float32", accelerate="newton"), "float64 only"),
                             (dict(mode="float32", accelerate="bodyspace"), "float64 only"),
                             (dict(tolerance=1e-3, stop_on="energy"), "stop_on must be one of none, thesis"),

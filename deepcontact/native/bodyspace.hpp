@@ -20,6 +20,9 @@
 // takes fewer outer iterations and more Newton iterations (a stiffer, more kinked inner problem),
 // so c adapts. method_bodyspace.hpp's driver runs sweeps first and between failures, and counts every
 // factorization, Newton iteration, outer iteration and fallback.
+// Given a LaggedFactor (accelerate="lagged"), each Newton system is solved by BiCGSTAB
+// preconditioned with that factor instead, and the factor made anew only when it no longer serves
+// (lagged_factor.hpp).
 #pragma once
 
 #include <algorithm>
@@ -33,18 +36,22 @@
 
 #include "body_rows.hpp"
 #include "contact_problem.hpp"
+#include "lagged_factor.hpp"
 
 namespace dc {
 
 struct BodySpaceWork {
-    int newton = 0;           // Newton iterations on the momentum balance, one factorization each
+    int newton = 0;           // Newton iterations on the momentum balance
+    int factorizations = 0;   // one per Newton iteration; with a lagged factor, as it is made anew
     int outer = 0;            // outer (multiplier) iterations
 };
 
 class BodySpace {
 public:
-    // penalty: the first c (rho = c / k per row), adapted as the outer iterations go.
-    BodySpace(ContactProblem<double>& pb, double scale, double penalty) : pb_(pb), scale_(scale), c_(penalty) {
+    // penalty: the first c (rho = c / k per row), adapted as the outer iterations go; lagged: a
+    // factor to precondition the Newton systems with (nullptr: each factorized exactly).
+    BodySpace(ContactProblem<double>& pb, double scale, double penalty, LaggedFactor* lagged = nullptr)
+        : pb_(pb), scale_(scale), c_(penalty), lagged_(lagged) {
         layout();
     }
 
@@ -69,7 +76,7 @@ public:
             ++work.newton;
             Eigen::Map<const Eigen::VectorXd> g(g_.data(), dofs_);
             Eigen::VectorXd dv;
-            if (!direction(g, dv)) break;
+            if (!direction(g, dv, work)) break;
             // Armijo on |g|^2_{M^-1}, halving
             bool accepted = false;
             for (double alpha = 1.0; alpha >= kSmallestStep; alpha *= 0.5) {
@@ -98,10 +105,20 @@ public:
     }
 
     // The Newton direction, H dv = -g: by Cholesky (Eigen's SimplicialLDLT, about 4.7 times
-    // cheaper here) where no point slides and H is symmetric, by a sparse LU where one does.
-    // false if the factorization fails.
-    bool direction(const Eigen::Map<const Eigen::VectorXd>& g, Eigen::VectorXd& dv) {
+    // cheaper here) where no point slides and H is symmetric, by a sparse LU where one does; with
+    // a lagged factor, by BiCGSTAB preconditioned with it, made anew (from H's symmetric part) when
+    // it no longer serves. false if the factorization fails.
+    bool direction(const Eigen::Map<const Eigen::VectorXd>& g, Eigen::VectorXd& dv, BodySpaceWork& work) {
+        if (lagged_) return lagged_direction(-g, dv, work);
+        ++work.factorizations;
         return sliding_ ? solved(lu_, analyzed_lu_, g, dv) : solved(ldlt_, analyzed_ldlt_, g, dv);
+    }
+
+    bool lagged_direction(const Eigen::VectorXd& rhs, Eigen::VectorXd& dv, BodySpaceWork& work) {
+        const size_t bodies = pb_.velocity.size();
+        if (lagged_->serves(body_of_, bodies) && krylov_solve(H_, *lagged_, rhs, dv)) return true;
+        ++work.factorizations;
+        return lagged_->factorize(symmetric_, body_of_, bodies) && krylov_solve(H_, *lagged_, rhs, dv);
     }
 
     // H_ factorized by `solver` (its pattern analysed the first time), dv = -H^-1 g.
@@ -193,6 +210,7 @@ private:
         H_.resize(dofs_, dofs_);
         H_.setFromTriplets(pattern.begin(), pattern.end());
         H_.makeCompressed();
+        if (lagged_) symmetric_ = H_;
         auto index = [&](int r, int c) {  // the stored entry (r, c) of the compressed H_
             const int* rows = H_.innerIndexPtr();
             const int* begin = rows + H_.outerIndexPtr()[c];
@@ -279,11 +297,14 @@ private:
         return sum;
     }
 
-    // H = M + J^T D J at the branches of the last balance() (y_, lambda_)
+    // H = M + J^T D J at the branches of the last balance() (y_, lambda_); with a lagged factor
+    // also its symmetric part (the sliding coupling left out), which that factor is made from.
     void assemble() {
         double* values = H_.valuePtr();
+        double* sym = lagged_ ? symmetric_.valuePtr() : nullptr;
         std::fill(values, values + H_.nonZeros(), 0.0);
         for (int d = 0; d < dofs_; ++d) values[diagonal_[d]] = mass_[d];
+        if (sym) std::copy(values, values + H_.nonZeros(), sym);
         sliding_ = false;
         for (size_t i = 0; i < points_.size(); ++i) {
             const Point& q = points_[i];
@@ -303,7 +324,9 @@ private:
                     const int at = q.pos[6 * r + c];
                     if (at < 0) continue;
                     // d(-J^T lambda)/dv: row r of J^T times d lambda / du times column c of J
-                    values[at] += rn * q.jn[r] * q.jn[c] + rt * q.jt[r] * q.jt[c] + coupling * q.jt[r] * q.jn[c];
+                    const double symmetric = rn * q.jn[r] * q.jn[c] + rt * q.jt[r] * q.jt[c];
+                    values[at] += symmetric + coupling * q.jt[r] * q.jn[c];
+                    if (sym) sym[at] += symmetric;
                 }
             }
         }
@@ -332,7 +355,8 @@ private:
     std::vector<Point> points_;
     std::vector<double> v_, vstar_, g_, trial_, trial_g_, tmp_, lambda_k_, lambda_, y_;
     double largest_ = 0;
-    Eigen::SparseMatrix<double> H_;
+    Eigen::SparseMatrix<double> H_, symmetric_;   // symmetric_: with a lagged factor alone
+    LaggedFactor* lagged_;
     bool sliding_ = false;   // the last assemble() coupled a sliding point: H is not symmetric
     Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
     Eigen::SparseLU<Eigen::SparseMatrix<double>> lu_;

@@ -57,9 +57,11 @@ bool outer_iterations(Sweeps<double>& k, BodySpace& body, BodySpaceWork& work, c
 
 // Sweeps settle which contacts touch; outer iterations in body space finish while each lowers
 // the residual (an outer iteration counts as one iteration of the cap). After one fails, twice
-// as many sweeps as before run first (kSettleFirst, kSettleMost).
-inline void solve_bodyspace(Sweeps<double>& k, const SolveOptions& opt, SolveReport& rep) {
-    BodySpace body(k.problem(), k.scale(), kPenalty);
+// as many sweeps as before run first (kSettleFirst, kSettleMost). lagged: the factor that
+// preconditions the Newton systems (method_lagged.hpp); nullptr factorizes each.
+inline void solve_bodyspace(Sweeps<double>& k, const SolveOptions& opt, SolveReport& rep,
+                            LaggedFactor* lagged = nullptr) {
+    BodySpace body(k.problem(), k.scale(), kPenalty, lagged);
     BodySpaceWork work;
     const double tolerance = global_tolerance(opt);
     double residual = k.residual();
@@ -70,7 +72,8 @@ inline void solve_bodyspace(Sweeps<double>& k, const SolveOptions& opt, SolveRep
         if (!outer_iterations(k, body, work, opt, tolerance, rep, residual, record))
             sweeps = std::min(2 * sweeps, kSettleMost);
     }
-    rep.factorizations = rep.newton_iterations = work.newton;   // one factorization per Newton iteration
+    rep.factorizations = work.factorizations;
+    rep.newton_iterations = work.newton;
     rep.outer_iterations = work.outer;
     rep.residual = residual;
 }

@@ -26,9 +26,10 @@ ContactColumns columns(const ContactState& s, const int32_t* row_a, const int32_
 
 template <class R>
 void solve_step(const BodyColumns& bc, const ContactColumns& cc, const PGSStepSettings& s,
-                const std::vector<double>& start_n, const std::vector<double>& start_t, PGSStepReport& out) {
+                const std::vector<double>& start_n, const std::vector<double>& start_t, PGSStepReport& out,
+                LaggedFactor* carried) {
     ContactProblem<R> pb = assemble<R>(bc, cc, s.step);
-    out.solve = solve(pb, start_n.data(), start_t.data(), s.solve);
+    out.solve = solve(pb, start_n.data(), start_t.data(), s.solve, carried);
     out.stats = pb.stats;
     // A point Box2D drops from an ill-conditioned pair keeps its start, as in solve_contacts.
     out.normal_impulse = start_n;
@@ -69,10 +70,16 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
                 start_n[k] = double(s.warm_scale * contacts.normal_impulse[k]);
                 start_t[k] = double(s.warm_scale * contacts.tangent_impulse[k]);
             }
+        // The lagged method's factor lives in the world, from one step to the next.
+        LaggedFactor* carried = nullptr;
+        if (s.solve.accelerate == Acceleration::lagged) {
+            if (!world.carried_factor) world.carried_factor = std::make_shared<LaggedFactor>();
+            carried = world.carried_factor.get();
+        }
         if (s.solve.float64())
-            solve_step<double>(bc, cc, s, start_n, start_t, out);
+            solve_step<double>(bc, cc, s, start_n, start_t, out, carried);
         else
-            solve_step<float>(bc, cc, s, start_n, start_t, out);
+            solve_step<float>(bc, cc, s, start_n, start_t, out, carried);
         out.start_normal = std::move(start_n);
         out.start_tangent = std::move(start_t);
         out.solved = true;

@@ -21,7 +21,9 @@ enum class Mode { exact, float32, float64 };
 // subspace: the same with each Newton system solved inexactly by conjugate gradients.
 // bodyspace: a few sweeps, then augmented-Lagrangian iterations on the bodies' velocities
 // (bodyspace.hpp), back to sweeps whenever one fails to lower the residual.
-enum class Acceleration { none, nncg, newton, subspace, bodyspace };
+// lagged: the same, each Newton system solved by BiCGSTAB preconditioned with a factor kept from
+// an earlier system (lagged_factor.hpp), in the native loop from an earlier step.
+enum class Acceleration { none, nncg, newton, subspace, bodyspace, lagged };
 
 struct SolveOptions {
     Mode mode = Mode::float64;
@@ -44,7 +46,8 @@ struct SolveOptions {
 
 // The methods whose work is not only sweeps: float64 only, stopping on the residual.
 inline bool is_global(Acceleration a) {
-    return a == Acceleration::newton || a == Acceleration::subspace || a == Acceleration::bodyspace;
+    return a == Acceleration::newton || a == Acceleration::subspace || a == Acceleration::bodyspace ||
+           a == Acceleration::lagged;
 }
 
 // The one check of a solve's options; throws std::invalid_argument (ValueError in Python).
@@ -57,9 +60,9 @@ inline void check(const SolveOptions& o) {
     if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
     const bool global = is_global(o.accelerate);
-    if (global && o.mode != Mode::float64) throw std::invalid_argument("newton, subspace and bodyspace are float64 only");
+    if (global && o.mode != Mode::float64) throw std::invalid_argument("newton, subspace, bodyspace and lagged are float64 only");
     if (global && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))
-        throw std::invalid_argument("newton, subspace and bodyspace stop on the residual (tolerance 0: exact, 1e-12)");
+        throw std::invalid_argument("newton, subspace, bodyspace and lagged stop on the residual (tolerance 0: exact, 1e-12)");
 }
 
 struct SanitizeReport {
@@ -73,7 +76,7 @@ struct SolveReport {
     double thesis = std::numeric_limits<double>::quiet_NaN();  // the last sweep's measures, when
     double velocity = std::numeric_limits<double>::quiet_NaN();  // they were tracked
     int relaxation_fallback = 0;   // the sweep after which over-relaxation was dropped (0: never)
-    int factorizations = 0;        // Newton steps tried (each factorizes one sparse system)
+    int factorizations = 0;        // sparse factorizations (newton: one per Newton step tried)
     int newton_fallbacks = 0;      // Newton steps (or outer iterations) that failed, after which sweeps went on
     int newton_iterations = 0;     // bodyspace: Newton iterations on the bodies' momentum balance
     int outer_iterations = 0;      // bodyspace: outer (multiplier and friction bound) iterations

@@ -291,11 +291,14 @@ void bind_options(py::module_& m) {
     bind_enum<Acceleration>(
         m, "Acceleration",
         {{"none", Acceleration::none}, {"nncg", Acceleration::nncg}, {"newton", Acceleration::newton},
-         {"subspace", Acceleration::subspace}, {"bodyspace", Acceleration::bodyspace}},
+         {"subspace", Acceleration::subspace}, {"bodyspace", Acceleration::bodyspace},
+         {"lagged", Acceleration::lagged}},
         "none: plain (P)SOR sweeps; nncg: nonsmooth nonlinear conjugate gradient; newton: sweeps,\n"
         "then semismooth Newton steps on the whole step (float64, stops on the residual); subspace:\n"
         "the same with each system solved inexactly by conjugate gradients; bodyspace: sweeps, then\n"
-        "augmented-Lagrangian iterations on the bodies' velocities (float64, stops on the residual).");
+        "augmented-Lagrangian iterations on the bodies' velocities (float64, stops on the residual);\n"
+        "lagged: the same, each Newton system preconditioned by a factor kept from an earlier one (in\n"
+        "the native loop, from an earlier step).");
     m.def("is_global", &is_global, py::arg("accelerate"),
           "Whether a method's work is more than sweeps (a global step over the whole problem): such a\n"
           "method is float64 only and stops on the residual (the traits the Python layer reads).");

@@ -16,6 +16,8 @@
 
 namespace dc {
 
+class LaggedFactor;   // (lagged_factor.hpp)
+
 class World : public SceneWorld {
 public:
     World(float gravity_x, float gravity_y);
@@ -65,6 +67,10 @@ public:
 
     int body_count() const { return live_bodies_; }
     int fixture_count() const { return static_cast<int>(fixtures_.size()); }
+
+    // What the project's solver keeps from one step of the native loop to the next (pgs_step):
+    // the lagged method's factor, made on its first step.
+    std::shared_ptr<LaggedFactor> carried_factor;
 
 private:
     class Recorder;

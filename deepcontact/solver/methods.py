@@ -8,6 +8,8 @@ plug-ins a user names (entry point group ``deepcontact.solvers``, or ``package.m
     newton    sweeps, then semismooth Newton steps on the whole step (float64)
     subspace  the same, each Newton system solved by conjugate gradients (float64)
     bodyspace sweeps, then augmented-Lagrangian iterations on the bodies' velocities (float64)
+    lagged    the same, each Newton system preconditioned by a factor kept from an earlier one
+              (float64; in the native loop the factor is carried from step to step)
 
 `solve` is the one switch: a built-in runs natively (and can run inside the native stepping
 loop); a plug-in is called as
@@ -67,6 +69,8 @@ DESCRIBED = {
     "newton": "sweeps, then semismooth Newton steps on the whole step; float64",
     "subspace": "the same, each system solved by conjugate gradients; float64",
     "bodyspace": "an augmented Lagrangian on the bodies' velocities; float64",
+    "lagged": "the same, each system preconditioned by a factor kept from an earlier one (in the loop, an "
+              "earlier step); float64",
 }
 
 

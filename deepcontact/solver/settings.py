@@ -106,7 +106,7 @@ def _error(message, field):
 
 def check_mode(accelerate: str, mode: str) -> None:
     """The rule a method puts on the arithmetic: the native table's global methods (newton,
-    subspace, bodyspace) are float64 only. OptionError naming --accelerate where it is broken (a
+    subspace, bodyspace, lagged) are float64 only. OptionError naming --accelerate where it is broken (a
     plug-in method's name passes: its rules are its own)."""
     from .._box2d import Acceleration, is_global
     if accelerate in Acceleration.__members__ and is_global(Acceleration.__members__[accelerate]) \

@@ -75,14 +75,14 @@ FAST = [
 # (solver, start, w, acceleration): Box2D's own, and ours from zero, from Box2D's warm start and
 # from garbage, plain, over-relaxed (PSOR at w = 1.7, the best w on the thesis pile in replay) and
 # with conjugate directions (NNCG, plain and at w = 1.3, the best in the loop), and with Newton
-# steps, subspace minimization or the solve in body space after the sweeps (to 1e-12, the count
-# capping the sweeps); guards included.
+# steps, subspace minimization or the solve in body space (plain, and with a lagged factor) after
+# the sweeps (to 1e-12, the count capping the sweeps); guards included.
 RELAXED = 1.7
 CONFIGS = [("box2d", "builtin", 1.0, "none"), ("pgs", "zero", 1.0, "none"), ("pgs", "builtin", 1.0, "none"),
            ("pgs", "garbage", 1.0, "none"), ("pgs", "zero", RELAXED, "none"), ("pgs", "builtin", RELAXED, "none"),
            ("pgs", "zero", 1.0, "nncg"), ("pgs", "builtin", 1.0, "nncg"), ("pgs", "builtin", 1.3, "nncg"),
            ("pgs", "zero", 1.0, "newton"), ("pgs", "builtin", 1.0, "newton"), ("pgs", "builtin", 1.0, "subspace"),
-           ("pgs", "builtin", 1.0, "bodyspace"), ("box2d3", "builtin", 1.0, "none")]
+           ("pgs", "builtin", 1.0, "bodyspace"), ("pgs", "builtin", 1.0, "lagged"), ("box2d3", "builtin", 1.0, "none")]
 # Box2D v3's count is its substeps: from its default 4, doubled up to this cap.
 V3_SUBSTEPS, V3_CAP = 4, 64
 
