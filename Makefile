@@ -75,6 +75,7 @@ bench: setup
 	sh benchmarks/bench_loop_scale.sh
 	$(PYTHON) benchmarks/bench_bodyspace.py
 	$(PYTHON) benchmarks/bench_loop_parts.py
+	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
 	$(PYTHON) benchmarks/bench_report.py
 
 # The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).

@@ -1,5 +1,5 @@
-"""The solve in body space (accelerate="bodyspace") on the problems it was built for, against the
-method each is measured by, in one run:
+"""The solve in body space (accelerate="bodyspace", and "lagged": the same with a lagged factor)
+on the problems it was built for, against the method each is measured by, in one run:
 
 1. exact: the base-20 pyramid's 14 settling steps (8-10, 15-18, 32-36, 52-53) on which no other
    method of the project reaches 1e-12 (docs/results.md), from zero, cap 100,000 iterations,
@@ -7,13 +7,15 @@ method each is measured by, in one run:
 2. the first five steps with contacts of a base-40 pyramid (820 boxes) from zero to 1e-4,
    against subspace minimization (the method that meets it today);
 3. the 100-circle pile settled (its last steps of 1,000) from zero and from Box2D's warm start to
-   1e-4, against PSOR at w = 1.7 (the fastest there today).
+   1e-4, against PSOR at w = 1.7 (the fastest there today);
+4. the 1000-circle pile (seed 9) at steps 300, 500 and 700 (stepped by Box2D 2.4.1) from Box2D's
+   warm start to 1e-4 with a cap of 1,000, against PGS: a step of the loop at scale.
 
 Per method: steps that reach the tolerance, median and total time, and the work: iterations
 (sweeps plus outer iterations), factorizations, Newton iterations, outer iterations and fallbacks
 to sweeps. float64, one thread.
 
-Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|all]
+Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|pile1000|all]
 """
 import argparse
 import statistics
@@ -58,10 +60,10 @@ def table(title, problems, methods, tolerance, cap, start="zero"):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "all"), default="all")
+    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "pile1000", "all"), default="all")
     args = ap.parse_args()
     print(protocol_line(current(jobs=1)))
-    body = {"bodyspace": ("bodyspace", 1.0)}
+    body = {"bodyspace": ("bodyspace", 1.0), "lagged": ("lagged", 1.0)}
     if args.part in ("exact", "all"):
         scene = generate("pyramid", 0, {"base": 20, "steps": max(SETTLING) + 1})
         settling = [p for _, p in problems(scene) if p.index in SETTLING]
@@ -73,6 +75,10 @@ def main():
         settled = [p for _, p in problems(generate("pile", 0, {"steps": 1000}), first=997)]   # (steps 997-999)
         for start in ("zero", "Box2D's warm start"):
             table("100-circle pile, settled", settled, {"PSOR 1.7": ("none", 1.7), **body}, 1e-4, 100_000, start)
+    if args.part in ("pile1000", "all"):
+        scene = generate("pile", 9, {"count": 1000, "box": 95.0, "sigma": 19.0, "steps": 701})
+        steps = [p for _, p in problems(scene, first=300, every=200)]   # (300, 500, 700)
+        table("1000-circle pile", steps, {"PGS": ("none", 1.0), **body}, 1e-4, 1000, "Box2D's warm start")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,8 @@ Families (each a line of settings, cheapest first):
   project       the project's solver in the loop (float64 sweeps from Box2D's warm start, as
                 `dc simulate --solver pgs --tolerance T`) to residuals 1e-2 ... 1e-8, 1000 sweeps
                 at most a step (steps stopped by the cap are counted)
+  project, lagged  the same with the solve in body space and its lagged factor (`--accelerate
+                lagged`, the factor carried from step to step) to 1e-4 and 1e-8
 
 Each setting is judged by the stability study's criteria (studies/stability.py: finite, at rest
 within 3 linear slops, no energy gained beyond its allowance, a stack's top within 1 cm, at rest
@@ -38,7 +40,9 @@ from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_t
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
-FAMILIES = ("Box2D 2.4.1", "Box2D v3", "project")
+FAMILIES = ("Box2D 2.4.1", "Box2D v3", "project", "project, lagged")
+# the project's families: their methods and tolerances
+PROJECT = {"project": ("none", TOLERANCES), "project, lagged": ("lagged", (1e-4, 1e-8))}
 
 # (a pile is not asked to be still at the end: its circles may still roll)
 FULL = [S.Case("thesis pile", "pile", {}, rests=False), *S.FULL]
@@ -76,7 +80,8 @@ def settings():
     out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in SUBSTEPS]
     out.append(Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True))
     out.append(Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True))
-    out += [Setting("project", f"residual {t:g}", "pgs", CAP, tolerance=t) for t in TOLERANCES]
+    out += [Setting(family, f"residual {t:g}", "pgs", CAP, tolerance=t, accelerate=method)
+            for family, (method, tolerances) in PROJECT.items() for t in tolerances]
     return out
 
 
@@ -199,7 +204,7 @@ COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
            ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),
            ("energy rise / allowed (J)", lambda r: f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)}"),
            ("top drift (cm)", lambda r: _fmt(r.top_drift, 100)), ("fastest at end (m/s)", lambda r: _fmt(r.final_speed)),
-           ("capped steps", lambda r: r.capped if r.family == "project" else "")]
+           ("capped steps", lambda r: r.capped if r.family in PROJECT else "")]
 
 
 def scene_table(rows):
@@ -230,7 +235,7 @@ def _short(row):
     """A point's label on the plot: its count, tolerance or ablation."""
     if row.variant:
         return "no warm start" if "warm" in row.setting else "from 2.4.1's rest"
-    return row.setting.split()[0] if row.family != "project" else row.setting.split()[-1]
+    return row.setting.split()[0] if row.family not in PROJECT else row.setting.split()[-1]
 
 
 def pareto_plot(rows, path):

@@ -4,10 +4,11 @@ hundreds to thousands of bodies, Box2D 2.4.1 and v3 beside the project's solver.
 Families (each a line of settings, cheapest first):
   Box2D 2.4.1   its velocity solver at 1, 2, 4, ..., 256 iterations a step
   Box2D v3      the soft step at 1, 2, 4, 8, 16 substeps
-  PGS, PSOR 1.7, NNCG
+  PGS, PSOR 1.7, NNCG, lagged
                 the project's solver in the loop from Box2D's warm start (float64; plain, at
-                w = 1.7, with conjugate directions) to residuals 1e-2 ... 1e-8 within 1000 sweeps,
-                and PGS and PSOR at fixed budgets of 8, 32 and 128 sweeps
+                w = 1.7, with conjugate directions, the solve in body space with a lagged factor)
+                to residuals 1e-2 ... 1e-8 within 1000 sweeps, and PGS and PSOR at fixed budgets
+                of 8, 32 and 128 sweeps
 
 Accuracy by measures that chaos does not swamp (a pile's trajectory drifts from any other by a
 body's size whatever the solver: drift measures chaos there):
@@ -48,7 +49,7 @@ BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 SUBSTEPS = (1, 2, 4, 8, 16)
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 BUDGETS = (8, 32, 128)
-PROJECT = (("PGS", 1.0, "none"), ("PSOR 1.7", 1.7, "none"), ("NNCG", 1.0, "nncg"))
+PROJECT = (("PGS", 1.0, "none"), ("PSOR 1.7", 1.7, "none"), ("NNCG", 1.0, "nncg"), ("lagged", 1.0, "lagged"))
 FAMILIES = ("Box2D 2.4.1", "Box2D v3", *(name for name, _, _ in PROJECT))
 ENGINES = ("Box2D 2.4.1", "Box2D v3")
 REFERENCE_POINTS = 2500   # a reference step above this many contact points is not solved (minutes each)
