@@ -59,15 +59,17 @@ def test_our_exact_solution_and_siconos_lemke_both_solve_the_exported_problems(e
 
 
 @pytest.mark.process
-@pytest.mark.parametrize("method", ["bodyspace", "lagged"])
-def test_the_solve_in_body_space_is_judged_a_solution_on_the_siconos_side(exported, tmp_path, method):
+def test_the_solve_in_body_space_is_judged_a_solution_on_the_siconos_side(exported, tmp_path):
+    """Both its variants (bodyspace, lagged), their answers judged in one Siconos process."""
     from deepcontact.solver.methods import solve
     paths, ours = [], []
-    for path, problem, _ in exported:
-        zero = np.zeros(problem.points)
-        s = solve(problem, zero, zero, tolerance=1e-10, max_iterations=20_000, accelerate=method)
-        ours.append(s.residual)
-        paths.append(fclib.write_problem(problem, tmp_path / path.name, solution=(s.normal_impulse, s.tangent_impulse)))
+    for method in ("bodyspace", "lagged"):
+        for path, problem, _ in exported:
+            zero = np.zeros(problem.points)
+            s = solve(problem, zero, zero, tolerance=1e-10, max_iterations=20_000, accelerate=method)
+            ours.append(s.residual)
+            paths.append(fclib.write_problem(problem, tmp_path / f"{method}-{path.name}",
+                                             solution=(s.normal_impulse, s.tangent_impulse)))
     for path, residual, theirs in zip(paths, ours, peer.run(paths, solver="lemke")):
         assert residual < 1e-10, path.name
         assert theirs["stored_residual"] == pytest.approx(residual, rel=1e-3, abs=1e-12), path.name
