@@ -51,7 +51,7 @@ public:
     // penalty: the first c (rho = c / k per row), adapted as the outer iterations go; lagged: a
     // factor to precondition the Newton systems with (nullptr: each factorized exactly).
     BodySpace(ContactProblem<double>& pb, double scale, double penalty, LaggedFactor* lagged = nullptr)
-        : pb_(pb), scale_(scale), c_(penalty), lagged_(lagged) {
+        : pb_(pb), scale_(scale), c_(lagged && lagged->penalty() > 0 ? lagged->penalty() : penalty), lagged_(lagged) {
         layout();
     }
 
@@ -137,6 +137,8 @@ public:
     // After an outer iteration that lowered the residual from `before` to `after`: a slow one
     // (less than halved) stiffens the penalty, which speeds the outer iteration on the step's
     // soft modes and makes the inner problem harder.
+    double penalty() const { return c_; }
+
     void progress(double before, double after) {
         if (after > 0.5 * before) c_ = std::min(kHeaviest, c_ * kPenaltyStep);
     }

@@ -64,11 +64,16 @@ public:
         return out;
     }
 
+    // The penalty the last solve ended with (0: none yet): the next step starts from it.
+    double penalty() const { return penalty_; }
+    void set_penalty(double c) { penalty_ = c; }
+
 private:
     Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
     std::vector<int> dofs_, to_factor_;
     size_t bodies_ = 0;
     bool ready_ = false;
+    double penalty_ = 0.0;
 };
 
 // A LaggedFactor as Eigen's iterative solvers take a preconditioner (its compute is a no-op: the

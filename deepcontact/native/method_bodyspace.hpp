@@ -75,6 +75,7 @@ inline void solve_bodyspace(Sweeps<double>& k, const SolveOptions& opt, SolveRep
     rep.factorizations = work.factorizations;
     rep.newton_iterations = work.newton;
     rep.outer_iterations = work.outer;
+    if (lagged) lagged->set_penalty(body.penalty());
     rep.residual = residual;
 }
 
