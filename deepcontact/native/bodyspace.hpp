@@ -53,6 +53,7 @@ public:
     BodySpace(ContactProblem<double>& pb, double scale, double penalty, LaggedFactor* lagged = nullptr)
         : pb_(pb), scale_(scale), c_(lagged && lagged->penalty() > 0 ? lagged->penalty() : penalty), lagged_(lagged) {
         layout();
+        if (lagged_) symmetric_ = H_;   // (H's pattern; its values are filled by assemble())
     }
 
     // One outer iteration from the impulses and velocities in the problem, whose residual is
@@ -212,7 +213,6 @@ private:
         H_.resize(dofs_, dofs_);
         H_.setFromTriplets(pattern.begin(), pattern.end());
         H_.makeCompressed();
-        if (lagged_) symmetric_ = H_;
         auto index = [&](int r, int c) {  // the stored entry (r, c) of the compressed H_
             const int* rows = H_.innerIndexPtr();
             const int* begin = rows + H_.outerIndexPtr()[c];
@@ -320,16 +320,21 @@ private:
                 sliding_ = sliding_ || coupling != 0.0;
             }
             if (rn == 0.0 && rt == 0.0) continue;
-            for (int r = 0; r < 6; ++r) {
-                if (q.dof[r] < 0) continue;
-                for (int c = 0; c < 6; ++c) {
-                    const int at = q.pos[6 * r + c];
-                    if (at < 0) continue;
-                    // d(-J^T lambda)/dv: row r of J^T times d lambda / du times column c of J
-                    const double symmetric = rn * q.jn[r] * q.jn[c] + rt * q.jt[r] * q.jt[c];
-                    values[at] += symmetric + coupling * q.jt[r] * q.jn[c];
-                    if (sym) sym[at] += symmetric;
-                }
+            add_point(q, rn, rt, coupling, values, sym);
+        }
+    }
+
+    // One point's 6x6 block of J^T D J into H's values (and, without the coupling, sym's):
+    // d(-J^T lambda)/dv, row r of J^T times d lambda / du times column c of J.
+    static void add_point(const Point& q, double rn, double rt, double coupling, double* values, double* sym) {
+        for (int r = 0; r < 6; ++r) {
+            if (q.dof[r] < 0) continue;
+            for (int c = 0; c < 6; ++c) {
+                const int at = q.pos[6 * r + c];
+                if (at < 0) continue;
+                const double symmetric = rn * q.jn[r] * q.jn[c] + rt * q.jt[r] * q.jt[c];
+                values[at] += symmetric + coupling * q.jt[r] * q.jn[c];
+                if (sym) sym[at] += symmetric;
             }
         }
     }
