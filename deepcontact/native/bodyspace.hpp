@@ -115,6 +115,8 @@ public:
         return sliding_ ? solved(lu_, analyzed_lu_, g, dv) : solved(ldlt_, analyzed_ldlt_, g, dv);
     }
 
+    // H dv = rhs by BiCGSTAB with the lagged factor; where that factor does not serve these
+    // unknowns or BiCGSTAB does not get there, once more with a factor made from this system.
     bool lagged_direction(const Eigen::VectorXd& rhs, Eigen::VectorXd& dv, BodySpaceWork& work) {
         const size_t bodies = pb_.velocity.size();
         if (lagged_->serves(body_of_, bodies) && krylov_solve(H_, *lagged_, rhs, dv)) return true;
@@ -135,11 +137,12 @@ public:
         return dv.allFinite();
     }
 
+    // The penalty c now (what the native loop carries to the next step for the lagged method).
+    double penalty() const { return c_; }
+
     // After an outer iteration that lowered the residual from `before` to `after`: a slow one
     // (less than halved) stiffens the penalty, which speeds the outer iteration on the step's
     // soft modes and makes the inner problem harder.
-    double penalty() const { return c_; }
-
     void progress(double before, double after) {
         if (after > 0.5 * before) c_ = std::min(kHeaviest, c_ * kPenaltyStep);
     }
