@@ -9,13 +9,16 @@ on the problems it was built for, against the method each is measured by, in one
 3. the 100-circle pile settled (its last steps of 1,000) from zero and from Box2D's warm start to
    1e-4, against PSOR at w = 1.7 (the fastest there today);
 4. the 1000-circle pile (seed 9) at steps 300, 500 and 700 (stepped by Box2D 2.4.1) from Box2D's
-   warm start to 1e-4 with a cap of 1,000, against PGS: a step of the loop at scale.
+   warm start to 1e-4 with a cap of 1,000, against PGS: a step of the loop at scale;
+5. the 10,000-circle pile of the frontier study (seed 9), settled by Box2D (steps 1,500 and 1,900,
+   about 22,000 contact points), the same way: PGS and lagged alone (bodyspace's LU factorizations
+   would take minutes a step there).
 
 Per method: steps that reach the tolerance, median and total time, and the work: iterations
 (sweeps plus outer iterations), factorizations, Newton iterations, outer iterations and fallbacks
 to sweeps. float64, one thread.
 
-Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|pile1000|all]
+Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|pile1000|pile10000|all]
 """
 import argparse
 import statistics
@@ -60,7 +63,7 @@ def table(title, problems, methods, tolerance, cap, start="zero"):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "pile1000", "all"), default="all")
+    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "pile1000", "pile10000", "all"), default="all")
     args = ap.parse_args()
     print(protocol_line(current(jobs=1)))
     body = {"bodyspace": ("bodyspace", 1.0), "lagged": ("lagged", 1.0)}
@@ -79,6 +82,11 @@ def main():
         scene = generate("pile", 9, {"count": 1000, "box": 95.0, "sigma": 19.0, "steps": 701})
         steps = [p for _, p in problems(scene, first=300, every=200)]   # (300, 500, 700)
         table("1000-circle pile", steps, {"PGS": ("none", 1.0), **body}, 1e-4, 1000, "Box2D's warm start")
+    if args.part in ("pile10000", "all"):
+        scene = generate("pile", 9, {"count": 10000, "box": 300.0, "sigma": 60.0, "steps": 1901})
+        steps = [p for _, p in problems(scene, first=1500, every=400)]   # (1,500, 1,900)
+        table("10,000-circle pile", steps, {"PGS": ("none", 1.0), "lagged": ("lagged", 1.0)}, 1e-4, 1000,
+              "Box2D's warm start")
 
 
 if __name__ == "__main__":
