@@ -108,8 +108,9 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
     iterations, Box2D v3 at 1-16 substeps (and without warm starting), the
     project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
-    solve to 1e-4 and 1e-8), on the thesis pile and every hard scene, each judged by the stability criteria and its drift from the
-    reference trajectory (docs/results.md, "Engines").
+    solve to 1e-4 and 1e-8), on the thesis pile and every hard scene, each
+    judged by the stability criteria and its drift from the reference
+    trajectory (docs/results.md, "Engines").
 
     Writes engines.md (the cheapest passing setting of each engine per scene,
     and a table per scene), engines.csv and pareto-SCENE.png. Times are one
@@ -155,11 +156,11 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
 def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
     """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
     at 1-16 substeps and the project's PGS, PSOR, NNCG and lagged body-space
-    solve to residuals 1e-2 ... 1e-8 and at fixed budgets, on piles of 1,000 and 10,000 circles, confined
-    circles and pyramids of 820 and 5,050 boxes, each judged by its one-step
-    residual from the same recorded states, its velocity error against the
-    reference step, and the stability criteria (docs/results.md, "The frontier
-    at scale").
+    solve to residuals 1e-2 ... 1e-8 and at fixed budgets, on piles of 1,000
+    and 10,000 circles, confined circles and pyramids of 820 and 5,050 boxes,
+    each judged by its one-step residual from the same recorded states, its
+    velocity error against the reference step, and the stability criteria
+    (docs/results.md, "The frontier at scale").
 
     Writes frontier.md (for each engine setting, the cheapest project setting
     at least as accurate, and a table per scene), frontier.csv and

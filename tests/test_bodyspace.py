@@ -26,7 +26,8 @@ def zero(p):
 @pytest.fixture(scope="module", params=METHODS)
 def solved(request):
     """(the method, its answers on SAMPLE)"""
-    return request.param, [solve(p, zero(p), zero(p), tolerance=1e-8, max_iterations=20_000, accelerate=request.param) for p in SAMPLE]
+    return request.param, [solve(p, zero(p), zero(p), tolerance=1e-8, max_iterations=20_000, accelerate=request.param)
+                           for p in SAMPLE]
 
 
 def test_its_answers_are_judged_by_the_explicit_lcp_and_reach_the_tolerance(solved):

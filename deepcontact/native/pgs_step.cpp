@@ -70,12 +70,10 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
                 start_n[k] = double(s.warm_scale * contacts.normal_impulse[k]);
                 start_t[k] = double(s.warm_scale * contacts.tangent_impulse[k]);
             }
-        // The lagged method's factor lives in the world, from one step to the next.
-        LaggedFactor* carried = nullptr;
-        if (s.solve.accelerate == Acceleration::lagged) {
-            if (!world.carried_factor) world.carried_factor = std::make_shared<LaggedFactor>();
-            carried = world.carried_factor.get();
-        }
+        // What a method keeps from one step to the next lives in the world (a method that keeps
+        // nothing leaves it empty).
+        if (!world.carried_factor) world.carried_factor = std::make_shared<LaggedFactor>();
+        LaggedFactor* carried = world.carried_factor.get();
         if (s.solve.float64())
             solve_step<double>(bc, cc, s, start_n, start_t, out, carried);
         else

@@ -69,7 +69,7 @@ public:
     int fixture_count() const { return static_cast<int>(fixtures_.size()); }
 
     // What the project's solver keeps from one step of the native loop to the next (pgs_step):
-    // the lagged method's factor, made on its first step.
+    // the lagged method's factor (empty until that method runs), made on the loop's first step.
     std::shared_ptr<LaggedFactor> carried_factor;
 
 private:
