@@ -36,13 +36,15 @@ box2d_version = pkg_config("--modversion")[0]
 ext = Pybind11Extension(
     "deepcontact._box2d",
     sources=[
+        # (the longest compiles first, so that the two compilers of a 2-core machine end together)
+        "deepcontact/native/solve.cpp",
         "deepcontact/native/module.cpp",
+        "deepcontact/native/solver_module.cpp",
+        "deepcontact/native/splat.cpp",
+        "deepcontact/native/pgs_step.cpp",
+        "deepcontact/native/step_read.cpp",
         "deepcontact/native/world.cpp",
         "deepcontact/native/step_xml.cpp",
-        "deepcontact/native/step_read.cpp",
-        "deepcontact/native/solver_module.cpp",
-        "deepcontact/native/pgs_step.cpp",
-        "deepcontact/native/splat.cpp",
     ],
     # the solver lives in headers: a change to one must rebuild the module
     depends=sorted(glob.glob("deepcontact/native/*.hpp")),
@@ -102,6 +104,6 @@ class BuildExt(build_ext):
         self.build_temp = os.path.join(here, "build", f"native.{sysconfig.get_platform()}-{sys.implementation.cache_tag}")
 
 
-# The seven translation units compile side by side (DC_BUILD_JOBS overrides the core count).
+# The translation units compile side by side (DC_BUILD_JOBS overrides the core count).
 ParallelCompile("DC_BUILD_JOBS", needs_recompile=stale).install()
 setup(ext_modules=[ext], packages=packages, cmdclass={"build_ext": BuildExt})

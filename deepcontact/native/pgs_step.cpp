@@ -72,7 +72,7 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
             }
         // What a method keeps from one step to the next lives in the world (a method that keeps
         // nothing leaves it empty).
-        if (!world.carried_factor) world.carried_factor = std::make_shared<LaggedFactor>();
+        if (!world.carried_factor) world.carried_factor = new_carried_factor();
         LaggedFactor* carried = world.carried_factor.get();
         if (s.solve.float64())
             solve_step<double>(bc, cc, s, start_n, start_t, out, carried);

@@ -8,9 +8,11 @@
 #include <utility>
 #include <vector>
 
+#include "body_rows.hpp"
 #include "contact_problem.hpp"
 #include "lemke.hpp"
 #include "solve.hpp"
+#include "sweeps.hpp"
 #include "pgs_step.hpp"
 #include "pyarrays.hpp"
 

@@ -2,7 +2,7 @@
 // loaded (and sanitised), the warm start applied, then sweeps over manifolds in the given (island)
 // order, tangent rows before normal rows, the 2x2 block solver for two-point manifolds; with
 // R = float and w = 1 a sweep is Box2D's velocity iteration bit for bit. Also what every driver
-// measures: the residual and a sweep's change. The drivers are method_*.hpp; solve.hpp picks one.
+// measures: the residual and a sweep's change. The drivers are method_*.hpp; solve.cpp picks one.
 #pragma once
 
 #include <algorithm>
