@@ -19,6 +19,8 @@ Per method: steps that reach the tolerance, median and total time, and the work:
 to sweeps. float64, one thread.
 
 Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|pile1000|pile10000|all]
+                                           [--methods LABEL,...]
+(--methods: only these rows, e.g. `--methods lagged` under `perf record` to profile one method)
 """
 import argparse
 import statistics
@@ -35,7 +37,7 @@ from deepcontact.simulate.problems import problems
 SETTLING = (8, 9, 10, 15, 16, 17, 18, 32, 33, 34, 35, 36, 52, 53)
 
 
-def table(title, problems, methods, tolerance, cap, start="zero"):
+def methods_table(title, problems, methods, tolerance, cap, start="zero"):
     print(f"\n{title}: {len(problems)} steps, {statistics.mean(p.points for p in problems):.0f} contact points "
           f"on average; from {start} to {tolerance:g}, cap {cap:,} iterations\n")
     print("| method | reach it | worst residual | median ms | total s | iterations (median) | factorizations "
@@ -64,7 +66,15 @@ def table(title, problems, methods, tolerance, cap, start="zero"):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "pile1000", "pile10000", "all"), default="all")
+    ap.add_argument("--methods", help="only these method labels, comma-separated (e.g. lagged)")
     args = ap.parse_args()
+    only = None if args.methods is None else set(args.methods.split(","))
+
+    def table(title, problems, methods, *rest):
+        """The module's table, of the methods --methods keeps."""
+        kept = {label: m for label, m in methods.items() if only is None or label in only}
+        return methods_table(title, problems, kept, *rest)
+
     print(protocol_line(current(jobs=1)))
     body = {"bodyspace": ("bodyspace", 1.0), "lagged": ("lagged", 1.0)}
     if args.part in ("exact", "all"):
