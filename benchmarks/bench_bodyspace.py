@@ -12,13 +12,16 @@ on the problems it was built for, against the method each is measured by, in one
    warm start to 1e-4 with a cap of 1,000, against PGS: a step of the loop at scale;
 5. the 10,000-circle pile of the frontier study (seed 9), settled by Box2D (steps 1,500 and 1,900,
    about 22,000 contact points), the same way: PGS and lagged alone (bodyspace's LU factorizations
-   would take minutes a step there).
+   would take minutes a step there);
+6. the base-40 pyramid's steps 300, 375, 450 and 525 stepped by Box2D at its 8 iterations (the
+   frontier study's samples, states its criteria fail) from Box2D's warm start to 1e-8, with the
+   frontier's cap of 1,000 iterations and with 10,000: lagged and bodyspace against NNCG.
 
 Per method: steps that reach the tolerance, median and total time, and the work: iterations
 (sweeps plus outer iterations), factorizations, Newton iterations, outer iterations and fallbacks
 to sweeps. float64, one thread.
 
-Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|pile1000|pile10000|all]
+Usage: python benchmarks/bench_bodyspace.py [--part exact|pyramid40|pile100|pile1000|pile10000|pyramid40-late|all]
                                            [--methods LABEL,...]
 (--methods: only these rows, e.g. `--methods lagged` under `perf record` to profile one method)
 """
@@ -65,7 +68,8 @@ def methods_table(title, problems, methods, tolerance, cap, start="zero"):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "pile1000", "pile10000", "all"), default="all")
+    ap.add_argument("--part", choices=("exact", "pyramid40", "pile100", "pile1000", "pile10000", "pyramid40-late", "all"),
+                    default="all")
     ap.add_argument("--methods", help="only these method labels, comma-separated (e.g. lagged)")
     args = ap.parse_args()
     only = None if args.methods is None else set(args.methods.split(","))
@@ -97,6 +101,11 @@ def main():
         steps = [p for _, p in problems(scene, first=1500, every=400)]   # (1,500, 1,900)
         table("10,000-circle pile", steps, {"PGS": ("none", 1.0), "lagged": body["lagged"]}, 1e-4, 1000,
               "Box2D's warm start")
+    if args.part in ("pyramid40-late", "all"):
+        late = [p for _, p in problems(generate("pyramid", 0, {"base": 40}), first=300, every=75)][:4]
+        for cap in (1000, 10_000):
+            table("Base-40 pyramid, the frontier study's samples", late, {"NNCG": ("nncg", 1.0), **body}, 1e-8, cap,
+                  "Box2D's warm start")
 
 
 if __name__ == "__main__":
