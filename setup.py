@@ -46,7 +46,7 @@ ext = Pybind11Extension(
         "deepcontact/native/world.cpp",
         "deepcontact/native/step_xml.cpp",
     ],
-    # the solver lives in headers: a change to one must rebuild the module
+    # the solver's drivers are headers (compiled in solve.cpp): a change to one must rebuild the module
     depends=sorted(glob.glob("deepcontact/native/*.hpp")),
     include_dirs=[f[2:] for f in cflags if f.startswith("-I")],
     libraries=[f[2:] for p in LIBRARIES for f in pkg_config("--libs", package=p) if f.startswith("-l")],

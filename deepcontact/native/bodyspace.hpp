@@ -51,7 +51,7 @@ public:
     // penalty: the first c (rho = c / k per row), adapted as the outer iterations go; lagged: a
     // factor to precondition the Newton systems with (nullptr: each factorized exactly).
     BodySpace(ContactProblem<double>& pb, double scale, double penalty, LaggedFactor* lagged = nullptr)
-        : pb_(pb), scale_(scale), c_(lagged && lagged->penalty() > 0 ? lagged->penalty() : penalty), lagged_(lagged) {
+        : pb_(pb), scale_(scale), c_(penalty), lagged_(lagged) {
         layout();
         if (lagged_) symmetric_ = H_;   // (H's pattern; its values are filled by assemble())
     }

@@ -61,7 +61,10 @@ bool outer_iterations(Sweeps<double>& k, BodySpace& body, BodySpaceWork& work, c
 // preconditions the Newton systems (method_lagged.hpp); nullptr factorizes each.
 inline void solve_bodyspace(Sweeps<double>& k, const SolveOptions& opt, SolveReport& rep,
                             LaggedFactor* lagged = nullptr) {
-    BodySpace body(k.problem(), k.scale(), kPenalty, lagged);
+    // The lagged method starts from the penalty its factor's last solve ended with (the native
+    // loop carries both from step to step); the first solve, and bodyspace, from kPenalty.
+    const double penalty = lagged && lagged->penalty() > 0 ? lagged->penalty() : kPenalty;
+    BodySpace body(k.problem(), k.scale(), penalty, lagged);
     BodySpaceWork work;
     const double tolerance = global_tolerance(opt);
     double residual = k.residual();
