@@ -147,13 +147,17 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs (a 30-circle pile, a base-5 pyramid).")
 @click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'pile 1000,pyramid 40').")
+@click.option("--families", type=options.CommaList(click.STRING, "FAMILY[,...]"),
+              help="Only these families' settings, by their names in the tables (e.g. 'Box2D 2.4.1,NNCG').")
+@click.option("--tolerances", type=options.CommaList(options.Finite(min=0, min_open=True), "TOL[,...]"),
+              help="The project's tolerances  [default: 1e-2,1e-4,1e-6,1e-8; 1e-2,1e-4 with --fast]")
 @click.option("--samples", type=options.count(min=1), default=4, show_default=True,
               help="Recorded steps per scene the one-step error is measured on (2 with --fast).")
 @options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study frontier")
-def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
+def frontier(out, fast, scenes, families, tolerances, samples, jobs, overwrite, verbose, quiet):
     """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
     at 1-16 substeps and the project's PGS, PSOR, NNCG and lagged body-space
     solve to residuals 1e-2 ... 1e-8 and at fixed budgets, on piles of 1,000
@@ -165,12 +169,16 @@ def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
     Writes frontier.md (for each engine setting, the cheapest project setting
     at least as accurate, and a table per scene), frontier.csv and
     frontier-SCENE.png. Times are one thread's; -j runs scenes side by side
-    (each time then taken beside another process). The full study takes hours.
+    (each time then taken beside another process). The full study takes hours;
+    --families and --tolerances run part of it (the summary then matches
+    among the settings run).
 
     \b
     Examples:
       dc study frontier --fast -o reports/frontier-fast
       dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40'
+      dc study frontier -o reports/big --scenes 'pyramid 5050' --tolerances 1e-2
+      dc study frontier -o reports/engines --families 'Box2D 2.4.1,Box2D v3'
     """
     from deepcontact import atomic
     from deepcontact.errors import OptionError
@@ -178,7 +186,11 @@ def frontier(out, fast, scenes, samples, jobs, overwrite, verbose, quiet):
     from deepcontact.studies import frontier as F
 
     cases = options.pick_cases(F.FAST if fast else F.SCALE, scenes)
-    chosen = F.settings(fast)
+    unknown = [f for f in families or () if f not in F.FAMILIES]
+    if unknown:
+        raise click.BadParameter(f"no family {unknown[0]!r}; the families are: {', '.join(F.FAMILIES)}",
+                                 param_hint="--families")
+    chosen = F.settings(fast, families, tolerances)
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES
     with atomic.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:

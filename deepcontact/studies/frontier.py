@@ -71,16 +71,18 @@ FAST_SAMPLES = 2
 FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
 
 
-def settings(fast=False):
-    """Every setting of every family, in the order of the tables (fewer with fast)."""
-    counts, substeps, tolerances, budgets = ((1, 8, 64), (1, 4), (1e-2, 1e-4), (8,)) if fast else \
+def settings(fast=False, families=None, tolerances=None):
+    """Every setting of every family, in the order of the tables (fewer with fast); only the
+    `families` named and the project's `tolerances` given, where given."""
+    counts, substeps, default_tolerances, budgets = ((1, 8, 64), (1, 4), (1e-2, 1e-4), (8,)) if fast else \
         (BOX2D_COUNTS, SUBSTEPS, TOLERANCES, BUDGETS)
+    tolerances = default_tolerances if tolerances is None else tolerances
     out = [Setting("Box2D 2.4.1", f"{n} iterations", "box2d", n) for n in counts]
     out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in substeps]
     for family, w, method in PROJECT:
         out += [Setting(family, f"{n} sweeps", "pgs", n, 0.0, w, method) for n in budgets if method == "none"]
         out += [Setting(family, f"residual {t:g}", "pgs", CAP, t, w, method) for t in tolerances]
-    return out
+    return out if families is None else [s for s in out if s.family in families]
 
 
 @dataclass
