@@ -158,6 +158,25 @@ def test_the_frontier_study_judges_every_setting_by_one_residual(tmp_path):
     assert r.returncode == 2 and "no scene 'pile 7'" in r.stderr
 
 
+def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
+    """--families and --tolerances pick settings (what the largest scenes' rows were measured
+    with); a family it does not have is a bad option, listing the ones it has."""
+    import csv
+    from deepcontact.studies import frontier as F
+    picked = F.settings(families=("NNCG", "Box2D v3"), tolerances=(1e-3,))
+    assert [(s.family, s.label) for s in picked] == [("Box2D v3", f"{n} substeps") for n in F.SUBSTEPS] + \
+        [("NNCG", "residual 0.001")]
+    out = tmp_path / "part"
+    r = dc("study", "frontier", "--fast", "-q", "--scenes", "pyramid 5", "--families", "Box2D 2.4.1,PSOR 1.7",
+           "--tolerances", "1e-3", "-o", out)
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader((out / "frontier.csv").open()))
+    assert [(row["family"], row["setting"]) for row in rows] == \
+        [("Box2D 2.4.1", f"{n} iterations") for n in (1, 8, 64)] + [("PSOR 1.7", "8 sweeps"), ("PSOR 1.7", "residual 0.001")]
+    r = dc("study", "frontier", "--fast", "--families", "PGS,Jacobi", "-o", tmp_path / "none")
+    assert r.returncode == 2 and "no family 'Jacobi'" in r.stderr and "lagged" in r.stderr
+
+
 def test_a_second_level_after_pgs_is_kept_only_where_it_lowers_the_residual():
     """dc study global-families --part two-level on a small pile's step: Lemke on the worst
     neighbourhood finishes a step that 64 sweeps alone do not (on the 1000-circle pile it never
