@@ -369,6 +369,22 @@ def pick_cases(cases, labels):
     return [known[s] for s in labels]
 
 
+def pick_families(known, names):
+    """--families: these names, each one of the study's `known` families (all of them without);
+    a name it does not have is a bad option value (exit 2, listing the families it has)."""
+    unknown = [f for f in names or () if f not in known]
+    if unknown:
+        raise click.BadParameter(f"no family {unknown[0]!r}; the families are: {', '.join(known)}",
+                                 param_hint="--families")
+    return tuple(names) if names else None
+
+
+def families_option(example):
+    """--families for a study whose settings come in families (the names in its tables)."""
+    return click.option("--families", type=CommaList(click.STRING, "FAMILY[,...]"),
+                        help=f"Only these families' settings, by their names in the tables (e.g. {example!r}).")
+
+
 class SoftStepOption(click.Option):
     """An option of Box2D v3's soft step (--substeps, --contact-hertz, ...): its help states v3's
     own default, read from the library when the help is shown (simulate.engines.SoftStep)."""

@@ -100,11 +100,12 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs (stability's, and a 30-circle pile).")
 @click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'stack 20,pyramid 20').")
+@options.families_option("Box2D v3,lagged")
 @options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study engines")
-def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
+def engines(out, fast, scenes, families, jobs, overwrite, verbose, quiet):
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
     iterations, Box2D v3 at 1-16 substeps (and without warm starting), the
     project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
@@ -121,6 +122,7 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
     Examples:
       dc study engines --fast -o reports/engines-fast
       dc study engines -o reports/engines --scenes 'stack 20,mass ratio 400:1'
+      dc study engines -o reports/lagged --families lagged
     """
     from deepcontact import atomic
     from deepcontact.errors import OptionError
@@ -128,11 +130,12 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
     from deepcontact.studies import engines as E
 
     cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
+    chosen = E.settings(options.pick_families(E.FAMILIES, families))
     with atomic.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
-        bar = options.progress_bar(quiet, E.tasks_count(cases), "setting", "study engines")
+        bar = options.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
         try:
-            rows = E.study(cases, jobs=jobs, progress=bar.update)
+            rows = E.study(cases, jobs=jobs, progress=bar.update, chosen=chosen)
         finally:
             bar.close()
         if not rows:
@@ -147,8 +150,7 @@ def engines(out, fast, scenes, jobs, overwrite, verbose, quiet):
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs (a 30-circle pile, a base-5 pyramid).")
 @click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'pile 1000,pyramid 40').")
-@click.option("--families", type=options.CommaList(click.STRING, "FAMILY[,...]"),
-              help="Only these families' settings, by their names in the tables (e.g. 'Box2D 2.4.1,NNCG').")
+@options.families_option("Box2D 2.4.1,NNCG")
 @click.option("--tolerances", type=options.CommaList(options.Finite(min=0, min_open=True), "TOL[,...]"),
               help="The project's tolerances  [default: 1e-2,1e-4,1e-6,1e-8; 1e-2,1e-4 with --fast]")
 @click.option("--samples", type=options.count(min=1), default=4, show_default=True,
@@ -186,11 +188,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, jobs, overwrite, 
     from deepcontact.studies import frontier as F
 
     cases = options.pick_cases(F.FAST if fast else F.SCALE, scenes)
-    unknown = [f for f in families or () if f not in F.FAMILIES]
-    if unknown:
-        raise click.BadParameter(f"no family {unknown[0]!r}; the families are: {', '.join(F.FAMILIES)}",
-                                 param_hint="--families")
-    chosen = F.settings(fast, families, tolerances)
+    chosen = F.settings(fast, options.pick_families(F.FAMILIES, families), tolerances)
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES
     with atomic.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:

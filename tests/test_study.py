@@ -126,6 +126,20 @@ def test_the_scale_study_runs_as_a_dc_study_command(tmp_path):
     assert r.returncode == 2 and "no method 'Nope'" in r.stderr
 
 
+def test_a_study_runs_a_setting_with_its_method_and_relaxation():
+    """engines.run_setting is what both scale studies run a setting with: the setting's method and
+    w reach the run (the engines study once ran its lagged family with plain sweeps and timed it
+    with the lagged solve). On an 8-box stack at 8 sweeps to 1e-8 the sweeps stop at the cap on
+    every step, the lagged solve on few."""
+    from deepcontact.studies import engines as E, stability as S
+    stack = next(c for c in S.FAST if c.label == "stack 8")
+    plain, lagged, relaxed = (E.run_setting(stack, E.Setting("project", "residual 1e-08", "pgs", 8, tolerance=1e-8,
+                                                             relaxation=w, accelerate=m))
+                              for m, w in (("none", 1.0), ("lagged", 1.0), ("none", 1.7)))
+    assert (plain.start, lagged.start, relaxed.start) == ("builtin", "builtin+lagged", "builtin@1.7")
+    assert plain.capped == 240 and lagged.capped < 24
+
+
 def test_the_frontier_study_judges_every_setting_by_one_residual(tmp_path):
     """The fast frontier (a 30-circle pile, a base-5 pyramid): its tables and plots are written,
     and what it measures holds together: Box2D's 8 iterations, replayed bit for bit, and the

@@ -42,7 +42,7 @@ from ..solver.methods import solve
 from ..solver.reference import reference_solution
 from ..solver.settings import CAP
 from . import stability as S
-from .engines import Setting, applicable, step_ms
+from .engines import Setting, applicable, run_setting, step_ms
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
@@ -140,8 +140,7 @@ def run_scene(case, chosen, samples):
     for setting in chosen:
         if not applicable(case, setting):
             continue
-        r = S.run_case(case, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
-                       tolerance=setting.tolerance)
+        r = run_setting(case, setting)
         median, largest, error = one_step(setting, picked)
         rows.append(Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
                         finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
