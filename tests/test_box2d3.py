@@ -268,8 +268,13 @@ def test_the_cheapest_passing_setting_of_each_family():
     best = E.cheapest(rows)
     assert best["Box2D 2.4.1"].setting == "4 iterations"
     assert best["Box2D v3"] is None and "project" not in best       # an ablation is no candidate
-    table = E.verdict_table(rows)
+    table = E.verdict_table(rows)   # a column per family run
+    assert table.startswith("| scene | Box2D 2.4.1 | Box2D v3 |\n")
+    assert "| s | 4 iterations: 0.2 ms | none up to 16 substeps |\n" in table
+    other = [E.Row("t", "project", "residual 0.01", True, True, 0.5, 0.1, 0.0, 0.0, 0.0, 1.0, float("nan"), 0.0, 0)]
+    table = E.verdict_table(rows + other)   # a family that does not apply to a scene: n/a
     assert "| s | 4 iterations: 0.2 ms | none up to 16 substeps | n/a |" in table
+    assert "| t | n/a | n/a | residual 0.01: 0.5 ms |" in table
 
 
 def test_the_engines_study_refuses_an_unknown_scene(tmp_path):
