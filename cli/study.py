@@ -180,7 +180,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, jobs, overwrite, 
       dc study frontier --fast -o reports/frontier-fast
       dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40'
       dc study frontier -o reports/big --scenes 'pyramid 5050' --tolerances 1e-2
-      dc study frontier -o reports/engines --families 'Box2D 2.4.1,Box2D v3'
+      dc study frontier -o reports/frontier-engines --families 'Box2D 2.4.1,Box2D v3'
     """
     from deepcontact import atomic
     from deepcontact.errors import OptionError
