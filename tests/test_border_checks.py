@@ -52,18 +52,67 @@ def test_seeds_the_step_files_cannot_hold_are_refused_by_the_library(tmp_path):
         assert not (tmp_path / "run").exists()
 
 
-def test_a_step_of_another_engine_in_a_run_is_refused(tmp_path):
-    assert dc("simulate", *PILE, "--steps", "120", "-q", "-o", tmp_path / "v2").returncode == 0
-    assert dc("simulate", *PILE, "--steps", "120", "--engine", "box2d3", "-q", "-o", tmp_path / "v3").returncode == 0
-    run = shutil.copytree(tmp_path / "v2", tmp_path / "mixed")
-    step = "seed-000000/step-000100.xml"
-    shutil.copy(tmp_path / "v3" / step, run / step)
-    for args in (["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50", "--no-budgets", "-q", "-o",
-                  tmp_path / "r"],
-                 ["export", run, "--format", "csv", "-q", "-o", tmp_path / "t"]):
-        one_line_error(dc(*args), "stepped by box2d3", step)
-    r = dc("validate", "-q", run)
-    assert r.returncode == 1 and "stepped by box2d3, but lies in a run of box2d" in r.stdout + r.stderr
+@pytest.mark.parametrize("flag", ["--contact-hertz", "--damping-ratio", "--push-speed"])
+@pytest.mark.parametrize("value", ["1e-300", "1e-39", "-1e-45", "1.1e-38"])
+def test_soft_step_values_float32_would_lose_are_option_errors(tmp_path, flag, value):
+    # 1e-300 is 0 in v3's float32 (a contact of no stiffness), 1e-39 a denormal: refused before
+    # any work, as the file's own schema would refuse what v3 was given
+    r = dc("simulate", *PILE, "--engine", "box2d3", "--steps", "3", flag, value, "-q", "-o", tmp_path / "run")
+    option_error(r, flag)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("flag", ["--contact-hertz", "--damping-ratio", "--push-speed"])
+@pytest.mark.parametrize("value", ["1.2e-38", "1e-6", "3.4e38"])
+def test_soft_step_values_float32_holds_make_valid_runs(tmp_path, flag, value):
+    r = dc("simulate", *PILE, "--engine", "box2d3", "--steps", "3", flag, value, "-q", "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    assert dc("validate", "-q", tmp_path / "run").returncode == 0
+
+
+@pytest.fixture(scope="module")
+def mixed_run(tmp_path_factory):
+    """A 2.4.1 run whose step 100 is the v3 run's step 100 (same scene, seed and index), its
+    manifest's contact count made to match: only the engine tells the step is foreign."""
+    import json
+    tmp = tmp_path_factory.mktemp("mixed")
+    assert dc("simulate", *PILE, "--steps", "120", "-q", "-o", tmp / "v2").returncode == 0
+    assert dc("simulate", *PILE, "--steps", "120", "--engine", "box2d3", "-q", "-o", tmp / "v3").returncode == 0
+    run = shutil.copytree(tmp / "v2", tmp / "mixed")
+    shutil.copy(tmp / "v3" / MIXED_STEP, run / MIXED_STEP)
+    v3 = json.loads((tmp / "v3" / "manifest.json").read_text())["simulations"][0]["file_contact_points"][100]
+    manifest = json.loads((run / "manifest.json").read_text())
+    manifest["simulations"][0]["file_contact_points"][100] = v3
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    return run
+
+
+MIXED_STEP = "seed-000000/step-000100.xml"
+
+# every command that reads a run's step files
+READERS = {
+    "validate": lambda run, out: ["validate", "-q", run],
+    "replay": lambda run, out: ["validate", "--replay", "-q", run],
+    "rasterize": lambda run, out: ["rasterize", run, "-q", "-o", out],
+    "evaluate": lambda run, out: ["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50",
+                                  "--no-budgets", "-q", "-o", out],
+    "export": lambda run, out: ["export", run, "-q", "-o", out],
+    "export-csv": lambda run, out: ["export", run, "--format", "csv", "-q", "-o", out],
+    "render-run": lambda run, out: ["render", run, "--every", "50", "-q", "-o", f"{out}.gif"],
+    "render-viewer": lambda run, out: ["render", run, "--every", "50", "-q", "-o", f"{out}.html"],
+}
+
+
+@pytest.mark.parametrize("reader", sorted(READERS))
+def test_a_step_of_another_engine_in_a_run_is_refused_by_every_reader(mixed_run, tmp_path, reader):
+    r = dc(*READERS[reader](mixed_run, tmp_path / "out"))
+    if reader == "validate":   # (one line a bad file, then the count)
+        assert r.returncode == 1 and "stepped by box2d3, but lies in a run of box2d" in r.stdout + r.stderr
+    elif reader == "export":   # (FCLIB: 2.4.1's problem only, said before the origin)
+        one_line_error(r, "step-000100.xml")
+    else:
+        one_line_error(r, "stepped by box2d3", MIXED_STEP)
+    assert not any(p.name.startswith("out") for p in tmp_path.iterdir())
 
 
 def test_jobs_beyond_the_work_fork_no_more_workers(tmp_path, monkeypatch):

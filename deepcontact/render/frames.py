@@ -32,6 +32,7 @@ class Clip:
     files: list          # every k-th step file
     total: int           # step files in the simulation
     all_files: list = None   # every step file of the simulation (the impulse scale is the run's)
+    engine: str = None   # the run's engine, which each step file must name (None: not known)
 
 
 def simulation_files(run_dir, seed=None, every=1):
@@ -51,13 +52,13 @@ def simulation_files(run_dir, seed=None, every=1):
         raise InputError("no step files here (expected seed-NNNNNN/step-NNNNNN.xml)", run_dir)
     s = sims[0]
     return Clip(path=run_dir, scene=s.scene, seed=s.seed, files=s.files[::every], total=len(s.files),
-                all_files=list(s.files))
+                all_files=list(s.files), engine=s.engine)
 
 
 def read_frame(clip, path):
     header, bodies, contacts = read_step(path, validate=False)
     if clip.scene is not None:
-        check_origin(header, clip.scene, clip.seed, path)
+        check_origin(header, clip.scene, clip.seed, path, clip.engine)
     return header, bodies, contacts
 
 

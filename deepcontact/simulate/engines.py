@@ -26,6 +26,9 @@ from .build import build_world, build_world3
 from .pgs_loop import PGSStepper, check_loop, check_scene_for_loop
 
 
+FLOAT32_TINY = 2.0 ** -126   # float32's smallest normal number (about 1.18e-38)
+
+
 def _float32(value):
     """value as Box2D's float32 holds it (inf beyond its range)."""
     try:
@@ -67,6 +70,12 @@ class SoftStep:
             if not math.isfinite(_float32(value)):   # v3 takes float32: 1e39 would be inf there
                 raise OptionError(f"{name.replace('_', ' ')} {value!r} is beyond float32 (Box2D v3's floats: at "
                                   f"most about 3.4e38)", flag)
+            # v3 takes float32, and the step file records what v3 got: 1e-300 would be 0 there (a
+            # contact of no stiffness, which the file's own schema refuses), 1e-40 a denormal
+            if value != 0 and abs(_float32(value)) < FLOAT32_TINY:
+                least = f"at least {FLOAT32_TINY:.3g}" if lowest == "positive" else f"0 or at least {FLOAT32_TINY:.3g}"
+                raise OptionError(f"{name.replace('_', ' ')} {value!r} is below float32's smallest normal number "
+                                  f"(Box2D v3's floats would hold 0 or a denormal): give {least}", flag)
 
 
 @functools.lru_cache(maxsize=None)

@@ -65,7 +65,7 @@ def manifold_problem(contacts):
 def read_step_for_grid(path):
     """The fields rasterizing needs, checked, without schema validation (fast)."""
     header, bodies, contacts = read_step(path, validate=False)
-    header = {k: header[k] for k in ("scene", "seed", "index")}
+    header = {k: header[k] for k in ("scene", "seed", "index", "solver")}   # (solver: its engine)
     return header, {k: bodies[k] for k in _GRID_BODY}, {k: contacts[k] for k in _GRID_CONTACT}
 
 
@@ -78,7 +78,7 @@ def check_origin(header, scene, seed, path, engine=None):
     if header["scene"] != scene or header["seed"] != seed:
         raise InputError(f"the step file is of scene {header['scene']!r} seed {header['seed']}, but lies in a "
                          f"simulation of scene {scene!r} seed {seed} (copied from another run?)", path, 1)
-    if engine is not None and "solver" in header and engine_of(header) != engine:
+    if engine is not None and engine_of(header) != engine:   # (a header without <solver> is a reader's bug)
         raise InputError(f"the step file was stepped by {engine_of(header)}, but lies in a run of {engine} (copied "
                          f"from another run?)", path, 1)
     if "index" in header and header["index"] != step_index(path):
