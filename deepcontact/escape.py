@@ -48,16 +48,20 @@ def fill(template, **values):
 
 # --- Markdown and CSV: the reports' other two contexts --------------------------------------------
 
-_MD_SPECIAL = re.compile(r"([\\`*\[\]<>|!&])")
+# Characters that start code, bold, a link, an image, raw HTML, an entity or a cell boundary; the
+# ':' of '://' and the '.' of 'www.', which GitHub's parser would turn into a live link.
+_MD_SPECIAL = re.compile(r"[\\`*\[\]<>|!&]|:(?=//)|(?<=www)\.", re.IGNORECASE)
 
 
 def md_text(text):
     """Text for a markdown report (a paragraph or a table cell), shown as written: every character
     that could start code, bold, a link, an image, raw HTML, an entity or a cell boundary is
-    backslash-escaped (CommonMark's and GitHub's rule; html.markdown_to_html reads it back), and a
-    line break is a space (a name never starts a block, so # and list marks stay). Underscores
-    stay as typed: inside a word (plug_in_names) no renderer takes them for emphasis."""
-    return _MD_SPECIAL.sub(r"\\\1", re.sub(r"[\r\n\u2028\u2029]+", " ", str(text)))
+    backslash-escaped (CommonMark's and GitHub's rule; html.markdown_to_html reads it back), and so
+    are the ':' of '://' and the '.' of 'www.', so that no bare address becomes a link (GitHub links
+    them as it parses; an escaped character is no longer one). A line break is a space (a name
+    never starts a block, so # and list marks stay). Underscores stay as typed: inside a word
+    (plug_in_names) no renderer takes them for emphasis."""
+    return _MD_SPECIAL.sub(lambda m: "\\" + m.group(), re.sub(r"[\r\n\u2028\u2029]+", " ", str(text)))
 
 
 _FORMULA = ("=", "+", "-", "@", "\t", "\r", "|")

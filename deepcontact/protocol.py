@@ -75,12 +75,15 @@ def current(jobs=1):
 
 
 def protocol_line(p):
-    """The protocol in one sentence, for a report."""
+    """The protocol in one sentence, for a markdown report. The command line is the user's text
+    (run paths, plug-in names): escaped as text, never a code span, which a backtick in a path
+    would close, leaving what follows live markdown."""
+    from .escape import md_text
     v = p["versions"]
     load = "unknown" if p["load_average"] is None else ", ".join(f"{x:g}" for x in p["load_average"])
-    command = f" Command: `{p['command']}`." if p.get("command") else ""
+    command = f" Command: {md_text(p['command'])}." if p.get("command") else ""
     return (f"Measured with {p['threads']} torch thread{'s' if p['threads'] != 1 else ''} per process and "
-            f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {p['cpu']} ({p['cores']} cores; "
+            f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {md_text(p['cpu'])} ({p['cores']} cores; "
             f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}"
             f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}, numpy "
             f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}")
