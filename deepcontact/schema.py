@@ -52,6 +52,17 @@ def parse(path):
     return etree.parse(str(path), parser)
 
 
+def file_bytes(path):
+    """A file's bytes, a gzip-compressed one inflated within the bound every reader holds it to
+    (OSError past it, before holding more than the bound)."""
+    with open(path, "rb") as f:
+        compressed = f.read(2) == b"\x1f\x8b"
+    if not compressed:
+        with open(path, "rb") as f:
+            return f.read()
+    return _inflated(path, max(MIN_INFLATED, MAX_RATIO * os.stat(path).st_size))
+
+
 def _inflated(path, limit):
     """A gzip file's bytes, or OSError once they pass `limit` (before holding more than it)."""
     import zlib

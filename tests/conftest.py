@@ -261,3 +261,17 @@ def step_problems(generator, params, wanted, seed=0):
                                                gravity=scene.effects.gravity or (0.0, 0.0),
                                                block_solve=scene.solver.block_solve))
     return out
+
+
+# Every command that reads a run's step files: (run, an output path) -> its arguments.
+RUN_READERS = {
+    "validate": lambda run, out: ["validate", "-q", run],
+    "replay": lambda run, out: ["validate", "--replay", "-q", run],
+    "rasterize": lambda run, out: ["rasterize", run, "-q", "-o", out],
+    "evaluate": lambda run, out: ["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50",
+                                  "--no-budgets", "-q", "-o", out],
+    "export": lambda run, out: ["export", run, "-q", "-o", out],
+    "export-csv": lambda run, out: ["export", run, "--format", "csv", "-q", "-o", out],
+    "render-run": lambda run, out: ["render", run, "--every", "50", "-q", "-o", f"{out}.gif"],
+    "render-viewer": lambda run, out: ["render", run, "--every", "50", "-q", "-o", f"{out}.html"],
+}

@@ -8,7 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import dc, dc_command, one_line_error, option_error
+from conftest import RUN_READERS, dc, dc_command, one_line_error, option_error
 from deepcontact.errors import InputError, OptionError
 
 pytestmark = pytest.mark.audit
@@ -89,23 +89,9 @@ def mixed_run(tmp_path_factory):
 
 MIXED_STEP = "seed-000000/step-000100.xml"
 
-# every command that reads a run's step files
-READERS = {
-    "validate": lambda run, out: ["validate", "-q", run],
-    "replay": lambda run, out: ["validate", "--replay", "-q", run],
-    "rasterize": lambda run, out: ["rasterize", run, "-q", "-o", out],
-    "evaluate": lambda run, out: ["evaluate", "--no-plots", run, "--starts", "zero", "--every", "50",
-                                  "--no-budgets", "-q", "-o", out],
-    "export": lambda run, out: ["export", run, "-q", "-o", out],
-    "export-csv": lambda run, out: ["export", run, "--format", "csv", "-q", "-o", out],
-    "render-run": lambda run, out: ["render", run, "--every", "50", "-q", "-o", f"{out}.gif"],
-    "render-viewer": lambda run, out: ["render", run, "--every", "50", "-q", "-o", f"{out}.html"],
-}
-
-
-@pytest.mark.parametrize("reader", sorted(READERS))
+@pytest.mark.parametrize("reader", sorted(RUN_READERS))
 def test_a_step_of_another_engine_in_a_run_is_refused_by_every_reader(mixed_run, tmp_path, reader):
-    r = dc(*READERS[reader](mixed_run, tmp_path / "out"))
+    r = dc(*RUN_READERS[reader](mixed_run, tmp_path / "out"))
     if reader == "validate":   # (one line a bad file, then the count)
         assert r.returncode == 1 and "stepped by box2d3, but lies in a run of box2d" in r.stdout + r.stderr
     elif reader == "export":   # (FCLIB: 2.4.1's problem only, said before the origin)

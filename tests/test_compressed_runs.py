@@ -12,7 +12,7 @@ import pytest
 from deepcontact import schema
 from deepcontact.grid.dataset import GridDataset
 
-from conftest import HOSTILE_PILE, dc, one_line_error, written
+from conftest import HOSTILE_PILE, RUN_READERS, dc, one_line_error, written
 
 
 @pytest.fixture(scope="module")
@@ -115,3 +115,34 @@ def test_the_manifests_contact_counts_are_checked_against_the_files(runs, tmp_pa
     counts[k] = "many"
     (bad / "manifest.json").write_text(json.dumps(manifest))
     one_line_error(dc("rasterize", str(bad), "-o", str(tmp_path / "d")), "file_contact_points")
+
+
+@pytest.fixture(scope="module")
+def bombs(runs, tmp_path_factory):
+    """The compressed run twice, each with one step file a gzip bomb: the step as written, padded
+    with 64 MiB of white space (valid XML: a reader that inflated it all would read it) that gzip
+    packs into 64 kB, a thousandth. One at a step the manifest counts no contact points for (read
+    only to check that count), one at a step with contacts."""
+    made = {}
+    counts = json.loads((runs[1] / "manifest.json").read_text())["simulations"][0]["file_contact_points"]
+    for kind, index in (("contactless", counts.index(0)), ("contacts", 100)):
+        assert (counts[index] == 0) == (kind == "contactless")
+        run = shutil.copytree(runs[1], tmp_path_factory.mktemp("bomb") / "run")
+        step = run / f"seed-000000/step-{index:06d}.xml.gz"
+        xml = gzip.decompress(step.read_bytes())
+        end = xml.rindex(b"</step>")
+        step.write_bytes(gzip.compress(xml[:end] + b" " * (64 << 20) + xml[end:], 9))
+        assert step.stat().st_size < 128 << 10
+        made[kind] = run, step
+    return made
+
+
+@pytest.mark.parametrize("kind", ["contactless", "contacts"])
+@pytest.mark.parametrize("reader", sorted(RUN_READERS))
+def test_every_reader_bounds_what_a_compressed_step_inflates_to(bombs, tmp_path, reader, kind):
+    run, step = bombs[kind]
+    r = dc(*RUN_READERS[reader](run, tmp_path / "out"))
+    if reader == "validate":
+        assert r.returncode == 1 and "inflates to more than 64 times" in r.stdout + r.stderr, r.stdout + r.stderr
+    else:
+        one_line_error(r, step.name, "inflates to more than 64 times")

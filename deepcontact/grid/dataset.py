@@ -18,13 +18,11 @@ Train/validation splits are by simulation, never by step (neighbouring steps are
 """
 import dataclasses
 import errno
-import gzip
 import hashlib
 import io
 import json
 import logging
 import os
-import zlib
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +34,7 @@ from .._box2d import box2d_version
 from ..errors import InputError, count, show_path
 from ..resources import check_disk, check_memory
 from ..scene.xml import read_scene
+from ..schema import file_bytes
 from ..step.reader import check_origin, read_step_for_grid
 from ..step import run_folder
 from ..step.run_folder import MANIFEST, read_run, require_regular, simulation_folder, step_path
@@ -67,12 +66,10 @@ class Simulation(run_folder.Simulation):
 def _contact_count(path):
     """The contact count a step file declares, found without parsing it (and checked later,
     when the file is read)."""
-    data = Path(path).read_bytes()
-    if data[:2] == b"\x1f\x8b":   # dc simulate --compress
-        try:
-            data = gzip.decompress(data)
-        except (OSError, EOFError, zlib.error) as e:
-            raise InputError(f"cannot read: {e}", path) from None
+    try:   # (plain, or dc simulate --compress: inflated within every reader's bound)
+        data = file_bytes(path)
+    except OSError as e:
+        raise InputError(f"cannot read: {e.strerror or e}", path) from None
     i = data.find(b'<contacts count="')
     if i < 0:
         raise InputError("not a step file (no <contacts count=...>)", path)
