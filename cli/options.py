@@ -251,7 +251,7 @@ def command(name):
         def run(*args, verbose=0, quiet=0, **kwargs):
             setup_logging(verbose, quiet)
             _take_aliases(name, kwargs)
-            interrupts.install()
+            interrupts.install(f"dc {name}")
             atomic.completed.clear()
 
             def fail(message):

@@ -40,6 +40,9 @@ _locks = {}
 # Outputs swapped in during this process: an interruption that comes after is said as such.
 completed = []
 
+# Partial folders this process is building (folder): what a hard stop removes.
+_building = set()
+
 
 def short_name(name):
     """name, or for one too long to take a suffix, its start and a hash of the whole (still unique)."""
@@ -109,6 +112,20 @@ def _remove_claimed(folder, name, ours, why):
     elif kind == "file":
         log.info("removing %s, left by an interrupted earlier run", p)
         _remove_quietly(p)
+
+
+def _abandon():
+    """What unwinding would remove, removed from another thread while the main thread is stuck in
+    a plug-in that swallowed the stop (interrupts' deadline, which then ends the process): the
+    partial folders being built, the temporary files noted in our locks, and the locks. A folder
+    written in place keeps what its record lists, as after a kill."""
+    import shutil
+    for tmp in list(_building):
+        shutil.rmtree(tmp, ignore_errors=True)
+    for key, (_, names) in list(_locks.items()):
+        for name in names:
+            _remove_quietly(Path(key).parent / name)
+        _remove_quietly(beside(key, "lock"))
 
 
 def umask():
@@ -449,6 +466,7 @@ def folder(path, command="dc"):
             try:
                 tmp = Path(tempfile.mkdtemp(prefix=f".{short_name(path.name)}.partial-{os.getpid()}-",
                                             dir=path.parent))
+                _building.add(tmp)
                 os.chmod(tmp, 0o777 & ~umask())   # the output's own mode: mkdtemp's 0700 is for secrets
                 _write_record(tmp, command, "partial")
             except OSError as e:
@@ -472,6 +490,8 @@ def folder(path, command="dc"):
         if tmp is not None and not swapped:
             shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        _building.discard(tmp)
 
 
 # --- Output folders ----------------------------------------------------------------------------
@@ -561,3 +581,7 @@ def _named(path, work):
         if name.startswith(os.fspath(work)):
             name = os.fspath(path) + name[len(os.fspath(work)):]
         raise OSError(e.errno, e.strerror, name) from None
+
+
+from . import interrupts as _interrupts   # (interrupts imports nothing of ours)
+_interrupts.at_hard_stop(_abandon)

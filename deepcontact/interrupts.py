@@ -14,6 +14,12 @@ import signal
 import sys
 from contextlib import contextmanager
 
+# Seconds a plug-in's code may go on after a stop signal before dc ends the process itself: a
+# guest that swallows every stop (a loop around a bare except) would otherwise keep dc alive
+# until SIGKILL. After a repeated signal the guest gets REPEAT_GRACE to unwind instead.
+GUEST_DEADLINE = 2.0
+REPEAT_GRACE = 0.5
+
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 _held = 0          # depth of held() blocks the main thread is in
@@ -22,6 +28,9 @@ _received = None   # the first stop signal since install(), raised or not
 _installed = False # whether install() has run in this process (dc's commands; not a library caller)
 _guests = 0        # depth of plug-in calls in progress (plugins.guest)
 _hook = None       # Python's unraisable hook, while install()'s is in place
+_command = "dc"    # the command, for the line a hard stop prints
+_hard_stops = []   # clean-ups run before a hard stop ends the process (atomic's: partial outputs, locks)
+_watching = False  # whether a deadline thread is armed
 
 
 class Terminated(KeyboardInterrupt):
@@ -39,6 +48,8 @@ def _on_signal(signum, frame):
     for s in STOP_SIGNALS:
         signal.signal(s, _on_repeat)
     _received = _received or signum
+    if _guests:   # in a plug-in's code, which may swallow the stop: it gets a deadline
+        _arm_deadline(GUEST_DEADLINE)
     if _held:
         _pending = signum
         return
@@ -46,9 +57,56 @@ def _on_signal(signum, frame):
 
 
 def _on_repeat(signum, frame):
-    """A stop after the first: ignored while the command cleans up, raised in a plug-in's code."""
+    """A stop after the first: ignored while the command cleans up, raised in a plug-in's code
+    (which swallowed the first), and the process ended if the plug-in swallows this one too."""
     if _guests and not _held:
+        _arm_deadline(REPEAT_GRACE)
         raise Terminated(_received or signum)
+
+
+def at_hard_stop(clean_up):
+    """Registers clean_up(), run (in another thread) before a hard stop ends the process."""
+    _hard_stops.append(clean_up)
+
+
+def _arm_deadline(seconds):
+    """In `seconds`, ends the process if plug-in code is still running then (it swallowed the stop).
+    A thread, since the main thread is the plug-in's; it cleans up what the command was building
+    (at_hard_stop) and exits 128 + the signal, as the unwinding would have."""
+    global _watching
+    if _watching:
+        return
+    import threading
+    import time
+    _watching = True
+    due = time.monotonic() + seconds
+
+    def watch():
+        global _watching
+        while time.monotonic() < due:
+            time.sleep(0.05)
+            if not _guests:   # the guest gave up: the command unwinds by itself
+                _watching = False
+                return
+        _hard_stop(_received or signal.SIGTERM)
+    threading.Thread(target=watch, name="dc-stop-deadline", daemon=True).start()
+
+
+def _hard_stop(signum):
+    """Ends the process from the deadline thread: the clean-ups, one line, exit 128 + signum."""
+    for clean_up in _hard_stops:
+        try:
+            clean_up()
+        except BaseException:   # (whatever is left, the next command on the output finds and removes)
+            pass
+    try:
+        sys.stderr.write(f"{_command}: interrupted ({signal.Signals(signum).name}); a plug-in went on after the "
+                         f"stop, so dc ended it; no partial output was left, and output being replaced "
+                         f"(--overwrite) is as it was\n")
+        sys.stderr.flush()
+    except BaseException:
+        pass
+    os._exit(128 + signum)
 
 
 def _unraisable(unraisable):
@@ -66,11 +124,12 @@ def _unraisable(unraisable):
     (_hook or sys.__unraisablehook__)(unraisable)
 
 
-def install():
-    """Stop signals raise Terminated from now on (in the main thread)."""
-    global _pending, _received, _installed, _hook
+def install(command="dc"):
+    """Stop signals raise Terminated from now on (in the main thread); command names the command
+    in the line a hard stop prints."""
+    global _pending, _received, _installed, _hook, _command
     _pending = _received = None
-    _installed = True
+    _installed, _command = True, command
     for s in STOP_SIGNALS:
         signal.signal(s, _on_signal)
     if sys.unraisablehook is not _unraisable:

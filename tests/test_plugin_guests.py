@@ -5,6 +5,7 @@ command ends in one line naming it (exit 1), or goes on unharmed; the user's own
 
 The misbehaviours are generated: each one in each kind of plug-in, at import and at call."""
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -303,3 +304,66 @@ def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, mo
     finally:
         forget("guest_net_fine")
     assert origin["origin"] == "plug-in" and origin["target"] == "guest_net_fine:Net"
+
+
+# --- A guest that swallows every stop: a second signal, or the deadline, ends dc, leaving nothing ---
+
+STUBBORN = """
+import pathlib, time
+import numpy as np
+from deepcontact.solver.methods import MethodResult
+from deepcontact.warmstart.starts import StartValue
+def stubborn():
+    pathlib.Path(__file__).with_name("called").touch()   # (the test's cue: the guest is running)
+    while True:
+        try:
+            time.sleep(0.01)
+        except BaseException:   # every stop, every time
+            pass
+class Start:
+    def __call__(self, ctx):
+        stubborn()
+class Method:
+    def __call__(self, problem, normal, tangent, settings):
+        stubborn()
+"""
+# each stop-signal path a plug-in's code runs in: the command line around the guest `guest_stubborn`
+GUEST_PATHS = {
+    "replay start": lambda run, out: ["evaluate", "--no-plots", run, "--starts", "builtin,guest_stubborn:Start",
+                                      "--no-budgets", "-o", out],
+    "closed-loop start": lambda run, out: ["evaluate", "--no-plots", run, "--closed-loop", "--steps", "60",
+                                           "--starts", "guest_stubborn:Start", "-o", out],
+    "simulate method": lambda run, out: ["simulate", "pile", "--steps", "60", "--solver", "pgs", "--tolerance",
+                                         "1e-4", "--accelerate", "guest_stubborn:Method", "-o", out],
+}
+SIGNALS = {"TERM, TERM": (signal.SIGTERM, signal.SIGTERM), "TERM, INT": (signal.SIGTERM, signal.SIGINT),
+           "INT, INT": (signal.SIGINT, signal.SIGINT), "TERM alone": (signal.SIGTERM,)}
+
+
+@pytest.mark.parametrize("path, signals", [("replay start", k) for k in SIGNALS]
+                         + [("closed-loop start", "TERM, TERM"), ("simulate method", "INT, INT")])
+def test_a_guest_that_swallows_every_stop_cannot_keep_dc_alive(run, tmp_path, path, signals):
+    from deepcontact import interrupts
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "guest_stubborn.py").write_text(STUBBORN)
+    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", *map(str, GUEST_PATHS[path](run, tmp_path / "out"))],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(mods)})
+    try:
+        wait_for(lambda: (mods / "called").exists() or proc.poll() is not None)
+        first, *then = SIGNALS[signals]
+        proc.send_signal(first)
+        sent = time.monotonic() + interrupts.GUEST_DEADLINE   # (one signal: from the deadline on)
+        for s in then:
+            time.sleep(0.3)
+            sent = time.monotonic()
+            proc.send_signal(s)
+        _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + first, err
+    assert took < 2, took   # after the second signal (or the deadline)
+    assert "interrupted" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mods"]
