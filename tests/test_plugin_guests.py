@@ -367,3 +367,34 @@ def test_a_guest_that_swallows_every_stop_cannot_keep_dc_alive(run, tmp_path, pa
     assert took < 2, took   # after the second signal (or the deadline)
     assert "interrupted" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mods"]
+
+
+class _Editor:
+    """A start object handed to the library directly (not by name): it edits what it is given."""
+
+    def __init__(self, edit):
+        self.edit = edit
+
+    def __call__(self, ctx):
+        from deepcontact.warmstart.starts import StartValue
+        exec(self.edit, {"problem": ctx.problem, "ctx": ctx})
+        return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {})
+
+
+def _library_rows(path, run, starts):
+    import deepcontact as dcl
+    if path == "evaluate_starts":
+        rows = dcl.evaluate_starts([run], starts, every=20)
+        return sorted((r.start, r.seed, r.step, r.iterations, r.residual) for r in rows if r.start != "editor")
+    scene = dcl.read_scene(Path(run) / "seed-000000" / "scene.xml")
+    return [(r.start, r.iterations.tolist(), r.drift.tolist()) for r in dcl.closed_loop(scene, starts, steps=40)
+            if r.start != "editor"]
+
+
+@pytest.mark.parametrize("path", ["evaluate_starts", "closed_loop"])
+def test_what_a_start_handed_to_the_library_does_to_its_problem_no_other_start_sees(run, path):
+    import deepcontact as dcl
+    clean = _library_rows(path, run, dcl.make_starts(["builtin", "prev", "zero"]))
+    for edit in EDITS + ["ctx.bodies['velocity'][:] = 99.0", "ctx.previous.clear()"]:
+        dirty = _library_rows(path, run, {"editor": _Editor(edit), **dcl.make_starts(["builtin", "prev", "zero"])})
+        assert dirty == clean, edit

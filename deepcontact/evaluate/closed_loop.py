@@ -24,7 +24,7 @@ from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
 from ..solver.settings import SolveSettings
-from ..warmstart.starts import Checked, StepContext, is_oracle, private_copy, trait
+from ..warmstart.starts import Checked, StepContext, asks, is_oracle, private_copy
 from .replay import variants
 
 if TYPE_CHECKING:   # (for the annotations only)
@@ -57,7 +57,7 @@ class _Adapter:
 
     def __init__(self, name, start):
         self.name, self.start, self.timing = name, start, []
-        self.needs_reference = trait(name, "needs_reference")   # (the reference costs a solve a step)
+        self.needs_reference = asks(name, start, "needs_reference")   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):

@@ -81,6 +81,8 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
     """Every start with every acceleration and every w; labels are the start names, with "+nncg"
     when accelerated and "@w" unless w is only 1."""
     from ..solver.methods import takes_relaxation
+    from ..warmstart.starts import held_to_contract
+    starts = {name: held_to_contract(name, start) for name, start in starts.items()}
     plain = list(relaxations) == [1.0]
     out, used = [], set()
     for a in accelerations:

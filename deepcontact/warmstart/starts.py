@@ -74,6 +74,15 @@ def seen_by(name, ctx, variant="", start=None):
     return private_copy(out) if isinstance(start, Checked) else out
 
 
+def held_to_contract(name, start):
+    """start as a replay or the closed loop runs it: a built-in start as it is, anything else (a
+    plug-in, or an object a library caller hands in a starts table) in Checked, so that it sees
+    its own copy of each step and its answer is checked, whichever way it came."""
+    if isinstance(start, Checked) or (name in NAMES and type(start).__module__.startswith("deepcontact.")):
+        return start
+    return Checked(name, start)
+
+
 def private_copy(ctx):
     """A plug-in's own copy of the step (its cache kept): whatever the start does to it, no other
     start and no later row sees. Made by the caller before the clock starts: it is the platform's
