@@ -231,5 +231,6 @@ def read_step_for_grid(path):
     root = _parse(path, validate=False)
     bodies = _Columns(root, path, "bodies", "body").read(_BODY, _BODY_GRID)
     contacts = _Columns(root, path, "contacts", "contact").read(_CONTACT, _CONTACT_GRID)
-    header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path))
+    header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path),
+                  solver=dict(_child(_child(root, "header", path), "solver", path).attrib))   # (its engine)
     return header, bodies, contacts
