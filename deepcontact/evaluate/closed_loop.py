@@ -149,7 +149,11 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
     its own): one LoopResult each (iterations, times, drift from the reference
     trajectory, penetration, energy, residuals). reference: a reference_trajectory to reuse. Each
     step stepped is reported to workers.progress."""
-    steps = steps or scene.steps
+    from .. import arguments
+    from ..scene.model import Scene
+    arguments.instance(scene, "scene", Scene, "a Scene (read_scene or generate makes one)")
+    arguments.starts(starts, "starts")
+    steps = scene.steps if steps is None else arguments.whole(steps, "steps", 1)
     ref = reference or reference_trajectory(scene, steps)
     results = []
     for v in variants(starts, relaxations, accelerations):

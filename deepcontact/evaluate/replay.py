@@ -257,7 +257,10 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
     jobs > 1: simulations side by side in worker processes (the same rows, in the same order; the
     times are each worker's own). progress(n) is called as n more step files are done (each
     step file as it is reached, in any worker)."""
-    plan = _plan(run_dirs)
+    from .. import arguments
+    arguments.starts(starts, "starts")
+    every = arguments.whole(every, "every", 1)
+    plan = _plan(arguments.paths(run_dirs, "run_dirs"))
     table = variants(starts, relaxations, accelerations)
     tuned = {}
     for v in table:

@@ -402,7 +402,8 @@ class GridDataset:
     """A dataset folder, memory-mapped. `torch_dataset(split)` gives torch tensors."""
 
     def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
+        from .. import arguments
+        self.path = Path(arguments.path(path, "path"))
         meta = self.path / "metadata.json"
         if not meta.is_file():
             raise InputError("not a dataset (no metadata.json)", self.path)

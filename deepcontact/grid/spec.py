@@ -32,13 +32,13 @@ def _grid_problem(g):
         return f"grid 'cell' and 'h' must be positive, not {cell:g} and {h:g}"
     if max(abs(x0), abs(y0)) > MAX_COORDINATE or cell < 1e-6 * max(1.0, abs(x0), abs(y0)):
         # (scenes lie within 1e6 m; float32 nodes this far out, or this close, would coincide)
-        return (f"grid origin {x0:g},{y0:g} must lie within {MAX_COORDINATE:g} m, its cell "
+        return (f"grid origin (x0, y0) = {x0:g},{y0:g} must lie within {MAX_COORDINATE:g} m, its cell "
                 f"{cell:g} m above a millionth of it")
     nx, ny = g.nx, g.ny
     if not all(type(n) is int and n > 0 for n in (nx, ny)) or nx * ny > MAX_NODES:
         return f"grid 'nx' and 'ny' must be positive integers, at most {MAX_NODES:,} nodes in all"
     if max(nx, ny) * cell > 2 * MAX_COORDINATE:
-        return f"the grid spans {max(nx, ny) * cell:g} m, more than {2 * MAX_COORDINATE:g}"
+        return f"the grid spans {max(nx, ny) * cell:g} m (cell times nx, ny), more than {2 * MAX_COORDINATE:g}"
     if not isinstance(g.kernel, str) or g.kernel not in KERNELS:
         return f"grid 'kernel' must be one of {', '.join(KERNELS)}, not {g.kernel!r}"
     if not isinstance(g.renormalize, bool):

@@ -60,7 +60,16 @@ def rasterize(spec: "GridSpec", bodies: dict, contacts: dict,
     them) on the grid `spec`: (len(channels), H, W) float32. Body channels are splatted from the
     centres of mass of dynamic and kinematic bodies, contact channels from the contact points;
     the names are ALL_CHANNELS' (by default the network's inputs, then its labels)."""
-    channels = list(channels)
+    from .. import arguments
+    from .spec import GridSpec
+    arguments.instance(spec, "spec", GridSpec, "a GridSpec")
+    channels = arguments.texts(list(channels) if isinstance(channels, tuple) else channels, "channels")
+    if not channels:
+        raise arguments.refuse("channels", f"a non-empty list of channels from {', '.join(ALL_CHANNELS)}", channels)
+    check_channels(channels, "rasterize")
+    # (the columns read_step and World.step give; the channels read some of them)
+    arguments.mapping(bodies, "bodies", ("type", "center", "mass", "velocity", "omega"))
+    arguments.mapping(contacts, "contacts", ("position", "normal", "normal_impulse", "tangent_impulse"))
     out = np.empty((len(channels), spec.ny, spec.nx), dtype=np.float32)
     moving = bodies["type"] != 0
     body_names = [n for n in channels if n in BODY_CHANNELS]

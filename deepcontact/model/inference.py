@@ -36,7 +36,9 @@ class Predictor:
     timed default; torch's own, a thread per core, spins against other processes)."""
 
     def __init__(self, checkpoint: str | os.PathLike, threads: int = 1):
-        ck = load_checkpoint(checkpoint)
+        from .. import arguments
+        threads = arguments.whole(threads, "threads", 1, 1024)
+        ck = load_checkpoint(arguments.path(checkpoint, "checkpoint"))
         self.spec = GridSpec.from_dict(ck["dataset"]["grid"])   # (checked by load_checkpoint)
         self.inputs = list(ck["dataset"]["inputs"])
         self.targets = list(ck["targets"])

@@ -297,6 +297,10 @@ def body_count(name, params=None):
 
 
 def _checked_params(name, params):
+    from .. import arguments
+    arguments.text(name, "name")
+    if params is not None:
+        arguments.mapping(params, "params")
     if name not in GENERATORS:
         raise InputError(f"unknown scene generator {name!r}; choose from {', '.join(GENERATORS)}")
     defaults = parameters(name)

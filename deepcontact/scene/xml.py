@@ -118,8 +118,8 @@ def _shape(el):
 
 def read_scene(path: str | os.PathLike) -> Scene:
     """Read, validate against schemas/scene.xsd and check a scene file. Raises InputError."""
-    from .. import schema  # lxml: only needed when reading
-    kind, tree, errors = schema.validate(path, "scene")
+    from .. import arguments, schema  # lxml: only needed when reading
+    kind, tree, errors = schema.validate(arguments.path(path, "path"), "scene")
     if errors:
         first = errors[0]
         more = f" (and {len(errors) - 1} more errors)" if len(errors) > 1 else ""

@@ -98,6 +98,14 @@ class Box2D:
 
     def __init__(self, solver: SolveSettings | None = None, start: str = "builtin",
                  velocity_iterations: int | None = None, start_fn: Callable | None = None):
+        from .. import arguments
+        if solver is not None:
+            arguments.instance(solver, "solver", SolveSettings, "a SolveSettings (or None: Box2D's own solver)")
+        arguments.text(start, "start")
+        if velocity_iterations is not None:
+            arguments.whole(velocity_iterations, "velocity_iterations")
+        if start_fn is not None and not callable(start_fn):
+            raise arguments.refuse("start_fn", "a callable", start_fn)
         if solver is not None:
             check_loop(solver, start, own_start=start_fn is not None)
             if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
@@ -162,7 +170,8 @@ class Box2D3:
     solver = None
 
     def __init__(self, soft: SoftStep | None = None):
-        self.soft = SoftStep() if soft is None else soft
+        from .. import arguments
+        self.soft = SoftStep() if soft is None else arguments.instance(soft, "soft", SoftStep, "a SoftStep")
 
     def check(self, scene, source=None):
         """Refuses a step whose work would run for hours, and a polygon v3 cannot hull (naming it)."""

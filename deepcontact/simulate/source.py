@@ -17,6 +17,13 @@ class SceneSource:
     velocity_iterations: int = None
 
     def __post_init__(self):
+        from .. import arguments
+        arguments.path(self.spec, "spec")   # (a scene file's path or a generator's name)
+        if self.steps is not None:
+            arguments.whole(self.steps, "steps", 1)
+        if self.velocity_iterations is not None:
+            arguments.whole(self.velocity_iterations, "velocity_iterations")
+        arguments.mapping(self.params, "params")
         self.is_file = Path(self.spec).is_file()
         if self.is_file:
             if self.params:

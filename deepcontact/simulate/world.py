@@ -7,7 +7,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from .build import check_overlaps
-from .engines import Box2D
+from .engines import Box2D, Box2D3
 from .stepping import Stepped, steps
 
 if TYPE_CHECKING:   # (for the annotations only)
@@ -27,9 +27,14 @@ class World:
 
     def __init__(self, scene: "Scene | str | os.PathLike", engine: "Box2D | Box2D3 | None" = None,
                  record: bool = True):
+        from .. import arguments
+        from ..scene.model import Scene
         if isinstance(scene, (str, os.PathLike)):
             from ..scene.xml import read_scene
             scene = read_scene(scene)
+        arguments.instance(scene, "scene", Scene, "a Scene or a scene file's path")
+        if engine is not None:
+            arguments.instance(engine, "engine", (Box2D, Box2D3), "an engine: Box2D() or Box2D3()")
         self.scene = scene
         self.engine = Box2D() if engine is None else engine
         check_overlaps(scene)

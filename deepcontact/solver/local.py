@@ -103,4 +103,7 @@ def residual_scale(lp: LocalProblem) -> float:
 
 def residual(lp: LocalProblem, r: np.ndarray) -> float:
     """The solver's normalised min-map residual of r on the local problem (docs/solver.md)."""
+    from .. import arguments
+    arguments.instance(lp, "lp", LocalProblem, "a LocalProblem (local_problem returns one)")
+    r = arguments.vector(r, "r", len(lp.q))
     return float(point_residuals(lp, r).max(initial=0.0) / residual_scale(lp))

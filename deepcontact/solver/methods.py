@@ -118,6 +118,10 @@ def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> So
     `.residual`) and the body velocities they give (`.velocity`, `.omega`). They are measured as
     given: a tangent beyond the friction cone is not clamped, its excess counts in the residual, so
     a solve's answer is judged to the residual the solve reported."""
+    from .. import arguments
+    from .pgs import require_problem
+    require_problem(problem)
+    normal, tangent = (arguments.vector(v, name, problem.points) for v, name in ((normal, "normal"), (tangent, "tangent")))
     return native_solve(problem, normal, tangent, max_iterations=0, cone=False)
 
 
@@ -129,6 +133,9 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     loaded plug-in); the keywords as solver.pgs.solve's, or `settings` (a SolveSettings: its mode,
     cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in
     stops on the residual only and runs in float32 or float64."""
+    from .. import arguments
+    if settings is None:
+        arguments.text(accelerate, "accelerate")
     if settings is not None:
         return solve(problem, start_normal, start_tangent, accelerate=settings.accelerate, mode=settings.mode,
                      max_iterations=settings.max_iterations, tolerance=settings.tolerance, stop_on=settings.stop_on,

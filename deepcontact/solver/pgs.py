@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._box2d import Acceleration, Mode, SolveOptions, solve_contacts
+from .. import arguments
 from ..errors import InputError
 from .settings import SolveSettings
 
@@ -32,8 +33,8 @@ def require_problem(problem):
     """A StepProblem, or InputError saying what was given instead (a library caller's None)."""
     from .problem import StepProblem
     if not isinstance(problem, StepProblem):
-        raise InputError(f"expected a StepProblem (StepProblem.from_step_file, .from_arrays), got "
-                         f"{type(problem).__name__}")
+        raise InputError(f"argument 'problem' must be a StepProblem (StepProblem.from_step_file, .from_arrays), "
+                         f"got {type(problem).__name__}")
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
@@ -105,11 +106,18 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     opts = options(dt=problem.dt, mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation,
                    history=history, final_residual=final_residual, guard=guard, accelerate=accelerate, cone=cone,
                    max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
-    n = problem.start_normal if start_normal is None else start_normal
-    t = problem.start_tangent if start_tangent is None else start_tangent
+    starts = []
+    for name, given, own in (("start_normal", start_normal, problem.start_normal),
+                             ("start_tangent", start_tangent, problem.start_tangent)):
+        try:   # (not held finite: a garbage start, NaN and all, is a stability test's input)
+            starts.append(np.asarray(own if given is None else given, dtype=np.float64))
+        except (TypeError, ValueError):
+            starts.append(None)
+        if starts[-1] is None or starts[-1].shape != (problem.points,):
+            raise arguments.refuse(name, f"one number per contact point, an array of shape ({problem.points},)",
+                                   given)
     try:
-        out = solve_contacts(problem.bodies, problem.contacts, np.asarray(n, dtype=np.float64),
-                             np.asarray(t, dtype=np.float64), problem.settings(prune), opts)
+        out = solve_contacts(problem.bodies, problem.contacts, *starts, problem.settings(prune), opts)
     except ValueError as e:   # the native shape checks ("start impulses must have one value per ...")
         raise InputError(str(e)) from None
     return Solution.from_native(out, relaxation)

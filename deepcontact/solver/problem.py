@@ -39,7 +39,15 @@ def _require_columns(table, names, what):
 
 def impulses_by_key(keys: list[tuple], normal: np.ndarray, tangent: np.ndarray) -> dict:
     """{contact key: (normal, tangent)}: a solution, to be matched to a later step's contacts."""
-    return dict(zip(keys, zip(np.asarray(normal).tolist(), np.asarray(tangent).tolist())))
+    from .. import arguments
+    if not isinstance(keys, (list, tuple)) or not all(isinstance(k, tuple) for k in keys):
+        raise arguments.refuse("keys", "a list of contact keys (tuples, as contact_keys returns them)", keys)
+    sizes = [len(keys), *(np.size(v) for v in (normal, tangent))]
+    if len(set(sizes)) > 1:
+        raise InputError(f"arguments 'keys', 'normal' and 'tangent' must have one entry per contact point; "
+                         f"they have {', '.join(map(str, sizes))}")
+    normal, tangent = (arguments.vector(v, name, len(keys)) for v, name in ((normal, "normal"), (tangent, "tangent")))
+    return dict(zip(keys, zip(normal.tolist(), tangent.tolist())))
 
 
 def _rows(index, bodies):
@@ -121,7 +129,12 @@ class StepProblem:
     def from_step(cls, header, bodies, contacts, path=None):
         """From what step.reader.read_step returns; errors name `path`. A Box2D v3 step is refused:
         its soft step (substeps, soft contacts, relax) is not the contact problem posed here."""
+        from .. import arguments
         from ..step.engines import engine_of
+        for value, name in ((header, "header"), (bodies, "bodies"), (contacts, "contacts")):
+            arguments.mapping(value, name)   # (read_step's three values)
+        if not isinstance(arguments.mapping(header, "header", ("solver", "dt", "gravity", "velocity_iterations", "index"))["solver"], dict):
+            raise arguments.refuse("header", "a step header as read_step returns it", header)
         if engine_of(header) == "box2d3":
             raise InputError(V3_REFUSED, path)
         block = header["solver"].get("block_solve")

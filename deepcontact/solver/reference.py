@@ -41,8 +41,11 @@ def reference_solution(problem: "StepProblem", tolerance: float = TOLERANCE, cap
                        accelerate: str = "newton", pivot: bool = True) -> Solution:
     """Solve from zero to the tolerance (float64; accelerate="none" is plain PGS, the reference
     before Newton; pivot: Lemke where Newton stalls)."""
+    from .. import arguments
     from .pgs import require_problem
     require_problem(problem)
+    cap = arguments.whole(cap, "cap")
+    relaxation = arguments.number(relaxation, "relaxation", 0.0, 2.0)   # (the native rule: in (0, 2))
     zero = np.zeros(problem.points)
     pivoting = pivot and accelerate == "newton"
     s = _newton(problem, zero, zero, min(cap, FIRST_SWEEPS) if pivoting else cap, tolerance,

@@ -41,8 +41,11 @@ class SolveSettings:
     def __post_init__(self):
         key = tuple((type(v), v) for v in (self.mode, self.max_iterations, self.tolerance, self.stop_on,
                                             self.relaxation, self.accelerate, self.guard))
-        if key in _CHECKED:   # (a solve makes one per call: the same request, types and all, is checked once)
-            return
+        try:
+            if key in _CHECKED:   # (a solve makes one per call: the same request, types and all, is checked once)
+                return
+        except TypeError:   # a field that cannot be hashed (a list, an array) is of no type it may have
+            key = None
         self._check_types()
         if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
             raise _error("--mode exact is Box2D's PGS: it takes no over-relaxation", "relaxation")
@@ -55,7 +58,8 @@ class SolveSettings:
         self._native(1.0, self.accelerate if self.accelerate in Acceleration.__members__ else "none")
         if len(_CHECKED) > 4096:
             _CHECKED.clear()
-        _CHECKED.add(key)
+        if key is not None:
+            _CHECKED.add(key)
 
     def _check_types(self):
         """OptionError for a field of the wrong type (before the native struct would refuse it)."""
@@ -65,7 +69,7 @@ class SolveSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, kinds + _numpy_kinds(name)):
                 raise OptionError(f"{name} must be a number, got {value!r}", FLAGS[name])
-        if not (self.relaxation is None or self.relaxation == "auto" or
+        if not (self.relaxation is None or isinstance(self.relaxation, str) and self.relaxation == "auto" or
                 (isinstance(self.relaxation, real + _numpy_kinds("tolerance")) and not isinstance(self.relaxation, bool))):
             raise OptionError(f"relaxation must be a number, got {self.relaxation!r}", FLAGS["relaxation"])
         if self.max_iterations > 2 ** 31 - 1:   # (the native int: the rest of the range is the native check's)
@@ -73,6 +77,9 @@ class SolveSettings:
                               FLAGS["max_iterations"])
         if not isinstance(self.stop_on, str):
             raise OptionError(f"stop_on must be a measure's name, got {self.stop_on!r}", FLAGS["stop_on"])
+        for name in ("mode", "accelerate"):
+            if not isinstance(getattr(self, name), str):
+                raise OptionError(f"{name} must be a name, got {getattr(self, name)!r}", FLAGS[name])
 
     def native(self, *, dt, history=False, final_residual=True, cone=True):
         """The native solver's SolveOptions for a step of length dt (the only place one is made):

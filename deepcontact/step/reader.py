@@ -25,6 +25,8 @@ def step_schema() -> StepSchema:
 
 def read_step(path: str | os.PathLike, validate: bool = True) -> tuple[dict, dict, dict]:
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
+    from .. import arguments
+    arguments.path(path, "path")
     try:
         step = read_step_file(str(path), step_schema() if validate else None)
     except StepFileError as e:

@@ -200,9 +200,8 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
     why in the message. unfinished: a folder without a manifest (a run still being written, or
     step files copied by hand) is read from its seed-NNNNNN folders, with nothing to check the
     files against."""
-    if not isinstance(run_dir, (str, os.PathLike)):
-        raise InputError(f"a run is a folder's path, got {type(run_dir).__name__}")
-    run_dir = Path(run_dir)
+    from .. import arguments
+    run_dir = Path(arguments.path(run_dir, "run_dir"))   # (a run is a folder's path)
     if unfinished and run_dir.is_dir() and not (run_dir / MANIFEST).exists():
         sims = [Simulation(seed=int(p.name[5:]), dir=p.name, path=p, files=step_files_in(p))
                 for p in sorted(run_dir.iterdir()) if _SIM_DIR.fullmatch(p.name) and p.is_dir()]

@@ -34,7 +34,9 @@ def step_tables(run_dir: str | os.PathLike, every: int = 1, jobs: int = 1, progr
     """For every `every`-th step file of a run, in order, {"bodies": columns, "contacts": columns}:
     each {column: 1-D array}, beginning with seed, step and time. jobs > 1: read in worker
     processes (the same tables). progress(n): n more step files read."""
-    run = read_run(run_dir)
+    from .. import arguments
+    every = arguments.whole(every, "every", 1)
+    run = read_run(arguments.path(run_dir, "run_dir"))
     tasks = [(path, (sim.scene, sim.engine), sim.seed) for sim in run.simulations for path in sim.files[::every]]
     with workers.for_jobs(jobs, tasks, progress) as pool:
         yield from pool.imap(_step_columns, tasks)

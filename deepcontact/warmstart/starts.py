@@ -324,8 +324,10 @@ def make_starts(names: list[str], spec: GridSpec | None = None, predictor: objec
     it declares: spec (the grid) and predictor (the trained model). Plug-ins are checked on every
     call (Checked)."""
     import inspect
+    from .. import arguments
+    names = arguments.texts(names, "names")
     if not names:
-        raise InputError(f"no start given; choose from {', '.join(STARTS.names())}")
+        raise InputError(f"no start given (argument 'names' is empty); choose from {', '.join(STARTS.names())}")
     out = {}
     for name in names:
         factory = STARTS.load(name)
