@@ -29,11 +29,11 @@ def path(value, name):
     raise refuse(name, "a path (str or os.PathLike)", value)
 
 
-def paths(value, name):
-    """A list (or tuple) of paths."""
+def paths(value, name, also=()):
+    """A list (or tuple) of paths (or of the types `also`: runs already read, say)."""
     if isinstance(value, (str, os.PathLike)) or not isinstance(value, (list, tuple)) or not value:
         raise refuse(name, "a non-empty list of paths", value)
-    return [path(v, f"{name}[{i}]") for i, v in enumerate(value)]
+    return [v if isinstance(v, also) else path(v, f"{name}[{i}]") for i, v in enumerate(value)]
 
 
 def whole(value, name, low=0, high=INT32_MAX):

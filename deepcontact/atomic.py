@@ -460,6 +460,13 @@ def folder(path, command="dc"):
     from .errors import InputError
     path = Path(path)
     tmp, swapped = None, False
+    # the swap's own names must be free before any work, not found taken at its end (recover has
+    # finished or refused whatever an earlier run left; anything there now, a link, a FIFO, a
+    # folder, was put there since, or by a caller that did not recover)
+    journal = beside(path, "swap")
+    if os.path.lexists(journal):
+        raise InputError(f"the journal {journal.name} beside it is there before this run began its work (a "
+                         f"{_kind(journal) or 'file'}): nothing was done; remove it", path)
     try:
         # held: a stop signal between making the folder and owning it would leave it behind
         with interrupts.held():

@@ -227,3 +227,45 @@ def test_the_issues_examples_through_dc(root, pile_run):
         assert mine(root) == before
     finally:
         os.chdir(cwd)
+
+
+# Every command that writes an output folder, with a small job: (run, dataset, out) -> arguments.
+FOLDER_COMMANDS = {
+    "simulate": lambda run, data, out: ["simulate", *PILE, "-o", out],
+    "rasterize": lambda run, data, out: ["rasterize", run, "-q", "-o", out],
+    "evaluate": lambda run, data, out: ["evaluate", run, "--starts", "zero", "--no-budgets", "--no-plots", "-q",
+                                        "-o", out],
+    "closed loop": lambda run, data, out: ["evaluate", run, "--closed-loop", "--steps", "5", "--starts", "zero",
+                                           "--no-plots", "-q", "-o", out],
+    "export": lambda run, data, out: ["export", run, "-q", "-o", out],
+    "export csv": lambda run, data, out: ["export", run, "--format", "csv", "-q", "-o", out],
+    "train": lambda run, data, out: ["train", data, "--epochs", "1", "--width", "4", "--depth", "2", "--no-plots",
+                                     "-q", "-o", out],
+    "study figures": lambda run, data, out: ["study", "figures", run, "--every", "60", "-q", "-o", out],
+    "study engines": lambda run, data, out: ["study", "engines", "--fast", "-q", "-o", out],
+    "study frontier": lambda run, data, out: ["study", "frontier", "--fast", "-q", "-o", out],
+    "study amortize": lambda run, data, out: ["study", "amortize", "--fast", "-q", "-o", out],
+    "study maps": lambda run, data, out: ["study", "maps", data, "--epochs", "1", "-q", "-o", out],
+}
+JOURNALS = {"fifo": os.mkfifo, "folder": os.mkdir, "link": lambda p: os.symlink(".git", p),
+            "dangling link": lambda p: os.symlink("nowhere", p)}
+
+
+@pytest.mark.parametrize("command", sorted(FOLDER_COMMANDS))
+def test_a_journal_that_is_not_a_file_is_refused_before_any_work_by_every_command(root, run, dataset, command,
+                                                                                 monkeypatch):
+    import time
+    monkeypatch.chdir(root)
+    before = mine(root)
+    for kind, make in JOURNALS.items():
+        make(root / ".out.swap")
+        started = time.perf_counter()
+        r = dc(*FOLDER_COMMANDS[command](run, dataset, root / "out"))
+        took = time.perf_counter() - started
+        one_line_error(r, ".out.swap", "nothing was done")
+        # the message is the one the checks before any work give (at the swap the message would be
+        # another); the time says no command did its work first (each study runs minutes; the
+        # first call imports torch)
+        assert took < 10, (kind, took)
+        assert not (root / "out").exists() and mine(root) == before, kind
+        os.rmdir(root / ".out.swap") if kind == "folder" else os.unlink(root / ".out.swap")

@@ -260,7 +260,7 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
     from .. import arguments
     arguments.starts(starts, "starts")
     every = arguments.whole(every, "every", 1)
-    plan = _plan(arguments.paths(run_dirs, "run_dirs"))
+    plan = _plan(arguments.paths(run_dirs, "run_dirs", also=Run))   # (folders, or runs already read)
     table = variants(starts, relaxations, accelerations)
     tuned = {}
     for v in table:

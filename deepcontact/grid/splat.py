@@ -24,6 +24,9 @@ CONTACT_CHANNELS = {
     "normal_impulse": lambda c: c["normal_impulse"],
     "tangent_impulse": lambda c: c["tangent_impulse"],
 }
+# the column each channel reads (of the bodies', or the contacts')
+COLUMN = {"mass": "mass", "vx": "velocity", "vy": "velocity", "spin": "omega", "nx": "normal", "ny": "normal",
+          "normal_impulse": "normal_impulse", "tangent_impulse": "tangent_impulse"}
 DEFAULT_INPUTS = ("mass", "vx", "vy", "spin", "nx", "ny")
 DEFAULT_LABELS = ("normal_impulse", "tangent_impulse")
 ALL_CHANNELS = tuple(BODY_CHANNELS) + tuple(CONTACT_CHANNELS)
@@ -67,9 +70,9 @@ def rasterize(spec: "GridSpec", bodies: dict, contacts: dict,
     if not channels:
         raise arguments.refuse("channels", f"a non-empty list of channels from {', '.join(ALL_CHANNELS)}", channels)
     check_channels(channels, "rasterize")
-    # (the columns read_step and World.step give; the channels read some of them)
-    arguments.mapping(bodies, "bodies", ("type", "center", "mass", "velocity", "omega"))
-    arguments.mapping(contacts, "contacts", ("position", "normal", "normal_impulse", "tangent_impulse"))
+    # (the columns read_step and World.step give that these channels read)
+    arguments.mapping(bodies, "bodies", ("type", "center", *sorted({COLUMN[n] for n in channels if n in BODY_CHANNELS})))
+    arguments.mapping(contacts, "contacts", ("position", *sorted({COLUMN[n] for n in channels if n in CONTACT_CHANNELS})))
     out = np.empty((len(channels), spec.ny, spec.nx), dtype=np.float32)
     moving = bodies["type"] != 0
     body_names = [n for n in channels if n in BODY_CHANNELS]
