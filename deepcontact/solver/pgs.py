@@ -114,7 +114,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         except (TypeError, ValueError):
             starts.append(None)
         if starts[-1] is None or starts[-1].shape != (problem.points,):
-            raise arguments.refuse(name, f"one number per contact point, an array of shape ({problem.points},)",
+            raise arguments.refuse(name, f"one value per contact point, an array of shape ({problem.points},)",
                                    given)
     try:
         out = solve_contacts(problem.bodies, problem.contacts, *starts, problem.settings(prune), opts)
