@@ -33,12 +33,13 @@ struct SolveOptions {
     double relaxation = 1.0;       // w of PSOR; 1 is plain PGS (Box2D)
     Acceleration accelerate = Acceleration::none;
     bool history = false;          // record all three measures after every sweep
-    double max_velocity = 0.0;     // starts that alone would change a contact's velocity by more
-                                   // than this are implausible (0: no such check)
+    double max_velocity = 0.0;     // a start whose impulses together change some contact's velocity
+                                   // by more than this is implausible (0: no such check)
     bool final_residual = true;    // report the residual at the end (one extra pass)
     bool guard = true;             // over-relaxation falls back to w = 1 if the residual climbs
-    bool cone = true;              // a start's tangent beyond the friction cone is clamped onto it;
-                                   // false to judge an answer as given (its excess is residual)
+    bool cone = true;              // a start is made feasible (normal >= 0, tangent clamped onto the
+                                   // cone, an implausible start dropped); false to judge an answer
+                                   // as given (what is infeasible in it counts in the residual)
 
     bool sanitize() const { return mode != Mode::exact; }  // exact reproduces Box2D, bad starts too
     bool float64() const { return mode == Mode::float64; }

@@ -330,7 +330,7 @@ void bind_options(py::module_& m) {
         .def_readwrite("relaxation", &SolveOptions::relaxation, "w of PSOR in (0, 2); 1 is plain PGS")
         .def_readwrite("history", &SolveOptions::history, "record thesis, velocity, residual after every sweep")
         .def_readwrite("max_velocity", &SolveOptions::max_velocity,
-                       "starts that alone change a contact velocity by more are implausible (0: no check)")
+                       "a start whose impulses together change some contact velocity by more is implausible (0: no check)")
         .def_readwrite("final_residual", &SolveOptions::final_residual, "report the residual at the end")
         .def_readwrite("guard", &SolveOptions::guard, "fall back to w = 1 if the residual climbs tenfold")
         .def_readwrite("cone", &SolveOptions::cone, "clamp a start's tangents onto the friction cone (false: judge as given)");

@@ -116,14 +116,9 @@ public:
                         ++rep.nonfinite;
                         n = t = 0;
                     }
-                    if (n < 0) {
+                    if (n < 0 && opt.cone) {   // (cone false: an answer judged as given, its sign too)
                         ++rep.negative;
                         n = 0;
-                    }
-                    if (opt.max_velocity > 0 && (n * double(p.k_normal) > opt.max_velocity ||
-                                                 std::abs(t) * double(p.k_tangent) > opt.max_velocity)) {
-                        ++rep.implausible;
-                        n = t = 0;
                     }
                     const double bound = double(m.friction) * n;
                     if (opt.cone && std::abs(t) > bound) {
@@ -135,6 +130,46 @@ public:
                 p.tangent_impulse = m.friction_row ? R(t) : R(0);
             }
         }
+        // Plausible as a whole, never one impulse alone: under a heavy body resting on a light
+        // one, impulses that each would fling a body balance each other, and the exact answer is
+        // a start like any other. A start whose impulses together change some contact's relative
+        // velocity by more than max_velocity (faster than Box2D lets a body travel) is no start.
+        if (opt.sanitize() && opt.cone && opt.max_velocity > 0 && !plausible(opt.max_velocity)) {
+            for (auto& m : pb_.manifolds) {
+                for (int j = 0; j < m.given; ++j) {
+                    m.p[j].normal_impulse = m.p[j].tangent_impulse = R(0);
+                    ++rep.implausible;
+                }
+            }
+        }
+    }
+
+    // Whether the loaded impulses, all applied at once, change every contact's relative velocity
+    // (normal and tangent) by at most max_velocity; in double, whatever R is.
+    bool plausible(double max_velocity) const {
+        std::vector<V2<double>> dv(pb_.velocity.size(), V2<double>{0, 0});
+        std::vector<double> dw(pb_.velocity.size(), 0.0);
+        auto d = [](V2<R> v) { return V2<double>{double(v.x), double(v.y)}; };
+        for (const auto& m : pb_.manifolds) {
+            const V2<double> normal = d(m.normal), tangent = cross(normal, 1.0);
+            for (int j = 0; j < m.count; ++j) {
+                const auto& p = m.p[j];
+                const V2<double> P = double(p.normal_impulse) * normal + double(p.tangent_impulse) * tangent;
+                dv[m.a] = dv[m.a] - double(m.mA) * P;
+                dw[m.a] -= double(m.iA) * cross(d(p.rA), P);
+                dv[m.b] = dv[m.b] + double(m.mB) * P;
+                dw[m.b] += double(m.iB) * cross(d(p.rB), P);
+            }
+        }
+        for (const auto& m : pb_.manifolds) {
+            const V2<double> normal = d(m.normal), tangent = cross(normal, 1.0);
+            for (int j = 0; j < m.count; ++j) {
+                const V2<double> rel = dv[m.b] + cross(dw[m.b], d(m.p[j].rB)) - dv[m.a] - cross(dw[m.a], d(m.p[j].rA));
+                const double vn = std::abs(dot(rel, normal)), vt = std::abs(dot(rel, tangent));
+                if (!(vn <= max_velocity && vt <= max_velocity)) return false;   // (NaN: not plausible)
+            }
+        }
+        return true;
     }
 
 

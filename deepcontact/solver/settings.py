@@ -10,8 +10,9 @@ from dataclasses import dataclass, replace
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
 CAP = 1000         # sweeps at most when a tolerance is asked for (a scene's own 8 would stop short of it)
 
-# Box2D moves a body at most b2_maxTranslation = 2 m per step; a start that alone would change a
-# contact's velocity by more than twice that speed is not an impulse the step could need.
+# Box2D moves a body at most b2_maxTranslation = 2 m per step; a start whose impulses together
+# change some contact's velocity by more than twice that speed is not an answer the step could need
+# (judged as a whole: impulses that balance each other may each be large).
 MAX_TRANSLATION = 2.0
 
 # The option that sets each field, for the one-line errors (OptionError names it).
@@ -83,8 +84,8 @@ class SolveSettings:
 
     def native(self, *, dt, history=False, final_residual=True, cone=True):
         """The native solver's SolveOptions for a step of length dt (the only place one is made):
-        names become its enums, a tolerance of 0 a fixed sweep count, and a start that alone would
-        move a contact faster than Box2D lets a body travel counts as implausible. "auto" and
+        names become its enums, a tolerance of 0 a fixed sweep count, and a start whose impulses
+        together move a contact faster than Box2D lets a body travel counts as implausible. "auto" and
         None stand as w = 1 (a caller that tunes w sets it per solve). OptionError for a method
         the native solver does not have."""
         return self._native(dt, self.accelerate, history, final_residual, cone)
