@@ -42,3 +42,35 @@ def test_the_reference_judge_start_round_trip_holds_on_every_hard_scene(tmp_path
             assert again.residual <= EXACT and again.iterations <= 1, (path.name, again.residual, again.iterations)
         checked += 1
     assert checked and exact >= 0.9 * checked, (exact, checked)
+
+
+ORACLE_METHOD = """
+import numpy as np
+import deepcontact as dc
+from deepcontact.solver.methods import MethodResult
+class Oracle:
+    def __call__(self, problem, normal, tangent, settings):
+        r = dc.reference_solution(problem)
+        return MethodResult(r.normal_impulse, r.tangent_impulse, np.array([r.residual]))
+class Flinger:
+    def __call__(self, problem, normal, tangent, settings):
+        return MethodResult(np.full(problem.points, 1e30), np.zeros(problem.points), np.array([1.0]))
+"""
+
+
+def test_a_method_returning_the_exact_answer_is_accepted_and_one_flinging_bodies_is_not(tmp_path, monkeypatch):
+    import sys
+    from deepcontact.solver import methods
+    (tmp_path / "exact_methods.py").write_text(ORACLE_METHOD)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    run = written(tmp_path / "run", "simulate", "mass-ratio", "--param", "ratio=400", "--steps", "12")
+    try:
+        for path in sorted(run.glob("seed-*/step-*.xml"))[3:12]:   # (where the old check zeroed the answer)
+            problem = dc.StepProblem.from_step_file(path)
+            assert dc.solve(problem, accelerate="exact_methods:Oracle", tolerance=1e-4).residual <= EXACT
+        with pytest.raises(dc.InputError, match="no step could need"):
+            dc.solve(problem, accelerate="exact_methods:Flinger", tolerance=1e-4)
+    finally:
+        sys.modules.pop("exact_methods", None)
+        methods.SOLVERS._loaded = {k: v for k, v in methods.SOLVERS._loaded.items() if "exact_methods" not in k}
+        methods._instances = {k: v for k, v in methods._instances.items() if "exact_methods" not in k}

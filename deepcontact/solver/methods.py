@@ -157,9 +157,10 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         out = solver(copy.deepcopy(problem), np.array(n, np.float64), np.array(t, np.float64), settings)
     normal, tangent, residuals = _checked(accelerate, out, problem, cap)
     after = judge(problem, normal, tangent)
-    if after.sanitized.get("implausible"):
-        raise PluginError(f"the solver method {accelerate!r} returned impulses no step could need (one alone would "
-                          f"move a contact faster than Box2D lets a body travel)")
+    # (judge measures an answer as given; the start check says whether the whole answer is plausible)
+    if native_solve(problem, normal, tangent, max_iterations=0, final_residual=False).sanitized.get("implausible"):
+        raise PluginError(f"the solver method {accelerate!r} returned impulses no step could need (together they "
+                          f"would move a contact faster than Box2D lets a body travel)")
     trace = np.full((len(residuals), len(MEASURES)), np.nan)
     trace[:, MEASURES.index("residual")] = residuals
     if len(residuals):   # the last iterate's residual is the project's, not the plug-in's
