@@ -159,13 +159,13 @@ void body_velocities(const ContactProblem<R>& pb, py::dict& out) {
 
 template <class R>
 py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st, const double* sn,
-               const double* stt, const SolveOptions& opt) {
+               const double* stt, const SolveOptions& opt, LaggedFactor* carried) {
     ContactProblem<R> pb;
     SolveReport rep;
     {
         py::gil_scoped_release release;
         pb = assemble<R>(bc, cc, st);
-        rep = solve(pb, sn, stt, opt);
+        rep = solve(pb, sn, stt, opt, carried);
     }
     py::dict out = report_dict(rep, pb.stats);
     R* normal = new_column<R>(out, "normal_impulse", cc.n);
@@ -182,7 +182,7 @@ py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettin
 py::dict solve_contacts(const py::dict& bodies, const py::dict& contacts,
                         py::array_t<double, py::array::c_style | py::array::forcecast> start_normal,
                         py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent,
-                        const StepSettings& step, const SolveOptions& options) {
+                        const StepSettings& step, const SolveOptions& options, py::object carry) {
     const BodyColumns bc = body_columns(bodies);
     const ContactColumns cc = contact_columns(contacts);
     if (start_normal.ndim() != 1 || start_tangent.ndim() != 1 || static_cast<size_t>(start_normal.size()) != cc.n ||
@@ -190,8 +190,17 @@ py::dict solve_contacts(const py::dict& bodies, const py::dict& contacts,
         throw py::value_error("start impulses must have one value per contact point (" + std::to_string(cc.n) + ")");
     check(step);
     check(options);
-    if (options.float64()) return solve<double>(bc, cc, step, start_normal.data(), start_tangent.data(), options);
-    return solve<float>(bc, cc, step, start_normal.data(), start_tangent.data(), options);
+    // carry: the world whose carried state (the lagged method's factor and penalty) this solve
+    // uses and leaves for the next, as a step of the native loop does (pgs_step)
+    LaggedFactor* carried = nullptr;
+    if (!carry.is_none()) {
+        World& world = carry.cast<World&>();
+        if (!world.carried_factor) world.carried_factor = new_carried_factor();
+        carried = world.carried_factor.get();
+    }
+    if (options.float64())
+        return solve<double>(bc, cc, step, start_normal.data(), start_tangent.data(), options, carried);
+    return solve<float>(bc, cc, step, start_normal.data(), start_tangent.data(), options, carried);
 }
 
 // Per contact point the rows as assembled; per body the velocity before any impulse.
@@ -371,8 +380,10 @@ void bind_solver(py::module_& m) {
     m.attr("SOLVER_BODY_FIELDS") = names(std::begin(kSolverBodyFields), std::end(kSolverBodyFields));
     m.attr("SOLVER_CONTACT_FIELDS") = names(std::begin(kSolverContactFields), std::end(kSolverContactFields));
     m.def("solve_contacts", &solve_contacts, py::arg("bodies"), py::arg("contacts"), py::arg("start_normal"),
-          py::arg("start_tangent"), py::arg("step"), py::arg("options"),
-          "Assemble one step's contact problem and solve it with projected Gauss-Seidel.");
+          py::arg("start_tangent"), py::arg("step"), py::arg("options"), py::arg("carry") = py::none(),
+          "Assemble one step's contact problem and solve it with projected Gauss-Seidel; carry: a World\n"
+          "whose carried state (the lagged method's factor and penalty) the solve uses and updates, as a\n"
+          "step of the native loop does.");
     m.def("contact_rows", &contact_rows, py::arg("bodies"), py::arg("contacts"), py::arg("step"),
           "The rows of one step's contact problem as the solver assembles them (float64): per contact\n"
           "point the lever arms, normal, effective inverse masses, bias and its two rows' Jacobians in body\n"

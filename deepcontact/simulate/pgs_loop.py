@@ -168,7 +168,8 @@ class PGSStepper:
         solution = None
         if problem is not None:
             w = self.relaxation(problem, start_n, start_t) if callable(self.relaxation) else self.relaxation
-            solution = solve(problem, start_n, start_t, settings=o.but(relaxation=w))
+            # (the world's carried state, as the native step offers it: the two paths agree)
+            solution = solve(problem, start_n, start_t, settings=o.but(relaxation=w), carry=world)
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt

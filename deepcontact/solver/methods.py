@@ -128,11 +128,12 @@ def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> So
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *, accelerate: str = "none", mode: str = "float64",
           max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, final_residual: bool = True, guard: bool = True,
-          prune: bool = True, settings: SolveSettings | None = None) -> Solution:
+          prune: bool = True, settings: SolveSettings | None = None, carry=None) -> Solution:
     """Solve the step's contact problem from a start with the method `accelerate` (a built-in or a
     loaded plug-in); the keywords as solver.pgs.solve's, or `settings` (a SolveSettings: its mode,
     cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in
-    stops on the residual only and runs in float32 or float64."""
+    stops on the residual only and runs in float32 or float64. carry: the loop's native World,
+    whose carried state a built-in method uses as the native loop's step would."""
     from .. import arguments
     if settings is None:
         arguments.text(accelerate, "accelerate")
@@ -140,12 +141,13 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         return solve(problem, start_normal, start_tangent, accelerate=settings.accelerate, mode=settings.mode,
                      max_iterations=settings.max_iterations, tolerance=settings.tolerance, stop_on=settings.stop_on,
                      relaxation=settings.relaxation, guard=settings.guard, history=history,
-                     final_residual=final_residual, prune=prune)
+                     final_residual=final_residual, prune=prune, carry=carry)
     if is_native(accelerate):
         relaxation = 1.0 if relaxation is None else relaxation
         return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
                             tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, history=history,
-                            final_residual=final_residual, guard=guard, accelerate=accelerate, prune=prune)
+                            final_residual=final_residual, guard=guard, accelerate=accelerate, prune=prune,
+                            carry=carry)
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
     cap = problem.velocity_iterations if max_iterations is None else max_iterations

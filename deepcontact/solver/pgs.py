@@ -92,7 +92,7 @@ def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="res
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,
           mode: str = "float64", max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, prune: bool = True, final_residual: bool = True,
-          guard: bool = True, accelerate: str = "none", cone: bool = True) -> Solution:
+          guard: bool = True, accelerate: str = "none", cone: bool = True, carry=None) -> Solution:
     """Solve the step's contact problem from a start (default: Box2D's own warm start).
 
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
@@ -100,7 +100,9 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     Solution.relaxation_fallback says when). A solve ends on a sweep's iterate, whose tangents can
     lie just outside the friction cone (as Box2D's do): the residual counts the excess. A start is
     projected onto the cone before use (cone=False: taken as given, which is how `judge` measures
-    an answer, so it agrees with the solve that made it).
+    an answer, so it agrees with the solve that made it). carry: the native World whose carried
+    state (the lagged method's factor and penalty) the solve uses and updates, as a step of the
+    native loop does; a solve without it starts afresh.
     Bad options raise OptionError (an InputError naming the flag)."""
     require_problem(problem)
     opts = options(dt=problem.dt, mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation,
@@ -117,7 +119,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
             raise arguments.refuse(name, f"one value per contact point, an array of shape ({problem.points},)",
                                    given)
     try:
-        out = solve_contacts(problem.bodies, problem.contacts, *starts, problem.settings(prune), opts)
+        out = solve_contacts(problem.bodies, problem.contacts, *starts, problem.settings(prune), opts, carry)
     except ValueError as e:   # the native shape checks ("start impulses must have one value per ...")
         raise InputError(str(e)) from None
     return Solution.from_native(out, relaxation)
