@@ -128,7 +128,7 @@ def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> So
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *, accelerate: str = "none", mode: str = "float64",
           max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, final_residual: bool = True, guard: bool = True,
-          prune: bool = True, settings: SolveSettings | None = None, carry=None) -> Solution:
+          prune: bool = True, settings: SolveSettings | None = None, carry: "_box2d.World | None" = None) -> Solution:
     """Solve the step's contact problem from a start with the method `accelerate` (a built-in or a
     loaded plug-in); the keywords as solver.pgs.solve's, or `settings` (a SolveSettings: its mode,
     cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in

@@ -92,7 +92,7 @@ def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="res
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,
           mode: str = "float64", max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, prune: bool = True, final_residual: bool = True,
-          guard: bool = True, accelerate: str = "none", cone: bool = True, carry=None) -> Solution:
+          guard: bool = True, accelerate: str = "none", cone: bool = True, carry: "World | None" = None) -> Solution:
     """Solve the step's contact problem from a start (default: Box2D's own warm start).
 
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
