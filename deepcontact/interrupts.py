@@ -31,6 +31,7 @@ _hook = None       # Python's unraisable hook, while install()'s is in place
 _command = "dc"    # the command, for the line a hard stop prints
 _hard_stops = []   # clean-ups run before a hard stop ends the process (atomic's: partial outputs, locks)
 _watching = False  # whether a deadline thread is armed
+_due = None        # when it ends the process (time.monotonic())
 
 
 class Terminated(KeyboardInterrupt):
@@ -70,23 +71,25 @@ def at_hard_stop(clean_up):
 
 
 def _arm_deadline(seconds):
-    """In `seconds`, ends the process if plug-in code is still running then (it swallowed the stop).
-    A thread, since the main thread is the plug-in's; it cleans up what the command was building
-    (at_hard_stop) and exits 128 + the signal, as the unwinding would have."""
-    global _watching
+    """In `seconds` (or sooner, if a deadline is armed already), ends the process if plug-in code
+    is still running then (it swallowed the stop). A thread, since the main thread is the
+    plug-in's; it cleans up what the command was building (at_hard_stop) and exits 128 + the
+    signal, as the unwinding would have."""
+    global _watching, _due
+    import time
+    due = time.monotonic() + seconds
+    _due = due if _due is None else min(_due, due)
     if _watching:
         return
     import threading
-    import time
     _watching = True
-    due = time.monotonic() + seconds
 
     def watch():
-        global _watching
-        while time.monotonic() < due:
+        global _watching, _due
+        while time.monotonic() < _due:
             time.sleep(0.05)
             if not _guests:   # the guest gave up: the command unwinds by itself
-                _watching = False
+                _watching, _due = False, None
                 return
         _hard_stop(_received or signal.SIGTERM)
     threading.Thread(target=watch, name="dc-stop-deadline", daemon=True).start()
