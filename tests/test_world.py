@@ -43,3 +43,47 @@ def test_an_engine_refuses_a_scene_it_cannot_step_when_the_world_is_made():
     from deepcontact.errors import OptionError
     with pytest.raises(OptionError, match="--start"):
         dc.Box2D(solver=dc.SolveSettings(), start="somewhere")
+
+
+# Edits a notebook may make to a scene in memory, each of a value a scene file is refused for.
+SCENE_EDITS = {
+    **{f"body {k} {v}": f"scene.bodies[1].{k} = {v}" for k in ("x", "y", "angle", "vx", "vy", "omega")
+       for v in ("math.nan", "math.inf", "1e300")},
+    **{f"radius {v}": f"scene.bodies[1].shapes[0].radius = {v}" for v in ("math.nan", "0.0", "-1.0", "1e300")},
+    **{f"density {v}": f"scene.bodies[1].shapes[0].density = {v}" for v in ("math.nan", "-1.0", "1e300")},
+    "collinear polygon": "scene.bodies[1].shapes[:] = [Polygon(((0, 0), (1, 0), (2, 0)), density=1.0)]",
+    "tiny polygon": "scene.bodies[1].shapes[:] = [Polygon(((0, 0), (1e-9, 0), (0, 1e-9)), density=1.0)]",
+    "gravity nan": "scene.effects.gravity = (0.0, math.nan)",
+    "friction nan": "scene.effects.friction = math.nan",
+    "dt nan": "scene.dt = math.nan",
+}
+WORLD_EDIT = """
+import math, sys
+import deepcontact as dc
+from deepcontact.scene.model import Polygon
+for name, edit in {edits!r}.items():
+    for where in ("World", "closed_loop"):
+        scene = dc.generate("pile", 0, {{"count": "5", "box": "10", "sigma": "1"}})
+        exec(edit)
+        try:
+            if where == "World":
+                dc.World(scene).step()
+            else:
+                dc.closed_loop(scene, dc.make_starts(["zero"]), steps=2)
+            print("ACCEPTED", where, name, flush=True)
+        except dc.InputError:
+            print("refused", where, name, flush=True)
+"""
+
+
+def test_a_scene_edited_in_memory_is_refused_as_its_file_would_be_never_aborting():
+    """Box2D's asserts abort the process (a notebook's kernel dies): World and closed_loop hold
+    an in-memory scene to what a scene file is held to. In a process of its own, since an abort
+    would take the test runner with it."""
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-c", WORLD_EDIT.format(edits=SCENE_EDITS)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, (r.returncode, r.stdout[-500:], r.stderr[-500:])
+    lines = r.stdout.splitlines()
+    assert len(lines) == 2 * len(SCENE_EDITS) and not [x for x in lines if x.startswith("ACCEPTED")], lines

@@ -150,8 +150,10 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
     trajectory, penetration, energy, residuals). reference: a reference_trajectory to reuse. Each
     step stepped is reported to workers.progress."""
     from .. import arguments
+    from ..scene.check import check_scene
     from ..scene.model import Scene
     arguments.instance(scene, "scene", Scene, "a Scene (read_scene or generate makes one)")
+    check_scene(scene)   # (what a scene file is held to: an edited scene must not abort in Box2D)
     arguments.starts(starts, "starts")
     steps = scene.steps if steps is None else arguments.whole(steps, "steps", 1)
     ref = reference or reference_trajectory(scene, steps)

@@ -6,6 +6,7 @@ import sys
 
 from typing import TYPE_CHECKING
 
+from ..scene.check import check_scene
 from .build import check_overlaps
 from .engines import Box2D, Box2D3
 from .stepping import Stepped, steps
@@ -33,6 +34,9 @@ class World:
             from ..scene.xml import read_scene
             scene = read_scene(scene)
         arguments.instance(scene, "scene", Scene, "a Scene or a scene file's path")
+        # what a scene file is held to, for a scene made or edited in memory: Box2D's asserts
+        # (a NaN position, a collinear polygon) would abort the process, a notebook's kernel
+        check_scene(scene)
         if engine is not None:
             arguments.instance(engine, "engine", (Box2D, Box2D3), "an engine: Box2D() or Box2D3()")
         self.scene = scene
