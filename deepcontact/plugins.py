@@ -23,14 +23,18 @@ def guest(what, doing="raised"):
     """Runs a plug-in's code (`what` names it: "the start 'x'"). Whatever leaves it becomes one
     PluginError, "{what} {doing} {Type}: {message}", chained to the original (so -v shows its file
     and line): an exception, sys.exit(), a KeyboardInterrupt it raised itself (the user's own stop
-    passes through). As it returns, the signal handlers and the working folder it changed are put
-    back, and a stop signal it swallowed is raised."""
+    passes through). As it returns, the signal handlers, the working folder, the umask and torch's
+    thread count it changed are put back, and a stop signal it swallowed is raised."""
     import os
+    import sys
     from . import interrupts
     try:
         cwd = os.getcwd()
     except OSError:
         cwd = None
+    mask = os.umask(0o022)   # (read by setting it: put back at once, and again as the guest returns)
+    os.umask(mask)
+    threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
     try:
         with interrupts.guest_code():
             yield
@@ -51,6 +55,14 @@ def guest(what, doing="raised"):
                     os.chdir(cwd)
             except OSError:
                 os.chdir(cwd)
+        # the process state outputs and timings depend on: the umask the outputs' modes come from,
+        # torch's thread count (--threads; the count changes float sums and times)
+        os.umask(mask)
+        if "torch" in sys.modules:   # (a guest that imported torch got its per-core default)
+            from .protocol import threads_asked
+            torch, wanted = sys.modules["torch"], threads if threads is not None else threads_asked
+            if torch.get_num_threads() != wanted:
+                torch.set_num_threads(wanted)
     interrupts.check()
 
 

@@ -18,9 +18,15 @@ DEFAULT_THREADS = 1
 command_line = None
 
 
+# The thread count this process's command asked for (use_threads): what a plug-in that changed
+# torch's count, or imported torch with its per-core default, is put back to (plugins.guest).
+threads_asked = DEFAULT_THREADS
+
+
 def use_threads(threads):
     """torch's intra-op threads for this process (and the workers it forks), if torch is used."""
-    threads = threads or DEFAULT_THREADS
+    global threads_asked
+    threads = threads_asked = threads or DEFAULT_THREADS
     if "torch" in sys.modules:
         import torch
         torch.set_num_threads(threads)

@@ -399,3 +399,24 @@ def test_what_a_start_handed_to_the_library_does_to_its_problem_no_other_start_s
     for edit in EDITS + ["ctx.bodies['velocity'][:] = 99.0", "ctx.previous.clear()"]:
         dirty = _library_rows(path, run, {"editor": _Editor(edit), **dcl.make_starts(["builtin", "prev", "zero"])})
         assert dirty == clean, edit
+
+
+@pytest.mark.parametrize("change", ["os.umask(0)", "__import__('torch').set_num_threads(7)"])
+def test_what_a_start_changes_in_the_process_is_put_back_as_it_returns(run, tmp_path, monkeypatch, change):
+    """The umask the outputs' modes come from and torch's thread count (--threads) are the
+    command's, whatever a plug-in's call sets."""
+    import stat
+    import torch
+    name = "guest_process_state"
+    write_module(tmp_path, monkeypatch, name, START, at_call=change)
+    old = os.umask(0o022)
+    try:
+        r = dc("evaluate", "--no-plots", run, "--starts", f"{name}:Start,builtin", "--every", "40", "--no-budgets",
+               "-q", "-o", tmp_path / "report")
+        assert r.returncode == 0, r.stderr
+        modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "report").iterdir()}
+        assert modes and all(not mode & stat.S_IWOTH for mode in modes.values()), modes
+        assert os.umask(0o022) == 0o022 and torch.get_num_threads() == 1
+    finally:
+        os.umask(old)
+        forget(name)
