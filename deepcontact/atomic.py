@@ -101,6 +101,23 @@ def _our_folder(p, empty_ok=False, command=None):
         return False
 
 
+def _identity(p):
+    """A folder's (device, inode): a rename keeps it, and a journal names its folders by it as
+    well as by name, so that another folder put under one of those names is never taken for it."""
+    st = os.lstat(p)
+    return [st.st_dev, st.st_ino]
+
+
+def _is(p, identity):
+    """Whether the folder at p is the one a journal named by `identity` (a [device, inode] pair)."""
+    if not (isinstance(identity, list) and len(identity) == 2 and all(type(v) is int for v in identity)):
+        return False
+    try:
+        return _identity(p) == identity
+    except OSError:
+        return False
+
+
 def _remove_claimed(folder, name, ours, why):
     """A temporary file a control file claims a killed run left in folder: removed if `name` is
     one dc makes there (ours) and a regular file; anything else left alone, said in one line (why).
@@ -388,7 +405,10 @@ def recover(path, command=None):
     claims = _read_journal(journal, path)
     if claims is not None:
         old, new = (path.parent / claims[k] for k in ("old", "new"))
-        old_ours, new_ours = _our_folder(old, empty_ok=True, command=command), _our_folder(new, command=command)
+        # each the very folder the journal named (by identity, not only by name and record: a
+        # complete output of dc's moved under one of those names is not a swap's leftover)
+        old_ours = _our_folder(old, empty_ok=True, command=command) and _is(old, claims.get("old_id"))
+        new_ours = _our_folder(new, command=command) and _is(new, claims.get("new_id"))
         if not os.path.lexists(path) and old_ours:
             # killed between the renames: the earlier output is the only copy, and comes back
             os.replace(old, path)
@@ -403,8 +423,8 @@ def recover(path, command=None):
             shutil.rmtree(new, ignore_errors=True)
         for p, ours in ((old, old_ours), (new, new_ours)):
             if not ours and os.path.lexists(p) and p != path:
-                log.warning("left %s alone: the journal %s names it, but it holds no record of dc's", p,
-                            journal.name)
+                log.warning("left %s alone: the journal %s names it, but it is not the folder the journal "
+                            "wrote of (no record of dc's, or another folder under that name)", p, journal.name)
         _remove_quietly(journal)
     for p in path.parent.iterdir() if path.parent.is_dir() else ():
         if own_name(path, "partial", p.name) and _our_folder(p, command=command):
@@ -483,7 +503,9 @@ def folder(path, command="dc"):
             # the journal first: from here on, a kill at any instruction is finished or undone by
             # the next command (recover), which finds the earlier output or the new one, whole
             old = tmp.with_name(tmp.name.replace(".partial-", ".old-", 1))   # (unique as tmp's name is)
-            write_text(beside(path, "swap"), json.dumps({"old": old.name, "new": tmp.name}) + "\n")
+            write_text(beside(path, "swap"), json.dumps({
+                "old": old.name, "new": tmp.name, "new_id": _identity(tmp),
+                "old_id": _identity(path) if os.path.lexists(path) else None}) + "\n")
             _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
             if os.path.lexists(path):
                 os.replace(path, old)

@@ -139,7 +139,8 @@ def test_a_killed_replacements_own_journal_is_still_finished(root):
     a_swap(root, out)
     old = root / ".out.old-4242-xyz"
     os.replace(out, old)
-    (root / ".out.swap").write_text(json.dumps({"old": old.name, "new": ".out.partial-4242-gone"}))
+    (root / ".out.swap").write_text(json.dumps({"old": old.name, "new": ".out.partial-4242-gone",
+                                                "old_id": [old.stat().st_dev, old.stat().st_ino], "new_id": None}))
     with pytest.raises(InputError, match="not empty"):
         with atomic.output_folder(out, atomic.Owned("test output"), command="simulate"):
             pass
@@ -269,3 +270,23 @@ def test_a_journal_that_is_not_a_file_is_refused_before_any_work_by_every_comman
         assert took < 10, (kind, took)
         assert not (root / "out").exists() and mine(root) == before, kind
         os.rmdir(root / ".out.swap") if kind == "folder" else os.unlink(root / ".out.swap")
+
+
+@pytest.mark.parametrize("slot", ["old", "new"])
+def test_a_journal_naming_a_complete_output_of_dcs_by_name_alone_deletes_nothing(root, slot):
+    """A complete output of dc's moved under a name of the swap's (a copy kept as `.out.old-7-x`,
+    a folder unpacked beside the output) is not a swap's leftover: the journal names its folders
+    by identity too, and a journal that does not (planted, or naming another folder) touches none."""
+    out = root / "out"
+    a_swap(root, out)
+    kept = root / f".out.{'old' if slot == 'old' else 'partial'}-7-x"
+    a_swap(root, root / "elsewhere")
+    os.replace(root / "elsewhere", kept)   # (a complete output of dc simulate, its record "done")
+    assert atomic.read_record(kept)["state"] == "done"
+    claims = {"old": ".out.old-8-y", "new": ".out.partial-8-y", slot: kept.name}
+    for ids in ({}, {"old_id": [0, 0], "new_id": [0, 0]}):   # by name alone, or by another folder's identity
+        (root / ".out.swap").write_text(json.dumps({**claims, **ids}))
+        with pytest.raises(InputError, match="not empty"):
+            with atomic.output_folder(out, atomic.Owned("test output"), command="simulate"):
+                pass
+        assert (kept / "new.txt").read_text() == "new" and (out / "new.txt").read_text() == "new", ids

@@ -130,6 +130,12 @@ def test_leftovers_of_a_killed_run_are_cleared_by_the_next(run, tmp_path):
     assert (users / "notes.txt").read_text() == "mine"
 
 
+def identity(folder):
+    """A folder's [device, inode], as a journal dc wrote names it."""
+    st = os.lstat(folder)
+    return [st.st_dev, st.st_ino]
+
+
 def test_a_replacement_killed_between_its_renames_is_undone_or_finished(run, tmp_path):
     # killed after the earlier output was moved aside, before the new one was in place: the next
     # command restores the earlier output (it is the only copy) and says so
@@ -138,13 +144,15 @@ def test_a_replacement_killed_between_its_renames_is_undone_or_finished(run, tmp
     old = tmp_path / ".run.old-4242-xyz"
     new = copy(run, tmp_path / ".run.partial-4242-abc")   # complete, but never swapped in
     os.replace(out, old)
-    (tmp_path / ".run.swap").write_text(json.dumps({"old": old.name, "new": new.name}))
+    (tmp_path / ".run.swap").write_text(json.dumps({"old": old.name, "new": new.name, "old_id": identity(old),
+                                                    "new_id": identity(new)}))
     r = dc("simulate", *PILE, "--steps", "5", "-o", str(out))
     assert r.returncode == 1 and "restored" in r.stderr and "not empty" in r.stderr, r.stderr
     assert snapshot(out) == before and leftovers(tmp_path) == [] and not (tmp_path / ".run.swap").exists()
     # killed after the new output was in place, while the old one was being removed: finished
     stale = copy(run, tmp_path / ".run.old-4343-xyz")
-    (tmp_path / ".run.swap").write_text(json.dumps({"old": stale.name, "new": ".run.partial-4343-gone"}))
+    (tmp_path / ".run.swap").write_text(json.dumps({"old": stale.name, "new": ".run.partial-4343-gone",
+                                                    "old_id": identity(stale), "new_id": None}))
     r = dc("simulate", *PILE, "--steps", "5", "-o", str(out))
     assert r.returncode == 1 and not stale.exists() and snapshot(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
