@@ -145,6 +145,22 @@ def _abandon():
         _remove_quietly(beside(key, "lock"))
 
 
+def make_folder_for(path):
+    """Makes the folder an output goes in (and its parents), as every output does. A folder
+    named before a '..' must be there already: `-o x/../y` made a folder x only to go up out of
+    it. InputError naming path for either."""
+    from .errors import InputError
+    parts = Path(path).parent.parts
+    for k, part in enumerate(parts):
+        if part == ".." and k and not Path(*parts[:k]).is_dir():
+            raise InputError(f"the folder {Path(*parts[:k])} before '..' does not exist: give the output's path "
+                             f"without going into a folder that is not there", path)
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
+
+
 def umask():
     """This process's umask (read by setting it, and set back at once)."""
     mask = os.umask(0o022)
@@ -331,10 +347,7 @@ def locked(path):
     import fcntl
     from .errors import InputError
     lock = beside(path, "lock")
-    try:
-        lock.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
+    make_folder_for(path)
     while True:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
@@ -552,10 +565,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
     if path.resolve() == here or path.resolve() in here.parents:
         raise InputError("is the current folder or one above it: give the output a folder of its own "
                          "(e.g. -o out)", path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"cannot write there: {e.strerror or e}", path) from None
+    make_folder_for(path)
     with locked(path):
         recover(path, command)
         existing = path.is_dir() and any(path.iterdir())

@@ -829,3 +829,18 @@ def test_a_signal_that_lands_in_a_weakref_callback_is_raised_in_the_commands_cod
             raise AssertionError(f"not raised ({ref})")
     assert raised.value.signum == signal.SIGTERM
     assert "Exception ignored" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["simulate", "render"])
+def test_an_output_path_through_a_missing_folder_and_up_makes_no_folder(run, tmp_path, monkeypatch, command):
+    """`-o x/../y` went into a folder x that was not there, made it, and went up out of it: x stayed
+    behind. A folder before '..' must be there; through one that is, the output is written."""
+    monkeypatch.chdir(tmp_path)
+    args = {"simulate": ["simulate", *PILE, "--steps", "3", "-q"],
+            "render": ["render", run / "seed-000000" / "step-000010.xml", "-q"]}[command]
+    suffix = "" if command == "simulate" else ".png"
+    one_line_error(dc(*args, "-o", f"x/../y{suffix}"), "before '..'")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    (tmp_path / "x").mkdir()
+    assert dc(*args, "-o", f"x/../y{suffix}").returncode == 0
+    assert (tmp_path / f"y{suffix}").exists() and list((tmp_path / "x").iterdir()) == []
