@@ -161,6 +161,28 @@ def make_folder_for(path):
         raise InputError(f"cannot write there: {e.strerror or e}", path) from None
 
 
+def _keep_attributes(folder, onto):
+    """The user's folder's mode, group and extended attributes onto the folder that replaces it (a
+    colleague's group, a setgid bit, an ACL or a label set on an empty output folder stay). What
+    this user may not set is left as it is."""
+    st = os.lstat(folder)
+    os.chmod(onto, stat.S_IMODE(st.st_mode))
+    try:
+        os.chown(onto, -1, st.st_gid)
+        os.chmod(onto, stat.S_IMODE(st.st_mode))   # (chown clears a setgid bit: set it again)
+    except OSError:
+        pass
+    try:
+        names = os.listxattr(folder, follow_symlinks=False)
+    except OSError:
+        return
+    for name in names:
+        try:
+            os.setxattr(onto, name, os.getxattr(folder, name, follow_symlinks=False), follow_symlinks=False)
+        except OSError:
+            pass
+
+
 def umask():
     """This process's umask (read by setting it, and set back at once)."""
     mask = os.umask(0o022)
@@ -521,6 +543,7 @@ def folder(path, command="dc"):
                 "old_id": _identity(path) if os.path.lexists(path) else None}) + "\n")
             _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
             if os.path.lexists(path):
+                _keep_attributes(path, tmp)
                 os.replace(path, old)
             os.replace(tmp, path)
             swapped = True

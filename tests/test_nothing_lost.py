@@ -844,3 +844,24 @@ def test_an_output_path_through_a_missing_folder_and_up_makes_no_folder(run, tmp
     (tmp_path / "x").mkdir()
     assert dc(*args, "-o", f"x/../y{suffix}").returncode == 0
     assert (tmp_path / f"y{suffix}").exists() and list((tmp_path / "x").iterdir()) == []
+
+
+def test_the_users_empty_output_folder_keeps_its_mode_group_and_attributes(tmp_path):
+    """An empty folder the user made for the output is replaced by the finished output: its mode
+    (a setgid bit too), group and extended attributes are carried over, not reset to the umask's."""
+    import stat
+    out = tmp_path / "out"
+    out.mkdir()
+    os.chmod(out, 0o2750)
+    os.chown(out, -1, 4242)
+    os.chmod(out, 0o2750)
+    try:
+        os.setxattr(out, "user.project", b"contact")
+        xattr = True
+    except OSError:   # (a file system without user attributes)
+        xattr = False
+    assert dc("simulate", *PILE, "--steps", "3", "-q", "-o", out).returncode == 0
+    st = os.lstat(out)
+    assert (out / "manifest.json").exists()
+    assert stat.S_IMODE(st.st_mode) == 0o2750 and st.st_gid == 4242
+    assert not xattr or os.getxattr(out, "user.project") == b"contact"
