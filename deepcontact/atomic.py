@@ -578,12 +578,16 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
     existing output is written into (resuming) without overwrite. hint: what the message for an
     output that is there already suggests."""
     from . import interrupts
-    from .errors import InputError
+    from .errors import InputError, show_path
     path = Path(path)
     if path.is_symlink():
         raise InputError("is a symbolic link: refusing to write through it; give the folder itself", path)
     if os.path.lexists(path) and not path.is_dir():
         raise InputError("exists and is not a folder", path)
+    if not in_place and path.is_dir() and os.path.ismount(path):
+        # (swapped in by renaming it aside, which a mount point refuses: found at the end, after the work)
+        raise InputError(f"is a mount point: an output is swapped in by renaming, which a mount point refuses; "
+                         f"give a folder inside it (-o {show_path(path / 'out')})", path)
     here = Path.cwd().resolve()
     if path.resolve() == here or path.resolve() in here.parents:
         raise InputError("is the current folder or one above it: give the output a folder of its own "

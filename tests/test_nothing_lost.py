@@ -865,3 +865,18 @@ def test_the_users_empty_output_folder_keeps_its_mode_group_and_attributes(tmp_p
     assert (out / "manifest.json").exists()
     assert stat.S_IMODE(st.st_mode) == 0o2750 and st.st_gid == 4242
     assert not xattr or os.getxattr(out, "user.project") == b"contact"
+
+
+def test_a_mount_point_as_output_is_refused_before_the_work(tmp_path):
+    """A mount point cannot be renamed aside, so its swap failed after the whole run, leaving a
+    journal behind. It is refused first; a folder inside it is written."""
+    out = tmp_path / "mnt"
+    out.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "none", str(out)], capture_output=True).returncode != 0:
+        pytest.skip("no tmpfs can be mounted here (not root, or no mount permission)")
+    try:
+        one_line_error(dc("simulate", *PILE, "--steps", "3", "-q", "-o", out), "mount point")
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["mnt"] and list(out.iterdir()) == []
+        assert dc("simulate", *PILE, "--steps", "3", "-q", "-o", out / "run").returncode == 0
+    finally:
+        subprocess.run(["umount", str(out)], capture_output=True)
