@@ -592,8 +592,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
     if path.resolve() == here or path.resolve() in here.parents:
         raise InputError("is the current folder or one above it: give the output a folder of its own "
                          "(e.g. -o out)", path)
-    make_folder_for(path)
-    with locked(path):
+    with locked(path):   # (which makes the folder the output goes in)
         recover(path, command)
         existing = path.is_dir() and any(path.iterdir())
         if existing and not existing_ok:

@@ -32,8 +32,8 @@ def guest(what, doing="raised"):
         cwd = os.getcwd()
     except OSError:
         cwd = None
-    mask = os.umask(0o022)   # (read by setting it: put back at once, and again as the guest returns)
-    os.umask(mask)
+    from .atomic import umask
+    mask = umask()
     threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
     try:
         with interrupts.guest_code():

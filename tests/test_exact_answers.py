@@ -74,3 +74,18 @@ def test_a_method_returning_the_exact_answer_is_accepted_and_one_flinging_bodies
         sys.modules.pop("exact_methods", None)
         methods.SOLVERS._loaded = {k: v for k, v in methods.SOLVERS._loaded.items() if "exact_methods" not in k}
         methods._instances = {k: v for k, v in methods._instances.items() if "exact_methods" not in k}
+
+
+@pytest.mark.parametrize("column, value", [("inv_mass", 1e30), ("inv_inertia", np.nan), ("velocity", np.inf),
+                                           ("inv_mass", -1.0)])
+def test_degenerate_values_are_refused_by_every_solve_of_the_step(run, column, value):
+    """An edited step's problem (inverse mass 1e30: the solve said 6.6e-7, judge 1) is refused in
+    one line by each of solve, judge and the local problem, not solved to two answers."""
+    header, bodies, contacts = dc.read_step(run / "seed-000000" / "step-000100.xml")
+    bodies = {k: v.copy() for k, v in bodies.items()}
+    bodies[column][1] = value
+    problem = dc.StepProblem.from_step(header, bodies, contacts)
+    zero = np.zeros(problem.points)
+    for call in (lambda: dc.solve(problem), lambda: dc.judge(problem, zero, zero), lambda: dc.local_problem(problem)):
+        with pytest.raises(dc.InputError, match=column):
+            call()

@@ -10,8 +10,11 @@
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "records.hpp"
@@ -128,6 +131,49 @@ inline void check(const StepSettings& st) {
     if (!(st.dt > 0.0f) || !std::isfinite(st.dt)) throw std::invalid_argument("dt must be positive and finite");
     if (!std::isfinite(st.gravity[0]) || !std::isfinite(st.gravity[1]))
         throw std::invalid_argument("gravity must be finite");
+}
+
+// The largest inverse mass or inertia a body may have: a body of 1e-20 kg (the lightest a scene
+// file may hold, and float32's rounding of 1 / 1e-20 just above it); beyond it the problem is
+// degenerate, and no residual means anything.
+constexpr double kMaxInverse = 1.00001e20;
+
+inline std::string shown_number(double value) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", value);
+    return text;
+}
+
+template <class T>
+void check_finite(const T* column, size_t values, int width, const char* table, const char* name) {
+    if constexpr (std::is_floating_point_v<T>) {
+        for (size_t i = 0; i < values; ++i)
+            if (!std::isfinite(column[i]))
+                throw std::invalid_argument(std::string(table) + " column '" + name + "' holds a value that is not finite (row " +
+                                            std::to_string(i / width) + ")");
+    }
+}
+
+// What a step file's reader holds every value to, for columns handed in directly (a notebook's
+// edit): every float the solver reads finite (from the field tables), inverse masses and inertias
+// in [0, kMaxInverse], friction and restitution not negative. Throws std::invalid_argument.
+inline void check(const BodyColumns& bc, const ContactColumns& cc) {
+#define DC_CHECK_BODY(T, name, width, solver) DC_IF_##solver(check_finite(bc.name, bc.n * width, width, "bodies", #name);)
+#define DC_CHECK_CONTACT(T, name, width, solver) DC_IF_##solver(check_finite(cc.name, cc.n * width, width, "contacts", #name);)
+    DC_BODY_FIELDS(DC_CHECK_BODY)
+    DC_CONTACT_FIELDS(DC_CHECK_CONTACT)
+#undef DC_CHECK_BODY
+#undef DC_CHECK_CONTACT
+    for (size_t i = 0; i < bc.n; ++i)
+        for (const auto& [name, value] : {std::pair{"inv_mass", bc.inv_mass[i]}, std::pair{"inv_inertia", bc.inv_inertia[i]}})
+            if (!(value >= 0 && value <= kMaxInverse))
+                throw std::invalid_argument(std::string("bodies column '") + name + "' is " + shown_number(value) +
+                                            " at row " + std::to_string(i) +
+                                            ": an inverse mass or inertia is from 0 to 1e20 (a body of at least 1e-20 kg, as scene files hold)");
+    for (size_t k = 0; k < cc.n; ++k)
+        for (const auto& [name, value] : {std::pair{"friction", cc.friction[k]}, std::pair{"restitution", cc.restitution[k]}})
+            if (value < 0)
+                throw std::invalid_argument(std::string("contacts column '") + name + "' is negative at row " + std::to_string(k));
 }
 
 // The size of a step's problem, reported with every solve: one table for the struct and its dict.

@@ -189,6 +189,7 @@ py::dict solve_contacts(const py::dict& bodies, const py::dict& contacts,
         static_cast<size_t>(start_tangent.size()) != cc.n)
         throw py::value_error("start impulses must have one value per contact point (" + std::to_string(cc.n) + ")");
     check(step);
+    check(bc, cc);
     check(options);
     // carry: the world whose carried state (the lagged method's factor and penalty) this solve
     // uses and leaves for the next, as a step of the native loop does (pgs_step)
@@ -255,6 +256,7 @@ py::dict contact_rows(const py::dict& bodies, const py::dict& contacts, const St
     const BodyColumns bc = body_columns(bodies);
     const ContactColumns cc = contact_columns(contacts);
     check(step);
+    check(bc, cc);
     ContactProblem<double> pb;
     double scale = 1.0;
     {

@@ -32,11 +32,11 @@ class World:
         from ..scene.model import Scene
         if isinstance(scene, (str, os.PathLike)):
             from ..scene.xml import read_scene
-            scene = read_scene(scene)
-        arguments.instance(scene, "scene", Scene, "a Scene or a scene file's path")
-        # what a scene file is held to, for a scene made or edited in memory: Box2D's asserts
-        # (a NaN position, a collinear polygon) would abort the process, a notebook's kernel
-        check_scene(scene)
+            scene = read_scene(scene)   # (checked as it is read)
+        else:
+            # what a scene file is held to, for a scene made or edited in memory: Box2D's asserts
+            # (a NaN position, a collinear polygon) would abort the process, a notebook's kernel
+            check_scene(arguments.instance(scene, "scene", Scene, "a Scene or a scene file's path"))
         if engine is not None:
             arguments.instance(engine, "engine", (Box2D, Box2D3), "an engine: Box2D() or Box2D3()")
         self.scene = scene

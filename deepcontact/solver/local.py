@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._box2d import contact_rows
+from ..errors import InputError
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
@@ -50,7 +51,10 @@ def jacobian(problem: "StepProblem"):
     per body) to the rows' relative velocities, per contact point its normal row, then its tangent
     row; inv_m the dofs' inverse masses and inertias; v the velocities before the contact impulses
     (v*); rows the native assembly; points the problem's contact points solved."""
-    rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
+    try:
+        rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
+    except ValueError as e:   # (the native checks of the step's values, as solve's)
+        raise InputError(str(e)) from None
     points = np.nonzero(rows["active"])[0]
     m, nb = len(points), len(problem.bodies["inv_mass"])
     jac = rows["jacobian"][points].reshape(m, 2, 6)   # (native/body_rows.hpp: normal, tangent rows)

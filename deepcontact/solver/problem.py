@@ -5,7 +5,6 @@ It holds exactly what Box2D's velocity solver starts from: the bodies at the sta
 solver's settings (dt, gravity, block solver). deepcontact._box2d.solve_contacts assembles the
 rows from it (lever arms, effective masses, restitution bias, 2x2 blocks) and solves.
 """
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,42 +35,6 @@ def _require_columns(table, names, what):
     missing = [k for k in names if k not in table]
     if missing:
         raise InputError(f"{what} lack the columns {', '.join(missing)} (as read_step returns them)")
-
-
-# The largest inverse mass or inertia a body may have: a body of 1e-20 kg (the lightest a scene file
-# may hold, scene.check); beyond it the problem is degenerate, and no residual means anything.
-MAX_INVERSE = 1.00001e20   # (1e20, and float32's rounding of 1 / 1e-20 just above it)
-
-
-def _require_values(bodies, contacts, dt, gravity):
-    """What a step file's reader holds every value to, for arrays handed in directly (a notebook's
-    edit): every number finite, inverse masses and inertias in [0, MAX_INVERSE], friction and
-    restitution not negative, dt positive. One line naming the column and row, before any work."""
-    for what, columns, keys in (("bodies", bodies, BODY_KEYS), ("contacts", contacts, CONTACT_KEYS)):
-        for key in keys:
-            a = np.asarray(columns[key])
-            if a.dtype.kind in "fc" and not np.isfinite(a).all():
-                row = int(np.argmax(~np.isfinite(a).reshape(len(a), -1).all(axis=1))) if a.ndim else 0
-                raise InputError(f"{what} column {key!r} holds a value that is not finite (row {row})")
-    for key in ("inv_mass", "inv_inertia"):
-        a = np.asarray(bodies[key], dtype=np.float64)
-        bad = (a < 0) | (a > MAX_INVERSE)
-        if bad.any():
-            row = int(np.argmax(bad))
-            raise InputError(f"bodies column {key!r} is {a[row]:g} at row {row}: an inverse mass or inertia is "
-                             f"from 0 to {MAX_INVERSE:g} (a body of at least 1e-20 kg, as scene files hold)")
-    for key in ("friction", "restitution"):
-        a = np.asarray(contacts[key], dtype=np.float64)
-        if (a < 0).any():
-            raise InputError(f"contacts column {key!r} is negative at row {int(np.argmax(a < 0))}")
-    try:
-        finite = np.isfinite(np.asarray(gravity, dtype=np.float64)).all() and np.shape(gravity) == (2,)
-    except (TypeError, ValueError):
-        finite = False
-    if not finite:
-        raise InputError(f"gravity must be two finite numbers, got {gravity!r}")
-    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.floating)) or not (0 < dt < math.inf):
-        raise InputError(f"dt must be a positive finite number, got {dt!r}")
 
 
 def impulses_by_key(keys: list[tuple], normal: np.ndarray, tangent: np.ndarray) -> dict:
@@ -146,7 +109,6 @@ class StepProblem:
         _require_columns(bodies, ("index", *BODY_KEYS), "bodies")
         _require_columns(contacts, (*CONTACT_KEYS, "body_a", "body_b", *KEY_COLUMNS, "start_normal_impulse",
                                     "start_tangent_impulse", "normal_impulse", "tangent_impulse"), "contacts")
-        _require_values(bodies, contacts, dt, gravity)
         c = {k: np.ascontiguousarray(contacts[k]) for k in CONTACT_KEYS}
         c["row_a"], c["row_b"] = (_rows(bodies["index"], contacts[k]) for k in ("body_a", "body_b"))
         b = {k: np.ascontiguousarray(bodies[k]) for k in BODY_KEYS}
