@@ -70,7 +70,14 @@ def main():
     if sys.stdout is None:
         sys.stdout = ClosedStdout()
     protocol.command_line = shlex.join(["dc", *sys.argv[1:]])   # recorded in every report
-    cli(prog_name="dc")
+    from deepcontact import leftovers
+    leftovers.adopt_orphans()
+    try:
+        cli(prog_name="dc")
+        code = 0
+    except SystemExit as e:   # (click ends every command with one)
+        code = e.code
+    leftovers.end_process(code)
 
 
 if __name__ == "__main__":

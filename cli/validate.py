@@ -12,8 +12,10 @@ from . import options
               help="PATHS are run folders: re-solve every step with the project's Box2D-exact PGS "
                    "and compare with the impulses Box2D produced (exit 1 unless identical).")
 @click.option("--residuals", is_flag=True,
-              help="Also hold every step a solver of ours stepped (--solver pgs) to its own record: a residual "
-                   "above the tolerance its <solve> names is an error line (exit 1), whatever the method said.")
+              help="Also judge every step a solver of ours stepped (--solver pgs): the residual of its recorded "
+                   "impulses, recomputed from the file's own problem (never the residual the file claims), must be "
+                   "within its run's tolerance (manifest.json), and each simulation's count of steps above it true; "
+                   "else an error line (exit 1).")
 @options.jobs
 @options.verbosity
 @options.command("validate")

@@ -43,6 +43,12 @@ completed = []
 # Partial folders this process is building (folder): what a hard stop removes.
 _building = set()
 
+# Output folders being written (a partial folder, or a folder written in place), by absolute path:
+# a descriptor of the folder itself, opened without following a link. Every file made under one
+# is made from that descriptor, one folder at a time and no link followed: a folder swapped for a
+# link during the run is never written through, whatever the link points at.
+_roots = {}
+
 
 def short_name(name):
     """name, or for one too long to take a suffix, its start and a hash of the whole (still unique)."""
@@ -75,7 +81,7 @@ def own_name(path, kind, name):
 
 def _temporary_name(name):
     """A temporary file's name as write_bytes makes it inside a folder written in place."""
-    return isinstance(name, str) and re.fullmatch(r"\.[^/\x00]+\.\d+\.tmp", name) is not None
+    return isinstance(name, str) and re.fullmatch(r"\.[^/\x00]+\.\d+(_\d+)?\.tmp", name) is not None
 
 
 def _kind(p):
@@ -190,12 +196,13 @@ def umask():
     return mask
 
 
-def check_replaceable(path):
+def check_replaceable(path, where=None, name=None):
     """Refuses (InputError) an output path that is there but is not a regular file: a folder, a
-    device, a FIFO or a socket is never replaced by a file, and a symbolic link never followed."""
+    device, a FIFO or a socket is never replaced by a file, and a symbolic link never followed.
+    (where, name): path as _at gives it."""
     from .errors import InputError
     try:
-        st = os.lstat(path)
+        st = os.stat(path if name is None else name, dir_fd=where, follow_symlinks=False)
     except FileNotFoundError:
         return
     except OSError as e:
@@ -208,35 +215,150 @@ def check_replaceable(path):
 
 
 def write_bytes(path, data: bytes):
-    """data at path, atomically: complete or not there (an earlier file stays until replaced)."""
+    """data at path, atomically: complete or not there (an earlier file stays until replaced).
+    Written to a new temporary file of ours (never one found there: a name planted there, a hard
+    link to a user's file say, is never opened) and renamed over path."""
     # The hot path of `dc simulate` (one call per step): plain os calls, a temporary name
     # unique to this process (tempfile.mkstemp costs more than the write itself).
     path = os.fspath(path)
-    head, name = os.path.split(path)
-    check_replaceable(path)
-    tmp = os.path.join(head, f".{short_name(name)}.{os.getpid()}.tmp")
-    if _locks and os.path.abspath(path) in _locks:
-        note_temporary(path, tmp)
-    if _in_place:
-        record = _in_place.get(os.path.abspath(head or "."))
-        if record is not None:
-            record.enter(name, os.path.basename(tmp))
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o666)   # (less the umask)
+    with _at(path) as (where, name):
+        check_replaceable(path, where, name)
+        record = _in_place.get(os.path.dirname(os.path.abspath(path))) if _in_place else None
+
+        def note(tmp):   # before its bytes: a killed run's temporary file is then known
+            if _locks and os.path.abspath(path) in _locks:
+                note_temporary(path, tmp)
+            if record is not None:
+                record.enter(name, tmp)
         try:
-            view = memoryview(data)
-            while view:
-                view = view[os.write(fd, view):]
+            fd, tmp = _create_temporary(where, name, note)
+        except OSError as e:
+            raise type(e)(e.errno, e.strerror, path) from None
+        try:
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view):]
+            finally:
+                os.close(fd)
+            os.replace(tmp, name, src_dir_fd=where, dst_dir_fd=where)
+        except OSError as e:
+            _remove_quietly(tmp, where)
+            # name the file asked for, not the temporary one
+            raise type(e)(e.errno, e.strerror, path) from None
+        except BaseException:
+            _remove_quietly(tmp, where)
+            raise
+
+
+def _create_temporary(where, name, note=None, mode=0o666):
+    """A new file of ours beside name (in the folder `where`, a descriptor or None): (fd, its
+    name), made with O_EXCL, so a name that is taken (a leftover, or a hard link planted there) is
+    never opened, let alone truncated; the next free name is taken instead. note(tmp) is called
+    before each name is made. The mode is less the umask, as any file's."""
+    import errno
+    base = f".{short_name(name)}.{os.getpid()}"
+    for k in range(1000):
+        tmp = f"{base}.tmp" if k == 0 else f"{base}_{k}.tmp"
+        if note is not None:
+            note(tmp)
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, mode, dir_fd=where), tmp
+        except FileExistsError:
+            continue
+    raise OSError(errno.EEXIST, "no free temporary name beside it", name)
+
+
+@contextmanager
+def _at(path):
+    """(folder, name): where path is made, folder a descriptor of its folder. Under an output
+    folder being written (_roots), that folder is opened from the output's own, no link followed.
+    OSError naming path where a folder on the way is not a real
+    folder (a link put there during the run)."""
+    a = os.path.abspath(path)
+    root = max((r for r in _roots if a.startswith(r + os.sep)), key=len, default=None) if _roots else None
+    if root is None:   # (the user's own folder: its path is theirs to give)
+        head, name = os.path.split(a)
+        try:
+            where = os.open(head, os.O_RDONLY | os.O_DIRECTORY)
+        except OSError as e:
+            raise OSError(e.errno, e.strerror, os.fspath(path)) from None
+        try:
+            yield where, name
         finally:
+            os.close(where)
+        return
+    parts = a[len(root) + 1:].split(os.sep)
+    where, opened = _roots[root], []
+    try:
+        for part in parts[:-1]:
+            try:
+                where = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=where)
+            except OSError as e:
+                import errno
+                if e.errno in (errno.ELOOP, errno.ENOTDIR):
+                    raise OSError(e.errno, f"the folder {part} on the way is not the one dc made (a link, or a "
+                                           f"file, was put in its place during the run): not written through",
+                                  os.fspath(path)) from None
+                raise OSError(e.errno, e.strerror, os.fspath(path)) from None
+            opened.append(where)
+        yield where, parts[-1]
+    finally:
+        for fd in opened:
             os.close(fd)
-        os.replace(tmp, path)
-    except OSError as e:
-        _remove_quietly(tmp)
-        # name the file asked for, not the temporary one
-        raise type(e)(e.errno, e.strerror, path) from None
-    except BaseException:
-        _remove_quietly(tmp)
-        raise
+
+
+def _hold_root(folder):
+    """Registers folder (just made by this run, or an in-place output checked as a real folder) as
+    an output being written: what is made under it is made from its descriptor (_at). Returns the
+    folder's identity."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    _roots[os.path.abspath(folder)] = fd
+    st = os.fstat(fd)
+    return [st.st_dev, st.st_ino]
+
+
+def _release_root(folder):
+    fd = _roots.pop(os.path.abspath(folder), None)
+    if fd is not None:
+        os.close(fd)
+
+
+def make_dir(path):
+    """A new folder at path (made from the output's descriptor when under one: _at)."""
+    with _at(path) as (where, name):
+        try:
+            os.mkdir(name, dir_fd=where)
+        except OSError as e:
+            raise OSError(e.errno, e.strerror, os.fspath(path)) from None
+
+
+def open_fd(path, flags, mode=0o666):
+    """os.open(path, flags) with no link followed in its last name, and under an output folder
+    being written, in none on the way (_at); an OSError names path."""
+    with _at(path) as (where, name):
+        try:
+            return os.open(name, flags | os.O_NOFOLLOW, mode, dir_fd=where)
+        except OSError as e:
+            raise OSError(e.errno, e.strerror, os.fspath(path)) from None
+
+
+def open_new(path, mode="wb"):
+    """A new file at path, opened for writing (O_EXCL: nothing found there is opened; open_fd):
+    for a file written piece by piece inside an output folder being built, whose swap makes it
+    appear whole."""
+    fd = open_fd(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL)
+    return os.fdopen(fd, mode, **({"newline": ""} if "b" not in mode else {}))
+
+
+def new_temporary(path):
+    """A new temporary file of ours beside the output path (noted in path's lock, if held): its
+    path, for a program that writes it (ffmpeg) before it is renamed over path."""
+    note = (lambda tmp: note_temporary(path, tmp)) if _locks and os.path.abspath(path) in _locks else None
+    with _at(path) as (where, name):
+        fd, tmp = _create_temporary(where, name, note)
+    os.close(fd)
+    return Path(path).parent / tmp
 
 
 def write_text(path, text: str):
@@ -254,24 +376,26 @@ def figure_bytes(fig, fmt, **savefig):
 @contextmanager
 def open_for_write(path, mode="wb"):
     """A file object whose content appears at ``path`` only if the block completes."""
-    path = Path(path)
-    check_replaceable(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{short_name(path.name)}.", suffix=".tmp", dir=path.parent)
-    os.fchmod(fd, 0o666 & ~umask())   # (as write_bytes: mkstemp's 0600 is for secrets)
-    if _locks and os.path.abspath(path) in _locks:
-        note_temporary(path, tmp)
-    try:
-        with os.fdopen(fd, mode) as f:
-            yield f
-        os.replace(tmp, path)
-    except BaseException:
-        _remove_quietly(tmp)
-        raise
+    path = os.fspath(path)
+    with _at(path) as (where, name):
+        check_replaceable(path, where, name)
+        note = (lambda tmp: note_temporary(path, tmp)) if _locks and os.path.abspath(path) in _locks else None
+        try:
+            fd, tmp = _create_temporary(where, name, note)
+        except OSError as e:
+            raise type(e)(e.errno, e.strerror, path) from None
+        try:
+            with os.fdopen(fd, mode) as f:
+                yield f
+            os.replace(tmp, name, src_dir_fd=where, dst_dir_fd=where)
+        except BaseException:
+            _remove_quietly(tmp, where)
+            raise
 
 
-def _remove_quietly(path):
+def _remove_quietly(path, where=None):
     try:
-        os.unlink(path)
+        os.unlink(path, dir_fd=where)
     except OSError:
         pass
 
@@ -378,9 +502,14 @@ def locked(path):
                 raise InputError(f"the lock file {lock.name} beside it is a symbolic link: refusing to follow "
                                  "it; remove it", path) from None
             raise InputError(f"cannot write there: {e.strerror or e}", path) from None
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
             os.close(fd)
             raise InputError(f"the lock file {lock.name} beside it is not a regular file; remove it", path)
+        if st.st_nlink != 1:   # (a hard link to a user's file: truncating the lock would empty it)
+            os.close(fd)
+            raise InputError(f"the lock file {lock.name} beside it is a hard link to another file ({st.st_nlink} "
+                             f"names): refusing to write to it; remove it", path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -514,7 +643,7 @@ def folder(path, command="dc"):
     from . import interrupts
     from .errors import InputError
     path = Path(path)
-    tmp, swapped = None, False
+    tmp, swapped, built, old, before, journalled = None, False, None, None, None, False
     # the swap's own names must be free before any work, not found taken at its end (recover has
     # finished or refused whatever an earlier run left; anything there now, a link, a FIFO, a
     # folder, was put there since, or by a caller that did not recover)
@@ -529,18 +658,23 @@ def folder(path, command="dc"):
                 tmp = Path(tempfile.mkdtemp(prefix=f".{short_name(path.name)}.partial-{os.getpid()}-",
                                             dir=path.parent))
                 _building.add(tmp)
+                built = _hold_root(tmp)
                 os.chmod(tmp, 0o777 & ~umask())   # the output's own mode: mkdtemp's 0700 is for secrets
                 _write_record(tmp, command, "partial")
             except OSError as e:
                 raise InputError(f"cannot write there: {e.strerror or e}", path) from None
         yield tmp
+        if not _is(tmp, built):   # (what is there now is not what this run built: swap in nothing)
+            raise InputError(f"the output being built, {tmp.name}, was moved or replaced during the run (by a link "
+                             f"or another folder): nothing was swapped in, and {path.name} is as it was", path)
         with interrupts.held():
             # the journal first: from here on, a kill at any instruction is finished or undone by
             # the next command (recover), which finds the earlier output or the new one, whole
             old = tmp.with_name(tmp.name.replace(".partial-", ".old-", 1))   # (unique as tmp's name is)
+            before = _identity(path) if os.path.lexists(path) else None
             write_text(beside(path, "swap"), json.dumps({
-                "old": old.name, "new": tmp.name, "new_id": _identity(tmp),
-                "old_id": _identity(path) if os.path.lexists(path) else None}) + "\n")
+                "old": old.name, "new": tmp.name, "new_id": _identity(tmp), "old_id": before}) + "\n")
+            journalled = True
             _write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
             if os.path.lexists(path):
                 _keep_attributes(path, tmp)
@@ -553,10 +687,22 @@ def folder(path, command="dc"):
             _remove_quietly(beside(path, "swap"))
     except BaseException:
         if tmp is not None and not swapped:
-            shutil.rmtree(tmp, ignore_errors=True)
+            # (a full disk or a file system gone read-only in the swap: undone here as far as it
+            # can be, so that nothing is left for the next run to finish or undo)
+            try:
+                if old is not None and os.path.lexists(old) and not os.path.lexists(path) and _is(old, before):
+                    os.replace(old, path)
+                if _is(tmp, built):
+                    shutil.rmtree(tmp, ignore_errors=True)
+                if journalled and not os.path.lexists(tmp) and not (old is not None and os.path.lexists(old)):
+                    _remove_quietly(beside(path, "swap"))
+            except OSError:   # (what is left, the journal names: the next run finishes or undoes it)
+                pass
         raise
     finally:
         _building.discard(tmp)
+        if tmp is not None:
+            _release_root(tmp)
 
 
 # --- Output folders ----------------------------------------------------------------------------
@@ -619,6 +765,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
         try:
             with interrupts.held():   # a stop between making the folder and owning it would leave it
                 path.mkdir(exist_ok=True)
+                _hold_root(path)
                 _in_place[key] = record = _InPlace(path, command)
             with _named(path, path):
                 yield path
@@ -631,6 +778,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
         finally:
             if _in_place.pop(key, None) is not None:
                 record.save(final=True)
+            _release_root(path)
 
 
 @contextmanager

@@ -22,6 +22,10 @@ REPEAT_GRACE = 0.5
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
+# The process's own exit, kept before any plug-in runs: guest code finds os._exit replaced by a
+# stand-in that raises (plugins.guest), and dc's own hard stop must still end the process.
+real_exit = os._exit
+
 _held = 0          # depth of held() blocks the main thread is in
 _pending = None    # the signal that came while held
 _received = None   # the first stop signal since install(), raised or not
@@ -109,7 +113,7 @@ def _hard_stop(signum):
         sys.stderr.flush()
     except BaseException:
         pass
-    os._exit(128 + signum)
+    real_exit(128 + signum)
 
 
 def _unraisable(unraisable):

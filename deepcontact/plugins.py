@@ -18,13 +18,24 @@ class PluginError(InputError):
     """A plug-in that cannot be found, imported or used: one line naming it and what is wrong."""
 
 
+class _GuestExit(BaseException):
+    """os._exit called by a plug-in: raised in its code instead, as sys.exit's SystemExit is."""
+
+
+def _refuse_exit(code):
+    raise _GuestExit(code)
+
+
 @contextmanager
 def guest(what, doing="raised"):
     """Runs a plug-in's code (`what` names it: "the start 'x'"). Whatever leaves it becomes one
     PluginError, "{what} {doing} {Type}: {message}", chained to the original (so -v shows its file
-    and line): an exception, sys.exit(), a KeyboardInterrupt it raised itself (the user's own stop
-    passes through). As it returns, the signal handlers, the working folder, the umask and torch's
-    thread count it changed are put back, and a stop signal it swallowed is raised."""
+    and line): an exception, sys.exit() or os._exit() (which would end dc with its partial output
+    and lock left, exit 0), a KeyboardInterrupt it raised itself (the user's own stop passes
+    through). A process it forked never comes back out into dc's code (it would run the rest of
+    the command): it ends there. As it returns, the signal handlers, the working folder, the
+    umask and torch's thread count it changed are put back, and a stop signal it swallowed is
+    raised."""
     import os
     import sys
     from . import interrupts
@@ -35,9 +46,20 @@ def guest(what, doing="raised"):
     from .atomic import umask
     mask = umask()
     threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
+    pid, outermost = os.getpid(), os._exit is not _refuse_exit
+    if outermost:
+        os._exit = _refuse_exit
     try:
-        with interrupts.guest_code():
-            yield
+        try:
+            with interrupts.guest_code():
+                yield
+        finally:
+            if os.getpid() != pid:   # a child the plug-in forked, coming back out: it ends here, quietly
+                interrupts.real_exit(0)
+            if outermost:
+                os._exit = interrupts.real_exit
+    except _GuestExit as e:
+        raise PluginError(f"{what} called os._exit({e.args[0]!r}): a plug-in cannot end the command") from None
     except InputError:   # ours already (a PluginError, or a check the plug-in called)
         raise
     except KeyboardInterrupt as e:

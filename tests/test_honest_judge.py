@@ -65,7 +65,7 @@ def test_a_loop_run_by_a_method_that_stops_early_says_so_and_validate_finds_it(t
     assert above > 0
     r = dc("validate", "--residuals", tmp_path / "run")
     assert r.returncode == 1 and f"{above} steps with a residual above its tolerance" in r.stderr
-    assert r.stdout.count("is above its tolerance") == above
+    assert r.stdout.count("is above its run's tolerance") == above
 
 
 def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, contestants):
@@ -315,3 +315,72 @@ def test_with_v_a_failing_plug_in_shows_its_own_traceback(run, tmp_path, monkeyp
     assert "Traceback" not in quiet.stderr and len(quiet.stderr.strip().splitlines()) == 1
     # the plug-in's own frame, file and line, chained under the one line
     assert "Traceback" in loud.stderr and "failing.py\", line 4" in loud.stderr and "ArithmeticError" in loud.stderr
+
+
+@pytest.fixture(scope="module")
+def stepped(tmp_path_factory):
+    """A run our solver stepped to 1e-4 (float64)."""
+    out = tmp_path_factory.mktemp("stepped") / "run"
+    r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5", "--steps", "60",
+           "--solver", "pgs", "--tolerance", "1e-4", "-q", "-o", out)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def _edit(path, old, new, count=1):
+    import re
+    text = path.read_text()
+    edited = re.sub(old, new, text, count=count)
+    assert edited != text
+    path.write_text(edited)
+
+
+# Edits of a run our solver stepped, each of which `dc validate --residuals` believed.
+EDITS = {
+    # the impulses made worse, the claims edited to match
+    "tolerance and residual claimed": lambda step, manifest: (
+        _edit(step, r'(<impulse n=")([0-9.e-]+)', lambda m: m.group(1) + repr(float(m.group(2)) * 1.5 + 0.01), 0),
+        _edit(step, r'tolerance="[^"]+"', 'tolerance="0.1"'), _edit(step, r' residual="[^"]+"', ' residual="5e-05"')),
+    "an infinite residual claimed": lambda step, manifest: (
+        _edit(step, r'(<impulse n=")([0-9.e-]+)', lambda m: m.group(1) + repr(float(m.group(2)) * 1.5 + 0.01), 0),
+        _edit(step, r' residual="[^"]+"', ' residual="1e999"')),
+    "its <solve> removed": lambda step, manifest: _edit(step, r"\s*<solve [^>]*/>", ""),
+    "a negative count": lambda step, manifest: _edit(manifest, r'"above_tolerance": *0', '"above_tolerance": -1'),
+}
+
+
+@pytest.mark.parametrize("edit", sorted(EDITS))
+def test_validate_residuals_judges_the_files_never_their_claims(stepped, tmp_path, edit):
+    import shutil
+    run = tmp_path / "run"
+    shutil.copytree(stepped, run)
+    assert dc("validate", "--residuals", run).returncode == 0
+    step = sorted(run.glob("seed-*/step-*.xml"))[-1]   # (with contacts)
+    EDITS[edit](step, run / "manifest.json")
+    r = dc("validate", "--residuals", run)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, (r.stdout, r.stderr)
+    lines = r.stdout.strip().splitlines()
+    where = "manifest.json" if edit == "a negative count" else step.name
+    assert where in lines[0], lines
+    if "claimed" in edit:   # (and the manifest's count of steps above, which now hides one)
+        assert len(lines) == 2 and "records 0 step(s) above the tolerance; recomputed, 1 are" in lines[1]
+    else:
+        assert len(lines) == 1
+
+
+def test_a_control_character_in_a_plugins_name_leaves_every_step_file_valid(tmp_path, monkeypatch):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "oddly_named.py").write_text(textwrap.dedent("""
+        import numpy as np
+        from deepcontact.solver.methods import MethodResult
+        class Method:
+            def __call__(self, problem, normal, tangent, settings):
+                return MethodResult(normal, tangent, np.zeros(1))
+        Method.__qualname__ = "Odd\\x01Name\\x1b[31m"
+        """))
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    r = dc("simulate", "pile", "--param", "count=6", "--steps", "20", "--solver", "pgs", "--accelerate",
+           "oddly_named:Method", "-q", "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    assert dc("validate", tmp_path / "run").returncode == 0
+    assert '\\x01Name\\x1b' in sorted((tmp_path / "run").glob("seed-*/step-*.xml"))[-1].read_text()

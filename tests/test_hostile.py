@@ -92,8 +92,8 @@ import os, shutil, signal, sys
 from deepcontact import atomic
 when = {when!r}
 real_replace, real_rmtree = os.replace, shutil.rmtree
-def replace(src, dst):
-    real_replace(src, dst)
+def replace(src, dst, **kw):
+    real_replace(src, dst, **kw)
     if (when == "moved aside" and ".old-" in str(dst)) or (when == "swapped" and str(dst) == {str(out)!r}):
         os.kill(os.getpid(), signal.SIGKILL)
 def rmtree(p, *a, **k):

@@ -165,11 +165,11 @@ def test_a_signal_during_the_swap_waits_for_it(run, tmp_path, monkeypatch):
     out = copy(run, tmp_path / "run")
     real_replace = os.replace
 
-    def replace(src, dst):
+    def replace(src, dst, **kw):
         if Path(dst).name.startswith(".run.old-"):
             os.kill(os.getpid(), signal.SIGTERM)   # the handler runs now: the swap must hold it
             time.sleep(0.05)
-        return real_replace(src, dst)
+        return real_replace(src, dst, **kw)
     saved = {s: signal.getsignal(s) for s in interrupts.STOP_SIGNALS}
     interrupts.install()
     monkeypatch.setattr(os, "replace", replace)
@@ -880,3 +880,120 @@ def test_a_mount_point_as_output_is_refused_before_the_work(tmp_path):
         assert dc("simulate", *PILE, "--steps", "3", "-q", "-o", out / "run").returncode == 0
     finally:
         subprocess.run(["umount", str(out)], capture_output=True)
+
+
+# --- Links: dc never writes through a name it did not make in this run ----------------------------
+
+THESIS = "\\documentclass{article} the only copy\n"
+
+
+def a_users_file(tmp_path):
+    thesis = tmp_path / "thesis.tex"
+    thesis.write_text(THESIS)
+    return thesis
+
+
+@pytest.mark.parametrize("writer", ["write_bytes", "open_for_write", "record"])
+def test_a_hard_link_planted_at_a_temporary_name_is_never_opened(tmp_path, writer):
+    """Every name dc would take for a temporary file is a hard link to the user's file: dc takes
+    another, and the user's file keeps its bytes."""
+    thesis = a_users_file(tmp_path)
+    out = tmp_path / ("out" if writer == "record" else "figure.png")
+    name = atomic.RECORD if writer == "record" else out.name
+    where = tmp_path / ".out.partial" if writer == "record" else tmp_path
+    planted = [f".{name}.{os.getpid()}.tmp"] + [f".{name}.{os.getpid()}_{k}.tmp" for k in range(1, 4)]
+    if writer == "record":   # (inside the folder being built: planted once it is there)
+        with atomic.output_folder(out, atomic.Owned("report"), command="evaluate") as work:
+            for p in planted:
+                os.link(thesis, work / p)
+            atomic.write_text(work / "report.md", "report")
+            for p in planted:
+                (work / p).unlink()
+    elif writer == "write_bytes":
+        for p in planted:
+            os.link(thesis, where / p)
+        atomic.write_bytes(out, b"\x89PNG")
+    else:
+        for p in planted:
+            os.link(thesis, where / p)
+        with atomic.open_for_write(out) as f:
+            f.write(b"\x89PNG")
+    assert thesis.read_text() == THESIS and os.stat(thesis).st_nlink == (1 if writer == "record" else 5)
+    assert (out / "report.md").read_text() == "report" if writer == "record" else out.read_bytes() == b"\x89PNG"
+
+
+def test_a_lock_that_is_a_hard_link_to_a_users_file_is_refused(run, tmp_path):
+    thesis = a_users_file(tmp_path)
+    os.link(thesis, tmp_path / ".r.lock")
+    r = dc("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "40", "--no-budgets", "-q", "-o",
+           tmp_path / "r")
+    assert "is a hard link to another file" in one_line_error(r, "r")
+    assert thesis.read_text() == THESIS and not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("what", ["the output being built", "a folder inside it", "an output written in place"])
+def test_a_folder_swapped_for_a_link_during_the_run_is_never_written_through(tmp_path, what):
+    """The folder dc writes in is moved away and a link to the user's folder put in its place,
+    between two writes: nothing lands in the user's folder, and nothing is swapped in."""
+    users = tmp_path / "users"
+    users.mkdir()
+    (users / "notes.txt").write_text("mine")
+    out = tmp_path / "out"
+    in_place = what == "an output written in place"
+    with pytest.raises((OSError, atomic_error())):
+        with atomic.output_folder(out, atomic.Owned("report"), command="train", in_place=in_place) as work:
+            atomic.make_dir(work / "sub")
+            atomic.write_text(work / "sub" / "first.txt", "first")
+            target = work / "sub" if what == "a folder inside it" else work
+            os.rename(target, tmp_path / "moved")
+            os.symlink(users, target)
+            atomic.write_text(work / "report.md", "report")
+            atomic.write_text(work / "sub" / "second.txt", "second")
+            if in_place:   # (written where the folder went, never through the link: then refused below)
+                raise OSError("end of the run")
+    assert sorted(p.name for p in users.iterdir()) == ["notes.txt"]
+    if what == "the output being built":
+        assert os.path.islink(tmp_path / next(p for p in os.listdir(tmp_path) if ".partial-" in p)) \
+            and not out.exists()
+
+
+def atomic_error():
+    from deepcontact.errors import InputError
+    return InputError
+
+
+@pytest.mark.parametrize("at", ["journal", "record", "moving aside", "moving in"])
+@pytest.mark.parametrize("error", ["ENOSPC", "EROFS"])
+def test_a_full_or_read_only_disk_in_the_swap_leaves_the_output_as_it_was_and_nothing_beside(tmp_path, monkeypatch,
+                                                                                          at, error):
+    import errno
+    out = tmp_path / "out"
+    with atomic.output_folder(out, atomic.Owned("report"), command="evaluate") as work:
+        atomic.write_text(work / "report.md", "old")
+    real_write, real_replace = atomic.write_text, os.replace
+
+    def failing():
+        return OSError(getattr(errno, error), os.strerror(getattr(errno, error)))
+
+    def write_text(path, text):
+        if (at == "journal" and str(path).endswith(".swap")) or (at == "record" and '"done"' in text):
+            raise failing()
+        return real_write(path, text)
+
+    def replace(src, dst, **kw):
+        if ((at == "moving aside" and ".old-" in str(dst)) or (at == "moving in" and str(dst) == str(out))) \
+                and not failed:   # (once: the undo's rename back then works, as when space is freed)
+            failed.append(dst)
+            raise failing()
+        return real_replace(src, dst, **kw)
+    failed = []
+    monkeypatch.setattr(atomic, "write_text", write_text)
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(OSError):
+        with atomic.output_folder(out, atomic.Owned("report"), overwrite=True, command="evaluate") as work:
+            atomic.write_text(work / "report.md", "new")
+    monkeypatch.undo()
+    assert (out / "report.md").read_text() == "old" and sorted(os.listdir(tmp_path)) == ["out"]
+    with atomic.output_folder(out, atomic.Owned("report"), overwrite=True, command="evaluate") as work:
+        atomic.write_text(work / "report.md", "newer")
+    assert (out / "report.md").read_text() == "newer" and sorted(os.listdir(tmp_path)) == ["out"]

@@ -27,6 +27,8 @@ MISDEEDS = {
     "interrupt": "raise KeyboardInterrupt",
     "error": "raise RuntimeError('broken')",
     "base": "raise GeneratorExit",
+    # would end dc at once: its partial output and lock left behind, exit 0
+    "os_exit": "os._exit(0)",
 }
 
 START = """
@@ -420,3 +422,59 @@ def test_what_a_start_changes_in_the_process_is_put_back_as_it_returns(run, tmp_
     finally:
         os.umask(old)
         forget(name)
+
+
+# --- What a plug-in starts does not outlive the command -------------------------------------------
+
+OUTLIVES = {
+    # a thread that is no daemon: Python would wait for it at exit
+    "thread": "import threading; threading.Thread(target=time.sleep, args=(60,)).start()",
+    # a process holding dc's standard output: a pipe would end only when it does
+    "process": "import subprocess; subprocess.Popen(['sleep', '60'])",
+    # its child's child, orphaned at once: adopted by dc, and killed as well
+    "orphan": "import subprocess; subprocess.Popen(['sh', '-c', 'sleep 60 & exit 0']).wait()",
+    # an exit handler and a finalizer that raise: tracebacks after the command's status
+    "atexit": "import atexit; atexit.register(lambda: 1 / 0); Start.kept = Finalizer()",
+    # a fork whose child comes back out of the start: it must not run the rest of dc evaluate
+    "fork": "os.fork()",
+}
+
+LEAVER = """
+import os, pathlib, time
+import numpy as np
+from deepcontact.warmstart.starts import StartValue
+class Finalizer:
+    def __del__(self):
+        raise RuntimeError("finalizer")
+class Start:
+    done = False
+    def __call__(self, ctx):
+        if not Start.done:
+            Start.done = True
+            {body}
+        return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {{}})
+"""
+
+
+@pytest.mark.parametrize("kind", sorted(OUTLIVES))
+def test_nothing_a_plugin_starts_outlives_the_command(run, tmp_path, kind):
+    import os
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "guest_leaves.py").write_text(LEAVER.format(body=OUTLIVES[kind]))
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run),
+                           "--starts", "builtin,guest_leaves:Start", "--every", "20", "--no-budgets", "-q", "-o",
+                           str(tmp_path / "r")], capture_output=True, text=True, timeout=50,
+                          env={**os.environ, "PYTHONPATH": str(mods)}, cwd=tmp_path)
+    took = time.monotonic() - t0
+    assert proc.returncode == 0 and took < 40, (proc.returncode, took, proc.stderr)
+    assert "Traceback" not in proc.stderr and "finalizer" not in proc.stderr, proc.stderr
+    if kind == "thread":
+        assert "thread a plug-in started was still running" in proc.stderr
+    if kind in ("process", "orphan"):
+        assert "still running; killed" in proc.stderr
+    if kind == "fork":   # one report, one line of nothing: the child ended where it came out
+        assert proc.stderr == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mods", "r"]
+    assert not any(p.name.startswith(".") for p in (tmp_path / "r").iterdir() if p.name != ".dc-output.json")

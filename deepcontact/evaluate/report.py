@@ -391,8 +391,8 @@ def _save(fig, stem):
     import matplotlib.pyplot as plt
     fig.tight_layout()
     with matplotlib.rc_context({"svg.hashsalt": "deepcontact"}):
-        fig.savefig(f"{stem}.png", dpi=110)
-        fig.savefig(f"{stem}.svg", dpi=110, metadata={"Date": None})
+        atomic.write_bytes(f"{stem}.png", atomic.figure_bytes(fig, "png", dpi=110))
+        atomic.write_bytes(f"{stem}.svg", atomic.figure_bytes(fig, "svg", dpi=110, metadata={"Date": None}))
     plt.close(fig)
 
 

@@ -104,7 +104,7 @@ def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, 
     with atomic.output_folder(out, EXPORT_FILES, overwrite, command="export") as work:
         tasks = []
         for sim in run.simulations:
-            (work / sim.dir).mkdir()
+            atomic.make_dir(work / sim.dir)
             tasks += [(path, work, sim.dir, sim.seed, scene, solution, k % every == 0) for k, path in enumerate(sim.files)]
         with workers.for_jobs(jobs, tasks, progress) as pool:
             index = [entry for entry in pool.imap(_export_step, tasks) if entry is not None]

@@ -189,7 +189,7 @@ def _write_at(path, offset, array):
     """array's bytes into the file at offset (the file's space is reserved: see _NpyWriter)."""
     view = memoryview(np.ascontiguousarray(array)).cast("B")
     try:
-        fd = os.open(path, os.O_WRONLY)
+        fd = atomic.open_fd(path, os.O_WRONLY)
         try:
             while view:
                 written = os.pwrite(fd, view, offset)
@@ -222,7 +222,7 @@ class _NpyWriter:
         self.dtype = np.dtype(dtype)
         header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": tuple(shape)}
         with self._naming():
-            self.f = open(self.path, "wb")
+            self.f = atomic.open_new(self.path, "wb")
             np.lib.format.write_array_header_1_0(self.f, header) if np.prod(shape) * self.dtype.itemsize < 2 ** 32 \
                 else np.lib.format.write_array_header_2_0(self.f, header)
             self.f.flush()

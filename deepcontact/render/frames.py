@@ -234,8 +234,7 @@ def write_video(out, frames_iter, fps, size):
     if ffmpeg is None:
         raise InputError(f"{out.suffix} needs ffmpeg, which is not installed: install Debian's ffmpeg "
                          f"(apt-get install ffmpeg), or write a .gif", out)
-    tmp = atomic.beside(out, f"{os.getpid()}.tmp")
-    atomic.note_temporary(out, tmp)   # a killed run's copy is then removed by the next
+    tmp = atomic.new_temporary(out)   # (noted in the lock: a killed run's copy is removed by the next)
     w, h = size
     cmd = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", str(fps),
            "-i", "-", *codec, "-f", fmt, str(tmp)]

@@ -14,8 +14,8 @@ import functools
 import math
 import struct
 from dataclasses import dataclass
-from xml.sax.saxutils import quoteattr
 
+from ..xmltext import quoteattr
 from ..errors import InputError
 from ..resources import check_step_work
 from ..scene.xml import fmt

@@ -173,7 +173,7 @@ def prepare_output(out_dir, seeds):
     out_dir = Path(out_dir)
     try:
         for seed in seeds:
-            (out_dir / sim_dirname(seed)).mkdir()
+            atomic.make_dir(out_dir / sim_dirname(seed))
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", out_dir) from None
     return out_dir

@@ -5,9 +5,14 @@ start overlapping are refused.)"""
 from itertools import groupby
 from pathlib import Path
 
+import numpy as np
+
 from .. import atomic, workers
-from ..errors import InputError
-from ..step.check import ABOVE
+from ..errors import InputError, one_line, show_path
+
+ABOVE = "is above its run's tolerance"   # (in the line held_to_tolerance gives: dc validate counts them)
+SLACK = 1.001   # a recomputed residual may exceed the tolerance by this factor: the file's float32 values
+                # are the solver's rounded, and its residual was measured before the rounding
 
 CHUNK = 50   # files a worker checks per task
 
@@ -33,31 +38,88 @@ def xml_files(paths):
 
 
 def check_files(task):
-    """[(path, error lines)] for ([(path, origin)], residuals): one worker's share of a simulation
-    folder."""
+    """[(path, error lines, above)] for ([(path, origin, tolerance)], residuals): one worker's share
+    of a simulation folder; above: whether the step's residual, recomputed, is above tolerance."""
     from ..scene.xml import read_scene
     from ..step.check import check_file
     from .build import check_overlaps
 
     chunk, residuals = task
     out = []
-    for path, origin in chunk:
-        kind, errors = check_file(path, origin, residuals)
+    for path, origin, tolerance in chunk:
+        kind, errors = check_file(path, origin)
+        above = False
         if not errors and kind == "scene":   # what the schema cannot see
             try:
                 check_overlaps(read_scene(path), path)
             except InputError as e:
                 errors = [f"{e.path}:{e.line or 0}:0: {e.message}"]
-        out.append((path, errors))
+        elif not errors and kind == "step" and residuals:
+            try:
+                line = held_to_tolerance(path, *(tolerance or (None,)))
+            except InputError as e:
+                line = f"{e.message}"
+            if line:
+                errors, above = [one_line(f"{show_path(path)}:0:0: {line}")], ABOVE in line
+        out.append((path, errors, above))
     return out
 
 
+def held_to_tolerance(path, tolerance, mode="float64"):
+    """What is wrong with a step our solver stepped, judged by the project: the residual of its
+    recorded impulses, recomputed from the file's own problem in the run's arithmetic (`mode`,
+    the manifest's) and never read from the file, held to `tolerance`, its run's manifest's (None
+    for a step file alone: then its own <solve>'s, and mode). None if nothing is wrong, or the step
+    was not stepped by our solver to a residual.
+
+    A step file holds its impulses as float32 (as Box2D does), so a tolerance below what float32
+    rounding allows cannot be read back: a step above the tolerance is held instead to twice the
+    residual of its own exact answer (to 1e-12) rounded to float32, where that is larger."""
+    import math
+    from ..solver.pgs import solve
+    from ..solver.problem import StepProblem
+    from ..solver.reference import reference_solution
+    from ..step.reader import read_step
+    header, bodies, contacts = read_step(path, validate=False)
+    claim = header.get("solve")
+    if claim is None:
+        return None if tolerance is None else ("has no <solve> record, but its run's manifest says the project's solver "
+                                               "stepped it (an edited file?)")
+    source = "its run's manifest"
+    if tolerance is None:
+        if claim.get("stop_on") != "residual":
+            return None
+        tolerance, mode, source = float(claim["tolerance"]), claim.get("mode"), "its own <solve>, as it lies outside a run"
+    if not tolerance > 0 or len(contacts["manifold"]) == 0:
+        return None
+    mode = "float64" if mode == "float64" else "float32"   # ("exact": Box2D's float32 PGS)
+    problem = StepProblem.from_step(header, bodies, contacts, path)
+
+    def residual(normal, tangent):   # (measured as given: no sweep, no clamp into the cone)
+        return solve(problem, normal, tangent, max_iterations=0, cone=False, mode=mode).residual
+    found = residual(contacts["normal_impulse"].astype(float), contacts["tangent_impulse"].astype(float))
+    allowed = tolerance * SLACK
+    if math.isfinite(found) and found > allowed:
+        exact = reference_solution(problem)
+        floor = residual(exact.normal_impulse.astype(np.float32).astype(float),
+                         exact.tangent_impulse.astype(np.float32).astype(float))
+        allowed = max(allowed, 2 * floor * SLACK)
+    if not (math.isfinite(found) and found <= allowed):
+        floor = (f" and twice what its exact answer rounded to float32 leaves ({allowed / 2 / SLACK:.3g})"
+                 if allowed > tolerance * SLACK else "")
+        return (f"the step's residual {found:.3g}, recomputed from its problem and impulses ({mode}), {ABOVE} "
+                f"{tolerance:g}{floor} ({source}; the file records {claim.get('residual')})")
+    return None
+
+
 def origins(paths):
-    """step file -> (scene, seed) of the simulation it lies in, for the runs among paths; and the
-    error lines of runs whose manifest does not match their folders."""
+    """step file -> (scene, seed, engine) of the simulation it lies in, for the runs among paths;
+    step file -> (tolerance, mode) its run's manifest held our solver to (runs it stepped to a
+    residual); the simulations' manifest records, by their folder; and the error lines of runs
+    whose manifest does not match their folders."""
     from ..step.run_folder import MANIFEST, read_run
 
-    origin, errors = {}, []
+    origin, tolerance, simulations, errors = {}, {}, {}, []
     for run in (Path(p) for p in paths):
         if (run / MANIFEST).is_file():
             try:
@@ -67,32 +129,63 @@ def origins(paths):
                 continue
             origin.update({f.resolve(): (r.manifest.get("scene"), s.seed, s.engine) for s in r.simulations
                            for f in s.files})
-    return origin, errors
+            pgs = r.manifest.get("pgs") if r.manifest.get("solver") == "pgs" else None
+            if isinstance(pgs, dict) and pgs.get("stop_on") == "residual":
+                held = (float(pgs.get("tolerance") or 0.0), pgs.get("mode"))
+                tolerance.update({f.resolve(): held for s in r.simulations for f in s.files})
+                for s, record in zip(r.simulations, r.manifest["simulations"]):
+                    simulations[(run / s.dir).resolve()] = (run / MANIFEST, s.seed, record)
+    return origin, tolerance, simulations, errors
+
+
+def _recounted(simulation, above):
+    """An error line where a manifest's count of steps above the tolerance is not a count, or
+    hides steps the recomputation found above it; else None."""
+    manifest, seed, record = simulation
+    claimed = record.get("above_tolerance")
+    if claimed is None:
+        return None
+    if type(claimed) is not int or not 0 <= claimed <= int(record.get("steps") or 0):
+        return f"{show_path(manifest)}:0:0: simulation {seed}: above_tolerance is {claimed!r}, not a count of its steps"
+    if above > claimed:
+        return (f"{show_path(manifest)}:0:0: simulation {seed}: records {claimed} step(s) above the tolerance; "
+                f"recomputed, {above} are")
+    return None
 
 
 def validate(paths, report, jobs=1, progress=None, residuals=False):
     """Checks every file of paths; report(line) gets each error line, in file order whatever
-    `jobs`; progress(n): n more files checked. residuals: also each step's recorded residual
-    against its recorded tolerance (step.check.residual_above). Returns (files checked, invalid
-    files and runs, steps above their tolerance)."""
+    `jobs`; progress(n): n more files checked. residuals: also each step our solver stepped,
+    its residual recomputed from the file's problem and held to its run's tolerance
+    (held_to_tolerance), and each simulation's count of such steps in the manifest. Returns
+    (files checked, invalid files and runs, steps above their tolerance)."""
     files = list(xml_files(paths))
     if not files:
         raise InputError(f"no XML files found in {', '.join(map(str, paths))}")
-    origin, errors = origins(paths)
+    origin, tolerance, simulations, errors = origins(paths)
     invalid, above = len(errors), 0
     for line in errors:
         report(line)
     # tasks of up to CHUNK files of one folder (a simulation), in file order
-    chunks = [[(f, origin.get(f.resolve())) for f in group[i:i + CHUNK]]
+    chunks = [[(f, origin.get(f.resolve()), tolerance.get(f.resolve())) for f in group[i:i + CHUNK]]
               for group in (list(g) for _, g in groupby(files, key=lambda f: f.parent))
               for i in range(0, len(group), CHUNK)]
+    per_folder = {}
     with workers.for_jobs(jobs, chunks) as pool:
         for checked in pool.imap(check_files, [(chunk, residuals) for chunk in chunks]):
-            for _, lines in checked:
+            for path, lines, is_above in checked:
                 invalid += bool(lines)
-                above += any(ABOVE in line for line in lines)
+                above += is_above
+                folder = path.parent.resolve()
+                per_folder[folder] = per_folder.get(folder, 0) + is_above
                 for line in lines:
                     report(line)
             if progress is not None:
                 progress(len(checked))
+    if residuals:
+        for folder, simulation in simulations.items():
+            line = _recounted(simulation, per_folder.get(folder, 0)) if folder in per_folder else None
+            if line:
+                invalid += 1
+                report(line)
     return len(files), invalid, above

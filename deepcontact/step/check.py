@@ -12,10 +12,9 @@ from .reader import check_origin, read_step, step_schema
 MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
 
-def check_file(path, origin=None, residuals=False):
+def check_file(path, origin=None):
     """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed, engine) of the
-    simulation the file lies in, or None. residuals: a step our solver stepped must also have
-    ended within the tolerance its <solve> records (residual_above)."""
+    simulation the file lies in, or None."""
     shown = show_path(path)
     try:
         root, scene, seed, errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)
@@ -32,26 +31,8 @@ def check_file(path, origin=None, residuals=False):
             if origin is not None:
                 scene_of, seed_of, engine = origin
                 check_origin({**header, "scene": scene, "seed": seed}, scene_of, seed_of, path, engine)
-            above = residual_above(header) if residuals else None
-            if above:
-                lines = [one_line(f"{shown}:0:0: {above}")]
         except InputError as e:
             lines = [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
     return "step", lines
 
 
-ABOVE = "is above its tolerance"   # (in the line residual_above gives: dc validate counts them)
-
-
-def residual_above(header):
-    """What is wrong with a step our solver stepped whose recorded residual is above its recorded
-    tolerance (its <solve>), or None."""
-    import math
-    solve = header.get("solve")
-    if not solve or solve.get("stop_on") != "residual":
-        return None
-    residual, tolerance = float(solve["residual"]), float(solve["tolerance"])
-    if tolerance > 0 and math.isfinite(residual) and residual > tolerance:
-        return (f"the step's residual {residual:.3g} {ABOVE} {tolerance:g} "
-                f"(<solve iterations=\"{solve.get('iterations')}\">)")
-    return None

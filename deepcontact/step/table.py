@@ -101,7 +101,7 @@ class _CSV:
     """Rows appended as they come (the values' repr: float32 values as the doubles they are)."""
 
     def __init__(self, path):
-        self.f = open(path, "w", newline="")
+        self.f = atomic.open_new(path, "w")
         self.w = CsvWriter(self.f)
         self.header = False
 

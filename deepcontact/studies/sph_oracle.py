@@ -162,7 +162,7 @@ def plot(rows, path_stem):
     ax.grid(alpha=0.3)
     fig.tight_layout()
     for ext in ("png", "svg"):
-        fig.savefig(f"{path_stem}.{ext}", dpi=120)
+        atomic.write_bytes(f"{path_stem}.{ext}", atomic.figure_bytes(fig, ext, dpi=120))
     plt.close(fig)
 
 

@@ -4,7 +4,9 @@ import io
 import math
 import re
 from dataclasses import dataclass, fields
+from pathlib import Path
 
+from .. import atomic
 from ..escape import CsvWriter
 
 
@@ -82,7 +84,7 @@ def accuracy_plot(families, points, path, ylabel, title):
         readable_log_ticks(ax.yaxis)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic.write_bytes(path, atomic.figure_bytes(fig, Path(path).suffix[1:], dpi=110))
     plt.close(fig)
 
 

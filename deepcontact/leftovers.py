@@ -1,0 +1,106 @@
+"""The end of a `dc` process: nothing a plug-in started outlives the command's decision.
+
+A plug-in's non-daemon thread kept dc alive 20 s after its report; a process it started held dc's
+standard output open, so a pipe ended 30 s late; its atexit handlers and finalizers printed
+tracebacks after exit 0. So `dc` ends its process itself once the command has decided: the
+streams flushed, every process still running under it killed (with dc made the reaper of
+orphans, those of its children's children too) and said in one line, then os._exit with the
+command's status, which neither waits for threads nor runs exit handlers. A library caller's
+process is the caller's own: none of this runs there.
+"""
+import os
+import signal
+import sys
+import threading
+
+_PR_SET_CHILD_SUBREAPER = 36
+
+
+def adopt_orphans():
+    """Makes this process the reaper of the processes its descendants leave (Linux): a plug-in's
+    daemon that forks twice still ends up under dc, where end_process finds it."""
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def children(pid=None):
+    """The processes whose parent is pid (this process by default), from /proc (Linux; else none)."""
+    pid = os.getpid() if pid is None else pid
+    out = []
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for task in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                out += [int(c) for c in f.read().split()]
+        except OSError:
+            pass
+    return out
+
+
+def kill_descendants():
+    """SIGKILLs every process still running under this one, reaped as they go (each round adopts
+    the orphans the last made); one that has ended already is only reaped. Returns how many were
+    killed."""
+    killed = set()
+    for _ in range(100):
+        found = children()
+        if not found:
+            break
+        for c in found:
+            if not _ended(c):
+                try:
+                    os.kill(c, signal.SIGKILL)
+                    killed.add(c)
+                except OSError:
+                    pass
+        for c in found:
+            try:
+                os.waitpid(c, 0)
+            except OSError:
+                pass
+    return len(killed)
+
+
+def _ended(pid):
+    """Whether pid has ended and waits only to be reaped (a zombie)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def end_process(code):
+    """Ends the process with the command's status (click's SystemExit code): what is left running
+    (threads, processes) said in one line each on stderr and not waited for."""
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):   # (a message: printed, as Python's exit would)
+        sys.stderr.write(f"{code}\n")
+        code = 1
+    threads = [t for t in threading.enumerate() if t is not threading.main_thread() and t.is_alive()
+               and not t.daemon]
+    killed = kill_descendants()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:   # (a closed pipe: what was for it is lost, as with any program)
+            pass
+    try:
+        if threads:
+            sys.stderr.write(f"dc: {len(threads)} thread{'s' if len(threads) != 1 else ''} a plug-in started "
+                             f"{'were' if len(threads) != 1 else 'was'} still running; ended with the command\n")
+        if killed:
+            sys.stderr.write(f"dc: {killed} process{'es' if killed != 1 else ''} started under the command "
+                             f"(by a plug-in?) {'were' if killed != 1 else 'was'} still running; killed\n")
+        sys.stderr.flush()
+    except Exception:
+        pass
+    from .interrupts import real_exit
+    real_exit(code)
