@@ -41,7 +41,7 @@ def test_the_orderings_an_honest_comparison_must_show(rows_and_summary):
     assert s["copy"]["error_median"] < 1e-9
     assert all(v["residual_median"] < 1e-4 or v["at_cap"] > 0 for v in s.values())
     # (every start's whole call is timed by the caller: zero's is the call itself, sph's rasterizes)
-    assert 0 < s["zero"]["predict_ms_median"] < s["sph"]["predict_ms_median"]
+    assert 0 <= s["zero"]["predict_ms_median"] < s["sph"]["predict_ms_median"]   # (net of transport)
 
 
 def test_every_step_is_solved_from_every_start(rows_and_summary):

@@ -10,6 +10,8 @@ whether the PSOR guard fell back, prediction and solve time, and with `budgets` 
 and reached residual of fixed sweep budgets.
 """
 import copy
+import dataclasses
+import pickle
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,14 +22,14 @@ import numpy as np
 from .. import workers
 from ..errors import InputError
 from ..step.run_folder import Run, read_run
-from ..solver.methods import GLOBAL, is_native, solve
+from ..solver.methods import is_native, judge, solve
 from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
-from ..warmstart.starts import StepContext, seen_by
+from ..warmstart.starts import ANSWER_COLUMNS, StepContext
 
 
 @dataclass
@@ -55,6 +57,9 @@ class Row:
     factorizations: int = 0   # sparse systems a global method factorized or solved (newton, subspace)
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
     solve_ms_repeats: np.ndarray = None   # each of the REPEATS timed solves (solve_ms is their median)
+    transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
+    setup_ms: float = 0.0      # the variant's import and construction in its process (once, not per step)
+    memo: bool = False         # repeats answered faster than first calls beyond noise: charged the first call
 
 
 # Every variant's solve is timed this many times, the variants interleaved round by round (so a
@@ -173,77 +178,148 @@ def _velocity_error(solution, reference):
         if len(reference.velocity) else 0.0
 
 
+def _visible(ctx, traits, label):
+    """ctx as a start with these traits may see it (starts.seen_by, by the contestant's own word on
+    what it asks for)."""
+    changes = {"variant": label, "cache": {}}
+    if not traits["needs_reference"]:
+        changes["reference"] = None
+    if not traits["needs_recorded"]:
+        changes["contacts"] = {k: v for k, v in ctx.contacts.items() if k not in ANSWER_COLUMNS}
+        changes["problem"] = _unanswered(ctx.problem)
+    return dataclasses.replace(ctx, **changes)
+
+
+def _unanswered(problem):
+    return dataclasses.replace(problem, normal_impulse=None, tangent_impulse=None)
+
+
+def _checked(label, arrays, points):
+    """A contestant's impulses, checked by the judge (its process's own checks are its own)."""
+    from ..plugins import PluginError
+    out = []
+    for what in ("normal", "tangent"):
+        a = arrays.get(what)
+        if a is None or a.shape != (points,) or not np.all(np.isfinite(a)):
+            raise PluginError(f"the variant {label!r} answered {what} impulses that are not {points} finite numbers")
+        out.append(a)
+    if np.any(out[0] < 0):
+        raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
+    return out
+
+
+def _timed(contestant, request, points):
+    """(seconds net of transport, transport seconds, header, arrays) of one call, timed here."""
+    null, _, _ = contestant.call({"op": "echo", "points": points, **{k: v for k, v in request.items() if k != "op"}})
+    took, header, arrays = contestant.call(request)
+    return max(took - null, 0.0), null, header, arrays
+
+
+def _contestants(table, settings):
+    """One Contestant per variant, each in its own process (contestant.py)."""
+    from ..protocol import threads_asked
+    from .contestant import Contestant
+    spec, checkpoint = None, None
+    for v in table:
+        inner = getattr(v.start, "start", v.start)
+        for obj in (inner, getattr(inner, "cnn", None), *getattr(inner, "candidates", {}).values()):
+            predictor = getattr(obj, "predictor", None)
+            checkpoint = checkpoint or getattr(predictor, "checkpoint", None)
+            spec = spec or getattr(predictor, "spec", None) or getattr(obj, "spec", None)
+    out = {}
+    try:
+        for v in table:
+            out[v.label] = Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, threads_asked)
+    except BaseException:
+        for c in out.values():
+            c.close()
+        raise
+    return out
+
+
 def evaluate_simulation(task):
     """The rows of one simulation: (run, seed, files, scene), the variants, the solver settings,
-    every, seed, budgets."""
+    every, seed, budgets. Every variant's calls go to its own process (contestant.py), in an order
+    shuffled per step by a fixed seed, each timed here and its answer judged here."""
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
     mode, max_iterations, tolerance, stop_on = settings.mode, settings.max_iterations, settings.tolerance, settings.stop_on
     measure = MEASURES.index(stop_on)
+    contestants = _contestants(table, settings)
     rows = []
-    previous, before = set(), None
-    for k, path in enumerate(files):
-        workers.progress(1)
-        header, bodies, contacts = read_step(path, validate=False)
-        check_origin(header, scene, sim_seed, path, engine)
-        keys = contact_keys(contacts)
-        persisted = np.array([key in previous for key in keys], dtype=bool)
-        previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
-        if k % every or len(contacts["manifold"]) == 0:
-            continue
-        problem = StepProblem.from_step(header, bodies, contacts, path)
-        reference = reference_solution(problem)
-        # every start sees what it would in the loop: the step before its solve and the previous
-        # step's converged solution, whatever else is listed; the step's answer only if it asks
-        ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
-                          persisted=persisted, seed=seed, index=int(header["index"]), trajectory="replay",
-                          previous=previous_solution(earlier, header["index"], settings))
-        ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
-        step_rows = []
-        for v in table:
-            seen = seen_by(v.name, ctx, v.label, v.start)   # (the platform's work: before the clock starts)
-            t0 = time.perf_counter()   # the whole call, timed here: a start's own report is a breakdown
-            value = v.start(seen)
-            predict_s = time.perf_counter() - t0
-            kw = dict(settings=settings.but(relaxation=v.relaxation, accelerate=v.accelerate))
-            traced = solve(problem, value.normal, value.tangent, history=True, **kw)
-            got = np.concatenate([traced.normal_impulse, traced.tangent_impulse])
-            hist = traced.history[:, measure]
-            # the measure before any sweep exists only for the residual (the others are changes)
-            first = (solve(problem, value.normal, value.tangent, mode=mode, max_iterations=0).residual
-                     if stop_on == "residual" else np.nan)
-            capped = bool(traced.iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance))
-            row = Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=v.label,
-                      iterations=traced.iterations, capped=capped,
-                      above=bool(traced.residual > tolerance) if stop_on == "residual" and tolerance > 0 else capped,
-                      residual=traced.residual,
-                      error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
-                      velocity_error=_velocity_error(traced, reference),
-                      predict_ms=predict_s * 1e3, solve_ms=0.0,
-                      history=np.concatenate([[first], hist]), relaxation=None if v.relaxation is None else float(v.relaxation),
-                      accelerate=v.accelerate,
-                      fallback=traced.relaxation_fallback > 0, reference_residual=reference.residual,
-                      reference_pivoted=reference.pivoted,
-                      factorizations=traced.factorizations)
-            if budgets:
-                row.budget_ms, row.budget_residual = _budgets(problem, value, mode, v.relaxation, v.accelerate)
-            step_rows.append((row, value, kw))
-        _time_interleaved(problem, step_rows)
-        rows.extend(row for row, _, _ in step_rows)
+    try:
+        previous, before = set(), None
+        for k, path in enumerate(files):
+            workers.progress(1)
+            header, bodies, contacts = read_step(path, validate=False)
+            check_origin(header, scene, sim_seed, path, engine)
+            keys = contact_keys(contacts)
+            persisted = np.array([key in previous for key in keys], dtype=bool)
+            previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
+            if k % every or len(contacts["manifold"]) == 0:
+                continue
+            problem = StepProblem.from_step(header, bodies, contacts, path)
+            reference = reference_solution(problem)
+            ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
+                              persisted=persisted, seed=seed, index=int(header["index"]), trajectory="replay",
+                              previous=previous_solution(earlier, header["index"], settings))
+            ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
+            order = np.random.default_rng([seed, sim_seed, int(header["index"])]).permutation(len(table))
+            step_rows = {}
+            for i in order:
+                v = table[i]
+                c = contestants[v.label]
+                predict_s, transport_s, _, arrays = _timed(c, {"op": "start", "ctx": _visible(ctx, c.traits, v.label)},
+                                                           problem.points)
+                normal, tangent = _checked(v.label, arrays, problem.points)
+                step_rows[i] = (v, c, normal, tangent, predict_s, transport_s)
+            asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate) for i, (v, *_) in step_rows.items()}
+            sent = pickle.dumps(_unanswered(problem))
+            times = {i: [] for i in step_rows}
+            answers = {i: [] for i in step_rows}
+            for rep in range(REPEATS):   # (interleaved: a busy moment of the machine touches every variant)
+                for i in order:
+                    v, c, normal, tangent, *_ = step_rows[i]
+                    took, _, head, arrays = _timed(c, {"op": "solve", "problem": sent, "normal": normal, "tangent": tangent,
+                                                       "settings": asked[i], "history": rep == 0}, problem.points)
+                    times[i].append(took * 1e3)
+                    answers[i].append((head, arrays))
+            for i in sorted(step_rows):
+                v, c, normal, tangent, predict_s, transport_s = step_rows[i]
+                # every timed answer judged by our residual: the worst of them is the variant's
+                judged = [judge(problem, *_checked(v.label, arrays, problem.points)) for _, arrays in answers[i]]
+                worst = max(judged, key=lambda s: s.residual)
+                head, arrays = answers[i][0]
+                got = np.concatenate([arrays["normal"], arrays["tangent"]])
+                if is_native(v.accelerate):   # (the judge's own solver, traced here, untimed: the same iterates)
+                    traced = solve(problem, normal, tangent, history=True, settings=asked[i])
+                    hist, iterations = traced.history[:, measure], traced.iterations
+                else:
+                    hist, iterations = arrays["claims"].copy(), int(head["iterations"])
+                    if len(hist):
+                        hist[-1] = judged[0].residual   # (the last iterate's residual is ours, not its claim)
+                first = (solve(problem, normal, tangent, mode=mode, max_iterations=0).residual
+                         if stop_on == "residual" else np.nan)
+                capped = bool(iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance))
+                row = Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=v.label,
+                          iterations=iterations, capped=capped,
+                          above=bool(worst.residual > tolerance) if stop_on == "residual" and tolerance > 0 else capped,
+                          residual=worst.residual,
+                          error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
+                          velocity_error=_velocity_error(judged[0], reference),
+                          predict_ms=predict_s * 1e3, solve_ms=float(np.median(times[i])),
+                          history=np.concatenate([[first], hist]),
+                          relaxation=None if v.relaxation is None else float(v.relaxation),
+                          accelerate=v.accelerate, fallback=bool(head["fallback"]),
+                          reference_residual=reference.residual, reference_pivoted=reference.pivoted,
+                          factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(times[i]),
+                          transport_ms=transport_s * 1e3, setup_ms=(c.import_s + c.construct_s) * 1e3)
+                if budgets:
+                    row.budget_ms, row.budget_residual = _budgets(c, problem, sent, normal, tangent, asked[i], v.label)
+                rows.append(row)
+    finally:
+        for c in contestants.values():
+            c.close()
     return rows
-
-
-def _time_interleaved(problem, step_rows):
-    """Each variant's untraced solve timed REPEATS times, round by round across the variants; a
-    row's solve_ms is the median of its repeats."""
-    times = np.empty((len(step_rows), REPEATS))
-    for rep in range(REPEATS):
-        for i, (row, value, kw) in enumerate(step_rows):
-            t0 = time.perf_counter()
-            solve(problem, value.normal, value.tangent, final_residual=False, **kw)
-            times[i, rep] = (time.perf_counter() - t0) * 1e3
-    for i, (row, _, _) in enumerate(step_rows):
-        row.solve_ms_repeats = times[i]
-        row.solve_ms = float(np.median(times[i]))
 
 
 def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSettings(), every: int = 1, seed: int = 0,
@@ -270,42 +346,49 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
             v.relaxation = tuned[v.accelerate]
     tasks = [(sim, table, settings, every, seed, budgets) for sim in plan]
     rows = []
-    with workers.for_jobs(jobs, tasks, progress) as pool:
-        for simulation_rows in pool.imap(evaluate_simulation, tasks):
-            rows.extend(simulation_rows)
+    from .contestant import stop_server
+    try:
+        with workers.for_jobs(jobs, tasks, progress) as pool:
+            for simulation_rows in pool.imap(evaluate_simulation, tasks):
+                rows.extend(simulation_rows)
+    finally:
+        stop_server()
     if not rows:
         raise InputError("no steps with contacts to evaluate")
-    return rows
+    return flag_memos(rows)
 
 
-def _budgets(problem, value, mode, w, accelerate="none"):
-    """Measured: the time of exactly b sweeps for every budget b (no early stop, no measuring on
-    the way), and the residual after them (one traced run: the same iterates, since nothing in a
-    solve depends on whether it is traced). A global method gets b sweeps and the Newton steps
-    between them, until 1e-12 (a plug-in method: b iterations): its time and the residual it
-    reached, from each timed solve."""
-    if accelerate in GLOBAL or not is_native(accelerate):
-        ms, residual = [], []
-        for b in BUDGETS:
-            t0 = time.perf_counter()
-            s = solve(problem, value.normal, value.tangent, mode=mode, max_iterations=b, relaxation=w,
-                      accelerate=accelerate)
-            ms.append((time.perf_counter() - t0) * 1e3)
-            residual.append(s.residual)
-        return np.array(ms), np.array(residual)
-    traced = solve(problem, value.normal, value.tangent, mode=mode, max_iterations=BUDGETS[-1], relaxation=w,
-                   accelerate=accelerate, history=True)
-    residual = traced.history[np.array(BUDGETS) - 1, MEASURES.index("residual")]
-    # (an untimed solve first: the first call after another start's would pay for cold caches)
-    solve(problem, value.normal, value.tangent, mode=mode, max_iterations=1, relaxation=w, accelerate=accelerate,
-          final_residual=False)
-    ms = []
+def _budgets(contestant, problem, sent, normal, tangent, settings, label):
+    """Measured: the time of exactly b sweeps for every budget b (no early stop; a global method
+    gets b sweeps and the Newton steps between them, a plug-in b iterations), each a call to the
+    variant's process timed here, and the residual its answer reaches, judged here."""
+    ms, residual = [], []
     for b in BUDGETS:
-        t0 = time.perf_counter()
-        solve(problem, value.normal, value.tangent, mode=mode, max_iterations=b, relaxation=w, accelerate=accelerate,
-              final_residual=False)
-        ms.append((time.perf_counter() - t0) * 1e3)
-    return np.array(ms), residual
+        took, _, _, arrays = _timed(contestant, {"op": "solve", "problem": sent, "normal": normal, "tangent": tangent,
+                                                 "settings": settings.but(max_iterations=b, tolerance=0.0)},
+                                    problem.points)
+        ms.append(took * 1e3)
+        residual.append(judge(problem, *_checked(label, arrays, problem.points)).residual)
+    return np.array(ms), np.array(residual)
+
+
+def flag_memos(rows):
+    """Marks the variants whose repeated solves answered faster than their first call by more than
+    the other variants' repeats do (a memo of answers by the problem's bytes): their rows are
+    charged the first call (Row.memo). The bar: a median repeat/first ratio under half the median
+    of every variant's."""
+    ratios = {}
+    for r in rows:
+        if r.solve_ms_repeats is not None and len(r.solve_ms_repeats) > 1 and r.solve_ms_repeats[0] > 0:
+            ratios.setdefault(r.start, []).append(float(np.min(r.solve_ms_repeats[1:]) / r.solve_ms_repeats[0]))
+    if len(ratios) < 1:
+        return rows
+    medians = {name: float(np.median(v)) for name, v in ratios.items()}
+    bar = 0.5 * float(np.median(list(medians.values()) + [1.0]))
+    for r in rows:
+        if medians.get(r.start, 1.0) < bar:
+            r.memo, r.solve_ms = True, float(r.solve_ms_repeats[0])
+    return rows
 
 
 def summarize(rows, starts, max_iterations):
