@@ -63,6 +63,9 @@ def _make(setup):
     from ..solver import methods
     from ..warmstart.starts import STARTS, asks, make_starts
     t0 = time.perf_counter()
+    for name in setup["networks"]:   # (the checkpoint's plug-in network, which the user named with --arch)
+        from ..model.arch import NETWORKS
+        NETWORKS.load(name)
     kind, what = setup["start"]
     if kind == "name":
         factory = STARTS.load(what)
@@ -186,12 +189,12 @@ class Contestant:
     """One variant's start and method in a process of their own. `call` sends a request and
     returns (seconds, header, arrays), timed by the judge's clock around the whole exchange."""
 
-    def __init__(self, label, name, start, method, spec=None, checkpoint=None, threads=1):
+    def __init__(self, label, name, start, method, spec=None, checkpoint=None, threads=1, networks=()):
         self.label = label
         made = _by_name(name, start)
         setup = {"name": name, "start": ("name", name) if made else ("object", pickle.dumps(start)),
                  "method": method, "spec": spec, "checkpoint": checkpoint, "threads": threads,
-                 "path": list(sys.path)}
+                 "path": list(sys.path), "networks": list(networks)}
         context = _server()
         self.conn, theirs = context.Pipe()
         self.process = context.Process(target=serve, args=(theirs, setup), daemon=True, name=f"dc contestant {label}")

@@ -219,17 +219,20 @@ def _contestants(table, settings):
     """One Contestant per variant, each in its own process (contestant.py)."""
     from ..protocol import threads_asked
     from .contestant import Contestant
-    spec, checkpoint = None, None
+    spec, checkpoint, networks = None, None, []
     for v in table:
         inner = getattr(v.start, "start", v.start)
         for obj in (inner, getattr(inner, "cnn", None), *getattr(inner, "candidates", {}).values()):
             predictor = getattr(obj, "predictor", None)
             checkpoint = checkpoint or getattr(predictor, "checkpoint", None)
+            if getattr(predictor, "network", None) and not networks:
+                from ..model.arch import NETWORKS
+                networks = [] if predictor.network in NETWORKS.builtin() else [predictor.network]
             spec = spec or getattr(predictor, "spec", None) or getattr(obj, "spec", None)
     out = {}
     try:
         for v in table:
-            out[v.label] = Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, threads_asked)
+            out[v.label] = Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, threads_asked, networks)
     except BaseException:
         for c in out.values():
             c.close()

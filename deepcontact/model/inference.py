@@ -40,6 +40,7 @@ class Predictor:
         threads = arguments.whole(threads, "threads", 1, 1024)
         ck = load_checkpoint(arguments.path(checkpoint, "checkpoint"))
         self.checkpoint, self.threads = os.fspath(checkpoint), threads   # (a contestant process loads its own)
+        self.network = ck["network"]["model"]
         self.spec = GridSpec.from_dict(ck["dataset"]["grid"])   # (checked by load_checkpoint)
         self.inputs = list(ck["dataset"]["inputs"])
         self.targets = list(ck["targets"])
