@@ -384,3 +384,20 @@ def test_a_control_character_in_a_plugins_name_leaves_every_step_file_valid(tmp_
     assert r.returncode == 0, r.stderr
     assert dc("validate", tmp_path / "run").returncode == 0
     assert '\\x01Name\\x1b' in sorted((tmp_path / "run").glob("seed-*/step-*.xml"))[-1].read_text()
+
+
+def test_a_start_that_wins_the_median_but_loses_the_total_is_no_clear_winner():
+    """40 ms on 5% of the steps: the median is half builtin's, the total twice it."""
+    import numpy as np
+    from deepcontact.evaluate.noise import judge
+    from deepcontact.evaluate.replay import summarize
+    steps = np.random.default_rng(4).uniform(0.9, 1.1, 40)
+    spiky = steps / 2
+    spiky[::20] += 40.0
+    rows = rows_of({"builtin": steps, "spiky": spiky})
+    noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
+    assert noise["best"] == "spiky" and noise["vs_base"]["spiky"][2] < 1
+    assert noise["beaten_on_total_by"] == ["builtin"] and not noise["clear"]
+    from deepcontact.evaluate.report import verdict
+    line = verdict(summarize(rows, None, 1000), noise)
+    assert line.startswith("**Verdict**: no clear winner") and "Over all steps it took longer than builtin" in line

@@ -132,7 +132,9 @@ def verdict(summary, noise=None):
                 + (f"; against the runner-up {md_text(runner)} it takes {_interval(noise['best_vs_runner_up'])}"
                    if runner else "")
                 + f"; {md_text(base)} timed against itself (A/A) measured {_interval(noise['aa'])} "
-                f"({100 * noise['level']:.0f}% intervals over the steps).")
+                f"({100 * noise['level']:.0f}% intervals over the steps)."
+                + "".join(f" Over all steps it took longer than {md_text(n)} ({noise['total_ms'][best]:.4g} ms against "
+                          f"{noise['total_ms'][n]:.4g} ms)." for n in noise.get("beaten_on_total_by") or ()))
         return text + left_out
     text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
             f"oracles left out) is **{md_text(best)}**: {b['total_ms_median']:.3f} ms, {count(round(b['iterations_median']), 'sweep')}")
