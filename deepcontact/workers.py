@@ -29,16 +29,22 @@ def progress(n=1):
         _report(n)
 
 
-def _init_worker(parent):
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+def die_with_parent(parent=None):
+    """This process is killed when its parent dies, even by SIGKILL (Linux: PR_SET_PDEATHSIG); if
+    the parent (pid `parent`, where given) died already, it ends now."""
     try:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
     except (OSError, AttributeError):   # not Linux: the kill on the way out still applies
         pass
-    if os.getppid() != parent:   # the parent died before prctl took effect
+    if parent is not None and os.getppid() != parent:   # the parent died before prctl took effect
         interrupts.real_exit(1)
+
+
+def _init_worker(parent):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    die_with_parent(parent)
 
 
 def _serve(conn):

@@ -161,10 +161,14 @@ SEERS = textwrap.dedent("""
             return StartValue(n, t, {})
 
     class Recorder:
-        '''Says what it was given, per call, and by which instance.'''
+        '''Says what it was given, per call, and by which instance in which process (into a file
+        beside its module: it runs in a process of its own).'''
         def __call__(self, ctx):
-            SEEN.append((id(self), ctx.variant, ctx.index, ctx.trajectory, ctx.reference is None,
-                         "normal_impulse" in ctx.contacts, ctx.problem.normal_impulse is None))
+            import json, os, pathlib
+            with open(pathlib.Path(__file__).with_name("seen.jsonl"), "a") as f:
+                f.write(json.dumps([f"{os.getpid()}-{id(self)}", ctx.variant, ctx.index, ctx.trajectory,
+                                    ctx.reference is None, "normal_impulse" in ctx.contacts,
+                                    ctx.problem.normal_impulse is None]) + "\\n")
             return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
     """)
 
@@ -203,19 +207,20 @@ def test_the_previous_solution_is_there_whatever_else_is_listed(run, tmp_path, s
     assert sum(scaled.values()) < sum(zero.values())   # it had something to start from
 
 
-def test_each_variant_has_its_own_start_and_the_context_says_where_it_is(run, seers):
+def test_each_variant_has_its_own_start_and_the_context_says_where_it_is(run, tmp_path, seers):
     import deepcontact as dcl
-    import seers as mod
     starts = dcl.make_starts(["seers:Recorder"])
     dcl.evaluate_starts([run], starts, every=40, relaxations=(1.0, 1.7))
     variants = {}
-    for instance, variant, index, trajectory, no_reference, recorded, problem_answer_hidden in mod.SEEN:
+    seen = [json.loads(line) for line in (tmp_path / "seers" / "seen.jsonl").read_text().splitlines()]
+    for instance, variant, index, trajectory, no_reference, recorded, problem_answer_hidden in seen:
         variants.setdefault(variant, set()).add(instance)
         assert trajectory == "replay" and no_reference and not recorded and problem_answer_hidden
         assert index % 40 == 0
     assert set(variants) == {"seers:Recorder@1", "seers:Recorder@1.7"}
-    assert all(len(ids) == 1 for ids in variants.values())
-    assert variants["seers:Recorder@1"] != variants["seers:Recorder@1.7"]
+    # one instance per variant and simulation, each in a process of its own
+    assert all(len(ids) == 2 for ids in variants.values())
+    assert not variants["seers:Recorder@1"] & variants["seers:Recorder@1.7"]
 
 
 def test_every_variant_says_where_it_comes_from(run, tmp_path, contestants):

@@ -5,6 +5,7 @@ command ends in one line naming it (exit 1), or goes on unharmed; the user's own
 
 The misbehaviours are generated: each one in each kind of plug-in, at import and at call."""
 import json
+import re
 import os
 import signal
 import subprocess
@@ -470,11 +471,54 @@ def test_nothing_a_plugin_starts_outlives_the_command(run, tmp_path, kind):
     took = time.monotonic() - t0
     assert proc.returncode == 0 and took < 40, (proc.returncode, took, proc.stderr)
     assert "Traceback" not in proc.stderr and "finalizer" not in proc.stderr, proc.stderr
+    # the start ran in its contestant process: what it left ended with that process, and the report says so
+    report = (tmp_path / "r" / "report.md").read_text()
+    if kind in ("thread", "process"):
+        assert "Left threads or processes running after their calls" in report
+        left = "1 thread, 0 processes" if kind == "thread" else "0 threads, 1 process"
+        assert f"_leaves:Start ({left})" in report, report
+    assert proc.stderr == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mods", "r"]
+    assert not any(p.name.startswith(".") for p in (tmp_path / "r").iterdir() if p.name != ".dc-output.json")
+
+
+LEAVING_METHOD = """
+import os, pathlib, time
+import numpy as np
+from deepcontact.solver.methods import MethodResult
+class Finalizer:
+    def __del__(self):
+        raise RuntimeError("finalizer")
+class Start:
+    done = False
+    def __call__(self, problem, normal, tangent, settings):
+        if not Start.done:
+            Start.done = True
+            {body}
+        return MethodResult(normal, tangent, np.zeros(1))
+"""
+
+
+@pytest.mark.parametrize("kind", sorted(OUTLIVES))
+def test_nothing_a_plugin_method_starts_outlives_a_simulation(tmp_path, kind):
+    """Outside the judge (dc simulate runs a plug-in method in its own loop), dc ends its own
+    process: what the plug-in left is ended, and said."""
+    import os
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "guest_leaves.py").write_text(LEAVING_METHOD.format(body=OUTLIVES[kind]))
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "simulate", "pile", "--param", "count=6",
+                           "--steps", "150", "--solver", "pgs", "--accelerate", "guest_leaves:Start", "-q", "-o",
+                           str(tmp_path / "r")], capture_output=True, text=True, timeout=50,
+                          env={**os.environ, "PYTHONPATH": str(mods)}, cwd=tmp_path)
+    took = time.monotonic() - t0
+    assert proc.returncode == 0 and took < 40, (proc.returncode, took, proc.stderr)
+    assert "Traceback" not in proc.stderr and "finalizer" not in proc.stderr, proc.stderr
     if kind == "thread":
         assert "thread a plug-in started was still running" in proc.stderr
     if kind in ("process", "orphan"):
         assert "still running; killed" in proc.stderr
-    if kind == "fork":   # one report, one line of nothing: the child ended where it came out
+    if kind == "fork":   # the child ended where it came out of the plug-in: nothing said twice
         assert proc.stderr == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mods", "r"]
-    assert not any(p.name.startswith(".") for p in (tmp_path / "r").iterdir() if p.name != ".dc-output.json")

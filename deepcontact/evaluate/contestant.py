@@ -102,19 +102,23 @@ def _left_running():
     return threading.active_count() - 1, len(children())
 
 
-def serve(conn, setup):
-    """A contestant process: makes the start and method, then answers requests until "end"."""
+def serve(conn):
+    """A contestant process: makes the start and method its setup names, then answers requests
+    until "end"."""
+    from ..workers import die_with_parent
+    die_with_parent()
     os.setsid()   # (its own group: whatever it starts is killed with it)
+    setup = pickle.loads(conn.recv_bytes())
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # (the judge handles the user's stop, and ends it)
     sys.path[:0] = [p for p in setup["path"] if p not in sys.path]
     from .. import protocol
-    from ..solver.methods import solve
+    from ..solver.methods import is_native, solve
     protocol.use_threads(setup["threads"])
     try:
         start, traits, imported, made = _make(setup)
         conn.send_bytes(pack({"import_s": imported, "construct_s": made, "traits": traits}))
     except BaseException as e:
-        conn.send_bytes(pack({"error": _line(e)}))
+        conn.send_bytes(pack({"error": _line(e), "traceback": _traceback(e)}))
         return
     while True:
         try:
@@ -135,9 +139,12 @@ def serve(conn, setup):
                 reply = pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds).items()}},
                              {"normal": value.normal, "tangent": value.tangent})
             else:   # "solve"
+                # (a plug-in's claimed residuals come with every answer, alike on every call; a built-in's
+                # trace the judge makes itself, from the same start, off the clock)
+                plugin = not is_native(request["settings"].accelerate)
                 s = solve(pickle.loads(request["problem"]), request["normal"], request["tangent"],
-                          settings=request["settings"], final_residual=False, history=request.get("history", False))
-                claims = s.history[:, 0] if request.get("history") and len(s.history) else np.zeros(0)
+                          settings=request["settings"], final_residual=False, history=plugin)
+                claims = s.history[:, 0] if plugin and len(s.history) else np.zeros(0)
                 reply = pack({"iterations": int(s.iterations), "fallback": int(s.relaxation_fallback > 0),
                               "factorizations": int(getattr(s, "factorizations", 0))},
                              {"normal": s.normal_impulse, "tangent": s.tangent_impulse, "claims": claims})
@@ -146,7 +153,7 @@ def serve(conn, setup):
                 header, arrays = unpack(reply, "")
                 reply = pack(dict(header, left_running=[threads, processes]), arrays)
         except BaseException as e:
-            reply = pack({"error": _line(e)})
+            reply = pack({"error": _line(e), "traceback": _traceback(e)})
         conn.send_bytes(reply)
 
 
@@ -154,35 +161,99 @@ def _line(e):
     return str(e) if isinstance(e, InputError) else f"{type(e).__name__}: {e}"
 
 
+def _traceback(e):
+    """The contestant's own traceback, chain and all, as text (shown by dc's -v)."""
+    import traceback
+    return "".join(traceback.format_exception(e))
+
+
+class ContestantTraceback(Exception):
+    """The traceback of an error in a contestant's process, as it printed it: the cause of the
+    judge's PluginError, so that -v shows the plug-in's own file and line."""
+
+    def __str__(self):
+        return "\n\n" + self.args[0]
+
+
 # --- The judge's side -------------------------------------------------------------------------------
 
-_context = None
+# The zygote: a fresh interpreter, started once per process that judges (before any contestant is
+# asked for), with the solver imported; it forks each contestant on request. Not multiprocessing's
+# fork server, whose children re-run the caller's __main__ (a user's script, a notebook's stdin).
+_zygote = None   # (Popen, socket)
 
 
-def _server():
-    """multiprocessing's fork server, started once per process with the solver imported."""
-    global _context
-    if _context is None:
-        import multiprocessing
-        _context = multiprocessing.get_context("forkserver")
-        _context.set_forkserver_preload(["numpy", "deepcontact.evaluate.contestant", "deepcontact.solver.methods"])
-    return _context
+def zygote(fd):
+    """The zygote's loop: for each request on the socket fd (a socket end passed with it), forks a
+    contestant serving that end, and answers its pid; ends when the judge's end closes."""
+    import socket
+    from multiprocessing.connection import Connection
+    from ..workers import die_with_parent
+    die_with_parent()
+    import deepcontact.solver.methods  # noqa: F401 (imported once here, not in every contestant)
+    import deepcontact.warmstart.starts  # noqa: F401
+    signal.signal(signal.SIGCHLD, signal.SIG_IGN)   # (contestants are reaped by the kernel)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    judge = socket.socket(fileno=fd)
+    while True:
+        try:
+            message, fds, _, _ = socket.recv_fds(judge, 16, 1)
+        except OSError:
+            return
+        if not message or not fds:
+            return
+        pid = os.fork()
+        if pid == 0:
+            judge.close()
+            signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+            code = 0
+            try:
+                serve(Connection(fds[0]))
+            except BaseException:
+                code = 1
+            os._exit(code)
+        os.close(fds[0])
+        judge.sendall(struct.pack("<q", pid))
+
+
+def _zygote_socket():
+    """The judge's socket to its zygote, started at the first call."""
+    global _zygote
+    import socket
+    import subprocess
+    if _zygote is None or _zygote[0].poll() is not None:
+        ours, theirs = socket.socketpair()
+        process = subprocess.Popen(
+            [sys.executable, "-c", f"from deepcontact.evaluate.contestant import zygote; zygote({theirs.fileno()})"],
+            pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL, stdout=sys.stderr.fileno()
+            if _has_fileno(sys.stderr) else subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                p for p in sys.path if p)})
+        theirs.close()
+        _zygote = (process, ours)
+    return _zygote[1]
+
+
+def _has_fileno(stream):
+    try:
+        stream.fileno()
+        return True
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 def stop_server():
-    """Ends the fork server (and multiprocessing's resource tracker beside it), if started: the
-    command's own helpers, not left for the end of the process to find."""
-    global _context
-    if _context is None:
+    """Ends the zygote, if started (the command's own helper, not left for the end of dc to find)."""
+    global _zygote
+    if _zygote is None:
         return
-    import multiprocessing.forkserver as forkserver
-    import multiprocessing.resource_tracker as resource_tracker
-    for helper in (forkserver._forkserver, resource_tracker._resource_tracker):
-        try:
-            helper._stop()
-        except Exception:   # (private in multiprocessing: a Python without it leaves it to the end of dc)
-            pass
-    _context = None
+    process, sock = _zygote
+    _zygote = None
+    sock.close()
+    try:
+        process.wait(2.0)
+    except Exception:
+        process.kill()
+        process.wait()
 
 
 class Contestant:
@@ -195,11 +266,15 @@ class Contestant:
         setup = {"name": name, "start": ("name", name) if made else ("object", pickle.dumps(start)),
                  "method": method, "spec": spec, "checkpoint": checkpoint, "threads": threads,
                  "path": list(sys.path), "networks": list(networks)}
-        context = _server()
-        self.conn, theirs = context.Pipe()
-        self.process = context.Process(target=serve, args=(theirs, setup), daemon=True, name=f"dc contestant {label}")
-        self.process.start()
+        import socket
+        from multiprocessing.connection import Connection
+        ours, theirs = socket.socketpair()
+        zygote_socket = _zygote_socket()
+        socket.send_fds(zygote_socket, [b"c"], [theirs.fileno()])
         theirs.close()
+        self.pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
+        self.conn = Connection(ours.detach())
+        self.conn.send_bytes(pickle.dumps(setup))
         self.left_running = [0, 0]
         _, header, _ = self._answer()
         self.import_s, self.construct_s = float(header["import_s"]), float(header["construct_s"])
@@ -215,13 +290,12 @@ class Contestant:
         try:
             data = self.conn.recv_bytes()
         except (EOFError, OSError):
-            self.process.join(1.0)
-            raise PluginError(f"the variant {self.label!r}: its process ended during a call (exit code "
-                              f"{self.process.exitcode})") from None
+            raise PluginError(f"the variant {self.label!r}: its process ended during a call") from None
         seconds = time.perf_counter() - t0 if t0 is not None else 0.0
         header, arrays = unpack(data, f"the variant {self.label!r}")
         if "error" in header:
-            raise PluginError(f"the variant {self.label!r}: {header['error']}")
+            raise PluginError(f"the variant {self.label!r}: {header['error']}") \
+                from ContestantTraceback(str(header.get("traceback", "")))
         if "left_running" in header:
             self.left_running = [max(a, int(b)) for a, b in zip(self.left_running, header["left_running"])]
         return seconds, header, arrays
@@ -232,13 +306,21 @@ class Contestant:
             self.conn.send_bytes(pickle.dumps({"op": "end"}))
         except OSError:
             pass
-        self.process.join(0.2)
         try:
-            os.killpg(self.process.pid, signal.SIGKILL)
+            os.killpg(self.pid, signal.SIGKILL)
         except OSError:
             pass
-        self.process.join(1.0)
         self.conn.close()
+
+
+def _receive_exactly(sock, n):
+    data = b""
+    while len(data) < n:
+        part = sock.recv(n - len(data))
+        if not part:
+            raise PluginError("the contestants' zygote process ended")
+        data += part
+    return data
 
 
 def _by_name(name, start):

@@ -60,6 +60,7 @@ class Row:
     transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
     setup_ms: float = 0.0      # the variant's import and construction in its process (once, not per step)
     memo: bool = False         # repeats answered faster than first calls beyond noise: charged the first call
+    left_running: tuple = (0, 0)   # threads and processes the variant's process had running after a call
 
 
 # Every variant's solve is timed this many times, the variants interleaved round by round (so a
@@ -208,11 +209,24 @@ def _checked(label, arrays, points):
     return out
 
 
-def _timed(contestant, request, points):
-    """(seconds net of transport, transport seconds, header, arrays) of one call, timed here."""
+def _round_trip(contestant, request, points):
+    """(seconds, transport seconds, header, arrays) of one call, timed here: the call's own round
+    trip, and the null contestant's (an echo of the same request) just before it."""
     null, _, _ = contestant.call({"op": "echo", "points": points, **{k: v for k, v in request.items() if k != "op"}})
     took, header, arrays = contestant.call(request)
-    return max(took - null, 0.0), null, header, arrays
+    return took, null, header, arrays
+
+
+def _net(took, nulls):
+    """A call's time less the transport: the least of the step's null round trips for that kind of
+    call (a fixed cost; what varies above it, the call may have caused)."""
+    return max(took - min(nulls), 0.0)
+
+
+def _timed(contestant, request, points):
+    """(seconds net of transport, transport seconds, header, arrays) of one call."""
+    took, null, header, arrays = _round_trip(contestant, request, points)
+    return _net(took, [null]), null, header, arrays
 
 
 def _contestants(table, settings):
@@ -271,21 +285,27 @@ def evaluate_simulation(task):
             for i in order:
                 v = table[i]
                 c = contestants[v.label]
-                predict_s, transport_s, _, arrays = _timed(c, {"op": "start", "ctx": _visible(ctx, c.traits, v.label)},
-                                                           problem.points)
+                request = {"op": "start", "ctx": _visible(ctx, c.traits, v.label)}
+                early, _, _ = c.call({**request, "op": "echo", "points": problem.points})
+                took, null, _, arrays = _round_trip(c, request, problem.points)
+                predict_s, transport_s = _net(took, [early, null]), min(early, null)
                 normal, tangent = _checked(v.label, arrays, problem.points)
                 step_rows[i] = (v, c, normal, tangent, predict_s, transport_s)
             asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate) for i, (v, *_) in step_rows.items()}
             sent = pickle.dumps(_unanswered(problem))
-            times = {i: [] for i in step_rows}
+            took = {i: [] for i in step_rows}
+            nulls = {i: [] for i in step_rows}
             answers = {i: [] for i in step_rows}
             for rep in range(REPEATS):   # (interleaved: a busy moment of the machine touches every variant)
                 for i in order:
                     v, c, normal, tangent, *_ = step_rows[i]
-                    took, _, head, arrays = _timed(c, {"op": "solve", "problem": sent, "normal": normal, "tangent": tangent,
-                                                       "settings": asked[i], "history": rep == 0}, problem.points)
-                    times[i].append(took * 1e3)
+                    t, null, head, arrays = _round_trip(c, {"op": "solve", "problem": sent, "normal": normal,
+                                                            "tangent": tangent, "settings": asked[i]},
+                                                           problem.points)
+                    took[i].append(t)
+                    nulls[i].append(null)
                     answers[i].append((head, arrays))
+            times = {i: [_net(t, nulls[i]) * 1e3 for t in took[i]] for i in step_rows}
             for i in sorted(step_rows):
                 v, c, normal, tangent, predict_s, transport_s = step_rows[i]
                 # every timed answer judged by our residual: the worst of them is the variant's
@@ -322,6 +342,8 @@ def evaluate_simulation(task):
     finally:
         for c in contestants.values():
             c.close()
+    for row in rows:   # (noticed after any call, ended with its process)
+        row.left_running = tuple(next(c for label, c in contestants.items() if label == row.start).left_running)
     return rows
 
 
@@ -419,6 +441,12 @@ def summarize(rows, starts, max_iterations):
             "velocity_error_median": float(np.median([r.velocity_error for r in rs])),
             "fallbacks": float(np.mean([r.fallback for r in rs])),
             "factorizations_median": float(np.median([r.factorizations for r in rs])),
+            "predict_ms_p90": float(np.percentile(pred, 90)), "total_ms_p90": float(np.percentile(pred + sol, 90)),
+            "total_ms_sum": float(np.sum(pred + sol)),
+            "transport_ms_median": float(np.median([r.transport_ms for r in rs])),
+            "setup_ms": float(max(r.setup_ms for r in rs)),
+            "memo": bool(any(r.memo for r in rs)),
+            "left_running": [int(max(r.left_running[k] for r in rs)) for k in (0, 1)],
         }
     return out
 
