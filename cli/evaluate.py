@@ -89,6 +89,9 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
     from deepcontact.warmstart.starts import trait
     if "all" in accelerate:
         accelerate = list(dict.fromkeys([a for a in accelerate if a != "all"] + list(BUILTIN_SOLVERS)))
+    # the plug-ins, described from a process of their own: the judge never runs their code
+    from deepcontact.evaluate.contestant import describe
+    describe(starts, accelerate)
     learned = [n for n in starts if trait(n, "needs_model")]
     sph_grid = "sph" in starts and not model
     options.refuse_inapplicable([
@@ -105,7 +108,6 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
                                              "--no-plots leave out"),
     ])
     options.load_network(arch)
-    options.load_solvers(accelerate)
 
     from deepcontact.evaluate.command import EvaluateSettings, history_bytes, run_evaluation
     from deepcontact.solver.settings import SolveSettings

@@ -96,6 +96,9 @@ class Registry:
         self.kind, self.group = kind, group
         self._builtin = {}
         self._loaded = {}   # plug-ins loaded by an explicit choice (load), by name
+        # plug-ins described from a process of their own (evaluate.contestant.describe), by name:
+        # what a judge may know of them without importing their code
+        self.described = {}
 
     def register(self, name, factory=None, **traits):
         """Registers factory under name (lower case, digits and '-'); usable as a decorator.
@@ -119,6 +122,8 @@ class Registry:
         installed package its "distribution" and "version"}. Nothing is imported for it: a name
         not loaded yet is {"origin": "not loaded"}."""
         factory = self.resolved(name)
+        if factory is None and name in self.described:
+            return dict(self.described[name]["origin"])
         if factory is None:
             return {"origin": "not loaded", "name": name}
         module = getattr(factory, "__module__", None) or ""

@@ -1,17 +1,21 @@
 """Closed loop: each start drives the simulation through the project's solver.
 
 Unlike replay, errors feed back: a start that leaves the solver short of the answer changes the
-next state. Zero and builtin starts step in one native call each (simulate.pgs_loop); the others
-pay for the round trip through Python, and that is counted in their time. Every start runs the
-same scene from the same initial state under the same stopping rule; the reference trajectory is the one stepped with each step's reference solution (float64
-PGS to a residual of 1e-12). Reported per start: iterations per step, time per step (prediction
-included), how far the bodies drift from the reference trajectory, the energy error against it,
-the deepest contact, and whether anything became non-finite.
+next state. Every variant runs alike: its start (and a plug-in method) in a process of its own
+(contestant.py), each step through Python; every call is timed here and the fixed cost of its
+round trips (an echo of the same request, just before it) is subtracted, so a start that gives
+what Box2D's warm start gives measures about what builtin does. What the path itself costs over
+one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
+same scene from the same initial state under the same stopping rule; the reference trajectory is
+the one stepped with each step's reference solution (float64 PGS to a residual of 1e-12).
+Reported per start: iterations per step, time per step (prediction included), how far the bodies
+drift from the reference trajectory, the energy error against it, the deepest contact, and
+whether anything became non-finite.
 
 `box2d_iterations` runs the same comparison for Box2D's own solver at fixed velocity iteration
 counts: what its accuracy costs in time.
 """
-import time
+import pickle
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -24,13 +28,13 @@ from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
 from ..solver.settings import SolveSettings
-from ..warmstart.starts import Checked, StepContext, asks, is_oracle, private_copy
-from .replay import variants
+from ..solver.methods import is_native, judge
+from ..warmstart.starts import StepContext, is_oracle
+from .replay import _checked, _contestants, _unanswered, _visible, variants
 
 if TYPE_CHECKING:   # (for the annotations only)
     from ..scene.model import Scene
 
-NATIVE_STARTS = ("zero", "builtin")
 
 
 @dataclass
@@ -50,15 +54,27 @@ class LoopResult:
     ms_again: np.ndarray = None    # Box2D's warm start only: the same run timed a second time (A/A)
     oracle: bool = False           # the start asks for the step's answer (starts.is_oracle)
     ours: bool = True              # the project's solver (False: Box2D's own at k iterations)
+    transport_ms: np.ndarray = None   # per step: the round trips to its contestant's process, subtracted
+    path_ms: float = 0.0           # the contestants' path's cost a step over the native loop (in ms_per_step)
 
 
 class _Adapter:
-    """A start as the loop's start_fn; remembers the solution applied, for the prev start."""
+    """A variant's contestant (its own process: replay._contestants) as the loop's start_fn, and
+    for a plug-in method as its solve_fn; every call timed here, the transport (the echo of the
+    same request just before it) subtracted, and each answer checked and judged here. Remembers
+    the solution applied, for the prev start."""
 
-    def __init__(self, name, start):
-        self.name, self.start, self.timing = name, start, []
-        self.needs_reference = asks(name, start, "needs_reference")   # (the reference costs a solve a step)
+    def __init__(self, label, contestant):
+        self.name, self.contestant, self.timing = label, contestant, []
+        self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
+        self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
+
+    def _call(self, request, points):
+        null, _, _ = self.contestant.call({**request, "op": "echo", "points": points})
+        took, header, arrays = self.contestant.call(request)
+        self.pending += min(null, took)
+        return max(took - null, 0.0), header, arrays
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
@@ -69,16 +85,26 @@ class _Adapter:
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),
                           variant=self.name, trajectory="loop")
-        if isinstance(self.start, Checked):
-            ctx = private_copy(ctx)   # (the platform's work: before the clock starts)
-        t0 = time.perf_counter()   # the whole call, timed here (a start's own seconds are a breakdown)
-        value = self.start(ctx)
-        self.timing.append(time.perf_counter() - t0)
-        return value.normal, value.tangent
+        seconds, _, arrays = self._call({"op": "start", "ctx": _visible(ctx, self.contestant.traits, self.name)},
+                                        problem.points)
+        self.timing.append(seconds)
+        return tuple(_checked(self.name, arrays, problem.points))
+
+    def solve(self, problem, start_n, start_t, settings):
+        """A plug-in method's solve, in the contestant's process; its answer judged here."""
+        _, header, arrays = self._call({"op": "solve", "problem": pickle.dumps(_unanswered(problem)),
+                                        "normal": np.asarray(start_n, np.float64),
+                                        "tangent": np.asarray(start_t, np.float64), "settings": settings},
+                                       problem.points)
+        normal, tangent = _checked(self.name, arrays, problem.points)
+        judged = judge(problem, normal, tangent)
+        return replace(judged, iterations=int(header["iterations"]), relaxation=settings.relaxation)
 
     def solved(self, solution):
         self.previous = {} if solution is None else impulses_by_key(self.keys, solution.normal_impulse,
                                                                      solution.tangent_impulse)
+        self.transport.append(self.pending)
+        self.pending = 0.0
 
 
 @dataclass
@@ -92,13 +118,15 @@ class Trajectory:
     residuals: np.ndarray = None
 
 
-def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True):
+def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True, solve_fn=None):
     """The scene stepped `steps` times with the project's solver (a SolveSettings) from `start_fn`,
     or, if None, from `start`, in one native call per step. report: each step to workers.progress
-    (not for the A/A run, which the progress total does not count)."""
+    (not for the A/A run, which the progress total does not count). solve_fn: PGSStepper's."""
+    from ..simulate.pgs_loop import PGSStepper
     engine = Box2D(solver=settings, start=start, start_fn=start_fn)
     world = engine.build(scene)
-    return _follow(world, scene, steps, engine.stepper(world, scene, record=False), solved, report)
+    stepper = PGSStepper(world, scene, engine.solver, start, start_fn=start_fn, record=False, solve_fn=solve_fn)
+    return _follow(world, scene, steps, stepper.step, solved, report)
 
 
 def _follow(world, scene, steps, step, solved=None, report=True):
@@ -157,26 +185,58 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
     arguments.starts(starts, "starts")
     steps = scene.steps if steps is None else arguments.whole(steps, "steps", 1)
     ref = reference or reference_trajectory(scene, steps)
+    table = variants(starts, relaxations, accelerations)
     results = []
-    for v in variants(starts, relaxations, accelerations):
-        # Zero and Box2D's warm start need nothing from Python: the whole step is one native call.
-        native = v.name in NATIVE_STARTS
+    for v in table:
+        # every variant alike: its start (and a plug-in method) in a process of its own, each step
+        # through Python, the round trips' fixed cost subtracted from its step times
         asked = settings.but(relaxation=v.relaxation, accelerate=v.accelerate)
-        start = v.name if native else "builtin"
-        adapter = _Adapter(v.name, v.start)
-        t = run_loop(scene, None if native else adapter, asked, steps, start,
-                     solved=None if native else adapter.solved)
+        t, adapter, ms = _through_path(scene, v, asked, steps)
         again = None
         if v.name == "builtin" and v.relaxation in (1, 1.0) and v.accelerate == "none":
-            # the noise floor: the same run, timed again (A/A)
-            again = run_loop(scene, None, asked, steps, start, report=False).seconds * 1e3
+            again = _through_path(scene, v, asked, steps, report=False)[2]   # the noise floor: timed again (A/A)
         drift, err = _compare(t, ref)
         results.append(LoopResult(start=v.label, steps=len(t.iterations), iterations=t.iterations,
-                                  ms_per_step=t.seconds * 1e3, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
+                                  ms_per_step=ms, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
                                   penetration=t.deepest, finite=t.finite, energy_error=err,
                                   relaxation=v.relaxation if v.relaxation != "auto" else float("nan"),
-                                  residuals=t.residuals, ms_again=again, oracle=is_oracle(v.name)))
+                                  residuals=t.residuals, ms_again=again, oracle=is_oracle(v.name),
+                                  transport_ms=np.array(adapter.transport[:len(t.seconds)]) * 1e3))
+    # The path every variant takes (each step through Python, its start's request built and sent)
+    # costs what the native loop does not: measured as builtin through it against builtin in one
+    # native call per step (the same trajectory, bit for bit) and stated; the variants are
+    # compared with it in (all pay it alike), Box2D's own rows are without it.
+    fixed = _path_cost(scene, settings, steps, results)
+    for r in results:
+        r.path_ms = fixed
     return results
+
+
+def _through_path(scene, v, asked, steps, report=True):
+    """(trajectory, adapter, ms per step less the round trips) of the variant v, its start (and a
+    plug-in method) in a process of its own, each step through Python."""
+    contestant = _contestants([v], asked)[v.label]
+    try:
+        adapter = _Adapter(v.label, contestant)
+        t = run_loop(scene, adapter, asked, steps, "builtin", solved=adapter.solved, report=report,
+                     solve_fn=None if is_native(v.accelerate) else adapter.solve)
+    finally:
+        contestant.close()
+    return t, adapter, t.seconds * 1e3 - np.array(adapter.transport[:len(t.seconds)]) * 1e3
+
+
+def _path_cost(scene, settings, steps, results):
+    """The median per-step cost (ms) of the contestants' path over the native loop, for builtin
+    (the same trajectory both ways, bit for bit: a cost of the path, not of a start)."""
+    from ..warmstart.starts import make_starts
+    base = settings.but(relaxation=1.0, accelerate="none")
+    native = run_loop(scene, None, base, steps, "builtin", report=False).seconds * 1e3
+    plain = next((r.ms_per_step for r in results if r.start == "builtin"), None)
+    if plain is None:   # (builtin is not among the variants: through the path once, off the count)
+        v = variants(make_starts(["builtin"]))[0]
+        plain = _through_path(scene, v, base, steps, report=False)[2]
+    n = min(len(native), len(plain))
+    return float(np.median(plain[:n] - native[:n])) if n else 0.0
 
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)   # Box2D's own solver's iterations, beside ours
@@ -227,9 +287,13 @@ def every_simulation(scenes, starts, *, budgets=False, jobs=1, progress=None, **
     """The closed loop on every scene (one per simulation: its seed's initial state), side by side
     in `jobs` worker processes; returns one list of LoopResult per scene, in order. options:
     those of closed_loop. progress(n): n more steps stepped (steps_stepped in all)."""
+    from .contestant import stop_server
     tasks = [(scene, starts, options, budgets) for scene in scenes]
-    with workers.for_jobs(jobs, tasks, progress) as pool:
-        return list(pool.imap(loop_simulation, tasks))
+    try:
+        with workers.for_jobs(jobs, tasks, progress) as pool:
+            return list(pool.imap(loop_simulation, tasks))
+    finally:
+        stop_server()
 
 
 def pooled(per_simulation):
@@ -250,5 +314,7 @@ def pooled(per_simulation):
             residuals=np.concatenate([r.residuals for r in same]) if all(r.residuals is not None for r in same)
             else None,
             ms_again=np.concatenate([r.ms_again for r in same]) if all(r.ms_again is not None for r in same)
+            else None,
+            transport_ms=np.concatenate([r.transport_ms for r in same]) if all(r.transport_ms is not None for r in same)
             else None))
     return rows

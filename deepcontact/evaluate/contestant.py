@@ -59,10 +59,9 @@ def unpack(data, who):
 # --- The contestant's side --------------------------------------------------------------------------
 
 def _make(setup):
-    """(start, method name, traits, import s, construct s) made from the setup's names."""
+    """(start, traits) made from the setup's names (and the method made, where a plug-in)."""
     from ..solver import methods
-    from ..warmstart.starts import STARTS, asks, make_starts
-    t0 = time.perf_counter()
+    from ..warmstart.starts import STARTS, Checked, asks, make_starts
     for name in setup["networks"]:   # (the checkpoint's plug-in network, which the user named with --arch)
         from ..model.arch import NETWORKS
         NETWORKS.load(name)
@@ -71,7 +70,6 @@ def _make(setup):
         factory = STARTS.load(what)
         if not methods.is_native(setup["method"]):
             methods.SOLVERS.load(setup["method"])
-    t1 = time.perf_counter()
     if kind == "name":
         predictor = None
         if getattr(factory, "needs_model", False) or "predictor" in _parameters(factory):
@@ -82,9 +80,75 @@ def _make(setup):
         start = pickle.loads(what)
     if not methods.is_native(setup["method"]):
         methods.method(setup["method"])
-    t2 = time.perf_counter()
     traits = {k: bool(asks(setup["name"], start, k)) for k in TRAITS}
-    return start, traits, t1 - t0, t2 - t1
+    if isinstance(start, Checked):   # (its step is its own already, unpickled for each call: no private copy)
+        checked = start
+
+        def start(ctx):
+            return checked(ctx, copied=True)
+    return start, traits
+
+
+def _describe(names):
+    """What a judge may know of these plug-ins (starts and methods, by name), loaded here: each
+    start's traits and origin, each method's origin and whether it takes a w."""
+    from ..solver import methods
+    from ..warmstart.starts import STARTS
+    out = {"starts": {}, "methods": {}}
+    for name in names["starts"]:
+        factory = STARTS.load(name)
+        traits = {k: bool(getattr(factory, k, False)) for k in TRAITS}
+        traits["needs_model"] = traits["needs_model"] or "predictor" in _parameters(factory)
+        out["starts"][name] = {"traits": traits, "origin": STARTS.origin(name),
+                               "wants": [k for k in ("spec", "predictor") if k in _parameters(factory)]}
+    for name in names["methods"]:
+        factory = methods.SOLVERS.load(name)
+        out["methods"][name] = {"origin": methods.method_origin(name),
+                                "takes_relaxation": bool(getattr(factory, "takes_relaxation", False))}
+    return out
+
+
+def describe(starts=(), methods=()):
+    """Describes the plug-in starts and methods among these names from a contestant process of
+    their own (their code is imported there, never in this process): fills STARTS.described and
+    SOLVERS.described. PluginError naming one that cannot be loaded."""
+    from ..solver.methods import SOLVERS, is_native
+    from ..warmstart.starts import NAMES, STARTS
+    wanted = {"starts": [n for n in dict.fromkeys(starts) if n not in NAMES and n not in STARTS.described],
+              "methods": [n for n in dict.fromkeys(methods) if not is_native(n) and n not in SOLVERS.described]}
+    if not (wanted["starts"] or wanted["methods"]):
+        return
+    import socket
+    from multiprocessing.connection import Connection
+    ours, theirs = socket.socketpair()
+    zygote_socket = _zygote_socket()
+    socket.send_fds(zygote_socket, [b"c"], [theirs.fileno()])
+    theirs.close()
+    pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
+    conn = Connection(ours.detach())
+    try:
+        conn.send_bytes(pickle.dumps({"describe": wanted, "path": list(sys.path), "threads": 1}))
+        try:
+            data = conn.recv_bytes()
+        except (EOFError, OSError):
+            raise PluginError(f"the plug-ins {', '.join(wanted['starts'] + wanted['methods'])}: their process "
+                              f"ended while they were loaded") from None
+        header, _ = unpack(data, "a plug-in's description")
+        if "error" in header:
+            raise PluginError(header["error"]) from ContestantTraceback(str(header.get("traceback", "")))
+        found = header.get("described")
+        for registry, kind in ((STARTS, "starts"), (SOLVERS, "methods")):
+            for name in wanted[kind]:
+                info = (found or {}).get(kind, {}).get(name)
+                if not isinstance(info, dict):
+                    raise PluginError(f"the plug-in {name!r} was not described by its process")
+                registry.described[name] = info
+    finally:
+        conn.close()
+        try:
+            os.killpg(pid, signal.SIGKILL)
+        except OSError:
+            pass
 
 
 def _parameters(factory):
@@ -105,18 +169,28 @@ def _left_running():
 def serve(conn):
     """A contestant process: makes the start and method its setup names, then answers requests
     until "end"."""
+    from .. import interrupts
     from ..workers import die_with_parent
     die_with_parent()
     os.setsid()   # (its own group: whatever it starts is killed with it)
+    # dc's rules for guests hold here too (a KeyboardInterrupt a plug-in raises is its own: no
+    # stop signal reaches a contestant, which the judge ends itself)
+    interrupts.install("dc contestant")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     setup = pickle.loads(conn.recv_bytes())
-    signal.signal(signal.SIGINT, signal.SIG_IGN)   # (the judge handles the user's stop, and ends it)
     sys.path[:0] = [p for p in setup["path"] if p not in sys.path]
     from .. import protocol
     from ..solver.methods import is_native, solve
     protocol.use_threads(setup["threads"])
+    if "describe" in setup:   # (a description of plug-ins, for a judge that must not import them)
+        try:
+            conn.send_bytes(pack({"described": _describe(setup["describe"])}))
+        except BaseException as e:
+            conn.send_bytes(pack({"error": _line(e), "traceback": _traceback(e)}))
+        return
     try:
-        start, traits, imported, made = _make(setup)
-        conn.send_bytes(pack({"import_s": imported, "construct_s": made, "traits": traits}))
+        start, traits = _make(setup)
+        conn.send_bytes(pack({"traits": traits}))   # (its setup is timed by the judge's clock)
     except BaseException as e:
         conn.send_bytes(pack({"error": _line(e), "traceback": _traceback(e)}))
         return
@@ -138,7 +212,7 @@ def serve(conn):
                 value = start(request["ctx"])
                 reply = pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds).items()}},
                              {"normal": value.normal, "tangent": value.tangent})
-            else:   # "solve"
+            elif op == "solve":
                 # (a plug-in's claimed residuals come with every answer, alike on every call; a built-in's
                 # trace the judge makes itself, from the same start, off the clock)
                 plugin = not is_native(request["settings"].accelerate)
@@ -148,10 +222,10 @@ def serve(conn):
                 reply = pack({"iterations": int(s.iterations), "fallback": int(s.relaxation_fallback > 0),
                               "factorizations": int(getattr(s, "factorizations", 0))},
                              {"normal": s.normal_impulse, "tangent": s.tangent_impulse, "claims": claims})
-            threads, processes = _left_running()
-            if threads or processes:
-                header, arrays = unpack(reply, "")
-                reply = pack(dict(header, left_running=[threads, processes]), arrays)
+            elif op == "status":   # (asked off the clock: what its calls left running)
+                reply = pack({"left_running": list(_left_running())})
+            else:
+                reply = pack({"error": f"no such request {op!r}"})
         except BaseException as e:
             reply = pack({"error": _line(e), "traceback": _traceback(e)})
         conn.send_bytes(reply)
@@ -274,10 +348,13 @@ class Contestant:
         theirs.close()
         self.pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
         self.conn = Connection(ours.detach())
+        t0 = time.perf_counter()
         self.conn.send_bytes(pickle.dumps(setup))
         self.left_running = [0, 0]
-        _, header, _ = self._answer()
-        self.import_s, self.construct_s = float(header["import_s"]), float(header["construct_s"])
+        took, header, _ = self._answer(t0)
+        # the judge's clock, not the contestant's own (which a plug-in may have replaced): its
+        # import and construction together, with the start of its process
+        self.setup_s = took
         self.traits = {k: bool(header["traits"].get(k)) for k in TRAITS}
 
     def call(self, request):
@@ -299,6 +376,11 @@ class Contestant:
         if "left_running" in header:
             self.left_running = [max(a, int(b)) for a, b in zip(self.left_running, header["left_running"])]
         return seconds, header, arrays
+
+    def status(self):
+        """Asks, off the clock, what the contestant's calls left running (threads, processes):
+        noticed in left_running, and ended with its process."""
+        self.call({"op": "status"})
 
     def close(self):
         """Ends the process and everything it started (its group)."""
@@ -325,7 +407,11 @@ def _receive_exactly(sock, n):
 
 def _by_name(name, start):
     """Whether `start` is what make_starts makes for `name` (so the contestant makes it itself)."""
-    from ..warmstart.starts import NAMES, STARTS, Checked
+    from ..warmstart.starts import NAMES, STARTS, Checked, Remote
+    if isinstance(start, Checked) and isinstance(start.start, Remote):
+        return True
+    if isinstance(start, Remote):
+        return True
     if isinstance(start, Checked):
         return start.name == name and STARTS.resolved(name) is not None and \
             type(start.start).__module__ == getattr(STARTS.resolved(name), "__module__", None)

@@ -60,6 +60,7 @@ class Row:
     transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
     setup_ms: float = 0.0      # the variant's import and construction in its process (once, not per step)
     memo: bool = False         # repeats answered faster than first calls beyond noise: charged the first call
+    first_ms: float = 0.0      # the first solve call of the step (before the timed repeats; judged like them)
     left_running: tuple = (0, 0)   # threads and processes the variant's process had running after a call
 
 
@@ -296,16 +297,23 @@ def evaluate_simulation(task):
             took = {i: [] for i in step_rows}
             nulls = {i: [] for i in step_rows}
             answers = {i: [] for i in step_rows}
-            for rep in range(REPEATS):   # (interleaved: a busy moment of the machine touches every variant)
+            # interleaved (a busy moment of the machine touches every variant), after a round that
+            # warms each process up (the first call after a start's ran slower; its answer is judged
+            # like every other, so no call is one a contestant could treat differently)
+            for rep in range(-1, REPEATS):
                 for i in order:
                     v, c, normal, tangent, *_ = step_rows[i]
                     t, null, head, arrays = _round_trip(c, {"op": "solve", "problem": sent, "normal": normal,
                                                             "tangent": tangent, "settings": asked[i]},
                                                            problem.points)
+                    answers[i].append((head, arrays))
                     took[i].append(t)
                     nulls[i].append(null)
-                    answers[i].append((head, arrays))
+            # each call's time (the first, the warming one, kept apart: a memo shows against it)
             times = {i: [_net(t, nulls[i]) * 1e3 for t in took[i]] for i in step_rows}
+            firsts = {i: times[i].pop(0) for i in step_rows}
+            for i in step_rows:
+                step_rows[i][1].status()
             for i in sorted(step_rows):
                 v, c, normal, tangent, predict_s, transport_s = step_rows[i]
                 # every timed answer judged by our residual: the worst of them is the variant's
@@ -335,7 +343,7 @@ def evaluate_simulation(task):
                           accelerate=v.accelerate, fallback=bool(head["fallback"]),
                           reference_residual=reference.residual, reference_pivoted=reference.pivoted,
                           factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(times[i]),
-                          transport_ms=transport_s * 1e3, setup_ms=(c.import_s + c.construct_s) * 1e3)
+                          transport_ms=transport_s * 1e3, setup_ms=c.setup_s * 1e3, first_ms=firsts[i])
                 if budgets:
                     row.budget_ms, row.budget_residual = _budgets(c, problem, sent, normal, tangent, asked[i], v.label)
                 rows.append(row)
@@ -398,21 +406,19 @@ def _budgets(contestant, problem, sent, normal, tangent, settings, label):
 
 
 def flag_memos(rows):
-    """Marks the variants whose repeated solves answered faster than their first call by more than
-    the other variants' repeats do (a memo of answers by the problem's bytes): their rows are
-    charged the first call (Row.memo). The bar: a median repeat/first ratio under half the median
-    of every variant's."""
+    """Marks the variants whose repeated solves answered faster than their first call of each step
+    by more than the other variants' repeats do (a memo of answers by the problem's bytes): their
+    rows are charged the first call (Row.memo). The bar: a median repeat/first ratio under half the
+    median of every variant's (and of 1)."""
     ratios = {}
     for r in rows:
-        if r.solve_ms_repeats is not None and len(r.solve_ms_repeats) > 1 and r.solve_ms_repeats[0] > 0:
-            ratios.setdefault(r.start, []).append(float(np.min(r.solve_ms_repeats[1:]) / r.solve_ms_repeats[0]))
-    if len(ratios) < 1:
-        return rows
+        if r.solve_ms_repeats is not None and len(r.solve_ms_repeats) and r.first_ms > 0:
+            ratios.setdefault(r.start, []).append(float(np.min(r.solve_ms_repeats) / r.first_ms))
     medians = {name: float(np.median(v)) for name, v in ratios.items()}
     bar = 0.5 * float(np.median(list(medians.values()) + [1.0]))
     for r in rows:
         if medians.get(r.start, 1.0) < bar:
-            r.memo, r.solve_ms = True, float(r.solve_ms_repeats[0])
+            r.memo, r.solve_ms = True, float(r.first_ms)
     return rows
 
 

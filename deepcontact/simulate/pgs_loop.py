@@ -79,13 +79,15 @@ class PGSStepper:
     """Steps a world with the project's PGS; step() returns a LoopStep."""
 
     def __init__(self, world, scene, settings: SolveSettings, start="builtin", start_fn=None, record=True,
-                 native=True):
+                 native=True, solve_fn=None):
         """settings: the solve's (its mode, tolerance, cap, w and method); start: zero, builtin
         (Box2D's warm start) or garbage. start_fn(bodies, contacts, problem, builtin_n, builtin_t)
         -> (normal, tangent), if given, makes the first iterate instead (dc evaluate --closed-loop).
         record: keep the bodies and contacts of each step (step files need them; a timed loop does
-        not). native=False steps in pieces through Python even where one native call could."""
-        self.start_fn = start_fn
+        not). native=False steps in pieces through Python even where one native call could.
+        solve_fn(problem, start_n, start_t, settings) -> Solution, if given, solves each step in place
+        of solver.methods.solve (the closed loop's plug-in methods, in their own processes)."""
+        self.start_fn, self.solve_fn = start_fn, solve_fn
         check_loop(settings, start, own_start=start_fn is not None)
         check_scene_for_loop(scene)
         auto = settings.relaxation == "auto"
@@ -100,7 +102,7 @@ class PGSStepper:
         if auto:
             self.relaxation = AutoRelaxation(settings)
         # (a plug-in solver method is Python: its steps go through Python too)
-        self.native = native and start_fn is None and start in ("zero", "builtin") \
+        self.native = native and start_fn is None and solve_fn is None and start in ("zero", "builtin") \
             and is_native(settings.accelerate)
         if self.native:
             self.step_settings = PGSStepSettings(
@@ -169,7 +171,8 @@ class PGSStepper:
         if problem is not None:
             w = self.relaxation(problem, start_n, start_t) if callable(self.relaxation) else self.relaxation
             # (the world's carried state, as the native step offers it: the two paths agree)
-            solution = solve(problem, start_n, start_t, settings=o.but(relaxation=w), carry=world)
+            solution = (solve(problem, start_n, start_t, settings=o.but(relaxation=w), carry=world)
+                        if self.solve_fn is None else self.solve_fn(problem, start_n, start_t, o.but(relaxation=w)))
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt

@@ -81,6 +81,8 @@ def takes_relaxation(name) -> bool:
     if is_native(name):
         return True
     factory = SOLVERS.resolved(name)
+    if factory is None and name in SOLVERS.described:   # (described from its own process, never imported here)
+        return bool(SOLVERS.described[name]["takes_relaxation"])
     return bool(getattr(factory, "takes_relaxation", False))
 
 

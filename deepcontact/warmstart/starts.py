@@ -78,7 +78,7 @@ def held_to_contract(name, start):
     """start as a replay or the closed loop runs it: a built-in start as it is, anything else (a
     plug-in, or an object a library caller hands in a starts table) in Checked, so that it sees
     its own copy of each step and its answer is checked, whichever way it came."""
-    if isinstance(start, Checked) or (name in NAMES and type(start).__module__.startswith("deepcontact.")):
+    if isinstance(start, (Checked, Remote)) or (name in NAMES and type(start).__module__.startswith("deepcontact.")):
         return start
     return Checked(name, start)
 
@@ -267,8 +267,24 @@ NEEDS_MODEL = tuple(n for n in NAMES if getattr(STARTS.load(n), "needs_model", F
 
 def trait(name, key):
     """A start's trait (oracle, needs_model, needs_reference, needs_recorded), False where it
-    does not say."""
+    does not say. A plug-in described from its own process (STARTS.described) is never imported
+    here."""
+    if name not in STARTS._builtin and name in STARTS.described:
+        return bool(STARTS.described[name]["traits"].get(key, False))
     return bool(getattr(STARTS.load(name), key, False))
+
+
+class Remote:
+    """A plug-in start that only its own process makes (evaluate.contestant): in the judge's
+    process it is a name and the traits its process described, never its code."""
+
+    def __init__(self, name):
+        self.name = name
+        for key, value in STARTS.described[name]["traits"].items():
+            setattr(self, key, value)
+
+    def __call__(self, ctx):
+        raise PluginError(f"the start {self.name!r} runs only in a contestant process of its own")
 
 
 def is_oracle(name):
@@ -291,8 +307,10 @@ class Checked:
     def __init__(self, name, start):
         self.name, self.start = name, start
 
-    def __call__(self, ctx):
-        seen = ctx if getattr(ctx, "_private", False) else private_copy(ctx)
+    def __call__(self, ctx, copied=False):
+        """The start's value for ctx, checked. copied: ctx is the start's own already (a
+        contestant's process unpickled it for this call), so no private copy is made."""
+        seen = ctx if copied or getattr(ctx, "_private", False) else private_copy(ctx)
         with guest(f"the start {self.name!r}"):
             value = self.start(seen)
         n = ctx.problem.points
@@ -330,6 +348,9 @@ def make_starts(names: list[str], spec: GridSpec | None = None, predictor: objec
         raise InputError(f"no start given (argument 'names' is empty); choose from {', '.join(STARTS.names())}")
     out = {}
     for name in names:
+        if name not in STARTS._builtin and name in STARTS.described and name not in STARTS._loaded:
+            out[name] = Remote(name)   # (made in its contestant's process, never here)
+            continue
         factory = STARTS.load(name)
         try:
             wanted = inspect.signature(factory).parameters

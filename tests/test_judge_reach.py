@@ -1,0 +1,126 @@
+"""A judge no contestant can reach (issue 52): each trick that moved `dc evaluate`'s verdict when
+contestants ran in the judge's own process, written here as a contestant, and what the judge now
+says of it. Each variant runs in a process of its own (deepcontact/evaluate/contestant.py)."""
+import json
+import sys
+import textwrap
+import time
+
+import pytest
+
+from conftest import dc
+
+TRICKS = textwrap.dedent("""
+    import hashlib, inspect, pickle, time
+    import numpy as np
+    from deepcontact.solver.methods import MethodResult
+    from deepcontact.solver.pgs import solve as native
+    from deepcontact.warmstart.starts import StartValue
+
+    class Memo:
+        '''Solves each problem once, slowly, and answers a repeat of the same bytes from a memo.'''
+        memo = {}
+        def __call__(self, problem, normal, tangent, settings):
+            key = hashlib.sha1(pickle.dumps((problem, normal, tangent, settings))).hexdigest()
+            if key not in Memo.memo:
+                time.sleep(0.004)
+                s = native(problem, normal, tangent, tolerance=settings.tolerance, max_iterations=settings.max_iterations)
+                Memo.memo[key] = MethodResult(s.normal_impulse, s.tangent_impulse, np.full(max(s.iterations, 1), s.residual))
+            return Memo.memo[key]
+
+    class Peeks:
+        '''Walks the stack for the judge's frame and returns the step's reference, if it finds one.'''
+        def __call__(self, ctx):
+            for frame in inspect.stack():
+                ref = frame.frame.f_locals.get("reference")
+                if ref is not None and hasattr(ref, "normal_impulse"):
+                    return StartValue(ref.normal_impulse.copy(), ref.tangent_impulse.copy(), {})
+            n = ctx.problem.points
+            return StartValue(np.zeros(n), np.zeros(n), {})
+
+    class Shares:
+        '''Pays 5 ms per step once, and shares the result with every other variant (a class attribute).'''
+        done = {}
+        def __call__(self, ctx):
+            if ctx.index not in Shares.done:
+                time.sleep(0.005)
+                Shares.done[ctx.index] = (ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy())
+            n, t = Shares.done[ctx.index]
+            return StartValue(n, t, {})
+    """)
+
+CLOCK = textwrap.dedent("""
+    import time
+    import numpy as np
+    from deepcontact.warmstart.starts import StartValue
+    time.sleep(0.3)                                  # work at import, never charged per step
+    _sleep = time.sleep
+    time.perf_counter = lambda: 0.0                  # every interval around it would last nothing
+    class Slow:
+        '''Box2D's warm start, 3 ms late.'''
+        def __call__(self, ctx):
+            _sleep(0.003)
+            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
+    """)
+
+
+@pytest.fixture
+def tricks(tmp_path, monkeypatch):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "tricks.py").write_text(TRICKS)
+    (tmp_path / "mods" / "clock.py").write_text(CLOCK)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    yield
+    from deepcontact.solver.methods import SOLVERS
+    from deepcontact.warmstart.starts import STARTS
+    for name in ("tricks", "clock"):
+        sys.modules.pop(name, None)
+    for registry in (STARTS, SOLVERS):
+        registry.described = {k: v for k, v in registry.described.items() if not k.startswith(("tricks", "clock"))}
+        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith(("tricks", "clock"))}
+
+
+def evaluated(run, out, *args):
+    r = dc("evaluate", "--no-plots", "--no-budgets", run, "--every", "10", "-q", "-o", out, *args)
+    assert r.returncode == 0, r.stderr
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_a_method_that_memoizes_answers_is_charged_its_first_calls(run, tmp_path, tricks):
+    s = evaluated(run, tmp_path / "r", "--starts", "builtin", "--accelerate", "none,tricks:Memo")["starts"]
+    memo = s["builtin+tricks:Memo"]
+    assert memo["memo"] and not s["builtin"]["memo"]
+    assert memo["solve_ms_median"] >= 3.5   # (its first calls: the 4 ms it spends on a problem it has not seen)
+    assert memo["above"] == 0               # (its answers are the solver's, judged as such)
+
+
+def test_a_start_that_walks_the_stack_finds_no_judge(run, tmp_path, tricks):
+    s = evaluated(run, tmp_path / "r", "--starts", "zero,tricks:Peeks")["starts"]
+    # it found no reference: it started from zero, as zero does
+    assert s["tricks:Peeks"]["iterations_median"] == s["zero"]["iterations_median"]
+    assert s["tricks:Peeks"]["error_median"] == s["zero"]["error_median"]
+
+
+def test_a_start_that_shares_a_cache_across_variants_pays_in_each(run, tmp_path, tricks):
+    s = evaluated(run, tmp_path / "r", "--starts", "builtin,tricks:Shares", "--relaxation", "1,1.7")["starts"]
+    assert s["tricks:Shares@1"]["predict_ms_median"] >= 4
+    assert s["tricks:Shares@1.7"]["predict_ms_median"] >= 4
+
+
+def test_a_clock_patched_at_import_moves_nothing_and_the_import_is_reported(run, tmp_path, tricks):
+    real = time.perf_counter
+    data = evaluated(run, tmp_path / "r", "--starts", "builtin,clock:Slow")
+    s = data["starts"]
+    assert "clock" not in sys.modules and time.perf_counter is real   # (never imported in the judge's process)
+    assert s["clock:Slow"]["predict_ms_median"] >= 2.5
+    assert s["clock:Slow"]["setup_ms"] >= 300 and s["builtin"]["setup_ms"] < 300
+    report = (tmp_path / "r" / "report.md").read_text()
+    verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    assert "is **builtin**" in verdict or "no clear winner" in verdict
+    assert "Setting each up (import and construction" in report
+
+
+def test_the_order_of_the_starts_changes_nothing(run, tmp_path, tricks):
+    one = evaluated(run, tmp_path / "a", "--starts", "builtin,clock:Slow")
+    two = evaluated(run, tmp_path / "b", "--starts", "clock:Slow,builtin")
+    assert one["settings"]["noise"]["best"] == two["settings"]["noise"]["best"] == "builtin"
