@@ -504,6 +504,27 @@ def choice(name, leave_out=()):
     return click.Choice([w for w in vocabulary(name) if w not in leave_out])
 
 
+def plugin_methods(f):
+    """--accelerate for a study: plug-in solver methods, a family each beside the built-in ones."""
+    return click.option("--accelerate", "plugins", type=CommaList(click.STRING, "METHOD[,...]"), default=[],
+                        help="Plug-in solver methods (an installed one's name, or package.module:Name), a family each "
+                             "at the study's tolerances: each solve in the method's own process, timed and judged as "
+                             "dc evaluate does (docs/api.md).")(f)
+
+
+def described_methods(names):
+    """The plug-in methods named for a study, described from a process of their own (their code is
+    never imported here); a built-in name is refused (its family is the study's already)."""
+    from deepcontact.evaluate.contestant import describe
+    from deepcontact.solver.methods import is_native
+    for name in names:
+        if is_native(name):
+            raise OptionError(f"{name} is a built-in method: the study's own families run it (--families)",
+                              "--accelerate")
+    describe(methods=list(names))
+    return list(names)
+
+
 def load_solvers(names):
     """--accelerate: plug-in solver methods loaded by the user's explicit choice (a method's rules
     against the other options are the SolveSettings' the command then makes)."""

@@ -101,11 +101,12 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
 @click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'stack 20,pyramid 20').")
 @options.families_option("Box2D v3,lagged")
+@options.plugin_methods
 @options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study engines")
-def engines(out, fast, scenes, families, jobs, overwrite, verbose, quiet):
+def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quiet):
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
     iterations, Box2D v3 at 1-16 substeps (and without warm starting), the
     project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
@@ -123,6 +124,7 @@ def engines(out, fast, scenes, families, jobs, overwrite, verbose, quiet):
       dc study engines --fast -o reports/engines-fast
       dc study engines -o reports/engines --scenes 'stack 20,mass ratio 400:1'
       dc study engines -o reports/lagged --families lagged
+      dc study engines --fast -o reports/mine --families project --accelerate mypkg.solvers:Mine
     """
     from deepcontact import atomic
     from deepcontact.errors import OptionError
@@ -130,7 +132,7 @@ def engines(out, fast, scenes, families, jobs, overwrite, verbose, quiet):
     from deepcontact.studies import engines as E
 
     cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
-    chosen = E.settings(options.pick_families(E.FAMILIES, families))
+    chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins))
     with atomic.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
         bar = options.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
@@ -155,11 +157,12 @@ def engines(out, fast, scenes, families, jobs, overwrite, verbose, quiet):
               help="The project's tolerances  [default: 1e-2,1e-4,1e-6,1e-8; 1e-2,1e-4 with --fast]")
 @click.option("--samples", type=options.count(min=1), default=4, show_default=True,
               help="Recorded steps per scene the one-step error is measured on (2 with --fast).")
+@options.plugin_methods
 @options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study frontier")
-def frontier(out, fast, scenes, families, tolerances, samples, jobs, overwrite, verbose, quiet):
+def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, overwrite, verbose, quiet):
     """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
     at 1-16 substeps and the project's PGS, PSOR, NNCG and lagged body-space
     solve to residuals 1e-2 ... 1e-8 and at fixed budgets, on piles of 1,000
@@ -181,6 +184,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, jobs, overwrite, 
       dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40'
       dc study frontier -o reports/big --scenes 'pyramid 5050' --tolerances 1e-2
       dc study frontier -o reports/frontier-engines --families 'Box2D 2.4.1,Box2D v3'
+      dc study frontier --fast -o reports/mine --families PGS --accelerate mypkg.solvers:Mine
     """
     from deepcontact import atomic
     from deepcontact.errors import OptionError
@@ -188,7 +192,8 @@ def frontier(out, fast, scenes, families, tolerances, samples, jobs, overwrite, 
     from deepcontact.studies import frontier as F
 
     cases = options.pick_cases(F.FAST if fast else F.SCALE, scenes)
-    chosen = F.settings(fast, options.pick_families(F.FAMILIES, families), tolerances)
+    chosen = F.settings(fast, options.pick_families(F.FAMILIES, families), tolerances,
+                        options.described_methods(plugins))
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES
     with atomic.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:

@@ -14,6 +14,14 @@ import sys
 import threading
 
 _PR_SET_CHILD_SUBREAPER = 36
+_own = []   # clean-ups of dc's own helper processes (the contestants' zygote), run before the search
+
+
+def at_end(clean_up):
+    """Registers clean_up(): ends a helper process of dc's own before end_process looks for what
+    plug-ins left (which it would otherwise count among them)."""
+    if clean_up not in _own:
+        _own.append(clean_up)
 
 
 def adopt_orphans():
@@ -84,6 +92,11 @@ def end_process(code):
     elif not isinstance(code, int):   # (a message: printed, as Python's exit would)
         sys.stderr.write(f"{code}\n")
         code = 1
+    for clean_up in _own:
+        try:
+            clean_up()
+        except Exception:
+            pass
     threads = [t for t in threading.enumerate() if t is not threading.main_thread() and t.is_alive()
                and not t.daemon]
     killed = kill_descendants()

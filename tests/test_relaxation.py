@@ -113,7 +113,7 @@ def test_replay_rows_compare_velocities_and_budgets_are_measured(pile):
     assert set(s) == {"builtin@1", "prev@1", "builtin@1.7", "prev@1.7"}
     for r in rows:
         assert r.velocity_error >= 0 and np.isfinite(r.velocity_error)
-        assert len(r.budget_ms) == len(BUDGETS) and np.all(r.budget_ms > 0)
+        assert len(r.budget_ms) == len(BUDGETS) and np.all(r.budget_ms >= 0)   # (net of the transport)
         assert np.all(np.isfinite(r.budget_residual))
     # 1024 sweeps take longer than one: compared over the rows' medians, so that one solve
     # preempted on a loaded machine cannot decide it

@@ -287,13 +287,9 @@ def every_simulation(scenes, starts, *, budgets=False, jobs=1, progress=None, **
     """The closed loop on every scene (one per simulation: its seed's initial state), side by side
     in `jobs` worker processes; returns one list of LoopResult per scene, in order. options:
     those of closed_loop. progress(n): n more steps stepped (steps_stepped in all)."""
-    from .contestant import stop_server
     tasks = [(scene, starts, options, budgets) for scene in scenes]
-    try:
-        with workers.for_jobs(jobs, tasks, progress) as pool:
-            return list(pool.imap(loop_simulation, tasks))
-    finally:
-        stop_server()
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        return list(pool.imap(loop_simulation, tasks))
 
 
 def pooled(per_simulation):

@@ -295,6 +295,8 @@ def _zygote_socket():
     global _zygote
     import socket
     import subprocess
+    if _zygote is not None and _zygote[2] != os.getpid():   # (a fork's: its socket is its parent's to use)
+        _zygote = None
     if _zygote is None or _zygote[0].poll() is not None:
         ours, theirs = socket.socketpair()
         process = subprocess.Popen(
@@ -303,7 +305,13 @@ def _zygote_socket():
             if _has_fileno(sys.stderr) else subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": os.pathsep.join(
                 p for p in sys.path if p)})
         theirs.close()
-        _zygote = (process, ours)
+        _zygote = (process, ours, os.getpid())
+        # kept for the process's later calls (it holds nothing of theirs: it was started fresh), and
+        # ended with the process, or by dc before it looks for what plug-ins left
+        import atexit
+        from ..leftovers import at_end
+        at_end(stop_server)
+        atexit.register(stop_server)
     return _zygote[1]
 
 
@@ -318,9 +326,10 @@ def _has_fileno(stream):
 def stop_server():
     """Ends the zygote, if started (the command's own helper, not left for the end of dc to find)."""
     global _zygote
-    if _zygote is None:
+    if _zygote is None or _zygote[2] != os.getpid():
+        _zygote = None
         return
-    process, sock = _zygote
+    process, sock, _ = _zygote
     _zygote = None
     sock.close()
     try:
@@ -416,3 +425,45 @@ def _by_name(name, start):
         return start.name == name and STARTS.resolved(name) is not None and \
             type(start.start).__module__ == getattr(STARTS.resolved(name), "__module__", None)
     return name in NAMES and type(start).__module__.startswith("deepcontact.")
+
+
+class RemoteMethod:
+    """A plug-in solver method in a contestant process of its own, as a loop's solve_fn (the
+    studies' steppers): each solve a call timed here, the round trip's fixed cost (an echo of the
+    same request just before it) noted per step (take_transport) to be subtracted, the answer
+    checked and judged here."""
+
+    def __init__(self, name):
+        from ..warmstart.starts import Builtin
+        self.name = name
+        self.contestant = Contestant(name, "builtin", Builtin(), name)
+        self.pending = 0.0
+
+    def solve(self, problem, start_n, start_t, settings):
+        import dataclasses
+        from ..solver.methods import judge
+        n = problem.points
+        request = {"op": "solve", "problem": pickle.dumps(dataclasses.replace(problem, normal_impulse=None,
+                                                                              tangent_impulse=None)),
+                   "normal": np.asarray(start_n, np.float64), "tangent": np.asarray(start_t, np.float64),
+                   "settings": settings}
+        null, _, _ = self.contestant.call({**request, "op": "echo", "points": n})
+        took, header, arrays = self.contestant.call(request)
+        self.pending += min(null, took)
+        normal, tangent = (arrays.get(k) for k in ("normal", "tangent"))
+        for what, a in (("normal", normal), ("tangent", tangent)):
+            if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
+                raise PluginError(f"the solver method {self.name!r} answered {what} impulses that are not {n} "
+                                  f"finite numbers")
+        if np.any(normal < 0):
+            raise PluginError(f"the solver method {self.name!r} answered a negative normal impulse")
+        judged = judge(problem, normal, tangent)
+        return dataclasses.replace(judged, iterations=int(header["iterations"]), relaxation=settings.relaxation)
+
+    def take_transport(self):
+        """Seconds of round trips since the last call (a step's), to subtract from its time."""
+        out, self.pending = self.pending, 0.0
+        return out
+
+    def close(self):
+        self.contestant.close()

@@ -379,13 +379,9 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
             v.relaxation = tuned[v.accelerate]
     tasks = [(sim, table, settings, every, seed, budgets) for sim in plan]
     rows = []
-    from .contestant import stop_server
-    try:
-        with workers.for_jobs(jobs, tasks, progress) as pool:
-            for simulation_rows in pool.imap(evaluate_simulation, tasks):
-                rows.extend(simulation_rows)
-    finally:
-        stop_server()
+    with workers.for_jobs(jobs, tasks, progress) as pool:
+        for simulation_rows in pool.imap(evaluate_simulation, tasks):
+            rows.extend(simulation_rows)
     if not rows:
         raise InputError("no steps with contacts to evaluate")
     return flag_memos(rows)

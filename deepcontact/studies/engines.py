@@ -74,16 +74,48 @@ class Setting:
                              accelerate=self.accelerate)
 
 
-def settings(families=None):
+def families_of(rows):
+    """The families among rows, in the tables' order: the built-in ones, then plug-in methods'."""
+    return [f for f in FAMILIES if any(r.family == f for r in rows)] + \
+        list(dict.fromkeys(r.family for r in rows if r.family not in FAMILIES))
+
+
+def is_project(family):
+    """Whether a family is the project's solver (a built-in method's, or a plug-in method's)."""
+    return family not in ("Box2D 2.4.1", "Box2D v3")
+
+
+def plugin_line(rows, known=FAMILIES):
+    """A line saying how plug-in methods' rows were measured, where there are any (families not
+    among the study's `known` ones)."""
+    plugins = list(dict.fromkeys(r.family for r in rows if r.family not in known))
+    if not plugins:
+        return []
+    from ..escape import md_text
+    return [f"Plug-in methods ({', '.join(md_text(p) for p in plugins)}): each step goes through Python, each solve "
+            f"in the method's own process (never this one), its answer judged here and its round trip (an echo of "
+            f"the same request) subtracted; the Python path itself is in their times, as it is in no built-in row "
+            f"(the built-ins step in one native call).\n"]
+
+
+def plugin_settings(methods, tolerances):
+    """A family per plug-in solver method (`--accelerate`), at the study's tolerances: each solve in
+    the method's own process, timed and judged as dc evaluate does (evaluate.contestant)."""
+    return [Setting(name, f"residual {t:g}", "pgs", CAP, tolerance=t, accelerate=name) for name in methods
+            for t in tolerances]
+
+
+def settings(families=None, plugins=()):
     """Every setting of every family (only those of `families`, where given), in the order of the
-    tables."""
+    tables; then a family per plug-in method named in `plugins`."""
     out = [Setting("Box2D 2.4.1", f"{n} iterations", "box2d", n) for n in BOX2D_COUNTS]
     out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in SUBSTEPS]
     out.append(Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True))
     out.append(Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True))
     out += [Setting(family, f"residual {t:g}", "pgs", CAP, tolerance=t, accelerate=method)
             for family, (method, tolerances) in PROJECT.items() for t in tolerances]
-    return out if families is None else [s for s in out if s.family in families]
+    out = out if families is None else [s for s in out if s.family in families]
+    return out + plugin_settings(plugins, TOLERANCES)
 
 
 @dataclass
@@ -115,7 +147,12 @@ def step_ms(case, setting):
     scene = S.case_scene(case, setting.warm_starting, params_of(case, setting))
     world, step = S.stepper(scene, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
                             tolerance=setting.tolerance, record=False)
-    seconds = [done.seconds for done in stepping.steps(world, scene, step)]
+    remote = getattr(step, "remote", None)   # (a plug-in method's process: its round trips are not its time)
+    try:
+        seconds = [done.seconds - (remote.take_transport() if remote is not None else 0.0)
+                   for done in stepping.steps(world, scene, step)]
+    finally:
+        S.close(step)
     return 1e3 * float(np.mean(seconds)) if seconds else float("nan")
 
 
@@ -188,7 +225,7 @@ def cheapest(rows):
     None} of one scene's rows. Rows within TIE of the least time count as tied, and the tie goes
     to the least effort (the first in the sweep's order)."""
     out = {}
-    for family in FAMILIES:
+    for family in families_of(rows):
         mine = [r for r in rows if r.family == family and not r.variant]
         if not mine:
             continue
@@ -212,7 +249,7 @@ COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
            ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),
            ("energy rise / allowed (J)", lambda r: f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)}"),
            ("top drift (cm)", lambda r: _fmt(r.top_drift, 100)), ("fastest at end (m/s)", lambda r: _fmt(r.final_speed)),
-           ("capped steps", lambda r: r.capped if r.family in PROJECT else "")]
+           ("capped steps", lambda r: r.capped if is_project(r.family) else "")]
 
 
 def scene_table(rows):
@@ -222,7 +259,7 @@ def scene_table(rows):
 def verdict_table(rows):
     """One line per scene: the cheapest passing setting of each family and its time per step."""
     scenes = list(dict.fromkeys(r.scene for r in rows))
-    families = [f for f in FAMILIES if any(r.family == f for r in rows)]   # (the families run)
+    families = families_of(rows)   # (the families run)
     lines = ["| scene | " + " | ".join(families) + " |", "| --- |" + " --- |" * len(families)]
     for scene in scenes:
         mine = [r for r in rows if r.scene == scene]
@@ -244,15 +281,15 @@ def _short(row):
     """A point's label on the plot: its count, tolerance or ablation."""
     if row.variant:
         return "no warm start" if "warm" in row.setting else "from 2.4.1's rest"
-    return row.setting.split()[0] if row.family not in PROJECT else row.setting.split()[-1]
+    return row.setting.split()[0] if not is_project(row.family) else row.setting.split()[-1]
 
 
 def pareto_plot(rows, path):
     """Time per step against drift from the reference, one line per family; hollow markers fail
     the scene's criteria, stars are v3's ablations."""
     points = {f: [(r.ms_per_step, r.drift * 100, r.passed, _short(r), r.variant) for r in rows if r.family == f]
-              for f in FAMILIES}
-    accuracy_plot(FAMILIES, points, path, "largest drift from the reference (cm)",
+              for f in families_of(rows)}
+    accuracy_plot(families_of(rows), points, path, "largest drift from the reference (cm)",
                   f"{rows[0].scene}: accuracy against time\n(labels: iterations, substeps, residual; "
                   "hollow: fails the criteria; stars: v3 ablations)")
 
@@ -262,6 +299,7 @@ def markdown(rows, fast, protocol_text, pictures=True):
     parts = [f"# Accuracy against time across engines: {setting}\n",
              __doc__.split("\n\n")[0].replace("\n", " ").rstrip(".") + ".\n",
              f"Criteria: {S.CRITERIA}\n", protocol_text + "\n",
+             *plugin_line(rows),
              "## The cheapest setting of each family that meets the criteria\n", verdict_table(rows)]
     for scene in dict.fromkeys(r.scene for r in rows):
         mine = [r for r in rows if r.scene == scene]

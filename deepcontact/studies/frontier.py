@@ -42,7 +42,9 @@ from ..solver.methods import solve
 from ..solver.reference import reference_solution
 from ..solver.settings import CAP
 from . import stability as S
-from .engines import Setting, applicable, run_setting, step_ms
+from ..evaluate.contestant import RemoteMethod
+from ..solver.methods import is_native
+from .engines import Setting, applicable, families_of, plugin_line, plugin_settings, run_setting, step_ms
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
@@ -71,9 +73,10 @@ FAST_SAMPLES = 2
 FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
 
 
-def settings(fast=False, families=None, tolerances=None):
+def settings(fast=False, families=None, tolerances=None, plugins=()):
     """Every setting of every family, in the order of the tables (fewer with fast); only the
-    `families` named and the project's `tolerances` given, where given."""
+    `families` named and the project's `tolerances` given, where given; then a family per plug-in
+    method in `plugins`, at those tolerances (engines.plugin_settings)."""
     counts, substeps, default_tolerances, budgets = ((1, 8, 64), (1, 4), (1e-2, 1e-4), (8,)) if fast else \
         (BOX2D_COUNTS, SUBSTEPS, TOLERANCES, BUDGETS)
     tolerances = default_tolerances if tolerances is None else tolerances
@@ -82,7 +85,8 @@ def settings(fast=False, families=None, tolerances=None):
     for family, w, method in PROJECT:
         out += [Setting(family, f"{n} sweeps", "pgs", n, 0.0, w, method) for n in budgets if method == "none"]
         out += [Setting(family, f"residual {t:g}", "pgs", CAP, t, w, method) for t in tolerances]
-    return out if families is None else [s for s in out if s.family in families]
+    out = out if families is None else [s for s in out if s.family in families]
+    return out + plugin_settings(plugins, tolerances)
 
 
 @dataclass
@@ -124,8 +128,14 @@ def one_step(setting, samples):
         return float("nan"), float("nan"), float("nan")
     asked = setting.solve_settings
     residuals, errors = [], []
-    for s in samples:
-        solution = solve(s.problem, settings=asked)
+    remote = None if is_native(asked.accelerate) else RemoteMethod(asked.accelerate)   # (its own process)
+    try:
+        solutions = [solve(s.problem, settings=asked) if remote is None else
+                     remote.solve(s.problem, s.problem.start_normal, s.problem.start_tangent, asked) for s in samples]
+    finally:
+        if remote is not None:
+            remote.close()
+    for s, solution in zip(samples, solutions):
         residuals.append(solution.residual)
         if s.reference is not None and len(s.reference.velocity):
             errors.append(float(np.abs(solution.velocity - s.reference.velocity).max()))
@@ -249,8 +259,8 @@ def frontier_plot(rows, path):
     def label(r):   # iterations or sweeps; a tolerance
         return r.setting.split()[0] if r.family == "Box2D 2.4.1" or "sweeps" in r.setting else r.setting.split()[-1]
     points = {f: [(r.ms_per_step, r.residual_median, r.passed, label(r), False) for r in rows if r.family == f]
-              for f in FAMILIES}
-    accuracy_plot(FAMILIES, points, path, "one-step residual (median over the samples)",
+              for f in families_of(rows)}
+    accuracy_plot(families_of(rows), points, path, "one-step residual (median over the samples)",
                   f"{rows[0].scene}: accuracy against time\n(labels: iterations, sweeps, tolerance; "
                   "hollow: fails the criteria)")
 
@@ -260,6 +270,7 @@ def markdown(rows, lines, fast, protocol_text):
     parts = [f"# What accuracy costs at scale: {setting}\n",
              __doc__.split("\n\n")[0].replace("\n", " ").rstrip(".") + ".\n",
              f"Criteria: {S.CRITERIA}\n", protocol_text + "\n", "Samples: " + " ".join(lines) + "\n",
+             *plugin_line(rows, FAMILIES),
              "## For each engine setting, the cheapest project setting at least as accurate\n",
              summary_table(rows)]
     for scene in dict.fromkeys(r.scene for r in rows):

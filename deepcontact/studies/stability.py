@@ -28,6 +28,7 @@ from .._box2d import linear_slop
 from ..scene.generators import generate, parameters
 from ..simulate import stepping
 from ..simulate.engines import Box2D, Box2D3, SoftStep
+from ..solver.methods import is_native
 from ..solver.settings import SolveSettings
 from ..solver.metrics import deepest, energy, positions
 
@@ -144,7 +145,34 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
                                          relaxation=relaxation, accelerate=accelerate), start=start) if solver == "pgs" else
               Box2D(velocity_iterations=iterations))
     world = engine.build(scene)
+    if solver == "pgs" and not is_native(accelerate):
+        # a plug-in method solves in a process of its own (evaluate.contestant), judged there as in dc evaluate
+        from ..evaluate.contestant import RemoteMethod
+        from ..simulate.pgs_loop import PGSStepper
+        remote = RemoteMethod(accelerate)
+        return world, _Remote(PGSStepper(world, scene, engine.solver, start, record=record, solve_fn=remote.solve).step,
+                              remote)
     return world, engine.stepper(world, scene, record=record)
+
+
+class _Remote:
+    """A step function whose solves go to a plug-in's process: `remote.take_transport()` gives the
+    round trips of the step just taken, and close() ends the process."""
+
+    def __init__(self, step, remote):
+        self.step, self.remote = step, remote
+
+    def __call__(self):
+        return self.step()
+
+    def close(self):
+        self.remote.close()
+
+
+def close(step):
+    """Ends what a stepper's step function holds (a plug-in method's process), if anything."""
+    if isinstance(step, _Remote):
+        step.close()
 
 
 def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.0, accelerate="none", *,
@@ -153,8 +181,16 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
     own rest (own_rest) unless `params` says otherwise. trail: a list to which each step's body
     positions are appended (metrics.positions), for drift."""
     scene = case_scene(case, warm_starting, own_rest(case, solver) if params is None else params)
-    gravity = scene.effects.gravity or (0.0, 0.0)
     world, step = stepper(scene, solver, start, iterations, relaxation, accelerate, tolerance)
+    try:
+        return _judged(case, scene, world, step, tolerance, iterations, trail, solver, label(start, relaxation, accelerate))
+    finally:
+        close(step)
+
+
+def _judged(case, scene, world, step, tolerance, iterations, trail, solver, start_label):
+    """run_case's measurement of one stepped run (its criteria)."""
+    gravity = scene.effects.gravity or (0.0, 0.0)
     bodies = world.bodies()
     # the top body, by its index: removals shift the rows of the arrays
     top = int(bodies["index"][np.argmax(np.where(bodies["type"] == 2, bodies["center"][:, 1], -np.inf))])
@@ -198,7 +234,7 @@ def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.
             excess, rise, worst_allowed = e / allowed, e, allowed
         if case.stack_top and np.any(bodies["index"] == top):
             drift = max(drift, float(np.linalg.norm(bodies["center"][bodies["index"] == top][0] - top_start)))
-    return Result(case=case.label, solver=solver, start=label(start, relaxation, accelerate), iterations=iterations, finite=finite,
+    return Result(case=case.label, solver=solver, start=start_label, iterations=iterations, finite=finite,
                   penetration=penetration, peak_penetration=peak, energy_rise=float(rise),
                   energy_allowed=worst_allowed,
                   top_drift=drift if case.stack_top else float("nan"), sanitized=sanitized,
