@@ -103,8 +103,8 @@ def test_a_start_that_walks_the_stack_finds_no_judge(run, tmp_path, tricks):
 
 def test_a_start_that_shares_a_cache_across_variants_pays_in_each(run, tmp_path, tricks):
     s = evaluated(run, tmp_path / "r", "--starts", "builtin,tricks:Shares", "--relaxation", "1,1.7")["starts"]
-    assert s["tricks:Shares@1"]["predict_ms_median"] >= 4
-    assert s["tricks:Shares@1.7"]["predict_ms_median"] >= 4
+    assert s["tricks:Shares@1"]["predict_ms_median"] >= 3   # (5 ms each, less the transport)
+    assert s["tricks:Shares@1.7"]["predict_ms_median"] >= 3
 
 
 def test_a_clock_patched_at_import_moves_nothing_and_the_import_is_reported(run, tmp_path, tricks):

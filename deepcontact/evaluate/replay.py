@@ -210,24 +210,16 @@ def _checked(label, arrays, points):
     return out
 
 
-def _round_trip(contestant, request, points):
-    """(seconds, transport seconds, header, arrays) of one call, timed here: the call's own round
-    trip, and the null contestant's (an echo of the same request) just before it."""
-    null, _, _ = contestant.call({"op": "echo", "points": points, **{k: v for k, v in request.items() if k != "op"}})
-    took, header, arrays = contestant.call(request)
-    return took, null, header, arrays
+def _echo(contestant, request, points):
+    """The null contestant's round trip for this request: the same request, read as a call reads
+    it, answered at once (the transport's fixed cost for a call of its kind and size)."""
+    return contestant.call({**request, "op": "echo", "points": points})[0]
 
 
 def _net(took, nulls):
     """A call's time less the transport: the least of the step's null round trips for that kind of
     call (a fixed cost; what varies above it, the call may have caused)."""
     return max(took - min(nulls), 0.0)
-
-
-def _timed(contestant, request, points):
-    """(seconds net of transport, transport seconds, header, arrays) of one call."""
-    took, null, header, arrays = _round_trip(contestant, request, points)
-    return _net(took, [null]), null, header, arrays
 
 
 def _contestants(table, settings):
@@ -287,35 +279,36 @@ def evaluate_simulation(task):
                 v = table[i]
                 c = contestants[v.label]
                 request = {"op": "start", "ctx": _visible(ctx, c.traits, v.label)}
-                early, _, _ = c.call({**request, "op": "echo", "points": problem.points})
-                took, null, _, arrays = _round_trip(c, request, problem.points)
-                predict_s, transport_s = _net(took, [early, null]), min(early, null)
+                before = _echo(c, request, problem.points)
+                took, _, arrays = c.call(request)
+                predict_s = _net(took, [before, _echo(c, request, problem.points)])   # (the least of two)
                 normal, tangent = _checked(v.label, arrays, problem.points)
-                step_rows[i] = (v, c, normal, tangent, predict_s, transport_s)
+                step_rows[i] = (v, c, normal, tangent, predict_s)
             asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate) for i, (v, *_) in step_rows.items()}
             sent = pickle.dumps(_unanswered(problem))
+            requests = {i: {"op": "solve", "problem": sent, "normal": step_rows[i][2], "tangent": step_rows[i][3],
+                            "settings": asked[i]} for i in step_rows}
             took = {i: [] for i in step_rows}
-            nulls = {i: [] for i in step_rows}
             answers = {i: [] for i in step_rows}
+            # the transport of a solve, before the rounds and after them (the least counts)
+            nulls = {i: [_echo(step_rows[i][1], requests[i], problem.points)] for i in order}
             # interleaved (a busy moment of the machine touches every variant), after a round that
             # warms each process up (the first call after a start's ran slower; its answer is judged
             # like every other, so no call is one a contestant could treat differently)
             for rep in range(-1, REPEATS):
                 for i in order:
-                    v, c, normal, tangent, *_ = step_rows[i]
-                    t, null, head, arrays = _round_trip(c, {"op": "solve", "problem": sent, "normal": normal,
-                                                            "tangent": tangent, "settings": asked[i]},
-                                                           problem.points)
+                    t, head, arrays = step_rows[i][1].call(requests[i])
                     answers[i].append((head, arrays))
                     took[i].append(t)
-                    nulls[i].append(null)
+            for i in order:
+                nulls[i].append(_echo(step_rows[i][1], requests[i], problem.points))
             # each call's time (the first, the warming one, kept apart: a memo shows against it)
             times = {i: [_net(t, nulls[i]) * 1e3 for t in took[i]] for i in step_rows}
             firsts = {i: times[i].pop(0) for i in step_rows}
             for i in step_rows:
                 step_rows[i][1].status()
             for i in sorted(step_rows):
-                v, c, normal, tangent, predict_s, transport_s = step_rows[i]
+                v, c, normal, tangent, predict_s = step_rows[i]
                 # every timed answer judged by our residual: the worst of them is the variant's
                 judged = [judge(problem, *_checked(v.label, arrays, problem.points)) for _, arrays in answers[i]]
                 worst = max(judged, key=lambda s: s.residual)
@@ -343,9 +336,9 @@ def evaluate_simulation(task):
                           accelerate=v.accelerate, fallback=bool(head["fallback"]),
                           reference_residual=reference.residual, reference_pivoted=reference.pivoted,
                           factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(times[i]),
-                          transport_ms=transport_s * 1e3, setup_ms=c.setup_s * 1e3, first_ms=firsts[i])
+                          transport_ms=min(nulls[i]) * 1e3, setup_ms=c.setup_s * 1e3, first_ms=firsts[i])
                 if budgets:
-                    row.budget_ms, row.budget_residual = _budgets(c, problem, sent, normal, tangent, asked[i], v.label)
+                    row.budget_ms, row.budget_residual = _budgets(c, problem, requests[i], min(nulls[i]), v.label)
                 rows.append(row)
     finally:
         for c in contestants.values():
@@ -387,16 +380,16 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
     return flag_memos(rows)
 
 
-def _budgets(contestant, problem, sent, normal, tangent, settings, label):
+def _budgets(contestant, problem, request, null, label):
     """Measured: the time of exactly b sweeps for every budget b (no early stop; a global method
     gets b sweeps and the Newton steps between them, a plug-in b iterations), each a call to the
-    variant's process timed here, and the residual its answer reaches, judged here."""
+    variant's process timed here less the solve's transport (null), and the residual its answer
+    reaches, judged here."""
     ms, residual = [], []
     for b in BUDGETS:
-        took, _, _, arrays = _timed(contestant, {"op": "solve", "problem": sent, "normal": normal, "tangent": tangent,
-                                                 "settings": settings.but(max_iterations=b, tolerance=0.0)},
-                                    problem.points)
-        ms.append(took * 1e3)
+        took, _, arrays = contestant.call({**request, "settings": request["settings"].but(max_iterations=b,
+                                                                                           tolerance=0.0)})
+        ms.append(_net(took, [null]) * 1e3)
         residual.append(judge(problem, *_checked(label, arrays, problem.points)).residual)
     return np.array(ms), np.array(residual)
 
