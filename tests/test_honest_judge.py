@@ -406,3 +406,13 @@ def test_a_start_that_wins_the_median_but_loses_the_total_is_no_clear_winner():
     from deepcontact.evaluate.report import verdict
     line = verdict(summarize(rows, None, 1000), noise)
     assert line.startswith("**Verdict**: no clear winner") and "Over all steps it took longer than builtin" in line
+
+
+def test_a_three_percent_difference_is_no_clear_winner():
+    import numpy as np
+    from deepcontact.evaluate.noise import judge
+    from deepcontact.evaluate.replay import summarize
+    steps = np.random.default_rng(5).uniform(0.05, 0.2, 60)
+    rows = rows_of({"builtin": steps, "slightly": steps * 0.97}, seed=6)
+    noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
+    assert noise["best"] == "slightly" and not noise["clear"]

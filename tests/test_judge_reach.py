@@ -124,3 +124,30 @@ def test_the_order_of_the_starts_changes_nothing(run, tmp_path, tricks):
     one = evaluated(run, tmp_path / "a", "--starts", "builtin,clock:Slow")
     two = evaluated(run, tmp_path / "b", "--starts", "clock:Slow,builtin")
     assert one["settings"]["noise"]["best"] == two["settings"]["noise"]["best"] == "builtin"
+
+
+SAME = textwrap.dedent("""
+    from deepcontact.warmstart.starts import StartValue
+    class Same:
+        '''Box2D's warm start, given back from a plug-in: what builtin gives.'''
+        def __call__(self, ctx):
+            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
+    """)
+
+
+def test_in_the_closed_loop_a_start_identical_to_builtin_measures_about_builtin(run, tmp_path, monkeypatch):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "same_start.py").write_text(SAME)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    r = dc("evaluate", "--no-plots", "--no-budgets", "--closed-loop", run, "--starts", "builtin,same_start:Same",
+           "--steps", "80", "-q", "-o", tmp_path / "r")
+    sys.modules.pop("same_start", None)
+    assert r.returncode == 0, r.stderr
+    rows = {row["start"]: row for row in json.loads((tmp_path / "r" / "closed-loop.json").read_text())["results"]}
+    import numpy as np
+    builtin, same = (np.median(rows[k]["ms_per_step"][:80]) for k in ("builtin", "same_start:Same"))
+    assert 0.5 < same / builtin < 2, (same, builtin)   # (it measured 14x when its round trip was its cost)
+    assert rows["builtin"]["path_ms"] > 0 and all(t >= 0 for t in rows["same_start:Same"]["transport_ms"])
+    verdict = next(line for line in (tmp_path / "r" / "report.md").read_text().splitlines()
+                   if line.startswith("**Verdict**"))
+    assert "same_start:Same**" not in verdict   # (never named the winner over what it copies)

@@ -279,9 +279,9 @@ def evaluate_simulation(task):
                 v = table[i]
                 c = contestants[v.label]
                 request = {"op": "start", "ctx": _visible(ctx, c.traits, v.label)}
-                before = _echo(c, request, problem.points)
+                null = _echo(c, request, problem.points)
                 took, _, arrays = c.call(request)
-                predict_s = _net(took, [before, _echo(c, request, problem.points)])   # (the least of two)
+                predict_s = _net(took, [null, _echo(c, request, problem.points)])   # (the least of two)
                 normal, tangent = _checked(v.label, arrays, problem.points)
                 step_rows[i] = (v, c, normal, tangent, predict_s)
             asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate) for i, (v, *_) in step_rows.items()}
