@@ -443,18 +443,23 @@ OUTLIVES = {
 LEAVER = """
 import os, pathlib, time
 import numpy as np
-from deepcontact.warmstart.starts import StartValue
+{imports}
 class Finalizer:
     def __del__(self):
         raise RuntimeError("finalizer")
 class Start:
     done = False
-    def __call__(self, ctx):
+    def __call__(self, {arguments}):
         if not Start.done:
             Start.done = True
             {body}
-        return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {{}})
+        return {value}
 """
+# the same leaver as a start and as a solver method
+AS_START = dict(imports="from deepcontact.warmstart.starts import StartValue", arguments="ctx",
+                value="StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})")
+AS_METHOD = dict(imports="from deepcontact.solver.methods import MethodResult",
+                 arguments="problem, normal, tangent, settings", value="MethodResult(normal, tangent, np.zeros(1))")
 
 
 @pytest.mark.parametrize("kind", sorted(OUTLIVES))
@@ -462,7 +467,7 @@ def test_nothing_a_plugin_starts_outlives_the_command(run, tmp_path, kind):
     import os
     mods = tmp_path / "mods"
     mods.mkdir()
-    (mods / "guest_leaves.py").write_text(LEAVER.format(body=OUTLIVES[kind]))
+    (mods / "guest_leaves.py").write_text(LEAVER.format(body=OUTLIVES[kind], **AS_START))
     t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run),
                            "--starts", "builtin,guest_leaves:Start", "--every", "20", "--no-budgets", "-q", "-o",
@@ -482,23 +487,6 @@ def test_nothing_a_plugin_starts_outlives_the_command(run, tmp_path, kind):
     assert not any(p.name.startswith(".") for p in (tmp_path / "r").iterdir() if p.name != ".dc-output.json")
 
 
-LEAVING_METHOD = """
-import os, pathlib, time
-import numpy as np
-from deepcontact.solver.methods import MethodResult
-class Finalizer:
-    def __del__(self):
-        raise RuntimeError("finalizer")
-class Start:
-    done = False
-    def __call__(self, problem, normal, tangent, settings):
-        if not Start.done:
-            Start.done = True
-            {body}
-        return MethodResult(normal, tangent, np.zeros(1))
-"""
-
-
 @pytest.mark.parametrize("kind", sorted(OUTLIVES))
 def test_nothing_a_plugin_method_starts_outlives_a_simulation(tmp_path, kind):
     """Outside the judge (dc simulate runs a plug-in method in its own loop), dc ends its own
@@ -506,7 +494,7 @@ def test_nothing_a_plugin_method_starts_outlives_a_simulation(tmp_path, kind):
     import os
     mods = tmp_path / "mods"
     mods.mkdir()
-    (mods / "guest_leaves.py").write_text(LEAVING_METHOD.format(body=OUTLIVES[kind]))
+    (mods / "guest_leaves.py").write_text(LEAVER.format(body=OUTLIVES[kind], **AS_METHOD))
     t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "deepcontact.cli.main", "simulate", "pile", "--param", "count=6",
                            "--steps", "150", "--solver", "pgs", "--accelerate", "guest_leaves:Start", "-q", "-o",
