@@ -254,7 +254,8 @@ class ContestantTraceback(Exception):
 # The zygote: a fresh interpreter, started once per process that judges (before any contestant is
 # asked for), with the solver imported; it forks each contestant on request. Not multiprocessing's
 # fork server, whose children re-run the caller's __main__ (a user's script, a notebook's stdin).
-_zygote = None   # (Popen, socket)
+_zygote = None   # (Popen, socket, the pid that started it)
+_zygote_torch = False   # whether the zygote has imported torch
 
 
 def zygote(fd):
@@ -274,6 +275,10 @@ def zygote(fd):
             message, fds, _, _ = socket.recv_fds(judge, 16, 1)
         except OSError:
             return
+        if message == b"t" and not fds:   # (torch, imported once here rather than in every contestant)
+            import deepcontact.model.inference  # noqa: F401
+            judge.sendall(struct.pack("<q", 0))
+            continue
         if not message or not fds:
             return
         pid = os.fork()
@@ -290,14 +295,16 @@ def zygote(fd):
         judge.sendall(struct.pack("<q", pid))
 
 
-def _zygote_socket():
-    """The judge's socket to its zygote, started at the first call."""
-    global _zygote
+def _zygote_socket(torch=False):
+    """The judge's socket to its zygote, started at the first call; torch: with torch imported in
+    it (for contestants that load a trained model), asked once."""
+    global _zygote, _zygote_torch
     import socket
     import subprocess
     if _zygote is not None and _zygote[2] != os.getpid():   # (a fork's: its socket is its parent's to use)
         _zygote = None
     if _zygote is None or _zygote[0].poll() is not None:
+        _zygote_torch = False
         ours, theirs = socket.socketpair()
         process = subprocess.Popen(
             [sys.executable, "-c", f"from deepcontact.evaluate.contestant import zygote; zygote({theirs.fileno()})"],
@@ -312,6 +319,10 @@ def _zygote_socket():
         from ..leftovers import at_end
         at_end(stop_server)
         atexit.register(stop_server)
+    if torch and not _zygote_torch:
+        _zygote[1].sendall(b"t")
+        _receive_exactly(_zygote[1], 8)
+        _zygote_torch = True
     return _zygote[1]
 
 
@@ -352,7 +363,7 @@ class Contestant:
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()
-        zygote_socket = _zygote_socket()
+        zygote_socket = _zygote_socket(torch=bool(checkpoint))
         socket.send_fds(zygote_socket, [b"c"], [theirs.fileno()])
         theirs.close()
         self.pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
