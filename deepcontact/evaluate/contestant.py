@@ -26,6 +26,7 @@ from ..errors import InputError
 from ..plugins import PluginError
 
 TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
+ANSWER_MAX = 1 << 28   # bytes an answer may take (three float64 arrays of 10 million contact points): no more is read
 
 
 # --- Answers: JSON and float64 arrays, never pickle -------------------------------------------------
@@ -385,9 +386,12 @@ class Contestant:
 
     def _answer(self, t0=None):
         try:
-            data = self.conn.recv_bytes()
-        except (EOFError, OSError):
+            data = self.conn.recv_bytes(ANSWER_MAX)
+        except EOFError:
             raise PluginError(f"the variant {self.label!r}: its process ended during a call") from None
+        except OSError as e:   # (an answer over ANSWER_MAX: "bad message length")
+            raise PluginError(f"the variant {self.label!r}: its answer could not be read ({e}; at most "
+                              f"{ANSWER_MAX >> 20} MiB)") from None
         seconds = time.perf_counter() - t0 if t0 is not None else 0.0
         header, arrays = unpack(data, f"the variant {self.label!r}")
         if "error" in header:
