@@ -73,7 +73,7 @@ def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, conte
            "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
-    assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 3.0
+    assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 2.5   # (3 ms, less the transport)
     assert summary["builtin"]["predict_ms_median"] < 1.0
     report = (tmp_path / "r" / "report.md").read_text()
     assert "is **builtin**" in next(line for line in report.splitlines() if line.startswith("**Verdict**"))
