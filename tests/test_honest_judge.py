@@ -21,9 +21,9 @@ CONTESTANTS = textwrap.dedent("""
             return MethodResult(normal, tangent, np.array([1e-9]))
 
     class HidesItsCost:
-        '''Box2D's warm start, 3 ms late, reporting no time spent.'''
+        '''Box2D's warm start, 10 ms late (far beyond the noise of a loaded machine), reporting no time spent.'''
         def __call__(self, ctx):
-            time.sleep(0.003)
+            time.sleep(0.010)
             return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {"net": 0.0})
     """)
 
@@ -73,7 +73,7 @@ def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, conte
            "--no-budgets", "-q", "-o", tmp_path / "r")
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
-    assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 2.5   # (3 ms, less the transport)
+    assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 8   # (10 ms, less the transport)
     assert summary["builtin"]["predict_ms_median"] < 1.0
     report = (tmp_path / "r" / "report.md").read_text()
     assert "is **builtin**" in next(line for line in report.splitlines() if line.startswith("**Verdict**"))
