@@ -18,6 +18,12 @@ class PluginError(InputError):
     """A plug-in that cannot be found, imported or used: one line naming it and what is wrong."""
 
 
+# True in a contestant's own process (evaluate.contestant): the process is the plug-in's guard
+# there (nothing it changes reaches the judge), so guest() only turns what leaves its code into one
+# line, and no copy of a step is made for it (unpickled for each call, it is its own already).
+contained = False
+
+
 class _GuestExit(BaseException):
     """os._exit called by a plug-in: raised in its code instead, as sys.exit's SystemExit is."""
 
@@ -39,6 +45,20 @@ def guest(what, doing="raised"):
     import os
     import sys
     from . import interrupts
+    if contained:
+        pid = os.getpid()
+        try:
+            yield
+        except InputError:
+            raise
+        except SystemExit as e:
+            raise PluginError(f"{what} called sys.exit({e.code!r}): a plug-in cannot end the command") from e
+        except BaseException as e:
+            raise PluginError(f"{what} {doing} {type(e).__name__}: {e}") from e
+        finally:
+            if os.getpid() != pid:   # a child the plug-in forked, coming back out: it ends here, quietly
+                interrupts.real_exit(0)
+        return
     try:
         cwd = os.getcwd()
     except OSError:

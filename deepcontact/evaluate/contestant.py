@@ -61,6 +61,7 @@ def unpack(data, who):
 
 def _make(setup):
     """(start, traits) made from the setup's names (and the method made, where a plug-in)."""
+    from ..plugins import guest
     from ..solver import methods
     from ..warmstart.starts import STARTS, Checked, asks, make_starts
     for name in setup["networks"]:   # (the checkpoint's plug-in network, which the user named with --arch)
@@ -82,11 +83,14 @@ def _make(setup):
     if not methods.is_native(setup["method"]):
         methods.method(setup["method"])
     traits = {k: bool(asks(setup["name"], start, k)) for k in TRAITS}
-    if isinstance(start, Checked):   # (its step is its own already, unpickled for each call: no private copy)
-        checked = start
+    if isinstance(start, Checked):
+        # (its step is its own already, unpickled for each call: no private copy; and its answer is
+        # checked by the judge, off its clock, not here on it)
+        name, inner = start.name, start.start
 
         def start(ctx):
-            return checked(ctx, copied=True)
+            with guest(f"the start {name!r}"):
+                return inner(ctx)
     return start, traits
 
 
@@ -178,10 +182,12 @@ def serve(conn):
     # stop signal reaches a contestant, which the judge ends itself)
     interrupts.install("dc contestant")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from .. import plugins
+    plugins.contained = True
     setup = pickle.loads(conn.recv_bytes())
     sys.path[:0] = [p for p in setup["path"] if p not in sys.path]
     from .. import protocol
-    from ..solver.methods import is_native, solve
+    from ..solver.methods import call_plugin, is_native, solve
     protocol.use_threads(setup["threads"])
     if "describe" in setup:   # (a description of plug-ins, for a judge that must not import them)
         try:
@@ -211,18 +217,25 @@ def serve(conn):
                 reply = pack({}, {"normal": np.zeros(n), "tangent": np.zeros(n)})
             elif op == "start":
                 value = start(request["ctx"])
-                reply = pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds).items()}},
-                             {"normal": value.normal, "tangent": value.tangent})
+                try:
+                    reply = pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds or {}).items()}},
+                                 {"normal": value.normal, "tangent": value.tangent})
+                except (AttributeError, TypeError, ValueError) as e:
+                    raise PluginError(f"the start {setup['name']!r} must return a StartValue(normal, tangent, seconds): "
+                                      f"{type(e).__name__}: {e}") from None
             elif op == "solve":
                 # (a plug-in's claimed residuals come with every answer, alike on every call; a built-in's
                 # trace the judge makes itself, from the same start, off the clock)
-                plugin = not is_native(request["settings"].accelerate)
-                s = solve(pickle.loads(request["problem"]), request["normal"], request["tangent"],
-                          settings=request["settings"], final_residual=False, history=plugin)
-                claims = s.history[:, 0] if plugin and len(s.history) else np.zeros(0)
-                reply = pack({"iterations": int(s.iterations), "fallback": int(s.relaxation_fallback > 0),
-                              "factorizations": int(getattr(s, "factorizations", 0))},
-                             {"normal": s.normal_impulse, "tangent": s.tangent_impulse, "claims": claims})
+                problem, asked = pickle.loads(request["problem"]), request["settings"]
+                if is_native(asked.accelerate):
+                    s = solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False)
+                    reply = pack({"iterations": int(s.iterations), "fallback": int(s.relaxation_fallback > 0),
+                                  "factorizations": int(getattr(s, "factorizations", 0))},
+                                 {"normal": s.normal_impulse, "tangent": s.tangent_impulse, "claims": np.zeros(0)})
+                else:   # (its step is its own: no copy; the judge judges its answer from its own copy)
+                    normal, tangent, claims = call_plugin(problem, request["normal"], request["tangent"], asked)
+                    reply = pack({"iterations": len(claims), "fallback": 0, "factorizations": 0},
+                                 {"normal": normal, "tangent": tangent, "claims": claims})
             elif op == "status":   # (asked off the clock: what its calls left running)
                 reply = pack({"left_running": list(_left_running())})
             else:
@@ -456,7 +469,7 @@ class RemoteMethod:
 
     def solve(self, problem, start_n, start_t, settings):
         import dataclasses
-        from ..solver.methods import judge
+        from ..solver.methods import check_plausible, judge
         n = problem.points
         request = {"op": "solve", "problem": pickle.dumps(dataclasses.replace(problem, normal_impulse=None,
                                                                               tangent_impulse=None)),
@@ -464,7 +477,7 @@ class RemoteMethod:
                    "settings": settings}
         null, _, _ = self.contestant.call({**request, "op": "echo", "points": n})
         took, header, arrays = self.contestant.call(request)
-        self.pending += min(null, took)
+        self.pending += null + min(null, took)   # (the echo and the call's own round trip: neither is the method's)
         normal, tangent = (arrays.get(k) for k in ("normal", "tangent"))
         for what, a in (("normal", normal), ("tangent", tangent)):
             if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
@@ -472,6 +485,7 @@ class RemoteMethod:
                                   f"finite numbers")
         if np.any(normal < 0):
             raise PluginError(f"the solver method {self.name!r} answered a negative normal impulse")
+        check_plausible(self.name, problem, normal, tangent)
         judged = judge(problem, normal, tangent)
         return dataclasses.replace(judged, iterations=int(header["iterations"]), relaxation=settings.relaxation)
 

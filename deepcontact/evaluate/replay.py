@@ -22,7 +22,7 @@ import numpy as np
 from .. import workers
 from ..errors import InputError
 from ..step.run_folder import Run, read_run
-from ..solver.methods import is_native, judge, solve
+from ..solver.methods import check_plausible, is_native, judge, solve
 from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE, reference_solution
@@ -202,8 +202,11 @@ def _checked(label, arrays, points):
     out = []
     for what in ("normal", "tangent"):
         a = arrays.get(what)
-        if a is None or a.shape != (points,) or not np.all(np.isfinite(a)):
-            raise PluginError(f"the variant {label!r} answered {what} impulses that are not {points} finite numbers")
+        if a is None or a.shape != (points,):
+            raise PluginError(f"the variant {label!r} answered {what} impulses of shape "
+                              f"{None if a is None else a.shape}; the step has {points} contact points, so ({points},)")
+        if not np.all(np.isfinite(a)):
+            raise PluginError(f"the variant {label!r} answered a non-finite {what} impulse")
         out.append(a)
     if np.any(out[0] < 0):
         raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
@@ -311,6 +314,9 @@ def evaluate_simulation(task):
                 v, c, normal, tangent, predict_s = step_rows[i]
                 # every timed answer judged by our residual: the worst of them is the variant's
                 judged = [judge(problem, *_checked(v.label, arrays, problem.points)) for _, arrays in answers[i]]
+                if not is_native(v.accelerate):   # (a plug-in's answer: one a step could need at all?)
+                    for _, arrays in answers[i]:
+                        check_plausible(v.accelerate, problem, arrays["normal"], arrays["tangent"])
                 worst = max(judged, key=lambda s: s.residual)
                 head, arrays = answers[i][0]
                 got = np.concatenate([arrays["normal"], arrays["tangent"]])

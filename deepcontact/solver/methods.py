@@ -161,10 +161,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         out = solver(copy.deepcopy(problem), np.array(n, np.float64), np.array(t, np.float64), settings)
     normal, tangent, residuals = _checked(accelerate, out, problem, cap)
     after = judge(problem, normal, tangent)
-    # (judge measures an answer as given; the start check says whether the whole answer is plausible)
-    if native_solve(problem, normal, tangent, max_iterations=0, final_residual=False).sanitized.get("implausible"):
-        raise PluginError(f"the solver method {accelerate!r} returned impulses no step could need (together they "
-                          f"would move a contact faster than Box2D lets a body travel)")
+    check_plausible(accelerate, problem, normal, tangent)
     trace = np.full((len(residuals), len(MEASURES)), np.nan)
     trace[:, MEASURES.index("residual")] = residuals
     if len(residuals):   # the last iterate's residual is the project's, not the plug-in's
@@ -172,6 +169,29 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     return Solution(normal_impulse=normal, tangent_impulse=tangent, velocity=after.velocity, omega=after.omega,
                     iterations=len(residuals), history=trace if history else np.zeros((0, len(MEASURES))),
                     residual=after.residual, sanitized={}, stats={}, relaxation=settings.relaxation)
+
+
+def check_plausible(name, problem, normal, tangent):
+    """PluginError where a plug-in method's answer is no answer a step could need: together its
+    impulses would move a contact faster than Box2D lets a body travel (judge measures an answer as
+    given; the start check says whether the whole answer is plausible)."""
+    if native_solve(problem, normal, tangent, max_iterations=0, final_residual=False).sanitized.get("implausible"):
+        raise PluginError(f"the solver method {name!r} returned impulses no step could need (together they "
+                          f"would move a contact faster than Box2D lets a body travel)")
+
+
+def call_plugin(problem, start_normal, start_tangent, settings):
+    """A plug-in method's own answer (normal, tangent, its residuals), its form checked, neither
+    judged nor copied for: what a contestant's process does with a step that is its own (the
+    judge judges the answer, from its own copy of the step)."""
+    name = settings.accelerate
+    cap = settings.max_iterations
+    asked = _plugin_settings(name, settings.mode, int(cap), float(settings.tolerance), settings.stop_on,
+                             settings.relaxation, settings.guard)
+    solver = method(name)
+    with guest(f"the solver method {name!r}"):
+        out = solver(problem, np.array(start_normal, np.float64), np.array(start_tangent, np.float64), asked)
+    return _checked(name, out, problem, cap)
 
 
 def _plugin_settings(name, mode, cap, tolerance, stop_on, relaxation, guard):
