@@ -44,34 +44,25 @@ def guest(what, doing="raised"):
     raised."""
     import os
     import sys
+    from contextlib import nullcontext
     from . import interrupts
-    if contained:
-        pid = os.getpid()
+    # (in a contestant's process, what it changes there reaches nothing of dc's: nothing to put back)
+    keep = not contained
+    cwd, mask, threads = None, None, None
+    if keep:
         try:
-            yield
-        except InputError:
-            raise
-        except SystemExit as e:
-            raise PluginError(f"{what} called sys.exit({e.code!r}): a plug-in cannot end the command") from e
-        except BaseException as e:
-            raise PluginError(f"{what} {doing} {type(e).__name__}: {e}") from e
-        finally:
-            if os.getpid() != pid:   # a child the plug-in forked, coming back out: it ends here, quietly
-                interrupts.real_exit(0)
-        return
-    try:
-        cwd = os.getcwd()
-    except OSError:
-        cwd = None
-    from .atomic import umask
-    mask = umask()
-    threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
+            cwd = os.getcwd()
+        except OSError:
+            pass
+        from .atomic import umask
+        mask = umask()
+        threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
     pid, outermost = os.getpid(), os._exit is not _refuse_exit
     if outermost:
         os._exit = _refuse_exit
     try:
         try:
-            with interrupts.guest_code():
+            with interrupts.guest_code() if keep else nullcontext():
                 yield
         finally:
             if os.getpid() != pid:   # a child the plug-in forked, coming back out: it ends here, quietly
@@ -91,21 +82,29 @@ def guest(what, doing="raised"):
     except BaseException as e:   # (GeneratorExit and the like as well: nothing of a guest's passes as ours)
         raise PluginError(f"{what} {doing} {type(e).__name__}: {e}") from e
     finally:
-        if cwd is not None:
-            try:
-                if os.getcwd() != cwd:
-                    os.chdir(cwd)
-            except OSError:
-                os.chdir(cwd)
-        # the process state outputs and timings depend on: the umask the outputs' modes come from,
-        # torch's thread count (--threads; the count changes float sums and times)
-        os.umask(mask)
-        if "torch" in sys.modules:   # (a guest that imported torch got its per-core default)
-            from .protocol import threads_asked
-            torch, wanted = sys.modules["torch"], threads if threads is not None else threads_asked
-            if torch.get_num_threads() != wanted:
-                torch.set_num_threads(wanted)
+        if keep:
+            _put_back(cwd, mask, threads)
     interrupts.check()
+
+
+def _put_back(cwd, mask, threads):
+    """The process state a guest may have changed, put back: the working folder, the umask the
+    outputs' modes come from, torch's thread count (--threads; the count changes float sums and
+    times)."""
+    import os
+    import sys
+    if cwd is not None:
+        try:
+            if os.getcwd() != cwd:
+                os.chdir(cwd)
+        except OSError:
+            os.chdir(cwd)
+    os.umask(mask)
+    if "torch" in sys.modules:   # (a guest that imported torch got its per-core default)
+        from .protocol import threads_asked
+        torch, wanted = sys.modules["torch"], threads if threads is not None else threads_asked
+        if torch.get_num_threads() != wanted:
+            torch.set_num_threads(wanted)
 
 
 class Registry:

@@ -15,7 +15,6 @@ whether anything became non-finite.
 `box2d_iterations` runs the same comparison for Box2D's own solver at fixed velocity iteration
 counts: what its accuracy costs in time.
 """
-import pickle
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -28,9 +27,10 @@ from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.metrics import drift, energy, positions
 from ..solver.settings import SolveSettings
-from ..solver.methods import check_plausible, is_native, judge
+from ..solver.methods import is_native
 from ..warmstart.starts import StepContext, is_oracle
-from .replay import _checked, _contestants, _unanswered, _visible, variants
+from .contestant import RemoteMethod, checked_answer
+from .replay import _contestants, _visible, variants
 
 if TYPE_CHECKING:   # (for the annotations only)
     from ..scene.model import Scene
@@ -69,13 +69,8 @@ class _Adapter:
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
         self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
+        self.method = None   # a plug-in method's RemoteMethod, in the same process
 
-    def _call(self, request, points):
-        null, _, _ = self.contestant.call({**request, "op": "echo", "points": points})
-        took, header, arrays = self.contestant.call(request)
-        # the step's time holds the echo and the call's own round trip: neither is the contestant's
-        self.pending += null + min(null, took)
-        return max(took - null, 0.0), header, arrays
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
@@ -86,26 +81,24 @@ class _Adapter:
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),
                           variant=self.name, trajectory="loop")
-        seconds, _, arrays = self._call({"op": "start", "ctx": _visible(ctx, self.contestant.traits, self.name)},
-                                        problem.points)
-        self.timing.append(seconds)
-        return tuple(_checked(self.name, arrays, problem.points))
+        request = {"op": "start", "ctx": _visible(ctx, self.contestant.traits, self.name)}
+        null = self.contestant.echo(request, problem.points)
+        took, _, arrays = self.contestant.call(request)
+        # the step's time holds the echo and the call's own round trip: neither is the contestant's
+        self.pending += null + min(null, took)
+        self.timing.append(max(took - null, 0.0))
+        return tuple(checked_answer(self.name, arrays, problem.points))
 
     def solve(self, problem, start_n, start_t, settings):
-        """A plug-in method's solve, in the contestant's process; its answer judged here."""
-        _, header, arrays = self._call({"op": "solve", "problem": pickle.dumps(_unanswered(problem)),
-                                        "normal": np.asarray(start_n, np.float64),
-                                        "tangent": np.asarray(start_t, np.float64), "settings": settings},
-                                       problem.points)
-        normal, tangent = _checked(self.name, arrays, problem.points)
-        check_plausible(settings.accelerate, problem, normal, tangent)
-        judged = judge(problem, normal, tangent)
-        return replace(judged, iterations=int(header["iterations"]), relaxation=settings.relaxation)
+        """A plug-in method's solve, in the contestant's process (RemoteMethod); its answer judged here."""
+        if self.method is None:
+            self.method = RemoteMethod(settings.accelerate, self.contestant)
+        return self.method.solve(problem, start_n, start_t, settings)
 
     def solved(self, solution):
         self.previous = {} if solution is None else impulses_by_key(self.keys, solution.normal_impulse,
                                                                      solution.tangent_impulse)
-        self.transport.append(self.pending)
+        self.transport.append(self.pending + (self.method.take_transport() if self.method is not None else 0.0))
         self.pending = 0.0
 
 

@@ -1,16 +1,16 @@
 """Contestants out of the judge's reach: each variant's start and solver method run in a process
 of their own, and the judge times and judges every call from its side.
 
-A contestant process is forked from multiprocessing's fork server, a fresh interpreter started
-before any run is read: it holds none of the judge's memory (no reference solution, no recorded
-answer, no other variant's state), and nothing it does (patching the clock, walking the stack,
-keeping a memo or a cache, starting threads) reaches the judge or another variant. Its start and
-method are made there, from their names, and the time that takes (import, construction) is
-reported beside the per-step times. The judge sends each request (pickled: the judge's own data)
-and reads each answer as plain JSON and float64 arrays, never unpickled, so an answer is data,
-not code. Every call is timed by the judge's clock around the request and its answer; the same
-request answered by the process's null contestant (an echo of the same size) measures the
-transport, which is subtracted and reported.
+A contestant process is forked from a zygote, a fresh interpreter the judge starts as a new
+program (never a fork of itself): it holds none of the judge's memory (no reference solution, no
+recorded answer, no other variant's state), and nothing it does (patching the clock, walking the
+stack, keeping a memo or a cache, starting threads) reaches the judge or another variant. Its
+start and method are made there, from their names, and the time that takes (import,
+construction) is reported beside the per-step times. The judge sends each request (pickled: the
+judge's own data) and reads each answer as plain JSON and float64 arrays, never unpickled, so an
+answer is data, not code. Every call is timed by the judge's clock around the request and its
+answer; the same request answered by the process's null contestant (an echo of the same size)
+measures the transport, which is subtracted and reported.
 """
 import json
 import os
@@ -72,7 +72,6 @@ def _make(setup):
         factory = STARTS.load(what)
         if not methods.is_native(setup["method"]):
             methods.SOLVERS.load(setup["method"])
-    if kind == "name":
         predictor = None
         if getattr(factory, "needs_model", False) or "predictor" in _parameters(factory):
             from ..model.inference import Predictor
@@ -104,8 +103,7 @@ def _describe(names):
         factory = STARTS.load(name)
         traits = {k: bool(getattr(factory, k, False)) for k in TRAITS}
         traits["needs_model"] = traits["needs_model"] or "predictor" in _parameters(factory)
-        out["starts"][name] = {"traits": traits, "origin": STARTS.origin(name),
-                               "wants": [k for k in ("spec", "predictor") if k in _parameters(factory)]}
+        out["starts"][name] = {"traits": traits, "origin": STARTS.origin(name)}
     for name in names["methods"]:
         factory = methods.SOLVERS.load(name)
         out["methods"][name] = {"origin": methods.method_origin(name),
@@ -123,14 +121,7 @@ def describe(starts=(), methods=()):
               "methods": [n for n in dict.fromkeys(methods) if not is_native(n) and n not in SOLVERS.described]}
     if not (wanted["starts"] or wanted["methods"]):
         return
-    import socket
-    from multiprocessing.connection import Connection
-    ours, theirs = socket.socketpair()
-    zygote_socket = _zygote_socket()
-    socket.send_fds(zygote_socket, [b"c"], [theirs.fileno()])
-    theirs.close()
-    pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
-    conn = Connection(ours.detach())
+    pid, conn = _fork()
     try:
         conn.send_bytes(pickle.dumps({"describe": wanted, "path": list(sys.path), "threads": 1}))
         try:
@@ -270,6 +261,7 @@ class ContestantTraceback(Exception):
 # fork server, whose children re-run the caller's __main__ (a user's script, a notebook's stdin).
 _zygote = None   # (Popen, socket, the pid that started it)
 _zygote_torch = False   # whether the zygote has imported torch
+_registered = []        # stop_server, once registered to run at the end of the process
 
 
 def zygote(fd):
@@ -329,15 +321,29 @@ def _zygote_socket(torch=False):
         _zygote = (process, ours, os.getpid())
         # kept for the process's later calls (it holds nothing of theirs: it was started fresh), and
         # ended with the process, or by dc before it looks for what plug-ins left
-        import atexit
         from ..leftovers import at_end
-        at_end(stop_server)
-        atexit.register(stop_server)
+        if stop_server not in _registered:
+            import atexit
+            at_end(stop_server)
+            atexit.register(stop_server)
+            _registered.append(stop_server)
     if torch and not _zygote_torch:
         _zygote[1].sendall(b"t")
         _receive_exactly(_zygote[1], 8)
         _zygote_torch = True
     return _zygote[1]
+
+
+def _fork(torch=False):
+    """(pid, connection) of a new process forked by the zygote, waiting for its setup."""
+    import socket
+    from multiprocessing.connection import Connection
+    ours, theirs = socket.socketpair()
+    zygote_socket = _zygote_socket(torch)
+    socket.send_fds(zygote_socket, [b"c"], [theirs.fileno()])
+    theirs.close()
+    pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
+    return pid, Connection(ours.detach())
 
 
 def _has_fileno(stream):
@@ -374,14 +380,7 @@ class Contestant:
         setup = {"name": name, "start": ("name", name) if made else ("object", pickle.dumps(start)),
                  "method": method, "spec": spec, "checkpoint": checkpoint, "threads": threads,
                  "path": list(sys.path), "networks": list(networks)}
-        import socket
-        from multiprocessing.connection import Connection
-        ours, theirs = socket.socketpair()
-        zygote_socket = _zygote_socket(torch=bool(checkpoint))
-        socket.send_fds(zygote_socket, [b"c"], [theirs.fileno()])
-        theirs.close()
-        self.pid = struct.unpack("<q", _receive_exactly(zygote_socket, 8))[0]
-        self.conn = Connection(ours.detach())
+        self.pid, self.conn = _fork(torch=bool(checkpoint))
         t0 = time.perf_counter()
         self.conn.send_bytes(pickle.dumps(setup))
         self.left_running = [0, 0]
@@ -413,6 +412,11 @@ class Contestant:
         if "left_running" in header:
             self.left_running = [max(a, int(b)) for a, b in zip(self.left_running, header["left_running"])]
         return seconds, header, arrays
+
+    def echo(self, request, points):
+        """The null contestant's round trip for this request: the same request, read as a call
+        reads it, answered at once (the transport's fixed cost for a call of its kind and size)."""
+        return self.call({**request, "op": "echo", "points": points})[0]
 
     def status(self):
         """Asks, off the clock, what the contestant's calls left running (threads, processes):
@@ -455,36 +459,53 @@ def _by_name(name, start):
     return name in NAMES and type(start).__module__.startswith("deepcontact.")
 
 
-class RemoteMethod:
-    """A plug-in solver method in a contestant process of its own, as a loop's solve_fn (the
-    studies' steppers): each solve a call timed here, the round trip's fixed cost (an echo of the
-    same request just before it) noted per step (take_transport) to be subtracted, the answer
-    checked and judged here."""
+def unanswered(problem):
+    """The step's problem without the impulses recorded for it (what a contestant is sent)."""
+    import dataclasses
+    return dataclasses.replace(problem, normal_impulse=None, tangent_impulse=None)
 
-    def __init__(self, name):
+
+def checked_answer(label, arrays, points):
+    """A contestant's impulses (normal, tangent), checked by the judge: one finite value per
+    contact point, no pull; PluginError naming `label` otherwise."""
+    out = []
+    for what in ("normal", "tangent"):
+        a = arrays.get(what)
+        if a is None or a.shape != (points,):
+            raise PluginError(f"the variant {label!r} answered {what} impulses of shape "
+                              f"{None if a is None else a.shape}; the step has {points} contact points, so ({points},)")
+        if not np.all(np.isfinite(a)):
+            raise PluginError(f"the variant {label!r} answered a non-finite {what} impulse")
+        out.append(a)
+    if np.any(out[0] < 0):
+        raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
+    return out
+
+
+class RemoteMethod:
+    """A plug-in solver method in a contestant process, as a loop's solve_fn (the closed loop's,
+    in the variant's own contestant; the studies', in one of its own): each solve a call timed
+    here, the round trips' fixed cost (the echo of the same request just before it, and the
+    call's own) noted (take_transport) to be subtracted from the step's time, the answer checked
+    and judged here."""
+
+    def __init__(self, name, contestant=None):
         from ..warmstart.starts import Builtin
         self.name = name
-        self.contestant = Contestant(name, "builtin", Builtin(), name)
+        self.contestant = contestant or Contestant(name, "builtin", Builtin(), name)
         self.pending = 0.0
 
     def solve(self, problem, start_n, start_t, settings):
         import dataclasses
         from ..solver.methods import check_plausible, judge
         n = problem.points
-        request = {"op": "solve", "problem": pickle.dumps(dataclasses.replace(problem, normal_impulse=None,
-                                                                              tangent_impulse=None)),
+        request = {"op": "solve", "problem": pickle.dumps(unanswered(problem)),
                    "normal": np.asarray(start_n, np.float64), "tangent": np.asarray(start_t, np.float64),
                    "settings": settings}
-        null, _, _ = self.contestant.call({**request, "op": "echo", "points": n})
+        null = self.contestant.echo(request, n)
         took, header, arrays = self.contestant.call(request)
         self.pending += null + min(null, took)   # (the echo and the call's own round trip: neither is the method's)
-        normal, tangent = (arrays.get(k) for k in ("normal", "tangent"))
-        for what, a in (("normal", normal), ("tangent", tangent)):
-            if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
-                raise PluginError(f"the solver method {self.name!r} answered {what} impulses that are not {n} "
-                                  f"finite numbers")
-        if np.any(normal < 0):
-            raise PluginError(f"the solver method {self.name!r} answered a negative normal impulse")
+        normal, tangent = checked_answer(self.contestant.label, arrays, n)
         check_plausible(self.name, problem, normal, tangent)
         judged = judge(problem, normal, tangent)
         return dataclasses.replace(judged, iterations=int(header["iterations"]), relaxation=settings.relaxation)

@@ -307,10 +307,8 @@ class Checked:
     def __init__(self, name, start):
         self.name, self.start = name, start
 
-    def __call__(self, ctx, copied=False):
-        """The start's value for ctx, checked. copied: ctx is the start's own already (a
-        contestant's process unpickled it for this call), so no private copy is made."""
-        seen = ctx if copied or getattr(ctx, "_private", False) else private_copy(ctx)
+    def __call__(self, ctx):
+        seen = ctx if getattr(ctx, "_private", False) else private_copy(ctx)
         with guest(f"the start {self.name!r}"):
             value = self.start(seen)
         n = ctx.problem.points
