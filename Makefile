@@ -31,9 +31,11 @@ $(STAMPS)/system:
 	@touch $@
 
 # torch first and pinned (a looser requirement would pull a multi-GB CUDA build), with what the
-# build needs and pyb2d3 (Box2D v3.1.1's headers and library: the second engine), in one pip run.
+# build needs, pyb2d3 (Box2D v3.1.1's headers and library: the second engine) and the peer
+# engines' pinned wheels (pymunk, MuJoCo: --engine pymunk, --engine mujoco), in one pip run.
 $(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml $(NATIVE)
-	$(PYTHON) -m pip install -q torch==2.13.0 "setuptools>=64" wheel "pybind11>=2.11" pyb2d3==0.11.1
+	$(PYTHON) -m pip install -q torch==2.13.0 "setuptools>=64" wheel "pybind11>=2.11" pyb2d3==0.11.1 pymunk==7.3.1 \
+		mujoco==4.0.1
 	$(PYTHON) -m pip install -q --no-build-isolation -e ".[test]"
 	@touch $@
 

@@ -3,6 +3,7 @@ import click
 
 from deepcontact.errors import InputError
 from deepcontact.solver.methods import SOLVERS, methods_help
+from deepcontact.simulate.engines import ENGINES
 from deepcontact.solver.settings import CAP, SolveSettings
 
 from . import options
@@ -58,8 +59,12 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--write-scene", type=click.Path(dir_okay=False),
               help="Write the scene (for --seed) to this file and stop.")
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
-@click.option("--engine", type=click.Choice(["box2d", "box2d3"]), default="box2d", show_default=True,
-              help="box2d: Box2D 2.4.1 (Debian's); box2d3: Box2D v3 (3.1, the soft step; docs/engines.md).")
+@click.option("--engine", type=options.PluginName(ENGINES), default="box2d", show_default=True,
+              help="box2d: Box2D 2.4.1 (Debian's); box2d3: Box2D v3 (3.1, the soft step); pymunk (Chipmunk2D); "
+                   "mujoco (a planar model); or a plug-in's (docs/engines.md).")
+@click.option("--set", "engine_settings", multiple=True, type=options.KeyValue(),
+              help="An engine setting (repeatable; docs/engines.md lists each engine's): pymunk iterations=20; "
+                   "mujoco solver=cg, tolerance=1e-6, iterations=50; box2d3 substeps=8.")
 @click.option("--substeps", cls=options.SoftStepOption, type=options.count(min=1), help="[box2d3] Substeps per step.")
 @click.option("--contact-hertz", cls=options.SoftStepOption, type=options.Finite(min=0, min_open=True),
               help="[box2d3] Soft contact stiffness in Hz.")
@@ -92,9 +97,9 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @options.verbosity
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, compress, write_scene,
-             list_generators, engine, substeps, contact_hertz, damping_ratio, push_speed, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
+             list_generators, engine, engine_settings, substeps, contact_hertz, damping_ratio, push_speed, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,
              max_memory, max_disk, overwrite, verbose, quiet):
-    """Simulate SCENE in Box2D (2.4.1, or v3 with --engine box2d3) and record every step as XML.
+    """Simulate SCENE in Box2D 2.4.1 (or another --engine) and record every step as XML.
 
     SCENE is a scene file (schemas/scene.xsd) or a built-in generator: pile (the
     thesis world), stack, pyramid, mass-ratio, card-house, arch, confined,
@@ -115,6 +120,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
       dc simulate pile --solver pgs --tolerance 1e-4 --max-iterations 1000 --accelerate nncg --relaxation 1.3 -o runs/cg
       dc simulate pile --engine box2d3 -o runs/pile-v3
       dc simulate stack --engine box2d3 --substeps 8 -o runs/stack-v3
+      dc simulate pile --engine pymunk --set iterations=20 -o runs/pile-pymunk
+      dc simulate pile --engine mujoco --set solver=cg --set tolerance=1e-6 -o runs/pile-mujoco
     """
     from deepcontact import atomic
     from deepcontact.scene.generators import GENERATORS, parameters
@@ -130,8 +137,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         ("iterations", solver == "box2d" and engine == "box2d",
          "is Box2D 2.4.1's velocity iterations; with --solver pgs the cap is --max-iterations, and Box2D v3 "
          "(--engine box2d3) has substeps (--substeps)"),
-        ("solver", engine == "box2d", "pgs steps Box2D 2.4.1 worlds; Box2D v3 (--engine box2d3) has its own "
-                                      "soft step"),
+        ("solver", engine == "box2d", "pgs steps Box2D 2.4.1 worlds; another --engine has a solver of its own"),
         *((name, engine == "box2d3", "only applies with --engine box2d3")
           for name in ("substeps", "contact_hertz", "damping_ratio", "push_speed")),
     ])
@@ -161,14 +167,19 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
-    from deepcontact.simulate.engines import Box2D3
-    if engine == "box2d3":
-        from deepcontact.simulate.engines import SoftStep
+    settings = dict(engine_settings)
+    if engine == "box2d3":   # (its own flags beside --set, checked by SoftStep naming each)
+        from deepcontact.simulate.engines import Box2D3, SoftStep
         given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
                  "push_speed": push_speed}
-        stepper = Box2D3(SoftStep(**{k: v for k, v in given.items() if v is not None}))
+        stepper = Box2D3(SoftStep(**{**Box2D3.parsed(settings), **{k: v for k, v in given.items() if v is not None}}))
+    elif engine == "box2d":
+        if settings and solver == "pgs":
+            raise click.UsageError("--set applies to Box2D's own solver; the project's has --max-iterations")
+        stepper = box2d if not settings else type(box2d).from_settings(**settings)
     else:
-        stepper = box2d
+        from deepcontact.simulate.engines import engine_named
+        stepper = engine_named(engine, settings)
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, engine=stepper, max_disk=max_disk, compress=compress)
     options.show_output(f"{out_dir}", quiet)

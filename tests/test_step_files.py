@@ -41,7 +41,7 @@ def test_an_independent_validator_agrees(pile_run):
 def test_written_arrays_read_back_bit_for_bit():
     scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
     world = build_world(scene)
-    writer = step_writer(scene, 0)
+    writer = step_writer(scene, 0, Box2D())
     checked = 0
     for k in range(150):
         bodies, contacts = world.step(scene.dt, 8, 3, record=True)
@@ -107,14 +107,14 @@ def test_non_finite_values_never_reach_a_file(bad):
     bodies, contacts = world.step(scene.dt, 8, 3, record=True)
     bodies["velocity"][5, 1] = bad
     with pytest.raises(ValueError, match="non-finite y in body 5"):
-        step_writer(scene, 0).render(0, 0.0, 0.0, bodies, contacts)
+        step_writer(scene, 0, Box2D()).render(0, 0.0, 0.0, bodies, contacts)
 
 
 def test_render_checks_array_dtypes_and_shapes():
     scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
     world = build_world(scene)
     bodies, contacts = world.step(scene.dt, 8, 3, record=True)
-    writer = step_writer(scene, 0)
+    writer = step_writer(scene, 0, Box2D())
     wrong = dict(bodies, mass=bodies["mass"].astype(np.float64))
     with pytest.raises(TypeError, match="'mass' has dtype float64"):
         writer.render(0, 0.0, 0.0, wrong, contacts)

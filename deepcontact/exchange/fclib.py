@@ -97,7 +97,7 @@ def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, 
     files done. Returns the index."""
     if solution not in SOLUTIONS:
         raise InputError(f"solution must be one of {', '.join(SOLUTIONS)}, not {solution!r}")
-    run = read_run(run_dir)
+    run = read_run(run_dir, problem="export writes each step's")
     if not run.step_files:
         raise InputError("the run has no step files", run_dir)
     scene = run.manifest.get("scene", "scene")

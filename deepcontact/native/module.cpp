@@ -94,6 +94,8 @@ py::dict to_dict(const dc::StepHeader& h) {
     d["versions"] = h.versions;
     d["soft_step"] = h.soft_step.empty() ? py::object(py::none()) : py::object(py::cast(h.soft_step));
     d["solve"] = h.has_solve ? py::object(py::cast(h.solve)) : py::object(py::none());
+    d["engine"] = h.engine.empty() ? py::object(py::none()) : py::object(py::cast(h.engine));
+    d["engine_step"] = h.engine_step.empty() ? py::object(py::none()) : py::object(py::cast(h.engine_step));
     return d;
 }
 
@@ -370,9 +372,12 @@ PYBIND11_MODULE(_box2d, m) {
     py::class_<dc::StepWriter>(m, "StepWriter")
         .def(py::init([](std::string root, std::string header, std::vector<std::string> shapes, bool damping,
                          const std::string& engine) {
-                 if (engine != "box2d" && engine != "box2d3") throw py::value_error("engine must be box2d or box2d3");
+                 if (engine != "box2d" && engine != "box2d3" && engine != "own")
+                     throw py::value_error("engine (whose rows) must be box2d, box2d3 or own");
+                 const dc::Engine rows = engine == "box2d" ? dc::Engine::box2d
+                                         : engine == "box2d3" ? dc::Engine::box2d3 : dc::Engine::own;
                  return std::make_unique<dc::StepWriter>(std::move(root), std::move(header), std::move(shapes), damping,
-                                                         engine == "box2d3" ? dc::Engine::box2d3 : dc::Engine::box2d);
+                                                         rows);
              }),
              py::arg("root_attributes"), py::arg("header"), py::arg("shapes"), py::arg("damping"),
              py::arg("engine") = "box2d")

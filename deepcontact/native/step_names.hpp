@@ -15,13 +15,21 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 
 namespace dc {
 
 enum class Presence : int8_t { always, nonzero, declared, box2d, box2d3 };
 
-// The engine a step file comes from (its <solver name>): which engine's rows it holds.
-enum class Engine : int8_t { box2d, box2d3 };
+// Whose own rows a step file holds, by its <solver name> (step/engines.py: rows_of): Box2D
+// 2.4.1's, v3's, or another engine's (own: the rows every engine records, and no more).
+enum class Engine : int8_t { box2d, box2d3, own };
+
+// The rows of the engine a <solver name> names.
+inline Engine engine_rows(const std::string& solver_name) {
+    if (solver_name == "box2d" || solver_name == "pgs") return Engine::box2d;
+    return solver_name == "box2d3" ? Engine::box2d3 : Engine::own;
+}
 
 // Whether a row of the given presence is in every file of an engine (nonzero and declared rows
 // are decided per row or per scene).

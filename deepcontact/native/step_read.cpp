@@ -356,8 +356,8 @@ enum class At : uint8_t { Outside, Step, Header, Bodies, Body, Shape, Contacts, 
 
 // What a <header> must hold (a <solve> line may follow them): 2.4.1's <iterations> or v3's
 // <soft_step>, as <solver name> says.
-const char* const kHeaderParts[] = {"gravity", "iterations", "solver", "soft_step", "effects", "versions"};
-constexpr uint32_t kIterationsPart = 1u << 1, kSoftStepPart = 1u << 3;
+const char* const kHeaderParts[] = {"gravity", "iterations", "solver", "soft_step", "effects", "versions", "engine"};
+constexpr uint32_t kIterationsPart = 1u << 1, kSoftStepPart = 1u << 3, kEnginePart = 1u << 6;
 
 struct Problem {
     std::string message;
@@ -395,7 +395,7 @@ struct Reader {
 
     Engine engine() const {
         const auto name = out.header.solver.find("name");
-        return name != out.header.solver.end() && name->second == "box2d3" ? Engine::box2d3 : Engine::box2d;
+        return engine_rows(name != out.header.solver.end() ? name->second : std::string("box2d"));
     }
 
     void fail(std::string message, long at = -1) {
@@ -582,6 +582,10 @@ struct Reader {
             copy(h.effects);
         } else if (named(name, "versions")) {
             copy(h.versions);
+        } else if (named(name, "engine")) {
+            copy(h.engine);
+        } else if (named(name, "engine_step")) {
+            copy(h.engine_step);
         }
     }
 
@@ -618,7 +622,10 @@ struct Reader {
     void finish() {
         if (!problem.message.empty()) return;
         if (header_line == 0) return fail("<step> has no <header>", 1);
-        const uint32_t other_engine = engine() == Engine::box2d3 ? kIterationsPart : kSoftStepPart;
+        // (each engine's own part: 2.4.1's <iterations>, v3's <soft_step>, another engine's <engine>)
+        const uint32_t other_engine = engine() == Engine::box2d3 ? kIterationsPart | kEnginePart
+                                      : engine() == Engine::box2d ? kSoftStepPart | kEnginePart
+                                                                  : kIterationsPart | kSoftStepPart;
         for (size_t k = 0; k < std::size(kHeaderParts); ++k)
             if (!(header_seen >> k & 1) && !(other_engine >> k & 1))
                 return fail(std::string("<header> has no <") + kHeaderParts[k] + ">", header_line);

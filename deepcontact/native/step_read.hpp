@@ -37,6 +37,8 @@ struct StepHeader {
     int64_t velocity_iterations = 0, position_iterations = 0;
     Attributes solver, effects, versions;
     Attributes soft_step;   // <soft_step>: a Box2D v3 step's settings (empty for 2.4.1)
+    Attributes engine;      // <engine>: another engine's name, version and settings (empty for Box2D's)
+    Attributes engine_step; // <engine_step>: that engine's own account of the step's solve
     bool has_solve = false;
     Attributes solve;       // <solve>: how the project's solver stepped it (iterations, residual, ...)
 };

@@ -73,6 +73,7 @@ class LoopStep:
     solution: Solution   # None when the step had no contact points
     deepest: float       # the deepest penetration among the step's contact points (m), >= 0
     dt_ratio: float = None   # Box2D's warm-start scale, where Box2D's own solver reports it
+    engine_stats: dict = None   # another engine's own account of its solve (MuJoCo's iterations, ...)
 
 
 class PGSStepper:

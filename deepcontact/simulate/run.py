@@ -33,7 +33,8 @@ from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
 from .build import check_overlaps
 from . import stepping
-from .engines import Box2D, Box2D3  # noqa: F401  (Box2D3: the annotations)
+from .engines import Engine  # noqa: F401  (the annotations)
+from .engines.box2d import Box2D
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +118,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     world = engine.build(scene)
     step = engine.stepper(world, scene)
     loop = engine.solver
-    writer = step_writer(scene, seed, engine.name, engine.soft)
+    writer = step_writer(scene, seed, engine)
     extent = Extent(scene)
     per_file = []   # contact points of each file written (a skipped step has none)
     capped = above = 0
@@ -145,7 +146,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
                 capped, above = capped + at_cap, above + over
                 with interrupts.held():
                     if n or not skip_contactless:
-                        extra = engine.solve_line(done.solution)
+                        extra = engine.solve_line(done.solution, done.engine_stats)
                         pending.append(pool.submit(write, k, done.dt_ratio, bodies, contacts, extra))
                         per_file.append(n)
                     while pending and (len(pending) > 8 or pending[0].done()):
@@ -217,13 +218,14 @@ def check_seeds(seeds):
 
 def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, *, overwrite: bool = False,
         skip_contactless: bool = False, jobs: int = 1, progress: Callable | None = None, source: str | None = None,
-        engine: "Box2D | Box2D3 | None" = None, max_disk: float | None = None, compress: bool = False) -> dict:
+        engine: "Engine | None" = None, max_disk: float | None = None, compress: bool = False) -> dict:
     """Simulate make_scene(seed) for every seed into out_dir and write the manifest last.
 
     seeds: any sequence (a range stays a range). progress(total_steps) makes a tqdm-like counter
     of steps (or progress is None). max_disk: refuse runs estimated above this many GB (the free
     space is always a limit). compress: gzip every step file. engine: what steps the worlds
-    (simulate.engines: Box2D(), the default; Box2D(solver=SolveSettings(...), start=...); Box2D3(SoftStep())).
+    (a simulate.engines.Engine: Box2D(), the default; Box2D(solver=SolveSettings(...), start=...);
+    Box2D3(SoftStep()); Pymunk(); MuJoCo()).
     Returns the manifest as a dict."""
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
@@ -271,10 +273,10 @@ def _run_into(out_dir, make_scene, first, seeds, skip_contactless, jobs, progres
     finally:
         if progress is not None:
             progress.close()
-    return write_manifest(out_dir, first, source=source, solver=engine.name, **engine.manifest(),
+    return write_manifest(out_dir, first, engine, source=source, **engine.manifest(),
                           skip_contactless=skip_contactless,
                           compression="gzip" if compress else "none",
-                          simulations=[r.__dict__ for r in results], soft=engine.soft)
+                          simulations=[r.__dict__ for r in results])
 
 
 def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, progress, source, engine, compress):

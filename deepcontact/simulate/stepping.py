@@ -23,6 +23,7 @@ class Stepped:
     dt_ratio: float     # Box2D's warm-start scale for the step
     deepest: float      # the deepest penetration among the step's contact points (m), >= 0
     seconds: float      # wall time of the step itself
+    engine_stats: dict = None   # another engine's own account of its solve (MuJoCo's iterations, ...)
 
 
 def box2d(world, scene, velocity_iterations=None, record=True):
@@ -72,5 +73,5 @@ def steps(world, scene, step, count=None, after_removal=None):
         # (the project's solver steps at constant dt; Box2D's reports its own).
         dt_ratio = done.dt_ratio if done.dt_ratio is not None else (0.0 if k == 0 else 1.0)
         yield Stepped(index=k, bodies=done.bodies, contacts=done.contacts, solution=done.solution,
-                      dt_ratio=dt_ratio, deepest=done.deepest, seconds=seconds)
+                      dt_ratio=dt_ratio, deepest=done.deepest, seconds=seconds, engine_stats=done.engine_stats)
 

@@ -70,10 +70,12 @@ def _rows(index, bodies):
     return rows.astype(np.int32)
 
 
-# Why a v3 step has no contact problem here (replay, dc validate --replay, dc evaluate, export).
-V3_REFUSED = ("a Box2D v3 step (solver box2d3): its soft step (substeps, soft contacts, a relax pass) does "
-              "not pose Box2D 2.4.1's contact problem, which replaying and evaluating solve; simulate with "
-              "--engine box2d for that")
+def refused(engine) -> str:
+    """Why a step of another engine than 2.4.1 has no contact problem here (replay, dc validate
+    --replay, dc evaluate, export)."""
+    own = {"box2d3": "a Box2D v3 step (solver box2d3): its soft step (substeps, soft contacts, a relax pass)"}
+    return (f"{own.get(engine, f'a step of the {engine} engine: its own contact model')} does not pose Box2D "
+            "2.4.1's contact problem, which replaying and evaluating solve; simulate with --engine box2d for that")
 
 
 @dataclass
@@ -130,13 +132,13 @@ class StepProblem:
         """From what step.reader.read_step returns; errors name `path`. A Box2D v3 step is refused:
         its soft step (substeps, soft contacts, relax) is not the contact problem posed here."""
         from .. import arguments
-        from ..step.engines import engine_of
+        from ..step.engines import engine_of, poses_box2d_problem
         for value, name in ((header, "header"), (bodies, "bodies"), (contacts, "contacts")):
             arguments.mapping(value, name)   # (read_step's three values)
         if not isinstance(arguments.mapping(header, "header", ("solver", "dt", "gravity", "velocity_iterations", "index"))["solver"], dict):
             raise arguments.refuse("header", "a step header as read_step returns it", header)
-        if engine_of(header) == "box2d3":
-            raise InputError(V3_REFUSED, path)
+        if not poses_box2d_problem(header):
+            raise InputError(refused(engine_of(header)), path)
         block = header["solver"].get("block_solve")
         if block not in ("true", "false", "1", "0"):
             raise InputError(f"<solver block_solve> must be true or false, got {block!r}", path)

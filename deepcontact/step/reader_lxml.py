@@ -11,6 +11,7 @@ import numpy as np
 from .. import schema
 from .._box2d import STEP_BODY_XML, STEP_CONTACT_XML
 from ..errors import InputError, show_path
+from .engines import rows_of
 
 INT32_MAX = 2 ** 31 - 1   # every count and index in a step file (schemas/common.xsd: count)
 
@@ -190,11 +191,12 @@ def read_step(path, validate=True):
     root = _parse(path, validate)
     h = _child(root, "header", path)
     solver = dict(_child(h, "solver", path).attrib)
-    engine = "box2d3" if solver.get("name") == "box2d3" else "box2d"
+    engine = rows_of(solver.get("name"))   # (whose rows the file holds)
     gravity = _child(h, "gravity", path)
-    # 2.4.1's step says its iterations; a v3 step its soft step's settings
+    # 2.4.1's step says its iterations; a v3 step its soft step's settings; another engine's, <engine>
     iterations = _child(h, "iterations", path) if engine == "box2d" else None
     soft = _child(h, "soft_step", path) if engine == "box2d3" else None
+    own = _child(h, "engine", path) if engine == "own" else None
     header = dict(scene=root.get("scene"), seed=_count(root, "seed", path), index=_count(root, "index", path),
                   time=_float(root, "time", path), dt=_float(root, "dt", path), dt_ratio=_float(root, "dt_ratio", path),
                   gravity=np.array([_float(gravity, "x", path), _float(gravity, "y", path)], np.float32),
@@ -203,7 +205,9 @@ def read_step(path, validate=True):
                   solver=solver, effects=dict(_child(h, "effects", path).attrib),
                   versions=dict(_child(h, "versions", path).attrib),
                   solve=dict(h.find("solve").attrib) if h.find("solve") is not None else None,
-                  soft_step=None if soft is None else dict(soft.attrib))
+                  soft_step=None if soft is None else dict(soft.attrib),
+                  engine=None if own is None else dict(own.attrib),
+                  engine_step=dict(h.find("engine_step").attrib) if h.find("engine_step") is not None else None)
 
     bc = _Columns(root, path, "bodies", "body")
     b = bc.read(_BODY, engine=engine)

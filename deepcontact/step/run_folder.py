@@ -30,7 +30,7 @@ class Simulation:
     scene: str = None      # the scene's name, which each step file must repeat (None: not known)
     contacts: list = None  # contact points of each step file, where the manifest records them
     scene_sha256: str = None   # the hash of its scene.xml the manifest recorded
-    engine: str = None     # box2d or box2d3, which each step file's header must name (None: not known)
+    engine: str = None     # the engine's name, which each step file's header must name (None: not known)
     static_box: tuple = None   # (x0, y0, x1, y1) of the scene's static shapes, where the manifest records it
 
     def scene_file(self):
@@ -129,14 +129,15 @@ def require_regular(path):
     return path
 
 
-def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, simulations, compression="none",
-                   soft=None):
+def write_manifest(run_dir, scene, engine, *, source, pgs, skip_contactless, simulations, compression="none",
+                   engine_settings=None):
     """The run's manifest, written last (its presence means the run is complete); returns it.
-    scene: the first simulation's scene; simulations: one dict per simulation (seed, dir,
-    steps, files, contact_points, scene_sha256, extent); soft: a Box2D v3 run's SoftStep."""
-    from .. import __version__, _box2d, atomic
+    scene: the first simulation's scene; engine: what stepped it (a simulate.engines.Engine);
+    simulations: one dict per simulation (seed, dir, steps, files, contact_points, scene_sha256,
+    extent)."""
+    from .. import __version__, atomic
     from ..scene.xml import fmt
-    version = _box2d.box2d_version if soft is None else _box2d.box2d3_version
+    own_iterations = engine.rows == "box2d"   # (2.4.1's iterations are the scene's; others have settings)
     manifest = {
         "format": 1,
         "kind": "deepcontact-run",
@@ -144,16 +145,22 @@ def write_manifest(run_dir, scene, *, source, solver, pgs, skip_contactless, sim
         "source": source,
         "generator": scene.generator,
         "params": scene.params,
-        "solver": solver,
+        "solver": engine.solver_name,
         "pgs": pgs,
-        "engine": "box2d" if soft is None else "box2d3",
-        "velocity_iterations": scene.solver.velocity_iterations if soft is None else None,
-        "position_iterations": scene.solver.position_iterations if soft is None else None,
-        **({} if soft is None else {"soft_step": dict(soft.__dict__)}),
+        "engine": engine.name,
+        "engine_label": engine.label,
+        "engine_settings": engine.settings() if engine_settings is None else engine_settings,
+        # whether replay, evaluate and export can pose its steps' problem (Box2D 2.4.1's)
+        "poses_box2d_problem": engine.poses_box2d_problem,
+        "velocity_iterations": scene.solver.velocity_iterations if own_iterations else None,
+        "position_iterations": scene.solver.position_iterations if own_iterations else None,
+        **({} if engine.soft is None else {"soft_step": dict(engine.soft.__dict__)}),
         "dt": float(fmt(scene.dt)),
         "skip_contactless": skip_contactless,
         "compression": compression,
-        "versions": {"deepcontact": __version__, "box2d": version},
+        "engine_version": engine.version(),
+        # (the Box2D engines' version under "box2d", as their runs always recorded it)
+        "versions": {"deepcontact": __version__, "box2d" if engine.rows != "own" else engine.name: engine.version()},
         "simulations": simulations,
     }
     atomic.write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2) + "\n")
@@ -193,11 +200,12 @@ STEPPED_BY = {"box2d": "Box2D 2.4.1's own solver", "pgs": "the project's solver 
 
 
 def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str | None = None,
-             unfinished: bool = False) -> Run:
+             unfinished: bool = False, problem: str | None = None) -> Run:
     """A finished run: its manifest and each simulation's step files, counted against it.
 
     solver: refuse runs whose manifest names another solver ("box2d" or "pgs"); purpose says
-    why in the message. unfinished: a folder without a manifest (a run still being written, or
+    why in the message. problem: refuse runs of an engine whose steps do not pose Box2D 2.4.1's
+    contact problem (the manifest's poses_box2d_problem); it says what needs it. unfinished: a folder without a manifest (a run still being written, or
     step files copied by hand) is read from its seed-NNNNNN folders, with nothing to check the
     files against."""
     from .. import arguments
@@ -209,8 +217,15 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
     m = read_manifest(run_dir)
     path = run_dir / MANIFEST
     if solver is not None and m.get("solver", "box2d") != solver:
+        stepped = STEPPED_BY.get(m.get("solver")) or (
+            f"{m['engine_label']} (--engine {m.get('engine')}), which does not pose Box2D 2.4.1's contact problem"
+            if isinstance(m.get("engine_label"), str) else repr(m.get("solver")))
         raise InputError(f"{purpose or f'this needs a run of the {solver} solver'}; this run was stepped by "
-                         f"{STEPPED_BY.get(m.get('solver'), repr(m.get('solver')))}", path)
+                         f"{stepped}", path)
+    if problem is not None and m.get("poses_box2d_problem", m.get("engine", "box2d") == "box2d") is not True:
+        raise InputError(f"{problem} Box2D 2.4.1's contact problem; this run was stepped by "
+                         f"{m.get('engine_label') or m.get('engine')!s} (--engine {m.get('engine')}), whose steps do "
+                         f"not pose it", path)
     sims, seen = [], {}
     for i, e in enumerate(m["simulations"]):
         if not isinstance(e, dict):

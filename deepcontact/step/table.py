@@ -10,7 +10,7 @@ import numpy as np
 from ..escape import CsvWriter
 from .. import atomic, workers
 from ..errors import InputError
-from .engines import engine_of, foreign_fields
+from .engines import foreign_fields, rows_of
 from .reader import check_origin, read_step
 from .run_folder import read_run
 
@@ -47,7 +47,7 @@ def _step_columns(task):
     header, bodies, contacts = read_step(path, validate=False)
     check_origin(header, scene if scene is not None else header["scene"], seed, path, engine)
     out = {}
-    foreign = foreign_fields(engine_of(header))   # (the other engine's columns: not recorded)
+    foreign = foreign_fields(rows_of(header["solver"].get("name")))   # (other engines' columns: not recorded)
     contacts = {k: v for k, v in contacts.items() if k not in foreign}
     for name, arrays in (("bodies", bodies), ("contacts", contacts)):
         n = len(next(iter(arrays.values())))

@@ -4,10 +4,10 @@ per-step body and contact state rendered natively (deepcontact._box2d.StepWriter
 import gzip
 
 from .. import __version__
-from .._box2d import StepWriter, box2d_version, polygon_radius
+from .._box2d import StepWriter, polygon_radius
 from ..scene.xml import fmt
 from ..xmltext import quoteattr
-from .engines import RELAX_ITERATIONS, V3_SOLVER
+from .engines import RELAX_ITERATIONS
 
 FORMAT = 1
 # gzip level of compressed runs: level 1 makes a pile step about 6x smaller at under a
@@ -48,41 +48,59 @@ def body_shapes(scene):
     return out
 
 
-def header_xml(scene, solver="box2d", soft=None):
-    """The <header>'s lines common to every step; soft: a Box2D v3 run's SoftStep (solver is
-    then box2d3, and <soft_step> takes the place of <iterations>)."""
+def header_xml(scene, engine):
+    """The <header>'s lines common to every step of `engine` (a simulate.engines.Engine): what
+    the engine is and did (<solver>, its own lines: 2.4.1's <iterations>, v3's <soft_step>, another
+    engine's <engine>), what the scene asked (<effects>)."""
     e, s = scene.effects, scene.solver
     g = e.gravity if e.gravity is not None else (0.0, 0.0)
     on = set(e.names())
     effects = " ".join(f'{n}="{_bool(n in on)}"'
                        for n in ("gravity", "friction", "restitution", "damping", "continuous"))
-    if soft is None:
-        iterations, engine_lines = f'    <iterations velocity="{s.velocity_iterations}" position="{s.position_iterations}"/>\n', ""
-        version = box2d_version
-    else:
-        from .._box2d import box2d3_version
-        solver, iterations, version = V3_SOLVER, "", box2d3_version
-        engine_lines = (f'    <soft_step substeps="{soft.substeps}" contact_hertz="{fmt(soft.contact_hertz)}" '
-                        f'damping_ratio="{fmt(soft.damping_ratio)}" push_speed="{fmt(soft.push_speed)}" '
-                        f'restitution_threshold="{fmt(e.restitution_threshold)}" '
-                        f'relax_iterations="{RELAX_ITERATIONS}"/>\n')
+    # the Box2D engines' files say their version as they always have; another engine's, in <engine>
+    box2d = f' box2d="{engine.version()}"' if engine.rows != "own" else ""
     return ("  <header>\n"
             f'    <gravity x="{fmt(g[0])}" y="{fmt(g[1])}"/>\n'
-            f"{iterations}"
-            f'    <solver name={quoteattr(solver)} warm_starting="{_bool(s.warm_starting)}" '
-            f'block_solve="{_bool(s.block_solve and soft is None)}" continuous="{_bool(e.continuous)}" '
-            f'sleeping="{_bool(s.sleeping)}"/>\n'
-            f"{engine_lines}"
+            f"{engine.header_lines(scene) if engine.rows == 'box2d' else ''}"
+            f'    <solver name={quoteattr(engine.solver_name)} warm_starting="{_bool(s.warm_starting)}" '
+            f'block_solve="{_bool(s.block_solve and engine.block_solve)}" '
+            f'continuous="{_bool(e.continuous and engine.continuous)}" '
+            f'sleeping="{_bool(s.sleeping and engine.sleeps)}"/>\n'
+            f"{engine.header_lines(scene) if engine.rows != 'box2d' else ''}"
             f"    <effects {effects}/>\n"
-            f'    <versions deepcontact="{__version__}" box2d="{version}"/>\n')
+            f'    <versions deepcontact="{__version__}"{box2d}/>\n')
     # (the native writer closes <header> after any per-step lines, such as <solve>)
 
 
-def step_writer(scene, seed, solver="box2d", soft=None) -> StepWriter:
-    """The writer of a simulation's steps; soft: a Box2D v3 run's SoftStep (None: 2.4.1)."""
+def soft_step_xml(soft, restitution_threshold) -> str:
+    """Box2D v3's <soft_step> line: its soft step's settings."""
+    return (f'    <soft_step substeps="{soft.substeps}" contact_hertz="{fmt(soft.contact_hertz)}" '
+            f'damping_ratio="{fmt(soft.damping_ratio)}" push_speed="{fmt(soft.push_speed)}" '
+            f'restitution_threshold="{fmt(restitution_threshold)}" '
+            f'relax_iterations="{RELAX_ITERATIONS}"/>\n')
+
+
+def _value(v) -> str:
+    return fmt(v) if isinstance(v, float) else str(v).lower() if isinstance(v, bool) else str(v)
+
+
+def engine_xml(name, version, settings) -> str:
+    """An engine's <engine> line (an engine without Box2D's own lines): its name, its library's
+    version and its settings in effect, one attribute each."""
+    extra = "".join(f" {k}={quoteattr(_value(v))}" for k, v in settings.items())
+    return f"    <engine name={quoteattr(name)} version={quoteattr(str(version))}{extra}/>\n"
+
+
+def engine_step_xml(stats) -> str:
+    """A step's <engine_step> line: the engine's own account of its solve (iterations, stop test)."""
+    return "    <engine_step" + "".join(f" {k}={quoteattr(_value(v))}" for k, v in stats.items()) + "/>\n"
+
+
+def step_writer(scene, seed, engine) -> StepWriter:
+    """The writer of a simulation's steps by `engine` (a simulate.engines.Engine)."""
     root = f' format="{FORMAT}" scene={quoteattr(scene.name)} seed="{seed}" dt="{fmt(scene.dt)}"'
-    return StepWriter(root, header_xml(scene, solver, soft), body_shapes(scene),
-                      scene.effects.damping is not None, "box2d" if soft is None else "box2d3")
+    return StepWriter(root, header_xml(scene, engine), body_shapes(scene), scene.effects.damping is not None,
+                      engine.rows)
 
 
 def step_filename(index: int, compress=False) -> str:

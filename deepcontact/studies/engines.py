@@ -37,10 +37,27 @@ from ..solver.settings import CAP, SolveSettings
 from . import stability as S
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
-BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
-SUBSTEPS = (1, 2, 4, 8, 16)
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
-FAMILIES = ("Box2D 2.4.1", "Box2D v3", "project", "lagged")
+
+
+def engine_settings(fast=False, names=None):
+    """Each engine's own frontier (Engine.frontier: the built-ins', or those `names`) as Settings,
+    in the registry's order."""
+    from ..simulate.engines import ENGINES
+    out = []
+    for name in ENGINES.builtin() if names is None else names:
+        cls = ENGINES.load(name)
+        for family, label, given in cls.frontier(fast):
+            count = given.get(cls.COUNT, cls.DEFAULT_COUNT or 8)
+            rest = tuple(sorted((k, v) for k, v in given.items() if k != cls.COUNT))
+            out.append(Setting(family, label, name, count, engine_settings=rest))
+    return out
+
+
+def engine_families():
+    """The families of the engines' own settings (not the project's solver), in order."""
+    return tuple(dict.fromkeys(s.family for s in engine_settings()))
+
 # the project's families: their methods and tolerances
 PROJECT = {"project": ("none", TOLERANCES), "lagged": ("lagged", (1e-4, 1e-8))}
 
@@ -63,6 +80,7 @@ class Setting:
     warm_starting: bool = True
     rest: str = "own"      # own: from where the engine rests resting contacts; box2d: 2.4.1's (stability.own_rest)
     variant: bool = False  # an ablation beside the family's sweep (not a candidate for the cheapest)
+    engine_settings: tuple = ()   # (name, value) pairs of the engine's other settings (MuJoCo's solver, ...)
 
     @property
     def solve_settings(self) -> SolveSettings:
@@ -74,6 +92,9 @@ class Setting:
                              accelerate=self.accelerate)
 
 
+FAMILIES = (*engine_families(), "project", "lagged")
+
+
 def families_of(rows):
     """The families among rows, in the tables' order: the built-in ones, then plug-in methods'."""
     return [f for f in FAMILIES if any(r.family == f for r in rows)] + \
@@ -82,7 +103,7 @@ def families_of(rows):
 
 def is_project(family):
     """Whether a family is the project's solver (a built-in method's, or a plug-in method's)."""
-    return family not in ("Box2D 2.4.1", "Box2D v3")
+    return family not in engine_families()
 
 
 def plugin_line(rows, known=FAMILIES):
@@ -108,10 +129,10 @@ def plugin_settings(methods, tolerances):
 def settings(families=None, plugins=()):
     """Every setting of every family (only those of `families`, where given), in the order of the
     tables; then a family per plug-in method named in `plugins`."""
-    out = [Setting("Box2D 2.4.1", f"{n} iterations", "box2d", n) for n in BOX2D_COUNTS]
-    out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in SUBSTEPS]
-    out.append(Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True))
-    out.append(Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True))
+    out = engine_settings()
+    at = max(k for k, s in enumerate(out) if s.solver == "box2d3") + 1   # (v3's ablations after its sweep)
+    out[at:at] = [Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True),
+                  Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True)]
     out += [Setting(family, f"residual {t:g}", "pgs", CAP, tolerance=t, accelerate=method)
             for family, (method, tolerances) in PROJECT.items() for t in tolerances]
     out = out if families is None else [s for s in out if s.family in families]
@@ -146,7 +167,7 @@ def step_ms(case, setting):
     """Mean wall time of a step (ms), stepped without recording: the engine's own time."""
     scene = S.case_scene(case, setting.warm_starting, params_of(case, setting))
     world, step = S.stepper(scene, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
-                            tolerance=setting.tolerance, record=False)
+                            tolerance=setting.tolerance, record=False, engine_settings=dict(setting.engine_settings))
     remote = getattr(step, "remote", None)   # (a plug-in method's process: its round trips are not its time)
     try:
         seconds = [done.seconds - (remote.take_transport() if remote is not None else 0.0)
@@ -161,7 +182,7 @@ def run_setting(case, setting, **kw):
     warm starting) from the setting's own rest: the one place a study turns a Setting into a run."""
     return S.run_case(case, setting.solver, "builtin", setting.count, setting.relaxation, setting.accelerate,
                       tolerance=setting.tolerance, warm_starting=setting.warm_starting,
-                      params=params_of(case, setting), **kw)
+                      params=params_of(case, setting), engine_settings=dict(setting.engine_settings), **kw)
 
 
 def run_scene(case, chosen=None):
@@ -281,7 +302,7 @@ def _short(row):
     """A point's label on the plot: its count, tolerance or ablation."""
     if row.variant:
         return "no warm start" if "warm" in row.setting else "from 2.4.1's rest"
-    return row.setting.split()[0] if not is_project(row.family) else row.setting.split()[-1]
+    return row.setting.split()[0] if row.setting[:1].isdigit() else row.setting.split()[-1]
 
 
 def pareto_plot(rows, path):

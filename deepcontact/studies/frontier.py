@@ -44,16 +44,13 @@ from ..solver.settings import CAP
 from . import stability as S
 from ..evaluate.contestant import RemoteMethod
 from ..solver.methods import is_native
-from .engines import Setting, applicable, families_of, plugin_line, plugin_settings, run_setting, step_ms
+from .engines import Setting, applicable, engine_families, engine_settings, families_of, plugin_line, plugin_settings, run_setting, step_ms
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
-BOX2D_COUNTS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
-SUBSTEPS = (1, 2, 4, 8, 16)
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 BUDGETS = (8, 32, 128)
 PROJECT = (("PGS", 1.0, "none"), ("PSOR 1.7", 1.7, "none"), ("NNCG", 1.0, "nncg"), ("lagged", 1.0, "lagged"))
-FAMILIES = ("Box2D 2.4.1", "Box2D v3", *(name for name, _, _ in PROJECT))
-ENGINES = ("Box2D 2.4.1", "Box2D v3")
+FAMILIES = (*engine_families(), *(name for name, _, _ in PROJECT))
 REFERENCE_POINTS = 2500   # a reference step above this many contact points is not solved (minutes each)
 
 SCALE = [
@@ -77,11 +74,9 @@ def settings(fast=False, families=None, tolerances=None, plugins=()):
     """Every setting of every family, in the order of the tables (fewer with fast); only the
     `families` named and the project's `tolerances` given, where given; then a family per plug-in
     method in `plugins`, at those tolerances (engines.plugin_settings)."""
-    counts, substeps, default_tolerances, budgets = ((1, 8, 64), (1, 4), (1e-2, 1e-4), (8,)) if fast else \
-        (BOX2D_COUNTS, SUBSTEPS, TOLERANCES, BUDGETS)
+    default_tolerances, budgets = ((1e-2, 1e-4), (8,)) if fast else (TOLERANCES, BUDGETS)
     tolerances = default_tolerances if tolerances is None else tolerances
-    out = [Setting("Box2D 2.4.1", f"{n} iterations", "box2d", n) for n in counts]
-    out += [Setting("Box2D v3", f"{n} substeps", "box2d3", n) for n in substeps]
+    out = engine_settings(fast)
     for family, w, method in PROJECT:
         out += [Setting(family, f"{n} sweeps", "pgs", n, 0.0, w, method) for n in budgets if method == "none"]
         out += [Setting(family, f"residual {t:g}", "pgs", CAP, t, w, method) for t in tolerances]
@@ -122,9 +117,15 @@ def samples_of(case, count):
     return chosen
 
 
+def poses_problem(setting):
+    """Whether a setting's step is Box2D 2.4.1's contact problem (the project's solver, or 2.4.1's
+    own): only those have a one-step residual here."""
+    return setting.solver == "pgs" or S._engine_class(setting.solver).poses_box2d_problem
+
+
 def one_step(setting, samples):
     """(median residual, largest residual, median velocity error) of the setting's step on the samples."""
-    if setting.solver == "box2d3" or not samples:
+    if not poses_problem(setting) or not samples:
         return float("nan"), float("nan"), float("nan")
     asked = setting.solve_settings
     residuals, errors = [], []
@@ -197,7 +198,7 @@ def tasks_count(cases, chosen):
 # --- reports -------------------------------------------------------------------------------
 
 def _project(row):
-    return row.family not in ENGINES
+    return row.family not in engine_families()
 
 
 def matches(rows):
@@ -217,7 +218,7 @@ def _as_accurate(ours, engine):
     """Whether a project row is at least as accurate as an engine's (matches' rule)."""
     if engine.passed and not ours.passed:
         return False
-    if engine.family == "Box2D 2.4.1":
+    if math.isfinite(engine.residual_median):   # (an engine posing 2.4.1's problem: by its residual)
         return ours.residual_median <= engine.residual_median and ours.residual_max <= engine.residual_max
     return ours.penetration <= engine.penetration
 
@@ -230,7 +231,7 @@ def summary_table(rows):
              "| --- | --- | --- | ---: | ---: | --- | --- | ---: | ---: |"]
     for scene in dict.fromkeys(r.scene for r in rows):
         for e, p in matches([r for r in rows if r.scene == scene]):
-            accuracy = (f"{_fmt(e.residual_median)} / {_fmt(e.residual_max)}" if e.family == "Box2D 2.4.1"
+            accuracy = (f"{_fmt(e.residual_median)} / {_fmt(e.residual_max)}" if math.isfinite(e.residual_median)
                         else f"penetration {_fmt(e.penetration, 100)} cm")
             ours = "none" if p is None else f"{p.family}, {p.setting}"
             lines.append(f"| {scene} | {e.family}, {e.setting} | {'yes' if e.passed else 'no'} | "
@@ -257,7 +258,7 @@ def frontier_plot(rows, path):
     """Time per step against the one-step residual, one line per family with a residual (v3 has
     none); hollow markers fail the scene's criteria."""
     def label(r):   # iterations or sweeps; a tolerance
-        return r.setting.split()[0] if r.family == "Box2D 2.4.1" or "sweeps" in r.setting else r.setting.split()[-1]
+        return r.setting.split()[0] if r.setting[:1].isdigit() else r.setting.split()[-1]
     points = {f: [(r.ms_per_step, r.residual_median, r.passed, label(r), False) for r in rows if r.family == f]
               for f in families_of(rows)}
     accuracy_plot(families_of(rows), points, path, "one-step residual (median over the samples)",

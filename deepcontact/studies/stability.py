@@ -27,7 +27,7 @@ from .. import workers
 from .._box2d import linear_slop
 from ..scene.generators import generate, parameters
 from ..simulate import stepping
-from ..simulate.engines import Box2D, Box2D3, SoftStep
+from ..simulate.engines import Box2D
 from ..solver.methods import is_native
 from ..solver.settings import SolveSettings
 from ..solver.metrics import deepest, energy, positions
@@ -83,9 +83,11 @@ CONFIGS = [("box2d", "builtin", 1.0, "none"), ("pgs", "zero", 1.0, "none"), ("pg
            ("pgs", "garbage", 1.0, "none"), ("pgs", "zero", RELAXED, "none"), ("pgs", "builtin", RELAXED, "none"),
            ("pgs", "zero", 1.0, "nncg"), ("pgs", "builtin", 1.0, "nncg"), ("pgs", "builtin", 1.3, "nncg"),
            ("pgs", "zero", 1.0, "newton"), ("pgs", "builtin", 1.0, "newton"), ("pgs", "builtin", 1.0, "subspace"),
-           ("pgs", "builtin", 1.0, "bodyspace"), ("pgs", "builtin", 1.0, "lagged"), ("box2d3", "builtin", 1.0, "none")]
-# Box2D v3's count is its substeps: from its default 4, doubled up to this cap.
-V3_SUBSTEPS, V3_CAP = 4, 64
+           ("pgs", "builtin", 1.0, "bodyspace"), ("pgs", "builtin", 1.0, "lagged"), ("box2d3", "builtin", 1.0, "none"),
+           ("pymunk", "builtin", 1.0, "none"), ("mujoco", "builtin", 1.0, "none")]
+# An engine with an effort of its own (v3's substeps, pymunk's and MuJoCo's iterations) is doubled from
+# its default up to this many times it.
+OWN_CAP = 16
 
 
 @dataclass
@@ -123,9 +125,16 @@ def own_rest(case: Case, solver: str) -> dict:
     each other's skins, the generators' default (a circle on the ground: on the edge itself, its
     skin overlapped whole); Box2D v3 skins touching (overlap 0: v3 pushes any overlap out, which
     would lift a stack from 2.4.1's rest)."""
-    if solver == "box2d3" and "overlap" in parameters(case.generator) and "overlap" not in case.params:
+    if not _engine_class(solver).rests_in_skin and "overlap" in parameters(case.generator) \
+            and "overlap" not in case.params:
         return {**case.params, "overlap": 0.0}
     return case.params
+
+
+def _engine_class(solver):
+    """The engine a configuration's solver names (pgs: the project's solver in 2.4.1's loop)."""
+    from ..simulate.engines import ENGINES
+    return ENGINES.load("box2d" if solver == "pgs" else solver)
 
 
 def case_scene(case: Case, warm_starting=True, params=None):
@@ -135,15 +144,16 @@ def case_scene(case: Case, warm_starting=True, params=None):
     return scene
 
 
-def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none", tolerance=0.0, record=True):
-    """(world, step function) of one configuration: box2d (2.4.1 at `iterations` velocity
-    iterations), box2d3 (v3 at `iterations` substeps) or pgs (the project's solver, `iterations`
-    sweeps at most, stopping at the residual `tolerance` if it is > 0)."""
+def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none", tolerance=0.0, record=True,
+            engine_settings=None):
+    """(world, step function) of one configuration: pgs (the project's solver, `iterations`
+    sweeps at most, stopping at the residual `tolerance` if it is > 0), or an engine's name with its
+    effort at `iterations` (Engine.counted: Box2D 2.4.1's velocity iterations, v3's substeps,
+    pymunk's and MuJoCo's iterations)."""
     scene.solver.velocity_iterations = iterations
-    engine = (Box2D3(SoftStep(substeps=iterations)) if solver == "box2d3" else
-              Box2D(solver=SolveSettings(mode="float64", max_iterations=iterations, tolerance=tolerance,
-                                         relaxation=relaxation, accelerate=accelerate), start=start) if solver == "pgs" else
-              Box2D(velocity_iterations=iterations))
+    engine = (Box2D(solver=SolveSettings(mode="float64", max_iterations=iterations, tolerance=tolerance,
+                                         relaxation=relaxation, accelerate=accelerate), start=start)
+              if solver == "pgs" else _engine_class(solver).counted(iterations, **(engine_settings or {})))
     world = engine.build(scene)
     if solver == "pgs" and not is_native(accelerate):
         # a plug-in method solves in a process of its own (evaluate.contestant), judged there as in dc evaluate
@@ -176,12 +186,13 @@ def close(step):
 
 
 def run_case(case: Case, solver: str, start: str, iterations: int, relaxation=1.0, accelerate="none", *,
-             tolerance=0.0, warm_starting=True, trail=None, params=None) -> Result:
+             tolerance=0.0, warm_starting=True, trail=None, params=None, engine_settings=None) -> Result:
     """One case under one configuration (see stepper), judged by the criteria, from the engine's
     own rest (own_rest) unless `params` says otherwise. trail: a list to which each step's body
     positions are appended (metrics.positions), for drift."""
     scene = case_scene(case, warm_starting, own_rest(case, solver) if params is None else params)
-    world, step = stepper(scene, solver, start, iterations, relaxation, accelerate, tolerance)
+    world, step = stepper(scene, solver, start, iterations, relaxation, accelerate, tolerance,
+                          engine_settings=engine_settings)
     try:
         return _judged(case, scene, world, step, tolerance, iterations, trail, solver, label(start, relaxation, accelerate))
     finally:
@@ -281,8 +292,9 @@ def study(cases, configs=CONFIGS, log=None, jobs=1):
 
 def _passing(task):
     case, (solver, start, relaxation, accelerate) = task
-    if solver == "box2d3":
-        return passing(case, solver, start, relaxation, first=V3_SUBSTEPS, cap=V3_CAP)
+    first = _engine_class(solver).DEFAULT_COUNT if solver != "pgs" else None
+    if first is not None:   # (an engine of its own default effort: from there, doubled up to 16x it)
+        return passing(case, solver, start, relaxation, first=first, cap=OWN_CAP * first)
     return passing(case, solver, start, relaxation, accelerate=accelerate)
 
 
@@ -295,9 +307,11 @@ CRITERIA = (
     "ever without gaining energy). The allowance is the remaining bodies': after a body is removed it is "
     "recomputed, so one scene's rows can show two allowances when their worst moments fall on either side of the "
     "removal. Where a configuration fails at the scene's 8 iterations, the count is doubled until it passes (up "
-    f"to {MAX_ITERATIONS:,}); the criteria are never loosened. Box2D v3 (solver box2d3) counts substeps, from its "
-    f"default {V3_SUBSTEPS} up to {V3_CAP}, and starts each scene from its own rest (resting skins touching, "
-    "where 2.4.1 rests them one linear slop into each other).")
+    f"to {MAX_ITERATIONS:,}); the criteria are never loosened. An engine with an effort of its own counts it from its "
+    f"own default up to {OWN_CAP} times it: Box2D v3 (solver box2d3) its substeps from 4, pymunk its iterations from "
+    "10, MuJoCo its iterations from 100 (at its tolerance, 1e-8). Box2D v3 and MuJoCo start each scene from their "
+    "own rest (resting skins touching, where 2.4.1 and pymunk, whose collision slop is 2.4.1's linear slop, rest "
+    "them one linear slop into each other).")
 
 
 def markdown(rows, fast, protocol_text):
@@ -316,7 +330,8 @@ def format_row(default, found):
             f"{r.sanitized} |")
 
 
-HEADER = ("| scene | solver | start | passes at the default (8; v3: 4 substeps) | passes at (iterations; v3: substeps) | "
+HEADER = ("| scene | solver | start | passes at the default (8; v3: 4 substeps; pymunk: 10; MuJoCo: 100) | "
+          "passes at (iterations; v3: substeps) | "
           "penetration at rest (cm) | "
           "peak penetration (cm) | energy rise / allowed (J) | top drift (cm) | starts sanitised |\n"
           "| --- | --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: |")

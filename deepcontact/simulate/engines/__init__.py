@@ -1,0 +1,197 @@
+"""The engines a scene can be stepped by: one module each, each a class implementing `Engine`,
+each registered in ENGINES (the registry plug-ins use too: an engine of one's own is a package
+with a `deepcontact.engines` entry point, or `--engine package.module:Class`).
+
+    Box2D()                    Box2D 2.4.1 with its own velocity solver (the scene's iterations)
+    Box2D(solver=SolveSettings(...), start="builtin")
+                               Box2D 2.4.1 stepped with the project's solver (`--solver pgs`)
+    Box2D3(SoftStep())         Box2D v3's soft step (`--engine box2d3`)
+    Pymunk(iterations=10)      pymunk (Chipmunk2D) (`--engine pymunk`)
+    MuJoCo(solver="newton")    MuJoCo's planar model of the scene (`--engine mujoco`)
+
+`dc simulate`, `run`, `run_simulation`, `World` and the studies take one; no caller infers the
+engine from which keywords are set, and none compares engine names: each asks the engine.
+"""
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...plugins import Registry
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting an engine takes (`dc simulate --set NAME=VALUE`): its kind (int, float or a
+    tuple of the words it takes), its range (inclusive; None: unbounded) and a line of help.
+    `sweep` lists the values the studies step it at (the engine's frontier)."""
+    kind: object
+    low: float = None
+    high: float = None
+    help: str = ""
+    sweep: tuple = ()
+    fast: tuple = ()   # the few of `sweep` the fast studies (the test suite's) step it at
+
+    def parse(self, name, text):
+        """The value `text` (a string or a value) asks for; OptionError naming --set NAME."""
+        from ...errors import OptionError
+        flag = "--set"
+        if isinstance(self.kind, tuple):
+            if text not in self.kind:
+                raise OptionError(f"{name} is one of {', '.join(self.kind)}, got {text!r}", flag)
+            return text
+        try:
+            value = self.kind(text) if isinstance(text, str) else text
+        except ValueError:
+            raise OptionError(f"{name} must be {'a whole number' if self.kind is int else 'a number'}, "
+                              f"got {text!r}", flag) from None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+                self.kind is int and not isinstance(value, int)) or not math.isfinite(value):
+            raise OptionError(f"{name} must be {'a whole number' if self.kind is int else 'a finite number'}, "
+                              f"got {text!r}", flag)
+        if (self.low is not None and value < self.low) or (self.high is not None and value > self.high):
+            span = f"from {self.low:g} to {self.high:g}" if self.high is not None else f"at least {self.low:g}"
+            raise OptionError(f"{name} must be {span}, got {text!r}", flag)
+        return self.kind(value)
+
+
+class Engine:
+    """What every engine is: it builds a scene's world, steps it, and reports its bodies and
+    contacts as the arrays a step file records (`stepping.steps` runs it). The defaults here are
+    an engine with no solver of the project's and no rows of Box2D's own.
+
+    A subclass sets `name`, `label`, `SETTINGS` and implements `version`, `build` and `stepper`."""
+    name = None                 # --engine, the manifest's engine, the step files' <engine name>
+    label = None                # how tables and reports name it ("pymunk")
+    rows = "own"                # whose own contact rows its step files hold: box2d, box2d3, or own (none)
+    poses_box2d_problem = False   # its steps pose Box2D 2.4.1's contact problem (replay, evaluate, export)
+    continuous = False          # it does continuous collision (the scene's `continuous` effect)
+    sleeps = False              # it puts resting bodies to sleep when the scene asks
+    block_solve = False         # it has Box2D 2.4.1's block solver
+    solver = None               # the project's SolveSettings, where the project's solver steps it
+    soft = None                 # Box2D v3's SoftStep, for v3 only
+    SETTINGS = {}               # name -> Setting
+    COUNT = "iterations"        # the setting the studies double until a scene passes (its effort)
+    DEFAULT_COUNT = None        # that setting's default (None: the scene's own 8 iterations)
+    rests_in_skin = False       # resting contacts sit one linear slop into each other's skins (2.4.1's
+                                # rest, the generators' default); else skins touching (overlap 0)
+
+    def __init__(self, **settings):
+        self._settings = self.parsed(settings)
+
+    @classmethod
+    def parsed(cls, settings) -> dict:
+        """`settings` (name -> value or text) checked against SETTINGS (OptionError naming --set)."""
+        unknown = sorted(set(settings) - set(cls.SETTINGS))
+        if unknown:
+            from ...errors import OptionError
+            takes = ", ".join(cls.SETTINGS) or "none"
+            raise OptionError(f"{cls.label} has no setting {unknown[0]!r} (it takes: {takes})", "--set")
+        return {k: s.parse(k, settings[k]) for k, s in cls.SETTINGS.items() if k in settings}
+
+    @classmethod
+    def from_settings(cls, **settings):
+        """The engine with `settings` (name -> value, or text as --set gives it)."""
+        return cls(**cls.parsed(settings))
+
+    @classmethod
+    def frontier(cls, fast=False):
+        """[(family, label, settings)]: the settings the studies step this engine at, cheapest
+        first (its effort, COUNT, over its sweep)."""
+        count = cls.SETTINGS[cls.COUNT]
+        return [(cls.label, f"{n} {cls.COUNT}", {cls.COUNT: n}) for n in (count.fast if fast else count.sweep)]
+
+    @classmethod
+    def counted(cls, count, **settings):
+        """The engine with its effort (COUNT) at `count`: what the studies step."""
+        return cls.from_settings(**{**settings, cls.COUNT: count})
+
+    def settings(self) -> dict:
+        """The settings in effect, defaults included: what the manifest and `<engine>` record."""
+        return dict(self._settings)
+
+    @classmethod
+    def version(cls) -> str:
+        """The engine library's version."""
+        raise NotImplementedError
+
+    @property
+    def solver_name(self) -> str:
+        """What `<solver name>` and the manifest's `solver` say: the engine's own name, or the
+        project's solver's (pgs) where that steps it."""
+        return self.name
+
+    def check(self, scene, source=None):
+        """Refuses (InputError naming `source`) a scene this engine cannot step as asked."""
+
+    def build(self, scene, source=None):
+        """The scene's world, ready to step."""
+        raise NotImplementedError
+
+    def stepper(self, world, scene, record=True):
+        """A function stepping `world` once, returning a pgs_loop.LoopStep: with `record`, the
+        bodies before the step and the contacts it solved (the step file's arrays); without, the
+        engine's own step alone (what the studies time)."""
+        raise NotImplementedError
+
+    def header_lines(self, scene) -> str:
+        """The lines a step file's header holds for this engine after <solver>: `<engine>` with
+        its name, version and settings."""
+        from ...step.writer import engine_xml
+        return engine_xml(self.name, self.version(), self.settings())
+
+    def solve_line(self, solution, stats=None) -> str:
+        """A step's own header line (how the step was solved), or "": the project's `solution`, or
+        the engine's own `stats` (a LoopStep's engine_stats: `<engine_step>`)."""
+        if not stats:
+            return ""
+        from ...step.writer import engine_step_xml
+        return engine_step_xml(stats)
+
+    def manifest(self) -> dict:
+        """What the run's manifest records of the engine besides its name and version."""
+        return {"pgs": None, "engine_settings": self.settings()}
+
+    def __repr__(self):
+        args = ", ".join(f"{k}={v!r}" for k, v in self._settings.items())
+        return f"{type(self).__name__}({args})"
+
+
+def empty_contacts(n) -> dict:
+    """n contact rows of zeros in a step file's layout (the native record table's fields, dtypes
+    and widths, as a Box2D world reports them): what an engine other than Box2D fills."""
+    global _CONTACT_LAYOUT
+    if _CONTACT_LAYOUT is None:
+        from ..._box2d import World
+        _CONTACT_LAYOUT = {k: (v.dtype, v.shape[1:]) for k, v in World(0.0, 0.0).contacts().items()}
+    return {k: np.zeros((n, *shape), dtype) for k, (dtype, shape) in _CONTACT_LAYOUT.items()}
+
+
+_CONTACT_LAYOUT = None
+
+ENGINES = Registry("engine", "deepcontact.engines")
+ENGINES.register("box2d", "deepcontact.simulate.engines.box2d:Box2D")
+ENGINES.register("box2d3", "deepcontact.simulate.engines.box2d3:Box2D3")
+ENGINES.register("pymunk", "deepcontact.simulate.engines.pymunk:Pymunk")
+ENGINES.register("mujoco", "deepcontact.simulate.engines.mujoco:MuJoCo")
+
+
+def engine_named(name, settings=None) -> Engine:
+    """The engine registered as `name` with `settings` (name -> value or text, as --set gives)."""
+    return ENGINES.load(name).from_settings(**(settings or {}))
+
+
+def __getattr__(name):   # (the Box2D engines by their old place: simulate.engines.Box2D)
+    if name in ("Box2D", "_solve_xml"):
+        from . import box2d
+        return getattr(box2d, name)
+    if name in ("Box2D3", "SoftStep", "soft_step_defaults", "FLOAT32_TINY"):
+        from . import box2d3
+        return getattr(box2d3, name)
+    if name in ("Pymunk",):
+        from .pymunk import Pymunk
+        return Pymunk
+    if name in ("MuJoCo",):
+        from .mujoco import MuJoCo
+        return MuJoCo
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,177 @@
+"""pymunk and MuJoCo as engines of the project: every scene simulates, validates and renders;
+what they record is checked against physics (a resting body's weight) and MuJoCo's vectorised
+force decoding against mj_contactForce, its own slow reference; commands that need Box2D 2.4.1's
+contact problem refuse their runs in one line; a plug-in engine goes through the same registry."""
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from deepcontact.cli.main import cli
+from deepcontact.scene.generators import GENERATORS, generate
+from deepcontact.simulate.engines import ENGINES, Engine, engine_named
+from deepcontact.simulate.stepping import steps
+from deepcontact.step.reader import read_step
+
+pymunk = pytest.importorskip("pymunk")
+mujoco = pytest.importorskip("mujoco")
+
+PEERS = ("pymunk", "mujoco")
+
+
+def _run(*args):
+    result = CliRunner().invoke(cli, list(args), catch_exceptions=False)
+    return result.exit_code, result.output
+
+
+# (the smallest of each scene: every generator, a few steps, through dc simulate and validate)
+SMALL = {"pile": ["count=12", "box=16", "sigma=3"], "stack": ["count=3"], "pyramid": ["base=3"],
+         "confined": ["count=16"], "card-house": ["levels=1"], "arch": ["blocks=5"]}
+
+
+@pytest.mark.parametrize("engine", PEERS)
+@pytest.mark.parametrize("scene", list(GENERATORS))
+def test_every_scene_simulates_validates_and_renders(tmp_path, engine, scene):
+    params = [a for p in SMALL.get(scene, []) for a in ("--param", p)]
+    out = tmp_path / "run"
+    code, text = _run("simulate", scene, *params, "--engine", engine, "--steps", "6", "-q", "-o", str(out))
+    assert code == 0, text
+    code, text = _run("validate", "-q", str(out))
+    assert code == 0, text
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["engine"] == engine and manifest["poses_box2d_problem"] is False
+    assert manifest["engine_version"] == engine_named(engine).version()
+    header, bodies, contacts = read_step(out / "seed-000000" / "step-000005.xml")
+    assert header["solver"]["name"] == engine and header["engine"]["name"] == engine
+    assert np.isfinite(bodies["position"]).all() and np.isfinite(contacts["normal_impulse"]).all()
+    code, text = _run("render", str(out / "seed-000000" / "step-000005.xml"), "-q", "-o", str(tmp_path / "s.png"))
+    assert code == 0, text
+
+
+@pytest.mark.parametrize("engine", PEERS)
+def test_a_resting_stack_carries_its_weight_each_step(engine):
+    """Three boxes at rest: the ground carries all three weights over a step (impulse m g dt),
+    the top box's contacts its own, as Box2D's would."""
+    scene = generate("stack", 0, {"count": 3})
+    e = engine_named(engine)
+    world = e.build(scene)
+    for done in steps(world, scene, e.stepper(world, scene), count=240):
+        pass
+    c, b = done.contacts, done.bodies
+    weight = float(b["mass"][1]) * 9.81 * float(scene.dt)
+    on_ground = c["normal_impulse"][(c["body_a"] == 0) | (c["body_b"] == 0)].sum()
+    on_top = c["normal_impulse"][(c["body_a"] == 3) | (c["body_b"] == 3)].sum()
+    assert on_ground == pytest.approx(3 * weight, rel=0.02)
+    assert on_top == pytest.approx(weight, rel=0.02)
+    assert (c["normal_impulse"] >= -1e-9).all()
+    # (the normal runs from the first body to the second, the impulse pushing the second away)
+    below = np.where(c["body_a"] < c["body_b"], 1.0, -1.0)
+    assert (below * c["normal"][:, 1] > 0.99).all()
+
+
+def test_mujoco_forces_match_its_own_contact_force():
+    """The vectorised decoding of the solver's rows against mj_contactForce, contact by contact,
+    on a pile (spheres) and a pyramid (prisms), pyramidal and elliptic cones."""
+    from deepcontact.simulate.engines.mujoco import _contact_forces
+    for name, params in (("pile", {"count": 30, "box": 16.0, "sigma": 4.0}), ("pyramid", {"base": 4})):
+        scene = generate(name, 0, params)
+        e = engine_named("mujoco")
+        world = e.build(scene)
+        for cone in (mujoco.mjtCone.mjCONE_PYRAMIDAL, mujoco.mjtCone.mjCONE_ELLIPTIC):
+            world.model.opt.cone = cone
+            for _ in steps(world, scene, e.stepper(world, scene, record=False), count=60):
+                pass
+            n = int(world.data.ncon)
+            assert n > 0
+            fast = _contact_forces(world.model, world.data, n)
+            slow = np.zeros((n, 6))
+            for k in range(n):
+                mujoco.mj_contactForce(world.model, world.data, k, slow[k])
+            np.testing.assert_allclose(fast, slow[:, :3], rtol=1e-9, atol=1e-12)
+
+
+def test_mujoco_records_its_iterations_and_stop_test(tmp_path):
+    out = tmp_path / "run"
+    code, text = _run("simulate", "pile", "--param", "count=20", "--engine", "mujoco", "--set", "solver=cg",
+                      "--set", "tolerance=1e-6", "--set", "iterations=30", "--steps", "40", "-q", "-o", str(out))
+    assert code == 0, text
+    header, _, _ = read_step(out / "seed-000000" / "step-000039.xml")
+    assert header["engine"]["solver"] == "cg" and header["engine"]["tolerance"] == "1e-06"
+    stats = header["engine_step"]
+    assert 0 <= int(stats["iterations"]) <= 30 and stats["converged"] in ("true", "false")
+    assert float(stats["improvement"]) >= 0 and float(stats["gradient"]) >= 0
+
+
+def test_mujoco_orders_bodies_row_by_row_and_keeps_the_records_in_scene_order():
+    scene = generate("pile", 3, {"count": 25, "box": 16.0, "sigma": 4.0})
+    rows, listed = engine_named("mujoco"), engine_named("mujoco", {"order": "scene"})
+    a, b = rows.build(scene), listed.build(scene)
+    assert list(a.dynamic) != list(b.dynamic) and sorted(a.dynamic) == sorted(b.dynamic)
+    ra, rb = a.bodies(), b.bodies()
+    np.testing.assert_array_equal(ra["index"], rb["index"])
+    np.testing.assert_allclose(ra["position"], rb["position"], atol=1e-6)
+
+
+@pytest.mark.parametrize("command", [("evaluate", "--starts", "zero"), ("export",), ("validate", "--replay")])
+def test_commands_that_need_box2d_s_problem_refuse_a_peer_run_in_one_line(tmp_path, command):
+    out = tmp_path / "run"
+    assert _run("simulate", "pile", "--param", "count=8", "--engine", "pymunk", "--steps", "5", "-q", "-o",
+                str(out))[0] == 0
+    target = ["-o", str(tmp_path / "x")] if command[0] in ("evaluate", "export") else []
+    code, text = _run(command[0], str(out), *command[1:], *target)
+    assert code == 1 and "pymunk" in text and "Traceback" not in text
+    assert len(text.strip().splitlines()) == 1, text
+
+
+def test_settings_are_checked_naming_the_option(tmp_path):
+    code, text = _run("simulate", "pile", "--engine", "mujoco", "--set", "solver=lbfgs", "-o", str(tmp_path / "r"))
+    assert code == 2 and "--set" in text and "newton" in text
+    code, text = _run("simulate", "pile", "--engine", "pymunk", "--set", "substeps=4", "-o", str(tmp_path / "r"))
+    assert code == 2 and "no setting 'substeps'" in text
+    code, text = _run("simulate", "pile", "--engine", "pymunk", "--set", "iterations=0", "-o", str(tmp_path / "r"))
+    assert code == 2 and "at least 1" in text
+    assert not (tmp_path / "r").exists()
+
+
+class StillWorld:
+    """A world where nothing moves (the smallest engine a plug-in can bring)."""
+
+    def __init__(self, scene):
+        from deepcontact.simulate.build import build_world
+        self.records = build_world(scene).bodies()
+
+    def bodies(self):
+        return {k: v.copy() for k, v in self.records.items()}
+
+    def remove_body(self, index):
+        keep = self.records["index"] != index
+        self.records = {k: v[keep] for k, v in self.records.items()}
+
+
+class Still(Engine):
+    """An engine of one's own: registered by its module:Class, stepping nothing."""
+    name, label = "still", "still"
+
+    @classmethod
+    def version(cls):
+        return "1.0"
+
+    def build(self, scene, source=None):
+        return StillWorld(scene)
+
+    def stepper(self, world, scene, record=True):
+        from deepcontact.simulate.engines import empty_contacts
+        from deepcontact.simulate.pgs_loop import LoopStep
+        return lambda: LoopStep(world.bodies(), empty_contacts(0), None, 0.0, dt_ratio=1.0)
+
+
+def test_a_plugin_engine_runs_through_the_same_registry(tmp_path):
+    out = tmp_path / "run"
+    code, text = _run("simulate", "stack", "--param", "count=2", "--engine", "test_peer_engines:Still", "--steps",
+                      "3", "-q", "-o", str(out))
+    assert code == 0, text
+    assert _run("validate", "-q", str(out))[0] == 0
+    header, bodies, _ = read_step(out / "seed-000000" / "step-000002.xml")
+    assert header["solver"]["name"] == "still" and header["engine"] == {"name": "still", "version": "1.0"}
+    assert "mujoco" in ENGINES.builtin() and "pymunk" in ENGINES.builtin()
