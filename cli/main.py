@@ -13,7 +13,7 @@ from deepcontact import __version__
 
 # name -> (module under deepcontact.cli, the short help `dc --help` lists), in the pipeline's order
 COMMANDS = {
-    "simulate": ("simulate", "Simulate SCENE in Box2D (2.4.1, or v3 with --engine box2d3) and record every step as XML."),
+    "simulate": ("simulate", "Simulate SCENE in Box2D 2.4.1 (or another --engine) and record every step as XML."),
     "validate": ("validate", "Check step and scene files against the XSD schemas in schemas/."),
     "rasterize": ("rasterize", "Turn the step files of RUNS into SPH grid images for training."),
     "train": ("train", "Train a network mapping the input images of DATASET to its impulse images."),

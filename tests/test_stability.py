@@ -5,6 +5,7 @@ import math
 
 import pytest
 
+from deepcontact.simulate.engines import Box2D3
 from deepcontact.studies import stability as S
 
 
@@ -17,8 +18,8 @@ def test_every_hard_scene_passes_at_a_recorded_iteration_count(fast_study):
     pgs = sum(solver == "pgs" for solver, *_ in S.CONFIGS)
     assert len(fast_study) == len(S.FAST) * len(S.CONFIGS) - pgs   # the bullet needs Box2D's own solver
     for key, (default, found) in fast_study.items():
-        if key[1] == "box2d3":
-            continue   # (test_box2d_v3_on_the_hard_scenes)
+        if key[1] not in ("box2d", "pgs"):
+            continue   # (another engine's rows are measured, not required: test_box2d_v3_on_the_hard_scenes)
         assert found.passed, (key, found)
         assert found.finite and found.penetration <= S.PENETRATION_LIMIT
         assert found.energy_rise <= found.energy_allowed
@@ -98,12 +99,12 @@ def test_box2d_v3_on_the_hard_scenes(fast_study):
         if case not in ("confined 64", "bullet"):   # (no gravity, no friction: never rests; a shot flying off)
             assert found.final_speed < 0.05, (case, found)
     for case in ("pyramid 6", "card house 2", "arch 5", "confined 64", "bullet"):
-        assert v3[case].passed and v3[case].iterations == S.V3_SUBSTEPS, (case, v3[case])
+        assert v3[case].passed and v3[case].iterations == Box2D3.DEFAULT_COUNT, (case, v3[case])
     stack = v3["stack 8"]
-    assert not stack.passed and stack.iterations == S.V3_CAP and S.TOP_DRIFT_LIMIT < stack.top_drift < 0.05
+    assert not stack.passed and stack.iterations == S.OWN_CAP * Box2D3.DEFAULT_COUNT and S.TOP_DRIFT_LIMIT < stack.top_drift < 0.05
     for case in ("mass ratio 100:1", "mass ratio 400:1"):
         r = v3[case]
-        assert not r.passed and r.iterations == S.V3_CAP and S.PENETRATION_LIMIT < r.penetration < 0.2, (case, r)
+        assert not r.passed and r.iterations == S.OWN_CAP * Box2D3.DEFAULT_COUNT and S.PENETRATION_LIMIT < r.penetration < 0.2, (case, r)
     removal = v3["warm-start energy"]
     assert not removal.passed and removal.penetration <= S.PENETRATION_LIMIT
     assert removal.energy_allowed < removal.energy_rise < 1.0
@@ -112,5 +113,30 @@ def test_box2d_v3_on_the_hard_scenes(fast_study):
 @pytest.mark.slow
 def test_full_size_hard_scenes():
     rows = S.study(S.FULL)
-    failed = [f for _, f in rows if not f.passed and f.solver != "box2d3"]
+    failed = [f for _, f in rows if not f.passed and f.solver in ("box2d", "pgs")]
     assert not failed, [S.format_row(d, f) for d, f in rows if not f.passed]
+
+
+def test_pymunk_and_mujoco_on_the_hard_scenes(fast_study):
+    """The peer engines are measured, not required: both stay finite everywhere and neither holds
+    the 8-box stack's top within 1 cm at 16x its default effort. pymunk's stack leans and slides
+    at any iteration count up to 160 (its order of contact features breaks the symmetry: built with
+    pymunk's create_box vertex order the same stack stands); MuJoCo's soft contacts, engaging under
+    the whole stack's weight from skins touching, let the top dip several cm in the first steps
+    before it settles 3 mm low. MuJoCo rests every other stacked scene within 0.05 cm at its
+    default 100 iterations; the heavy circle of 400:1 sinks 3.6 cm into its soft contacts."""
+    peers = {(case, solver): found for (case, solver, _), (_, found) in fast_study.items()
+             if solver in ("pymunk", "mujoco")}
+    assert all(r.finite for r in peers.values())
+    for solver in ("pymunk", "mujoco"):
+        stack = peers["stack 8", solver]
+        assert not stack.passed and stack.top_drift > S.TOP_DRIFT_LIMIT and stack.penetration <= S.PENETRATION_LIMIT
+    for case in ("pyramid 6", "card house 2", "arch 5", "confined 64", "bullet"):
+        r = peers[case, "mujoco"]
+        assert r.passed and r.iterations == 100, (case, r)
+    for case in ("pyramid 6", "card house 2", "arch 5"):
+        assert peers[case, "mujoco"].penetration < 5e-4
+    assert peers["mass ratio 400:1", "mujoco"].penetration > S.PENETRATION_LIMIT
+    for case in ("pyramid 6", "mass ratio 100:1", "arch 5", "confined 64"):
+        r = peers[case, "pymunk"]
+        assert r.passed and r.iterations == 10, (case, r)

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from deepcontact import _box2d, schema
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
+from deepcontact.simulate.engines import Box2D
 from deepcontact.step.reader import read_step
 from deepcontact.step.writer import step_writer
 

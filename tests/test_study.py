@@ -2,6 +2,7 @@
 import pytest
 
 from conftest import dc, one_line_error
+from deepcontact.simulate.engines import Box2D3
 
 # (run and dataset: the session's small pile and its grids, tests/conftest.py)
 
@@ -178,7 +179,7 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
     import csv
     from deepcontact.studies import frontier as F
     picked = F.settings(families=("NNCG", "Box2D v3"), tolerances=(1e-3,))
-    assert [(s.family, s.label) for s in picked] == [("Box2D v3", f"{n} substeps") for n in F.SUBSTEPS] + \
+    assert [(s.family, s.label) for s in picked] == [("Box2D v3", f"{n} substeps") for n in Box2D3.SETTINGS["substeps"].sweep] + \
         [("NNCG", "residual 0.001")]
     out = tmp_path / "part"
     r = dc("study", "frontier", "--fast", "-q", "--scenes", "pyramid 5", "--families", "Box2D 2.4.1,PSOR 1.7",

@@ -20,7 +20,7 @@ def test_a_world_in_memory_steps_as_dc_simulate_records(tmp_path):
         for _ in range(60):
             done = world.step()
         header, bodies, contacts = read_step(out / "seed-000005" / "step-000059.xml")
-        assert header["solver"]["name"] == engine.name == name
+        assert header["solver"]["name"] == engine.solver_name == name
         np.testing.assert_array_equal(done.bodies["position"], bodies["position"])
         np.testing.assert_array_equal(done.contacts["normal_impulse"], contacts["normal_impulse"])
         assert (done.solution is not None) == (name == "pgs")

@@ -50,14 +50,11 @@ class Pymunk(Engine):
         return PymunkWorld(scene, self._settings["iterations"])
 
     def stepper(self, world, scene, record=True):
-        world.record(record)
-
         def step():
             if not record:
                 world.space.step(world.dt)
                 return LoopStep(None, None, None, 0.0, dt_ratio=1.0)
             bodies = world.bodies()
-            world.arbiters.clear()
             world.space.step(world.dt)
             contacts = world.contacts()
             deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
@@ -98,7 +95,10 @@ class PymunkWorld:
             space.damping = (1.0 + self.dt * linear) ** (-1.0 / self.dt)
         kinds = {"static": pymunk.Body.STATIC, "kinematic": pymunk.Body.KINEMATIC, "dynamic": pymunk.Body.DYNAMIC}
         r = self.records
-        self.bodies_of, self.fixture_of = [], {}
+        self.bodies_of, self.shapes_of = [], {}
+        self.index_of, self.one_shape = {}, {}   # pymunk body id -> the scene's body; its only shape's
+                                                 # (fixture, friction, restitution), or None
+        self._table = self._ids = None
         fixture = 0
         for i, b in enumerate(scene.bodies):
             if b.type == "dynamic":
@@ -109,10 +109,11 @@ class PymunkWorld:
                     body.velocity_func = _damped(linear, angular)
             else:
                 body = pymunk.Body(body_type=kinds[b.type])
-            body.position, body.angle = (b.x, b.y), b.angle
+            body.angle = b.angle   # (first: an angle set later turns the body about its centre of mass)
+            body.position = (b.x, b.y)
             if b.type != "static":   # (the scene's velocities are the centre of mass's, as Box2D's)
                 body.velocity, body.angular_velocity = (b.vx, b.vy), b.omega
-            shapes = []
+            shapes, parts = [], [body]
             for s in b.shapes:
                 if s.kind == "circle":
                     shape = pymunk.Circle(body, s.radius, (s.x, s.y))
@@ -122,20 +123,23 @@ class PymunkWorld:
                     shape = pymunk.Segment(body, (s.x1, s.y1), (s.x2, s.y2), float(polygon_radius))
                 shape.friction = math.sqrt(scene.friction_of(s))
                 shape.elasticity = math.sqrt(scene.restitution_of(s))
-                self.fixture_of[shape] = (fixture, i, scene.friction_of(s), scene.restitution_of(s))
+                self.shapes_of.setdefault(i, []).append((shape, fixture, scene.friction_of(s),
+                                                         scene.restitution_of(s)))
                 shapes.append(shape)
                 fixture += 1
-            space.add(body, *shapes)
+                if b.type == "static" and len(b.shapes) > 1:   # (a static body of several shapes: a
+                    part = pymunk.Body(body_type=pymunk.Body.STATIC)   # body each, which names the shape)
+                    part.angle, part.position = b.angle, (b.x, b.y)
+                    shape.body = part
+                    parts.append(part)
+                    self.one_shape[part.id] = self.shapes_of[i][-1][1:]
+            if len(b.shapes) == 1 or b.type != "static":
+                self.one_shape[body.id] = self.shapes_of[i][0][1:] if len(b.shapes) == 1 else None
+            space.add(*parts, *shapes)
             self.bodies_of.append((i, body, shapes))
+            self.index_of.update({part.id: i for part in parts})
         self.threshold = float(e.restitution_threshold)
-        self.arbiters = []
 
-    def record(self, on):
-        """Collect each solved arbiter after the step (a Python call per arbiter: only when recording)."""
-        self.space.on_collision(post_solve=self._solved if on else None)
-
-    def _solved(self, arbiter, space, data):
-        self.arbiters.append((arbiter.shapes, arbiter.contact_point_set, arbiter.total_impulse))
 
     def remove_body(self, index):
         for k, (i, body, shapes) in enumerate(self.bodies_of):
@@ -145,32 +149,91 @@ class PymunkWorld:
                 return
 
     def bodies(self) -> dict:
-        """Every body's state now, as a step file records it (Box2D's layout and mass properties)."""
+        """Every body's state now, as a step file records it (Box2D's layout and mass properties;
+        pymunk's batch read of the bodies that move)."""
+        import pymunk.batch as batch
+        F = batch.BodyFields
+        buffer = batch.Buffer()
+        batch.get_space_bodies(self.space, F.BODY_ID | F.POSITION | F.ANGLE | F.VELOCITY | F.ANGULAR_VELOCITY, buffer)
+        ids = np.frombuffer(buffer.int_buf(), np.int64)
+        state = np.frombuffer(buffer.float_buf(), np.float64).reshape(-1, 6)   # x, y, angle, vx, vy, omega
         rows = [i for i, _, _ in self.bodies_of]
         out = {k: v[rows].copy() for k, v in self.records.items()}
-        state = np.array([(*b.position, b.angle, *b.velocity, b.angular_velocity, *b.local_to_world(b.center_of_gravity))
-                          for _, b, _ in self.bodies_of], dtype=np.float64).reshape(-1, 8)
-        out["position"] = state[:, 0:2].astype(np.float32)
-        out["angle"] = state[:, 2].astype(np.float32)
-        out["velocity"] = state[:, 3:5].astype(np.float32)
-        out["omega"] = state[:, 5].astype(np.float32)
-        out["center"] = state[:, 6:8].astype(np.float32)
+        where = {i: k for k, i in enumerate(rows)}
+        moving = [(where[self.index_of[body]], k) for k, body in enumerate(ids.tolist())
+                  if self.index_of.get(body) in where]
+        if moving:
+            to, frm = np.array(moving).T
+            s = state[frm]
+            c, sn = np.cos(s[:, 2]), np.sin(s[:, 2])
+            lc = out["local_center"][to].astype(np.float64)
+            out["position"][to] = s[:, 0:2]
+            out["angle"][to] = s[:, 2]
+            out["velocity"][to] = s[:, 3:5]
+            out["omega"][to] = s[:, 5]
+            out["center"][to] = s[:, 0:2] + np.stack([c * lc[:, 0] - sn * lc[:, 1], sn * lc[:, 0] + c * lc[:, 1]], axis=1)
         return out
 
     def contacts(self) -> dict:
-        """The contact points of the arbiters the last step solved, as a step file records them."""
-        rows = []
-        for m, (shapes, points, total) in enumerate(self.arbiters):
-            (fa, ba, mu_a, e_a), (fb, bb, mu_b, e_b) = self.fixture_of[shapes[0]], self.fixture_of[shapes[1]]
-            n = points.normal
-            t = (n.y, -n.x)   # Box2D's tangent, b2Cross(normal, 1)
-            jn, jt = -total.dot(n), -total.dot(t)   # (pymunk reports the impulse on the first body)
-            k = len(points.points)
-            for p, cp in enumerate(points.points):
-                x = 0.5 * (cp.point_a + cp.point_b)
-                rows.append((m, p, k, ba, bb, fa, fb, x.x, x.y, n.x, n.y, cp.distance,
-                             math.sqrt(mu_a * mu_b), max(e_a, e_b), jn / k, jt / k))
-        return _contact_columns(rows, self.threshold)
+        """The contact points of the arbiters the last step solved (pymunk's batch read: every
+        arbiter with contact points), as a step file records them."""
+        import pymunk.batch as batch
+        buffer = batch.Buffer()
+        batch.get_space_arbiters(self.space, _fields(), buffer)
+        ints = np.frombuffer(buffer.int_buf(), np.int64).reshape(-1, 3)        # body a, body b, points
+        floats = np.frombuffer(buffer.float_buf(), np.float64).reshape(-1, 14)   # _FIELDS' floats, in order
+        solved = ints[:, 2] > 0   # (an arbiter kept for persistence, no longer touching: no points)
+        ints, floats = ints[solved], floats[solved]
+        n_arbiters = len(ints)
+        count = ints[:, 2]
+        a, b = self._lookup(ints[:, 0], 0).astype(np.int64), self._lookup(ints[:, 1], 0).astype(np.int64)
+        arbiter = np.repeat(np.arange(n_arbiters), count)
+        point = np.arange(len(arbiter)) - np.repeat(np.cumsum(count) - count, count)
+        normal = floats[arbiter, 2:4]
+        # points: (point a, point b, distance) of the first, then the second, of each arbiter
+        first = point == 0
+        on_a = np.where(first[:, None], floats[arbiter, 4:6], floats[arbiter, 9:11])
+        on_b = np.where(first[:, None], floats[arbiter, 6:8], floats[arbiter, 11:13])
+        distance = np.where(first, floats[arbiter, 8], floats[arbiter, 13])
+        total = floats[:, 0:2]
+        tangent = np.stack([floats[:, 3], -floats[:, 2]], axis=1)   # Box2D's tangent, b2Cross(normal, 1)
+        # (pymunk's total is the impulse on the first body: the second's is its opposite)
+        jn = -np.sum(total * floats[:, 2:4], axis=1) / count
+        jt = -np.sum(total * tangent, axis=1) / count
+        fa = self._fixtures(ints[arbiter, 0], a[arbiter], on_a)
+        fb = self._fixtures(ints[arbiter, 1], b[arbiter], on_b)
+        out = empty_contacts(len(arbiter))
+        out["manifold"][:], out["point"][:], out["point_count"][:] = arbiter, point, count[arbiter]
+        out["body_a"][:], out["body_b"][:] = a[arbiter], b[arbiter]
+        out["fixture_a"][:], out["fixture_b"][:] = fa[:, 0], fb[:, 0]
+        out["position"][:] = 0.5 * (on_a + on_b)
+        out["normal"][:] = normal
+        out["separation"][:] = distance
+        out["friction"][:] = np.sqrt(fa[:, 1] * fb[:, 1])
+        out["restitution"][:] = np.maximum(fa[:, 2], fb[:, 2])
+        out["restitution_threshold"][:] = self.threshold
+        out["normal_impulse"][:] = jn[arbiter]
+        out["tangent_impulse"][:] = jt[arbiter]
+        return out
+
+    def _lookup(self, ids, column):
+        """A column of the table of pymunk body ids (0: the scene's body; 1-3: its only shape's
+        fixture, friction, restitution, fixture -1 where it has several) for each id."""
+        if self._table is None:
+            known = sorted(self.index_of)
+            self._ids = np.array(known, np.int64)
+            self._table = np.array([(self.index_of[i], *(self.one_shape.get(i) or (-1.0, 0.0, 0.0))) for i in known],
+                                   np.float64).reshape(-1, 4)
+        return self._table[np.searchsorted(self._ids, ids), column]
+
+    def _fixtures(self, ids, bodies, points):
+        """(fixture, friction, restitution) of each contact point's shape: its pymunk body's only
+        shape, or, on a body of several, the one nearest the point (pymunk's batch read names bodies)."""
+        out = np.stack([self._lookup(ids, k) for k in (1, 2, 3)], axis=1)
+        for k in np.flatnonzero(out[:, 0] < 0).tolist():
+            p = tuple(points[k])
+            out[k] = min(self.shapes_of[int(bodies[k])], key=lambda s: abs(s[0].point_query(p).distance))[1:]
+        return out
 
 
 def _damped(linear, angular):
@@ -184,22 +247,10 @@ def _damped(linear, angular):
     return velocity
 
 
-_INT = ("manifold", "point", "point_count", "body_a", "body_b", "fixture_a", "fixture_b")
-
-
-def _contact_columns(rows, threshold) -> dict:
-    """Contact rows (tuples in `contacts`' order) as a step file's contact columns; the fields an
-    engine other than Box2D does not have are 0 (island, feature id, children, radii)."""
-    a = np.array(rows, dtype=np.float64).reshape(-1, 16)
-    out = empty_contacts(len(a))
-    for k, name in enumerate(_INT):
-        out[name][:] = a[:, k]
-    out["position"][:] = a[:, 7:9]
-    out["normal"][:] = a[:, 9:11]
-    out["separation"][:] = a[:, 11]
-    out["friction"][:] = a[:, 12]
-    out["restitution"][:] = a[:, 13]
-    out["restitution_threshold"][:] = threshold
-    out["normal_impulse"][:] = a[:, 14]
-    out["tangent_impulse"][:] = a[:, 15]
-    return out
+def _fields():
+    """What pymunk's batch read gives of each arbiter, in its order: ints body a, body b, points;
+    floats total impulse (2), normal (2), then point a (2), point b (2), distance of each point."""
+    import pymunk.batch as batch
+    F = batch.ArbiterFields
+    return (F.BODY_A_ID | F.BODY_B_ID | F.TOTAL_IMPULSE | F.NORMAL | F.CONTACT_COUNT | F.POINT_A_1 | F.POINT_B_1
+            | F.DISTANCE_1 | F.POINT_A_2 | F.POINT_B_2 | F.DISTANCE_2)
