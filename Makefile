@@ -33,10 +33,11 @@ $(STAMPS)/system:
 # torch first and pinned (a looser requirement would pull a multi-GB CUDA build), with what the
 # build needs, pyb2d3 (Box2D v3.1.1's headers and library: the second engine) and the peer
 # engines' pinned wheels (pymunk, MuJoCo: --engine pymunk, --engine mujoco), in one pip run.
-$(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml $(NATIVE)
+$(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml studies/pyproject.toml $(NATIVE)
 	$(PYTHON) -m pip install -q torch==2.13.0 "setuptools>=64" wheel "pybind11>=2.11" pyb2d3==0.11.1 pymunk==7.3.1 \
 		mujoco==4.0.1
 	$(PYTHON) -m pip install -q --no-build-isolation -e ".[test]"
+	$(PYTHON) -m pip install -q --no-build-isolation --no-deps -e studies/
 	@touch $@
 
 setup: $(STAMPS)/install
@@ -81,19 +82,12 @@ bench: setup
 
 # The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).
 studies: setup
-	$(DC) study relaxation --scene pile
-	$(DC) study relaxation --scene pyramid
-	$(DC) study relaxation --scene pile --loop --seeds 0,1,2,3 --repeats 2
 	$(DC) study exact --siconos
 	$(DC) study exact --scene hard --every 1
 	$(DC) study peer
-	$(DC) study learned-correction
-	$(DC) study learned-coarse
 	$(DC) study engines -o $(RUNS)/engines --overwrite
-	$(DC) study amortize -o $(RUNS)/amortize --overwrite
 	$(DC) study frontier -o $(RUNS)/frontier --overwrite
 	$(DC) study scale --samples 2 --sizes 100,1000
-	$(DC) study global-families
 
 # The whole pipeline on a tiny scene: simulate -> validate -> rasterize -> train -> evaluate.
 # The test suite runs smoke-pipeline (tests/test_evaluate.py: test_the_smoke_pipeline).

@@ -487,7 +487,6 @@ VOCABULARIES = {
     "loss": ("deepcontact.model.choices", "LOSSES"),
     "optimizer": ("deepcontact.model.choices", "OPTIMIZERS"),
     "loop_start": ("deepcontact.simulate.pgs_loop", "STARTS"),
-    "impulses": ("deepcontact.studies.sph_oracle", "SOURCES"),
     "solution": ("deepcontact.exchange.fclib", "SOLUTIONS"),
 }
 

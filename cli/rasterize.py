@@ -10,7 +10,7 @@ CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
 
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
-@click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder (or report folder with --study).")
+@click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder.")
 @click.option("--kernel", type=options.choice("kernel"), default="poly6",
               show_default=True, help="SPH kernel (2D-normalised).")
 @click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d (node spacing).")
@@ -25,19 +25,13 @@ CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
 @click.option("--validation", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,
               help="Share of simulations held out for validation.")
 @click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the split.")
-@click.option("--oracle", is_flag=True, help="Deprecated: dc study oracle RUNS.")
-@click.option("--study", is_flag=True, help="Deprecated: dc study oracle RUNS --sweep -o DIR.")
-@click.option("--impulses", type=options.choice("impulses"), default="reference", show_default=True,
-              help="[--oracle/--study] Exact answers to push through the grid.")
-@click.option("--every", type=click.IntRange(min=1), default=10, show_default=True,
-              help="[--oracle/--study] Use every N-th step file.")
 @options.jobs
 @options.max_memory
 @options.overwrite
 @options.verbosity
 @options.command("rasterize")
 def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, window, include_contactless,
-              validation, seed, oracle, study, impulses, every, jobs, max_memory, overwrite, verbose, quiet):
+              validation, seed, jobs, max_memory, overwrite, verbose, quiet):
     """Turn the step files of RUNS into SPH grid images for training.
 
     Inputs (N, C_in, H, W) and labels (N, C_out, H, W) float32 are written as
@@ -45,35 +39,16 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     train and validation are split by simulation. The grid's nodes span the
     scenes' box at spacing d (61 x 61 for the thesis's 30 x 30 box at d = 0.5).
 
-    The grid's own loss (each step's exact impulses through the grid and
-    back) is `dc study oracle`; --oracle and --study are its old spellings.
-
     \b
     Examples:
       dc rasterize runs/thesis -o data/thesis
       dc rasterize runs/a runs/b -o data/ab --kernel spiky --cell 0.25 --smoothing 0.25 -j 2
       dc rasterize runs/pile --inputs mass,vx,vy,spin,nx,ny --labels normal_impulse -o data/normal
-      dc study oracle runs/pile --impulses recorded
     """
     from deepcontact.grid.dataset import DatasetSettings, write_dataset
 
-    report_only = oracle or study
-    options.refuse_inapplicable(
-        [(name, report_only, "only applies with --oracle or --study") for name in ("impulses", "every")]
-        + [(name, not report_only, "does not apply with --oracle or --study (they write no dataset)")
-           for name in ("inputs", "labels", "include_contactless", "validation", "seed", "jobs", "max_memory")]
-        + [("out", not oracle, "does not apply with --oracle (it prints its table)")])
     options.check_grid_options(kernel, cell, smoothing)
     win = window
-    if oracle or study:
-        import logging
-
-        from .study import oracle_report
-        logging.getLogger("deepcontact.cli").warning(
-            "dc rasterize --%s is deprecated: use dc study oracle%s", "study" if study else "oracle",
-            " --sweep -o DIR" if study else "")
-        return oracle_report(runs, out, kernel, cell, smoothing, renormalize, win, impulses, every, study, overwrite,
-                             quiet)
     if not out:
         raise click.UsageError("missing -o/--output DATASET")
     bars = []

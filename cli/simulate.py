@@ -137,7 +137,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         ("iterations", solver == "box2d" and engine == "box2d",
          "is Box2D 2.4.1's velocity iterations; with --solver pgs the cap is --max-iterations, and Box2D v3 "
          "(--engine box2d3) has substeps (--substeps)"),
-        ("solver", engine == "box2d", "pgs steps Box2D 2.4.1 worlds; another --engine has a solver of its own"),
+        ("solver", engine == "box2d", "only applies with --engine box2d (pgs steps Box2D 2.4.1's worlds; another "
+                                      "engine solves with its own solver)"),
         *((name, engine == "box2d3", "only applies with --engine box2d3")
           for name in ("substeps", "contact_hertz", "damping_ratio", "push_speed")),
     ])

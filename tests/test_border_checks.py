@@ -115,10 +115,6 @@ def test_jobs_beyond_the_work_fork_no_more_workers(tmp_path, monkeypatch):
     assert made == [2]
 
 
-def test_a_coarse_cell_too_fine_to_group_anything_is_an_option_error():
-    option_error(dc("study", "learned-coarse", "--cell", "1e-300"), "--cell", "at least")
-
-
 def test_training_takes_one_thread(dataset, tmp_path):
     option_error(dc("train", "--no-plots", dataset, "--threads", "2", "--epochs", "1", "-q", "-o", tmp_path / "m"),
                  "--threads")

@@ -69,7 +69,7 @@ def test_the_stability_criteria_judge_a_v3_run():
     """A hard scene run under v3 through the stability study's own measure (studies/stability.py):
     the pyramid stands; the 8-box stack's top drifts more than 1 cm at any substep count (v3's
     soft step is weaker on tall stacks than 2.4.1's block solver, as its author says)."""
-    from deepcontact.studies import stability as S
+    from dcstudies import stability as S
     cases = {c.label: c for c in S.FAST}
     pyramid = S.run_case(cases["pyramid 6"], "box2d3", "builtin", 4)
     assert pyramid.finite and pyramid.passed and pyramid.solver == "box2d3"
@@ -226,7 +226,7 @@ def test_a_thin_card_builds_in_v3_as_a_box():
 # --- dc study engines ----------------------------------------------------------------------------
 
 def test_the_engines_study_writes_its_tables_and_plots(tmp_path):
-    from deepcontact.studies import engines as E
+    from dcstudies import engines as E
     out = tmp_path / "engines"
     families = ("Box2D 2.4.1", "Box2D v3", "pymunk", "MuJoCo Newton", "project", "lagged")
     r = dc("study", "engines", "--fast", "--scenes", "stack 8,bullet", "--families", ",".join(families), "-q", "-o", out)
@@ -258,7 +258,7 @@ def test_the_engines_study_writes_its_tables_and_plots(tmp_path):
 
 
 def test_the_cheapest_passing_setting_of_each_family():
-    from deepcontact.studies import engines as E
+    from dcstudies import engines as E
 
     def row(family, setting, passed, ms, variant=False):
         return E.Row("s", family, setting, passed, True, ms, 0.1, 0.0, 0.0, 0.0, 1.0, float("nan"), 0.0, 0,
@@ -289,7 +289,7 @@ def test_the_engines_study_refuses_an_unknown_scene(tmp_path):
 def test_resting_contacts_start_where_each_engine_rests_them():
     """2.4.1 rests skins one linear slop into each other (the generators' default); v3 pushes any
     overlap out and rests them touching (overlap 0), so the studies start v3 there."""
-    from deepcontact.studies import stability as S
+    from dcstudies import stability as S
     skin, slop = _box2d.polygon_radius, _box2d.linear_slop
     for overlap, gap in ((None, 2 * skin - slop), (0.0, 2 * skin)):
         scene = generate("stack", 0, {"count": 3} if overlap is None else {"count": 3, "overlap": overlap})

@@ -245,8 +245,6 @@ FOLDER_COMMANDS = {
     "study figures": lambda run, data, out: ["study", "figures", run, "--every", "60", "-q", "-o", out],
     "study engines": lambda run, data, out: ["study", "engines", "--fast", "-q", "-o", out],
     "study frontier": lambda run, data, out: ["study", "frontier", "--fast", "-q", "-o", out],
-    "study amortize": lambda run, data, out: ["study", "amortize", "--fast", "-q", "-o", out],
-    "study maps": lambda run, data, out: ["study", "maps", data, "--epochs", "1", "-q", "-o", out],
 }
 JOURNALS = {"fifo": os.mkfifo, "folder": os.mkdir, "link": lambda p: os.symlink(".git", p),
             "dangling link": lambda p: os.symlink("nowhere", p)}

@@ -8,7 +8,7 @@ import pytest
 
 import deepcontact as dc
 from conftest import written
-from deepcontact.studies.stability import FAST
+from dcstudies.stability import FAST
 
 pytestmark = pytest.mark.study
 

@@ -11,7 +11,6 @@ from deepcontact.errors import InputError
 from deepcontact.grid.dataset import DatasetSettings, GridDataset, write_dataset
 from deepcontact.grid.interpolate import bilinear
 from deepcontact.grid.kernels import KERNELS, weight
-from deepcontact.studies.sph_oracle import exact_impulses, round_trip
 from deepcontact.grid.spec import GridSpec, scene_box
 from deepcontact.grid.splat import splat_points
 from deepcontact.scene.generators import generate
@@ -170,34 +169,6 @@ def test_different_boxes_need_a_window(two_runs, tmp_path):
         write_dataset([two_runs / "a", other], tmp_path / "ds")
     meta = write_dataset([two_runs / "a", other], tmp_path / "ds", DatasetSettings(window=(0, 0, 20, 20)))
     assert meta["grid"]["nx"] == 41
-
-
-def test_sph_oracle_round_trip(two_runs):
-    files = sorted((two_runs / "a").glob("seed-000000/step-*.xml"))[-10:]
-    steps = exact_impulses(files, "reference")
-    assert len(steps) == 10 and max(s[3] for s in steps) < 1e-12
-    spec = GridSpec.over((0, 0, 16, 16), 0.5, 0.5)
-    r = round_trip(steps, spec)
-    assert 0.05 < r.normal_rel_l2 < 1.0 and r.points == sum(len(s[0]) for s in steps)
-    # a finer grid with a matching kernel loses less
-    fine = round_trip(steps, GridSpec.over((0, 0, 16, 16), 0.05, 0.05))
-    assert fine.normal_rel_l2 < r.normal_rel_l2
-
-
-def test_study_cli_writes_table_and_plot(two_runs, tmp_path):
-    out = tmp_path / "study"
-    r = dc("study", "oracle", str(two_runs / "a"), "--sweep", "--impulses", "recorded", "--every", "5", "-o", str(out))
-    assert r.returncode == 0, r.stderr
-    assert (out / "sph-study.png").stat().st_size > 1000 and (out / "sph-study.svg").exists()
-    table = (out / "sph-study.md").read_text()
-    assert table.count("| fig 5.4") == 4 and table.count("| fig 5.5") == 3 and "spiky" in table
-    # the old spelling still works, and says it is deprecated
-    r = dc("rasterize", str(two_runs / "a"), "--oracle", "--impulses", "recorded", "--every", "5")
-    assert r.returncode == 0 and "deprecated: use dc study oracle" in r.stderr and "| oracle |" in r.stdout, r.stderr
-    r = dc("study", "oracle", str(two_runs / "a"), "--impulses", "recorded", "--every", "5")
-    assert r.returncode == 0 and "| oracle |" in r.stdout, r.stderr
-    r = dc("study", "oracle", str(two_runs / "a"), "-o", str(tmp_path / "x"))
-    assert r.returncode == 2 and "--sweep" in r.stderr
 
 
 def test_numpy_and_torch_bilinear_read_the_same_values():

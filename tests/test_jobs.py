@@ -74,7 +74,7 @@ def test_a_movie_is_the_same_bytes_with_any_jobs(pile_run, tmp_path):
 
 def test_the_stability_study_is_the_same_rows_with_any_jobs_and_says_what_it_judged():
     from deepcontact.protocol import protocol, protocol_line
-    from deepcontact.studies import stability as S
+    from dcstudies import stability as S
     cases = [c for c in S.FAST if c.label in ("stack 8", "bullet")]
     configs = S.CONFIGS[:3]
     rows = {jobs: S.study(cases, configs, jobs=jobs) for jobs in (1, 2)}

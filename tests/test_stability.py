@@ -6,7 +6,7 @@ import math
 import pytest
 
 from deepcontact.simulate.engines import Box2D3
-from deepcontact.studies import stability as S
+from dcstudies import stability as S
 
 
 @pytest.fixture(scope="module")

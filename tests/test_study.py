@@ -10,14 +10,13 @@ from deepcontact.simulate.engines import Box2D3
 def test_dc_study_lists_the_studies():
     r = dc("study", "--help")
     assert r.returncode == 0 and "Examples:" in r.stdout
-    for name in ("stability", "figures", "maps", "oracle", "learned-correction", "learned-coarse", "relaxation",
-                 "exact", "peer", "amortize", "scale", "global-families", "frontier"):
+    for name in ("stability", "engines", "frontier", "figures", "exact", "peer", "scale"):
         assert name in r.stdout
         assert "Examples:" in dc("study", name, "--help").stdout
 
 
 def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_path, monkeypatch):
-    from deepcontact.studies import stability as S
+    from dcstudies import stability as S
     # (two of the fast cases: tests/test_stability.py runs the whole fast study, once)
     monkeypatch.setattr(S, "FAST", [c for c in S.FAST if c.label in ("stack 8", "bullet")])
     out = tmp_path / "stability.md"
@@ -32,80 +31,52 @@ def test_the_fast_stability_table_is_written_and_not_overwritten_unasked(tmp_pat
 # (dc study figures: tests/test_jobs.py, its files with -j 1 and -j 2)
 
 
-def test_one_map_or_two(dataset, tmp_path):
-    out = tmp_path / "maps"
-    r = dc("study", "maps", str(dataset), "-o", str(out), "--epochs", "1", "--width", "4", "-q")
-    assert r.returncode == 0, r.stderr
-    assert "| joint | 1 |" in (out / "compare.md").read_text()
-    assert (out / "normal-only" / "last.pt").exists() and (out / "tangent-only" / "best.pt").exists()
-    assert (out / "joint" / "loss.png").exists()
-    r = dc("study", "maps", str(dataset), "-o", str(out), "--epochs", "1", "--width", "4", "-q", "--overwrite",
-           "--no-plots")
-    assert r.returncode == 0, r.stderr
-    assert (out / "joint" / "best.pt").exists() and not list(out.glob("*/loss.*"))   # (the old run's went with it)
-
-
-def test_the_learned_studies_run_as_dc_study_commands():
-    """The two learned-start studies (docs/results.md) at toy size: the commands run end to end and
-    print their tables against builtin."""
-    r = dc("study", "learned-correction", "--train", "0", "--steps", "30", "--epochs", "1", "--sweeps", "2",
-           "--width", "8")
-    assert r.returncode == 0, r.stderr
-    assert "Measured with" in r.stdout and "builtin " in r.stdout and "learned@1.7" in r.stdout
-    r = dc("study", "learned-coarse", "--train", "0", "--steps", "30", "--epochs", "1", "--sweeps", "2")
-    assert r.returncode == 0, r.stderr
-    assert "| builtin | " in r.stdout and "| learned, if the residual falls |" in r.stdout
-    assert dc("study", "learned-coarse", "--train", "0,x").returncode == 2
-
-
-def test_dc_study_is_built_from_the_one_table_of_studies():
-    """Every `dc study` command is a row of deepcontact.studies.STUDIES (and every row a command),
-    in the table's order, its module importable, and its -o what the row says it writes."""
-    import importlib
+def test_dc_study_is_built_from_the_registry_of_studies():
+    """Every `dc study` command is a study registered in deepcontact.studies.STUDIES (the studies
+    distribution's entry points), in the studies' order, and its -o what the study says it writes;
+    a study registered in code is a command too, with no change to `dc study`."""
     from click.testing import CliRunner
     from deepcontact.cli.study import study
-    from deepcontact.studies import STUDIES
-    assert study.list_commands(None) == [s.name for s in STUDIES] and set(study.commands) == {s.name for s in STUDIES}
+    from deepcontact.studies import STUDIES, Study, installed
+    studies = installed()
+    assert [s.name for s in studies] == study.list_commands(None)
+    assert [s.name for s in studies][:3] == ["stability", "engines", "frontier"]
     helped = CliRunner().invoke(study, ["--help"]).output
-    for row in STUDIES:
-        importlib.import_module(f"deepcontact.studies.{row.module}")
-        assert row.name in helped and row.summary.split()[0] in helped
-        (out,) = [p for p in study.commands[row.name].params if "-o" in getattr(p, "opts", ())]
+    for row in studies:
+        assert issubclass(row, Study) and row.name in helped and row.summary.split()[0] in helped
+        command = study.get_command(None, row.name)
+        (out,) = [p for p in command.params if "-o" in getattr(p, "opts", ())]
         assert row.writes in ("folder", "file", "text")
         folder = row.writes == "folder"
         assert (out.type.dir_okay, out.type.file_okay) == (folder, not folder), row
+    import click
+
+    @click.command("hello")
+    def hello():
+        """Says hello."""
+        click.echo("hello, study")
+
+    class Hello(Study):
+        name, summary, order = "hello", "a study of one's own", 0.5
+        command = staticmethod(lambda: hello)
+    STUDIES.register("hello", Hello)
+    try:
+        assert study.list_commands(None)[1] == "hello"
+        assert CliRunner().invoke(study, ["hello"]).output == "hello, study\n"
+    finally:
+        del STUDIES._builtin["hello"]
 
 
 def test_every_study_module_imports_and_the_exact_study_runs():
     import importlib
     import pkgutil
-    import deepcontact.studies as studies
-    for info in pkgutil.iter_modules(studies.__path__):
-        importlib.import_module(f"deepcontact.studies.{info.name}")
+    import dcstudies
+    for info in pkgutil.iter_modules(dcstudies.__path__):
+        importlib.import_module(f"dcstudies.{info.name}")
     r = dc("study", "exact", "--scene", "pile", "--every", "150")
     assert r.returncode == 0, r.stderr
     assert "Measured with" in r.stdout and "| reference: Newton, then local pivots where it stalls |" in r.stdout
     assert dc("study", "exact", "--scene", "hard", "--siconos").returncode == 2
-    assert dc("study", "relaxation", "--seeds", "0,1").returncode == 2
-
-
-def test_the_amortize_study_measures_what_a_reused_factor_buys(tmp_path):
-    """The fast amortize study (a 100-circle pile) writes its tables; what it measures holds
-    together: a factor reused across steps preconditions in few iterations, and the low-rank
-    update for the contacts that changed state brings the previous factor's solve much closer."""
-    import csv
-    out = tmp_path / "amortize"
-    r = dc("study", "amortize", "--fast", "-q", "-o", out)
-    assert r.returncode == 0, r.stderr
-    rows = {row["measure"]: (float(row["median"]), float(row["p90"]))
-            for row in csv.DictReader((out / "amortize.csv").open())}
-    assert rows["factorization ms"][0] > 0 and rows["Box2D step ms (8 iterations)"][0] > 0
-    assert 0 < rows["PCG iterations, factor 1 step old"][0] < 100
-    assert rows["update rank (rows)"][0] <= 2 * rows["contact points"][0]
-    assert rows["Woodbury relative residual"][1] < 0.01 * rows["previous factor alone: relative residual"][0]
-    assert "| pile 100 | points any per step |" in (out / "amortize.md").read_text()
-    r = dc("study", "amortize", "--fast", "-q", "-o", out)
-    assert r.returncode == 1 and "overwrite" in r.stderr
 
 
 def test_the_scale_study_runs_as_a_dc_study_command(tmp_path):
@@ -132,7 +103,7 @@ def test_a_study_runs_a_setting_with_its_method_and_relaxation():
     w reach the run (the engines study once ran its lagged family with plain sweeps and timed it
     with the lagged solve). On an 8-box stack at 8 sweeps to 1e-8 the sweeps stop at the cap on
     every step, the lagged solve on few."""
-    from deepcontact.studies import engines as E, stability as S
+    from dcstudies import engines as E, stability as S
     stack = next(c for c in S.FAST if c.label == "stack 8")
     plain, lagged, relaxed = (E.run_setting(stack, E.Setting("project", "residual 1e-08", "pgs", 8, tolerance=1e-8,
                                                              relaxation=w, accelerate=m))
@@ -177,7 +148,7 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
     """--families and --tolerances pick settings (what the largest scenes' rows were measured
     with); a family it does not have is a bad option, listing the ones it has."""
     import csv
-    from deepcontact.studies import frontier as F
+    from dcstudies import frontier as F
     picked = F.settings(families=("NNCG", "Box2D v3"), tolerances=(1e-3,))
     assert [(s.family, s.label) for s in picked] == [("Box2D v3", f"{n} substeps") for n in Box2D3.SETTINGS["substeps"].sweep] + \
         [("NNCG", "residual 0.001")]
@@ -190,27 +161,3 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
         [("Box2D 2.4.1", f"{n} iterations") for n in (1, 8, 64)] + [("PSOR 1.7", "8 sweeps"), ("PSOR 1.7", "residual 0.001")]
     r = dc("study", "frontier", "--fast", "--families", "PGS,Jacobi", "-o", tmp_path / "none")
     assert r.returncode == 2 and "no family 'Jacobi'" in r.stderr and "lagged" in r.stderr
-
-
-def test_a_second_level_after_pgs_is_kept_only_where_it_lowers_the_residual():
-    """dc study global-families --part two-level on a small pile's step: Lemke on the worst
-    neighbourhood finishes a step that 64 sweeps alone do not (on the 1000-circle pile it never
-    helps: docs/results.md), and a coarse correction is offered only where it lowers the residual."""
-    from conftest import step_problems
-    from deepcontact.solver.methods import judge
-    from deepcontact.solver.settings import TOLERANCE
-    from deepcontact.studies import global_families as G
-    p = step_problems("pile", dict(count=100), [200])[0]
-    plain = G.second_level(p, 64, None, 64)
-    assert not plain.reached and plain.sweeps == 64 and plain.tries == plain.kept == 0
-    local = G.second_level(p, 64, G.LocalExact(p), 16)
-    assert local.reached and local.residual <= TOLERANCE and local.kept == local.tries == 1 and local.sweeps < 64
-    normal, tangent, before, _ = G._sweeps(p, 16)
-    assert judge(p, *G.LocalExact(p)(normal, tangent)).residual < before / 2   # (then a few sweeps finish it)
-    coarse = G.CoarseCorrection(p)
-    for sweeps in (2, 8, 32):
-        normal, tangent, before, _ = G._sweeps(p, sweeps)
-        after = coarse(normal, tangent)
-        assert after is None or judge(p, *after).residual < before
-    outcome = G.second_level(p, 64, coarse, 8, stall=32)
-    assert outcome.tries == 7 and outcome.kept <= outcome.tries and outcome.at_stall is not None

@@ -29,11 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import atomic, workers
-from ..evaluate.closed_loop import reference_trajectory
-from ..simulate import stepping
-from ..solver.metrics import drift
-from ..solver.settings import CAP, SolveSettings
+from deepcontact import atomic, workers
+from deepcontact.evaluate.closed_loop import reference_trajectory
+from deepcontact.simulate import stepping
+from deepcontact.solver.metrics import drift
+from deepcontact.solver.settings import CAP, SolveSettings
 from . import stability as S
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
@@ -43,7 +43,7 @@ TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 def engine_settings(fast=False, names=None):
     """Each engine's own frontier (Engine.frontier: the built-ins', or those `names`) as Settings,
     in the registry's order."""
-    from ..simulate.engines import ENGINES
+    from deepcontact.simulate.engines import ENGINES
     out = []
     for name in ENGINES.builtin() if names is None else names:
         cls = ENGINES.load(name)
@@ -112,7 +112,7 @@ def plugin_line(rows, known=FAMILIES):
     plugins = list(dict.fromkeys(r.family for r in rows if r.family not in known))
     if not plugins:
         return []
-    from ..escape import md_text
+    from deepcontact.escape import md_text
     return [f"Plug-in methods ({', '.join(md_text(p) for p in plugins)}): each step goes through Python, each solve "
             f"in the method's own process (never this one), its answer judged here and its round trip (an echo of "
             f"the same request) subtracted; the Python path itself is in their times, as it is in no built-in row "

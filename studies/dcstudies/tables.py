@@ -6,8 +6,8 @@ import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from .. import atomic
-from ..escape import CsvWriter
+from deepcontact import atomic
+from deepcontact.escape import CsvWriter
 
 
 @dataclass
@@ -56,7 +56,7 @@ def accuracy_plot(families, points, path, ylabel, title):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..plotstyle import readable_log_ticks, styles
+    from deepcontact.plotstyle import readable_log_ticks, styles
     style = styles(list(families))
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     plotted = False

@@ -9,14 +9,14 @@ Each is the median (and 10-90% band) of the stopping measure per PGS sweep over 
 
     dc study figures RUN -o OUTDIR [--every 10] [--tolerance 1e-4] [--stop-on residual] [-j 2]
 """
-from .. import atomic, workers
-from ..grid.dataset import collect
-from ..grid.spec import GridSpec
-from ..protocol import protocol, protocol_line
-from ..solver.settings import SolveSettings
-from ..evaluate.replay import evaluate, summarize
-from ..evaluate.report import convergence_plot, summary_table
-from ..warmstart.starts import SPH, make_starts
+from deepcontact import atomic, workers
+from deepcontact.grid.dataset import collect
+from deepcontact.grid.spec import GridSpec
+from deepcontact.protocol import protocol, protocol_line
+from deepcontact.solver.settings import SolveSettings
+from deepcontact.evaluate.replay import evaluate, summarize
+from deepcontact.evaluate.report import convergence_plot, summary_table
+from deepcontact.warmstart.starts import SPH, make_starts
 
 FIGURES = {
     "fig-5.4": [(f"h={h:g}", "poly6", 0.25, h) for h in (0.1, 0.2, 0.25, 0.5)],
@@ -34,7 +34,7 @@ def figures(run, out, every=10, settings=SolveSettings(), jobs=1, progress=None)
     returns the markdown text. jobs > 1: the
     four figures' replays side by side in worker processes (the same figures: sweeps do not
     depend on -j; the tables' times are each worker's own). progress(n): n more step files."""
-    from ..errors import InputError
+    from deepcontact.errors import InputError
     sims, _ = collect([run])
     window = sims[0].box
     if window is None:
@@ -56,7 +56,7 @@ def figures(run, out, every=10, settings=SolveSettings(), jobs=1, progress=None)
 
 def step_files(run):
     """How many step files the figures read (their progress bar's total): each figure reads the run once."""
-    from ..step.run_folder import read_run
+    from deepcontact.step.run_folder import read_run
     return (len(FIGURES) + 1) * sum(len(s.files) for s in read_run(run).simulations)
 
 

@@ -23,14 +23,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import workers
-from .._box2d import linear_slop
-from ..scene.generators import generate, parameters
-from ..simulate import stepping
-from ..simulate.engines import Box2D
-from ..solver.methods import is_native
-from ..solver.settings import SolveSettings
-from ..solver.metrics import deepest, energy, positions
+from deepcontact import workers
+from deepcontact._box2d import linear_slop
+from deepcontact.scene.generators import generate, parameters
+from deepcontact.simulate import stepping
+from deepcontact.simulate.engines import Box2D
+from deepcontact.solver.methods import is_native
+from deepcontact.solver.settings import SolveSettings
+from deepcontact.solver.metrics import deepest, energy, positions
 
 PENETRATION_LIMIT = 3 * linear_slop
 TOP_DRIFT_LIMIT = 0.01
@@ -133,7 +133,7 @@ def own_rest(case: Case, solver: str) -> dict:
 
 def _engine_class(solver):
     """The engine a configuration's solver names (pgs: the project's solver in 2.4.1's loop)."""
-    from ..simulate.engines import ENGINES
+    from deepcontact.simulate.engines import ENGINES
     return ENGINES.load("box2d" if solver == "pgs" else solver)
 
 
@@ -157,8 +157,8 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
     world = engine.build(scene)
     if solver == "pgs" and not is_native(accelerate):
         # a plug-in method solves in a process of its own (evaluate.contestant), judged there as in dc evaluate
-        from ..evaluate.contestant import RemoteMethod
-        from ..simulate.pgs_loop import PGSStepper
+        from deepcontact.evaluate.contestant import RemoteMethod
+        from deepcontact.simulate.pgs_loop import PGSStepper
         remote = RemoteMethod(accelerate)
         return world, _Remote(PGSStepper(world, scene, engine.solver, start, record=record, solve_fn=remote.solve).step,
                               remote)

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene.generators import generate
-from ..simulate.problems import problems as step_problems
-from ..solver.pgs import solve
-from ..solver.reference import CAP, TOLERANCE, reference_solution   # (the reference's own exactness)
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.problems import problems as step_problems
+from deepcontact.solver.pgs import solve
+from deepcontact.solver.reference import CAP, TOLERANCE, reference_solution   # (the reference's own exactness)
 from .stability import FULL
 from .text import StudyText
 
@@ -55,7 +55,7 @@ def referenced(problem):
 
 def siconos_times(steps):
     """Seconds Siconos's Lemke takes per problem, and its residual by our measure."""
-    from ..exchange import fclib, peer
+    from deepcontact.exchange import fclib, peer
     with tempfile.TemporaryDirectory() as tmp:
         paths = [fclib.write_problem(p, Path(tmp) / f"step-{i:04d}.hdf5") for i, p in enumerate(steps)]
         return peer.solve_files(paths, solver="lemke")

@@ -21,10 +21,10 @@ import time
 
 import numpy as np
 
-from ..simulate.problems import recorded_between, step_problem
-from ..simulate.source import SceneSource
-from ..solver.methods import solve
-from ..solver.settings import TOLERANCE
+from deepcontact.simulate.problems import recorded_between, step_problem
+from deepcontact.simulate.source import SceneSource
+from deepcontact.solver.methods import solve
+from deepcontact.solver.settings import TOLERANCE
 from .text import StudyText, progress
 
 # name: (bodies, generator parameters, steps until settled)

@@ -36,14 +36,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import atomic, workers
-from ..simulate.problems import problems
-from ..solver.methods import solve
-from ..solver.reference import reference_solution
-from ..solver.settings import CAP
+from deepcontact import atomic, workers
+from deepcontact.simulate.problems import problems
+from deepcontact.solver.methods import solve
+from deepcontact.solver.reference import reference_solution
+from deepcontact.solver.settings import CAP
 from . import stability as S
-from ..evaluate.contestant import RemoteMethod
-from ..solver.methods import is_native
+from deepcontact.evaluate.contestant import RemoteMethod
+from deepcontact.solver.methods import is_native
 from .engines import Setting, applicable, engine_families, engine_settings, families_of, plugin_line, plugin_settings, run_setting, step_ms
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 

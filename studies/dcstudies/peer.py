@@ -18,10 +18,10 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from ..errors import InputError
-from ..exchange import fclib, peer
-from ..scene.generators import generate
-from ..solver.methods import BUILTIN as OURS   # every built-in method (the native table)
+from deepcontact.errors import InputError
+from deepcontact.exchange import fclib, peer
+from deepcontact.scene.generators import generate
+from deepcontact.solver.methods import BUILTIN as OURS   # every built-in method (the native table)
 from .exact import problems, timed
 from .text import StudyText
 
