@@ -43,7 +43,7 @@ def test_the_native_struct_holds_the_values_given():
 
 def test_every_command_that_solves_to_a_tolerance_takes_its_defaults_from_the_settings():
     from deepcontact.cli.evaluate import evaluate
-    from deepcontact.cli.study import figures
+    from dcstudies.commands import figures
     for command in (evaluate, figures):
         defaults = {p.name: p.default for p in command.params}
         assert defaults["tolerance"] == TOLERANCE and defaults["max_iterations"] == CAP, command.name

@@ -8,7 +8,8 @@ bodies moved at their velocity. MuJoCo's sparse factor does not reorder: the dyn
 listed row by row (by height, then x), so bodies in contact sit near each other in the factor
 (`order=scene` keeps the scene's order, to see what that costs).
 
-MuJoCo poses its own soft contact problem (solref, solimp: its defaults) and solves it to its
+MuJoCo poses its own soft contact problem (its solimp's default, solref's from `timeconst` and
+`dampratio`, MuJoCo's defaults unless given) and solves it to its
 tolerance; friction pairs take the larger coefficient (Box2D's mix, sqrt(a b), where they are
 equal); it has no restitution, sleeping or continuous collision. Each step file holds the contact
 forces of the step times dt (impulses, Box2D's signs: on the second body, along the normal from
@@ -33,7 +34,10 @@ class MuJoCo(Engine):
                                      sweep=(1e-2, 1e-4, 1e-6, 1e-8)),
                 "iterations": Setting(int, 1, None, "the most solver iterations a step",
                                       sweep=(1, 2, 4, 8, 16, 32, 100)),
-                "order": Setting(("rows", "scene"), help="the bodies' order in the model (rows: for the sparse factor)")}
+                "order": Setting(("rows", "scene"), help="the bodies' order in the model (rows: for the sparse factor)"),
+                "timeconst": Setting(float, 0, None, "the soft contacts' time constant (s; solref's first; "
+                                                     "MuJoCo's default 0.02): smaller is stiffer, down to 2 dt"),
+                "dampratio": Setting(float, 0, None, "the soft contacts' damping ratio (solref's second; 1)")}
 
     @classmethod
     def frontier(cls, fast=False):
@@ -50,8 +54,9 @@ class MuJoCo(Engine):
                 for solver in ("cg", "pgs") for t in (1e-4, 1e-8)]
         return out
 
-    def __init__(self, solver="newton", tolerance=1e-8, iterations=100, order="rows"):
-        super().__init__(solver=solver, tolerance=tolerance, iterations=iterations, order=order)
+    def __init__(self, solver="newton", tolerance=1e-8, iterations=100, order="rows", timeconst=0.02, dampratio=1.0):
+        super().__init__(solver=solver, tolerance=tolerance, iterations=iterations, order=order, timeconst=timeconst,
+                         dampratio=dampratio)
 
     @classmethod
     def version(cls) -> str:
@@ -104,14 +109,14 @@ class MuJoCoWorld:
     """A scene's planar MuJoCo model and data, and what its records need (which geom is which
     fixture, which joints are which body's, Box2D's body records)."""
 
-    def __init__(self, scene, solver, tolerance, iterations, order):
+    def __init__(self, scene, solver, tolerance, iterations, order, timeconst, dampratio):
         mujoco = _library()
         from ..build import build_world
         self.records = build_world(scene).bodies()
         self.scene = scene
         dynamic = [i for i, b in enumerate(scene.bodies) if b.type == "dynamic"]
         listed = _row_order(scene, dynamic) if order == "rows" else dynamic
-        xml, geoms = _model_xml(scene, self.records, listed, solver, tolerance, iterations)
+        xml, geoms = _model_xml(scene, self.records, listed, solver, tolerance, iterations, (timeconst, dampratio))
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
         m, d = self.model, self.data
@@ -269,7 +274,7 @@ def _fmt(*values):
     return " ".join(f"{float(v):.9g}" for v in values)
 
 
-def _model_xml(scene, records, listed, solver, tolerance, iterations):
+def _model_xml(scene, records, listed, solver, tolerance, iterations, solref):
     """The scene's planar MJCF, and one (fixture, body, friction, restitution) per geom in the
     model's geom order (MuJoCo numbers geoms as the file lists them, the world's first)."""
     from ..._box2d import polygon_radius
@@ -323,6 +328,7 @@ def _model_xml(scene, records, listed, solver, tolerance, iterations):
     xml = (f'<mujoco model="{scene.name}"><compiler angle="radian"/>'
            f'<option timestep="{_fmt(scene.dt)}" gravity="{_fmt(g[0], 0, g[1])}" solver="{solver.upper() if solver != "newton" else "Newton"}" '
            f'tolerance="{_fmt(tolerance)}" iterations="{iterations}"><flag warmstart="{warm}"/></option>'
+           f'<default><geom solref="{_fmt(*solref)}"/></default>'
            f'<asset>{"".join(assets)}</asset><worldbody>{"".join(parts)}</worldbody></mujoco>')
     # (MuJoCo numbers geoms in the order of the bodies it lists: the world's children as written)
     return xml, geoms
