@@ -74,6 +74,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_render.py
 	$(PYTHON) benchmarks/bench_predict.py
 	$(PYTHON) benchmarks/bench_engines.py
+	$(PYTHON) benchmarks/bench_peers.py
+	$(PYTHON) benchmarks/bench_peers.py --orders
 	sh benchmarks/bench_loop_scale.sh
 	$(PYTHON) benchmarks/bench_bodyspace.py
 	$(PYTHON) benchmarks/bench_loop_parts.py

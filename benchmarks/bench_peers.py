@@ -2,7 +2,7 @@
 what does recording their steps add?
 
 For each engine, on a pile (the 1000-circle pile by default: seed 9, its settled second half), in
-the same run, one thread, best of --repeats, the same model both ways:
+the same run, one thread, best of --repeats (the two ways interleaved), the same model both ways:
   bare      the engine's own step called in a loop: pymunk's `space.step(dt)`, MuJoCo's
             `mj_step(model, data)` on the space and model the project built from the scene
   project   the same world stepped through the project's loop (simulate.stepping.steps, the
@@ -12,7 +12,10 @@ the same run, one thread, best of --repeats, the same model both ways:
 Box2D 2.4.1 at 8 iterations is stepped beside them as the baseline of the ratios. The goal: the
 project's time within 1.2x of the bare one.
 
-Usage: python benchmarks/bench_peers.py [--repeats N] [--count N] [--steps N]
+With --orders, MuJoCo's step alone (mj_step) on the same settled pile under each order of its
+bodies (`--set order=`: columns, rows, the scene's): its sparse factor does not reorder.
+
+Usage: python benchmarks/bench_peers.py [--repeats N] [--count N] [--steps N] [--orders]
 """
 import argparse
 import time
@@ -54,8 +57,11 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--count", type=int, default=1000)
     ap.add_argument("--steps", type=int, default=100, help="steps timed, from step 400 (the settled pile)")
+    ap.add_argument("--orders", action="store_true", help="MuJoCo's step under each order of its bodies")
     args = ap.parse_args()
     print(protocol_line(current()) + "\n")
+    if args.orders:
+        return orders(args)
     params = {"count": args.count, "box": 95.0, "sigma": 19.0} if args.count > 100 else {"count": args.count}
     scene = generate("pile", 9, {**params, "steps": 400 + args.steps * (2 * args.repeats + 2)})
     print(f"pile of {args.count} circles, seed 9, {args.steps} steps from step 400, best of {args.repeats}\n")
@@ -67,14 +73,33 @@ def main():
         world = settled(scene, engine, 400)
         loop = engine.stepper(world, scene, record=False)
         through = iter(steps(world, scene, loop, count=10 ** 9))
-        project = min(timed(lambda: next(through), args.steps) for _ in range(args.repeats))
         raw = bare_step(name, world)
-        bare = min(timed(raw, args.steps) for _ in range(args.repeats)) if raw else float("nan")
+        project, bare = float("inf"), float("inf")
+        for _ in range(args.repeats):   # (interleaved: a change of load falls on both)
+            project = min(project, timed(lambda: next(through), args.steps))
+            if raw is not None:
+                bare = min(bare, timed(raw, args.steps))
+        bare = bare if raw is not None else float("nan")
         recording = iter(steps(world, scene, engine.stepper(world, scene, record=True), count=10 ** 9))
         record = min(timed(lambda: next(recording), args.steps) for _ in range(args.repeats))
         base = project if base is None else base
         print(f"| {engine.label} {engine.version()} | {1e3 * bare:.3f} | {1e3 * project:.3f} | "
               f"{project / bare:.2f}x | {1e3 * record:.3f} | {project / base:.1f}x |", flush=True)
+
+
+def orders(args):
+    import mujoco
+    params = {"count": args.count, "box": 95.0, "sigma": 19.0} if args.count > 100 else {"count": args.count}
+    scene = generate("pile", 9, {**params, "steps": 1000})
+    print(f"MuJoCo's mj_step on the pile of {args.count} circles, seed 9, after 400 steps; {args.steps} steps, "
+          f"best of {args.repeats}\n")
+    print("| order | ms / step | iterations (largest island) |")
+    print("| --- | ---: | ---: |")
+    for order in ("columns", "rows", "scene"):
+        world = settled(scene, engine_named("mujoco", {"order": order}), 400)
+        step = bare_step("mujoco", world)
+        ms = 1e3 * min(timed(step, args.steps) for _ in range(args.repeats))
+        print(f"| {order} | {ms:.1f} | {int(world.data.solver_niter[0])} |", flush=True)
 
 
 if __name__ == "__main__":
