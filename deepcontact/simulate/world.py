@@ -8,25 +8,26 @@ from typing import TYPE_CHECKING
 
 from ..scene.check import check_scene
 from .build import check_overlaps
-from .engines import Box2D, Box2D3
+from .engines import Engine
+from .engines.box2d import Box2D
 from .stepping import Stepped, steps
 
 if TYPE_CHECKING:   # (for the annotations only)
     from ..scene.model import Scene
-    from .engines import Box2D3
 
 
 class World:
     """The world of `scene` (a Scene, or a scene file's path) stepped by `engine` (simulate.engines:
     Box2D() by default, Box2D(solver=SolveSettings(...)) for the project's solver with any method,
-    Box2D3(SoftStep()) for Box2D v3).
+    Box2D3(SoftStep()) for Box2D v3, engine_named("pymunk" or "mujoco", settings) for the peers, or
+    any Engine of one's own).
 
     Each `step()` applies the scene's removal events due, steps once and returns a Stepped: the
     bodies before the step and the contacts the solver saw (arrays, as a step file records them),
     the project's Solution (or None) and the step's wall time. `bodies()` is the state now. A scene
     the engine cannot step is refused when the world is made (InputError, one line)."""
 
-    def __init__(self, scene: "Scene | str | os.PathLike", engine: "Box2D | Box2D3 | None" = None,
+    def __init__(self, scene: "Scene | str | os.PathLike", engine: "Engine | None" = None,
                  record: bool = True):
         from .. import arguments
         from ..scene.model import Scene
@@ -38,7 +39,7 @@ class World:
             # (a NaN position, a collinear polygon) would abort the process, a notebook's kernel
             check_scene(arguments.instance(scene, "scene", Scene, "a Scene or a scene file's path"))
         if engine is not None:
-            arguments.instance(engine, "engine", (Box2D, Box2D3), "an engine: Box2D() or Box2D3()")
+            arguments.instance(engine, "engine", Engine, "an engine: Box2D(), Box2D3(), engine_named(NAME), ...")
         self.scene = scene
         self.engine = Box2D() if engine is None else engine
         check_overlaps(scene)

@@ -176,7 +176,7 @@ ENGINES.register("pymunk", "deepcontact.simulate.engines.pymunk:Pymunk")
 ENGINES.register("mujoco", "deepcontact.simulate.engines.mujoco:MuJoCo")
 
 
-def engine_named(name, settings=None) -> Engine:
+def engine_named(name: str, settings: dict | None = None) -> Engine:
     """The engine registered as `name` with `settings` (name -> value or text, as --set gives)."""
     return ENGINES.load(name).from_settings(**(settings or {}))
 
