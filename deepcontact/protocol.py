@@ -65,7 +65,9 @@ def protocol(threads=DEFAULT_THREADS, jobs=1):
         "threads": threads, "jobs": jobs,
         "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": _version("numpy"),
                      "torch": _version("torch"), "python": platform.python_version(),
-                     "box2d3": getattr(_box2d, "box2d3_version", None)},
+                     "box2d3": getattr(_box2d, "box2d3_version", None),
+                     # the peer engines' wheels (None where not installed)
+                     "pymunk": _version("pymunk"), "mujoco": _version("mujoco")},
         "cpu": cpu_model(), "cores": os.cpu_count(), "load_average": load,
         "command": command_line, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
@@ -91,5 +93,6 @@ def protocol_line(p):
     return (f"Measured with {p['threads']} torch thread{'s' if p['threads'] != 1 else ''} per process and "
             f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {md_text(p['cpu'])} ({p['cores']} cores; "
             f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}"
-            f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}, numpy "
+            f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}"
+            f"{', pymunk ' + v['pymunk'] if v.get('pymunk') else ''}{', MuJoCo ' + v['mujoco'] if v.get('mujoco') else ''}, numpy "
             f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}")

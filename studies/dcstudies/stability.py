@@ -27,7 +27,7 @@ from deepcontact import workers
 from deepcontact._box2d import linear_slop
 from deepcontact.scene.generators import generate, parameters
 from deepcontact.simulate import stepping
-from deepcontact.simulate.engines import Box2D
+from deepcontact.simulate.engines import ENGINES, Box2D
 from deepcontact.solver.methods import is_native
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.solver.metrics import deepest, energy, positions
@@ -83,8 +83,10 @@ CONFIGS = [("box2d", "builtin", 1.0, "none"), ("pgs", "zero", 1.0, "none"), ("pg
            ("pgs", "garbage", 1.0, "none"), ("pgs", "zero", RELAXED, "none"), ("pgs", "builtin", RELAXED, "none"),
            ("pgs", "zero", 1.0, "nncg"), ("pgs", "builtin", 1.0, "nncg"), ("pgs", "builtin", 1.3, "nncg"),
            ("pgs", "zero", 1.0, "newton"), ("pgs", "builtin", 1.0, "newton"), ("pgs", "builtin", 1.0, "subspace"),
-           ("pgs", "builtin", 1.0, "bodyspace"), ("pgs", "builtin", 1.0, "lagged"), ("box2d3", "builtin", 1.0, "none"),
-           ("pymunk", "builtin", 1.0, "none"), ("mujoco", "builtin", 1.0, "none")]
+           ("pgs", "builtin", 1.0, "bodyspace"), ("pgs", "builtin", 1.0, "lagged"),
+           # every other engine registered, at its own default effort (a new engine joins by registering)
+           *((name, "builtin", 1.0, "none") for name in ENGINES.builtin() if name != "box2d")]
+
 # An engine with an effort of its own (v3's substeps, pymunk's and MuJoCo's iterations) is doubled from
 # its default up to this many times it.
 OWN_CAP = 16
