@@ -335,43 +335,19 @@ def peer(scene, every, tolerances, cap, threads, output, overwrite, verbose, qui
 
 
 # The studies, as `dc study` lists them (pyproject.toml's entry points name these classes).
-class Stability(Study):
-    name, order, writes = "stability", 0, "file"
-    summary = "the hard scenes under every engine and the project's solver: the effort each needs"
-    command = staticmethod(lambda: stability)
+def _study(command, order, writes, summary):
+    """The Study whose `dc study` command is `command`."""
+    return type(command.name.capitalize(), (Study,), dict(
+        name=command.name, order=order, writes=writes, summary=summary, command=staticmethod(lambda: command),
+        __doc__=f"dc study {command.name}: {summary}."))
 
 
-class Engines(Study):
-    name, order, writes = "engines", 1, "folder"
-    summary = "accuracy against time: Box2D 2.4.1, Box2D v3, pymunk, MuJoCo and the project's solver"
-    command = staticmethod(lambda: engines)
-
-
-class Frontier(Study):
-    name, order, writes = "frontier", 2, "folder"
-    summary = "the same at scale: piles, confined circles and pyramids of thousands"
-    command = staticmethod(lambda: frontier)
-
-
-class Figures(Study):
-    name, order, writes = "figures", 3, "folder"
-    summary = "the thesis's convergence figures 5.4-5.7, regenerated with the SPH start"
-    command = staticmethod(lambda: figures)
-
-
-class Exact(Study):
-    name, order, writes = "exact", 4, "text"
-    summary = "the reference solutions: time to 1e-12, pivots, the hard scenes"
-    command = staticmethod(lambda: exact)
-
-
-class Peer(Study):
-    name, order, writes = "peer", 5, "text"
-    summary = "our solver against Siconos (NSGS, Lemke) on the same problems"
-    command = staticmethod(lambda: peer)
-
-
-class Scale(Study):
-    name, order, writes = "scale", 6, "text"
-    summary = "every method's time to 1e-4 as the pile grows (100 to 10,000 circles)"
-    command = staticmethod(lambda: scale)
+Stability = _study(stability, 0, "file", "the hard scenes under every engine and the project's solver: the effort "
+                                          "each needs")
+Engines = _study(engines, 1, "folder", "accuracy against time: Box2D 2.4.1, Box2D v3, pymunk, MuJoCo and the "
+                                       "project's solver")
+Frontier = _study(frontier, 2, "folder", "the same at scale: piles, confined circles and pyramids of thousands")
+Figures = _study(figures, 3, "folder", "the thesis's convergence figures 5.4-5.7, regenerated with the SPH start")
+Exact = _study(exact, 4, "text", "the reference solutions: time to 1e-12, pivots, the hard scenes")
+Peer = _study(peer, 5, "text", "our solver against Siconos (NSGS, Lemke) on the same problems")
+Scale = _study(scale, 6, "text", "every method's time to 1e-4 as the pile grows (100 to 10,000 circles)")
