@@ -105,7 +105,8 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
 @click.command("engines")
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder for engines.md, engines.csv and a Pareto plot per scene.")
-@click.option("--fast", is_flag=True, help="The small variants the test suite runs (stability's, and a 30-circle pile).")
+@click.option("--fast", is_flag=True, help="The small variants the test suite runs (stability's, and a 30-circle pile), "
+                                          "each engine at its few fast settings.")
 @click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'stack 20,pyramid 20').")
 @options.families_option("Box2D v3,lagged")
@@ -116,8 +117,9 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
 @options.command("study engines")
 def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quiet):
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
-    iterations, Box2D v3 at 1-16 substeps (and without warm starting), the
-    project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
+    iterations, Box2D v3 at 1-16 substeps (and without warm starting), pymunk
+    at 1-256 iterations, MuJoCo's Newton, CG and PGS at tolerances and caps,
+    the project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
     solve to 1e-4 and 1e-8), on the thesis pile and every hard scene, each
     judged by the stability criteria and its drift from the reference
     trajectory (docs/results.md, "Engines").
@@ -132,6 +134,7 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
       dc study engines --fast -o reports/engines-fast
       dc study engines -o reports/engines --scenes 'stack 20,mass ratio 400:1'
       dc study engines -o reports/lagged --families lagged
+      dc study engines -o reports/peers --families 'pymunk,MuJoCo Newton'
       dc study engines --fast -o reports/mine --families project --accelerate mypkg.solvers:Mine
     """
     from deepcontact import atomic
@@ -140,7 +143,7 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
     from dcstudies import engines as E
 
     cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
-    chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins))
+    chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins), fast)
     with atomic.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
         bar = options.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
@@ -172,7 +175,8 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
 @options.command("study frontier")
 def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, overwrite, verbose, quiet):
     """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
-    at 1-16 substeps and the project's PGS, PSOR, NNCG and lagged body-space
+    at 1-16 substeps, pymunk at 1-256 iterations, MuJoCo's Newton, CG and PGS
+    at tolerances and caps, and the project's PGS, PSOR, NNCG and lagged body-space
     solve to residuals 1e-2 ... 1e-8 and at fixed budgets, on piles of 1,000
     and 10,000 circles, confined circles and pyramids of 820 and 5,050 boxes,
     each judged by its one-step residual from the same recorded states, its
@@ -192,6 +196,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
       dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40'
       dc study frontier -o reports/big --scenes 'pyramid 5050' --tolerances 1e-2
       dc study frontier -o reports/frontier-engines --families 'Box2D 2.4.1,Box2D v3'
+      dc study frontier -o reports/peers --scenes 'pile 1000' --families 'pymunk,MuJoCo Newton'
       dc study frontier --fast -o reports/mine --families PGS --accelerate mypkg.solvers:Mine
     """
     from deepcontact import atomic

@@ -126,10 +126,11 @@ def plugin_settings(methods, tolerances):
             for t in tolerances]
 
 
-def settings(families=None, plugins=()):
+def settings(families=None, plugins=(), fast=False):
     """Every setting of every family (only those of `families`, where given), in the order of the
-    tables; then a family per plug-in method named in `plugins`."""
-    out = engine_settings()
+    tables; then a family per plug-in method named in `plugins`. fast: each engine's few settings
+    of the fast studies (Engine.frontier)."""
+    out = engine_settings(fast)
     at = max(k for k, s in enumerate(out) if s.solver == "box2d3") + 1   # (v3's ablations after its sweep)
     out[at:at] = [Setting("Box2D v3", "4 substeps, no warm start", "box2d3", 4, warm_starting=False, variant=True),
                   Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True)]
