@@ -23,6 +23,11 @@ from ..pgs_loop import LoopStep
 from . import Engine, Setting, empty_contacts
 
 _HALF_DEPTH = 0.5   # half the thickness (m, along y) of a polygon's prism: any will do in a plane
+# MuJoCo's own arena default grows faster than the model (532 MB for the
+# 1000-circle pile, which used at most 5.9 MB; the 10,000-circle pile's could not be allocated).
+# The most measured per dynamic body: 60 KB (pyramid 40 under PGS, 7.7 contacts a box).
+_ARENA_BASE = 16 << 20
+_ARENA_PER_BODY = 128 << 10
 
 
 class MuJoCo(Engine):
@@ -39,7 +44,9 @@ class MuJoCo(Engine):
                                                                    "factor, which does not reorder)"),
                 "timeconst": Setting(float, 0, None, "the soft contacts' time constant (s; solref's first; "
                                                      "MuJoCo's default 0.02): smaller is stiffer, down to 2 dt"),
-                "dampratio": Setting(float, 0, None, "the soft contacts' damping ratio (solref's second; 1)")}
+                "dampratio": Setting(float, 0, None, "the soft contacts' damping ratio (solref's second; 1)"),
+                "memory": Setting(int, 0, None, "MuJoCo's arena for contacts and solver (MB; 0: sized from the scene, "
+                                                f"{_ARENA_BASE >> 20} MB and {_ARENA_PER_BODY >> 10} KB per dynamic body)")}
 
     @classmethod
     def frontier(cls, fast=False):
@@ -57,9 +64,9 @@ class MuJoCo(Engine):
         return out
 
     def __init__(self, solver="newton", tolerance=1e-8, iterations=100, order="columns", timeconst=0.02,
-                 dampratio=1.0):
+                 dampratio=1.0, memory=0):
         super().__init__(solver=solver, tolerance=tolerance, iterations=iterations, order=order, timeconst=timeconst,
-                         dampratio=dampratio)
+                         dampratio=dampratio, memory=memory)
 
     @classmethod
     def version(cls) -> str:
@@ -80,10 +87,10 @@ class MuJoCo(Engine):
         def step():
             world.move_kinematic()
             if not record:
-                mujoco.mj_step(m, d)
+                world.step()
                 return LoopStep(None, None, None, 0.0, dt_ratio=1.0)
             bodies = world.bodies()
-            mujoco.mj_step(m, d)
+            world.step()
             contacts = world.contacts()
             deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
             return LoopStep(bodies, contacts, None, deepest, dt_ratio=1.0, engine_stats=world.solve_stats())
@@ -117,14 +124,16 @@ class MuJoCoWorld:
     """A scene's planar MuJoCo model and data, and what its records need (which geom is which
     fixture, which joints are which body's, Box2D's body records)."""
 
-    def __init__(self, scene, solver, tolerance, iterations, order, timeconst, dampratio):
+    def __init__(self, scene, solver, tolerance, iterations, order, timeconst, dampratio, memory=0):
         mujoco = _library()
         from ..build import build_world
         self.records = build_world(scene).bodies()
         self.scene = scene
         dynamic = [i for i, b in enumerate(scene.bodies) if b.type == "dynamic"]
         listed = dynamic if order == "scene" else _banded(scene, dynamic, order)
-        xml, geoms = _model_xml(scene, self.records, listed, solver, tolerance, iterations, (timeconst, dampratio))
+        arena = memory << 20 if memory else _ARENA_BASE + _ARENA_PER_BODY * len(dynamic)
+        xml, geoms = _model_xml(scene, self.records, listed, solver, tolerance, iterations, (timeconst, dampratio),
+                                arena)
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
         m, d = self.model, self.data
@@ -154,6 +163,18 @@ class MuJoCoWorld:
         self.removed = set()
         self.dt = float(scene.dt)
         mujoco.mj_forward(m, d)
+
+    def step(self):
+        """One mj_step; a Failure where the arena was too small for the step's contacts (MuJoCo
+        then drops constraints with a warning and steps on: a wrong step, not a slow one)."""
+        mujoco = _library()
+        full = [mujoco.mjtWarning.mjWARN_CONTACTFULL, mujoco.mjtWarning.mjWARN_CNSTRFULL]
+        before = [self.data.warning[w].number for w in full]
+        mujoco.mj_step(self.model, self.data)
+        if [self.data.warning[w].number for w in full] != before:
+            from ...errors import Failure
+            raise Failure(f"MuJoCo's arena ({self.model.narena >> 20} MB) is too small for this scene's "
+                          f"contacts at t = {self.data.time:g} s: ask for more with --set memory=MB")
 
     def move_kinematic(self):
         """Kinematic bodies (mocap) moved on at their velocity, as Box2D moves them."""
@@ -282,7 +303,7 @@ def _fmt(*values):
     return " ".join(f"{float(v):.9g}" for v in values)
 
 
-def _model_xml(scene, records, listed, solver, tolerance, iterations, solref):
+def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, arena):
     """The scene's planar MJCF, and one (fixture, body, friction, restitution) per geom in the
     model's geom order (MuJoCo numbers geoms as the file lists them, the world's first)."""
     from ..._box2d import polygon_radius
@@ -333,7 +354,7 @@ def _model_xml(scene, records, listed, solver, tolerance, iterations, solref):
         parts.append(f'<body name="b{i}">{joints}{inertial}' + shapes_xml(i, b)
                      + "</body>")
     warm = "enable" if scene.solver.warm_starting else "disable"
-    xml = (f'<mujoco model="{scene.name}"><compiler angle="radian"/>'
+    xml = (f'<mujoco model="{scene.name}"><compiler angle="radian"/><size memory="{arena >> 10}K"/>'
            f'<option timestep="{_fmt(scene.dt)}" gravity="{_fmt(g[0], 0, g[1])}" solver="{solver.upper() if solver != "newton" else "Newton"}" '
            f'tolerance="{_fmt(tolerance)}" iterations="{iterations}"><flag warmstart="{warm}"/></option>'
            f'<default><geom solref="{_fmt(*solref)}"/></default>'
