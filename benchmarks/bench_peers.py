@@ -79,12 +79,13 @@ def main():
             project = min(project, timed(lambda: next(through), args.steps))
             if raw is not None:
                 bare = min(bare, timed(raw, args.steps))
-        bare = bare if raw is not None else float("nan")
         recording = iter(steps(world, scene, engine.stepper(world, scene, record=True), count=10 ** 9))
         record = min(timed(lambda: next(recording), args.steps) for _ in range(args.repeats))
         base = project if base is None else base
-        print(f"| {engine.label} {engine.version()} | {1e3 * bare:.3f} | {1e3 * project:.3f} | "
-              f"{project / bare:.2f}x | {1e3 * record:.3f} | {project / base:.1f}x |", flush=True)
+        label = engine.label if engine.version() in engine.label else f"{engine.label} {engine.version()}"
+        bare_ms, ratio = (f"{1e3 * bare:.3f}", f"{project / bare:.2f}x") if raw is not None else ("-", "-")
+        print(f"| {label} | {bare_ms} | {1e3 * project:.3f} | {ratio} | {1e3 * record:.3f} | {project / base:.1f}x |",
+              flush=True)
 
 
 def orders(args):
