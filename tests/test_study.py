@@ -140,6 +140,7 @@ def test_the_frontier_study_judges_every_setting_by_one_residual(tmp_path):
     summary = text.split("## For each engine setting")[1].split("\n## ")[0]
     assert summary.count("\n| pile 30 | Box2D") + summary.count("\n| pyramid 5 | Box2D") == engine_rows
     assert (out / "frontier-pile-30.png").stat().st_size > 0 and (out / "frontier-pyramid-5.png").stat().st_size > 0
+    assert (out / "frontier-pile-30-penetration.png").stat().st_size > 0   # (every engine: pymunk's, MuJoCo's)
     r = dc("study", "frontier", "--scenes", "pile 7", "-o", tmp_path / "none")
     assert r.returncode == 2 and "no scene 'pile 7'" in r.stderr
 

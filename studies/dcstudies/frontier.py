@@ -266,6 +266,18 @@ def frontier_plot(rows, path):
                   "hollow: fails the criteria)")
 
 
+def penetration_plot(rows, path):
+    """Time per step against the deepest penetration at rest, every family: the one measure every
+    engine has (pymunk's, MuJoCo's and v3's steps have no one-step residual here)."""
+    def label(r):
+        return r.setting.split()[0] if r.setting[:1].isdigit() else r.setting.split()[-1]
+    points = {f: [(r.ms_per_step, r.penetration * 100, r.passed, label(r), False) for r in rows if r.family == f]
+              for f in families_of(rows)}
+    accuracy_plot(families_of(rows), points, path, "deepest penetration at rest (cm)",
+                  f"{rows[0].scene}: penetration against time, every engine\n(labels: iterations, substeps, "
+                  "sweeps, tolerance; hollow: fails the criteria)")
+
+
 def markdown(rows, lines, fast, protocol_text):
     setting = "fast (the test suite's small variants)" if fast else "full"
     parts = [f"# What accuracy costs at scale: {setting}\n",
@@ -276,16 +288,20 @@ def markdown(rows, lines, fast, protocol_text):
              summary_table(rows)]
     for scene in dict.fromkeys(r.scene for r in rows):
         parts += [f"## {scene}\n", f"![{scene}](frontier-{slug(scene)}.png)\n",
+                  f"![{scene}: penetration](frontier-{slug(scene)}-penetration.png)\n",
                   scene_table([r for r in rows if r.scene == scene])]
     return "\n".join(parts)
 
 
 def write(rows, lines, out_dir, fast, protocol_text):
-    """frontier.md, frontier.csv and a plot per scene into out_dir (an open output folder)."""
+    """frontier.md, frontier.csv and two plots per scene (by residual, by penetration) into
+    out_dir (an open output folder)."""
     from pathlib import Path
     out_dir = Path(out_dir)
     for scene in dict.fromkeys(r.scene for r in rows):
-        frontier_plot([r for r in rows if r.scene == scene], out_dir / f"frontier-{slug(scene)}.png")
+        mine = [r for r in rows if r.scene == scene]
+        frontier_plot(mine, out_dir / f"frontier-{slug(scene)}.png")
+        penetration_plot(mine, out_dir / f"frontier-{slug(scene)}-penetration.png")
     atomic.write_text(out_dir / "frontier.csv", csv_text(rows, Row))
     text = markdown(rows, lines, fast, protocol_text)
     atomic.write_text(out_dir / "frontier.md", text)
