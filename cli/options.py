@@ -370,9 +370,10 @@ def pick_cases(cases, labels):
 
 
 def pick_families(known, names):
-    """--families: these names, each one of the study's `known` families (all of them without);
-    a name it does not have is a bad option value (exit 2, listing the families it has)."""
-    unknown = [f for f in names or () if f not in known]
+    """--families: these names, each one of the study's `known` families or one setting of one
+    ('FAMILY:SETTING', checked by the study); all of them without. A family it does not have is a
+    bad option value (exit 2, listing the families it has)."""
+    unknown = [f for f in names or () if f.partition(":")[0] not in known]
     if unknown:
         raise click.BadParameter(f"no family {unknown[0]!r}; the families are: {', '.join(known)}",
                                  param_hint="--families")
@@ -382,7 +383,8 @@ def pick_families(known, names):
 def families_option(example):
     """--families for a study whose settings come in families (the names in its tables)."""
     return click.option("--families", type=CommaList(click.STRING, "FAMILY[,...]"),
-                        help=f"Only these families' settings, by their names in the tables (e.g. {example!r}).")
+                        help=f"Only these families' settings, by their names in the tables (e.g. {example!r}); "
+                             "FAMILY:SETTING picks one setting (e.g. 'pymunk:10 iterations').")
 
 
 class SoftStepOption(click.Option):

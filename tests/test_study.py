@@ -162,3 +162,10 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
         [("Box2D 2.4.1", f"{n} iterations") for n in (1, 8, 64)] + [("PSOR 1.7", "8 sweeps"), ("PSOR 1.7", "residual 0.001")]
     r = dc("study", "frontier", "--fast", "--families", "PGS,Jacobi", "-o", tmp_path / "none")
     assert r.returncode == 2 and "no family 'Jacobi'" in r.stderr and "lagged" in r.stderr
+    # one setting of a family: FAMILY:SETTING, as the tables name it
+    one = F.settings(families=("pymunk:10 iterations", "MuJoCo Newton:tolerance 1e-08", "PGS"), tolerances=(1e-2,))
+    assert [(s.family, s.label) for s in one] == [("pymunk", "10 iterations"), ("MuJoCo Newton", "tolerance 1e-08")] + \
+        [("PGS", f"{n} sweeps") for n in F.BUDGETS] + [("PGS", "residual 0.01")]
+    r = dc("study", "frontier", "--fast", "--families", "pymunk:11 iterations", "-o", tmp_path / "none")
+    assert r.returncode == 2 and "'11 iterations'" in r.stderr and "10 iterations" in r.stderr
+    assert not (tmp_path / "none").exists()

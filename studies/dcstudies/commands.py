@@ -197,6 +197,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
       dc study frontier -o reports/big --scenes 'pyramid 5050' --tolerances 1e-2
       dc study frontier -o reports/frontier-engines --families 'Box2D 2.4.1,Box2D v3'
       dc study frontier -o reports/peers --scenes 'pile 1000' --families 'pymunk,MuJoCo Newton'
+      dc study frontier -o reports/one --scenes 'pile 10000' --families 'MuJoCo Newton:tolerance 1e-08'
       dc study frontier --fast -o reports/mine --families PGS --accelerate mypkg.solvers:Mine
     """
     from deepcontact import atomic

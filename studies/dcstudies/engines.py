@@ -126,6 +126,22 @@ def plugin_settings(methods, tolerances):
             for t in tolerances]
 
 
+def picked(settings, families):
+    """The settings `families` names (all without): a family by its name, one setting by
+    'FAMILY:SETTING' (its names in the tables, e.g. 'pymunk:10 iterations'). OptionError where a
+    'FAMILY:SETTING' names no setting of the study, listing the family's."""
+    if families is None:
+        return settings
+    for name in families:
+        family, _, label = name.partition(":")
+        if label and not any(s.family == family and s.label == label for s in settings):
+            from deepcontact.errors import OptionError
+            labels = [s.label for s in settings if s.family == family]
+            raise OptionError(f"{family} has no setting {label!r} here; its settings are: {', '.join(labels)}",
+                              "--families")
+    return [s for s in settings if s.family in families or f"{s.family}:{s.label}" in families]
+
+
 def settings(families=None, plugins=(), fast=False):
     """Every setting of every family (only those of `families`, where given), in the order of the
     tables; then a family per plug-in method named in `plugins`. fast: each engine's few settings
@@ -136,8 +152,7 @@ def settings(families=None, plugins=(), fast=False):
                   Setting("Box2D v3", "4 substeps, from 2.4.1's rest", "box2d3", 4, rest="box2d", variant=True)]
     out += [Setting(family, f"residual {t:g}", "pgs", CAP, tolerance=t, accelerate=method)
             for family, (method, tolerances) in PROJECT.items() for t in tolerances]
-    out = out if families is None else [s for s in out if s.family in families]
-    return out + plugin_settings(plugins, TOLERANCES)
+    return picked(out, families) + plugin_settings(plugins, TOLERANCES)
 
 
 @dataclass

@@ -44,7 +44,8 @@ from deepcontact.solver.settings import CAP
 from . import stability as S
 from deepcontact.evaluate.contestant import RemoteMethod
 from deepcontact.solver.methods import is_native
-from .engines import Setting, applicable, engine_families, engine_settings, families_of, plugin_line, plugin_settings, run_setting, step_ms
+from .engines import (Setting, applicable, engine_families, engine_settings, families_of, picked, plugin_line,
+                      plugin_settings, run_setting, step_ms)
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
@@ -72,7 +73,8 @@ FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"front
 
 def settings(fast=False, families=None, tolerances=None, plugins=()):
     """Every setting of every family, in the order of the tables (fewer with fast); only the
-    `families` named and the project's `tolerances` given, where given; then a family per plug-in
+    `families` named (a family, or one setting as 'FAMILY:SETTING': engines.picked) and the
+    project's `tolerances` given, where given; then a family per plug-in
     method in `plugins`, at those tolerances (engines.plugin_settings)."""
     default_tolerances, budgets = ((1e-2, 1e-4), (8,)) if fast else (TOLERANCES, BUDGETS)
     tolerances = default_tolerances if tolerances is None else tolerances
@@ -80,8 +82,7 @@ def settings(fast=False, families=None, tolerances=None, plugins=()):
     for family, w, method in PROJECT:
         out += [Setting(family, f"{n} sweeps", "pgs", n, 0.0, w, method) for n in budgets if method == "none"]
         out += [Setting(family, f"residual {t:g}", "pgs", CAP, t, w, method) for t in tolerances]
-    out = out if families is None else [s for s in out if s.family in families]
-    return out + plugin_settings(plugins, tolerances)
+    return picked(out, families) + plugin_settings(plugins, tolerances)
 
 
 @dataclass
