@@ -53,14 +53,6 @@ def _version(package):
         return None
 
 
-def engine_versions():
-    """{label: version} of every built-in engine whose library is a Python distribution (pymunk,
-    MuJoCo; None where not installed), read from its metadata: importing MuJoCo costs 0.4 s."""
-    from .simulate.engines import ENGINES
-    engines = (ENGINES.load(name) for name in ENGINES.builtin())
-    return {e.label: _version(e.distribution) for e in engines if e.distribution}
-
-
 def protocol(threads=DEFAULT_THREADS, jobs=1):
     """A dict of how this process measures: threads, -j, versions, CPU, load, command line."""
     from . import __version__, _box2d
@@ -74,7 +66,8 @@ def protocol(threads=DEFAULT_THREADS, jobs=1):
         "versions": {"deepcontact": __version__, "box2d": box2d_version, "numpy": _version("numpy"),
                      "torch": _version("torch"), "python": platform.python_version(),
                      "box2d3": getattr(_box2d, "box2d3_version", None),
-                     "engines": engine_versions()},
+                     # the peer engines' wheels (None where not installed)
+                     "pymunk": _version("pymunk"), "mujoco": _version("mujoco")},
         "cpu": cpu_model(), "cores": os.cpu_count(), "load_average": load,
         "command": command_line, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
@@ -101,5 +94,5 @@ def protocol_line(p):
             f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {md_text(p['cpu'])} ({p['cores']} cores; "
             f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}"
             f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}"
-            f"{''.join(f', {label} {version}' for label, version in v.get('engines', {}).items() if version)}, numpy "
+            f"{', pymunk ' + v['pymunk'] if v.get('pymunk') else ''}{', MuJoCo ' + v['mujoco'] if v.get('mujoco') else ''}, numpy "
             f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}")

@@ -18,11 +18,10 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
     assert r.exit_code == 0, r.stderr
     p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
     assert p["threads"] == 2 and p["jobs"] == 1 and p["cpu"] and p["cores"] >= 1
-    assert set(p["versions"]) == {"deepcontact", "box2d", "box2d3", "numpy", "torch", "python", "engines"}
-    assert set(p["versions"]["engines"]) == {"pymunk", "MuJoCo"}   # (every built-in engine with a wheel)
+    assert set(p["versions"]) == {"deepcontact", "box2d", "box2d3", "numpy", "torch", "python", "pymunk", "mujoco"}
     from deepcontact import _box2d
     assert p["versions"]["box2d3"] == getattr(_box2d, "box2d3_version", None)   # (None in a build without v3)
-    assert all(v for k, v in p["versions"].items() if k not in ("box2d3", "engines"))
+    assert all(v for k, v in p["versions"].items() if k not in ("box2d3", "pymunk", "mujoco"))
     assert len(p["load_average"]) == 3
     text = (tmp_path / "r" / "report.md").read_text()
     assert "Measured with 2 torch threads per process and 1 worker process (-j)" in text

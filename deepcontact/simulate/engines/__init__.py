@@ -63,8 +63,6 @@ class Engine:
     A subclass sets `name`, `label`, `SETTINGS` and implements `version`, `build` and `stepper`."""
     name = None                 # --engine, the manifest's engine, the step files' <engine name>
     label = None                # how tables and reports name it ("pymunk")
-    distribution = None         # the installed Python distribution that is its library (pymunk): every
-                                # report's protocol line names its version
     rows = "own"                # whose own contact rows its step files hold: box2d, box2d3, or own (none)
     poses_box2d_problem = False   # its steps pose Box2D 2.4.1's contact problem (replay, evaluate, export)
     continuous = False          # it does continuous collision (the scene's `continuous` effect)

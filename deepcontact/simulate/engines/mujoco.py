@@ -33,7 +33,7 @@ _ARENA_PER_BODY = 128 << 10
 class MuJoCo(Engine):
     """MuJoCo stepping the scene's planar model with `solver` (newton, cg or pgs) to `tolerance`,
     at most `iterations` iterations a step (MuJoCo's defaults: newton, 1e-8, 100)."""
-    name, label, distribution = "mujoco", "MuJoCo", "mujoco"
+    name, label = "mujoco", "MuJoCo"
     DEFAULT_COUNT = 100
     SETTINGS = {"solver": Setting(("newton", "cg", "pgs"), help="MuJoCo's constraint solver"),
                 "tolerance": Setting(float, 0, None, "the solver's tolerance (its stop test)",

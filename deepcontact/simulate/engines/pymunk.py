@@ -24,7 +24,7 @@ _SLEEP_SPEED = 0.01      # m/s: Box2D's b2_linearSleepTolerance
 
 class Pymunk(Engine):
     """pymunk stepping the scene with `iterations` solver iterations (pymunk's default 10)."""
-    name, label, distribution = "pymunk", "pymunk", "pymunk"
+    name, label = "pymunk", "pymunk"
     sleeps = rests_in_skin = True   # (its collision slop is Box2D's linear slop: it rests as 2.4.1 does)
     DEFAULT_COUNT = 10
     SETTINGS = {"iterations": Setting(int, 1, None, "solver iterations per step (pymunk's default 10)",
