@@ -103,14 +103,17 @@ def test_mujoco_records_its_iterations_and_stop_test(tmp_path):
     assert float(stats["improvement"]) >= 0 and float(stats["gradient"]) >= 0
 
 
-def test_a_mujoco_arena_too_small_for_the_contacts_stops_the_run_in_one_line(tmp_path):
-    # (MuJoCo itself would drop the constraints that do not fit, warn and step on)
+def test_a_mujoco_arena_too_small_for_the_contacts_stops_the_run_in_one_line(tmp_path, monkeypatch):
+    # (MuJoCo itself would drop the constraints that do not fit, warn and step on, and append the
+    # warning to MUJOCO_LOG.TXT in the working folder)
+    monkeypatch.chdir(tmp_path)
     out = tmp_path / "run"
     code, text = _run("simulate", "pile", "--param", "count=300", "--param", "box=60", "--param", "sigma=15", "--engine", "mujoco",
                       "--set", "memory=1",
                       "--steps", "300", "-q", "-o", str(out))
     assert code == 1 and "--set memory" in text and "Traceback" not in text, text
     assert len(text.strip().splitlines()) == 1, text
+    assert sorted(p.name for p in tmp_path.iterdir()) == []   # (no MUJOCO_LOG.TXT, no partial run)
 
 
 def test_mujoco_orders_bodies_row_by_row_and_keeps_the_records_in_scene_order():

@@ -16,6 +16,8 @@ equal); it has no restitution, sleeping or continuous collision. Each step file 
 forces of the step times dt (impulses, Box2D's signs: on the second body, along the normal from
 the first) and, in <engine_step>, the solver's iterations and its last improvement and gradient
 (its stop test: either below the tolerance)."""
+import logging
+
 import numpy as np
 
 from ...resources import check_step_work
@@ -103,7 +105,16 @@ def _library():
         import mujoco
     except ImportError:
         raise InputError("MuJoCo is not installed: make setup installs it (mujoco==4.0.1)") from None
+    if mujoco.get_mju_user_warning() is not _warn:
+        # MuJoCo's own handler prints and appends to MUJOCO_LOG.TXT in the working folder: a file
+        # of the user's we did not ask to write. Its warnings go to the log (stderr) instead.
+        mujoco.set_mju_user_warning(_warn)
     return mujoco
+
+
+def _warn(message):
+    # (a full arena is reported by MuJoCoWorld.step as the run's error; the rest are warnings)
+    logging.getLogger(__name__).log(logging.DEBUG if "arena" in message else logging.WARNING, "MuJoCo: %s", message)
 
 
 def _banded(scene, dynamic, order):
