@@ -108,9 +108,8 @@ def test_a_mujoco_arena_too_small_for_the_contacts_stops_the_run_in_one_line(tmp
     # warning to MUJOCO_LOG.TXT in the working folder)
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "run"
-    code, text = _run("simulate", "pile", "--param", "count=300", "--param", "box=60", "--param", "sigma=15", "--engine", "mujoco",
-                      "--set", "memory=1",
-                      "--steps", "300", "-q", "-o", str(out))
+    code, text = _run("simulate", "pile", "--param", "count=300", "--param", "box=60", "--param", "sigma=15",
+                      "--engine", "mujoco", "--set", "memory=1", "--steps", "300", "-q", "-o", str(out))
     assert code == 1 and "--set memory" in text and "Traceback" not in text, text
     assert len(text.strip().splitlines()) == 1, text
     assert sorted(p.name for p in tmp_path.iterdir()) == []   # (no MUJOCO_LOG.TXT, no partial run)

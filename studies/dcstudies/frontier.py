@@ -255,28 +255,30 @@ def scene_table(rows):
     return markdown_table(COLUMNS, rows)
 
 
-def frontier_plot(rows, path):
-    """Time per step against the one-step residual, one line per family with a residual (v3 has
-    none); hollow markers fail the scene's criteria."""
-    def label(r):   # iterations or sweeps; a tolerance
+def _plot(rows, path, accuracy, ylabel, title):
+    """Time per step against accuracy(row), a line per family; labels: the iterations, substeps or
+    sweeps, or the tolerance; hollow markers fail the scene's criteria."""
+    def label(r):
         return r.setting.split()[0] if r.setting[:1].isdigit() else r.setting.split()[-1]
-    points = {f: [(r.ms_per_step, r.residual_median, r.passed, label(r), False) for r in rows if r.family == f]
+    points = {f: [(r.ms_per_step, accuracy(r), r.passed, label(r), False) for r in rows if r.family == f]
               for f in families_of(rows)}
-    accuracy_plot(families_of(rows), points, path, "one-step residual (median over the samples)",
-                  f"{rows[0].scene}: accuracy against time\n(labels: iterations, sweeps, tolerance; "
-                  "hollow: fails the criteria)")
+    accuracy_plot(families_of(rows), points, path, ylabel,
+                  f"{rows[0].scene}: {title}\n(labels: iterations, substeps, sweeps, tolerance; hollow: fails "
+                  "the criteria)")
+
+
+def frontier_plot(rows, path):
+    """Time per step against the one-step residual, a line per family with a residual (v3's,
+    pymunk's and MuJoCo's steps have none)."""
+    _plot(rows, path, lambda r: r.residual_median, "one-step residual (median over the samples)",
+          "accuracy against time")
 
 
 def penetration_plot(rows, path):
     """Time per step against the deepest penetration at rest, every family: the one measure every
-    engine has (pymunk's, MuJoCo's and v3's steps have no one-step residual here)."""
-    def label(r):
-        return r.setting.split()[0] if r.setting[:1].isdigit() else r.setting.split()[-1]
-    points = {f: [(r.ms_per_step, r.penetration * 100, r.passed, label(r), False) for r in rows if r.family == f]
-              for f in families_of(rows)}
-    accuracy_plot(families_of(rows), points, path, "deepest penetration at rest (cm)",
-                  f"{rows[0].scene}: penetration against time, every engine\n(labels: iterations, substeps, "
-                  "sweeps, tolerance; hollow: fails the criteria)")
+    engine has."""
+    _plot(rows, path, lambda r: r.penetration * 100, "deepest penetration at rest (cm)",
+          "penetration against time, every engine")
 
 
 def markdown(rows, lines, fast, protocol_text):

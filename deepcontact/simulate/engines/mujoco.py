@@ -83,9 +83,6 @@ class MuJoCo(Engine):
         return MuJoCoWorld(scene, **self._settings)
 
     def stepper(self, world, scene, record=True):
-        mujoco = _library()
-        m, d = world.model, world.data
-
         def step():
             world.move_kinematic()
             if not record:
@@ -147,6 +144,10 @@ class MuJoCoWorld:
                                 arena)
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
+        self._mj_step = mujoco.mj_step
+        # the warnings MuJoCo gives when the arena cannot hold a step's contacts or rows
+        self._full = [self.data.warning[w] for w in (mujoco.mjtWarning.mjWARN_CONTACTFULL,
+                                                     mujoco.mjtWarning.mjWARN_CNSTRFULL)]
         m, d = self.model, self.data
         # geom id -> (fixture, body, friction, restitution), as arrays for the contacts
         self.geom_fixture = np.array([g[0] for g in geoms], np.int32)
@@ -178,11 +179,9 @@ class MuJoCoWorld:
     def step(self):
         """One mj_step; a Failure where the arena was too small for the step's contacts (MuJoCo
         then drops constraints with a warning and steps on: a wrong step, not a slow one)."""
-        mujoco = _library()
-        full = [mujoco.mjtWarning.mjWARN_CONTACTFULL, mujoco.mjtWarning.mjWARN_CNSTRFULL]
-        before = [self.data.warning[w].number for w in full]
-        mujoco.mj_step(self.model, self.data)
-        if [self.data.warning[w].number for w in full] != before:
+        before = [w.number for w in self._full]
+        self._mj_step(self.model, self.data)
+        if [w.number for w in self._full] != before:
             from ...errors import Failure
             raise Failure(f"MuJoCo's arena ({self.model.narena >> 20} MB) is too small for this scene's "
                           f"contacts at t = {self.data.time:g} s: ask for more with --set memory=MB")
