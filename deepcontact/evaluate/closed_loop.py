@@ -1,10 +1,10 @@
 """Closed loop: each start drives the simulation through the project's solver.
 
 Unlike replay, errors feed back: a start that leaves the solver short of the answer changes the
-next state. Every variant runs alike: its start (and a plug-in method) in a process of its own
-(contestant.py), each step through Python; every call is timed here and the fixed cost of its
-round trips (an echo of the same request, just before it) is subtracted, so a start that gives
-what Box2D's warm start gives measures about what builtin does. What the path itself costs over
+next state. Every variant runs alike: its start (and a plug-in method) in a sandbox of its own
+(deepcontact/judge), each step through Python; every call is charged here (its wall time or its
+sandbox's CPU, the larger) and the null contestant's round trip of the same request is subtracted,
+so a start that gives what Box2D's warm start gives measures what builtin does. What the path itself costs over
 one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
 same scene from the same initial state under the same stopping rule; the reference trajectory is
 the one stepped with each step's reference solution (float64 PGS to a residual of 1e-12).
@@ -29,7 +29,8 @@ from ..solver.metrics import drift, energy, positions
 from ..solver.settings import SolveSettings
 from ..solver.methods import is_native
 from ..warmstart.starts import StepContext, is_oracle
-from .contestant import RemoteMethod, checked_answer
+from ..judge import RemoteMethod, deadline_for
+from ..judge.wire import checked_answer
 from .replay import _contestants, _visible, variants
 
 if TYPE_CHECKING:   # (for the annotations only)
@@ -59,13 +60,13 @@ class LoopResult:
 
 
 class _Adapter:
-    """A variant's contestant (its own process: replay._contestants) as the loop's start_fn, and
-    for a plug-in method as its solve_fn; every call timed here, the transport (the echo of the
-    same request just before it) subtracted, and each answer checked and judged here. Remembers
-    the solution applied, for the prev start."""
+    """A variant's contestant (its own sandbox: replay._contestants) as the loop's start_fn, and
+    for a plug-in method as its solve_fn; every call charged here, the transport (the null
+    contestant's round trip of the same request) subtracted, and each answer checked and judged
+    here. Remembers the solution applied, for the prev start."""
 
-    def __init__(self, label, contestant):
-        self.name, self.contestant, self.timing = label, contestant, []
+    def __init__(self, label, contestant, null):
+        self.name, self.contestant, self.null, self.timing = label, contestant, null, []
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
         self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
@@ -82,9 +83,10 @@ class _Adapter:
                           persisted=persisted, previous=self.previous, index=int(problem.index),
                           variant=self.name, trajectory="loop")
         request = {"op": "start", "ctx": _visible(ctx, self.contestant.traits, self.name)}
-        null = self.contestant.echo(request, problem.points)
-        took, _, arrays = self.contestant.call(request)
-        # the step's time holds the echo and the call's own round trip: neither is the contestant's
+        deadline = deadline_for(problem.points)
+        took, _, arrays = self.contestant.call(request, deadline)
+        null = self.null.call(request, deadline)[0]
+        # the step's time holds the null's round trip and the call's own: neither is the contestant's
         self.pending += null + min(null, took)
         self.timing.append(max(took - null, 0.0))
         return tuple(checked_answer(self.name, arrays, problem.points))
@@ -92,7 +94,7 @@ class _Adapter:
     def solve(self, problem, start_n, start_t, settings):
         """A plug-in method's solve, in the contestant's process (RemoteMethod); its answer judged here."""
         if self.method is None:
-            self.method = RemoteMethod(settings.accelerate, self.contestant)
+            self.method = RemoteMethod(settings.accelerate, self.contestant, self.null)
         return self.method.solve(problem, start_n, start_t, settings)
 
     def solved(self, solution):
@@ -234,11 +236,11 @@ def _interleaved(scene, runs, steps):
     judge warming up, touches them all alike (run one after the other, the first ran 20-30%
     slower)."""
     from ..simulate.pgs_loop import PGSStepper
-    loops = []
+    loops, contestants, null = [], [], None
     try:
-        for v, asked, counted in runs:
-            contestant = _contestants([v], asked)[v.label]
-            adapter = _Adapter(v.label, contestant)
+        contestants, null = _contestants([v for v, _, _ in runs], runs[0][1])
+        for (v, asked, counted), contestant in zip(runs, contestants):
+            adapter = _Adapter(v.label, contestant, null)
             loops.append(adapter)
             engine = Box2D(solver=asked, start="builtin", start_fn=adapter)
             world = engine.build(scene)
@@ -254,8 +256,8 @@ def _interleaved(scene, runs, steps):
                 if done is None or not loops[i].follower.take(done):
                     going.remove(i)
     finally:
-        for adapter in loops:
-            adapter.contestant.close()
+        for c in (*contestants, *([null] if null is not None else [])):
+            c.close()
     out = []
     for adapter in loops:
         t = adapter.follower.trajectory()

@@ -73,9 +73,9 @@ def judge(rows, summary, base, is_oracle):
         out["runner_up"] = runner
         out["best_vs_runner_up"] = list(ratio_interval(*_paired(_totals(rows, best), _totals(rows, runner)), rng))
         clear = clear and out["best_vs_runner_up"][2] < 1.0
-    # and on the total as well as the median: a start that is slow on a few steps (40 ms on 5% of
-    # them) wins the median while its whole run costs more
-    totals = {name: sum(_totals(rows, name).values()) for name in summary}
+    # and on the total (its setup included) as well as the median: a start that is slow on a few
+    # steps (40 ms on 5% of them) wins the median while its whole run costs more
+    totals = {name: sum(_totals(rows, name).values()) + float(summary[name].get("setup_ms", 0.0)) for name in summary}
     out["total_ms"] = totals
     beaten = [n for n in dict.fromkeys((base, out["runner_up"])) if n is not None and n != best
               and totals[n] < totals[best]]

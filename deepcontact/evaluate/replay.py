@@ -1,7 +1,7 @@
 """Replay: every recorded step solved from every start (and every over-relaxation w), on the
 same problem.
 
-For each step and variant, in the variant's own process (contestant.py): the start is made, then
+For each step and variant, in the variant's own sandbox (deepcontact/judge): the start is made, then
 the variant's method solves from it until the stopping measure falls below the tolerance or the
 cap, a warming call and REPEATS timed ones, each timed and judged here; a built-in method's
 convergence history is traced here, off the clock, from the same start. Recorded per step
@@ -30,7 +30,8 @@ from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
 from ..warmstart.starts import ANSWER_COLUMNS, StepContext
-from .contestant import checked_answer, unanswered
+from ..judge import Contestant, deadline_for, start_all
+from ..judge.wire import checked_answer, unanswered
 
 
 @dataclass
@@ -59,8 +60,8 @@ class Row:
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
     solve_ms_repeats: np.ndarray = None   # each of the REPEATS timed solves (solve_ms is their median)
     transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
-    setup_ms: float = 0.0      # the variant's import and construction in its process (once, not per step)
-    memo: bool = False         # repeats answered faster than first calls beyond noise: charged the first call
+    setup_ms: float = 0.0      # the variant's import and construction in its sandbox, charged (once, not per step)
+    memo: bool = False         # its repeats answered far faster than its own first calls: charged the first call
     first_ms: float = 0.0      # the first solve call of the step (before the timed repeats; judged like them)
     left_running: tuple = (0, 0)   # threads and processes the variant's process had running after a call
 
@@ -200,9 +201,10 @@ def _net(took, nulls):
 
 
 def _contestants(table, settings):
-    """One Contestant per variant, each in its own process (contestant.py)."""
+    """([Contestant] in the table's order, the null contestant): one sandbox per variant
+    (deepcontact/judge), started side by side, and the null contestant that measures transport
+    for all of them."""
     from ..protocol import threads_asked
-    from .contestant import Contestant
     spec, checkpoint, networks = None, None, []
     for v in table:
         inner = getattr(v.start, "start", v.start)
@@ -213,25 +215,30 @@ def _contestants(table, settings):
                 from ..model.arch import NETWORKS
                 networks = [] if predictor.network in NETWORKS.builtin() else [predictor.network]
             spec = spec or getattr(predictor, "spec", None) or getattr(obj, "spec", None)
-    out = {}
+    made = []
     try:
         for v in table:
-            out[v.label] = Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, threads_asked, networks)
+            made.append(Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, threads_asked, networks))
+        made.append(Contestant("(null)", "null", null=True))
     except BaseException:
-        for c in out.values():
+        for c in made:
             c.close()
         raise
-    return out
+    start_all(made)
+    return made[:-1], made[-1]
 
 
 def evaluate_simulation(task):
     """The rows of one simulation: (run, seed, files, scene), the variants, the solver settings,
-    every, seed, budgets. Every variant's calls go to its own process (contestant.py), in an order
-    shuffled per step by a fixed seed, each timed here and its answer judged here."""
+    every, seed, budgets. Every variant's calls go to its own sandbox (deepcontact/judge), in an
+    order shuffled per step by a fixed seed, each charged here (its wall time or its sandbox's CPU,
+    the larger) less the null contestant's round trip of the same request, and its answer judged
+    here."""
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
     mode, max_iterations, tolerance, stop_on = settings.mode, settings.max_iterations, settings.tolerance, settings.stop_on
     measure = MEASURES.index(stop_on)
-    contestants = _contestants(table, settings)
+    made, null = _contestants(table, settings)
+    contestants = {v.label: c for v, c in zip(table, made)}
     rows = []
     try:
         previous, before = set(), None
@@ -252,13 +259,14 @@ def evaluate_simulation(task):
             ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
             order = np.random.default_rng([seed, sim_seed, int(header["index"])]).permutation(len(table))
             step_rows = {}
+            deadline = deadline_for(problem.points)
             for i in order:
                 v = table[i]
                 c = contestants[v.label]
                 request = {"op": "start", "ctx": _visible(ctx, c.traits, v.label)}
-                null = c.echo(request, problem.points)
-                took, _, arrays = c.call(request)
-                predict_s = _net(took, [null, c.echo(request, problem.points)])   # (the least of two)
+                took, _, arrays = c.call(request, deadline)
+                # (the null contestant's round trip of the same request, the least of two)
+                predict_s = _net(took, [null.call(request, deadline)[0] for _ in range(2)])
                 normal, tangent = checked_answer(v.label, arrays, problem.points)
                 step_rows[i] = (v, c, normal, tangent, predict_s)
             asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate) for i, (v, *_) in step_rows.items()}
@@ -267,20 +275,21 @@ def evaluate_simulation(task):
                             "settings": asked[i]} for i in step_rows}
             took = {i: [] for i in step_rows}
             answers = {i: [] for i in step_rows}
-            # the transport of a solve, before the rounds and after them (the least counts)
-            nulls = {i: [step_rows[i][1].echo(requests[i], problem.points)] for i in order}
+            # the transport of a solve (the null contestant's, the same for every variant), before the
+            # rounds and after them (the least counts)
+            first = next(iter(requests))
+            nulls = [null.call(requests[first], deadline)[0]]
             # interleaved (a busy moment of the machine touches every variant), after a round that
             # warms each process up (the first call after a start's ran slower; its answer is judged
             # like every other, so no call is one a contestant could treat differently)
             for rep in range(-1, REPEATS):
                 for i in order:
-                    t, head, arrays = step_rows[i][1].call(requests[i])
+                    t, head, arrays = step_rows[i][1].call(requests[i], deadline)
                     answers[i].append((head, arrays))
                     took[i].append(t)
-            for i in order:
-                nulls[i].append(step_rows[i][1].echo(requests[i], problem.points))
+            nulls.append(null.call(requests[first], deadline)[0])
             # each call's time (the first, the warming one, kept apart: a memo shows against it)
-            times = {i: [_net(t, nulls[i]) * 1e3 for t in took[i]] for i in step_rows}
+            times = {i: [_net(t, nulls) * 1e3 for t in took[i]] for i in step_rows}
             firsts = {i: times[i].pop(0) for i in step_rows}
             for i in step_rows:
                 step_rows[i][1].status()
@@ -316,12 +325,13 @@ def evaluate_simulation(task):
                           accelerate=v.accelerate, fallback=bool(head["fallback"]),
                           reference_residual=reference.residual, reference_pivoted=reference.pivoted,
                           factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(times[i]),
-                          transport_ms=min(nulls[i]) * 1e3, setup_ms=c.setup_s * 1e3, first_ms=firsts[i])
+                          transport_ms=min(nulls) * 1e3, setup_ms=max(c.setup_s - null.setup_s, 0.0) * 1e3,
+                          first_ms=firsts[i])
                 if budgets:
-                    row.budget_ms, row.budget_residual = _budgets(c, problem, requests[i], min(nulls[i]), v.label)
+                    row.budget_ms, row.budget_residual = _budgets(c, problem, requests[i], min(nulls), v.label)
                 rows.append(row)
     finally:
-        for c in contestants.values():
+        for c in (*contestants.values(), null):
             c.close()
     for row in rows:   # (noticed after any call, ended with its process)
         row.left_running = tuple(next(c for label, c in contestants.items() if label == row.start).left_running)
@@ -369,7 +379,8 @@ def _budgets(contestant, problem, request, null, label):
     ms, residual = [], []
     for k, b in enumerate((BUDGETS[0], *BUDGETS)):
         took, _, arrays = contestant.call({**request, "settings": request["settings"].but(max_iterations=b,
-                                                                                           tolerance=0.0)})
+                                                                                           tolerance=0.0)},
+                                          deadline_for(problem.points))
         judged = judge(problem, *checked_answer(label, arrays, problem.points)).residual
         if k:
             ms.append(_net(took, [null]) * 1e3)
@@ -377,19 +388,26 @@ def _budgets(contestant, problem, request, null, label):
     return np.array(ms), np.array(residual)
 
 
+# A memo's repeats answer in a lookup's time: the bar below which a variant's own repeats, against
+# its own first calls, say it kept answers. Judged only on steps whose first call took long enough
+# to be more than the machine's jitter (MEMO_FLOOR_MS), and only with MEMO_STEPS such steps.
+MEMO_BAR = 0.5
+MEMO_FLOOR_MS = 0.5
+MEMO_STEPS = 3
+
+
 def flag_memos(rows):
-    """Marks the variants whose repeated solves answered faster than their first call of each step
-    by more than the other variants' repeats do (a memo of answers by the problem's bytes): their
-    rows are charged the first call (Row.memo). The bar: a median repeat/first ratio under half the
-    median of every variant's (and of 1)."""
+    """Marks the variants whose repeated solves answered far faster than their own first call of
+    each step (a memo of answers by the problem's bytes): their rows are charged the first call
+    (Row.memo). Each variant is held to a fixed bar on its own times (the median over its steps of
+    fastest repeat / first call under MEMO_BAR), so no other variant, colluding or slow, moves it."""
     ratios = {}
     for r in rows:
-        if r.solve_ms_repeats is not None and len(r.solve_ms_repeats) and r.first_ms > 0:
+        if r.solve_ms_repeats is not None and len(r.solve_ms_repeats) and r.first_ms >= MEMO_FLOOR_MS:
             ratios.setdefault(r.start, []).append(float(np.min(r.solve_ms_repeats) / r.first_ms))
-    medians = {name: float(np.median(v)) for name, v in ratios.items()}
-    bar = 0.5 * float(np.median(list(medians.values()) + [1.0]))
+    flagged = {name for name, v in ratios.items() if len(v) >= MEMO_STEPS and float(np.median(v)) < MEMO_BAR}
     for r in rows:
-        if medians.get(r.start, 1.0) < bar:
+        if r.start in flagged:
             r.memo, r.solve_ms = True, float(r.first_ms)
     return rows
 
@@ -420,7 +438,7 @@ def summarize(rows, starts, max_iterations):
             "fallbacks": float(np.mean([r.fallback for r in rs])),
             "factorizations_median": float(np.median([r.factorizations for r in rs])),
             "predict_ms_p90": float(np.percentile(pred, 90)), "total_ms_p90": float(np.percentile(pred + sol, 90)),
-            "total_ms_sum": float(np.sum(pred + sol)),
+            "total_ms_sum": float(np.sum(pred + sol)) + float(max(r.setup_ms for r in rs)),
             "transport_ms_median": float(np.median([r.transport_ms for r in rs])),
             "setup_ms": float(max(r.setup_ms for r in rs)),
             "memo": bool(any(r.memo for r in rs)),

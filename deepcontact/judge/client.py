@@ -1,0 +1,335 @@
+"""The judge's side: a contestant in its sandbox, and one timed call that holds the charging rule.
+
+A call costs the larger of its wall time (the judge's clock, around the request and its answer)
+and the CPU time the contestant's sandbox used since its previous call ended (its control group:
+every process and thread it runs, between calls too). Its setup (import and construction) is
+charged the same way, from the moment it said it was ready. Every call has a deadline; past it the
+contestant is stopped and named. Transport is measured against the null contestant (the same
+sandbox and path, no plug-in code: `Contestant.null()`), never by a contestant; what the
+contestant left running is counted from its control group by the judge, never asked.
+"""
+import importlib.util
+import os
+import pickle
+import sys
+import time
+
+from ..plugins import PluginError
+from .sandbox import Sandbox
+from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
+
+TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
+
+SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
+CALL_FLOOR = 60.0        # seconds every call may take, at least
+CALL_PER_POINT = 0.02    # and this many more per contact point of the step
+
+
+def deadline_for(points):
+    """The seconds a call on a step of `points` contact points may take before its contestant is
+    stopped and named (stated in the report)."""
+    return CALL_FLOOR + CALL_PER_POINT * max(int(points), 0)
+
+
+def deadline_rule():
+    """The deadline rule in words, for reports."""
+    return f"{CALL_FLOOR:g} s + {1e3 * CALL_PER_POINT:g} ms per contact point a call; {SETUP_DEADLINE:g} s to set up"
+
+
+# --- What a contestant may read ---------------------------------------------------------------------
+
+def _module_root(module):
+    """The file or folder of the top-level module `module` belongs to (found, never imported), or None."""
+    top = module.split(".")[0]
+    if not top or top in sys.builtin_module_names:
+        return None
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    if spec.submodule_search_locations:
+        return list(spec.submodule_search_locations)
+    return [spec.origin] if spec.origin and os.path.isabs(spec.origin) else None
+
+
+def _plugin_modules(names):
+    """The modules the plug-ins named here live in (module:attr names, entry points of installed
+    packages), read from their names and the packages' metadata, nothing imported."""
+    from ..model.arch import NETWORKS
+    from ..solver.methods import SOLVERS
+    from ..warmstart.starts import STARTS
+    out = []
+    for name in names:
+        if not isinstance(name, str):
+            continue
+        if ":" in name:
+            out.append(name.partition(":")[0])
+            continue
+        for registry in (STARTS, SOLVERS, NETWORKS):
+            if name in registry.builtin():
+                break
+            found = registry.installed().get(name)
+            if found is not None:
+                out.append(found.value.partition(":")[0])
+                break
+    return out
+
+
+def readable_paths(names=(), modules=(), files=()):
+    """What a contestant's sandbox may read: the interpreter and its installed packages,
+    deepcontact, the plug-ins' own modules (by name, and `modules`) and `files`."""
+    import site
+    import deepcontact
+    out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
+           os.path.dirname(deepcontact.__file__)]
+    try:
+        out += site.getsitepackages() + [site.getusersitepackages()]
+    except AttributeError:
+        pass
+    for module in [*_plugin_modules(names), *modules]:
+        out += _module_root(module) or []
+    out += [os.fspath(f) for f in files if f]
+    return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
+
+
+def _path_for_guest():
+    return [os.getcwd() if p == "" else os.path.abspath(p) for p in sys.path]
+
+
+# --- One contestant -------------------------------------------------------------------------------
+
+class Contestant:
+    """One variant's start and method in a sandbox of their own (sandbox.py). Made in two halves,
+    so that several sandboxes start side by side: the constructor starts the sandbox, `begin()`
+    sends the setup and charges it. `call` returns (charged seconds, header, arrays)."""
+
+    def __init__(self, label, name, start=None, method="none", spec=None, checkpoint=None, threads=1, networks=(),
+                 null=False, describe=None):
+        self.label, self.null_contestant = label, null
+        self.left_running = [0, 0]
+        self.setup_s, self.setup_wall_s, self.start_s = 0.0, 0.0, 0.0
+        if describe is not None:
+            setup = {"describe": describe, "path": _path_for_guest(), "threads": 1}
+            names, modules = describe["starts"] + describe["methods"], []
+        elif null:
+            setup = {"null": True, "name": "null", "path": _path_for_guest(), "threads": 1}
+            names, modules = [], []
+        else:
+            made = _by_name(name, start)
+            setup = {"name": name, "start": ("name", name) if made else ("object", pickle.dumps(start)),
+                     "method": method, "spec": spec, "checkpoint": checkpoint, "threads": threads,
+                     "path": _path_for_guest(), "networks": list(networks)}
+            names = [name, method, *networks]
+            modules = [] if made else [type(getattr(start, "start", start)).__module__]
+        self._setup = setup
+        self.sandbox = Sandbox(readable_paths(names, modules, [checkpoint] if checkpoint else []))
+        import socket
+        from multiprocessing.connection import Connection
+        ours, theirs = socket.socketpair()
+        argv = [sys.executable, "-m", "deepcontact.judge.guest", str(theirs.fileno())]
+        if checkpoint:
+            argv.append("torch")
+        self._started = time.perf_counter()
+        try:
+            self.sandbox.start(argv, pass_fds=[theirs.fileno()])
+        except BaseException:
+            ours.close()
+            self.sandbox.kill()
+            raise
+        finally:
+            theirs.close()
+        self.conn = Connection(ours.detach())
+        self._begun = False
+
+    @classmethod
+    def null(cls):
+        """The null contestant: the same sandbox and path, no plug-in code (the judge's measure of transport)."""
+        return cls("(null)", "null", null=True).begin()
+
+    def begin(self):
+        """Waits for the sandbox, sends the setup and charges it; returns self."""
+        if self._begun:
+            return self
+        self._begun = True
+        try:
+            self._receive(SETUP_DEADLINE, "starting")   # ("ready": the interpreter and the solver, before its clock)
+            self.start_s = time.perf_counter() - self._started
+            self.cpu_last = self.sandbox.cpu_seconds()
+            self.baseline = self.sandbox.processes()
+            self.setup_s, header, _ = self._timed(pickle.dumps(self._setup), SETUP_DEADLINE, "setting up")
+            self.setup_wall_s = self._wall
+        except BaseException:
+            self.close()
+            raise
+        if "traits" in header:
+            self.traits = {k: bool(header["traits"].get(k)) for k in TRAITS}
+        self.header = header
+        return self
+
+    def call(self, request, deadline=None):
+        """Sends a request; (seconds charged, header, arrays) of its answer, checked."""
+        data = pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL)
+        return self._timed(data, deadline or CALL_FLOOR, "answering")
+
+    def _timed(self, data, deadline, doing):
+        t0 = time.perf_counter()
+        try:
+            self.conn.send_bytes(data)
+        except OSError:
+            self._ended(doing)
+        header, arrays = self._receive(deadline, doing)
+        self._wall = time.perf_counter() - t0
+        cpu = self.sandbox.cpu_seconds()
+        used = 0.0 if cpu is None or self.cpu_last is None else cpu - self.cpu_last
+        self.cpu_last = cpu
+        return max(self._wall, used), header, arrays
+
+    def _receive(self, deadline, doing):
+        if not self.conn.poll(deadline):
+            self.close()
+            raise PluginError(f"the variant {self.label!r} did not answer within {deadline:g} s while {doing} "
+                              f"(its deadline: {deadline_rule()}); it was stopped")
+        try:
+            data = self.conn.recv_bytes(ANSWER_MAX)
+        except (EOFError, ConnectionError):
+            self._ended(doing)
+        except OSError as e:   # (an answer over ANSWER_MAX: "bad message length")
+            self.close()
+            raise PluginError(f"the variant {self.label!r}: its answer could not be read ({e}; at most "
+                              f"{ANSWER_MAX >> 20} MiB)") from None
+        header, arrays = unpack(data, f"the variant {self.label!r}")
+        if "error" in header:
+            raise PluginError(f"the variant {self.label!r}: {header['error']}") \
+                from ContestantTraceback(str(header.get("traceback", "")))
+        return header, arrays
+
+    def _ended(self, doing):
+        try:
+            self.sandbox.process.wait(2)
+        except Exception:
+            pass
+        how = self.sandbox.exit_description()
+        self.close()
+        raise PluginError(f"the variant {self.label!r}: its process ended while {doing}"
+                          + (f" ({how})" if how else "")) from None
+
+    def status(self):
+        """Counts, on the judge's side, what the contestant has running beyond what it had when
+        ready (threads, processes): noticed in left_running, and ended with its sandbox."""
+        now, base = self.sandbox.processes(), getattr(self, "baseline", None)
+        if now is not None and base is not None:
+            self.left_running = [max(a, b - c) for a, b, c in zip(self.left_running, now, base)]
+
+    def close(self):
+        """Ends the sandbox and everything in it."""
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        self.sandbox.kill()
+
+
+def start_all(contestants):
+    """Begins every contestant (their sandboxes started side by side); on a failure, closes them all."""
+    try:
+        for c in contestants:
+            c.begin()
+    except BaseException:
+        for c in contestants:
+            c.close()
+        raise
+    return contestants
+
+
+class ContestantTraceback(Exception):
+    """The traceback of an error in a contestant's process, as it printed it: the cause of the
+    judge's PluginError, so that -v shows the plug-in's own file and line."""
+
+    def __str__(self):
+        return "\n\n" + self.args[0]
+
+
+def _by_name(name, start):
+    """Whether `start` is what make_starts makes for `name` (so the contestant makes it itself)."""
+    from ..warmstart.starts import NAMES, STARTS, Checked, Remote
+    if isinstance(start, Checked) and isinstance(start.start, Remote):
+        return True
+    if isinstance(start, Remote):
+        return True
+    if isinstance(start, Checked):
+        return start.name == name and STARTS.resolved(name) is not None and \
+            type(start.start).__module__ == getattr(STARTS.resolved(name), "__module__", None)
+    return name in NAMES and type(start).__module__.startswith("deepcontact.")
+
+
+def describe(starts=(), methods=()):
+    """Describes the plug-in starts and methods among these names from a sandbox of their own
+    (their code is imported there, never in this process): fills STARTS.described and
+    SOLVERS.described. PluginError naming one that cannot be loaded."""
+    from ..solver.methods import SOLVERS, is_native
+    from ..warmstart.starts import NAMES, STARTS
+    wanted = {"starts": [n for n in dict.fromkeys(starts) if n not in NAMES and n not in STARTS.described],
+              "methods": [n for n in dict.fromkeys(methods) if not is_native(n) and n not in SOLVERS.described]}
+    if not (wanted["starts"] or wanted["methods"]):
+        return
+    listed = ", ".join(wanted["starts"] + wanted["methods"])
+    c = Contestant(f"the plug-ins {listed}", "describe", describe=wanted)
+    try:
+        try:
+            c.begin()
+        except PluginError as e:
+            if "its process ended" in str(e):
+                raise PluginError(f"the plug-ins {listed}: their process ended while they were loaded") from None
+            raise PluginError(str(e).replace(f"the variant {c.label!r}: ", "", 1)) from e.__cause__
+        found = c.header.get("described")
+        for registry, kind in ((STARTS, "starts"), (SOLVERS, "methods")):
+            for name in wanted[kind]:
+                info = (found or {}).get(kind, {}).get(name)
+                if not isinstance(info, dict):
+                    raise PluginError(f"the plug-in {name!r} was not described by its process")
+                registry.described[name] = info
+    finally:
+        c.close()
+
+
+class RemoteMethod:
+    """A plug-in solver method in a contestant's sandbox, as a loop's solve_fn (the closed loop's,
+    in the variant's own contestant; the studies', in one of its own): each solve a call charged
+    here, the same request's round trip through the null contestant (take_transport) to be
+    subtracted from the step's time, the answer checked and judged here."""
+
+    def __init__(self, name, contestant=None, null=None):
+        from ..warmstart.starts import Builtin
+        self.name = name
+        self.contestant = contestant or Contestant(name, "builtin", Builtin(), name).begin()
+        self.null, self._own_null = null, null is None
+        self.pending = 0.0
+
+    def solve(self, problem, start_n, start_t, settings):
+        import dataclasses
+        import numpy as np
+        from ..solver.methods import check_plausible, judge
+        n = problem.points
+        request = {"op": "solve", "problem": pickle.dumps(unanswered(problem)),
+                   "normal": np.asarray(start_n, np.float64), "tangent": np.asarray(start_t, np.float64),
+                   "settings": settings}
+        if self.null is None:
+            self.null = Contestant.null()
+        took, header, arrays = self.contestant.call(request, deadline_for(n))
+        self.pending += min(self.null.call(request, deadline_for(n))[0], took)
+        normal, tangent = checked_answer(self.contestant.label, arrays, n)
+        check_plausible(self.name, problem, normal, tangent)
+        judged = judge(problem, normal, tangent)
+        return dataclasses.replace(judged, iterations=int(header.get("iterations", 0)), relaxation=settings.relaxation)
+
+    def take_transport(self):
+        """Seconds of round trips since the last call (a step's), to subtract from its time."""
+        out, self.pending = self.pending, 0.0
+        return out
+
+    def close(self):
+        self.contestant.close()
+        if self._own_null and self.null is not None:
+            self.null.close()

@@ -1,0 +1,189 @@
+"""The contestant's side: a fresh interpreter in its sandbox (sandbox.py), started by the judge as
+`python -m deepcontact.judge.guest FD`, serving one variant on the socket FD.
+
+It imports the solver, says it is ready (the judge then reads its CPU clock), receives its setup,
+makes the start and method the setup names (that is its setup, charged to it), and answers
+requests until the judge closes the socket. It answers only the calls a contestant is charged
+for ("start", "solve"); the judge measures transport and counts what is left running itself.
+A setup of {"null": True} makes the null contestant: no plug-in code, a start of zeros and a
+solve that hands its start back, the judge's measure of transport.
+"""
+import os
+import pickle
+import signal
+import sys
+
+import numpy as np
+
+from ..errors import InputError
+from ..plugins import PluginError
+from .wire import pack
+
+TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
+
+
+def _parameters(factory):
+    import inspect
+    try:
+        return inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        return {}
+
+
+def _make(setup):
+    """(start, traits) made from the setup's names (and the method made, where a plug-in)."""
+    from ..model.arch import NETWORKS
+    from ..plugins import guest
+    from ..solver import methods
+    from ..warmstart.starts import STARTS, Checked, asks, make_starts
+    for name in setup["networks"]:   # (the checkpoint's plug-in network, which the user named with --arch)
+        NETWORKS.load(name)
+    kind, what = setup["start"]
+    if kind == "name":
+        factory = STARTS.load(what)
+        if not methods.is_native(setup["method"]):
+            methods.SOLVERS.load(setup["method"])
+        predictor = None
+        if getattr(factory, "needs_model", False) or "predictor" in _parameters(factory):
+            from ..model.inference import Predictor
+            predictor = Predictor(setup["checkpoint"], threads=setup["threads"]) if setup["checkpoint"] else None
+        start = make_starts([what], spec=setup["spec"], predictor=predictor)[what]
+    else:
+        start = pickle.loads(what)
+    if not methods.is_native(setup["method"]):
+        methods.method(setup["method"])
+    traits = {k: bool(asks(setup["name"], start, k)) for k in TRAITS}
+    if isinstance(start, Checked):
+        # (its step is its own already, unpickled for each call: no private copy; and its answer is
+        # checked by the judge, off its clock, not here on it)
+        name, inner = start.name, start.start
+
+        def start(ctx):
+            with guest(f"the start {name!r}"):
+                return inner(ctx)
+    return start, traits
+
+
+def _describe(names):
+    """What a judge may know of these plug-ins (starts and methods, by name), loaded here: each
+    start's traits and origin, each method's origin and whether it takes a w."""
+    from ..solver import methods
+    from ..warmstart.starts import STARTS
+    out = {"starts": {}, "methods": {}}
+    for name in names["starts"]:
+        factory = STARTS.load(name)
+        traits = {k: bool(getattr(factory, k, False)) for k in TRAITS}
+        traits["needs_model"] = traits["needs_model"] or "predictor" in _parameters(factory)
+        out["starts"][name] = {"traits": traits, "origin": STARTS.origin(name)}
+    for name in names["methods"]:
+        factory = methods.SOLVERS.load(name)
+        out["methods"][name] = {"origin": methods.method_origin(name),
+                                "takes_relaxation": bool(getattr(factory, "takes_relaxation", False))}
+    return out
+
+
+def _line(e):
+    return str(e) if isinstance(e, InputError) else f"{type(e).__name__}: {e}"
+
+
+def _traceback(e):
+    """The contestant's own traceback, chain and all, as text (shown by dc's -v)."""
+    import traceback
+    return "".join(traceback.format_exception(e))
+
+
+def _error(e):
+    return pack({"error": _line(e), "traceback": _traceback(e)})
+
+
+def _answer(op, request, setup, start):
+    from ..solver.methods import call_plugin, is_native, solve
+    if setup.get("null"):   # (the judge's measure of transport: the request read, nothing done)
+        if op == "solve":
+            pickle.loads(request["problem"])
+            return pack({"iterations": 0, "fallback": 0, "factorizations": 0},
+                        {"normal": request["normal"], "tangent": request["tangent"], "claims": np.zeros(0)})
+        n = request["ctx"].problem.points
+        return pack({"seconds": {}}, {"normal": np.zeros(n), "tangent": np.zeros(n)})
+    if op == "start":
+        value = start(request["ctx"])
+        try:
+            return pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds or {}).items()}},
+                        {"normal": value.normal, "tangent": value.tangent})
+        except (AttributeError, TypeError, ValueError) as e:
+            raise PluginError(f"the start {setup['name']!r} must return a StartValue(normal, tangent, seconds): "
+                              f"{type(e).__name__}: {e}") from None
+    if op == "solve":
+        # (a plug-in's claimed residuals come with every answer, alike on every call; a built-in's
+        # trace the judge makes itself, from the same start, off the clock)
+        problem, asked = pickle.loads(request["problem"]), request["settings"]
+        if is_native(asked.accelerate):
+            s = solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False)
+            return pack({"iterations": int(s.iterations), "fallback": int(s.relaxation_fallback > 0),
+                         "factorizations": int(getattr(s, "factorizations", 0))},
+                        {"normal": s.normal_impulse, "tangent": s.tangent_impulse, "claims": np.zeros(0)})
+        normal, tangent, claims = call_plugin(problem, request["normal"], request["tangent"], asked)
+        return pack({"iterations": len(claims), "fallback": 0, "factorizations": 0},
+                    {"normal": normal, "tangent": tangent, "claims": claims})
+    return pack({"error": f"no such request {op!r}"})
+
+
+def serve(conn):
+    """A contestant: says it is ready, makes what its setup names, then answers requests until
+    the judge closes the connection."""
+    from .. import interrupts, plugins, protocol
+    # dc's rules for guests hold here too (a KeyboardInterrupt a plug-in raises is its own: no
+    # stop signal reaches a contestant, which the judge ends itself)
+    interrupts.install("dc contestant")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    plugins.contained = True
+    conn.send_bytes(pack({"ready": 1}))
+    setup = pickle.loads(conn.recv_bytes())
+    sys.path[:0] = [p for p in setup["path"] if p not in sys.path]
+    protocol.use_threads(setup["threads"])
+    if "describe" in setup:   # (a description of plug-ins, for a judge that must not import them)
+        try:
+            conn.send_bytes(pack({"described": _describe(setup["describe"])}))
+        except BaseException as e:
+            conn.send_bytes(_error(e))
+        return
+    start = None
+    try:
+        if not setup.get("null"):
+            start, traits = _make(setup)
+        else:
+            traits = {k: False for k in TRAITS}
+        conn.send_bytes(pack({"traits": traits}))
+    except BaseException as e:
+        conn.send_bytes(_error(e))
+        return
+    while True:
+        try:
+            request = pickle.loads(conn.recv_bytes())
+        except EOFError:
+            return
+        try:
+            reply = _answer(request["op"], request, setup, start)
+        except BaseException as e:
+            reply = _error(e)
+        conn.send_bytes(reply)
+
+
+def main(argv):
+    from multiprocessing.connection import Connection
+    conn = Connection(int(argv[1]))
+    if len(argv) > 2 and argv[2] == "torch":   # (a contestant that loads a trained model: torch imported before its clock)
+        import deepcontact.model.inference  # noqa: F401
+    import deepcontact.solver.methods  # noqa: F401 (before "ready": the same cost for every contestant)
+    import deepcontact.warmstart.starts  # noqa: F401
+    code = 0
+    try:
+        serve(conn)
+    except BaseException:
+        code = 1
+    sys.stdout.flush()
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    main(sys.argv)

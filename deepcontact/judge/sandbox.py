@@ -1,0 +1,392 @@
+"""A contestant's fence, built the way contest judges build theirs (IOI's isolate, DOMjudge's
+runguard): each contestant is a fresh interpreter started by bubblewrap in namespaces of its own
+(user, PID, mount, IPC, network, UTS, cgroup), in a control group of its own that the judge owns.
+
+What it sees: a read-only view of the interpreter, the installed packages, deepcontact and the
+plug-in's own module (and a checkpoint it is given); a private /tmp; its own /proc, which shows
+only its own processes. No run folder, no output being written, no other process: a rival or the
+judge cannot be named, so cannot be signalled, reniced, traced or read. Seccomp refuses ptrace,
+cross-process memory reads and the calls that would change the fence; no new privileges; no
+capabilities. Limits: processes, memory (the control group where the kernel lends one, else the
+address space), file size.
+
+What it is charged: the CPU time of its control group, which counts every process and thread it
+starts, detached ones included, from its start to its end; read by the judge, never asked of the
+contestant. When the sandbox ends, its PID namespace ends with it: nothing it started survives.
+
+Where the kernel or the machine refuses a fence (no bubblewrap, no user namespaces, no writable
+control group), the contestant still runs, as a plain process of its own, and `fences()` says
+which fences are missing: the report's protocol line and the verdict print it. Nothing is dropped
+silently.
+"""
+import ctypes
+import errno
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from functools import lru_cache
+
+MEMORY_LIMIT = 8 << 30     # bytes a contestant's processes may hold together
+PROCESS_LIMIT = 64         # processes and threads a contestant may run at once
+FILE_LIMIT = 256 << 20     # bytes one file it writes may reach (its /tmp is a private tmpfs of this size)
+
+# System calls a contestant never needs and a hostile one would use to cross its fence.
+DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidfd_getfd", "perf_event_open",
+                "bpf", "userfaultfd", "keyctl", "add_key", "request_key", "mount", "umount2", "pivot_root",
+                "move_mount", "open_tree", "fsopen", "fsmount", "unshare", "setns", "open_by_handle_at",
+                "name_to_handle_at", "kexec_load", "kexec_file_load", "init_module", "finit_module",
+                "delete_module", "reboot", "swapon", "swapoff", "syslog", "acct", "quotactl", "settimeofday",
+                "clock_settime", "clock_adjtime", "adjtimex", "iopl", "ioperm", "lookup_dcookie")
+
+# Files of /etc an interpreter reads (the loader's cache, names of users and zones); the rest of
+# /etc is not the contestant's to read.
+_ETC = ("ld.so.cache", "ld.so.conf", "ld.so.conf.d", "localtime", "passwd", "group", "nsswitch.conf",
+        "alternatives", "os-release")
+_SYSTEM = ("/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin")
+
+
+# --- What the machine lends ------------------------------------------------------------------------
+
+@lru_cache(maxsize=None)
+def _bwrap():
+    """The bubblewrap binary, if it can build a sandbox here (tried once: user namespaces may be
+    off), else None."""
+    path = shutil.which("bwrap")
+    if path is None:
+        return None
+    try:
+        done = subprocess.run([path, "--unshare-all", "--unshare-user", "--die-with-parent", "--cap-drop", "ALL",
+                               "--ro-bind", "/", "/", "--proc", "/proc", "true"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return path if done.returncode == 0 else None
+
+
+def _mounts():
+    """[(mount point, fstype, super options)] of this process's mounts."""
+    out = []
+    try:
+        with open("/proc/self/mountinfo") as f:
+            for line in f:
+                left, _, right = line.partition(" - ")
+                fields, tail = left.split(), right.split()
+                if len(fields) > 4 and len(tail) >= 3:
+                    out.append((fields[4], tail[0], tail[2]))
+    except OSError:
+        pass
+    return out
+
+
+def _own_cgroups():
+    """{hierarchy: path} of this process's control groups ("" for cgroup v2, else the v1 controller)."""
+    out = {}
+    try:
+        with open("/proc/self/cgroup") as f:
+            for line in f:
+                _, controllers, path = line.rstrip("\n").split(":", 2)
+                for c in (controllers.split(",") if controllers else [""]):
+                    out[c] = path
+    except OSError:
+        pass
+    return out
+
+
+def _writable_dir(path):
+    probe = os.path.join(path, f"dc-probe-{os.getpid()}")
+    try:
+        os.mkdir(probe)
+    except OSError:
+        return False
+    try:
+        os.rmdir(probe)
+    except OSError:
+        pass
+    return True
+
+
+@lru_cache(maxsize=None)
+def _cgroup_roots():
+    """Where the judge may make contestants' control groups: {"cpu": (kind, dir), "pids": ..., "memory": ...}
+    (kind "v2" or "v1"), each a folder of the judge's own group it can write in."""
+    own, found = _own_cgroups(), {}
+    for point, fstype, options in _mounts():
+        if fstype == "cgroup2" and "" in own:
+            base = os.path.normpath(point + own[""])
+            if not _writable_dir(base):
+                continue
+            found.setdefault("cpu", ("v2", base))   # (cpu.stat's usage is kept in every v2 group)
+            try:
+                with open(os.path.join(base, "cgroup.subtree_control")) as f:
+                    enabled = f.read().split()
+            except OSError:
+                enabled = []
+            for c in ("pids", "memory"):
+                if c in enabled:
+                    found.setdefault(c, ("v2", base))
+        elif fstype == "cgroup":
+            for c, wanted in (("cpuacct", "cpu"), ("pids", "pids"), ("memory", "memory")):
+                if c in options.split(",") and c in own and wanted not in found:
+                    base = os.path.normpath(point + own[c])
+                    if _writable_dir(base):
+                        found[wanted] = ("v1", base)
+    return found
+
+
+@lru_cache(maxsize=None)
+def _seccomp_program():
+    """The seccomp filter (a BPF program's bytes, from libseccomp) refusing DENIED_CALLS with EPERM,
+    or None without libseccomp."""
+    try:
+        lib = ctypes.CDLL("libseccomp.so.2", use_errno=True)
+    except OSError:
+        return None
+    lib.seccomp_init.restype = ctypes.c_void_p
+    lib.seccomp_init.argtypes = [ctypes.c_uint32]
+    lib.seccomp_syscall_resolve_name.argtypes = [ctypes.c_char_p]
+    lib.seccomp_rule_add.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int, ctypes.c_uint]
+    lib.seccomp_export_bpf.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    lib.seccomp_release.argtypes = [ctypes.c_void_p]
+    allow, refuse = 0x7FFF0000, 0x00050000 | errno.EPERM   # SCMP_ACT_ALLOW, SCMP_ACT_ERRNO(EPERM)
+    ctx = lib.seccomp_init(allow)
+    if not ctx:
+        return None
+    try:
+        for name in DENIED_CALLS:
+            number = lib.seccomp_syscall_resolve_name(name.encode())
+            if number >= 0 and lib.seccomp_rule_add(ctx, refuse, number, 0) != 0:
+                return None
+        fd = os.memfd_create("dc-seccomp")
+        try:
+            if lib.seccomp_export_bpf(ctx, fd) != 0:
+                return None
+            os.lseek(fd, 0, os.SEEK_SET)
+            return os.read(fd, 1 << 20)
+        finally:
+            os.close(fd)
+    finally:
+        lib.seccomp_release(ctx)
+
+
+def fences():
+    """{fence: True/False} of what this machine lends a contestant, for the report's protocol line."""
+    bwrap, roots = _bwrap() is not None, _cgroup_roots()
+    return {"namespaces": bwrap, "read-only view": bwrap, "seccomp": bwrap and _seccomp_program() is not None,
+            "cpu accounting": "cpu" in roots, "process limit": "pids" in roots,
+            "memory limit": True, "file size limit": True}
+
+
+def missing_fences():
+    """The names of the fences this machine refuses (empty when every fence holds)."""
+    return [name for name, held in fences().items() if not held]
+
+
+def describe_fences():
+    """One phrase for reports: the fences used, and any missing."""
+    missing = missing_fences()
+    roots = _cgroup_roots()
+    memory = "memory (control group)" if "memory" in roots else "memory (address space)"
+    used = ("bubblewrap namespaces (user, PID, mount, IPC, network), a read-only view, seccomp, "
+            f"CPU charged from the control group, limits on processes, {memory} and file size")
+    return used if not missing else f"{used}; MISSING here: {', '.join(missing)}"
+
+
+# --- One sandbox -----------------------------------------------------------------------------------
+
+class Sandbox:
+    """One contestant's fence: its control group and its bubblewrap process. `start(argv, fds)`
+    runs the command inside; `cpu_seconds()` is everything its processes have used; `kill()` ends
+    them all and removes the group."""
+
+    _count = 0
+
+    def __init__(self, readable=()):
+        Sandbox._count += 1
+        self.name = f"dc-contestant-{os.getpid()}-{Sandbox._count}"
+        self.readable = [os.path.abspath(p) for p in readable if p and os.path.exists(p)]
+        self.groups = {}   # {controller: folder}
+        self.process = None
+        self._cpu_file = None
+
+    def _make_groups(self):
+        for controller, (kind, base) in _cgroup_roots().items():
+            folder = os.path.join(base, self.name)
+            try:
+                os.mkdir(folder)
+            except FileExistsError:
+                pass
+            except OSError:
+                continue
+            self.groups[controller] = (kind, folder)
+        settings = {("pids", "v2"): ("pids.max", PROCESS_LIMIT), ("pids", "v1"): ("pids.max", PROCESS_LIMIT),
+                    ("memory", "v2"): ("memory.max", MEMORY_LIMIT),
+                    ("memory", "v1"): ("memory.limit_in_bytes", MEMORY_LIMIT)}
+        for controller, (kind, folder) in list(self.groups.items()):
+            if (controller, kind) in settings:
+                name, value = settings[controller, kind]
+                try:
+                    with open(os.path.join(folder, name), "w") as f:
+                        f.write(str(value))
+                except OSError:
+                    del self.groups[controller]
+        if "cpu" in self.groups:
+            kind, folder = self.groups["cpu"]
+            self._cpu_file = (kind, os.path.join(folder, "cpu.stat" if kind == "v2" else "cpuacct.usage"))
+
+    def _enter(self):
+        """In the child, before exec: into the control groups, the limits on."""
+        import resource
+        for _, folder in dict.fromkeys(self.groups.values()):
+            with open(os.path.join(folder, "cgroup.procs"), "w") as f:
+                f.write("0")
+        resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_LIMIT, FILE_LIMIT))
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+        if "memory" not in self.groups:
+            resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+        os.setsid()
+
+    def _argv(self, argv, seccomp_fd):
+        bwrap = _bwrap()
+        if bwrap is None:
+            return list(argv)
+        out = [bwrap, "--unshare-all", "--unshare-user", "--uid", "65534", "--gid", "65534", "--disable-userns",
+               "--die-with-parent", "--new-session", "--cap-drop", "ALL", "--proc", "/proc", "--dev", "/dev",
+               "--size", str(FILE_LIMIT), "--tmpfs", "/tmp", "--chdir", "/tmp", "--clearenv"]
+        for path in _SYSTEM:
+            if os.path.exists(path):
+                out += ["--ro-bind", path, path] if not os.path.islink(path) else \
+                    ["--symlink", os.readlink(path), path]
+        for name in _ETC:
+            if os.path.exists(f"/etc/{name}"):
+                out += ["--ro-bind", f"/etc/{name}", f"/etc/{name}"]
+        for path in dict.fromkeys(self.readable):
+            out += ["--ro-bind", path, path]
+        for key in ("PATH", "LANG", "LC_ALL", "TZ", "OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE"):
+            if key in os.environ:
+                out += ["--setenv", key, os.environ[key]]
+        out += ["--setenv", "HOME", "/tmp", "--setenv", "PYTHONDONTWRITEBYTECODE", "1"]
+        if seccomp_fd is not None:
+            out += ["--seccomp", str(seccomp_fd)]
+        return out + list(argv)
+
+    def start(self, argv, pass_fds=(), env=None):
+        """Starts argv inside the fence (its standard output sent to our standard error)."""
+        self._make_groups()
+        seccomp_fd = None
+        program = _seccomp_program() if _bwrap() is not None else None
+        if program is not None:
+            seccomp_fd = os.memfd_create("dc-seccomp", 0)
+            os.write(seccomp_fd, program)
+            os.lseek(seccomp_fd, 0, os.SEEK_SET)
+        try:
+            err = sys.stderr.fileno() if _has_fileno(sys.stderr) else subprocess.DEVNULL
+            self.process = subprocess.Popen(
+                self._argv(argv, seccomp_fd), pass_fds=[*pass_fds, *([seccomp_fd] if seccomp_fd is not None else [])],
+                stdin=subprocess.DEVNULL, stdout=err, stderr=err, env=env, preexec_fn=self._enter)
+        finally:
+            if seccomp_fd is not None:
+                os.close(seccomp_fd)
+        return self.process
+
+    def cpu_seconds(self):
+        """CPU seconds used by every process the sandbox ran, from its start (None without accounting)."""
+        if self._cpu_file is None:
+            return None
+        kind, path = self._cpu_file
+        try:
+            with open(path) as f:
+                text = f.read()
+        except OSError:
+            return None
+        if kind == "v1":
+            return int(text) * 1e-9
+        for line in text.splitlines():
+            if line.startswith("usage_usec "):
+                return int(line.split()[1]) * 1e-6
+        return None
+
+    def processes(self):
+        """(threads, processes) running in the sandbox now, counted by the judge (None without a group)."""
+        for _, folder in self.groups.values():
+            try:
+                with open(os.path.join(folder, "cgroup.procs")) as f:
+                    procs = len(f.read().split())
+                with open(os.path.join(folder, "cgroup.threads" if os.path.exists(os.path.join(folder, "cgroup.threads"))
+                                       else "tasks")) as f:
+                    threads = len(f.read().split())
+                return threads, procs
+            except OSError:
+                continue
+        return None
+
+    def exit_description(self):
+        """How the sandbox's process ended, in words ("" while running)."""
+        code = None if self.process is None else self.process.poll()
+        if code is None:
+            return ""
+        if code < 0:
+            return f"killed by {signal.Signals(-code).name}"
+        return f"exit status {code}"
+
+    def kill(self):
+        """Ends everything the sandbox runs (its PID namespace ends with its first process) and
+        removes its control groups."""
+        if self.process is not None and self.process.poll() is None:
+            try:
+                os.killpg(self.process.pid, signal.SIGKILL)
+            except OSError:
+                pass
+            try:
+                self.process.kill()
+            except OSError:
+                pass
+        for kind, folder in self.groups.values():
+            if kind == "v2" and os.path.exists(os.path.join(folder, "cgroup.kill")):
+                try:
+                    with open(os.path.join(folder, "cgroup.kill"), "w") as f:
+                        f.write("1")
+                except OSError:
+                    pass
+            else:
+                _kill_listed(folder)
+        if self.process is not None:
+            try:
+                self.process.wait(5)
+            except subprocess.TimeoutExpired:
+                pass
+        for _, folder in dict.fromkeys(self.groups.values()):
+            for _ in range(100):   # (the kernel empties a group as its processes are reaped)
+                try:
+                    os.rmdir(folder)
+                    break
+                except FileNotFoundError:
+                    break
+                except OSError:
+                    _kill_listed(folder)
+                    time.sleep(0.01)
+        self.groups = {}
+
+
+def _kill_listed(folder):
+    try:
+        with open(os.path.join(folder, "cgroup.procs")) as f:
+            pids = [int(p) for p in f.read().split()]
+    except OSError:
+        return
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+
+
+def _has_fileno(stream):
+    try:
+        stream.fileno()
+        return True
+    except (AttributeError, OSError, ValueError):
+        return False
