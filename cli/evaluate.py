@@ -90,7 +90,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
     if "all" in accelerate:
         accelerate = list(dict.fromkeys([a for a in accelerate if a != "all"] + list(BUILTIN_SOLVERS)))
     # the plug-ins, described from a process of their own: the judge never runs their code
-    from deepcontact.judge import describe
+    from deepcontact.contest import describe
     describe(starts, accelerate)
     learned = [n for n in starts if trait(n, "needs_model")]
     sph_grid = "sph" in starts and not model

@@ -516,7 +516,7 @@ def plugin_methods(f):
 def described_methods(names):
     """The plug-in methods named for a study, described from a process of their own (their code is
     never imported here); a built-in name is refused (its family is the study's already)."""
-    from deepcontact.judge import describe
+    from deepcontact.contest import describe
     from deepcontact.solver.methods import is_native
     for name in names:
         if is_native(name):

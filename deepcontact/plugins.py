@@ -18,7 +18,7 @@ class PluginError(InputError):
     """A plug-in that cannot be found, imported or used: one line naming it and what is wrong."""
 
 
-# True in a contestant's own process (deepcontact.judge): the process is the plug-in's guard
+# True in a contestant's own process (deepcontact.contest): the process is the plug-in's guard
 # there (nothing it changes reaches the judge), so guest() only turns what leaves its code into one
 # line, and no copy of a step is made for it (unpickled for each call, it is its own already).
 contained = False
@@ -115,7 +115,7 @@ class Registry:
         self.kind, self.group = kind, group
         self._builtin = {}
         self._loaded = {}   # plug-ins loaded by an explicit choice (load), by name
-        # plug-ins described from a process of their own (judge.describe), by name:
+        # plug-ins described from a process of their own (contest.describe), by name:
         # what a judge may know of them without importing their code
         self.described = {}
 

@@ -1,6 +1,6 @@
 """A judge no contestant can reach: each trick that moved `dc evaluate`'s verdict when
 contestants ran in the judge's own process, written here as a contestant, and what the judge now
-says of it. Each variant runs in a process of its own (deepcontact/judge/)."""
+says of it. Each variant runs in a process of its own (deepcontact/contest/)."""
 import json
 import sys
 import textwrap

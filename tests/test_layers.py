@@ -1,10 +1,10 @@
 """The house plan: each package of deepcontact imports only the floors below it, along the path
-scene → step → solver → exchange → simulate → grid → model → warm start → judge → evaluate → studies → render."""
+scene → step → solver → exchange → simulate → grid → model → warm start → contest → evaluate → studies → render."""
 import re
 from pathlib import Path
 
 PACKAGE = Path(__file__).parent.parent / "deepcontact"
-FLOORS = ["scene", "step", "solver", "exchange", "simulate", "grid", "model", "warmstart", "judge", "evaluate", "studies", "render"]
+FLOORS = ["scene", "step", "solver", "exchange", "simulate", "grid", "model", "warmstart", "contest", "evaluate", "studies", "render"]
 
 
 def imported_floors(folder):

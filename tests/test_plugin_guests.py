@@ -180,7 +180,8 @@ def test_what_a_method_does_to_its_problem_no_other_row_sees(run, clean, tmp_pat
 def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, monkeypatch):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    write_module(tmp_path, monkeypatch, "guest_mover", START, at_call=f"os.chdir({str(elsewhere)!r})")
+    # (a contestant's sandbox holds no folder of the user's: it moves to one of its own)
+    write_module(tmp_path, monkeypatch, "guest_mover", START, at_call="import tempfile; os.chdir(tempfile.mkdtemp())")
     work = tmp_path / "work"
     work.mkdir()
     monkeypatch.chdir(work)
@@ -194,14 +195,39 @@ def test_a_start_that_moves_the_working_folder_moves_no_output(run, tmp_path, mo
     assert Path.cwd() == work
 
 
+# The cue a guest gives the test that it is running: a line on dc's standard error (a contestant's
+# sandbox can write no file the test could see).
+CUE = "dc-test: the guest was called"
+
+
+class Watch:
+    """A process's standard error, read as it comes (a thread), for the guest's cue."""
+
+    def __init__(self, proc):
+        import threading
+        self.proc, self.lines = proc, []
+        self.thread = threading.Thread(target=lambda: self.lines.extend(proc.stderr), daemon=True)
+        self.thread.start()
+
+    def cued(self):
+        return any(CUE in line for line in list(self.lines)) or self.proc.poll() is not None
+
+    def finish(self, timeout=30):
+        """The process's standard error once it has ended (less the cue)."""
+        self.proc.wait(timeout)
+        self.thread.join(timeout)
+        return "".join(line for line in self.lines if CUE not in line)
+
+
 SWALLOWER = """
-import pathlib, signal, time
+import pathlib, signal, sys, time
+CUE = {cue!r}
 import numpy as np
 from deepcontact.warmstart.starts import StartValue
 class Start:
     def __call__(self, ctx):
         {body}
-        pathlib.Path(__file__).with_name("called").touch()   # (the test's cue: one call is done)
+        print(CUE, file=sys.stderr, flush=True)   # (the test's cue: one call is done)
         return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {{}})
 """
 SWALLOWS = {
@@ -221,13 +247,14 @@ def evaluating_with(run, tmp_path, name, body, starts):
     import os
     mods = tmp_path / "mods"
     mods.mkdir()
-    (mods / f"{name}.py").write_text(SWALLOWER.format(body=body))
+    (mods / f"{name}.py").write_text(SWALLOWER.format(body=body, cue=CUE))
     proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "evaluate", "--no-plots", str(run),
                              "--starts", starts,
-                             "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.PIPE,
+                             "--no-budgets", "-q", "-o", str(tmp_path / "r")], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(mods)},
                             cwd=tmp_path)
-    wait_for(lambda: (mods / "called").exists() or proc.poll() is not None)
+    proc.watch = Watch(proc)
+    wait_for(proc.watch.cued)
     return proc
 
 
@@ -239,7 +266,7 @@ def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
         time.sleep(1)
         proc.send_signal(signal.SIGTERM)
     try:
-        _, err = proc.communicate(timeout=30)
+        err = proc.watch.finish()
     finally:
         proc.kill()
     assert proc.returncode == 128 + signal.SIGTERM, err
@@ -250,7 +277,7 @@ def test_a_start_that_swallows_a_stop_signal_still_stops(run, tmp_path, kind):
 def test_the_users_own_ctrl_c_in_a_plugin_is_130(run, tmp_path):
     proc = evaluating_with(run, tmp_path, "guest_slow", "time.sleep(0.05)", "guest_slow:Start")
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=30)
+    err = proc.watch.finish()
     assert proc.returncode == 130 and "interrupted (SIGINT)" in err, err
 
 
@@ -311,13 +338,14 @@ def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, mo
 
 # --- A guest that swallows every stop: a second signal, or the deadline, ends dc, leaving nothing ---
 
-STUBBORN = """
-import pathlib, time
+STUBBORN = f"""
+import pathlib, sys, time
+CUE = {CUE!r}
 import numpy as np
 from deepcontact.solver.methods import MethodResult
 from deepcontact.warmstart.starts import StartValue
 def stubborn():
-    pathlib.Path(__file__).with_name("called").touch()   # (the test's cue: the guest is running)
+    print(CUE, file=sys.stderr, flush=True)   # (the test's cue: the guest is running)
     while True:
         try:
             time.sleep(0.01)
@@ -351,10 +379,11 @@ def test_a_guest_that_swallows_every_stop_cannot_keep_dc_alive(run, tmp_path, pa
     mods.mkdir()
     (mods / "guest_stubborn.py").write_text(STUBBORN)
     proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", *map(str, GUEST_PATHS[path](run, tmp_path / "out"))],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
         env={**os.environ, "PYTHONPATH": str(mods)})
+    watch = Watch(proc)
     try:
-        wait_for(lambda: (mods / "called").exists() or proc.poll() is not None)
+        wait_for(watch.cued)
         first, *then = SIGNALS[signals]
         proc.send_signal(first)
         sent = time.monotonic() + interrupts.GUEST_DEADLINE   # (one signal: from the deadline on)
@@ -362,7 +391,7 @@ def test_a_guest_that_swallows_every_stop_cannot_keep_dc_alive(run, tmp_path, pa
             time.sleep(0.3)
             sent = time.monotonic()
             proc.send_signal(s)
-        _, err = proc.communicate(timeout=30)
+        err = watch.finish()
         took = time.monotonic() - sent
     finally:
         proc.kill()

@@ -2,7 +2,7 @@
 
 Unlike replay, errors feed back: a start that leaves the solver short of the answer changes the
 next state. Every variant runs alike: its start (and a plug-in method) in a sandbox of its own
-(deepcontact/judge), each step through Python; every call is charged here (its wall time or its
+(deepcontact/contest), each step through Python; every call is charged here (its wall time or its
 sandbox's CPU, the larger) and the null contestant's round trip of the same request is subtracted,
 so a start that gives what Box2D's warm start gives measures what builtin does. What the path itself costs over
 one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
@@ -29,8 +29,8 @@ from ..solver.metrics import drift, energy, positions
 from ..solver.settings import SolveSettings
 from ..solver.methods import is_native
 from ..warmstart.starts import StepContext, is_oracle
-from ..judge import RemoteMethod, deadline_for
-from ..judge.wire import checked_answer
+from ..contest import RemoteMethod, deadline_for
+from ..contest.wire import checked_answer
 from .replay import _contestants, _visible, variants
 
 if TYPE_CHECKING:   # (for the annotations only)

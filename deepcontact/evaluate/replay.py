@@ -1,7 +1,7 @@
 """Replay: every recorded step solved from every start (and every over-relaxation w), on the
 same problem.
 
-For each step and variant, in the variant's own sandbox (deepcontact/judge): the start is made, then
+For each step and variant, in the variant's own sandbox (deepcontact/contest): the start is made, then
 the variant's method solves from it until the stopping measure falls below the tolerance or the
 cap, a warming call and REPEATS timed ones, each timed and judged here; a built-in method's
 convergence history is traced here, off the clock, from the same start. Recorded per step
@@ -30,8 +30,8 @@ from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
 from ..warmstart.starts import ANSWER_COLUMNS, StepContext
-from ..judge import Contestant, deadline_for, start_all
-from ..judge.wire import checked_answer, unanswered
+from ..contest import Contestant, deadline_for, start_all
+from ..contest.wire import checked_answer, unanswered
 
 
 @dataclass
@@ -202,7 +202,7 @@ def _net(took, nulls):
 
 def _contestants(table, settings):
     """([Contestant] in the table's order, the null contestant): one sandbox per variant
-    (deepcontact/judge), started side by side, and the null contestant that measures transport
+    (deepcontact/contest), started side by side, and the null contestant that measures transport
     for all of them."""
     from ..protocol import threads_asked
     spec, checkpoint, networks = None, None, []
@@ -230,7 +230,7 @@ def _contestants(table, settings):
 
 def evaluate_simulation(task):
     """The rows of one simulation: (run, seed, files, scene), the variants, the solver settings,
-    every, seed, budgets. Every variant's calls go to its own sandbox (deepcontact/judge), in an
+    every, seed, budgets. Every variant's calls go to its own sandbox (deepcontact/contest), in an
     order shuffled per step by a fixed seed, each charged here (its wall time or its sandbox's CPU,
     the larger) less the null contestant's round trip of the same request, and its answer judged
     here."""

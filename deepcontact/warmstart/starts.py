@@ -275,7 +275,7 @@ def trait(name, key):
 
 
 class Remote:
-    """A plug-in start that only its own process makes (deepcontact.judge): in the judge's
+    """A plug-in start that only its own process makes (deepcontact.contest): in the judge's
     process it is a name and the traits its process described, never its code."""
 
     def __init__(self, name):

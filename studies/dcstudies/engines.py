@@ -121,7 +121,7 @@ def plugin_line(rows, known=FAMILIES):
 
 def plugin_settings(methods, tolerances):
     """A family per plug-in solver method (`--accelerate`), at the study's tolerances: each solve in
-    the method's own process, timed and judged as dc evaluate does (deepcontact.judge)."""
+    the method's own process, timed and judged as dc evaluate does (deepcontact.contest)."""
     return [Setting(name, f"residual {t:g}", "pgs", CAP, tolerance=t, accelerate=name) for name in methods
             for t in tolerances]
 

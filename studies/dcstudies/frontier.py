@@ -42,7 +42,7 @@ from deepcontact.solver.methods import solve
 from deepcontact.solver.reference import reference_solution
 from deepcontact.solver.settings import CAP
 from . import stability as S
-from deepcontact.judge import RemoteMethod
+from deepcontact.contest import RemoteMethod
 from deepcontact.solver.methods import is_native
 from .engines import (Setting, applicable, engine_families, engine_settings, families_of, picked, plugin_line,
                       plugin_settings, run_setting, step_ms)

@@ -158,8 +158,8 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
               if solver == "pgs" else _engine_class(solver).counted(iterations, **(engine_settings or {})))
     world = engine.build(scene)
     if solver == "pgs" and not is_native(accelerate):
-        # a plug-in method solves in a process of its own (deepcontact.judge), judged there as in dc evaluate
-        from deepcontact.judge import RemoteMethod
+        # a plug-in method solves in a process of its own (deepcontact.contest), judged there as in dc evaluate
+        from deepcontact.contest import RemoteMethod
         from deepcontact.simulate.pgs_loop import PGSStepper
         remote = RemoteMethod(accelerate)
         return world, _Remote(PGSStepper(world, scene, engine.solver, start, record=record, solve_fn=remote.solve).step,

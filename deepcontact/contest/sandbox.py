@@ -310,7 +310,8 @@ class Sandbox:
         return None
 
     def processes(self):
-        """(threads, processes) running in the sandbox now, counted by the judge (None without a group)."""
+        """(threads beyond each process's first, processes) running in the sandbox now, counted by
+        the judge (None without a group)."""
         for _, folder in self.groups.values():
             try:
                 with open(os.path.join(folder, "cgroup.procs")) as f:
@@ -318,7 +319,7 @@ class Sandbox:
                 with open(os.path.join(folder, "cgroup.threads" if os.path.exists(os.path.join(folder, "cgroup.threads"))
                                        else "tasks")) as f:
                     threads = len(f.read().split())
-                return threads, procs
+                return threads - procs, procs
             except OSError:
                 continue
         return None

@@ -1,4 +1,4 @@
-"""The judge's floor: contestants fenced and charged as programming-contest judges fence and
+"""The contest's floor: contestants fenced and charged as programming-contest judges fence and
 charge submissions.
 
 - `wire`: the requests and answers between the judge and a contestant, packed and checked in one place;

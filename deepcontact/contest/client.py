@@ -41,7 +41,7 @@ def deadline_rule():
 def _module_root(module):
     """The file or folder of the top-level module `module` belongs to (found, never imported), or None."""
     top = module.split(".")[0]
-    if not top or top in sys.builtin_module_names:
+    if not top or top in sys.builtin_module_names or top in sys.stdlib_module_names:
         return None
     try:
         spec = importlib.util.find_spec(top)
@@ -54,13 +54,50 @@ def _module_root(module):
     return [spec.origin] if spec.origin and os.path.isabs(spec.origin) else None
 
 
+def _imported_tops(path):
+    """The top-level modules a source file imports (read, never run)."""
+    import ast
+    try:
+        with open(path, "rb") as f:
+            tree = ast.parse(f.read())
+    except (OSError, SyntaxError, ValueError):
+        return []
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.append(node.module)
+    return out
+
+
+def _module_roots(modules, seen_roots):
+    """The files and folders of these modules and of the single-file modules they import beside
+    them (a plug-in's own helpers), outside what is readable already."""
+    out, todo, done = [], list(modules), set()
+    while todo and len(done) < 100:
+        module = todo.pop().split(".")[0]
+        if module in done:
+            continue
+        done.add(module)
+        for root in _module_root(module) or []:
+            root = os.path.abspath(root)
+            if any(root == r or root.startswith(r + os.sep) for r in seen_roots):
+                continue
+            out.append(root)
+            if root.endswith(".py"):
+                todo += _imported_tops(root)
+    return out
+
+
 def _plugin_modules(names):
-    """The modules the plug-ins named here live in (module:attr names, entry points of installed
-    packages), read from their names and the packages' metadata, nothing imported."""
+    """(modules, metadata folders) of the plug-ins named here (module:attr names, entry points of
+    installed packages: their distribution's metadata too, where the entry point is read), read
+    from their names and the packages' metadata, nothing imported."""
     from ..model.arch import NETWORKS
     from ..solver.methods import SOLVERS
     from ..warmstart.starts import STARTS
-    out = []
+    out, metadata = [], []
     for name in names:
         if not isinstance(name, str):
             continue
@@ -73,8 +110,11 @@ def _plugin_modules(names):
             found = registry.installed().get(name)
             if found is not None:
                 out.append(found.value.partition(":")[0])
+                folder = getattr(getattr(found, "dist", None), "_path", None)
+                if folder is not None:
+                    metadata.append(os.fspath(folder))
                 break
-    return out
+    return out, metadata
 
 
 def readable_paths(names=(), modules=(), files=()):
@@ -88,8 +128,9 @@ def readable_paths(names=(), modules=(), files=()):
         out += site.getsitepackages() + [site.getusersitepackages()]
     except AttributeError:
         pass
-    for module in [*_plugin_modules(names), *modules]:
-        out += _module_root(module) or []
+    out = [os.path.abspath(p) for p in out]
+    found, metadata = _plugin_modules(names)
+    out += _module_roots([*found, *modules], out) + metadata
     out += [os.fspath(f) for f in files if f]
     return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
 
@@ -128,7 +169,7 @@ class Contestant:
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()
-        argv = [sys.executable, "-m", "deepcontact.judge.guest", str(theirs.fileno())]
+        argv = [sys.executable, "-m", "deepcontact.contest.guest", str(theirs.fileno())]
         if checkpoint:
             argv.append("torch")
         self._started = time.perf_counter()

@@ -1,5 +1,5 @@
 """The contestant's side: a fresh interpreter in its sandbox (sandbox.py), started by the judge as
-`python -m deepcontact.judge.guest FD`, serving one variant on the socket FD.
+`python -m deepcontact.contest.guest FD`, serving one variant on the socket FD.
 
 It imports the solver, says it is ready (the judge then reads its CPU clock), receives its setup,
 makes the start and method the setup names (that is its setup, charged to it), and answers
