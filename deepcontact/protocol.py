@@ -95,4 +95,14 @@ def protocol_line(p):
             f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}"
             f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}"
             f"{', pymunk ' + v['pymunk'] if v.get('pymunk') else ''}{', MuJoCo ' + v['mujoco'] if v.get('mujoco') else ''}, numpy "
-            f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}")
+            f"{v['numpy']}, torch {v['torch']}, Python {v['python']}; {p['started']}.{command}"
+            + _fences(p))
+
+
+def _fences(p):
+    """What the protocol says of the contestants' fences, where it records them (dc evaluate)."""
+    if "missing_fences" not in p:
+        return ""
+    if not p["missing_fences"]:
+        return " Contestants fenced: every fence held (namespaces, read-only view, seccomp, CPU accounting, limits)."
+    return f" Contestants' fences MISSING on this machine: {', '.join(p['missing_fences'])}."

@@ -171,6 +171,7 @@ def serve(conn):
 
 def main(argv):
     from multiprocessing.connection import Connection
+    """The contestant's process: argv [_, FD] or [_, FD, "torch"] (torch imported before "ready")."""
     conn = Connection(int(argv[1]))
     if len(argv) > 2 and argv[2] == "torch":   # (a contestant that loads a trained model: torch imported before its clock)
         import deepcontact.model.inference  # noqa: F401
@@ -184,6 +185,3 @@ def main(argv):
     sys.stdout.flush()
     os._exit(code)
 
-
-if __name__ == "__main__":
-    main(sys.argv)

@@ -57,6 +57,7 @@ class LoopResult:
     ours: bool = True              # the project's solver (False: Box2D's own at k iterations)
     transport_ms: np.ndarray = None   # per step: the round trips to its contestant's process, subtracted
     path_ms: float = 0.0           # the contestants' path's cost a step over the native loop (in ms_per_step)
+    setup_ms: float = 0.0          # its contestant's setup, charged (beyond the null contestant's), in its total
 
 
 class _Adapter:
@@ -67,6 +68,7 @@ class _Adapter:
 
     def __init__(self, label, contestant, null):
         self.name, self.contestant, self.null, self.timing = label, contestant, null, []
+        self.setup_ms = max(contestant.setup_s - null.setup_s, 0.0) * 1e3
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
         self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
@@ -217,7 +219,8 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
                                   penetration=t.deepest, finite=t.finite, energy_error=err,
                                   relaxation=v.relaxation if v.relaxation != "auto" else float("nan"),
                                   residuals=t.residuals, ms_again=again, oracle=is_oracle(v.name),
-                                  transport_ms=np.array(adapter.transport[:len(t.seconds)]) * 1e3))
+                                  transport_ms=np.array(adapter.transport[:len(t.seconds)]) * 1e3,
+                                  setup_ms=adapter.setup_ms))
     # The path every variant takes (each step through Python, its start's request built and sent)
     # costs what the native loop does not: measured as builtin through it against builtin in one
     # native call per step (the same trajectory, bit for bit) and stated; the variants are
@@ -352,5 +355,5 @@ def pooled(per_simulation):
             ms_again=np.concatenate([r.ms_again for r in same]) if all(r.ms_again is not None for r in same)
             else None,
             transport_ms=np.concatenate([r.transport_ms for r in same]) if all(r.transport_ms is not None for r in same)
-            else None))
+            else None, setup_ms=sum(r.setup_ms for r in same)))
     return rows

@@ -107,6 +107,8 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
         predictor = Predictor(s.checkpoint, threads=s.threads)
         spec = predictor.spec
     measured = protocol(s.threads, s.jobs)   # (the load average now, before the work adds to it)
+    from ..contest import missing_fences
+    measured["missing_fences"] = missing_fences()   # (the contestants' fences this machine refused: said, never dropped)
     if "sph" in s.starts and spec is None:
         spec = s.sph_grid()
     table = make_starts(s.starts, spec=spec, predictor=predictor)

@@ -107,7 +107,21 @@ def _interval(triple):
     return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]"
 
 
+def _fence_caveat():
+    """What a verdict adds where this machine refused a contestant's fence (none: nothing)."""
+    from ..contest import missing_fences
+    missing = missing_fences()
+    return (f" Contestants' fences missing on this machine ({', '.join(missing)}): a contestant could reach "
+            f"beyond its sandbox, so this verdict holds only for honest contestants." if missing else "")
+
+
 def verdict(summary, noise=None):
+    """The replay's verdict line (_verdict), with the fences this machine refused, if any."""
+    line = _verdict(summary, noise)
+    return None if line is None else line + _fence_caveat()
+
+
+def _verdict(summary, noise=None):
     """One line: the start with the smallest median time per step to the tolerance (prediction
     included), with its ratio to Box2D's warm start. Left out: oracles, which know the answer, and
     every variant that ended a step above the tolerance by our residual (it did not converge,
@@ -124,6 +138,21 @@ def verdict(summary, noise=None):
                 "named." + left_out)
     best = fair[0]
     b, base = summary[best], baseline(summary)
+    if noise and noise.get("best") is not None:
+        best = noise["best"]
+        b = summary[best]
+    if noise and noise.get("best") == best and noise.get("beaten_on_total_by"):
+        # a heavy tail: the median's fastest lost the whole run; none is called the fastest
+        beaten = noise["beaten_on_total_by"]
+        text = (f"**Verdict**: no clear winner. {md_text(best)} has the smallest median time per step (prediction "
+                f"included; oracles left out)" + (f", {_interval(noise['vs_base'][best])} of {md_text(base)}'s"
+                                                   if best != base else "")
+                + ", but over the whole run, setup included, it took longer than "
+                + " and ".join(f"{md_text(n)} ({noise['total_ms'][best]:.4g} ms against {noise['total_ms'][n]:.4g} ms)"
+                               for n in beaten)
+                + f": a heavy tail of slow steps; {md_text(base)} timed against itself (A/A) measured "
+                f"{_interval(noise['aa'])} ({100 * noise['level']:.0f}% intervals over the steps).")
+        return text + left_out
     if noise and noise.get("best") == best and not noise["clear"]:
         runner = noise.get("runner_up")
         text = (f"**Verdict**: no clear winner within noise. The fastest start to the tolerance (median time per "
@@ -132,9 +161,7 @@ def verdict(summary, noise=None):
                 + (f"; against the runner-up {md_text(runner)} it takes {_interval(noise['best_vs_runner_up'])}"
                    if runner else "")
                 + f"; {md_text(base)} timed against itself (A/A) measured {_interval(noise['aa'])} "
-                f"({100 * noise['level']:.0f}% intervals over the steps)."
-                + "".join(f" Over all steps it took longer than {md_text(n)} ({noise['total_ms'][best]:.4g} ms against "
-                          f"{noise['total_ms'][n]:.4g} ms)." for n in noise.get("beaten_on_total_by") or ()))
+                f"({100 * noise['level']:.0f}% intervals over the steps).")
         return text + left_out
     text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
             f"oracles left out) is **{md_text(best)}**: {b['total_ms_median']:.3f} ms, {count(round(b['iterations_median']), 'sweep')}")
@@ -239,23 +266,34 @@ def contestants_line(summary):
     judge noticed (a memo, something left running)."""
     if not any("setup_ms" in s for s in summary.values()):
         return []
+    from ..contest.client import deadline_rule
     setup = ", ".join(f"{md_text(n)} {s['setup_ms']:.1f} ms" for n, s in summary.items())
     transport = max(s["transport_ms_median"] for s in summary.values())
-    out = [f"Each variant ran in a process of its own, made from its names there (the judge holds none of "
-           f"its state, and it none of the judge's), and every call was timed and its answer judged here. "
-           f"Setting each up (import and construction, not in the times per step): {setup}. The transport, "
-           f"measured per call by an echo of the same request and subtracted, was at most "
-           f"{transport:.3f} ms (median per step); times below it are within its noise.\n"]
+    out = [f"{_fenced_line()} Setting each up (import and construction, charged, beyond the null contestant's; in "
+           f"the totals, not in the times per step): {setup}. The transport, the null contestant's round trip of "
+           f"the same request (the same sandbox and path, no plug-in code) measured per step and subtracted from "
+           f"every variant alike, was at most {transport:.3f} ms (median per step); times below it are within its "
+           f"noise. Deadlines: {deadline_rule()}.\n"]
     memo = [n for n, s in summary.items() if s.get("memo")]
     if memo:
-        out.append(f"Answered repeats faster than first calls, beyond what the other variants' repeats do (a memo "
-                   f"of answers?), so charged their first calls: {', '.join(md_text(n) for n in memo)}.\n")
+        out.append(f"Answered repeats far faster than their own first calls (a memo of answers?), so charged their "
+                   f"first calls: {', '.join(md_text(n) for n in memo)}.\n")
     left = [(n, s["left_running"]) for n, s in summary.items() if any(s.get("left_running") or ())]
     if left:
-        out.append("Left threads or processes running after their calls (ended with their processes, and not "
-                   "charged): " + ", ".join(f"{md_text(n)} ({t} thread{'s' if t != 1 else ''}, {p} "
-                                            f"process{'es' if p != 1 else ''})" for n, (t, p) in left) + ".\n")
+        out.append("Left threads or processes running after their calls (counted by the judge; their CPU charged to "
+                   "the calls after them, and ended with their sandboxes): "
+                   + ", ".join(f"{md_text(n)} ({t} thread{'s' if t != 1 else ''}, {p} "
+                               f"process{'es' if p != 1 else ''})" for n, (t, p) in left) + ".\n")
     return out
+
+
+def _fenced_line():
+    """How every contestant was fenced and charged (contest/), the missing fences named."""
+    from ..contest import describe_fences
+    return (f"Each variant ran in a sandbox of its own ({describe_fences()}), made from its names there (the judge "
+            f"holds none of its state, and it none of the judge's, no other variant's and no run folder), and every "
+            f"call was charged here, the larger of its wall time and the CPU its sandbox used since its previous "
+            f"call, and its answer judged here.")
 
 
 def provenance(summary):
@@ -435,9 +473,10 @@ def _loop_path_line(results):
         return ""
     transport = max(float(np.median(r.transport_ms)) for r in ours)
     path = max(getattr(r, "path_ms", 0.0) for r in ours)
-    return (f"Each variant's start (and a plug-in method) ran in a process of its own, every step through Python; "
-            f"every call was timed here, and its round trip (an echo of the same request, at most {transport:.3f} ms "
-            f"a step, median) subtracted. What that path costs over the project's native loop (one call a step), "
+    from ..contest.client import deadline_rule
+    return (f"{_fenced_line()} Every step went through Python; the null contestant's round trip of the same "
+            f"request (at most {transport:.3f} ms a step, median) was subtracted from every variant alike. Deadlines: "
+            f"{deadline_rule()}. What that path costs over the project's native loop (one call a step), "
             f"{path:.3f} ms a step (builtin both ways, median), is in every row of the project's solver, alike; "
             f"Box2D's own rows are without it.\n\n")
 
@@ -509,38 +548,41 @@ def _loop_above(r, tolerance):
 
 
 def loop_verdict(results, tolerance):
-    """The closed loop's verdict, as replay's: the fastest of the project's variants per step that
-    stayed finite and never ended a step above the tolerance (oracles left out), against Box2D's
-    warm start and the runner-up with 95% intervals over the steps, and builtin timed against
-    itself (A/A); a winner is named only beyond noise. None without Box2D's warm start."""
-    from .noise import ratio_interval
+    """The closed loop's verdict, by the contest's one rule (contest/verdict.py, as replay's): the
+    fastest of the project's variants per step that stayed finite and never ended a step above the
+    tolerance (oracles left out), against Box2D's warm start and the runner-up with 95% intervals
+    over the steps, builtin timed against itself (A/A), and the run's totals (setup included); a
+    winner is named only beyond noise, and none whose whole run cost more. None without Box2D's
+    warm start."""
+    from ..contest.verdict import decide
     base = next((r for r in results if r.ms_again is not None), None)
     if base is None:
         return None
     candidates = [r for r in results if r.ours and not r.oracle]
     fair = [r for r in candidates if r.finite and not _loop_above(r, tolerance)]
     left = [r.start for r in candidates if r not in fair]
-    left_out = (f" Left out, as they ended steps above the tolerance or left float32: "
+    left_out = (f" Left out, as they ended steps above the tolerance or stopped being finite: "
                 f"{', '.join(md_text(n) for n in left)}." if left else "")
-    aa = ratio_interval(base.ms_per_step, base.ms_again)
     if not fair:
         return "**Verdict**: no start reached the tolerance on every step of the loop, so none is named." + left_out
-    fair.sort(key=lambda r: float(np.median(r.ms_per_step)))
-    best, runner = fair[0], (fair[1] if len(fair) > 1 else None)
-
-    def paired(a, b):
-        n = min(len(a.ms_per_step), len(b.ms_per_step))
-        return ratio_interval(a.ms_per_step[:n], b.ms_per_step[:n])
-    vs_base = paired(best, base) if best is not base else None
-    vs_runner = paired(best, runner) if runner is not None else None
-    clear = (vs_base is None or vs_base[2] < 1) and (vs_runner is None or vs_runner[2] < 1)
-    parts = ([f"{_interval(vs_base)} of {md_text(base.start)}'s time per step"] if vs_base else []) \
-        + ([f"{_interval(vs_runner)} of the runner-up {md_text(runner.start)}'s"] if vs_runner else []) \
-        + [f"A/A noise floor {_interval(aa)}"]
-    head = ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
-            f"**{md_text(best.start)}**" if clear else
-            f"**Verdict**: no clear winner within noise. The fastest start per step of the loop is {md_text(best.start)}")
-    return f"{head} ({'; '.join(parts)}; 95% intervals over the steps)." + left_out
+    ours = [r for r in results if r.ours]
+    times = {r.start: dict(enumerate(np.asarray(r.ms_per_step, np.float64))) for r in ours}
+    v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
+               {r.start: r.setup_ms for r in ours})
+    parts = ([f"{_interval(v.vs_base[v.best])} of {md_text(base.start)}'s time per step"] if v.best != base.start else []) \
+        + ([f"{_interval(v.best_vs_runner_up)} of the runner-up {md_text(v.runner_up)}'s"] if v.runner_up else []) \
+        + [f"A/A noise floor {_interval(v.aa)}"]
+    if v.heavy_tail:
+        head = (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
+                f"but over the whole run, setup included, it took longer than "
+                + " and ".join(f"{md_text(n)} ({v.totals[v.best]:.4g} ms against {v.totals[n]:.4g} ms)"
+                               for n in v.beaten_on_total_by) + ": a heavy tail of slow steps")
+    elif v.clear:
+        head = ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
+                f"**{md_text(v.best)}**")
+    else:
+        head = f"**Verdict**: no clear winner within noise. The fastest start per step of the loop is {md_text(v.best)}"
+    return f"{head} ({'; '.join(parts)}; 95% intervals over the steps)." + left_out + _fence_caveat()
 
 
 def loop_table(results, tolerance=None):

@@ -1,0 +1,98 @@
+"""One rule that names a winner, or says there is none, for replay rows and loop rows alike.
+
+The candidates are the variants that may win (no oracle, none that ended a step above the
+tolerance or left float32), ranked by their median charged time per step. The fastest is named a
+clear winner only when, with 95% bootstrap intervals over the steps (paired, the same steps for
+both):
+- it is faster than Box2D's warm start (the base) beyond 1 and beyond the A/A floor (the base
+  timed against itself: how far apart two equal things measure);
+- it is faster than the runner-up beyond 1;
+- and over the whole run, setup included, it cost no more than the base or the runner-up (a start
+  slow on a few steps can win the median and lose the run: a heavy tail).
+When one of these fails there is no clear winner, and a variant beaten on the total is never
+called the fastest.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+RESAMPLES = 2000
+LEVEL = 0.95
+SEED = 0   # (the intervals are a function of the times: the same report twice is the same report)
+
+
+def ratio_interval(a, b, rng=None):
+    """median(a) / median(b) over paired per-step times, with its bootstrap interval (LEVEL):
+    (ratio, low, high)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    rng = np.random.default_rng(SEED) if rng is None else rng
+    ratio = float(np.median(a) / max(np.median(b), 1e-12))
+    if len(a) < 2:
+        return ratio, ratio, ratio
+    picks = rng.integers(0, len(a), size=(RESAMPLES, len(a)))
+    boot = np.median(a[picks], axis=1) / np.maximum(np.median(b[picks], axis=1), 1e-12)
+    tail = (1 - LEVEL) / 2
+    return ratio, float(np.quantile(boot, tail)), float(np.quantile(boot, 1 - tail))
+
+
+def paired(x, y):
+    """The times of two variants on the steps both have, in the same order."""
+    keys = sorted(set(x) & set(y))
+    return [x[k] for k in keys], [y[k] for k in keys]
+
+
+@dataclass
+class Verdict:
+    """What the rule found (module docstring): `best` is the fastest candidate on the median, a
+    clear winner only when `clear`; `beaten_on_total_by` the variants whose whole run (setup
+    included) cost less than best's."""
+    base: str | None
+    best: str | None = None
+    runner_up: str | None = None
+    clear: bool = False
+    vs_base: dict = field(default_factory=dict)     # {label: (ratio, low, high)} against the base
+    best_vs_runner_up: tuple | None = None
+    aa: tuple = (1.0, 1.0, 1.0)
+    totals: dict = field(default_factory=dict)      # {label: ms over the run, setup included}
+    beaten_on_total_by: list = field(default_factory=list)
+    level: float = LEVEL
+
+    @property
+    def heavy_tail(self):
+        """Whether the median's fastest lost the run's total to the base or the runner-up."""
+        return bool(self.beaten_on_total_by)
+
+    def as_dict(self):
+        """For summary.json."""
+        return {"base": self.base, "level": self.level, "resamples": RESAMPLES,
+                "vs_base": {k: list(v) for k, v in self.vs_base.items()}, "aa": list(self.aa), "best": self.best,
+                "runner_up": self.runner_up,
+                "best_vs_runner_up": None if self.best_vs_runner_up is None else list(self.best_vs_runner_up),
+                "clear": self.clear, "total_ms": dict(self.totals), "beaten_on_total_by": list(self.beaten_on_total_by),
+                "heavy_tail": self.heavy_tail}
+
+
+def decide(times, candidates, base, aa_pair, setup_ms=None):
+    """The verdict on `times` ({label: {step key: charged ms}}): `candidates` the labels that may
+    win, `base` Box2D's warm start's label, `aa_pair` (first, second) its paired A/A times,
+    `setup_ms` {label: setup charged} added to each total. None without the base."""
+    if base is None or base not in times:
+        return None
+    rng = np.random.default_rng(SEED)
+    setup_ms = setup_ms or {}
+    v = Verdict(base=base, aa=ratio_interval(*aa_pair, rng))
+    v.vs_base = {name: ratio_interval(*paired(t, times[base]), rng) for name, t in times.items()}
+    v.totals = {name: float(sum(t.values())) + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
+    fair = sorted((n for n in candidates if n in times and times[n]), key=lambda n: float(np.median(list(times[n].values()))))
+    if not fair:
+        return v
+    v.best = fair[0]
+    clear = v.best == base or (v.vs_base[v.best][2] < 1.0 and v.vs_base[v.best][2] < v.aa[1])
+    if len(fair) > 1:
+        v.runner_up = fair[1]
+        v.best_vs_runner_up = ratio_interval(*paired(times[v.best], times[v.runner_up]), rng)
+        clear = clear and v.best_vs_runner_up[2] < 1.0
+    v.beaten_on_total_by = [n for n in dict.fromkeys((base, v.runner_up)) if n is not None and n != v.best
+                            and v.totals[n] < v.totals[v.best]]
+    v.clear = bool(clear and not v.beaten_on_total_by)
+    return v

@@ -1,0 +1,237 @@
+"""A judge no contestant can reach, II: each trick a contestant in a process of its own (same user,
+same machine) used to move `dc evaluate`'s verdict, written here as a contestant, and what the
+judge says of it now that each contestant runs in a sandbox the judge owns and is charged for
+all the CPU it uses (deepcontact/contest)."""
+import json
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from conftest import dc
+from deepcontact.contest import fences
+
+pytestmark = pytest.mark.skipif(not all(fences().values()),
+                                reason=f"a contestant's fence is missing here: {fences()}")
+
+HOSTILE = textwrap.dedent("""
+    import hashlib, json, os, pickle, signal, struct, sys, time
+    RUN = {run!r}
+    import numpy as np
+    from deepcontact.solver.methods import MethodResult
+    from deepcontact.solver.pgs import solve as native
+    from deepcontact.warmstart.starts import StartValue
+
+    def box2d(ctx):
+        return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
+
+    class WorksInSetup:
+        '''Burns 0.4 s of CPU while it is made (where it would solve the run ahead of the clock).'''
+        def __init__(self):
+            end = time.process_time() + 0.4
+            while time.process_time() < end:
+                pass
+        def __call__(self, ctx):
+            return box2d(ctx)
+
+    class Detached:
+        '''Answers at once, and leaves a process of its own session working in the background
+        (double-forked: no longer its child), where it would solve the next steps.'''
+        started = False
+        def __call__(self, ctx):
+            if not Detached.started:
+                Detached.started = True
+                if os.fork() == 0:
+                    os.setsid()
+                    if os.fork() == 0:
+                        while True:
+                            pass
+                    os._exit(0)
+                os.wait()
+            return box2d(ctx)
+
+    class Reacher:
+        '''Looks for every process it could stop, renice or kill (a rival, the judge), and for the
+        judge's memory; raises what it reached.'''
+        def __call__(self, ctx):
+            me, reached = os.getpid(), []
+            for entry in os.listdir('/proc'):
+                if entry.isdigit() and int(entry) not in (me, 1):   # (1: its sandbox's own first process)
+                    try:
+                        os.kill(int(entry), 0)          # (signal 0: only asks whether it could)
+                        reached.append(f'could signal {entry}')
+                    except OSError:
+                        pass
+            for pid in {os.getppid(), 1}:
+                try:
+                    with open(f'/proc/{pid}/mem', 'rb') as f:
+                        f.read(1)
+                    reached.append(f'read the memory of {pid}')
+                except OSError:
+                    pass
+            try:
+                os.setpriority(os.PRIO_USER, 0, 19)     # (renice every process of its user)
+            except OSError:
+                pass
+            for path in (RUN + '/manifest.json', RUN, os.path.dirname(RUN)):   # (the run being judged, named here)
+                if os.path.exists(path):
+                    reached.append(f'found {path}')
+            if reached:
+                raise RuntimeError('reached: ' + ', '.join(reached))
+            return box2d(ctx)
+
+    class KillsItsParent:
+        '''Sends SIGKILL to its parent and to its process group (once the judge's helper and group).'''
+        def __call__(self, ctx):
+            for target in (os.getppid(), 1):
+                try:
+                    os.kill(target, signal.SIGKILL)
+                except OSError:
+                    pass
+            return box2d(ctx)
+
+    class Hangs:
+        '''Never answers its second call.'''
+        calls = 0
+        def __call__(self, ctx):
+            Hangs.calls += 1
+            while Hangs.calls > 1:
+                time.sleep(1)
+            return box2d(ctx)
+
+    class Forges:
+        '''From its second answer on, replaces the answer's framing with a header holding NaN.'''
+        def __call__(self, ctx):
+            import deepcontact.contest.guest as g
+            def forged(header, arrays=None):
+                head = json.dumps({"iterations": float("nan"), "arrays": []}).encode()
+                return struct.pack("<I", len(head)) + head
+            g.pack = forged
+            return box2d(ctx)
+
+    class Memo:
+        '''Solves each problem once, 4 ms late, and answers a repeat of the same bytes from a memo.'''
+        memo = {}
+        def __call__(self, problem, normal, tangent, settings):
+            key = hashlib.sha1(pickle.dumps((problem, normal, tangent, settings))).hexdigest()
+            if key not in Memo.memo:
+                time.sleep(0.004)
+                s = native(problem, normal, tangent, tolerance=settings.tolerance, max_iterations=settings.max_iterations)
+                Memo.memo[key] = MethodResult(s.normal_impulse, s.tangent_impulse, np.full(max(s.iterations, 1), s.residual))
+            return Memo.memo[key]
+    """)
+
+
+@pytest.fixture
+def hostile(run, tmp_path, monkeypatch):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "hostile.py").write_text(HOSTILE.replace("{run!r}", repr(str(run))))
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    yield
+    from deepcontact.solver.methods import SOLVERS
+    from deepcontact.warmstart.starts import STARTS
+    sys.modules.pop("hostile", None)
+    for registry in (STARTS, SOLVERS):
+        registry.described = {k: v for k, v in registry.described.items() if not k.startswith("hostile")}
+        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith("hostile")}
+
+
+def evaluate(run, out, *args):
+    return dc("evaluate", "--no-plots", "--no-budgets", run, "--every", "20", "-q", "-o", out, *args)
+
+
+def summary_of(r, out):
+    assert r.returncode == 0, r.stderr
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_work_done_while_it_is_made_is_charged_to_its_total(run, tmp_path, hostile):
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:WorksInSetup"), out)
+    setup = s["starts"]["hostile:WorksInSetup"]["setup_ms"]
+    assert setup >= 300 and s["starts"]["builtin"]["setup_ms"] < 100, (setup, s["starts"]["builtin"]["setup_ms"])
+    totals = s["settings"]["noise"]["total_ms"]
+    assert totals["hostile:WorksInSetup"] >= 300 + totals["builtin"] - s["starts"]["builtin"]["setup_ms"]
+    assert s["starts"]["hostile:WorksInSetup"]["total_ms_sum"] >= 300
+    report = (out / "report.md").read_text()
+    assert "hostile:WorksInSetup" not in report.split("**Verdict**")[1].split("(")[0] or "no clear winner" in report
+
+
+def test_a_process_working_in_the_background_is_charged_to_the_calls(run, tmp_path, hostile):
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached"), out)["starts"]
+    detached, builtin = s["hostile:Detached"], s["builtin"]
+    # a busy loop between its calls: the CPU its sandbox used is charged to the calls after it (its
+    # loop slows every variant on two cores, but it alone pays for the loop's CPU)
+    assert detached["total_ms_sum"] > max(100.0, 5 * builtin["total_ms_sum"]), (detached, builtin)
+    assert detached["left_running"][1] >= 1   # (counted by the judge, not asked of the contestant)
+
+
+def test_a_contestant_reaches_no_other_process_nor_the_users_files(run, tmp_path, hostile):
+    # (it raises what it reached: signalling a rival or the judge, reading their memory, listing the user's folders)
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Reacher,zero"), out)
+    assert {"builtin", "hostile:Reacher", "zero"} <= set(s["starts"])
+
+
+def test_a_contestant_that_kills_its_parent_kills_only_its_own_sandbox(run, tmp_path, hostile):
+    out = tmp_path / "r"
+    r = evaluate(run, out, "--starts", "builtin,hostile:KillsItsParent")
+    if r.returncode == 0:   # (its sandbox's first process shrugs off a signal from inside)
+        assert "hostile:KillsItsParent" in json.loads((out / "summary.json").read_text())["starts"]
+    else:                   # (or it ended its own sandbox: it is named, never builtin)
+        assert r.returncode == 1 and "hostile:KillsItsParent" in r.stderr and "'builtin'" not in r.stderr, r.stderr
+
+
+def test_a_call_that_never_returns_is_stopped_at_its_deadline_and_named(run, tmp_path, hostile, monkeypatch):
+    import time
+    from deepcontact.contest import client
+    monkeypatch.setattr(client, "CALL_FLOOR", 3.0)
+    monkeypatch.setattr(client, "CALL_PER_POINT", 0.0)
+    t0 = time.monotonic()
+    r = evaluate(run, tmp_path / "r", "--starts", "builtin,hostile:Hangs")
+    assert r.returncode == 1 and "hostile:Hangs" in r.stderr and "did not answer within 3 s" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 30
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_forged_answer_is_one_line_naming_its_contestant(run, tmp_path, hostile):
+    r = evaluate(run, tmp_path / "r", "--starts", "builtin,hostile:Forges")
+    assert r.returncode == 1 and "hostile:Forges" in r.stderr and "not an answer" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_colluding_memos_are_each_held_to_their_own_first_calls(run, tmp_path, hostile):
+    # three variants of one memoizing method, and no honest one: the bar is each one's own times
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "builtin,zero,prev", "--accelerate", "hostile:Memo"), out)["starts"]
+    memos = {name: v["memo"] for name, v in s.items()}
+    assert len(memos) == 3 and all(memos.values()), memos
+
+
+def test_an_honest_start_is_not_taken_for_a_memo(run, tmp_path, hostile):
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "zero,builtin,prev"), out)["starts"]
+    assert not any(v["memo"] for v in s.values()), {k: v["memo"] for k, v in s.items()}
+
+
+def test_a_heavy_tail_is_never_called_the_fastest():
+    """The median's fastest that loses the whole run: no clear winner, and not "the fastest"."""
+    from deepcontact.contest.verdict import decide
+    from deepcontact.evaluate.report import verdict
+    steps = range(40)
+    times = {"builtin": {k: 1.0 + 0.01 * (k % 3) for k in steps},
+             "tailed": {k: (0.5 if k % 10 else 40.0) for k in steps}}   # half the time, but 40 ms on a step in ten
+    aa = ([1.0 + 0.01 * (k % 3) for k in steps], [1.0 + 0.01 * ((k + 1) % 3) for k in steps])
+    v = decide(times, ["tailed", "builtin"], "builtin", aa)
+    assert v.best == "tailed" and v.heavy_tail and not v.clear and v.beaten_on_total_by == ["builtin"]
+    summary = {name: {"total_ms_median": float(np.median(list(t.values()))), "iterations_median": 10.0,
+                      "at_cap": 0.0, "above": 0.0, "relaxation": 1.0, "accelerate": "none"}
+               for name, t in times.items()}
+    line = verdict(summary, v.as_dict())
+    assert "no clear winner" in line and "fastest" not in line and "heavy tail" in line, line
+    # without the tail, the same median wins clearly
+    times["tailed"] = {k: 0.5 for k in steps}
+    v = decide(times, ["tailed", "builtin"], "builtin", aa)
+    assert v.clear and not v.heavy_tail
