@@ -10,7 +10,7 @@ RUNS ?= runs
 DC := $(PYTHON) -m deepcontact.cli.main
 
 DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos \
-	python3-h5py ffmpeg chromium
+	python3-h5py ffmpeg chromium bubblewrap libseccomp2
 
 .PHONY: setup demo test test-quick test-slow bench studies stability smoke smoke-pipeline study study-pipeline clean
 
@@ -18,11 +18,12 @@ DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config 
 # native step-file reader) and pkg-config to build against them, a C++ compiler, xmllint (an
 # independent schema validator the tests use), Siconos with h5py for Debian's own python3 (the
 # peer solver the tests compare against), ffmpeg (dc render to MP4/WebM) and chromium (the tests
-# open the HTML pages in a real headless browser).
+# open the HTML pages in a real headless browser), bubblewrap and libseccomp (each contestant of dc
+# evaluate in a sandbox of its own: deepcontact/contest/sandbox.py).
 $(STAMPS)/system:
 	@mkdir -p $(STAMPS)
 	@if ! pkg-config --exists box2d eigen3 libxml-2.0 zlib 2>/dev/null || ! command -v xmllint >/dev/null || ! command -v g++ >/dev/null \
-			|| ! command -v ffmpeg >/dev/null || ! command -v chromium >/dev/null \
+			|| ! command -v ffmpeg >/dev/null || ! command -v chromium >/dev/null || ! command -v bwrap >/dev/null \
 			|| ! /usr/bin/python3 -c "import siconos.numerics, h5py" 2>/dev/null; then \
 		echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 		$(SUDO) apt-get update -qq && \
