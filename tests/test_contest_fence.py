@@ -81,6 +81,20 @@ HOSTILE = textwrap.dedent("""
                 raise RuntimeError('reached: ' + ', '.join(reached))
             return box2d(ctx)
 
+    class Shares:
+        '''Leaves its answer in a shared folder for its other variants, and raises if it finds a
+        rival's there (two variants of one plug-in passing answers).'''
+        def __call__(self, ctx):
+            folder = '/tmp/dc-shared'
+            os.makedirs(folder, exist_ok=True)
+            mine = os.path.join(folder, f'{ctx.index}-{ctx.variant}')
+            rivals = [f for f in os.listdir(folder) if f.startswith(f'{ctx.index}-') and f != os.path.basename(mine)]
+            if rivals:
+                raise RuntimeError(f'found a rival answer: {rivals}')
+            np.save(mine + '.npy', ctx.problem.start_normal)
+            os.rename(mine + '.npy', mine)
+            return box2d(ctx)
+
     class KillsItsParent:
         '''Sends SIGKILL to its parent and to its process group (once the judge's helper and group).'''
         def __call__(self, ctx):
@@ -173,6 +187,13 @@ def test_a_contestant_reaches_no_other_process_nor_the_users_files(run, tmp_path
     out = tmp_path / "r"
     s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Reacher,zero"), out)
     assert {"builtin", "hostile:Reacher", "zero"} <= set(s["starts"])
+
+
+def test_two_variants_of_one_plugin_share_no_folder(run, tmp_path, hostile):
+    # (each raises if it finds the other's answer in /tmp: each /tmp is its sandbox's own)
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "hostile:Shares", "--relaxation", "1,1.7"), out)
+    assert set(s["starts"]) == {"hostile:Shares@1", "hostile:Shares@1.7"}
 
 
 def test_a_contestant_that_kills_its_parent_kills_only_its_own_sandbox(run, tmp_path, hostile):

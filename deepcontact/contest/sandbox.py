@@ -195,6 +195,38 @@ def describe_fences():
     return used if not missing else f"{used}; MISSING here: {', '.join(missing)}"
 
 
+# --- Groups left behind ---------------------------------------------------------------------------
+
+_PREFIX = "dc-contestant-"
+_swept = set()
+_live = set()        # the sandboxes this process runs (ended by kill_all on the way out)
+
+
+def _sweep(base):
+    """Removes the empty groups a dc process that died (SIGKILL, power) left in `base`: named after
+    a process that no longer runs. Once per folder and process."""
+    if base in _swept:
+        return
+    _swept.add(base)
+    try:
+        names = [n for n in os.listdir(base) if n.startswith(_PREFIX)]
+    except OSError:
+        return
+    for name in names:
+        owner = name[len(_PREFIX):].split("-")[0]
+        if owner.isdigit() and not os.path.exists(f"/proc/{owner}"):
+            try:
+                os.rmdir(os.path.join(base, name))
+            except OSError:
+                pass
+
+
+def kill_all():
+    """Ends every sandbox this process still runs (dc's way out: nothing it started outlives it)."""
+    for box in list(_live):
+        box.kill()
+
+
 # --- One sandbox -----------------------------------------------------------------------------------
 
 class Sandbox:
@@ -206,7 +238,7 @@ class Sandbox:
 
     def __init__(self, readable=()):
         Sandbox._count += 1
-        self.name = f"dc-contestant-{os.getpid()}-{Sandbox._count}"
+        self.name = f"{_PREFIX}{os.getpid()}-{Sandbox._count}"
         self.readable = [os.path.abspath(p) for p in readable if p and os.path.exists(p)]
         self.groups = {}   # {controller: folder}
         self.process = None
@@ -214,6 +246,7 @@ class Sandbox:
 
     def _make_groups(self):
         for controller, (kind, base) in _cgroup_roots().items():
+            _sweep(base)
             folder = os.path.join(base, self.name)
             try:
                 os.mkdir(folder)
@@ -275,6 +308,8 @@ class Sandbox:
 
     def start(self, argv, pass_fds=(), env=None):
         """Starts argv inside the fence (its standard output sent to our standard error)."""
+        _registered()
+        _live.add(self)
         self._make_groups()
         seccomp_fd = None
         program = _seccomp_program() if _bwrap() is not None else None
@@ -370,6 +405,17 @@ class Sandbox:
                     _kill_listed(folder)
                     time.sleep(0.01)
         self.groups = {}
+        _live.discard(self)
+
+
+def _registered():
+    """kill_all registered to run as the process ends (and before dc's own search for leftovers)."""
+    if not _live and not getattr(_registered, "done", False):
+        import atexit
+        from ..leftovers import at_end
+        atexit.register(kill_all)
+        at_end(kill_all)
+        _registered.done = True
 
 
 def _kill_listed(folder):
