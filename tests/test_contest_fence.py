@@ -151,8 +151,8 @@ def hostile(run, tmp_path, monkeypatch):
         registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith("hostile")}
 
 
-def evaluate(run, out, *args):
-    return dc("evaluate", "--no-plots", "--no-budgets", run, "--every", "20", "-q", "-o", out, *args)
+def evaluate(run, out, *args, every=20):
+    return dc("evaluate", "--no-plots", "--no-budgets", run, "--every", str(every), "-q", "-o", out, *args)
 
 
 def summary_of(r, out):
@@ -174,11 +174,11 @@ def test_work_done_while_it_is_made_is_charged_to_its_total(run, tmp_path, hosti
 
 def test_a_process_working_in_the_background_is_charged_to_the_calls(run, tmp_path, hostile):
     out = tmp_path / "r"
-    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached"), out)["starts"]
+    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached", every=10), out)["starts"]
     detached, builtin = s["hostile:Detached"], s["builtin"]
     # a busy loop between its calls: the CPU its sandbox used is charged to the calls after it (its
     # loop slows every variant on two cores, but it alone pays for the loop's CPU)
-    assert detached["total_ms_sum"] > max(100.0, 5 * builtin["total_ms_sum"]), (detached, builtin)
+    assert detached["total_ms_sum"] > builtin["total_ms_sum"] + 100.0, (detached, builtin)
     assert detached["left_running"][1] >= 1   # (counted by the judge, not asked of the contestant)
 
 
