@@ -79,6 +79,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_peers.py --orders
 	sh benchmarks/bench_loop_scale.sh
 	$(PYTHON) benchmarks/bench_bodyspace.py
+	$(PYTHON) benchmarks/bench_contest.py
 	$(PYTHON) benchmarks/bench_loop_parts.py
 	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
 	$(PYTHON) benchmarks/bench_report.py
