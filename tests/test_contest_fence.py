@@ -256,3 +256,19 @@ def test_a_heavy_tail_is_never_called_the_fastest():
     times["tailed"] = {k: 0.5 for k in steps}
     v = decide(times, ["tailed", "builtin"], "builtin", aa)
     assert v.clear and not v.heavy_tail
+
+
+def test_where_the_machine_refuses_a_fence_the_report_says_which(run, tmp_path, monkeypatch):
+    """No bubblewrap, no control group: the contestants still run, as bare processes, and the
+    protocol line and the verdict name the missing fences (nothing dropped silently)."""
+    from deepcontact.contest import sandbox
+    monkeypatch.setattr(sandbox, "_bwrap", lambda: None)
+    monkeypatch.setattr(sandbox, "_cgroup_roots", lambda: {})
+    out = tmp_path / "r"
+    s = summary_of(evaluate(run, out, "--starts", "builtin,zero"), out)
+    assert {"builtin", "zero"} <= set(s["starts"])
+    report = (out / "report.md").read_text()
+    verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    assert "fences missing on this machine (namespaces, read-only view, seccomp, cpu accounting, process limit)" \
+        in verdict, verdict
+    assert "Contestants' fences MISSING on this machine: namespaces" in report
