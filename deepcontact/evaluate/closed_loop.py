@@ -31,7 +31,7 @@ from ..solver.methods import is_native
 from ..warmstart.starts import StepContext, is_oracle
 from ..contest import RemoteMethod, deadline_for
 from ..contest.wire import checked_answer
-from .replay import _contestants, _visible, variants
+from .replay import open_contestants, visible_context, variants
 
 if TYPE_CHECKING:   # (for the annotations only)
     from ..scene.model import Scene
@@ -61,7 +61,7 @@ class LoopResult:
 
 
 class _Adapter:
-    """A variant's contestant (its own sandbox: replay._contestants) as the loop's start_fn, and
+    """A variant's contestant (its own sandbox: replay.open_contestants) as the loop's start_fn, and
     for a plug-in method as its solve_fn; every call charged here, the transport (the null
     contestant's round trip of the same request) subtracted, and each answer checked and judged
     here. Remembers the solution applied, for the prev start."""
@@ -84,7 +84,7 @@ class _Adapter:
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),
                           variant=self.name, trajectory="loop")
-        request = {"op": "start", "ctx": _visible(ctx, self.contestant.traits, self.name)}
+        request = {"op": "start", "ctx": visible_context(ctx, self.contestant.traits, self.name)}
         deadline = deadline_for(problem.points)
         took, _, arrays = self.contestant.call(request, deadline)
         null = self.null.call(request, deadline)[0]
@@ -241,7 +241,7 @@ def _interleaved(scene, runs, steps):
     from ..simulate.pgs_loop import PGSStepper
     loops, contestants, null = [], [], None
     try:
-        contestants, null = _contestants([v for v, _, _ in runs], runs[0][1])
+        contestants, null = open_contestants([v for v, _, _ in runs], runs[0][1])
         for (v, asked, counted), contestant in zip(runs, contestants):
             adapter = _Adapter(v.label, contestant, null)
             loops.append(adapter)

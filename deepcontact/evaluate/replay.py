@@ -182,7 +182,7 @@ def _velocity_error(solution, reference):
         if len(reference.velocity) else 0.0
 
 
-def _visible(ctx, traits, label):
+def visible_context(ctx, traits, label):
     """ctx as a start with these traits may see it (starts.seen_by, by the contestant's own word on
     what it asks for)."""
     changes = {"variant": label, "cache": {}}
@@ -200,7 +200,7 @@ def _net(took, nulls):
     return max(took - min(nulls), 0.0)
 
 
-def _contestants(table, settings):
+def open_contestants(table, settings):
     """([Contestant] in the table's order, the null contestant): one sandbox per variant
     (deepcontact/contest), started side by side, and the null contestant that measures transport
     for all of them."""
@@ -237,7 +237,7 @@ def evaluate_simulation(task):
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
     mode, max_iterations, tolerance, stop_on = settings.mode, settings.max_iterations, settings.tolerance, settings.stop_on
     measure = MEASURES.index(stop_on)
-    made, null = _contestants(table, settings)
+    made, null = open_contestants(table, settings)
     contestants = {v.label: c for v, c in zip(table, made)}
     rows = []
     try:
@@ -263,7 +263,7 @@ def evaluate_simulation(task):
             for i in order:
                 v = table[i]
                 c = contestants[v.label]
-                request = {"op": "start", "ctx": _visible(ctx, c.traits, v.label)}
+                request = {"op": "start", "ctx": visible_context(ctx, c.traits, v.label)}
                 took, _, arrays = c.call(request, deadline)
                 # (the null contestant's round trip of the same request, the least of two)
                 predict_s = _net(took, [null.call(request, deadline)[0] for _ in range(2)])
