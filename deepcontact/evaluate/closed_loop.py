@@ -86,8 +86,8 @@ class _Adapter:
                           variant=self.name, trajectory="loop")
         request = {"op": "start", "ctx": visible_context(ctx, self.contestant.traits, self.name)}
         deadline = deadline_for(problem.points)
+        null = self.null.call(request, deadline)[0]   # (just before: a first touch of the step's bytes, as the call's)
         took, _, arrays = self.contestant.call(request, deadline)
-        null = self.null.call(request, deadline)[0]
         # the step's time holds the null's round trip and the call's own: neither is the contestant's
         self.pending += null + min(null, took)
         self.timing.append(max(took - null, 0.0))
