@@ -30,6 +30,7 @@ from ..solver.settings import SolveSettings
 from ..solver.methods import is_native
 from ..warmstart.starts import StepContext, is_oracle
 from ..contest import RemoteMethod, deadline_for
+from ..contest.client import packed
 from ..contest.wire import checked_answer
 from .replay import open_contestants, visible_context, variants
 
@@ -84,7 +85,7 @@ class _Adapter:
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),
                           variant=self.name, trajectory="loop")
-        request = {"op": "start", "ctx": visible_context(ctx, self.contestant.traits, self.name)}
+        request = packed({"op": "start", "ctx": visible_context(ctx, self.contestant.traits, self.name)})
         deadline = deadline_for(problem.points)
         null = self.null.call(request, deadline)[0]   # (just before: a first touch of the step's bytes, as the call's)
         took, _, arrays = self.contestant.call(request, deadline)

@@ -31,6 +31,7 @@ from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
 from ..warmstart.starts import ANSWER_COLUMNS, StepContext
 from ..contest import Contestant, deadline_for, start_all
+from ..contest.client import packed
 from ..contest.wire import checked_answer, unanswered
 
 
@@ -263,7 +264,7 @@ def evaluate_simulation(task):
             for i in order:
                 v = table[i]
                 c = contestants[v.label]
-                request = {"op": "start", "ctx": visible_context(ctx, c.traits, v.label)}
+                request = packed({"op": "start", "ctx": visible_context(ctx, c.traits, v.label)})
                 # (the null contestant's round trip of the same request, just before: a first touch
                 # of the step's bytes, as the variant's call is; a repeat of it measured the
                 # null 0.2 ms faster than any real start's call)
@@ -276,21 +277,22 @@ def evaluate_simulation(task):
             sent = pickle.dumps(unanswered(problem))
             requests = {i: {"op": "solve", "problem": sent, "normal": step_rows[i][2], "tangent": step_rows[i][3],
                             "settings": asked[i]} for i in step_rows}
+            wire = {i: packed(r) for i, r in requests.items()}   # (packed once for all its calls)
             took = {i: [] for i in step_rows}
             answers = {i: [] for i in step_rows}
             # the transport of a solve (the null contestant's, the same for every variant), before the
             # rounds and after them (the least counts)
             first = next(iter(requests))
-            nulls = [null.call(requests[first], deadline)[0]]
+            nulls = [null.call(wire[first], deadline)[0]]
             # interleaved (a busy moment of the machine touches every variant), after a round that
             # warms each process up (the first call after a start's ran slower; its answer is judged
             # like every other, so no call is one a contestant could treat differently)
             for rep in range(-1, REPEATS):
                 for i in order:
-                    t, head, arrays = step_rows[i][1].call(requests[i], deadline)
+                    t, head, arrays = step_rows[i][1].call(wire[i], deadline)
                     answers[i].append((head, arrays))
                     took[i].append(t)
-            nulls.append(null.call(requests[first], deadline)[0])
+            nulls.append(null.call(wire[first], deadline)[0])
             # each call's time (the first, the warming one, kept apart: a memo shows against it)
             times = {i: [_net(t, nulls) * 1e3 for t in took[i]] for i in step_rows}
             firsts = {i: times[i].pop(0) for i in step_rows}
