@@ -268,7 +268,11 @@ class Sandbox:
                     del self.groups[controller]
         if "cpu" in self.groups:
             kind, folder = self.groups["cpu"]
-            self._cpu_file = (kind, os.path.join(folder, "cpu.stat" if kind == "v2" else "cpuacct.usage"))
+            try:   # (kept open and read from offset 0 after every call: an open a call cost 30 us)
+                self._cpu_file = (kind, os.open(os.path.join(folder, "cpu.stat" if kind == "v2" else "cpuacct.usage"),
+                                                os.O_RDONLY | os.O_CLOEXEC))
+            except OSError:
+                del self.groups["cpu"]
 
     def _enter(self):
         """In the child, before exec: into the control groups, the limits on."""
@@ -331,10 +335,9 @@ class Sandbox:
         """CPU seconds used by every process the sandbox ran, from its start (None without accounting)."""
         if self._cpu_file is None:
             return None
-        kind, path = self._cpu_file
+        kind, fd = self._cpu_file
         try:
-            with open(path) as f:
-                text = f.read()
+            text = os.pread(fd, 4096, 0).decode()
         except OSError:
             return None
         if kind == "v1":
@@ -380,6 +383,9 @@ class Sandbox:
                 self.process.kill()
             except OSError:
                 pass
+        if self._cpu_file is not None:
+            os.close(self._cpu_file[1])
+            self._cpu_file = None
         for kind, folder in self.groups.values():
             if kind == "v2" and os.path.exists(os.path.join(folder, "cgroup.kill")):
                 try:
