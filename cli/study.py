@@ -7,29 +7,42 @@ import click
 
 class StudyGroup(click.Group):
     """`dc study`, built from the registry of studies: its commands in the studies' order, its
-    help's list from their summaries; a study's module is imported only when it runs or is listed."""
-
-    def _studies(self):
-        from deepcontact.studies import installed
-        return installed()
+    help's list from their summaries; a study's module is imported only when it runs or is listed.
+    A broken study (its package missing, raising on import, not a Study, its command() raising)
+    is one line in the help and when run, and hides no other."""
 
     def list_commands(self, ctx):
-        return [s.name for s in self._studies()]
+        from deepcontact.studies import survey
+        return [s.name for s in survey()[0]]
 
     def get_command(self, ctx, name):
-        from deepcontact.studies import STUDIES
+        import sys
+        from deepcontact.plugins import PluginError
+        from deepcontact.studies import STUDIES, command_of
         if name not in STUDIES.names():
             return None
-        return STUDIES.load(name).command()
+        try:
+            return command_of(name)
+        except PluginError as e:   # (one line naming its distribution and entry point; -v: the traceback)
+            if "-v" in sys.argv or "--verbose" in sys.argv:
+                raise
+            from .options import one_line
+            click.echo(one_line(f"dc study: error: {e}"), err=True)
+            sys.exit(1)
 
     def format_help_text(self, ctx, formatter):
+        from deepcontact.studies import survey
         super().format_help_text(ctx, formatter)
-        studies = self._studies()
+        studies, broken = survey()
         with formatter.section("Studies"):
             if studies:
                 formatter.write_dl([(s.name, s.summary) for s in studies])
             else:
                 formatter.write_text("none installed: pip install -e studies/ (make setup does)")
+        if broken:
+            with formatter.section("Broken (not listed above)"):
+                for line in broken.values():
+                    formatter.write_text(line)
 
     def format_commands(self, ctx, formatter):
         pass   # (the list above says what each does)

@@ -1,4 +1,6 @@
 """`dc study`: the longer measurements as subcommands, with the same output rules as the rest."""
+import sys
+
 import pytest
 
 from conftest import dc, one_line_error
@@ -169,3 +171,43 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
     r = dc("study", "frontier", "--fast", "--families", "pymunk:11 iterations", "-o", tmp_path / "none")
     assert r.returncode == 2 and "'11 iterations'" in r.stderr and "10 iterations" in r.stderr
     assert not (tmp_path / "none").exists()
+
+
+BROKEN = {   # module file -> its text; each an installed study of the distribution dc-broken
+    "dc_broken_raises.py": "raise RuntimeError('broken at import')\n",
+    "dc_broken_not.py": "class S:\n    pass\n",
+    "dc_broken_cmd.py": "from deepcontact.studies import Study\nclass S(Study):\n    name = 'badcommand'\n"
+                        "    @staticmethod\n    def command():\n        raise ValueError('no command here')\n",
+}
+
+
+def test_a_broken_study_is_one_line_and_hides_no_other(tmp_path, monkeypatch):
+    """An installed distribution whose study entry point names a missing module, raises on
+    import, is not a Study, or whose command() raises: every healthy study is still listed and
+    runs; each broken one is a line naming its distribution and entry point, in --help and when run."""
+    info = tmp_path / "dc_broken-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: dc-broken\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[deepcontact.studies]\nmissing = dc_broken_nosuch:Study\n"
+                                           "raises = dc_broken_raises:S\nnotastudy = dc_broken_not:S\n"
+                                           "badcommand = dc_broken_cmd:S\n")
+    for name, text in BROKEN.items():
+        (tmp_path / name).write_text(text)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from deepcontact.studies import STUDIES
+    try:
+        r = dc("study", "--help")
+        assert r.returncode == 0, r.stderr
+        listed, broken = r.stdout.split("Broken")
+        for name in ("stability", "engines", "frontier", "figures", "exact", "peer", "scale"):
+            assert name in listed
+        flat = " ".join(broken.split())
+        for name, why in (("missing", "No module named 'dc_broken_nosuch'"), ("raises", "broken at import"),
+                          ("notastudy", "is not a deepcontact.studies.Study"), ("badcommand", "no command here")):
+            assert f"the study '{name}' (dc-broken 1.0, entry point {name} = " in flat and why in flat, flat
+            one_line_error(dc("study", name), f"the study '{name}'", "dc-broken 1.0", why)
+        assert "Examples:" in dc("study", "exact", "--help").stdout
+    finally:
+        STUDIES._loaded = {k: v for k, v in STUDIES._loaded.items() if k not in ("raises", "notastudy", "badcommand")}
+        for name in BROKEN:
+            sys.modules.pop(name[:-3], None)

@@ -29,8 +29,56 @@ class Study:
 STUDIES = Registry("study", "deepcontact.studies")
 
 
+def _where(name):
+    """Where a study's entry point comes from, for a line naming it: "distribution 1.0, entry
+    point name = module:attr", or "registered in code"."""
+    ep = STUDIES.installed().get(name) if name not in STUDIES.builtin() else None
+    if ep is None:
+        return "registered in code"
+    dist = getattr(ep, "dist", None)
+    return (f"{dist.name} {dist.version}, " if dist is not None else "") + f"entry point {name} = {ep.value}"
+
+
+def _healthy(name):
+    """The study named `name`, loaded and held to the contract (a Study whose command() makes a
+    click command); PluginError, one line naming its distribution and entry point, otherwise."""
+    import click
+    from ..plugins import PluginError, guest
+    where = _where(name)
+    try:
+        found = STUDIES.load(name)
+    except PluginError as e:
+        raise PluginError(f"the study {name!r} ({where}) cannot be loaded: {str(e).split(': ', 1)[-1]}") from e
+    if not (isinstance(found, type) and issubclass(found, Study)):
+        raise PluginError(f"the study {name!r} ({where}) is not a deepcontact.studies.Study")
+    with guest(f"the study {name!r} ({where}): its command()"):
+        command = found.command()
+    if not isinstance(command, click.Command):
+        raise PluginError(f"the study {name!r} ({where}): its command() made {type(command).__name__}, "
+                          f"not a click command")
+    return found, command
+
+
+def survey() -> tuple:
+    """(the healthy studies, loaded, in their order; {name: one line saying what is wrong} of the
+    broken ones). One broken package hides no other study."""
+    from ..plugins import PluginError
+    healthy, broken = [], {}
+    for name in STUDIES.names():
+        try:
+            healthy.append(_healthy(name)[0])
+        except PluginError as e:
+            broken[name] = str(e)
+    return sorted(healthy, key=lambda s: (s.order, s.name)), broken
+
+
 def installed() -> list:
-    """The studies installed (every `deepcontact.studies` entry point and any registered in code),
-    loaded, in their order."""
-    found = [STUDIES.load(name) for name in STUDIES.names()]
-    return sorted(found, key=lambda s: (s.order, s.name))
+    """The healthy studies installed (every `deepcontact.studies` entry point and any registered
+    in code), loaded, in their order (survey: the broken ones too)."""
+    return survey()[0]
+
+
+def command_of(name):
+    """The click command of the study `name`; PluginError in one line naming its distribution and
+    entry point if it is broken."""
+    return _healthy(name)[1]
