@@ -24,9 +24,15 @@ def at_end(clean_up):
         _own.append(clean_up)
 
 
+_inherited = set()   # the children this process had when dc began (the user's, kept across exec): never signalled
+
+
 def adopt_orphans():
     """Makes this process the reaper of the processes its descendants leave (Linux): a plug-in's
-    daemon that forks twice still ends up under dc, where end_process finds it."""
+    daemon that forks twice still ends up under dc, where end_process finds it. The children it
+    already has (`sh -c 'job & exec dc ...'`: the user's job, inherited across exec) are noted,
+    and never signalled nor waited for: dc ends only what it started."""
+    _inherited.update(children())
     try:
         import ctypes
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
@@ -57,7 +63,7 @@ def kill_descendants():
     killed."""
     killed = set()
     for _ in range(100):
-        found = children()
+        found = [c for c in children() if c not in _inherited]
         if not found:
             break
         for c in found:

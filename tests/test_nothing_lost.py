@@ -413,6 +413,22 @@ def test_no_worker_outlives_the_command(run, tmp_path, command):
     assert list(tmp_path.iterdir()) == []   # and nothing written after the command exited
 
 
+def test_the_reaper_kills_only_what_dc_started(tmp_path):
+    """A job of the user's that dc inherits across exec (`sh -c 'job & exec dc ...'`) is the
+    user's: dc neither kills it nor blames it on a plug-in at exit."""
+    from conftest import dc_command
+    command = " ".join(f"'{a}'" for a in [*map(str, dc_command()), "simulate", "pile", "--steps", "5", "-q", "-o",
+                                          str(tmp_path / "out")])
+    r = subprocess.run(["sh", "-c", f"sleep 300 >/dev/null 2>&1 & echo $! > {tmp_path / 'job'}; exec {command}"],
+                       capture_output=True, text=True, timeout=120)
+    job = int((tmp_path / "job").read_text())
+    try:
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+        assert alive(job)
+    finally:
+        os.kill(job, signal.SIGKILL)
+
+
 # --- input that blocks or lies -------------------------------------------------------------------
 
 def test_a_fifo_named_like_a_step_file_is_refused(run, tmp_path):
