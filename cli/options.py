@@ -160,15 +160,32 @@ class Shard(Parsed):
         return i, n
 
 
-class KeyValue(Parsed):
-    """key=value."""
+class KeyValue(click.ParamType):
+    """key=value, kept as given: `key_values` reads the repeated option (so that its errors, a
+    missing '=' or a key given twice, are dc's one line naming the option, exit 2)."""
     name = "KEY=VALUE"
 
-    def parse(self, text):
-        key, sep, val = text.partition("=")
-        if not sep or not key.strip():
-            raise ValueError("takes key=value")
-        return key.strip(), val.strip()
+    def convert(self, value, param, ctx):
+        return value
+
+
+def key_values(given, option):
+    """{key: value} of a repeatable KEY=VALUE option; OptionError naming `option` for an entry
+    without '=' or a key given twice (which would silently take the last)."""
+    from deepcontact.errors import OptionError
+    out = {}
+    for text in given:
+        if isinstance(text, tuple):   # (already a pair: a caller in code)
+            key, val = text
+        else:
+            key, sep, val = str(text).partition("=")
+            key, val = key.strip(), val.strip()
+            if not sep or not key:
+                raise OptionError(f"takes KEY=VALUE, got {text!r}", option)
+        if key in out:
+            raise OptionError(f"{key} is given twice ({key}={out[key]} and {key}={val}); give it once", option)
+        out[key] = val
+    return out
 
 
 def verbosity(f):

@@ -150,7 +150,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         return
     if scene is None:
         raise click.UsageError("missing SCENE: a generator (see --list) or a scene file")
-    source = SceneSource(scene, dict(params), steps, iterations)
+    source = SceneSource(scene, options.key_values(params, "--param"), steps, iterations)
     source.check_memory(1, max_memory)
     if write_scene:
         import os
@@ -168,7 +168,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
     def bar(total):
         return options.progress_bar(quiet, total, "step", f"simulate {scene}")
-    settings = dict(engine_settings)
+    settings = options.key_values(engine_settings, "--set")
     if engine == "box2d3":   # (its own flags beside --set, checked by SoftStep naming each)
         from deepcontact.simulate.engines import Box2D3, SoftStep
         given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import dc, option_error
 from deepcontact.cli.main import cli
 from deepcontact.scene.generators import GENERATORS, generate
 from deepcontact.simulate.engines import ENGINES, Engine, engine_named
@@ -187,3 +188,21 @@ def test_a_plugin_engine_runs_through_the_same_registry(tmp_path):
     header, bodies, _ = read_step(out / "seed-000000" / "step-000002.xml")
     assert header["solver"]["name"] == "still" and header["engine"] == {"name": "still", "version": "1.0"}
     assert "mujoco" in ENGINES.builtin() and "pymunk" in ENGINES.builtin()
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["--set", "iterations"], ["dc simulate: error:", "'--set'", "takes KEY=VALUE"]),
+    (["--engine", "pymunk", "--set", "iterations=5", "--set", "iterations=50"], ["iterations is given twice"]),
+    (["--engine", "mujoco", "--set", "memory=1000000000"], ["memory must be from 0 to 65536"]),
+    (["--engine", "mujoco", "--set", "iterations=1e9"], ["iterations must be a whole number"]),
+    (["--engine", "mujoco", "--set", "iterations=100000000"], ["iterations must be from 1 to 100000"]),
+    (["--engine", "box2d3", "--set", "contact_hertz=1e300"], ["contact_hertz must be from 0 to 1e+06"]),
+    (["--param", "count=5", "--param", "count=6"], ["'--param'", "count is given twice"]),
+])
+def test_every_engine_setting_is_bounded_and_given_once(tmp_path, args, needles):
+    """Each --set key has a range (a value past what the engine can hold is one line, not its
+    crash: MuJoCo's arena of 10^9 MB was "Could not allocate memory"), and a key given twice is
+    refused (it silently took the last); the errors are dc's one line, exit 2."""
+    r = dc("simulate", "pile", "--steps", "3", *args, "-o", tmp_path / "o")
+    option_error(r, *needles)
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()

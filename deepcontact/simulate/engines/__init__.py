@@ -27,7 +27,7 @@ class Setting:
     `sweep` lists the values the studies step it at (the engine's frontier)."""
     kind: object
     low: float = None
-    high: float = None
+    high: float = None   # (every built-in's is bounded: a value past what the engine can hold is one line, not its crash)
     help: str = ""
     sweep: tuple = ()
     fast: tuple = ()   # the few of `sweep` the fast studies (the test suite's) step it at

@@ -41,7 +41,7 @@ class Box2D(Engine):
 
     name, label, rows = "box2d", "Box2D 2.4.1", "box2d"
     poses_box2d_problem = continuous = sleeps = block_solve = rests_in_skin = True
-    SETTINGS = {"iterations": Setting(int, 1, None, "velocity iterations per step (the scene's unless given)",
+    SETTINGS = {"iterations": Setting(int, 1, 100_000, "velocity iterations per step (the scene's unless given)",
                                       sweep=(1, 2, 4, 8, 16, 32, 64, 128, 256), fast=(1, 8, 64))}
 
     @classmethod

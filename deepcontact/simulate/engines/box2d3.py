@@ -79,10 +79,10 @@ class Box2D3(Engine):
     name, label, rows = "box2d3", "Box2D v3", "box2d3"
     continuous = sleeps = True
     COUNT, DEFAULT_COUNT = "substeps", 4   # (v3's own default, as its samples step)
-    SETTINGS = {"substeps": Setting(int, 1, None, "substeps per step", sweep=(1, 2, 4, 8, 16), fast=(1, 4)),
-                "contact_hertz": Setting(float, 0, None, "soft contact stiffness (Hz)"),
-                "damping_ratio": Setting(float, 0, None, "soft contact damping ratio"),
-                "push_speed": Setting(float, 0, None, "the most speed (m/s) used to push overlaps apart")}
+    SETTINGS = {"substeps": Setting(int, 1, 1000, "substeps per step", sweep=(1, 2, 4, 8, 16), fast=(1, 4)),
+                "contact_hertz": Setting(float, 0, 1e6, "soft contact stiffness (Hz)"),
+                "damping_ratio": Setting(float, 0, 1000, "soft contact damping ratio"),
+                "push_speed": Setting(float, 0, 1e6, "the most speed (m/s) used to push overlaps apart")}
 
     def __init__(self, soft: SoftStep | None = None):
         from ... import arguments

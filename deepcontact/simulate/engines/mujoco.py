@@ -38,16 +38,16 @@ class MuJoCo(Engine):
     name, label = "mujoco", "MuJoCo"
     DEFAULT_COUNT = 100
     SETTINGS = {"solver": Setting(("newton", "cg", "pgs"), help="MuJoCo's constraint solver"),
-                "tolerance": Setting(float, 0, None, "the solver's tolerance (its stop test)",
+                "tolerance": Setting(float, 0, 1, "the solver's tolerance (its stop test)",
                                      sweep=(1e-2, 1e-4, 1e-6, 1e-8)),
-                "iterations": Setting(int, 1, None, "the most solver iterations a step",
+                "iterations": Setting(int, 1, 100_000, "the most solver iterations a step",
                                       sweep=(1, 2, 4, 8, 16, 32, 100)),
                 "order": Setting(("columns", "rows", "scene"), help="the bodies' order in the model (for its sparse "
                                                                    "factor, which does not reorder)"),
-                "timeconst": Setting(float, 0, None, "the soft contacts' time constant (s; solref's first; "
+                "timeconst": Setting(float, 0, 10, "the soft contacts' time constant (s; solref's first; "
                                                      "MuJoCo's default 0.02): smaller is stiffer, down to 2 dt"),
-                "dampratio": Setting(float, 0, None, "the soft contacts' damping ratio (solref's second; 1)"),
-                "memory": Setting(int, 0, None, "MuJoCo's arena for contacts and solver (MB; 0: sized from the scene, "
+                "dampratio": Setting(float, 0, 100, "the soft contacts' damping ratio (solref's second; 1)"),
+                "memory": Setting(int, 0, 65_536, "MuJoCo's arena for contacts and solver (MB; 0: sized from the scene, "
                                                 f"{_ARENA_BASE >> 20} MB and {_ARENA_PER_BODY >> 10} KB per dynamic body)")}
 
     @classmethod
