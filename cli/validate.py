@@ -55,7 +55,8 @@ def validate(paths, replay, residuals, jobs, verbose, quiet):
         bar.close()
     if not quiet:
         click.echo(f"{count(files, 'file')} checked, {invalid} invalid"
-                   + (f"; {count(above, 'step')} with a residual above its tolerance" if residuals else ""), err=True)
+                   + (f"; {count(above, 'step')} with a residual above its tolerance (those that stopped at "
+                      f"the cap, as their runs recorded, are not invalid)" if residuals else ""), err=True)
     click.get_current_context().exit(1 if invalid else 0)
 
 

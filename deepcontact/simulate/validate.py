@@ -60,7 +60,10 @@ def check_files(task):
             except InputError as e:
                 line = f"{e.message}"
             if line:
-                errors, above = [one_line(f"{show_path(path)}:0:0: {line}")], ABOVE in line
+                above = ABOVE in line
+                # a step its own <solve> says stopped at the cap is above the tolerance as its run
+                # recorded (counted against the manifest's above_tolerance), not a lie
+                errors = [] if above and _stopped_at_cap(path) else [one_line(f"{show_path(path)}:0:0: {line}")]
         out.append((path, errors, above))
     return out
 
@@ -74,7 +77,11 @@ def held_to_tolerance(path, tolerance, mode="float64"):
 
     A step file holds its impulses as float32 (as Box2D does), so a tolerance below what float32
     rounding allows cannot be read back: a step above the tolerance is held instead to twice the
-    residual of its own exact answer (to 1e-12) rounded to float32, where that is larger."""
+    residual of its own exact answer (to 1e-12) rounded to float32, where that is larger. A run in
+    float32 arithmetic cannot reach below what that arithmetic does either: its step above the
+    tolerance is measured in float64 and held to twice what the project's float32 PGS reaches from
+    the step's own start (to the run's tolerance and cap), where that is larger: a method that
+    stops early is still found."""
     import math
     from ..solver.pgs import solve
     from ..solver.problem import StepProblem
@@ -95,18 +102,34 @@ def held_to_tolerance(path, tolerance, mode="float64"):
     mode = "float64" if mode == "float64" else "float32"   # ("exact": Box2D's float32 PGS)
     problem = StepProblem.from_step(header, bodies, contacts, path)
 
-    def residual(normal, tangent):   # (measured as given: no sweep, no clamp into the cone)
-        return solve(problem, normal, tangent, max_iterations=0, cone=False, mode=mode).residual
-    found = residual(contacts["normal_impulse"].astype(float), contacts["tangent_impulse"].astype(float))
+    def residual(normal, tangent, arithmetic=mode):   # (measured as given: no sweep, no clamp into the cone)
+        return solve(problem, normal, tangent, max_iterations=0, cone=False, mode=arithmetic).residual
+
+    def rounded(n, t):
+        return n.astype(np.float32).astype(float), t.astype(np.float32).astype(float)
+    recorded = (contacts["normal_impulse"].astype(float), contacts["tangent_impulse"].astype(float))
+    found = residual(*recorded)
     allowed = tolerance * SLACK
     if math.isfinite(found) and found > allowed:
         exact = reference_solution(problem)
-        floor = residual(exact.normal_impulse.astype(np.float32).astype(float),
-                         exact.tangent_impulse.astype(np.float32).astype(float))
-        allowed = max(allowed, 2 * floor * SLACK)
+        if mode == "float32":
+            # float32 arithmetic's own reach, measured in float64 (a float32 recomputation rounds as
+            # the solve's running sums did not: 2.3e-7 on a one-point step its solve measured at 0):
+            # the project's float32 PGS from the step's own start, to the run's tolerance and cap
+            found, mode = residual(*recorded, arithmetic="float64"), "float64, of a float32 run"
+            cap = int(claim.get("max_iterations") or 1000) if str(claim.get("max_iterations", "")).isdigit() else 1000
+            reached = solve(problem, problem.start_normal, problem.start_tangent, tolerance=tolerance,
+                            max_iterations=max(cap, 1), mode="float32")
+            floor = max(residual(*rounded(exact.normal_impulse, exact.tangent_impulse), arithmetic="float64"),
+                        residual(*rounded(reached.normal_impulse, reached.tangent_impulse), arithmetic="float64"))
+            what = "what the project's float32 PGS reaches from the step's own start"
+        else:
+            floor = residual(*rounded(exact.normal_impulse, exact.tangent_impulse))
+            what = "what its exact answer rounded to float32 leaves"
+        if math.isfinite(floor):
+            allowed = max(allowed, 2 * floor * SLACK)
     if not (math.isfinite(found) and found <= allowed):
-        floor = (f" and twice what its exact answer rounded to float32 leaves ({allowed / 2 / SLACK:.3g})"
-                 if allowed > tolerance * SLACK else "")
+        floor = (f" and twice {what} ({allowed / 2 / SLACK:.3g})" if allowed > tolerance * SLACK else "")
         return (f"the step's residual {found:.3g}, recomputed from its problem and impulses ({mode}), {ABOVE} "
                 f"{tolerance:g}{floor} ({source}; the file records {claim.get('residual')})")
     return None
@@ -136,6 +159,18 @@ def origins(paths):
                 for s, record in zip(r.simulations, r.manifest["simulations"]):
                     simulations[(run / s.dir).resolve()] = (run / MANIFEST, s.seed, record)
     return origin, tolerance, simulations, errors
+
+
+def _stopped_at_cap(path):
+    """Whether a step file's own <solve> says its solve stopped at the cap (iterations equal to
+    max_iterations): above the tolerance, as recorded."""
+    from ..step.reader import read_step
+    claim = read_step(path, validate=False)[0].get("solve") or {}
+    try:
+        cap = int(claim.get("max_iterations") or 0)
+        return cap > 0 and int(claim.get("iterations") or 0) >= cap
+    except (TypeError, ValueError):
+        return False
 
 
 def _recounted(simulation, above):
