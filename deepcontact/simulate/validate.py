@@ -150,9 +150,9 @@ def origins(paths):
             except InputError as e:
                 errors.append(f"{e.path}:{e.line or 0}:0: {e.message}")
                 continue
-            origin.update({f.resolve(): (r.manifest.get("scene"), s.seed, s.engine) for s in r.simulations
-                           for f in s.files})
             pgs = r.manifest.get("pgs") if r.manifest.get("solver") == "pgs" else None
+            origin.update({f.resolve(): (r.manifest.get("scene"), s.seed, s.engine, pgs) for s in r.simulations
+                           for f in s.files})
             if isinstance(pgs, dict) and pgs.get("stop_on") == "residual":
                 held = (float(pgs.get("tolerance") or 0.0), pgs.get("mode"))
                 tolerance.update({f.resolve(): held for s in r.simulations for f in s.files})

@@ -8,13 +8,15 @@ from .. import schema
 from .._box2d import StepFileError, validate_step_file
 from ..errors import InputError, one_line, show_path
 from .reader import check_origin, read_step, step_schema
+from .records import check_solve
 
 MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
 
 def check_file(path, origin=None):
     """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed, engine) of the
-    simulation the file lies in, or None."""
+    simulation the file lies in, and optionally its run's pgs record (None: the project's solver
+    did not step it), or None."""
     shown = show_path(path)
     try:
         root, scene, seed, errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)
@@ -29,8 +31,10 @@ def check_file(path, origin=None):
         try:   # what the schema cannot say: manifolds whole, the file where it belongs
             header = read_step(path, validate=False)[0]
             if origin is not None:
-                scene_of, seed_of, engine = origin
+                scene_of, seed_of, engine, *record = origin
                 check_origin({**header, "scene": scene, "seed": seed}, scene_of, seed_of, path, engine)
+                if record:   # (the run's pgs record, or None: its <solve> agrees with the run)
+                    check_solve(header.get("solve"), record[0], path)
         except InputError as e:
             lines = [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
     return "step", lines

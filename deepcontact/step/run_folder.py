@@ -183,6 +183,12 @@ def read_manifest(run_dir):
         raise InputError(f"the manifest must be a JSON object, not {type(m).__name__}", path)
     if not isinstance(m.get("simulations"), list):
         raise InputError("the manifest has no list of simulations", path)
+    from .records import check_above, check_pgs
+    if m.get("solver") == "pgs":
+        check_pgs(m.get("pgs"), path)
+    for record in m["simulations"]:
+        if isinstance(record, dict):
+            check_above(record, path)
     return m
 
 
