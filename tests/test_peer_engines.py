@@ -190,6 +190,80 @@ def test_a_plugin_engine_runs_through_the_same_registry(tmp_path):
     assert "mujoco" in ENGINES.builtin() and "pymunk" in ENGINES.builtin()
 
 
+class Contacts999(Still):
+    """Reports one contact naming body 999 of a 7-body scene."""
+
+    def stepper(self, world, scene, record=True):
+        from deepcontact.simulate.engines import empty_contacts
+        from deepcontact.simulate.pgs_loop import LoopStep
+
+        def step():
+            contacts = empty_contacts(1)
+            contacts["body_b"][:] = 999
+            return LoopStep(world.bodies(), contacts, None, 0.0, dt_ratio=1.0)
+        return step
+
+
+class Ragged(Still):
+    """Reports contacts whose arrays are of different lengths."""
+
+    def stepper(self, world, scene, record=True):
+        from deepcontact.simulate.engines import empty_contacts
+        from deepcontact.simulate.pgs_loop import LoopStep
+
+        def step():
+            contacts = empty_contacts(2)
+            contacts["friction"] = contacts["friction"][:1]
+            return LoopStep(world.bodies(), contacts, None, 0.0, dt_ratio=1.0)
+        return step
+
+
+class OddStats(Still):
+    """Gives an account of its step under keys XML cannot hold."""
+    stats = {"iterations done": 3}
+
+    def stepper(self, world, scene, record=True):
+        from deepcontact.simulate.engines import empty_contacts
+        from deepcontact.simulate.pgs_loop import LoopStep
+        return lambda: LoopStep(world.bodies(), empty_contacts(0), None, 0.0, dt_ratio=1.0,
+                                engine_stats=dict(type(self).stats))
+
+
+class ControlStats(OddStats):
+    stats = {"note": "bell\x07"}
+
+
+class NaNStats(OddStats):
+    stats = {"residual": float("nan")}
+
+
+@pytest.mark.parametrize("engine, needles", [
+    ("Contacts999", ["naming body 999", "the step has"]), ("Ragged", ["different lengths", "friction 1"]),
+    ("OddStats", ["'iterations done'", "XML attribute"]), ("ControlStats", ["character XML cannot"]),
+    ("NaNStats", ["residual", "not finite"]),
+])
+def test_what_an_engine_returns_is_checked_before_it_is_written(tmp_path, engine, needles):
+    """A plug-in engine's arrays and account of its step, held to a step file before any is
+    written (contacts naming body 999 of a 7-body scene were written and validated; a stats key
+    with a space made 150 of 151 files invalid XML): one line naming the engine, no output."""
+    code, text = _run("simulate", "stack", "--param", "count=2", "--engine", f"test_peer_engines:{engine}",
+                      "--steps", "3", "-q", "-o", str(tmp_path / "run"))
+    assert code == 1 and all(n in text for n in needles), text
+    assert len(text.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
+
+
+def test_validate_finds_a_contact_naming_a_body_its_step_has_not(run, tmp_path):
+    import shutil
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    step = next(f for f in sorted((copy / "seed-000000").glob("step-*.xml")) if 'master="' in f.read_text())
+    text = step.read_text()
+    import re
+    step.write_text(re.sub(r'master="\d+"', 'master="999"', text, count=1))
+    r = dc("validate", copy)
+    assert r.returncode == 1 and f"{step.name}:0:0: contact 0 names body 999 (master)" in r.stdout, r.stdout
+
+
 @pytest.mark.parametrize("args, needles", [
     (["--set", "iterations"], ["dc simulate: error:", "'--set'", "takes KEY=VALUE"]),
     (["--engine", "pymunk", "--set", "iterations=5", "--set", "iterations=50"], ["iterations is given twice"]),

@@ -140,6 +140,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
         try:
             for done in stepping.steps(world, scene, step):
                 k, bodies, contacts = done.index, done.bodies, done.contacts
+                checked_step(k, bodies, contacts, engine)
                 extent.add(bodies)
                 n = len(contacts["manifold"])
                 at_cap, over = _short_of_tolerance(loop, done.solution)
@@ -167,6 +168,28 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
                             capped=capped if loop is not None and loop.tolerance > 0 else None,
                             above_tolerance=above if loop is not None and loop.tolerance > 0
                             and loop.stop_on == "residual" else None)
+
+
+def checked_step(k, bodies, contacts, engine):
+    """What an engine returned for step k, held to a step file's layout before it is written:
+    arrays of one length per table, and every contact naming bodies the step has (an engine is
+    anyone's code: contacts naming body 999 of a 7-body scene were written, and validated).
+    InputError naming the engine otherwise."""
+    import numpy as np
+    if not isinstance(bodies, dict) or not isinstance(contacts, dict):
+        raise InputError(f"the engine {engine.name!r} returned no bodies and contacts for step {k} (got "
+                         f"{type(bodies).__name__} and {type(contacts).__name__})")
+    for table, arrays in (("bodies", bodies), ("contacts", contacts)):
+        lengths = {name: len(a) for name, a in arrays.items() if hasattr(a, "__len__")}
+        if len(set(lengths.values())) > 1:
+            raise InputError(f"the engine {engine.name!r} returned {table} of different lengths for step {k}: "
+                             + ", ".join(f"{n} {v}" for n, v in sorted(lengths.items())))
+    count = len(next(iter(bodies.values()))) if bodies else 0
+    for side in ("body_a", "body_b"):
+        ids = np.asarray(contacts.get(side, ()))
+        if len(ids) and (ids.min() < 0 or ids.max() >= count):
+            raise InputError(f"the engine {engine.name!r} returned a contact of step {k} naming body "
+                             f"{int(ids.max() if ids.max() >= count else ids.min())}, but the step has {count} bodies")
 
 
 def prepare_output(out_dir, seeds):

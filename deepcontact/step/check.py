@@ -29,7 +29,8 @@ def check_file(path, origin=None):
     lines = [one_line(f"{shown}:{line}:{column}: {message}") for line, column, message in sorted(errors)]
     if not lines:
         try:   # what the schema cannot say: manifolds whole, the file where it belongs
-            header = read_step(path, validate=False)[0]
+            header, bodies, contacts = read_step(path, validate=False)
+            _contacts_name_its_bodies(bodies, contacts, path)
             if origin is not None:
                 scene_of, seed_of, engine, *record = origin
                 check_origin({**header, "scene": scene, "seed": seed}, scene_of, seed_of, path, engine)
@@ -40,3 +41,14 @@ def check_file(path, origin=None):
     return "step", lines
 
 
+def _contacts_name_its_bodies(bodies, contacts, path):
+    """Every contact names bodies of its own step (the schema cannot say: master="999" of 101
+    bodies validated); InputError naming the file and the contact otherwise."""
+    import numpy as np
+    count = len(next(iter(bodies.values()))) if bodies else 0
+    for side, attribute in (("body_a", "master"), ("body_b", "slave")):
+        ids = np.asarray(contacts.get(side, ()))
+        bad = np.flatnonzero((ids < 0) | (ids >= count)) if len(ids) else ()
+        if len(bad):
+            raise InputError(f"contact {int(bad[0])} names body {int(ids[bad[0]])} ({attribute}), but the step has "
+                             f"{count} bodies", path)

@@ -2,6 +2,8 @@
 per-step body and contact state rendered natively (deepcontact._box2d.StepWriter)."""
 
 import gzip
+import math
+import re
 
 from .. import __version__
 from .._box2d import StepWriter, polygon_radius
@@ -80,20 +82,46 @@ def soft_step_xml(soft, restitution_threshold) -> str:
             f'relax_iterations="{RELAX_ITERATIONS}"/>\n')
 
 
+_ATTRIBUTE = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}")
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
 def _value(v) -> str:
-    return fmt(v) if isinstance(v, float) else str(v).lower() if isinstance(v, bool) else str(v)
+    if isinstance(v, float) and not math.isfinite(v):
+        raise ValueError(f"the value {v!r} is not finite (no NaN or inf in a step file)")
+    text = fmt(v) if isinstance(v, float) else str(v).lower() if isinstance(v, bool) else str(v)
+    if _CONTROL.search(text):
+        raise ValueError(f"the value {text!r} holds a character XML cannot")
+    return text
+
+
+def _attributes(pairs, what) -> str:
+    """` key="value"` for each pair, every key a name XML can hold (an engine's settings and
+    account of its step are another's code: a key with a space or a control character made every
+    step file unreadable); InputError naming `what` otherwise."""
+    from ..errors import InputError
+    out = []
+    for k, v in pairs:
+        if not isinstance(k, str) or not _ATTRIBUTE.fullmatch(k) or k.lower().startswith("xml"):
+            raise InputError(f"{what} names {k!r}, which cannot be an XML attribute (letters, digits, _ . -; "
+                             f"not starting with a digit or 'xml')")
+        try:
+            out.append(f" {k}={quoteattr(_value(v))}")
+        except ValueError as e:
+            raise InputError(f"{what}: {k}: {e}") from None
+    return "".join(out)
 
 
 def engine_xml(name, version, settings) -> str:
     """An engine's <engine> line (an engine without Box2D's own lines): its name, its library's
     version and its settings in effect, one attribute each."""
-    extra = "".join(f" {k}={quoteattr(_value(v))}" for k, v in settings.items())
-    return f"    <engine name={quoteattr(name)} version={quoteattr(str(version))}{extra}/>\n"
+    extra = _attributes(settings.items(), f"the engine {name!r}'s settings")
+    return f"    <engine name={quoteattr(_value(name))} version={quoteattr(_value(str(version)))}{extra}/>\n"
 
 
 def engine_step_xml(stats) -> str:
     """A step's <engine_step> line: the engine's own account of its solve (iterations, stop test)."""
-    return "    <engine_step" + "".join(f" {k}={quoteattr(_value(v))}" for k, v in stats.items()) + "/>\n"
+    return "    <engine_step" + _attributes(stats.items(), "the engine's account of its step") + "/>\n"
 
 
 def step_writer(scene, seed, engine) -> StepWriter:
