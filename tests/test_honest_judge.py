@@ -367,7 +367,9 @@ def test_validate_residuals_judges_the_files_never_their_claims(stepped, tmp_pat
     lines = r.stdout.strip().splitlines()
     where = "manifest.json" if edit == "a negative count" else step.name
     assert where in lines[0], lines
-    if "claimed" in edit:   # (and the manifest's count of steps above, which now hides one)
+    if edit == "tolerance and residual claimed":   # (its <solve> no longer agrees with its run's manifest)
+        assert len(lines) == 1 and "<solve tolerance=\"0.1\"> disagrees with its run's manifest" in lines[0]
+    elif "claimed" in edit:   # (and the manifest's count of steps above, which now hides one)
         assert len(lines) == 2 and "records 0 step(s) above the tolerance; recomputed, 1 are" in lines[1]
     else:
         assert len(lines) == 1

@@ -143,7 +143,7 @@ def test_settings_are_checked_naming_the_option(tmp_path):
     code, text = _run("simulate", "pile", "--engine", "pymunk", "--set", "substeps=4", "-o", str(tmp_path / "r"))
     assert code == 2 and "no setting 'substeps'" in text
     code, text = _run("simulate", "pile", "--engine", "pymunk", "--set", "iterations=0", "-o", str(tmp_path / "r"))
-    assert code == 2 and "at least 1" in text
+    assert code == 2 and "from 1 to 100000" in text
     assert not (tmp_path / "r").exists()
 
 

@@ -151,6 +151,14 @@ def origins(paths):
                 errors.append(f"{e.path}:{e.line or 0}:0: {e.message}")
                 continue
             pgs = r.manifest.get("pgs") if r.manifest.get("solver") == "pgs" else None
+            if pgs is not None:   # (its method a built-in's name where it says built-in)
+                from ..solver.methods import SOLVERS
+                from ..step.records import check_pgs
+                try:
+                    check_pgs(pgs, run / MANIFEST, SOLVERS.builtin())
+                except InputError as e:
+                    errors.append(f"{e.path}:{e.line or 0}:0: {e.message}")
+                    continue
             origin.update({f.resolve(): (r.manifest.get("scene"), s.seed, s.engine, pgs) for s in r.simulations
                            for f in s.files})
             if isinstance(pgs, dict) and pgs.get("stop_on") == "residual":
