@@ -263,3 +263,14 @@ def test_where_the_machine_refuses_a_fence_the_report_says_which(run, tmp_path, 
     assert "fences missing on this machine (namespaces, read-only view, seccomp, cpu accounting, process limit)" \
         in verdict, verdict
     assert "Contestants' fences MISSING on this machine: namespaces" in report
+
+
+def test_no_winner_is_named_from_a_single_step():
+    from deepcontact.contest.verdict import MIN_STEPS, decide
+    times = {"builtin": {0: 1.0}, "fast": {0: 0.1}}
+    v = decide(times, ["fast", "builtin"], "builtin", ([1.0], [1.0]))
+    assert v.best == "fast" and v.too_few_steps and not v.clear and v.steps == 1
+    steps = range(MIN_STEPS)
+    times = {"builtin": {k: 1.0 + 0.01 * k for k in steps}, "fast": {k: 0.1 for k in steps}}
+    v = decide(times, ["fast", "builtin"], "builtin", ([1.0 + 0.01 * k for k in steps],) * 2)
+    assert v.clear and not v.too_few_steps

@@ -8,7 +8,8 @@ both):
   timed against itself: how far apart two equal things measure);
 - it is faster than the runner-up beyond 1;
 - and over the whole run, setup included, it cost no more than the base or the runner-up (a start
-  slow on a few steps can win the median and lose the run: a heavy tail).
+  slow on a few steps can win the median and lose the run: a heavy tail);
+- on at least MIN_STEPS steps.
 When one of these fails there is no clear winner, and a variant beaten on the total is never
 called the fastest.
 """
@@ -18,6 +19,7 @@ import numpy as np
 
 RESAMPLES = 2000
 LEVEL = 0.95
+MIN_STEPS = 5   # a winner is never named from fewer steps (one step's interval is a point)
 SEED = 0   # (the intervals are a function of the times: the same report twice is the same report)
 
 
@@ -56,6 +58,7 @@ class Verdict:
     totals: dict = field(default_factory=dict)      # {label: ms over the run, setup included}
     beaten_on_total_by: list = field(default_factory=list)
     level: float = LEVEL
+    steps: int = 0                                  # the steps best and the base were paired on
 
     @property
     def heavy_tail(self):
@@ -69,7 +72,12 @@ class Verdict:
                 "runner_up": self.runner_up,
                 "best_vs_runner_up": None if self.best_vs_runner_up is None else list(self.best_vs_runner_up),
                 "clear": self.clear, "total_ms": dict(self.totals), "beaten_on_total_by": list(self.beaten_on_total_by),
-                "heavy_tail": self.heavy_tail}
+                "heavy_tail": self.heavy_tail, "steps": self.steps, "too_few_steps": self.too_few_steps}
+
+    @property
+    def too_few_steps(self):
+        """Whether there were too few steps to name a winner at all."""
+        return self.best is not None and self.steps < MIN_STEPS
 
 
 def decide(times, candidates, base, aa_pair, setup_ms=None):
@@ -87,6 +95,7 @@ def decide(times, candidates, base, aa_pair, setup_ms=None):
     if not fair:
         return v
     v.best = fair[0]
+    v.steps = len(paired(times[v.best], times[base])[0])
     clear = v.best == base or (v.vs_base[v.best][2] < 1.0 and v.vs_base[v.best][2] < v.aa[1])
     if len(fair) > 1:
         v.runner_up = fair[1]
@@ -94,5 +103,5 @@ def decide(times, candidates, base, aa_pair, setup_ms=None):
         clear = clear and v.best_vs_runner_up[2] < 1.0
     v.beaten_on_total_by = [n for n in dict.fromkeys((base, v.runner_up)) if n is not None and n != v.best
                             and v.totals[n] < v.totals[v.best]]
-    v.clear = bool(clear and not v.beaten_on_total_by)
+    v.clear = bool(clear and not v.beaten_on_total_by and not v.too_few_steps)
     return v

@@ -24,6 +24,7 @@ from ..errors import count
 from ..escape import CsvWriter, md_text, plot_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
+from ..contest.verdict import MIN_STEPS
 from .noise import judge, ranked
 from .replay import BUDGETS, reference_summary
 from ..plotstyle import axis_floor, readable_log_ticks, show_bands, styles, with_markers
@@ -153,6 +154,9 @@ def _verdict(summary, noise=None):
                 + f": a heavy tail of slow steps; {md_text(base)} timed against itself (A/A) measured "
                 f"{_interval(noise['aa'])} ({100 * noise['level']:.0f}% intervals over the steps).")
         return text + left_out
+    if noise and noise.get("best") == best and noise.get("too_few_steps"):
+        return (f"**Verdict**: no clear winner: {count(noise['steps'], 'step')} to judge on, and a winner is named "
+                f"from at least {MIN_STEPS}." + left_out)
     if noise and noise.get("best") == best and not noise["clear"]:
         runner = noise.get("runner_up")
         text = (f"**Verdict**: no clear winner within noise. The fastest start to the tolerance (median time per "
@@ -572,6 +576,9 @@ def loop_verdict(results, tolerance):
     parts = ([f"{_interval(v.vs_base[v.best])} of {md_text(base.start)}'s time per step"] if v.best != base.start else []) \
         + ([f"{_interval(v.best_vs_runner_up)} of the runner-up {md_text(v.runner_up)}'s"] if v.runner_up else []) \
         + [f"A/A noise floor {_interval(v.aa)}"]
+    if v.too_few_steps:
+        return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
+                f"least {MIN_STEPS}." + left_out + _fence_caveat())
     if v.heavy_tail:
         head = (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
                 f"but over the whole run, setup included, it took longer than "
