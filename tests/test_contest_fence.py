@@ -95,6 +95,19 @@ HOSTILE = textwrap.dedent("""
             os.rename(mine + '.npy', mine)
             return box2d(ctx)
 
+    class Untidy:
+        '''Leaves a helper thread that raises, and objects whose finalizer raises.'''
+        def __call__(self, ctx):
+            import threading
+            class Leaky:
+                def __del__(self):
+                    raise ValueError('from a finalizer')
+            Leaky()
+            t = threading.Thread(target=lambda: 1 / 0)
+            t.start()
+            t.join()
+            return box2d(ctx)
+
     class KillsItsParent:
         '''Sends SIGKILL to its parent and to its process group (once the judge's helper and group).'''
         def __call__(self, ctx):
@@ -178,6 +191,18 @@ def test_a_contestant_reaches_no_other_process_nor_the_users_files(run, tmp_path
     out = tmp_path / "r"
     s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Reacher,zero"), out)
     assert {"builtin", "hostile:Reacher", "zero"} <= set(s["starts"])
+
+
+def test_what_a_contestants_thread_or_finalizer_raises_is_a_line_not_a_traceback(run, tmp_path, hostile):
+    import os
+    from conftest import dc_process
+    # (a real process: the contestant writes to dc's own standard error, which CliRunner does not hold)
+    r = dc_process("evaluate", "--no-plots", "--no-budgets", str(run), "--every", "20", "-q", "-o", str(tmp_path / "r"),
+                   "--starts", "builtin,hostile:Untidy",
+                   env={**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "mods"), *sys.path])})
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "the variant 'hostile:Untidy': a thread it started raised ZeroDivisionError" in r.stderr
+    assert "the variant 'hostile:Untidy': ValueError raised and ignored in" in r.stderr
 
 
 def test_two_variants_of_one_plugin_share_no_folder(run, tmp_path, hostile):

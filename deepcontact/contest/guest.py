@@ -128,6 +128,23 @@ def _answer(op, request, setup, start):
     return pack({"error": f"no such request {op!r}"})
 
 
+def _quiet(name):
+    """What a plug-in's helper thread or finalizer raises is one line naming it on dc's standard
+    error, never a traceback (its answers are judged either way)."""
+    import threading
+
+    def thread_hook(args):
+        if args.exc_type is not SystemExit:
+            print(f"dc: warning: the variant {name!r}: a thread it started raised {args.exc_type.__name__}: "
+                  f"{args.exc_value}", file=sys.stderr, flush=True)
+
+    def unraisable_hook(u):
+        print(f"dc: warning: the variant {name!r}: {u.exc_type.__name__} raised and ignored in "
+              f"{getattr(u.object, '__qualname__', type(u.object).__name__)}: {u.exc_value}", file=sys.stderr, flush=True)
+    threading.excepthook = thread_hook
+    sys.unraisablehook = unraisable_hook
+
+
 def serve(conn):
     """A contestant: says it is ready, makes what its setup names, then answers requests until
     the judge closes the connection."""
@@ -139,6 +156,7 @@ def serve(conn):
     plugins.contained = True
     conn.send_bytes(pack({"ready": 1}))
     setup = pickle.loads(conn.recv_bytes())
+    _quiet(setup.get("name", "?"))
     sys.path[:0] = [p for p in setup["path"] if p not in sys.path]
     protocol.use_threads(setup["threads"])
     if "describe" in setup:   # (a description of plug-ins, for a judge that must not import them)
