@@ -15,10 +15,9 @@ import sys
 import time
 
 from ..plugins import PluginError
+from .guest import TRAITS
 from .sandbox import Sandbox
 from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
-
-TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
 CALL_FLOOR = 60.0        # seconds every call may take, at least
