@@ -178,9 +178,12 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         if settings and solver == "pgs":
             raise click.UsageError("--set applies to Box2D's own solver; the project's has --max-iterations")
         stepper = box2d if not settings else type(box2d).from_settings(**settings)
-    else:
+    elif engine in ENGINES.builtin():
         from deepcontact.simulate.engines import engine_named
         stepper = engine_named(engine, settings)
+    else:   # a plug-in engine: its code only in a sandbox of its own (deepcontact/contest/engine.py)
+        from deepcontact.contest.engine import guest_engine
+        stepper = guest_engine(engine, settings)
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, engine=stepper, max_disk=max_disk, compress=compress)
     options.show_output(f"{out_dir}", quiet)

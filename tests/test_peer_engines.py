@@ -280,3 +280,148 @@ def test_every_engine_setting_is_bounded_and_given_once(tmp_path, args, needles)
     r = dc("simulate", "pile", "--steps", "3", *args, "-o", tmp_path / "o")
     option_error(r, *needles)
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+BAD_ENGINES = """
+import os, signal, sys, time
+import numpy as np
+from deepcontact.simulate.build import build_world
+from deepcontact.simulate.engines import Engine, empty_contacts
+from deepcontact.simulate.pgs_loop import LoopStep
+
+class Base(Engine):
+    name, label = "bad", "bad"
+    @classmethod
+    def version(cls):
+        return "1.0"
+    def build(self, scene, source=None):
+        return build_world(scene)
+    def act(self):
+        pass
+    def stepper(self, world, scene, record=True):
+        def step():
+            self.act()
+            return LoopStep(world.bodies(), empty_contacts(0), None, 0.0, dt_ratio=1.0)
+        return step
+
+class RaisesInInit(Base):
+    def __init__(self, **settings):
+        raise ValueError("no init")
+
+class RaisesInVersion(Base):
+    @classmethod
+    def version(cls):
+        raise ValueError("no version")
+
+class RaisesInBuild(Base):
+    def build(self, scene, source=None):
+        raise ValueError("no build")
+
+class RaisesInStep(Base):
+    def act(self):
+        raise ValueError("no step")
+
+class NoneStep(Base):
+    def stepper(self, world, scene, record=True):
+        return lambda: None
+
+class NotAnEngine:
+    pass
+
+class ExitsInBuild(Base):
+    def build(self, scene, source=None):
+        os._exit(0)
+
+class ExitsInStep(Base):
+    def act(self):
+        os._exit(0)
+
+class SysExitInStep(Base):
+    def act(self):
+        sys.exit(3)
+
+class MovesAway(Base):
+    def act(self):
+        os.chdir("/")
+        os.umask(0o777)
+"""
+
+
+@pytest.mark.parametrize("engine, needle", [
+    ("RaisesInInit", "no init"), ("RaisesInVersion", "no version"), ("RaisesInBuild", "no build"),
+    ("RaisesInStep", "no step"), ("NoneStep", "returned no bodies and contacts"),
+    ("NotAnEngine", "is not a deepcontact Engine"), ("ExitsInBuild", "os._exit(0)"), ("ExitsInStep", "os._exit(0)"),
+    ("SysExitInStep", "sys.exit(3)"),
+])
+def test_a_plugin_engine_that_misbehaves_is_one_line_naming_it(tmp_path, monkeypatch, engine, needle):
+    """A plug-in engine runs only in its sandbox (contest/engine.py): whatever leaves its code (an
+    exception, sys.exit, os._exit: once exit 0 with the lock and partial output left) is one line
+    naming it, exit 1, nothing left."""
+    import sys
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "bad_engines.py").write_text(BAD_ENGINES)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    monkeypatch.chdir(tmp_path)
+    try:
+        r = dc("simulate", "stack", "--param", "count=2", "--engine", f"bad_engines:{engine}", "--steps", "3",
+               "-o", "run")
+    finally:
+        sys.modules.pop("bad_engines", None)
+        ENGINES._loaded = {k: v for k, v in ENGINES._loaded.items() if not k.startswith("bad_engines")}
+    assert r.returncode == 1 and f"bad_engines:{engine}" in r.stderr and needle in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mods"]
+
+
+def test_what_a_plugin_engine_changes_in_its_process_reaches_nothing_of_dcs(tmp_path, monkeypatch):
+    import sys
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "bad_engines.py").write_text(BAD_ENGINES)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    monkeypatch.chdir(tmp_path)
+    try:
+        r = dc("simulate", "stack", "--param", "count=2", "--engine", "bad_engines:MovesAway", "--steps", "3", "-q",
+               "-o", "run")
+    finally:
+        sys.modules.pop("bad_engines", None)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "run" / "manifest.json").exists() and dc("validate", tmp_path / "run").returncode == 0
+
+
+HANGS = BAD_ENGINES + """
+class Hangs(Base):
+    def act(self):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print(CUE, file=sys.stderr, flush=True)
+        while True:
+            time.sleep(0.01)
+"""
+
+
+def test_a_plugin_engine_that_ignores_every_stop_cannot_keep_dc_alive(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from conftest import wait_for
+    from test_plugin_guests import CUE, Watch
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "bad_engines.py").write_text(f"CUE = {CUE!r}\n" + HANGS)
+    proc = subprocess.Popen([sys.executable, "-m", "deepcontact.cli.main", "simulate", "stack", "--param", "count=2",
+                             "--engine", "bad_engines:Hangs", "--steps", "3", "-o", "run"], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "mods"), *sys.path])})
+    watch = Watch(proc)
+    try:
+        wait_for(watch.cued)
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        err = watch.finish()
+        took = time.monotonic() - sent
+    finally:
+        proc.kill()
+    assert proc.returncode == 143 and took < 3, (proc.returncode, took, err)
+    assert "interrupted" in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mods"]

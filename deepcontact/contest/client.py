@@ -94,6 +94,7 @@ def _plugin_modules(names):
     installed packages: their distribution's metadata too, where the entry point is read), read
     from their names and the packages' metadata, nothing imported."""
     from ..model.arch import NETWORKS
+    from ..simulate.engines import ENGINES
     from ..solver.methods import SOLVERS
     from ..warmstart.starts import STARTS
     out, metadata = [], []
@@ -103,7 +104,7 @@ def _plugin_modules(names):
         if ":" in name:
             out.append(name.partition(":")[0])
             continue
-        for registry in (STARTS, SOLVERS, NETWORKS):
+        for registry in (STARTS, SOLVERS, NETWORKS, ENGINES):
             if name in registry.builtin():
                 break
             found = registry.installed().get(name)
@@ -122,7 +123,7 @@ def readable_paths(names=(), modules=(), files=()):
     import site
     import deepcontact
     out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
-           os.path.dirname(deepcontact.__file__)]
+           os.path.dirname(deepcontact.__file__), *_cli_folder()]
     try:
         out += site.getsitepackages() + [site.getusersitepackages()]
     except AttributeError:
@@ -132,6 +133,16 @@ def readable_paths(names=(), modules=(), files=()):
     out += _module_roots([*found, *modules], out) + metadata
     out += [os.fspath(f) for f in files if f]
     return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
+
+
+def _cli_folder():
+    """deepcontact.cli's folder, where it lies apart from the package (an editable install): part
+    of the distribution a plug-in may import."""
+    try:
+        spec = importlib.util.find_spec("deepcontact.cli")
+    except (ImportError, ValueError):
+        return []
+    return list(spec.submodule_search_locations or []) if spec is not None else []
 
 
 def _path_for_guest():
@@ -151,11 +162,16 @@ class Contestant:
     sends the setup and charges it. `call` returns (charged seconds, header, arrays)."""
 
     def __init__(self, label, name, start=None, method="none", spec=None, checkpoint=None, threads=1, networks=(),
-                 null=False, describe=None):
+                 null=False, describe=None, engine=None, who=None):
         self.label, self.null_contestant = label, null
+        self.who = who or f"the variant {label!r}"   # (how its errors name it)
         self.left_running = [0, 0]
         self.setup_s, self.setup_wall_s, self.start_s = 0.0, 0.0, 0.0
-        if describe is not None:
+        if engine is not None:   # (a plug-in engine: (its name, its settings); contest/engine.py)
+            setup = {"engine": engine[0], "settings": engine[1], "name": engine[0], "path": _path_for_guest(),
+                     "threads": 1}
+            names, modules = [engine[0]], []
+        elif describe is not None:
             setup = {"describe": describe, "path": _path_for_guest(), "threads": 1}
             names, modules = describe["starts"] + describe["methods"], []
         elif null:
@@ -235,7 +251,7 @@ class Contestant:
     def _receive(self, deadline, doing):
         if not self.conn.poll(deadline):
             self.close()
-            raise PluginError(f"the variant {self.label!r} did not answer within {deadline:g} s while {doing} "
+            raise PluginError(f"{self.who} did not answer within {deadline:g} s while {doing} "
                               f"(its deadline: {deadline_rule()}); it was stopped")
         try:
             data = self.conn.recv_bytes(ANSWER_MAX)
@@ -243,11 +259,11 @@ class Contestant:
             self._ended(doing)
         except OSError as e:   # (an answer over ANSWER_MAX: "bad message length")
             self.close()
-            raise PluginError(f"the variant {self.label!r}: its answer could not be read ({e}; at most "
+            raise PluginError(f"{self.who}: its answer could not be read ({e}; at most "
                               f"{ANSWER_MAX >> 20} MiB)") from None
-        header, arrays = unpack(data, f"the variant {self.label!r}")
+        header, arrays = unpack(data, f"{self.who}")
         if "error" in header:
-            raise PluginError(f"the variant {self.label!r}: {header['error']}") \
+            raise PluginError(f"{self.who}: {header['error']}") \
                 from ContestantTraceback(str(header.get("traceback", "")))
         return header, arrays
 
@@ -258,7 +274,7 @@ class Contestant:
             pass
         how = self.sandbox.exit_description()
         self.close()
-        raise PluginError(f"the variant {self.label!r}: its process ended while {doing}"
+        raise PluginError(f"{self.who}: its process ended while {doing}"
                           + (f" ({how})" if how else "")) from None
 
     def status(self):

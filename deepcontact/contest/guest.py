@@ -165,6 +165,9 @@ def serve(conn):
         except BaseException as e:
             conn.send_bytes(_error(e))
         return
+    if "engine" in setup:   # (a plug-in engine: its worlds built and stepped here)
+        serve_engine(conn, setup)
+        return
     start = None
     try:
         if not setup.get("null"):
@@ -182,6 +185,92 @@ def serve(conn):
             return
         try:
             reply = _answer(request["op"], request, setup, start)
+        except BaseException as e:
+            reply = _error(e)
+        conn.send_bytes(reply)
+
+
+def _engine_made(name, settings):
+    """The plug-in engine `name` made from its settings, and its description for the judge."""
+    import math
+    from ..plugins import guest
+    from ..simulate.engines import ENGINES, Engine
+    cls = ENGINES.load(name)
+    what = f"the engine {name!r}"
+    if not (isinstance(cls, type) and issubclass(cls, Engine)):
+        raise PluginError(f"{what} is not a deepcontact Engine (a subclass of deepcontact.simulate.engines.Engine)")
+    with guest(what):
+        engine = cls.from_settings(**settings)
+        version, made = str(cls.version()), engine.settings()
+    values = {}
+    for k, v in dict(made).items():
+        if not (isinstance(k, str) and (isinstance(v, (str, bool, int)) or (isinstance(v, float) and math.isfinite(v)))):
+            raise PluginError(f"{what}'s settings hold {k!r}: {v!r}, not a name and a finite number or text")
+        values[k] = v
+    described = {"name": str(engine.name or ""), "label": str(engine.label or engine.name or ""), "rows": engine.rows,
+                 "version": version, "settings": values,
+                 "flags": {f: bool(getattr(engine, f, False)) for f in ("poses_box2d_problem", "continuous", "sleeps",
+                                                                        "block_solve", "rests_in_skin")}}
+    return engine, described
+
+
+def _packed_step(what, done):
+    """A step's arrays and account, as an answer (checked: tables of arrays, finite stats)."""
+    import math
+    bodies, contacts = getattr(done, "bodies", None), getattr(done, "contacts", None)
+    if not (isinstance(bodies, dict) and isinstance(contacts, dict)):
+        raise PluginError(f"{what} returned no bodies and contacts from a step (a LoopStep of both, as dicts of arrays)")
+    arrays, layout = {}, {}
+    for table, fields in (("bodies", bodies), ("contacts", contacts)):
+        for field, a in fields.items():
+            a = np.asarray(a)
+            if a.dtype.kind not in "biuf":
+                raise PluginError(f"{what} returned {table}.{field} of {a.dtype}, not numbers")
+            arrays[f"{table}.{field}"] = a.astype(np.float64).ravel()
+            layout[f"{table}.{field}"] = [a.dtype.name, list(a.shape)]
+    stats = {}
+    for k, v in dict(getattr(done, "engine_stats", None) or {}).items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise PluginError(f"{what}'s account of its step: {k}: the value {v!r} is not finite")
+        stats[str(k)] = v if isinstance(v, (str, bool, int, float)) else str(v)
+    deepest, ratio = float(getattr(done, "deepest", 0.0) or 0.0), getattr(done, "dt_ratio", None)
+    header = {"layout": layout, "stats": stats, "deepest": deepest if math.isfinite(deepest) else 0.0,
+              "dt_ratio": float(ratio) if ratio is not None and math.isfinite(float(ratio)) else 1.0}
+    return pack(header, arrays)
+
+
+def serve_engine(conn, setup):
+    """A plug-in engine's sandbox: describes it, then builds one world and steps it on request."""
+    from ..plugins import guest
+    name = setup["engine"]
+    what = f"the engine {name!r}"
+    try:
+        engine, described = _engine_made(name, setup["settings"])
+        conn.send_bytes(pack({"engine": described}))
+    except BaseException as e:
+        conn.send_bytes(_error(e))
+        return
+    world = step = None
+    while True:
+        try:
+            request = pickle.loads(conn.recv_bytes())
+        except EOFError:
+            return
+        try:
+            with guest(what):
+                if request["op"] == "build":
+                    scene = pickle.loads(request["scene"])
+                    engine.check(scene, request.get("source"))
+                    world = engine.build(scene, request.get("source"))
+                    step = engine.stepper(world, scene, record=True)
+                    reply = pack({"built": 1})
+                elif request["op"] == "step":
+                    reply = _packed_step(what, step())
+                elif request["op"] == "remove":
+                    world.remove_body(request["index"])
+                    reply = pack({"built": 1})
+                else:
+                    reply = pack({"error": f"no such request {request['op']!r}"})
         except BaseException as e:
             reply = _error(e)
         conn.send_bytes(reply)

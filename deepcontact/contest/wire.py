@@ -16,7 +16,8 @@ ANSWER_MAX = 1 << 28   # bytes an answer may take (three float64 arrays of 10 mi
 # The fields an answer's header may hold, with their checks: (type, lowest value).
 FIELDS = {"iterations": (int, 0), "fallback": (int, 0), "factorizations": (int, 0), "traits": (dict, None),
           "seconds": (dict, None), "described": (dict, None), "error": (str, None), "traceback": (str, None),
-          "ready": (int, 0)}
+          "ready": (int, 0), "engine": (dict, None), "layout": (dict, None), "stats": (dict, None),
+          "dt_ratio": (float, 0.0), "deepest": (float, 0.0), "built": (int, 0)}
 
 
 def _no_constant(name):
@@ -69,7 +70,9 @@ def _check_field(key, value):
     kind, lowest = FIELDS[key]
     if kind is int and (type(value) is not int or value < lowest):
         raise ValueError(f"{key} is {value!r}, not a whole number >= {lowest}")
-    if kind is not int and not isinstance(value, kind):
+    if kind is float and (type(value) not in (int, float) or not math.isfinite(value) or value < lowest):
+        raise ValueError(f"{key} is {value!r}, not a finite number >= {lowest}")
+    if kind not in (int, float) and not isinstance(value, kind):
         raise ValueError(f"{key} is {type(value).__name__}, not {kind.__name__}")
     if key == "seconds" and not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
                                     for v in value.values()):

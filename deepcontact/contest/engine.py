@@ -1,0 +1,111 @@
+"""A plug-in engine as a guest: its code runs only in a sandbox of its own (sandbox.py), where it
+is loaded, made from its settings, builds each world and steps it; dc's own process receives each
+step's arrays as data (never unpickled), checks them and writes them.
+
+`guest_engine(name, settings)` is what `dc simulate --engine pkg.mod:Class` (or an installed
+plug-in's name) steps: a GuestEngine, an Engine whose attributes its sandbox described. Whatever
+leaves the plug-in's code (an exception, sys.exit, os._exit, a hang past the deadline, a signal
+it ignores) is one line naming it; what it changes in its process (the working folder, the umask,
+threads, forks) reaches nothing of dc's; a user's stop ends it with dc's sandboxes.
+"""
+import pickle
+
+import numpy as np
+
+from ..plugins import PluginError
+from ..simulate.engines import Engine
+from ..simulate.pgs_loop import LoopStep
+from .client import CALL_FLOOR, Contestant
+
+DTYPES = ("bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64", "float32", "float64")
+FLAGS = ("poses_box2d_problem", "continuous", "sleeps", "block_solve", "rests_in_skin")
+
+
+def guest_engine(name, settings=None):
+    """The plug-in engine `name` with `settings` (name -> text or value), described from a
+    sandbox of its own; PluginError naming it if it cannot be loaded or made."""
+    c = Contestant(name, "engine", engine=(name, dict(settings or {})), who=f"the engine {name!r}")
+    try:
+        c.begin()
+        described = c.header.get("engine")
+    finally:
+        c.close()
+    return GuestEngine(name, dict(settings or {}), _described(name, described))
+
+
+def _described(name, d):
+    """The engine's description, checked (a plug-in's answer is data)."""
+    ok = isinstance(d, dict) and all(isinstance(d.get(k), str) and d.get(k) for k in ("name", "label", "version")) \
+        and d.get("rows") == "own" and isinstance(d.get("settings"), dict) and isinstance(d.get("flags"), dict)
+    if not ok:
+        raise PluginError(f"the engine {name!r} described itself as {d!r}: a name, label and version, its own rows "
+                          f"(a plug-in engine's step files hold no Box2D rows) and its settings")
+    return d
+
+
+class GuestEngine(Engine):
+    """A plug-in engine whose code runs in its own sandbox: each world a sandbox of its own."""
+
+    def __init__(self, target, settings, described):
+        self.target, self.asked, self.described = target, settings, described
+        self.name, self.label, self.rows = described["name"], described["label"], "own"
+        for flag in FLAGS:
+            setattr(self, flag, bool(described["flags"].get(flag)))
+        self._settings = dict(described["settings"])
+
+    def version(self) -> str:
+        return self.described["version"]
+
+    def build(self, scene, source=None):
+        return GuestWorld(self, scene, source)
+
+    def stepper(self, world, scene, record=True):
+        return world.step
+
+    def close(self):
+        """Nothing held: each world ends its own sandbox (GuestWorld.close, or dc's end)."""
+
+
+class GuestWorld:
+    """One world of a plug-in engine, in its sandbox: stepped and edited by requests."""
+
+    def __init__(self, engine, scene, source=None):
+        self.engine = engine
+        self.label = f"the engine {engine.target!r}"
+        self.contestant = Contestant(engine.target, "engine", engine=(engine.target, engine.asked), who=self.label)
+        try:
+            self.contestant.begin()
+            self._call({"op": "build", "scene": pickle.dumps(scene), "source": None if source is None else str(source)})
+        except BaseException:
+            self.close()
+            raise
+
+    def _call(self, request):
+        try:
+            return self.contestant.call(request, CALL_FLOOR)
+        except BaseException:
+            self.close()
+            raise
+
+    def step(self):
+        _, header, arrays = self._call({"op": "step"})
+        tables = {"bodies": {}, "contacts": {}}
+        for key, (dtype, shape) in header.get("layout", {}).items():
+            table, _, field = key.partition(".")
+            if table not in tables or dtype not in DTYPES or key not in arrays or \
+                    not (isinstance(shape, list) and all(type(n) is int and n >= 0 for n in shape)) or \
+                    int(np.prod(shape)) != arrays[key].size:
+                raise PluginError(f"{self.label} returned the array {key!r} in a form no step file holds")
+            values = arrays[key]
+            if dtype not in ("float32", "float64") and not np.all(values == np.round(values)):
+                raise PluginError(f"{self.label} returned {key} with a fraction in a whole-number field")
+            tables[table][field] = values.reshape(shape).astype(dtype)
+        stats = header.get("stats") or None
+        return LoopStep(tables["bodies"], tables["contacts"], None, float(header.get("deepest", 0.0)),
+                        dt_ratio=float(header.get("dt_ratio", 1.0)), engine_stats=stats)
+
+    def remove_body(self, index):
+        self._call({"op": "remove", "index": int(index)})
+
+    def close(self):
+        self.contestant.close()
