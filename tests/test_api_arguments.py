@@ -51,7 +51,9 @@ def calls(run, tmp_path_factory):
         "TrainConfig": (dc.TrainConfig, dict(lr=0.01)),
         "make_starts": (dc.make_starts, dict(names=["builtin", "zero"])),
         "evaluate_starts": (dc.evaluate_starts, dict(run_dirs=[run], starts=dc.make_starts(["zero"]), every=50)),
-        "closed_loop": (dc.closed_loop, dict(scene=scene, starts=dc.make_starts(["zero"]), steps=3)),
+        "closed_loop": (dc.closed_loop, dict(scene=scene, starts=dc.make_starts(["zero"]), steps=3,
+                                             settings=dc.SolveSettings())),
+        "engine_named": (dc.engine_named, dict(name="pymunk", settings={"iterations": 5})),
         "GridDataset": (dc.GridDataset, dict(path=empty)),
         "Predictor": (dc.Predictor, dict(checkpoint=empty / "none.pt")),
     }
@@ -73,7 +75,8 @@ VALID_ONLY = {"Predictor": {"checkpoint"}, "GridDataset": {"path"}}   # (their v
                                   "SoftStep", "World", "Box2D", "Box2D3", "StepProblem.from_step", "contact_keys",
                                   "impulses_by_key", "solve", "judge", "local_problem", "local_residual",
                                   "SolveSettings", "reference_solution", "GridSpec", "rasterize", "TrainConfig",
-                                  "make_starts", "evaluate_starts", "closed_loop", "GridDataset", "Predictor"])
+                                  "make_starts", "evaluate_starts", "closed_loop", "engine_named", "GridDataset",
+                                  "Predictor"])
 def test_every_bad_argument_is_the_projects_error_naming_it(calls, name):
     n, table = calls
     function, good = table[name]

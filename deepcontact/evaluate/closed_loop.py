@@ -200,6 +200,7 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
     from ..scene.check import check_scene
     from ..scene.model import Scene
     arguments.instance(scene, "scene", Scene, "a Scene (read_scene or generate makes one)")
+    arguments.instance(settings, "settings", SolveSettings, "a SolveSettings (SolveSettings(tolerance=1e-4), ...)")
     check_scene(scene)   # (what a scene file is held to: an edited scene must not abort in Box2D)
     arguments.starts(starts, "starts")
     steps = scene.steps if steps is None else arguments.whole(steps, "steps", 1)

@@ -178,7 +178,10 @@ ENGINES.register("mujoco", "deepcontact.simulate.engines.mujoco:MuJoCo")
 
 def engine_named(name: str, settings: dict | None = None) -> Engine:
     """The engine registered as `name` with `settings` (name -> value or text, as --set gives)."""
-    return ENGINES.load(name).from_settings(**(settings or {}))
+    from ... import arguments
+    arguments.text(name, "name")
+    settings = {} if settings is None else arguments.mapping(settings, "settings")
+    return ENGINES.load(name).from_settings(**settings)
 
 
 def __getattr__(name):   # (the Box2D engines by their old place: simulate.engines.Box2D)
