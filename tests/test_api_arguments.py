@@ -94,3 +94,19 @@ def test_every_bad_argument_is_the_projects_error_naming_it(calls, name):
             except Exception as e:   # noqa: BLE001 (what this test is for)
                 pytest.fail(f"{name}({argument}={what}) raised {type(e).__module__}.{type(e).__name__}: {e}")
     assert os.fstat(1) == stdout_before   # (no path argument took 1 for the descriptor and closed it)
+
+
+def test_a_scene_a_callers_function_makes_is_held_to_a_scene_files_rules(tmp_path):
+    """simulate_run(callable) with a NaN velocity aborted Python in Box2D's assert (SIGABRT):
+    the scene is checked as a scene file is, one line, before any world is built."""
+    import subprocess
+    import sys
+    code = ("import deepcontact as dc\n"
+            "def make(seed):\n"
+            "    s = dc.generate('stack', seed, {'count': 2})\n"
+            "    s.bodies[-1].vx = float('nan')\n"
+            "    return s\n"
+            f"dc.simulate_run(make, [0], {str(tmp_path / 'o')!r})\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and "InputError" in r.stderr and "velocity and spin must be finite" in r.stderr, \
+        (r.returncode, r.stderr[-500:])

@@ -133,14 +133,18 @@ def _quiet(name):
     error, never a traceback (its answers are judged either way)."""
     import threading
 
+    def say(line):   # (dc's standard error, which the sandbox's is: no log handler runs here)
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
     def thread_hook(args):
         if args.exc_type is not SystemExit:
-            print(f"dc: warning: the variant {name!r}: a thread it started raised {args.exc_type.__name__}: "
-                  f"{args.exc_value}", file=sys.stderr, flush=True)
+            say(f"dc: warning: the variant {name!r}: a thread it started raised {args.exc_type.__name__}: "
+                f"{args.exc_value}")
 
     def unraisable_hook(u):
-        print(f"dc: warning: the variant {name!r}: {u.exc_type.__name__} raised and ignored in "
-              f"{getattr(u.object, '__qualname__', type(u.object).__name__)}: {u.exc_value}", file=sys.stderr, flush=True)
+        say(f"dc: warning: the variant {name!r}: {u.exc_type.__name__} raised and ignored in "
+            f"{getattr(u.object, '__qualname__', type(u.object).__name__)}: {u.exc_value}")
     threading.excepthook = thread_hook
     sys.unraisablehook = unraisable_hook
 

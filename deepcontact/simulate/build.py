@@ -68,7 +68,11 @@ def build_world3(scene, soft, path=None):
 def check_overlaps(scene, path=None):
     """Refuse bodies that start overlapping by more than Box2D tolerates at rest.
 
-    Uses a throwaway world, so the world that is simulated is untouched by the check."""
+    Uses a throwaway world, so the world that is simulated is untouched by the check. The scene
+    is held first to what a scene file is (a NaN velocity a caller's function set would abort
+    the process in Box2D's assert)."""
+    from ..scene.check import check_scene
+    check_scene(scene, path)
     world = build_world(scene)
     world.find_new_contacts()
     world.collide()

@@ -113,6 +113,10 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     plain XML."""
     engine = Box2D() if engine is None else engine
     out_dir = Path(out_dir)
+    # what a scene file is held to, for a scene a caller's function made: Box2D's asserts (a NaN
+    # velocity) abort the process
+    from ..scene.check import check_scene
+    check_scene(scene)
     scene_xml = to_xml(scene)
     atomic.write_bytes(out_dir / "scene.xml", scene_xml)
     world = engine.build(scene)
