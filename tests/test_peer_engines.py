@@ -425,3 +425,29 @@ def test_a_plugin_engine_that_ignores_every_stop_cannot_keep_dc_alive(tmp_path):
     assert proc.returncode == 143 and took < 3, (proc.returncode, took, err)
     assert "interrupted" in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mods"]
+
+
+class FailsOnItsSecondStep(Still):
+    def stepper(self, world, scene, record=True):
+        step, calls = super().stepper(world, scene, record), []
+
+        def once():
+            calls.append(1)
+            if len(calls) == 2:
+                raise ValueError("the engine broke")
+            return step()
+        return once
+
+
+def test_a_world_whose_step_failed_says_so_on_every_later_step():
+    """After one failed step a World was dead with a bare StopIteration; now each later step is
+    one line saying where and why it stopped."""
+    from deepcontact.errors import InputError
+    from deepcontact.simulate.world import World
+    world = World(generate("stack", 0, {"count": 2}), FailsOnItsSecondStep())
+    world.step()
+    with pytest.raises(ValueError, match="the engine broke"):
+        world.step()
+    for _ in range(2):
+        with pytest.raises(InputError, match="stopped at step 1, where its step raised ValueError: the engine broke"):
+            world.step()

@@ -51,7 +51,15 @@ class World:
 
     def step(self) -> Stepped:
         """One step: its index, bodies (before it), contacts, solution, deepest penetration, seconds."""
-        done = next(self._steps)
+        if getattr(self, "_failed", None):
+            from ..errors import InputError
+            raise InputError(self._failed)
+        try:
+            done = next(self._steps)
+        except BaseException as e:   # (its stepping cannot go on: said on every later call, not StopIteration)
+            self._failed = (f"this World stopped at step {self.index}, where its step raised {type(e).__name__}: {e}; "
+                            f"make a new World to step the scene again")
+            raise
         self.index = done.index + 1
         return done
 
