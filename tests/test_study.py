@@ -168,6 +168,13 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
     one = F.settings(families=("pymunk:10 iterations", "MuJoCo Newton:tolerance 1e-08", "PGS"), tolerances=(1e-2,))
     assert [(s.family, s.label) for s in one] == [("pymunk", "10 iterations"), ("MuJoCo Newton", "tolerance 1e-08")] + \
         [("PGS", f"{n} sweeps") for n in F.BUDGETS] + [("PGS", "residual 0.01")]
+    # with only an engine's family asked for, the summary says the project's were not run (not "none")
+    only = tmp_path / "only-box2d"
+    r = dc("study", "frontier", "--fast", "-q", "--scenes", "pyramid 5", "--families", "Box2D 2.4.1:1 iterations",
+           "-o", only)
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in (only / "frontier.md").read_text().splitlines() if x.startswith("| pyramid 5 | Box2D"))
+    assert "| not run (no project family asked) |" in line and "| none |" not in line, line
     r = dc("study", "frontier", "--fast", "--families", "pymunk:11 iterations", "-o", tmp_path / "none")
     assert r.returncode == 2 and "'11 iterations'" in r.stderr and "10 iterations" in r.stderr
     assert not (tmp_path / "none").exists()

@@ -231,10 +231,12 @@ def summary_table(rows):
              "setting at least as accurate | passes | ms / step | time ratio |",
              "| --- | --- | --- | ---: | ---: | --- | --- | ---: | ---: |"]
     for scene in dict.fromkeys(r.scene for r in rows):
+        ran = any(_project(r) for r in rows if r.scene == scene)
         for e, p in matches([r for r in rows if r.scene == scene]):
             accuracy = (f"{_fmt(e.residual_median)} / {_fmt(e.residual_max)}" if math.isfinite(e.residual_median)
                         else f"penetration {_fmt(e.penetration, 100)} cm")
-            ours = "none" if p is None else f"{p.family}, {p.setting}"
+            # ("none" only where the project's settings ran and none was as accurate)
+            ours = f"{p.family}, {p.setting}" if p is not None else "none" if ran else "not run (no project family asked)"
             lines.append(f"| {scene} | {e.family}, {e.setting} | {'yes' if e.passed else 'no'} | "
                          f"{_fmt(e.ms_per_step)} | {accuracy} | {ours} | "
                          f"{'' if p is None else ('yes' if p.passed else 'no')} | {'' if p is None else _fmt(p.ms_per_step)} | "
