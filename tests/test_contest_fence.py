@@ -108,6 +108,16 @@ HOSTILE = textwrap.dedent("""
             t.join()
             return box2d(ctx)
 
+    class EndsItself:
+        '''Ends its own process mid-run, past every guard (a signal to itself).'''
+        def __call__(self, ctx):
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    class ExitsThree:
+        '''Calls os._exit(3) in a call.'''
+        def __call__(self, ctx):
+            os._exit(3)
+
     class KillsItsParent:
         '''Sends SIGKILL to its parent and to its process group (once the judge's helper and group).'''
         def __call__(self, ctx):
@@ -203,6 +213,14 @@ def test_what_a_contestants_thread_or_finalizer_raises_is_a_line_not_a_traceback
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert "the variant 'hostile:Untidy': a thread it started raised ZeroDivisionError" in r.stderr
     assert "the variant 'hostile:Untidy': ValueError raised and ignored in" in r.stderr
+
+
+@pytest.mark.parametrize("start, needle", [("EndsItself", "its process ended while answering (killed by SIGKILL)"),
+                                           ("ExitsThree", "called os._exit(3)")])
+def test_a_contestant_that_ends_its_own_process_is_named(run, tmp_path, hostile, start, needle):
+    r = evaluate(run, tmp_path / "r", "--starts", f"builtin,hostile:{start}")
+    assert r.returncode == 1 and f"hostile:{start}" in r.stderr and needle in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "r").exists()
 
 
 def test_two_variants_of_one_plugin_share_no_folder(run, tmp_path, hostile):

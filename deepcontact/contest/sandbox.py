@@ -367,8 +367,13 @@ class Sandbox:
         code = None if self.process is None else self.process.poll()
         if code is None:
             return ""
+        if code > 128 and _bwrap() is not None:   # (bubblewrap passes its child's signal on as 128 + it)
+            code = 128 - code
         if code < 0:
-            return f"killed by {signal.Signals(-code).name}"
+            try:
+                return f"killed by {signal.Signals(-code).name}"
+            except ValueError:
+                return f"killed by signal {-code}"
         return f"exit status {code}"
 
     def kill(self):
