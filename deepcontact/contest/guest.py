@@ -182,13 +182,19 @@ def serve(conn):
     except BaseException as e:
         conn.send_bytes(_error(e))
         return
+    _requests(conn, lambda request: _answer(request["op"], request, setup, start))
+
+
+def _requests(conn, answer):
+    """Answers each request on conn with answer(request) (an error it raises as an error answer)
+    until the judge closes the connection."""
     while True:
         try:
             request = pickle.loads(conn.recv_bytes())
         except EOFError:
             return
         try:
-            reply = _answer(request["op"], request, setup, start)
+            reply = answer(request)
         except BaseException as e:
             reply = _error(e)
         conn.send_bytes(reply)
@@ -254,30 +260,23 @@ def serve_engine(conn, setup):
     except BaseException as e:
         conn.send_bytes(_error(e))
         return
-    world = step = None
-    while True:
-        try:
-            request = pickle.loads(conn.recv_bytes())
-        except EOFError:
-            return
-        try:
-            with guest(what):
-                if request["op"] == "build":
-                    scene = pickle.loads(request["scene"])
-                    engine.check(scene, request.get("source"))
-                    world = engine.build(scene, request.get("source"))
-                    step = engine.stepper(world, scene, record=True)
-                    reply = pack({"built": 1})
-                elif request["op"] == "step":
-                    reply = _packed_step(what, step())
-                elif request["op"] == "remove":
-                    world.remove_body(request["index"])
-                    reply = pack({"built": 1})
-                else:
-                    reply = pack({"error": f"no such request {request['op']!r}"})
-        except BaseException as e:
-            reply = _error(e)
-        conn.send_bytes(reply)
+    state = {}   # (its world and step function, once built)
+
+    def answer(request):
+        with guest(what):
+            if request["op"] == "build":
+                scene = pickle.loads(request["scene"])
+                engine.check(scene, request.get("source"))
+                state["world"] = engine.build(scene, request.get("source"))
+                state["step"] = engine.stepper(state["world"], scene, record=True)
+                return pack({"built": 1})
+            if request["op"] == "step":
+                return _packed_step(what, state["step"]())
+            if request["op"] == "remove":
+                state["world"].remove_body(request["index"])
+                return pack({"built": 1})
+            return pack({"error": f"no such request {request['op']!r}"})
+    _requests(conn, answer)
 
 
 def main(argv):
