@@ -191,10 +191,9 @@ def test_a_process_working_in_the_background_is_charged_to_the_calls(run, tmp_pa
     out = tmp_path / "r"
     s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached", every=5), out)["starts"]
     detached, builtin = s["hostile:Detached"], s["builtin"]
-    # 0.15 s of CPU burnt between its calls: charged to the calls after it (it slows every variant on
-    # two cores, but it alone pays for its CPU; on a loaded machine some of it may fall after its
-    # last call, which nothing is charged for: half of it, at least)
-    assert detached["total_ms_sum"] > builtin["total_ms_sum"] + 75.0, (detached, builtin)
+    # 0.15 s of CPU burnt between its calls: charged to the calls after it, and what falls after its
+    # last call to its total (it slows every variant on two cores, but it alone pays for its CPU)
+    assert detached["total_ms_sum"] > builtin["total_ms_sum"] + 120.0, (detached, builtin)
 
 
 def test_a_contestant_reaches_no_other_process_nor_the_users_files(run, tmp_path, hostile):

@@ -166,7 +166,7 @@ class Contestant:
         self.label, self.null_contestant = label, null
         self.who = who or f"the variant {label!r}"   # (how its errors name it)
         self.left_running = [0, 0]
-        self.setup_s, self.setup_wall_s, self.start_s = 0.0, 0.0, 0.0
+        self.setup_s, self.setup_wall_s, self.start_s, self.after_s = 0.0, 0.0, 0.0, 0.0
         if engine is not None:   # (a plug-in engine: (its name, its settings); contest/engine.py)
             setup = {"engine": engine[0], "settings": engine[1], "name": engine[0], "path": _path_for_guest(),
                      "threads": 1}
@@ -285,7 +285,11 @@ class Contestant:
             self.left_running = [max(a, b - c) for a, b, c in zip(self.left_running, now, base)]
 
     def close(self):
-        """Ends the sandbox and everything in it."""
+        """Ends the sandbox and everything in it; after_s: the CPU it used after its last call
+        (work left running to the end), which its total is charged too."""
+        cpu, last = self.sandbox.cpu_seconds(), getattr(self, "cpu_last", None)
+        if cpu is not None and last is not None:
+            self.after_s = max(self.after_s, cpu - last)
         try:
             self.conn.close()
         except OSError:

@@ -61,7 +61,8 @@ class Row:
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
     solve_ms_repeats: np.ndarray = None   # each of the REPEATS timed solves (solve_ms is their median)
     transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
-    setup_ms: float = 0.0      # the variant's import and construction in its sandbox, charged (once, not per step)
+    setup_ms: float = 0.0      # the variant's import and construction in its sandbox, and what it ran after its
+                               # last call, charged (once, not per step)
     memo: bool = False         # its repeats answered far faster than its own first calls: charged the first call
     first_ms: float = 0.0      # the first solve call of the step (before the timed repeats; judged like them)
     left_running: tuple = (0, 0)   # threads and processes the variant's process had running after a call
@@ -338,8 +339,10 @@ def evaluate_simulation(task):
     finally:
         for c in (*contestants.values(), null):
             c.close()
-    for row in rows:   # (noticed after any call, ended with its process)
-        row.left_running = tuple(next(c for label, c in contestants.items() if label == row.start).left_running)
+    for row in rows:   # (noticed after any call, ended with its process; the CPU it used after its last call charged)
+        c = contestants[row.start]
+        row.left_running = tuple(c.left_running)
+        row.setup_ms += c.after_s * 1e3
     return rows
 
 

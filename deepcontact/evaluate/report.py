@@ -273,7 +273,7 @@ def contestants_line(summary):
     from ..contest.client import deadline_rule
     setup = ", ".join(f"{md_text(n)} {s['setup_ms']:.1f} ms" for n, s in summary.items())
     transport = max(s["transport_ms_median"] for s in summary.values())
-    out = [f"{_fenced_line()} Setting each up (import and construction, charged, beyond the null contestant's; in "
+    out = [f"{_fenced_line()} Setting each up (import and construction, charged beyond the null contestant's, with what it ran after its last call; in "
            f"the totals, not in the times per step): {setup}. The transport, the null contestant's round trip of "
            f"the same request (the same sandbox and path, no plug-in code) measured per step and subtracted from "
            f"every variant alike, was at most {transport:.3f} ms (median per step); times below it are within its "
