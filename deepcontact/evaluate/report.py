@@ -159,8 +159,9 @@ def _verdict(summary, noise=None):
                 f"from at least {MIN_STEPS}." + left_out)
     if noise and noise.get("best") == best and not noise["clear"]:
         runner = noise.get("runner_up")
-        text = (f"**Verdict**: no clear winner within noise. The fastest start to the tolerance (median time per "
-                f"step, prediction included; oracles left out) is {md_text(best)}"
+        # (no winner, so none is called the fastest: the smallest median, with its intervals)
+        text = (f"**Verdict**: no clear winner within noise. {md_text(best)} has the smallest median time per step "
+                f"to the tolerance (prediction included; oracles left out)"
                 + (f", at {_interval(noise['vs_base'][best])} of {md_text(base)}'s time" if best != base else "")
                 + (f"; against the runner-up {md_text(runner)} it takes {_interval(noise['best_vs_runner_up'])}"
                    if runner else "")
@@ -588,7 +589,8 @@ def loop_verdict(results, tolerance):
         head = ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
                 f"**{md_text(v.best)}**")
     else:
-        head = f"**Verdict**: no clear winner within noise. The fastest start per step of the loop is {md_text(v.best)}"
+        head = (f"**Verdict**: no clear winner within noise. {md_text(v.best)} has the smallest median time per step "
+                f"of the loop")
     return f"{head} ({'; '.join(parts)}; 95% intervals over the steps)." + left_out + _fence_caveat()
 
 
