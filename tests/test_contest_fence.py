@@ -36,7 +36,7 @@ HOSTILE = textwrap.dedent("""
 
     class Detached:
         '''Answers at once, and leaves a process of its own session (double-forked: no longer its
-        child) to burn 0.15 s of CPU in the background, where it would solve the next steps.'''
+        child) to burn 0.1 s of CPU in the background, where it would solve the next steps.'''
         started = False
         def __call__(self, ctx):
             if not Detached.started:
@@ -44,7 +44,7 @@ HOSTILE = textwrap.dedent("""
                 if os.fork() == 0:
                     os.setsid()
                     if os.fork() == 0:
-                        end = time.process_time() + 0.15
+                        end = time.process_time() + 0.1
                         while time.process_time() < end:
                             pass
                     os._exit(0)
@@ -189,11 +189,12 @@ def test_work_done_while_it_is_made_is_charged_to_its_total(run, tmp_path, hosti
 
 def test_a_process_working_in_the_background_is_charged_to_the_calls(run, tmp_path, hostile):
     out = tmp_path / "r"
-    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached", every=5), out)["starts"]
+    s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached", every=3), out)["starts"]
     detached, builtin = s["hostile:Detached"], s["builtin"]
-    # 0.15 s of CPU burnt between its calls: charged to the calls after it, and what falls after its
-    # last call to its total (it slows every variant on two cores, but it alone pays for its CPU)
-    assert detached["total_ms_sum"] > builtin["total_ms_sum"] + 120.0, (detached, builtin)
+    # 0.1 s of CPU burnt between its calls: charged to the calls after it, and what falls after its
+    # last call to its total (it slows every variant on two cores, but it alone pays for its CPU; a
+    # run cut short on a loaded machine may end the burner early: 60 ms of it, at least)
+    assert detached["total_ms_sum"] > builtin["total_ms_sum"] + 60.0, (detached, builtin)
 
 
 def test_a_contestant_reaches_no_other_process_nor_the_users_files(run, tmp_path, hostile):
