@@ -343,12 +343,29 @@ def _out_of_memory(e):
     return "can't allocate memory" in text or "out of memory" in text or "bad_alloc" in text
 
 
+# Off a terminal (a log file, Make, CI, nohup, a cluster's batch job), a long run says where it is
+# in one line at least this often: what is done, the rate, about how long is left
+# (DC_PROGRESS_EVERY=SECONDS sets another period).
+PROGRESS_EVERY = 30.0   # seconds
+
+
+def _progress_every():
+    import os
+    try:
+        value = float(os.environ.get("DC_PROGRESS_EVERY", PROGRESS_EVERY))
+    except ValueError:
+        return PROGRESS_EVERY
+    return value if value >= 0 else PROGRESS_EVERY
+
+
 def progress_bar(quiet, total, unit, desc):
-    """A tqdm bar on stderr; a silent one when quiet or when stderr is no terminal (every bar
-    takes update() and close(), so callers need not ask which). The silent one is not tqdm's:
-    a command in a pipeline or a Makefile need not import it."""
-    if quiet or not _is_terminal(sys.stderr):
+    """A tqdm bar on stderr when it is a terminal; elsewhere a line every PROGRESS_EVERY seconds
+    (LineBar); nothing when quiet (every bar takes update() and close(), so callers need not ask
+    which). Neither off-terminal bar is tqdm's: a command in a pipeline need not import it."""
+    if quiet:
         return SilentBar()
+    if not _is_terminal(sys.stderr):
+        return LineBar(total, unit, desc)
     from tqdm import tqdm
     return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False)
 
@@ -371,6 +388,55 @@ class SilentBar:
 
     def close(self):
         pass
+
+
+class LineBar(SilentBar):
+    """Progress off a terminal: a line on stderr at the first update PROGRESS_EVERY seconds after
+    the last line (what is done, the rate, what is left), and one at the end of a run that wrote
+    any; a short run says nothing."""
+
+    def __init__(self, total, unit, desc):
+        super().__init__()
+        import time
+        self.total, self.unit, self.desc = total, unit, desc
+        self.started = self.said = time.monotonic()
+        self.lines, self.every = 0, _progress_every()
+
+    def update(self, n=1):
+        import time
+        self.n += n
+        now = time.monotonic()
+        if now - self.said >= self.every:
+            self.said = now
+            self._say(now, done=False)
+
+    def close(self):
+        if self.lines:
+            import time
+            self._say(time.monotonic(), done=True)
+
+    def _say(self, now, done):
+        took = max(now - self.started, 1e-9)
+        rate = self.n / took
+        of = f"/{self.total:,}" if self.total else ""
+        share = f" ({100 * self.n / self.total:.0f}%)" if self.total else ""
+        left = ""
+        if not done and self.total and rate > 0 and self.n < self.total:
+            left = f", about {_duration((self.total - self.n) / rate)} left"
+        what = "so far" if not done else "done" if not self.total or self.n >= self.total else "when it ended"
+        sys.stderr.write(f"dc {self.desc}: {self.n:,}{of} {self.unit}s{share} {what} in {_duration(took)}, "
+                         f"{rate:.3g} {self.unit}s/s{left}\n")
+        sys.stderr.flush()
+        self.lines += 1
+
+
+def _duration(seconds):
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds // 3600}h{seconds // 60 % 60:02d}m"
 
 
 def pick_cases(cases, labels):

@@ -12,6 +12,10 @@ import pytest
 from deepcontact.simulate.run import run as simulate_run
 from deepcontact.simulate.source import SceneSource
 
+# Progress lines off a terminal come every 30 s (cli/options.py); the suite's commands, slow on a
+# loaded machine, hold their standard error to what they say without them (its own test sets it).
+os.environ["DC_PROGRESS_EVERY"] = "1e9"
+
 # The audits of hostile input and of what a failure may lose, and the studies' fast runs: whole
 # modules, in `make test`, not in `make test-quick` (the inner loop).
 AUDITS = {"test_nothing_lost", "test_hostile", "test_mutations", "test_bad_input"}

@@ -141,3 +141,21 @@ def test_ctrl_c_leaves_nothing_of_an_unfinished_run(tmp_path):
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []      # no run, no partial folder, no lock file
+
+
+def test_off_a_terminal_a_long_run_says_where_it_is(tmp_path, monkeypatch):
+    """Logged to a file, Make or CI, a run is not silent: a line every DC_PROGRESS_EVERY seconds
+    (30 by default) with what is done, the rate and what is left, and one at its end; -q says
+    nothing (here every update is "long": the period is 0)."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5", "--steps", "20",
+           "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    lines = [x for x in r.stderr.splitlines() if x.startswith("dc simulate pile: ")]
+    assert len(lines) >= 20 and "/20 steps (" in lines[0] and "steps/s, about" in lines[0], r.stderr
+    assert lines[-1].startswith("dc simulate pile: 20/20 steps (100%) done in "), lines[-1]
+    r = dc("simulate", "pile", "--param", "count=12", "--steps", "20", "-q", "-o", tmp_path / "quiet")
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "30")   # (the default: a short run says nothing)
+    r = dc("simulate", "pile", "--param", "count=12", "--steps", "20", "-o", tmp_path / "short")
+    assert r.returncode == 0 and "steps/s" not in r.stderr, r.stderr
