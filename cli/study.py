@@ -5,6 +5,10 @@ deepcontact.studies.STUDIES; this group makes its commands from the registry."""
 import click
 
 
+# The studies of the project's own distribution (studies/): named when it is missing.
+PROJECT_STUDIES = ("stability", "engines", "frontier", "figures", "exact", "peer", "scale")
+
+
 class StudyGroup(click.Group):
     """`dc study`, built from the registry of studies: its commands in the studies' order, its
     help's list from their summaries; a study's module is imported only when it runs or is listed.
@@ -20,6 +24,12 @@ class StudyGroup(click.Group):
         from deepcontact.plugins import PluginError
         from deepcontact.studies import STUDIES, command_of
         if name not in STUDIES.names():
+            if name in PROJECT_STUDIES:   # (the project's own, in its own distribution: say how to get it)
+                from .options import one_line
+                click.echo(one_line(f"dc study: error: the study {name!r} is in the project's studies distribution, "
+                                    f"which is not installed: pip install -e studies/ from the repository (make "
+                                    f"setup does)"), err=True)
+                sys.exit(1)
             return None
         try:
             return command_of(name)

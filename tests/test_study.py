@@ -218,3 +218,11 @@ def test_a_broken_study_is_one_line_and_hides_no_other(tmp_path, monkeypatch):
         STUDIES._loaded = {k: v for k, v in STUDIES._loaded.items() if k not in ("raises", "notastudy", "badcommand")}
         for name in BROKEN:
             sys.modules.pop(name[:-3], None)
+
+
+def test_a_project_study_without_its_distribution_says_how_to_get_it(monkeypatch):
+    """Without the studies distribution, `dc study stability` was click's "No such command"."""
+    from deepcontact.studies import STUDIES
+    monkeypatch.setattr(STUDIES, "installed", lambda: {})
+    one_line_error(dc("study", "stability", "--fast"), "the study 'stability'", "pip install -e studies/")
+    assert dc("study", "nonesuch").returncode == 2   # (a study nobody makes: click's usage error)
