@@ -104,9 +104,10 @@ def _plugin_modules(names):
         if ":" in name:
             out.append(name.partition(":")[0])
             continue
-        for registry in (STARTS, SOLVERS, NETWORKS, ENGINES):
-            if name in registry.builtin():
-                break
+        registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
+        if any(name in r.builtin() for r in registries):   # (a built-in's: no scan of the installed packages)
+            continue
+        for registry in registries:
             found = registry.installed().get(name)
             if found is not None:
                 out.append(found.value.partition(":")[0])
@@ -261,9 +262,10 @@ class Contestant:
             self.close()
             raise PluginError(f"{self.who}: its answer could not be read ({e}; at most "
                               f"{ANSWER_MAX >> 20} MiB)") from None
-        header, arrays = unpack(data, f"{self.who}")
-        if "error" in header:
-            raise PluginError(f"{self.who}: {header['error']}") \
+        header, arrays = unpack(data, self.who)
+        if "error" in header:   # (named once: an error that names its plug-in already needs no prefix)
+            error = header["error"]
+            raise PluginError(error if f"'{self.label}'" in error else f"{self.who}: {error}") \
                 from ContestantTraceback(str(header.get("traceback", "")))
         return header, arrays
 
@@ -341,14 +343,9 @@ def describe(starts=(), methods=()):
     if not (wanted["starts"] or wanted["methods"]):
         return
     listed = ", ".join(wanted["starts"] + wanted["methods"])
-    c = Contestant(f"the plug-ins {listed}", "describe", describe=wanted)
+    c = Contestant(listed, "describe", describe=wanted, who=f"the plug-ins {listed}")
     try:
-        try:
-            c.begin()
-        except PluginError as e:
-            if "its process ended" in str(e):
-                raise PluginError(f"the plug-ins {listed}: their process ended while they were loaded") from None
-            raise PluginError(str(e).replace(f"the variant {c.label!r}: ", "", 1)) from e.__cause__
+        c.begin()
         found = c.header.get("described")
         for registry, kind in ((STARTS, "starts"), (SOLVERS, "methods")):
             for name in wanted[kind]:

@@ -62,9 +62,6 @@ class GuestEngine(Engine):
     def stepper(self, world, scene, record=True):
         return world.step
 
-    def close(self):
-        """Nothing held: each world ends its own sandbox (GuestWorld.close, or dc's end)."""
-
 
 class GuestWorld:
     """One world of a plug-in engine, in its sandbox: stepped and edited by requests."""

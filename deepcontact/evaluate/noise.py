@@ -8,9 +8,7 @@ each step against its second (A/A), which should be 1 and shows how far from 1 t
 a ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
 start's time and the runner-up's; else it says there is no clear winner within noise.
 """
-import numpy as np
-
-from ..contest.verdict import LEVEL, RESAMPLES, decide, paired as _paired, ratio_interval  # noqa: F401 (the rule's)
+from ..contest.verdict import decide, paired as _paired
 
 
 def _totals(rows, name, repeat=None):

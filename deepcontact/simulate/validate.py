@@ -56,14 +56,14 @@ def check_files(task):
                 errors = [f"{e.path}:{e.line or 0}:0: {e.message}"]
         elif not errors and kind == "step" and residuals:
             try:
-                line = held_to_tolerance(path, *(tolerance or (None,)))
+                line, capped = held_to_tolerance(path, *(tolerance or (None,)))
             except InputError as e:
-                line = f"{e.message}"
+                line, capped = f"{e.message}", False
             if line:
                 above = ABOVE in line
                 # a step its own <solve> says stopped at the cap is above the tolerance as its run
                 # recorded (counted against the manifest's above_tolerance), not a lie
-                errors = [] if above and _stopped_at_cap(path) else [one_line(f"{show_path(path)}:0:0: {line}")]
+                errors = [] if above and capped else [one_line(f"{show_path(path)}:0:0: {line}")]
         out.append((path, errors, above))
     return out
 
@@ -72,8 +72,9 @@ def held_to_tolerance(path, tolerance, mode="float64"):
     """What is wrong with a step our solver stepped, judged by the project: the residual of its
     recorded impulses, recomputed from the file's own problem in the run's arithmetic (`mode`,
     the manifest's) and never read from the file, held to `tolerance`, its run's manifest's (None
-    for a step file alone: then its own <solve>'s, and mode). None if nothing is wrong, or the step
-    was not stepped by our solver to a residual.
+    for a step file alone: then its own <solve>'s, and mode): (the line saying what is wrong, or
+    None if nothing is, or the step was not stepped by our solver to a residual; whether its own
+    <solve> says it stopped at the cap).
 
     A step file holds its impulses as float32 (as Box2D does), so a tolerance below what float32
     rounding allows cannot be read back: a step above the tolerance is held instead to twice the
@@ -90,15 +91,17 @@ def held_to_tolerance(path, tolerance, mode="float64"):
     header, bodies, contacts = read_step(path, validate=False)
     claim = header.get("solve")
     if claim is None:
-        return None if tolerance is None else ("has no <solve> record, but its run's manifest says the project's solver "
-                                               "stepped it (an edited file?)")
+        return (None if tolerance is None else ("has no <solve> record, but its run's manifest says the project's "
+                                                "solver stepped it (an edited file?)")), False
+    cap = _whole(claim.get("max_iterations"))
+    capped = cap > 0 and _whole(claim.get("iterations")) >= cap
     source = "its run's manifest"
     if tolerance is None:
         if claim.get("stop_on") != "residual":
-            return None
+            return None, capped
         tolerance, mode, source = float(claim["tolerance"]), claim.get("mode"), "its own <solve>, as it lies outside a run"
     if not tolerance > 0 or len(contacts["manifold"]) == 0:
-        return None
+        return None, capped
     mode = "float64" if mode == "float64" else "float32"   # ("exact": Box2D's float32 PGS)
     problem = StepProblem.from_step(header, bodies, contacts, path)
 
@@ -117,9 +120,8 @@ def held_to_tolerance(path, tolerance, mode="float64"):
             # the solve's running sums did not: 2.3e-7 on a one-point step its solve measured at 0):
             # the project's float32 PGS from the step's own start, to the run's tolerance and cap
             found, mode = residual(*recorded, arithmetic="float64"), "float64, of a float32 run"
-            cap = int(claim.get("max_iterations") or 1000) if str(claim.get("max_iterations", "")).isdigit() else 1000
             reached = solve(problem, problem.start_normal, problem.start_tangent, tolerance=tolerance,
-                            max_iterations=max(cap, 1), mode="float32")
+                            max_iterations=cap or 1000, mode="float32")
             floor = max(residual(*rounded(exact.normal_impulse, exact.tangent_impulse), arithmetic="float64"),
                         residual(*rounded(reached.normal_impulse, reached.tangent_impulse), arithmetic="float64"))
             what = "what the project's float32 PGS reaches from the step's own start"
@@ -131,8 +133,16 @@ def held_to_tolerance(path, tolerance, mode="float64"):
     if not (math.isfinite(found) and found <= allowed):
         floor = (f" and twice {what} ({allowed / 2 / SLACK:.3g})" if allowed > tolerance * SLACK else "")
         return (f"the step's residual {found:.3g}, recomputed from its problem and impulses ({mode}), {ABOVE} "
-                f"{tolerance:g}{floor} ({source}; the file records {claim.get('residual')})")
-    return None
+                f"{tolerance:g}{floor} ({source}; the file records {claim.get('residual')})"), capped
+    return None, capped
+
+
+def _whole(text):
+    """A <solve> count as a number (0 where it is none)."""
+    try:
+        return max(int(text or 0), 0)
+    except (TypeError, ValueError):
+        return 0
 
 
 def origins(paths):
@@ -169,27 +179,14 @@ def origins(paths):
     return origin, tolerance, simulations, errors
 
 
-def _stopped_at_cap(path):
-    """Whether a step file's own <solve> says its solve stopped at the cap (iterations equal to
-    max_iterations): above the tolerance, as recorded."""
-    from ..step.reader import read_step
-    claim = read_step(path, validate=False)[0].get("solve") or {}
-    try:
-        cap = int(claim.get("max_iterations") or 0)
-        return cap > 0 and int(claim.get("iterations") or 0) >= cap
-    except (TypeError, ValueError):
-        return False
-
-
 def _recounted(simulation, above):
-    """An error line where a manifest's count of steps above the tolerance is not a count, or
-    hides steps the recomputation found above it; else None."""
+    """An error line where a manifest's count of steps above the tolerance hides steps the
+    recomputation found above it; else None (a count that is not one was refused as the run was
+    read: step/records.check_above)."""
     manifest, seed, record = simulation
     claimed = record.get("above_tolerance")
     if claimed is None:
         return None
-    if type(claimed) is not int or not 0 <= claimed <= int(record.get("steps") or 0):
-        return f"{show_path(manifest)}:0:0: simulation {seed}: above_tolerance is {claimed!r}, not a count of its steps"
     if above > claimed:
         return (f"{show_path(manifest)}:0:0: simulation {seed}: records {claimed} step(s) above the tolerance; "
                 f"recomputed, {above} are")
