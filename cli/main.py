@@ -58,18 +58,27 @@ def cli():
 
 
 def main():
+    import os
     import shlex
     import sys
     from deepcontact import protocol
     from .options import ClosedStdout
     # A closed standard stream (`2>&-`, `>&-`): the logs go nowhere rather than fail the work, and
-    # data meant for a closed stdout is an error (one line, exit 1), never silently dropped.
+    # data meant for a closed stdout is an error (one line, exit 1), never silently dropped. Its
+    # descriptor is held on /dev/null, so that no file or socket we open later takes its number
+    # (and a child's standard output with it).
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.open(os.devnull, os.O_RDWR)   # (the lowest free number: this one, as those below are open)
     if sys.stderr is None:
-        import os
         sys.stderr = open(os.devnull, "w")
-    if sys.stdout is None:
+    if sys.stdout is None or os.environ.get("DC_STUDY_FENCED") and os.environ.get("DC_STDOUT_CLOSED"):
         sys.stdout = ClosedStdout()
     protocol.command_line = shlex.join(["dc", *sys.argv[1:]])   # recorded in every report
+    if os.environ.get("DC_STUDY_FENCED") and os.environ.get("DC_COMMAND_LINE"):
+        protocol.command_line = os.environ["DC_COMMAND_LINE"]   # (a fenced study: the user's line, not the staged one)
     from deepcontact import leftovers
     leftovers.adopt_orphans()
     try:

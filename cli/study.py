@@ -2,6 +2,9 @@
 thesis's figures, the reference and its peer): every results table of docs/results.md that is not a
 `dc evaluate` report comes from one of these. The studies are plug-ins registered in
 deepcontact.studies.STUDIES; this group makes its commands from the registry."""
+import os
+import sys
+
 import click
 
 
@@ -11,18 +14,36 @@ PROJECT_STUDIES = ("stability", "engines", "frontier", "figures", "exact", "peer
 
 class StudyGroup(click.Group):
     """`dc study`, built from the registry of studies: its commands in the studies' order, its
-    help's list from their summaries; a study's module is imported only when it runs or is listed.
-    A broken study (its package missing, raising on import, not a Study, its command() raising)
-    is one line in the help and when run, and hides no other."""
+    help's list from their summaries. An installed study is listed and run fenced, in a sandbox of
+    its own (deepcontact/studies/fence.py): its code never runs in this process. A broken study
+    (its package missing, raising on import, not a Study, its command() raising) is one line in
+    the help and when run, and hides no other."""
+
+    def _listing(self):
+        """([(order, name, summary)] of the healthy studies, {name: line} of the broken ones)."""
+        from deepcontact.studies import STUDIES, fence, survey
+        key = tuple(STUDIES.names())   # (a study registered since is listed too)
+        if getattr(self, "_listed", (None,))[0] != key:
+            if os.environ.get(fence.INSIDE):   # (the sandbox that lists or runs them: here, in place)
+                healthy, broken = survey()
+                rows = [(s.order, s.name, s.summary) for s in healthy]
+            else:
+                rows, broken = [], {}
+                if any(n not in STUDIES.builtin() for n in STUDIES.names()):
+                    found, broken = fence.survey()
+                    rows = [(s["order"], s["name"], s["summary"]) for s in found]
+                in_code, broken_here = survey(STUDIES.builtin())
+                rows += [(s.order, s.name, s.summary) for s in in_code]
+                broken.update(broken_here)
+            self._listed = (key, (sorted(rows), broken))
+        return self._listed[1]
 
     def list_commands(self, ctx):
-        from deepcontact.studies import survey
-        return [s.name for s in survey()[0]]
+        return [name for _, name, _ in self._listing()[0]]
 
     def get_command(self, ctx, name):
-        import sys
         from deepcontact.plugins import PluginError
-        from deepcontact.studies import STUDIES, command_of
+        from deepcontact.studies import STUDIES, command_of, fence
         if name not in STUDIES.names():
             if name in PROJECT_STUDIES:   # (the project's own, in its own distribution: say how to get it)
                 from .options import one_line
@@ -31,6 +52,8 @@ class StudyGroup(click.Group):
                                     f"setup does)"), err=True)
                 sys.exit(1)
             return None
+        if fence.fenced(name):
+            return _fenced_command(name)
         try:
             return command_of(name)
         except PluginError as e:   # (one line naming its distribution and entry point; -v: the traceback)
@@ -41,12 +64,11 @@ class StudyGroup(click.Group):
             sys.exit(1)
 
     def format_help_text(self, ctx, formatter):
-        from deepcontact.studies import survey
         super().format_help_text(ctx, formatter)
-        studies, broken = survey()
+        rows, broken = self._listing()
         with formatter.section("Studies"):
-            if studies:
-                formatter.write_dl([(s.name, s.summary) for s in studies])
+            if rows:
+                formatter.write_dl([(name, summary) for _, name, summary in rows])
             else:
                 formatter.write_text("none installed: pip install -e studies/ (make setup does)")
         if broken:
@@ -56,6 +78,24 @@ class StudyGroup(click.Group):
 
     def format_commands(self, ctx, formatter):
         pass   # (the list above says what each does)
+
+
+def _fenced_command(name):
+    """`dc study NAME ARGS`: the study run in its sandbox (its own --help and errors come from
+    there); this process checks, stages and publishes its output."""
+    from . import options
+
+    @options.command(f"study {name}")
+    def body(args, verbose=0, quiet=0):
+        from deepcontact.studies import fence
+        raise click.exceptions.Exit(fence.run(name, args))
+
+    @click.command(name, add_help_option=False,
+                   context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+    @click.argument("args", nargs=-1, type=click.UNPROCESSED)
+    def command(args):
+        body(args, verbose=sum(a in ("-v", "--verbose") for a in args))
+    return command
 
 
 @click.group(cls=StudyGroup)

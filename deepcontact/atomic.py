@@ -742,20 +742,7 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
         recover(path, command)
         existing = path.is_dir() and any(path.iterdir())
         if existing and not existing_ok:
-            if not overwrite:
-                raise InputError(f"output folder is not empty; {hint}", path)
-            rec, held = read_record(path), entries(path)
-            if rec is None or rec["state"] != "done":
-                raise InputError(f"not written by dc {command}: refusing to replace {path} (it holds no record "
-                                 f"{RECORD} of a dc output; remove it yourself or choose another output)",
-                                 path / held[0].rstrip("/"))
-            if rec["command"] != command:
-                raise InputError(f"written by dc {rec['command']}, not dc {command}: refusing to replace it", path)
-            own = set(rec["files"]) | {RECORD}
-            foreign = next((path / r.rstrip("/") for r in held if r not in own), None)
-            if foreign is not None:
-                raise InputError(f"not written by dc {command}: refusing to replace {path} (--overwrite only "
-                                 f"replaces a {owned.what} holding nothing but what dc {command} wrote)", foreign)
+            check_owned_folder(path, command, overwrite, owned.what, hint)
         if not in_place:
             with folder(path, command) as tmp, _named(path, tmp):
                 yield tmp
@@ -779,6 +766,40 @@ def output_folder(path, owned, overwrite=False, *, command, in_place=False, exis
             if _in_place.pop(key, None) is not None:
                 record.save(final=True)
             _release_root(path)
+
+
+def check_owned_folder(path, command, overwrite, what="folder", hint="use --overwrite to replace it"):
+    """Refuses (InputError) to replace the non-empty folder at path unless overwrite is given, its
+    record says dc `command` wrote it, completely, and it holds nothing else: --overwrite never
+    deletes what the command did not write."""
+    from .errors import InputError
+    path = Path(path)
+    if not overwrite:
+        raise InputError(f"output folder is not empty; {hint}", path)
+    rec, held = read_record(path), entries(path)
+    if rec is None or rec["state"] != "done":
+        raise InputError(f"not written by dc {command}: refusing to replace {path} (it holds no record "
+                         f"{RECORD} of a dc output; remove it yourself or choose another output)",
+                         path / held[0].rstrip("/"))
+    if rec["command"] != command:
+        raise InputError(f"written by dc {rec['command']}, not dc {command}: refusing to replace it", path)
+    own = set(rec["files"]) | {RECORD}
+    foreign = next((path / r.rstrip("/") for r in held if r not in own), None)
+    if foreign is not None:
+        raise InputError(f"not written by dc {command}: refusing to replace {path} (--overwrite only "
+                         f"replaces a {what} holding nothing but what dc {command} wrote)", foreign)
+
+
+def hold_building(folder, command):
+    """A folder this process just made beside an output, held as a partial output of dc `command`:
+    a hard stop removes it, and so does the next command on that output (recover) if this process
+    is killed."""
+    _building.add(Path(folder))
+    _write_record(folder, command, "partial")
+
+
+def release_building(folder):
+    _building.discard(Path(folder))
 
 
 @contextmanager

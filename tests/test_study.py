@@ -39,14 +39,14 @@ def test_dc_study_is_built_from_the_registry_of_studies():
     a study registered in code is a command too, with no change to `dc study`."""
     from click.testing import CliRunner
     from deepcontact.cli.study import study
-    from deepcontact.studies import STUDIES, Study, installed
+    from deepcontact.studies import STUDIES, Study, command_of, installed
     studies = installed()
     assert [s.name for s in studies] == study.list_commands(None)
     assert [s.name for s in studies][:3] == ["stability", "engines", "frontier"]
     helped = CliRunner().invoke(study, ["--help"]).output
     for row in studies:
         assert issubclass(row, Study) and row.name in helped and row.summary.split()[0] in helped
-        command = study.get_command(None, row.name)
+        command = command_of(row.name)   # (dc study runs it fenced: tests/test_study_fence.py)
         (out,) = [p for p in command.params if "-o" in getattr(p, "opts", ())]
         assert row.writes in ("folder", "file", "text")
         folder = row.writes == "folder"

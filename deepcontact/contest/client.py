@@ -16,7 +16,7 @@ import time
 
 from ..plugins import PluginError
 from .guest import TRAITS
-from .sandbox import Sandbox
+from . import broker as _broker
 from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
@@ -186,7 +186,7 @@ class Contestant:
             names = [name, method, *networks]
             modules = [] if made else [type(getattr(start, "start", start)).__module__]
         self._setup = setup
-        self.sandbox = Sandbox(readable_paths(names, modules, [checkpoint] if checkpoint else []))
+        self.sandbox = _broker.new(readable_paths(names, modules, [checkpoint] if checkpoint else []))
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()

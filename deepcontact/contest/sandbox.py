@@ -39,7 +39,9 @@ DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidf
                 "move_mount", "open_tree", "fsopen", "fsmount", "unshare", "setns", "open_by_handle_at",
                 "name_to_handle_at", "kexec_load", "kexec_file_load", "init_module", "finit_module",
                 "delete_module", "reboot", "swapon", "swapoff", "syslog", "acct", "quotactl", "settimeofday",
-                "clock_settime", "clock_adjtime", "adjtimex", "iopl", "ioperm", "lookup_dcookie")
+                "clock_settime", "clock_adjtime", "adjtimex", "iopl", "ioperm", "lookup_dcookie",
+                "io_uring_setup", "io_uring_enter", "io_uring_register")
+AF_UNIX = 1   # socket(AF_UNIX, ...) is refused a job (JobSandbox): see _seccomp_program
 
 # Files of /etc an interpreter reads (the loader's cache, names of users and zones); the rest of
 # /etc is not the contestant's to read.
@@ -137,10 +139,18 @@ def _cgroup_roots():
     return found
 
 
+class _ArgRule(ctypes.Structure):
+    """libseccomp's struct scmp_arg_cmp: argument `arg` compared (op) with datum_a."""
+    _fields_ = [("arg", ctypes.c_uint), ("op", ctypes.c_int), ("datum_a", ctypes.c_uint64),
+                ("datum_b", ctypes.c_uint64)]
+
+
 @lru_cache(maxsize=None)
-def _seccomp_program():
+def _seccomp_program(job=False):
     """The seccomp filter (a BPF program's bytes, from libseccomp) refusing DENIED_CALLS with EPERM,
-    or None without libseccomp."""
+    or None without libseccomp. job: socket(AF_UNIX) refused too, because a job sees the whole file
+    system read-only, and a read-only bind still lets a process connect to the sockets on it (a
+    session bus, an agent) and ask a process outside the fence to act; socketpair() stays."""
     try:
         lib = ctypes.CDLL("libseccomp.so.2", use_errno=True)
     except OSError:
@@ -148,17 +158,24 @@ def _seccomp_program():
     lib.seccomp_init.restype = ctypes.c_void_p
     lib.seccomp_init.argtypes = [ctypes.c_uint32]
     lib.seccomp_syscall_resolve_name.argtypes = [ctypes.c_char_p]
-    lib.seccomp_rule_add.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int, ctypes.c_uint]
+    lib.seccomp_rule_add_array.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int, ctypes.c_uint,
+                                           ctypes.POINTER(_ArgRule)]
     lib.seccomp_export_bpf.argtypes = [ctypes.c_void_p, ctypes.c_int]
     lib.seccomp_release.argtypes = [ctypes.c_void_p]
     allow, refuse = 0x7FFF0000, 0x00050000 | errno.EPERM   # SCMP_ACT_ALLOW, SCMP_ACT_ERRNO(EPERM)
     ctx = lib.seccomp_init(allow)
     if not ctx:
         return None
+    rules = [(name, []) for name in DENIED_CALLS]
+    if job:
+        rules.append(("socket", [_ArgRule(0, 4, AF_UNIX, 0)]))   # (argument 0, SCMP_CMP_EQ, AF_UNIX)
     try:
-        for name in DENIED_CALLS:
+        for name, args in rules:
             number = lib.seccomp_syscall_resolve_name(name.encode())
-            if number >= 0 and lib.seccomp_rule_add(ctx, refuse, number, 0) != 0:
+            if number < 0:
+                continue
+            array = (_ArgRule * max(1, len(args)))(*args)
+            if lib.seccomp_rule_add_array(ctx, refuse, number, len(args), array) != 0:
                 return None
         fd = os.memfd_create("dc-seccomp")
         try:
@@ -310,13 +327,16 @@ class Sandbox:
             out += ["--seccomp", str(seccomp_fd)]
         return out + list(argv)
 
-    def start(self, argv, pass_fds=(), env=None):
-        """Starts argv inside the fence (its standard output sent to our standard error)."""
+    job = False   # (JobSandbox: a whole job's fence, not a contestant's)
+
+    def start(self, argv, pass_fds=(), env=None, stdout=None, stderr=None):
+        """Starts argv inside the fence (its standard output and error sent to our standard error,
+        or to the files given)."""
         _registered()
         _live.add(self)
         self._make_groups()
         seccomp_fd = None
-        program = _seccomp_program() if _bwrap() is not None else None
+        program = _seccomp_program(self.job) if _bwrap() is not None else None
         if program is not None:
             seccomp_fd = os.memfd_create("dc-seccomp", 0)
             os.write(seccomp_fd, program)
@@ -325,7 +345,8 @@ class Sandbox:
             err = sys.stderr.fileno() if _has_fileno(sys.stderr) else subprocess.DEVNULL
             self.process = subprocess.Popen(
                 self._argv(argv, seccomp_fd), pass_fds=[*pass_fds, *([seccomp_fd] if seccomp_fd is not None else [])],
-                stdin=subprocess.DEVNULL, stdout=err, stderr=err, env=env, preexec_fn=self._enter)
+                stdin=subprocess.DEVNULL, stdout=err if stdout is None else stdout,
+                stderr=err if stderr is None else stderr, env=env, preexec_fn=self._enter)
         finally:
             if seccomp_fd is not None:
                 os.close(seccomp_fd)
@@ -417,6 +438,47 @@ class Sandbox:
                     time.sleep(0.01)
         self.groups = {}
         _live.discard(self)
+
+
+class JobSandbox(Sandbox):
+    """A whole job's fence (a study: hours of work that reads the user's inputs anywhere, writes
+    one output and may run contestants of its own). Namespaces of its own (user, PID, mount, IPC,
+    network, UTS; no new user namespace inside): the whole file system read-only, its own /proc,
+    /dev and /dev/shm, writable only in the folders given (its output's staging folder and a
+    private temporary folder, TMPDIR); seccomp as a contestant's, and no socket(AF_UNIX), which
+    would reach sockets on the read-only file system. Its PID namespace ends with it. It cannot
+    build namespaces for contestants of its own (bubblewrap inside bubblewrap cannot mount a new
+    /proc), so they are started by the judge's process on its behalf (broker.py)."""
+
+    job = True
+
+    def __init__(self, writable=(), cwd=None):
+        super().__init__()
+        self.name = f"dc-job-{os.getpid()}-{Sandbox._count}"
+        self.writable = [os.path.abspath(p) for p in writable]
+        self.cwd = os.path.abspath(cwd or os.getcwd())
+
+    def _make_groups(self):
+        pass   # (not charged: a job is the user's own measurement; its PID namespace ends it)
+
+    def _enter(self):
+        import resource
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+        os.setsid()
+
+    def _argv(self, argv, seccomp_fd):
+        bwrap = _bwrap()
+        if bwrap is None:
+            return list(argv)
+        out = [bwrap, "--unshare-user", "--unshare-pid", "--unshare-ipc", "--unshare-net", "--unshare-uts",
+               "--disable-userns", "--die-with-parent", "--new-session", "--cap-drop", "ALL",
+               "--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/dev/shm"]
+        for path in dict.fromkeys(self.writable):
+            out += ["--bind", path, path]
+        out += ["--chdir", self.cwd]
+        if seccomp_fd is not None:
+            out += ["--seccomp", str(seccomp_fd)]
+        return out + list(argv)
 
 
 def _registered():

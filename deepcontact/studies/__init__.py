@@ -59,12 +59,13 @@ def _healthy(name):
     return found, command
 
 
-def survey() -> tuple:
-    """(the healthy studies, loaded, in their order; {name: one line saying what is wrong} of the
-    broken ones). One broken package hides no other study."""
+def survey(names=None) -> tuple:
+    """(the healthy studies, loaded in this process, in their order; {name: one line saying what
+    is wrong} of the broken ones), of every study or of `names`. One broken package hides no other
+    study. (`dc study` lists the installed ones from a sandbox: fence.survey.)"""
     from ..plugins import PluginError
     healthy, broken = [], {}
-    for name in STUDIES.names():
+    for name in STUDIES.names() if names is None else names:
         try:
             healthy.append(_healthy(name)[0])
         except PluginError as e:

@@ -1,0 +1,303 @@
+"""Contestants of a fenced job, started by the judge's process on the job's behalf.
+
+A job (a study) runs in a sandbox of its own (sandbox.JobSandbox), which cannot build the
+namespaces of a contestant's sandbox: bubblewrap inside bubblewrap cannot mount the contestant's
+own /proc. So, as flatpak's portal spawns a sandboxed process for an application already inside
+one, the job asks the process that started it, over a socket it inherits: that process starts
+the contestant's sandbox (with its control group, its limits, its seccomp), passes it the job's
+end of the contestant's socket, and answers the job's questions about it (its CPU, its
+processes, how it ended); the job never holds the contestant's process. Every sandbox a job
+asked for ends with the job.
+
+The job's side is RemoteSandbox, the same members as sandbox.Sandbox; the judge's side is Broker.
+"""
+import json
+import os
+import socket
+import threading
+import time
+
+from . import sandbox
+
+ENV = "DC_SANDBOX_BROKER"   # the job's end of the broker's socket (a descriptor number)
+LIVE_LIMIT = 64             # sandboxes a job may hold at once
+MESSAGE_MAX = 1 << 20
+
+
+class BrokerError(RuntimeError):
+    """The broker refused a request (said in one line) or is gone."""
+
+
+# --- The job's side --------------------------------------------------------------------------------
+
+_lock = threading.Lock()
+_conn = None   # (this process's own line to the broker: a forked worker makes its own)
+
+
+def _after_fork():
+    global _lock, _conn
+    _lock, _conn = threading.Lock(), None
+
+
+os.register_at_fork(after_in_child=_after_fork)
+
+
+def inside():
+    """Whether this process is a fenced job whose contestants the judge's process starts."""
+    return os.environ.get(ENV, "").isdigit()
+
+
+def remote(op, fds=(), **fields):
+    """One request to the broker and its answer (a dict); BrokerError if it refused or is gone."""
+    with _lock:   # (one request at a time: an answer belongs to the request before it)
+        try:
+            sock = _connection()
+            socket.send_fds(sock, [json.dumps({"op": op, **fields}).encode()], list(fds))
+            answer = sock.recv(MESSAGE_MAX)
+        except OSError as e:
+            raise BrokerError(f"the judge's process that starts contestants is gone ({e.strerror or e})") from None
+    if not answer:
+        raise BrokerError("the judge's process that starts contestants is gone")
+    answer = json.loads(answer)
+    if "error" in answer:
+        raise BrokerError(answer["error"])
+    return answer
+
+
+def _connection():
+    """This process's own line to the broker. The inherited socket carries only requests for a
+    line (each with its end, one message each, never answered there): a job's processes (a
+    forked worker, say) share it, and answers on it could reach the wrong one."""
+    global _conn
+    if _conn is None:
+        shared = socket.socket(fileno=os.dup(int(os.environ[ENV])))
+        try:
+            ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            try:
+                socket.send_fds(shared, [b'{"op": "connect"}'], [theirs.fileno()])
+            finally:
+                theirs.close()
+        finally:
+            shared.close()
+        _conn = ours
+    return _conn
+
+
+def new(readable=()):
+    """A contestant's sandbox: this process's own, or, in a fenced job, one the judge's process
+    starts and owns on the job's behalf (RemoteSandbox)."""
+    return RemoteSandbox(readable) if inside() else sandbox.Sandbox(readable)
+
+
+def fences():
+    """{fence: True/False} of what a contestant gets here: this machine's (sandbox.fences), or, in
+    a fenced job, what the judge's process that starts its contestants lends."""
+    return remote("fences")["fences"] if inside() else sandbox.fences()
+
+
+def missing_fences():
+    """The names of the fences refused here (empty when every fence holds)."""
+    return [name for name, held in fences().items() if not held]
+
+
+def describe_fences():
+    """One phrase for reports: the fences used, and any missing (sandbox.describe_fences)."""
+    return remote("fences")["describe"] if inside() else sandbox.describe_fences()
+
+
+class RemoteProcess:
+    """The part of a Popen a contestant's client uses, answered by the broker."""
+
+    def __init__(self, box):
+        self.box = box
+        self.returncode = None
+
+    def poll(self):
+        if self.returncode is None and self.box.id is not None:
+            self.returncode = remote("poll", id=self.box.id)["code"]
+        return self.returncode
+
+    def wait(self, timeout=None):
+        due = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if due is not None and time.monotonic() > due:
+                import subprocess
+                raise subprocess.TimeoutExpired("contestant", timeout)
+            time.sleep(0.01)
+        return self.returncode
+
+
+class RemoteSandbox:
+    """A contestant's sandbox that the judge's process starts and owns for this job: the members
+    of sandbox.Sandbox that a contestant's client uses."""
+
+    def __init__(self, readable=()):
+        self.readable = [os.path.abspath(p) for p in readable if p and os.path.exists(p)]
+        self.id, self.process, self._how = None, None, ""
+
+    def start(self, argv, pass_fds=(), env=None):
+        """Starts argv in a contestant's sandbox; the descriptors in pass_fds are passed on, each
+        under the broker's number for it wherever argv names it."""
+        sandbox._registered()
+        answer = remote("start", fds=pass_fds, argv=[str(a) for a in argv], readable=self.readable,
+                        fd_numbers=[int(fd) for fd in pass_fds])
+        self.id = answer["id"]
+        self.process = RemoteProcess(self)
+        sandbox._live.add(self)
+        return self.process
+
+    def _ask(self, op, default=None):
+        if self.id is None:
+            return default
+        try:
+            return remote(op, id=self.id)
+        except BrokerError:
+            return default
+
+    def cpu_seconds(self):
+        answer = self._ask("cpu")
+        return None if answer is None else answer["value"]
+
+    def processes(self):
+        answer = self._ask("processes")
+        return None if answer is None or answer["value"] is None else tuple(answer["value"])
+
+    def exit_description(self):
+        answer = self._ask("poll")
+        return "" if answer is None else answer["how"]
+
+    def kill(self):
+        if self.id is not None:
+            self._ask("kill")
+            if self.process is not None and self.process.returncode is None:
+                self.process.returncode = -9
+            self.id = None
+        sandbox._live.discard(self)
+
+
+# --- The judge's side ------------------------------------------------------------------------------
+
+class Broker:
+    """Serves one job's requests for contestants' sandboxes from a thread of the judge's process.
+    `job_fd` is the descriptor the job inherits (its number in ENV); `close()` ends every sandbox
+    it started."""
+
+    def __init__(self):
+        self._ours, self._theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        self.job_fd = self._theirs.fileno()
+        self.boxes, self._count, self._lines = {}, 0, []
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._accept, name="dc-broker", daemon=True)
+        self._thread.start()
+
+    def job_started(self):
+        """The job holds its end now: ours is closed, so that its end is the only one."""
+        self._theirs.close()
+
+    def _accept(self):
+        """The job's requests for a line of their own (one per process), each served by a thread."""
+        while True:
+            try:
+                data, fds, _, _ = socket.recv_fds(self._ours, 4096, 4)
+            except OSError:
+                return
+            if not data:
+                for fd in fds:
+                    os.close(fd)
+                return
+            if len(fds) != 1 or len(self._lines) >= LIVE_LIMIT:
+                for fd in fds:
+                    os.close(fd)
+                continue
+            line = socket.socket(fileno=fds[0])
+            with self._lock:
+                self._lines.append(line)
+            threading.Thread(target=self._serve, args=(line,), name="dc-broker-line", daemon=True).start()
+
+    def _serve(self, line):
+        while True:
+            try:
+                data, fds, _, _ = socket.recv_fds(line, MESSAGE_MAX, 16)
+            except OSError:
+                return
+            if not data:
+                for fd in fds:
+                    os.close(fd)
+                return
+            try:
+                with self._lock:
+                    answer = self._answer(json.loads(data), fds)
+            except Exception as e:   # (a request the job made up: refused in one line, the broker goes on)
+                answer = {"error": f"refused: {type(e).__name__}: {e}"}
+            finally:
+                for fd in fds:
+                    os.close(fd)
+            try:
+                line.send(json.dumps(answer).encode())
+            except OSError:
+                return
+
+    def _answer(self, request, fds):
+        op = request.get("op")
+        if op == "fences":
+            return {"fences": sandbox.fences(), "describe": sandbox.describe_fences()}
+        if op == "start":
+            return self._start(request, fds)
+        box = self.boxes.get(request.get("id"))
+        if box is None:
+            raise ValueError("no such sandbox")
+        if op == "cpu":
+            return {"value": box.cpu_seconds()}
+        if op == "processes":
+            return {"value": box.processes()}
+        if op == "poll":
+            return {"code": box.process.poll(), "how": box.exit_description()}
+        if op == "kill":
+            box.kill()
+            del self.boxes[request["id"]]
+            return {}
+        raise ValueError(f"no such request {op!r}")
+
+    def _start(self, request, fds):
+        argv, readable, numbers = request["argv"], request["readable"], request["fd_numbers"]
+        if not (isinstance(argv, list) and argv and all(isinstance(a, str) for a in argv)):
+            raise ValueError("argv must be a list of strings")
+        if not (isinstance(readable, list) and all(isinstance(p, str) for p in readable)):
+            raise ValueError("readable must be a list of paths")
+        if not (isinstance(numbers, list) and len(numbers) == len(fds)):
+            raise ValueError("one number for each descriptor passed")
+        if len(self.boxes) >= LIVE_LIMIT:
+            raise ValueError(f"at most {LIVE_LIMIT} contestants' sandboxes at once")
+        # each descriptor under our number for it (the job's numbers mean nothing here)
+        ours = {str(old): os.dup(fd) for old, fd in zip(numbers, fds)}
+        try:
+            box = sandbox.Sandbox(readable)
+            box.start([str(ours[a]) if a in ours else a for a in argv], pass_fds=list(ours.values()))
+        finally:
+            for fd in ours.values():
+                os.close(fd)
+        self._count += 1
+        self.boxes[self._count] = box
+        return {"id": self._count}
+
+    def close(self):
+        """Ends every sandbox the job started, and the job's line to us."""
+        try:
+            self._ours.shutdown(socket.SHUT_RDWR)   # (wakes the serving thread: it ends)
+        except OSError:
+            pass
+        self._thread.join(5)
+        with self._lock:
+            for line in self._lines:
+                try:
+                    line.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+            for box in list(self.boxes.values()):
+                box.kill()
+            self.boxes.clear()
+        for s in (self._ours, self._theirs, *self._lines):
+            try:
+                s.close()
+            except OSError:
+                pass

@@ -1,0 +1,196 @@
+"""A study is a guest too: an installed study runs in a sandbox of its own (deepcontact/studies/
+fence.py), sees the file system read-only, writes only its staged output (swapped in by dc's own
+process, by the output rules), reaches no process and no socket of the user's, runs its
+contestants through the judge's process (contest/broker.py), and every way out of it is one line
+naming it. Each study here is a hostile one, installed for the test as a distribution of its own."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from conftest import dc, dc_command, one_line_error
+from deepcontact.contest import fences
+
+pytestmark = pytest.mark.skipif(not all(fences().values()),
+                                reason=f"a fence is missing here: {fences()}")
+
+STUDY = textwrap.dedent("""
+    import json, os, signal, socket, sys, time
+    import click
+    from deepcontact.studies import Study
+
+    def _out(path, what):
+        with open(path, "w") as f:
+            json.dump(what, f)
+
+    @click.command("reach")
+    @click.option("-o", "--output", "out")
+    @click.option("--victim", type=int)
+    @click.option("--user-file")
+    @click.option("--socket-path")
+    @click.option("--overwrite", is_flag=True)
+    def reach(out, victim, user_file, socket_path, overwrite):
+        '''Tries every way out of its fence, and writes what it reached.'''
+        seen = {}
+        try:
+            os.kill(victim, signal.SIGTERM)
+            seen["signal"] = "sent"
+        except OSError as e:
+            seen["signal"] = type(e).__name__
+        try:
+            with open(user_file, "a") as f:
+                f.write("reached")
+            seen["write"] = "written"
+        except OSError as e:
+            seen["write"] = type(e).__name__
+        try:
+            os.unlink(user_file)
+            seen["unlink"] = "removed"
+        except OSError as e:
+            seen["unlink"] = type(e).__name__
+        with open(user_file) as f:
+            seen["read"] = f.read()
+        try:
+            s = socket.socket(socket.AF_UNIX)
+            s.connect(socket_path)
+            seen["socket"] = "connected"
+        except OSError as e:
+            seen["socket"] = type(e).__name__
+        seen["processes"] = sorted(int(p) for p in os.listdir("/proc") if p.isdigit())
+        from deepcontact.contest import fences, sandbox
+        from deepcontact.contest.client import Contestant
+        seen["fences"] = fences()
+        null = Contestant.null()
+        seen["contestant"] = type(null.sandbox).__name__
+        seen["charged"] = null.sandbox.cpu_seconds() is not None
+        null.close()
+        click.echo("reached what it could")
+        _out(out, seen)
+
+    @click.command("leave")
+    @click.option("-o", "--output", "out")
+    @click.option("--how")
+    @click.option("--overwrite", is_flag=True)
+    def leave(out, how, overwrite):
+        '''Ends its process its own way, after writing its output.'''
+        _out(out, {"written": True})
+        if how == "exit":
+            os._exit(9)
+        if how == "signal":
+            os.kill(os.getpid(), signal.SIGSEGV)
+        if how == "link":
+            os.remove(out)
+            os.mkdir(out)
+            os.symlink("/etc/passwd", os.path.join(out, "passwd"))
+        if how == "stubborn":
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            click.echo("working", err=True)
+            while True:
+                time.sleep(0.05)
+
+    class Reach(Study):
+        name, summary, order, writes = "reach", "tries to leave its fence", 90, "file"
+        command = staticmethod(lambda: reach)
+
+    class Leave(Study):
+        name, summary, order, writes = "leave", "ends its own process", 91, "file"
+        command = staticmethod(lambda: leave)
+""")
+
+
+@pytest.fixture
+def installed(tmp_path, monkeypatch):
+    """The hostile studies, installed as the distribution dc-hostile-studies (an entry point each)."""
+    lib = tmp_path / "lib"
+    info = lib / "dc_hostile_studies-1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: dc-hostile-studies\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[deepcontact.studies]\nreach = dc_hostile_study:Reach\n"
+                                           "leave = dc_hostile_study:Leave\n")
+    (lib / "dc_hostile_study.py").write_text(STUDY)
+    monkeypatch.syspath_prepend(str(lib))
+    yield lib
+    sys.modules.pop("dc_hostile_study", None)
+
+
+def test_a_study_reaches_no_process_file_or_socket_of_the_users(installed, tmp_path):
+    user_file = tmp_path / "notes.txt"
+    user_file.write_text("mine")
+    listener = socket.socket(socket.AF_UNIX)
+    listener.bind(str(tmp_path / "agent.sock"))
+    listener.listen()
+    victim = subprocess.Popen(["sleep", "60"])
+    try:
+        out = tmp_path / "reach.json"
+        r = dc("study", "reach", "-o", out, "--victim", victim.pid, "--user-file", user_file,
+               "--socket-path", tmp_path / "agent.sock")
+        assert r.returncode == 0, r.stderr
+        assert "reached what it could" in r.stdout   # (its standard output is the user's)
+        seen = json.loads(out.read_text())
+        assert victim.poll() is None and seen["signal"] == "ProcessLookupError"   # (its own PID namespace)
+        assert seen["write"] == seen["unlink"] == "OSError" and user_file.read_text() == "mine"
+        assert seen["read"] == "mine"                                     # (it reads the user's inputs)
+        assert seen["socket"] == "PermissionError"
+        assert len(seen["processes"]) <= 3, seen["processes"]             # (bubblewrap's init, itself, a child)
+        # its contestants: started by dc's process, in a contestant's fence, charged
+        assert seen["contestant"] == "RemoteSandbox" and seen["charged"] and seen["fences"] == fences()
+        assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name or p.name.endswith(".lock")]
+    finally:
+        victim.kill()
+        listener.close()
+
+
+@pytest.mark.parametrize("how, needle", [("exit", "exit status 9"), ("signal", "killed by SIGSEGV")])
+def test_a_study_that_ends_its_own_process_is_one_line_and_publishes_nothing(installed, tmp_path, how, needle):
+    out = tmp_path / "out.json"
+    out.write_text("earlier")
+    one_line_error(dc("study", "leave", "-o", out, "--how", how, "--overwrite"), "the study 'leave'", needle)
+    assert out.read_text() == "earlier" and sorted(p.name for p in tmp_path.iterdir()) == ["lib", "out.json"]
+
+
+def test_a_link_in_a_studys_output_is_not_published(installed, tmp_path):
+    out = tmp_path / "out"
+    one_line_error(dc("study", "leave", "-o", out, "--how", "link"), "holds a link", "not published")
+    assert not os.path.lexists(out)
+
+
+def test_a_studys_output_is_checked_before_it_runs(installed, tmp_path):
+    out = tmp_path / "out.json"
+    out.write_text("earlier")
+    r = dc("study", "reach", "-o", out)
+    one_line_error(r, "file exists; use --overwrite")
+    assert out.read_text() == "earlier"
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    (folder / "mine.txt").write_text("mine")
+    # (a study that writes a file, never put in a folder's place; it does not run: it would end with exit 9)
+    one_line_error(dc("study", "leave", "-o", folder, "--overwrite", "--how", "exit"), "is a folder, not a regular file")
+    assert (folder / "mine.txt").read_text() == "mine"
+
+
+def test_the_users_stop_ends_a_stubborn_study_at_once(installed, tmp_path):
+    out = tmp_path / "out.json"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(installed), *sys.path]))
+    p = subprocess.Popen([*dc_command(), "study", "leave", "-o", str(out), "--how", "stubborn"], env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = p.stderr.readline()
+    assert "working" in line, line
+    stopped = time.monotonic()
+    p.send_signal(signal.SIGTERM)
+    p.wait(10)
+    assert time.monotonic() - stopped < 2 and p.returncode == 128 + signal.SIGTERM, p.stderr.read()
+    assert "interrupted (SIGTERM)" in p.stderr.read()
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["lib"]
+
+
+def test_dc_study_help_lists_installed_studies_without_importing_them(installed):
+    r = dc("study", "--help")
+    assert r.returncode == 0 and "tries to leave its fence" in r.stdout and "stability" in r.stdout
+    assert "dc_hostile_study" not in sys.modules   # (listed from a sandbox: never imported here)
