@@ -230,10 +230,18 @@ def write_bytes(path, data: bytes):
                 note_temporary(path, tmp)
             if record is not None:
                 record.enter(name, tmp)
+        fd = tmp = None
         try:
-            fd, tmp = _create_temporary(where, name, note)
+            # held: a stop between making the file and knowing its name would leave it behind
+            with _interrupts.held():
+                fd, tmp = _create_temporary(where, name, note)
         except OSError as e:
             raise type(e)(e.errno, e.strerror, path) from None
+        except BaseException:
+            if tmp is not None:
+                os.close(fd)
+                _remove_quietly(tmp, where)
+            raise
         try:
             try:
                 view = memoryview(data)

@@ -175,6 +175,11 @@ def test_a_studys_output_is_checked_before_it_runs(installed, tmp_path):
     assert (folder / "mine.txt").read_text() == "mine"
 
 
+def test_a_mount_point_is_refused_before_the_study_runs():
+    """(it was found at the end, when the finished output could not be renamed into place)"""
+    one_line_error(dc("study", "engines", "--fast", "-o", "/proc"), "/proc: is a mount point")
+
+
 def test_the_users_stop_ends_a_stubborn_study_at_once(installed, tmp_path):
     out = tmp_path / "out.json"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(installed), *sys.path]))
