@@ -318,6 +318,11 @@ def command(name):
                 if verbose:
                     raise
                 fail("the input is nested too deeply to read")
+            except ImportError as e:   # (an optional module a plain pip install does not bring: how to get it)
+                from deepcontact.errors import missing_module
+                if verbose or missing_module(e) is None:
+                    raise
+                fail(missing_module(e))
             except Exception as e:   # a promise kept even where a check is missing: one line, no traceback
                 if verbose:
                     raise

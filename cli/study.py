@@ -48,8 +48,8 @@ class StudyGroup(click.Group):
             if name in PROJECT_STUDIES:   # (the project's own, in its own distribution: say how to get it)
                 from .options import one_line
                 click.echo(one_line(f"dc study: error: the study {name!r} is in the project's studies distribution, "
-                                    f"which is not installed: pip install -e studies/ from the repository (make "
-                                    f"setup does)"), err=True)
+                                    f"which is not installed: pip install 'deepcontact[studies]', or pip install -e "
+                                    f"studies/ from the repository (make setup does)"), err=True)
                 sys.exit(1)
             return None
         if fence.fenced(name):
@@ -70,7 +70,8 @@ class StudyGroup(click.Group):
             if rows:
                 formatter.write_dl([(name, summary) for _, name, summary in rows])
             else:
-                formatter.write_text("none installed: pip install -e studies/ (make setup does)")
+                formatter.write_text("none installed: pip install 'deepcontact[studies]', or pip install -e studies/ "
+                                     "(make setup does)")
         if broken:
             with formatter.section("Broken (not listed above)"):
                 for line in broken.values():

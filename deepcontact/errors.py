@@ -63,3 +63,23 @@ def show_path(path):
 def count(n, word, plural=None):
     """'1 file', '2 files': a number with its noun in the right form."""
     return f"{n:,} {word if n == 1 else plural or word + 's'}"
+
+
+# Modules a plain `pip install deepcontact` does not bring, and how to get each: torch is left out
+# because PyPI's build for Linux pulls multi-GB CUDA libraries; the project needs the CPU build.
+CPU_TORCH = "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
+OPTIONAL = {
+    "torch": f"torch is not installed: {CPU_TORCH} (the CPU build; make setup installs it)",
+    "pymunk": "pymunk is not installed: pip install 'deepcontact[engines]' (pymunk==7.3.1; make setup installs it)",
+    "mujoco": "MuJoCo is not installed: pip install 'deepcontact[engines]' (mujoco==4.0.1; make setup installs it)",
+    "dcstudies": "the project's studies are not installed: pip install 'deepcontact[studies]', or pip install -e "
+                 "studies/ from the repository (make setup does)",
+    "pyarrow": "pyarrow is not installed: pip install 'deepcontact[parquet]'",
+}
+
+
+def missing_module(error):
+    """The InputError saying how to get an optional module that an ImportError says is missing,
+    or None when it is not one of OPTIONAL."""
+    name = (getattr(error, "name", None) or "").split(".")[0]
+    return InputError(OPTIONAL[name]) if isinstance(error, ImportError) and name in OPTIONAL else None

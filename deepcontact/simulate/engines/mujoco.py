@@ -97,11 +97,11 @@ class MuJoCo(Engine):
 
 
 def _library():
-    from ...errors import InputError
+    from ...errors import missing_module
     try:
         import mujoco
     except ImportError:
-        raise InputError("MuJoCo is not installed: make setup installs it (mujoco==4.0.1)") from None
+        raise missing_module(ImportError(name="mujoco")) from None
     if mujoco.get_mju_user_warning() is not _warn:
         # MuJoCo's own handler prints and appends to MUJOCO_LOG.TXT in the working folder: a file
         # of the user's we did not ask to write. Its warnings go to the log (stderr) instead.

@@ -63,11 +63,11 @@ class Pymunk(Engine):
 
 
 def _library():
-    from ...errors import InputError
+    from ...errors import missing_module
     try:
         import pymunk
     except ImportError:
-        raise InputError("pymunk is not installed: make setup installs it (pymunk==7.3.1)") from None
+        raise missing_module(ImportError(name="pymunk")) from None
     return pymunk
 
 
