@@ -354,7 +354,7 @@ def _out_of_memory(e):
 PROGRESS_EVERY = 30.0   # seconds
 
 
-def _progress_every():
+def progress_every():
     import os
     try:
         value = float(os.environ.get("DC_PROGRESS_EVERY", PROGRESS_EVERY))
@@ -405,7 +405,7 @@ class LineBar(SilentBar):
         import time
         self.total, self.unit, self.desc = total, unit, desc
         self.started = self.said = time.monotonic()
-        self.lines, self.every = 0, _progress_every()
+        self.lines, self.every = 0, progress_every()
 
     def update(self, n=1):
         import time
@@ -427,15 +427,16 @@ class LineBar(SilentBar):
         share = f" ({100 * self.n / self.total:.0f}%)" if self.total else ""
         left = ""
         if not done and self.total and rate > 0 and self.n < self.total:
-            left = f", about {_duration((self.total - self.n) / rate)} left"
+            left = f", about {duration((self.total - self.n) / rate)} left"
         what = "so far" if not done else "done" if not self.total or self.n >= self.total else "when it ended"
-        sys.stderr.write(f"dc {self.desc}: {self.n:,}{of} {self.unit}s{share} {what} in {_duration(took)}, "
+        sys.stderr.write(f"dc {self.desc}: {self.n:,}{of} {self.unit}s{share} {what} in {duration(took)}, "
                          f"{rate:.3g} {self.unit}s/s{left}\n")
         sys.stderr.flush()
         self.lines += 1
 
 
-def _duration(seconds):
+def duration(seconds):
+    """A time for a progress line: 42s, 3m05s, 2h10m."""
     seconds = int(round(seconds))
     if seconds < 60:
         return f"{seconds}s"

@@ -1,6 +1,7 @@
 """dc train: a CNN from a grid dataset."""
-import click
+import time
 
+import click
 
 from deepcontact.model.arch import NETWORKS
 
@@ -98,7 +99,11 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
                       fcn_depth=fcn_depth, solver_sweeps=solver_sweeps)
 
+    clock = {"start": time.monotonic(), "epochs_done": 0, "line": time.monotonic()}
+
     def report(row):
+        clock["epochs_done"] += 1
+        clock["line"] = time.monotonic()
         if not quiet:
             def shown(k):   # each contact RMSE between what predicting 0 scores and the grid's floor
                 zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
@@ -108,8 +113,16 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
                 return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
             extra = "".join(shown(k) for k in sorted(row)
                             if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
-            click.echo(f"epoch {row['epoch']}: loss {row['train_loss']:.4g}{extra} "
-                       f"({row['samples_per_second']:.0f} samples/s)", err=True)
+            each = (time.monotonic() - clock["start"]) / clock["epochs_done"]
+            left = each * max(0, row["epochs"] - row["epoch"] - 1)
+            click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{extra} "
+                       f"({row['samples_per_second']:.0f} samples/s; {options.duration(each)} an epoch, at most "
+                       f"{options.duration(left)} left)", err=True)
+
+    def heartbeat(epoch, done, total):   # (a long epoch says where it is, as every long run does)
+        if not quiet and time.monotonic() - clock["line"] >= options.progress_every():
+            clock["line"] = time.monotonic()
+            click.echo(f"epoch {epoch + 1}: {done:,} of {total:,} training samples", err=True)
 
     fields = {"model": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
               "weight_decay": "weight_decay", "batch_size": "batch_size", "patience": "patience", "seed": "seed",
@@ -119,7 +132,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
-                  given=given, plots=plots)
+                  given=given, plots=plots, heartbeat=heartbeat)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)

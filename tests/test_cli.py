@@ -159,3 +159,17 @@ def test_off_a_terminal_a_long_run_says_where_it_is(tmp_path, monkeypatch):
     monkeypatch.setenv("DC_PROGRESS_EVERY", "30")   # (the default: a short run says nothing)
     r = dc("simulate", "pile", "--param", "count=12", "--steps", "20", "-o", tmp_path / "short")
     assert r.returncode == 0 and "steps/s" not in r.stderr, r.stderr
+
+
+def test_training_says_where_it_is_in_every_epoch_and_within_a_long_one(dataset, tmp_path, monkeypatch):
+    """dc train printed "epoch N: loss" and nothing else: not how many epochs are left, nor a word
+    within an epoch however long (here every batch is "long": the period is 0)."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("train", dataset, "-o", tmp_path / "m", "--epochs", "2", "--width", "4", "--depth", "2")
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert any(x.startswith("epoch 1 of 2: loss ") and " an epoch, at most " in x and x.endswith(" left)")
+               for x in lines), r.stderr
+    assert any(x.startswith("epoch 2: ") and " training samples" in x for x in lines), r.stderr
+    r = dc("train", dataset, "-o", tmp_path / "q", "--epochs", "2", "--width", "4", "--depth", "2", "-q")
+    assert r.returncode == 0 and r.stderr == "", r.stderr

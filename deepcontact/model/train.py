@@ -277,8 +277,13 @@ def check_same_run(ck, meta, path, given, threads, dataset):
 
 def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConfig | None = None, resume: bool = False,
           progress: Callable | None = None, threads: int = 1, device: str = "cpu", overwrite: bool = False,
-          epochs: int | None = None, max_memory: float | None = None, given: dict = (), plots: bool = True) -> list[dict]:
+          epochs: int | None = None, max_memory: float | None = None, given: dict = (), plots: bool = True,
+          heartbeat: Callable | None = None) -> list[dict]:
     """Train; returns the history (a list of per-epoch metric dicts).
+
+    progress(row): called after each epoch with its metrics (and "epochs", the run's number of
+    epochs); heartbeat(epoch, samples done, samples in the epoch): after each batch (a caller's
+    sign of life within a long epoch).
 
     Everything is checked before the output folder is touched. With `overwrite`, the new run is
     built beside the old one and replaces it only when it finishes. `epochs` overrides the
@@ -362,6 +367,7 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
             params, _ = parameter_count(trainer.model)
             log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
                      len(trainer.train_idx), len(trainer.val_idx))
+        trainer.heartbeat = heartbeat if rank == 0 else None
         history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir, plots=plots)
         if world > 1:
             torch.distributed.barrier()   # no rank leaves while rank 0 still writes
@@ -475,6 +481,8 @@ class Trainer:
             self.opt.step()
             total += loss.item() * len(idx)
             seen += len(idx)
+            if getattr(self, "heartbeat", None) is not None:
+                self.heartbeat(epoch, min(b0 + cfg.batch_size, len(order)), len(order))
         seconds = time.perf_counter() - t0
         if self.world > 1:   # the epoch's loss over all ranks' samples
             sums = torch.tensor([total, float(seen)], dtype=torch.float64)
@@ -588,7 +596,7 @@ class Trainer:
                     _save(work / "best.pt", self.checkpoint(epoch, dataset_path))
                 write_metrics(work, self.history)
                 if progress is not None:
-                    progress(row)
+                    progress({**row, "epochs": cfg.epochs})
             if cfg.patience and self.bad_epochs >= cfg.patience:
                 log.info("no improvement for %d epochs: stopping after epoch %d", self.bad_epochs, epoch)
                 break
