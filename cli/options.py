@@ -497,8 +497,9 @@ class SoftStepOption(click.Option):
 
 def solve_to_tolerance(f):
     """--tolerance, --max-iterations and --stop-on of a command that solves every step to a
-    tolerance (dc evaluate, the studies), their defaults read from solver/settings.py."""
-    from deepcontact.solver.settings import CAP, TOLERANCE
+    tolerance and compares its variants (dc evaluate), their defaults read from solver/settings.py
+    (the cap: VERDICT_CAP, at which its variants reach the tolerance, so that a verdict can name one)."""
+    from deepcontact.solver.settings import TOLERANCE, VERDICT_CAP as CAP
     for option in reversed((
             click.option("--tolerance", type=Finite(min=0, min_open=True), default=TOLERANCE, show_default=True,
                          help="Stop once the measure falls below this."),

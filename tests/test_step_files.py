@@ -131,3 +131,23 @@ def test_schema_rejects_nan_text(pile_run, tmp_path):
     bad.write_text(text.replace('<spin omega="', '<spin omega="NaN" x="', 1))
     _, _, errors = schema.validate(bad)
     assert errors and all(e.startswith(f"{bad}:") for e in errors)
+
+
+@pytest.mark.parametrize("value, valid", [
+    ("NaN", False), ("INF", False), ("-INF", False), ("1e39", False), ("-1e39", False), ("1e400", False),
+    ("abc", False), ("0x1p3", False), ("", False),
+    ("3.4028235e38", True), ("-3.4028235e38", True), ("1e-50", True), ("1.", True), ("+.5e-3", True), (" 1.5 ", True)])
+def test_a_number_in_a_step_file_is_a_finite_float32(pile_run, tmp_path, value, valid):
+    """The schema's `finite` type (bounds, no longer a pattern: dc validate's largest cost) holds
+    exactly the finite float32 values, in the native validator and in xmllint alike."""
+    import re
+    text = next(pile_run.rglob("step-*.xml")).read_text()
+    m = list(re.finditer(r'<position x="([^"]*)"', text))[-1]
+    path = tmp_path / "step.xml"
+    path.write_text(text[:m.start(1)] + value + text[m.end(1):])
+    errors = _box2d.validate_step_file(str(path), _box2d.StepSchema(str(schema.schema_path("step"))), 5)[3]
+    assert (not errors) == valid, errors
+    if shutil.which("xmllint"):
+        lint = subprocess.run(["xmllint", "--noout", "--schema", str(schema.schema_path("step")), str(path)],
+                              capture_output=True, text=True)
+        assert (lint.returncode == 0) == valid, lint.stderr

@@ -17,6 +17,12 @@ def check_file(path, origin=None):
     """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed, engine) of the
     simulation the file lies in, and optionally its run's pgs record (None: the project's solver
     did not step it), or None."""
+    try:   # a valid step file (nearly every file): validated and read in one streaming pass
+        step = read_step(path, validate=True)
+    except InputError:   # not one: the second pass below lists its errors (up to MAX_ERRORS), or says why
+        step = None
+    if step is not None:
+        return "step", _semantic_errors(path, step, origin)
     shown = show_path(path)
     try:
         root, scene, seed, errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)
@@ -28,17 +34,28 @@ def check_file(path, origin=None):
         return kind, lines
     lines = [one_line(f"{shown}:{line}:{column}: {message}") for line, column, message in sorted(errors)]
     if not lines:
-        try:   # what the schema cannot say: manifolds whole, the file where it belongs
-            header, bodies, contacts = read_step(path, validate=False)
-            _contacts_name_its_bodies(bodies, contacts, path)
-            if origin is not None:
-                scene_of, seed_of, engine, *record = origin
-                check_origin({**header, "scene": scene, "seed": seed}, scene_of, seed_of, path, engine)
-                if record:   # (the run's pgs record, or None: its <solve> agrees with the run)
-                    check_solve(header.get("solve"), record[0], path)
+        try:
+            step = read_step(path, validate=False)
         except InputError as e:
-            lines = [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
+            return "step", [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
+        lines = _semantic_errors(path, step, origin)
     return "step", lines
+
+
+def _semantic_errors(path, step, origin):
+    """What the schema cannot say of a valid step file, as error lines: contacts naming bodies of
+    their own step, the file where it belongs and its <solve> agreeing with its run."""
+    header, bodies, contacts = step
+    try:
+        _contacts_name_its_bodies(bodies, contacts, path)
+        if origin is not None:
+            scene_of, seed_of, engine, *record = origin
+            check_origin(header, scene_of, seed_of, path, engine)
+            if record:   # (the run's pgs record, or None: its <solve> agrees with the run)
+                check_solve(header.get("solve"), record[0], path)
+    except InputError as e:
+        return [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
+    return []
 
 
 def _contacts_name_its_bodies(bodies, contacts, path):
