@@ -268,3 +268,14 @@ def test_a_dataset_sample_shares_one_colour_range_names_its_split_and_warns_noth
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert panels.sample_panels(dataset, 0, model / "best.pt")[:4] == b"\x89PNG"
+
+
+def test_a_picture_keeps_room_for_its_title_and_legend():
+    """A fallen stack was drawn 640x78 px with its legend cut off; the demo's title sat on the
+    box's top wall. A window around bodies is at least half as high as wide, grown upwards, with a
+    band above the bodies for the title and the legend."""
+    from deepcontact.render.draw import MIN_ASPECT, TITLE_BAND, Window
+    flat = Window.around((0.0, 0.0, 100.0, 1.0))
+    assert flat.size(640) == (640, 320) and flat.y0 < 0.0 and flat.y1 > 1.0
+    box = Window.around((0.0, 0.0, 10.0, 10.0))
+    assert box.y1 - 10.0 >= TITLE_BAND * (box.y1 - box.y0) * 0.9 and box.y1 - box.y0 >= MIN_ASPECT * (box.x1 - box.x0)

@@ -16,6 +16,8 @@ BACKGROUND = "#ffffff"
 FILL = {0: "#9a9a9a", 1: "#a8c6e8", 2: "#f5c48a"}     # static, kinematic, dynamic (light: arrows show)
 OUTLINE = "#3a3a3a"
 NORMAL_MAP, FRICTION_MAP = "Reds", "Blues"   # darker for larger impulses
+MIN_ASPECT = 0.5    # a picture around bodies is at least half as high as wide
+TITLE_BAND = 0.08   # of its height, above the bodies: where the title and the legend go
 
 
 @dataclass
@@ -27,9 +29,14 @@ class Window:
 
     @classmethod
     def around(cls, bounds, pad=0.04):
+        """Around bounds (x0, y0, x1, y1) with a margin, a band on top for the title and the
+        legend (the demo's title sat on the box's top wall), and at least MIN_ASPECT as high as
+        wide, grown upwards (a fallen stack was a 640x78 picture with its legend cut off)."""
         x0, y0, x1, y1 = bounds
         w, h = max(x1 - x0, 1e-3), max(y1 - y0, 1e-3)
-        return cls(x0 - pad * w, y0 - pad * h, x1 + pad * w, y1 + pad * h)
+        x0, x1, y0, y1 = x0 - pad * w, x1 + pad * w, y0 - pad * h, y1 + pad * h
+        y1 += TITLE_BAND * (y1 - y0)
+        return cls(x0, y0, x1, max(y1, y0 + MIN_ASPECT * (x1 - x0)))
 
     def size(self, width):
         """(width, height) in pixels, even (video codecs want even sizes), the window's aspect."""
