@@ -52,7 +52,7 @@ def test_a_method_that_stops_early_is_never_the_winner(run, tmp_path, contestant
     assert summary["builtin"]["above"] == 0
     report = (tmp_path / "r" / "report.md").read_text()
     verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
-    assert "is **builtin**" in verdict and "Left out" in verdict and "Liar" in verdict
+    assert "is **builtin**" in verdict and "count as unfinished" in verdict and "Liar" in verdict
     row = next(line for line in report.splitlines() if line.startswith("| ") and "Liar" in line)
     assert "(did not converge)" in row and "(Python)" in row
 
@@ -268,7 +268,8 @@ def test_the_closed_loop_report_decides_too(run, tmp_path, contestants):
     report = (tmp_path / "loop" / "report.md").read_text()
     verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
     assert "A/A noise floor" in verdict and "intervals over the steps" in verdict
-    assert "Liar" not in verdict.split("Left out")[0] and "copy" not in verdict.split("Left out")[0]
+    head = verdict.split(" Steps ended above the tolerance")[0]   # (the rule's note names every unfinished one)
+    assert "Liar" not in head and "copy" not in head
     header = next(line for line in report.splitlines() if line.startswith("| start |"))
     assert "residual (median / p95)" in header and "above tolerance" in header
     liar = next(line for line in report.splitlines() if line.startswith("| builtin+contestants:Liar"))
@@ -369,6 +370,8 @@ def test_validate_residuals_judges_the_files_never_their_claims(stepped, tmp_pat
     assert where in lines[0], lines
     if edit == "tolerance and residual claimed":   # (its <solve> no longer agrees with its run's manifest)
         assert len(lines) == 1 and "<solve tolerance=\"0.1\"> disagrees with its run's manifest" in lines[0]
+    elif edit == "an infinite residual claimed":   # (1e999 is no float32: the schema refuses the claim itself)
+        assert len(lines) == 1 and "'1e999' is greater than the maximum value allowed" in lines[0], lines
     elif "claimed" in edit:   # (and the manifest's count of steps above, which now hides one)
         assert len(lines) == 2 and "records 0 step(s) above the tolerance; recomputed, 1 are" in lines[1]
     else:

@@ -1,12 +1,17 @@
 """One rule that names a winner, or says there is none, for replay rows and loop rows alike.
 
-The candidates are the variants that may win (no oracle, none that ended a step above the
-tolerance or left float32), ranked by their median charged time per step. The fastest is named a
-clear winner only when, with 95% bootstrap intervals over the steps (paired, the same steps for
-both):
+The candidates are the variants that may win (no oracle, none that left float32), ranked by their
+median charged time per step. A step a variant ended above the tolerance is unfinished: it counts
+as slower than any finished step (an infinite time in the medians and their intervals; what it
+was charged stays in its total), so a variant that leaves a few steps unfinished is judged on the
+rest, and one that leaves half of them has an infinite median. (Dropping such variants made a
+verdict impossible wherever every variant leaves one step above the tolerance, as every one did
+in the loop on the held-out pile, at any cap.) The fastest is named a clear winner only when,
+with 95% bootstrap intervals over the steps (paired, the same steps for both):
 - it is faster than Box2D's warm start (the base) beyond 1 and beyond the A/A floor (the base
   timed against itself: how far apart two equal things measure);
 - it is faster than the runner-up beyond 1;
+- it left no more steps unfinished than the base (faster by giving up is not faster);
 - and over the whole run, setup included, it cost no more than the base or the runner-up (a start
   slow on a few steps can win the median and lose the run: a heavy tail);
 - on at least MIN_STEPS steps.
@@ -23,18 +28,40 @@ MIN_STEPS = 5   # a winner is never named from fewer steps (one step's interval 
 SEED = 0   # (the intervals are a function of the times: the same report twice is the same report)
 
 
+def _median(x, axis=None):
+    """numpy's median, but an infinite middle value gives inf, not nan (its interpolation of
+    inf and inf is inf - inf)."""
+    x = np.sort(np.asarray(x, np.float64), axis=-1 if axis is None else axis)
+    if axis is None:
+        x = x.ravel()
+    n = x.shape[-1]
+    lo, hi = np.take(x, (n - 1) // 2, axis=-1), np.take(x, n // 2, axis=-1)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isinf(hi), hi, (lo + hi) / 2)
+
+
+def _ratio(ma, mb):
+    """ma / mb of medians that may be infinite (unfinished): both infinite is a tie (1), one
+    infinite is infinitely slower (or faster)."""
+    ma, mb = np.asarray(ma, np.float64), np.asarray(mb, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = ma / np.maximum(mb, 1e-12)
+    return np.where(np.isinf(ma) & np.isinf(mb), 1.0, out)
+
+
 def ratio_interval(a, b, rng=None):
-    """median(a) / median(b) over paired per-step times, with its bootstrap interval (LEVEL):
-    (ratio, low, high)."""
+    """median(a) / median(b) over paired per-step times (inf: an unfinished step), with its
+    bootstrap interval (LEVEL): (ratio, low, high)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     rng = np.random.default_rng(SEED) if rng is None else rng
-    ratio = float(np.median(a) / max(np.median(b), 1e-12))
+    ratio = float(_ratio(_median(a), _median(b)))
     if len(a) < 2:
         return ratio, ratio, ratio
     picks = rng.integers(0, len(a), size=(RESAMPLES, len(a)))
-    boot = np.median(a[picks], axis=1) / np.maximum(np.median(b[picks], axis=1), 1e-12)
-    tail = (1 - LEVEL) / 2
-    return ratio, float(np.quantile(boot, tail)), float(np.quantile(boot, 1 - tail))
+    boot = _ratio(_median(a[picks], axis=1), _median(b[picks], axis=1))
+    tail = (1 - LEVEL) / 2   # (quantiles taken, not interpolated: between inf and inf lies no number)
+    return (ratio, float(np.quantile(boot, tail, method="inverted_cdf")),
+            float(np.quantile(boot, 1 - tail, method="inverted_cdf")))
 
 
 def paired(x, y):
@@ -59,6 +86,7 @@ class Verdict:
     beaten_on_total_by: list = field(default_factory=list)
     level: float = LEVEL
     steps: int = 0                                  # the steps best and the base were paired on
+    unfinished: dict = field(default_factory=dict)  # {label: steps it ended above the tolerance}
 
     @property
     def heavy_tail(self):
@@ -72,7 +100,13 @@ class Verdict:
                 "runner_up": self.runner_up,
                 "best_vs_runner_up": None if self.best_vs_runner_up is None else list(self.best_vs_runner_up),
                 "clear": self.clear, "total_ms": dict(self.totals), "beaten_on_total_by": list(self.beaten_on_total_by),
-                "heavy_tail": self.heavy_tail, "steps": self.steps, "too_few_steps": self.too_few_steps}
+                "heavy_tail": self.heavy_tail, "steps": self.steps, "too_few_steps": self.too_few_steps,
+                "unfinished": dict(self.unfinished), "gave_up_more": self.gave_up_more}
+
+    @property
+    def gave_up_more(self):
+        """Whether best left more steps unfinished than the base (so it is no clear winner)."""
+        return self.best is not None and self.unfinished.get(self.best, 0) > self.unfinished.get(self.base, 0)
 
     @property
     def too_few_steps(self):
@@ -80,18 +114,24 @@ class Verdict:
         return self.best is not None and self.steps < MIN_STEPS
 
 
-def decide(times, candidates, base, aa_pair, setup_ms=None):
+def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
     """The verdict on `times` ({label: {step key: charged ms}}): `candidates` the labels that may
     win, `base` Box2D's warm start's label, `aa_pair` (first, second) its paired A/A times,
-    `setup_ms` {label: setup charged} added to each total. None without the base."""
+    `setup_ms` {label: setup charged} added to each total, `unfinished` {label: step keys it ended
+    above the tolerance} (infinite in the medians, module docstring). None without the base."""
     if base is None or base not in times:
         return None
     rng = np.random.default_rng(SEED)
-    setup_ms = setup_ms or {}
+    setup_ms, unfinished = setup_ms or {}, unfinished or {}
+    ranked_times = {name: {k: (np.inf if k in unfinished.get(name, ()) else ms) for k, ms in t.items()}
+                    for name, t in times.items()}
     v = Verdict(base=base, aa=ratio_interval(*aa_pair, rng))
-    v.vs_base = {name: ratio_interval(*paired(t, times[base]), rng) for name, t in times.items()}
+    v.unfinished = {name: len(set(unfinished.get(name, ())) & set(t)) for name, t in times.items()}
+    v.vs_base = {name: ratio_interval(*paired(t, ranked_times[base]), rng) for name, t in ranked_times.items()}
     v.totals = {name: float(sum(t.values())) + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
-    fair = sorted((n for n in candidates if n in times and times[n]), key=lambda n: float(np.median(list(times[n].values()))))
+    fair = sorted((n for n in candidates if n in times and times[n]),
+                  key=lambda n: (float(_median(list(ranked_times[n].values()))),
+                                 float(_median(list(times[n].values())))))
     if not fair:
         return v
     v.best = fair[0]
@@ -99,9 +139,9 @@ def decide(times, candidates, base, aa_pair, setup_ms=None):
     clear = v.best == base or (v.vs_base[v.best][2] < 1.0 and v.vs_base[v.best][2] < v.aa[1])
     if len(fair) > 1:
         v.runner_up = fair[1]
-        v.best_vs_runner_up = ratio_interval(*paired(times[v.best], times[v.runner_up]), rng)
+        v.best_vs_runner_up = ratio_interval(*paired(ranked_times[v.best], ranked_times[v.runner_up]), rng)
         clear = clear and v.best_vs_runner_up[2] < 1.0
     v.beaten_on_total_by = [n for n in dict.fromkeys((base, v.runner_up)) if n is not None and n != v.best
                             and v.totals[n] < v.totals[v.best]]
-    v.clear = bool(clear and not v.beaten_on_total_by and not v.too_few_steps)
+    v.clear = bool(clear and not v.beaten_on_total_by and not v.too_few_steps and not v.gave_up_more)
     return v

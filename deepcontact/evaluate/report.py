@@ -131,12 +131,7 @@ def _verdict(summary, noise=None):
     if not candidates:
         return None
     fair = ranked(summary, _oracle)
-    unconverged = [n for n in candidates if n not in fair]
-    left_out = (f" Left out, as they ended steps above the tolerance (by our residual): "
-                f"{', '.join(md_text(n) for n in unconverged)}." if unconverged else "")
-    if not fair:
-        return ("**Verdict**: no start reached the tolerance on every step (by our residual), so none is "
-                "named." + left_out)
+    left_out = _unfinished_note({n: summary[n].get("above", 0) for n in candidates})
     best = fair[0]
     b, base = summary[best], baseline(summary)
     if noise and noise.get("best") is not None:
@@ -154,6 +149,10 @@ def _verdict(summary, noise=None):
                 + f": a heavy tail of slow steps; {md_text(base)} timed against itself (A/A) measured "
                 f"{_interval(noise['aa'])} ({100 * noise['level']:.0f}% intervals over the steps).")
         return text + left_out
+    if noise and noise.get("best") == best and noise.get("gave_up_more"):
+        return (f"**Verdict**: no clear winner. {md_text(best)} has the smallest median time per step, but it left "
+                f"more steps above the tolerance than {md_text(base)} ({noise['unfinished'][best]} against "
+                f"{noise['unfinished'][base]}): faster by not finishing is not faster." + left_out)
     if noise and noise.get("best") == best and noise.get("too_few_steps"):
         return (f"**Verdict**: no clear winner: {count(noise['steps'], 'step')} to judge on, and a winner is named "
                 f"from at least {MIN_STEPS}." + left_out)
@@ -184,6 +183,16 @@ def _verdict(summary, noise=None):
                if noise.get("runner_up") else []) + [f"A/A noise floor {_interval(noise['aa'])}"]
         text += f" ({'; '.join(parts)}; {100 * noise['level']:.0f}% intervals over the steps)"
     return text + "." + left_out
+
+
+def _unfinished_note(shares):
+    """The rule for steps ended above the tolerance, said where a variant has any ({label: share})."""
+    some = {n: share for n, share in shares.items() if share}
+    if not some:
+        return ""
+    return (" Steps ended above the tolerance (by our residual) count as unfinished, slower than any finished "
+            "step (contest/verdict.py): " + ", ".join(f"{md_text(n)} {_share(share)}" for n, share in some.items())
+            + ".")
 
 
 def noise_of(rows, summary):
@@ -564,23 +573,29 @@ def loop_verdict(results, tolerance):
     if base is None:
         return None
     candidates = [r for r in results if r.ours and not r.oracle]
-    fair = [r for r in candidates if r.finite and not _loop_above(r, tolerance)]
+    fair = [r for r in candidates if r.finite]
     left = [r.start for r in candidates if r not in fair]
-    left_out = (f" Left out, as they ended steps above the tolerance or stopped being finite: "
-                f"{', '.join(md_text(n) for n in left)}." if left else "")
+    left_out = (f" Left out, as they stopped being finite: {', '.join(md_text(n) for n in left)}." if left else "") \
+        + _unfinished_note({r.start: _loop_above(r, tolerance) or 0 for r in fair})
     if not fair:
-        return "**Verdict**: no start reached the tolerance on every step of the loop, so none is named." + left_out
+        return "**Verdict**: no start stayed finite on every step of the loop, so none is named." + left_out
     ours = [r for r in results if r.ours]
     times = {r.start: dict(enumerate(np.asarray(r.ms_per_step, np.float64))) for r in ours}
+    unfinished = {r.start: set(np.flatnonzero(np.nan_to_num(np.asarray(r.residuals, np.float64), nan=0.0) > tolerance)
+                               .tolist()) if tolerance is not None and r.residuals is not None else set() for r in ours}
     v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
-               {r.start: r.setup_ms for r in ours})
+               {r.start: r.setup_ms for r in ours}, unfinished)
     parts = ([f"{_interval(v.vs_base[v.best])} of {md_text(base.start)}'s time per step"] if v.best != base.start else []) \
         + ([f"{_interval(v.best_vs_runner_up)} of the runner-up {md_text(v.runner_up)}'s"] if v.runner_up else []) \
         + [f"A/A noise floor {_interval(v.aa)}"]
     if v.too_few_steps:
         return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
                 f"least {MIN_STEPS}." + left_out + _fence_caveat())
-    if v.heavy_tail:
+    if v.gave_up_more:
+        head = (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
+                f"but it left more steps above the tolerance than {md_text(base.start)} ({v.unfinished[v.best]} "
+                f"against {v.unfinished[base.start]}): faster by not finishing is not faster")
+    elif v.heavy_tail:
         head = (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
                 f"but over the whole run, setup included, it took longer than "
                 + " and ".join(f"{md_text(n)} ({v.totals[v.best]:.4g} ms against {v.totals[n]:.4g} ms)"
