@@ -74,11 +74,11 @@ def main():
             os.open(os.devnull, os.O_RDWR)   # (the lowest free number: this one, as those below are open)
     if sys.stderr is None:
         sys.stderr = open(os.devnull, "w")
-    if sys.stdout is None or os.environ.get("DC_STUDY_FENCED") and os.environ.get("DC_STDOUT_CLOSED"):
+    if sys.stdout is None or "DC_SANDBOX_BROKER" in os.environ and os.environ.get("DC_STDOUT_CLOSED"):
         sys.stdout = ClosedStdout()
     protocol.command_line = shlex.join(["dc", *sys.argv[1:]])   # recorded in every report
-    if os.environ.get("DC_STUDY_FENCED") and os.environ.get("DC_COMMAND_LINE"):
-        protocol.command_line = os.environ["DC_COMMAND_LINE"]   # (a fenced study: the user's line, not the staged one)
+    if os.environ.get("DC_COMMAND_LINE") and "DC_SANDBOX_BROKER" in os.environ:
+        protocol.command_line = os.environ["DC_COMMAND_LINE"]   # (a fenced job: the user's line, not the staged one)
     from deepcontact import leftovers
     leftovers.adopt_orphans()
     try:

@@ -5,7 +5,7 @@ import click
 
 from deepcontact.model.arch import NETWORKS
 
-from . import options
+from . import fenced_training, options
 
 
 def torch_device(ctx, param, value):
@@ -24,7 +24,7 @@ def torch_device(ctx, param, value):
     return value
 
 
-@click.command()
+@click.command(cls=fenced_training.RawArgsCommand)
 @click.argument("dataset", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder for checkpoints (last.pt, best.pt), metrics and the loss plot.")
@@ -129,10 +129,14 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
               "no_final_relu": "final_relu", "fcn_width": "fcn_width", "fcn_depth": "fcn_depth",
               "solver_sweeps": "solver_sweeps"}
     given = {field: getattr(cfg, field) for param, field in fields.items() if options.was_given(param)}
+    if fenced_training.fenced(model):   # (a plug-in network's code never runs in this process)
+        raise click.exceptions.Exit(fenced_training.run(click.get_current_context(), model, out, overwrite, resume,
+                                                        device))
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
                   given=given, plots=plots, heartbeat=heartbeat)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
-        click.echo(f"{out}: {len(history)} epochs; best.pt and last.pt written", err=True)
+        shown = os.environ.get(fenced_training.INSIDE) or out   # (fenced: the user's folder, not the staged one)
+        click.echo(f"{shown}: {len(history)} epochs; best.pt and last.pt written", err=True)

@@ -199,3 +199,112 @@ def test_dc_study_help_lists_installed_studies_without_importing_them(installed)
     r = dc("study", "--help")
     assert r.returncode == 0 and "tries to leave its fence" in r.stdout and "stability" in r.stdout
     assert "dc_hostile_study" not in sys.modules   # (listed from a sandbox: never imported here)
+
+
+# --- A plug-in network's training is a job too ------------------------------------------------------
+
+NETWORK = textwrap.dedent("""
+    import os, signal, time
+    from torch import nn
+
+    USER_FILE = {user_file!r}
+
+    class Reacher(nn.Sequential):
+        '''Tries to leave its fence while it is built, then trains as a plain convolution.'''
+        def __init__(self, in_channels, out_channels, height, width):
+            super().__init__(nn.Conv2d(in_channels, out_channels, 1))
+            if str(next(self.parameters()).device) == "meta":
+                return
+            try:
+                with open(USER_FILE, "a") as f:
+                    f.write("reached")
+            except OSError:
+                pass
+
+    class Exits(nn.Sequential):
+        def __init__(self, in_channels, out_channels, height, width):
+            super().__init__(nn.Conv2d(in_channels, out_channels, 1))
+        def forward(self, x):
+            os._exit(7)
+
+    class Stubborn(nn.Sequential):
+        '''Ignores every stop signal once it has trained an epoch.'''
+        def __init__(self, in_channels, out_channels, height, width):
+            super().__init__(nn.Conv2d(in_channels, out_channels, 1))
+            self.calls = 0
+        def forward(self, x):
+            self.calls += 1
+            if self.calls > 2:
+                signal.signal(signal.SIGTERM, signal.SIG_IGN)
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                time.sleep(0.05)
+            return super().forward(x)
+
+    class Litters(nn.Sequential):
+        '''Leaves a file of its own in the run's folder (through the working folder it is given).'''
+        def __init__(self, in_channels, out_channels, height, width):
+            super().__init__(nn.Conv2d(in_channels, out_channels, 1))
+        def forward(self, x):
+            for root, dirs, files in os.walk(os.environ.get("TMPDIR", "/tmp")):
+                if "last.pt" in files or os.path.basename(root) == "run":
+                    open(os.path.join(root, "notes.txt"), "w").write("mine")
+            return super().forward(x)
+""")
+
+
+@pytest.fixture
+def network(tmp_path, monkeypatch):
+    lib = tmp_path / "netlib"
+    lib.mkdir()
+    user_file = tmp_path / "notes.txt"
+    user_file.write_text("mine")
+    (lib / "dc_hostile_net.py").write_text(NETWORK.format(user_file=str(user_file)))
+    monkeypatch.syspath_prepend(str(lib))
+    yield lib, user_file
+    sys.modules.pop("dc_hostile_net", None)
+
+
+TRAIN = ["--epochs", "2", "--batch-size", "4", "-q"]
+
+
+def test_a_plug_in_network_trains_fenced(dataset, tmp_path, network):
+    lib, user_file = network
+    out = tmp_path / "m"
+    r = dc("train", dataset, "-o", out, "--arch", "dc_hostile_net:Reacher", *TRAIN)
+    assert r.returncode == 0, r.stderr
+    assert user_file.read_text() == "mine" and "dc_hostile_net" not in sys.modules
+    assert {p.name for p in out.iterdir()} >= {"last.pt", "best.pt", "metrics.json"}
+    # resumed, fenced too: from a copy of the run, written back in place
+    r = dc("train", dataset, "-o", out, "--arch", "dc_hostile_net:Reacher", "--resume", "--epochs", "3", "-q")
+    assert r.returncode == 0, r.stderr
+    assert len(json.loads((out / "metrics.json").read_text())) == 3
+
+
+def test_a_network_that_ends_its_process_is_one_line(dataset, tmp_path, network):
+    r = dc("train", dataset, "-o", tmp_path / "m", "--arch", "dc_hostile_net:Exits", *TRAIN)
+    one_line_error(r, "dc_hostile_net:Exits")
+
+
+def test_what_a_network_leaves_in_its_run_is_not_kept(dataset, tmp_path, network):
+    out = tmp_path / "m"
+    one_line_error(dc("train", dataset, "-o", out, "--arch", "dc_hostile_net:Litters", *TRAIN),
+                   "'notes.txt', which a training run never writes")
+    assert not (out / "notes.txt").exists()
+
+
+def test_the_users_stop_ends_a_stubborn_network_and_keeps_its_last_epoch(dataset, tmp_path, network):
+    lib, _ = network
+    out = tmp_path / "m"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(lib), *sys.path]))
+    p = subprocess.Popen([*dc_command(), "train", str(dataset), "-o", str(out), "--arch", "dc_hostile_net:Stubborn",
+                          "--epochs", "100000", "--batch-size", "4"], env=env, stderr=subprocess.PIPE, text=True)
+    line = p.stderr.readline()
+    while line and not line.startswith("epoch 1 of"):
+        line = p.stderr.readline()
+    time.sleep(1)   # (what it writes reaches the output within job.POLL, half a second)
+    stopped = time.monotonic()
+    p.send_signal(signal.SIGINT)
+    p.wait(10)
+    assert time.monotonic() - stopped < 2 and p.returncode == 130, p.stderr.read()
+    assert (out / "last.pt").exists() and json.loads((out / "metrics.json").read_text())
+    assert not [q for q in tmp_path.iterdir() if ".partial-" in q.name or q.name.endswith(".lock")]

@@ -452,14 +452,35 @@ class JobSandbox(Sandbox):
 
     job = True
 
-    def __init__(self, writable=(), cwd=None):
+    def __init__(self, writable=(), cwd=None, devices=()):
         super().__init__()
         self.name = f"dc-job-{os.getpid()}-{Sandbox._count}"
         self.writable = [os.path.abspath(p) for p in writable]
+        self.devices = [d for d in devices if os.path.exists(d)]
         self.cwd = os.path.abspath(cwd or os.getcwd())
 
     def _make_groups(self):
         pass   # (not charged: a job is the user's own measurement; its PID namespace ends it)
+
+    def kill(self):
+        """Ends the job: its namespace's first process first, so that bubblewrap reaps it and ends
+        (killed first, bubblewrap would leave it to dc, the reaper of orphans, to find)."""
+        if self.process is not None and self.process.poll() is None:
+            try:
+                with open(f"/proc/{self.process.pid}/task/{self.process.pid}/children") as f:
+                    children = [int(p) for p in f.read().split()]
+            except OSError:
+                children = []
+            for pid in children:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except OSError:
+                    pass
+            try:
+                self.process.wait(2)
+            except subprocess.TimeoutExpired:
+                pass
+        super().kill()
 
     def _enter(self):
         import resource
@@ -475,6 +496,8 @@ class JobSandbox(Sandbox):
                "--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/dev/shm"]
         for path in dict.fromkeys(self.writable):
             out += ["--bind", path, path]
+        for path in dict.fromkeys(self.devices):
+            out += ["--dev-bind", path, path]
         out += ["--chdir", self.cwd]
         if seccomp_fd is not None:
             out += ["--seccomp", str(seccomp_fd)]

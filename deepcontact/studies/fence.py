@@ -20,18 +20,15 @@ import stat
 import subprocess
 import sys
 import tempfile
-import threading
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from .. import atomic
-from ..contest import sandbox
-from ..contest.broker import ENV as BROKER_ENV, Broker
+from ..contest import job, sandbox
 from ..errors import InputError
 from ..plugins import PluginError
 
-INSIDE = "DC_STUDY_FENCED"        # set for the study's own process: the study NAME it runs in place
-COMMAND_LINE = "DC_COMMAND_LINE"  # the user's command line, for the study's reports (not the staged one)
+INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME it runs in place
 
 
 def fenced(name):
@@ -136,30 +133,6 @@ def _staging(target, name):
 
 # --- The run --------------------------------------------------------------------------------------
 
-def _copier(source, sink):
-    """Copies a pipe's text to a stream (our stdout or stderr when it has no descriptor: a caller's
-    buffer, click's CliRunner)."""
-    def run():
-        with os.fdopen(source, "r", errors="replace") as f:
-            for line in f:
-                sink.write(line)
-                sink.flush()
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    return t
-
-
-def _stream(stream):
-    """(what the study's process gets for stream, the read end to copy from or None)."""
-    if stream is None or type(stream).__name__ == "ClosedStdout":   # (the shell closed it: so is the study's)
-        return subprocess.DEVNULL, None
-    if sandbox._has_fileno(stream):
-        stream.flush()
-        return stream.fileno(), None
-    read, write = os.pipe()
-    return write, read
-
-
 def run(name, args):
     """Runs `dc study NAME ARGS` fenced; returns its exit status. The output (-o) is checked
     before the study starts and swapped in after it ends in order; the user's stop ends it."""
@@ -183,66 +156,12 @@ def run(name, args):
             writable.append(str(stage))
             staged = stage / Path(target).name
             args[where] = prefix + str(staged)
-        code = _run_in_sandbox(name, args, writable, private, protocol.command_line)
+        code = job.run(["study", name, *args], writable, private, {INSIDE: name}, protocol.command_line)
         if staged is not None and code in (0, 1):
             publish(staged, target, name)
     if code not in (0, 1, 2):
-        raise PluginError(f"the study {name!r} ended its process ({_how(code)}): nothing it wrote was published")
+        raise PluginError(f"the study {name!r} ended its process ({job.how(code)}): nothing it wrote was published")
     return code
-
-
-def _run_in_sandbox(name, args, writable, private, command_line):
-    broker = Broker()
-    box = sandbox.JobSandbox(writable=writable)
-    env = dict(os.environ, TMPDIR=private, PYTHONPATH=os.pathsep.join(p or os.getcwd() for p in sys.path))
-    env.update({BROKER_ENV: str(broker.job_fd), INSIDE: name, COMMAND_LINE: command_line or ""})
-    env.setdefault("MPLCONFIGDIR", _matplotlib_dir(private))
-    if type(sys.stdout).__name__ == "ClosedStdout":
-        env["DC_STDOUT_CLOSED"] = "1"
-    out, out_pipe = _stream(sys.stdout)
-    err, err_pipe = _stream(sys.stderr)
-    copiers = []
-    try:
-        box.start([sys.executable, "-m", "deepcontact.cli.main", "study", name, *args],
-                  pass_fds=[broker.job_fd], env=env, stdout=out, stderr=err)
-        broker.job_started()
-        for pipe, sink, fd in ((out_pipe, sys.stdout, out), (err_pipe, sys.stderr, err)):
-            if pipe is not None:   # (a caller's buffer: copied)
-                os.close(fd)
-                copiers.append(_copier(pipe, sink))
-        code = box.process.wait()
-    finally:
-        box.kill()
-        broker.close()
-        for t in copiers:
-            t.join(5)
-    return code
-
-
-def _matplotlib_dir(private):
-    """A writable matplotlib folder for the study (its own is read-only there), seeded with the
-    user's font list so that matplotlib does not rebuild it (seconds) in every study."""
-    home = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "matplotlib"
-    folder = Path(private) / "matplotlib"
-    folder.mkdir()
-    for cached in home.glob("fontlist-*.json") if home.is_dir() else ():
-        try:
-            shutil.copyfile(cached, folder / cached.name)
-        except OSError:
-            pass
-    return str(folder)
-
-
-def _how(code):
-    if code > 128 and sandbox._bwrap() is not None:   # (bubblewrap passes its child's signal on as 128 + it)
-        code = 128 - code
-    if code < 0:
-        import signal
-        try:
-            return f"killed by {signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed by signal {-code}"
-    return f"exit status {code}"
 
 
 # --- The list -------------------------------------------------------------------------------------
@@ -252,7 +171,7 @@ def survey(names=None):
     the broken ones), of every one or of `names`, loaded in a sandbox of their own: listing
     imports every study's code, which runs fenced like the rest of it."""
     box = sandbox.JobSandbox()
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p or os.getcwd() for p in sys.path), **{INSIDE: "-"})
+    env = dict(os.environ, PYTHONPATH=job.python_path(), **{INSIDE: "-"})
     read, write = os.pipe()
     try:
         box.start([sys.executable, "-c", "import sys; from deepcontact.studies.fence import _survey_here; "
@@ -273,7 +192,7 @@ def survey(names=None):
         found = json.loads(data)
         healthy, broken = found["healthy"], found["broken"]
     except (ValueError, KeyError, TypeError):
-        raise PluginError(f"the installed studies could not be listed: their process ended ({_how(code)}) "
+        raise PluginError(f"the installed studies could not be listed: their process ended ({job.how(code)}) "
                           f"without a list") from None
     return healthy, broken
 
