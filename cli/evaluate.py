@@ -107,7 +107,9 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         ("bands", plots and not closed_loop, "applies to replay's convergence plot, which --closed-loop and "
                                              "--no-plots leave out"),
     ])
-    options.load_network(arch)
+    if arch is not None:   # (the user's explicit choice; its code is loaded in the contestants' sandboxes only)
+        from deepcontact.model.arch import NETWORKS
+        NETWORKS.choose(arch)
 
     from deepcontact.evaluate.command import EvaluateSettings, history_bytes, run_evaluation
     from deepcontact.solver.settings import SolveSettings

@@ -159,6 +159,16 @@ class Registry:
             pass
         return out
 
+    def choose(self, name):
+        """Records `name` as the user's explicit choice (a command's --arch) without importing it:
+        a checkpoint naming it may then be read, and its code is loaded where it runs (a
+        contestant's sandbox), never here."""
+        self._chosen = getattr(self, "_chosen", set()) | {name}
+
+    def chosen(self, name):
+        """Whether `name` is a built-in, loaded, or chosen by the user (choose)."""
+        return name in self._builtin or name in self._loaded or name in getattr(self, "_chosen", set())
+
     def builtin(self):
         """The names registered in code, in registration order."""
         return list(self._builtin)

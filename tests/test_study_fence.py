@@ -308,3 +308,20 @@ def test_the_users_stop_ends_a_stubborn_network_and_keeps_its_last_epoch(dataset
     assert time.monotonic() - stopped < 2 and p.returncode == 130, p.stderr.read()
     assert (out / "last.pt").exists() and json.loads((out / "metrics.json").read_text())
     assert not [q for q in tmp_path.iterdir() if ".partial-" in q.name or q.name.endswith(".lock")]
+
+
+def test_dc_evaluate_never_builds_a_plug_in_network_in_its_own_process(run, dataset, tmp_path, network, monkeypatch):
+    """The judge read the checkpoint's grid and names, but also built the network (its code ran
+    in dc's process); now only the contestants do, in their sandboxes. And a --checkpoint given
+    relative to the working folder is found from theirs (it was "no such checkpoint")."""
+    monkeypatch.chdir(tmp_path)
+    assert dc("train", dataset, "-o", "m", "--arch", "dc_hostile_net:Reacher", *TRAIN).returncode == 0
+    r = dc("evaluate", "--no-plots", run, "--starts", "builtin,cnn", "--checkpoint", "m/best.pt", "--arch",
+           "dc_hostile_net:Reacher", "--every", "40", "-q", "-o", "r")
+    assert r.returncode == 0, r.stderr
+    assert "dc_hostile_net" not in sys.modules
+    assert "| cnn |" in (tmp_path / "r" / "report.md").read_text()
+    from deepcontact.model.arch import NETWORKS
+    monkeypatch.setattr(NETWORKS, "_chosen", set())   # (as a new process finds it: nothing chosen yet)
+    one_line_error(dc("evaluate", "--no-plots", run, "--starts", "builtin,cnn", "--checkpoint", "m/best.pt",
+                      "--every", "40", "-q", "-o", "r2"), "name it with --arch dc_hostile_net:Reacher")

@@ -47,6 +47,8 @@ def _make(setup):
         if getattr(factory, "needs_model", False) or "predictor" in _parameters(factory):
             from ..model.inference import Predictor
             predictor = Predictor(setup["checkpoint"], threads=setup["threads"]) if setup["checkpoint"] else None
+            if predictor is not None:
+                predictor.build()   # (at setup, charged to it: not in its first call)
         start = make_starts([what], spec=setup["spec"], predictor=predictor)[what]
     else:
         start = pickle.loads(what)

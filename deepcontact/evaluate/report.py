@@ -185,6 +185,14 @@ def _verdict(summary, noise=None):
     return text + "." + left_out
 
 
+def _every(k):
+    """"every step", "every 2nd step", "every 5th step"."""
+    if k == 1:
+        return "every step"
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"every {k}{suffix} step"
+
+
 def _unfinished_note(shares):
     """The rule for steps ended above the tolerance, said where a variant has any ({label: share})."""
     some = {n: share for n, share in shares.items() if share}
@@ -243,7 +251,7 @@ def markdown(summary, settings, pareto):
     ref = s["reference"]
     line = verdict(summary, s.get("noise"))
     text = ["# Warm starts compared\n", *([line + "\n"] if line else []),
-            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, every {s['every']}th; solver {s['mode']} PGS stopped "
+            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, {_every(s['every'])}; solver {s['mode']} PGS stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
             f"Errors are against each step's reference solution (float64 from zero, PGS sweeps, Newton steps and, "
             f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it "

@@ -18,7 +18,7 @@ import torch
 from ..grid.interpolate import bilinear
 from ..grid.spec import GridSpec
 from ..grid.splat import rasterize
-from .networks import build, check_network
+from .networks import build, check_network, require_named
 from .train import load_checkpoint
 
 
@@ -39,16 +39,33 @@ class Predictor:
         from .. import arguments
         threads = arguments.whole(threads, "threads", 1, 1024)
         ck = load_checkpoint(arguments.path(checkpoint, "checkpoint"))
-        self.checkpoint, self.threads = os.fspath(checkpoint), threads   # (a contestant process loads its own)
+        # (a contestant process loads its own, from another working folder: the path made absolute)
+        self.checkpoint, self.threads = os.path.abspath(checkpoint), threads
         self.network = ck["network"]["model"]
         self.spec = GridSpec.from_dict(ck["dataset"]["grid"])   # (checked by load_checkpoint)
         self.inputs = list(ck["dataset"]["inputs"])
         self.targets = list(ck["targets"])
-        self.model = build(ck["network"])
-        self.model.load_state_dict(ck["model"])
-        check_network(self.model, ck["network"])
-        self.model.eval()
+        require_named(self.network)   # (checked now; a plug-in's code is imported only where it is built)
+        self._checkpoint, self._model = ck, None
         torch.set_num_threads(threads or 1)
+
+    @property
+    def model(self):
+        """The network, built on first use (the judge's process reads a checkpoint's grid and
+        names and never builds a plug-in network: its contestants do, in their sandboxes)."""
+        if self._model is None:
+            self.build()
+        return self._model
+
+    def build(self):
+        """Builds the network and loads its weights now (a contestant does at setup, on its clock)."""
+        ck = self._checkpoint
+        model = build(ck["network"])
+        model.load_state_dict(ck["model"])
+        check_network(model, ck["network"])
+        model.eval()
+        self._model = model
+        return model
 
     @torch.no_grad()
     def images(self, x):

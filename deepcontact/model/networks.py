@@ -103,11 +103,17 @@ class FCN(nn.Module):
 # (the registry lives in model/arch.py, which imports no torch: the CLI reads its names)
 
 
-def _factory(name):
-    factory = NETWORKS.resolved(name)
-    if factory is None:   # a name read from a checkpoint never imports code by itself
+def require_named(name):
+    """PluginError unless the network `name` (read from a checkpoint) is a built-in or the user
+    named it (--arch): a name read from a checkpoint never imports code by itself."""
+    if not NETWORKS.chosen(name):
         raise PluginError(f"the network {name!r} is a plug-in: name it with --arch {name} to load it")
-    return factory
+
+
+def _factory(name):
+    require_named(name)
+    factory = NETWORKS.resolved(name)
+    return factory if factory is not None else NETWORKS.load(name)   # (chosen, loaded where it runs)
 
 
 def build(config):
@@ -165,7 +171,7 @@ def check_config(config):
     """Why a network config cannot be built, or None."""
     if not isinstance(config, dict) or not isinstance(config.get("model"), str):
         return "the network config names no network"
-    if NETWORKS.resolved(config["model"]) is None:
+    if not NETWORKS.chosen(config["model"]):
         return (f"the network {config['model']!r} is a plug-in: name it with --arch {config['model']} to load it "
                 "(a checkpoint never imports code by itself)")
     for key, (low, high) in CONFIG_LIMITS.items():
@@ -189,7 +195,11 @@ def on_meta(config):
 
 
 def shape_problem(config, state):
-    """Why a state dict does not fit the network config (names or tensor shapes), or None."""
+    """Why a state dict does not fit the network config (names or tensor shapes), or None. A
+    plug-in network chosen but not loaded here (dc evaluate's judge: its code runs only in the
+    contestants' sandboxes) is checked where it is built, when its weights are loaded."""
+    if NETWORKS.resolved(config["model"]) is None:
+        return None
     want = on_meta(config).state_dict()
     if not isinstance(state, dict) or set(state) != set(want):
         missing = sorted(set(want) - set(state)) if isinstance(state, dict) else []
