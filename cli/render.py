@@ -1,13 +1,16 @@
 """dc render: pictures of steps, runs and grid samples, and a run viewer in one HTML file."""
+import os
 from pathlib import Path
 
 import click
 
 from deepcontact.errors import InputError
 
-from deepcontact.model.arch import NETWORKS
+from deepcontact.model.arch import BUILTIN as BUILTIN_NETWORKS, NETWORKS
 
-from . import options
+from . import fenced_training, options
+
+RENDER_INSIDE = "DC_RENDER_FENCED"   # set for a fenced render's own process: it draws in place
 
 FORMS = {"step": (".png", ".svg"), "run": (".gif", ".mp4", ".webm", ".html"), "dataset": (".png",)}
 
@@ -24,7 +27,7 @@ def kind_of(path):
     return "run"
 
 
-@click.command()
+@click.command(cls=fenced_training.RawArgsCommand)
 @click.argument("input_path", metavar="INPUT", type=click.Path())
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False),
               help="The picture, movie or page; its extension chooses the form: .png/.svg (a step or a "
@@ -100,6 +103,12 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         + [("threads", model is not None, "only applies with --checkpoint (nothing else runs torch)")]
         + [("jobs", kind == "run" and movie and suffix != ".html", "draws a movie's frames side by side: it only "
                                                                     "applies to a run drawn as .gif, .mp4 or .webm")])
+    if arch is not None and arch not in BUILTIN_NETWORKS and not os.environ.get(RENDER_INSIDE):
+        # a plug-in network's code runs to predict: the whole drawing runs fenced, as a study does
+        from deepcontact.contest import job
+        raise click.exceptions.Exit(job.run_with_output(
+            ["render"], click.get_current_context().meta["raw_args"], "render", lambda: "file", {RENDER_INSIDE: "1"},
+            f"dc render with the network {arch!r}"))
     options.load_network(arch)
     if suffix not in FORMS[kind]:
         every_form = sorted({s for forms in FORMS.values() for s in forms})

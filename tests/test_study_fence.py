@@ -325,3 +325,14 @@ def test_dc_evaluate_never_builds_a_plug_in_network_in_its_own_process(run, data
     monkeypatch.setattr(NETWORKS, "_chosen", set())   # (as a new process finds it: nothing chosen yet)
     one_line_error(dc("evaluate", "--no-plots", run, "--starts", "builtin,cnn", "--checkpoint", "m/best.pt",
                       "--every", "40", "-q", "-o", "r2"), "name it with --arch dc_hostile_net:Reacher")
+
+
+def test_dc_render_with_a_plug_in_network_draws_fenced(dataset, tmp_path, network):
+    lib, user_file = network
+    assert dc("train", dataset, "-o", tmp_path / "m", "--arch", "dc_hostile_net:Reacher", *TRAIN).returncode == 0
+    out = tmp_path / "sample.png"
+    r = dc("render", dataset, "-o", out, "--checkpoint", tmp_path / "m" / "best.pt", "--arch", "dc_hostile_net:Reacher")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == str(out) and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert user_file.read_text() == "mine" and "dc_hostile_net" not in sys.modules
+    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]

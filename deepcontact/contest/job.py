@@ -10,11 +10,16 @@ user's stop (Terminated, KeyboardInterrupt) ends it at once, with everything it 
 import os
 import shutil
 import signal
+import stat
 import subprocess
 import sys
+import tempfile
 import threading
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
+from .. import atomic
+from ..errors import InputError
 from . import sandbox
 from .broker import ENV as BROKER_ENV, Broker
 
@@ -74,6 +79,132 @@ def how(code):
         except ValueError:
             return f"killed by signal {-code}"
     return f"exit status {code}"
+
+
+# --- A fenced command's output -----------------------------------------------------------------------------------
+
+def output_argument(args):
+    """(index of the -o/--output value in args or None, the text before the path in that argument,
+    the path or None, whether --overwrite is given) of a command's arguments, read as click reads
+    them: the last -o wins, nothing after --."""
+    where, prefix, path, overwrite, k = None, "", None, False, 0
+    while k < len(args):
+        a = args[k]
+        if a == "--":
+            break
+        if a in ("-o", "--output") and k + 1 < len(args):
+            where, prefix, path = k + 1, "", args[k + 1]
+            k += 2
+            continue
+        if a.startswith("--output="):
+            where, prefix, path = k, "--output=", a[len("--output="):]
+        elif a.startswith("-o") and len(a) > 2:
+            where, prefix, path = k, "-o", a[2:]
+        elif a == "--overwrite":
+            overwrite = True
+        k += 1
+    return where, prefix, (path if path not in (None, "", "-") else None), overwrite
+
+
+def check_output(path, command, overwrite, writes):
+    """A fenced command's output checked before any work, by the rules of every command's: never
+    through a link, never a mount point (swapped in by renaming), an existing file or non-empty
+    folder only with --overwrite, and a folder then only one dc `command` wrote, holding only what
+    it wrote. writes: what its -o is ("folder", "file" or "text")."""
+    path = Path(path)
+    if path.is_symlink():
+        raise InputError("is a symbolic link: refusing to write through it or replace it", path)
+    if writes != "folder":
+        atomic.check_replaceable(path)
+    elif os.path.lexists(path) and not path.is_dir():
+        raise InputError("exists and is not a folder", path)
+    if path.is_dir():
+        if os.path.ismount(path):
+            raise InputError(f"is a mount point: an output is swapped in by renaming, which a mount point "
+                             f"refuses; give a folder inside it (-o {path / 'out'})", path)
+        if any(path.iterdir()):
+            atomic.check_owned_folder(path, command, overwrite)
+    elif os.path.lexists(path):
+        atomic.check_replaceable(path)
+        if not overwrite:
+            raise InputError("file exists; use --overwrite to replace it", path)
+
+
+def _check_contents(produced, target, who):
+    """Refuses (InputError) an output that holds anything but files and folders."""
+    for root, dirs, files in os.walk(produced):
+        for entry in dirs + files:
+            mode = os.lstat(os.path.join(root, entry)).st_mode
+            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                shown = Path(target) / os.path.relpath(os.path.join(root, entry), produced)
+                raise InputError(f"the output of {who} holds a {'link' if stat.S_ISLNK(mode) else 'special file'}: "
+                                 f"not published (a fenced command writes files and folders only)", shown)
+
+
+def publish(produced, target, command, who):
+    """What the fenced command wrote in its staging folder, swapped in at target."""
+    produced, target = Path(produced), Path(target)
+    if not os.path.lexists(produced):
+        return
+    _check_contents(produced, target, who)
+    if produced.is_dir():
+        if os.path.lexists(target) and not target.is_dir():
+            raise InputError(f"is a file, and {who} wrote a folder: refusing to replace it", target)
+        with atomic.folder(target, command=command) as work:
+            for entry in os.listdir(produced):
+                if entry != atomic.RECORD:
+                    os.replace(produced / entry, work / entry)
+    else:
+        atomic.check_replaceable(target)
+        os.replace(produced, target)
+
+
+@contextmanager
+def _staging(target, command):
+    """A folder beside target the fenced command writes its output in, held by dc's record as a
+    partial output (so the next command on target removes it if this one is killed); removed at
+    the end."""
+    target = Path(target)
+    stage = Path(tempfile.mkdtemp(prefix=f".{atomic.short_name(target.name)}.partial-{os.getpid()}-",
+                                  dir=target.parent))
+    atomic.hold_building(stage, command)
+    try:
+        yield stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        atomic.release_building(stage)
+
+
+def run_with_output(head, args, command, writes, env_extra, who):
+    """Runs `dc HEAD ARGS` fenced, its -o staged beside the output and published when it ends in
+    order (exit 0, or 1 with a verdict); returns its exit status. command: the output's record
+    ("study engines"); writes(): what its -o is ("folder", "file", "text"), asked only when there
+    is one; who: how its errors name it."""
+    from .. import protocol
+    from ..plugins import PluginError
+    args = list(args)
+    where, prefix, target, overwrite = output_argument(args)
+    with ExitStack() as stack:
+        private = stack.enter_context(tempfile.TemporaryDirectory(prefix="dc-job-"))
+        writable, staged = [private], None
+        if target is not None:
+            kind = writes()
+            check_output(target, command, overwrite, kind)
+            atomic.make_folder_for(target)
+            stack.enter_context(atomic.locked(target))
+            atomic.recover(target)
+            check_output(target, command, overwrite, kind)   # (as it is now that no other command holds it)
+            stage = stack.enter_context(_staging(target, command))
+            writable.append(str(stage))
+            staged = stage / Path(target).name
+            args[where] = prefix + str(staged)
+            env_extra = {**(env_extra or {}), "DC_OUTPUT_STAGED": str(staged), "DC_OUTPUT_SHOWN": str(target)}
+        code = run([*head, *args], writable, private, env_extra, protocol.command_line)
+        if staged is not None and code in (0, 1):
+            publish(staged, target, command, who)
+    if code not in (0, 1, 2):
+        raise PluginError(f"{who} ended its process ({how(code)}): nothing it wrote was published")
+    return code
 
 
 def _copier(source, sink):
