@@ -71,6 +71,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_simulate.py
 	$(PYTHON) benchmarks/bench_solver.py
 	$(PYTHON) benchmarks/bench_rasterize.py
+	$(PYTHON) benchmarks/bench_checking.py
 	$(PYTHON) benchmarks/bench_scale.py
 	$(PYTHON) benchmarks/bench_render.py
 	$(PYTHON) benchmarks/bench_predict.py

@@ -13,6 +13,7 @@
 #endif
 #include "pyarrays.hpp"
 #include "step_read.hpp"
+#include "step_strict.hpp"
 #include "step_xml.hpp"
 #include "world.hpp"
 
@@ -99,6 +100,55 @@ py::dict to_dict(const dc::StepHeader& h) {
     return d;
 }
 
+// The table from its Python form: [(name, [(attribute, kind, required, low, low exclusive, high,
+// enumeration, fixed)], any attribute, [(names, declarations, min, max)])].
+dc::StrictTable strict_table(const py::sequence& declarations) {
+    static const std::pair<const char*, dc::ValueKind> kinds[] = {
+        {"float", dc::ValueKind::Float}, {"int", dc::ValueKind::Int}, {"boolean", dc::ValueKind::Boolean},
+        {"token", dc::ValueKind::Token}, {"string", dc::ValueKind::String}};
+    dc::StrictTable t;
+    for (const auto& item : declarations) {
+        const auto d = item.cast<py::tuple>();
+        dc::StrictDeclaration out;
+        out.name = d[0].cast<std::string>();
+        for (const auto& a_item : d[1].cast<py::sequence>()) {
+            const auto a = a_item.cast<py::tuple>();
+            dc::StrictAttribute attribute;
+            attribute.name = a[0].cast<std::string>();
+            const auto kind = a[1].cast<std::string>();
+            bool known = false;
+            for (const auto& [k, v] : kinds)
+                if (kind == k) attribute.kind = v, known = true;
+            if (!known) throw std::invalid_argument("unknown attribute kind " + kind);
+            attribute.required = a[2].cast<bool>();
+            if (!a[3].is_none()) attribute.has_low = true, attribute.low = a[3].cast<double>();
+            attribute.low_open = a[4].cast<bool>();
+            if (!a[5].is_none()) attribute.has_high = true, attribute.high = a[5].cast<double>();
+            attribute.enumeration = a[6].cast<std::vector<std::string>>();
+            if (!a[7].is_none()) attribute.has_fixed = true, attribute.fixed = a[7].cast<std::string>();
+            out.attributes.push_back(std::move(attribute));
+        }
+        if (out.attributes.size() > 64) throw std::invalid_argument("more than 64 attributes on " + out.name);
+        out.any_attribute = d[2].cast<bool>();
+        for (const auto& p_item : d[3].cast<py::sequence>()) {
+            const auto p = p_item.cast<py::tuple>();
+            dc::StrictParticle particle;
+            particle.names = p[0].cast<std::vector<std::string>>();
+            particle.declarations = p[1].cast<std::vector<int>>();
+            particle.min = p[2].cast<int>();
+            particle.max = p[3].cast<int>();
+            out.particles.push_back(std::move(particle));
+        }
+        t.declarations.push_back(std::move(out));
+    }
+    for (const auto& d : t.declarations)   // (every reference within the table)
+        for (const auto& p : d.particles)
+            for (int k : p.declarations)
+                if (k < 0 || static_cast<size_t>(k) >= t.declarations.size())
+                    throw std::invalid_argument("a particle names no declaration");
+    return t;
+}
+
 void bind_step_reader(py::module_& m) {
     static py::exception<dc::StepFileError> error(m, "StepFileError", PyExc_ValueError);
     py::register_exception_translator([](std::exception_ptr p) {
@@ -111,20 +161,24 @@ void bind_step_reader(py::module_& m) {
     m.attr("DOCTYPE_REFUSED") = dc::kDoctypeRefused;
     py::class_<dc::StepSchema>(m, "StepSchema", "A compiled XSD, shared by every validation that uses it.")
         .def(py::init<std::string>(), py::arg("xsd_path"));
+    py::class_<dc::StrictTable>(m, "StrictTable",
+                                "The step schema as a table (deepcontact/step/strict.py), checked as a file is read.")
+        .def(py::init(&strict_table), py::arg("declarations"));
     m.def(
         "read_step_file",
-        [](const std::string& path, const dc::StepSchema* schema) {
+        [](const std::string& path, const dc::StepSchema* schema, const dc::StrictTable* strict) {
             dc::StepFile f;
             {
                 py::gil_scoped_release release;
-                f = dc::read_step_file(path, schema);
+                f = dc::read_step_file(path, schema, strict);
             }
             return py::make_tuple(to_dict(f.header), to_dict(std::move(f.bodies), false),
                                   to_dict(std::move(f.contacts)));
         },
-        py::arg("path"), py::arg("schema") = nullptr,
+        py::arg("path"), py::arg("schema") = nullptr, py::arg("strict") = nullptr,
         "(header, bodies, contacts) of a step file (.xml or .xml.gz), streamed with libxml2; validated\n"
-        "against schema in the same pass if given. Raises StepFileError(message, line).");
+        "against schema in the same pass if given, or checked against the schema's table (strict).\n"
+        "Raises StepFileError(message, line).");
     m.def(
         "validate_step_file",
         [](const std::string& path, const dc::StepSchema& schema, size_t max_errors) {

@@ -1,4 +1,5 @@
 #include "step_read.hpp"
+#include "step_strict.hpp"
 #include "step_names.hpp"
 
 #include <fcntl.h>
@@ -388,6 +389,7 @@ struct Reader {
     Problem syntax;               // the parser's first fatal error
     std::vector<SchemaIssue> schema_errors;
     size_t max_errors = 1;
+    StrictCheck* strict = nullptr;   // the schema's table, checked as the file is read (or none)
 
     explicit Reader(Mode m) : mode(m) {}
 
@@ -648,12 +650,28 @@ struct Reader {
 
 Reader* reader_of(void* data) { return static_cast<Reader*>(data); }
 
-void on_start(void* data, const xmlChar* name, const xmlChar*, const xmlChar*, int, const xmlChar**, int n_attributes,
-              int, const xmlChar** attributes) {
-    reader_of(data)->start(name, n_attributes, attributes);
+void on_start(void* data, const xmlChar* name, const xmlChar*, const xmlChar* uri, int, const xmlChar**,
+              int n_attributes, int, const xmlChar** attributes) {
+    Reader* r = reader_of(data);
+    if (r->strict != nullptr && r->problem.message.empty() &&
+        !r->strict->start(reinterpret_cast<const char*>(name), reinterpret_cast<const char*>(uri), n_attributes,
+                          reinterpret_cast<const char**>(attributes)))
+        r->fail("not valid against the schema: " + r->strict->problem);
+    r->start(name, n_attributes, attributes);
 }
 
-void on_end(void* data, const xmlChar*, const xmlChar*, const xmlChar*) { reader_of(data)->end(); }
+void on_end(void* data, const xmlChar*, const xmlChar*, const xmlChar*) {
+    Reader* r = reader_of(data);
+    if (r->strict != nullptr && r->problem.message.empty() && !r->strict->end())
+        r->fail("not valid against the schema: " + r->strict->problem);
+    r->end();
+}
+
+void on_text(void* data, const xmlChar* text, int n) {
+    Reader* r = reader_of(data);
+    if (r->strict != nullptr && r->problem.message.empty() && !r->strict->text(reinterpret_cast<const char*>(text), n))
+        r->fail("not valid against the schema: " + r->strict->problem);
+}
 
 void on_doctype(void*, const xmlChar*, const xmlChar*, const xmlChar*) {
     // Entities would hide values from the schema (or read other files): refused outright.
@@ -721,6 +739,10 @@ void parse(Reader& reader, const StepSchema* schema, Source& source, std::string
     handler.endElementNs = on_end;
     handler.internalSubset = on_doctype;
     handler.serror = on_syntax_error;
+    if (reader.strict != nullptr) {   // (text matters only to the table: without it, never read)
+        handler.characters = on_text;
+        handler.cdataBlock = on_text;
+    }
     xmlSAXHandlerPtr sax = &handler;
     void* data = &reader;
 
@@ -810,10 +832,17 @@ StepSchema::StepSchema(const std::string& xsd_path) {
 
 StepSchema::~StepSchema() { xmlSchemaFree(schema_); }
 
-StepFile read_step_file(const std::string& path, const StepSchema* schema) {
+StepFile read_step_file(const std::string& path, const StepSchema* schema, const StrictTable* strict) {
     Source source(path);
     Reader reader(Reader::Read);
+    std::unique_ptr<StrictCheck> check;
+    if (strict != nullptr && schema == nullptr) {
+        check = std::make_unique<StrictCheck>(*strict);
+        reader.strict = check.get();
+    }
     parse(reader, schema, source, std::string());
+    if (check && reader.problem.message.empty() && reader.syntax.message.empty() && !check->finished())
+        throw StepFileError("not valid against the schema: " + (check->ok() ? std::string("it ends early") : check->problem), 0);
     if (!reader.schema_errors.empty()) {   // the schema's first complaint, where it came first
         const SchemaIssue& e = reader.schema_errors.front();
         if (reader.problem.message.empty() || e.line <= reader.problem.line) throw StepFileError(e.message, e.line);

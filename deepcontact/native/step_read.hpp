@@ -75,9 +75,12 @@ struct Validation {
     std::vector<SchemaIssue> errors;   // well-formedness, then schema errors, in file order
 };
 
+struct StrictTable;
+
 // The whole step; throws StepFileError (file problems, bad values, a schema error when schema
-// is given). Reading never blocks on a FIFO: anything but a regular file is refused.
-StepFile read_step_file(const std::string& path, const StepSchema* schema);
+// is given; with strict, the first thing the schema's table refuses: the XSD then says what,
+// step_strict.hpp). Reading never blocks on a FIFO: anything but a regular file is refused.
+StepFile read_step_file(const std::string& path, const StepSchema* schema, const StrictTable* strict = nullptr);
 
 // Checks one file against the schema in one streaming pass. Only files whose root is <step>
 // are parsed; for any other root, `root` says what it is and nothing else is filled in.

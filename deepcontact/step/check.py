@@ -1,7 +1,8 @@
 """Checking files against the schemas, one error a line as ``path:line:col: message``.
 
-Step files are checked in one streaming pass (libxml2 with the XSD plugged into the parse, as
-.xml or .xml.gz); anything whose root is not <step> (scene files, a DOCTYPE, a stray XML file)
+Step files are checked in one streaming pass against the step schema's table as they are read
+(strict.py; as .xml or .xml.gz), the XSD itself listing the errors of a file the table refuses
+and checking a sample of the files it accepts; anything whose root is not <step> (scene files, a DOCTYPE, a stray XML file)
 goes through lxml (schema.validate). A step file is also checked to belong to the simulation it
 lies in, where that is known."""
 from .. import schema
@@ -13,14 +14,19 @@ from .records import check_solve
 MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
 
-def check_file(path, origin=None):
+def check_file(path, origin=None, xsd=False):
     """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed, engine) of the
     simulation the file lies in, and optionally its run's pgs record (None: the project's solver
-    did not step it), or None."""
-    try:   # a valid step file (nearly every file): validated and read in one streaming pass
+    did not step it), or None. xsd: a valid file is validated by the XSD itself too (a sample of
+    dc validate's: its table is checked against its source)."""
+    try:   # a valid step file (nearly every file): checked against the schema's table and read in one pass
         step = read_step(path, validate=True)
-    except InputError:   # not one: the second pass below lists its errors (up to MAX_ERRORS), or says why
+    except InputError:   # not one: the second pass below lists the XSD's errors (up to MAX_ERRORS), or says why
         step = None
+    if step is not None and xsd:
+        errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)[3]
+        if errors:   # (the table let through what the XSD refuses: the XSD is the authority)
+            step = None
     if step is not None:
         return "step", _semantic_errors(path, step, origin)
     shown = show_path(path)

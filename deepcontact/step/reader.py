@@ -9,7 +9,7 @@ the tests hold this reader to, value for value.
 import os
 from functools import lru_cache
 
-from .._box2d import StepFileError, StepSchema, read_step_file
+from .._box2d import StepFileError, StepSchema, StrictTable, read_step_file
 from ..errors import InputError
 from ..schema import schema_path
 
@@ -23,12 +23,26 @@ def step_schema() -> StepSchema:
     return StepSchema(schema_path("step"))
 
 
+@lru_cache(maxsize=None)
+def strict_table() -> StrictTable:
+    """The step schema's table (strict.py), compiled once per process."""
+    from .strict import table
+    return StrictTable(table())
+
+
 def read_step(path: str | os.PathLike, validate: bool = True) -> tuple[dict, dict, dict]:
-    """Returns (header dict, bodies dict of arrays, contacts dict of arrays)."""
+    """Returns (header dict, bodies dict of arrays, contacts dict of arrays). validate: held to
+    the step schema, by its table as the file is read (strict.py); a file the table refuses is
+    validated by the XSD itself, which says what is wrong (or, being the authority, accepts it)."""
     from .. import arguments
     arguments.path(path, "path")
     try:
-        step = read_step_file(str(path), step_schema() if validate else None)
+        try:
+            step = read_step_file(str(path), None, strict_table() if validate else None)
+        except StepFileError:
+            if not validate:
+                raise
+            step = read_step_file(str(path), step_schema())
     except StepFileError as e:
         message, line = e.args
         raise InputError(message, path, line or None) from None
