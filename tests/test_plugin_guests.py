@@ -330,7 +330,9 @@ def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, mo
         r = dc("train", "--no-plots", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o",
                tmp_path / "m")
         assert r.returncode == 0, r.stderr
-        origin = load_checkpoint(tmp_path / "m" / "last.pt")["network_origin"]   # (while it is loaded)
+        from deepcontact.model.arch import NETWORKS
+        NETWORKS.choose("guest_net_fine:Net")   # (read here as --arch names it: trained fenced, never loaded here)
+        origin = load_checkpoint(tmp_path / "m" / "last.pt")["network_origin"]
     finally:
         forget("guest_net_fine")
     assert origin["origin"] == "plug-in" and origin["target"] == "guest_net_fine:Net"

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from deepcontact.errors import OptionError
-from deepcontact.solver.settings import CAP, TOLERANCE, SolveSettings
+from deepcontact.solver.settings import CAP, TOLERANCE, VERDICT_CAP, SolveSettings
 
 
 @pytest.mark.parametrize("changes,flag,words", [
@@ -46,10 +46,11 @@ def test_every_command_that_solves_to_a_tolerance_takes_its_defaults_from_the_se
     from dcstudies.commands import figures
     for command in (evaluate, figures):
         defaults = {p.name: p.default for p in command.params}
-        assert defaults["tolerance"] == TOLERANCE and defaults["max_iterations"] == CAP, command.name
+        # (the cap at which a verdict can name a variant: solver/settings.VERDICT_CAP)
+        assert defaults["tolerance"] == TOLERANCE and defaults["max_iterations"] == VERDICT_CAP, command.name
     from deepcontact.evaluate.command import EvaluateSettings
     s = EvaluateSettings(runs=[], starts=[])
-    assert (s.solve.tolerance, s.solve.max_iterations) == (TOLERANCE, CAP)
+    assert (s.solve.tolerance, s.solve.max_iterations) == (TOLERANCE, VERDICT_CAP)
 
 
 def test_a_plug_in_method_receives_the_settings_object(run):

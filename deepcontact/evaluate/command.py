@@ -4,7 +4,7 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from ..solver.settings import SolveSettings
+from ..solver.settings import VERDICT_CAP, SolveSettings
 
 
 @dataclass
@@ -13,7 +13,7 @@ class EvaluateSettings:
     runs: list                      # run folders of one kind of scene
     starts: list                    # start names (built-ins, installed plug-ins, package.module:Name)
     checkpoint: str | None = None   # a trained model, for the starts that use one
-    solve: SolveSettings = SolveSettings()   # every solve's mode, tolerance, cap and measure (a variant's
+    solve: SolveSettings = SolveSettings(max_iterations=VERDICT_CAP)   # every solve's mode, tolerance, cap and measure (a variant's
                                              # w and method replace its own)
     every: int = 1                  # replay: every N-th step
     cell: float = 0.5               # the sph start's grid, without a checkpoint
