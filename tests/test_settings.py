@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from deepcontact.errors import OptionError
-from deepcontact.solver.settings import CAP, TOLERANCE, VERDICT_CAP, SolveSettings
+from deepcontact.solver.settings import TOLERANCE, VERDICT_CAP, SolveSettings
 
 
 @pytest.mark.parametrize("changes,flag,words", [
