@@ -318,3 +318,11 @@ def test_no_winner_is_named_from_a_single_step():
     times = {"builtin": {k: 1.0 + 0.01 * k for k in steps}, "fast": {k: 0.1 for k in steps}}
     v = decide(times, ["fast", "builtin"], "builtin", ([1.0 + 0.01 * k for k in steps],) * 2)
     assert v.clear and not v.too_few_steps
+
+
+def test_a_variant_timed_against_itself_is_1_whatever_its_times():
+    """Equal medians are a tie: both infinite (unfinished) or both 0 (calls no slower than the
+    transport; the interval of builtin against itself read [0.00, 1.00] in CI)."""
+    from deepcontact.contest.verdict import ratio_interval
+    for times in ([0.0, 0.0, 0.0, 0.2, 0.3, 0.0], [float("inf")] * 4 + [1.0, 2.0], [1.0, 2.0, 3.0]):
+        assert ratio_interval(times, times) == (1.0, 1.0, 1.0), times

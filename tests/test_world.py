@@ -87,3 +87,36 @@ def test_a_scene_edited_in_memory_is_refused_as_its_file_would_be_never_aborting
     assert r.returncode == 0, (r.returncode, r.stdout[-500:], r.stderr[-500:])
     lines = r.stdout.splitlines()
     assert len(lines) == 2 * len(SCENE_EDITS) and not [x for x in lines if x.startswith("ACCEPTED")], lines
+
+
+@pytest.mark.parametrize("spec, params", [("pile", dict(count=40, box=18, sigma=4)), ("pyramid", {})])
+def test_the_loops_step_skips_box2ds_second_collide_bit_for_bit(spec, params):
+    """The loop collides, solves and writes its impulses, then steps Box2D with 0 velocity
+    iterations: Box2D's Step collided the same positions again (the same manifolds, the impulses
+    carried onto themselves by feature id), a third of the loop's fixed cost at 1,000 circles.
+    Skipping it (collided=True) changes no bit of the trajectory, over steps where contacts
+    come and go."""
+    from deepcontact.scene.generators import generate
+    from deepcontact.simulate.build import build_world
+    from deepcontact.solver.methods import solve
+    from deepcontact.solver.problem import StepProblem
+    from deepcontact.solver.settings import SolveSettings
+    scene = generate(spec, 3, params)
+    worlds = [build_world(scene), build_world(scene)]
+    settings = SolveSettings(max_iterations=20, tolerance=0)
+    for step in range(150):
+        states = []
+        for collided, world in zip((False, True), worlds):
+            bodies = world.bodies()
+            world.collide()
+            contacts = world.contacts()
+            if len(contacts["manifold"]):
+                problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
+                                                  block_solve=scene.solver.block_solve, velocity_iterations=8)
+                s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"], settings=settings)
+                world.set_manifold_impulses(s.normal_impulse.astype(np.float32), s.tangent_impulse.astype(np.float32))
+            world.inv_dt0 = 1.0 / scene.dt
+            world.step(scene.dt, 0, scene.solver.position_iterations, collided=collided)
+            states.append(world.bodies())
+        for key in ("position", "angle", "velocity", "omega"):
+            assert np.array_equal(states[0][key], states[1][key]), (step, key)

@@ -41,12 +41,13 @@ def _median(x, axis=None):
 
 
 def _ratio(ma, mb):
-    """ma / mb of medians that may be infinite (unfinished): both infinite is a tie (1), one
-    infinite is infinitely slower (or faster)."""
+    """ma / mb of medians that may be infinite (unfinished) or 0 (a call no slower than the
+    transport): equal medians are a tie (1: both infinite, both 0), one infinite is infinitely
+    slower (or faster)."""
     ma, mb = np.asarray(ma, np.float64), np.asarray(mb, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         out = ma / np.maximum(mb, 1e-12)
-    return np.where(np.isinf(ma) & np.isinf(mb), 1.0, out)
+    return np.where(ma == mb, 1.0, out)
 
 
 def ratio_interval(a, b, rng=None):

@@ -368,18 +368,21 @@ PYBIND11_MODULE(_box2d, m) {
         .def("remove_body", &dc::World::remove_body, py::arg("index"))
         .def(
             "step",
-            [](dc::World& w, float dt, int vel, int pos, bool record) -> py::object {
+            [](dc::World& w, float dt, int vel, int pos, bool record, bool collided) -> py::object {
                 if (!(dt > 0.0f)) throw py::value_error("dt must be positive");
                 if (vel < 0 || pos < 0) throw py::value_error("iteration counts must be >= 0");
                 {
                     py::gil_scoped_release release;
-                    w.step(dt, vel, pos, record);
+                    w.step(dt, vel, pos, record, collided);
                 }
                 if (!record) return py::none();
                 return py::make_tuple(to_dict(w.recorded_bodies()), to_dict(w.recorded_contacts()));
             },
             py::arg("dt"), py::arg("velocity_iterations"), py::arg("position_iterations"), py::arg("record") = false,
-            "One Box2D step. With record=True returns (bodies before the step, contacts solved in it).")
+            py::arg("collided") = false,
+            "One Box2D step. With record=True returns (bodies before the step, contacts solved in it).\n"
+            "collided=True: collide() ran on these positions and nothing changed since; Box2D's Step\n"
+            "skips its own Collide (the same manifolds a second time).")
         .def("recorded", [](const dc::World& w) {
                  return py::make_tuple(to_dict(w.recorded_bodies()), to_dict(w.recorded_contacts()));
              },

@@ -91,7 +91,7 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
         for (float d : contacts.separation) out.deepest = std::max(out.deepest, -double(d));
     }
     world.set_inv_dt0(s.inv_dt0);
-    world.step(s.step.dt, 0, s.position_iterations, s.record);
+    world.step(s.step.dt, 0, s.position_iterations, s.record, /*collided=*/true);
     return out;
 }
 

@@ -25,11 +25,19 @@ struct BodyInvI { using type = float b2Body::*; friend type member(BodyInvI); };
 struct BodyI { using type = float b2Body::*; friend type member(BodyI); };
 struct WorldInvDt0 { using type = float b2World::*; friend type member(WorldInvDt0); };
 struct WorldSolveTOI { using type = void (b2World::*)(const b2TimeStep&); friend type member(WorldSolveTOI); };
+struct WorldSolve { using type = void (b2World::*)(const b2TimeStep&); friend type member(WorldSolve); };
+struct WorldNewContacts { using type = bool b2World::*; friend type member(WorldNewContacts); };
+struct WorldLocked { using type = bool b2World::*; friend type member(WorldLocked); };
+struct WorldStepComplete { using type = bool b2World::*; friend type member(WorldStepComplete); };
 template struct Expose<BodyInvMass, &b2Body::m_invMass>;
 template struct Expose<BodyInvI, &b2Body::m_invI>;
 template struct Expose<BodyI, &b2Body::m_I>;
 template struct Expose<WorldInvDt0, &b2World::m_inv_dt0>;
 template struct Expose<WorldSolveTOI, &b2World::SolveTOI>;
+template struct Expose<WorldSolve, &b2World::Solve>;
+template struct Expose<WorldNewContacts, &b2World::m_newContacts>;
+template struct Expose<WorldLocked, &b2World::m_locked>;
+template struct Expose<WorldStepComplete, &b2World::m_stepComplete>;
 
 // g_blockSolve is one flag for the whole process; worlds that differ must not race on it.
 std::mutex g_step_mutex;
@@ -205,7 +213,34 @@ void World::set_body_state(const int32_t* index, const float* position, const fl
     ++generation_;
 }
 
-void World::step(float dt, int velocity_iterations, int position_iterations, bool record) {
+// b2World::Step (b2_world.cpp), and with `collided` the same without its Collide: the caller
+// collided these very positions, so Box2D's Collide would rebuild the same manifolds and carry
+// the impulses the caller wrote by feature id onto themselves. New fixtures since (Step would
+// find their contacts first, then collide them) take Box2D's own Step.
+void World::box2d_step(float dt, int velocity_iterations, int position_iterations, bool collided) {
+    b2World* w = world_.get();
+    if (!collided || w->*member(WorldNewContacts()) || w->IsLocked()) {
+        w->Step(dt, velocity_iterations, position_iterations);
+        return;
+    }
+    w->*member(WorldLocked()) = true;
+    b2TimeStep step;
+    step.dt = dt;
+    step.velocityIterations = velocity_iterations;
+    step.positionIterations = position_iterations;
+    step.inv_dt = dt > 0.0f ? 1.0f / dt : 0.0f;
+    step.dtRatio = w->*member(WorldInvDt0()) * dt;
+    step.warmStarting = w->GetWarmStarting();
+    if (w->*member(WorldStepComplete()) && step.dt > 0.0f) (w->*member(WorldSolve()))(step);
+    if (w->GetContinuousPhysics() && step.dt > 0.0f) (w->*member(WorldSolveTOI()))(step);
+    if (step.dt > 0.0f) w->*member(WorldInvDt0()) = step.inv_dt;
+    if (w->GetAutoClearForces()) w->ClearForces();
+    w->*member(WorldLocked()) = false;
+}
+
+void World::step(float dt, int velocity_iterations, int position_iterations, bool record, bool collided) {
+    // (collided holds only if nothing changed the world since the caller's collide())
+    collided = collided && collided_generation_ == generation_;
     const float inv_dt0 = this->inv_dt0();
     last_dt_ratio_ = inv_dt0 * dt;  // as b2World::Step computes step.dtRatio
     if (record) {
@@ -234,7 +269,7 @@ void World::step(float dt, int velocity_iterations, int position_iterations, boo
             // it reads neither the forces Step clears nor the inv_dt0 Step sets in between.
             world_->SetContinuousPhysics(false);
             recorder_->active = true;
-            world_->Step(dt, velocity_iterations, position_iterations);
+            box2d_step(dt, velocity_iterations, position_iterations, collided);
             recorder_->active = false;
             world_->SetContinuousPhysics(true);
             if (dt > 0.0f) {
@@ -249,7 +284,7 @@ void World::step(float dt, int velocity_iterations, int position_iterations, boo
             }
         } else {
             recorder_->active = record;
-            world_->Step(dt, velocity_iterations, position_iterations);
+            box2d_step(dt, velocity_iterations, position_iterations, collided);
             recorder_->active = false;
         }
     }
@@ -277,7 +312,7 @@ void World::record_solved(b2Contact* c) {
 
 void World::collide() {
     const_cast<b2ContactManager&>(world_->GetContactManager()).Collide();
-    ++generation_;
+    collided_generation_ = ++generation_;
 }
 
 void World::find_new_contacts() {

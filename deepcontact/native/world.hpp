@@ -34,7 +34,9 @@ public:
     // One Box2D step. With record, the body state before the step and the solved
     // contacts (world points computed from the start-of-step transforms, as the solver does)
     // are kept for recorded_bodies() / recorded_contacts().
-    void step(float dt, int velocity_iterations, int position_iterations, bool record);
+    // collided: the caller ran collide() on these very positions (the loop's own step): Box2D's
+    // Step then skips its Collide, which would rebuild the same manifolds a second time.
+    void step(float dt, int velocity_iterations, int position_iterations, bool record, bool collided = false);
 
     // The pieces of a step, for a solver of our own: Collide, our solve, Step with no velocity
     // iterations (docs/solver.md, "The loop").
@@ -91,7 +93,9 @@ private:
 
     BodyState recorded_bodies_;
     ContactState recorded_contacts_;
-    std::vector<b2Transform> record_xf_;   // the bodies' transforms at the start of the step
+    std::vector<b2Transform> record_xf_;
+    size_t collided_generation_ = 0;   // generation_ right after the last collide()
+    void box2d_step(float dt, int velocity_iterations, int position_iterations, bool collided);   // the bodies' transforms at the start of the step
     std::vector<int> record_bodies_;       // the island each body was last seen in
     int record_island_ = -1, record_manifold_ = 0;
 

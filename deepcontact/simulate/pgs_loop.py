@@ -3,8 +3,10 @@
     Collide → gather the contacts → our PGS from a chosen start → write the impulses into the
     manifold points → Step(dt, 0 velocity iterations, position iterations)
 
-With zero velocity iterations Box2D's warm start applies exactly the impulses written (its
-second Collide keeps them, matched by feature id), so the step moves with our answer. This needs
+With zero velocity iterations Box2D's warm start applies exactly the impulses written, so the
+step moves with our answer; Box2D's Step runs without its own Collide (it would rebuild the
+same manifolds and carry the written impulses onto themselves by feature id: the same step,
+bit for bit, at twice the collision's cost). This needs
 continuous collision and sleeping off (time-of-impact sub-steps and sleeping islands are solved
 or skipped inside Box2D), and Box2D's warm-start scale dtRatio held at exactly 1.
 
@@ -179,7 +181,8 @@ class PGSStepper:
         world.inv_dt0 = self.inv_dt
         self.first = False
         deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
-        out = world.step(scene.dt, 0, scene.solver.position_iterations, record=self.record)
+        # (collided: Box2D's Step skips its own Collide, which would rebuild the same manifolds)
+        out = world.step(scene.dt, 0, scene.solver.position_iterations, record=self.record, collided=True)
         if not self.record:
             return LoopStep(None, None, solution, deepest)
         before, recorded = out
