@@ -1,0 +1,200 @@
+"""The gate of a warm-started active-set solve (issue 63, item 2), measured before any native code:
+does the converged rigid pile's contact state change little enough from step to step that a
+solve starting from the previous step's active set finishes in a few passes?
+
+The 1000-circle pile (seed 9) settles under Box2D at its 8 iterations for --settle steps; then
+the loop steps it (collide, solve, write the impulses, Box2D's Step with 0 velocity iterations)
+for --steps steps, each solved by this prototype from the previous step's converged state:
+
+  per contact point: open (r = 0), sticking (u = 0), sliding with r_t = +mu r_n (u_t <= 0) or
+  r_t = -mu r_n (u_t >= 0); a pass solves the equality system those states make of u = W r + q
+  (scipy's sparse LU of the 2m x 2m system, W from the step's local problem: solver/local.py),
+  then flips every point whose state its answer violates (an open point pressed, an active point
+  pulled, a sticking point past its friction cone, a sliding point moving against its friction);
+  until the project's residual is below --tolerance (or --most passes). A new point starts as
+  sticking. A step it does not finish is solved by PGS from Box2D's warm start to the tolerance
+  (cap 100,000) so that the trajectory goes on, and counted.
+
+The issue's gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
+the steps reach the tolerance within 8 passes. Times are scipy's (a Python prototype), not what
+native code would cost.
+
+Usage: python benchmarks/prototype_activeset.py [--settle N] [--steps N] [--most N] [--tolerance T] [--penalty P]
+"""
+import argparse
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+from deepcontact.protocol import current, protocol_line
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.solver.local import local_problem, residual, residual_scale
+from deepcontact.solver.methods import solve
+from deepcontact.solver.problem import StepProblem, contact_keys
+from deepcontact.solver.settings import SolveSettings
+
+OPEN, STICK, PLUS, MINUS = 0, 1, 2, 3   # PLUS: r_t = +mu r_n (sliding with u_t <= 0); MINUS: r_t = -mu r_n
+
+
+def equality_solve(lp, state, penalty):
+    """r solving the equalities the states make of u = W r + q, W made definite by a stiff
+    penalty (a rigid pile has more contact rows than the bodies have degrees of freedom: W alone
+    is singular wherever too many points stick)."""
+    n2 = len(lp.q)
+    m = n2 // 2
+    uses_w = np.zeros(n2)
+    uses_w[0::2] = state != OPEN
+    uses_w[1::2] = state == STICK
+    S = sp.diags(uses_w)
+    own = 1.0 - uses_w                  # rows that are not W's: r_n = 0 (open), r_t = 0 (open) or r_t - c mu r_n = 0
+    rows = np.arange(n2)
+    T = sp.csr_matrix((own, (rows, rows)), shape=(n2, n2))
+    sliding = np.flatnonzero((state == PLUS) | (state == MINUS))
+    c = np.where(state[sliding] == PLUS, 1.0, -1.0)
+    F = sp.csr_matrix((-c * lp.mu[sliding], (2 * sliding + 1, 2 * sliding)), shape=(n2, n2))
+    W = lp.W + sp.diags(penalty * lp.W.diagonal())
+    A = (S @ W.tocsr() + T + F).tocsc()
+    b = -(uses_w * lp.q)
+    return splu(A, permc_spec="COLAMD").solve(b), m
+
+
+def flips(lp, r, state, scale):
+    """The states r violates, changed: (new state, how many changed)."""
+    u = lp.W @ r + lp.q
+    rn, rt, un, ut = r[0::2], r[1::2], u[0::2], u[1::2]
+    eps_u, eps_r = 1e-9 * scale, 1e-9 * max(np.abs(rn).max(initial=0.0), 1e-12)
+    new = state.copy()
+    new[(state == OPEN) & (un < -eps_u)] = STICK
+    active = state != OPEN
+    new[active & (rn < -eps_r)] = OPEN
+    stick = (state == STICK) & (rn >= -eps_r)
+    bound = lp.mu * np.maximum(rn, 0.0)
+    new[stick & (rt > bound + eps_r)] = PLUS
+    new[stick & (rt < -bound - eps_r)] = MINUS
+    new[(state == PLUS) & (rn >= -eps_r) & (ut > eps_u)] = STICK
+    new[(state == MINUS) & (rn >= -eps_r) & (ut < -eps_u)] = STICK
+    return new, int(np.count_nonzero(new != state))
+
+
+def state_of(lp, r, scale, slip):
+    """The contact state a converged r shows (what the next step starts from): open where r_n is
+    0, sliding where the tangential velocity is above slip (x the step's scale), else sticking."""
+    u = lp.W @ r + lp.q
+    rn, ut = r[0::2], u[1::2]
+    eps_r = 1e-9 * max(np.abs(rn).max(initial=0.0), 1e-12)
+    state = np.full(len(rn), STICK)
+    moving = np.abs(ut) > slip * scale
+    state[moving & (ut < 0)] = PLUS
+    state[moving & (ut > 0)] = MINUS
+    state[rn <= eps_r] = OPEN
+    return state
+
+
+def diagnose(world, scene, args):
+    """One pass from the very state of the step's own answer: if the states determined the
+    impulses, it would land on that answer (a residual at the tolerance, no flip)."""
+    bodies = world.bodies()
+    world.collide()
+    contacts = world.contacts()
+    problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
+                                      block_solve=scene.solver.block_solve, velocity_iterations=8)
+    lp = local_problem(problem)
+    scale = residual_scale(lp)
+    s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"],
+              settings=SolveSettings(max_iterations=100_000, tolerance=1e-7))
+    answer = lp.reaction(s.normal_impulse, s.tangent_impulse)
+    state = state_of(lp, answer, scale, 1e-5)
+    r, m = equality_solve(lp, state, args.penalty)
+    _, n = flips(lp, r, state, scale)
+    dofs = 3 * int(np.count_nonzero(np.asarray(bodies["type"]) != 0))
+    print(f"diagnosis, step {args.settle + 1}: {m} contact points ({2 * m} rows) on {dofs} degrees of freedom; "
+          f"its answer (PGS, residual {residual(lp, answer):.1e}) has {np.count_nonzero(state == OPEN)} open, "
+          f"{np.count_nonzero(state == STICK)} sticking and {np.count_nonzero(state >= PLUS)} sliding points; "
+          f"one pass from that very state: residual {residual(lp, r):.2g}, {n} flips")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--settle", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=500)
+    ap.add_argument("--most", type=int, default=30)
+    ap.add_argument("--tolerance", type=float, default=1e-4)
+    ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
+    ap.add_argument("--diagnose", action="store_true",
+                    help="first, on the first step: one pass from the state of its own answer (PGS to 1e-7)")
+    args = ap.parse_args()
+    print(protocol_line(current()) + "\n")
+    scene = generate("pile", 9, dict(count=1000, box=95.0, sigma=19.0, steps=args.settle + args.steps + 1))
+    world = build_world(scene)
+    for _ in range(args.settle):
+        world.step(scene.dt, 8, scene.solver.position_iterations)
+    if args.diagnose:
+        diagnose(world, scene, args)
+    previous = {}   # contact key -> state at the previous step's answer
+    passes, flipped, changed, handed, seconds, points = [], [], [], 0, [], []
+    fallback = SolveSettings(max_iterations=100_000, tolerance=args.tolerance)
+    for k in range(args.steps):
+        bodies = world.bodies()
+        world.collide()
+        contacts = world.contacts()
+        if not len(contacts["manifold"]):
+            world.inv_dt0 = 1.0 / scene.dt
+            world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
+            continue
+        problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
+                                          block_solve=scene.solver.block_solve, velocity_iterations=8)
+        lp = local_problem(problem)
+        keys = [contact_keys(contacts)[j] for j in lp.points]
+        state = np.array([previous.get(key, STICK) for key in keys])
+        start = state.copy()
+        scale = residual_scale(lp)
+        t = time.perf_counter()
+        done, total_flips, r = False, 0, None
+        for p in range(1, args.most + 1):
+            r, _ = equality_solve(lp, state, args.penalty)
+            if residual(lp, r) < args.tolerance:
+                done = True
+                break
+            state, n = flips(lp, r, state, scale)
+            total_flips += n
+            if n == 0:
+                break
+        seconds.append(time.perf_counter() - t)
+        points.append(len(lp.points))
+        if done:
+            passes.append(p)
+            flipped.append(total_flips)
+            normal, tangent = lp.impulses(r, len(contacts["manifold"]))
+        else:
+            handed += 1
+            passes.append(np.inf)
+            flipped.append(total_flips)
+            s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"], settings=fallback)
+            normal, tangent = s.normal_impulse, s.tangent_impulse
+            r = lp.reaction(normal, tangent)
+        final = state_of(lp, r, scale, 10 * args.tolerance)
+        changed.append(int(np.count_nonzero(final != start)))
+        previous = dict(zip(keys, final.tolist()))
+        world.set_manifold_impulses(np.asarray(normal, np.float32), np.asarray(tangent, np.float32))
+        world.inv_dt0 = 1.0 / scene.dt
+        world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
+    passes, flipped, changed = np.array(passes), np.array(flipped), np.array(changed)
+    n = len(passes)
+    within8 = float(np.mean(passes <= 8))
+    print(f"the 1000-circle pile in the loop, steps {args.settle + 1}-{args.settle + args.steps}: {n} steps with "
+          f"contacts, {np.median(points):.0f} contact points (median); tolerance {args.tolerance:g}")
+    print(f"  passes to the tolerance: median {np.median(passes):.0f}, p90 {np.quantile(passes, 0.9, method="inverted_cdf"):.0f}, "
+          f"max {passes.max():.0f}; within 8 passes: {100 * within8:.1f}% of steps; not within {args.most}: {handed}")
+    print(f"  flips a step (the passes' state changes): median {np.median(flipped):.0f}, p90 "
+          f"{np.quantile(flipped, 0.9):.0f}; states changed from the warm start to the answer: median "
+          f"{np.median(changed):.0f}, p90 {np.quantile(changed, 0.9):.0f}")
+    print(f"  a step's passes in scipy (Python, sparse LU each pass): median {1e3 * np.median(seconds):.1f} ms")
+    go = np.median(passes) <= 4 and np.median(flipped) <= 50 and within8 >= 0.95
+    print(f"  gate (median passes <= 4, median flips <= 50, >= 95% within 8 passes): {'GO' if go else 'NO-GO'}")
+
+
+if __name__ == "__main__":
+    main()
