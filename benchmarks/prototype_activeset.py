@@ -15,8 +15,11 @@ for --steps steps, each solved by this prototype from the previous step's conver
   sticking. A step it does not finish is solved by PGS from Box2D's warm start to the tolerance
   (cap 100,000) so that the trajectory goes on, and counted.
 
+With --space body the step is instead the bodies' velocities minimising a stiff convex energy
+(BodySpace), by Newton's method with a backtracking line search (a pass: one Newton step).
+
 The issue's gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
-the steps reach the tolerance within 8 passes. Times are scipy's (a Python prototype), not what
+the steps reach the tolerance within 8 passes (docs/results.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
 native code would cost.
 
 Usage: python benchmarks/prototype_activeset.py [--settle N] [--steps N] [--most N] [--tolerance T] [--penalty P]
@@ -59,6 +62,64 @@ def equality_solve(lp, state, penalty):
     A = (S @ W.tocsr() + T + F).tocsc()
     b = -(uses_w * lp.q)
     return splu(A, permc_spec="COLAMD").solve(b), m
+
+
+class BodySpace:
+    """The step as a convex energy of the dynamic bodies' velocities v, with a stiff penalty
+    (MuJoCo's soft-contact form made stiff): E(v) = 1/2 |v - v*|_M^2 + sum k_n/2 min(0, u_n)^2
+    + sum huber_b(u_t), u = J v + c, where a point's tangential term is k_t/2 u_t^2 inside its
+    friction bound b = mu r_n (from the previous pass) and b |u_t| beyond. r = k_n max(0, -u_n),
+    r_t = -clip(k_t u_t, -b, b). Minimised by Newton's method with a backtracking line search: the
+    velocities are unique whatever the contacts' redundancy, and the active set (pressed points,
+    sticking points) is read from v, never flipped by hand."""
+
+    def __init__(self, problem, lp, stiffness):
+        from deepcontact.solver.local import jacobian
+        J, inv_m, v_star, rows, _ = jacobian(problem)
+        c = np.zeros(J.shape[0])
+        c[0::2] = -rows["bias"][lp.points]
+        free = inv_m > 0
+        c = c + J[:, ~free] @ v_star[~free]   # (static bodies' velocities are what they are)
+        self.J, self.c, self.v_star = J[:, free].tocsr(), c, v_star[free]
+        self.mass = 1.0 / inv_m[free]
+        self.k = stiffness / np.maximum(lp.W.diagonal(), 1e-30)   # (per row, in its own effective mass)
+        self.inv_m = inv_m[free]
+
+    def velocities(self, r):
+        """v after impulses r (the warm start's velocities)."""
+        return self.v_star + self.inv_m * (self.J.T @ r)
+
+    def impulses(self, v, bound):
+        u = self.J @ v + self.c
+        r = np.empty_like(u)
+        r[0::2] = self.k[0::2] * np.maximum(0.0, -u[0::2])
+        r[1::2] = -np.clip(self.k[1::2] * u[1::2], -bound, bound)
+        return r, u
+
+    def energy(self, v, bound):
+        u = self.J @ v + self.c
+        dv = v - self.v_star
+        un, ut, kn, kt = u[0::2], u[1::2], self.k[0::2], self.k[1::2]
+        inside = np.abs(kt * ut) <= bound
+        huber = np.where(inside, 0.5 * kt * ut ** 2, bound * np.abs(ut) - 0.5 * bound ** 2 / np.maximum(kt, 1e-300))
+        return 0.5 * dv @ (self.mass * dv) + 0.5 * kn @ np.minimum(0.0, un) ** 2 + huber.sum()
+
+    def newton(self, v, bound):
+        """One Newton step with a backtracking line search: (v, the pattern of pressed and
+        sticking points at the new v)."""
+        r, u = self.impulses(v, bound)
+        grad = self.mass * (v - self.v_star) - self.J.T @ r
+        d = np.zeros(len(u))
+        d[0::2] = self.k[0::2] * (u[0::2] < 0)
+        d[1::2] = self.k[1::2] * (np.abs(self.k[1::2] * u[1::2]) < bound)
+        H = (sp.diags(self.mass) + self.J.T @ sp.diags(d) @ self.J).tocsc()
+        step = -splu(H, permc_spec="COLAMD").solve(grad)
+        e0, slope, alpha = self.energy(v, bound), grad @ step, 1.0
+        while alpha > 1e-8 and self.energy(v + alpha * step, bound) > e0 + 1e-4 * alpha * slope:
+            alpha *= 0.5
+        v = v + alpha * step
+        _, u = self.impulses(v, bound)
+        return v, (u[0::2] < 0).astype(int) + 2 * (np.abs(self.k[1::2] * u[1::2]) < bound)
 
 
 def flips(lp, r, state, scale):
@@ -123,6 +184,10 @@ def main():
     ap.add_argument("--most", type=int, default=30)
     ap.add_argument("--tolerance", type=float, default=1e-4)
     ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
+    ap.add_argument("--space", choices=("impulse", "body"), default="impulse",
+                    help="impulse: the equalities of the local problem; body: velocities with a stiff penalty")
+    ap.add_argument("--stiffness", type=float, default=1e5,
+                    help="[body] the penalty, in units of each row's own effective mass (1 / W_ii)")
     ap.add_argument("--diagnose", action="store_true",
                     help="first, on the first step: one pass from the state of its own answer (PGS to 1e-7)")
     args = ap.parse_args()
@@ -134,6 +199,7 @@ def main():
     if args.diagnose:
         diagnose(world, scene, args)
     previous = {}   # contact key -> state at the previous step's answer
+    previous_rn, previous_rt = {}, {}   # contact key -> its impulses there (the body space's warm start)
     passes, flipped, changed, handed, seconds, points = [], [], [], 0, [], []
     fallback = SolveSettings(max_iterations=100_000, tolerance=args.tolerance)
     for k in range(args.steps):
@@ -153,15 +219,33 @@ def main():
         scale = residual_scale(lp)
         t = time.perf_counter()
         done, total_flips, r = False, 0, None
+        if args.space == "body":
+            body = BodySpace(problem, lp, args.stiffness)
+            start_r = np.zeros(2 * len(keys))
+            start_r[0::2] = [previous_rn.get(key, 0.0) for key in keys]
+            start_r[1::2] = [previous_rt.get(key, 0.0) for key in keys]
+            v = body.velocities(start_r)
+            bound = lp.mu * np.maximum(start_r[0::2], 0.0)
+            pattern = None
         for p in range(1, args.most + 1):
-            r, _ = equality_solve(lp, state, args.penalty)
+            if args.space == "body":
+                v, new_pattern = body.newton(v, bound)
+                r, _ = body.impulses(v, bound)
+                bound = lp.mu * r[0::2]   # (the friction bound of the next pass)
+                r, _ = body.impulses(v, bound)
+                if pattern is not None:
+                    total_flips += int(np.count_nonzero(new_pattern != pattern))
+                pattern = new_pattern
+            else:
+                r, _ = equality_solve(lp, state, args.penalty)
             if residual(lp, r) < args.tolerance:
                 done = True
                 break
-            state, n = flips(lp, r, state, scale)
-            total_flips += n
-            if n == 0:
-                break
+            if args.space == "impulse":
+                state, n = flips(lp, r, state, scale)
+                total_flips += n
+                if n == 0:
+                    break
         seconds.append(time.perf_counter() - t)
         points.append(len(lp.points))
         if done:
@@ -178,6 +262,7 @@ def main():
         final = state_of(lp, r, scale, 10 * args.tolerance)
         changed.append(int(np.count_nonzero(final != start)))
         previous = dict(zip(keys, final.tolist()))
+        previous_rn, previous_rt = dict(zip(keys, r[0::2].tolist())), dict(zip(keys, r[1::2].tolist()))
         world.set_manifold_impulses(np.asarray(normal, np.float32), np.asarray(tangent, np.float32))
         world.inv_dt0 = 1.0 / scene.dt
         world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
@@ -186,7 +271,7 @@ def main():
     within8 = float(np.mean(passes <= 8))
     print(f"the 1000-circle pile in the loop, steps {args.settle + 1}-{args.settle + args.steps}: {n} steps with "
           f"contacts, {np.median(points):.0f} contact points (median); tolerance {args.tolerance:g}")
-    print(f"  passes to the tolerance: median {np.median(passes):.0f}, p90 {np.quantile(passes, 0.9, method="inverted_cdf"):.0f}, "
+    print(f"  passes to the tolerance: median {np.median(passes):.0f}, p90 {np.quantile(passes, 0.9, method='inverted_cdf'):.0f}, "
           f"max {passes.max():.0f}; within 8 passes: {100 * within8:.1f}% of steps; not within {args.most}: {handed}")
     print(f"  flips a step (the passes' state changes): median {np.median(flipped):.0f}, p90 "
           f"{np.quantile(flipped, 0.9):.0f}; states changed from the warm start to the answer: median "
