@@ -30,18 +30,24 @@ def test_the_wheel_holds_every_package(wheel):
     assert "deepcontact/schemas/step.xsd" in names
 
 
-def test_the_wheel_runs_in_a_fresh_venv(wheel, tmp_path):
-    env_dir = tmp_path / "venv"
-    # the dependencies (numpy, torch, ...) come from this interpreter's site-packages (a .pth file:
-    # system_site_packages would take the base interpreter's, which a venv's python is not);
-    # deepcontact itself only from the wheel, which the venv's own site-packages puts first
+def fresh_venv(env_dir, *wheels):
+    """A venv at env_dir with wheels installed (no dependencies: those come from this
+    interpreter's site-packages through a .pth file, since system_site_packages would take the
+    base interpreter's, which a venv's python is not; deepcontact itself only from the wheel,
+    which the venv's own site-packages puts first); returns its python."""
     venv.create(env_dir, with_pip=False)
     py = env_dir / "bin" / "python"
     own = subprocess.run([str(py), "-c", "import site; print(site.getsitepackages()[0])"], check=True,
                          capture_output=True, text=True).stdout.strip()
     Path(own, "deps-of-the-test.pth").write_text("\n".join(site.getsitepackages()) + "\n")
-    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", str(wheel)],
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", *map(str, wheels)],
                    check=True, capture_output=True, text=True, timeout=300)
+    return py
+
+
+def test_the_wheel_runs_in_a_fresh_venv(wheel, tmp_path):
+    env_dir = tmp_path / "venv"
+    py = fresh_venv(env_dir, wheel)
     where = subprocess.run([str(py), "-c", "import deepcontact; print(deepcontact.__file__)"], cwd=tmp_path,
                            check=True, capture_output=True, text=True).stdout
     assert str(env_dir) in where, where
@@ -81,16 +87,10 @@ def test_a_plain_install_pulls_no_torch_and_the_extras_pin_what_make_setup_pins(
 def test_the_studies_distribution_installs_beside_the_wheel(wheel, tmp_path):
     """`dc study --help` in a fresh venv with the wheel and the studies' own wheel lists them."""
     env_dir = tmp_path / "venv"
-    venv.create(env_dir, with_pip=False)
-    py = env_dir / "bin" / "python"
-    own = subprocess.run([str(py), "-c", "import site; print(site.getsitepackages()[0])"], check=True,
-                         capture_output=True, text=True).stdout.strip()
-    Path(own, "deps-of-the-test.pth").write_text("\n".join(site.getsitepackages()) + "\n")
     subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-build-isolation", "--no-deps", "-w",
                     str(tmp_path), str(ROOT / "studies")], check=True, capture_output=True, timeout=300)
     (studies,) = tmp_path.glob("deepcontact_studies-*.whl")
-    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", str(wheel),
-                    str(studies)], check=True, capture_output=True, text=True, timeout=300)
+    fresh_venv(env_dir, wheel, studies)
     r = subprocess.run([str(env_dir / "bin" / "dc"), "study", "--help"], cwd=tmp_path, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0 and "Broken" not in r.stdout, r.stdout + r.stderr

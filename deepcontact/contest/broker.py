@@ -175,6 +175,19 @@ class RemoteSandbox:
         sandbox._live.discard(self)
 
 
+def _receive(sock, size, most_fds):
+    """(message, descriptors) from sock, or (None, ()) when its other end is closed or gone."""
+    try:
+        data, fds, _, _ = socket.recv_fds(sock, size, most_fds)
+    except OSError:
+        return None, ()
+    if not data:
+        for fd in fds:
+            os.close(fd)
+        return None, ()
+    return data, fds
+
+
 # --- The judge's side ------------------------------------------------------------------------------
 
 class Broker:
@@ -197,13 +210,8 @@ class Broker:
     def _accept(self):
         """The job's requests for a line of their own (one per process), each served by a thread."""
         while True:
-            try:
-                data, fds, _, _ = socket.recv_fds(self._ours, 4096, 4)
-            except OSError:
-                return
-            if not data:
-                for fd in fds:
-                    os.close(fd)
+            data, fds = _receive(self._ours, 4096, 4)
+            if data is None:
                 return
             if len(fds) != 1 or len(self._lines) >= LIVE_LIMIT:
                 for fd in fds:
@@ -216,13 +224,8 @@ class Broker:
 
     def _serve(self, line):
         while True:
-            try:
-                data, fds, _, _ = socket.recv_fds(line, MESSAGE_MAX, 16)
-            except OSError:
-                return
-            if not data:
-                for fd in fds:
-                    os.close(fd)
+            data, fds = _receive(line, MESSAGE_MAX, 16)
+            if data is None:
                 return
             try:
                 with self._lock:

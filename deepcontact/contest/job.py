@@ -9,7 +9,6 @@ user's stop (Terminated, KeyboardInterrupt) ends it at once, with everything it 
 """
 import os
 import shutil
-import signal
 import stat
 import subprocess
 import sys
@@ -71,14 +70,7 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
 
 def how(code):
     """A job's exit status in words ("exit status 9", "killed by SIGSEGV")."""
-    if code > 128 and sandbox._bwrap() is not None:   # (bubblewrap passes its child's signal on as 128 + it)
-        code = 128 - code
-    if code < 0:
-        try:
-            return f"killed by {signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed by signal {-code}"
-    return f"exit status {code}"
+    return sandbox.exit_words(code)
 
 
 # --- A fenced command's output -----------------------------------------------------------------------------------

@@ -388,14 +388,7 @@ class Sandbox:
         code = None if self.process is None else self.process.poll()
         if code is None:
             return ""
-        if code > 128 and _bwrap() is not None:   # (bubblewrap passes its child's signal on as 128 + it)
-            code = 128 - code
-        if code < 0:
-            try:
-                return f"killed by {signal.Signals(-code).name}"
-            except ValueError:
-                return f"killed by signal {-code}"
-        return f"exit status {code}"
+        return exit_words(code)
 
     def kill(self):
         """Ends everything the sandbox runs (its PID namespace ends with its first process) and
@@ -502,6 +495,18 @@ class JobSandbox(Sandbox):
         if seccomp_fd is not None:
             out += ["--seccomp", str(seccomp_fd)]
         return out + list(argv)
+
+
+def exit_words(code):
+    """A sandboxed process's exit status in words ("exit status 9", "killed by SIGSEGV")."""
+    if code > 128 and _bwrap() is not None:   # (bubblewrap passes its child's signal on as 128 + it)
+        code = 128 - code
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
 
 
 def _registered():
