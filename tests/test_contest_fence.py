@@ -326,3 +326,6 @@ def test_a_variant_timed_against_itself_is_1_whatever_its_times():
     from deepcontact.contest.verdict import ratio_interval
     for times in ([0.0, 0.0, 0.0, 0.2, 0.3, 0.0], [float("inf")] * 4 + [1.0, 2.0], [1.0, 2.0, 3.0]):
         assert ratio_interval(times, times) == (1.0, 1.0, 1.0), times
+    # a median the transport's subtraction took to 0 counts as a microsecond: no ratio of 1e11
+    ratio, low, high = ratio_interval([0.2, 0.0, 0.0, 0.3, 0.0, 0.4], [0.0, 0.2, 0.3, 0.0, 0.4, 0.0])
+    assert high <= 0.4 / 1e-3 and low >= 1e-3 / 0.4, (ratio, low, high)

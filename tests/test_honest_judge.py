@@ -76,7 +76,9 @@ def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, conte
     assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 8   # (10 ms, less the transport)
     assert summary["builtin"]["predict_ms_median"] < 1.0
     report = (tmp_path / "r" / "report.md").read_text()
-    assert "is **builtin**" in next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
+    # (named the winner, or, where a loaded machine's noise keeps it from being clear, the smallest median)
+    assert "is **builtin**" in verdict or "builtin has the smallest median" in verdict, verdict
 
 
 def rows_of(times, seed=0):

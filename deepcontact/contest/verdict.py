@@ -26,6 +26,7 @@ RESAMPLES = 2000
 LEVEL = 0.95
 MIN_STEPS = 5   # a winner is never named from fewer steps (one step's interval is a point)
 SEED = 0   # (the intervals are a function of the times: the same report twice is the same report)
+RESOLUTION_MS = 1e-3   # the smallest time a ratio of medians takes as it is (1 microsecond)
 
 
 def _median(x, axis=None):
@@ -44,9 +45,11 @@ def _ratio(ma, mb):
     """ma / mb of medians that may be infinite (unfinished) or 0 (a call no slower than the
     transport): equal medians are a tie (1: both infinite, both 0), one infinite is infinitely
     slower (or faster)."""
-    ma, mb = np.asarray(ma, np.float64), np.asarray(mb, np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = ma / np.maximum(mb, 1e-12)
+    # (a time is known to a microsecond at best: a median the transport's subtraction took to 0 is
+    # that, not 0, else one such step put a ratio at 1e11)
+    ma, mb = np.maximum(np.asarray(ma, np.float64), RESOLUTION_MS), np.maximum(np.asarray(mb, np.float64), RESOLUTION_MS)
+    with np.errstate(invalid="ignore"):
+        out = ma / mb
     return np.where(ma == mb, 1.0, out)
 
 
