@@ -16,7 +16,9 @@ for --steps steps, each solved by this prototype from the previous step's conver
   (cap 100,000) so that the trajectory goes on, and counted.
 
 With --space body the step is instead the bodies' velocities minimising a stiff convex energy
-(BodySpace), by Newton's method with a backtracking line search (a pass: one Newton step).
+(BodySpace), by Newton's method with a backtracking line search (a pass: one Newton step); with
+--space augmented, its augmented Lagrangian with one factored matrix a step from the carried
+active set, passes changing only the right-hand side (Augmented).
 
 The issue's gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
 the steps reach the tolerance within 8 passes (docs/results.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
@@ -122,6 +124,34 @@ class BodySpace:
         return v, (u[0::2] < 0).astype(int) + 2 * (np.abs(self.k[1::2] * u[1::2]) < bound)
 
 
+class Augmented(BodySpace):
+    """The step's augmented Lagrangian in body space, its matrix made once a step from the active
+    set carried from the previous step's answer (pressed points' normal rows, sticking points'
+    tangent rows): H = M + J_A^T K J_A, factored once. A pass solves H v = M v* + J_A^T (lam_A -
+    K c_A) + J_I^T lam_I and updates every multiplier by its projection, lam <- proj(lam - K u):
+    passes change only the right-hand side, and converge to the rigid answer (the multipliers
+    make a moderate K exact)."""
+
+    def __init__(self, problem, lp, stiffness, active):
+        super().__init__(problem, lp, stiffness)
+        self.active = active                      # rows in the matrix (2m booleans)
+        K = sp.diags(self.k * active)
+        self.lu = splu((sp.diags(self.mass) + self.J.T @ K @ self.J).tocsc(), permc_spec="COLAMD")
+        self.mu = lp.mu
+
+    def passes(self, lam):
+        """One pass: the new multipliers."""
+        K = self.k * self.active
+        rhs = self.mass * self.v_star + self.J.T @ np.where(self.active, lam - K * self.c, lam)
+        v = self.lu.solve(rhs)
+        trial = lam - self.k * (self.J @ v + self.c)
+        new = np.empty_like(lam)
+        new[0::2] = np.maximum(trial[0::2], 0.0)
+        b = self.mu * new[0::2]
+        new[1::2] = np.clip(trial[1::2], -b, b)
+        return new
+
+
 def flips(lp, r, state, scale):
     """The states r violates, changed: (new state, how many changed)."""
     u = lp.W @ r + lp.q
@@ -184,7 +214,7 @@ def main():
     ap.add_argument("--most", type=int, default=30)
     ap.add_argument("--tolerance", type=float, default=1e-4)
     ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
-    ap.add_argument("--space", choices=("impulse", "body"), default="impulse",
+    ap.add_argument("--space", choices=("impulse", "body", "augmented"), default="impulse",
                     help="impulse: the equalities of the local problem; body: velocities with a stiff penalty")
     ap.add_argument("--stiffness", type=float, default=1e5,
                     help="[body] the penalty, in units of each row's own effective mass (1 / W_ii)")
@@ -219,6 +249,14 @@ def main():
         scale = residual_scale(lp)
         t = time.perf_counter()
         done, total_flips, r = False, 0, None
+        if args.space == "augmented":
+            lam = np.zeros(2 * len(keys))
+            lam[0::2] = [previous_rn.get(key, 0.0) for key in keys]
+            lam[1::2] = [previous_rt.get(key, 0.0) for key in keys]
+            active = np.zeros(2 * len(keys), bool)
+            active[0::2] = lam[0::2] > 0
+            active[1::2] = (lam[0::2] > 0) & (np.abs(lam[1::2]) < 0.999 * lp.mu * lam[0::2])
+            aug = Augmented(problem, lp, args.stiffness, active)
         if args.space == "body":
             body = BodySpace(problem, lp, args.stiffness)
             start_r = np.zeros(2 * len(keys))
@@ -228,7 +266,9 @@ def main():
             bound = lp.mu * np.maximum(start_r[0::2], 0.0)
             pattern = None
         for p in range(1, args.most + 1):
-            if args.space == "body":
+            if args.space == "augmented":
+                r = lam = aug.passes(lam)
+            elif args.space == "body":
                 v, new_pattern = body.newton(v, bound)
                 r, _ = body.impulses(v, bound)
                 bound = lp.mu * r[0::2]   # (the friction bound of the next pass)
