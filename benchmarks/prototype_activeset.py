@@ -87,6 +87,29 @@ class BodySpace:
         self.k = stiffness / np.maximum(lp.W.diagonal(), 1e-30)   # (per row, in its own effective mass)
         self.inv_m = inv_m[free]
 
+    exact = False   # (the line search: exact on the piecewise quadratic, as MuJoCo's, or backtracking)
+
+    def slope(self, v, d, alpha, bound):
+        """dE/dalpha at v + alpha d (increasing in alpha: E is convex along any line)."""
+        w = v + alpha * d
+        r, _ = self.impulses(w, bound)
+        return d @ (self.mass * (w - self.v_star)) - (self.J @ d) @ r
+
+    def line_search(self, v, d, bound, rounds=60):
+        """The alpha minimising E along d, to a relative 1e-12: bracketed, then bisected on the
+        slope (a piecewise-linear increasing function of alpha)."""
+        high = 1.0
+        while self.slope(v, d, high, bound) < 0 and high < 1e6:
+            high *= 2.0
+        low = 0.0
+        for _ in range(rounds):
+            mid = 0.5 * (low + high)
+            if self.slope(v, d, mid, bound) < 0:
+                low = mid
+            else:
+                high = mid
+        return 0.5 * (low + high)
+
     def velocities(self, r):
         """v after impulses r (the warm start's velocities)."""
         return self.v_star + self.inv_m * (self.J.T @ r)
@@ -116,9 +139,12 @@ class BodySpace:
         d[1::2] = self.k[1::2] * (np.abs(self.k[1::2] * u[1::2]) < bound)
         H = (sp.diags(self.mass) + self.J.T @ sp.diags(d) @ self.J).tocsc()
         step = -splu(H, permc_spec="COLAMD").solve(grad)
-        e0, slope, alpha = self.energy(v, bound), grad @ step, 1.0
-        while alpha > 1e-8 and self.energy(v + alpha * step, bound) > e0 + 1e-4 * alpha * slope:
-            alpha *= 0.5
+        if self.exact:
+            alpha = self.line_search(v, step, bound)
+        else:
+            e0, slope, alpha = self.energy(v, bound), grad @ step, 1.0
+            while alpha > 1e-8 and self.energy(v + alpha * step, bound) > e0 + 1e-4 * alpha * slope:
+                alpha *= 0.5
         v = v + alpha * step
         _, u = self.impulses(v, bound)
         return v, (u[0::2] < 0).astype(int) + 2 * (np.abs(self.k[1::2] * u[1::2]) < bound)
@@ -214,6 +240,7 @@ def main():
     ap.add_argument("--most", type=int, default=30)
     ap.add_argument("--tolerance", type=float, default=1e-4)
     ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
+    ap.add_argument("--exact", action="store_true", help="[body] an exact line search, as MuJoCo's, not backtracking")
     ap.add_argument("--space", choices=("impulse", "body", "augmented"), default="impulse",
                     help="impulse: the equalities of the local problem; body: velocities with a stiff penalty")
     ap.add_argument("--stiffness", type=float, default=1e5,
@@ -259,6 +286,7 @@ def main():
             aug = Augmented(problem, lp, args.stiffness, active)
         if args.space == "body":
             body = BodySpace(problem, lp, args.stiffness)
+            body.exact = args.exact
             start_r = np.zeros(2 * len(keys))
             start_r[0::2] = [previous_rn.get(key, 0.0) for key in keys]
             start_r[1::2] = [previous_rt.get(key, 0.0) for key in keys]
