@@ -1,6 +1,6 @@
 """Checking at the speed of making: `dc validate` and `dc rasterize` of one thesis pile (600 steps)
 against the `dc simulate` that made it, as whole processes (start-up included, one thread, -j 1),
-the three interleaved round after round in the same run. The issue's goals: validate at most 2x
+the three interleaved round after round in the same run. The goals: validate at most 2x
 and rasterize at most 1.5x the time of simulate. Also the XSD's own validation of every file
 (what dc validate did before the schema's table, step/strict.py), for scale.
 

@@ -1,4 +1,4 @@
-"""The gate of a warm-started active-set solve (issue 63, item 2), measured before any native code:
+"""The gate of a warm-started active-set solve, measured before any native code:
 does the converged rigid pile's contact state change little enough from step to step that a
 solve starting from the previous step's active set finishes in a few passes?
 
@@ -20,7 +20,7 @@ With --space body the step is instead the bodies' velocities minimising a stiff 
 --space augmented, its augmented Lagrangian with one factored matrix a step from the carried
 active set, passes changing only the right-hand side (Augmented).
 
-The issue's gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
+The gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
 the steps reach the tolerance within 8 passes (docs/results.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
 native code would cost.
 
