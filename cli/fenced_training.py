@@ -33,24 +33,6 @@ def fenced(model):
     return model not in BUILTIN and not os.environ.get(INSIDE)
 
 
-def _staged(args, staged):
-    """args with -o/--output given as `staged`."""
-    out, k = [], 0
-    while k < len(args):
-        a = args[k]
-        if a == "--":
-            out += args[k:]
-            break
-        if a in ("-o", "--output") and k + 1 < len(args):
-            out += [a, staged]
-            k += 2
-            continue
-        out.append("--output=" + staged if a.startswith("--output=") else "-o" + staged
-                   if a.startswith("-o") and len(a) > 2 else a)
-        k += 1
-    return out
-
-
 def _written(folder):
     """{name: path} of the files the fenced training wrote that a training run owns (MODEL_FILES);
     InputError for anything else a run never writes there (a link, a device, another name)."""
@@ -60,7 +42,7 @@ def _written(folder):
     found = {}
     for entry in os.listdir(folder) if os.path.isdir(folder) else ():
         path = os.path.join(folder, entry)
-        if entry == atomic.RECORD or re.fullmatch(r"\..*\.tmp", entry) or entry.endswith(".lock"):
+        if entry == atomic.RECORD or atomic.temporary_name(entry):   # (its record, a file being written)
             continue
         mode = os.lstat(path).st_mode
         if not stat.S_ISREG(mode) or not any(re.fullmatch(p, entry) for p in MODEL_FILES.patterns):
@@ -114,7 +96,9 @@ def run(ctx, model, out, overwrite, resume, device):
             for entry in os.listdir(out):
                 if os.path.isfile(out / entry) and not os.path.islink(out / entry):
                     shutil.copyfile(out / entry, staged / entry)
-        args = _staged(ctx.meta["raw_args"], str(staged))
+        args = list(ctx.meta["raw_args"])
+        where, prefix, _, _ = job.output_argument(args)   # (-o is required: it is there)
+        args[where] = prefix + str(staged)
         devices = [] if device == "cpu" else sorted(glob.glob("/dev/nvidia*") + glob.glob("/dev/dri/*"))
         # kept in place as it is written (an unfenced run keeps each whole epoch as it ends: a stop
         # or a failure leaves the last one), or swapped in once it has finished (replacing a run)

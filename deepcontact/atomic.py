@@ -79,7 +79,7 @@ def own_name(path, kind, name):
     return re.fullmatch(stem + tail, name) is not None
 
 
-def _temporary_name(name):
+def temporary_name(name):
     """A temporary file's name as write_bytes makes it inside a folder written in place."""
     return isinstance(name, str) and re.fullmatch(r"\.[^/\x00]+\.\d+(_\d+)?\.tmp", name) is not None
 
@@ -473,7 +473,7 @@ class _InPlace:
         self.files = set(rec["files"]) if mine else set()
         # temporary files a killed run of ours left: ours to remove
         for name in (rec["temporary"] if mine else ()):
-            _remove_claimed(self.folder, name, _temporary_name(name),
+            _remove_claimed(self.folder, name, temporary_name(name),
                             f"the record {RECORD} lists it as a temporary file, but it is not one dc writes there")
         self.temporary = set()
         self.save()

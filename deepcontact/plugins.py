@@ -118,6 +118,7 @@ class Registry:
         # plug-ins described from a process of their own (contest.describe), by name:
         # what a judge may know of them without importing their code
         self.described = {}
+        self._chosen = set()   # names the user chose (a command's --arch) without their code imported: choose
 
     def register(self, name, factory=None, **traits):
         """Registers factory under name (lower case, digits and '-'); usable as a decorator.
@@ -163,11 +164,11 @@ class Registry:
         """Records `name` as the user's explicit choice (a command's --arch) without importing it:
         a checkpoint naming it may then be read, and its code is loaded where it runs (a
         contestant's sandbox), never here."""
-        self._chosen = getattr(self, "_chosen", set()) | {name}
+        self._chosen.add(name)
 
     def chosen(self, name):
         """Whether `name` is a built-in, loaded, or chosen by the user (choose)."""
-        return name in self._builtin or name in self._loaded or name in getattr(self, "_chosen", set())
+        return name in self._builtin or name in self._loaded or name in self._chosen
 
     def builtin(self):
         """The names registered in code, in registration order."""
