@@ -24,6 +24,40 @@ def torch_device(ctx, param, value):
     return value
 
 
+class EpochLines:
+    """What a training says as it goes (stderr; nothing with -q): a line an epoch with its
+    metrics, the time an epoch takes and at most how long is left (early stopping may end it
+    sooner), and a line within an epoch every DC_PROGRESS_EVERY seconds (a long epoch)."""
+
+    def __init__(self, quiet):
+        self.quiet, self.epochs_done = quiet, 0
+        self.start = self.last = time.monotonic()
+
+    def epoch(self, row):
+        self.epochs_done += 1
+        self.last = time.monotonic()
+        if self.quiet:
+            return
+
+        def shown(k):   # each contact RMSE between what predicting 0 scores and the grid's floor
+            zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
+            floor = row.get(k.replace("val_contact_rmse_", "val_floor_rmse_"))
+            bars = ([f"0 scores {zero:.4g}"] if zero is not None else []) + \
+                   ([f"the grid's floor {floor:.4g}"] if floor is not None else [])
+            return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
+        extra = "".join(shown(k) for k in sorted(row) if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
+        each = (self.last - self.start) / self.epochs_done
+        left = each * max(0, row["epochs"] - row["epoch"] - 1)
+        click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{extra} "
+                   f"({row['samples_per_second']:.0f} samples/s; {options.duration(each)} an epoch, at most "
+                   f"{options.duration(left)} left)", err=True)
+
+    def within(self, epoch, done, total):
+        if not self.quiet and time.monotonic() - self.last >= options.progress_every():
+            self.last = time.monotonic()
+            click.echo(f"epoch {epoch + 1}: {done:,} of {total:,} training samples", err=True)
+
+
 @click.command(cls=fenced_training.RawArgsCommand)
 @click.argument("dataset", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
@@ -99,31 +133,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
                       fcn_depth=fcn_depth, solver_sweeps=solver_sweeps)
 
-    clock = {"start": time.monotonic(), "epochs_done": 0, "line": time.monotonic()}
-
-    def report(row):
-        clock["epochs_done"] += 1
-        clock["line"] = time.monotonic()
-        if not quiet:
-            def shown(k):   # each contact RMSE between what predicting 0 scores and the grid's floor
-                zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
-                floor = row.get(k.replace("val_contact_rmse_", "val_floor_rmse_"))
-                bars = ([f"0 scores {zero:.4g}"] if zero is not None else []) + \
-                       ([f"the grid's floor {floor:.4g}"] if floor is not None else [])
-                return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
-            extra = "".join(shown(k) for k in sorted(row)
-                            if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
-            each = (time.monotonic() - clock["start"]) / clock["epochs_done"]
-            left = each * max(0, row["epochs"] - row["epoch"] - 1)
-            click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{extra} "
-                       f"({row['samples_per_second']:.0f} samples/s; {options.duration(each)} an epoch, at most "
-                       f"{options.duration(left)} left)", err=True)
-
-    def heartbeat(epoch, done, total):   # (a long epoch says where it is, as every long run does)
-        if not quiet and time.monotonic() - clock["line"] >= options.progress_every():
-            clock["line"] = time.monotonic()
-            click.echo(f"epoch {epoch + 1}: {done:,} of {total:,} training samples", err=True)
-
+    lines = EpochLines(quiet)
     fields = {"model": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
               "weight_decay": "weight_decay", "batch_size": "batch_size", "patience": "patience", "seed": "seed",
               "no_final_relu": "final_relu", "fcn_width": "fcn_width", "fcn_depth": "fcn_depth",
@@ -133,9 +143,9 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
         raise click.exceptions.Exit(fenced_training.run(click.get_current_context(), model, out, overwrite, resume,
                                                         device))
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
-    history = run(dataset, out, None if resume else cfg, resume=resume, progress=report, threads=threads,
+    history = run(dataset, out, None if resume else cfg, resume=resume, progress=lines.epoch, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
-                  given=given, plots=plots, heartbeat=heartbeat)
+                  given=given, plots=plots, heartbeat=lines.within)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         shown = os.environ.get(fenced_training.INSIDE) or out   # (fenced: the user's folder, not the staged one)
