@@ -83,7 +83,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
       dc evaluate runs/heldout --starts zero,builtin,prev -j 2 -o r/fast
       dc evaluate runs/pile --starts builtin,prev --no-plots --no-budgets -o r/tables
     """
-    from deepcontact import atomic
+    from deepcontact import output
     from deepcontact.evaluate.report import REPORT_FILES
 
     from deepcontact.warmstart.starts import trait
@@ -130,7 +130,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         bars.append(options.progress_bar(quiet, total, unit, "closed loop" if closed_loop else "evaluate"))
         return bars[-1].update
     # Computed inside the output's lock; the report appears only when complete.
-    with atomic.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
+    with output.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
         try:
             table = run_evaluation(settings, work, bar)
         finally:

@@ -38,11 +38,11 @@ def _written(folder):
     InputError for anything else a run never writes there (a link, a device, another name)."""
     from deepcontact.errors import InputError
     from deepcontact.model.train import MODEL_FILES
-    from deepcontact import atomic
+    from deepcontact import output
     found = {}
     for entry in os.listdir(folder) if os.path.isdir(folder) else ():
         path = os.path.join(folder, entry)
-        if entry == atomic.RECORD or atomic.temporary_name(entry):   # (its record, a file being written)
+        if entry == output.RECORD or output.temporary_name(entry):   # (its record, a file being written)
             continue
         mode = os.lstat(path).st_mode
         if not stat.S_ISREG(mode) or not any(re.fullmatch(p, entry) for p in MODEL_FILES.patterns):
@@ -59,7 +59,7 @@ class _Sync:
         self.staged, self.work, self.seen = staged, work, {}
 
     def __call__(self):
-        from deepcontact import atomic
+        from deepcontact import output
         for name, path in _written(self.staged).items():
             try:
                 st = os.stat(path)
@@ -67,7 +67,7 @@ class _Sync:
                 if self.seen.get(name) != key:
                     with open(path, "rb") as f:   # (a file replaced meanwhile is read whole, old or new)
                         data = f.read()
-                    atomic.write_bytes(self.work / name, data)
+                    output.write_bytes(self.work / name, data)
                     self.seen[name] = key
             except FileNotFoundError:
                 continue
@@ -75,7 +75,7 @@ class _Sync:
 
 def run(ctx, model, out, overwrite, resume, device):
     """Runs the training fenced; returns its exit status."""
-    from deepcontact import atomic, protocol
+    from deepcontact import output, protocol
     from deepcontact.contest import job
     from deepcontact.errors import InputError
     from deepcontact.model.train import MODEL_FILES
@@ -87,7 +87,7 @@ def run(ctx, model, out, overwrite, resume, device):
     replace = overwrite and out.is_dir() and any(out.iterdir())
     with ExitStack() as stack:
         private = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="dc-train-")))
-        work = Path(stack.enter_context(atomic.output_folder(
+        work = Path(stack.enter_context(output.output_folder(
             out, MODEL_FILES, overwrite, command="train", in_place=not replace, existing_ok=resume,
             hint="use --resume to continue a run there or --overwrite to replace it")))
         staged = private / "run"

@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from deepcontact import atomic, interrupts
+from deepcontact import interrupts, output
 from deepcontact.errors import Failure, InputError, OptionError, one_line, show_path
 from deepcontact.interrupts import Terminated
 
@@ -273,7 +273,7 @@ def command(name):
             setup_logging(verbose, quiet)
             _take_aliases(name, kwargs)
             interrupts.install(f"dc {name}")
-            atomic.completed.clear()
+            output.completed.clear()
 
             def fail(message):
                 click.echo(one_line(f"dc {name}: error: {message}"), err=True)
@@ -300,9 +300,9 @@ def command(name):
                     fail("something the command ran raised KeyboardInterrupt itself, with no stop signal "
                          "(a plug-in?); -v shows where")
                 signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
-                if atomic.completed:   # the signal waited for a swap to finish
+                if output.completed:   # the signal waited for a swap to finish
                     click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}) after its output was "
-                               f"complete: {show_path(atomic.completed[-1])} is the new output", err=True)
+                               f"complete: {show_path(output.completed[-1])} is the new output", err=True)
                 else:
                     click.echo(f"dc {name}: interrupted ({signal.Signals(signum).name}); no partial output was "
                                f"left, and output being replaced (--overwrite) is as it was", err=True)

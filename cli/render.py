@@ -86,7 +86,7 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
       dc render runs/demo -o pile.html --every 2
       dc render data/thesis --sample 120 --checkpoint models/fcn/best.pt -o sample.png
     """
-    from deepcontact import atomic
+    from deepcontact import output
 
     kind = kind_of(input_path)
     suffix = Path(out).suffix.lower()
@@ -124,15 +124,12 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         raise click.BadParameter(f"a window narrower than {MIN_WINDOW:g} m shows nothing a step file resolves",
                                  param_hint="'--window'")
     out = Path(out)
-    atomic.check_replaceable(out)   # before any work or lock: a FIFO, device or folder is never replaced
-    with atomic.locked(out):
-        if out.exists() and not overwrite:
-            raise InputError("file exists; use --overwrite to replace it", out)
+    with output.output_file(out, overwrite):
         if kind == "step":
             _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:], impulse_scale)
         elif kind == "dataset":
             from deepcontact.render.panels import sample_panels
-            atomic.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
+            output.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
         else:
             _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
                  impulse_scale, jobs)
@@ -143,7 +140,7 @@ MIN_WINDOW = 1e-4   # metres
 
 
 def _step(path, out, size, window, contacts, color_by, fmt, impulse_scale=None):
-    from deepcontact import atomic
+    from deepcontact import output
     from deepcontact.render.draw import Painter, Window
     from deepcontact.render.frames import run_impulse_scale, title, window_for
     from deepcontact.render.shapes import read_shapes
@@ -159,20 +156,20 @@ def _step(path, out, size, window, contacts, color_by, fmt, impulse_scale=None):
         impulse_scale = run_impulse_scale(siblings or [path])
     painter = Painter(shapes, win, size, contacts=contacts, color_by=color_by, impulse_scale=impulse_scale)
     painter.draw(bodies, contacts_, title(header, bodies, contacts_))
-    atomic.write_bytes(out, painter.image_bytes(fmt))
+    output.write_bytes(out, painter.image_bytes(fmt))
 
 
 def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare, quiet, impulse_scale=None, jobs=1):
     import logging
 
-    from deepcontact import atomic
+    from deepcontact import output
     from deepcontact.render.draw import Window
     from deepcontact.render.frames import drawn, painter_for, simulation_files, write_gif, write_video
 
     clip = simulation_files(path, seed, every)
     if out.suffix.lower() == ".html":
         from deepcontact.render.viewer import viewer_html
-        atomic.write_text(out, viewer_html(clip, size, fps, impulse_scale=impulse_scale,
+        output.write_text(out, viewer_html(clip, size, fps, impulse_scale=impulse_scale,
                                            window=Window(*window) if window else None))
         return
     other = simulation_files(compare, seed, every) if compare else None

@@ -1,7 +1,6 @@
 """dc simulate: scenes → per-step XML files."""
 import click
 
-from deepcontact.errors import InputError
 from deepcontact.solver.methods import SOLVERS, methods_help
 from deepcontact.simulate.engines import ENGINES
 from deepcontact.solver.settings import CAP, SolveSettings
@@ -123,7 +122,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
       dc simulate pile --engine pymunk --set iterations=20 -o runs/pile-pymunk
       dc simulate pile --engine mujoco --set solver=cg --set tolerance=1e-6 -o runs/pile-mujoco
     """
-    from deepcontact import atomic
+    from deepcontact import output
     from deepcontact.scene.generators import GENERATORS, parameters
     from deepcontact.scene.xml import to_xml
     from deepcontact.simulate.run import run
@@ -153,12 +152,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     source = SceneSource(scene, options.key_values(params, "--param"), steps, iterations)
     source.check_memory(1, max_memory)
     if write_scene:
-        import os
-        atomic.check_replaceable(write_scene)   # before the lock file: a device or a FIFO is never replaced
-        with atomic.locked(write_scene):
-            if os.path.exists(write_scene) and not overwrite:
-                raise InputError("file exists; use --overwrite to replace it", write_scene)
-            atomic.write_bytes(write_scene, to_xml(source(seed)))
+        with output.output_file(write_scene, overwrite):
+            output.write_bytes(write_scene, to_xml(source(seed)))
         return
     if not out_dir:
         raise click.UsageError("missing -o/--output OUTDIR")

@@ -33,7 +33,7 @@ _installed = False # whether install() has run in this process (dc's commands; n
 _guests = 0        # depth of plug-in calls in progress (plugins.guest)
 _hook = None       # Python's unraisable hook, while install()'s is in place
 _command = "dc"    # the command, for the line a hard stop prints
-_hard_stops = []   # clean-ups run before a hard stop ends the process (atomic's: partial outputs, locks)
+_hard_stops = []   # clean-ups run before a hard stop ends the process (output.swap's: partial outputs, locks)
 _watching = False  # whether a deadline thread is armed
 _due = None        # when it ends the process (time.monotonic())
 

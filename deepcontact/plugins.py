@@ -54,7 +54,7 @@ def guest(what, doing="raised"):
             cwd = os.getcwd()
         except OSError:
             pass
-        from .atomic import umask
+        from .output.files import umask
         mask = umask()
         threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
     pid, outermost = os.getpid(), os._exit is not _refuse_exit

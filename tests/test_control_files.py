@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from conftest import dc, one_line_error, snapshot
-from deepcontact import atomic
+from deepcontact import output
 from deepcontact.errors import InputError
 
 pytestmark = pytest.mark.audit
@@ -88,8 +88,8 @@ def root(tmp_path):
 
 
 def a_swap(root, out):
-    """Runs what every folder-writing command runs (atomic.output_folder with --overwrite)."""
-    with atomic.output_folder(out, atomic.Owned("test output"), overwrite=True, command="simulate") as work:
+    """Runs what every folder-writing command runs (output.output_folder with --overwrite)."""
+    with output.output_folder(out, output.Owned("test output"), overwrite=True, command="simulate") as work:
         (work / "new.txt").write_text("new")
 
 
@@ -142,7 +142,7 @@ def test_a_killed_replacements_own_journal_is_still_finished(root):
     (root / ".out.swap").write_text(json.dumps({"old": old.name, "new": ".out.partial-4242-gone",
                                                 "old_id": [old.stat().st_dev, old.stat().st_ino], "new_id": None}))
     with pytest.raises(InputError, match="not empty"):
-        with atomic.output_folder(out, atomic.Owned("test output"), command="simulate"):
+        with output.output_folder(out, output.Owned("test output"), command="simulate"):
             pass
     assert (out / "new.txt").read_text() == "new" and not old.exists() and not (root / ".out.swap").exists()
 
@@ -153,7 +153,7 @@ def test_a_lock_files_list_removes_only_dcs_own_temporaries(root):
     before = mine(root)
     del before[".out.99.tmp"], before[".out.1234.tmp"]   # (named as dc names its own: removed)
     (root / ".out.lock").write_text(json.dumps(names))
-    with atomic.locked(root / "out"):
+    with output.locked(root / "out"):
         pass
     assert mine(root) == before and not (root / ".out.lock").exists()
 
@@ -188,10 +188,10 @@ def test_a_records_temporaries_are_relative_names_of_dcs_own(root):
     planted = hostile_names(root) + [str(root / "thesis.tex"), "../thesis.tex", ".last.pt.77.tmp",
                                      "sub/../../thesis.tex"]
     planted = [n for n in planted if isinstance(n, str)]
-    (model / atomic.RECORD).write_text(json.dumps({"command": "train", "state": "done", "files": ["last.pt"],
+    (model / output.RECORD).write_text(json.dumps({"command": "train", "state": "done", "files": ["last.pt"],
                                                    "temporary": planted}))
     before = mine(root)
-    atomic._InPlace(model, "train")
+    output.InPlace(model, "train")
     after = mine(root)
     assert not (model / ".last.pt.77.tmp").exists()
     assert {k: v for k, v in after.items() if not k.startswith("model")} == \
@@ -202,9 +202,9 @@ def test_a_records_temporaries_are_relative_names_of_dcs_own(root):
 def test_a_huge_sparse_record_is_refused_without_reading_it(tmp_path):
     folder = tmp_path / "out"
     folder.mkdir()
-    with open(folder / atomic.RECORD, "wb") as f:
+    with open(folder / output.RECORD, "wb") as f:
         f.truncate(1 << 30)
-    assert atomic.read_record(folder) is None
+    assert output.read_record(folder) is None
 
 
 def test_the_issues_examples_through_dc(root, pile_run):
@@ -280,11 +280,11 @@ def test_a_journal_naming_a_complete_output_of_dcs_by_name_alone_deletes_nothing
     kept = root / f".out.{'old' if slot == 'old' else 'partial'}-7-x"
     a_swap(root, root / "elsewhere")
     os.replace(root / "elsewhere", kept)   # (a complete output of dc simulate, its record "done")
-    assert atomic.read_record(kept)["state"] == "done"
+    assert output.read_record(kept)["state"] == "done"
     claims = {"old": ".out.old-8-y", "new": ".out.partial-8-y", slot: kept.name}
     for ids in ({}, {"old_id": [0, 0], "new_id": [0, 0]}):   # by name alone, or by another folder's identity
         (root / ".out.swap").write_text(json.dumps({**claims, **ids}))
         with pytest.raises(InputError, match="not empty"):
-            with atomic.output_folder(out, atomic.Owned("test output"), command="simulate"):
+            with output.output_folder(out, output.Owned("test output"), command="simulate"):
                 pass
         assert (kept / "new.txt").read_text() == "new" and (out / "new.txt").read_text() == "new", ids

@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from lxml import html as lxml_html
 
 from conftest import HOSTILE_PILE, snapshot
-from deepcontact import atomic
+from deepcontact import output
 from deepcontact.errors import InputError
 from test_mutations import assert_clean as _assert_clean, invoke
 
@@ -63,15 +63,15 @@ USER_PATHS = st.builds(lambda hidden, name, suffix, nested: ("seed-000000/" if n
 def test_overwrite_never_takes_a_users_file_for_its_own(tmp_path_factory, rel):
     tmp = tmp_path_factory.mktemp("own")
     out = tmp / "out"
-    with atomic.output_folder(out, atomic.Owned("run"), command="simulate") as work:
+    with output.output_folder(out, output.Owned("run"), command="simulate") as work:
         (work / "seed-000000").mkdir()
         (work / "seed-000000" / "step-000000.xml").write_text("<step/>")
-    if rel.split("/")[-1] in ("step-000000.xml", atomic.RECORD):
+    if rel.split("/")[-1] in ("step-000000.xml", output.RECORD):
         return
     (out / rel).write_text("the user's")
     before = snapshot(out)
     with pytest.raises(InputError) as e:
-        with atomic.output_folder(out, atomic.Owned("run"), overwrite=True, command="simulate"):
+        with output.output_folder(out, output.Owned("run"), overwrite=True, command="simulate"):
             pass
     assert "not written by dc simulate" in str(e.value) and snapshot(out) == before
     assert sorted(p.name for p in tmp.iterdir()) == ["out"]
@@ -85,11 +85,11 @@ def test_a_kill_at_any_point_of_a_replacement_loses_nothing(tmp_path, when):
     """SIGKILL (no clean-up runs) at each point of the swap; the next command finds the earlier
     output or the new one, whole, and nothing of ours beside it."""
     out = tmp_path / "out"
-    with atomic.output_folder(out, atomic.Owned("report"), command="evaluate") as work:
+    with output.output_folder(out, output.Owned("report"), command="evaluate") as work:
         (work / "report.md").write_text("old")
     script = f"""
 import os, shutil, signal, sys
-from deepcontact import atomic
+from deepcontact import output
 when = {when!r}
 real_replace, real_rmtree = os.replace, shutil.rmtree
 def replace(src, dst, **kw):
@@ -101,12 +101,12 @@ def rmtree(p, *a, **k):
         os.remove(os.path.join(p, "report.md")); os.kill(os.getpid(), signal.SIGKILL)
     real_rmtree(p, *a, **k)
 os.replace, shutil.rmtree = replace, rmtree
-with atomic.output_folder({str(out)!r}, atomic.Owned("report"), overwrite=True, command="evaluate") as work:
+with output.output_folder({str(out)!r}, output.Owned("report"), overwrite=True, command="evaluate") as work:
     (work / "report.md").write_text("new")
 """
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert r.returncode == -signal.SIGKILL, r.stderr
-    with atomic.output_folder(out, atomic.Owned("report"), overwrite=True, command="evaluate") as work:
+    with output.output_folder(out, output.Owned("report"), overwrite=True, command="evaluate") as work:
         # the recovery ran under the lock: the output is whole, old or new, and alone
         assert (out / "report.md").read_text() == ("old" if when == "moved aside" else "new")
         assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".out.partial-")) == \
@@ -429,7 +429,7 @@ def test_a_killed_movie_or_picture_leaves_nothing_the_next_run_keeps(run, tmp_pa
     out = tmp_path / "movie.gif"
     script = f"""
 import os, signal
-from deepcontact import atomic
+from deepcontact import output
 from deepcontact.render import frames
 real = frames._gif_frame
 def killed(data, first):

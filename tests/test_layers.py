@@ -1,10 +1,10 @@
-"""The house plan: each package of deepcontact imports only the floors below it, along the path
-scene → step → solver → exchange → simulate → grid → model → warm start → contest → evaluate → studies → render."""
+"""The house plan: each package of deepcontact imports only the floors below it: output (how every
+command writes) at the bottom, then the path scene → step → solver → exchange → simulate → grid → model → warm start → contest → evaluate → studies → render."""
 import re
 from pathlib import Path
 
 PACKAGE = Path(__file__).parent.parent / "deepcontact"
-FLOORS = ["scene", "step", "solver", "exchange", "simulate", "grid", "model", "warmstart", "contest", "evaluate", "studies", "render"]
+FLOORS = ["output", "scene", "step", "solver", "exchange", "simulate", "grid", "model", "warmstart", "contest", "evaluate", "studies", "render"]
 
 
 def imported_floors(folder):

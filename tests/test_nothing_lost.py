@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from conftest import dc, dc_process, one_line_error, option_error, snapshot, wait_for
-from deepcontact import atomic
+from deepcontact import output
 
 PILE = ["pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=2.5"]
 TINY_TRAIN = ["--epochs", "1", "--width", "4", "--depth", "2", "--no-plots", "-q"]
@@ -121,7 +121,7 @@ def test_leftovers_of_a_killed_run_are_cleared_by_the_next(run, tmp_path):
     stale = tmp_path / ".run.partial-99999999-abc"    # a partial folder of ours: it holds our record
     (stale / "seed-000000").mkdir(parents=True)
     (stale / "seed-000000" / "step-000000.xml").write_text("<step/>")
-    atomic._write_record(stale, "simulate", "partial")
+    output.record.write_record(stale, "simulate", "partial")
     users = tmp_path / ".run.partial-12345"           # named like ours, but no record: the user's
     users.mkdir()
     (users / "notes.txt").write_text("mine")
@@ -175,13 +175,13 @@ def test_a_signal_during_the_swap_waits_for_it(run, tmp_path, monkeypatch):
     monkeypatch.setattr(os, "replace", replace)
     try:
         with pytest.raises(interrupts.Terminated):
-            with atomic.output_folder(out, atomic.Owned("run"), overwrite=True, command="simulate") as work:
+            with output.output_folder(out, output.Owned("run"), overwrite=True, command="simulate") as work:
                 (work / "new.txt").write_text("new")
     finally:
         for s, h in saved.items():
             signal.signal(s, h)
     assert sorted(p.name for p in out.iterdir()) == [".dc-output.json", "new.txt"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"] and atomic.completed[-1] == out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"] and output.completed[-1] == out
 
 
 def test_long_output_names_and_the_current_folder(run, tmp_path):
@@ -206,7 +206,7 @@ def test_a_lock_file_that_is_a_symlink_is_not_followed(tmp_path):
 
 @contextmanager
 def held(path):
-    with atomic.locked(path):
+    with output.locked(path):
         yield
 
 
@@ -233,7 +233,7 @@ def test_two_trainings_into_one_folder_at_once(dataset, tmp_path):
     first.send_signal(signal.SIGINT)
     assert first.wait(timeout=60) == 130
     # only the first training's files, whole: it can be resumed
-    assert {p.name for p in out.iterdir()} <= {"last.pt", "best.pt", "metrics.csv", "metrics.json", atomic.RECORD}
+    assert {p.name for p in out.iterdir()} <= {"last.pt", "best.pt", "metrics.csv", "metrics.json", output.RECORD}
     assert len(json.loads((out / "metrics.json").read_text())) >= 1
     assert leftovers(tmp_path) == []
 
@@ -361,7 +361,7 @@ def test_a_signal_inside_a_held_block_is_raised_as_it_is_left():
             raise AssertionError("not interrupted")
 
 
-@pytest.mark.parametrize("in_place,owner,name", [(False, atomic, "_write_record"), (True, atomic._InPlace, "__init__")])
+@pytest.mark.parametrize("in_place,owner,name", [(False, output.record, "write_record"), (True, output.InPlace, "__init__")])
 def test_a_signal_while_the_output_folder_is_being_made_leaves_nothing(tmp_path, monkeypatch, in_place, owner, name):
     """The window between making the partial (or in-place) folder and owning it: a stop signal
     that lands while its record is written is raised, and the folder goes with it."""
@@ -374,7 +374,7 @@ def test_a_signal_while_the_output_folder_is_being_made_leaves_nothing(tmp_path,
     monkeypatch.setattr(owner, name, signalled)
     with stop_signals_handled() as interrupts:
         with pytest.raises(interrupts.Terminated):
-            with atomic.output_folder(tmp_path / "out", atomic.Owned("test output", [r"x"]), command="test",
+            with output.output_folder(tmp_path / "out", output.Owned("test output", [r"x"]), command="test",
                                       in_place=in_place):
                 raise AssertionError("the block ran: the signal was lost")
     assert leftovers(tmp_path) == [] and not (tmp_path / "out").exists()
@@ -915,24 +915,24 @@ def test_a_hard_link_planted_at_a_temporary_name_is_never_opened(tmp_path, write
     another, and the user's file keeps its bytes."""
     thesis = a_users_file(tmp_path)
     out = tmp_path / ("out" if writer == "record" else "figure.png")
-    name = atomic.RECORD if writer == "record" else out.name
+    name = output.RECORD if writer == "record" else out.name
     where = tmp_path / ".out.partial" if writer == "record" else tmp_path
     planted = [f".{name}.{os.getpid()}.tmp"] + [f".{name}.{os.getpid()}_{k}.tmp" for k in range(1, 4)]
     if writer == "record":   # (inside the folder being built: planted once it is there)
-        with atomic.output_folder(out, atomic.Owned("report"), command="evaluate") as work:
+        with output.output_folder(out, output.Owned("report"), command="evaluate") as work:
             for p in planted:
                 os.link(thesis, work / p)
-            atomic.write_text(work / "report.md", "report")
+            output.write_text(work / "report.md", "report")
             for p in planted:
                 (work / p).unlink()
     elif writer == "write_bytes":
         for p in planted:
             os.link(thesis, where / p)
-        atomic.write_bytes(out, b"\x89PNG")
+        output.write_bytes(out, b"\x89PNG")
     else:
         for p in planted:
             os.link(thesis, where / p)
-        with atomic.open_for_write(out) as f:
+        with output.open_for_write(out) as f:
             f.write(b"\x89PNG")
     assert thesis.read_text() == THESIS and os.stat(thesis).st_nlink == (1 if writer == "record" else 5)
     assert (out / "report.md").read_text() == "report" if writer == "record" else out.read_bytes() == b"\x89PNG"
@@ -957,14 +957,14 @@ def test_a_folder_swapped_for_a_link_during_the_run_is_never_written_through(tmp
     out = tmp_path / "out"
     in_place = what == "an output written in place"
     with pytest.raises((OSError, atomic_error())):
-        with atomic.output_folder(out, atomic.Owned("report"), command="train", in_place=in_place) as work:
-            atomic.make_dir(work / "sub")
-            atomic.write_text(work / "sub" / "first.txt", "first")
+        with output.output_folder(out, output.Owned("report"), command="train", in_place=in_place) as work:
+            output.make_dir(work / "sub")
+            output.write_text(work / "sub" / "first.txt", "first")
             target = work / "sub" if what == "a folder inside it" else work
             os.rename(target, tmp_path / "moved")
             os.symlink(users, target)
-            atomic.write_text(work / "report.md", "report")
-            atomic.write_text(work / "sub" / "second.txt", "second")
+            output.write_text(work / "report.md", "report")
+            output.write_text(work / "sub" / "second.txt", "second")
             if in_place:   # (written where the folder went, never through the link: then refused below)
                 raise OSError("end of the run")
     assert sorted(p.name for p in users.iterdir()) == ["notes.txt"]
@@ -984,9 +984,9 @@ def test_a_full_or_read_only_disk_in_the_swap_leaves_the_output_as_it_was_and_no
                                                                                           at, error):
     import errno
     out = tmp_path / "out"
-    with atomic.output_folder(out, atomic.Owned("report"), command="evaluate") as work:
-        atomic.write_text(work / "report.md", "old")
-    real_write, real_replace = atomic.write_text, os.replace
+    with output.output_folder(out, output.Owned("report"), command="evaluate") as work:
+        output.write_text(work / "report.md", "old")
+    real_write, real_replace = output.write_text, os.replace
 
     def failing():
         return OSError(getattr(errno, error), os.strerror(getattr(errno, error)))
@@ -1003,13 +1003,13 @@ def test_a_full_or_read_only_disk_in_the_swap_leaves_the_output_as_it_was_and_no
             raise failing()
         return real_replace(src, dst, **kw)
     failed = []
-    monkeypatch.setattr(atomic, "write_text", write_text)
+    monkeypatch.setattr(output.files, "write_text", write_text)
     monkeypatch.setattr(os, "replace", replace)
     with pytest.raises(OSError):
-        with atomic.output_folder(out, atomic.Owned("report"), overwrite=True, command="evaluate") as work:
-            atomic.write_text(work / "report.md", "new")
+        with output.output_folder(out, output.Owned("report"), overwrite=True, command="evaluate") as work:
+            output.write_text(work / "report.md", "new")
     monkeypatch.undo()
     assert (out / "report.md").read_text() == "old" and sorted(os.listdir(tmp_path)) == ["out"]
-    with atomic.output_folder(out, atomic.Owned("report"), overwrite=True, command="evaluate") as work:
-        atomic.write_text(work / "report.md", "newer")
+    with output.output_folder(out, output.Owned("report"), overwrite=True, command="evaluate") as work:
+        output.write_text(work / "report.md", "newer")
     assert (out / "report.md").read_text() == "newer" and sorted(os.listdir(tmp_path)) == ["out"]

@@ -17,7 +17,7 @@ import threading
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
-from .. import atomic
+from .. import output
 from ..errors import InputError
 from . import sandbox
 from .broker import ENV as BROKER_ENV, Broker
@@ -104,22 +104,12 @@ def check_output(path, command, overwrite, writes):
     folder only with --overwrite, and a folder then only one dc `command` wrote, holding only what
     it wrote. writes: what its -o is ("folder", "file" or "text")."""
     path = Path(path)
-    if path.is_symlink():
-        raise InputError("is a symbolic link: refusing to write through it or replace it", path)
     if writes != "folder":
-        atomic.check_replaceable(path)
-    elif os.path.lexists(path) and not path.is_dir():
-        raise InputError("exists and is not a folder", path)
-    if path.is_dir():
-        if os.path.ismount(path):
-            raise InputError(f"is a mount point: an output is swapped in by renaming, which a mount point "
-                             f"refuses; give a folder inside it (-o {path / 'out'})", path)
-        if any(path.iterdir()):
-            atomic.check_owned_folder(path, command, overwrite)
-    elif os.path.lexists(path):
-        atomic.check_replaceable(path)
-        if not overwrite:
-            raise InputError("file exists; use --overwrite to replace it", path)
+        output.check_file(path, overwrite)
+        return
+    output.check_folder(path)
+    if path.is_dir() and any(path.iterdir()):
+        output.check_owned_folder(path, command, overwrite)
 
 
 def _check_contents(produced, target, who):
@@ -142,12 +132,12 @@ def publish(produced, target, command, who):
     if produced.is_dir():
         if os.path.lexists(target) and not target.is_dir():
             raise InputError(f"is a file, and {who} wrote a folder: refusing to replace it", target)
-        with atomic.folder(target, command=command) as work:
+        with output.folder(target, command=command) as work:
             for entry in os.listdir(produced):
-                if entry != atomic.RECORD:
+                if entry != output.RECORD:
                     os.replace(produced / entry, work / entry)
     else:
-        atomic.check_replaceable(target)
+        output.check_replaceable(target)
         os.replace(produced, target)
 
 
@@ -157,14 +147,14 @@ def _staging(target, command):
     partial output (so the next command on target removes it if this one is killed); removed at
     the end."""
     target = Path(target)
-    stage = Path(tempfile.mkdtemp(prefix=f".{atomic.short_name(target.name)}.partial-{os.getpid()}-",
+    stage = Path(tempfile.mkdtemp(prefix=f".{output.short_name(target.name)}.partial-{os.getpid()}-",
                                   dir=target.parent))
-    atomic.hold_building(stage, command)
+    output.hold_building(stage, command)
     try:
         yield stage
     finally:
         shutil.rmtree(stage, ignore_errors=True)
-        atomic.release_building(stage)
+        output.release_building(stage)
 
 
 def run_with_output(head, args, command, writes, env_extra, who):
@@ -182,9 +172,9 @@ def run_with_output(head, args, command, writes, env_extra, who):
         if target is not None:
             kind = writes()
             check_output(target, command, overwrite, kind)
-            atomic.make_folder_for(target)
-            stack.enter_context(atomic.locked(target))
-            atomic.recover(target)
+            output.make_folder_for(target)
+            stack.enter_context(output.locked(target))
+            output.recover(target)
             check_output(target, command, overwrite, kind)   # (as it is now that no other command holds it)
             stage = stack.enter_context(_staging(target, command))
             writable.append(str(stage))

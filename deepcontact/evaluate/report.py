@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from .. import __version__, atomic
+from .. import __version__, output
 from ..errors import count
 from ..escape import CsvWriter, md_text, plot_text
 from ..html import markdown_to_html
@@ -30,7 +30,7 @@ from .replay import BUDGETS, reference_summary
 from ..plotstyle import axis_floor, readable_log_ticks, show_bands, styles, with_markers
 
 # Everything a report folder holds (replay and closed loop): what --overwrite may replace.
-REPORT_FILES = atomic.Owned("report", [r"report\.(md|html)", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
+REPORT_FILES = output.Owned("report", [r"report\.(md|html)", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
                                        r"(convergence|iterations|pareto)\.(png|svg)",
                                        r"closed-loop\.(md|html|json|png|svg)"])
 
@@ -46,28 +46,28 @@ def write_report(out, rows, summary, settings):
                     int(r.fallback), f"{r.residual:.6g}", f"{r.error:.6g}", f"{r.velocity_error:.6g}",
                     f"{r.predict_ms:.6g}", f"{r.solve_ms:.6g}", f"{r.reference_residual:.6g}",
                     int(r.reference_pivoted)])
-    atomic.write_text(out / "steps.csv", buf.getvalue())
+    output.write_text(out / "steps.csv", buf.getvalue())
     settings = dict(settings, reference=reference_summary(rows))
     if "noise" not in settings:
         settings["noise"] = noise_of(rows, summary)
-    atomic.write_text(out / "summary.json", json.dumps({"settings": settings, "starts": summary}, indent=2) + "\n")
+    output.write_text(out / "summary.json", json.dumps({"settings": settings, "starts": summary}, indent=2) + "\n")
     buf = io.StringIO()
     w = CsvWriter(buf)
     keys = list(next(iter(summary.values())))
     w.writerow(["start"] + keys)
     for name, s in summary.items():
         w.writerow([name] + [_csv_value(s[k]) for k in keys])
-    atomic.write_text(out / "summary.csv", buf.getvalue())
+    output.write_text(out / "summary.csv", buf.getvalue())
     pareto = pareto_points(rows, summary)
     if pareto:
-        atomic.write_text(out / "pareto.json", json.dumps(pareto, indent=1) + "\n")
+        output.write_text(out / "pareto.json", json.dumps(pareto, indent=1) + "\n")
     drawn = settings.get("plots", True)
     if drawn:
         plots(out, rows, summary, settings, pareto)
     text = markdown(summary, settings, pareto)
-    atomic.write_text(out / "report.md", text)
+    output.write_text(out / "report.md", text)
     # the same tables and plots in one page that reads offline (SVG inline)
-    atomic.write_text(out / "report.html", markdown_to_html(
+    output.write_text(out / "report.html", markdown_to_html(
         text, out, "Warm starts compared", pictures=("convergence.png", "iterations.png", "pareto.png") if drawn else ()))
 
 
@@ -482,8 +482,8 @@ def _save(fig, stem):
     import matplotlib.pyplot as plt
     fig.tight_layout()
     with matplotlib.rc_context({"svg.hashsalt": "deepcontact"}):
-        atomic.write_bytes(f"{stem}.png", atomic.figure_bytes(fig, "png", dpi=110))
-        atomic.write_bytes(f"{stem}.svg", atomic.figure_bytes(fig, "svg", dpi=110, metadata={"Date": None}))
+        output.write_bytes(f"{stem}.png", output.figure_bytes(fig, "png", dpi=110))
+        output.write_bytes(f"{stem}.svg", output.figure_bytes(fig, "svg", dpi=110, metadata={"Date": None}))
     plt.close(fig)
 
 
@@ -527,13 +527,13 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
                f"and energy error), the rows after them are each simulation's." if simulations > 1 else "")
             + "\n\n" + text + "\n\n" + _loop_path_line(pooled) + (protocol_line(measured) + "\n\n" if measured else "")
             + ("![closed loop](closed-loop.png)\n" if plots else ""))
-    atomic.write_text(out / "report.md", page)
+    output.write_text(out / "report.md", page)
     if plots:
         loop_plot(results if plotted is None else plotted, out / "closed-loop")
-    atomic.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
+    output.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                             pictures=("closed-loop.png",) if plots else ()))
     _loop_summary_csv(out, results)
-    atomic.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "results": [{
+    output.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "results": [{
         "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
         "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
         "energy_error": r.energy_error, "finite": r.finite,
@@ -554,7 +554,7 @@ def _loop_summary_csv(out, results):
                     float(np.median(r.ms_per_step)), float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0,
                     float(r.drift[-1]) if len(r.drift) else "", float(r.drift.max()) if len(r.drift) else "",
                     r.energy_error, r.penetration, r.finite])
-    atomic.write_text(out / "summary.csv", buf.getvalue())
+    output.write_text(out / "summary.csv", buf.getvalue())
 
 
 def _loop_residuals(r):

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import atomic, workers
+from .. import output, workers
 from ..errors import InputError
 from ..solver.problem import StepProblem
 from ..step.run_folder import read_run
@@ -82,8 +82,8 @@ def read_problem(path) -> "LocalProblem":
     return LocalProblem(W=matrix, q=q, mu=mu, points=np.arange(len(mu)))
 
 
-# What `dc export` writes (atomic.output_folder replaces nothing else).
-EXPORT_FILES = atomic.Owned("FCLIB export", [r"seed-\d{6,}/", r"seed-\d{6,}/step-\d{6,}\.hdf5", r"index\.json"])
+# What `dc export` writes (output.output_folder replaces nothing else).
+EXPORT_FILES = output.Owned("FCLIB export", [r"seed-\d{6,}/", r"seed-\d{6,}/step-\d{6,}\.hdf5", r"index\.json"])
 SOLUTIONS = ("reference", "recorded", "none")
 
 
@@ -101,14 +101,14 @@ def export_run(run_dir, out, *, every=1, solution="reference", overwrite=False, 
     if not run.step_files:
         raise InputError("the run has no step files", run_dir)
     scene = run.manifest.get("scene", "scene")
-    with atomic.output_folder(out, EXPORT_FILES, overwrite, command="export") as work:
+    with output.output_folder(out, EXPORT_FILES, overwrite, command="export") as work:
         tasks = []
         for sim in run.simulations:
-            atomic.make_dir(work / sim.dir)
+            output.make_dir(work / sim.dir)
             tasks += [(path, work, sim.dir, sim.seed, scene, solution, k % every == 0) for k, path in enumerate(sim.files)]
         with workers.for_jobs(jobs, tasks, progress) as pool:
             index = [entry for entry in pool.imap(_export_step, tasks) if entry is not None]
-        atomic.write_text(work / "index.json", json.dumps({"format": "fclib_local", "spacedim": 2,
+        output.write_text(work / "index.json", json.dumps({"format": "fclib_local", "spacedim": 2,
                                                            "problems": index}, indent=1) + "\n")
     return index
 

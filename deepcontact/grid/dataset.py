@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, atomic, workers
+from .. import __version__, output, workers
 from .._box2d import box2d_version
 from ..errors import InputError, count, show_path
 from ..resources import check_disk, check_memory
@@ -50,7 +50,7 @@ ARRAY_LAYOUT = {"inputs": (np.float32, ("N", "C_in", "H", "W")), "labels": (np.f
                 "contact_offsets": (np.int64, ("N+1",)), "contact_position": (np.float32, ("M", 2)),
                 "contact_impulse": (np.float32, ("M", 2))}
 # Everything a dataset folder holds: what --overwrite may replace.
-DATASET_FILES = atomic.Owned("dataset", ["metadata\\.json"] + [f"{name}\\.npy" for name in ARRAYS])
+DATASET_FILES = output.Owned("dataset", ["metadata\\.json"] + [f"{name}\\.npy" for name in ARRAYS])
 
 
 @dataclass(kw_only=True)
@@ -189,7 +189,7 @@ def _write_at(path, offset, array):
     """array's bytes into the file at offset (the file's space is reserved: see _NpyWriter)."""
     view = memoryview(np.ascontiguousarray(array)).cast("B")
     try:
-        fd = atomic.open_fd(path, os.O_WRONLY)
+        fd = output.open_fd(path, os.O_WRONLY)
         try:
             while view:
                 written = os.pwrite(fd, view, offset)
@@ -222,7 +222,7 @@ class _NpyWriter:
         self.dtype = np.dtype(dtype)
         header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": tuple(shape)}
         with self._naming():
-            self.f = atomic.open_new(self.path, "wb")
+            self.f = output.open_new(self.path, "wb")
             np.lib.format.write_array_header_1_0(self.f, header) if np.prod(shape) * self.dtype.itemsize < 2 ** 32 \
                 else np.lib.format.write_array_header_2_0(self.f, header)
             self.f.flush()
@@ -287,7 +287,7 @@ def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, prog
     s = (settings or DatasetSettings()).checked()
     out = Path(out)
     # The output is checked and locked first: nothing is read or logged for an output refused.
-    with atomic.output_folder(out, DATASET_FILES, overwrite, command="rasterize") as tmp:
+    with output.output_folder(out, DATASET_FILES, overwrite, command="rasterize") as tmp:
         sims, manifests = collect(run_dirs, s.include_contactless)
         spec, which = grid_for(sims, s.cell, s.h, s.kernel, s.renormalize, s.window)
         _check_resources(sims, spec, s, jobs, max_memory, out)
@@ -298,7 +298,7 @@ def write_dataset(run_dirs, out, settings=None, *, jobs=1, overwrite=False, prog
                      "walls, on or just beyond its edge where the grid ends (expected; interpolation clamps them "
                      "to the edge)", outside)
         metadata = _metadata(out.resolve(), sims, manifests, spec, which, s, outside)
-        atomic.write_text(tmp / "metadata.json", json.dumps(metadata, indent=2) + "\n")
+        output.write_text(tmp / "metadata.json", json.dumps(metadata, indent=2) + "\n")
     return metadata
 
 
@@ -361,7 +361,7 @@ def _write_arrays(tmp, sims, spec, s, jobs, progress):
     for writer in images.values():
         writer.close()
     for name, a in arrays.items():
-        atomic.write_bytes(tmp / f"{name}.npy", _npy_bytes(a))
+        output.write_bytes(tmp / f"{name}.npy", _npy_bytes(a))
     return outside
 
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ..escape import CsvWriter
-from .. import __version__, atomic
+from .. import __version__, output
 from .checkpoint_file import checkpoint_file
 from ..errors import InputError
 from ..grid.dataset import GridDataset
@@ -39,7 +39,7 @@ from .networks import (CONFIG_LIMITS, build, check_config, check_network, parame
 log = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
 # Everything a training folder holds: what --overwrite may replace.
-MODEL_FILES = atomic.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
+MODEL_FILES = output.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
 
 
 @dataclass
@@ -225,7 +225,7 @@ def config_problem(cfg):
 def _save(path, obj):
     buf = io.BytesIO()
     torch.save(obj, buf)
-    atomic.write_bytes(path, buf.getvalue())
+    output.write_bytes(path, buf.getvalue())
 
 
 def _distributed():
@@ -613,7 +613,7 @@ def _output_folder(out_dir, overwrite, replace, resume, rank):
     if rank != 0:
         yield out_dir
         return
-    with atomic.output_folder(out_dir, MODEL_FILES, overwrite, command="train", in_place=not replace,
+    with output.output_folder(out_dir, MODEL_FILES, overwrite, command="train", in_place=not replace,
                               existing_ok=resume, hint="use --resume to continue a run there or --overwrite to "
                               "replace it") as work:
         yield work
@@ -625,8 +625,8 @@ def write_metrics(out_dir, history):
     w = CsvWriter(buf)
     w.writerow(keys)
     w.writerows([row.get(k, "") for k in keys] for row in history)
-    atomic.write_text(out_dir / "metrics.csv", buf.getvalue())
-    atomic.write_text(out_dir / "metrics.json", json.dumps(history, indent=1) + "\n")
+    output.write_text(out_dir / "metrics.csv", buf.getvalue())
+    output.write_text(out_dir / "metrics.json", json.dumps(history, indent=1) + "\n")
 
 
 def plot_losses(history, stem):
@@ -670,6 +670,6 @@ def plot_losses(history, stem):
     fig.tight_layout()
     # through bytes and an atomic write: training writes in place, and an interrupted run must
     # not leave half a picture
-    atomic.write_bytes(f"{stem}.png", atomic.figure_bytes(fig, "png", dpi=110))
-    atomic.write_bytes(f"{stem}.svg", atomic.figure_bytes(fig, "svg"))
+    output.write_bytes(f"{stem}.png", output.figure_bytes(fig, "png", dpi=110))
+    output.write_bytes(f"{stem}.svg", output.figure_bytes(fig, "svg"))
     plt.close(fig)

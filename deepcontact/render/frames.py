@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic, workers
+from .. import output, workers
 from ..errors import InputError, count
 from ..step.reader import check_origin, read_step
 from ..step.run_folder import read_run, step_index
@@ -182,7 +182,7 @@ def write_gif(out, chunks):
     """An animated GIF from its frames' chunks (gif_chunk), each written as it comes: memory
     holds one frame, whatever the run's length."""
     written = 0
-    with atomic.open_for_write(out) as f:
+    with output.open_for_write(out) as f:
         for chunk in chunks:
             f.write(chunk)
             written += 1
@@ -234,7 +234,7 @@ def write_video(out, frames_iter, fps, size):
     if ffmpeg is None:
         raise InputError(f"{out.suffix} needs ffmpeg, which is not installed: install Debian's ffmpeg "
                          f"(apt-get install ffmpeg), or write a .gif", out)
-    tmp = atomic.new_temporary(out)   # (noted in the lock: a killed run's copy is removed by the next)
+    tmp = output.new_temporary(out)   # (noted in the lock: a killed run's copy is removed by the next)
     w, h = size
     cmd = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", str(fps),
            "-i", "-", *codec, "-f", fmt, str(tmp)]

@@ -8,7 +8,7 @@ Layout of OUTDIR::
     manifest.json                  written last: its presence means the run is complete
 
 The run is built in a partial folder beside OUTDIR and appears under its name only when complete
-(`atomic.output_folder`): an interrupted or failed run leaves nothing, and an earlier run it was
+(`output.output_folder`): an interrupted or failed run leaves nothing, and an earlier run it was
 to replace (--overwrite) as it was.
 """
 import hashlib
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic, interrupts, workers
+from .. import interrupts, output, workers
 from ..errors import InputError, count
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from .._box2d import NonFiniteError
@@ -39,7 +39,7 @@ from .engines.box2d import Box2D
 log = logging.getLogger(__name__)
 
 # Everything a run folder holds: what --overwrite may replace.
-RUN_FILES = atomic.Owned("run", [re.escape(MANIFEST), r"seed-\d{6,}/", r"seed-\d{6,}/scene\.xml",
+RUN_FILES = output.Owned("run", [re.escape(MANIFEST), r"seed-\d{6,}/", r"seed-\d{6,}/scene\.xml",
                                  r"seed-\d{6,}/step-\d{6,}\.xml(\.gz)?"])
 
 
@@ -118,7 +118,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     from ..scene.check import check_scene
     check_scene(scene)
     scene_xml = to_xml(scene)
-    atomic.write_bytes(out_dir / "scene.xml", scene_xml)
+    output.write_bytes(out_dir / "scene.xml", scene_xml)
     world = engine.build(scene)
     step = engine.stepper(world, scene)
     loop = engine.solver
@@ -134,7 +134,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
             raise InputError(f"seed {seed}: the simulation became non-finite at step {k} ({e}): the scene asks for "
                              "more than Box2D's float32 holds (bodies too far or too fast, forces too large, or a "
                              "start that diverged); nothing of it was kept") from None
-        atomic.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
+        output.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
 
     # Rendering, compressing and writing a step (GIL released in each) overlap with stepping the next.
     # The pool's and the futures' locks are shared with the writer threads (and the progress bar's
@@ -201,7 +201,7 @@ def prepare_output(out_dir, seeds):
     out_dir = Path(out_dir)
     try:
         for seed in seeds:
-            atomic.make_dir(out_dir / sim_dirname(seed))
+            output.make_dir(out_dir / sim_dirname(seed))
     except OSError as e:
         raise InputError(f"cannot write there: {e.strerror or e}", out_dir) from None
     return out_dir
@@ -263,7 +263,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     check_overlaps(first, source)
     engine.check(first, source)
     out_dir = Path(out_dir)
-    with atomic.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
+    with output.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
         # (by fixtures as well as bodies: a body of many fixtures makes many contact points)
         fixtures = sum(len(b.shapes) for b in first.bodies)
         per_step = step_bytes(len(first.bodies), fixtures) // (COMPRESSION_RATIO if compress else 1)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic, workers
+from .. import output, workers
 from ..errors import InputError, one_line, show_path
 
 ABOVE = "is above its run's tolerance"   # (in the line held_to_tolerance gives: dc validate counts them)
@@ -28,7 +28,7 @@ def xml_files(paths):
     is not a regular file (a FIFO would block the parser forever) is refused."""
     for p in map(Path, paths):
         if p.is_dir():
-            found = [q for q in (p / r for r in atomic.entries(p)) if is_xml(q)]   # (any depth, sorted)
+            found = [q for q in (p / r for r in output.entries(p)) if is_xml(q)]   # (any depth, sorted)
         elif p.exists():
             found = [p]
         else:

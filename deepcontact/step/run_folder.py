@@ -135,7 +135,7 @@ def write_manifest(run_dir, scene, engine, *, source, pgs, skip_contactless, sim
     scene: the first simulation's scene; engine: what stepped it (a simulate.engines.Engine);
     simulations: one dict per simulation (seed, dir, steps, files, contact_points, scene_sha256,
     extent)."""
-    from .. import __version__, atomic
+    from .. import __version__, output
     from ..scene.xml import fmt
     own_iterations = engine.rows == "box2d"   # (2.4.1's iterations are the scene's; others have settings)
     manifest = {
@@ -163,7 +163,7 @@ def write_manifest(run_dir, scene, engine, *, source, pgs, skip_contactless, sim
         "versions": {"deepcontact": __version__, "box2d" if engine.rows != "own" else engine.name: engine.version()},
         "simulations": simulations,
     }
-    atomic.write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    output.write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2) + "\n")
     return manifest
 
 

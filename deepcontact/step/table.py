@@ -8,14 +8,14 @@ import os
 import numpy as np
 
 from ..escape import CsvWriter
-from .. import atomic, workers
+from .. import output, workers
 from ..errors import InputError
 from .engines import foreign_fields, rows_of
 from .reader import check_origin, read_step
 from .run_folder import read_run
 
 FORMATS = ("csv", "parquet")
-TABLE_FILES = atomic.Owned("table export", [r"(bodies|contacts)\.(csv|parquet)"])
+TABLE_FILES = output.Owned("table export", [r"(bodies|contacts)\.(csv|parquet)"])
 
 
 def _flat(arrays):
@@ -82,7 +82,7 @@ def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: st
             raise InputError("Parquet needs pyarrow, which is not installed: pip install 'deepcontact[parquet]' "
                              "(or pip install pyarrow), or export --format csv") from None
     rows = {"bodies": 0, "contacts": 0}
-    with atomic.output_folder(out, TABLE_FILES, overwrite, command="export") as work:
+    with output.output_folder(out, TABLE_FILES, overwrite, command="export") as work:
         writers = {}
         try:
             for step in step_tables(run_dir, every, jobs, progress):
@@ -101,7 +101,7 @@ class _CSV:
     """Rows appended as they come (the values' repr: float32 values as the doubles they are)."""
 
     def __init__(self, path):
-        self.f = atomic.open_new(path, "w")
+        self.f = output.open_new(path, "w")
         self.w = CsvWriter(self.f)
         self.header = False
 

@@ -4,6 +4,7 @@ import contextlib
 
 import click
 
+from deepcontact import output as outputs
 from deepcontact.cli import options
 from deepcontact.studies import Study
 
@@ -22,17 +23,10 @@ def output_file(path, overwrite):
     """The one way a study's -o FILE is claimed: checked and locked before the study starts (a
     file there is replaced only with --overwrite), written by the block, atomically, at its end.
     None: no file (the block still runs)."""
-    import os
-
-    from deepcontact import atomic
-    from deepcontact.errors import InputError
     if not path:
         yield
         return
-    atomic.check_replaceable(path)
-    with atomic.locked(path):
-        if os.path.exists(path) and not overwrite:
-            raise InputError("file exists; use --overwrite to replace it", path)
+    with outputs.output_file(path, overwrite):
         yield
 
 
@@ -40,7 +34,6 @@ def output_file(path, overwrite):
 def _study_text(threads, output=None, overwrite=False):
     """The StudyText a text study reports into, each line echoed to stdout as it comes after the
     line saying how its times were taken; with `output`, the whole report written there at the end."""
-    from deepcontact import atomic
     from deepcontact.protocol import protocol, protocol_line, use_threads
     from dcstudies.text import StudyText
     with output_file(output, overwrite):
@@ -49,7 +42,7 @@ def _study_text(threads, output=None, overwrite=False):
         text(protocol_line(protocol(threads)) + "\n")
         yield text
         if output:
-            atomic.write_text(output, text.text())
+            outputs.write_text(output, text.text())
 
 
 @click.command("stability")
@@ -77,7 +70,6 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
     """
     if not out:
         options.require_stdout("give -o FILE")
-    from deepcontact import atomic
     from deepcontact.protocol import protocol, protocol_line
     from dcstudies import stability as S
 
@@ -86,7 +78,7 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
         click.echo(S.HEADER)
         rows = S.study(S.FAST if fast else S.FULL, log=click.echo, jobs=jobs)
         if out:
-            atomic.write_text(out, S.markdown(rows, fast, protocol_line(measured)))
+            outputs.write_text(out, S.markdown(rows, fast, protocol_line(measured)))
     # Other engines' rows are measured, not required: their contacts are what they are (a
     # non-finite state would still be a failure: of the model built for them, or of the binding)
     ours = ("box2d", "pgs")
@@ -137,14 +129,13 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
       dc study engines -o reports/peers --families 'pymunk,MuJoCo Newton'
       dc study engines --fast -o reports/mine --families project --accelerate mypkg.solvers:Mine
     """
-    from deepcontact import atomic
     from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
     from dcstudies import engines as E
 
     cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
     chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins), fast)
-    with atomic.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
+    with outputs.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
         bar = options.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
         try:
@@ -200,7 +191,6 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
       dc study frontier -o reports/one --scenes 'pile 10000' --families 'MuJoCo Newton:tolerance 1e-08'
       dc study frontier --fast -o reports/mine --families PGS --accelerate mypkg.solvers:Mine
     """
-    from deepcontact import atomic
     from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
     from dcstudies import frontier as F
@@ -210,7 +200,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
                         options.described_methods(plugins))
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES
-    with atomic.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:
+    with outputs.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:
         measured = protocol(jobs=jobs)
         bar = options.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier")
         try:
@@ -244,11 +234,10 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite
       dc study figures runs/heldout -o reports/figures --stop-on thesis --every 5
       dc study figures runs/heldout -o reports/figures -j 2
     """
-    from deepcontact import atomic
     from deepcontact.solver.settings import SolveSettings
     from dcstudies.figures import FIGURE_FILES, figures as make, step_files
 
-    with atomic.output_folder(out, FIGURE_FILES, overwrite, command="study figures") as work:
+    with outputs.output_folder(out, FIGURE_FILES, overwrite, command="study figures") as work:
         bar = options.progress_bar(quiet, step_files(run), "step", "study figures")
         try:
             settings = SolveSettings(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations)

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deepcontact import atomic, workers
+from deepcontact import output, workers
 from deepcontact.evaluate.closed_loop import reference_trajectory
 from deepcontact.simulate import stepping
 from deepcontact.solver.metrics import drift
@@ -64,7 +64,7 @@ PROJECT = {"project": ("none", TOLERANCES), "lagged": ("lagged", (1e-4, 1e-8))}
 # (a pile is not asked to be still at the end: its circles may still roll)
 FULL = [S.Case("thesis pile", "pile", {}, rests=False), *S.FULL]
 # What `dc study engines -o DIR` writes (what --overwrite may replace).
-ENGINE_FILES = atomic.Owned("engines study folder", [r"engines\.md", r"engines\.csv", r"pareto-[a-z0-9-]+\.png"])
+ENGINE_FILES = output.Owned("engines study folder", [r"engines\.md", r"engines\.csv", r"pareto-[a-z0-9-]+\.png"])
 FAST = [S.Case("pile 30", "pile", dict(count=30, box=16.0, sigma=4.0, steps=240), rests=False), *S.FAST]
 
 
@@ -353,7 +353,7 @@ def write(rows, out_dir, fast, protocol_text):
     out_dir = Path(out_dir)
     for scene in dict.fromkeys(r.scene for r in rows):
         pareto_plot([r for r in rows if r.scene == scene], out_dir / f"pareto-{slug(scene)}.png")
-    atomic.write_text(out_dir / "engines.csv", csv_text(rows, Row))
+    output.write_text(out_dir / "engines.csv", csv_text(rows, Row))
     text = markdown(rows, fast, protocol_text)
-    atomic.write_text(out_dir / "engines.md", text)
+    output.write_text(out_dir / "engines.md", text)
     return text

@@ -9,7 +9,7 @@ Each is the median (and 10-90% band) of the stopping measure per PGS sweep over 
 
     dc study figures RUN -o OUTDIR [--every 10] [--tolerance 1e-4] [--stop-on residual] [-j 2]
 """
-from deepcontact import atomic, workers
+from deepcontact import output, workers
 from deepcontact.grid.dataset import collect
 from deepcontact.grid.spec import GridSpec
 from deepcontact.protocol import protocol, protocol_line
@@ -26,7 +26,7 @@ FIGURES = {
 
 
 # Everything a figures folder holds: what --overwrite may replace.
-FIGURE_FILES = atomic.Owned("figures folder", [r"figures\.md", r"fig-5\.[4-7]\.(png|svg)"])
+FIGURE_FILES = output.Owned("figures folder", [r"figures\.md", r"fig-5\.[4-7]\.(png|svg)"])
 
 
 def figures(run, out, every=10, settings=SolveSettings(), jobs=1, progress=None):
@@ -50,7 +50,7 @@ def figures(run, out, every=10, settings=SolveSettings(), jobs=1, progress=None)
             convergence_plot(rows, starts, out / name, title, settings.tolerance, settings.stop_on)
             text += [f"## {name}\n", summary_table(summarize(rows, starts, settings.max_iterations)), ""]
     text += [protocol_line(measured), ""]
-    atomic.write_text(out / "figures.md", "\n".join(text) + "\n")
+    output.write_text(out / "figures.md", "\n".join(text) + "\n")
     return "\n".join(text)
 
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deepcontact import atomic, workers
+from deepcontact import output, workers
 from deepcontact.simulate.problems import problems
 from deepcontact.solver.methods import solve
 from deepcontact.solver.reference import reference_solution
@@ -68,7 +68,7 @@ FAST = [
 ]
 FAST_SAMPLES = 2
 # What `dc study frontier -o DIR` writes (what --overwrite may replace).
-FRONTIER_FILES = atomic.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
+FRONTIER_FILES = output.Owned("frontier study folder", [r"frontier\.md", r"frontier\.csv", r"frontier-[a-z0-9-]+\.png"])
 
 
 def settings(fast=False, families=None, tolerances=None, plugins=()):
@@ -307,7 +307,7 @@ def write(rows, lines, out_dir, fast, protocol_text):
         mine = [r for r in rows if r.scene == scene]
         frontier_plot(mine, out_dir / f"frontier-{slug(scene)}.png")
         penetration_plot(mine, out_dir / f"frontier-{slug(scene)}-penetration.png")
-    atomic.write_text(out_dir / "frontier.csv", csv_text(rows, Row))
+    output.write_text(out_dir / "frontier.csv", csv_text(rows, Row))
     text = markdown(rows, lines, fast, protocol_text)
-    atomic.write_text(out_dir / "frontier.md", text)
+    output.write_text(out_dir / "frontier.md", text)
     return text

@@ -6,7 +6,7 @@ import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from deepcontact import atomic
+from deepcontact import output
 from deepcontact.escape import CsvWriter
 
 
@@ -84,7 +84,7 @@ def accuracy_plot(families, points, path, ylabel, title):
         readable_log_ticks(ax.yaxis)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    atomic.write_bytes(path, atomic.figure_bytes(fig, Path(path).suffix[1:], dpi=110))
+    output.write_bytes(path, output.figure_bytes(fig, Path(path).suffix[1:], dpi=110))
     plt.close(fig)
 
 
