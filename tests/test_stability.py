@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from deepcontact.simulate.engines import Box2D3
+from dcstudies.efforts import EFFORTS
 from dcstudies import stability as S
 
 
@@ -99,12 +99,12 @@ def test_box2d_v3_on_the_hard_scenes(fast_study):
         if case not in ("confined 64", "bullet"):   # (no gravity, no friction: never rests; a shot flying off)
             assert found.final_speed < 0.05, (case, found)
     for case in ("pyramid 6", "card house 2", "arch 5", "confined 64", "bullet"):
-        assert v3[case].passed and v3[case].iterations == Box2D3.DEFAULT_COUNT, (case, v3[case])
+        assert v3[case].passed and v3[case].iterations == EFFORTS['box2d3'].default, (case, v3[case])
     stack = v3["stack 8"]
-    assert not stack.passed and stack.iterations == S.OWN_CAP * Box2D3.DEFAULT_COUNT and S.TOP_DRIFT_LIMIT < stack.top_drift < 0.05
+    assert not stack.passed and stack.iterations == S.OWN_CAP * EFFORTS['box2d3'].default and S.TOP_DRIFT_LIMIT < stack.top_drift < 0.05
     for case in ("mass ratio 100:1", "mass ratio 400:1"):
         r = v3[case]
-        assert not r.passed and r.iterations == S.OWN_CAP * Box2D3.DEFAULT_COUNT and S.PENETRATION_LIMIT < r.penetration < 0.2, (case, r)
+        assert not r.passed and r.iterations == S.OWN_CAP * EFFORTS['box2d3'].default and S.PENETRATION_LIMIT < r.penetration < 0.2, (case, r)
     removal = v3["warm-start energy"]
     assert not removal.passed and removal.penetration <= S.PENETRATION_LIMIT
     assert removal.energy_allowed < removal.energy_rise < 1.0

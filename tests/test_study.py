@@ -4,7 +4,7 @@ import sys
 import pytest
 
 from conftest import dc, one_line_error
-from deepcontact.simulate.engines import Box2D3
+from dcstudies.efforts import EFFORTS
 
 # (run and dataset: the session's small pile and its grids, tests/conftest.py)
 
@@ -153,7 +153,7 @@ def test_the_frontier_study_runs_the_part_asked_for(tmp_path):
     import csv
     from dcstudies import frontier as F
     picked = F.settings(families=("NNCG", "Box2D v3"), tolerances=(1e-3,))
-    assert [(s.family, s.label) for s in picked] == [("Box2D v3", f"{n} substeps") for n in Box2D3.SETTINGS["substeps"].sweep] + \
+    assert [(s.family, s.label) for s in picked] == [("Box2D v3", f"{n} substeps") for n in EFFORTS["box2d3"].sweep] + \
         [("NNCG", "residual 0.001")]
     out = tmp_path / "part"
     r = dc("study", "frontier", "--fast", "-q", "--scenes", "pyramid 5", "--families", "Box2D 2.4.1,PSOR 1.7",

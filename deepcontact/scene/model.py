@@ -80,6 +80,18 @@ class Body:
     shapes: list = field(default_factory=list)
     line: Optional[int] = None
 
+    def reach(self):
+        """The largest distance of any point of the body's shapes from its origin."""
+        reach = 0.0
+        for sh in self.shapes:
+            if sh.kind == "circle":
+                reach = max(reach, math.hypot(sh.x, sh.y) + sh.radius)
+            elif sh.kind == "polygon":
+                reach = max(reach, max(math.hypot(x, y) for x, y in sh.vertices))
+            else:
+                reach = max(reach, math.hypot(sh.x1, sh.y1), math.hypot(sh.x2, sh.y2))
+        return reach
+
 
 @dataclass
 class Effects:

@@ -13,7 +13,6 @@ to replace (--overwrite) as it was.
 """
 import hashlib
 import logging
-import math
 import os
 import re
 from collections import deque
@@ -43,19 +42,6 @@ RUN_FILES = output.Owned("run", [re.escape(MANIFEST), r"seed-\d{6,}/", r"seed-\d
                                  r"seed-\d{6,}/step-\d{6,}\.xml(\.gz)?"])
 
 
-def body_reach(body):
-    """The largest distance of any point of a body's shapes from its origin."""
-    reach = 0.0
-    for sh in body.shapes:
-        if sh.kind == "circle":
-            reach = max(reach, math.hypot(sh.x, sh.y) + sh.radius)
-        elif sh.kind == "polygon":
-            reach = max(reach, max(math.hypot(x, y) for x, y in sh.vertices))
-        else:
-            reach = max(reach, math.hypot(sh.x1, sh.y1), math.hypot(sh.x2, sh.y2))
-    return reach
-
-
 class Extent:
     """The box every body's shapes stayed in over a simulation (for a grid window): the static
     shapes exactly; the moving bodies' origins at every step, widened at the end by the largest
@@ -65,7 +51,7 @@ class Extent:
     def __init__(self, scene):
         box = scene.static_extent()
         self.static = np.array(box if box else (np.inf, np.inf, -np.inf, -np.inf))
-        self.reach = max((body_reach(b) for b in scene.bodies if b.type != "static"), default=0.0)
+        self.reach = max((b.reach() for b in scene.bodies if b.type != "static"), default=0.0)
         self.lo, self.hi = np.full(2, np.inf), np.full(2, -np.inf)
         self._count, self._moving = -1, None
 
@@ -121,7 +107,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     output.write_bytes(out_dir / "scene.xml", scene_xml)
     world = engine.build(scene)
     step = engine.stepper(world, scene)
-    loop = engine.solver
+    loop = engine.solve_settings()
     writer = step_writer(scene, seed, engine)
     extent = Extent(scene)
     per_file = []   # contact points of each file written (a skipped step has none)
@@ -273,7 +259,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
                              progress, source, engine, compress)
     log.info("wrote %s, %s to %s", count(len(manifest["simulations"]), "simulation"),
              count(sum(r["files"] for r in manifest["simulations"]), "step file"), os.fspath(out_dir))
-    _warn_short_of_tolerance(manifest, engine.solver)
+    _warn_short_of_tolerance(manifest, engine.solve_settings())
     return manifest
 
 

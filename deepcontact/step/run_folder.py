@@ -130,7 +130,7 @@ def require_regular(path):
 
 
 def write_manifest(run_dir, scene, engine, *, source, pgs, skip_contactless, simulations, compression="none",
-                   engine_settings=None):
+                   engine_settings=None, soft_step=None):
     """The run's manifest, written last (its presence means the run is complete); returns it.
     scene: the first simulation's scene; engine: what stepped it (a simulate.engines.Engine);
     simulations: one dict per simulation (seed, dir, steps, files, contact_points, scene_sha256,
@@ -154,7 +154,7 @@ def write_manifest(run_dir, scene, engine, *, source, pgs, skip_contactless, sim
         "poses_box2d_problem": engine.poses_box2d_problem,
         "velocity_iterations": scene.solver.velocity_iterations if own_iterations else None,
         "position_iterations": scene.solver.position_iterations if own_iterations else None,
-        **({} if engine.soft is None else {"soft_step": dict(engine.soft.__dict__)}),
+        **({} if soft_step is None else {"soft_step": soft_step}),
         "dt": float(fmt(scene.dt)),
         "skip_contactless": skip_contactless,
         "compression": compression,

@@ -34,22 +34,23 @@ from deepcontact.evaluate.closed_loop import reference_trajectory
 from deepcontact.simulate import stepping
 from deepcontact.solver.metrics import drift
 from deepcontact.solver.settings import CAP, SolveSettings
-from . import stability as S
+from . import efforts, stability as S
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 
 
 def engine_settings(fast=False, names=None):
-    """Each engine's own frontier (Engine.frontier: the built-ins', or those `names`) as Settings,
+    """Each engine's own frontier (efforts.frontier: the built-ins', or those `names`) as Settings,
     in the registry's order."""
     from deepcontact.simulate.engines import ENGINES
     out = []
     for name in ENGINES.builtin() if names is None else names:
         cls = ENGINES.load(name)
-        for family, label, given in cls.frontier(fast):
-            count = given.get(cls.COUNT, cls.DEFAULT_COUNT or 8)
-            rest = tuple(sorted((k, v) for k, v in given.items() if k != cls.COUNT))
+        effort = efforts.effort(cls)
+        for family, label, given in efforts.frontier(cls, fast):
+            count = given.get(effort.setting, effort.default or 8)
+            rest = tuple(sorted((k, v) for k, v in given.items() if k != effort.setting))
             out.append(Setting(family, label, name, count, engine_settings=rest))
     return out
 

@@ -31,6 +31,7 @@ from deepcontact.simulate.engines import ENGINES, Box2D
 from deepcontact.solver.methods import is_native
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.solver.metrics import deepest, energy, positions
+from .efforts import counted, effort
 
 PENETRATION_LIMIT = 3 * linear_slop
 TOP_DRIFT_LIMIT = 0.01
@@ -150,12 +151,12 @@ def stepper(scene, solver, start, iterations, relaxation=1.0, accelerate="none",
             engine_settings=None):
     """(world, step function) of one configuration: pgs (the project's solver, `iterations`
     sweeps at most, stopping at the residual `tolerance` if it is > 0), or an engine's name with its
-    effort at `iterations` (Engine.counted: Box2D 2.4.1's velocity iterations, v3's substeps,
+    effort at `iterations` (efforts.counted: Box2D 2.4.1's velocity iterations, v3's substeps,
     pymunk's and MuJoCo's iterations)."""
     scene.solver.velocity_iterations = iterations
     engine = (Box2D(solver=SolveSettings(mode="float64", max_iterations=iterations, tolerance=tolerance,
                                          relaxation=relaxation, accelerate=accelerate), start=start)
-              if solver == "pgs" else _engine_class(solver).counted(iterations, **(engine_settings or {})))
+              if solver == "pgs" else counted(_engine_class(solver), iterations, **(engine_settings or {})))
     world = engine.build(scene)
     if solver == "pgs" and not is_native(accelerate):
         # a plug-in method solves in a process of its own (deepcontact.contest), judged there as in dc evaluate
@@ -294,7 +295,7 @@ def study(cases, configs=CONFIGS, log=None, jobs=1):
 
 def _passing(task):
     case, (solver, start, relaxation, accelerate) = task
-    first = _engine_class(solver).DEFAULT_COUNT if solver != "pgs" else None
+    first = effort(_engine_class(solver)).default if solver != "pgs" else None
     if first is not None:   # (an engine of its own default effort: from there, doubled up to 16x it)
         return passing(case, solver, start, relaxation, first=first, cap=OWN_CAP * first)
     return passing(case, solver, start, relaxation, accelerate=accelerate)

@@ -23,14 +23,11 @@ from ...plugins import Registry
 @dataclass(frozen=True)
 class Setting:
     """One setting an engine takes (`dc simulate --set NAME=VALUE`): its kind (int, float or a
-    tuple of the words it takes), its range (inclusive; None: unbounded) and a line of help.
-    `sweep` lists the values the studies step it at (the engine's frontier)."""
+    tuple of the words it takes), its range (inclusive; None: unbounded) and a line of help."""
     kind: object
     low: float = None
     high: float = None   # (every built-in's is bounded: a value past what the engine can hold is one line, not its crash)
     help: str = ""
-    sweep: tuple = ()
-    fast: tuple = ()   # the few of `sweep` the fast studies (the test suite's) step it at
 
     def parse(self, name, text):
         """The value `text` (a string or a value) asks for; OptionError naming --set NAME."""
@@ -68,11 +65,7 @@ class Engine:
     continuous = False          # it does continuous collision (the scene's `continuous` effect)
     sleeps = False              # it puts resting bodies to sleep when the scene asks
     block_solve = False         # it has Box2D 2.4.1's block solver
-    solver = None               # the project's SolveSettings, where the project's solver steps it
-    soft = None                 # Box2D v3's SoftStep, for v3 only
     SETTINGS = {}               # name -> Setting
-    COUNT = "iterations"        # the setting the studies double until a scene passes (its effort)
-    DEFAULT_COUNT = None        # that setting's default (None: the scene's own 8 iterations)
     rests_in_skin = False       # resting contacts sit one linear slop into each other's skins (2.4.1's
                                 # rest, the generators' default); else skins touching (overlap 0)
 
@@ -94,18 +87,6 @@ class Engine:
         """The engine with `settings` (name -> value, or text as --set gives it)."""
         return cls(**cls.parsed(settings))
 
-    @classmethod
-    def frontier(cls, fast=False):
-        """[(family, label, settings)]: the settings the studies step this engine at, cheapest
-        first (its effort, COUNT, over its sweep)."""
-        count = cls.SETTINGS[cls.COUNT]
-        return [(cls.label, f"{n} {cls.COUNT}", {cls.COUNT: n}) for n in (count.fast if fast else count.sweep)]
-
-    @classmethod
-    def counted(cls, count, **settings):
-        """The engine with its effort (COUNT) at `count`: what the studies step."""
-        return cls.from_settings(**{**settings, cls.COUNT: count})
-
     def settings(self) -> dict:
         """The settings in effect, defaults included: what the manifest and `<engine>` record."""
         return dict(self._settings)
@@ -114,6 +95,10 @@ class Engine:
     def version(cls) -> str:
         """The engine library's version."""
         raise NotImplementedError
+
+    def solve_settings(self):
+        """The project's SolveSettings where the project's solver steps this engine, else None."""
+        return None
 
     @property
     def solver_name(self) -> str:
@@ -185,7 +170,7 @@ def engine_named(name: str, settings: dict | None = None) -> Engine:
 
 
 def __getattr__(name):   # (the Box2D engines by their old place: simulate.engines.Box2D)
-    if name in ("Box2D", "_solve_xml"):
+    if name in ("Box2D", "Box2DLoop", "_solve_xml"):
         from . import box2d
         return getattr(box2d, name)
     if name in ("Box2D3", "SoftStep", "soft_step_defaults", "FLOAT32_TINY"):

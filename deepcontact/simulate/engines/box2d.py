@@ -3,10 +3,11 @@ from collections.abc import Callable
 import functools
 import math
 
-from ...xmltext import quoteattr
+from ... import arguments
 from ...resources import check_step_work
 from ...scene.xml import fmt
-from ...solver.methods import takes_relaxation
+from ...solver.methods import GLOBAL, method_origin, takes_relaxation
+from ...xmltext import quoteattr
 from ...solver.settings import SolveSettings
 from .. import stepping
 from ..build import build_world
@@ -15,34 +16,26 @@ from . import Engine, Setting
 
 
 class Box2D(Engine):
-    """Box2D 2.4.1 (Debian's). Without `solver`, its own velocity solver at the scene's iterations
-    (or `velocity_iterations`); with `solver` (a SolveSettings), the project's solver in the loop
-    from `start` (builtin: Box2D's warm start; zero; garbage), with the settings and the method it
-    says (docs/solver.md, "The loop"). start_fn(bodies, contacts, problem, builtin_n, builtin_t)
-    -> (normal, tangent), if given, makes each step's first iterate instead (the closed loop's starts;
-    no step file records one)."""
+    """Box2D 2.4.1 (Debian's) with its own velocity solver at the scene's iterations (or
+    `velocity_iterations`). Given `solver` (a SolveSettings), the engine is a Box2DLoop instead:
+    the project's solver in Box2D's loop (docs/solver.md, "The loop")."""
+
+    def __new__(cls, solver: SolveSettings | None = None, start: str = "builtin",
+                velocity_iterations: int | None = None, start_fn: Callable | None = None):
+        return super().__new__(Box2DLoop if cls is Box2D and solver is not None else cls)
 
     def __init__(self, solver: SolveSettings | None = None, start: str = "builtin",
                  velocity_iterations: int | None = None, start_fn: Callable | None = None):
-        from ... import arguments
-        if solver is not None:
-            arguments.instance(solver, "solver", SolveSettings, "a SolveSettings (or None: Box2D's own solver)")
         arguments.text(start, "start")
         if velocity_iterations is not None:
             arguments.whole(velocity_iterations, "velocity_iterations")
         if start_fn is not None and not callable(start_fn):
             raise arguments.refuse("start_fn", "a callable", start_fn)
-        if solver is not None:
-            check_loop(solver, start, own_start=start_fn is not None)
-            if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
-                solver = solver.but(relaxation=None)
-        self.solver, self.start, self.start_fn = solver, start, start_fn
         self.velocity_iterations = velocity_iterations
 
     name, label, rows = "box2d", "Box2D 2.4.1", "box2d"
     poses_box2d_problem = continuous = sleeps = block_solve = rests_in_skin = True
-    SETTINGS = {"iterations": Setting(int, 1, 100_000, "velocity iterations per step (the scene's unless given)",
-                                      sweep=(1, 2, 4, 8, 16, 32, 64, 128, 256), fast=(1, 8, 64))}
+    SETTINGS = {"iterations": Setting(int, 1, 100_000, "velocity iterations per step (the scene's unless given)")}
 
     @classmethod
     def from_settings(cls, iterations=None):
@@ -59,11 +52,6 @@ class Box2D(Engine):
     def settings(self) -> dict:
         return {} if self.velocity_iterations is None else {"iterations": self.velocity_iterations}
 
-    @property
-    def solver_name(self) -> str:
-        """What its step files' `<solver name>` and the manifest's `solver` say: box2d or pgs."""
-        return "box2d" if self.solver is None else "pgs"
-
     def header_lines(self, scene) -> str:
         """2.4.1's iterations per step (<iterations>): its files' own header line."""
         s = scene.solver
@@ -71,15 +59,9 @@ class Box2D(Engine):
         return f'    <iterations velocity="{velocity}" position="{s.position_iterations}"/>\n'
 
     def check(self, scene, source=None):
-        """Refuses a scene this engine cannot step as asked (InputError naming `source`): a step
-        whose work would run for hours; with the project's solver, continuous collision or sleeping."""
-        bodies = len(scene.bodies)
-        if self.solver is not None:
-            check_scene_for_loop(scene, source)
-            check_step_work(bodies, self.solver.max_iterations, f"a cap of {self.solver.max_iterations:,} sweeps a step")
-            return
+        """Refuses a step whose work would run for hours (InputError naming `source`)."""
         velocity = scene.solver.velocity_iterations if self.velocity_iterations is None else self.velocity_iterations
-        check_step_work(bodies, velocity + scene.solver.position_iterations,
+        check_step_work(len(scene.bodies), velocity + scene.solver.position_iterations,
                         f"{velocity:,} velocity and {scene.solver.position_iterations:,} position iterations a step")
 
     def build(self, scene, source=None):
@@ -88,20 +70,57 @@ class Box2D(Engine):
 
     def stepper(self, world, scene, record=True):
         """A function stepping `world` once, returning a pgs_loop.LoopStep (stepping.steps runs it)."""
-        if self.solver is None:
-            return stepping.box2d(world, scene, self.velocity_iterations, record=record)
+        return stepping.box2d(world, scene, self.velocity_iterations, record=record)
+
+    def solve_line(self, solution, stats=None) -> str:
+        return ""
+
+    def manifest(self) -> dict:
+        return {"pgs": None, "engine_settings": self.settings()}
+
+    def __repr__(self):
+        return "Box2D()"
+
+
+class Box2DLoop(Box2D):
+    """Box2D 2.4.1 stepped with the project's solver (`solver`, a SolveSettings) from `start`
+    (builtin: Box2D's warm start; zero; garbage), with the settings and the method it says.
+    start_fn(bodies, contacts, problem, builtin_n, builtin_t) -> (normal, tangent), if given, makes
+    each step's first iterate instead (the closed loop's starts; no step file records one). Made
+    by Box2D(solver=...)."""
+
+    def __init__(self, solver: SolveSettings, start: str = "builtin", velocity_iterations: int | None = None,
+                 start_fn: Callable | None = None):
+        super().__init__(None, start, velocity_iterations, start_fn)
+        arguments.instance(solver, "solver", SolveSettings, "a SolveSettings (or None: Box2D's own solver)")
+        check_loop(solver, start, own_start=start_fn is not None)
+        if not takes_relaxation(solver.accelerate):   # (recorded as not taken, not as a w of 1)
+            solver = solver.but(relaxation=None)
+        self.solver, self.start, self.start_fn = solver, start, start_fn
+
+    @property
+    def solver_name(self) -> str:
+        """What its step files' `<solver name>` and the manifest's `solver` say."""
+        return "pgs"
+
+    def solve_settings(self):
+        return self.solver
+
+    def check(self, scene, source=None):
+        """Refuses a scene the loop cannot step (continuous collision, sleeping) and a step whose
+        work would run for hours (InputError naming `source`)."""
+        check_scene_for_loop(scene, source)
+        check_step_work(len(scene.bodies), self.solver.max_iterations, f"a cap of {self.solver.max_iterations:,} sweeps a step")
+
+    def stepper(self, world, scene, record=True):
         return PGSStepper(world, scene, self.solver, self.start, start_fn=self.start_fn, record=record).step
 
     def solve_line(self, solution, stats=None) -> str:
-        """The line a step file's header gets for how the step was solved (`<solve>`), or ""."""
-        return "" if self.solver is None else _solve_xml(self.solver, self.start, solution)
+        """The line a step file's header gets for how the step was solved (`<solve>`)."""
+        return _solve_xml(self.solver, self.start, solution)
 
     def manifest(self) -> dict:
-        """What the run's manifest records of the engine besides its name: the project's solver's
-        options and where its method comes from."""
-        from ...solver.methods import method_origin
-        if self.solver is None:
-            return {"pgs": None, "engine_settings": self.settings()}
+        """The project's solver's options and where its method comes from."""
         o = self.solver
         return {"pgs": dict(start=self.start, mode=o.mode, max_iterations=o.max_iterations, tolerance=o.tolerance,
                             stop_on=o.stop_on, relaxation=o.relaxation, accelerate=o.accelerate,
@@ -109,13 +128,12 @@ class Box2D(Engine):
                             **({} if o.guard else {"guard": False}))}   # (the guard is on unless said)
 
     def __repr__(self):
-        return f"Box2D(solver={self.solver!r}, start={self.start!r})" if self.solver is not None else "Box2D()"
+        return f"Box2D(solver={self.solver!r}, start={self.start!r})"
 
 
 def _solve_xml(options, start, solution):
     """A step header's `<solve>` line: the options the step was solved with, where its method comes
     from, and what the solve did (iterations, the residual, a global method's work)."""
-    from ...solver.methods import GLOBAL
     o = options
     w = 1.0 if o.relaxation == "auto" else o.relaxation   # (None: the method takes no w)
     if solution is None:
@@ -140,7 +158,6 @@ def _solve_xml(options, start, solution):
 @functools.lru_cache(maxsize=None)
 def _origin_xml(accelerate):
     """The <solve> attributes saying where the method comes from (method_origin), once per name."""
-    from ...solver.methods import method_origin
     o = method_origin(accelerate)
     keys = ("origin",) if o["origin"] == "built-in" else ("origin", "target", "distribution", "version")
     return "".join(f" {k}={quoteattr(str(o[k]))}" for k in keys if o.get(k) is not None)

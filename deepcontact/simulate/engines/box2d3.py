@@ -78,8 +78,7 @@ class Box2D3(Engine):
     defaults if None: SoftStep)."""
     name, label, rows = "box2d3", "Box2D v3", "box2d3"
     continuous = sleeps = True
-    COUNT, DEFAULT_COUNT = "substeps", 4   # (v3's own default, as its samples step)
-    SETTINGS = {"substeps": Setting(int, 1, 1000, "substeps per step", sweep=(1, 2, 4, 8, 16), fast=(1, 4)),
+    SETTINGS = {"substeps": Setting(int, 1, 1000, "substeps per step"),
                 "contact_hertz": Setting(float, 0, 1e6, "soft contact stiffness (Hz)"),
                 "damping_ratio": Setting(float, 0, 1000, "soft contact damping ratio"),
                 "push_speed": Setting(float, 0, 1e6, "the most speed (m/s) used to push overlaps apart")}
@@ -121,7 +120,7 @@ class Box2D3(Engine):
         return ""
 
     def manifest(self) -> dict:
-        return {"pgs": None}   # (the manifest's soft_step holds its settings)
+        return {"pgs": None, "soft_step": dict(self.soft.__dict__)}   # (its settings)
 
     def __repr__(self):
         return f"Box2D3({self.soft!r})"

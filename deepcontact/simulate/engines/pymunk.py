@@ -26,9 +26,7 @@ class Pymunk(Engine):
     """pymunk stepping the scene with `iterations` solver iterations (pymunk's default 10)."""
     name, label = "pymunk", "pymunk"
     sleeps = rests_in_skin = True   # (its collision slop is Box2D's linear slop: it rests as 2.4.1 does)
-    DEFAULT_COUNT = 10
-    SETTINGS = {"iterations": Setting(int, 1, 100_000, "solver iterations per step (pymunk's default 10)",
-                                      sweep=(1, 2, 4, 8, 10, 16, 32, 64, 128, 256), fast=(1, 10))}
+    SETTINGS = {"iterations": Setting(int, 1, 100_000, "solver iterations per step (pymunk's default 10)")}
 
     def __init__(self, iterations=10):
         super().__init__(iterations=iterations)
