@@ -17,7 +17,7 @@ from deepcontact.grid.spec import GridSpec
 from deepcontact.model import losses
 from deepcontact.model.inference import Predictor
 from deepcontact.model.networks import build, parameter_count
-from deepcontact.model.train import CHECKPOINT_FORMAT
+from deepcontact.model.checkpoint import CHECKPOINT_FORMAT
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 

@@ -37,7 +37,7 @@ def _written(folder):
     """{name: path} of the files the fenced training wrote that a training run owns (MODEL_FILES);
     InputError for anything else a run never writes there (a link, a device, another name)."""
     from deepcontact.errors import InputError
-    from deepcontact.model.train import MODEL_FILES
+    from deepcontact.model.checkpoint_file import MODEL_FILES
     from deepcontact import output
     found = {}
     for entry in os.listdir(folder) if os.path.isdir(folder) else ():
@@ -78,7 +78,7 @@ def run(ctx, model, out, overwrite, resume, device):
     from deepcontact import output, protocol
     from deepcontact.contest import job
     from deepcontact.errors import InputError
-    from deepcontact.model.train import MODEL_FILES
+    from deepcontact.model.checkpoint_file import MODEL_FILES
     from deepcontact.plugins import PluginError
     if os.environ.get("WORLD_SIZE") or os.environ.get("RANK"):
         raise InputError("a plug-in network trains in a sandbox of its own, where torchrun's processes cannot reach "

@@ -116,7 +116,8 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
       dc train data/thesis -o models/fcn --resume
       torchrun --nproc_per_node 2 -m deepcontact.cli.main train data/thesis -o models/ddp
     """
-    from deepcontact.model.train import TrainConfig, train as run
+    from deepcontact.model.config import TrainConfig
+    from deepcontact.model.train import train as run
 
     if overwrite and resume:
         raise click.UsageError("--resume and --overwrite contradict each other")

@@ -47,7 +47,7 @@ _PUBLIC = {
     "GridDataset": ("deepcontact.grid.dataset", "GridDataset"),
     "rasterize": ("deepcontact.grid.splat", "rasterize"),
     "train": ("deepcontact.model.train", "train"),
-    "TrainConfig": ("deepcontact.model.train", "TrainConfig"),
+    "TrainConfig": ("deepcontact.model.config", "TrainConfig"),
     "Predictor": ("deepcontact.model.inference", "Predictor"),
     "NETWORKS": ("deepcontact.model.arch", "NETWORKS"),
     "STARTS": ("deepcontact.warmstart.starts", "STARTS"),

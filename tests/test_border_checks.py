@@ -26,7 +26,7 @@ def test_soft_step_values_beyond_float32_are_option_errors(tmp_path, flag, value
 
 def test_the_library_refuses_what_the_cli_refuses():
     from deepcontact.grid.spec import GridSpec
-    from deepcontact.model.train import TrainConfig
+    from deepcontact.model.config import TrainConfig
     from deepcontact.simulate.engines import SoftStep
     for bad in (dict(contact_hertz=1e39), dict(damping_ratio=math.nan), dict(push_speed=-1.0), dict(substeps=0),
                 dict(substeps=True), dict(contact_hertz="30")):

@@ -324,7 +324,7 @@ def test_a_network_that_reads_values_on_the_meta_device_is_one_line_naming_it(da
 
 
 def test_a_checkpoint_records_where_its_network_comes_from(dataset, tmp_path, monkeypatch):
-    from deepcontact.model.train import load_checkpoint
+    from deepcontact.model.checkpoint import load_checkpoint
     write_module(tmp_path, monkeypatch, "guest_net_fine", NETWORK)
     try:
         r = dc("train", "--no-plots", dataset, "--arch", "guest_net_fine:Net", "--epochs", "1", "-q", "-o",

@@ -11,7 +11,9 @@ from deepcontact.grid.dataset import DatasetSettings, write_dataset
 from deepcontact.model import losses
 from deepcontact.model.inference import Predictor
 from deepcontact.model.networks import build, parameter_count
-from deepcontact.model.train import TrainConfig, load_checkpoint, thesis_lr, train
+from deepcontact.model.checkpoint import load_checkpoint
+from deepcontact.model.config import TrainConfig, thesis_lr
+from deepcontact.model.train import train
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 
@@ -128,7 +130,7 @@ def test_bad_checkpoints_and_mismatched_datasets(tiny, tmp_path):
     write_dataset([tiny.parent / "run"], other, DatasetSettings(cell=0.5, h=0.5))
     ck = load_checkpoint(good)
     from deepcontact.grid.dataset import GridDataset
-    from deepcontact.model.train import check_compatible
+    from deepcontact.model.checkpoint import check_compatible
     with pytest.raises(InputError, match="grid"):
         check_compatible(ck, GridDataset(other).metadata, good)
 

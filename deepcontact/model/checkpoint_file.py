@@ -1,8 +1,13 @@
-"""What a checkpoint file must be before torch reads it, checked without importing torch: a
-command refuses a wrong path in a fraction of a second instead of after torch's import."""
+"""What a training folder holds and what a checkpoint file must be before torch reads it, checked
+without importing torch: a command refuses a wrong path in a fraction of a second instead of after
+torch's import."""
 from pathlib import Path
 
+from .. import output
 from ..errors import InputError
+
+# Everything a training folder holds: what --overwrite may replace.
+MODEL_FILES = output.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
 
 
 def checkpoint_file(path) -> Path:

@@ -19,7 +19,7 @@ from ..grid.interpolate import bilinear
 from ..grid.spec import GridSpec
 from ..grid.splat import rasterize
 from .networks import build, check_network, require_named
-from .train import load_checkpoint
+from .checkpoint import load_checkpoint
 
 
 @dataclass

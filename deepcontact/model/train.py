@@ -6,226 +6,39 @@ the model config, weights, optimizer state, epoch, every RNG state, the history 
 dataset's metadata, so `resume` continues as if never stopped, and the same seed gives the same
 weights. With WORLD_SIZE set (torchrun), training is data-parallel over gloo; rank 0 alone writes.
 """
-import io
-import json
 import logging
 import math
 import os
-import pickle
 import random
 import time
 from collections.abc import Callable
-from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from contextlib import contextmanager, nullcontext
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..escape import CsvWriter
 from .. import __version__, output
-from .checkpoint_file import checkpoint_file
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..grid.dataset import GridDataset
 from ..grid.spec import GridSpec
 from ..plugins import guest
 from ..resources import check_memory
 from . import losses
 from .arch import NETWORKS
-from .choices import OPTIMIZERS
-from .networks import (CONFIG_LIMITS, build, check_config, check_network, parameter_count, shape_problem,
-                       training_memory)
+from .checkpoint import (CHECKPOINT_FORMAT, check_compatible, check_same_run, load_checkpoint, rng_state, save,
+                         set_rng_state)
+from .checkpoint_file import MODEL_FILES
+from .config import TrainConfig, network_config, thesis_lr
+from .networks import BUILTIN, build, check_config, check_network, parameter_count, training_memory
+from .plots import plot_losses, write_metrics
 
 log = logging.getLogger(__name__)
-CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
-# Everything a training folder holds: what --overwrite may replace.
-MODEL_FILES = output.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
-
-
-@dataclass
-class TrainConfig:
-    """Everything a training run is: the network (`model`, a registered name), targets, loss,
-    optimizer and its settings, batches, epochs and seed; saved in every checkpoint."""
-
-    model: str = "fcn"
-    targets: list = field(default_factory=lambda: ["normal_impulse", "tangent_impulse"])
-    loss: str = "masked"
-    optimizer: str = "sgd"
-    lr: float = 1e-3                 # Adam's rate; SGD follows the thesis schedule
-    momentum: float = 0.9
-    weight_decay: float = 5e-4       # L2 on the weights (the thesis's kernel regulariser)
-    batch_size: int = 200
-    epochs: int = 1000
-    patience: int = 0                # stop after this many epochs without improvement (0: never)
-    seed: int = 0
-    dropout: float = 0.1
-    final_relu: bool = True          # thesis model only: the thesis's last ReLU
-    fcn_width: int = 16
-    fcn_depth: int = 3
-    solver_sweeps: int = 0           # solver loss: relaxation sweeps before the residual
-
-    def __post_init__(self):
-        """The same limits as dc train's options (OptionError naming the flag): a library caller
-        cannot train a checkpoint that --resume would refuse."""
-        from ..errors import OptionError
-        for name, low, high, low_open in (("lr", 0.0, math.inf, True), ("momentum", 0.0, 1.0, False),
-                                          ("weight_decay", 0.0, math.inf, False), ("dropout", 0.0, 1.0, False)):
-            value = getattr(self, name)
-            ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                  and (value > low if low_open else value >= low) and value <= high and not (name == "dropout" and value == 1))
-            if not ok:
-                raise OptionError(f"{name.replace('_', ' ')} must be a finite number in "
-                                  f"{'(' if low_open else '['}{low:g}, {high:g}{')' if name == 'dropout' or high == math.inf else ']'}"
-                                  f", got {value!r}", "--" + name.replace("_", "-"))
-        for name, low in (("batch_size", 1), ("epochs", 1), ("patience", 0), ("seed", 0), ("fcn_width", 1),
-                          ("fcn_depth", 1), ("solver_sweeps", 0)):
-            value = getattr(self, name)
-            if type(value) is not int or not low <= value <= 2 ** 31 - 1:
-                raise OptionError(f"{name.replace('_', ' ')} must be a whole number from {low} to {2 ** 31 - 1}, "
-                                  f"got {value!r}", "--" + name.replace("_", "-"))
-
-
-def thesis_lr(epoch):
-    """The thesis's Algorithm 4. Its conditions overlap (epoch > 300 and 300 < epoch < 500); read
-    as intended: 5e-3 until epoch 100, 2e-3 until 300, 1e-3 until 500, 2e-4 after."""
-    if epoch < 100:
-        return 5e-3
-    if epoch < 300:
-        return 2e-3
-    if epoch < 500:
-        return 1e-3
-    return 2e-4
 
 
 class TrainingDiverged(InputError):
-    pass
-
-
-def _rng_state():
-    # numpy's state holds an ndarray, which weights_only loading refuses: store it as a tensor.
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    return {"torch": torch.get_rng_state(),
-            "numpy": {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-                      "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
-            "python": random.getstate()}
-
-
-def _set_rng_state(state):
-    torch.set_rng_state(state["torch"])
-    n = state["numpy"]
-    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
-                         n["cached_gaussian"]))
-    random.setstate(state["python"])
-
-
-def load_checkpoint(path):
-    """A checkpoint, loaded without running any code it might carry (weights_only)."""
-    import warnings
-    path = checkpoint_file(path)
-    try:
-        with warnings.catch_warnings():   # torch's own advice on weights_only is not for our users
-            warnings.simplefilter("ignore")
-            ck = torch.load(path, map_location="cpu", weights_only=True)
-    except (FileNotFoundError, IsADirectoryError):   # (gone or replaced since the check)
-        raise InputError("no such checkpoint", path) from None
-    except pickle.UnpicklingError:
-        raise InputError("refused: the checkpoint holds objects other than tensors and plain containers "
-                         "(loading it could run code)", path) from None
-    except Exception as e:  # torch raises many kinds for a damaged file
-        raise InputError(f"not a readable checkpoint (truncated or damaged?): {type(e).__name__}", path) from None
-    if not isinstance(ck, dict) or "model" not in ck:
-        raise InputError("not a deepcontact checkpoint", path)
-    if ck.get("format") != CHECKPOINT_FORMAT:
-        raise InputError(f"checkpoint format {ck.get('format')!r}; this version reads format {CHECKPOINT_FORMAT}",
-                         path)
-    keys = ("epoch", "network", "train_config", "targets", "dataset", "history", "best", "bad_epochs", "rng",
-            "optimizer")
-    missing = [k for k in keys if k not in ck]
-    if missing:
-        raise InputError(f"not a complete deepcontact checkpoint: no {', '.join(missing)}", path)
-    # Checked before anything is built from it: a tampered config could ask for terabytes.
-    problem = (check_config(ck["network"]) or shape_problem(ck["network"], ck["model"])
-               or checkpoint_problem(ck))
-    if problem:
-        raise InputError(f"refused: {problem}", path)
-    return ck
-
-
-def checkpoint_problem(ck):
-    """What is wrong with a checkpoint's bookkeeping (types and ranges), or None."""
-    def whole(v):
-        return type(v) is int and 0 <= v < 2 ** 31
-
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-    if not whole(ck["epoch"]) or not whole(ck["bad_epochs"]):
-        return "'epoch' and 'bad_epochs' must be whole numbers"
-    if not number(ck["best"]) or math.isnan(ck["best"]):
-        return "'best' must be a number"
-    h = ck["history"]
-    if not isinstance(h, list) or not all(isinstance(r, dict) and all(isinstance(k, str) and number(v)
-                                                                      for k, v in r.items()) for r in h):
-        return "'history' must be a list of rows of named numbers"
-    if any(not whole(r.get("epoch")) for r in h):
-        return "every 'history' row needs a whole-number epoch"
-    d = ck["dataset"]
-    if not isinstance(d, dict):
-        return "'dataset' must be a dictionary"
-    try:
-        GridSpec.from_dict(d.get("grid"))
-    except ValueError as e:
-        return str(e)
-    for key in ("inputs", "labels"):
-        if not isinstance(d.get(key), list) or not d[key] or not all(isinstance(c, str) for c in d[key]):
-            return f"the dataset's {key!r} must be a list of channel names"
-    t = ck["targets"]
-    if not isinstance(t, list) or not t or not all(isinstance(c, str) and c in d["labels"] for c in t):
-        return "'targets' must name label channels of its dataset"
-    cfg = ck["train_config"]
-    if not isinstance(cfg, dict):
-        return "'train_config' must be a dictionary"
-    problem = config_problem(cfg)
-    return f"train_config: {problem}" if problem else None
-
-
-# The training options' ranges, as the CLI takes them: (low, high), inclusive; None: open.
-_RANGES = {"batch_size": (1, 2 ** 31 - 1), "epochs": (1, 2 ** 31 - 1), "patience": (0, 2 ** 31 - 1),
-           "seed": (0, 2 ** 31 - 1), "solver_sweeps": (0, 2 ** 31 - 1), "lr": (0, None), "weight_decay": (0, None),
-           "momentum": (0, 1), "dropout": (0, 1),
-           **{k: CONFIG_LIMITS[k] for k in ("fcn_width", "fcn_depth")}}   # (the network's own limits)
-_CHOICES = {"optimizer": OPTIMIZERS}
-
-
-def config_problem(cfg):
-    """What is wrong with a training config read from a file (types, ranges, choices), or None."""
-    defaults = asdict(TrainConfig())
-    for k, v in cfg.items():
-        if k not in defaults:
-            return f"unknown setting {k!r}"
-        want = type(defaults[k])
-        if want is float:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                return f"{k!r} must be a finite number, not {v!r}"
-        elif type(v) is not want:
-            return f"{k!r} must be {want.__name__}, not {v!r}"
-        lo, hi = _RANGES.get(k, (None, None))
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            return f"{k!r} must be from {lo} to {hi if hi is not None else 'any'}, not {v!r}"
-        if k in _CHOICES and v not in _CHOICES[k]:
-            return f"{k!r} must be one of {', '.join(_CHOICES[k])}, not {v!r}"
-        if k == "model" and not NETWORKS.is_name(v):
-            return f"'model' must name a network (thesis, fcn, or a plug-in), not {v!r}"
-        if k == "targets" and (not v or not all(isinstance(t, str) for t in v)):
-            return "'targets' must be a list of label channel names"
-        if k == "loss" and v not in losses.LOSSES:
-            return f"'loss' must be one of {', '.join(losses.LOSSES)}, not {v!r}"
-    return None
-
-
-def _save(path, obj):
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    output.write_bytes(path, buf.getvalue())
+    """The loss became NaN or infinite: the run stops, its last good checkpoint kept."""
 
 
 def _distributed():
@@ -234,45 +47,6 @@ def _distributed():
         torch.distributed.init_process_group("gloo")
     rank = torch.distributed.get_rank() if world > 1 else 0
     return world, rank
-
-
-def network_config(cfg: TrainConfig, meta, targets):
-    spec = meta["grid"]
-    return dict(model=cfg.model, in_channels=len(meta["inputs"]), out_channels=len(targets),
-                height=spec["ny"], width=spec["nx"], dropout=cfg.dropout, final_relu=cfg.final_relu,
-                fcn_width=cfg.fcn_width, fcn_depth=cfg.fcn_depth)
-
-
-def check_compatible(ck, meta, path):
-    """A checkpoint fits a dataset if the grid and input channels match exactly."""
-    want = ck["dataset"]
-    if want["grid"] != meta["grid"]:
-        raise InputError(f"checkpoint grid {want['grid']} does not match the dataset's {meta['grid']}", path)
-    if want["inputs"] != meta["inputs"]:
-        raise InputError(f"checkpoint inputs {want['inputs']} do not match the dataset's {meta['inputs']}", path)
-    missing = [t for t in ck["targets"] if t not in meta["labels"]]
-    if missing:
-        raise InputError(f"the dataset has no label channel {', '.join(missing)}", path)
-
-
-def check_same_run(ck, meta, path, given, threads, dataset):
-    """--resume continues the run in the checkpoint: on its own dataset, with its own settings."""
-    from ..errors import OptionError
-    for key in ("samples", "sources", "split", "labels"):
-        if ck["dataset"].get(key) != meta.get(key):
-            raise InputError(f"the run in {path} was trained on another dataset (its {key} differ from "
-                             f"{dataset}'s): --resume continues a run on its own dataset", dataset)
-    if given is not None:
-        own = ck["train_config"]
-        for name, value in dict(given).items():
-            if name in own and own[name] != value:
-                option = "--" + {"fcn_width": "width", "fcn_depth": "depth", "final_relu": "no-final-relu",
-                                 "model": "arch"}.get(name, name).replace("_", "-")
-                raise OptionError(f"--resume continues the run with its own settings: it has {name} = {own[name]!r}, "
-                                  f"not {value!r} (leave the option out, or train a new run)", option)
-    if "threads" in ck and ck["threads"] != (threads or 1):
-        raise OptionError(f"the run was trained with --threads {ck['threads']}, and the count changes the arithmetic: "
-                          f"resume with --threads {ck['threads']}", "--threads")
 
 
 def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConfig | None = None, resume: bool = False,
@@ -294,7 +68,41 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
     more processes (torchrun) are the way to train on more cores. plots: draw loss.png/svg at the
     end (False: none; refused when resuming a run that has one, which would no longer match its
     metrics)."""
-    from ..errors import OptionError
+    device = _device(threads, device)
+    world, rank = _distributed()
+    ds = GridDataset(dataset)
+    out_dir = Path(out_dir)
+    last = out_dir / "last.pt"
+    ck = _resumed(last, ds.metadata, given, threads, dataset, plots) if resume else None
+    cfg = TrainConfig(**ck["train_config"]) if ck is not None else (cfg or TrainConfig())
+    if epochs is not None:
+        cfg.epochs = epochs
+    net_cfg = _check_run(cfg, ds, dataset, max_memory)
+    # Replacing an earlier run builds the new one beside it; otherwise training writes in place,
+    # so that an interrupted run can be resumed from its last.pt.
+    replace = overwrite and out_dir.is_dir() and any(out_dir.iterdir())
+
+    def kept():
+        """What a failed run leaves, said as it is."""
+        if replace:
+            return "the earlier run is left as it was"
+        return f"the last good checkpoint is kept ({last})" if last.exists() else "no checkpoint was written"
+    with _output_folder(out_dir, overwrite, replace, resume, rank) as work:
+        trainer = Trainer(ds, cfg, net_cfg, device, world=world, rank=rank, kept=kept)
+        if ck is not None:
+            trainer.resume_from(ck)
+        if rank == 0:
+            trainer.say_what_it_trains(fresh=ck is None)
+        trainer.heartbeat = heartbeat if rank == 0 else None
+        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir, plots=plots)
+        if world > 1:
+            torch.distributed.barrier()   # no rank leaves while rank 0 still writes
+            torch.distributed.destroy_process_group()
+        return history
+
+
+def _device(threads, device):
+    """The torch device, checked, with torch's threads set (one: see train)."""
     if threads not in (None, 0, 1):
         raise OptionError(f"training runs on one thread (the count changes the arithmetic, so weights would not "
                           f"repeat exactly); got {threads} (use torchrun for more cores)", "--threads")
@@ -305,26 +113,28 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
         torch.empty(0, device=device)
     except (RuntimeError, AssertionError) as e:
         raise InputError(f"device {device} is not available here: {e}") from None
-    world, rank = _distributed()
-    ds = GridDataset(dataset)
+    return device
+
+
+def _resumed(last, meta, given, threads, dataset, plots):
+    """The checkpoint --resume continues from, checked against the dataset and the options."""
+    ck = load_checkpoint(last)
+    try:
+        TrainConfig(**ck["train_config"])
+    except TypeError as e:
+        raise InputError(f"refused: the training config does not fit this version ({e})", last) from None
+    check_compatible(ck, meta, last)
+    check_same_run(ck, meta, last, given, threads, dataset)
+    if not plots and any((last.parent / f"loss.{ext}").exists() for ext in ("png", "svg")):
+        raise OptionError("the run has a loss plot from before, which its new epochs would leave behind: "
+                          "resume without --no-plots to redraw it", "--no-plots")
+    return ck
+
+
+def _check_run(cfg, ds, dataset, max_memory):
+    """What a run asks for, checked against its dataset and the memory it may take, before the
+    output folder is touched; the network's config."""
     meta = ds.metadata
-    out_dir = Path(out_dir)
-    last = out_dir / "last.pt"
-    ck = None
-    if resume:
-        ck = load_checkpoint(last)
-        try:
-            cfg = TrainConfig(**ck["train_config"])
-        except TypeError as e:
-            raise InputError(f"refused: the training config does not fit this version ({e})", last) from None
-        check_compatible(ck, meta, last)
-        check_same_run(ck, meta, last, given, threads, dataset)
-        if not plots and any((out_dir / f"loss.{ext}").exists() for ext in ("png", "svg")):
-            raise OptionError("the run has a loss plot from before, which its new epochs would leave behind: "
-                              "resume without --no-plots to redraw it", "--no-plots")
-    cfg = cfg or TrainConfig()
-    if epochs is not None:
-        cfg.epochs = epochs
     if cfg.loss not in losses.LOSSES:
         raise InputError(f"unknown loss {cfg.loss!r}; choose from {', '.join(losses.LOSSES)}")
     missing = [t for t in cfg.targets if t not in meta["labels"]]
@@ -347,32 +157,7 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
         need += losses.SolverLoss.memory(ds, cfg.batch_size, cfg.solver_sweeps)
     check_memory(need, max_memory, f"training the {cfg.model} network with batches of {cfg.batch_size}"
                  + (f" and the solver loss ({cfg.solver_sweeps} sweeps)" if cfg.loss == "solver" else ""))
-    # Replacing an earlier run builds the new one beside it; otherwise training writes in place,
-    # so that an interrupted run can be resumed from its last.pt.
-    replace = overwrite and out_dir.is_dir() and any(out_dir.iterdir())
-
-    def kept():
-        """What a failed run leaves, said as it is."""
-        if replace:
-            return "the earlier run is left as it was"
-        return f"the last good checkpoint is kept ({last})" if last.exists() else "no checkpoint was written"
-    with _output_folder(out_dir, overwrite, replace, resume, rank) as work:
-        trainer = Trainer(ds, cfg, net_cfg, device, world=world, rank=rank, kept=kept)
-        if ck is not None:
-            trainer.resume_from(ck)
-        if rank == 0 and not len(trainer.val_idx):
-            log.warning("the dataset has no validation samples: best.pt is the epoch of the lowest training loss, "
-                        "and nothing says whether the network generalises (dc rasterize --validation F)")
-        if ck is None and rank == 0:
-            params, _ = parameter_count(trainer.model)
-            log.info("%s model: %s parameters; %d training and %d validation samples", cfg.model, f"{params:,}",
-                     len(trainer.train_idx), len(trainer.val_idx))
-        trainer.heartbeat = heartbeat if rank == 0 else None
-        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir, plots=plots)
-        if world > 1:
-            torch.distributed.barrier()   # no rank leaves while rank 0 still writes
-            torch.distributed.destroy_process_group()
-        return history
+    return net_cfg
 
 
 def _optimizer(cfg, model):
@@ -435,10 +220,22 @@ class Trainer:
         self.net = torch.nn.parallel.DistributedDataParallel(self.model) if world > 1 else self.model
         self.history, self.best, self.bad_epochs, self.start = [], math.inf, 0, 0
 
+    def say_what_it_trains(self, fresh):
+        """The log lines a run starts with: an empty validation split warned of, and (fresh) the
+        network's size and the samples."""
+        if not len(self.val_idx):
+            log.warning("the dataset has no validation samples: best.pt is the epoch of the lowest training loss, "
+                        "and nothing says whether the network generalises (dc rasterize --validation F)")
+        if fresh:
+            params, _ = parameter_count(self.model)
+            log.info("%s model: %s parameters; %d training and %d validation samples", self.cfg.model, f"{params:,}",
+                     len(self.train_idx), len(self.val_idx))
+
     def resume_from(self, ck):
+        """Every state the checkpoint ck holds, restored."""
         self.model.load_state_dict(ck["model"])
         self.opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
-        _set_rng_state(ck["rng"])
+        set_rng_state(ck["rng"])
         self.history, self.best, self.bad_epochs, self.start = ck["history"], ck["best"], ck["bad_epochs"], \
             ck["epoch"] + 1
 
@@ -554,7 +351,7 @@ class Trainer:
         return {
             "format": CHECKPOINT_FORMAT, "epoch": epoch,
             "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
-            "optimizer": self.opt.state_dict(), "rng": _rng_state(), "history": self.history, "best": self.best,
+            "optimizer": self.opt.state_dict(), "rng": rng_state(), "history": self.history, "best": self.best,
             "bad_epochs": self.bad_epochs, "network": self.net_cfg, "train_config": asdict(self.cfg),
             "targets": self.cfg.targets,
             "dataset": {k: meta[k] for k in ("grid", "inputs", "labels", "samples", "sources", "split")},
@@ -572,8 +369,6 @@ class Trainer:
         cfg = self.cfg
         # a plug-in network's code runs in every batch (forward and backward): what leaves it is
         # one line naming it (plugins.guest)
-        from contextlib import nullcontext
-        from .networks import BUILTIN
         guarded = (lambda: nullcontext()) if cfg.model in BUILTIN else (lambda: guest(f"the network {cfg.model!r}"))
         for epoch in range(self.start, cfg.epochs):
             try:
@@ -591,9 +386,9 @@ class Trainer:
             else:
                 self.bad_epochs += 1
             if self.rank == 0:
-                _save(work / "last.pt", self.checkpoint(epoch, dataset_path))
+                save(work / "last.pt", self.checkpoint(epoch, dataset_path))
                 if improved:
-                    _save(work / "best.pt", self.checkpoint(epoch, dataset_path))
+                    save(work / "best.pt", self.checkpoint(epoch, dataset_path))
                 write_metrics(work, self.history)
                 if progress is not None:
                     progress({**row, "epochs": cfg.epochs})
@@ -619,57 +414,3 @@ def _output_folder(out_dir, overwrite, replace, resume, rank):
         yield work
 
 
-def write_metrics(out_dir, history):
-    keys = sorted({k for row in history for k in row}, key=lambda k: (k != "epoch", k))
-    buf = io.StringIO()
-    w = CsvWriter(buf)
-    w.writerow(keys)
-    w.writerows([row.get(k, "") for k in keys] for row in history)
-    output.write_text(out_dir / "metrics.csv", buf.getvalue())
-    output.write_text(out_dir / "metrics.json", json.dumps(history, indent=1) + "\n")
-
-
-def plot_losses(history, stem):
-    """loss.png: the training and validation loss per epoch; beside it, where validation ran, the
-    RMSE at the contact points per target against predicting 0 and the grid's floor."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator
-
-    from ..plotstyle import readable_log_ticks
-    rmse = [k[len("val_contact_rmse_"):] for k in history[0] if k.startswith("val_contact_rmse_")]
-    fig, axes = plt.subplots(1, 2 if rmse else 1, figsize=(11 if rmse else 6, 4), squeeze=False)
-    ax = axes[0][0]
-    epochs = [r["epoch"] for r in history]
-    ax.plot(epochs, [r["train_loss"] for r in history], label="training", marker="o", ms=3)
-    if "val_loss" in history[0]:
-        ax.plot(epochs, [r["val_loss"] for r in history], label="validation", marker="s", ms=3, ls="--")
-    if any(r["train_loss"] > 0 for r in history):   # (a log axis needs a positive value)
-        ax.set_yscale("log")
-        readable_log_ticks(ax.yaxis)
-    ax.set_ylabel("loss")
-    ax.set_title("Loss")
-    if rmse:
-        ax = axes[0][1]
-        for i, target in enumerate(rmse):
-            colour = f"C{i + 2}"
-            ax.plot(epochs, [r[f"val_contact_rmse_{target}"] for r in history], color=colour, marker="o", ms=3,
-                    label=f"{target}: the network")
-            for key, ls, what in (("zero", "--", "predicting 0"), ("floor", ":", "the grid's floor")):
-                value = history[-1].get(f"val_{key}_rmse_{target}")
-                if value is not None:
-                    ax.axhline(value, color=colour, ls=ls, lw=1, label=f"{target}: {what}")
-        ax.set_ylabel("validation RMSE at the contacts (N·s)")
-        ax.set_title("Against predicting 0")
-    for ax in axes[0]:
-        ax.set_xlabel("epoch")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # (epochs are whole)
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    # through bytes and an atomic write: training writes in place, and an interrupted run must
-    # not leave half a picture
-    output.write_bytes(f"{stem}.png", output.figure_bytes(fig, "png", dpi=110))
-    output.write_bytes(f"{stem}.svg", output.figure_bytes(fig, "svg"))
-    plt.close(fig)

@@ -1,0 +1,145 @@
+"""Checkpoints: what last.pt and best.pt hold, loaded without running code, checked before
+anything is built from them, and matched against the dataset a run trains on."""
+import io
+import math
+import pickle
+import random
+import warnings
+
+import numpy as np
+import torch
+
+from .. import output
+from ..errors import InputError, OptionError
+from ..grid.spec import GridSpec
+from .checkpoint_file import checkpoint_file
+from .config import config_problem
+from .networks import check_config, shape_problem
+
+CHECKPOINT_FORMAT = 2   # 2: plain containers and tensors only, loadable with weights_only=True
+
+
+def rng_state():
+    """Every RNG's state (torch, numpy, Python) as plain containers and tensors."""
+    # numpy's state holds an ndarray, which weights_only loading refuses: store it as a tensor.
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return {"torch": torch.get_rng_state(),
+            "numpy": {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                      "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+            "python": random.getstate()}
+
+
+def set_rng_state(state):
+    """Restores rng_state's states."""
+    torch.set_rng_state(state["torch"])
+    n = state["numpy"]
+    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached_gaussian"]))
+    random.setstate(state["python"])
+
+
+def load_checkpoint(path):
+    """A checkpoint, loaded without running any code it might carry (weights_only)."""
+    path = checkpoint_file(path)
+    try:
+        with warnings.catch_warnings():   # torch's own advice on weights_only is not for our users
+            warnings.simplefilter("ignore")
+            ck = torch.load(path, map_location="cpu", weights_only=True)
+    except (FileNotFoundError, IsADirectoryError):   # (gone or replaced since the check)
+        raise InputError("no such checkpoint", path) from None
+    except pickle.UnpicklingError:
+        raise InputError("refused: the checkpoint holds objects other than tensors and plain containers "
+                         "(loading it could run code)", path) from None
+    except Exception as e:  # torch raises many kinds for a damaged file
+        raise InputError(f"not a readable checkpoint (truncated or damaged?): {type(e).__name__}", path) from None
+    if not isinstance(ck, dict) or "model" not in ck:
+        raise InputError("not a deepcontact checkpoint", path)
+    if ck.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"checkpoint format {ck.get('format')!r}; this version reads format {CHECKPOINT_FORMAT}",
+                         path)
+    keys = ("epoch", "network", "train_config", "targets", "dataset", "history", "best", "bad_epochs", "rng",
+            "optimizer")
+    missing = [k for k in keys if k not in ck]
+    if missing:
+        raise InputError(f"not a complete deepcontact checkpoint: no {', '.join(missing)}", path)
+    # Checked before anything is built from it: a tampered config could ask for terabytes.
+    problem = (check_config(ck["network"]) or shape_problem(ck["network"], ck["model"])
+               or checkpoint_problem(ck))
+    if problem:
+        raise InputError(f"refused: {problem}", path)
+    return ck
+
+
+def checkpoint_problem(ck):
+    """What is wrong with a checkpoint's bookkeeping (types and ranges), or None."""
+    def whole(v):
+        return type(v) is int and 0 <= v < 2 ** 31
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+    if not whole(ck["epoch"]) or not whole(ck["bad_epochs"]):
+        return "'epoch' and 'bad_epochs' must be whole numbers"
+    if not number(ck["best"]) or math.isnan(ck["best"]):
+        return "'best' must be a number"
+    h = ck["history"]
+    if not isinstance(h, list) or not all(isinstance(r, dict) and all(isinstance(k, str) and number(v)
+                                                                      for k, v in r.items()) for r in h):
+        return "'history' must be a list of rows of named numbers"
+    if any(not whole(r.get("epoch")) for r in h):
+        return "every 'history' row needs a whole-number epoch"
+    d = ck["dataset"]
+    if not isinstance(d, dict):
+        return "'dataset' must be a dictionary"
+    try:
+        GridSpec.from_dict(d.get("grid"))
+    except ValueError as e:
+        return str(e)
+    for key in ("inputs", "labels"):
+        if not isinstance(d.get(key), list) or not d[key] or not all(isinstance(c, str) for c in d[key]):
+            return f"the dataset's {key!r} must be a list of channel names"
+    t = ck["targets"]
+    if not isinstance(t, list) or not t or not all(isinstance(c, str) and c in d["labels"] for c in t):
+        return "'targets' must name label channels of its dataset"
+    cfg = ck["train_config"]
+    if not isinstance(cfg, dict):
+        return "'train_config' must be a dictionary"
+    problem = config_problem(cfg)
+    return f"train_config: {problem}" if problem else None
+
+
+def save(path, obj):
+    """obj written with torch.save to path, atomically."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    output.write_bytes(path, buf.getvalue())
+
+
+def check_compatible(ck, meta, path):
+    """A checkpoint fits a dataset if the grid and input channels match exactly."""
+    want = ck["dataset"]
+    if want["grid"] != meta["grid"]:
+        raise InputError(f"checkpoint grid {want['grid']} does not match the dataset's {meta['grid']}", path)
+    if want["inputs"] != meta["inputs"]:
+        raise InputError(f"checkpoint inputs {want['inputs']} do not match the dataset's {meta['inputs']}", path)
+    missing = [t for t in ck["targets"] if t not in meta["labels"]]
+    if missing:
+        raise InputError(f"the dataset has no label channel {', '.join(missing)}", path)
+
+
+def check_same_run(ck, meta, path, given, threads, dataset):
+    """--resume continues the run in the checkpoint: on its own dataset, with its own settings."""
+    for key in ("samples", "sources", "split", "labels"):
+        if ck["dataset"].get(key) != meta.get(key):
+            raise InputError(f"the run in {path} was trained on another dataset (its {key} differ from "
+                             f"{dataset}'s): --resume continues a run on its own dataset", dataset)
+    if given is not None:
+        own = ck["train_config"]
+        for name, value in dict(given).items():
+            if name in own and own[name] != value:
+                option = "--" + {"fcn_width": "width", "fcn_depth": "depth", "final_relu": "no-final-relu",
+                                 "model": "arch"}.get(name, name).replace("_", "-")
+                raise OptionError(f"--resume continues the run with its own settings: it has {name} = {own[name]!r}, "
+                                  f"not {value!r} (leave the option out, or train a new run)", option)
+    if "threads" in ck and ck["threads"] != (threads or 1):
+        raise OptionError(f"the run was trained with --threads {ck['threads']}, and the count changes the arithmetic: "
+                          f"resume with --threads {ck['threads']}", "--threads")
