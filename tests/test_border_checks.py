@@ -144,7 +144,7 @@ def test_closed_standard_streams(run, tmp_path):
 def test_a_long_history_draws_a_thin_curve(run, tmp_path):
     """The convergence plot draws at most PLOT_POINTS sweeps a curve, whatever the cap: a cap of
     ten million held a steps x sweeps matrix and wrote a 15 MB SVG before."""
-    from deepcontact.evaluate.report import PLOT_POINTS, plotted_sweeps
+    from deepcontact.evaluate.plots import PLOT_POINTS, plotted_sweeps
     assert list(plotted_sweeps(5)) == [0, 1, 2, 3, 4]
     x = plotted_sweeps(10 ** 7)
     assert len(x) <= PLOT_POINTS and x[0] == 0 and x[-1] == 10 ** 7 - 1 and np.all(np.diff(x) > 0)

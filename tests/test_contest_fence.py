@@ -275,7 +275,7 @@ def test_an_honest_start_is_not_taken_for_a_memo(run, tmp_path, hostile):
 def test_a_heavy_tail_is_never_called_the_fastest():
     """The median's fastest that loses the whole run: no clear winner, and not "the fastest"."""
     from deepcontact.contest.verdict import decide
-    from deepcontact.evaluate.report import verdict
+    from deepcontact.evaluate.verdicts import verdict
     steps = range(40)
     times = {"builtin": {k: 1.0 + 0.01 * (k % 3) for k in steps},
              "tailed": {k: (0.5 if k % 10 else 40.0) for k in steps}}   # half the time, but 40 ms on a step in ten

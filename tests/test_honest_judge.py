@@ -113,7 +113,7 @@ def test_a_start_twice_as_fast_is_a_clear_winner_and_the_report_says_how_sure():
     import numpy as np
     from deepcontact.evaluate.noise import judge
     from deepcontact.evaluate.replay import summarize
-    from deepcontact.evaluate.report import verdict
+    from deepcontact.evaluate.verdicts import verdict
     steps = np.random.default_rng(2).uniform(0.05, 0.2, 40)
     rows = rows_of({"builtin": steps, "fast": steps / 2, "zero": steps * 1.5})
     summary = summarize(rows, None, 1000)
@@ -410,7 +410,7 @@ def test_a_start_that_wins_the_median_but_loses_the_total_is_no_clear_winner():
     noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
     assert noise["best"] == "spiky" and noise["vs_base"]["spiky"][2] < 1
     assert noise["beaten_on_total_by"] == ["builtin"] and not noise["clear"]
-    from deepcontact.evaluate.report import verdict
+    from deepcontact.evaluate.verdicts import verdict
     line = verdict(summarize(rows, None, 1000), noise)
     assert line.startswith("**Verdict**: no clear winner") and "it took longer than builtin" in line
     assert "fastest" not in line and "heavy tail" in line   # (the median's fastest lost the run: not "the fastest")

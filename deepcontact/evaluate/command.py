@@ -121,7 +121,8 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
 
 def _replay(s, out, table, measured, progress):
     from .replay import evaluate, summarize
-    from .report import noise_of, summary_table, write_report
+    from .report import summary_table, write_report
+    from .verdicts import noise_of
     total = sum(len(sim.files) for r in s.read_runs() for sim in r.simulations)
     rows = evaluate(s.read_runs(), table, settings=s.solve, every=s.every, seed=s.seed, progress=progress(total, "step"),
                     relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
@@ -141,9 +142,9 @@ def _record_origins(summary, table):
     its target, distribution and version): in summary.json and the report."""
     from ..solver.methods import method_origin
     from ..warmstart.starts import STARTS
-    from .report import _base
+    from .verdicts import base_start
     for name, s in summary.items():
-        s["start_origin"] = STARTS.origin(_base(name))
+        s["start_origin"] = STARTS.origin(base_start(name))
         s["method_origin"] = method_origin(s["accelerate"])
 
 
@@ -152,7 +153,7 @@ def _closed_loop(s, out, table, measured, progress):
     from ..errors import InputError
     from ..scene.xml import read_scene
     from .closed_loop import every_simulation, pooled, steps_stepped
-    from .report import write_loop_report
+    from .loop_report import write_loop_report
 
     sims = [(r.path, sim) for r in s.read_runs() for sim in r.simulations]
     scenes = [read_scene(sim.scene_file()) for _, sim in sims]

@@ -15,7 +15,8 @@ from deepcontact.grid.spec import GridSpec
 from deepcontact.protocol import protocol, protocol_line
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.evaluate.replay import evaluate, summarize
-from deepcontact.evaluate.report import convergence_plot, summary_table
+from deepcontact.evaluate.plots import convergence_plot
+from deepcontact.evaluate.report import summary_table
 from deepcontact.warmstart.starts import SPH, make_starts
 
 FIGURES = {

@@ -1,0 +1,208 @@
+"""The verdict lines of a report, replay's and the closed loop's, by the contest's one rule
+(contest/verdict.py): which variant is named the fastest, and why none is where none is."""
+import numpy as np
+
+from ..contest import missing_fences
+from ..contest.verdict import MIN_STEPS, decide
+from ..errors import count
+from ..escape import md_text
+from ..warmstart.starts import is_oracle
+from .noise import judge, ranked
+
+
+def as_share(x):
+    """A share as a percentage, where any at all shows ("<1%", never a "0%" that hides a step)."""
+    return "<1%" if 0 < x < 0.005 else f"{100 * x:.0f}%"
+
+
+def base_start(label):
+    """The start a variant label names: 'prev@1.7+nncg' -> 'prev'."""
+    return label.split("@")[0].split("+")[0]
+
+
+def baseline(summary):
+    """The label of Box2D's own warm start with plain PGS (w = 1), the yardstick, or None."""
+    for name, s in summary.items():
+        if base_start(name) == "builtin" and s.get("relaxation") in (1, 1.0) and s.get("accelerate", "none") == "none":
+            return name
+    return None
+
+
+def oracle(label):
+    """Whether a variant label names a start that knows the answer."""
+    return is_oracle(base_start(label))
+
+
+def interval(triple):
+    """A ratio and its interval: 0.95x [0.90, 1.01]."""
+    ratio, lo, hi = triple
+    return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]"
+
+
+def _fence_caveat():
+    """What a verdict adds where this machine refused a contestant's fence (none: nothing)."""
+    missing = missing_fences()
+    return (f" Contestants' fences missing on this machine ({', '.join(missing)}): a contestant could reach "
+            f"beyond its sandbox, so this verdict holds only for honest contestants." if missing else "")
+
+
+def verdict(summary, noise=None):
+    """The replay's verdict line (_verdict), with the fences this machine refused, if any."""
+    line = _verdict(summary, noise)
+    return None if line is None else line + _fence_caveat()
+
+
+def _verdict(summary, noise=None):
+    """One line: the start with the smallest median time per step to the tolerance (prediction
+    included), with its ratio to Box2D's warm start. Left out: oracles, which know the answer, and
+    every variant that ended a step above the tolerance by our residual (it did not converge,
+    whatever it said)."""
+    candidates = [n for n in summary if not oracle(n)]
+    if not candidates:
+        return None
+    left_out = _unfinished_note({n: summary[n].get("above", 0) for n in candidates})
+    best, base = ranked(summary, oracle)[0], baseline(summary)
+    judged = noise if noise and noise.get("best") is not None else None
+    if judged is not None:
+        best = judged["best"]
+        undecided = _no_winner(judged, best, base)
+        if undecided:
+            return undecided + left_out
+    return _winner(summary, judged, best, base) + "." + left_out
+
+
+def _no_winner(noise, best, base):
+    """The verdict where the intervals name no winner (the fastest median lost the whole run, left
+    more steps unfinished, had too few steps to judge on, or is within noise), or None."""
+    aa = f"{md_text(base)} timed against itself (A/A) measured {interval(noise['aa'])} " \
+         f"({100 * noise['level']:.0f}% intervals over the steps)."
+    if noise.get("beaten_on_total_by"):   # a heavy tail: the median's fastest lost the whole run
+        return (f"**Verdict**: no clear winner. {md_text(best)} has the smallest median time per step (prediction "
+                f"included; oracles left out)" + (f", {interval(noise['vs_base'][best])} of {md_text(base)}'s"
+                                                   if best != base else "")
+                + ", but over the whole run, setup included, it took longer than "
+                + " and ".join(f"{md_text(n)} ({noise['total_ms'][best]:.4g} ms against {noise['total_ms'][n]:.4g} ms)"
+                               for n in noise["beaten_on_total_by"])
+                + f": a heavy tail of slow steps; {aa}")
+    if noise.get("gave_up_more"):
+        return (f"**Verdict**: no clear winner. {md_text(best)} has the smallest median time per step, but it left "
+                f"more steps above the tolerance than {md_text(base)} ({noise['unfinished'][best]} against "
+                f"{noise['unfinished'][base]}): faster by not finishing is not faster.")
+    if noise.get("too_few_steps"):
+        return (f"**Verdict**: no clear winner: {count(noise['steps'], 'step')} to judge on, and a winner is named "
+                f"from at least {MIN_STEPS}.")
+    if noise["clear"]:
+        return None
+    runner = noise.get("runner_up")
+    # (no winner, so none is called the fastest: the smallest median, with its intervals)
+    return (f"**Verdict**: no clear winner within noise. {md_text(best)} has the smallest median time per step "
+            f"to the tolerance (prediction included; oracles left out)"
+            + (f", at {interval(noise['vs_base'][best])} of {md_text(base)}'s time" if best != base else "")
+            + (f"; against the runner-up {md_text(runner)} it takes {interval(noise['best_vs_runner_up'])}"
+               if runner else "") + f"; {aa}")
+
+
+def _winner(summary, noise, best, base):
+    """The verdict naming best the fastest, with its ratios (and intervals, where noise judged)."""
+    b = summary[best]
+    text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
+            f"oracles left out) is **{md_text(best)}**: {b['total_ms_median']:.3f} ms, "
+            f"{count(round(b['iterations_median']), 'sweep')}")
+    if base is not None and base != best:
+        r = summary[base]
+        text += (f", {b['total_ms_median'] / max(r['total_ms_median'], 1e-12):.2f}x the time and "
+                 f"{b['iterations_median'] / max(r['iterations_median'], 1e-12):.2f}x the sweeps of {md_text(base)}")
+    elif base == best:
+        text += f"; nothing beats {md_text(base)}, Box2D's own warm start"
+    if b["at_cap"] > 0:
+        text += f" ({100 * b['at_cap']:.0f}% of its steps stopped at the cap)"
+    if noise is not None:
+        parts = ([f"time {interval(noise['vs_base'][best])} of {md_text(base)}'s"] if best != base else []) \
+            + ([f"{interval(noise['best_vs_runner_up'])} of the runner-up {md_text(noise['runner_up'])}'s"]
+               if noise.get("runner_up") else []) + [f"A/A noise floor {interval(noise['aa'])}"]
+        text += f" ({'; '.join(parts)}; {100 * noise['level']:.0f}% intervals over the steps)"
+    return text
+
+
+def _unfinished_note(shares):
+    """The rule for steps ended above the tolerance, said where a variant has any ({label: share})."""
+    some = {n: share for n, share in shares.items() if share}
+    if not some:
+        return ""
+    return (" Steps ended above the tolerance (by our residual) count as unfinished, slower than any finished "
+            "step (contest/verdict.py): " + ", ".join(f"{md_text(n)} {as_share(share)}" for n, share in some.items())
+            + ".")
+
+
+def noise_of(rows, summary):
+    """The intervals the verdict and the table state (noise.judge, with this report's baseline
+    and oracles)."""
+    return judge(rows, summary, baseline(summary), oracle)
+
+
+def loop_residuals(r):
+    """The residuals of a loop row's steps that had contacts (none for Box2D's own solver)."""
+    res = np.asarray(r.residuals if r.residuals is not None else [], np.float64)
+    return res[np.isfinite(res)]
+
+
+def loop_above(r, tolerance):
+    """The share of a row's steps whose residual ended above the tolerance (None: not judged)."""
+    res = loop_residuals(r)
+    return None if tolerance is None or not len(res) else float(np.mean(res > tolerance))
+
+
+def loop_verdict(results, tolerance):
+    """The closed loop's verdict, by the contest's one rule (contest/verdict.py, as replay's): the
+    fastest of the project's variants per step that stayed finite and never ended a step above the
+    tolerance (oracles left out), against Box2D's warm start and the runner-up with 95% intervals
+    over the steps, builtin timed against itself (A/A), and the run's totals (setup included); a
+    winner is named only beyond noise, and none whose whole run cost more. None without Box2D's
+    warm start."""
+    base = next((r for r in results if r.ms_again is not None), None)
+    if base is None:
+        return None
+    candidates = [r for r in results if r.ours and not r.oracle]
+    fair = [r for r in candidates if r.finite]
+    left = [r.start for r in candidates if r not in fair]
+    left_out = (f" Left out, as they stopped being finite: {', '.join(md_text(n) for n in left)}." if left else "") \
+        + _unfinished_note({r.start: loop_above(r, tolerance) or 0 for r in fair})
+    if not fair:
+        return "**Verdict**: no start stayed finite on every step of the loop, so none is named." + left_out
+    ours = [r for r in results if r.ours]
+    times = {r.start: dict(enumerate(np.asarray(r.ms_per_step, np.float64))) for r in ours}
+    unfinished = {r.start: _loop_unfinished(r, tolerance) for r in ours}
+    v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
+               {r.start: r.setup_ms for r in ours}, unfinished)
+    if v.too_few_steps:
+        return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
+                f"least {MIN_STEPS}." + left_out + _fence_caveat())
+    parts = ([f"{interval(v.vs_base[v.best])} of {md_text(base.start)}'s time per step"] if v.best != base.start else []) \
+        + ([f"{interval(v.best_vs_runner_up)} of the runner-up {md_text(v.runner_up)}'s"] if v.runner_up else []) \
+        + [f"A/A noise floor {interval(v.aa)}"]
+    return f"{_loop_head(v, base.start)} ({'; '.join(parts)}; 95% intervals over the steps)." + left_out + _fence_caveat()
+
+
+def _loop_unfinished(r, tolerance):
+    """The steps of a loop row whose residual ended above the tolerance (none where not judged)."""
+    if tolerance is None or r.residuals is None:
+        return set()
+    return set(np.flatnonzero(np.nan_to_num(np.asarray(r.residuals, np.float64), nan=0.0) > tolerance).tolist())
+
+
+def _loop_head(v, base):
+    """The loop verdict's first sentence, for the decision v against the baseline base."""
+    if v.gave_up_more:
+        return (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
+                f"but it left more steps above the tolerance than {md_text(base)} ({v.unfinished[v.best]} "
+                f"against {v.unfinished[base]}): faster by not finishing is not faster")
+    if v.heavy_tail:
+        return (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
+                f"but over the whole run, setup included, it took longer than "
+                + " and ".join(f"{md_text(n)} ({v.totals[v.best]:.4g} ms against {v.totals[n]:.4g} ms)"
+                               for n in v.beaten_on_total_by) + ": a heavy tail of slow steps")
+    if v.clear:
+        return ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
+                f"**{md_text(v.best)}**")
+    return (f"**Verdict**: no clear winner within noise. {md_text(v.best)} has the smallest median time per step "
+            f"of the loop")
