@@ -5,38 +5,38 @@ from deepcontact.model.arch import NETWORKS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS, methods_help
 
-from . import options
+from . import options, terminal, types
 
 
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Report folder.")
-@click.option("--starts", type=options.CommaList(options.PluginName(STARTS), "START[,...]"),
+@click.option("--starts", type=types.CommaList(types.PluginName(STARTS), "START[,...]"),
               default="zero,builtin,copy,sph", show_default=True,
               help=f"Comma-separated: {', '.join(START_NAMES)}, an installed plug-in's name, or "
                    f"package.module:Name (docs/api.md).")
 @click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
               help="A checkpoint from dc train (the starts cnn, guarded, cnn-new).")
 @options.deprecated_alias("--model", "--checkpoint", "model")
-@click.option("--arch", type=options.PluginName(NETWORKS),
+@click.option("--arch", type=types.PluginName(NETWORKS),
               help="Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
 @options.solve_to_tolerance
-@click.option("--mode", type=options.choice("mode", leave_out=("exact",)), default="float64", show_default=True)
+@click.option("--mode", type=types.choice("mode", leave_out=("exact",)), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
-@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] Cell size d.")
-@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] h.")
-@click.option("--kernel", type=options.choice("kernel"), default="poly6",
+@click.option("--cell", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] Cell size d.")
+@click.option("--smoothing", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] h.")
+@click.option("--kernel", type=types.choice("kernel"), default="poly6",
               show_default=True, help="[sph without --checkpoint] SPH kernel.")
-@click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the random start.")
+@click.option("--seed", type=types.count(), default=0, show_default=True, help="Seed of the random start.")
 @click.option("--closed-loop", is_flag=True,
               help="Let each start drive the simulation (the run's scene, from its first state) instead of "
                    "replaying the recorded steps.")
-@click.option("--steps", type=options.count(min=1), help="[--closed-loop] Steps to simulate (default: the scene's).")
-@click.option("--relaxation", "relaxation", type=options.CommaList(options.Relaxation(), "W[,W...]"), default="1",
+@click.option("--steps", type=types.count(min=1), help="[--closed-loop] Steps to simulate (default: the scene's).")
+@click.option("--relaxation", "relaxation", type=types.CommaList(types.Relaxation(), "W[,W...]"), default="1",
               show_default=True,
               help="Over-relaxation (PSOR) w in (0, 2) for every start, or auto (the w with the fewest sweeps on "
                    "the first 8 hard steps); several, comma-separated, compare them.")
-@click.option("--accelerate", type=options.CommaList(options.PluginName(SOLVERS, extra=("all",)), "METHOD[,...]|all"),
+@click.option("--accelerate", type=types.CommaList(types.PluginName(SOLVERS, extra=("all",)), "METHOD[,...]|all"),
               default="none", show_default=True,
               help=f"The solver method: {methods_help()}. Several, comma-separated, or all (every built-in), "
                    f"compare them (each with every w).")
@@ -127,7 +127,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
     bars = []
 
     def bar(total, unit):
-        bars.append(options.progress_bar(quiet, total, unit, "closed loop" if closed_loop else "evaluate"))
+        bars.append(terminal.progress_bar(quiet, total, unit, "closed loop" if closed_loop else "evaluate"))
         return bars[-1].update
     # Computed inside the output's lock; the report appears only when complete.
     with output.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
@@ -136,5 +136,5 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         finally:
             for b in bars:
                 b.close()
-    if options.stdout_is_open():   # (the table is report.md's: a closed stdout loses nothing)
+    if terminal.stdout_is_open():   # (the table is report.md's: a closed stdout loses nothing)
         click.echo(table)

@@ -2,19 +2,19 @@
 as flat tables (CSV, Parquet)."""
 import click
 
-from . import options
+from . import options, terminal, types
 
 
 @click.command()
 @click.argument("run_dir", metavar="RUN", type=click.Path())
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder to write (seed-NNNNNN/step-NNNNNN.hdf5 and index.json; or bodies and contacts tables).")
-@click.option("--every", type=options.count(min=1), default=1, show_default=True,
+@click.option("--every", type=types.count(min=1), default=1, show_default=True,
               help="Export every N-th step (steps without contacts are skipped).")
 @click.option("--format", "fmt", type=click.Choice(["fclib", "csv", "parquet"]), default="fclib", show_default=True,
               help="fclib: each step's contact problem (HDF5); csv or parquet: the run as two flat tables, "
                    "bodies and contacts, one row per body (contact point) per step (Parquet needs pyarrow).")
-@click.option("--solution", type=options.choice("solution"), default="reference",
+@click.option("--solution", type=types.choice("solution"), default="reference",
               show_default=True,
               help="Store as /solution: the exact reference (Newton, residual < 1e-12 where it gets "
                    "there), what the run's solver produced, or nothing.")
@@ -47,7 +47,7 @@ def export(run_dir, out, fmt, every, solution, jobs, overwrite, verbose, quiet):
     options.refuse_inapplicable([("solution", fmt == "fclib", "only applies to --format fclib")])
     sims = read_run(run_dir).simulations
     total = sum(len(s.files) if fmt == "fclib" else len(s.files[::every]) for s in sims)
-    bar = options.progress_bar(quiet, total, "step", "export")
+    bar = terminal.progress_bar(quiet, total, "step", "export")
     try:
         if fmt == "fclib":
             index = export_run(run_dir, out, every=every, solution=solution, overwrite=overwrite,

@@ -62,7 +62,7 @@ def main():
     import shlex
     import sys
     from deepcontact import protocol
-    from .options import ClosedStdout
+    from .terminal import ClosedStdout
     # A closed standard stream (`2>&-`, `>&-`): the logs go nowhere rather than fail the work, and
     # data meant for a closed stdout is an error (one line, exit 1), never silently dropped. Its
     # descriptor is held on /dev/null, so that no file or socket we open later takes its number

@@ -3,28 +3,28 @@ import click
 
 from deepcontact.grid.splat import ALL_CHANNELS
 
-from . import options
+from . import options, terminal, types
 
-CHANNELS = options.CommaList(click.Choice(ALL_CHANNELS))
+CHANNELS = types.CommaList(click.Choice(ALL_CHANNELS))
 
 
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder.")
-@click.option("--kernel", type=options.choice("kernel"), default="poly6",
+@click.option("--kernel", type=types.choice("kernel"), default="poly6",
               show_default=True, help="SPH kernel (2D-normalised).")
-@click.option("--cell", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d (node spacing).")
-@click.option("--smoothing", type=options.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Smoothing length h (support).")
+@click.option("--cell", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d (node spacing).")
+@click.option("--smoothing", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Smoothing length h (support).")
 @click.option("--renormalize/--no-renormalize", default=True, show_default=True,
               help="Scale each particle's weights to sum to 1 over its nodes (grids hold amounts).")
 @click.option("--inputs", type=CHANNELS, help="Input channels, comma-separated (default mass,vx,vy,spin,nx,ny).")
 @click.option("--labels", type=CHANNELS, help="Label channels (default normal_impulse,tangent_impulse).")
-@click.option("--window", type=options.Window(),
+@click.option("--window", type=types.Window(),
               help="Grid window (default: the scenes' static box, or where the bodies went over the run).")
 @click.option("--include-contactless", is_flag=True, help="Keep steps without contacts.")
 @click.option("--validation", type=click.FloatRange(0, 1, max_open=True), default=0.2, show_default=True,
               help="Share of simulations held out for validation.")
-@click.option("--seed", type=options.count(), default=0, show_default=True, help="Seed of the split.")
+@click.option("--seed", type=types.count(), default=0, show_default=True, help="Seed of the split.")
 @options.jobs
 @options.max_memory
 @options.overwrite
@@ -54,7 +54,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
     bars = []
 
     def bar(total):
-        bars.append(options.progress_bar(quiet, total, "step", "rasterize"))
+        bars.append(terminal.progress_bar(quiet, total, "step", "rasterize"))
         return bars[-1]
     try:
         settings = DatasetSettings(cell=cell, h=smoothing, kernel=kernel, renormalize=renormalize, inputs=inputs,
@@ -65,7 +65,7 @@ def rasterize(runs, out, kernel, cell, smoothing, renormalize, inputs, labels, w
         for b in bars:
             b.close()
     g = meta["grid"]
-    if not quiet and options.stdout_is_open():
+    if not quiet and terminal.stdout_is_open():
         from deepcontact.grid.spec import GridSpec
         grid = GridSpec.from_dict(g)
         click.echo(f"{out}: {meta['samples']} samples, {g['nx']} x {g['ny']} grid over {g['x0']:g},{g['y0']:g},"

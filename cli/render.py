@@ -8,7 +8,7 @@ from deepcontact.errors import InputError
 
 from deepcontact.model.arch import BUILTIN as BUILTIN_NETWORKS, NETWORKS
 
-from . import fenced_training, options
+from . import fenced_training, options, terminal, types
 
 RENDER_INSIDE = "DC_RENDER_FENCED"   # set for a fenced render's own process: it draws in place
 
@@ -34,25 +34,25 @@ def kind_of(path):
                    "dataset sample), .gif/.mp4/.webm/.html (a run).")
 @click.option("--size", type=click.IntRange(min=64, max=4096), default=640, show_default=True,
               help="Width of the picture (or of each panel) in pixels.")
-@click.option("--window", type=options.Window(), help="The part of the world to draw (default: around the bodies).")
+@click.option("--window", type=types.Window(), help="The part of the world to draw (default: around the bodies).")
 @click.option("--no-contacts", is_flag=True, help="Draw no contact points or impulses.")
-@click.option("--impulse-scale", type=options.Finite(min=0, min_open=True), metavar="M",
+@click.option("--impulse-scale", type=types.Finite(min=0, min_open=True), metavar="M",
               help="Metres of arrow per N·s of impulse (default: the run's own, a median normal impulse drawn as "
                    "1/30 of the width; the same for a step, a movie and a viewer of one run). Give one to compare "
                    "pictures of different runs.")
 @click.option("--color-by", type=click.Choice(["type", "speed"]), default="type", show_default=True,
               help="Fill bodies by type (static, kinematic, dynamic) or by speed.")
-@click.option("--seed", type=options.count(), help="[run] The simulation to draw (default: the run's first).")
+@click.option("--seed", type=types.count(), help="[run] The simulation to draw (default: the run's first).")
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="[run] Every k-th step.")
 @click.option("--fps", type=click.IntRange(min=1, max=120), default=30, show_default=True, help="[run] Frame rate.")
 @click.option("--compare", type=click.Path(file_okay=False),
               help="[run] A second run drawn beside the first, step for step, with the largest distance "
                    "between the same body in both.")
-@click.option("--sample", type=options.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
+@click.option("--sample", type=types.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
 @click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
               help="[dataset] A checkpoint from dc train: its prediction and error beside each label.")
 @options.deprecated_alias("--model", "--checkpoint", "model")
-@click.option("--arch", type=options.PluginName(NETWORKS),
+@click.option("--arch", type=types.PluginName(NETWORKS),
               help="[dataset] Load this network plug-in for a checkpoint that needs it.")
 @options.threads
 @options.jobs
@@ -133,7 +133,7 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         else:
             _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
                  impulse_scale, jobs)
-    options.show_output(str(out), quiet)
+    terminal.show_output(str(out), quiet)
 
 
 MIN_WINDOW = 1e-4   # metres
@@ -179,7 +179,7 @@ def _run(path, out, size, window, contacts, color_by, seed, every, fps, compare,
             "them measures that, not a solver", clip.scene, clip.seed, other.scene, other.seed)
     painter = painter_for(clip, size, contacts, color_by, Window(*window) if window else None,
                           panels=2 if other else 1, impulse_scale=impulse_scale)
-    bar = options.progress_bar(quiet, len(clip.files), "frame", f"render {out.name}")
+    bar = terminal.progress_bar(quiet, len(clip.files), "frame", f"render {out.name}")
     gif = out.suffix.lower() == ".gif"
     stream = drawn(clip, painter, other, jobs=jobs, gif_fps=fps if gif else None, progress=bar.update)
     try:

@@ -5,7 +5,7 @@ from deepcontact.solver.methods import SOLVERS, methods_help
 from deepcontact.simulate.engines import ENGINES
 from deepcontact.solver.settings import CAP, SolveSettings
 
-from . import options
+from . import options, terminal, types
 
 
 def seed_list(seed, seeds, shard):
@@ -42,15 +42,15 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.command()
 @click.argument("scene", required=False)
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), help="Output folder.")
-@click.option("--steps", type=options.count(min=1), help="Override the scene's number of steps.")
-@click.option("--seed", type=options.count(), default=0, show_default=True, help="Random seed.")
-@click.option("--seeds", type=options.SeedRange(), help="Simulate every seed from A to B (inclusive).")
-@click.option("--shard", type=options.Shard(),
+@click.option("--steps", type=types.count(min=1), help="Override the scene's number of steps.")
+@click.option("--seed", type=types.count(), default=0, show_default=True, help="Random seed.")
+@click.option("--seeds", type=types.SeedRange(), help="Simulate every seed from A to B (inclusive).")
+@click.option("--shard", type=types.Shard(),
               help="Only every N-th seed, starting at the I-th, I counted from 0: --seeds 0..149 --shard 0/4 keeps "
                    "0, 4, 8, ... (a job array's task index; docs/scaling.md).")
-@click.option("--param", "params", multiple=True, type=options.KeyValue(),
+@click.option("--param", "params", multiple=True, type=types.KeyValue(),
               help="A generator parameter (repeatable); see --list.")
-@click.option("--iterations", type=options.count(), help="Override Box2D's velocity iterations per step.")
+@click.option("--iterations", type=types.count(), help="Override Box2D's velocity iterations per step.")
 @click.option("--skip-contactless", is_flag=True, help="Write no file for steps without contacts.")
 @click.option("--compress", is_flag=True,
               help="Write step-NNNNNN.xml.gz (gzip, about 1/6 of the size); every reader, dc validate and "
@@ -58,39 +58,39 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--write-scene", type=click.Path(dir_okay=False),
               help="Write the scene (for --seed) to this file and stop.")
 @click.option("--list", "list_generators", is_flag=True, help="List generators and parameters, and stop.")
-@click.option("--engine", type=options.PluginName(ENGINES), default="box2d", show_default=True,
+@click.option("--engine", type=types.PluginName(ENGINES), default="box2d", show_default=True,
               help="box2d: Box2D 2.4.1 (Debian's); box2d3: Box2D v3 (3.1, the soft step); pymunk (Chipmunk2D); "
                    "mujoco (a planar model); or a plug-in's (docs/engines.md).")
-@click.option("--set", "engine_settings", multiple=True, type=options.KeyValue(),
+@click.option("--set", "engine_settings", multiple=True, type=types.KeyValue(),
               help="An engine setting (repeatable; docs/engines.md lists each engine's): pymunk iterations=20; "
                    "mujoco solver=cg, tolerance=1e-6, iterations=50; box2d3 substeps=8.")
-@click.option("--substeps", cls=options.SoftStepOption, type=options.count(min=1), help="[box2d3] Substeps per step.")
-@click.option("--contact-hertz", cls=options.SoftStepOption, type=options.Finite(min=0, min_open=True),
+@click.option("--substeps", cls=types.SoftStepOption, type=types.count(min=1), help="[box2d3] Substeps per step.")
+@click.option("--contact-hertz", cls=types.SoftStepOption, type=types.Finite(min=0, min_open=True),
               help="[box2d3] Soft contact stiffness in Hz.")
-@click.option("--damping-ratio", cls=options.SoftStepOption, type=options.Finite(min=0),
+@click.option("--damping-ratio", cls=types.SoftStepOption, type=types.Finite(min=0),
               help="[box2d3] Soft contact damping ratio.")
-@click.option("--push-speed", cls=options.SoftStepOption, type=options.Finite(min=0),
+@click.option("--push-speed", cls=types.SoftStepOption, type=types.Finite(min=0),
               help="[box2d3] The most speed (m/s) used to push overlapping bodies apart.")
 @click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
               help="Box2D 2.4.1's own velocity solver, or the project's PGS in the loop.")
-@click.option("--start", type=options.choice("loop_start"),
+@click.option("--start", type=types.choice("loop_start"),
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
-@click.option("--mode", type=options.choice("mode"),
+@click.option("--mode", type=types.choice("mode"),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
-@click.option("--tolerance", type=options.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
-@click.option("--max-iterations", type=options.count(),
+@click.option("--tolerance", type=types.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
+@click.option("--max-iterations", type=types.count(),
               help=f"[pgs] Sweep cap (default: {CAP} with --tolerance, as dc evaluate's; else the scene's).")
-@click.option("--stop-on", type=options.choice("stop_on"),
+@click.option("--stop-on", type=types.choice("stop_on"),
               help="[pgs] The measure the tolerance applies to (default residual).")
-@click.option("--relaxation", type=options.Relaxation(),
+@click.option("--relaxation", type=types.Relaxation(),
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "
                    "on the first 8 steps with contacts.")
-@click.option("--accelerate", type=options.PluginName(SOLVERS),
+@click.option("--accelerate", type=types.PluginName(SOLVERS),
               help=f"[pgs] The solver method (default none): {methods_help()}. Without --tolerance, the global "
                    f"methods solve to 1e-12.")
 @options.jobs
 @options.max_memory
-@click.option("--max-disk", type=options.Finite(min=0, min_open=True), metavar="GB",
+@click.option("--max-disk", type=types.Finite(min=0, min_open=True), metavar="GB",
               help="Refuse a run estimated to write more than this (the free space is always a limit).")
 @options.overwrite
 @options.verbosity
@@ -149,7 +149,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         return
     if scene is None:
         raise click.UsageError("missing SCENE: a generator (see --list) or a scene file")
-    source = SceneSource(scene, options.key_values(params, "--param"), steps, iterations)
+    source = SceneSource(scene, types.key_values(params, "--param"), steps, iterations)
     source.check_memory(1, max_memory)
     if write_scene:
         with output.output_file(write_scene, overwrite):
@@ -162,8 +162,8 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     first = source(chosen[0]) if chosen and solver == "pgs" else None   # (its iterations: the loop's cap)
     box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
     def bar(total):
-        return options.progress_bar(quiet, total, "step", f"simulate {scene}")
-    settings = options.key_values(engine_settings, "--set")
+        return terminal.progress_bar(quiet, total, "step", f"simulate {scene}")
+    settings = types.key_values(engine_settings, "--set")
     if engine == "box2d3":   # (its own flags beside --set, checked by SoftStep naming each)
         from deepcontact.simulate.engines import Box2D3, SoftStep
         given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
@@ -181,4 +181,4 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
         stepper = guest_engine(engine, settings)
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, engine=stepper, max_disk=max_disk, compress=compress)
-    options.show_output(f"{out_dir}", quiet)
+    terminal.show_output(f"{out_dir}", quiet)

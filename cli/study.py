@@ -46,7 +46,7 @@ class StudyGroup(click.Group):
         from deepcontact.studies import STUDIES, command_of, fence
         if name not in STUDIES.names():
             if name in PROJECT_STUDIES:   # (the project's own, in its own distribution: say how to get it)
-                from .options import one_line
+                from deepcontact.errors import one_line
                 click.echo(one_line(f"dc study: error: the study {name!r} is in the project's studies distribution, "
                                     f"which is not installed: pip install 'deepcontact[studies]', or pip install -e "
                                     f"studies/ from the repository (make setup does)"), err=True)
@@ -59,7 +59,7 @@ class StudyGroup(click.Group):
         except PluginError as e:   # (one line naming its distribution and entry point; -v: the traceback)
             if "-v" in sys.argv or "--verbose" in sys.argv:
                 raise
-            from .options import one_line
+            from deepcontact.errors import one_line
             click.echo(one_line(f"dc study: error: {e}"), err=True)
             sys.exit(1)
 

@@ -5,7 +5,7 @@ import click
 
 from deepcontact.model.arch import NETWORKS
 
-from . import fenced_training, options
+from . import fenced_training, options, terminal, types
 
 
 def torch_device(ctx, param, value):
@@ -49,11 +49,11 @@ class EpochLines:
         each = (self.last - self.start) / self.epochs_done
         left = each * max(0, row["epochs"] - row["epoch"] - 1)
         click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{extra} "
-                   f"({row['samples_per_second']:.0f} samples/s; {options.duration(each)} an epoch, at most "
-                   f"{options.duration(left)} left)", err=True)
+                   f"({row['samples_per_second']:.0f} samples/s; {terminal.duration(each)} an epoch, at most "
+                   f"{terminal.duration(left)} left)", err=True)
 
     def within(self, epoch, done, total):
-        if not self.quiet and time.monotonic() - self.last >= options.progress_every():
+        if not self.quiet and time.monotonic() - self.last >= terminal.progress_every():
             self.last = time.monotonic()
             click.echo(f"epoch {epoch + 1}: {done:,} of {total:,} training samples", err=True)
 
@@ -62,33 +62,33 @@ class EpochLines:
 @click.argument("dataset", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder for checkpoints (last.pt, best.pt), metrics and the loss plot.")
-@click.option("--arch", "model", type=options.PluginName(NETWORKS), default="fcn", show_default=True,
+@click.option("--arch", "model", type=types.PluginName(NETWORKS), default="fcn", show_default=True,
               help="The network: thesis (the thesis's CNN, Table 5.1), fcn (a fully convolutional "
                    "encoder-decoder), an installed plug-in's name, or package.module:Name (docs/api.md).")
 @options.deprecated_alias("--model", "--arch", "model")
-@click.option("--targets", type=options.CommaList(), default="normal_impulse,tangent_impulse", show_default=True,
+@click.option("--targets", type=types.CommaList(), default="normal_impulse,tangent_impulse", show_default=True,
               help="Label channels to learn: both maps at once, or one (train one model per map).")
-@click.option("--loss", type=options.choice("loss"), default="masked",
+@click.option("--loss", type=types.choice("loss"), default="masked",
               show_default=True, help="masked: thesis eq. 5.2; contacts: error at the contact points; mse: all "
               "nodes; solver: the step's LCP residual at the predicted start.")
-@click.option("--solver-sweeps", type=options.count(), default=0, show_default=True,
+@click.option("--solver-sweeps", type=types.count(), default=0, show_default=True,
               help="[solver loss] Damped Jacobi sweeps before taking the residual.")
-@click.option("--optimizer", type=options.choice("optimizer"), default="sgd", show_default=True,
+@click.option("--optimizer", type=types.choice("optimizer"), default="sgd", show_default=True,
               help="sgd follows the thesis schedule (5e-3, 2e-3 at 100, 1e-3 at 300, 2e-4 at 500).")
-@click.option("--lr", type=options.Finite(min=0, min_open=True), default=1e-3, show_default=True,
+@click.option("--lr", type=types.Finite(min=0, min_open=True), default=1e-3, show_default=True,
               help="Adam's learning rate.")
-@click.option("--weight-decay", type=options.Finite(min=0), default=5e-4, show_default=True, help="L2 on the weights.")
-@click.option("--batch-size", type=options.count(min=1), default=200, show_default=True)
-@click.option("--epochs", type=options.count(min=1),
+@click.option("--weight-decay", type=types.Finite(min=0), default=5e-4, show_default=True, help="L2 on the weights.")
+@click.option("--batch-size", type=types.count(min=1), default=200, show_default=True)
+@click.option("--epochs", type=types.count(min=1),
               help="Epochs in all (default 1000; with --resume, the run's own unless given).")
-@click.option("--patience", type=options.count(), default=0, show_default=True,
+@click.option("--patience", type=types.count(), default=0, show_default=True,
               help="Stop after this many epochs without improvement (0: never).")
-@click.option("--seed", type=options.count(), default=0, show_default=True)
+@click.option("--seed", type=types.count(), default=0, show_default=True)
 @click.option("--device", default="cpu", show_default=True, callback=torch_device,
               help="torch device, e.g. cuda when a GPU is present.")
-@click.option("--width", "fcn_width", type=options.count(min=1, max=4096), default=16, show_default=True,
+@click.option("--width", "fcn_width", type=types.count(min=1, max=4096), default=16, show_default=True,
               help="[fcn] Channels at the top.")
-@click.option("--depth", "fcn_depth", type=options.count(min=1, max=12), default=3, show_default=True,
+@click.option("--depth", "fcn_depth", type=types.count(min=1, max=12), default=3, show_default=True,
               help="[fcn] Down-sampling levels.")
 @click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
 @click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")

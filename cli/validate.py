@@ -3,7 +3,7 @@ import click
 
 from deepcontact.errors import count
 
-from . import options
+from . import options, terminal
 
 
 @click.command()
@@ -48,7 +48,7 @@ def validate(paths, replay, residuals, jobs, verbose, quiet):
         return replay_runs(paths, quiet, jobs)
     from deepcontact.simulate.validate import validate as check
 
-    bar = options.progress_bar(quiet, None, "file", "validate")
+    bar = terminal.progress_bar(quiet, None, "file", "validate")
     try:
         files, invalid, above = check(paths, click.echo, jobs=jobs, progress=bar.update, residuals=residuals)
     finally:
@@ -65,7 +65,7 @@ def replay_runs(paths, quiet, jobs):
 
     failed = False
     for run_dir in paths:
-        bar = options.progress_bar(quiet, len(replayable_run(run_dir).step_files), "step", f"replay {run_dir}")
+        bar = terminal.progress_bar(quiet, len(replayable_run(run_dir).step_files), "step", f"replay {run_dir}")
         report = replay_run(run_dir, on_file=lambda _: bar.update(1), jobs=jobs)
         bar.close()
         verdict = "exact" if report.exact else f"NOT exact in {report.inexact_steps} steps (worst: {report.worst})"

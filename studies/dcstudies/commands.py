@@ -5,7 +5,7 @@ import contextlib
 import click
 
 from deepcontact import output as outputs
-from deepcontact.cli import options
+from deepcontact.cli import options, terminal, types
 from deepcontact.studies import Study
 
 
@@ -69,7 +69,7 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
       dc study stability -o runs/stability.md --overwrite -j 2
     """
     if not out:
-        options.require_stdout("give -o FILE")
+        terminal.require_stdout("give -o FILE")
     from deepcontact.protocol import protocol, protocol_line
     from dcstudies import stability as S
 
@@ -99,7 +99,7 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
               help="Folder for engines.md, engines.csv and a Pareto plot per scene.")
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs (stability's, and a 30-circle pile), "
                                           "each engine at its few fast settings.")
-@click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
+@click.option("--scenes", type=types.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'stack 20,pyramid 20').")
 @options.families_option("Box2D v3,lagged")
 @options.plugin_methods
@@ -137,7 +137,7 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
     chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins), fast)
     with outputs.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
-        bar = options.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
+        bar = terminal.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
         try:
             rows = E.study(cases, jobs=jobs, progress=bar.update, chosen=chosen)
         finally:
@@ -152,12 +152,12 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False),
               help="Folder for frontier.md, frontier.csv and a plot per scene.")
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs (a 30-circle pile, a base-5 pyramid).")
-@click.option("--scenes", type=options.CommaList(click.STRING, "LABEL[,...]"),
+@click.option("--scenes", type=types.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'pile 1000,pyramid 40').")
 @options.families_option("Box2D 2.4.1,NNCG")
-@click.option("--tolerances", type=options.CommaList(options.Finite(min=0, min_open=True), "TOL[,...]"),
+@click.option("--tolerances", type=types.CommaList(types.Finite(min=0, min_open=True), "TOL[,...]"),
               help="The project's tolerances  [default: 1e-2,1e-4,1e-6,1e-8; 1e-2,1e-4 with --fast]")
-@click.option("--samples", type=options.count(min=1), default=4, show_default=True,
+@click.option("--samples", type=types.count(min=1), default=4, show_default=True,
               help="Recorded steps per scene the one-step error is measured on (2 with --fast).")
 @options.plugin_methods
 @options.jobs
@@ -202,7 +202,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
         samples = F.FAST_SAMPLES
     with outputs.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:
         measured = protocol(jobs=jobs)
-        bar = options.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier")
+        bar = terminal.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier")
         try:
             rows, lines = F.study(cases, chosen, samples, jobs=jobs, progress=bar.update)
         finally:
@@ -216,7 +216,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
 @click.command("figures")
 @click.argument("run", metavar="RUN", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False), help="Figures folder.")
-@click.option("--every", type=options.count(min=1), default=10, show_default=True, help="Use every N-th step.")
+@click.option("--every", type=types.count(min=1), default=10, show_default=True, help="Use every N-th step.")
 @options.solve_to_tolerance
 @options.jobs
 @options.overwrite
@@ -238,7 +238,7 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite
     from dcstudies.figures import FIGURE_FILES, figures as make, step_files
 
     with outputs.output_folder(out, FIGURE_FILES, overwrite, command="study figures") as work:
-        bar = options.progress_bar(quiet, step_files(run), "step", "study figures")
+        bar = terminal.progress_bar(quiet, step_files(run), "step", "study figures")
         try:
             settings = SolveSettings(tolerance=tolerance, stop_on=stop_on, max_iterations=max_iterations)
             text = make(run, work, every=every, settings=settings, jobs=jobs, progress=bar.update)
@@ -248,13 +248,13 @@ def figures(run, out, every, tolerance, stop_on, max_iterations, jobs, overwrite
 
 
 @click.command("scale")
-@click.option("--samples", type=options.count(min=1), default=3, show_default=True,
+@click.option("--samples", type=types.count(min=1), default=3, show_default=True,
               help="Settled steps solved per pile.")
-@click.option("--cap", type=options.count(min=1), default=100_000, show_default=True, help="Iterations at most.")
+@click.option("--cap", type=types.count(min=1), default=100_000, show_default=True, help="Iterations at most.")
 @click.option("--quick", is_flag=True, help="Shorter settling, and no 10,000-circle pile.")
-@click.option("--methods", type=options.CommaList(click.STRING, "LABEL[,...]"),
+@click.option("--methods", type=types.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these methods, by their labels (PGS, PSOR 1.7, NNCG, Newton, subspace, body space).")
-@click.option("--sizes", type=options.CommaList(click.INT, "N[,...]"),
+@click.option("--sizes", type=types.CommaList(click.INT, "N[,...]"),
               help="Only the piles of these body counts (100, 1000, 10000).")
 @text_report
 @options.verbosity
@@ -282,7 +282,7 @@ def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbo
 @click.command("exact")
 @click.option("--scene", type=click.Choice(["pile", "pyramid", "both", "hard"]), default="both", show_default=True,
               help="hard: the stability study's full-size hard scenes.")
-@click.option("--every", type=options.count(min=1), default=5, show_default=True, help="Use every N-th step.")
+@click.option("--every", type=types.count(min=1), default=5, show_default=True, help="Use every N-th step.")
 @click.option("--siconos", is_flag=True, help="Siconos's Lemke on the same steps too (Debian's python3-siconos).")
 @text_report
 @options.verbosity
@@ -306,10 +306,10 @@ def exact(scene, every, siconos, threads, output, overwrite, verbose, quiet):
 @click.command("peer")
 @click.option("--scene", type=click.Choice(["pile", "pyramid", "both", "pyramid40"]), default="both",
               show_default=True)
-@click.option("--every", type=options.count(min=1), default=5, show_default=True, help="[pile] Use every N-th step.")
-@click.option("--tolerances", type=options.CommaList(options.Finite(min=0, min_open=True), "TOL[,...]"),
+@click.option("--every", type=types.count(min=1), default=5, show_default=True, help="[pile] Use every N-th step.")
+@click.option("--tolerances", type=types.CommaList(types.Finite(min=0, min_open=True), "TOL[,...]"),
               default="1e-4,1e-8", show_default=True)
-@click.option("--cap", type=options.count(min=1), default=100_000, show_default=True,
+@click.option("--cap", type=types.count(min=1), default=100_000, show_default=True,
               help="Our sweeps at most (Siconos: 100,000 iterations).")
 @text_report
 @options.verbosity
