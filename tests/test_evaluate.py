@@ -85,14 +85,14 @@ def test_evaluate_reads_each_run_once_and_takes_the_sph_window_from_the_manifest
     reading the runs as a dataset."""
     from conftest import dc, simulate
     from deepcontact.evaluate import replay
-    from deepcontact.grid import dataset
+    from deepcontact.grid import sources, window
     run = tmp_path / "run"
     simulate(run, seeds=(0, 1))
-    sims, _ = dataset.collect([run])
-    expected, _ = dataset.grid_for(sims, 0.5, 0.5, "poly6", True)
+    sims, _ = sources.collect([run])
+    expected, _ = window.grid_for(sims, 0.5, 0.5, "poly6", True)
     reads, real = [], replay.read_run
     monkeypatch.setattr(replay, "read_run", lambda path, **kw: reads.append(path) or real(path, **kw))
-    monkeypatch.setattr(dataset, "collect", lambda *a, **k: pytest.fail("read as a dataset"))
+    monkeypatch.setattr(sources, "collect", lambda *a, **k: pytest.fail("read as a dataset"))
     grids = []
     from deepcontact.warmstart import starts
     real_make = starts.make_starts

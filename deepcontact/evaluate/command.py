@@ -73,7 +73,8 @@ class EvaluateSettings:
         """The sph start's grid without a checkpoint: over the window the manifests record (the
         scenes' static box, else where the bodies went), as dc rasterize draws it; runs from before
         manifests recorded the box are read as a dataset would read them."""
-        from ..grid.dataset import collect, grid_for
+        from ..grid.sources import collect
+        from ..grid.window import grid_for
         runs = self.read_runs()
         if all("static_box" in e for r in runs for e in r.manifest["simulations"]):
             sims = [sim for r in runs for sim in r.simulations]

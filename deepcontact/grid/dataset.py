@@ -29,17 +29,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, output, workers
+from .. import __version__, arguments, output, workers
 from .._box2d import box2d_version
-from ..errors import InputError, count, show_path
+from ..errors import InputError
 from ..resources import check_disk, check_memory
-from ..scene.xml import read_scene
-from ..schema import file_bytes
 from ..step.reader import check_origin, read_step_for_grid
-from ..step import run_folder
-from ..step.run_folder import MANIFEST, read_run, require_regular, simulation_folder, step_path
-from .spec import GridSpec, scene_box
+from ..step.run_folder import MANIFEST, require_regular, simulation_folder, step_path
+from .sources import collect
+from .spec import GridSpec
 from .splat import check_channels, rasterize_step
+from .window import grid_for
 
 log = logging.getLogger(__name__)
 FORMAT = 2   # 2: runs are named relative to the dataset folder (1: relative to where rasterize ran)
@@ -51,106 +50,6 @@ ARRAY_LAYOUT = {"inputs": (np.float32, ("N", "C_in", "H", "W")), "labels": (np.f
                 "contact_impulse": (np.float32, ("M", 2))}
 # Everything a dataset folder holds: what --overwrite may replace.
 DATASET_FILES = output.Owned("dataset", ["metadata\\.json"] + [f"{name}\\.npy" for name in ARRAYS])
-
-
-@dataclass(kw_only=True)
-class Simulation(run_folder.Simulation):
-    """A run folder's simulation (step/run_folder.py) as a dataset's source: its files are the
-    steps that become samples (those with contacts, unless asked for all), with the contact
-    points of each, and what the grid needs of its scene."""
-    run: str             # the run folder, as given
-    box: tuple           # the scene's static box (x0, y0, x1, y1), or None
-    radius: float        # the scene's smallest circle radius, or None
-
-
-def _contact_count(path):
-    """The contact count a step file declares, found without parsing it (and checked later,
-    when the file is read)."""
-    try:   # (plain, or dc simulate --compress: inflated within every reader's bound)
-        data = file_bytes(path)
-    except OSError as e:
-        raise InputError(f"cannot read: {e.strerror or e}", path) from None
-    i = data.find(b'<contacts count="')
-    if i < 0:
-        raise InputError("not a step file (no <contacts count=...>)", path)
-    j = data.find(b'"', i + 17)
-    try:
-        n = int(data[i + 17:j])
-    except ValueError:
-        raise InputError("unreadable <contacts count>", path) from None
-    if n == 0 and data.find(b"<contact ", j) >= 0:   # a zero count must not hide a step's contacts
-        raise InputError('<contacts count="0"> but it holds <contact> elements', path,
-                         data.count(b"\n", 0, i) + 1)
-    return n
-
-
-def _smallest_radius(scene):
-    radii = [s.radius for b in scene.bodies if b.type != "static" for s in b.shapes if s.kind == "circle"]
-    return min(radii) if radii else None
-
-
-def collect(run_dirs, include_contactless=False):
-    """The simulations of finished runs, with the step files that become samples."""
-    sims, manifests, seen, simulated = [], [], {}, {}
-    for run_dir in map(Path, run_dirs):
-        key = run_dir.resolve()
-        if key in seen:   # the same simulations in both splits would make validation meaningless
-            raise InputError(f"this run is given twice (also as {show_path(seen[key])})", run_dir)
-        seen[key] = run_dir
-        run = read_run(run_dir)
-        raw = (run_dir / MANIFEST).read_bytes()
-        manifests.append({"run": str(run_dir), "manifest_sha256": hashlib.sha256(raw).hexdigest(),
-                          "scene": run.manifest.get("scene"), "solver": run.manifest.get("solver")})
-        for e in run.simulations:
-            scene = read_scene(e.scene_file())
-            # one simulation in two runs (a copied run) would sit in both training and validation
-            same = (e.scene_sha256, e.seed)
-            if e.scene_sha256 is not None and same in simulated:
-                raise InputError(f"seed {e.seed} of this scene is also in {show_path(simulated[same])}: the same "
-                                 "simulation twice (a copied run?) would be in both training and validation", e.path)
-            simulated[same] = e.path
-            files, counts = [], []
-            # the counts the manifest recorded (checked file by file as they are read), else a scan
-            for f, n in zip(e.files, e.contacts or map(_contact_count, e.files)):
-                if n == 0 and e.contacts and not include_contactless:   # a 0 must not drop a step unread
-                    real = _contact_count(f)
-                    if real:
-                        raise InputError(f"holds {count(real, 'contact point')}, the manifest recorded 0 (changed after "
-                                         "the run?)", f)
-                if n or include_contactless:
-                    files.append(str(f))
-                    counts.append(n)
-            sims.append(Simulation(**{**vars(e), "files": files, "contacts": counts, "scene": scene.name},
-                                   run=str(run_dir), box=scene_box(scene), radius=_smallest_radius(scene)))
-    if not sims:
-        raise InputError("the runs hold no simulations")
-    return sims, manifests
-
-
-def default_window(sims, pad):
-    """The scenes' static box where they have one (the same for all), else the extent of every
-    body over the runs, widened by pad on each side; and a phrase saying which it is. `sims`: the
-    dataset's simulations (their `box`) or a run's (the manifest's `static_box`)."""
-    boxes = {getattr(s, "box", None) or s.static_box for s in sims}
-    if None not in boxes:
-        if len(boxes) > 1:
-            raise InputError(f"the simulations have different boxes ({', '.join(map(str, sorted(boxes)))}); "
-                             f"give one --window x0,y0,x1,y1 for all")
-        return boxes.pop(), "the scenes' static box"
-    if any(s.extent is None for s in sims):
-        raise InputError("a scene has no static box, and its run records no extent of the bodies (a run from "
-                         "an older version); give --window x0,y0,x1,y1")
-    e = np.array([s.extent for s in sims])
-    window = (e[:, 0].min() - pad, e[:, 1].min() - pad, e[:, 2].max() + pad, e[:, 3].max() + pad)
-    return tuple(float(v) for v in window), "where the bodies went over the runs (no static box)"
-
-
-def grid_for(sims, cell, h, kernel, renormalize, window=None):
-    """The grid over window, or over default_window's choice; the spec and a phrase for the log."""
-    which = "given"
-    if window is None:
-        window, which = default_window(sims, pad=h + cell)
-    return GridSpec.over(window, cell, h, kernel, renormalize), which
 
 
 # Steps a worker rasterizes per task: the images in memory at once are CHUNK samples per worker,
@@ -402,7 +301,6 @@ class GridDataset:
     """A dataset folder, memory-mapped. `torch_dataset(split)` gives torch tensors."""
 
     def __init__(self, path: str | os.PathLike):
-        from .. import arguments
         self.path = Path(arguments.path(path, "path"))
         meta = self.path / "metadata.json"
         if not meta.is_file():
@@ -411,6 +309,17 @@ class GridDataset:
             self.metadata = json.loads(meta.read_bytes())
         except (ValueError, UnicodeDecodeError) as e:
             raise InputError(f"unreadable metadata: {e}", meta) from None
+        self._check_metadata(meta)
+        try:
+            self.spec = GridSpec.from_dict(self.metadata["grid"])
+        except ValueError as e:
+            raise InputError(str(e), meta) from None
+        self.arrays = {name: self._map(self.path / f"{name}.npy") for name in ARRAYS}
+        self._check_arrays(meta)
+        self._folders, self._verified_runs = {}, set()
+
+    def _check_metadata(self, meta):
+        """metadata.json holds what a dataset's does, of the right kinds (InputError naming it)."""
         m = self.metadata
         if not isinstance(m, dict):
             raise InputError(f"the metadata must be a JSON object, not {type(m).__name__}", meta)
@@ -429,25 +338,20 @@ class GridDataset:
             ids = m["split"].get(part)
             if not isinstance(ids, list) or not all(type(i) is int and 0 <= i < n_sims for i in ids):
                 raise InputError(f"split {part!r} must be a list of simulation numbers 0..{n_sims - 1}", meta)
+
+    @staticmethod
+    def _map(path):
+        """The array at path, memory-mapped (InputError naming a missing or damaged one)."""
         try:
-            self.spec = GridSpec.from_dict(m["grid"])
+            return np.load(require_regular(path), mmap_mode="r", allow_pickle=False)
+        except InputError:
+            raise InputError("missing dataset array", path) from None
+        except OSError as e:
+            if e.errno == errno.ENOMEM:   # the machine's limit, not the file's fault
+                raise MemoryError(f"cannot map {path}: {e.strerror}") from None
+            raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
         except ValueError as e:
-            raise InputError(str(e), meta) from None
-        self.arrays = {}
-        for name in ARRAYS:
-            path = self.path / f"{name}.npy"
-            try:
-                self.arrays[name] = np.load(require_regular(path), mmap_mode="r", allow_pickle=False)
-            except InputError:
-                raise InputError("missing dataset array", path) from None
-            except OSError as e:
-                if e.errno == errno.ENOMEM:   # the machine's limit, not the file's fault
-                    raise MemoryError(f"cannot map {path}: {e.strerror}") from None
-                raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
-            except ValueError as e:
-                raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
-        self._check_arrays(meta)
-        self._folders, self._verified_runs = {}, set()
+            raise InputError(f"damaged dataset array (truncated?): {e}", path) from None
 
     def _check_arrays(self, meta):
         """Every array of the dtype and shape the metadata implies, indices within range."""

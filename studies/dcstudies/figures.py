@@ -10,7 +10,7 @@ Each is the median (and 10-90% band) of the stopping measure per PGS sweep over 
     dc study figures RUN -o OUTDIR [--every 10] [--tolerance 1e-4] [--stop-on residual] [-j 2]
 """
 from deepcontact import output, workers
-from deepcontact.grid.dataset import collect
+from deepcontact.grid.sources import collect
 from deepcontact.grid.spec import GridSpec
 from deepcontact.protocol import protocol, protocol_line
 from deepcontact.solver.settings import SolveSettings
