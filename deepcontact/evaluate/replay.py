@@ -237,104 +237,26 @@ def evaluate_simulation(task):
     the larger) less the null contestant's round trip of the same request, and its answer judged
     here."""
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
-    mode, max_iterations, tolerance, stop_on = settings.mode, settings.max_iterations, settings.tolerance, settings.stop_on
-    measure = MEASURES.index(stop_on)
     made, null = open_contestants(table, settings)
     contestants = {v.label: c for v, c in zip(table, made)}
     rows = []
     try:
-        previous, before = set(), None
-        for k, path in enumerate(files):
-            workers.progress(1)
-            header, bodies, contacts = read_step(path, validate=False)
-            check_origin(header, scene, sim_seed, path, engine)
-            keys = contact_keys(contacts)
-            persisted = np.array([key in previous for key in keys], dtype=bool)
-            previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
-            if k % every or len(contacts["manifold"]) == 0:
-                continue
+        for header, bodies, contacts, path, persisted, earlier in _steps_to_judge(files, scene, engine, sim_seed,
+                                                                                   every):
             problem = StepProblem.from_step(header, bodies, contacts, path)
             reference = reference_solution(problem)
             ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                               persisted=persisted, seed=seed, index=int(header["index"]), trajectory="replay",
                               previous=previous_solution(earlier, header["index"], settings))
-            ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
             order = np.random.default_rng([seed, sim_seed, int(header["index"])]).permutation(len(table))
-            step_rows = {}
-            deadline = deadline_for(problem.points)
-            for i in order:
-                v = table[i]
-                c = contestants[v.label]
-                request = packed({"op": "start", "ctx": visible_context(ctx, c.traits, v.label)})
-                # (the null contestant's round trip of the same request, just before: a first touch
-                # of the step's bytes, as the variant's call is; a repeat of it measured the
-                # null 0.2 ms faster than any real start's call)
-                transport = null.call(request, deadline)[0]
-                took, _, arrays = c.call(request, deadline)
-                predict_s = _net(took, [transport])
-                normal, tangent = checked_answer(v.label, arrays, problem.points)
-                step_rows[i] = (v, c, normal, tangent, predict_s)
-            asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate) for i, (v, *_) in step_rows.items()}
-            sent = pickle.dumps(unanswered(problem))
-            requests = {i: {"op": "solve", "problem": sent, "normal": step_rows[i][2], "tangent": step_rows[i][3],
-                            "settings": asked[i]} for i in step_rows}
-            wire = {i: packed(r) for i, r in requests.items()}   # (packed once for all its calls)
-            took = {i: [] for i in step_rows}
-            answers = {i: [] for i in step_rows}
-            # the transport of a solve (the null contestant's, the same for every variant), before the
-            # rounds and after them (the least counts)
-            first = next(iter(requests))
-            nulls = [null.call(wire[first], deadline)[0]]
-            # interleaved (a busy moment of the machine touches every variant), after a round that
-            # warms each process up (the first call after a start's ran slower; its answer is judged
-            # like every other, so no call is one a contestant could treat differently)
-            for rep in range(-1, REPEATS):
-                for i in order:
-                    t, head, arrays = step_rows[i][1].call(wire[i], deadline)
-                    answers[i].append((head, arrays))
-                    took[i].append(t)
-            nulls.append(null.call(wire[first], deadline)[0])
-            # each call's time (the first, the warming one, kept apart: a memo shows against it)
-            times = {i: [_net(t, nulls) * 1e3 for t in took[i]] for i in step_rows}
-            firsts = {i: times[i].pop(0) for i in step_rows}
-            for i in step_rows:
-                step_rows[i][1].status()
-            for i in sorted(step_rows):
-                v, c, normal, tangent, predict_s = step_rows[i]
-                # every timed answer judged by our residual: the worst of them is the variant's
-                judged = [judge(problem, *checked_answer(v.label, arrays, problem.points)) for _, arrays in answers[i]]
-                if not is_native(v.accelerate):   # (a plug-in's answer: one a step could need at all?)
-                    for _, arrays in answers[i]:
-                        check_plausible(v.accelerate, problem, arrays["normal"], arrays["tangent"])
-                worst = max(judged, key=lambda s: s.residual)
-                head, arrays = answers[i][0]
-                got = np.concatenate([arrays["normal"], arrays["tangent"]])
-                if is_native(v.accelerate):   # (the judge's own solver, traced here, untimed: the same iterates)
-                    traced = solve(problem, normal, tangent, history=True, settings=asked[i])
-                    hist, iterations = traced.history[:, measure], traced.iterations
-                else:
-                    hist, iterations = arrays["claims"].copy(), int(head["iterations"])
-                    if len(hist):
-                        hist[-1] = judged[0].residual   # (the last iterate's residual is ours, not its claim)
-                first = (solve(problem, normal, tangent, mode=mode, max_iterations=0).residual
-                         if stop_on == "residual" else np.nan)
-                capped = bool(iterations >= max_iterations and (len(hist) == 0 or hist[-1] >= tolerance))
-                row = Row(run=run, seed=sim_seed, step=header["index"], points=problem.points, start=v.label,
-                          iterations=iterations, capped=capped,
-                          above=bool(worst.residual > tolerance) if stop_on == "residual" and tolerance > 0 else capped,
-                          residual=worst.residual,
-                          error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
-                          velocity_error=_velocity_error(judged[0], reference),
-                          predict_ms=predict_s * 1e3, solve_ms=float(np.median(times[i])),
-                          history=np.concatenate([[first], hist]),
-                          relaxation=None if v.relaxation is None else float(v.relaxation),
-                          accelerate=v.accelerate, fallback=bool(head["fallback"]),
-                          reference_residual=reference.residual, reference_pivoted=reference.pivoted,
-                          factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(times[i]),
-                          transport_ms=min(nulls) * 1e3, setup_ms=max(c.setup_s - null.setup_s, 0.0) * 1e3,
-                          first_ms=firsts[i])
+            step = _JudgedStep(problem, reference, settings, null)
+            step.start(table, contestants, ctx, order)
+            step.solve(order)
+            for i in sorted(step.variants):
+                row = step.row(i, run, sim_seed, header["index"])
                 if budgets:
-                    row.budget_ms, row.budget_residual = _budgets(c, problem, requests[i], min(nulls), v.label)
+                    row.budget_ms, row.budget_residual = _budgets(step.variants[i][1], problem, step.requests[i],
+                                                                  min(step.nulls), table[i].label)
                 rows.append(row)
     finally:
         for c in (*contestants.values(), null):
@@ -344,6 +266,118 @@ def evaluate_simulation(task):
         row.left_running = tuple(c.left_running)
         row.setup_ms += c.after_s * 1e3
     return rows
+
+
+def _steps_to_judge(files, scene, engine, sim_seed, every):
+    """(header, bodies, contacts, path, persisted, the step before) of every `every`-th step file
+    with contacts, each checked as this simulation's; persisted: which contacts the step before had."""
+    previous, before = set(), None
+    for k, path in enumerate(files):
+        workers.progress(1)
+        header, bodies, contacts = read_step(path, validate=False)
+        check_origin(header, scene, sim_seed, path, engine)
+        keys = contact_keys(contacts)
+        persisted = np.array([key in previous for key in keys], dtype=bool)
+        previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
+        if k % every or len(contacts["manifold"]) == 0:
+            continue
+        yield header, bodies, contacts, path, persisted, earlier
+
+
+class _JudgedStep:
+    """One step put to every variant: each start asked, then every solve timed in interleaved
+    rounds, and each answer judged by our residual."""
+
+    def __init__(self, problem, reference, settings, null):
+        self.problem, self.reference, self.settings, self.null = problem, reference, settings, null
+        self.deadline = deadline_for(problem.points)
+        self.variants = {}   # i -> (variant, contestant, normal, tangent, prediction seconds)
+
+    def start(self, table, contestants, ctx, order):
+        """Each variant's start for the step, timed less the null contestant's round trip."""
+        for i in order:
+            v = table[i]
+            c = contestants[v.label]
+            request = packed({"op": "start", "ctx": visible_context(ctx, c.traits, v.label)})
+            # (the null contestant's round trip of the same request, just before: a first touch
+            # of the step's bytes, as the variant's call is; a repeat of it measured the
+            # null 0.2 ms faster than any real start's call)
+            transport = self.null.call(request, self.deadline)[0]
+            took, _, arrays = c.call(request, self.deadline)
+            normal, tangent = checked_answer(v.label, arrays, self.problem.points)
+            self.variants[i] = (v, c, normal, tangent, _net(took, [transport]))
+
+    def solve(self, order):
+        """Every variant's solve from its start, in REPEATS interleaved rounds after a warming one
+        (a busy moment of the machine touches every variant), with the solve's transport measured
+        before and after them (the least counts)."""
+        settings, deadline = self.settings, self.deadline
+        self.asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate)
+                      for i, (v, *_) in self.variants.items()}
+        sent = pickle.dumps(unanswered(self.problem))
+        self.requests = {i: {"op": "solve", "problem": sent, "normal": row[2], "tangent": row[3],
+                             "settings": self.asked[i]} for i, row in self.variants.items()}
+        wire = {i: packed(r) for i, r in self.requests.items()}   # (packed once for all its calls)
+        took = {i: [] for i in self.variants}
+        self.answers = {i: [] for i in self.variants}
+        first = next(iter(self.requests))
+        self.nulls = [self.null.call(wire[first], deadline)[0]]
+        # (the first call after a start's ran slower; its answer is judged like every other, so no
+        # call is one a contestant could treat differently)
+        for _ in range(-1, REPEATS):
+            for i in order:
+                t, head, arrays = self.variants[i][1].call(wire[i], deadline)
+                self.answers[i].append((head, arrays))
+                took[i].append(t)
+        self.nulls.append(self.null.call(wire[first], deadline)[0])
+        # each call's time (the first, the warming one, kept apart: a memo shows against it)
+        self.times = {i: [_net(t, self.nulls) * 1e3 for t in took[i]] for i in self.variants}
+        self.firsts = {i: self.times[i].pop(0) for i in self.variants}
+        for row in self.variants.values():
+            row[1].status()
+
+    def history(self, i, v, normal, tangent, head, arrays, judged):
+        """(the stopping measure per iterate, the iterations) of variant i's solve: the judge's own
+        solver traced here, untimed (the same iterates), or a plug-in's claims with our residual last."""
+        if is_native(v.accelerate):
+            traced = solve(self.problem, normal, tangent, history=True, settings=self.asked[i])
+            return traced.history[:, MEASURES.index(self.settings.stop_on)], traced.iterations
+        hist, iterations = arrays["claims"].copy(), int(head["iterations"])
+        if len(hist):
+            hist[-1] = judged[0].residual   # (the last iterate's residual is ours, not its claim)
+        return hist, iterations
+
+    def row(self, i, run, sim_seed, index):
+        """Variant i's Row: every timed answer judged by our residual, the worst of them its own."""
+        problem, reference, s = self.problem, self.reference, self.settings
+        v, c, normal, tangent, predict_s = self.variants[i]
+        answers = self.answers[i]
+        judged = [judge(problem, *checked_answer(v.label, arrays, problem.points)) for _, arrays in answers]
+        if not is_native(v.accelerate):   # (a plug-in's answer: one a step could need at all?)
+            for _, arrays in answers:
+                check_plausible(v.accelerate, problem, arrays["normal"], arrays["tangent"])
+        worst = max(judged, key=lambda x: x.residual)
+        head, arrays = answers[0]
+        hist, iterations = self.history(i, v, normal, tangent, head, arrays, judged)
+        first = (solve(problem, normal, tangent, mode=s.mode, max_iterations=0).residual
+                 if s.stop_on == "residual" else np.nan)
+        capped = bool(iterations >= s.max_iterations and (len(hist) == 0 or hist[-1] >= s.tolerance))
+        ref = np.concatenate([reference.normal_impulse, reference.tangent_impulse])
+        got = np.concatenate([arrays["normal"], arrays["tangent"]])
+        return Row(run=run, seed=sim_seed, step=index, points=problem.points, start=v.label,
+                   iterations=iterations, capped=capped,
+                   above=bool(worst.residual > s.tolerance) if s.stop_on == "residual" and s.tolerance > 0 else capped,
+                   residual=worst.residual,
+                   error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
+                   velocity_error=_velocity_error(judged[0], reference),
+                   predict_ms=predict_s * 1e3, solve_ms=float(np.median(self.times[i])),
+                   history=np.concatenate([[first], hist]),
+                   relaxation=None if v.relaxation is None else float(v.relaxation),
+                   accelerate=v.accelerate, fallback=bool(head["fallback"]),
+                   reference_residual=reference.residual, reference_pivoted=reference.pivoted,
+                   factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(self.times[i]),
+                   transport_ms=min(self.nulls) * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3,
+                   first_ms=self.firsts[i])
 
 
 def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSettings(), every: int = 1, seed: int = 0,
@@ -424,37 +458,45 @@ def flag_memos(rows):
 
 def summarize(rows, starts, max_iterations):
     """Per variant: the distribution of iterations, the share at the cap, times, residual, errors."""
-    out = {}
-    for name in dict.fromkeys(r.start for r in rows):
-        rs = [r for r in rows if r.start == name]
-        it = np.array([r.iterations for r in rs])
-        pred = np.array([r.predict_ms for r in rs])
-        sol = np.array([r.solve_ms for r in rs])
-        out[name] = {
-            "steps": len(rs),
-            "relaxation": rs[0].relaxation,
-            "accelerate": rs[0].accelerate,
-            "iterations_median": float(np.median(it)), "iterations_p80": float(np.percentile(it, 80)),
-            "iterations_p95": float(np.percentile(it, 95)),
-            "at_cap": float(np.mean([r.capped for r in rs])),
-            "predict_ms_median": float(np.median(pred)), "solve_ms_median": float(np.median(sol)),
-            "total_ms_median": float(np.median(pred + sol)),
-            "residual_median": float(np.median([r.residual for r in rs])),
-            "residual_p95": float(np.percentile([r.residual for r in rs], 95)),
-            "above": float(np.mean([r.above for r in rs])),
-            "python": not is_native(rs[0].accelerate),
-            "error_median": float(np.median([r.error for r in rs])),
-            "velocity_error_median": float(np.median([r.velocity_error for r in rs])),
-            "fallbacks": float(np.mean([r.fallback for r in rs])),
-            "factorizations_median": float(np.median([r.factorizations for r in rs])),
-            "predict_ms_p90": float(np.percentile(pred, 90)), "total_ms_p90": float(np.percentile(pred + sol, 90)),
-            "total_ms_sum": float(np.sum(pred + sol)) + float(max(r.setup_ms for r in rs)),
-            "transport_ms_median": float(np.median([r.transport_ms for r in rs])),
-            "setup_ms": float(max(r.setup_ms for r in rs)),
-            "memo": bool(any(r.memo for r in rs)),
-            "left_running": [int(max(r.left_running[k] for r in rs)) for k in (0, 1)],
-        }
-    return out
+    return {name: _summary([r for r in rows if r.start == name]) for name in dict.fromkeys(r.start for r in rows)}
+
+
+def _summary(rs):
+    """One variant's summary, from its rows."""
+    it = np.array([r.iterations for r in rs])
+    pred = np.array([r.predict_ms for r in rs])
+    total = pred + np.array([r.solve_ms for r in rs])
+    setup = float(max(r.setup_ms for r in rs))
+
+    def median(field):
+        return float(np.median([getattr(r, field) for r in rs]))
+
+    def share(field):
+        return float(np.mean([getattr(r, field) for r in rs]))
+    return {
+        "steps": len(rs),
+        "relaxation": rs[0].relaxation,
+        "accelerate": rs[0].accelerate,
+        "iterations_median": float(np.median(it)), "iterations_p80": float(np.percentile(it, 80)),
+        "iterations_p95": float(np.percentile(it, 95)),
+        "at_cap": share("capped"),
+        "predict_ms_median": float(np.median(pred)), "solve_ms_median": median("solve_ms"),
+        "total_ms_median": float(np.median(total)),
+        "residual_median": median("residual"),
+        "residual_p95": float(np.percentile([r.residual for r in rs], 95)),
+        "above": share("above"),
+        "python": not is_native(rs[0].accelerate),
+        "error_median": median("error"),
+        "velocity_error_median": median("velocity_error"),
+        "fallbacks": share("fallback"),
+        "factorizations_median": median("factorizations"),
+        "predict_ms_p90": float(np.percentile(pred, 90)), "total_ms_p90": float(np.percentile(total, 90)),
+        "total_ms_sum": float(np.sum(total)) + setup,
+        "transport_ms_median": median("transport_ms"),
+        "setup_ms": setup,
+        "memo": bool(any(r.memo for r in rs)),
+        "left_running": [int(max(r.left_running[k] for r in rs)) for k in (0, 1)],
+    }
 
 
 def reference_summary(rows):

@@ -72,21 +72,40 @@ def load_checkpoint(path):
 
 def checkpoint_problem(ck):
     """What is wrong with a checkpoint's bookkeeping (types and ranges), or None."""
-    def whole(v):
-        return type(v) is int and 0 <= v < 2 ** 31
+    for check in (_counts_problem, _history_problem, _dataset_problem, _config_problem):
+        problem = check(ck)
+        if problem:
+            return problem
+    return None
 
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-    if not whole(ck["epoch"]) or not whole(ck["bad_epochs"]):
+
+def _whole(v):
+    return type(v) is int and 0 <= v < 2 ** 31
+
+
+def _number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _counts_problem(ck):
+    if not _whole(ck["epoch"]) or not _whole(ck["bad_epochs"]):
         return "'epoch' and 'bad_epochs' must be whole numbers"
-    if not number(ck["best"]) or math.isnan(ck["best"]):
+    if not _number(ck["best"]) or math.isnan(ck["best"]):
         return "'best' must be a number"
+    return None
+
+
+def _history_problem(ck):
     h = ck["history"]
-    if not isinstance(h, list) or not all(isinstance(r, dict) and all(isinstance(k, str) and number(v)
+    if not isinstance(h, list) or not all(isinstance(r, dict) and all(isinstance(k, str) and _number(v)
                                                                       for k, v in r.items()) for r in h):
         return "'history' must be a list of rows of named numbers"
-    if any(not whole(r.get("epoch")) for r in h):
+    if any(not _whole(r.get("epoch")) for r in h):
         return "every 'history' row needs a whole-number epoch"
+    return None
+
+
+def _dataset_problem(ck):
     d = ck["dataset"]
     if not isinstance(d, dict):
         return "'dataset' must be a dictionary"
@@ -100,6 +119,10 @@ def checkpoint_problem(ck):
     t = ck["targets"]
     if not isinstance(t, list) or not t or not all(isinstance(c, str) and c in d["labels"] for c in t):
         return "'targets' must name label channels of its dataset"
+    return None
+
+
+def _config_problem(ck):
     cfg = ck["train_config"]
     if not isinstance(cfg, dict):
         return "'train_config' must be a dictionary"

@@ -37,9 +37,7 @@ class TrainConfig:
         for name, low, high, low_open in (("lr", 0.0, math.inf, True), ("momentum", 0.0, 1.0, False),
                                           ("weight_decay", 0.0, math.inf, False), ("dropout", 0.0, 1.0, False)):
             value = getattr(self, name)
-            ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                  and (value > low if low_open else value >= low) and value <= high and not (name == "dropout" and value == 1))
-            if not ok:
+            if not _in_range(name, value, low, high, low_open):
                 raise OptionError(f"{name.replace('_', ' ')} must be a finite number in "
                                   f"{'(' if low_open else '['}{low:g}, {high:g}{')' if name == 'dropout' or high == math.inf else ']'}"
                                   f", got {value!r}", "--" + name.replace("_", "-"))
@@ -49,6 +47,12 @@ class TrainConfig:
             if type(value) is not int or not low <= value <= 2 ** 31 - 1:
                 raise OptionError(f"{name.replace('_', ' ')} must be a whole number from {low} to {2 ** 31 - 1}, "
                                   f"got {value!r}", "--" + name.replace("_", "-"))
+
+
+def _in_range(name, value, low, high, low_open):
+    """Whether a real setting is a finite number in its range (a dropout of 1 drops everything)."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            and (value > low if low_open else value >= low) and value <= high and not (name == "dropout" and value == 1))
 
 
 def thesis_lr(epoch):
@@ -77,23 +81,35 @@ def config_problem(cfg):
     for k, v in cfg.items():
         if k not in defaults:
             return f"unknown setting {k!r}"
-        want = type(defaults[k])
-        if want is float:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                return f"{k!r} must be a finite number, not {v!r}"
-        elif type(v) is not want:
-            return f"{k!r} must be {want.__name__}, not {v!r}"
-        lo, hi = _RANGES.get(k, (None, None))
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            return f"{k!r} must be from {lo} to {hi if hi is not None else 'any'}, not {v!r}"
-        if k in _CHOICES and v not in _CHOICES[k]:
-            return f"{k!r} must be one of {', '.join(_CHOICES[k])}, not {v!r}"
-        if k == "model" and not NETWORKS.is_name(v):
-            return f"'model' must name a network (thesis, fcn, or a plug-in), not {v!r}"
-        if k == "targets" and (not v or not all(isinstance(t, str) for t in v)):
-            return "'targets' must be a list of label channel names"
-        if k == "loss" and v not in losses.LOSSES:
-            return f"'loss' must be one of {', '.join(losses.LOSSES)}, not {v!r}"
+        problem = _kind_problem(k, v, type(defaults[k])) or _value_problem(k, v)
+        if problem:
+            return problem
+    return None
+
+
+def _kind_problem(k, v, want):
+    """A setting's value of the wrong kind, said, or None."""
+    if want is float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            return f"{k!r} must be a finite number, not {v!r}"
+    elif type(v) is not want:
+        return f"{k!r} must be {want.__name__}, not {v!r}"
+    return None
+
+
+def _value_problem(k, v):
+    """A setting's value outside its range or its choices, said, or None."""
+    lo, hi = _RANGES.get(k, (None, None))
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        return f"{k!r} must be from {lo} to {hi if hi is not None else 'any'}, not {v!r}"
+    if k in _CHOICES and v not in _CHOICES[k]:
+        return f"{k!r} must be one of {', '.join(_CHOICES[k])}, not {v!r}"
+    if k == "model" and not NETWORKS.is_name(v):
+        return f"'model' must name a network (thesis, fcn, or a plug-in), not {v!r}"
+    if k == "targets" and (not v or not all(isinstance(t, str) for t in v)):
+        return "'targets' must be a list of label channel names"
+    if k == "loss" and v not in losses.LOSSES:
+        return f"'loss' must be one of {', '.join(losses.LOSSES)}, not {v!r}"
     return None
 
 

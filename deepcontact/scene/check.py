@@ -72,99 +72,138 @@ def polygon_problem(vertices):
 
 
 def check_scene(scene, path=None):
-    """Raises InputError naming the file, line and problem."""
-    def fail(msg, line=None):
-        raise InputError(msg, path, line)
+    """Raises InputError naming the file, line and problem: the first the scene has of the rules
+    in SCENE_RULES, in their order (the world, its effects, each body and its shapes, the events)."""
+    for rule in SCENE_RULES:
+        for message, line in rule(scene):
+            raise InputError(message, path, line)
 
+
+def _world(scene):
     at = scene.lines.get
     if not (_finite(scene.dt) and 1e-6 <= scene.dt <= 10):
-        fail(f"dt must be between 1e-6 and 10 s, got {scene.dt}", at("world"))
+        yield f"dt must be between 1e-6 and 10 s, got {scene.dt}", at("world")
     if not 1 <= scene.steps <= MAX_COUNT:
-        fail(f"steps must be between 1 and {MAX_COUNT}, got {scene.steps}", at("world"))
+        yield f"steps must be between 1 and {MAX_COUNT}, got {scene.steps}", at("world")
     if not all(0 <= n <= MAX_COUNT for n in (scene.solver.velocity_iterations, scene.solver.position_iterations)):
-        fail(f"iteration counts must be between 0 and {MAX_COUNT}", at("solver"))
-    e = scene.effects
+        yield f"iteration counts must be between 0 and {MAX_COUNT}", at("solver")
+
+
+def _effects(scene):
+    at, e = scene.lines.get, scene.effects
     if e.gravity is not None and not _within(MAX_GRAVITY, *e.gravity):
-        fail(f"gravity must be finite and at most {MAX_GRAVITY:g} m/s^2 in each component, got {e.gravity}",
-             at("gravity"))
+        yield (f"gravity must be finite and at most {MAX_GRAVITY:g} m/s^2 in each component, got {e.gravity}",
+               at("gravity"))
     for name in ("friction", "restitution"):
         v = getattr(e, name)
         if v is not None and not (_finite(v) and 0 <= v <= MAX_COEFFICIENT):
-            fail(f"{name} coefficient must be a finite number from 0 to {MAX_COEFFICIENT:g}", at(name))
+            yield f"{name} coefficient must be a finite number from 0 to {MAX_COEFFICIENT:g}", at(name)
     if e.restitution is not None and not (_finite(e.restitution_threshold) and
                                           0 <= e.restitution_threshold <= MAX_SPEED):
-        fail(f"the restitution threshold must be a speed from 0 to {MAX_SPEED:g} m/s, got {e.restitution_threshold}",
-             at("restitution"))
+        yield (f"the restitution threshold must be a speed from 0 to {MAX_SPEED:g} m/s, got "
+               f"{e.restitution_threshold}", at("restitution"))
     if e.damping is not None and not (_within(MAX_DAMPING, *e.damping) and min(e.damping) >= 0):
-        fail(f"damping must be between 0 and {MAX_DAMPING:g}", at("damping"))
+        yield f"damping must be between 0 and {MAX_DAMPING:g}", at("damping")
 
+
+def _bodies(scene):
     for i, b in enumerate(scene.bodies):
         where = f"body {i}"
-        if b.type not in BODY_TYPES:
-            fail(f"{where}: unknown type {b.type!r}", b.line)
-        if not _within(MAX_LENGTH, b.x, b.y, b.angle):
-            fail(f"{where}: position and angle must be finite and at most {MAX_LENGTH:g} in size", b.line)
-        if not _within(MAX_SPEED, b.vx, b.vy, b.omega):
-            fail(f"{where}: velocity and spin must be finite and at most {MAX_SPEED:g} in size", b.line)
-        if b.bullet and not e.continuous:
-            fail(f"{where} is a bullet, which needs the continuous effect declared", b.line)
-        mass, first, polar = 0.0, np.zeros(2), 0.0
+        yield from _body(where, b, scene.effects)
         for s in b.shapes:
-            line = s.line or b.line
-            if s.friction is not None and e.friction is None:
-                fail(f"{where}: a {s.kind} gives friction but the scene does not declare the "
-                     f"friction effect", line)
-            if s.restitution is not None and e.restitution is None:
-                fail(f"{where}: a {s.kind} gives restitution but the scene does not declare the "
-                     f"restitution effect", line)
-            for name in ("friction", "restitution", "density"):
-                v = getattr(s, name)
-                if v is not None and not (_finite(v) and v >= 0):
-                    fail(f"{where}: {s.kind} {name} must be a finite number >= 0", line)
-                if name != "density" and v is not None and v > MAX_COEFFICIENT:
-                    fail(f"{where}: {s.kind} {name} must be at most {MAX_COEFFICIENT:g}", line)
-            if s.density is not None and s.density > 1e20:
-                fail(f"{where}: {s.kind} density must be at most 1e20 kg/m^2", line)
-            if s.kind == "circle":
-                if not (_within(MAX_LENGTH, s.radius, s.x, s.y) and s.radius > 0):
-                    fail(f"{where}: circle radius must be positive and at most {MAX_LENGTH:g} m, and its "
-                         f"centre finite and within {MAX_LENGTH:g} m", line)
-            elif s.kind == "polygon":
-                if not _within(MAX_LENGTH, *np.ravel(np.asarray(s.vertices, dtype=np.float64))):
-                    fail(f"{where}: polygon vertices must be finite and within {MAX_LENGTH:g} m", line)
-                problem = polygon_problem(s.vertices)
-                if problem:
-                    fail(f"{where}: {problem}", line)
-            else:
-                if not _within(MAX_LENGTH, s.x1, s.y1, s.x2, s.y2):
-                    fail(f"{where}: edge ends must be finite and within {MAX_LENGTH:g} m", line)
-                if math.hypot(s.x2 - s.x1, s.y2 - s.y1) < linear_slop:
-                    fail(f"{where}: edge shorter than the linear slop ({linear_slop:g} m)", line)
-            m, f, j = shape_mass(s)
-            mass, first, polar = mass + m, first + f, polar + j
-        if b.type == "dynamic" and mass <= 0:
-            fail(f"{where} is dynamic but has no mass: give a circle or polygon a density > 0", b.line)
-        lo, hi = MASS_RANGE
-        if b.type == "dynamic" and not lo <= mass <= hi:
-            fail(f"{where}: its mass {mass:.3g} kg is outside [{lo:g}, {hi:g}] (float32 could not hold it, "
-                 f"or its inverse, safely)", b.line)
-        if b.type == "dynamic" and not b.fixed_rotation:
-            # Box2D shifts the inertia to the centre of mass in float32 and asserts it stays > 0:
-            # shapes tiny beside their distance from the body origin cancel it out.
-            inertia = polar - float(first @ first) / mass
-            if not (inertia <= hi and inertia > 1e-5 * polar and inertia >= lo):
-                fail(f"{where}: its rotational inertia about the centre of mass ({inertia:.3g} kg m^2) is "
-                     f"outside [{lo:g}, {hi:g}] or lost to rounding (shapes small beside their distance "
-                     f"from the body's origin)", b.line)
+            yield from ((f"{where}: {message}", s.line or b.line) for message in _shape(s, scene.effects))
+        yield from _mass(where, b)
 
+
+def _body(where, b, effects):
+    """What is wrong with a body itself (its type, pose, velocity, bullet flag)."""
+    if b.type not in BODY_TYPES:
+        yield f"{where}: unknown type {b.type!r}", b.line
+    if not _within(MAX_LENGTH, b.x, b.y, b.angle):
+        yield f"{where}: position and angle must be finite and at most {MAX_LENGTH:g} in size", b.line
+    if not _within(MAX_SPEED, b.vx, b.vy, b.omega):
+        yield f"{where}: velocity and spin must be finite and at most {MAX_SPEED:g} in size", b.line
+    if b.bullet and not effects.continuous:
+        yield f"{where} is a bullet, which needs the continuous effect declared", b.line
+
+
+def _shape(s, effects):
+    """What is wrong with one shape: its materials against the scene's effects, then its geometry."""
+    for name in ("friction", "restitution"):
+        if getattr(s, name) is not None and getattr(effects, name) is None:
+            yield f"a {s.kind} gives {name} but the scene does not declare the {name} effect"
+    for name in ("friction", "restitution", "density"):
+        v = getattr(s, name)
+        if v is not None and not (_finite(v) and v >= 0):
+            yield f"{s.kind} {name} must be a finite number >= 0"
+        if name != "density" and v is not None and v > MAX_COEFFICIENT:
+            yield f"{s.kind} {name} must be at most {MAX_COEFFICIENT:g}"
+    if s.density is not None and s.density > 1e20:
+        yield f"{s.kind} density must be at most 1e20 kg/m^2"
+    yield from _GEOMETRY[s.kind](s)
+
+
+def _circle(s):
+    if not (_within(MAX_LENGTH, s.radius, s.x, s.y) and s.radius > 0):
+        yield (f"circle radius must be positive and at most {MAX_LENGTH:g} m, and its centre finite and within "
+               f"{MAX_LENGTH:g} m")
+
+
+def _polygon(s):
+    if not _within(MAX_LENGTH, *np.ravel(np.asarray(s.vertices, dtype=np.float64))):
+        yield f"polygon vertices must be finite and within {MAX_LENGTH:g} m"
+    problem = polygon_problem(s.vertices)
+    if problem:
+        yield problem
+
+
+def _edge(s):
+    if not _within(MAX_LENGTH, s.x1, s.y1, s.x2, s.y2):
+        yield f"edge ends must be finite and within {MAX_LENGTH:g} m"
+    if math.hypot(s.x2 - s.x1, s.y2 - s.y1) < linear_slop:
+        yield f"edge shorter than the linear slop ({linear_slop:g} m)"
+
+
+_GEOMETRY = {"circle": _circle, "polygon": _polygon, "edge": _edge}
+
+
+def _mass(where, b):
+    """A dynamic body's mass and rotational inertia, within what float32 holds safely."""
+    if b.type != "dynamic":
+        return
+    mass, first, polar = 0.0, np.zeros(2), 0.0
+    for s in b.shapes:
+        m, f, j = shape_mass(s)
+        mass, first, polar = mass + m, first + f, polar + j
+    lo, hi = MASS_RANGE
+    if mass <= 0:
+        yield f"{where} is dynamic but has no mass: give a circle or polygon a density > 0", b.line
+    if not lo <= mass <= hi:
+        yield (f"{where}: its mass {mass:.3g} kg is outside [{lo:g}, {hi:g}] (float32 could not hold it, "
+               f"or its inverse, safely)", b.line)
+    if not b.fixed_rotation:
+        # Box2D shifts the inertia to the centre of mass in float32 and asserts it stays > 0:
+        # shapes tiny beside their distance from the body origin cancel it out.
+        inertia = polar - float(first @ first) / mass
+        if not (inertia <= hi and inertia > 1e-5 * polar and inertia >= lo):
+            yield (f"{where}: its rotational inertia about the centre of mass ({inertia:.3g} kg m^2) is "
+                   f"outside [{lo:g}, {hi:g}] or lost to rounding (shapes small beside their distance "
+                   f"from the body's origin)", b.line)
+
+
+def _events(scene):
     for ev in scene.events:
         if ev.body >= len(scene.bodies):
-            fail(f"event removes body {ev.body}, but the scene has {len(scene.bodies)} bodies", ev.line)
+            yield f"event removes body {ev.body}, but the scene has {len(scene.bodies)} bodies", ev.line
         if ev.step >= scene.steps:
-            fail(f"event at step {ev.step} is after the last step ({scene.steps - 1})", ev.line)
+            yield f"event at step {ev.step} is after the last step ({scene.steps - 1})", ev.line
     removed = [ev.body for ev in scene.events]
     if len(set(removed)) != len(removed):
-        fail("a body is removed twice")
+        yield "a body is removed twice", None
+
+
+# The scene's rules, in the order they are checked: the first problem found is the one reported.
+SCENE_RULES = (_world, _effects, _bodies, _events)
 
 
 def overlap_tolerance(kind_a, kind_b):
