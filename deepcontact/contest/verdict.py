@@ -118,6 +118,12 @@ class Verdict:
         return self.best is not None and self.steps < MIN_STEPS
 
 
+def _ranked_times(times, unfinished):
+    """The times with each label's unfinished steps infinite (slower than any finished step)."""
+    return {name: {k: (np.inf if k in unfinished.get(name, ()) else ms) for k, ms in t.items()}
+            for name, t in times.items()}
+
+
 def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
     """The verdict on `times` ({label: {step key: charged ms}}): `candidates` the labels that may
     win, `base` Box2D's warm start's label, `aa_pair` (first, second) its paired A/A times,
@@ -127,8 +133,7 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
         return None
     rng = np.random.default_rng(SEED)
     setup_ms, unfinished = setup_ms or {}, unfinished or {}
-    ranked_times = {name: {k: (np.inf if k in unfinished.get(name, ()) else ms) for k, ms in t.items()}
-                    for name, t in times.items()}
+    ranked_times = _ranked_times(times, unfinished)
     v = Verdict(base=base, aa=ratio_interval(*aa_pair, rng))
     v.unfinished = {name: len(set(unfinished.get(name, ())) & set(t)) for name, t in times.items()}
     v.vs_base = {name: ratio_interval(*paired(t, ranked_times[base]), rng) for name, t in ranked_times.items()}
@@ -140,12 +145,18 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
         return v
     v.best = fair[0]
     v.steps = len(paired(times[v.best], times[base])[0])
-    clear = v.best == base or (v.vs_base[v.best][2] < 1.0 and v.vs_base[v.best][2] < v.aa[1])
     if len(fair) > 1:
         v.runner_up = fair[1]
         v.best_vs_runner_up = ratio_interval(*paired(ranked_times[v.best], ranked_times[v.runner_up]), rng)
-        clear = clear and v.best_vs_runner_up[2] < 1.0
     v.beaten_on_total_by = [n for n in dict.fromkeys((base, v.runner_up)) if n is not None and n != v.best
                             and v.totals[n] < v.totals[v.best]]
-    v.clear = bool(clear and not v.beaten_on_total_by and not v.too_few_steps and not v.gave_up_more)
+    v.clear = _beyond_noise(v) and not (v.beaten_on_total_by or v.too_few_steps or v.gave_up_more)
     return v
+
+
+def _beyond_noise(v):
+    """Whether best is faster than the base beyond the A/A noise (or is the base) and faster than
+    the runner-up, both by their whole intervals."""
+    upper = v.vs_base[v.best][2]
+    faster = v.best == v.base or (upper < 1.0 and upper < v.aa[1])
+    return bool(faster and (v.runner_up is None or v.best_vs_runner_up[2] < 1.0))

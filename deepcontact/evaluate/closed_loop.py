@@ -352,10 +352,12 @@ def pooled(per_simulation):
             drift=np.max([r.drift[:n] for r in same], axis=0) if n else np.zeros(0),
             penetration=max(r.penetration for r in same), finite=all(r.finite for r in same),
             energy_error=max(r.energy_error for r in same),
-            residuals=np.concatenate([r.residuals for r in same]) if all(r.residuals is not None for r in same)
-            else None,
-            ms_again=np.concatenate([r.ms_again for r in same]) if all(r.ms_again is not None for r in same)
-            else None,
-            transport_ms=np.concatenate([r.transport_ms for r in same]) if all(r.transport_ms is not None for r in same)
-            else None, setup_ms=sum(r.setup_ms for r in same)))
+            residuals=_joined(same, "residuals"), ms_again=_joined(same, "ms_again"),
+            transport_ms=_joined(same, "transport_ms"), setup_ms=sum(r.setup_ms for r in same)))
     return rows
+
+
+def _joined(rows, field):
+    """The rows' arrays of a field end to end, or None where any row has none."""
+    parts = [getattr(r, field) for r in rows]
+    return None if any(p is None for p in parts) else np.concatenate(parts)

@@ -164,9 +164,7 @@ def loop_verdict(results, tolerance):
         return None
     candidates = [r for r in results if r.ours and not r.oracle]
     fair = [r for r in candidates if r.finite]
-    left = [r.start for r in candidates if r not in fair]
-    left_out = (f" Left out, as they stopped being finite: {', '.join(md_text(n) for n in left)}." if left else "") \
-        + _unfinished_note({r.start: loop_above(r, tolerance) or 0 for r in fair})
+    left_out = _loop_left_out(candidates, fair, tolerance)
     if not fair:
         return "**Verdict**: no start stayed finite on every step of the loop, so none is named." + left_out
     ours = [r for r in results if r.ours]
@@ -177,10 +175,22 @@ def loop_verdict(results, tolerance):
     if v.too_few_steps:
         return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
                 f"least {MIN_STEPS}." + left_out + _fence_caveat())
-    parts = ([f"{interval(v.vs_base[v.best])} of {md_text(base.start)}'s time per step"] if v.best != base.start else []) \
+    return (f"{_loop_head(v, base.start)} ({'; '.join(_loop_intervals(v, base.start))}; 95% intervals over the "
+            f"steps)." + left_out + _fence_caveat())
+
+
+def _loop_left_out(candidates, fair, tolerance):
+    """What the loop verdict says of the variants it left out or found unfinished."""
+    left = [r.start for r in candidates if r not in fair]
+    return (f" Left out, as they stopped being finite: {', '.join(md_text(n) for n in left)}." if left else "") \
+        + _unfinished_note({r.start: loop_above(r, tolerance) or 0 for r in fair})
+
+
+def _loop_intervals(v, base):
+    """The intervals the loop verdict states: against the base, the runner-up, and A/A."""
+    return ([f"{interval(v.vs_base[v.best])} of {md_text(base)}'s time per step"] if v.best != base else []) \
         + ([f"{interval(v.best_vs_runner_up)} of the runner-up {md_text(v.runner_up)}'s"] if v.runner_up else []) \
         + [f"A/A noise floor {interval(v.aa)}"]
-    return f"{_loop_head(v, base.start)} ({'; '.join(parts)}; 95% intervals over the steps)." + left_out + _fence_caveat()
 
 
 def _loop_unfinished(r, tolerance):

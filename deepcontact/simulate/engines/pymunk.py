@@ -14,7 +14,9 @@ import math
 
 import numpy as np
 
+from ..._box2d import linear_slop, polygon_radius
 from ...resources import check_step_work
+from ..build import build_world
 from ..pgs_loop import LoopStep
 from . import Engine, Setting, empty_contacts
 
@@ -74,70 +76,87 @@ class PymunkWorld:
     shape's fixture index and a Box2D world's body records (mass properties, the layout)."""
 
     def __init__(self, scene, iterations):
-        pymunk = _library()
-        from ..build import build_world
-        from ..._box2d import linear_slop, polygon_radius
-        e = scene.effects
         self.dt = float(scene.dt)
         self.records = build_world(scene).bodies()   # Box2D's mass properties and record layout
-        space = self.space = pymunk.Space()
-        space.iterations = iterations
-        space.collision_slop = float(linear_slop)
-        if e.gravity is not None:
-            space.gravity = tuple(map(float, e.gravity))
-        if scene.solver.sleeping:
-            space.sleep_time_threshold = _SLEEP_TIME
-            space.idle_speed_threshold = _SLEEP_SPEED
-        linear, angular = e.damping if e.damping is not None else (0.0, 0.0)
-        if linear == angular:   # Box2D's v / (1 + dt c) each step, as Chipmunk's v * damping^dt
-            space.damping = (1.0 + self.dt * linear) ** (-1.0 / self.dt)
-        kinds = {"static": pymunk.Body.STATIC, "kinematic": pymunk.Body.KINEMATIC, "dynamic": pymunk.Body.DYNAMIC}
-        r = self.records
+        self.space = self._space(scene, iterations)
+        e = scene.effects
+        self.linear, self.angular = e.damping if e.damping is not None else (0.0, 0.0)
+        if self.linear == self.angular:   # Box2D's v / (1 + dt c) each step, as Chipmunk's v * damping^dt
+            self.space.damping = (1.0 + self.dt * self.linear) ** (-1.0 / self.dt)
         self.bodies_of, self.shapes_of = [], {}
         self.index_of, self.one_shape = {}, {}   # pymunk body id -> the scene's body; its only shape's
                                                  # (fixture, friction, restitution), or None
         self._table = self._ids = None
         fixture = 0
         for i, b in enumerate(scene.bodies):
-            if b.type == "dynamic":
-                moment = math.inf if b.fixed_rotation or r["inertia"][i] == 0 else float(r["inertia"][i])
-                body = pymunk.Body(float(r["mass"][i]), moment)
-                body.center_of_gravity = tuple(map(float, r["local_center"][i]))
-                if linear != angular:
-                    body.velocity_func = _damped(linear, angular)
-            else:
-                body = pymunk.Body(body_type=kinds[b.type])
-            body.angle = b.angle   # (first: an angle set later turns the body about its centre of mass)
-            body.position = (b.x, b.y)
-            if b.type != "static":   # (the scene's velocities are the centre of mass's, as Box2D's)
-                body.velocity, body.angular_velocity = (b.vx, b.vy), b.omega
+            body = self._body(i, b)
             shapes, parts = [], [body]
             for s in b.shapes:
-                if s.kind == "circle":
-                    shape = pymunk.Circle(body, s.radius, (s.x, s.y))
-                elif s.kind == "polygon":
-                    shape = pymunk.Poly(body, [tuple(v) for v in s.vertices], radius=float(polygon_radius))
-                else:
-                    shape = pymunk.Segment(body, (s.x1, s.y1), (s.x2, s.y2), float(polygon_radius))
-                shape.friction = math.sqrt(scene.friction_of(s))
-                shape.elasticity = math.sqrt(scene.restitution_of(s))
-                self.shapes_of.setdefault(i, []).append((shape, fixture, scene.friction_of(s),
-                                                         scene.restitution_of(s)))
+                shape = self._shape(scene, i, s, body, fixture)
                 shapes.append(shape)
                 fixture += 1
                 if b.type == "static" and len(b.shapes) > 1:   # (a static body of several shapes: a
-                    part = pymunk.Body(body_type=pymunk.Body.STATIC)   # body each, which names the shape)
-                    part.angle, part.position = b.angle, (b.x, b.y)
-                    shape.body = part
-                    parts.append(part)
-                    self.one_shape[part.id] = self.shapes_of[i][-1][1:]
+                    parts.append(self._part(b, shape, i))          # body each, which names the shape)
             if len(b.shapes) == 1 or b.type != "static":
                 self.one_shape[body.id] = self.shapes_of[i][0][1:] if len(b.shapes) == 1 else None
-            space.add(*parts, *shapes)
+            self.space.add(*parts, *shapes)
             self.bodies_of.append((i, body, shapes))
             self.index_of.update({part.id: i for part in parts})
         self.threshold = float(e.restitution_threshold)
 
+    @staticmethod
+    def _space(scene, iterations):
+        """The pymunk space with the scene's gravity, sleeping and Box2D's slop."""
+        space = _library().Space()
+        space.iterations = iterations
+        space.collision_slop = float(linear_slop)
+        if scene.effects.gravity is not None:
+            space.gravity = tuple(map(float, scene.effects.gravity))
+        if scene.solver.sleeping:
+            space.sleep_time_threshold = _SLEEP_TIME
+            space.idle_speed_threshold = _SLEEP_SPEED
+        return space
+
+    def _body(self, i, b):
+        """The scene's body i, with Box2D 2.4.1's mass properties (a moving one)."""
+        pymunk, r = _library(), self.records
+        if b.type == "dynamic":
+            moment = math.inf if b.fixed_rotation or r["inertia"][i] == 0 else float(r["inertia"][i])
+            body = pymunk.Body(float(r["mass"][i]), moment)
+            body.center_of_gravity = tuple(map(float, r["local_center"][i]))
+            if self.linear != self.angular:
+                body.velocity_func = _damped(self.linear, self.angular)
+        else:
+            kinds = {"static": pymunk.Body.STATIC, "kinematic": pymunk.Body.KINEMATIC}
+            body = pymunk.Body(body_type=kinds[b.type])
+        body.angle = b.angle   # (first: an angle set later turns the body about its centre of mass)
+        body.position = (b.x, b.y)
+        if b.type != "static":   # (the scene's velocities are the centre of mass's, as Box2D's)
+            body.velocity, body.angular_velocity = (b.vx, b.vy), b.omega
+        return body
+
+    def _shape(self, scene, i, s, body, fixture):
+        """A shape of body i, with Box2D's skin and its materials (square roots: Chipmunk multiplies
+        two shapes' own, giving Box2D's sqrt(a b) mix)."""
+        pymunk = _library()
+        if s.kind == "circle":
+            shape = pymunk.Circle(body, s.radius, (s.x, s.y))
+        elif s.kind == "polygon":
+            shape = pymunk.Poly(body, [tuple(v) for v in s.vertices], radius=float(polygon_radius))
+        else:
+            shape = pymunk.Segment(body, (s.x1, s.y1), (s.x2, s.y2), float(polygon_radius))
+        shape.friction = math.sqrt(scene.friction_of(s))
+        shape.elasticity = math.sqrt(scene.restitution_of(s))
+        self.shapes_of.setdefault(i, []).append((shape, fixture, scene.friction_of(s), scene.restitution_of(s)))
+        return shape
+
+    def _part(self, b, shape, i):
+        """A static body of its own for one of several shapes of the static body i (it names the shape)."""
+        part = _library().Body(body_type=_library().Body.STATIC)
+        part.angle, part.position = b.angle, (b.x, b.y)
+        shape.body = part
+        self.one_shape[part.id] = self.shapes_of[i][-1][1:]
+        return part
 
     def remove_body(self, index):
         for k, (i, body, shapes) in enumerate(self.bodies_of):
