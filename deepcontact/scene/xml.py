@@ -127,16 +127,36 @@ def read_scene(path: str | os.PathLike) -> Scene:
         raise InputError(first.split(": ", 1)[1] + more if ": " in first else first, path,
                          _line_of(first))
     root = tree.getroot()
-    world = root.find("world")
-    solver_el = root.find("solver")
-    solver = Solver()
-    if solver_el is not None:
-        solver = Solver(velocity_iterations=int(solver_el.get("velocity_iterations", 8)),
-                        position_iterations=int(solver_el.get("position_iterations", 3)),
-                        warm_starting=_flag(solver_el, "warm_starting", True),
-                        block_solve=_flag(solver_el, "block_solve", True),
-                        sleeping=_flag(solver_el, "sleeping", False))
-    eff = root.find("effects")
+    world, solver_el, eff = root.find("world"), root.find("solver"), root.find("effects")
+    events = []
+    if (ev := root.find("events")) is not None:
+        events = [RemoveEvent(step=int(r.get("step")), body=int(r.get("body")), line=r.sourceline)
+                  for r in ev.findall("remove")]
+    gen = root.find("generator")
+    scene = Scene(name=root.get("name"), dt=_num(world, "dt"), steps=int(world.get("steps")),
+                  solver=_solver(solver_el), effects=_effects(eff),
+                  bodies=[_body(b) for b in root.find("bodies").findall("body")], events=events,
+                  generator=None if gen is None else gen.get("name"),
+                  seed=None if gen is None or gen.get("seed") is None else int(gen.get("seed")),
+                  params={} if gen is None else {p.get("name"): p.get("value")
+                                                 for p in gen.findall("param")})
+    scene.lines = {el.tag: el.sourceline for el in [world, solver_el, *eff] if el is not None and isinstance(el.tag, str)}
+    check_scene(scene, path)
+    return scene
+
+
+def _solver(el):
+    """A scene file's <solver> (Box2D's defaults where there is none)."""
+    if el is None:
+        return Solver()
+    return Solver(velocity_iterations=int(el.get("velocity_iterations", 8)),
+                  position_iterations=int(el.get("position_iterations", 3)),
+                  warm_starting=_flag(el, "warm_starting", True), block_solve=_flag(el, "block_solve", True),
+                  sleeping=_flag(el, "sleeping", False))
+
+
+def _effects(eff):
+    """A scene file's <effects>: only those it declares are simulated."""
     effects = Effects()
     if (g := eff.find("gravity")) is not None:
         effects.gravity = (_num(g, "x"), _num(g, "y"))
@@ -148,30 +168,16 @@ def read_scene(path: str | os.PathLike) -> Scene:
     if (d := eff.find("damping")) is not None:
         effects.damping = (_num(d, "linear", 0.0), _num(d, "angular", 0.0))
     effects.continuous = eff.find("continuous") is not None
+    return effects
 
-    bodies = []
-    for b in root.find("bodies").findall("body"):
-        bodies.append(Body(type=b.get("type", "dynamic"), x=_num(b, "x", 0.0), y=_num(b, "y", 0.0),
-                           angle=_num(b, "angle", 0.0), vx=_num(b, "vx", 0.0), vy=_num(b, "vy", 0.0),
-                           omega=_num(b, "omega", 0.0),
-                           fixed_rotation=_flag(b, "fixed_rotation", False),
-                           bullet=_flag(b, "bullet", False),
-                           shapes=[_shape(s) for s in b if isinstance(s.tag, str)],
-                           line=b.sourceline))
-    events = []
-    if (ev := root.find("events")) is not None:
-        events = [RemoveEvent(step=int(r.get("step")), body=int(r.get("body")), line=r.sourceline)
-                  for r in ev.findall("remove")]
-    gen = root.find("generator")
-    scene = Scene(name=root.get("name"), dt=_num(world, "dt"), steps=int(world.get("steps")),
-                  solver=solver, effects=effects, bodies=bodies, events=events,
-                  generator=None if gen is None else gen.get("name"),
-                  seed=None if gen is None or gen.get("seed") is None else int(gen.get("seed")),
-                  params={} if gen is None else {p.get("name"): p.get("value")
-                                                 for p in gen.findall("param")})
-    scene.lines = {el.tag: el.sourceline for el in [world, solver_el, *eff] if el is not None and isinstance(el.tag, str)}
-    check_scene(scene, path)
-    return scene
+
+def _body(b):
+    """A scene file's <body> and its shapes."""
+    return Body(type=b.get("type", "dynamic"), x=_num(b, "x", 0.0), y=_num(b, "y", 0.0),
+                angle=_num(b, "angle", 0.0), vx=_num(b, "vx", 0.0), vy=_num(b, "vy", 0.0),
+                omega=_num(b, "omega", 0.0), fixed_rotation=_flag(b, "fixed_rotation", False),
+                bullet=_flag(b, "bullet", False), shapes=[_shape(s) for s in b if isinstance(s.tag, str)],
+                line=b.sourceline)
 
 
 def _line_of(error: str):

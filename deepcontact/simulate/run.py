@@ -106,12 +106,9 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     scene_xml = to_xml(scene)
     output.write_bytes(out_dir / "scene.xml", scene_xml)
     world = engine.build(scene)
-    step = engine.stepper(world, scene)
     loop = engine.solve_settings()
     writer = step_writer(scene, seed, engine)
     extent = Extent(scene)
-    per_file = []   # contact points of each file written (a skipped step has none)
-    capped = above = 0
 
     def write(k, dt_ratio, bodies, contacts, extra):
         try:
@@ -121,7 +118,21 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
                              "more than Box2D's float32 holds (bodies too far or too fast, forces too large, or a "
                              "start that diverged); nothing of it was kept") from None
         output.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
+    per_file, capped, above = _stepped(world, scene, engine, write, extent, skip_contactless, on_step)
+    judged = loop is not None and loop.tolerance > 0
+    return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=len(per_file),
+                            contact_points=sum(per_file), scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
+                            extent=extent.as_list(), file_contact_points=per_file,
+                            static_box=_box_list(scene.static_box()), capped=capped if judged else None,
+                            above_tolerance=above if judged and loop.stop_on == "residual" else None)
 
+
+def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
+    """Steps `world` through the scene, each step checked and handed to write(k, dt_ratio, bodies,
+    contacts, solve line) (skipped without contacts, if asked); returns (the contact points of each
+    file written, the steps at the sweep cap, the steps above the tolerance)."""
+    step, loop = engine.stepper(world, scene), engine.solve_settings()
+    per_file, capped, above = [], 0, 0
     # Rendering, compressing and writing a step (GIL released in each) overlap with stepping the next.
     # The pool's and the futures' locks are shared with the writer threads (and the progress bar's
     # with tqdm's): a stop signal waits until the main thread holds none of them (interrupts.held).
@@ -151,13 +162,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
             for f in pending:
                 f.cancel()
             raise
-    return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=len(per_file),
-                            contact_points=sum(per_file), scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
-                            extent=extent.as_list(), file_contact_points=per_file,
-                            static_box=_box_list(scene.static_box()),
-                            capped=capped if loop is not None and loop.tolerance > 0 else None,
-                            above_tolerance=above if loop is not None and loop.tolerance > 0
-                            and loop.stop_on == "residual" else None)
+    return per_file, capped, above
 
 
 def checked_step(k, bodies, contacts, engine):

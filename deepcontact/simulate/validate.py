@@ -2,6 +2,7 @@
 folder, against the schemas and what the schemas cannot see, side by side in worker processes,
 reported in file order. (At this floor because a scene's check builds its world: bodies that
 start overlapping are refused.)"""
+import math
 import os
 from functools import lru_cache
 from itertools import groupby
@@ -89,10 +90,7 @@ def held_to_tolerance(path, tolerance, mode="float64"):
     tolerance is measured in float64 and held to twice what the project's float32 PGS reaches from
     the step's own start (to the run's tolerance and cap), where that is larger: a method that
     stops early is still found."""
-    import math
-    from ..solver.pgs import solve
     from ..solver.problem import StepProblem
-    from ..solver.reference import reference_solution
     from ..step.reader import read_step
     header, bodies, contacts = read_step(path, validate=False)
     claim = header.get("solve")
@@ -110,37 +108,52 @@ def held_to_tolerance(path, tolerance, mode="float64"):
         return None, capped
     mode = "float64" if mode == "float64" else "float32"   # ("exact": Box2D's float32 PGS)
     problem = StepProblem.from_step(header, bodies, contacts, path)
-
-    def residual(normal, tangent, arithmetic=mode):   # (measured as given: no sweep, no clamp into the cone)
-        return solve(problem, normal, tangent, max_iterations=0, cone=False, mode=arithmetic).residual
-
-    def rounded(n, t):
-        return n.astype(np.float32).astype(float), t.astype(np.float32).astype(float)
     recorded = (contacts["normal_impulse"].astype(float), contacts["tangent_impulse"].astype(float))
-    found = residual(*recorded)
-    allowed = tolerance * SLACK
-    if math.isfinite(found) and found > allowed:
-        exact = reference_solution(problem)
-        if mode == "float32":
-            # float32 arithmetic's own reach, measured in float64 (a float32 recomputation rounds as
-            # the solve's running sums did not: 2.3e-7 on a one-point step its solve measured at 0):
-            # the project's float32 PGS from the step's own start, to the run's tolerance and cap
-            found, mode = residual(*recorded, arithmetic="float64"), "float64, of a float32 run"
-            reached = solve(problem, problem.start_normal, problem.start_tangent, tolerance=tolerance,
-                            max_iterations=cap or 1000, mode="float32")
-            floor = max(residual(*rounded(exact.normal_impulse, exact.tangent_impulse), arithmetic="float64"),
-                        residual(*rounded(reached.normal_impulse, reached.tangent_impulse), arithmetic="float64"))
-            what = "what the project's float32 PGS reaches from the step's own start"
-        else:
-            floor = residual(*rounded(exact.normal_impulse, exact.tangent_impulse))
-            what = "what its exact answer rounded to float32 leaves"
-        if math.isfinite(floor):
-            allowed = max(allowed, 2 * floor * SLACK)
+    found, allowed, mode, what = _measured(problem, recorded, tolerance, mode, cap)
     if not (math.isfinite(found) and found <= allowed):
         floor = (f" and twice {what} ({allowed / 2 / SLACK:.3g})" if allowed > tolerance * SLACK else "")
         return (f"the step's residual {found:.3g}, recomputed from its problem and impulses ({mode}), {ABOVE} "
                 f"{tolerance:g}{floor} ({source}; the file records {claim.get('residual')})"), capped
     return None, capped
+
+
+def _residual(problem, normal, tangent, mode):
+    """The residual of impulses as given (no sweep, no clamp into the cone), in `mode` arithmetic."""
+    from ..solver.pgs import solve
+    return solve(problem, normal, tangent, max_iterations=0, cone=False, mode=mode).residual
+
+
+def _rounded(n, t):
+    return n.astype(np.float32).astype(float), t.astype(np.float32).astype(float)
+
+
+def _measured(problem, recorded, tolerance, mode, cap):
+    """(the recorded impulses' residual, what it may be, the arithmetic it was measured in, what
+    the allowance above the tolerance is): above the tolerance, the floor float32 allows (see
+    held_to_tolerance) is measured and twice it allowed."""
+    from ..solver.pgs import solve
+    from ..solver.reference import reference_solution
+    found = _residual(problem, *recorded, mode)
+    allowed, what = tolerance * SLACK, None
+    if not (math.isfinite(found) and found > allowed):
+        return found, allowed, mode, what
+    exact = reference_solution(problem)
+    if mode == "float32":
+        # float32 arithmetic's own reach, measured in float64 (a float32 recomputation rounds as
+        # the solve's running sums did not: 2.3e-7 on a one-point step its solve measured at 0):
+        # the project's float32 PGS from the step's own start, to the run's tolerance and cap
+        found, mode = _residual(problem, *recorded, "float64"), "float64, of a float32 run"
+        reached = solve(problem, problem.start_normal, problem.start_tangent, tolerance=tolerance,
+                        max_iterations=cap or 1000, mode="float32")
+        floor = max(_residual(problem, *_rounded(exact.normal_impulse, exact.tangent_impulse), "float64"),
+                    _residual(problem, *_rounded(reached.normal_impulse, reached.tangent_impulse), "float64"))
+        what = "what the project's float32 PGS reaches from the step's own start"
+    else:
+        floor = _residual(problem, *_rounded(exact.normal_impulse, exact.tangent_impulse), mode)
+        what = "what its exact answer rounded to float32 leaves"
+    if math.isfinite(floor):
+        allowed = max(allowed, 2 * floor * SLACK)
+    return found, allowed, mode, what
 
 
 def _whole(text):

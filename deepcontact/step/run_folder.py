@@ -205,6 +205,51 @@ STEPPED_BY = {"box2d": "Box2D 2.4.1's own solver", "pgs": "the project's solver 
               "box2d3": "Box2D v3 (--engine box2d3), whose soft step does not pose 2.4.1's contact problem"}
 
 
+def _check_stepped_by(m, path, solver, purpose, problem):
+    """Refuses a run stepped by another solver than `solver`, or one whose steps do not pose Box2D
+    2.4.1's contact problem where `problem` says what needs it (read_run)."""
+    if solver is not None and m.get("solver", "box2d") != solver:
+        stepped = STEPPED_BY.get(m.get("solver")) or (
+            f"{m['engine_label']} (--engine {m.get('engine')}), which does not pose Box2D 2.4.1's contact problem"
+            if isinstance(m.get("engine_label"), str) else repr(m.get("solver")))
+        raise InputError(f"{purpose or f'this needs a run of the {solver} solver'}; this run was stepped by "
+                         f"{stepped}", path)
+    if problem is not None and m.get("poses_box2d_problem", m.get("engine", "box2d") == "box2d") is not True:
+        raise InputError(f"{problem} Box2D 2.4.1's contact problem; this run was stepped by "
+                         f"{m.get('engine_label') or m.get('engine')!s} (--engine {m.get('engine')}), whose steps do "
+                         f"not pose it", path)
+
+
+def _simulation(run_dir, m, i, e, path, seen):
+    """The manifest's simulation i (its entry e), checked against its folder; seen: the dirs and
+    seeds of the simulations before it."""
+    if not isinstance(e, dict):
+        raise InputError(f"simulation {i} must be a JSON object", path)
+    if "dir" not in e:
+        raise InputError(f"simulation {i} has no 'dir'", path)
+    folder = simulation_folder(run_dir, e["dir"], path)
+    seed = _int(e, "seed", i, path)
+    for key, value in (("dir", e["dir"]), ("seed", seed)):
+        if (key, value) in seen:
+            raise InputError(f"simulations {seen[key, value]} and {i} have the same {key} {value!r}", path)
+        seen[key, value] = i
+    if not folder.is_dir():
+        raise InputError(f"simulation {i}: folder {e['dir']} is missing", path)
+    files = step_files_in(folder)
+    if "files" in e:
+        want = _int(e, "files", i, path)
+        if len(files) != want:
+            raise InputError(f"{e['dir']} holds {count(len(files), 'step file')}, the manifest recorded {want} "
+                             f"(files deleted or added after the run?)", folder)
+    digest = e.get("scene_sha256")
+    if digest is not None and not (isinstance(digest, str) and re.fullmatch(r"[0-9a-f]{64}", digest)):
+        raise InputError(f"simulation {i}: 'scene_sha256' must be 64 hexadecimal digits", path)
+    return Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
+                      scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path),
+                      scene_sha256=digest, engine=m.get("engine", "box2d"),
+                      static_box=_extent(e, i, path, "static_box"))
+
+
 def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str | None = None,
              unfinished: bool = False, problem: str | None = None) -> Run:
     """A finished run: its manifest and each simulation's step files, counted against it.
@@ -222,41 +267,8 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
         return Run(path=run_dir, manifest=None, simulations=sims)
     m = read_manifest(run_dir)
     path = run_dir / MANIFEST
-    if solver is not None and m.get("solver", "box2d") != solver:
-        stepped = STEPPED_BY.get(m.get("solver")) or (
-            f"{m['engine_label']} (--engine {m.get('engine')}), which does not pose Box2D 2.4.1's contact problem"
-            if isinstance(m.get("engine_label"), str) else repr(m.get("solver")))
-        raise InputError(f"{purpose or f'this needs a run of the {solver} solver'}; this run was stepped by "
-                         f"{stepped}", path)
-    if problem is not None and m.get("poses_box2d_problem", m.get("engine", "box2d") == "box2d") is not True:
-        raise InputError(f"{problem} Box2D 2.4.1's contact problem; this run was stepped by "
-                         f"{m.get('engine_label') or m.get('engine')!s} (--engine {m.get('engine')}), whose steps do "
-                         f"not pose it", path)
+    _check_stepped_by(m, path, solver, purpose, problem)
     sims, seen = [], {}
     for i, e in enumerate(m["simulations"]):
-        if not isinstance(e, dict):
-            raise InputError(f"simulation {i} must be a JSON object", path)
-        if "dir" not in e:
-            raise InputError(f"simulation {i} has no 'dir'", path)
-        folder = simulation_folder(run_dir, e["dir"], path)
-        seed = _int(e, "seed", i, path)
-        for key, value in (("dir", e["dir"]), ("seed", seed)):
-            if (key, value) in seen:
-                raise InputError(f"simulations {seen[key, value]} and {i} have the same {key} {value!r}", path)
-            seen[key, value] = i
-        if not folder.is_dir():
-            raise InputError(f"simulation {i}: folder {e['dir']} is missing", path)
-        files = step_files_in(folder)
-        if "files" in e:
-            want = _int(e, "files", i, path)
-            if len(files) != want:
-                raise InputError(f"{e['dir']} holds {count(len(files), 'step file')}, the manifest recorded {want} "
-                                 f"(files deleted or added after the run?)", folder)
-        digest = e.get("scene_sha256")
-        if digest is not None and not (isinstance(digest, str) and re.fullmatch(r"[0-9a-f]{64}", digest)):
-            raise InputError(f"simulation {i}: 'scene_sha256' must be 64 hexadecimal digits", path)
-        sims.append(Simulation(seed=seed, dir=e["dir"], path=folder, files=files, extent=_extent(e, i, path),
-                               scene=m.get("scene"), contacts=_file_contacts(e, i, len(files), path),
-                               scene_sha256=digest, engine=m.get("engine", "box2d"),
-                               static_box=_extent(e, i, path, "static_box")))
+        sims.append(_simulation(run_dir, m, i, e, path, seen))
     return Run(path=run_dir, manifest=m, simulations=sims)
