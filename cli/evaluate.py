@@ -83,35 +83,17 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
       dc evaluate runs/heldout --starts zero,builtin,prev -j 2 -o r/fast
       dc evaluate runs/pile --starts builtin,prev --no-plots --no-budgets -o r/tables
     """
-    from deepcontact import output
-    from deepcontact.evaluate.report import REPORT_FILES
-
-    from deepcontact.warmstart.starts import trait
     if "all" in accelerate:
         accelerate = list(dict.fromkeys([a for a in accelerate if a != "all"] + list(BUILTIN_SOLVERS)))
     # the plug-ins, described from a process of their own: the judge never runs their code
     from deepcontact.contest import describe
     describe(starts, accelerate)
-    learned = [n for n in starts if trait(n, "needs_model")]
-    sph_grid = "sph" in starts and not model
-    options.refuse_inapplicable([
-        ("steps", closed_loop, "only applies with --closed-loop (replay solves the recorded steps)"),
-        ("every", not closed_loop, "applies to replay; --closed-loop steps every step"),
-        ("max_memory", not closed_loop, "applies to replay's convergence histories, not --closed-loop"),
-        ("model", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
-        ("arch", bool(model), "only applies with --checkpoint"),
-        ("cell", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
-        ("smoothing", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
-        ("kernel", sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)"),
-        ("seed", "random" in starts, "only applies to the random start"),
-        ("bands", plots and not closed_loop, "applies to replay's convergence plot, which --closed-loop and "
-                                             "--no-plots leave out"),
-    ])
+    _refuse_inapplicable(starts, model, closed_loop, plots)
     if arch is not None:   # (the user's explicit choice; its code is loaded in the contestants' sandboxes only)
         from deepcontact.model.arch import NETWORKS
         NETWORKS.choose(arch)
 
-    from deepcontact.evaluate.command import EvaluateSettings, history_bytes, run_evaluation
+    from deepcontact.evaluate.command import EvaluateSettings, history_bytes
     from deepcontact.solver.settings import SolveSettings
     settings = EvaluateSettings(
         runs=list(runs), starts=list(starts), checkpoint=model,
@@ -124,17 +106,44 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
         from deepcontact.resources import check_memory
         needed, what = history_bytes(settings)
         check_memory(needed, max_memory, what)
+    table = _report(settings, out, overwrite, quiet)
+    if terminal.stdout_is_open():   # (the table is report.md's: a closed stdout loses nothing)
+        click.echo(table)
+
+
+def _refuse_inapplicable(starts, model, closed_loop, plots):
+    """The options that do not apply to the starts and the mode given, refused (exit 2)."""
+    from deepcontact.warmstart.starts import trait
+    learned = [n for n in starts if trait(n, "needs_model")]
+    sph_grid = "sph" in starts and not model
+    options.refuse_inapplicable([
+        ("steps", closed_loop, "only applies with --closed-loop (replay solves the recorded steps)"),
+        ("every", not closed_loop, "applies to replay; --closed-loop steps every step"),
+        ("max_memory", not closed_loop, "applies to replay's convergence histories, not --closed-loop"),
+        ("model", bool(learned), "only applies to the starts that use a model (cnn, guarded, cnn-new)"),
+        ("arch", bool(model), "only applies with --checkpoint"),
+        *((name, sph_grid, "only applies to the sph start without --checkpoint (a model brings its own grid)")
+          for name in ("cell", "smoothing", "kernel")),
+        ("seed", "random" in starts, "only applies to the random start"),
+        ("bands", plots and not closed_loop, "applies to replay's convergence plot, which --closed-loop and "
+                                             "--no-plots leave out"),
+    ])
+
+
+def _report(settings, out, overwrite, quiet):
+    """The evaluation run into the report folder out (computed inside the output's lock; the
+    report appears only when complete), with a progress bar per stage; its table."""
+    from deepcontact import output
+    from deepcontact.evaluate.command import run_evaluation
+    from deepcontact.evaluate.report import REPORT_FILES
     bars = []
 
     def bar(total, unit):
-        bars.append(terminal.progress_bar(quiet, total, unit, "closed loop" if closed_loop else "evaluate"))
+        bars.append(terminal.progress_bar(quiet, total, unit, "closed loop" if settings.closed_loop else "evaluate"))
         return bars[-1].update
-    # Computed inside the output's lock; the report appears only when complete.
     with output.output_folder(out, REPORT_FILES, overwrite, command="evaluate") as work:
         try:
-            table = run_evaluation(settings, work, bar)
+            return run_evaluation(settings, work, bar)
         finally:
             for b in bars:
                 b.close()
-    if terminal.stdout_is_open():   # (the table is report.md's: a closed stdout loses nothing)
-        click.echo(table)

@@ -90,6 +90,30 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
 
     kind = kind_of(input_path)
     suffix = Path(out).suffix.lower()
+    _refuse_inapplicable(kind, suffix, model, no_contacts)
+    if arch is not None and arch not in BUILTIN_NETWORKS and not os.environ.get(RENDER_INSIDE):
+        # a plug-in network's code runs to predict: the whole drawing runs fenced, as a study does
+        from deepcontact.contest import job
+        raise click.exceptions.Exit(job.run_with_output(
+            ["render"], click.get_current_context().meta["raw_args"], "render", lambda: "file", {RENDER_INSIDE: "1"},
+            f"dc render with the network {arch!r}"))
+    options.load_network(arch)
+    _check_drawing(kind, suffix, compare, window)
+    out = Path(out)
+    with output.output_file(out, overwrite):
+        if kind == "step":
+            _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:], impulse_scale)
+        elif kind == "dataset":
+            from deepcontact.render.panels import sample_panels
+            output.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
+        else:
+            _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
+                 impulse_scale, jobs)
+    terminal.show_output(str(out), quiet)
+
+
+def _refuse_inapplicable(kind, suffix, model, no_contacts):
+    """The options that do not apply to what is drawn, refused (exit 2)."""
     movie = suffix in (".gif", ".mp4", ".webm", ".html")
     options.refuse_inapplicable(
         [(name, kind == "run", "only applies to a run") for name in ("seed", "every", "compare")]
@@ -103,13 +127,10 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         + [("threads", model is not None, "only applies with --checkpoint (nothing else runs torch)")]
         + [("jobs", kind == "run" and movie and suffix != ".html", "draws a movie's frames side by side: it only "
                                                                     "applies to a run drawn as .gif, .mp4 or .webm")])
-    if arch is not None and arch not in BUILTIN_NETWORKS and not os.environ.get(RENDER_INSIDE):
-        # a plug-in network's code runs to predict: the whole drawing runs fenced, as a study does
-        from deepcontact.contest import job
-        raise click.exceptions.Exit(job.run_with_output(
-            ["render"], click.get_current_context().meta["raw_args"], "render", lambda: "file", {RENDER_INSIDE: "1"},
-            f"dc render with the network {arch!r}"))
-    options.load_network(arch)
+
+
+def _check_drawing(kind, suffix, compare, window):
+    """The output's form for what is drawn, --compare's and the window's size (exit 2 for either)."""
     if suffix not in FORMS[kind]:
         every_form = sorted({s for forms in FORMS.values() for s in forms})
         if suffix in every_form:
@@ -123,17 +144,6 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         # float32 positions resolve no finer, and the drawing's cost grows with the magnification
         raise click.BadParameter(f"a window narrower than {MIN_WINDOW:g} m shows nothing a step file resolves",
                                  param_hint="'--window'")
-    out = Path(out)
-    with output.output_file(out, overwrite):
-        if kind == "step":
-            _step(input_path, out, size, window, not no_contacts, color_by, suffix[1:], impulse_scale)
-        elif kind == "dataset":
-            from deepcontact.render.panels import sample_panels
-            output.write_bytes(out, sample_panels(input_path, sample, model, threads=threads))
-        else:
-            _run(input_path, out, size, window, not no_contacts, color_by, seed, every, fps, compare, quiet,
-                 impulse_scale, jobs)
-    terminal.show_output(str(out), quiet)
 
 
 MIN_WINDOW = 1e-4   # metres

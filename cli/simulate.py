@@ -123,29 +123,13 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
       dc simulate pile --engine mujoco --set solver=cg --set tolerance=1e-6 -o runs/pile-mujoco
     """
     from deepcontact import output
-    from deepcontact.scene.generators import GENERATORS, parameters
     from deepcontact.scene.xml import to_xml
     from deepcontact.simulate.run import run
     from deepcontact.simulate.source import SceneSource
 
-    given_seeds = seeds is not None
-    options.refuse_inapplicable([
-        ("seed", not given_seeds, "and --seeds: give one (--seed for one simulation, --seeds A..B for several)"),
-        ("shard", given_seeds, "only applies with --seeds (it splits their range)"),
-        ("out_dir", not write_scene, "does not apply with --write-scene (it writes the scene and stops)"),
-        ("iterations", solver == "box2d" and engine == "box2d",
-         "is Box2D 2.4.1's velocity iterations; with --solver pgs the cap is --max-iterations, and Box2D v3 "
-         "(--engine box2d3) has substeps (--substeps)"),
-        ("solver", engine == "box2d", "only applies with --engine box2d (pgs steps Box2D 2.4.1's worlds; another "
-                                      "engine solves with its own solver)"),
-        *((name, engine == "box2d3", "only applies with --engine box2d3")
-          for name in ("substeps", "contact_hertz", "damping_ratio", "push_speed")),
-    ])
+    _refuse_inapplicable(seeds is not None, write_scene, solver, engine)
     if list_generators:   # (no SCENE needed)
-        for name in GENERATORS:
-            defaults = " ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
-                                for k, v in parameters(name).items())
-            click.echo(f"{name}: {defaults}")
+        _list_generators()
         return
     if scene is None:
         raise click.UsageError("missing SCENE: a generator (see --list) or a scene file")
@@ -161,24 +145,54 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     source.check_memory(min(jobs, max(len(chosen), 1)), max_memory)
     first = source(chosen[0]) if chosen and solver == "pgs" else None   # (its iterations: the loop's cap)
     box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate)
+    soft = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
+            "push_speed": push_speed}
+    stepper = _engine(engine, types.key_values(engine_settings, "--set"), solver, box2d, soft)
+
     def bar(total):
         return terminal.progress_bar(quiet, total, "step", f"simulate {scene}")
-    settings = types.key_values(engine_settings, "--set")
-    if engine == "box2d3":   # (its own flags beside --set, checked by SoftStep naming each)
-        from deepcontact.simulate.engines import Box2D3, SoftStep
-        given = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
-                 "push_speed": push_speed}
-        stepper = Box2D3(SoftStep(**{**Box2D3.parsed(settings), **{k: v for k, v in given.items() if v is not None}}))
-    elif engine == "box2d":
-        if settings and solver == "pgs":
-            raise click.UsageError("--set applies to Box2D's own solver; the project's has --max-iterations")
-        stepper = box2d if not settings else type(box2d).from_settings(**settings)
-    elif engine in ENGINES.builtin():
-        from deepcontact.simulate.engines import engine_named
-        stepper = engine_named(engine, settings)
-    else:   # a plug-in engine: its code only in a sandbox of its own (deepcontact/contest/engine.py)
-        from deepcontact.contest.engine import guest_engine
-        stepper = guest_engine(engine, settings)
     run(source, chosen, out_dir, overwrite=overwrite, skip_contactless=skip_contactless, jobs=jobs,
         progress=bar, source=scene, engine=stepper, max_disk=max_disk, compress=compress)
     terminal.show_output(f"{out_dir}", quiet)
+
+
+def _refuse_inapplicable(given_seeds, write_scene, solver, engine):
+    """The options that do not apply with the others given, refused (exit 2)."""
+    options.refuse_inapplicable([
+        ("seed", not given_seeds, "and --seeds: give one (--seed for one simulation, --seeds A..B for several)"),
+        ("shard", given_seeds, "only applies with --seeds (it splits their range)"),
+        ("out_dir", not write_scene, "does not apply with --write-scene (it writes the scene and stops)"),
+        ("iterations", solver == "box2d" and engine == "box2d",
+         "is Box2D 2.4.1's velocity iterations; with --solver pgs the cap is --max-iterations, and Box2D v3 "
+         "(--engine box2d3) has substeps (--substeps)"),
+        ("solver", engine == "box2d", "only applies with --engine box2d (pgs steps Box2D 2.4.1's worlds; another "
+                                      "engine solves with its own solver)"),
+        *((name, engine == "box2d3", "only applies with --engine box2d3")
+          for name in ("substeps", "contact_hertz", "damping_ratio", "push_speed")),
+    ])
+
+
+def _list_generators():
+    """--list: each generator with its parameters' defaults."""
+    from deepcontact.scene.generators import GENERATORS, parameters
+    for name in GENERATORS:
+        defaults = " ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
+                            for k, v in parameters(name).items())
+        click.echo(f"{name}: {defaults}")
+
+
+def _engine(engine, settings, solver, box2d, soft):
+    """The engine --engine names, with its --set settings (and v3's own flags, `soft`)."""
+    if engine == "box2d3":   # (its own flags beside --set, checked by SoftStep naming each)
+        from deepcontact.simulate.engines import Box2D3, SoftStep
+        return Box2D3(SoftStep(**{**Box2D3.parsed(settings), **{k: v for k, v in soft.items() if v is not None}}))
+    if engine == "box2d":
+        if settings and solver == "pgs":
+            raise click.UsageError("--set applies to Box2D's own solver; the project's has --max-iterations")
+        return box2d if not settings else type(box2d).from_settings(**settings)
+    if engine in ENGINES.builtin():
+        from deepcontact.simulate.engines import engine_named
+        return engine_named(engine, settings)
+    # a plug-in engine: its code only in a sandbox of its own (deepcontact/contest/engine.py)
+    from deepcontact.contest.engine import guest_engine
+    return guest_engine(engine, settings)

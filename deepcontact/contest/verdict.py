@@ -124,6 +124,13 @@ def _ranked_times(times, unfinished):
             for name, t in times.items()}
 
 
+def _fastest_first(times, ranked_times, candidates):
+    """The candidates with times, fastest median first (unfinished steps infinite; ties by the
+    median of the times as charged)."""
+    return sorted((n for n in candidates if n in times and times[n]),
+                  key=lambda n: (float(_median(list(ranked_times[n].values()))), float(_median(list(times[n].values())))))
+
+
 def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
     """The verdict on `times` ({label: {step key: charged ms}}): `candidates` the labels that may
     win, `base` Box2D's warm start's label, `aa_pair` (first, second) its paired A/A times,
@@ -138,9 +145,7 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
     v.unfinished = {name: len(set(unfinished.get(name, ())) & set(t)) for name, t in times.items()}
     v.vs_base = {name: ratio_interval(*paired(t, ranked_times[base]), rng) for name, t in ranked_times.items()}
     v.totals = {name: float(sum(t.values())) + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
-    fair = sorted((n for n in candidates if n in times and times[n]),
-                  key=lambda n: (float(_median(list(ranked_times[n].values()))),
-                                 float(_median(list(times[n].values())))))
+    fair = _fastest_first(times, ranked_times, candidates)
     if not fair:
         return v
     v.best = fair[0]
