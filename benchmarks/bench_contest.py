@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepcontact.contest import Contestant, client, sandbox
+from deepcontact.contest import Contestant, client, machine
 from deepcontact.contest.wire import unanswered
 from deepcontact.protocol import current, protocol_line
 from deepcontact.scene.generators import generate
@@ -35,12 +35,12 @@ from deepcontact.warmstart.starts import Builtin
 def bare(on):
     """Switches the fences off (the path a machine without them takes) or back on."""
     if on:
-        sandbox._bwrap, sandbox._cgroup_roots = (lambda: None), (lambda: {})
+        machine.bwrap, machine.cgroup_roots = (lambda: None), (lambda: {})
     else:
-        sandbox._bwrap, sandbox._cgroup_roots = _fenced
+        machine.bwrap, machine.cgroup_roots = _fenced
 
 
-_fenced = (sandbox._bwrap, sandbox._cgroup_roots)
+_fenced = (machine.bwrap, machine.cgroup_roots)
 
 
 def contestant(fenced):
@@ -87,7 +87,7 @@ def main():
         for c in pair.values():
             c.close()
     print(protocol_line(current()))
-    print(f"step: {problem.points} contact points; fences here: {sandbox.describe_fences()}")
+    print(f"step: {problem.points} contact points; fences here: {machine.describe_fences()}")
     print(f"deadline rule: {client.deadline_rule()}")
     print(f"{'':8} {'start ms (best)':>16} {'setup ms (best)':>16} {'call ms (median)':>17} {'call ms (p90)':>14}")
     for fenced in (True, False):

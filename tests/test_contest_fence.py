@@ -296,9 +296,9 @@ def test_a_heavy_tail_is_never_called_the_fastest():
 def test_where_the_machine_refuses_a_fence_the_report_says_which(run, tmp_path, monkeypatch):
     """No bubblewrap, no control group: the contestants still run, as bare processes, and the
     protocol line and the verdict name the missing fences (nothing dropped silently)."""
-    from deepcontact.contest import sandbox
-    monkeypatch.setattr(sandbox, "_bwrap", lambda: None)
-    monkeypatch.setattr(sandbox, "_cgroup_roots", lambda: {})
+    from deepcontact.contest import machine
+    monkeypatch.setattr(machine, "bwrap", lambda: None)
+    monkeypatch.setattr(machine, "cgroup_roots", lambda: {})
     out = tmp_path / "r"
     s = summary_of(evaluate(run, out, "--starts", "builtin,zero"), out)
     assert {"builtin", "zero"} <= set(s["starts"])

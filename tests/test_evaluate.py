@@ -6,7 +6,8 @@ import pytest
 
 from conftest import dc
 from deepcontact.errors import InputError
-from deepcontact.evaluate.replay import evaluate, summarize
+from deepcontact.evaluate.replay import evaluate
+from deepcontact.evaluate.summary import summarize
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.warmstart.starts import make_starts
 from deepcontact.grid.spec import GridSpec

@@ -100,7 +100,7 @@ def rows_of(times, seed=0):
 def test_the_same_time_under_two_names_is_no_clear_winner():
     import numpy as np
     from deepcontact.evaluate.noise import judge
-    from deepcontact.evaluate.replay import summarize
+    from deepcontact.evaluate.summary import summarize
     steps = np.random.default_rng(1).uniform(0.05, 0.2, 40)   # steps differ; the variants do not
     rows = rows_of({"builtin": steps, "twin": steps})
     noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
@@ -112,7 +112,7 @@ def test_the_same_time_under_two_names_is_no_clear_winner():
 def test_a_start_twice_as_fast_is_a_clear_winner_and_the_report_says_how_sure():
     import numpy as np
     from deepcontact.evaluate.noise import judge
-    from deepcontact.evaluate.replay import summarize
+    from deepcontact.evaluate.summary import summarize
     from deepcontact.evaluate.verdicts import verdict
     steps = np.random.default_rng(2).uniform(0.05, 0.2, 40)
     rows = rows_of({"builtin": steps, "fast": steps / 2, "zero": steps * 1.5})
@@ -402,7 +402,7 @@ def test_a_start_that_wins_the_median_but_loses_the_total_is_no_clear_winner():
     """40 ms on 5% of the steps: the median is half builtin's, the total twice it."""
     import numpy as np
     from deepcontact.evaluate.noise import judge
-    from deepcontact.evaluate.replay import summarize
+    from deepcontact.evaluate.summary import summarize
     steps = np.random.default_rng(4).uniform(0.9, 1.1, 40)
     spiky = steps / 2
     spiky[::20] += 40.0
@@ -419,7 +419,7 @@ def test_a_start_that_wins_the_median_but_loses_the_total_is_no_clear_winner():
 def test_a_three_percent_difference_is_no_clear_winner():
     import numpy as np
     from deepcontact.evaluate.noise import judge
-    from deepcontact.evaluate.replay import summarize
+    from deepcontact.evaluate.summary import summarize
     steps = np.random.default_rng(5).uniform(0.05, 0.2, 60)
     rows = rows_of({"builtin": steps, "slightly": steps * 0.97}, seed=6)
     noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)

@@ -7,7 +7,8 @@ import pytest
 
 from conftest import dc
 from deepcontact.evaluate.closed_loop import box2d_iterations, closed_loop, reference_trajectory
-from deepcontact.evaluate.replay import BUDGETS, evaluate, previous_solution, summarize
+from deepcontact.evaluate.replay import BUDGETS, evaluate, previous_solution
+from deepcontact.evaluate.summary import summarize
 from deepcontact.warmstart.starts import make_starts
 from deepcontact.scene.generators import generate
 from deepcontact.solver.pgs import solve

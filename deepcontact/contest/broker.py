@@ -17,7 +17,7 @@ import socket
 import threading
 import time
 
-from . import sandbox
+from . import machine, sandbox
 
 ENV = "DC_SANDBOX_BROKER"   # the job's end of the broker's socket (a descriptor number)
 LIVE_LIMIT = 64             # sandboxes a job may hold at once
@@ -90,9 +90,9 @@ def new(readable=()):
 
 
 def fences():
-    """{fence: True/False} of what a contestant gets here: this machine's (sandbox.fences), or, in
+    """{fence: True/False} of what a contestant gets here: this machine's (machine.fences), or, in
     a fenced job, what the judge's process that starts its contestants lends."""
-    return remote("fences")["fences"] if inside() else sandbox.fences()
+    return remote("fences")["fences"] if inside() else machine.fences()
 
 
 def missing_fences():
@@ -101,8 +101,8 @@ def missing_fences():
 
 
 def describe_fences():
-    """One phrase for reports: the fences used, and any missing (sandbox.describe_fences)."""
-    return remote("fences")["describe"] if inside() else sandbox.describe_fences()
+    """One phrase for reports: the fences used, and any missing (machine.describe_fences)."""
+    return remote("fences")["describe"] if inside() else machine.describe_fences()
 
 
 class RemoteProcess:
@@ -243,7 +243,7 @@ class Broker:
     def _answer(self, request, fds):
         op = request.get("op")
         if op == "fences":
-            return {"fences": sandbox.fences(), "describe": sandbox.describe_fences()}
+            return {"fences": machine.fences(), "describe": machine.describe_fences()}
         if op == "start":
             return self._start(request, fds)
         box = self.boxes.get(request.get("id"))

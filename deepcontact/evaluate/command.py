@@ -121,7 +121,8 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
 
 
 def _replay(s, out, table, measured, progress):
-    from .replay import evaluate, summarize
+    from .replay import evaluate
+    from .summary import summarize
     from .report import summary_table, write_report
     from .verdicts import noise_of
     total = sum(len(sim.files) for r in s.read_runs() for sim in r.simulations)

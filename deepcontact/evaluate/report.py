@@ -26,7 +26,8 @@ from ..escape import CsvWriter, md_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
 from .plots import plots
-from .replay import BUDGETS, reference_summary
+from .replay import BUDGETS
+from .summary import reference_summary
 from .verdicts import as_share, baseline, interval, noise_of, oracle, verdict
 
 # Everything a report folder holds (replay and closed loop): what --overwrite may replace.

@@ -14,7 +14,8 @@ from deepcontact.grid.sources import collect
 from deepcontact.grid.spec import GridSpec
 from deepcontact.protocol import protocol, protocol_line
 from deepcontact.solver.settings import SolveSettings
-from deepcontact.evaluate.replay import evaluate, summarize
+from deepcontact.evaluate.replay import evaluate
+from deepcontact.evaluate.summary import summarize
 from deepcontact.evaluate.plots import convergence_plot
 from deepcontact.evaluate.report import summary_table
 from deepcontact.warmstart.starts import SPH, make_starts

@@ -1,0 +1,180 @@
+"""What this machine lends a contestant's fence (bubblewrap's namespaces, control groups it may
+write, libseccomp), tried once, and how a report says it: `fences()` names each fence and
+whether it holds here; nothing missing is dropped silently."""
+import ctypes
+import errno
+import os
+import shutil
+import subprocess
+from functools import lru_cache
+
+# System calls a contestant never needs and a hostile one would use to cross its fence.
+DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidfd_getfd", "perf_event_open",
+                "bpf", "userfaultfd", "keyctl", "add_key", "request_key", "mount", "umount2", "pivot_root",
+                "move_mount", "open_tree", "fsopen", "fsmount", "unshare", "setns", "open_by_handle_at",
+                "name_to_handle_at", "kexec_load", "kexec_file_load", "init_module", "finit_module",
+                "delete_module", "reboot", "swapon", "swapoff", "syslog", "acct", "quotactl", "settimeofday",
+                "clock_settime", "clock_adjtime", "adjtimex", "iopl", "ioperm", "lookup_dcookie",
+                "io_uring_setup", "io_uring_enter", "io_uring_register")
+AF_UNIX = 1   # socket(AF_UNIX, ...) is refused a job (JobSandbox): see seccomp_program
+
+@lru_cache(maxsize=None)
+def bwrap():
+    """The bubblewrap binary, if it can build a sandbox here (tried once: user namespaces may be
+    off), else None."""
+    path = shutil.which("bwrap")
+    if path is None:
+        return None
+    try:
+        done = subprocess.run([path, "--unshare-all", "--unshare-user", "--die-with-parent", "--cap-drop", "ALL",
+                               "--ro-bind", "/", "/", "--proc", "/proc", "true"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return path if done.returncode == 0 else None
+
+
+def _mounts():
+    """[(mount point, fstype, super options)] of this process's mounts."""
+    out = []
+    try:
+        with open("/proc/self/mountinfo") as f:
+            for line in f:
+                left, _, right = line.partition(" - ")
+                fields, tail = left.split(), right.split()
+                if len(fields) > 4 and len(tail) >= 3:
+                    out.append((fields[4], tail[0], tail[2]))
+    except OSError:
+        pass
+    return out
+
+
+def _own_cgroups():
+    """{hierarchy: path} of this process's control groups ("" for cgroup v2, else the v1 controller)."""
+    out = {}
+    try:
+        with open("/proc/self/cgroup") as f:
+            for line in f:
+                _, controllers, path = line.rstrip("\n").split(":", 2)
+                for c in (controllers.split(",") if controllers else [""]):
+                    out[c] = path
+    except OSError:
+        pass
+    return out
+
+
+def _writable_dir(path):
+    """Whether this process can make a folder in path."""
+    probe = os.path.join(path, f"dc-probe-{os.getpid()}")
+    try:
+        os.mkdir(probe)
+    except OSError:
+        return False
+    try:
+        os.rmdir(probe)
+    except OSError:
+        pass
+    return True
+
+
+@lru_cache(maxsize=None)
+def cgroup_roots():
+    """Where the judge may make contestants' control groups: {"cpu": (kind, dir), "pids": ..., "memory": ...}
+    (kind "v2" or "v1"), each a folder of the judge's own group it can write in."""
+    own, found = _own_cgroups(), {}
+    for point, fstype, options in _mounts():
+        if fstype == "cgroup2" and "" in own:
+            base = os.path.normpath(point + own[""])
+            if not _writable_dir(base):
+                continue
+            found.setdefault("cpu", ("v2", base))   # (cpu.stat's usage is kept in every v2 group)
+            try:
+                with open(os.path.join(base, "cgroup.subtree_control")) as f:
+                    enabled = f.read().split()
+            except OSError:
+                enabled = []
+            for c in ("pids", "memory"):
+                if c in enabled:
+                    found.setdefault(c, ("v2", base))
+        elif fstype == "cgroup":
+            for c, wanted in (("cpuacct", "cpu"), ("pids", "pids"), ("memory", "memory")):
+                if c in options.split(",") and c in own and wanted not in found:
+                    base = os.path.normpath(point + own[c])
+                    if _writable_dir(base):
+                        found[wanted] = ("v1", base)
+    return found
+
+
+class _ArgRule(ctypes.Structure):
+    """libseccomp's struct scmp_arg_cmp: argument `arg` compared (op) with datum_a."""
+    _fields_ = [("arg", ctypes.c_uint), ("op", ctypes.c_int), ("datum_a", ctypes.c_uint64),
+                ("datum_b", ctypes.c_uint64)]
+
+
+@lru_cache(maxsize=None)
+def seccomp_program(job=False):
+    """The seccomp filter (a BPF program's bytes, from libseccomp) refusing DENIED_CALLS with EPERM,
+    or None without libseccomp. job: socket(AF_UNIX) refused too, because a job sees the whole file
+    system read-only, and a read-only bind still lets a process connect to the sockets on it (a
+    session bus, an agent) and ask a process outside the fence to act; socketpair() stays."""
+    try:
+        lib = ctypes.CDLL("libseccomp.so.2", use_errno=True)
+    except OSError:
+        return None
+    lib.seccomp_init.restype = ctypes.c_void_p
+    lib.seccomp_init.argtypes = [ctypes.c_uint32]
+    lib.seccomp_syscall_resolve_name.argtypes = [ctypes.c_char_p]
+    lib.seccomp_rule_add_array.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int, ctypes.c_uint,
+                                           ctypes.POINTER(_ArgRule)]
+    lib.seccomp_export_bpf.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    lib.seccomp_release.argtypes = [ctypes.c_void_p]
+    allow, refuse = 0x7FFF0000, 0x00050000 | errno.EPERM   # SCMP_ACT_ALLOW, SCMP_ACT_ERRNO(EPERM)
+    ctx = lib.seccomp_init(allow)
+    if not ctx:
+        return None
+    rules = [(name, []) for name in DENIED_CALLS]
+    if job:
+        rules.append(("socket", [_ArgRule(0, 4, AF_UNIX, 0)]))   # (argument 0, SCMP_CMP_EQ, AF_UNIX)
+    try:
+        for name, args in rules:
+            number = lib.seccomp_syscall_resolve_name(name.encode())
+            if number < 0:
+                continue
+            array = (_ArgRule * max(1, len(args)))(*args)
+            if lib.seccomp_rule_add_array(ctx, refuse, number, len(args), array) != 0:
+                return None
+        fd = os.memfd_create("dc-seccomp")
+        try:
+            if lib.seccomp_export_bpf(ctx, fd) != 0:
+                return None
+            os.lseek(fd, 0, os.SEEK_SET)
+            return os.read(fd, 1 << 20)
+        finally:
+            os.close(fd)
+    finally:
+        lib.seccomp_release(ctx)
+
+
+def fences():
+    """{fence: True/False} of what this machine lends a contestant, for the report's protocol line."""
+    namespaces, roots = bwrap() is not None, cgroup_roots()
+    return {"namespaces": namespaces, "read-only view": namespaces,
+            "seccomp": namespaces and seccomp_program() is not None,
+            "cpu accounting": "cpu" in roots, "process limit": "pids" in roots,
+            "memory limit": True, "file size limit": True}
+
+
+def missing_fences():
+    """The names of the fences this machine refuses (empty when every fence holds)."""
+    return [name for name, held in fences().items() if not held]
+
+
+def describe_fences():
+    """One phrase for reports: the fences used, and any missing."""
+    missing = missing_fences()
+    roots = cgroup_roots()
+    memory = "memory (control group)" if "memory" in roots else "memory (address space)"
+    used = ("bubblewrap namespaces (user, PID, mount, IPC, network), a read-only view, seccomp, "
+            f"CPU charged from the control group, limits on processes, {memory} and file size")
+    return used if not missing else f"{used}; MISSING here: {', '.join(missing)}"
