@@ -85,7 +85,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
 	$(PYTHON) benchmarks/bench_report.py
 
-# The measured studies behind docs/results.md's tables that `make study` does not make (minutes each).
+# The measured studies behind docs/results/'s tables that `make study` does not make (minutes each).
 studies: setup
 	$(DC) study exact --siconos
 	$(DC) study exact --scene hard --every 1

@@ -2,7 +2,7 @@
 on the problems it was built for, against the method each is measured by, in one run:
 
 1. exact: the base-20 pyramid's 14 settling steps (8-10, 15-18, 32-36, 52-53) on which no other
-   method of the project reaches 1e-12 (docs/results.md), from zero, cap 100,000 iterations,
+   method of the project reaches 1e-12 (docs/results/), from zero, cap 100,000 iterations,
    against the contact-space Newton with the same cap;
 2. the first five steps with contacts of a base-40 pyramid (820 boxes) from zero to 1e-4,
    against subspace minimization (the method that meets it today);

@@ -21,7 +21,7 @@ With --space body the step is instead the bodies' velocities minimising a stiff 
 active set, passes changing only the right-hand side (Augmented).
 
 The gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
-the steps reach the tolerance within 8 passes (docs/results.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
+the steps reach the tolerance within 8 passes (docs/results/bodyspace.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
 native code would cost.
 
 Usage: python benchmarks/prototype_activeset.py [--settle N] [--steps N] [--most N] [--tolerance T] [--penalty P]

@@ -46,7 +46,7 @@ from . import options, terminal, types
 @click.option("--bands/--no-bands", default=None,
               help="Draw the 10-90% band of every variant in convergence.png (default: only for up to 4 variants).")
 @options.plots("Draw the report's pictures (PNG and SVG); --no-plots writes its tables alone (on a small run, "
-               "a tenth of the time: docs/results.md).")
+               "a tenth of the time: docs/results/).")
 @options.jobs
 @options.threads
 @options.max_memory

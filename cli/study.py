@@ -1,5 +1,5 @@
 """dc study: the longer measurements (stability of the hard scenes, engines and the frontier, the
-thesis's figures, the reference and its peer): every results table of docs/results.md that is not a
+thesis's figures, the reference and its peer): every results table of docs/results/ that is not a
 `dc evaluate` report comes from one of these. The studies are plug-ins registered in
 deepcontact.studies.STUDIES; this group makes its commands from the registry."""
 import os
@@ -103,7 +103,7 @@ def _fenced_command(name):
 def study():
     """Longer measurements built on the pipeline.
 
-    Every results table of docs/results.md that is not a `dc evaluate` report
+    Every results table of docs/results/ that is not a `dc evaluate` report
     comes from one of these. The studies are plug-ins (the repository's
     studies/ folder, installed by make setup; docs/api.md, "Studies"). With -o, a study writes a folder (tables, CSV and plots), a file (its
     table) or a text report (also echoed to stdout as it comes); a study whose

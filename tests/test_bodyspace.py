@@ -105,7 +105,7 @@ def test_in_the_loop_its_step_files_validate_and_carry_its_work(tmp_path, method
 
 
 def test_the_reference_ends_with_it_and_is_exact_on_a_settling_pyramid_step():
-    """Step 8 of the base-20 pyramid: too wide to pivot, and Newton stalls on it (docs/results.md);
+    """Step 8 of the base-20 pyramid: too wide to pivot, and Newton stalls on it (docs/results/);
     the reference's last stage, the solve in body space, is exact."""
     from deepcontact.solver.reference import reference_solution
     p, = problems("pyramid", dict(base=20), (8,))

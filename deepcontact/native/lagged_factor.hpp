@@ -2,7 +2,7 @@
 // next: the body-space solve's lagged variant (accelerate="lagged") solves each Newton system by
 // BiCGSTAB preconditioned with the Cholesky factor of an earlier system's symmetric part, and
 // factorizes again only when that fails. Why it may pay: a settled pile's system changes little
-// between Newton iterations and steps (docs/results.md, "Amortizing the body-space operator":
+// between Newton iterations and steps (docs/results/bodyspace.md, "Amortizing the body-space operator":
 // 20-30 iterations to 1e-8 with a factor 1-16 steps old), and a Newton direction needs only a
 // couple of digits.
 #pragma once

@@ -9,7 +9,7 @@ Modes:
 Acceleration (float32/float64): `nncg` adds to each sweep's result beta times the last search
 direction (Fletcher-Reeves beta = |change|^2 / |last change|^2, restarting when beta > 1); the
 next sweep projects it back. It costs two more passes over the contact points per sweep (about
-1.5x a plain sweep, docs/results.md, "Faster to the same accuracy").
+1.5x a plain sweep, docs/results/faster.md, "Faster to the same accuracy").
 
 Stopping: a fixed count (tolerance 0) or the first sweep whose chosen measure falls below the
 tolerance, capped at max_iterations. Measures (per sweep, see docs/solver.md, "Measuring convergence"):

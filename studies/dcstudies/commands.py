@@ -114,7 +114,7 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
     the project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
     solve to 1e-4 and 1e-8), on the thesis pile and every hard scene, each
     judged by the stability criteria and its drift from the reference
-    trajectory (docs/results.md, "Engines").
+    trajectory (docs/results/engines.md, "Engines").
 
     Writes engines.md (the cheapest passing setting of each engine per scene,
     and a table per scene), engines.csv and pareto-SCENE.png. Times are one
@@ -172,7 +172,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
     and 10,000 circles, confined circles and pyramids of 820 and 5,050 boxes,
     each judged by its one-step residual from the same recorded states, its
     velocity error against the reference step, and the stability criteria
-    (docs/results.md, "The frontier at scale").
+    (docs/results/frontier.md, "The frontier at scale").
 
     Writes frontier.md (for each engine setting, the cheapest project setting
     at least as accurate, and a table per scene), frontier.csv and
@@ -263,7 +263,7 @@ def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbo
     """How the solver methods scale with the pile: time and iterations per
     step to a residual of 1e-4 at 100, 1,000 and 10,000 circles, from zero
     and from Box2D's warm start, and the fitted exponent of time against
-    bodies (docs/results.md, "As the pile grows").
+    bodies (docs/results/bodyspace.md, "As the pile grows").
 
     \b
     Examples:
@@ -290,7 +290,7 @@ def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbo
 def exact(scene, every, siconos, threads, output, overwrite, verbose, quiet):
     """The reference solutions: how long reaching a residual of 1e-12 takes
     (sweeps, Newton, Lemke's pivots where Newton stalls), on held-out pile and
-    pyramid steps or on the hard scenes (docs/results.md, "Exact answers").
+    pyramid steps or on the hard scenes (docs/results/exact.md, "An exact step").
 
     \b
     Examples:
@@ -316,7 +316,7 @@ def exact(scene, every, siconos, threads, output, overwrite, verbose, quiet):
 @options.command("study peer")
 def peer(scene, every, tolerances, cap, threads, output, overwrite, verbose, quiet):
     """Our solver against Siconos's NSGS and Lemke on the same exported
-    problems, from zero to each tolerance (docs/results.md, "Against Siconos").
+    problems, from zero to each tolerance (docs/results/exact.md, "An exact step: Newton against PGS and Siconos").
     Needs Debian's python3-siconos (make setup).
 
     \b
