@@ -20,6 +20,7 @@ with `settings` a SolveSettings (solver/settings.py), and its answer is checked 
 contact point, finite, no pull) and judged as given by the project's own residual, never by the
 plug-in's word.
 """
+import copy
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -139,27 +140,31 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     from .. import arguments
     if settings is None:
         arguments.text(accelerate, "accelerate")
-    if settings is not None:
-        return solve(problem, start_normal, start_tangent, accelerate=settings.accelerate, mode=settings.mode,
-                     max_iterations=settings.max_iterations, tolerance=settings.tolerance, stop_on=settings.stop_on,
-                     relaxation=settings.relaxation, guard=settings.guard, history=history,
-                     final_residual=final_residual, prune=prune, carry=carry)
-    if is_native(accelerate):
-        relaxation = 1.0 if relaxation is None else relaxation
-        return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
-                            tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, history=history,
-                            final_residual=final_residual, guard=guard, accelerate=accelerate, prune=prune,
-                            carry=carry)
+        if is_native(accelerate):
+            return native_solve(problem, start_normal, start_tangent, mode=mode, max_iterations=max_iterations,
+                                tolerance=tolerance, stop_on=stop_on, relaxation=1.0 if relaxation is None else relaxation,
+                                history=history, final_residual=final_residual, guard=guard, accelerate=accelerate,
+                                prune=prune, carry=carry)
+        cap = problem.velocity_iterations if max_iterations is None else max_iterations
+        return _plugin_solve(problem, start_normal, start_tangent, history,
+                             _plugin_settings(accelerate, mode, int(cap), float(tolerance), stop_on, relaxation, guard))
+    if is_native(settings.accelerate):   # (the settings themselves, down to the native struct)
+        return native_solve(problem, start_normal, start_tangent, history=history, final_residual=final_residual,
+                            prune=prune, carry=carry,
+                            settings=settings if settings.relaxation is not None else settings.but(relaxation=1.0))
+    return _plugin_solve(problem, start_normal, start_tangent, history, _plugin_settings_of(settings))
+
+
+def _plugin_solve(problem, start_normal, start_tangent, history, settings):
+    """A plug-in method's solve, on its own copy of the step, its answer checked and judged here."""
+    accelerate = settings.accelerate
     n = problem.start_normal if start_normal is None else start_normal
     t = problem.start_tangent if start_tangent is None else start_tangent
-    cap = problem.velocity_iterations if max_iterations is None else max_iterations
-    settings = _plugin_settings(accelerate, mode, int(cap), float(tolerance), stop_on, relaxation, guard)
     solver = method(accelerate)
     # its own copy of the step: what it changes there, no other method and no later row sees
-    import copy
     with guest(f"the solver method {accelerate!r}"):
         out = solver(copy.deepcopy(problem), np.array(n, np.float64), np.array(t, np.float64), settings)
-    normal, tangent, residuals = _checked(accelerate, out, problem, cap)
+    normal, tangent, residuals = _checked(accelerate, out, problem, settings.max_iterations)
     after = judge(problem, normal, tangent)
     check_plausible(accelerate, problem, normal, tangent)
     trace = np.full((len(residuals), len(MEASURES)), np.nan)
@@ -184,14 +189,17 @@ def call_plugin(problem, start_normal, start_tangent, settings):
     """A plug-in method's own answer (normal, tangent, its residuals), its form checked, neither
     judged nor copied for: what a contestant's process does with a step that is its own (the
     judge judges the answer, from its own copy of the step)."""
-    name = settings.accelerate
-    cap = settings.max_iterations
-    asked = _plugin_settings(name, settings.mode, int(cap), float(settings.tolerance), settings.stop_on,
-                             settings.relaxation, settings.guard)
-    solver = method(name)
+    asked = _plugin_settings_of(settings)
+    name = asked.accelerate
     with guest(f"the solver method {name!r}"):
-        out = solver(problem, np.array(start_normal, np.float64), np.array(start_tangent, np.float64), asked)
-    return _checked(name, out, problem, cap)
+        out = method(name)(problem, np.array(start_normal, np.float64), np.array(start_tangent, np.float64), asked)
+    return _checked(name, out, problem, asked.max_iterations)
+
+
+def _plugin_settings_of(s):
+    """_plugin_settings for a SolveSettings s."""
+    return _plugin_settings(s.accelerate, s.mode, int(s.max_iterations), float(s.tolerance), s.stop_on, s.relaxation,
+                            s.guard)
 
 
 def _plugin_settings(name, mode, cap, tolerance, stop_on, relaxation, guard):

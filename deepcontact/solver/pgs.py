@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._box2d import Acceleration, Mode, SolveOptions, solve_contacts
+from .._box2d import Acceleration, Mode, solve_contacts
 from .. import arguments
 from ..errors import InputError
 from .settings import SolveSettings
@@ -80,19 +80,11 @@ class Solution:
         return self.history[:, MEASURES.index(name)]
 
 
-def options(*, dt, mode="float64", max_iterations=8, tolerance=0.0, stop_on="residual", relaxation=1.0,
-            history=False, final_residual=True, guard=True, accelerate="none", cone=True) -> SolveOptions:
-    """The native solver's options for these keywords: SolveSettings (solver/settings.py) checks
-    them and makes the struct; a bad value is an OptionError naming the flag that sets it."""
-    return SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on,
-                         relaxation=relaxation, accelerate=accelerate, guard=guard).native(
-        dt=dt, history=history, final_residual=final_residual, cone=cone)
-
-
 def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_tangent: np.ndarray | None = None, *,
           mode: str = "float64", max_iterations: int | None = None, tolerance: float = 0.0, stop_on: str = "residual",
           relaxation: float = 1.0, history: bool = False, prune: bool = True, final_residual: bool = True,
-          guard: bool = True, accelerate: str = "none", cone: bool = True, carry: "World | None" = None) -> Solution:
+          guard: bool = True, accelerate: str = "none", cone: bool = True, carry: "World | None" = None,
+          settings: SolveSettings | None = None) -> Solution:
     """Solve the step's contact problem from a start (default: Box2D's own warm start).
 
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
@@ -102,12 +94,16 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     projected onto the cone before use (cone=False: taken as given, which is how `judge` measures
     an answer, so it agrees with the solve that made it). carry: the native World whose carried
     state (the lagged method's factor and penalty) the solve uses and updates, as a step of the
-    native loop does; a solve without it starts afresh.
+    native loop does; a solve without it starts afresh. settings: a SolveSettings in place of the
+    keywords mode ... accelerate (the one object a command's options become, down to the native
+    struct: SolveSettings.native).
     Bad options raise OptionError (an InputError naming the flag)."""
     require_problem(problem)
-    opts = options(dt=problem.dt, mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation,
-                   history=history, final_residual=final_residual, guard=guard, accelerate=accelerate, cone=cone,
-                   max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
+    if settings is None:
+        settings = SolveSettings(mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, guard=guard,
+                                 accelerate=accelerate,
+                                 max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
+    opts = settings.native(dt=problem.dt, history=history, final_residual=final_residual, cone=cone)
     starts = []
     for name, given, own in (("start_normal", start_normal, problem.start_normal),
                              ("start_tangent", start_tangent, problem.start_tangent)):
@@ -122,4 +118,4 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         out = solve_contacts(problem.bodies, problem.contacts, *starts, problem.settings(prune), opts, carry)
     except ValueError as e:   # the native shape checks ("start impulses must have one value per ...")
         raise InputError(str(e)) from None
-    return Solution.from_native(out, relaxation)
+    return Solution.from_native(out, settings.relaxation)
