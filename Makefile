@@ -54,9 +54,10 @@ demo: setup
 	@echo "      $(RUNS)/demo-last-step.png (the last step, contacts and impulses) and $(RUNS)/demo.gif (the run)"
 
 # Two test processes, always (not one per core: the same run on any machine); the pipeline group's
-# wheel and smoke pipeline run beside them, started once (tests/conftest.py).
+# wheel and smoke pipeline run beside them, started once (tests/conftest.py). The 25 slowest tests
+# are listed at the end, so that CI's log records where the suite's time goes.
 test: setup
-	$(PYTHON) -m pytest -q -m "not slow" -n 2
+	$(PYTHON) -m pytest -q -m "not slow" -n 2 --durations=25
 
 # The inner loop: everything but the audits, the studies, the pipeline group and the tests that
 # need a process of their own; stops at the first failure (tests/conftest.py marks the groups).

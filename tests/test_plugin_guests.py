@@ -155,24 +155,29 @@ def clean(run, tmp_path_factory):
     return out
 
 
-@pytest.mark.parametrize("edit", EDITS)
-def test_what_a_method_does_to_its_problem_no_other_row_sees(run, clean, tmp_path, monkeypatch, edit):
-    """A method (or start) that edits the problem in place changes no built-in row after it."""
-    name = "guest_editor"
-    write_module(tmp_path, monkeypatch, name, METHOD, at_call=edit)
-    start_edit = edit.replace("problem.", "ctx.problem.")
-    write_module(tmp_path, monkeypatch, "guest_start_editor", START, at_call=start_edit)
+@pytest.mark.parametrize("kind", ["start", "method"])
+def test_what_a_method_does_to_its_problem_no_other_row_sees(run, clean, tmp_path, monkeypatch, kind):
+    """A method (or start) that edits the problem in place changes no built-in row after it: every
+    edit a plug-in of its own, all of them in one run (each a contestant of its own)."""
+    names = [f"guest_{kind}_editor_{k}" for k in range(len(EDITS))]
+    for name, edit in zip(names, EDITS):
+        if kind == "start":
+            write_module(tmp_path, monkeypatch, name, START, at_call=edit.replace("problem.", "ctx.problem."))
+        else:
+            write_module(tmp_path, monkeypatch, name, METHOD, at_call=edit)
+    guests = ",".join(f"{name}:{kind.title()}" for name in names)
+    asked = (["--starts", f"{guests},builtin,zero"] if kind == "start"
+             else ["--starts", "builtin,zero", "--accelerate", f"{guests},none"])
     try:
-        r = dc("evaluate", "--no-plots", run, "--starts", "guest_start_editor:Start,builtin,zero", "--accelerate",
-               f"{name}:Method,none", "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "dirty")
+        r = dc("evaluate", "--no-plots", run, *asked, "--every", "40", "--no-budgets", "-q", "-o", tmp_path / "dirty")
     finally:
-        forget(name)
-        forget("guest_start_editor")
+        for name in names:
+            forget(name)
     assert r.returncode == 0, r.stderr
     rows = lambda folder: json.loads((folder / "summary.json").read_text())["starts"]   # noqa: E731
     before, after = rows(clean), rows(tmp_path / "dirty")
-    assert set(before) <= set(after)
-    for key in before:   # the built-in rows computed after the plug-ins: the same answers
+    assert set(before) <= set(after) and len(after) == len(before) + len(EDITS) * (1 if kind == "start" else 2)
+    for key in before:   # the built-in rows computed beside the plug-ins: the same answers
         for measure in ("iterations_median", "residual_median", "error_median", "velocity_error_median"):
             assert after[key][measure] == before[key][measure], (key, measure)
 
@@ -420,19 +425,23 @@ def _library_rows(path, run, starts):
     import deepcontact as dcl
     if path == "evaluate_starts":
         rows = dcl.evaluate_starts([run], starts, every=20)
-        return sorted((r.start, r.seed, r.step, r.iterations, r.residual) for r in rows if r.start != "editor")
+        return sorted((r.start, r.seed, r.step, r.iterations, r.residual) for r in rows
+                      if not r.start.startswith("editor"))
     scene = dcl.read_scene(Path(run) / "seed-000000" / "scene.xml")
     return [(r.start, r.iterations.tolist(), r.drift.tolist()) for r in dcl.closed_loop(scene, starts, steps=40)
-            if r.start != "editor"]
+            if not r.start.startswith("editor")]
 
 
 @pytest.mark.parametrize("path", ["evaluate_starts", "closed_loop"])
 def test_what_a_start_handed_to_the_library_does_to_its_problem_no_other_start_sees(run, path):
+    """Every editor beside the built-ins in one run (each start is a contestant of its own, so
+    one run holds them apart as well as one run each would)."""
     import deepcontact as dcl
     clean = _library_rows(path, run, dcl.make_starts(["builtin", "prev", "zero"]))
-    for edit in EDITS + ["ctx.bodies['velocity'][:] = 99.0", "ctx.previous.clear()"]:
-        dirty = _library_rows(path, run, {"editor": _Editor(edit), **dcl.make_starts(["builtin", "prev", "zero"])})
-        assert dirty == clean, edit
+    edits = EDITS + ["ctx.bodies['velocity'][:] = 99.0", "ctx.previous.clear()"]
+    editors = {f"editor-{k}": _Editor(edit) for k, edit in enumerate(edits)}
+    dirty = _library_rows(path, run, {**editors, **dcl.make_starts(["builtin", "prev", "zero"])})
+    assert dirty == clean
 
 
 @pytest.mark.parametrize("change", ["os.umask(0)", "__import__('torch').set_num_threads(7)"])
