@@ -16,27 +16,25 @@ whether anything became non-finite.
 counts: what its accuracy costs in time.
 """
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import workers
-from ..simulate import stepping
-from ..simulate.engines import Box2D
-from ..solver.problem import contact_keys, impulses_by_key
-from ..solver.reference import reference_solution
-from ..solver.metrics import drift, energy, positions
-from ..solver.settings import SolveSettings
-from ..solver.methods import is_native
-from ..warmstart.starts import StepContext, is_oracle
+from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
 from ..contest.client import packed
 from ..contest.wire import checked_answer
-from .replay import open_contestants, visible_context, variants
-
-if TYPE_CHECKING:   # (for the annotations only)
-    from ..scene.model import Scene
-
+from ..scene.check import check_scene
+from ..scene.model import Scene
+from ..simulate import stepping
+from ..simulate.engines import Box2D
+from ..simulate.pgs_loop import PGSStepper
+from ..solver.methods import is_native
+from ..solver.metrics import drift, energy, positions
+from ..solver.problem import contact_keys, impulses_by_key
+from ..solver.reference import reference_solution
+from ..solver.settings import SolveSettings
+from ..warmstart.starts import StepContext, is_oracle, make_starts
+from .replay import open_contestants, variants, visible_context
 
 
 @dataclass
@@ -122,7 +120,6 @@ def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, rep
     """The scene stepped `steps` times with the project's solver (a SolveSettings) from `start_fn`,
     or, if None, from `start`, in one native call per step. report: each step to workers.progress
     (not for the A/A run, which the progress total does not count). solve_fn: PGSStepper's."""
-    from ..simulate.pgs_loop import PGSStepper
     engine = Box2D(solver=settings, start=start, start_fn=start_fn)
     world = engine.build(scene)
     stepper = PGSStepper(world, scene, engine.solver, start, start_fn=start_fn, record=False, solve_fn=solve_fn)
@@ -196,9 +193,6 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
     its own): one LoopResult each (iterations, times, drift from the reference
     trajectory, penetration, energy, residuals). reference: a reference_trajectory to reuse. Each
     step stepped is reported to workers.progress."""
-    from .. import arguments
-    from ..scene.check import check_scene
-    from ..scene.model import Scene
     arguments.instance(scene, "scene", Scene, "a Scene (read_scene or generate makes one)")
     arguments.instance(settings, "settings", SolveSettings, "a SolveSettings (SolveSettings(tolerance=1e-4), ...)")
     check_scene(scene)   # (what a scene file is held to: an edited scene must not abort in Box2D)
@@ -240,7 +234,6 @@ def _interleaved(scene, runs, steps):
     an order shuffled per step by a fixed seed, so that a busy moment of the machine, or the
     judge warming up, touches them all alike (run one after the other, the first ran 20-30%
     slower)."""
-    from ..simulate.pgs_loop import PGSStepper
     loops, contestants, null = [], [], None
     try:
         contestants, null = open_contestants([v for v, _, _ in runs], runs[0][1])
@@ -273,7 +266,6 @@ def _interleaved(scene, runs, steps):
 def _path_cost(scene, settings, steps, results):
     """The median per-step cost (ms) of the contestants' path over the native loop, for builtin
     (the same trajectory both ways, bit for bit: a cost of the path, not of a start)."""
-    from ..warmstart.starts import make_starts
     base = settings.but(relaxation=1.0, accelerate="none")
     native = run_loop(scene, None, base, steps, "builtin", report=False).seconds * 1e3
     plain = next((r.ms_per_step for r in results if r.start == "builtin"), None)

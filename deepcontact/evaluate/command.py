@@ -1,10 +1,26 @@
 """`dc evaluate`'s work as one library call: the settings as one value, the starts made, replay
 or the closed loop run over every simulation given, the report written into a folder."""
-import dataclasses
 from collections.abc import Callable
+import dataclasses
 from dataclasses import dataclass, field
 
+from ..contest import missing_fences
+from ..errors import InputError, OptionError
+from ..grid import sources
+from ..grid.spec import node_weight_problem
+from ..grid.window import grid_for
+from ..model.checkpoint_file import checkpoint_file
+from ..protocol import protocol, use_threads
+from ..scene.xml import read_scene
+from ..solver.methods import method_origin
 from ..solver.settings import VERDICT_CAP, SolveSettings
+from ..warmstart import starts as registry
+from .closed_loop import every_simulation, pooled, steps_stepped
+from .loop_report import write_loop_report
+from .replay import box2d_runs, evaluate
+from .report import summary_table, write_report
+from .summary import summarize
+from .verdicts import base_start, noise_of
 
 
 @dataclass
@@ -41,15 +57,11 @@ class EvaluateSettings:
         rules, each method against the mode), a model for the starts that need one, a grid the
         sph start can draw; and InputError for a checkpoint path that cannot be one (before torch
         is imported to read it)."""
-        from ..errors import OptionError
-        from ..grid.spec import node_weight_problem
-        from ..model.checkpoint_file import checkpoint_file
-        from ..warmstart.starts import trait
         for w in self.relaxations:   # (made, a SolveSettings checks itself: each w, each method)
             self.solve.but(relaxation=w)
         for method in self.accelerations:
             self.solve.but(accelerate=method)
-        learned = [n for n in self.starts if trait(n, "needs_model")]
+        learned = [n for n in self.starts if registry.trait(n, "needs_model")]
         if learned and not self.checkpoint:
             raise OptionError(f"the start(s) {', '.join(learned)} need a trained model: give --checkpoint FILE",
                               "--checkpoint")
@@ -65,7 +77,6 @@ class EvaluateSettings:
         """The runs, each read (and checked) once, the first time they are asked for: a
         step.run_folder.Run each, passed down to replay and the closed loop."""
         if self._read is None:
-            from .replay import box2d_runs
             self._read = box2d_runs(self.runs)
         return self._read
 
@@ -73,13 +84,11 @@ class EvaluateSettings:
         """The sph start's grid without a checkpoint: over the window the manifests record (the
         scenes' static box, else where the bodies went), as dc rasterize draws it; runs from before
         manifests recorded the box are read as a dataset would read them."""
-        from ..grid.sources import collect
-        from ..grid.window import grid_for
         runs = self.read_runs()
         if all("static_box" in e for r in runs for e in r.manifest["simulations"]):
             sims = [sim for r in runs for sim in r.simulations]
         else:
-            sims, _ = collect(self.runs)
+            sims, _ = sources.collect(self.runs)
         return grid_for(sims, self.cell, self.smoothing, self.kernel, True)[0]
 
 
@@ -99,20 +108,17 @@ def history_bytes(s: EvaluateSettings):
 def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str:
     """Replay (or the closed loop) into the report folder out; returns the summary table.
     bar(total, unit) gives a progress callback for that many units."""
-    from ..protocol import protocol, use_threads
-    from ..warmstart.starts import make_starts
 
     predictor, spec = None, None
     if s.checkpoint:
-        from ..model.inference import Predictor
+        from ..model.inference import Predictor  # (torch: imported only where a model is evaluated)
         predictor = Predictor(s.checkpoint, threads=s.threads)
         spec = predictor.spec
     measured = protocol(s.threads, s.jobs)   # (the load average now, before the work adds to it)
-    from ..contest import missing_fences
     measured["missing_fences"] = missing_fences()   # (the contestants' fences this machine refused: said, never dropped)
     if "sph" in s.starts and spec is None:
         spec = s.sph_grid()
-    table = make_starts(s.starts, spec=spec, predictor=predictor)
+    table = registry.make_starts(s.starts, spec=spec, predictor=predictor)
     use_threads(s.threads)   # (after the starts: a plug-in start may bring torch with it)
     progress = bar or (lambda total, unit: None)
     if s.closed_loop:
@@ -121,10 +127,6 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
 
 
 def _replay(s, out, table, measured, progress):
-    from .replay import evaluate
-    from .summary import summarize
-    from .report import summary_table, write_report
-    from .verdicts import noise_of
     total = sum(len(sim.files) for r in s.read_runs() for sim in r.simulations)
     rows = evaluate(s.read_runs(), table, settings=s.solve, every=s.every, seed=s.seed, progress=progress(total, "step"),
                     relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
@@ -142,20 +144,13 @@ def _replay(s, out, table, measured, progress):
 def _record_origins(summary, table):
     """Each variant's start and solver method, where they come from (built-in, or a plug-in with
     its target, distribution and version): in summary.json and the report."""
-    from ..solver.methods import method_origin
-    from ..warmstart.starts import STARTS
-    from .verdicts import base_start
     for name, s in summary.items():
-        s["start_origin"] = STARTS.origin(base_start(name))
+        s["start_origin"] = registry.STARTS.origin(base_start(name))
         s["method_origin"] = method_origin(s["accelerate"])
 
 
 def _closed_loop(s, out, table, measured, progress):
     """Every simulation of every run given, its rows per seed and pooled over all of them."""
-    from ..errors import InputError
-    from ..scene.xml import read_scene
-    from .closed_loop import every_simulation, pooled, steps_stepped
-    from .loop_report import write_loop_report
 
     sims = [(r.path, sim) for r in s.read_runs() for sim in r.simulations]
     scenes = [read_scene(sim.scene_file()) for _, sim in sims]

@@ -10,29 +10,31 @@ against the step's reference solution (in impulses, and in body velocities after
 whether the PSOR guard fell back, prediction and solve time, and with `budgets` the measured time
 and reached residual of fixed sweep budgets.
 """
+from collections.abc import Callable
 import copy
 import dataclasses
-import pickle
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+import pickle
 
 import numpy as np
 
-from .. import workers
+from .. import arguments, workers
+from ..contest import Contestant, deadline_for, start_all
+from ..contest.client import packed
+from ..contest.wire import checked_answer, unanswered
 from ..errors import InputError
-from ..step.run_folder import Run, read_run
-from ..solver.methods import check_plausible, is_native, judge, solve
+from ..model.arch import NETWORKS
+from ..protocol import threads_asked
+from ..solver.methods import check_plausible, is_native, judge, solve, takes_relaxation
 from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
-from ..warmstart.starts import ANSWER_COLUMNS, StepContext
-from ..contest import Contestant, deadline_for, start_all
-from ..contest.client import packed
-from ..contest.wire import checked_answer, unanswered
+from ..step.run_folder import Run, read_run
+from ..warmstart.starts import ANSWER_COLUMNS, NAMES, StepContext, held_to_contract
 from .summary import flag_memos
 
 
@@ -92,8 +94,6 @@ class Variant:
 def variants(starts, relaxations=(1.0,), accelerations=("none",)):
     """Every start with every acceleration and every w; labels are the start names, with "+nncg"
     when accelerated and "@w" unless w is only 1."""
-    from ..solver.methods import takes_relaxation
-    from ..warmstart.starts import held_to_contract
     starts = {name: held_to_contract(name, start) for name, start in starts.items()}
     plain = list(relaxations) == [1.0]
     out, used = [], set()
@@ -112,7 +112,6 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
 
 
 def _plugin(name):
-    from ..warmstart.starts import NAMES
     return name not in NAMES
 
 
@@ -207,7 +206,6 @@ def open_contestants(table, settings):
     """([Contestant] in the table's order, the null contestant): one sandbox per variant
     (deepcontact/contest), started side by side, and the null contestant that measures transport
     for all of them."""
-    from ..protocol import threads_asked
     spec, checkpoint, networks = None, None, []
     for v in table:
         inner = getattr(v.start, "start", v.start)
@@ -215,7 +213,6 @@ def open_contestants(table, settings):
             predictor = getattr(obj, "predictor", None)
             checkpoint = checkpoint or getattr(predictor, "checkpoint", None)
             if getattr(predictor, "network", None) and not networks:
-                from ..model.arch import NETWORKS
                 networks = [] if predictor.network in NETWORKS.builtin() else [predictor.network]
             spec = spec or getattr(predictor, "spec", None) or getattr(obj, "spec", None)
     made = []
@@ -392,7 +389,6 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
     jobs > 1: simulations side by side in worker processes (the same rows, in the same order; the
     times are each worker's own). progress(n) is called as n more step files are done (each
     step file as it is reached, in any worker)."""
-    from .. import arguments
     arguments.starts(starts, "starts")
     every = arguments.whole(every, "every", 1)
     plan = _plan(arguments.paths(run_dirs, "run_dirs", also=Run))   # (folders, or runs already read)

@@ -32,6 +32,7 @@ def write_problem(problem, path, *, solution=None, guess=None, title="", descrip
     tangent) pairs) to path as an FCLIB local problem, atomically; returns path. lp: the step's
     local_problem, where the caller has it already."""
     import h5py
+
     from ..solver.local import local_problem
     path = Path(path)
     lp = local_problem(problem) if lp is None else lp
@@ -73,6 +74,7 @@ def read_problem(path) -> "LocalProblem":
     """An FCLIB local problem written by write_problem (points numbered 0..m-1)."""
     import h5py
     import scipy.sparse as sp
+
     from ..solver.local import LocalProblem
     with h5py.File(path, "r") as f:
         W = f["fclib_local/W"]
@@ -117,7 +119,7 @@ def _export_step(task):
     """One step file as a local problem in the export's folder: its index entry, or None (a step
     left out by --every, or without contacts)."""
     from ..solver.local import local_problem, residual
-    from ..solver.reference import reference_solution
+    from ..solver.reference import reference_solution  # (scipy, for its pivots: not at the command's start)
     path, work, folder, seed, scene, solution, wanted = task
     workers.progress(1)
     if not wanted:

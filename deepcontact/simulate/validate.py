@@ -2,16 +2,27 @@
 folder, against the schemas and what the schemas cannot see, side by side in worker processes,
 reported in file order. (At this floor because a scene's check builds its world: bodies that
 start overlapping are refused.)"""
-import math
-import os
 from functools import lru_cache
 from itertools import groupby
+import math
+import os
 from pathlib import Path
 
 import numpy as np
 
 from .. import output, workers
 from ..errors import InputError, one_line, show_path
+from ..scene.xml import read_scene
+from ..solver.methods import SOLVERS
+from ..solver.pgs import solve
+from ..solver.problem import StepProblem
+from ..solver.reference import reference_solution
+from ..step.check import check_file
+from ..step.reader import read_step
+from ..step.records import check_pgs
+from ..step.run_folder import MANIFEST, read_run
+from ..step.strict import SAMPLE_EVERY
+from .build import check_overlaps
 
 ABOVE = "is above its run's tolerance"   # (in the line held_to_tolerance gives: dc validate counts them)
 SLACK = 1.001   # a recomputed residual may exceed the tolerance by this factor: the file's float32 values
@@ -43,12 +54,8 @@ def xml_files(paths):
 def check_files(task):
     """[(path, error lines, above)] for ([(path, origin, tolerance)], residuals): one worker's share
     of a simulation folder; above: whether the step's residual, recomputed, is above tolerance."""
-    from ..scene.xml import read_scene
-    from ..step.check import check_file
-    from .build import check_overlaps
 
     import zlib
-    from ..step.strict import SAMPLE_EVERY
     chunk, residuals = task
     out = []
     for path, origin, tolerance in chunk:
@@ -90,8 +97,6 @@ def held_to_tolerance(path, tolerance, mode="float64"):
     tolerance is measured in float64 and held to twice what the project's float32 PGS reaches from
     the step's own start (to the run's tolerance and cap), where that is larger: a method that
     stops early is still found."""
-    from ..solver.problem import StepProblem
-    from ..step.reader import read_step
     header, bodies, contacts = read_step(path, validate=False)
     claim = header.get("solve")
     if claim is None:
@@ -119,7 +124,6 @@ def held_to_tolerance(path, tolerance, mode="float64"):
 
 def _residual(problem, normal, tangent, mode):
     """The residual of impulses as given (no sweep, no clamp into the cone), in `mode` arithmetic."""
-    from ..solver.pgs import solve
     return solve(problem, normal, tangent, max_iterations=0, cone=False, mode=mode).residual
 
 
@@ -131,8 +135,6 @@ def _measured(problem, recorded, tolerance, mode, cap):
     """(the recorded impulses' residual, what it may be, the arithmetic it was measured in, what
     the allowance above the tolerance is): above the tolerance, the floor float32 allows (see
     held_to_tolerance) is measured and twice it allowed."""
-    from ..solver.pgs import solve
-    from ..solver.reference import reference_solution
     found = _residual(problem, *recorded, mode)
     allowed, what = tolerance * SLACK, None
     if not (math.isfinite(found) and found > allowed):
@@ -180,7 +182,6 @@ def origins(paths):
     step file -> (tolerance, mode) its run's manifest held our solver to (runs it stepped to a
     residual); the simulations' manifest records, by their folder; and the error lines of runs
     whose manifest does not match their folders."""
-    from ..step.run_folder import MANIFEST, read_run
 
     origin, tolerance, simulations, errors = {}, {}, {}, []
     for run in (Path(p) for p in paths):
@@ -192,8 +193,6 @@ def origins(paths):
                 continue
             pgs = r.manifest.get("pgs") if r.manifest.get("solver") == "pgs" else None
             if pgs is not None:   # (its method a built-in's name where it says built-in)
-                from ..solver.methods import SOLVERS
-                from ..step.records import check_pgs
                 try:
                     check_pgs(pgs, run / MANIFEST, SOLVERS.builtin())
                 except InputError as e:

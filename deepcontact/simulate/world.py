@@ -4,16 +4,15 @@ writes to step files."""
 import os
 import sys
 
-from typing import TYPE_CHECKING
-
+from .. import arguments
+from ..errors import InputError
 from ..scene.check import check_scene
+from ..scene.model import Scene
+from ..scene.xml import read_scene
 from .build import check_overlaps
 from .engines import Engine
 from .engines.box2d import Box2D
 from .stepping import Stepped, steps
-
-if TYPE_CHECKING:   # (for the annotations only)
-    from ..scene.model import Scene
 
 
 class World:
@@ -29,10 +28,7 @@ class World:
 
     def __init__(self, scene: "Scene | str | os.PathLike", engine: "Engine | None" = None,
                  record: bool = True):
-        from .. import arguments
-        from ..scene.model import Scene
         if isinstance(scene, (str, os.PathLike)):
-            from ..scene.xml import read_scene
             scene = read_scene(scene)   # (checked as it is read)
         else:
             # what a scene file is held to, for a scene made or edited in memory: Box2D's asserts
@@ -52,7 +48,6 @@ class World:
     def step(self) -> Stepped:
         """One step: its index, bodies (before it), contacts, solution, deepest penetration, seconds."""
         if getattr(self, "_failed", None):
-            from ..errors import InputError
             raise InputError(self._failed)
         try:
             done = next(self._steps)

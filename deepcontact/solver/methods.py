@@ -26,10 +26,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import arguments
 from .._box2d import Acceleration, is_global
 from ..errors import InputError
 from ..plugins import PluginError, Registry, guest
-from .pgs import MEASURES, Solution
+from .pgs import MEASURES, Solution, require_problem
 from .pgs import solve as native_solve
 from .settings import SolveSettings
 
@@ -121,8 +122,6 @@ def judge(problem: "StepProblem", normal: np.ndarray, tangent: np.ndarray) -> So
     `.residual`) and the body velocities they give (`.velocity`, `.omega`). They are measured as
     given: a tangent beyond the friction cone is not clamped, its excess counts in the residual, so
     a solve's answer is judged to the residual the solve reported."""
-    from .. import arguments
-    from .pgs import require_problem
     require_problem(problem)
     normal, tangent = (arguments.vector(v, name, problem.points) for v, name in ((normal, "normal"), (tangent, "tangent")))
     return native_solve(problem, normal, tangent, max_iterations=0, cone=False)
@@ -137,7 +136,6 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in
     stops on the residual only and runs in float32 or float64. carry: the loop's native World,
     whose carried state a built-in method uses as the native loop's step would."""
-    from .. import arguments
     if settings is None:
         arguments.text(accelerate, "accelerate")
         if is_native(accelerate):

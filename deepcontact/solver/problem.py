@@ -9,8 +9,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import arguments
 from .._box2d import SOLVER_BODY_FIELDS, SOLVER_CONTACT_FIELDS, StepSettings
 from ..errors import InputError
+from ..step.engines import engine_of, poses_box2d_problem
+from ..step.reader import read_step
 
 # The columns the native solver reads: its rows of the record tables (native/records.hpp).
 BODY_KEYS = SOLVER_BODY_FIELDS
@@ -29,7 +32,6 @@ def contact_keys(contacts: dict) -> list[tuple]:
 
 def _require_columns(table, names, what):
     """InputError naming the columns a table (a dict of arrays) lacks."""
-    from ..errors import InputError
     if not isinstance(table, dict):
         raise InputError(f"{what} must be a dict of arrays (as read_step returns), got {type(table).__name__}")
     missing = [k for k in names if k not in table]
@@ -39,7 +41,6 @@ def _require_columns(table, names, what):
 
 def impulses_by_key(keys: list[tuple], normal: np.ndarray, tangent: np.ndarray) -> dict:
     """{contact key: (normal, tangent)}: a solution, to be matched to a later step's contacts."""
-    from .. import arguments
     if not isinstance(keys, (list, tuple)) or not all(isinstance(k, tuple) for k in keys):
         raise arguments.refuse("keys", "a list of contact keys (tuples, as contact_keys returns them)", keys)
     sizes = [len(keys), *(np.size(v) for v in (normal, tangent))]
@@ -123,7 +124,6 @@ class StepProblem:
 
     @classmethod
     def from_step_file(cls, path):
-        from ..step.reader import read_step
         # with the schema: the rules `dc validate` holds a step to (friction >= 0, ...), in the same pass
         return cls.from_step(*read_step(path, validate=True), path=path)
 
@@ -131,8 +131,6 @@ class StepProblem:
     def from_step(cls, header, bodies, contacts, path=None):
         """From what step.reader.read_step returns; errors name `path`. A Box2D v3 step is refused:
         its soft step (substeps, soft contacts, relax) is not the contact problem posed here."""
-        from .. import arguments
-        from ..step.engines import engine_of, poses_box2d_problem
         for value, name in ((header, "header"), (bodies, "bodies"), (contacts, "contacts")):
             arguments.mapping(value, name)   # (read_step's three values)
         if not isinstance(arguments.mapping(header, "header", ("solver", "dt", "gravity", "velocity_iterations", "index"))["solver"], dict):

@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .pgs import Solution, solve
+from .. import arguments
+from .pgs import Solution, require_problem, solve
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
@@ -41,8 +42,6 @@ def reference_solution(problem: "StepProblem", tolerance: float = TOLERANCE, cap
                        accelerate: str = "newton", pivot: bool = True) -> Solution:
     """Solve from zero to the tolerance (float64; accelerate="none" is plain PGS, the reference
     before Newton; pivot: Lemke where Newton stalls)."""
-    from .. import arguments
-    from .pgs import require_problem
     require_problem(problem)
     cap = arguments.whole(cap, "cap")
     relaxation = arguments.number(relaxation, "relaxation", 0.0, 2.0)   # (the native rule: in (0, 2))
@@ -62,9 +61,9 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
     """From Newton's answer s, if it misses the tolerance: pivots (local, wider, whole), each
     followed by Newton, then the solve in body space from zero to the cap; the best answer, its
     work summed."""
+    from .pivoting import StepPivots, lemke_tableau  # (scipy: imported where a step pivots)
     if s.residual < tolerance:
         return s
-    from .pivoting import StepPivots, lemke_tableau
     step = StepPivots(problem)
     best, work = s, [s]
     attempts = [lambda b, rings=rings, share=share: step.local(b.normal_impulse, b.tangent_impulse, rings, share)

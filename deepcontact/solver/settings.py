@@ -4,8 +4,10 @@ struct (`native`), checked once, on construction.
 TOLERANCE and CAP are the defaults of every command and function that solves to a tolerance
 (dc evaluate, dc simulate --solver pgs --tolerance, the studies): named here and nowhere else.
 """
-import functools
 from dataclasses import dataclass, replace
+import functools
+
+from ..errors import OptionError
 
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
 # dc evaluate's cap: a verdict needs variants that reach the tolerance on every step, and at 1000
@@ -68,7 +70,6 @@ class SolveSettings:
 
     def _check_types(self):
         """OptionError for a field of the wrong type (before the native struct would refuse it)."""
-        from ..errors import OptionError
         real = (int, float)
         for name, kinds in (("max_iterations", (int,)), ("tolerance", real)):
             value = getattr(self, name)
@@ -102,7 +103,6 @@ class SolveSettings:
                                 accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
                                 final_residual=final_residual, guard=self.guard, cone=cone)
         except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
-            from ..errors import OptionError
             field = str(e).split()[0] if str(e) else ""
             raise OptionError(str(e), FLAGS.get(field)) from None
 
@@ -112,7 +112,6 @@ class SolveSettings:
 
 
 def _error(message, field):
-    from ..errors import OptionError
     return OptionError(message, FLAGS[field])
 
 

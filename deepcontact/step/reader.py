@@ -6,12 +6,16 @@ finite (integers in range), and a problem is an InputError naming the file and l
 validate=True the XSD is checked in the same pass. step.reader_lxml is the slow reference that
 the tests hold this reader to, value for value.
 """
-import os
 from functools import lru_cache
+import os
 
+from .. import arguments
 from .._box2d import StepFileError, StepSchema, StrictTable, read_step_file
 from ..errors import InputError
 from ..schema import schema_path
+from .engines import engine_of
+from .run_folder import step_index
+from .strict import table
 
 _GRID_BODY = ("center", "velocity", "mass", "omega", "type")
 _GRID_CONTACT = ("position", "normal", "normal_impulse", "tangent_impulse")
@@ -26,7 +30,6 @@ def step_schema() -> StepSchema:
 @lru_cache(maxsize=None)
 def strict_table() -> StrictTable:
     """The step schema's table (strict.py), compiled once per process."""
-    from .strict import table
     return StrictTable(table())
 
 
@@ -34,7 +37,6 @@ def read_step(path: str | os.PathLike, validate: bool = True) -> tuple[dict, dic
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays). validate: held to
     the step schema, by its table as the file is read (strict.py); a file the table refuses is
     validated by the XSD itself, which says what is wrong (or, being the authority, accepts it)."""
-    from .. import arguments
     arguments.path(path, "path")
     try:
         try:
@@ -89,8 +91,6 @@ def check_origin(header, scene, seed, path, engine=None):
     """A step file belongs where it lies: the simulation's scene name and seed, its engine (where
     the run's manifest names one), and the step its name gives (a step copied over its neighbour
     would be read twice)."""
-    from .engines import engine_of
-    from .run_folder import step_index
     if header["scene"] != scene or header["seed"] != seed:
         raise InputError(f"the step file is of scene {header['scene']!r} seed {header['seed']}, but lies in a "
                          f"simulation of scene {scene!r} seed {seed} (copied from another run?)", path, 1)

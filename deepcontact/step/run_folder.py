@@ -6,14 +6,17 @@ names lies inside the run folder (no absolute paths, no ``..``), and each folder
 the number of step files the manifest recorded (a deleted or added file is an error, not a
 silently shorter run).
 """
+from dataclasses import dataclass
 import json
 import math
 import os
-import re
-from dataclasses import dataclass
 from pathlib import Path
+import re
 
+from .. import __version__, arguments, output
 from ..errors import InputError, count
+from ..scene.xml import fmt
+from .records import check_above, check_pgs
 
 MANIFEST = "manifest.json"
 _SIM_DIR = re.compile(r"seed-\d{6,}")
@@ -135,8 +138,6 @@ def write_manifest(run_dir, scene, engine, *, source, pgs, skip_contactless, sim
     scene: the first simulation's scene; engine: what stepped it (a simulate.engines.Engine);
     simulations: one dict per simulation (seed, dir, steps, files, contact_points, scene_sha256,
     extent)."""
-    from .. import __version__, output
-    from ..scene.xml import fmt
     own_iterations = engine.rows == "box2d"   # (2.4.1's iterations are the scene's; others have settings)
     manifest = {
         "format": 1,
@@ -183,7 +184,6 @@ def read_manifest(run_dir):
         raise InputError(f"the manifest must be a JSON object, not {type(m).__name__}", path)
     if not isinstance(m.get("simulations"), list):
         raise InputError("the manifest has no list of simulations", path)
-    from .records import check_above, check_pgs
     if m.get("solver") == "pgs":
         check_pgs(m.get("pgs"), path)
     for record in m["simulations"]:
@@ -259,7 +259,6 @@ def read_run(run_dir: str | os.PathLike, solver: str | None = None, purpose: str
     contact problem (the manifest's poses_box2d_problem); it says what needs it. unfinished: a folder without a manifest (a run still being written, or
     step files copied by hand) is read from its seed-NNNNNN folders, with nothing to check the
     files against."""
-    from .. import arguments
     run_dir = Path(arguments.path(run_dir, "run_dir"))   # (a run is a folder's path)
     if unfinished and run_dir.is_dir() and not (run_dir / MANIFEST).exists():
         sims = [Simulation(seed=int(p.name[5:]), dir=p.name, path=p, files=step_files_in(p))

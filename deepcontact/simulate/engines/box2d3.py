@@ -1,15 +1,16 @@
 """Box2D v3 (3.1, the pyb2d3 wheel's library): the soft step."""
+from dataclasses import dataclass
 import functools
 import math
 import struct
-from dataclasses import dataclass
 
-from ...errors import InputError
-from ...resources import check_step_work
-from .. import stepping
-from ..build import build_world3
 from . import Engine, Setting
-
+from .. import stepping
+from ... import _box2d, arguments
+from ...errors import InputError, OptionError
+from ...resources import check_step_work
+from ...step.writer import soft_step_xml
+from ..build import build_world3
 
 FLOAT32_TINY = 2.0 ** -126   # float32's smallest normal number (about 1.18e-38)
 
@@ -42,7 +43,6 @@ class SoftStep:
                 object.__setattr__(self, name, value)
         # (OptionError names the flag: dc simulate exits 2 on these, as for any bad option value,
         # and a library caller gets the same one line)
-        from ...errors import OptionError
         if not (isinstance(self.substeps, int) and not isinstance(self.substeps, bool) and self.substeps >= 1):
             raise OptionError(f"substeps must be a whole number >= 1, got {self.substeps!r}", "--substeps")
         for name, lowest in (("contact_hertz", "positive"), ("damping_ratio", ">= 0"), ("push_speed", ">= 0")):
@@ -67,7 +67,6 @@ class SoftStep:
 def soft_step_defaults() -> dict:
     """Box2D v3's own soft step defaults, from its library (b2DefaultWorldDef), as SoftStep's fields;
     InputError where this build has no Box2D v3."""
-    from ... import _box2d
     if not hasattr(_box2d, "soft_step_defaults"):
         raise InputError("this build has no Box2D v3: install pyb2d3==0.11.1 and rebuild (make setup)")
     return dict(_box2d.soft_step_defaults())
@@ -84,7 +83,6 @@ class Box2D3(Engine):
                 "push_speed": Setting(float, 0, 1e6, "the most speed (m/s) used to push overlaps apart")}
 
     def __init__(self, soft: SoftStep | None = None):
-        from ... import arguments
         self.soft = SoftStep() if soft is None else arguments.instance(soft, "soft", SoftStep, "a SoftStep")
 
     @classmethod
@@ -94,7 +92,6 @@ class Box2D3(Engine):
 
     @classmethod
     def version(cls) -> str:
-        from ... import _box2d
         return getattr(_box2d, "box2d3_version", "not built")
 
     def settings(self) -> dict:
@@ -102,7 +99,6 @@ class Box2D3(Engine):
 
     def header_lines(self, scene) -> str:
         """v3's soft step (<soft_step>): its files' own header line."""
-        from ...step.writer import soft_step_xml
         return soft_step_xml(self.soft, scene.effects.restitution_threshold)
 
     def check(self, scene, source=None):

@@ -20,9 +20,11 @@ import logging
 
 import numpy as np
 
-from ...resources import check_step_work
-from ..pgs_loop import LoopStep
 from . import Engine, Setting, empty_contacts
+from ...errors import Failure, missing_module
+from ...resources import check_step_work
+from ..build import build_world
+from ..pgs_loop import LoopStep
 
 _HALF_DEPTH = 0.5   # half the thickness (m, along y) of a polygon's prism: any will do in a plane
 # MuJoCo's own arena default grows faster than the model (532 MB for the
@@ -79,7 +81,6 @@ class MuJoCo(Engine):
 
 
 def _library():
-    from ...errors import missing_module
     try:
         import mujoco
     except ImportError:
@@ -115,7 +116,6 @@ class MuJoCoWorld:
 
     def __init__(self, scene, solver, tolerance, iterations, order, timeconst, dampratio, memory=0):
         mujoco = _library()
-        from ..build import build_world
         self.records = build_world(scene).bodies()
         self.scene = scene
         dynamic = [i for i, b in enumerate(scene.bodies) if b.type == "dynamic"]
@@ -163,7 +163,6 @@ class MuJoCoWorld:
         before = [w.number for w in self._full]
         self._mj_step(self.model, self.data)
         if [w.number for w in self._full] != before:
-            from ...errors import Failure
             raise Failure(f"MuJoCo's arena ({self.model.narena >> 20} MB) is too small for this scene's "
                           f"contacts at t = {self.data.time:g} s: ask for more with --set memory=MB")
 
