@@ -1,7 +1,6 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
 import click
 
-from deepcontact.model.arch import NETWORKS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS, methods_help
 
@@ -15,11 +14,8 @@ from . import options, terminal, types
               default="zero,builtin,copy,sph", show_default=True,
               help=f"Comma-separated: {', '.join(START_NAMES)}, an installed plug-in's name, or "
                    f"package.module:Name (docs/api.md).")
-@click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
-              help="A checkpoint from dc train (the starts cnn, guarded, cnn-new).")
-@options.deprecated_alias("--model", "--checkpoint", "model")
-@click.option("--arch", type=types.PluginName(NETWORKS),
-              help="Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
+@options.checkpoint("A checkpoint from dc train (the starts cnn, guarded, cnn-new).",
+                    "Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
 @options.solve_to_tolerance
 @click.option("--mode", type=types.choice("mode", leave_out=("exact",)), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")

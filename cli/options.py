@@ -13,7 +13,7 @@ from deepcontact.errors import Failure, InputError, OptionError, missing_module,
 from deepcontact.interrupts import Terminated
 
 from .terminal import setup_logging
-from .types import CommaList, Finite, choice, count
+from .types import CommaList, Finite, PluginName, choice, count
 
 
 def verbosity(f):
@@ -168,6 +168,21 @@ def families_option(example):
     return click.option("--families", type=CommaList(click.STRING, "FAMILY[,...]"),
                         help=f"Only these families' settings, by their names in the tables (e.g. {example!r}); "
                              "FAMILY:SETTING picks one setting (e.g. 'pymunk:10 iterations').")
+
+
+def checkpoint(what, arch_help="Load this network plug-in for a checkpoint that needs it."):
+    """--checkpoint FILE (parameter `model`; its old spelling --model kept) and --arch, a network
+    plug-in the checkpoint needs: `what` says what the checkpoint is used for."""
+    from deepcontact.model.arch import NETWORKS
+
+    def decorate(f):
+        for option in reversed((
+                click.option("--checkpoint", "model", type=click.Path(dir_okay=False), help=what),
+                deprecated_alias("--model", "--checkpoint", "model"),
+                click.option("--arch", type=PluginName(NETWORKS), help=arch_help))):
+            f = option(f)
+        return f
+    return decorate
 
 
 def solve_to_tolerance(f):

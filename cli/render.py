@@ -6,7 +6,7 @@ import click
 
 from deepcontact.errors import InputError
 
-from deepcontact.model.arch import BUILTIN as BUILTIN_NETWORKS, NETWORKS
+from deepcontact.model.arch import BUILTIN as BUILTIN_NETWORKS
 
 from . import fenced_training, options, terminal, types
 
@@ -49,11 +49,8 @@ def kind_of(path):
               help="[run] A second run drawn beside the first, step for step, with the largest distance "
                    "between the same body in both.")
 @click.option("--sample", type=types.count(), default=0, show_default=True, help="[dataset] The sample to draw.")
-@click.option("--checkpoint", "model", type=click.Path(dir_okay=False),
-              help="[dataset] A checkpoint from dc train: its prediction and error beside each label.")
-@options.deprecated_alias("--model", "--checkpoint", "model")
-@click.option("--arch", type=types.PluginName(NETWORKS),
-              help="[dataset] Load this network plug-in for a checkpoint that needs it.")
+@options.checkpoint("[dataset] A checkpoint from dc train: its prediction and error beside each label.",
+                    "[dataset] Load this network plug-in for a checkpoint that needs it.")
 @options.threads
 @options.jobs
 @options.overwrite
