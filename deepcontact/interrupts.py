@@ -33,6 +33,7 @@ _installed = False # whether install() has run in this process (dc's commands; n
 _guests = 0        # depth of plug-in calls in progress (plugins.guest)
 _hook = None       # Python's unraisable hook, while install()'s is in place
 _command = "dc"    # the command, for the line a hard stop prints
+_replaced = []     # the handlers each install() replaced, put back by its uninstall()
 _hard_stops = []   # clean-ups run before a hard stop ends the process (output.swap's: partial outputs, locks)
 _watching = False  # whether a deadline thread is armed
 _due = None        # when it ends the process (time.monotonic())
@@ -133,10 +134,11 @@ def _unraisable(unraisable):
 
 def install(command="dc"):
     """Stop signals raise Terminated from now on (in the main thread); command names the command
-    in the line a hard stop prints."""
+    in the line a hard stop prints. The handlers it replaces come back with uninstall."""
     global _pending, _received, _installed, _hook, _command
     _pending = _received = None
     _installed, _command = True, command
+    _replaced.append({s: signal.getsignal(s) for s in STOP_SIGNALS})
     for s in STOP_SIGNALS:
         signal.signal(s, _on_signal)
     if sys.unraisablehook is not _unraisable:
@@ -144,11 +146,16 @@ def install(command="dc"):
 
 
 def uninstall():
-    """The command is over: what it received is forgotten (the handlers are its caller's to put
-    back, as the test helper and the end of the process do)."""
+    """The command is over: what it received is forgotten and the handlers install replaced are
+    back (a caller that ran a command in its own process, a notebook or a test, keeps its Ctrl-C:
+    after a stop, dc's handler ignores a repeat, _on_repeat)."""
     global _pending, _received, _installed, _hook
     _pending = _received = None
     _installed = False
+    if _replaced:
+        for s, handler in _replaced.pop().items():
+            if handler is not None:   # (None: not set from Python; left as it is)
+                signal.signal(s, handler)
     if sys.unraisablehook is _unraisable:
         sys.unraisablehook, _hook = _hook or sys.__unraisablehook__, None
 

@@ -808,18 +808,41 @@ def test_a_native_solve_stops_within_a_second_of_a_signal(run, tmp_path, args):
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+def test_a_command_run_in_the_callers_process_gives_its_signal_handlers_back():
+    """A notebook or a test that runs a dc command in its own process keeps its Ctrl-C, even after
+    the command was stopped (dc's handler then ignores a repeat while it cleans up)."""
+    import click
+    from click.testing import CliRunner
+    from deepcontact.cli import options
+
+    @click.command()
+    @options.verbosity
+    @options.command("probe")
+    def probe(verbose, quiet):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    result = CliRunner().invoke(probe, [])
+    assert result.exit_code == 128 + signal.SIGTERM
+    assert {s: signal.getsignal(s) for s in before} == before
+
+
 def test_a_native_solve_called_from_python_takes_ctrl_c(run):
     """The library alone (no dc handlers): Python's own SIGINT handler stops a native solve."""
     import threading
     import deepcontact as dcl
     from deepcontact.solver.problem import StepProblem
     problem = StepProblem.from_step_file(next(Path(run).glob("seed-*/step-000100.xml")))
-    timer = threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    began = time.time()
-    with pytest.raises(KeyboardInterrupt):
-        dcl.solve(problem, tolerance=1e-300, max_iterations=2 ** 31 - 1, stop_on="none")
-    assert time.time() - began < 1.5
+    saved = signal.signal(signal.SIGINT, signal.default_int_handler)   # (Python's own, whatever ran before)
+    try:
+        timer = threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT))
+        timer.start()
+        began = time.time()
+        with pytest.raises(KeyboardInterrupt):
+            dcl.solve(problem, tolerance=1e-300, max_iterations=2 ** 31 - 1, stop_on="none")
+        assert time.time() - began < 1.5
+    finally:
+        signal.signal(signal.SIGINT, saved)
 
 
 def test_a_signal_that_lands_in_a_weakref_callback_is_raised_in_the_commands_code(capfd):
