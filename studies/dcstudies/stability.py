@@ -108,7 +108,8 @@ class Result:
     sanitized: int
     seconds: float
     final_speed: float = float("nan")   # the fastest dynamic body's speed at the end (m/s): at rest?
-    capped: int = 0                     # with a tolerance: steps the sweep cap stopped short of it
+    capped: int = 0                     # steps a cap stopped short of the tolerance: the project's sweep cap, or
+                                        # an engine's own where it says so (MuJoCo's iterations)
     rests: bool = False                 # the scene settles (Case.rests): final_speed is judged
 
     @property
@@ -231,6 +232,8 @@ def _judged(case, scene, world, step, tolerance, iterations, trail, solver, star
         if solution is not None:
             sanitized += sum(solution.sanitized.values())
             capped += tolerance > 0 and solution.iterations >= iterations and not solution.residual <= tolerance
+        elif done.engine_stats and done.engine_stats.get("converged") is False:
+            capped += 1   # (an engine's own cap stopped its solve short of its own tolerance: MuJoCo says so)
         bodies = world.bodies()
         if trail is not None:
             trail.append(positions(bodies))
