@@ -84,6 +84,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_contest.py
 	$(PYTHON) benchmarks/bench_loop_parts.py
 	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
+	$(PYTHON) benchmarks/bench_converged_piles.py
 	$(PYTHON) benchmarks/bench_report.py
 
 # The measured studies behind docs/results/'s tables that `make study` does not make (minutes each).
