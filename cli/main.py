@@ -79,7 +79,8 @@ def main():
     protocol.command_line = shlex.join(["dc", *sys.argv[1:]])   # recorded in every report
     if os.environ.get("DC_COMMAND_LINE") and "DC_SANDBOX_BROKER" in os.environ:
         protocol.command_line = os.environ["DC_COMMAND_LINE"]   # (a fenced job: the user's line, not the staged one)
-    from deepcontact import leftovers
+    from deepcontact import interrupts, leftovers
+    interrupts.own_process()
     leftovers.adopt_orphans()
     try:
         cli(prog_name="dc")

@@ -34,6 +34,7 @@ _guests = 0        # depth of plug-in calls in progress (plugins.guest)
 _hook = None       # Python's unraisable hook, while install()'s is in place
 _command = "dc"    # the command, for the line a hard stop prints
 _replaced = []     # the handlers each install() replaced, put back by its uninstall()
+_own_process = False   # dc's own process (own_process): its handlers stay to its end
 _hard_stops = []   # clean-ups run before a hard stop ends the process (output.swap's: partial outputs, locks)
 _watching = False  # whether a deadline thread is armed
 _due = None        # when it ends the process (time.monotonic())
@@ -146,18 +147,26 @@ def install(command="dc"):
 
 
 def uninstall():
-    """The command is over: what it received is forgotten and the handlers install replaced are
-    back (a caller that ran a command in its own process, a notebook or a test, keeps its Ctrl-C:
-    after a stop, dc's handler ignores a repeat, _on_repeat)."""
+    """The command is over: what it received is forgotten and, but in dc's own process
+    (own_process), the handlers install replaced are back (a caller that ran a command in its own
+    process, a notebook or a test, keeps its Ctrl-C: after a stop, dc's handler ignores a repeat)."""
     global _pending, _received, _installed, _hook
     _pending = _received = None
     _installed = False
-    if _replaced:
-        for s, handler in _replaced.pop().items():
-            if handler is not None:   # (None: not set from Python; left as it is)
-                signal.signal(s, handler)
+    replaced = _replaced.pop() if _replaced else {}
+    for s, handler in ({} if _own_process else replaced).items():
+        if handler is not None:   # (None: not set from Python; left as it is)
+            signal.signal(s, handler)
     if sys.unraisablehook is _unraisable:
         sys.unraisablehook, _hook = _hook or sys.__unraisablehook__, None
+
+
+def own_process():
+    """This process is dc's own (the `dc` entry point): its handlers stay after a command, so that
+    a stop repeated during its last clean-up (ending what is left running) is ignored, as during
+    the command's, not the end of the process."""
+    global _own_process
+    _own_process = True
 
 
 def user_stopped():
