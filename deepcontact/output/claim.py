@@ -19,6 +19,10 @@ def check_file(path, overwrite):
     """Refuses (InputError) an output file path before any work: one that is there but is not a
     regular file (files.check_replaceable), or one that is there without overwrite."""
     files.check_replaceable(path)
+    _refuse_existing(path, overwrite)
+
+
+def _refuse_existing(path, overwrite):
     if os.path.lexists(path) and not overwrite:
         raise InputError("file exists; use --overwrite to replace it", path)
 
@@ -30,7 +34,7 @@ def output_file(path, overwrite):
     a link, folder, device or FIFO never."""
     files.check_replaceable(path)   # before the lock file: a device or a FIFO is never replaced
     with locked(path):
-        check_file(path, overwrite)
+        _refuse_existing(path, overwrite)   # (under the lock: a file another command just wrote counts)
         yield Path(path)
 
 

@@ -102,12 +102,6 @@ def families_of(rows):
         list(dict.fromkeys(r.family for r in rows if r.family not in FAMILIES))
 
 
-def counts_own_cap(family):
-    """Whether an engine's family says, step by step, whether its own cap stopped its solve short of
-    its own tolerance (MuJoCo's solve_stats: its rows count those steps as capped)."""
-    return family.startswith("MuJoCo")
-
-
 def is_project(family):
     """Whether a family is the project's solver (a built-in method's, or a plug-in method's)."""
     return family not in engine_families()
@@ -171,7 +165,8 @@ class Row(SettingRow):
     energy_allowed: float
     top_drift: float          # stacks (m); nan otherwise
     final_speed: float        # the fastest body at the end (m/s)
-    capped: int               # steps a cap stopped short of the tolerance: the project's, or MuJoCo's own
+    capped: int | None        # steps a cap stopped short of the tolerance (the project's, or an engine's own
+                              # where it says so, MuJoCo's); None where nothing says
     variant: bool = False     # an ablation (Setting.variant)
 
 
@@ -293,7 +288,7 @@ COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
            ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),
            ("energy rise / allowed (J)", lambda r: f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)}"),
            ("top drift (cm)", lambda r: _fmt(r.top_drift, 100)), ("fastest at end (m/s)", lambda r: _fmt(r.final_speed)),
-           ("capped steps", lambda r: r.capped if is_project(r.family) or counts_own_cap(r.family) else "")]
+           ("capped steps", lambda r: "" if r.capped is None else r.capped)]
 
 
 def scene_table(rows):

@@ -44,7 +44,7 @@ from deepcontact.solver.settings import CAP
 from . import stability as S
 from deepcontact.contest import RemoteMethod
 from deepcontact.solver.methods import is_native
-from .engines import (Setting, applicable, counts_own_cap, engine_families, engine_settings, families_of, picked, plugin_line,
+from .engines import (Setting, applicable, engine_families, engine_settings, families_of, picked, plugin_line,
                       plugin_settings, run_setting, step_ms)
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
@@ -93,7 +93,8 @@ class Row(SettingRow):
     penetration: float        # deepest at rest (m)
     energy_rise: float
     energy_allowed: float
-    capped: int               # steps a cap stopped above the tolerance: the project's, or MuJoCo's own
+    capped: int | None        # steps a cap stopped above the tolerance (the project's, or MuJoCo's own);
+                              # None where nothing says
     samples: int
 
 
@@ -250,7 +251,7 @@ COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
            ("velocity error (m/s)", lambda r: _fmt(r.velocity_error)),
            ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),
            ("energy rise / allowed (J)", lambda r: f"{_fmt(r.energy_rise)} / {_fmt(r.energy_allowed)}"),
-           ("capped steps", lambda r: r.capped if _project(r) or counts_own_cap(r.family) else "")]
+           ("capped steps", lambda r: "" if r.capped is None else r.capped)]
 
 
 def scene_table(rows):

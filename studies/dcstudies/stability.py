@@ -108,8 +108,8 @@ class Result:
     sanitized: int
     seconds: float
     final_speed: float = float("nan")   # the fastest dynamic body's speed at the end (m/s): at rest?
-    capped: int = 0                     # steps a cap stopped short of the tolerance: the project's sweep cap, or
-                                        # an engine's own where it says so (MuJoCo's iterations)
+    capped: int | None = None           # steps a cap stopped short of the tolerance: the project's sweep cap, or
+                                        # an engine's own where it says so (MuJoCo's); None: nothing says
     rests: bool = False                 # the scene settles (Case.rests): final_speed is judged
 
     @property
@@ -219,6 +219,7 @@ def _judged(case, scene, world, step, tolerance, iterations, trail, solver, star
 
     baseline, allowed = energy(bodies, gravity), allowance(bodies)
     finite, penetration, peak, drift, sanitized, capped = True, 0.0, 0.0, 0.0, 0, 0
+    judged = False   # whether anything said, step by step, if a cap stopped the solve short
     rise, worst_allowed, excess = -np.inf, allowed, -np.inf
     settled = scene.steps - scene.steps // 4
 
@@ -230,10 +231,12 @@ def _judged(case, scene, world, step, tolerance, iterations, trail, solver, star
     for done in stepping.steps(world, scene, step, after_removal=rebase):
         k, contacts, solution = done.index, done.contacts, done.solution
         if solution is not None:
+            judged = True
             sanitized += sum(solution.sanitized.values())
             capped += tolerance > 0 and solution.iterations >= iterations and not solution.residual <= tolerance
-        elif done.engine_stats and done.engine_stats.get("converged") is False:
-            capped += 1   # (an engine's own cap stopped its solve short of its own tolerance: MuJoCo says so)
+        elif done.engine_stats and "converged" in done.engine_stats:
+            judged = True   # (an engine that says whether its own cap stopped it short of its own tolerance)
+            capped += not done.engine_stats["converged"]
         bodies = world.bodies()
         if trail is not None:
             trail.append(positions(bodies))
@@ -256,7 +259,7 @@ def _judged(case, scene, world, step, tolerance, iterations, trail, solver, star
                   energy_allowed=worst_allowed,
                   top_drift=drift if case.stack_top else float("nan"), sanitized=sanitized,
                   seconds=time.perf_counter() - t0, final_speed=_fastest(bodies) if finite else float("inf"),
-                  capped=int(capped), rests=case.rests)
+                  capped=int(capped) if judged else None, rests=case.rests)
 
 
 def _fastest(bodies):
