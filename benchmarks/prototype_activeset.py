@@ -20,11 +20,17 @@ With --space body the step is instead the bodies' velocities minimising a stiff 
 --space augmented, its augmented Lagrangian with one factored matrix a step from the carried
 active set, passes changing only the right-hand side (Augmented).
 
+With --space facets, the step as a convex QP of the bodies' velocities with Coulomb's cone as two
+facet rows a point (exact in 2D) and De Saxce's shift, by the augmented Lagrangian: Newton's
+method with an exact line search inside, the multipliers and the shift updated where it has
+converged (Facets; --continuation: stiffer each update).
+
 The gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
 the steps reach the tolerance within 8 passes (docs/results/bodyspace.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
 native code would cost.
 
 Usage: python benchmarks/prototype_activeset.py [--settle N] [--steps N] [--most N] [--tolerance T] [--penalty P]
+                                               [--space impulse|body|augmented|facets] [--stiffness K] [--diagnose]
 """
 import argparse
 import time
@@ -178,6 +184,92 @@ class Augmented(BodySpace):
         return new
 
 
+class Facets(BodySpace):
+    """The step as a convex QP of the bodies' velocities, its friction cone in the constraints:
+    in 2D Coulomb's cone is two facets, so per point two rows a+- = J_n +- mu J_t with
+    a+- v + c_n +- mu c_t + s >= 0 and multipliers lam+- >= 0 (r_n = lam+ + lam-, r_t =
+    mu (lam+ - lam-)). s = mu |u_t| (De Saxce's shift, from the last iterate) makes its answer
+    Coulomb's, not the convex relaxation's (a sliding point lifting off by mu |u_t|). Solved by the
+    augmented Lagrangian: inner, min 1/2 |v - v*|_M^2 + sum 1/(2 rho) max(0, lam_bar - rho g(v))^2
+    by Newton's method with an exact line search (the energy is piecewise quadratic and convex;
+    its Hessian M + A_act^T rho A_act is symmetric and definite, whatever the redundancy); outer,
+    lam_bar <- max(0, lam_bar - rho g(v)) and s <- mu |u_t(v)|. A pass is one Newton step (one
+    factorization)."""
+
+    def __init__(self, problem, lp, stiffness):
+        super().__init__(problem, lp, stiffness)
+        mu = np.repeat(lp.mu, 2) * np.tile([1.0, -1.0], len(lp.mu))   # (+mu, -mu per point)
+        Jn, Jt = self.J[0::2], self.J[1::2]
+        A = sp.vstack([Jn, Jt]).tocsr()
+        m = len(lp.mu)
+        # facet rows interleaved: 2i = plus, 2i+1 = minus
+        P = sp.csr_matrix((np.concatenate([np.ones(2 * m), mu]),
+                           (np.concatenate([np.arange(2 * m), np.arange(2 * m)]),
+                            np.concatenate([np.repeat(np.arange(m), 2), m + np.repeat(np.arange(m), 2)]))),
+                          shape=(2 * m, 2 * m))
+        self.A = (P @ A).tocsr()
+        self.e0 = P @ np.concatenate([self.c[0::2], self.c[1::2]])
+        self.signed_mu = mu
+        self.mu = lp.mu
+        eff = np.asarray(self.A.multiply(self.A) @ self.inv_m).ravel()
+        self.rho = stiffness / np.maximum(eff, 1e-30)
+        self.M = sp.diags(self.mass)
+
+    def r_of(self, lam):
+        r = np.empty_like(lam)
+        r[0::2] = lam[0::2] + lam[1::2]
+        r[1::2] = self.mu * (lam[0::2] - lam[1::2])
+        return r
+
+    def lam_of(self, r):
+        rn, rt = np.maximum(r[0::2], 0.0), r[1::2]
+        ratio = np.where(self.mu > 0, rt / np.where(self.mu > 0, self.mu, 1.0), 0.0)
+        ratio = np.clip(ratio, -rn, rn)
+        lam = np.empty_like(r)
+        lam[0::2], lam[1::2] = 0.5 * (rn + ratio), 0.5 * (rn - ratio)
+        return lam
+
+    def g(self, v, s):
+        return self.A @ v + self.e0 + np.repeat(s, 2)
+
+    def slide(self, v):
+        return self.mu * np.abs((self.J @ v + self.c)[1::2])
+
+    def inner_newton(self, v, lam_bar, s):
+        """One Newton step with an exact line search: (v, the active rows it factored)."""
+        g = self.g(v, s)
+        z = lam_bar - self.rho * g
+        act = z > 0
+        grad = self.mass * (v - self.v_star) - self.A.T @ np.where(act, z, 0.0)
+        H = (self.M + self.A[act].T @ sp.diags(self.rho[act]) @ self.A[act]).tocsc()
+        d = -splu(H, permc_spec="MMD_AT_PLUS_A").solve(grad)
+        # exact line search: slope(a) = d.M(v + a d - v*) - (Ad).max(0, z - a rho Ad), piecewise linear
+        Ad = self.A @ d
+        b0 = d @ (self.mass * (v - self.v_star))
+        b1 = d @ (self.mass * d)
+        w = self.rho * Ad
+        def slope(a):
+            on = (z - a * w) > 0
+            return b0 + a * b1 - Ad[on] @ (z[on] - a * w[on]), b1 + Ad[on] @ w[on]
+        lo, hi = 0.0, None
+        alpha = 1.0
+        for _ in range(100):   # Newton on the piecewise-linear increasing slope, kept in its bracket
+            sl, der = slope(alpha)
+            if sl == 0.0:
+                break
+            if sl < 0:
+                lo = alpha
+            else:
+                hi = alpha
+            new = alpha - sl / der
+            if new <= lo or (hi is not None and new >= hi):
+                new = 0.5 * (lo + hi) if hi is not None else 2.0 * alpha
+            if abs(new - alpha) <= 1e-15 * max(1.0, abs(alpha)):
+                break
+            alpha = new
+        return v + alpha * d, act, float(np.linalg.norm(grad))
+
+
 def flips(lp, r, state, scale):
     """The states r violates, changed: (new state, how many changed)."""
     u = lp.W @ r + lp.q
@@ -223,6 +315,17 @@ def diagnose(world, scene, args):
     s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"],
               settings=SolveSettings(max_iterations=100_000, tolerance=1e-7))
     answer = lp.reaction(s.normal_impulse, s.tangent_impulse)
+    if args.space == "facets":
+        fac = Facets(problem, lp, args.stiffness)
+        lam_bar = fac.lam_of(answer)
+        s = lp.mu * np.abs((lp.W @ answer + lp.q)[1::2])
+        v, trail = fac.velocities(fac.r_of(lam_bar)), []
+        for _ in range(8):
+            v, _, _ = fac.inner_newton(v, lam_bar, s)
+            trail.append(residual(lp, fac.r_of(np.maximum(lam_bar - fac.rho * fac.g(v, s), 0.0))))
+        print(f"diagnosis, step {args.settle + 1}: from its own answer (PGS, residual {residual(lp, answer):.1e}), "
+              f"the residual after 1-8 passes: {', '.join(f'{x:.1e}' for x in trail)}")
+        return
     state = state_of(lp, answer, scale, 1e-5)
     r, m = equality_solve(lp, state, args.penalty)
     _, n = flips(lp, r, state, scale)
@@ -241,10 +344,13 @@ def main():
     ap.add_argument("--tolerance", type=float, default=1e-4)
     ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
     ap.add_argument("--exact", action="store_true", help="[body] an exact line search, as MuJoCo's, not backtracking")
-    ap.add_argument("--space", choices=("impulse", "body", "augmented"), default="impulse",
+    ap.add_argument("--space", choices=("impulse", "body", "augmented", "facets"), default="impulse",
                     help="impulse: the equalities of the local problem; body: velocities with a stiff penalty")
     ap.add_argument("--stiffness", type=float, default=1e5,
                     help="[body] the penalty, in units of each row's own effective mass (1 / W_ii)")
+    ap.add_argument("--continuation", type=float, default=0.0,
+                    help="[facets] start at this stiffness, x10 each outer round up to --stiffness")
+    ap.add_argument("--eager", action="store_true", help="[facets] the outer update after every Newton step")
     ap.add_argument("--diagnose", action="store_true",
                     help="first, on the first step: one pass from the state of its own answer (PGS to 1e-7)")
     args = ap.parse_args()
@@ -256,8 +362,10 @@ def main():
     if args.diagnose:
         diagnose(world, scene, args)
     previous = {}   # contact key -> state at the previous step's answer
+    previous_s = {}
     previous_rn, previous_rt = {}, {}   # contact key -> its impulses there (the body space's warm start)
     passes, flipped, changed, handed, seconds, points = [], [], [], 0, [], []
+    start_res, end_res = [], []   # [facets] the residual of a step's warm start, and after its passes
     fallback = SolveSettings(max_iterations=100_000, tolerance=args.tolerance)
     for k in range(args.steps):
         bodies = world.bodies()
@@ -284,6 +392,16 @@ def main():
             active[0::2] = lam[0::2] > 0
             active[1::2] = (lam[0::2] > 0) & (np.abs(lam[1::2]) < 0.999 * lp.mu * lam[0::2])
             aug = Augmented(problem, lp, args.stiffness, active)
+        if args.space == "facets":
+            fac = Facets(problem, lp, args.continuation or args.stiffness)
+            fac.stiffness_now = args.continuation or args.stiffness
+            r0 = np.zeros(2 * len(keys))
+            r0[0::2] = [previous_rn.get(key, 0.0) for key in keys]
+            r0[1::2] = [previous_rt.get(key, 0.0) for key in keys]
+            lam_bar = fac.lam_of(r0)
+            s = np.array([previous_s.get(key, 0.0) for key in keys])
+            v = fac.velocities(fac.r_of(lam_bar))
+            act_prev = None
         if args.space == "body":
             body = BodySpace(problem, lp, args.stiffness)
             body.exact = args.exact
@@ -294,7 +412,20 @@ def main():
             bound = lp.mu * np.maximum(start_r[0::2], 0.0)
             pattern = None
         for p in range(1, args.most + 1):
-            if args.space == "augmented":
+            if args.space == "facets":
+                v, act, _ = fac.inner_newton(v, lam_bar, s)
+                if act_prev is not None:
+                    total_flips += int(np.count_nonzero(act != act_prev))
+                act_prev = act
+                z = lam_bar - fac.rho * fac.g(v, s)
+                lam = np.maximum(z, 0.0)
+                r = fac.r_of(lam)
+                if args.eager or np.array_equal(z > 0, act):   # (the inner minimum: the outer update)
+                    lam_bar, s = lam, fac.slide(v)
+                    if args.continuation and fac.stiffness_now < args.stiffness:
+                        fac.rho *= 10.0   # (stiffer each outer round, up to --stiffness)
+                        fac.stiffness_now *= 10.0
+            elif args.space == "augmented":
                 r = lam = aug.passes(lam)
             elif args.space == "body":
                 v, new_pattern = body.newton(v, bound)
@@ -315,6 +446,9 @@ def main():
                 if n == 0:
                     break
         seconds.append(time.perf_counter() - t)
+        if args.space == "facets":
+            start_res.append(residual(lp, fac.r_of(fac.lam_of(r0))))
+            end_res.append(residual(lp, r))
         points.append(len(lp.points))
         if done:
             passes.append(p)
@@ -331,6 +465,8 @@ def main():
         changed.append(int(np.count_nonzero(final != start)))
         previous = dict(zip(keys, final.tolist()))
         previous_rn, previous_rt = dict(zip(keys, r[0::2].tolist())), dict(zip(keys, r[1::2].tolist()))
+        u_final = lp.W @ r + lp.q
+        previous_s = dict(zip(keys, (lp.mu * np.abs(u_final[1::2])).tolist()))
         world.set_manifold_impulses(np.asarray(normal, np.float32), np.asarray(tangent, np.float32))
         world.inv_dt0 = 1.0 / scene.dt
         world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
@@ -345,6 +481,9 @@ def main():
           f"{np.quantile(flipped, 0.9):.0f}; states changed from the warm start to the answer: median "
           f"{np.median(changed):.0f}, p90 {np.quantile(changed, 0.9):.0f}")
     print(f"  a step's passes in scipy (Python, sparse LU each pass): median {1e3 * np.median(seconds):.1f} ms")
+    if start_res:
+        print(f"  residual of the warm start (the previous answer, by contact key): median {np.median(start_res):.2g}; "
+              f"after the passes: median {np.median(end_res):.2g}, max {np.max(end_res):.2g}")
     go = np.median(passes) <= 4 and np.median(flipped) <= 50 and within8 >= 0.95
     print(f"  gate (median passes <= 4, median flips <= 50, >= 95% within 8 passes): {'GO' if go else 'NO-GO'}")
 

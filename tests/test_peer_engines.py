@@ -126,6 +126,23 @@ def test_mujoco_orders_bodies_row_by_row_and_keeps_the_records_in_scene_order():
     np.testing.assert_allclose(ra["position"], rb["position"], atol=1e-6)
 
 
+def test_mujoco_impedance_makes_its_contacts_stiffer():
+    # (a penalty of d / (1 - d) effective masses: a resting stack sinks less into its contacts)
+    scene = generate("stack", 1, {"count": 3})
+
+    def rest_depth(settings):
+        engine = engine_named("mujoco", settings)
+        world = engine.build(scene)
+        for _ in steps(world, scene, engine.stepper(world, scene, record=False), count=120):
+            pass
+        return world, -float(world.data.contact.dist[:world.data.ncon].min())
+    default, soft = rest_depth({})
+    stiff, stiff_depth = rest_depth({"impedance": 0.999})
+    assert default.model.geom_solimp[0, :2].tolist() == pytest.approx([0.9, 0.95])   # (MuJoCo's own)
+    assert stiff.model.geom_solimp[0, :2].tolist() == pytest.approx([0.999, 0.999])
+    assert 0 < stiff_depth < 0.5 * soft, (stiff_depth, soft)
+
+
 @pytest.mark.parametrize("command", [("evaluate", "--starts", "zero"), ("export",), ("validate", "--replay")])
 def test_commands_that_need_box2d_s_problem_refuse_a_peer_run_in_one_line(tmp_path, command):
     out = tmp_path / "run"

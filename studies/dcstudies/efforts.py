@@ -21,7 +21,8 @@ class Effort:
 
 def _mujoco_frontier(fast):
     """Newton (MuJoCo's default) to tolerances 1e-2 ... 1e-8 and at caps of 1 and 4 iterations;
-    CG and PGS to 1e-4 and 1e-8 (fast: Newton to 1e-8, PGS to 1e-4)."""
+    CG and PGS to 1e-4 and 1e-8; Newton to 1e-8 at impedances 0.99 and 0.999, stiffer than its
+    default (fast: Newton to 1e-8, PGS to 1e-4)."""
     if fast:
         return [("MuJoCo Newton", "tolerance 1e-08", {"solver": "newton", "tolerance": 1e-8}),
                 ("MuJoCo PGS", "tolerance 0.0001", {"solver": "pgs", "tolerance": 1e-4})]
@@ -31,6 +32,9 @@ def _mujoco_frontier(fast):
             for t in (1e-2, 1e-4, 1e-6, 1e-8)]
     out += [(f"MuJoCo {solver.upper()}", f"tolerance {t:g}", {"solver": solver, "tolerance": t})
             for solver in ("cg", "pgs") for t in (1e-4, 1e-8)]
+    # the price of rigidity: Newton to 1e-8 on stiffer problems (a penalty of d / (1 - d) effective masses)
+    out += [("MuJoCo Newton", f"impedance {d:g}", {"solver": "newton", "tolerance": 1e-8, "impedance": d})
+            for d in (0.99, 0.999)]
     return out
 
 

@@ -9,8 +9,10 @@ listed column by column (by x, then up each column), so bodies in contact sit ne
 the factor (`order=rows` lists them row by row, `order=scene` in the scene's order, to see what
 each costs).
 
-MuJoCo poses its own soft contact problem (its solimp's default, solref's from `timeconst` and
-`dampratio`, MuJoCo's defaults unless given) and solves it to its
+MuJoCo poses its own soft contact problem (solimp's impedance d from `impedance`, solref's from
+`timeconst` and `dampratio`, MuJoCo's defaults unless given: a row's regulariser is (1 - d) / d
+times its diagonal of J M^-1 J^T, a penalty of d / (1 - d), 9 to 19, times its effective mass,
+where the project's problem is rigid) and solves it to its
 tolerance; friction pairs take the larger coefficient (Box2D's mix, sqrt(a b), where they are
 equal); it has no restitution, sleeping or continuous collision. Each step file holds the contact
 forces of the step times dt (impulses, Box2D's signs: on the second body, along the normal from
@@ -46,13 +48,16 @@ class MuJoCo(Engine):
                 "timeconst": Setting(float, 0, 10, "the soft contacts' time constant (s; solref's first; "
                                                      "MuJoCo's default 0.02): smaller is stiffer, down to 2 dt"),
                 "dampratio": Setting(float, 0, 100, "the soft contacts' damping ratio (solref's second; 1)"),
+                "impedance": Setting(float, 0, 0.9999, "the soft contacts' impedance d (solimp's dmin and dmax): a "
+                                                       "penalty of d / (1 - d) times a row's effective mass; 0: "
+                                                       "MuJoCo's default, 0.9 rising to 0.95 over 1 mm"),
                 "memory": Setting(int, 0, 65_536, "MuJoCo's arena for contacts and solver (MB; 0: sized from the scene, "
                                                 f"{_ARENA_BASE >> 20} MB and {_ARENA_PER_BODY >> 10} KB per dynamic body)")}
 
     def __init__(self, solver="newton", tolerance=1e-8, iterations=100, order="columns", timeconst=0.02,
-                 dampratio=1.0, memory=0):
+                 dampratio=1.0, impedance=0.0, memory=0):
         super().__init__(solver=solver, tolerance=tolerance, iterations=iterations, order=order, timeconst=timeconst,
-                         dampratio=dampratio, memory=memory)
+                         dampratio=dampratio, impedance=impedance, memory=memory)
 
     @classmethod
     def version(cls) -> str:
@@ -114,7 +119,7 @@ class MuJoCoWorld:
     """A scene's planar MuJoCo model and data, and what its records need (which geom is which
     fixture, which joints are which body's, Box2D's body records)."""
 
-    def __init__(self, scene, solver, tolerance, iterations, order, timeconst, dampratio, memory=0):
+    def __init__(self, scene, solver, tolerance, iterations, order, timeconst, dampratio, impedance=0.0, memory=0):
         mujoco = _library()
         self.records = build_world(scene).bodies()
         self.scene = scene
@@ -122,7 +127,7 @@ class MuJoCoWorld:
         listed = dynamic if order == "scene" else _banded(scene, dynamic, order)
         arena = memory << 20 if memory else _ARENA_BASE + _ARENA_PER_BODY * len(dynamic)
         xml, geoms = _model_xml(scene, self.records, listed, solver, tolerance, iterations, (timeconst, dampratio),
-                                arena)
+                                impedance, arena)
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
         self._mj_step = mujoco.mj_step
@@ -293,9 +298,10 @@ def _fmt(*values):
     return " ".join(f"{float(v):.9g}" for v in values)
 
 
-def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, arena):
+def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, impedance, arena):
     """The scene's planar MJCF, and one (fixture, body, friction, restitution) per geom in the
-    model's geom order (MuJoCo numbers geoms as the file lists them, the world's first)."""
+    model's geom order (MuJoCo numbers geoms as the file lists them, the world's first).
+    impedance: solimp's dmin = dmax (0: MuJoCo's own solimp)."""
     from ..._box2d import polygon_radius
     e = scene.effects
     g = e.gravity if e.gravity is not None else (0.0, 0.0)
@@ -344,10 +350,12 @@ def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, ar
         parts.append(f'<body name="b{i}">{joints}{inertial}' + shapes_xml(i, b)
                      + "</body>")
     warm = "enable" if scene.solver.warm_starting else "disable"
+    # (a constant impedance: MuJoCo's width, midpoint and power then do nothing)
+    solimp = f' solimp="{_fmt(impedance, impedance, 0.001, 0.5, 2)}"' if impedance else ""
     xml = (f'<mujoco model="{scene.name}"><compiler angle="radian"/><size memory="{arena >> 10}K"/>'
            f'<option timestep="{_fmt(scene.dt)}" gravity="{_fmt(g[0], 0, g[1])}" solver="{solver.upper() if solver != "newton" else "Newton"}" '
            f'tolerance="{_fmt(tolerance)}" iterations="{iterations}"><flag warmstart="{warm}"/></option>'
-           f'<default><geom solref="{_fmt(*solref)}"/></default>'
+           f'<default><geom solref="{_fmt(*solref)}"{solimp}/></default>'
            f'<asset>{"".join(assets)}</asset><worldbody>{"".join(parts)}</worldbody></mujoco>')
     # (MuJoCo numbers geoms in the order of the bodies it lists: the world's children as written)
     return xml, geoms
