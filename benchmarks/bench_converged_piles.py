@@ -17,7 +17,7 @@ factor and penalty are built there). Per contestant: the median and p90 of its t
 against Box2D's in the same round, and how many steps reached their tolerance (ours: the
 project's residual of the step's answer; MuJoCo: its own `converged`).
 
-Usage: python benchmarks/bench_converged_piles.py [--count N] [--settle N] [--steps N] [--warm N]
+Usage: python benchmarks/bench_converged_piles.py [--count N] [--settle N] [--steps N] [--warm N] [--stiffer D,D]
 """
 import argparse
 import time
@@ -31,7 +31,7 @@ from deepcontact.simulate.stepping import steps
 from deepcontact.solver.settings import SolveSettings
 
 TOLERANCE = 1e-4
-STIFFER = (0.99, 0.999)   # MuJoCo's impedance d on the stiffer rows: a penalty of d / (1 - d) effective masses
+STIFFER = "0.99,0.999"   # MuJoCo's impedances d on the stiffer rows: a penalty of d / (1 - d) effective masses
 
 
 def stepped(world, scene, stepper, count):
@@ -40,7 +40,7 @@ def stepped(world, scene, stepper, count):
         pass
 
 
-def contestants(scene, settle, warm):
+def contestants(scene, settle, warm, stiffer=()):
     """[(label, step function, reached(done) -> bool | None)]: every world settled and warmed."""
     out = []
     box2d = Box2D()
@@ -56,7 +56,7 @@ def contestants(scene, settle, warm):
         stepped(world, scene, stepper, warm)
         out.append((label, world, stepper,
                     lambda done: None if done.solution is None else bool(done.solution.residual <= TOLERANCE)))
-    for impedance in (0.0,) + STIFFER:
+    for impedance in (0.0, *stiffer):
         mujoco = engine_named("mujoco", {"solver": "newton", "impedance": impedance})
         world = mujoco.build(scene)
         stepper = mujoco.stepper(world, scene, record=False)
@@ -78,13 +78,15 @@ def main():
     ap.add_argument("--settle", type=int, default=400)
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warm", type=int, default=3)
+    ap.add_argument("--stiffer", default=STIFFER, help="MuJoCo's stiffer impedances, comma-separated ('' for none)")
     args = ap.parse_args()
     print(protocol_line(current()) + "\n")
     # (the frontier's piles: 1,000 circles in a 95 m box, 10,000 in a 300 m one)
     params = {"count": args.count, "box": 95.0 if args.count <= 1000 else 300.0,
               "sigma": 19.0 if args.count <= 1000 else 60.0} if args.count > 100 else {"count": args.count}
     scene = generate("pile", 9, {**params, "steps": args.settle + args.warm + args.steps + 1})
-    rows = contestants(scene, args.settle, args.warm)
+    stiffer = [float(d) for d in args.stiffer.split(",") if d.strip()]
+    rows = contestants(scene, args.settle, args.warm, stiffer)
     walks = [iter(steps(world, scene, stepper, count=10 ** 9)) for _, world, stepper, _ in rows]
     ms = np.zeros((len(rows), args.steps))
     reached = [[] for _ in rows]

@@ -14,7 +14,13 @@ import pickle
 import sys
 import time
 
+import deepcontact
+
+from ..model.arch import NETWORKS
 from ..plugins import PluginError
+from ..simulate.engines import ENGINES
+from ..solver.methods import SOLVERS, check_plausible, is_native, judge
+from ..warmstart.starts import NAMES, STARTS, Builtin, Checked, Remote
 from .guest import TRAITS
 from . import broker as _broker
 from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
@@ -93,10 +99,6 @@ def _plugin_modules(names):
     """(modules, metadata folders) of the plug-ins named here (module:attr names, entry points of
     installed packages: their distribution's metadata too, where the entry point is read), read
     from their names and the packages' metadata, nothing imported."""
-    from ..model.arch import NETWORKS
-    from ..simulate.engines import ENGINES
-    from ..solver.methods import SOLVERS
-    from ..warmstart.starts import STARTS
     out, metadata = [], []
     for name in names:
         if not isinstance(name, str):
@@ -122,7 +124,6 @@ def readable_paths(names=(), modules=(), files=()):
     """What a contestant's sandbox may read: the interpreter and its installed packages,
     deepcontact, the plug-ins' own modules (by name, and `modules`) and `files`."""
     import site
-    import deepcontact
     out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
            os.path.dirname(deepcontact.__file__), *_cli_folder()]
     try:
@@ -321,7 +322,6 @@ class ContestantTraceback(Exception):
 
 def _by_name(name, start):
     """Whether `start` is what make_starts makes for `name` (so the contestant makes it itself)."""
-    from ..warmstart.starts import NAMES, STARTS, Checked, Remote
     if isinstance(start, Checked) and isinstance(start.start, Remote):
         return True
     if isinstance(start, Remote):
@@ -336,8 +336,6 @@ def describe(starts=(), methods=()):
     """Describes the plug-in starts and methods among these names from a sandbox of their own
     (their code is imported there, never in this process): fills STARTS.described and
     SOLVERS.described. PluginError naming one that cannot be loaded."""
-    from ..solver.methods import SOLVERS, is_native
-    from ..warmstart.starts import NAMES, STARTS
     wanted = {"starts": [n for n in dict.fromkeys(starts) if n not in NAMES and n not in STARTS.described],
               "methods": [n for n in dict.fromkeys(methods) if not is_native(n) and n not in SOLVERS.described]}
     if not (wanted["starts"] or wanted["methods"]):
@@ -364,7 +362,6 @@ class RemoteMethod:
     subtracted from the step's time, the answer checked and judged here."""
 
     def __init__(self, name, contestant=None, null=None):
-        from ..warmstart.starts import Builtin
         self.name = name
         self.contestant = contestant or Contestant(name, "builtin", Builtin(), name).begin()
         self.null, self._own_null = null, null is None
@@ -373,7 +370,6 @@ class RemoteMethod:
     def solve(self, problem, start_n, start_t, settings):
         import dataclasses
         import numpy as np
-        from ..solver.methods import check_plausible, judge
         n = problem.points
         request = {"op": "solve", "problem": pickle.dumps(unanswered(problem)),
                    "normal": np.asarray(start_n, np.float64), "tangent": np.asarray(start_t, np.float64),

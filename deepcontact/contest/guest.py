@@ -15,8 +15,14 @@ import sys
 
 import numpy as np
 
+from .. import interrupts, plugins, protocol
 from ..errors import InputError
-from ..plugins import PluginError
+from ..model.arch import NETWORKS
+from ..plugins import PluginError, guest
+from ..simulate.engines import ENGINES, Engine
+from ..solver import methods
+from ..solver.methods import call_plugin, is_native, solve
+from ..warmstart.starts import STARTS, Checked, asks, make_starts
 from .wire import pack
 
 TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
@@ -32,10 +38,6 @@ def _parameters(factory):
 
 def _make(setup):
     """(start, traits) made from the setup's names (and the method made, where a plug-in)."""
-    from ..model.arch import NETWORKS
-    from ..plugins import guest
-    from ..solver import methods
-    from ..warmstart.starts import STARTS, Checked, asks, make_starts
     for name in setup["networks"]:   # (the checkpoint's plug-in network, which the user named with --arch)
         NETWORKS.load(name)
     kind, what = setup["start"]
@@ -45,7 +47,7 @@ def _make(setup):
             methods.SOLVERS.load(setup["method"])
         predictor = None
         if getattr(factory, "needs_model", False) or "predictor" in _parameters(factory):
-            from ..model.inference import Predictor
+            from ..model.inference import Predictor   # (torch: paid only where a model is asked for)
             predictor = Predictor(setup["checkpoint"], threads=setup["threads"]) if setup["checkpoint"] else None
             if predictor is not None:
                 predictor.build()   # (at setup, charged to it: not in its first call)
@@ -69,8 +71,6 @@ def _make(setup):
 def _describe(names):
     """What a judge may know of these plug-ins (starts and methods, by name), loaded here: each
     start's traits and origin, each method's origin and whether it takes a w."""
-    from ..solver import methods
-    from ..warmstart.starts import STARTS
     out = {"starts": {}, "methods": {}}
     for name in names["starts"]:
         factory = STARTS.load(name)
@@ -99,7 +99,6 @@ def _error(e):
 
 
 def _answer(op, request, setup, start):
-    from ..solver.methods import call_plugin, is_native, solve
     if setup.get("null"):   # (the judge's measure of transport: the request read, nothing done)
         if op == "solve":
             pickle.loads(request["problem"])
@@ -154,7 +153,6 @@ def _quiet(name):
 def serve(conn):
     """A contestant: says it is ready, makes what its setup names, then answers requests until
     the judge closes the connection."""
-    from .. import interrupts, plugins, protocol
     # dc's rules for guests hold here too (a KeyboardInterrupt a plug-in raises is its own: no
     # stop signal reaches a contestant, which the judge ends itself)
     interrupts.install("dc contestant")
@@ -205,8 +203,6 @@ def _requests(conn, answer):
 def _engine_made(name, settings):
     """The plug-in engine `name` made from its settings, and its description for the judge."""
     import math
-    from ..plugins import guest
-    from ..simulate.engines import ENGINES, Engine
     cls = ENGINES.load(name)
     what = f"the engine {name!r}"
     if not (isinstance(cls, type) and issubclass(cls, Engine)):
@@ -253,7 +249,6 @@ def _packed_step(what, done):
 
 def serve_engine(conn, setup):
     """A plug-in engine's sandbox: describes it, then builds one world and steps it on request."""
-    from ..plugins import guest
     name = setup["engine"]
     what = f"the engine {name!r}"
     try:
@@ -287,8 +282,6 @@ def main(argv):
     conn = Connection(int(argv[1]))
     if len(argv) > 2 and argv[2] == "torch":   # (a contestant that loads a trained model: torch imported before its clock)
         import deepcontact.model.inference  # noqa: F401
-    import deepcontact.solver.methods  # noqa: F401 (before "ready": the same cost for every contestant)
-    import deepcontact.warmstart.starts  # noqa: F401
     code = 0
     try:
         serve(conn)

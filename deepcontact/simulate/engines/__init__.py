@@ -17,7 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ... import arguments
+from ..._box2d import World
+from ...errors import OptionError
 from ...plugins import Registry
+from ...step.writer import engine_step_xml, engine_xml
 
 
 @dataclass(frozen=True)
@@ -31,7 +35,6 @@ class Setting:
 
     def parse(self, name, text):
         """The value `text` (a string or a value) asks for; OptionError naming --set NAME."""
-        from ...errors import OptionError
         flag = "--set"
         if isinstance(self.kind, tuple):
             if text not in self.kind:
@@ -77,7 +80,6 @@ class Engine:
         """`settings` (name -> value or text) checked against SETTINGS (OptionError naming --set)."""
         unknown = sorted(set(settings) - set(cls.SETTINGS))
         if unknown:
-            from ...errors import OptionError
             takes = ", ".join(cls.SETTINGS) or "none"
             raise OptionError(f"{cls.label} has no setting {unknown[0]!r} (it takes: {takes})", "--set")
         return {k: s.parse(k, settings[k]) for k, s in cls.SETTINGS.items() if k in settings}
@@ -122,7 +124,6 @@ class Engine:
     def header_lines(self, scene) -> str:
         """The lines a step file's header holds for this engine after <solver>: `<engine>` with
         its name, version and settings."""
-        from ...step.writer import engine_xml
         return engine_xml(self.name, self.version(), self.settings())
 
     def solve_line(self, solution, stats=None) -> str:
@@ -130,7 +131,6 @@ class Engine:
         the engine's own `stats` (a LoopStep's engine_stats: `<engine_step>`)."""
         if not stats:
             return ""
-        from ...step.writer import engine_step_xml
         return engine_step_xml(stats)
 
     def manifest(self) -> dict:
@@ -147,7 +147,6 @@ def empty_contacts(n) -> dict:
     and widths, as a Box2D world reports them): what an engine other than Box2D fills."""
     global _CONTACT_LAYOUT
     if _CONTACT_LAYOUT is None:
-        from ..._box2d import World
         _CONTACT_LAYOUT = {k: (v.dtype, v.shape[1:]) for k, v in World(0.0, 0.0).contacts().items()}
     return {k: np.zeros((n, *shape), dtype) for k, (dtype, shape) in _CONTACT_LAYOUT.items()}
 
@@ -163,7 +162,6 @@ ENGINES.register("mujoco", "deepcontact.simulate.engines.mujoco:MuJoCo")
 
 def engine_named(name: str, settings: dict | None = None) -> Engine:
     """The engine registered as `name` with `settings` (name -> value or text, as --set gives)."""
-    from ... import arguments
     arguments.text(name, "name")
     settings = {} if settings is None else arguments.mapping(settings, "settings")
     return ENGINES.load(name).from_settings(**settings)
