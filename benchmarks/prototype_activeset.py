@@ -23,7 +23,9 @@ active set, passes changing only the right-hand side (Augmented).
 With --space facets, the step as a convex QP of the bodies' velocities with Coulomb's cone as two
 facet rows a point (exact in 2D) and De Saxce's shift, by the augmented Lagrangian: Newton's
 method with an exact line search inside, the multipliers and the shift updated where it has
-converged (Facets; --continuation: stiffer each update).
+converged (Facets; --continuation: stiffer each update). With --space ipm --diagnose, the same
+QP on one step by a primal-dual interior point method (InteriorPoint), the shift updated
+between solves (--shift fixed, --rounds) or within one (lagged, linearised).
 
 The gate: go if the median step needs at most 4 passes and 50 flips, and at least 95% of
 the steps reach the tolerance within 8 passes (docs/results/bodyspace.md, "A warm-started active set"). Times are scipy's (a Python prototype), not what
@@ -270,6 +272,76 @@ class Facets(BodySpace):
         return v + alpha * d, act, float(np.linalg.norm(grad))
 
 
+class InteriorPoint(Facets):
+    """The facets' convex QP (Facets) by a primal-dual interior point method (Mehrotra's predictor
+    and corrector): slacks w = A v + e >= 0 and multipliers lam >= 0 driven together to w lam = 0;
+    each pass factors M + A^T (lam / w) A, symmetric and definite whatever the contacts'
+    redundancy. Its iterations do not grow with the distance from the start (its start is not
+    carried: interior point methods do not warm-start), so a pass count is a factorization count.
+    De Saxce's shift s is updated where a solve has converged (an outer round)."""
+
+    coupled = False   # (De Saxce's shift linearised in each pass, or fixed for a solve: outer rounds)
+
+    def solve(self, v, s, lam0, tol_gap=1e-10, most=60, check=None):
+        """(v, lam, passes) after at most `most` passes; check(lam) -> True stops early."""
+        A, M = self.A, self.M
+        n = A.shape[0]
+        if self.coupled:   # (De Saxce's shift from the iterate itself, linearised: no outer rounds)
+            m = n // 2
+            twice = sp.csr_matrix((np.ones(n), (np.arange(n), np.repeat(np.arange(m), 2))), shape=(n, m))
+            Jt = self.J[1::2]
+
+            def shifted(v):
+                ut = Jt @ v + self.c[1::2]
+                s = self.mu * np.abs(ut)
+                if self.coupled == "lagged":   # (the shift from the iterate, its derivative left out)
+                    return self.e0 + np.repeat(s, 2), A
+                G = (A + sp.diags(twice @ (self.mu * np.sign(ut))) @ twice @ Jt).tocsr()
+                return self.e0 + np.repeat(s, 2), G
+        else:
+            def shifted(v):
+                return self.e0 + np.repeat(s, 2), A
+        e, G = shifted(v)
+        w = A @ v + e
+        scale_w = max(np.abs(w).max(), 1e-12)
+        scale_l = max(np.abs(lam0).max(), 1e-12)
+        w = np.maximum(w, 1e-2 * scale_w)
+        lam = np.maximum(lam0, 1e-2 * scale_l)
+        for p in range(1, most + 1):
+            e, G = shifted(v)
+            r_d = self.mass * (v - self.v_star) - A.T @ lam
+            r_p = A @ v + e - w
+            mu = w @ lam / n
+            D = lam / w
+            H = (M + A.T @ sp.diags(D) @ G).tocsc()
+            lu = splu(H, permc_spec="MMD_AT_PLUS_A" if G is A else "COLAMD")
+
+            def direction(r_c):
+                rhs = -r_d - A.T @ (D * r_p) - A.T @ (r_c / w)
+                dv = lu.solve(rhs)
+                dl = -D * (r_p + G @ dv) - r_c / w
+                dw = (-r_c - w * dl) / lam
+                return dv, dw, dl
+
+            def longest(x, dx):
+                neg = dx < 0
+                return min(1.0, float(np.min(-x[neg] / dx[neg]))) if neg.any() else 1.0
+            # predictor (affine), then the corrector with Mehrotra's centring
+            dv, dw, dl = direction(w * lam)
+            a_p, a_d = longest(w, dw), longest(lam, dl)
+            mu_aff = (w + a_p * dw) @ (lam + a_d * dl) / n
+            sigma = (mu_aff / mu) ** 3
+            dv, dw, dl = direction(w * lam + dw * dl - sigma * mu)
+            a_p, a_d = 0.99 * longest(w, dw), 0.99 * longest(lam, dl)
+            a = min(a_p, a_d)   # (one step length: the primal and dual are coupled through v)
+            v, w, lam = v + a * dv, w + a * dw, lam + a * dl
+            if check is not None and check(lam):
+                return v, lam, p, True
+            if mu < tol_gap * scale_w * scale_l:
+                return v, lam, p, False
+        return v, lam, most, False
+
+
 def flips(lp, r, state, scale):
     """The states r violates, changed: (new state, how many changed)."""
     u = lp.W @ r + lp.q
@@ -315,6 +387,19 @@ def diagnose(world, scene, args):
     s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"],
               settings=SolveSettings(max_iterations=100_000, tolerance=1e-7))
     answer = lp.reaction(s.normal_impulse, s.tangent_impulse)
+    if args.space == "ipm":
+        ipm = InteriorPoint(problem, lp, 1.0)
+        ipm.coupled = {"fixed": False, "lagged": "lagged", "linearised": True}[args.shift]
+        lam = ipm.lam_of(lp.reaction(contacts["normal_impulse"], contacts["tangent_impulse"]))
+        v, shift, rounds = ipm.velocities(ipm.r_of(lam)), np.zeros(len(lp.mu)), []
+        for _ in range(args.rounds if args.shift == "fixed" else 1):
+            v, lam, p, _ = ipm.solve(v, shift, lam)
+            r = ipm.r_of(lam)
+            rounds.append(f"{p} passes, residual {residual(lp, r):.1e}")
+            shift = lp.mu * np.abs((lp.W @ r + lp.q)[1::2])
+        print(f"diagnosis, step {args.settle + 1}: the interior point method from Box2D's warm start, De Saxce's "
+              f"shift {args.shift}; each round: " + "; ".join(rounds))
+        return
     if args.space == "facets":
         fac = Facets(problem, lp, args.stiffness)
         lam_bar = fac.lam_of(answer)
@@ -344,12 +429,16 @@ def main():
     ap.add_argument("--tolerance", type=float, default=1e-4)
     ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
     ap.add_argument("--exact", action="store_true", help="[body] an exact line search, as MuJoCo's, not backtracking")
-    ap.add_argument("--space", choices=("impulse", "body", "augmented", "facets"), default="impulse",
+    ap.add_argument("--space", choices=("impulse", "body", "augmented", "facets", "ipm"), default="impulse",
                     help="impulse: the equalities of the local problem; body: velocities with a stiff penalty")
     ap.add_argument("--stiffness", type=float, default=1e5,
                     help="[body] the penalty, in units of each row's own effective mass (1 / W_ii)")
     ap.add_argument("--continuation", type=float, default=0.0,
                     help="[facets] start at this stiffness, x10 each outer round up to --stiffness")
+    ap.add_argument("--shift", choices=("fixed", "lagged", "linearised"), default="fixed",
+                    help="[ipm, with --diagnose] De Saxce's shift: fixed a solve (then updated: --rounds), from each "
+                         "pass's iterate, or linearised in each pass (a nonsymmetric system)")
+    ap.add_argument("--rounds", type=int, default=9, help="[ipm] solves, the shift updated after each")
     ap.add_argument("--eager", action="store_true", help="[facets] the outer update after every Newton step")
     ap.add_argument("--diagnose", action="store_true",
                     help="first, on the first step: one pass from the state of its own answer (PGS to 1e-7)")
@@ -361,6 +450,8 @@ def main():
         world.step(scene.dt, 8, scene.solver.position_iterations)
     if args.diagnose:
         diagnose(world, scene, args)
+    if args.space == "ipm":   # (a diagnosis of one step only)
+        return
     previous = {}   # contact key -> state at the previous step's answer
     previous_s = {}
     previous_rn, previous_rt = {}, {}   # contact key -> its impulses there (the body space's warm start)
