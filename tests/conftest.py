@@ -3,7 +3,6 @@ import shlex
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -265,6 +264,34 @@ def step_problems(generator, params, wanted, seed=0):
                                                gravity=scene.effects.gravity or (0.0, 0.0),
                                                block_solve=scene.solver.block_solve))
     return out
+
+
+def plugin_modules(tmp_path, monkeypatch, modules):
+    """Writes `modules` ({name: source}) where this process imports them (tmp_path/mods, first on
+    sys.path); returns forget(), which removes every trace of them from this process (the modules,
+    and the registries' loaded and described entries)."""
+    mods = tmp_path / "mods"
+    mods.mkdir(exist_ok=True)
+    for name, text in modules.items():
+        (mods / f"{name}.py").write_text(text)
+        sys.modules.pop(name, None)
+    monkeypatch.syspath_prepend(str(mods))
+    return lambda: forget_plugins(tuple(modules))
+
+
+def forget_plugins(names):
+    """Every trace of the plug-in modules `names` removed from this process: the modules, and the
+    registries' loaded and described entries of names beginning with them."""
+    from deepcontact.model.arch import NETWORKS
+    from deepcontact.solver import methods
+    from deepcontact.warmstart.starts import STARTS
+    names = tuple(names)
+    for name in names:
+        sys.modules.pop(name, None)
+    for registry in (STARTS, methods.SOLVERS, NETWORKS):
+        registry.described = {k: v for k, v in registry.described.items() if not k.startswith(names)}
+        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith(names)}
+    methods._instances = {k: v for k, v in methods._instances.items() if not k.startswith(names)}
 
 
 # Every command that reads a run's step files: (run, an output path) -> its arguments.

@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from conftest import dc
+from conftest import dc, plugin_modules
 from deepcontact.contest import fences
 from test_judge_reach import TRICKS   # (its Memo: solves each problem once, 4 ms late, then answers from a memo)
 
@@ -152,18 +152,10 @@ HOSTILE = textwrap.dedent("""
 
 @pytest.fixture
 def hostile(run, tmp_path, monkeypatch):
-    (tmp_path / "mods").mkdir()
-    (tmp_path / "mods" / "hostile.py").write_text(HOSTILE.replace("{run!r}", repr(str(run))))
-    (tmp_path / "mods" / "tricks.py").write_text(TRICKS)
-    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    forget = plugin_modules(tmp_path, monkeypatch, {"hostile": HOSTILE.replace("{run!r}", repr(str(run))),
+                                                    "tricks": TRICKS})
     yield
-    from deepcontact.solver.methods import SOLVERS
-    from deepcontact.warmstart.starts import STARTS
-    for name in ("hostile", "tricks"):
-        sys.modules.pop(name, None)
-    for registry in (STARTS, SOLVERS):
-        registry.described = {k: v for k, v in registry.described.items() if not k.startswith(("hostile", "tricks"))}
-        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith(("hostile", "tricks"))}
+    forget()
 
 
 def evaluate(run, out, *args, every=20):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import dc, one_line_error, snapshot
+from conftest import dc, one_line_error
 from deepcontact import output
 from deepcontact.errors import InputError
 

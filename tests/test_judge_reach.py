@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from conftest import dc
+from conftest import dc, plugin_modules
 
 TRICKS = textwrap.dedent("""
     import hashlib, inspect, pickle, time
@@ -78,18 +78,9 @@ CLOCK = textwrap.dedent("""
 
 @pytest.fixture
 def tricks(tmp_path, monkeypatch):
-    (tmp_path / "mods").mkdir()
-    (tmp_path / "mods" / "tricks.py").write_text(TRICKS)
-    (tmp_path / "mods" / "clock.py").write_text(CLOCK)
-    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    forget = plugin_modules(tmp_path, monkeypatch, {"tricks": TRICKS, "clock": CLOCK})
     yield
-    from deepcontact.solver.methods import SOLVERS
-    from deepcontact.warmstart.starts import STARTS
-    for name in ("tricks", "clock"):
-        sys.modules.pop(name, None)
-    for registry in (STARTS, SOLVERS):
-        registry.described = {k: v for k, v in registry.described.items() if not k.startswith(("tricks", "clock"))}
-        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith(("tricks", "clock"))}
+    forget()
 
 
 def evaluated(run, out, *args):

@@ -5,19 +5,17 @@ command ends in one line naming it (exit 1), or goes on unharmed; the user's own
 
 The misbehaviours are generated: each one in each kind of plug-in, at import and at call."""
 import json
-import re
 import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import dc, wait_for
+from conftest import dc, forget_plugins, plugin_modules, wait_for
 
 pytestmark = pytest.mark.audit
 
@@ -73,21 +71,11 @@ class Net(nn.Module):
 
 
 def write_module(tmp_path, monkeypatch, name, template, at_import="", at_call="pass"):
-    mods = tmp_path / "mods"
-    mods.mkdir(exist_ok=True)
-    (mods / f"{name}.py").write_text(template.format(at_import=at_import, at_call=at_call))
-    monkeypatch.syspath_prepend(str(mods))
-    sys.modules.pop(name, None)
+    plugin_modules(tmp_path, monkeypatch, {name: template.format(at_import=at_import, at_call=at_call)})
 
 
 def forget(name):
-    from deepcontact.model.arch import NETWORKS
-    from deepcontact.solver import methods
-    from deepcontact.warmstart.starts import STARTS
-    sys.modules.pop(name, None)
-    for registry in (STARTS, methods.SOLVERS, NETWORKS):
-        registry._loaded = {k: v for k, v in registry._loaded.items() if not k.startswith(name)}
-    methods._instances = {k: v for k, v in methods._instances.items() if not k.startswith(name)}
+    forget_plugins((name,))
 
 
 def one_line_naming(r, name):
