@@ -8,7 +8,9 @@ import importlib
 import re
 from contextlib import contextmanager
 
+from . import interrupts, protocol
 from .errors import InputError
+from .output.files import umask
 
 _NAME = re.compile(r"[a-z][a-z0-9-]*")
 _TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
@@ -45,7 +47,7 @@ def guest(what, doing="raised"):
     import os
     import sys
     from contextlib import nullcontext
-    from . import interrupts
+
     # (in a contestant's process, what it changes there reaches nothing of dc's: nothing to put back)
     keep = not contained
     cwd, mask, threads = None, None, None
@@ -54,7 +56,6 @@ def guest(what, doing="raised"):
             cwd = os.getcwd()
         except OSError:
             pass
-        from .output.files import umask
         mask = umask()
         threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
     pid, outermost = os.getpid(), os._exit is not _refuse_exit
@@ -101,8 +102,7 @@ def _put_back(cwd, mask, threads):
             os.chdir(cwd)
     os.umask(mask)
     if "torch" in sys.modules:   # (a guest that imported torch got its per-core default)
-        from .protocol import threads_asked
-        torch, wanted = sys.modules["torch"], threads if threads is not None else threads_asked
+        torch, wanted = sys.modules["torch"], threads if threads is not None else protocol.threads_asked
         if torch.get_num_threads() != wanted:
             torch.set_num_threads(wanted)
 
@@ -176,7 +176,7 @@ class Registry:
 
     def installed(self):
         """{name: entry point} of the installed packages' plug-ins of this kind."""
-        from importlib.metadata import entry_points   # (scans every installed package: only when asked)
+        from importlib.metadata import entry_points  # (scans every installed package: only when asked)
         return {ep.name: ep for ep in entry_points(group=self.group)}
 
     def names(self):

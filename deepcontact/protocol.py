@@ -12,6 +12,8 @@ import platform
 import sys
 import time
 
+from .escape import md_text
+
 DEFAULT_THREADS = 1
 
 # The command line as the user typed it, set by the `dc` entry point (None in-process).
@@ -86,7 +88,6 @@ def protocol_line(p):
     """The protocol in one sentence, for a markdown report. The command line is the user's text
     (run paths, plug-in names): escaped as text, never a code span, which a backtick in a path
     would close, leaving what follows live markdown."""
-    from .escape import md_text
     v = p["versions"]
     load = "unknown" if p["load_average"] is None else ", ".join(f"{x:g}" for x in p["load_average"])
     command = f" Command: {md_text(p['command'])}." if p.get("command") else ""

@@ -28,6 +28,30 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
     torch.set_num_threads(1)
 
 
+THREADS_SEEN = """
+import numpy as np
+import torch
+from deepcontact.warmstart.starts import StartValue
+class Start:
+    def __call__(self, ctx):
+        if torch.get_num_threads() != 3:   # (the judge's --threads, in the contestant's own process)
+            raise ValueError(f"this contestant has {torch.get_num_threads()} torch threads")
+        return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {})
+"""
+
+
+def test_threads_asked_reach_every_contestant(run, tmp_path, monkeypatch):
+    from conftest import plugin_modules
+    forget = plugin_modules(tmp_path, monkeypatch, {"threads_seen": THREADS_SEEN})
+    try:
+        r = invoke("evaluate", "--no-plots", run, "--starts", "threads_seen:Start", "--every", "40", "--no-budgets",
+                   "--threads", "3", "-q", "-o", tmp_path / "r")
+        assert r.exit_code == 0, r.stderr
+    finally:
+        forget()
+        torch.set_num_threads(1)
+
+
 def test_the_default_is_one_thread_whatever_the_machine(run, model, tmp_path):
     torch.set_num_threads(2)   # torch's default on a larger machine: the command's own default wins
     r = invoke("evaluate", "--no-plots", run, "--starts", "cnn", "--checkpoint", model / "best.pt", "--every", "40",

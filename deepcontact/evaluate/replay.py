@@ -19,13 +19,12 @@ import pickle
 
 import numpy as np
 
-from .. import arguments, workers
+from .. import arguments, protocol, workers
 from ..contest import Contestant, deadline_for, start_all
 from ..contest.client import packed
 from ..contest.wire import checked_answer, unanswered
 from ..errors import InputError
 from ..model.arch import NETWORKS
-from ..protocol import threads_asked
 from ..solver.methods import check_plausible, is_native, judge, solve, takes_relaxation
 from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
@@ -218,7 +217,7 @@ def open_contestants(table, settings):
     made = []
     try:
         for v in table:
-            made.append(Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, threads_asked, networks))
+            made.append(Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, protocol.threads_asked, networks))
         made.append(Contestant("(null)", "null", null=True))
     except BaseException:
         for c in made:

@@ -1,9 +1,10 @@
 """Scene → Box2D world, with only the declared effects switched on."""
 import numpy as np
 
+from .. import _box2d
 from .._box2d import World
 from ..errors import InputError
-from ..scene.check import overlap_tolerance
+from ..scene.check import check_scene, overlap_tolerance
 
 _TYPE = {"static": 0, "kinematic": 1, "dynamic": 2}
 
@@ -50,7 +51,6 @@ def build_world3(scene, soft, path=None):
     """The scene as a Box2D v3 world stepped with the soft step `soft` (a simulate.engines.SoftStep), with the same bodies, shapes, materials and effects as build_world's;
     warm starting, sleeping and continuous collision as the scene says. InputError where this
     build has no Box2D v3 (pyb2d3 was not installed when the module was built)."""
-    from .. import _box2d
     if not hasattr(_box2d, "World3"):
         raise InputError("this build has no Box2D v3: install pyb2d3==0.11.1 and rebuild (make setup)")
     e = scene.effects
@@ -71,7 +71,6 @@ def check_overlaps(scene, path=None):
     Uses a throwaway world, so the world that is simulated is untouched by the check. The scene
     is held first to what a scene file is (a NaN velocity a caller's function set would abort
     the process in Box2D's assert)."""
-    from ..scene.check import check_scene
     check_scene(scene, path)
     world = build_world(scene)
     world.find_new_contacts()

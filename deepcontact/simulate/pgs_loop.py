@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._box2d import PGSStepSettings, StepSettings, pgs_step
-from ..errors import InputError
-from ..solver.methods import is_native, solve
+from ..errors import InputError, OptionError
+from ..solver.methods import is_native, solve, takes_relaxation
 from ..solver.pgs import Solution
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
@@ -36,8 +36,6 @@ def check_loop(settings: SolveSettings, start: str = "builtin", own_start=False)
     """The loop's own rules over a solve's settings (which checked their own when made), checked
     once for the command line and the library alike; OptionError naming the option that breaks
     one. own_start: the caller makes the starts."""
-    from ..errors import OptionError
-    from ..solver.methods import takes_relaxation
     o = settings
     if not own_start and start not in STARTS:
         raise OptionError(f"unknown start {start!r}; choose from {', '.join(STARTS)}", "--start")

@@ -24,14 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from .. import interrupts, output, workers
-from ..errors import InputError, count
-from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from .._box2d import NonFiniteError
+from ..errors import InputError, OptionError, count
+from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
+from ..scene.check import check_scene
 from ..scene.xml import fmt, to_xml
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
-from .build import check_overlaps
 from . import stepping
+from .build import check_overlaps
 from .engines import Engine  # noqa: F401  (the annotations)
 from .engines.box2d import Box2D
 
@@ -101,7 +102,6 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
     out_dir = Path(out_dir)
     # what a scene file is held to, for a scene a caller's function made: Box2D's asserts (a NaN
     # velocity) abort the process
-    from ..scene.check import check_scene
     check_scene(scene)
     scene_xml = to_xml(scene)
     output.write_bytes(out_dir / "scene.xml", scene_xml)
@@ -224,7 +224,6 @@ SEED_MAX = 2 ** 31 - 1   # what a step file's seed holds (and --seed takes)
 
 def check_seeds(seeds):
     """Seeds are whole numbers from 0 to SEED_MAX, each once (a range is checked at its ends)."""
-    from ..errors import OptionError
     ends = (seeds[0], seeds[-1]) if isinstance(seeds, range) else seeds
     bad = next((s for s in ends if isinstance(s, bool) or not isinstance(s, (int, np.integer))
                 or not 0 <= s <= SEED_MAX), None)

@@ -4,9 +4,10 @@ struct (`native`), checked once, on construction.
 TOLERANCE and CAP are the defaults of every command and function that solves to a tolerance
 (dc evaluate, dc simulate --solver pgs --tolerance, the studies): named here and nowhere else.
 """
-from dataclasses import dataclass, replace
 import functools
+from dataclasses import dataclass, replace
 
+from .._box2d import Acceleration, SolveOptions, is_global
 from ..errors import OptionError
 
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
@@ -61,7 +62,6 @@ class SolveSettings:
         check_mode(self.accelerate, self.mode)   # (the native rule, but naming the flag)
         # the native rules, checked where they are written (a plug-in method's name stands as
         # plain sweeps: its own rules are its own)
-        from .._box2d import Acceleration
         self._native(1.0, self.accelerate if self.accelerate in Acceleration.__members__ else "none")
         if len(_CHECKED) > 4096:
             _CHECKED.clear()
@@ -119,7 +119,6 @@ def check_mode(accelerate: str, mode: str) -> None:
     """The rule a method puts on the arithmetic: the native table's global methods (newton,
     subspace, bodyspace, lagged) are float64 only. OptionError naming --accelerate where it is broken (a
     plug-in method's name passes: its rules are its own)."""
-    from .._box2d import Acceleration, is_global
     if accelerate in Acceleration.__members__ and is_global(Acceleration.__members__[accelerate]) \
             and mode != "float64":
         raise _error(f"{accelerate} is float64 only: use --mode float64", "accelerate")
@@ -131,7 +130,6 @@ _CHECKED = set()   # requests already checked (frozen values: equal ones pass th
 @functools.lru_cache(maxsize=None)
 def _solve_options():
     """The native struct's type, imported on first use (the CLI's help never loads the module)."""
-    from .._box2d import SolveOptions
     return SolveOptions
 
 

@@ -20,11 +20,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import arguments
 from ..errors import InputError
 from ..grid.interpolate import bilinear
 from ..grid.spec import GridSpec
-from ..plugins import PluginError, Registry, guest
 from ..grid.splat import splat_points
+from ..plugins import PluginError, Registry, guest
+from ..solver.pgs import solve
+from ..solver.problem import contact_keys
 
 
 @dataclass
@@ -128,7 +131,6 @@ class Previous:
     """The previous step's solution at the tolerance, matched by contact key; new contacts start at 0."""
 
     def __call__(self, ctx):
-        from ..solver.problem import contact_keys
         if ctx.previous is None:
             raise InputError("the prev start needs the previous step's solution")
         found = [ctx.previous.get(k, (0.0, 0.0)) for k in contact_keys(ctx.contacts)]
@@ -210,7 +212,6 @@ class Guarded:
         self.candidates = {"cnn": cnn, "builtin": Builtin(), "zero": Zero()}
 
     def __call__(self, ctx):
-        from ..solver.pgs import solve
         best, seconds, guard = None, {}, 0.0
         for name, start in self.candidates.items():
             value = start(ctx)               # (the network's prediction counts once, at its own cost)
@@ -340,7 +341,6 @@ def make_starts(names: list[str], spec: GridSpec | None = None, predictor: objec
     it declares: spec (the grid) and predictor (the trained model). Plug-ins are checked on every
     call (Checked)."""
     import inspect
-    from .. import arguments
     names = arguments.texts(names, "names")
     if not names:
         raise InputError(f"no start given (argument 'names' is empty); choose from {', '.join(STARTS.names())}")

@@ -298,6 +298,13 @@ def _fmt(*values):
     return " ".join(f"{float(v):.9g}" for v in values)
 
 
+def _defaults_xml(solref, impedance):
+    """The geoms' defaults: solref, and solimp where an impedance is given (a constant one:
+    MuJoCo's width, midpoint and power then do nothing)."""
+    solimp = f' solimp="{_fmt(impedance, impedance, 0.001, 0.5, 2)}"' if impedance else ""
+    return f'<default><geom solref="{_fmt(*solref)}"{solimp}/></default>'
+
+
 def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, impedance, arena):
     """The scene's planar MJCF, and one (fixture, body, friction, restitution) per geom in the
     model's geom order (MuJoCo numbers geoms as the file lists them, the world's first).
@@ -350,12 +357,10 @@ def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, im
         parts.append(f'<body name="b{i}">{joints}{inertial}' + shapes_xml(i, b)
                      + "</body>")
     warm = "enable" if scene.solver.warm_starting else "disable"
-    # (a constant impedance: MuJoCo's width, midpoint and power then do nothing)
-    solimp = f' solimp="{_fmt(impedance, impedance, 0.001, 0.5, 2)}"' if impedance else ""
     xml = (f'<mujoco model="{scene.name}"><compiler angle="radian"/><size memory="{arena >> 10}K"/>'
            f'<option timestep="{_fmt(scene.dt)}" gravity="{_fmt(g[0], 0, g[1])}" solver="{solver.upper() if solver != "newton" else "Newton"}" '
            f'tolerance="{_fmt(tolerance)}" iterations="{iterations}"><flag warmstart="{warm}"/></option>'
-           f'<default><geom solref="{_fmt(*solref)}"{solimp}/></default>'
+           f'{_defaults_xml(solref, impedance)}'
            f'<asset>{"".join(assets)}</asset><worldbody>{"".join(parts)}</worldbody></mujoco>')
     # (MuJoCo numbers geoms in the order of the bodies it lists: the world's children as written)
     return xml, geoms
