@@ -17,8 +17,9 @@ import threading
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
-from .. import output
+from .. import output, protocol
 from ..errors import InputError
+from ..plugins import PluginError
 from . import sandbox
 from .broker import ENV as BROKER_ENV, Broker
 
@@ -162,8 +163,6 @@ def run_with_output(head, args, command, writes, env_extra, who):
     order (exit 0, or 1 with a verdict); returns its exit status. command: the output's record
     ("study engines"); writes(): what its -o is ("folder", "file", "text"), asked only when there
     is one; who: how its errors name it."""
-    from .. import protocol
-    from ..plugins import PluginError
     args = list(args)
     where, prefix, target, overwrite = output_argument(args)
     with ExitStack() as stack:

@@ -1,15 +1,13 @@
 """Bodies and contacts of a step → grid channels (the native splatter does the work)."""
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import arguments
 from .._box2d import splat as _splat
 from ..errors import InputError
 from .kernels import KERNELS
-
-if TYPE_CHECKING:   # (for the annotations only)
-    from .spec import GridSpec
+from .spec import GridSpec
 
 # Channel name → (particles, how to get the value per particle)
 BODY_CHANNELS = {
@@ -63,8 +61,6 @@ def rasterize(spec: "GridSpec", bodies: dict, contacts: dict,
     them) on the grid `spec`: (len(channels), H, W) float32. Body channels are splatted from the
     centres of mass of dynamic and kinematic bodies, contact channels from the contact points;
     the names are ALL_CHANNELS' (by default the network's inputs, then its labels)."""
-    from .. import arguments
-    from .spec import GridSpec
     arguments.instance(spec, "spec", GridSpec, "a GridSpec")
     channels = arguments.texts(list(channels) if isinstance(channels, tuple) else channels, "channels")
     if not channels:

@@ -14,8 +14,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
+from .. import arguments
 from .._box2d import contact_rows
 from ..errors import InputError
+from .pgs import require_problem
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
@@ -77,7 +79,6 @@ def jacobian(problem: "StepProblem"):
 def local_problem(problem: "StepProblem", body_rows: tuple | None = None) -> LocalProblem:
     """The step's problem as a local problem (float64; sparse W), from the native assembly;
     body_rows: jacobian(problem), where the caller has it already."""
-    from .pgs import require_problem
     require_problem(problem)
     J, inv_m, v, rows, points = jacobian(problem) if body_rows is None else body_rows
     W = (J @ sp.diags(inv_m) @ J.T).tocsc()
@@ -107,7 +108,6 @@ def residual_scale(lp: LocalProblem) -> float:
 
 def residual(lp: LocalProblem, r: np.ndarray) -> float:
     """The solver's normalised min-map residual of r on the local problem (docs/solver.md)."""
-    from .. import arguments
     arguments.instance(lp, "lp", LocalProblem, "a LocalProblem (local_problem returns one)")
     r = arguments.vector(r, "r", len(lp.q))
     return float(point_residuals(lp, r).max(initial=0.0) / residual_scale(lp))

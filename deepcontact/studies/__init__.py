@@ -8,7 +8,7 @@ themselves live outside the package (the repository's studies/ folder, its own d
         summary = "what it measures, in a line"
         command = staticmethod(lambda: my_click_command)
 """
-from ..plugins import Registry
+from ..plugins import PluginError, Registry, guest
 
 
 class Study:
@@ -43,7 +43,6 @@ def _healthy(name):
     """The study named `name`, loaded and held to the contract (a Study whose command() makes a
     click command); PluginError, one line naming its distribution and entry point, otherwise."""
     import click
-    from ..plugins import PluginError, guest
     where = _where(name)
     try:
         found = STUDIES.load(name)
@@ -63,7 +62,6 @@ def survey(names=None) -> tuple:
     """(the healthy studies, loaded in this process, in their order; {name: one line saying what
     is wrong} of the broken ones), of every study or of `names`. One broken package hides no other
     study. (`dc study` lists the installed ones from a sandbox: fence.survey.)"""
-    from ..plugins import PluginError
     healthy, broken = [], {}
     for name in STUDIES.names() if names is None else names:
         try:
