@@ -13,6 +13,8 @@ import signal
 import sys
 import threading
 
+from . import interrupts
+
 _PR_SET_CHILD_SUBREAPER = 36
 _own = []   # clean-ups of dc's own helper processes (the contestants' zygote), run before the search
 
@@ -121,5 +123,4 @@ def end_process(code):
         sys.stderr.flush()
     except Exception:
         pass
-    from .interrupts import real_exit
-    real_exit(code)
+    interrupts.real_exit(code)

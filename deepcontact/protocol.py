@@ -12,6 +12,8 @@ import platform
 import sys
 import time
 
+from . import __version__, _box2d
+from ._box2d import box2d_version
 from .escape import md_text
 
 DEFAULT_THREADS = 1
@@ -57,8 +59,6 @@ def _version(package):
 
 def protocol(threads=DEFAULT_THREADS, jobs=1):
     """A dict of how this process measures: threads, -j, versions, CPU, load, command line."""
-    from . import __version__, _box2d
-    from ._box2d import box2d_version
     try:
         load = [round(v, 2) for v in os.getloadavg()]
     except OSError:

@@ -26,6 +26,7 @@ import sys
 import time
 
 from . import machine
+from ..leftovers import at_end
 
 MEMORY_LIMIT = 8 << 30     # bytes a contestant's processes may hold together
 PROCESS_LIMIT = 64         # processes and threads a contestant may run at once
@@ -339,7 +340,6 @@ def _registered():
     """kill_all registered to run as the process ends (and before dc's own search for leftovers)."""
     if not _live and not getattr(_registered, "done", False):
         import atexit
-        from ..leftovers import at_end
         atexit.register(kill_all)
         at_end(kill_all)
         _registered.done = True

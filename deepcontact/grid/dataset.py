@@ -39,6 +39,7 @@ from .sources import collect
 from .spec import GridSpec
 from .splat import check_channels, rasterize_step
 from .window import grid_for
+from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
 
 log = logging.getLogger(__name__)
 FORMAT = 2   # 2: runs are named relative to the dataset folder (1: relative to where rasterize ran)
@@ -166,7 +167,6 @@ class DatasetSettings:
 
     def checked(self):
         """A copy with the default channels filled in; InputError for what cannot be."""
-        from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
         s = dataclasses.replace(self, inputs=list(self.inputs or DEFAULT_INPUTS),
                                 labels=list(self.labels or DEFAULT_LABELS))
         check_channels(s.inputs, "input")

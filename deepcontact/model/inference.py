@@ -20,6 +20,7 @@ from ..grid.spec import GridSpec
 from ..grid.splat import rasterize
 from .networks import build, check_network, require_named
 from .checkpoint import load_checkpoint
+from .. import arguments
 
 
 @dataclass
@@ -36,7 +37,6 @@ class Predictor:
     timed default; torch's own, a thread per core, spins against other processes)."""
 
     def __init__(self, checkpoint: str | os.PathLike, threads: int = 1):
-        from .. import arguments
         threads = arguments.whole(threads, "threads", 1, 1024)
         ck = load_checkpoint(arguments.path(checkpoint, "checkpoint"))
         # (a contestant process loads its own, from another working folder: the path made absolute)

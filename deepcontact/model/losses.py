@@ -9,6 +9,8 @@
 import numpy as np
 import torch
 
+from ..solver.local import local_problem, residual_scale
+from ..solver.problem import StepProblem
 from . import choices
 
 
@@ -87,8 +89,6 @@ class SolverLoss:
         """Sample i's contact problem as dense torch rows: the step's local problem (the one native
         assembly, solver/local.py), a tangent row only where there is friction."""
         if i not in self.cache:
-            from ..solver.local import local_problem, residual_scale
-            from ..solver.problem import StepProblem
             lp = local_problem(StepProblem.from_step_file(self.ds.step_file(i)))
             m = len(lp.points)
             kind = np.tile([0, 1], m)

@@ -50,7 +50,7 @@ def _split_of(meta, simulation):
 
 
 def _predict(model, meta, x, dataset, threads=1):
-    from ..model.inference import Predictor
+    from ..model.inference import Predictor   # (torch: only where a sample is drawn beside its model)
     p = Predictor(model, threads=threads)
     if list(p.inputs) != list(meta["inputs"]):
         raise InputError(f"the model reads channels {','.join(p.inputs)}, the dataset has "

@@ -15,6 +15,7 @@ from .._box2d import linear_slop, polygon_radius
 from ..errors import InputError, OptionError
 from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
+from .. import arguments
 
 
 # Boxes come to rest in Box2D 2.4.1 with their 1 cm skins overlapping by the linear slop: placing
@@ -297,7 +298,6 @@ def body_count(name, params=None):
 
 
 def _checked_params(name, params):
-    from .. import arguments
     arguments.text(name, "name")
     if params is not None:
         arguments.mapping(params, "params")

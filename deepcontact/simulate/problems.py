@@ -3,12 +3,12 @@ stepping loop (its removals applied) by an engine, each recorded step with conta
 a StepProblem with every setting from the scene. The studies, benchmarks and tests take theirs here."""
 from .engines import Box2D
 from .stepping import Stepped, steps
+from ..solver.problem import StepProblem
 
 
 def step_problem(scene, done: Stepped, velocity_iterations=None):
     """The contact problem of a recorded step (a Stepped with bodies and contacts), every setting
     from the scene (dt, gravity, the block solver, its velocity iterations unless given)."""
-    from ..solver.problem import StepProblem
     return StepProblem.from_arrays(done.bodies, done.contacts, dt=scene.dt, gravity=scene.effects.gravity or (0.0, 0.0),
                                    block_solve=scene.solver.block_solve, index=done.index,
                                    velocity_iterations=scene.solver.velocity_iterations if velocity_iterations is None

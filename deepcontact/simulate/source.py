@@ -6,6 +6,7 @@ from ..errors import InputError
 from ..resources import BYTES_PER_BODY, check_memory
 from ..scene.generators import GENERATORS, body_count, generate
 from ..scene.xml import read_scene
+from .. import arguments
 
 
 @dataclasses.dataclass
@@ -17,7 +18,6 @@ class SceneSource:
     velocity_iterations: int = None
 
     def __post_init__(self):
-        from .. import arguments
         arguments.path(self.spec, "spec")   # (a scene file's path or a generator's name)
         if self.steps is not None:
             arguments.whole(self.steps, "steps", 1)

@@ -19,25 +19,21 @@ tolerance, capped at max_iterations. Measures (per sweep, see docs/solver.md, "M
              largest free relative velocity of the step (dimensionless)
 """
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._box2d import Acceleration, Mode, solve_contacts
+from .._box2d import Acceleration, Mode, World, solve_contacts
 from .. import arguments
 from ..errors import InputError
+from .problem import StepProblem
 from .settings import SolveSettings
 
 
 def require_problem(problem):
     """A StepProblem, or InputError saying what was given instead (a library caller's None)."""
-    from .problem import StepProblem
     if not isinstance(problem, StepProblem):
         raise InputError(f"argument 'problem' must be a StepProblem (StepProblem.from_step_file, .from_arrays), "
                          f"got {type(problem).__name__}")
-
-if TYPE_CHECKING:   # (for the annotations only)
-    from .problem import StepProblem
 
 MEASURES = ("thesis", "velocity", "residual")
 # none: plain (P)SOR sweeps. nncg: after each sweep the iterate also moves along a conjugate

@@ -6,6 +6,8 @@ plug-in's), whose header then has an `<engine>` line with its version and settin
 Box2D engines record contact rows of their own (2.4.1's warm start and local manifold, v3's total
 impulse and anchors: native/step_names.hpp); every other engine records the common rows only.
 Only 2.4.1's rows let a reader rebuild 2.4.1's contact problem (replay, evaluate, export)."""
+from .._box2d import STEP_CONTACT_XML
+
 RELAX_ITERATIONS = 1   # relax iterations per substep: a constant of v3's library (solver.c), not a setting
 ROWS = ("box2d", "box2d3", "own")   # whose own rows a file holds ("own": none but the common ones)
 
@@ -30,5 +32,4 @@ def poses_box2d_problem(header) -> bool:
 def foreign_fields(rows) -> frozenset:
     """The contact fields a step of `rows` (rows_of) does not record (read back as 0): from the
     step file's names table (native/step_names.hpp)."""
-    from .._box2d import STEP_CONTACT_XML
     return frozenset(row[2] for row in STEP_CONTACT_XML if row[4] in ("box2d", "box2d3") and row[4] != rows)

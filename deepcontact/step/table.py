@@ -7,9 +7,9 @@ import os
 
 import numpy as np
 
-from ..escape import CsvWriter
-from .. import output, workers
+from .. import arguments, output, workers
 from ..errors import InputError
+from ..escape import CsvWriter
 from .engines import foreign_fields, rows_of
 from .reader import check_origin, read_step
 from .run_folder import read_run
@@ -34,7 +34,6 @@ def step_tables(run_dir: str | os.PathLike, every: int = 1, jobs: int = 1, progr
     """For every `every`-th step file of a run, in order, {"bodies": columns, "contacts": columns}:
     each {column: 1-D array}, beginning with seed, step and time. jobs > 1: read in worker
     processes (the same tables). progress(n): n more step files read."""
-    from .. import arguments
     every = arguments.whole(every, "every", 1)
     run = read_run(arguments.path(run_dir, "run_dir"))
     tasks = [(path, (sim.scene, sim.engine), sim.seed) for sim in run.simulations for path in sim.files[::every]]

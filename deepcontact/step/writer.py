@@ -7,6 +7,7 @@ import re
 
 from .. import __version__
 from .._box2d import StepWriter, polygon_radius
+from ..errors import InputError
 from ..scene.xml import fmt
 from ..xmltext import quoteattr
 from .engines import RELAX_ITERATIONS
@@ -99,7 +100,6 @@ def _attributes(pairs, what) -> str:
     """` key="value"` for each pair, every key a name XML can hold (an engine's settings and
     account of its step are another's code: a key with a space or a control character made every
     step file unreadable); InputError naming `what` otherwise."""
-    from ..errors import InputError
     out = []
     for k, v in pairs:
         if not isinstance(k, str) or not _ATTRIBUTE.fullmatch(k) or k.lower().startswith("xml"):

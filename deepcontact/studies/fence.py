@@ -20,6 +20,8 @@ import sys
 
 from ..contest import job, sandbox
 from ..plugins import PluginError
+from . import STUDIES
+from . import survey as loaded
 
 INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME it runs in place
 
@@ -27,7 +29,6 @@ INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME i
 def fenced(name):
     """Whether `dc study NAME` runs fenced here: an installed study, unless this process is the
     sandbox that runs it."""
-    from . import STUDIES
     return os.environ.get(INSIDE) != name and name not in STUDIES.builtin()
 
 
@@ -80,7 +81,6 @@ def survey(names=None):
 
 def _survey_here(names=None):
     """In the survey's sandbox: the installed studies (or those named), loaded, as JSON on stdout."""
-    from . import STUDIES, survey as loaded
     builtin = set(STUDIES.builtin())
     healthy, broken = loaded(names)
     out = {"healthy": [{"name": s.name, "summary": str(s.summary), "order": float(s.order), "writes": str(s.writes)}

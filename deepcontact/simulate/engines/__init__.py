@@ -167,7 +167,9 @@ def engine_named(name: str, settings: dict | None = None) -> Engine:
     return ENGINES.load(name).from_settings(**settings)
 
 
-def __getattr__(name):   # (the Box2D engines by their old place: simulate.engines.Box2D)
+# The engines by their old place (simulate.engines.Box2D): each module imported on first use,
+# pymunk's and MuJoCo's being optional wheels.
+def __getattr__(name):
     if name in ("Box2D", "Box2DLoop", "_solve_xml"):
         from . import box2d
         return getattr(box2d, name)

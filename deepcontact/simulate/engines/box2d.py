@@ -13,6 +13,7 @@ from .. import stepping
 from ..build import build_world
 from ..pgs_loop import PGSStepper, check_loop, check_scene_for_loop
 from . import Engine, Setting
+from ..._box2d import box2d_version
 
 
 class Box2D(Engine):
@@ -46,7 +47,6 @@ class Box2D(Engine):
 
     @classmethod
     def version(cls) -> str:
-        from ..._box2d import box2d_version
         return box2d_version
 
     def settings(self) -> dict:

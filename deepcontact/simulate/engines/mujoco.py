@@ -27,6 +27,7 @@ from ...errors import Failure, missing_module
 from ...resources import check_step_work
 from ..build import build_world
 from ..pgs_loop import LoopStep
+from ..._box2d import polygon_radius
 
 _HALF_DEPTH = 0.5   # half the thickness (m, along y) of a polygon's prism: any will do in a plane
 # MuJoCo's own arena default grows faster than the model (532 MB for the
@@ -309,7 +310,6 @@ def _model_xml(scene, records, listed, solver, tolerance, iterations, solref, im
     """The scene's planar MJCF, and one (fixture, body, friction, restitution) per geom in the
     model's geom order (MuJoCo numbers geoms as the file lists them, the world's first).
     impedance: solimp's dmin = dmax (0: MuJoCo's own solimp)."""
-    from ..._box2d import polygon_radius
     e = scene.effects
     g = e.gravity if e.gravity is not None else (0.0, 0.0)
     linear, angular = e.damping if e.damping is not None else (0.0, 0.0)

@@ -19,6 +19,7 @@ from ...resources import check_step_work
 from ..build import build_world
 from ..pgs_loop import LoopStep
 from . import Engine, Setting, empty_contacts
+from ...errors import missing_module
 
 _SLEEP_TIME = 0.5        # s at rest before a body sleeps: Box2D's b2_timeToSleep
 _SLEEP_SPEED = 0.01      # m/s: Box2D's b2_linearSleepTolerance
@@ -63,7 +64,6 @@ class Pymunk(Engine):
 
 
 def _library():
-    from ...errors import missing_module
     try:
         import pymunk
     except ImportError:
