@@ -110,8 +110,8 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
 def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quiet):
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
     iterations, Box2D v3 at 1-16 substeps (and without warm starting), pymunk
-    at 1-256 iterations, MuJoCo's Newton, CG and PGS at tolerances and caps,
-    the project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
+    at 1-256 iterations, MuJoCo's Newton, CG and PGS at tolerances and caps
+    (Newton also at the stiffer impedances 0.99 and 0.999), the project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
     solve to 1e-4 and 1e-8), on the thesis pile and every hard scene, each
     judged by the stability criteria and its drift from the reference
     trajectory (docs/results/engines.md, "Engines").
@@ -167,7 +167,8 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
 def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, overwrite, verbose, quiet):
     """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
     at 1-16 substeps, pymunk at 1-256 iterations, MuJoCo's Newton, CG and PGS
-    at tolerances and caps, and the project's PGS, PSOR, NNCG and lagged body-space
+    at tolerances and caps (Newton also at the stiffer impedances 0.99 and
+    0.999), and the project's PGS, PSOR, NNCG and lagged body-space
     solve to residuals 1e-2 ... 1e-8 and at fixed budgets, on piles of 1,000
     and 10,000 circles, confined circles and pyramids of 820 and 5,050 boxes,
     each judged by its one-step residual from the same recorded states, its
