@@ -421,7 +421,174 @@ def diagnose(world, scene, args):
           f"one pass from that very state: residual {residual(lp, r):.2g}, {n} flips")
 
 
-def main():
+class Carried:
+    """What a step hands the next, by contact key: each point's state (impulse space), its
+    impulses (every other space's warm start) and De Saxce's shift (facets)."""
+
+    def __init__(self):
+        self.state, self.rn, self.rt, self.shift = {}, {}, {}, {}
+
+    def impulses(self, keys):
+        r = np.zeros(2 * len(keys))
+        r[0::2] = [self.rn.get(key, 0.0) for key in keys]
+        r[1::2] = [self.rt.get(key, 0.0) for key in keys]
+        return r
+
+    def update(self, keys, lp, r, state):
+        self.state = dict(zip(keys, state.tolist()))
+        self.rn, self.rt = dict(zip(keys, r[0::2].tolist())), dict(zip(keys, r[1::2].tolist()))
+        self.shift = dict(zip(keys, (lp.mu * np.abs((lp.W @ r + lp.q)[1::2])).tolist()))
+
+
+# Each space's passes on one step: a generator yielding each pass's impulses r; it counts the
+# state changes between passes in tally["flips"] (the impulse space's, in tally["pending"] until
+# the caller knows r is not the answer) and returns where a pass changes nothing.
+
+def impulse_passes(problem, lp, keys, carried, args, tally):
+    state, scale = np.array([carried.state.get(key, STICK) for key in keys]), residual_scale(lp)
+    while True:
+        r, _ = equality_solve(lp, state, args.penalty)
+        new_state, n = flips(lp, r, state, scale)
+        tally["pending"] = n   # (counted only if r is not the answer)
+        yield r
+        if n == 0:
+            return
+        state = new_state
+
+
+def body_passes(problem, lp, keys, carried, args, tally):
+    body = BodySpace(problem, lp, args.stiffness)
+    body.exact = args.exact
+    start = carried.impulses(keys)
+    v, bound, pattern = body.velocities(start), lp.mu * np.maximum(start[0::2], 0.0), None
+    while True:
+        v, new_pattern = body.newton(v, bound)
+        r, _ = body.impulses(v, bound)
+        bound = lp.mu * r[0::2]   # (the friction bound of the next pass)
+        r, _ = body.impulses(v, bound)
+        if pattern is not None:
+            tally["flips"] += int(np.count_nonzero(new_pattern != pattern))
+        pattern = new_pattern
+        yield r
+
+
+def augmented_passes(problem, lp, keys, carried, args, tally):
+    lam = carried.impulses(keys)
+    active = np.zeros(len(lam), bool)
+    active[0::2] = lam[0::2] > 0
+    active[1::2] = (lam[0::2] > 0) & (np.abs(lam[1::2]) < 0.999 * lp.mu * lam[0::2])
+    aug = Augmented(problem, lp, args.stiffness, active)
+    while True:
+        lam = aug.passes(lam)
+        yield lam
+
+
+def facets_passes(problem, lp, keys, carried, args, tally):
+    fac = Facets(problem, lp, args.continuation or args.stiffness)
+    stiffness = args.continuation or args.stiffness
+    lam_bar = fac.lam_of(carried.impulses(keys))
+    shift = np.array([carried.shift.get(key, 0.0) for key in keys])
+    v, act_prev = fac.velocities(fac.r_of(lam_bar)), None
+    while True:
+        v, act, _ = fac.inner_newton(v, lam_bar, shift)
+        if act_prev is not None:
+            tally["flips"] += int(np.count_nonzero(act != act_prev))
+        act_prev = act
+        z = lam_bar - fac.rho * fac.g(v, shift)
+        lam = np.maximum(z, 0.0)
+        if args.eager or np.array_equal(z > 0, act):   # (the inner minimum: the outer update)
+            lam_bar, shift = lam, fac.slide(v)
+            if args.continuation and stiffness < args.stiffness:
+                fac.rho *= 10.0   # (stiffer each outer round, up to --stiffness)
+                stiffness *= 10.0
+        yield fac.r_of(lam)
+
+
+PASSES = {"impulse": impulse_passes, "body": body_passes, "augmented": augmented_passes, "facets": facets_passes}
+
+
+def solve_step(problem, lp, keys, carried, args):
+    """(r after the passes, passes taken or inf, state changes): the passes until the residual is
+    below the tolerance, --most of them, or one that changes nothing."""
+    tally = {"flips": 0}
+    r = None
+    for p, r in enumerate(PASSES[args.space](problem, lp, keys, carried, args, tally), start=1):
+        if residual(lp, r) < args.tolerance:
+            return r, p, tally["flips"]
+        tally["flips"] += tally.pop("pending", 0)
+        if p == args.most:
+            break
+    return r, np.inf, tally["flips"]
+
+
+def step_world(world, scene, normal, tangent):
+    """The loop's Box2D step with these impulses (Collide has run on these positions)."""
+    if normal is not None:
+        world.set_manifold_impulses(np.asarray(normal, np.float32), np.asarray(tangent, np.float32))
+    world.inv_dt0 = 1.0 / scene.dt
+    world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
+
+
+def run_loop(world, scene, args):
+    """Every step of the loop solved by the chosen space's passes (PGS where they do not finish):
+    the gate's figures, per step."""
+    carried = Carried()
+    out = {k: [] for k in ("passes", "flips", "changed", "seconds", "points", "start_residual", "end_residual")}
+    fallback = SolveSettings(max_iterations=100_000, tolerance=args.tolerance)
+    for _ in range(args.steps):
+        bodies = world.bodies()
+        world.collide()
+        contacts = world.contacts()
+        if not len(contacts["manifold"]):
+            step_world(world, scene, None, None)
+            continue
+        problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
+                                          block_solve=scene.solver.block_solve, velocity_iterations=8)
+        lp = local_problem(problem)
+        keys = [contact_keys(contacts)[j] for j in lp.points]
+        start = np.array([carried.state.get(key, STICK) for key in keys])
+        t = time.perf_counter()
+        r, passes, flipped = solve_step(problem, lp, keys, carried, args)
+        out["seconds"].append(time.perf_counter() - t)
+        out["start_residual"].append(residual(lp, carried.impulses(keys)))
+        out["end_residual"].append(residual(lp, r))
+        out["points"].append(len(lp.points))
+        out["passes"].append(passes)
+        out["flips"].append(flipped)
+        if np.isfinite(passes):
+            normal, tangent = lp.impulses(r, len(contacts["manifold"]))
+        else:   # (handed to PGS, so that the trajectory goes on)
+            s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"], settings=fallback)
+            normal, tangent = s.normal_impulse, s.tangent_impulse
+            r = lp.reaction(normal, tangent)
+        final = state_of(lp, r, residual_scale(lp), 10 * args.tolerance)
+        out["changed"].append(int(np.count_nonzero(final != start)))
+        carried.update(keys, lp, r, final)
+        step_world(world, scene, normal, tangent)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def report(figures, args):
+    """The gate's lines, and its verdict."""
+    passes, flipped, changed = figures["passes"], figures["flips"], figures["changed"]
+    within8 = float(np.mean(passes <= 8))
+    print(f"the 1000-circle pile in the loop, steps {args.settle + 1}-{args.settle + args.steps}: {len(passes)} steps "
+          f"with contacts, {np.median(figures['points']):.0f} contact points (median); tolerance {args.tolerance:g}")
+    print(f"  passes to the tolerance: median {np.median(passes):.0f}, p90 "
+          f"{np.quantile(passes, 0.9, method='inverted_cdf'):.0f}, max {passes.max():.0f}; within 8 passes: "
+          f"{100 * within8:.1f}% of steps; not within {args.most}: {int(np.count_nonzero(~np.isfinite(passes)))}")
+    print(f"  flips a step (the passes' state changes): median {np.median(flipped):.0f}, p90 "
+          f"{np.quantile(flipped, 0.9):.0f}; states changed from the warm start to the answer: median "
+          f"{np.median(changed):.0f}, p90 {np.quantile(changed, 0.9):.0f}")
+    print(f"  a step's passes in scipy (Python, sparse LU each pass): median {1e3 * np.median(figures['seconds']):.1f} ms")
+    print(f"  residual of the warm start (the previous answer, by contact key): median "
+          f"{np.median(figures['start_residual']):.2g}; after the passes: median {np.median(figures['end_residual']):.2g}, "
+          f"max {np.max(figures['end_residual']):.2g}")
+    go = np.median(passes) <= 4 and np.median(flipped) <= 50 and within8 >= 0.95
+    print(f"  gate (median passes <= 4, median flips <= 50, >= 95% within 8 passes): {'GO' if go else 'NO-GO'}")
+
+
+def arguments():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--settle", type=int, default=300)
     ap.add_argument("--steps", type=int, default=500)
@@ -429,7 +596,7 @@ def main():
     ap.add_argument("--tolerance", type=float, default=1e-4)
     ap.add_argument("--penalty", type=float, default=1e-6, help="compliance, relative to W's diagonal")
     ap.add_argument("--exact", action="store_true", help="[body] an exact line search, as MuJoCo's, not backtracking")
-    ap.add_argument("--space", choices=("impulse", "body", "augmented", "facets", "ipm"), default="impulse",
+    ap.add_argument("--space", choices=(*PASSES, "ipm"), default="impulse",
                     help="impulse: the equalities of the local problem; body: velocities with a stiff penalty")
     ap.add_argument("--stiffness", type=float, default=1e5,
                     help="[body] the penalty, in units of each row's own effective mass (1 / W_ii)")
@@ -442,7 +609,11 @@ def main():
     ap.add_argument("--eager", action="store_true", help="[facets] the outer update after every Newton step")
     ap.add_argument("--diagnose", action="store_true",
                     help="first, on the first step: one pass from the state of its own answer (PGS to 1e-7)")
-    args = ap.parse_args()
+    return ap.parse_args()
+
+
+def main():
+    args = arguments()
     print(protocol_line(current()) + "\n")
     scene = generate("pile", 9, dict(count=1000, box=95.0, sigma=19.0, steps=args.settle + args.steps + 1))
     world = build_world(scene)
@@ -450,133 +621,8 @@ def main():
         world.step(scene.dt, 8, scene.solver.position_iterations)
     if args.diagnose:
         diagnose(world, scene, args)
-    if args.space == "ipm":   # (a diagnosis of one step only)
-        return
-    previous = {}   # contact key -> state at the previous step's answer
-    previous_s = {}
-    previous_rn, previous_rt = {}, {}   # contact key -> its impulses there (the body space's warm start)
-    passes, flipped, changed, handed, seconds, points = [], [], [], 0, [], []
-    start_res, end_res = [], []   # [facets] the residual of a step's warm start, and after its passes
-    fallback = SolveSettings(max_iterations=100_000, tolerance=args.tolerance)
-    for k in range(args.steps):
-        bodies = world.bodies()
-        world.collide()
-        contacts = world.contacts()
-        if not len(contacts["manifold"]):
-            world.inv_dt0 = 1.0 / scene.dt
-            world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
-            continue
-        problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
-                                          block_solve=scene.solver.block_solve, velocity_iterations=8)
-        lp = local_problem(problem)
-        keys = [contact_keys(contacts)[j] for j in lp.points]
-        state = np.array([previous.get(key, STICK) for key in keys])
-        start = state.copy()
-        scale = residual_scale(lp)
-        t = time.perf_counter()
-        done, total_flips, r = False, 0, None
-        if args.space == "augmented":
-            lam = np.zeros(2 * len(keys))
-            lam[0::2] = [previous_rn.get(key, 0.0) for key in keys]
-            lam[1::2] = [previous_rt.get(key, 0.0) for key in keys]
-            active = np.zeros(2 * len(keys), bool)
-            active[0::2] = lam[0::2] > 0
-            active[1::2] = (lam[0::2] > 0) & (np.abs(lam[1::2]) < 0.999 * lp.mu * lam[0::2])
-            aug = Augmented(problem, lp, args.stiffness, active)
-        if args.space == "facets":
-            fac = Facets(problem, lp, args.continuation or args.stiffness)
-            fac.stiffness_now = args.continuation or args.stiffness
-            r0 = np.zeros(2 * len(keys))
-            r0[0::2] = [previous_rn.get(key, 0.0) for key in keys]
-            r0[1::2] = [previous_rt.get(key, 0.0) for key in keys]
-            lam_bar = fac.lam_of(r0)
-            s = np.array([previous_s.get(key, 0.0) for key in keys])
-            v = fac.velocities(fac.r_of(lam_bar))
-            act_prev = None
-        if args.space == "body":
-            body = BodySpace(problem, lp, args.stiffness)
-            body.exact = args.exact
-            start_r = np.zeros(2 * len(keys))
-            start_r[0::2] = [previous_rn.get(key, 0.0) for key in keys]
-            start_r[1::2] = [previous_rt.get(key, 0.0) for key in keys]
-            v = body.velocities(start_r)
-            bound = lp.mu * np.maximum(start_r[0::2], 0.0)
-            pattern = None
-        for p in range(1, args.most + 1):
-            if args.space == "facets":
-                v, act, _ = fac.inner_newton(v, lam_bar, s)
-                if act_prev is not None:
-                    total_flips += int(np.count_nonzero(act != act_prev))
-                act_prev = act
-                z = lam_bar - fac.rho * fac.g(v, s)
-                lam = np.maximum(z, 0.0)
-                r = fac.r_of(lam)
-                if args.eager or np.array_equal(z > 0, act):   # (the inner minimum: the outer update)
-                    lam_bar, s = lam, fac.slide(v)
-                    if args.continuation and fac.stiffness_now < args.stiffness:
-                        fac.rho *= 10.0   # (stiffer each outer round, up to --stiffness)
-                        fac.stiffness_now *= 10.0
-            elif args.space == "augmented":
-                r = lam = aug.passes(lam)
-            elif args.space == "body":
-                v, new_pattern = body.newton(v, bound)
-                r, _ = body.impulses(v, bound)
-                bound = lp.mu * r[0::2]   # (the friction bound of the next pass)
-                r, _ = body.impulses(v, bound)
-                if pattern is not None:
-                    total_flips += int(np.count_nonzero(new_pattern != pattern))
-                pattern = new_pattern
-            else:
-                r, _ = equality_solve(lp, state, args.penalty)
-            if residual(lp, r) < args.tolerance:
-                done = True
-                break
-            if args.space == "impulse":
-                state, n = flips(lp, r, state, scale)
-                total_flips += n
-                if n == 0:
-                    break
-        seconds.append(time.perf_counter() - t)
-        if args.space == "facets":
-            start_res.append(residual(lp, fac.r_of(fac.lam_of(r0))))
-            end_res.append(residual(lp, r))
-        points.append(len(lp.points))
-        if done:
-            passes.append(p)
-            flipped.append(total_flips)
-            normal, tangent = lp.impulses(r, len(contacts["manifold"]))
-        else:
-            handed += 1
-            passes.append(np.inf)
-            flipped.append(total_flips)
-            s = solve(problem, contacts["normal_impulse"], contacts["tangent_impulse"], settings=fallback)
-            normal, tangent = s.normal_impulse, s.tangent_impulse
-            r = lp.reaction(normal, tangent)
-        final = state_of(lp, r, scale, 10 * args.tolerance)
-        changed.append(int(np.count_nonzero(final != start)))
-        previous = dict(zip(keys, final.tolist()))
-        previous_rn, previous_rt = dict(zip(keys, r[0::2].tolist())), dict(zip(keys, r[1::2].tolist()))
-        u_final = lp.W @ r + lp.q
-        previous_s = dict(zip(keys, (lp.mu * np.abs(u_final[1::2])).tolist()))
-        world.set_manifold_impulses(np.asarray(normal, np.float32), np.asarray(tangent, np.float32))
-        world.inv_dt0 = 1.0 / scene.dt
-        world.step(scene.dt, 0, scene.solver.position_iterations, collided=True)
-    passes, flipped, changed = np.array(passes), np.array(flipped), np.array(changed)
-    n = len(passes)
-    within8 = float(np.mean(passes <= 8))
-    print(f"the 1000-circle pile in the loop, steps {args.settle + 1}-{args.settle + args.steps}: {n} steps with "
-          f"contacts, {np.median(points):.0f} contact points (median); tolerance {args.tolerance:g}")
-    print(f"  passes to the tolerance: median {np.median(passes):.0f}, p90 {np.quantile(passes, 0.9, method='inverted_cdf'):.0f}, "
-          f"max {passes.max():.0f}; within 8 passes: {100 * within8:.1f}% of steps; not within {args.most}: {handed}")
-    print(f"  flips a step (the passes' state changes): median {np.median(flipped):.0f}, p90 "
-          f"{np.quantile(flipped, 0.9):.0f}; states changed from the warm start to the answer: median "
-          f"{np.median(changed):.0f}, p90 {np.quantile(changed, 0.9):.0f}")
-    print(f"  a step's passes in scipy (Python, sparse LU each pass): median {1e3 * np.median(seconds):.1f} ms")
-    if start_res:
-        print(f"  residual of the warm start (the previous answer, by contact key): median {np.median(start_res):.2g}; "
-              f"after the passes: median {np.median(end_res):.2g}, max {np.max(end_res):.2g}")
-    go = np.median(passes) <= 4 and np.median(flipped) <= 50 and within8 >= 0.95
-    print(f"  gate (median passes <= 4, median flips <= 50, >= 95% within 8 passes): {'GO' if go else 'NO-GO'}")
+    if args.space != "ipm":   # (ipm: a diagnosis of one step only)
+        report(run_loop(world, scene, args), args)
 
 
 if __name__ == "__main__":
