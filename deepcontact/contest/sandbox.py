@@ -247,13 +247,18 @@ class Sandbox:
             except subprocess.TimeoutExpired:
                 pass
         for _, folder in dict.fromkeys(self.groups.values()):
-            for _ in range(100):   # (the kernel empties a group as its processes are reaped)
+            # (the kernel empties a group as its processes exit; waited for up to 5 s, where it was
+            # 1 s, so that none is still alive when dc looks for what outlives the command)
+            deadline = time.monotonic() + 5.0
+            while True:
                 try:
                     os.rmdir(folder)
                     break
                 except FileNotFoundError:
                     break
                 except OSError:
+                    if time.monotonic() > deadline:
+                        break
                     _kill_listed(folder)
                     time.sleep(0.01)
         self.groups = {}
