@@ -280,13 +280,14 @@ class InteriorPoint(Facets):
     carried: interior point methods do not warm-start), so a pass count is a factorization count.
     De Saxce's shift s is updated where a solve has converged (an outer round)."""
 
-    coupled = False   # (De Saxce's shift linearised in each pass, or fixed for a solve: outer rounds)
+    shift = "fixed"   # De Saxce's shift: fixed for a solve (outer rounds), from each pass's iterate
+                      # ("lagged"), or linearised in each pass ("linearised": a nonsymmetric system)
 
-    def solve(self, v, s, lam0, tol_gap=1e-10, most=60, check=None):
-        """(v, lam, passes) after at most `most` passes; check(lam) -> True stops early."""
+    def solve(self, v, s, lam0, tol_gap=1e-10, most=60):
+        """(v, lam, passes) after at most `most` passes, the shift s held where it is fixed."""
         A, M = self.A, self.M
         n = A.shape[0]
-        if self.coupled:   # (De Saxce's shift from the iterate itself, linearised: no outer rounds)
+        if self.shift != "fixed":
             m = n // 2
             twice = sp.csr_matrix((np.ones(n), (np.arange(n), np.repeat(np.arange(m), 2))), shape=(n, m))
             Jt = self.J[1::2]
@@ -294,7 +295,7 @@ class InteriorPoint(Facets):
             def shifted(v):
                 ut = Jt @ v + self.c[1::2]
                 s = self.mu * np.abs(ut)
-                if self.coupled == "lagged":   # (the shift from the iterate, its derivative left out)
+                if self.shift == "lagged":   # (its derivative left out)
                     return self.e0 + np.repeat(s, 2), A
                 G = (A + sp.diags(twice @ (self.mu * np.sign(ut))) @ twice @ Jt).tocsr()
                 return self.e0 + np.repeat(s, 2), G
@@ -335,11 +336,9 @@ class InteriorPoint(Facets):
             a_p, a_d = 0.99 * longest(w, dw), 0.99 * longest(lam, dl)
             a = min(a_p, a_d)   # (one step length: the primal and dual are coupled through v)
             v, w, lam = v + a * dv, w + a * dw, lam + a * dl
-            if check is not None and check(lam):
-                return v, lam, p, True
             if mu < tol_gap * scale_w * scale_l:
-                return v, lam, p, False
-        return v, lam, most, False
+                return v, lam, p
+        return v, lam, most
 
 
 def flips(lp, r, state, scale):
@@ -389,11 +388,11 @@ def diagnose(world, scene, args):
     answer = lp.reaction(s.normal_impulse, s.tangent_impulse)
     if args.space == "ipm":
         ipm = InteriorPoint(problem, lp, 1.0)
-        ipm.coupled = {"fixed": False, "lagged": "lagged", "linearised": True}[args.shift]
+        ipm.shift = args.shift
         lam = ipm.lam_of(lp.reaction(contacts["normal_impulse"], contacts["tangent_impulse"]))
         v, shift, rounds = ipm.velocities(ipm.r_of(lam)), np.zeros(len(lp.mu)), []
         for _ in range(args.rounds if args.shift == "fixed" else 1):
-            v, lam, p, _ = ipm.solve(v, shift, lam)
+            v, lam, p = ipm.solve(v, shift, lam)
             r = ipm.r_of(lam)
             rounds.append(f"{p} passes, residual {residual(lp, r):.1e}")
             shift = lp.mu * np.abs((lp.W @ r + lp.q)[1::2])

@@ -47,7 +47,6 @@ def guest(what, doing="raised"):
     import os
     import sys
     from contextlib import nullcontext
-
     # (in a contestant's process, what it changes there reaches nothing of dc's: nothing to put back)
     keep = not contained
     cwd, mask, threads = None, None, None
@@ -93,7 +92,6 @@ def _put_back(cwd, mask, threads):
     outputs' modes come from, torch's thread count (--threads; the count changes float sums and
     times)."""
     import os
-    import sys
     if cwd is not None:
         try:
             if os.getcwd() != cwd:
@@ -101,10 +99,7 @@ def _put_back(cwd, mask, threads):
         except OSError:
             os.chdir(cwd)
     os.umask(mask)
-    if "torch" in sys.modules:   # (a guest that imported torch got its per-core default)
-        torch, wanted = sys.modules["torch"], threads if threads is not None else protocol.threads_asked
-        if torch.get_num_threads() != wanted:
-            torch.set_num_threads(wanted)
+    protocol.keep_threads(threads)
 
 
 class Registry:
@@ -176,7 +171,7 @@ class Registry:
 
     def installed(self):
         """{name: entry point} of the installed packages' plug-ins of this kind."""
-        from importlib.metadata import entry_points  # (scans every installed package: only when asked)
+        from importlib.metadata import entry_points   # (scans every installed package: only when asked)
         return {ep.name: ep for ep in entry_points(group=self.group)}
 
     def names(self):

@@ -31,10 +31,18 @@ def use_threads(threads):
     """torch's intra-op threads for this process (and the workers it forks), if torch is used."""
     global threads_asked
     threads = threads_asked = threads or DEFAULT_THREADS
-    if "torch" in sys.modules:
-        import torch
-        torch.set_num_threads(threads)
+    keep_threads(threads)
     return threads
+
+
+def keep_threads(wanted=None):
+    """torch's intra-op threads set to `wanted` (the command's, threads_asked, unless given) where
+    torch is loaded and has others: a plug-in that imported torch got its per-core default, or set
+    its own."""
+    torch = sys.modules.get("torch")
+    wanted = threads_asked if wanted is None else wanted
+    if torch is not None and torch.get_num_threads() != wanted:
+        torch.set_num_threads(wanted)
 
 
 def cpu_model():

@@ -183,18 +183,11 @@ def serve(conn):
         conn.send_bytes(_error(e))
         return
     def answer(request):
-        _keep_threads(setup["threads"])
+        # (each call at the threads the report states: a plug-in that imported torch, at its
+        # import or in a call, got torch's per-core default)
+        protocol.keep_threads()
         return _answer(request["op"], request, setup, start)
     _requests(conn, answer)
-
-
-def _keep_threads(asked):
-    """torch's threads back to what the judge asked for, before each call: a plug-in that imported
-    torch (at its import, or in a call) got torch's per-core default, and the call is timed at the
-    threads the report states."""
-    torch = sys.modules.get("torch")
-    if torch is not None and torch.get_num_threads() != asked:
-        torch.set_num_threads(asked)
 
 
 def _requests(conn, answer):

@@ -25,8 +25,8 @@ import subprocess
 import sys
 import time
 
-from . import machine
 from ..leftovers import at_end
+from . import machine
 
 MEMORY_LIMIT = 8 << 30     # bytes a contestant's processes may hold together
 PROCESS_LIMIT = 64         # processes and threads a contestant may run at once

@@ -37,9 +37,8 @@ from ..step.reader import check_origin, read_step_for_grid
 from ..step.run_folder import MANIFEST, require_regular, simulation_folder, step_path
 from .sources import collect
 from .spec import GridSpec
-from .splat import check_channels, rasterize_step
+from .splat import DEFAULT_INPUTS, DEFAULT_LABELS, check_channels, rasterize_step
 from .window import grid_for
-from .splat import DEFAULT_INPUTS, DEFAULT_LABELS
 
 log = logging.getLogger(__name__)
 FORMAT = 2   # 2: runs are named relative to the dataset folder (1: relative to where rasterize ran)

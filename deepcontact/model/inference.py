@@ -15,12 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .. import arguments
 from ..grid.interpolate import bilinear
 from ..grid.spec import GridSpec
 from ..grid.splat import rasterize
 from .networks import build, check_network, require_named
 from .checkpoint import load_checkpoint
-from .. import arguments
 
 
 @dataclass

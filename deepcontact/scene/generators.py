@@ -11,11 +11,11 @@ import math
 
 import numpy as np
 
+from .. import arguments
 from .._box2d import linear_slop, polygon_radius
 from ..errors import InputError, OptionError
 from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
-from .. import arguments
 
 
 # Boxes come to rest in Box2D 2.4.1 with their 1 cm skins overlapping by the linear slop: placing

@@ -2,11 +2,11 @@
 import dataclasses
 from pathlib import Path
 
+from .. import arguments
 from ..errors import InputError
 from ..resources import BYTES_PER_BODY, check_memory
 from ..scene.generators import GENERATORS, body_count, generate
 from ..scene.xml import read_scene
-from .. import arguments
 
 
 @dataclasses.dataclass

@@ -20,8 +20,7 @@ import sys
 
 from ..contest import job, sandbox
 from ..plugins import PluginError
-from . import STUDIES
-from . import survey as loaded
+from . import STUDIES, survey as loaded
 
 INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME it runs in place
 

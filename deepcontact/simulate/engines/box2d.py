@@ -4,6 +4,7 @@ import functools
 import math
 
 from ... import arguments
+from ..._box2d import box2d_version
 from ...resources import check_step_work
 from ...scene.xml import fmt
 from ...solver.methods import GLOBAL, method_origin, takes_relaxation
@@ -13,7 +14,6 @@ from .. import stepping
 from ..build import build_world
 from ..pgs_loop import PGSStepper, check_loop, check_scene_for_loop
 from . import Engine, Setting
-from ..._box2d import box2d_version
 
 
 class Box2D(Engine):

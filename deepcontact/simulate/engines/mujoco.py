@@ -22,12 +22,12 @@ import logging
 
 import numpy as np
 
-from . import Engine, Setting, empty_contacts
+from ..._box2d import polygon_radius
 from ...errors import Failure, missing_module
 from ...resources import check_step_work
 from ..build import build_world
 from ..pgs_loop import LoopStep
-from ..._box2d import polygon_radius
+from . import Engine, Setting, empty_contacts
 
 _HALF_DEPTH = 0.5   # half the thickness (m, along y) of a polygon's prism: any will do in a plane
 # MuJoCo's own arena default grows faster than the model (532 MB for the

@@ -15,11 +15,11 @@ import math
 import numpy as np
 
 from ..._box2d import linear_slop, polygon_radius
+from ...errors import missing_module
 from ...resources import check_step_work
 from ..build import build_world
 from ..pgs_loop import LoopStep
 from . import Engine, Setting, empty_contacts
-from ...errors import missing_module
 
 _SLEEP_TIME = 0.5        # s at rest before a body sleeps: Box2D's b2_timeToSleep
 _SLEEP_SPEED = 0.01      # m/s: Box2D's b2_linearSleepTolerance
