@@ -29,6 +29,7 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
 
 
 THREADS_SEEN = """
+import os
 import numpy as np
 import torch
 from deepcontact.warmstart.starts import StartValue
@@ -36,6 +37,9 @@ class Start:
     def __call__(self, ctx):
         if torch.get_num_threads() != 3:   # (the judge's --threads, in the contestant's own process)
             raise ValueError(f"this contestant has {torch.get_num_threads()} torch threads")
+        pools = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+        if set(pools.values()) != {"3"}:   # (numpy's pool too, sized before its import)
+            raise ValueError(f"this contestant's thread pools were told {pools}")
         return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {})
 """
 

@@ -83,10 +83,10 @@ def _connection():
     return _conn
 
 
-def new(readable=()):
+def new(readable=(), threads=1):
     """A contestant's sandbox: this process's own, or, in a fenced job, one the judge's process
     starts and owns on the job's behalf (RemoteSandbox)."""
-    return RemoteSandbox(readable) if inside() else sandbox.Sandbox(readable)
+    return RemoteSandbox(readable, threads) if inside() else sandbox.Sandbox(readable, threads)
 
 
 def fences():
@@ -131,8 +131,9 @@ class RemoteSandbox:
     """A contestant's sandbox that the judge's process starts and owns for this job: the members
     of sandbox.Sandbox that a contestant's client uses."""
 
-    def __init__(self, readable=()):
+    def __init__(self, readable=(), threads=1):
         self.readable = [os.path.abspath(p) for p in readable if p and os.path.exists(p)]
+        self.threads = threads
         self.id, self.process, self._how = None, None, ""
 
     def start(self, argv, pass_fds=(), env=None):
@@ -140,7 +141,7 @@ class RemoteSandbox:
         under the broker's number for it wherever argv names it."""
         sandbox._registered()
         answer = remote("start", fds=pass_fds, argv=[str(a) for a in argv], readable=self.readable,
-                        fd_numbers=[int(fd) for fd in pass_fds])
+                        fd_numbers=[int(fd) for fd in pass_fds], threads=self.threads)
         self.id = answer["id"]
         self.process = RemoteProcess(self)
         sandbox._live.add(self)
@@ -269,12 +270,15 @@ class Broker:
             raise ValueError("readable must be a list of paths")
         if not (isinstance(numbers, list) and len(numbers) == len(fds)):
             raise ValueError("one number for each descriptor passed")
+        threads = request.get("threads", 1)
+        if type(threads) is not int or not 1 <= threads <= sandbox.PROCESS_LIMIT:
+            raise ValueError(f"threads must be a whole number from 1 to {sandbox.PROCESS_LIMIT}")
         if len(self.boxes) >= LIVE_LIMIT:
             raise ValueError(f"at most {LIVE_LIMIT} contestants' sandboxes at once")
         # each descriptor under our number for it (the job's numbers mean nothing here)
         ours = {str(old): os.dup(fd) for old, fd in zip(numbers, fds)}
         try:
-            box = sandbox.Sandbox(readable)
+            box = sandbox.Sandbox(readable, threads)
             box.start([str(ours[a]) if a in ours else a for a in argv], pass_fds=list(ours.values()))
         finally:
             for fd in ours.values():

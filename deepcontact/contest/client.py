@@ -187,7 +187,8 @@ class Contestant:
             names = [name, method, *networks]
             modules = [] if made else [type(getattr(start, "start", start)).__module__]
         self._setup = setup
-        self.sandbox = _broker.new(readable_paths(names, modules, [checkpoint] if checkpoint else []))
+        self.sandbox = _broker.new(readable_paths(names, modules, [checkpoint] if checkpoint else []),
+                                   threads=setup["threads"])
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()

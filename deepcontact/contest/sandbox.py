@@ -31,6 +31,11 @@ from . import machine
 MEMORY_LIMIT = 8 << 30     # bytes a contestant's processes may hold together
 PROCESS_LIMIT = 64         # processes and threads a contestant may run at once
 FILE_LIMIT = 256 << 20     # bytes one file it writes may reach (its /tmp is a private tmpfs of this size)
+# The thread pools a library starts at import (numpy's OpenBLAS, torch's OpenMP) size themselves to
+# the machine's cores unless told: a contestant's are told its own thread count, so that neither its
+# charge (OpenBLAS's idle pool cost each start 0.1 s of CPU on two cores) nor its answer depends on
+# the machine.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 # Files of /etc an interpreter reads (the loader's cache, names of users and zones); the rest of
 # /etc is not the contestant's to read.
@@ -80,10 +85,11 @@ class Sandbox:
 
     _count = 0
 
-    def __init__(self, readable=()):
+    def __init__(self, readable=(), threads=1):
         Sandbox._count += 1
         self.name = f"{_PREFIX}{os.getpid()}-{Sandbox._count}"
         self.readable = [os.path.abspath(p) for p in readable if p and os.path.exists(p)]
+        self.threads = threads   # (None: the thread pools' own defaults; a job sets its own)
         self.groups = {}   # {controller: folder}
         self.process = None
         self._cpu_file = None
@@ -150,11 +156,16 @@ class Sandbox:
             if key in os.environ:
                 out += ["--setenv", key, os.environ[key]]
         out += ["--setenv", "HOME", "/tmp", "--setenv", "PYTHONDONTWRITEBYTECODE", "1"]
+        for key, value in self._thread_env().items():
+            out += ["--setenv", key, value]
         if seccomp_fd is not None:
             out += ["--seccomp", str(seccomp_fd)]
         return out + list(argv)
 
     job = False   # (JobSandbox: a whole job's fence, not a contestant's)
+
+    def _thread_env(self):
+        return {} if self.threads is None else dict.fromkeys(THREAD_VARIABLES, str(self.threads))
 
     def start(self, argv, pass_fds=(), env=None, stdout=None, stderr=None):
         """Starts argv inside the fence (its standard output and error sent to our standard error,
@@ -168,6 +179,8 @@ class Sandbox:
             seccomp_fd = os.memfd_create("dc-seccomp", 0)
             os.write(seccomp_fd, program)
             os.lseek(seccomp_fd, 0, os.SEEK_SET)
+        if self.threads is not None and machine.bwrap() is None:   # (else set inside: _argv)
+            env = dict(os.environ if env is None else env, **self._thread_env())
         try:
             err = sys.stderr.fileno() if _has_fileno(sys.stderr) else subprocess.DEVNULL
             self.process = subprocess.Popen(
@@ -278,7 +291,7 @@ class JobSandbox(Sandbox):
     job = True
 
     def __init__(self, writable=(), cwd=None, devices=()):
-        super().__init__()
+        super().__init__(threads=None)
         self.name = f"dc-job-{os.getpid()}-{Sandbox._count}"
         self.writable = [os.path.abspath(p) for p in writable]
         self.devices = [d for d in devices if os.path.exists(d)]
