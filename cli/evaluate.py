@@ -1,8 +1,10 @@
 """dc evaluate: every warm start compared on the recorded steps, with reports."""
 import click
 
-from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
+from deepcontact.grid.kernels import KERNELS
 from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS, methods_help
+from deepcontact.solver.pgs import MODES
+from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 
 from . import options, terminal, types
 
@@ -17,11 +19,11 @@ from . import options, terminal, types
 @options.checkpoint("A checkpoint from dc train (the starts cnn, guarded, cnn-new).",
                     "Load this network plug-in for a checkpoint that needs it (a checkpoint never imports code).")
 @options.solve_to_tolerance
-@click.option("--mode", type=types.choice("mode", leave_out=("exact",)), default="float64", show_default=True)
+@click.option("--mode", type=types.choice(MODES, leave_out=("exact",)), default="float64", show_default=True)
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Use every N-th step.")
 @click.option("--cell", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] Cell size d.")
 @click.option("--smoothing", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="[sph without --checkpoint] h.")
-@click.option("--kernel", type=types.choice("kernel"), default="poly6",
+@click.option("--kernel", type=types.choice(KERNELS), default="poly6",
               show_default=True, help="[sph without --checkpoint] SPH kernel.")
 @click.option("--seed", type=types.count(), default=0, show_default=True, help="Seed of the random start.")
 @click.option("--closed-loop", is_flag=True,

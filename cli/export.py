@@ -2,6 +2,8 @@
 as flat tables (CSV, Parquet)."""
 import click
 
+from deepcontact.exchange.fclib import SOLUTIONS
+
 from . import options, terminal, types
 
 
@@ -14,7 +16,7 @@ from . import options, terminal, types
 @click.option("--format", "fmt", type=click.Choice(["fclib", "csv", "parquet"]), default="fclib", show_default=True,
               help="fclib: each step's contact problem (HDF5); csv or parquet: the run as two flat tables, "
                    "bodies and contacts, one row per body (contact point) per step (Parquet needs pyarrow).")
-@click.option("--solution", type=types.choice("solution"), default="reference",
+@click.option("--solution", type=types.choice(SOLUTIONS), default="reference",
               show_default=True,
               help="Store as /solution: the exact reference (Newton, residual < 1e-12 where it gets "
                    "there), what the run's solver produced, or nothing.")

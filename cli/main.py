@@ -11,16 +11,17 @@ import click
 
 from deepcontact import __version__
 
-# name -> (module under deepcontact.cli, the short help `dc --help` lists), in the pipeline's order
+# name -> the short help `dc --help` lists, in the pipeline's order; each command lives in the
+# module of its own name under deepcontact.cli
 COMMANDS = {
-    "simulate": ("simulate", "Simulate SCENE in Box2D 2.4.1 (or another --engine) and record every step as XML."),
-    "validate": ("validate", "Check step and scene files against the XSD schemas in schemas/."),
-    "rasterize": ("rasterize", "Turn the step files of RUNS into SPH grid images for training."),
-    "train": ("train", "Train a network mapping the input images of DATASET to its impulse images."),
-    "evaluate": ("evaluate", "Solve every recorded step of RUNS from every start and compare."),
-    "study": ("study", "Longer measurements built on the pipeline."),
-    "export": ("export", "Write each step's contact problem as an FCLIB local problem (2D)."),
-    "render": ("render", "Draw INPUT: a step file, a run, or a sample of a grid dataset."),
+    "simulate": "Simulate SCENE in Box2D 2.4.1 (or another --engine) and record every step as XML.",
+    "validate": "Check step and scene files against the XSD schemas in schemas/.",
+    "rasterize": "Turn the step files of RUNS into SPH grid images for training.",
+    "train": "Train a network mapping the input images of DATASET to its impulse images.",
+    "evaluate": "Solve every recorded step of RUNS from every start and compare.",
+    "study": "Longer measurements built on the pipeline.",
+    "export": "Write each step's contact problem as an FCLIB local problem (2D).",
+    "render": "Draw INPUT: a step file, a run, or a sample of a grid dataset.",
 }
 
 
@@ -34,12 +35,12 @@ class LazyGroup(click.Group):
     def get_command(self, ctx, name):
         if name not in COMMANDS:
             return None
-        module = importlib.import_module(f"{__package__}.{COMMANDS[name][0]}")
+        module = importlib.import_module(f"{__package__}.{name}")
         return getattr(module, name)
 
     def format_commands(self, ctx, formatter):
         limit = formatter.width - 6 - max(len(name) for name in COMMANDS)
-        rows = [(name, click.utils.make_default_short_help(COMMANDS[name][1], limit))
+        rows = [(name, click.utils.make_default_short_help(COMMANDS[name], limit))
                 for name in self.list_commands(ctx)]
         with formatter.section("Commands"):
             formatter.write_dl(rows)

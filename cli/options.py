@@ -189,13 +189,13 @@ def solve_to_tolerance(f):
     """--tolerance, --max-iterations and --stop-on of a command that solves every step to a
     tolerance and compares its variants (dc evaluate), their defaults read from solver/settings.py
     (the cap: VERDICT_CAP, at which its variants reach the tolerance, so that a verdict can name one)."""
-    from deepcontact.solver.settings import TOLERANCE, VERDICT_CAP as CAP
+    from deepcontact.solver import pgs, settings
     for option in reversed((
-            click.option("--tolerance", type=Finite(min=0, min_open=True), default=TOLERANCE, show_default=True,
+            click.option("--tolerance", type=Finite(min=0, min_open=True), default=settings.TOLERANCE, show_default=True,
                          help="Stop once the measure falls below this."),
-            click.option("--max-iterations", type=count(min=1), default=CAP, show_default=True,
+            click.option("--max-iterations", type=count(min=1), default=settings.VERDICT_CAP, show_default=True,
                          help="Sweep cap."),
-            click.option("--stop-on", type=choice("stop_on"), default="residual", show_default=True,
+            click.option("--stop-on", type=choice(pgs.MEASURES), default="residual", show_default=True,
                          help="The measure the tolerance applies to (docs/solver.md: Measuring convergence)."))):
         f = option(f)
     return f

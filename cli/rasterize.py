@@ -1,6 +1,7 @@
 """dc rasterize: step files → grid datasets (SPH), and what the grid costs in accuracy."""
 import click
 
+from deepcontact.grid.kernels import KERNELS
 from deepcontact.grid.splat import ALL_CHANNELS
 
 from . import options, terminal, types
@@ -11,7 +12,7 @@ CHANNELS = types.CommaList(click.Choice(ALL_CHANNELS))
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("-o", "--output", "out", type=click.Path(), help="Dataset folder.")
-@click.option("--kernel", type=types.choice("kernel"), default="poly6",
+@click.option("--kernel", type=types.choice(KERNELS), default="poly6",
               show_default=True, help="SPH kernel (2D-normalised).")
 @click.option("--cell", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Cell size d (node spacing).")
 @click.option("--smoothing", type=types.Finite(min=0, min_open=True), default=0.5, show_default=True, help="Smoothing length h (support).")

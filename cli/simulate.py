@@ -1,8 +1,10 @@
 """dc simulate: scenes → per-step XML files."""
 import click
 
-from deepcontact.solver.methods import SOLVERS, methods_help
 from deepcontact.simulate.engines import ENGINES
+from deepcontact.simulate.pgs_loop import STARTS as LOOP_STARTS
+from deepcontact.solver.methods import SOLVERS, methods_help
+from deepcontact.solver.pgs import MEASURES, MODES
 from deepcontact.solver.settings import CAP, SolveSettings
 
 from . import options, terminal, types
@@ -73,14 +75,14 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
               help="[box2d3] The most speed (m/s) used to push overlapping bodies apart.")
 @click.option("--solver", type=click.Choice(["box2d", "pgs"]), default="box2d", show_default=True,
               help="Box2D 2.4.1's own velocity solver, or the project's PGS in the loop.")
-@click.option("--start", type=types.choice("loop_start"),
+@click.option("--start", type=types.choice(LOOP_STARTS),
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
-@click.option("--mode", type=types.choice("mode"),
+@click.option("--mode", type=types.choice(MODES),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
 @click.option("--tolerance", type=types.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
 @click.option("--max-iterations", type=types.count(),
               help=f"[pgs] Sweep cap (default: {CAP} with --tolerance, as dc evaluate's; else the scene's).")
-@click.option("--stop-on", type=types.choice("stop_on"),
+@click.option("--stop-on", type=types.choice(MEASURES),
               help="[pgs] The measure the tolerance applies to (default residual).")
 @click.option("--relaxation", type=types.Relaxation(),
               help="[pgs] Over-relaxation w in (0, 2) (PSOR; float64 mode), or auto: the w with the fewest sweeps "

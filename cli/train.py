@@ -4,6 +4,7 @@ import time
 import click
 
 from deepcontact.model.arch import NETWORKS
+from deepcontact.model.choices import LOSSES, OPTIMIZERS
 
 from . import fenced_training, options, terminal, types
 
@@ -68,12 +69,12 @@ class EpochLines:
 @options.deprecated_alias("--model", "--arch", "model")
 @click.option("--targets", type=types.CommaList(), default="normal_impulse,tangent_impulse", show_default=True,
               help="Label channels to learn: both maps at once, or one (train one model per map).")
-@click.option("--loss", type=types.choice("loss"), default="masked",
+@click.option("--loss", type=types.choice(LOSSES), default="masked",
               show_default=True, help="masked: thesis eq. 5.2; contacts: error at the contact points; mse: all "
               "nodes; solver: the step's LCP residual at the predicted start.")
 @click.option("--solver-sweeps", type=types.count(), default=0, show_default=True,
               help="[solver loss] Damped Jacobi sweeps before taking the residual.")
-@click.option("--optimizer", type=types.choice("optimizer"), default="sgd", show_default=True,
+@click.option("--optimizer", type=types.choice(OPTIMIZERS), default="sgd", show_default=True,
               help="sgd follows the thesis schedule (5e-3, 2e-3 at 100, 1e-3 at 300, 2e-4 at 500).")
 @click.option("--lr", type=types.Finite(min=0, min_open=True), default=1e-3, show_default=True,
               help="Adam's learning rate.")

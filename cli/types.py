@@ -1,6 +1,5 @@
 """The types of dc's options (click parameter types): finite numbers, counts, lists, seeds,
 shards, windows, plug-in names, KEY=VALUE pairs and the choices whose words the library owns."""
-import importlib
 import math
 import re
 
@@ -199,24 +198,7 @@ class SoftStepOption(click.Option):
             self.help = plain
 
 
-# The library table each choice option's words come from: (module, attribute).
-VOCABULARIES = {
-    "stop_on": ("deepcontact.solver.pgs", "MEASURES"),
-    "mode": ("deepcontact.solver.pgs", "MODES"),
-    "kernel": ("deepcontact.grid.kernels", "KERNELS"),
-    "loss": ("deepcontact.model.choices", "LOSSES"),
-    "optimizer": ("deepcontact.model.choices", "OPTIMIZERS"),
-    "loop_start": ("deepcontact.simulate.pgs_loop", "STARTS"),
-    "solution": ("deepcontact.exchange.fclib", "SOLUTIONS"),
-}
-
-
-def vocabulary(name):
-    """A choice option's words, from the library table that owns them (one spelling everywhere)."""
-    module, attribute = VOCABULARIES[name]
-    return list(getattr(importlib.import_module(module), attribute))
-
-
-def choice(name, leave_out=()):
-    """click.Choice over vocabulary(name), less the words a command does not take."""
-    return click.Choice([w for w in vocabulary(name) if w not in leave_out])
+def choice(words, leave_out=()):
+    """click.Choice over `words`, the library table that owns them (one spelling everywhere), less
+    the words a command does not take."""
+    return click.Choice([w for w in words if w not in leave_out])

@@ -13,51 +13,40 @@ step does not import torch)::
 """
 __version__ = "0.1.0"
 
-# name -> (module, attribute): what `import deepcontact` offers, loaded on first use
-_PUBLIC = {
-    "read_run": ("deepcontact.step.run_folder", "read_run"),
-    "read_step": ("deepcontact.step.reader", "read_step"),
-    "run_tables": ("deepcontact.step.table", "run_tables"),
-    "read_scene": ("deepcontact.scene.xml", "read_scene"),
-    "generate": ("deepcontact.scene.generators", "generate"),
-    "simulate_run": ("deepcontact.simulate.run", "run"),   # (not "simulate": that is the subpackage)
-    "SceneSource": ("deepcontact.simulate.source", "SceneSource"),
-    "SoftStep": ("deepcontact.simulate.engines", "SoftStep"),
-    "World": ("deepcontact.simulate.world", "World"),
-    "Box2D": ("deepcontact.simulate.engines", "Box2D"),
-    "Box2D3": ("deepcontact.simulate.engines", "Box2D3"),
-    "Engine": ("deepcontact.simulate.engines", "Engine"),
-    "ENGINES": ("deepcontact.simulate.engines", "ENGINES"),
-    "engine_named": ("deepcontact.simulate.engines", "engine_named"),
-    "Study": ("deepcontact.studies", "Study"),
-    "STUDIES": ("deepcontact.studies", "STUDIES"),
-    "StepProblem": ("deepcontact.solver.problem", "StepProblem"),
-    "contact_keys": ("deepcontact.solver.problem", "contact_keys"),
-    "impulses_by_key": ("deepcontact.solver.problem", "impulses_by_key"),
-    "solve": ("deepcontact.solver.methods", "solve"),
-    "judge": ("deepcontact.solver.methods", "judge"),
-    "local_problem": ("deepcontact.solver.local", "local_problem"),
-    "LocalProblem": ("deepcontact.solver.local", "LocalProblem"),
-    "local_residual": ("deepcontact.solver.local", "residual"),
-    "SOLVERS": ("deepcontact.solver.methods", "SOLVERS"),
-    "SolveSettings": ("deepcontact.solver.settings", "SolveSettings"),
-    "MethodResult": ("deepcontact.solver.methods", "MethodResult"),
-    "reference_solution": ("deepcontact.solver.reference", "reference_solution"),
-    "GridSpec": ("deepcontact.grid.spec", "GridSpec"),
-    "GridDataset": ("deepcontact.grid.dataset", "GridDataset"),
-    "rasterize": ("deepcontact.grid.splat", "rasterize"),
-    "train": ("deepcontact.model.train", "train"),
-    "TrainConfig": ("deepcontact.model.config", "TrainConfig"),
-    "Predictor": ("deepcontact.model.inference", "Predictor"),
-    "NETWORKS": ("deepcontact.model.arch", "NETWORKS"),
-    "STARTS": ("deepcontact.warmstart.starts", "STARTS"),
-    "StartValue": ("deepcontact.warmstart.starts", "StartValue"),
-    "StepContext": ("deepcontact.warmstart.starts", "StepContext"),
-    "make_starts": ("deepcontact.warmstart.starts", "make_starts"),
-    "evaluate_starts": ("deepcontact.evaluate.replay", "evaluate"),
-    "closed_loop": ("deepcontact.evaluate.closed_loop", "closed_loop"),
-    "InputError": ("deepcontact.errors", "InputError"),
+# What `import deepcontact` offers, each name loaded from its module on first use: module -> names.
+_MODULES = {
+    "step.run_folder": ("read_run",),
+    "step.reader": ("read_step",),
+    "step.table": ("run_tables",),
+    "scene.xml": ("read_scene",),
+    "scene.generators": ("generate",),
+    "simulate.source": ("SceneSource",),
+    "simulate.engines": ("SoftStep", "Box2D", "Box2D3", "Engine", "ENGINES", "engine_named"),
+    "simulate.world": ("World",),
+    "studies": ("Study", "STUDIES"),
+    "solver.problem": ("StepProblem", "contact_keys", "impulses_by_key"),
+    "solver.methods": ("solve", "judge", "SOLVERS", "MethodResult"),
+    "solver.local": ("local_problem", "LocalProblem"),
+    "solver.settings": ("SolveSettings",),
+    "solver.reference": ("reference_solution",),
+    "grid.spec": ("GridSpec",),
+    "grid.dataset": ("GridDataset",),
+    "grid.splat": ("rasterize",),
+    "model.train": ("train",),
+    "model.config": ("TrainConfig",),
+    "model.inference": ("Predictor",),
+    "model.arch": ("NETWORKS",),
+    "warmstart.starts": ("STARTS", "StartValue", "StepContext", "make_starts"),
+    "evaluate.closed_loop": ("closed_loop",),
+    "errors": ("InputError",),
 }
+# ... and those named apart from their attribute ("simulate" is the subpackage): name -> (module, attribute)
+_RENAMED = {
+    "simulate_run": ("simulate.run", "run"),
+    "local_residual": ("solver.local", "residual"),
+    "evaluate_starts": ("evaluate.replay", "evaluate"),
+}
+_PUBLIC = {**{name: (module, name) for module, names in _MODULES.items() for name in names}, **_RENAMED}
 __all__ = ["__version__", *_PUBLIC]
 
 
@@ -66,7 +55,7 @@ def __getattr__(name):
         raise AttributeError(f"module 'deepcontact' has no attribute {name!r}")
     import importlib
     module, attribute = _PUBLIC[name]
-    value = getattr(importlib.import_module(module), attribute)
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), attribute)
     globals()[name] = value
     return value
 

@@ -47,7 +47,7 @@ def test_the_listing_is_each_commands_own_first_line():
     """`dc --help` lists COMMANDS without importing the subcommands: what it lists must be what
     each command's own help says."""
     ctx = click.Context(cli)
-    for name, (_, short) in COMMANDS.items():
+    for name, short in COMMANDS.items():
         command = cli.get_command(ctx, name)
         assert command is not None and command.name == name
         assert command.get_short_help_str(limit=1000) == short, name

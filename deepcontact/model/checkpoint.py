@@ -71,12 +71,16 @@ def load_checkpoint(path):
 
 
 def checkpoint_problem(ck):
-    """What is wrong with a checkpoint's bookkeeping (types and ranges), or None."""
-    for check in (_counts_problem, _history_problem, _dataset_problem, _config_problem):
-        problem = check(ck)
-        if problem:
+    """What is wrong with a checkpoint's bookkeeping (types and ranges), or None: the first of
+    _BOOKKEEPING's rules it breaks (each may read what the rules before it checked)."""
+    for holds, problem in _BOOKKEEPING:
+        if not holds(ck):
             return problem
-    return None
+    grid = _grid_problem(ck["dataset"].get("grid"))
+    if grid:
+        return grid
+    problem = config_problem(ck["train_config"])
+    return f"train_config: {problem}" if problem else None
 
 
 def _whole(v):
@@ -87,47 +91,36 @@ def _number(v):
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _counts_problem(ck):
-    if not _whole(ck["epoch"]) or not _whole(ck["bad_epochs"]):
-        return "'epoch' and 'bad_epochs' must be whole numbers"
-    if not _number(ck["best"]) or math.isnan(ck["best"]):
-        return "'best' must be a number"
-    return None
+def _names(v):
+    return isinstance(v, list) and bool(v) and all(isinstance(c, str) for c in v)
 
 
-def _history_problem(ck):
-    h = ck["history"]
-    if not isinstance(h, list) or not all(isinstance(r, dict) and all(isinstance(k, str) and _number(v)
-                                                                      for k, v in r.items()) for r in h):
-        return "'history' must be a list of rows of named numbers"
-    if any(not _whole(r.get("epoch")) for r in h):
-        return "every 'history' row needs a whole-number epoch"
-    return None
+def _rows_of_numbers(v):
+    return isinstance(v, list) and all(isinstance(r, dict) and all(isinstance(k, str) and _number(x)
+                                                                   for k, x in r.items()) for r in v)
 
 
-def _dataset_problem(ck):
-    d = ck["dataset"]
-    if not isinstance(d, dict):
-        return "'dataset' must be a dictionary"
+def _grid_problem(grid):
     try:
-        GridSpec.from_dict(d.get("grid"))
+        GridSpec.from_dict(grid)
     except ValueError as e:
         return str(e)
-    for key in ("inputs", "labels"):
-        if not isinstance(d.get(key), list) or not d[key] or not all(isinstance(c, str) for c in d[key]):
-            return f"the dataset's {key!r} must be a list of channel names"
-    t = ck["targets"]
-    if not isinstance(t, list) or not t or not all(isinstance(c, str) and c in d["labels"] for c in t):
-        return "'targets' must name label channels of its dataset"
     return None
 
 
-def _config_problem(ck):
-    cfg = ck["train_config"]
-    if not isinstance(cfg, dict):
-        return "'train_config' must be a dictionary"
-    problem = config_problem(cfg)
-    return f"train_config: {problem}" if problem else None
+# (holds(checkpoint), what is wrong where it does not), in the order checked
+_BOOKKEEPING = (
+    (lambda ck: _whole(ck["epoch"]) and _whole(ck["bad_epochs"]), "'epoch' and 'bad_epochs' must be whole numbers"),
+    (lambda ck: _number(ck["best"]) and not math.isnan(ck["best"]), "'best' must be a number"),
+    (lambda ck: _rows_of_numbers(ck["history"]), "'history' must be a list of rows of named numbers"),
+    (lambda ck: all(_whole(r.get("epoch")) for r in ck["history"]), "every 'history' row needs a whole-number epoch"),
+    (lambda ck: isinstance(ck["dataset"], dict), "'dataset' must be a dictionary"),
+    (lambda ck: _names(ck["dataset"].get("inputs")), "the dataset's 'inputs' must be a list of channel names"),
+    (lambda ck: _names(ck["dataset"].get("labels")), "the dataset's 'labels' must be a list of channel names"),
+    (lambda ck: _names(ck["targets"]) and set(ck["targets"]) <= set(ck["dataset"]["labels"]),
+     "'targets' must name label channels of its dataset"),
+    (lambda ck: isinstance(ck["train_config"], dict), "'train_config' must be a dictionary"),
+)
 
 
 def save(path, obj):

@@ -191,19 +191,16 @@ Column<State> column_of(std::vector<T> State::*member, const char* const* names)
 }
 
 // The field tables, from the step file's names (step_names.hpp).
-using B = BodyState;
-#define DC_BODY_READ(element, attr, field, component, presence, names)                                \
-    Field<B>{element, attr, column_of<B>(&B::field, names), BodyWidths::field, component,           \
-             Presence::presence},
-const Field<B> kBodyFields[] = {DC_BODY_XML(DC_BODY_READ)};
-#undef DC_BODY_READ
-
-using C = ContactState;
-#define DC_CONTACT_READ(element, attr, field, component, presence, names)                             \
-    Field<C>{element, attr, column_of<C>(&C::field, names), ContactWidths::field, component,        \
-             Presence::presence},
-const Field<C> kContactFields[] = {DC_CONTACT_XML(DC_CONTACT_READ)};
-#undef DC_CONTACT_READ
+#define DC_READ(State, Widths, element, attr, field, component, presence, names)                      \
+    Field<State>{element, attr, column_of<State>(&State::field, names), Widths::field, component,     \
+                 Presence::presence},
+#define DC_READ_BODY(...) DC_READ(BodyState, BodyWidths, __VA_ARGS__)
+#define DC_READ_CONTACT(...) DC_READ(ContactState, ContactWidths, __VA_ARGS__)
+const Field<BodyState> kBodyFields[] = {DC_BODY_XML(DC_READ_BODY)};
+const Field<ContactState> kContactFields[] = {DC_CONTACT_XML(DC_READ_CONTACT)};
+#undef DC_READ_BODY
+#undef DC_READ_CONTACT
+#undef DC_READ
 static_assert(std::size(kContactFields) <= 64 && std::size(kBodyFields) <= 64, "one bit per field");
 
 bool named(const xmlChar* name, const char* want) {
