@@ -250,12 +250,8 @@ PYBIND11_MODULE(_box2d, m) {
 #define DC_XML_ROW(list, types, element, attr, field, component, presence, names)                  \
     list.append(py::make_tuple(element, attr, #field, component, #presence, enum_names(names),        \
                                types[#field].cast<py::tuple>()[0], types[#field].cast<py::tuple>()[1]));
-#define DC_BODY_XML_ROW(...) DC_XML_ROW(body_xml, body_types, __VA_ARGS__)
-#define DC_CONTACT_XML_ROW(...) DC_XML_ROW(contact_xml, contact_types, __VA_ARGS__)
-    DC_BODY_XML(DC_BODY_XML_ROW)
-    DC_CONTACT_XML(DC_CONTACT_XML_ROW)
-#undef DC_BODY_XML_ROW
-#undef DC_CONTACT_XML_ROW
+    DC_BODY_XML(DC_XML_ROW, body_xml, body_types)
+    DC_CONTACT_XML(DC_XML_ROW, contact_xml, contact_types)
 #undef DC_XML_ROW
 #undef DC_BODY_TYPE
 #undef DC_CONTACT_TYPE

@@ -194,12 +194,8 @@ Column<State> column_of(std::vector<T> State::*member, const char* const* names)
 #define DC_READ(State, Widths, element, attr, field, component, presence, names)                      \
     Field<State>{element, attr, column_of<State>(&State::field, names), Widths::field, component,     \
                  Presence::presence},
-#define DC_READ_BODY(...) DC_READ(BodyState, BodyWidths, __VA_ARGS__)
-#define DC_READ_CONTACT(...) DC_READ(ContactState, ContactWidths, __VA_ARGS__)
-const Field<BodyState> kBodyFields[] = {DC_BODY_XML(DC_READ_BODY)};
-const Field<ContactState> kContactFields[] = {DC_CONTACT_XML(DC_READ_CONTACT)};
-#undef DC_READ_BODY
-#undef DC_READ_CONTACT
+const Field<BodyState> kBodyFields[] = {DC_BODY_XML(DC_READ, BodyState, BodyWidths)};
+const Field<ContactState> kContactFields[] = {DC_CONTACT_XML(DC_READ, ContactState, ContactWidths)};
 #undef DC_READ
 static_assert(std::size(kContactFields) <= 64 && std::size(kBodyFields) <= 64, "one bit per field");
 
@@ -237,12 +233,20 @@ public:
             if (required_in(fields_[i].presence, engine)) required_ |= uint64_t(1) << i;
     }
 
-    void begin(State& s, size_t row) {
+    // A new row (the next of this file's rows).
+    void begin(State& s) {
         seen_ = 0;
-        row_index_ = row;
+        row_index_ = rows_++;
         for (size_t i = 0; i < count_; ++i)
-            std::visit([&](auto column) { resize(s, column, (row + 1) * fields_[i].width); }, fields_[i].column);
+            std::visit([&](auto column) { resize(s, column, rows_ * fields_[i].width); }, fields_[i].column);
     }
+
+    size_t rows() const { return rows_; }
+    const char* row_element() const { return row_; }
+
+    // Where the list (<bodies>, <contacts>) and the row being read start, and the list's count.
+    long list_line = -1, row_line = 0;
+    int64_t list_count = 0;
 
     // Attribute names as the parser's dictionary holds them: the parser hands every name over
     // interned, so an attribute is matched by address, not by comparing strings.
@@ -343,7 +347,7 @@ private:
     size_t count_;
     const char* row_;
     uint64_t required_ = 0, seen_ = 0;
-    size_t row_index_ = 0;
+    size_t row_index_ = 0, rows_ = 0;
     std::vector<std::pair<const char*, std::pair<size_t, size_t>>> groups_;
     std::vector<const xmlChar*> attr_names_;
 };
@@ -375,9 +379,7 @@ struct Reader {
     Rows<BodyState> bodies{kBodyFields, "body"};
     Rows<ContactState> contacts{kContactFields, "contact"};
     std::unordered_map<int64_t, float> radius;   // fixture -> collision radius
-    long body_line = 0, contact_line = 0;
-    long header_line = 0, bodies_line = -1, contacts_line = -1;
-    int64_t bodies_count = 0, contacts_count = 0;
+    long header_line = 0;
     uint32_t header_seen = 0;
     bool root_seen = false;
     // root element attributes, for validation
@@ -414,32 +416,19 @@ struct Reader {
                     header_line = line();
                 } else if (named(name, "bodies")) {
                     here = At::Bodies;
-                    bodies_line = line();
-                    bodies_count = count_of(name, n_attributes, attributes);
-                    // the count is checked at the end; reserving ahead saves regrowing 18 columns
-                    if (bodies_count > 0) {
-                        const size_t rows = static_cast<size_t>(std::min<int64_t>(bodies_count, 1 << 20));
-                        bodies.reserve(out.bodies, rows);
-                        out.bodies.gravity_scale.reserve(rows);
-                    }
+                    open_list(bodies, out.bodies, name, n_attributes, attributes);
+                    out.bodies.gravity_scale.reserve(out.bodies.index.capacity());   // (not a field of the file)
                 } else if (named(name, "contacts")) {
                     here = At::Contacts;
-                    contacts_line = line();
-                    contacts_count = count_of(name, n_attributes, attributes);
-                    contacts.require(engine());
-                    if (contacts_count > 0)
-                        contacts.reserve(out.contacts, static_cast<size_t>(std::min<int64_t>(contacts_count, 1 << 20)));
+                    open_list(contacts, out.contacts, name, n_attributes, attributes);
                 }
                 break;
             case At::Header: header(name, n_attributes, attributes); break;
             case At::Bodies:
                 if (named(name, "body")) {
                     here = At::Body;
-                    body_line = line();
-                    BodyState& b = out.bodies;
-                    bodies.begin(b, b.index.size());
-                    b.gravity_scale.push_back(1.0f);   // scenes have no per-body gravity scale
-                    row(bodies, b, ".", n_attributes, attributes);
+                    out.bodies.gravity_scale.push_back(1.0f);   // scenes have no per-body gravity scale
+                    open_row(bodies, out.bodies, n_attributes, attributes);
                 }
                 break;
             case At::Body:
@@ -452,9 +441,7 @@ struct Reader {
             case At::Contacts:
                 if (named(name, "contact")) {
                     here = At::Contact;
-                    contact_line = line();
-                    contacts.begin(out.contacts, out.contacts.manifold.size());
-                    row(contacts, out.contacts, ".", n_attributes, attributes);
+                    open_row(contacts, out.contacts, n_attributes, attributes);
                 }
                 break;
             case At::Contact:
@@ -470,21 +457,42 @@ struct Reader {
         const At here = stack.back();
         stack.pop_back();
         if (!problem.message.empty()) return;
-        if (here == At::Body) {
-            std::string m = bodies.missing();
-            if (!m.empty()) fail(m, body_line);
-        } else if (here == At::Contact) {
-            std::string m = contacts.missing();
-            if (!m.empty()) fail(m, contact_line);
-        } else if (here == At::Bodies && static_cast<size_t>(bodies_count) != out.bodies.index.size()) {
-            fail("<bodies count=\"" + std::to_string(bodies_count) + "\"> but it holds " +
-                     std::to_string(out.bodies.index.size()) + " <body> elements",
-                 bodies_line);
-        } else if (here == At::Contacts && static_cast<size_t>(contacts_count) != out.contacts.manifold.size()) {
-            fail("<contacts count=\"" + std::to_string(contacts_count) + "\"> but it holds " +
-                     std::to_string(out.contacts.manifold.size()) + " <contact> elements",
-                 contacts_line);
-        }
+        if (here == At::Body) close_row(bodies);
+        if (here == At::Contact) close_row(contacts);
+        if (here == At::Bodies) close_list(bodies);
+        if (here == At::Contacts) close_list(contacts);
+    }
+
+    // A list's start: its count (checked at its end) and the rows it is to hold reserved ahead,
+    // which saves regrowing every column.
+    template <class State>
+    void open_list(Rows<State>& rows, State& s, const xmlChar* name, int n, const xmlChar** attributes) {
+        rows.list_line = line();
+        rows.list_count = count_of(name, n, attributes);
+        rows.require(engine());
+        if (rows.list_count > 0) rows.reserve(s, static_cast<size_t>(std::min<int64_t>(rows.list_count, 1 << 20)));
+    }
+
+    template <class State>
+    void open_row(Rows<State>& rows, State& s, int n, const xmlChar** attributes) {
+        rows.row_line = line();
+        rows.begin(s);
+        row(rows, s, ".", n, attributes);
+    }
+
+    template <class State>
+    void close_row(const Rows<State>& rows) {
+        std::string m = rows.missing();
+        if (!m.empty()) fail(m, rows.row_line);
+    }
+
+    template <class State>
+    void close_list(const Rows<State>& rows) {
+        if (static_cast<size_t>(rows.list_count) == rows.rows()) return;
+        const std::string row = rows.row_element();
+        fail("<" + row + "s count=\"" + std::to_string(rows.list_count) + "\"> but it holds " +
+                 std::to_string(rows.rows()) + " <" + row + "> elements",
+             rows.list_line);
     }
 
     template <class State>
@@ -573,20 +581,16 @@ struct Reader {
                 if (named(a.name, "position")) y = whole(h.position_iterations, "iterations", "position", a.value);
             });
             if (!(x && y) && problem.message.empty()) fail("<iterations> lacks velocity or position");
-        } else if (named(name, "solver")) {
-            copy(h.solver);
-        } else if (named(name, "soft_step")) {
-            copy(h.soft_step);
-        } else if (named(name, "effects")) {
-            copy(h.effects);
-        } else if (named(name, "versions")) {
-            copy(h.versions);
-        } else if (named(name, "engine")) {
-            copy(h.engine);
-        } else if (named(name, "engine_step")) {
-            copy(h.engine_step);
+        } else {
+            for (const auto& [element, part] : kAttributeParts)
+                if (named(name, element)) return copy(h.*part);
         }
     }
+
+    // The header's elements kept whole, as their attributes' names and values.
+    static constexpr std::pair<const char*, Attributes StepHeader::*> kAttributeParts[] = {
+        {"solver", &StepHeader::solver}, {"soft_step", &StepHeader::soft_step}, {"effects", &StepHeader::effects},
+        {"versions", &StepHeader::versions}, {"engine", &StepHeader::engine}, {"engine_step", &StepHeader::engine_step}};
 
     void shape(const xmlChar* name, int n, const xmlChar** attributes) {
         if (!(named(name, "circle") || named(name, "polygon") || named(name, "edge"))) return;
@@ -628,8 +632,8 @@ struct Reader {
         for (size_t k = 0; k < std::size(kHeaderParts); ++k)
             if (!(header_seen >> k & 1) && !(other_engine >> k & 1))
                 return fail(std::string("<header> has no <") + kHeaderParts[k] + ">", header_line);
-        if (bodies_line < 0) return fail("no <bodies> element", 1);
-        if (contacts_line < 0) return fail("no <contacts> element", 1);
+        if (bodies.list_line < 0) return fail("no <bodies> element", 1);
+        if (contacts.list_line < 0) return fail("no <contacts> element", 1);
         ContactState& c = out.contacts;
         const size_t n = c.manifold.size();
         c.radius_a.resize(n);

@@ -90,12 +90,8 @@ struct ContactWidths {
                    put(a, at, v.field, Widths::field * k + component, names);                        \
                },                                                                                     \
                [](const View& v, size_t k) { return v.field[Widths::field * k + component] != 0; }},
-#define DC_EMIT_BODY(...) DC_EMIT(BodyView, BodyWidths, __VA_ARGS__)
-#define DC_EMIT_CONTACT(...) DC_EMIT(ContactView, ContactWidths, __VA_ARGS__)
-const Emit<BodyView> kBodyEmit[] = {DC_BODY_XML(DC_EMIT_BODY)};
-const Emit<ContactView> kContactEmit[] = {DC_CONTACT_XML(DC_EMIT_CONTACT)};
-#undef DC_EMIT_BODY
-#undef DC_EMIT_CONTACT
+const Emit<BodyView> kBodyEmit[] = {DC_BODY_XML(DC_EMIT, BodyView, BodyWidths)};
+const Emit<ContactView> kContactEmit[] = {DC_CONTACT_XML(DC_EMIT, ContactView, ContactWidths)};
 #undef DC_EMIT
 
 // A table's rows grouped by element, found once per table (not once per row written): the row
