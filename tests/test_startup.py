@@ -83,3 +83,17 @@ def test_the_pipelines_common_commands_import_what_they_need(tmp_path):
     code, heavy, _ = imported(tmp_path, "rasterize", run, "-o", data, "-q")
     assert code == 0 and (data / "metadata.json").exists()
     assert heavy <= {"lxml"}
+
+
+def test_a_contestants_start_imports_none_of_the_judges_side():
+    """Every contestant is a fresh interpreter that imports contest.guest (a thousand of them in a
+    run of the suite): the judge's side, the step file reader and writer and the output rules are
+    not its to pay for."""
+    probe = "import json, sys; import deepcontact.contest.guest; print(json.dumps(sorted(sys.modules)))"
+    modules = set(json.loads(subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                                            check=True, timeout=120).stdout))
+    judges = {"deepcontact.contest.client", "deepcontact.contest.broker", "deepcontact.contest.sandbox",
+              "deepcontact.step.reader", "deepcontact.step.writer", "deepcontact.output", "deepcontact.scene.xml"}
+    assert modules & judges == set()
+    assert {m.split(".")[0] for m in modules} & set(HEAVY) == set()
+    assert "deepcontact.solver.methods" in modules   # (the probe imported the guest)

@@ -9,9 +9,19 @@ charge submissions.
 - `verdict`: one rule that names a winner, or says there is none, for replay and loop alike.
 
 evaluate/ and the studies consume it; it imports nothing above the warm starts.
-"""
-from .client import Contestant, RemoteMethod, deadline_for, describe, start_all
-from .broker import describe_fences, fences, missing_fences
 
-__all__ = ["Contestant", "RemoteMethod", "deadline_for", "describe", "describe_fences", "fences", "missing_fences",
-           "start_all"]
+Its names are loaded on first use: every contestant's fresh interpreter imports `guest`, and
+the judge's side (client, broker, sandbox) would add a sixth to its start.
+"""
+import importlib
+
+_NAMES = {"client": ("Contestant", "RemoteMethod", "deadline_for", "describe", "start_all"),
+          "broker": ("describe_fences", "fences", "missing_fences")}
+__all__ = sorted(name for names in _NAMES.values() for name in names)
+
+
+def __getattr__(name):
+    for module, names in _NAMES.items():
+        if name in names:
+            return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
