@@ -7,7 +7,9 @@ Both ways run the same guest (deepcontact/contest/guest.py) and the same judge's
           bubblewrap or user namespaces gets, its missing fences stated in the report)
 Measured in the same run, one thread, on a settled step of the thesis pile (100 circles):
   start   seconds from asking for a contestant to its "ready" (a fresh interpreter with the solver
-          imported), and its setup (making the builtin start), best of --starts, interleaved
+          imported), and its setup (making the builtin start), best of --starts, interleaved; and,
+          fenced, the CPU its control group used to the end of its setup (median: what a thousand
+          contestants cost a machine, its thread pools' start included)
   call    the round trip of a solve request capped at one sweep, the median of --calls calls per
           way, the two ways alternating call by call
 The issue's goals: at most 0.1 ms a call and 150 ms of start a contestant over the bare path.
@@ -66,11 +68,14 @@ def main():
                "tangent": problem.start_tangent, "settings": SolveSettings().but(max_iterations=1)}
     starts = {True: [], False: []}
     setups = {True: [], False: []}
+    cpu = []
     for _ in range(a.starts):
         for fenced in (True, False):
             c, took = contestant(fenced)
             starts[fenced].append(c.start_s)
             setups[fenced].append(c.setup_s)
+            if fenced and c.cpu_last is not None:
+                cpu.append(c.cpu_last)
             c.close()
     pair = {fenced: contestant(fenced)[0] for fenced in (True, False)}
     calls = {True: [], False: []}
@@ -94,6 +99,8 @@ def main():
         c = np.array(calls[fenced]) * 1e3
         print(f"{'fenced' if fenced else 'bare':8} {1e3 * min(starts[fenced]):16.1f} {1e3 * min(setups[fenced]):16.2f} "
               f"{np.median(c):17.4f} {np.percentile(c, 90):14.4f}")
+    if cpu:
+        print(f"fenced start and setup: {1e3 * np.median(cpu):.0f} ms of CPU (median of {len(cpu)})")
     extra = np.median(calls[True]) - np.median(calls[False])
     print(f"the sandbox adds {1e3 * extra:.4f} ms a call (median) and "
           f"{1e3 * (min(starts[True]) - min(starts[False])):.1f} ms of start a contestant")
