@@ -48,11 +48,13 @@ def _study_text(threads, output=None, overwrite=False):
 @click.command("stability")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Also write the table to this file.")
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs.")
+@click.option("--scenes", type=types.CommaList(click.STRING, "LABEL[,...]"),
+              help="Only these scenes, by their labels in the table (e.g. 'stack 8,bullet').")
 @options.jobs
 @options.overwrite
 @options.verbosity
 @options.command("study stability")
-def stability(out, fast, jobs, overwrite, verbose, quiet):
+def stability(out, fast, scenes, jobs, overwrite, verbose, quiet):
     """Run every hard scene with Box2D's solver and ours until it meets its criteria.
 
     Criteria (deepcontact/studies/stability.py): finite, penetration at rest
@@ -66,6 +68,7 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
     \b
     Examples:
       dc study stability --fast
+      dc study stability --fast --scenes 'stack 8,bullet'
       dc study stability -o runs/stability.md --overwrite -j 2
     """
     if not out:
@@ -73,10 +76,11 @@ def stability(out, fast, jobs, overwrite, verbose, quiet):
     from deepcontact.protocol import protocol, protocol_line
     from dcstudies import stability as S
 
+    cases = options.pick_cases(S.FAST if fast else S.FULL, scenes)
     with output_file(out, overwrite):
         measured = protocol(jobs=jobs)
         click.echo(S.HEADER)
-        rows = S.study(S.FAST if fast else S.FULL, log=click.echo, jobs=jobs)
+        rows = S.study(cases, log=click.echo, jobs=jobs)
         if out:
             outputs.write_text(out, S.markdown(rows, fast, protocol_line(measured)))
     # Other engines' rows are measured, not required: their contacts are what they are (a
