@@ -191,8 +191,8 @@ def solve_to_tolerance(f):
     (the cap: VERDICT_CAP, at which its variants reach the tolerance, so that a verdict can name one)."""
     from deepcontact.solver import pgs, settings
     for option in reversed((
-            click.option("--tolerance", type=Finite(min=0, min_open=True), default=settings.TOLERANCE, show_default=True,
-                         help="Stop once the measure falls below this."),
+            click.option("--tolerance", type=Finite(min=0, min_open=True), default=settings.TOLERANCE,
+                         show_default=True, help="Stop once the measure falls below this."),
             click.option("--max-iterations", type=count(min=1), default=settings.VERDICT_CAP, show_default=True,
                          help="Sweep cap."),
             click.option("--stop-on", type=choice(pgs.MEASURES), default="residual", show_default=True,

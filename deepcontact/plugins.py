@@ -54,8 +54,8 @@ def guest(what, doing="raised"):
             cwd = os.getcwd()
         except OSError:
             pass
-        mask = os.umask(0o022)   # (read by setting it: output.files.umask, not imported in a contestant's start)
-        os.umask(mask)
+        from .output.files import umask   # (not at the top: a contestant, which keeps nothing, never loads it)
+        mask = umask()
         threads = sys.modules["torch"].get_num_threads() if "torch" in sys.modules else None
     pid, outermost = os.getpid(), os._exit is not _refuse_exit
     if outermost:

@@ -217,7 +217,8 @@ def open_contestants(table, settings):
     made = []
     try:
         for v in table:
-            made.append(Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, protocol.threads_asked, networks))
+            made.append(Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, protocol.threads_asked,
+                                   networks))
         made.append(Contestant("(null)", "null", null=True))
     except BaseException:
         for c in made:

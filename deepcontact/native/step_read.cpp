@@ -589,8 +589,9 @@ struct Reader {
 
     // The header's elements kept whole, as their attributes' names and values.
     static constexpr std::pair<const char*, Attributes StepHeader::*> kAttributeParts[] = {
-        {"solver", &StepHeader::solver}, {"soft_step", &StepHeader::soft_step}, {"effects", &StepHeader::effects},
-        {"versions", &StepHeader::versions}, {"engine", &StepHeader::engine}, {"engine_step", &StepHeader::engine_step}};
+        {"solver", &StepHeader::solver},     {"soft_step", &StepHeader::soft_step},
+        {"effects", &StepHeader::effects},   {"versions", &StepHeader::versions},
+        {"engine", &StepHeader::engine},     {"engine_step", &StepHeader::engine_step}};
 
     void shape(const xmlChar* name, int n, const xmlChar** attributes) {
         if (!(named(name, "circle") || named(name, "polygon") || named(name, "edge"))) return;

@@ -4,7 +4,6 @@ struct (`native`), checked once, on construction.
 TOLERANCE and CAP are the defaults of every command and function that solves to a tolerance
 (dc evaluate, dc simulate --solver pgs --tolerance, the studies): named here and nowhere else.
 """
-import functools
 from dataclasses import dataclass, replace
 
 from .._box2d import Acceleration, SolveOptions, is_global
@@ -98,7 +97,7 @@ class SolveSettings:
     def _native(self, dt, accelerate, history=False, final_residual=True, cone=True):
         w = 1.0 if self.relaxation is None or self.relaxation == "auto" else self.relaxation
         try:
-            return _solve_options()(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
+            return SolveOptions(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
                                 stop_on=self.stop_on if self.tolerance > 0 else "none", relaxation=w,
                                 accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
                                 final_residual=final_residual, guard=self.guard, cone=cone)
@@ -125,12 +124,6 @@ def check_mode(accelerate: str, mode: str) -> None:
 
 
 _CHECKED = set()   # requests already checked (frozen values: equal ones pass the same checks)
-
-
-@functools.lru_cache(maxsize=None)
-def _solve_options():
-    """The native struct's type, imported on first use (the CLI's help never loads the module)."""
-    return SolveOptions
 
 
 def _numpy_kinds(name):

@@ -115,8 +115,9 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
     iterations, Box2D v3 at 1-16 substeps (and without warm starting), pymunk
     at 1-256 iterations, MuJoCo's Newton, CG and PGS at tolerances and caps
-    (Newton also at the stiffer impedances 0.99 and 0.999), the project's solver to residuals 1e-2 ... 1e-8 (and its lagged body-space
-    solve to 1e-4 and 1e-8), on the thesis pile and every hard scene, each
+    (Newton also at the stiffer impedances 0.99 and 0.999), the project's
+    solver to residuals 1e-2 ... 1e-8 (and its lagged body-space solve to
+    1e-4 and 1e-8), on the thesis pile and every hard scene, each
     judged by the stability criteria and its drift from the reference
     trajectory (docs/results/engines.md, "Engines").
 
