@@ -45,7 +45,8 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.argument("scene", required=False)
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--steps", type=types.count(min=1), help="Override the scene's number of steps.")
-@click.option("--seed", type=types.count(), default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=types.OneSeed("--seeds"), default=0, show_default=True,
+              help="Random seed (several: --seeds A..B).")
 @click.option("--seeds", type=types.SeedRange(), help="Simulate every seed from A to B (inclusive).")
 @click.option("--shard", type=types.Shard(),
               help="Only every N-th seed, starting at the I-th, I counted from 0: --seeds 0..149 --shard 0/4 keeps "

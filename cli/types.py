@@ -28,6 +28,21 @@ def count(min=0, max=INT32_MAX):
     return click.IntRange(min=min, max=max)
 
 
+class OneSeed(click.IntRange):
+    """One seed; a range or list given to it is pointed to the option that takes several
+    (`--seed 0..1` read as "not a valid integer range" and left the user to find --seeds)."""
+
+    def __init__(self, several):
+        super().__init__(min=0, max=INT32_MAX)
+        self.several = several
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and re.fullmatch(r"\s*\d+\s*\.\.\s*\d+\s*", value):
+            self.fail(f"{value!r} is several seeds, and --seed takes one: use {self.several} {value.strip()}",
+                      param, ctx)
+        return super().convert(value, param, ctx)
+
+
 class Relaxation(click.ParamType):
     """Over-relaxation: a w in (0, 2), or auto (chosen per scene from its first steps)."""
     name = "w|auto"

@@ -81,6 +81,8 @@ def test_bad_input_is_one_line_without_traceback(tmp_path):
     assert not (tmp_path / "o4").exists()
     r = dc("simulate", "pile", "--seeds", "9..2", "-o", str(tmp_path / "o5"))   # a bad option value: exit 2
     assert r.returncode == 2 and "--seeds" in r.stderr and "Traceback" not in r.stderr
+    r = dc("simulate", "pile", "--seed", "0..1", "-o", str(tmp_path / "o5"))   # one seed's option given several
+    assert r.returncode == 2 and "use --seeds 0..1" in r.stderr and "Traceback" not in r.stderr
     r = dc("simulate", "piles", "-v", "-o", str(tmp_path / "o6"))
     assert r.returncode == 1 and "Traceback" in r.stderr
 
