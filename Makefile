@@ -12,7 +12,7 @@ DC := $(PYTHON) -m deepcontact.cli.main
 DEBIAN_PACKAGES := libbox2d-dev libeigen3-dev libxml2-dev zlib1g-dev pkg-config libxml2-utils g++ python3-siconos \
 	python3-h5py ffmpeg chromium bubblewrap libseccomp2
 
-.PHONY: setup demo test test-quick test-slow bench studies stability smoke smoke-pipeline study study-pipeline clean
+.PHONY: setup demo test test-quick test-slow test-packaging bench studies stability smoke smoke-pipeline study study-pipeline clean
 
 # Debian packages: Box2D 2.4.1, Eigen (header-only sparse factorizations), libxml2 and zlib (the
 # native step-file reader) and pkg-config to build against them, a C++ compiler, xmllint (an
@@ -31,12 +31,17 @@ $(STAMPS)/system:
 	fi
 	@touch $@
 
-# torch first and pinned (a looser requirement would pull a multi-GB CUDA build), with what the
-# build needs, pyb2d3 (Box2D v3.1.1's headers and library: the second engine) and the peer
-# engines' pinned wheels (pymunk, MuJoCo: --engine pymunk, --engine mujoco), in one pip run.
+# torch first, pinned to its CPU build (2.13.0+cpu: PyPI's plain 2.13.0 for Linux is the CUDA build,
+# gigabytes of CUDA packages; no CUDA build matches +cpu): from the indexes pip is set up with where
+# one has it (a local wheel), else from PyTorch's CPU index beside PyPI; never CUDA either way.
+# Then what the build needs, pyb2d3 (Box2D v3.1.1's headers and library: the second engine) and the
+# peer engines' pinned wheels (pymunk, MuJoCo: --engine pymunk, --engine mujoco), in one pip run.
+TORCH := torch==2.13.0+cpu
+TORCH_INDEX := https://download.pytorch.org/whl/cpu
 $(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml studies/pyproject.toml $(NATIVE)
-	$(PYTHON) -m pip install -q torch==2.13.0 "setuptools>=64" wheel "pybind11>=2.11" pyb2d3==0.11.1 pymunk==7.3.1 \
-		mujoco==4.0.1
+	$(PYTHON) -m pip install -q $(TORCH) 2>/dev/null || $(PYTHON) -m pip install -q $(TORCH) --extra-index-url $(TORCH_INDEX)
+	$(PYTHON) -m pip install -q "setuptools>=64" wheel "pybind11>=2.11" pyb2d3==0.11.1 pymunk==7.3.1 mujoco==4.0.1
+	@echo "installing deepcontact: building its native module (about a minute on 2 cores the first time)"
 	$(PYTHON) -m pip install -q --no-build-isolation -e ".[test]"
 	$(PYTHON) -m pip install -q --no-build-isolation --no-deps -e studies/
 	@touch $@
@@ -57,7 +62,7 @@ demo: setup
 # wheel and smoke pipeline run beside them, started once (tests/conftest.py). The 25 slowest tests
 # are listed at the end, so that CI's log records where the suite's time goes.
 test: setup
-	$(PYTHON) -m pytest -q -m "not slow" -n 2 --durations=25
+	$(PYTHON) -m pytest -q -m "not slow and not packaging" -n 2 --durations=25
 
 # The inner loop: everything but the audits, the studies, the pipeline group and the tests that
 # need a process of their own; stops at the first failure (tests/conftest.py marks the groups).
@@ -66,6 +71,10 @@ test-quick: setup
 
 test-slow: setup
 	$(PYTHON) -m pytest -q -m slow
+
+# The README's pip lines, each in a fresh venv from the package indexes (minutes; needs PyPI).
+test-packaging: setup
+	$(PYTHON) -m pytest -q -m packaging
 
 bench: setup
 	$(PYTHON) benchmarks/bench_startup.py

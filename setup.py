@@ -98,10 +98,15 @@ class BuildExt(build_ext):
 
     def finalize_options(self):
         super().finalize_options()
-        # (one per interpreter and platform: an object compiled against another Python's headers
-        # is not stale by its date, and must not be linked)
+        # (one per interpreter, platform and pybind11: an object compiled against other headers is
+        # not stale by its date, and must not be linked; pip's isolated build of `pip install .`
+        # brings the newest pybind11, perhaps not the one make setup installed)
+        import pybind11
         here = os.path.dirname(os.path.abspath(__file__))
-        self.build_temp = os.path.join(here, "build", f"native.{sysconfig.get_platform()}-{sys.implementation.cache_tag}")
+        self.build_temp = os.path.join(here, "build", f"native.{sysconfig.get_platform()}-{sys.implementation.cache_tag}"
+                                                      f"-pybind11-{pybind11.__version__}")
+        print(f"building the native module deepcontact._box2d in {self.build_temp} (about a minute on 2 cores "
+              "the first time; the files changed since, after)", file=sys.stderr, flush=True)
 
 
 # The translation units compile side by side (DC_BUILD_JOBS overrides the core count).

@@ -46,10 +46,9 @@ class StudyGroup(click.Group):
         from deepcontact.studies import STUDIES, command_of, fence
         if name not in STUDIES.names():
             if name in PROJECT_STUDIES:   # (the project's own, in its own distribution: say how to get it)
-                from deepcontact.errors import one_line
-                click.echo(one_line(f"dc study: error: the study {name!r} is in the project's studies distribution, "
-                                    f"which is not installed: pip install 'deepcontact[studies]', or pip install -e "
-                                    f"studies/ from the repository (make setup does)"), err=True)
+                from deepcontact import errors
+                click.echo(errors.one_line(f"dc study: error: the study {name!r} is in the project's studies "
+                                           f"distribution, which is not installed: {errors.STUDIES}"), err=True)
                 sys.exit(1)
             return None
         if fence.fenced(name):
@@ -70,8 +69,8 @@ class StudyGroup(click.Group):
             if rows:
                 formatter.write_dl([(name, summary) for _, name, summary in rows])
             else:
-                formatter.write_text("none installed: pip install 'deepcontact[studies]', or pip install -e studies/ "
-                                     "(make setup does)")
+                from deepcontact import errors
+                formatter.write_text(f"none installed: {errors.STUDIES}")
         if broken:
             with formatter.section("Broken (not listed above)"):
                 for line in broken.values():

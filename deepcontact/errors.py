@@ -65,16 +65,18 @@ def count(n, word, plural=None):
     return f"{n:,} {word if n == 1 else plural or word + 's'}"
 
 
-# Modules a plain `pip install deepcontact` does not bring, and how to get each: torch is left out
-# because PyPI's build for Linux pulls multi-GB CUDA libraries; the project needs the CPU build.
-CPU_TORCH = "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
+# Modules a plain `pip install deepcontact` does not bring, and how to get each, as a line that
+# works on any Linux machine (tests/test_install.py runs them): torch pinned to its CPU build,
+# since PyPI's torch for Linux pulls multi-GB CUDA libraries; the studies are no published
+# distribution, so they install from the repository's folder.
+CPU_TORCH = "pip install torch==2.13.0+cpu --extra-index-url https://download.pytorch.org/whl/cpu"
+STUDIES = "pip install ./studies in a clone of the repository (make setup installs them)"
 OPTIONAL = {
     "torch": f"torch is not installed: {CPU_TORCH} (the CPU build; make setup installs it)",
-    "pymunk": "pymunk is not installed: pip install 'deepcontact[engines]' (pymunk==7.3.1; make setup installs it)",
-    "mujoco": "MuJoCo is not installed: pip install 'deepcontact[engines]' (mujoco==4.0.1; make setup installs it)",
-    "dcstudies": "the project's studies are not installed: pip install 'deepcontact[studies]', or pip install -e "
-                 "studies/ from the repository (make setup does)",
-    "pyarrow": "pyarrow is not installed: pip install 'deepcontact[parquet]'",
+    "pymunk": "pymunk is not installed: pip install pymunk==7.3.1 (make setup installs it)",
+    "mujoco": "MuJoCo is not installed: pip install mujoco==4.0.1 (make setup installs it)",
+    "dcstudies": f"the project's studies are not installed: {STUDIES}",
+    "pyarrow": "pyarrow is not installed: pip install pyarrow",
 }
 
 

@@ -225,5 +225,5 @@ def test_a_project_study_without_its_distribution_says_how_to_get_it(monkeypatch
     """Without the studies distribution, `dc study stability` was click's "No such command"."""
     from deepcontact.studies import STUDIES
     monkeypatch.setattr(STUDIES, "installed", lambda: {})
-    one_line_error(dc("study", "stability", "--fast"), "the study 'stability'", "pip install -e studies/")
+    one_line_error(dc("study", "stability", "--fast"), "the study 'stability'", "pip install ./studies")
     assert dc("study", "nonesuch").returncode == 2   # (a study nobody makes: click's usage error)

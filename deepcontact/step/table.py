@@ -78,8 +78,8 @@ def export_tables(run_dir: str | os.PathLike, out: str | os.PathLike, *, fmt: st
         try:
             import pyarrow  # noqa: F401
         except ImportError:
-            raise InputError("Parquet needs pyarrow, which is not installed: pip install 'deepcontact[parquet]' "
-                             "(or pip install pyarrow), or export --format csv") from None
+            raise InputError("Parquet needs pyarrow, which is not installed: pip install pyarrow, "
+                             "or export --format csv") from None
     rows = {"bodies": 0, "contacts": 0}
     with output.output_folder(out, TABLE_FILES, overwrite, command="export") as work:
         writers = {}
