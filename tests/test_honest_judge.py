@@ -52,9 +52,12 @@ def test_a_method_that_stops_early_is_never_the_winner(run, tmp_path, contestant
     assert summary["builtin"]["above"] == 0
     report = (tmp_path / "r" / "report.md").read_text()
     verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
-    assert "is **builtin**" in verdict and "count as unfinished" in verdict and "Liar" in verdict
+    # (named builtin, or none where the A/A says the machine was too noisy: this scene's solves take tens of
+    # microseconds beside a round trip of hundreds, so they mostly do; never the liar)
+    assert "is **builtin**" in verdict or "builtin has the smallest median" in verdict, verdict
+    assert "count as unfinished" in verdict and "Liar" in verdict and "Liar**" not in verdict
     row = next(line for line in report.splitlines() if line.startswith("| ") and "Liar" in line)
-    assert "(did not converge)" in row and "(Python)" in row
+    assert "(did not converge on " in row and "(Python)" in row
 
 
 def test_a_loop_run_by_a_method_that_stops_early_says_so_and_validate_finds_it(tmp_path, contestants):
@@ -275,7 +278,7 @@ def test_the_closed_loop_report_decides_too(run, tmp_path, contestants):
     header = next(line for line in report.splitlines() if line.startswith("| start |"))
     assert "residual (median / p95)" in header and "above tolerance" in header
     liar = next(line for line in report.splitlines() if line.startswith("| builtin+contestants:Liar"))
-    assert "(did not converge)" in liar
+    assert "(did not converge on " in liar
     assert "| copy (oracle) |" in report
 
 

@@ -11,12 +11,17 @@ with 95% bootstrap intervals over the steps (paired, the same steps for both):
 - it is faster than Box2D's warm start (the base) beyond 1 and beyond the A/A floor (the base
   timed against itself: how far apart two equal things measure);
 - it is faster than the runner-up beyond 1;
-- it left no more steps unfinished than the base (faster by giving up is not faster);
+- it ended no step above the tolerance: a variant that did not converge is never named, whatever
+  its times (its unfinished steps still rank it, so a faster variant that did not converge keeps
+  a slower one that did from being called the fastest);
+- the machine was quiet enough to time: the A/A interval lies within [1/NOISE_LIMIT, NOISE_LIMIT]
+  (the base's two timings of the same solves that far apart make every ratio the machine's as
+  much as the variants'; pyperf warns of an unstable benchmark the same way);
 - and over the whole run, setup included, it cost no more than the base or the runner-up (a start
   slow on a few steps can win the median and lose the run: a heavy tail);
 - on at least MIN_STEPS steps.
-When one of these fails there is no clear winner, and a variant beaten on the total is never
-called the fastest.
+When one of these fails there is no clear winner, and a variant beaten on the total, or one that
+did not converge, is never called the fastest.
 """
 from dataclasses import dataclass, field
 
@@ -27,6 +32,9 @@ LEVEL = 0.95
 MIN_STEPS = 5   # a winner is never named from fewer steps (one step's interval is a point)
 SEED = 0   # (the intervals are a function of the times: the same report twice is the same report)
 RESOLUTION_MS = 1e-3   # the smallest time a ratio of medians takes as it is (1 microsecond)
+# The A/A interval beyond which the machine is too noisy to time (module docstring): quiet reports
+# measured A/A intervals within [0.90, 1.12] (docs/results/warm-starts.md), one at load 8 0.54x.
+NOISE_LIMIT = 1.25
 
 
 def _median(x, axis=None):
@@ -105,17 +113,28 @@ class Verdict:
                 "best_vs_runner_up": None if self.best_vs_runner_up is None else list(self.best_vs_runner_up),
                 "clear": self.clear, "total_ms": dict(self.totals), "beaten_on_total_by": list(self.beaten_on_total_by),
                 "heavy_tail": self.heavy_tail, "steps": self.steps, "too_few_steps": self.too_few_steps,
-                "unfinished": dict(self.unfinished), "gave_up_more": self.gave_up_more}
+                "unfinished": dict(self.unfinished), "did_not_converge": self.did_not_converge,
+                "noisy": self.noisy, "noise_limit": NOISE_LIMIT}
 
     @property
-    def gave_up_more(self):
-        """Whether best left more steps unfinished than the base (so it is no clear winner)."""
-        return self.best is not None and self.unfinished.get(self.best, 0) > self.unfinished.get(self.base, 0)
+    def did_not_converge(self):
+        """Whether best ended a step above the tolerance (so it is never named)."""
+        return self.best is not None and self.unfinished.get(self.best, 0) > 0
+
+    @property
+    def noisy(self):
+        """Whether the A/A interval says the machine was too noisy to time (NOISE_LIMIT)."""
+        return too_noisy(self.aa)
 
     @property
     def too_few_steps(self):
         """Whether there were too few steps to name a winner at all."""
         return self.best is not None and self.steps < MIN_STEPS
+
+
+def too_noisy(aa):
+    """Whether an A/A (ratio, low, high) reaches beyond NOISE_LIMIT either way (or is not a number)."""
+    return not (1 / NOISE_LIMIT <= aa[1] and aa[2] <= NOISE_LIMIT)
 
 
 def _ranked_times(times, unfinished):
@@ -155,7 +174,7 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
         v.best_vs_runner_up = ratio_interval(*paired(ranked_times[v.best], ranked_times[v.runner_up]), rng)
     v.beaten_on_total_by = [n for n in dict.fromkeys((base, v.runner_up)) if n is not None and n != v.best
                             and v.totals[n] < v.totals[v.best]]
-    v.clear = _beyond_noise(v) and not (v.beaten_on_total_by or v.too_few_steps or v.gave_up_more)
+    v.clear = _beyond_noise(v) and not (v.beaten_on_total_by or v.too_few_steps or v.did_not_converge or v.noisy)
     return v
 
 

@@ -11,7 +11,7 @@ from ..html import markdown_to_html
 from ..protocol import protocol_line
 from .plots import loop_plot
 from .report import fenced_line
-from .verdicts import as_share, loop_above, loop_residuals, loop_verdict
+from .verdicts import as_share, loop_above, loop_residuals, loop_verdict, not_converged_tag
 
 
 def _loop_path_line(results):
@@ -97,7 +97,7 @@ def loop_table(results, tolerance=None):
         above = loop_above(r, tolerance)
         judged = (f"{np.median(res):.2g} / {np.percentile(res, 95):.2g}" if len(res) else "-",
                   "-" if above is None else as_share(above))
-        marks = (" (oracle)" if r.oracle else "") + (" (did not converge)" if above else "")
+        marks = (" (oracle)" if r.oracle else "") + not_converged_tag(above, len(res))
         lines.append(f"| {md_text(r.start)}{marks} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | "
                      f"{it.max():.0f} | {judged[0]} | {judged[1]} | "
                      f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "

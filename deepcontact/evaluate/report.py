@@ -28,7 +28,7 @@ from ..protocol import protocol_line
 from .plots import plots
 from .replay import BUDGETS
 from .summary import reference_summary
-from .verdicts import as_share, baseline, interval, noise_of, oracle, verdict
+from .verdicts import as_share, baseline, interval, noise_of, not_converged_tag, oracle, verdict
 
 # Everything a report folder holds (replay and closed loop): what --overwrite may replace.
 REPORT_FILES = output.Owned("report", [r"report\.(md|html)", r"(summary|steps)\.csv", r"(summary|pareto)\.json",
@@ -107,9 +107,9 @@ def summary_table(summary, noise=None):
     lines = ["| " + " | ".join(head) + " |", "| --- |" + " ---: |" * (len(head) - 1)]
     for name, s in summary.items():
         marks = ([" (oracle)"] if oracle(name) else []) + ([" (Python)"] if s.get("python") else []) \
-            + ([" (did not converge)"] if s.get("above", 0) else [])
+            + [not_converged_tag(s.get("above", 0), s["steps"])]
         cells = [md_text(name) + "".join(marks), f"{s['steps']}", f"{s['iterations_median']:.0f}",
-                 f"{s['iterations_p80']:.0f}", f"{s['iterations_p95']:.0f}", f"{100 * s['at_cap']:.0f}%",
+                 f"{s['iterations_p80']:.0f}", f"{s['iterations_p95']:.0f}", as_share(s["at_cap"]),
                  as_share(s.get("above", 0)),
                  f"{s['residual_median']:.2g} / {s.get('residual_p95', s['residual_median']):.2g}"]
         if factor:
@@ -123,7 +123,7 @@ def summary_table(summary, noise=None):
             cells += [f"{s['iterations_median'] / max(ref['iterations_median'], 1e-12):.2f}x", timed]
         cells += [f"{s['error_median']:.3g}", f"{s['velocity_error_median']:.3g}"]
         if fell:
-            cells.append(f"{100 * s['fallbacks']:.0f}%")
+            cells.append(as_share(s["fallbacks"]))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

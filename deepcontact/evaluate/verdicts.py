@@ -3,7 +3,7 @@
 import numpy as np
 
 from ..contest import missing_fences
-from ..contest.verdict import MIN_STEPS, decide
+from ..contest.verdict import MIN_STEPS, NOISE_LIMIT, decide
 from ..errors import count
 from ..escape import md_text
 from ..warmstart.starts import is_oracle
@@ -11,8 +11,22 @@ from .noise import judge, ranked
 
 
 def as_share(x):
-    """A share as a percentage, where any at all shows ("<1%", never a "0%" that hides a step)."""
-    return "<1%" if 0 < x < 0.005 else f"{100 * x:.0f}%"
+    """A share as a percentage, where any at all shows and all shows only when it is all: "<1%" and
+    ">99%", never a "0%" that hides a step or a "100%" that hides one that was not."""
+    percent = 100 * x
+    if 0 < percent < 1:
+        return "<1%"
+    if 99 < percent < 100:
+        return ">99%"
+    return f"{percent:.0f}%"
+
+
+def not_converged_tag(above, steps):
+    """A row's mark where it ended steps above the tolerance (above: their share of its steps),
+    with their count, as the table's columns count them ("" where it ended none)."""
+    if not above:
+        return ""
+    return f" (did not converge on {count(max(round(above * steps), 1), 'step')} of {steps:,})"
 
 
 def base_start(label):
@@ -54,56 +68,79 @@ def verdict(summary, noise=None):
 
 def _verdict(summary, noise=None):
     """One line: the start with the smallest median time per step to the tolerance (prediction
-    included), with its ratio to Box2D's warm start. Left out: oracles, which know the answer, and
-    every variant that ended a step above the tolerance by our residual (it did not converge,
-    whatever it said)."""
+    included), named the fastest only where the contest's one rule (contest/verdict.py) finds a
+    clear winner against Box2D's warm start, and else why none is. Left out: oracles, which know
+    the answer; every variant that ended a step above the tolerance by our residual (it did not
+    converge, whatever it said) is never named."""
     candidates = [n for n in summary if not oracle(n)]
     if not candidates:
         return None
     left_out = _unfinished_note({n: summary[n].get("above", 0) for n in candidates})
-    best, base = ranked(summary, oracle)[0], baseline(summary)
-    judged = noise if noise and noise.get("best") is not None else None
-    if judged is not None:
-        best = judged["best"]
-        undecided = _no_winner(judged, best, base)
-        if undecided:
-            return undecided + left_out
-    return _winner(summary, judged, best, base) + "." + left_out
+    base = baseline(summary)
+    if not noise or noise.get("best") is None:
+        return _unjudged(ranked(summary, oracle)[0]) + left_out
+    best = noise["best"]
+    undecided = _no_winner(noise, best, base)
+    if undecided:
+        return undecided + left_out
+    return _winner(summary, noise, best, base) + "." + left_out
+
+
+def _unjudged(best):
+    """The verdict where no variant is Box2D's warm start at w = 1: no yardstick, no A/A, no winner."""
+    return (f"**Verdict**: no clear winner: {md_text(best)} has the smallest median time per step (prediction "
+            f"included; oracles left out), but a winner is named only against Box2D's warm start at w = 1 "
+            f"(builtin), timed against itself for the noise floor, and it is not among the variants.")
+
+
+def too_noisy_words(base):
+    """Why a verdict names no winner on a noisy machine (contest/verdict.py's NOISE_LIMIT)."""
+    return (f"no clear winner: the machine was too noisy to time ({md_text(base)} timed against itself, A/A, "
+            f"reached beyond [{1 / NOISE_LIMIT:.2f}, {NOISE_LIMIT:.2f}]x, where times name no winner: "
+            f"contest/verdict.py)")
+
+
+def not_converged_words(best, base, unfinished):
+    """Why a verdict does not name best, which ended steps above the tolerance ({label: steps})."""
+    return (f"but it ended {count(unfinished[best], 'step')} above the tolerance ({md_text(base)}: "
+            f"{unfinished.get(base, 0):,}): a variant that did not converge is never named")
+
+
+def lost_the_run_words(best, beaten_by, totals):
+    """Why a verdict does not name best, whose whole run (setup included) cost more than beaten_by's."""
+    return ("but over the whole run, setup included, it took longer than "
+            + " and ".join(f"{md_text(n)} ({totals[best]:.4g} ms against {totals[n]:.4g} ms)" for n in beaten_by)
+            + ": a heavy tail of slow steps")
 
 
 def _no_winner(noise, best, base):
-    """The verdict where the intervals name no winner (the fastest median lost the whole run, left
-    more steps unfinished, had too few steps to judge on, or is within noise), or None."""
+    """The verdict where the rule names no winner (too few steps, a machine too noisy to time, a
+    fastest median that did not converge or lost the whole run, or one within noise), or None."""
     aa = f"{md_text(base)} timed against itself (A/A) measured {interval(noise['aa'])} " \
          f"({100 * noise['level']:.0f}% intervals over the steps)."
-    if noise.get("beaten_on_total_by"):   # a heavy tail: the median's fastest lost the whole run
-        return (f"**Verdict**: no clear winner. {md_text(best)} has the smallest median time per step (prediction "
-                f"included; oracles left out)" + (f", {interval(noise['vs_base'][best])} of {md_text(base)}'s"
-                                                   if best != base else "")
-                + ", but over the whole run, setup included, it took longer than "
-                + " and ".join(f"{md_text(n)} ({noise['total_ms'][best]:.4g} ms against {noise['total_ms'][n]:.4g} ms)"
-                               for n in noise["beaten_on_total_by"])
-                + f": a heavy tail of slow steps; {aa}")
-    if noise.get("gave_up_more"):
-        return (f"**Verdict**: no clear winner. {md_text(best)} has the smallest median time per step, but it left "
-                f"more steps above the tolerance than {md_text(base)} ({noise['unfinished'][best]} against "
-                f"{noise['unfinished'][base]}): faster by not finishing is not faster.")
+    smallest = f"{md_text(best)} has the smallest median time per step (prediction included; oracles left out)" \
+        + (f", {interval(noise['vs_base'][best])} of {md_text(base)}'s" if best != base else "")
     if noise.get("too_few_steps"):
         return (f"**Verdict**: no clear winner: {count(noise['steps'], 'step')} to judge on, and a winner is named "
                 f"from at least {MIN_STEPS}.")
+    if noise.get("noisy"):
+        return f"**Verdict**: {too_noisy_words(base)}. {smallest}; {aa}"
+    if noise.get("did_not_converge"):
+        return f"**Verdict**: no clear winner. {smallest}, {not_converged_words(best, base, noise['unfinished'])}; {aa}"
+    if noise.get("beaten_on_total_by"):   # a heavy tail: the median's fastest lost the whole run
+        return (f"**Verdict**: no clear winner. {smallest}, "
+                f"{lost_the_run_words(best, noise['beaten_on_total_by'], noise['total_ms'])}; {aa}")
     if noise["clear"]:
         return None
     runner = noise.get("runner_up")
     # (no winner, so none is called the fastest: the smallest median, with its intervals)
-    return (f"**Verdict**: no clear winner within noise. {md_text(best)} has the smallest median time per step "
-            f"to the tolerance (prediction included; oracles left out)"
-            + (f", at {interval(noise['vs_base'][best])} of {md_text(base)}'s time" if best != base else "")
+    return (f"**Verdict**: no clear winner within noise. {smallest}"
             + (f"; against the runner-up {md_text(runner)} it takes {interval(noise['best_vs_runner_up'])}"
                if runner else "") + f"; {aa}")
 
 
 def _winner(summary, noise, best, base):
-    """The verdict naming best the fastest, with its ratios (and intervals, where noise judged)."""
+    """The verdict naming best the fastest, with its ratios and the intervals the rule judged by."""
     b = summary[best]
     text = (f"**Verdict**: the fastest start to the tolerance (median time per step, prediction included; "
             f"oracles left out) is **{md_text(best)}**: {b['total_ms_median']:.3f} ms, "
@@ -115,13 +152,11 @@ def _winner(summary, noise, best, base):
     elif base == best:
         text += f"; nothing beats {md_text(base)}, Box2D's own warm start"
     if b["at_cap"] > 0:
-        text += f" ({100 * b['at_cap']:.0f}% of its steps stopped at the cap)"
-    if noise is not None:
-        parts = ([f"time {interval(noise['vs_base'][best])} of {md_text(base)}'s"] if best != base else []) \
-            + ([f"{interval(noise['best_vs_runner_up'])} of the runner-up {md_text(noise['runner_up'])}'s"]
-               if noise.get("runner_up") else []) + [f"A/A noise floor {interval(noise['aa'])}"]
-        text += f" ({'; '.join(parts)}; {100 * noise['level']:.0f}% intervals over the steps)"
-    return text
+        text += f" ({as_share(b['at_cap'])} of its steps stopped at the cap)"
+    parts = ([f"time {interval(noise['vs_base'][best])} of {md_text(base)}'s"] if best != base else []) \
+        + ([f"{interval(noise['best_vs_runner_up'])} of the runner-up {md_text(noise['runner_up'])}'s"]
+           if noise.get("runner_up") else []) + [f"A/A noise floor {interval(noise['aa'])}"]
+    return text + f" ({'; '.join(parts)}; {100 * noise['level']:.0f}% intervals over the steps)"
 
 
 def _unfinished_note(shares):
@@ -157,8 +192,8 @@ def loop_verdict(results, tolerance):
     fastest of the project's variants per step that stayed finite and never ended a step above the
     tolerance (oracles left out), against Box2D's warm start and the runner-up with 95% intervals
     over the steps, builtin timed against itself (A/A), and the run's totals (setup included); a
-    winner is named only beyond noise, and none whose whole run cost more. None without Box2D's
-    warm start."""
+    winner is named only beyond noise, on a machine quiet enough to time, and none whose whole run
+    cost more. None without Box2D's warm start."""
     base = next((r for r in results if r.ms_again is not None), None)
     if base is None:
         return None
@@ -201,18 +236,16 @@ def _loop_unfinished(r, tolerance):
 
 
 def _loop_head(v, base):
-    """The loop verdict's first sentence, for the decision v against the baseline base."""
-    if v.gave_up_more:
-        return (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
-                f"but it left more steps above the tolerance than {md_text(base)} ({v.unfinished[v.best]} "
-                f"against {v.unfinished[base]}): faster by not finishing is not faster")
+    """The loop verdict's first sentence, for the decision v against the baseline base (the
+    reasons for no winner in replay's order: _no_winner)."""
+    smallest = f"{md_text(v.best)} has the smallest median time per step of the loop"
+    if v.noisy:
+        return f"**Verdict**: {too_noisy_words(base)}. {smallest}"
+    if v.did_not_converge:
+        return f"**Verdict**: no clear winner. {smallest}, {not_converged_words(v.best, base, v.unfinished)}"
     if v.heavy_tail:
-        return (f"**Verdict**: no clear winner. {md_text(v.best)} has the smallest median time per step of the loop, "
-                f"but over the whole run, setup included, it took longer than "
-                + " and ".join(f"{md_text(n)} ({v.totals[v.best]:.4g} ms against {v.totals[n]:.4g} ms)"
-                               for n in v.beaten_on_total_by) + ": a heavy tail of slow steps")
+        return f"**Verdict**: no clear winner. {smallest}, {lost_the_run_words(v.best, v.beaten_on_total_by, v.totals)}"
     if v.clear:
         return ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
                 f"**{md_text(v.best)}**")
-    return (f"**Verdict**: no clear winner within noise. {md_text(v.best)} has the smallest median time per step "
-            f"of the loop")
+    return f"**Verdict**: no clear winner within noise. {smallest}"
