@@ -53,14 +53,19 @@ def _written(folder):
 
 
 class _Sync:
-    """Writes what the fenced training wrote and changed since the last call into the output."""
+    """Writes what the fenced training wrote and changed since the last call into the output, and
+    removes there what it wrote and removed since (a mid-epoch checkpoint once its epoch is whole)."""
 
     def __init__(self, staged, work):
         self.staged, self.work, self.seen = staged, work, {}
 
     def __call__(self):
         from deepcontact import output
-        for name, path in _written(self.staged).items():
+        written = _written(self.staged)
+        for name in [n for n in self.seen if n not in written]:
+            (self.work / name).unlink(missing_ok=True)
+            del self.seen[name]
+        for name, path in written.items():
             try:
                 st = os.stat(path)
                 key = (st.st_ino, st.st_mtime_ns, st.st_size)

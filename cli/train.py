@@ -92,7 +92,11 @@ class EpochLines:
 @click.option("--depth", "fcn_depth", type=types.count(min=1, max=12), default=3, show_default=True,
               help="[fcn] Down-sampling levels.")
 @click.option("--no-final-relu", is_flag=True, help="[thesis] Drop the thesis's last ReLU (signed output).")
-@click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped.")
+@click.option("--resume", is_flag=True, help="Continue the run in OUTPUT exactly where it stopped: after its last "
+              "whole epoch, or within the epoch from its mid-epoch.pt.")
+@click.option("--checkpoint-every", type=types.Finite(min=0), default=5.0, show_default=True, metavar="MINUTES",
+              help="Within an epoch, keep mid-epoch.pt (model, optimizer, RNG states, the epoch's sample order and "
+                   "place) at most this often, so a stop loses minutes, not the epoch (0: after every batch).")
 @options.plots("Draw loss.png/svg at the end; --no-plots writes the checkpoints and metrics alone.")
 @options.threads
 @options.max_memory
@@ -100,14 +104,16 @@ class EpochLines:
 @options.verbosity
 @options.command("train")
 def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
-          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, plots, max_memory, overwrite,
-          verbose, quiet):
+          threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, checkpoint_every, plots,
+          max_memory, overwrite, verbose, quiet):
     """Train a network mapping the input images of DATASET to its impulse images.
 
     Writes OUTPUT/last.pt and best.pt (atomically, every epoch), metrics.csv and
-    metrics.json, and loss.png/svg. The split is the dataset's, by simulation.
-    Same seed, same weights; --resume continues exactly. Under torchrun
-    (WORLD_SIZE set) it trains data-parallel and rank 0 writes.
+    metrics.json, and loss.png/svg; within an epoch, mid-epoch.pt every
+    --checkpoint-every minutes. The split is the dataset's, by simulation.
+    Same seed, same weights; --resume continues exactly, from within an epoch
+    too. Under torchrun (WORLD_SIZE set) it trains data-parallel and rank 0
+    writes (whole epochs only).
 
     \b
     Examples:
@@ -147,7 +153,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     history = run(dataset, out, None if resume else cfg, resume=resume, progress=lines.epoch, threads=threads,
                   device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
-                  given=given, plots=plots, heartbeat=lines.within)
+                  given=given, plots=plots, heartbeat=lines.within, keep_every=checkpoint_every * 60)
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         shown = os.environ.get(fenced_training.INSIDE) or out   # (fenced: the user's folder, not the staged one)

@@ -90,6 +90,47 @@ def test_resume_gives_the_uninterrupted_weights_and_same_seed_same_weights(tiny,
     assert (tmp_path / "whole" / "loss.png").exists() and (tmp_path / "whole" / "metrics.csv").exists()
 
 
+def test_a_stop_within_an_epoch_resumes_from_its_mid_epoch_checkpoint_to_the_uninterrupted_weights(tiny, tmp_path):
+    """A run stopped within its second epoch (its caller's stop, after the third batch) keeps
+    mid-epoch.pt, the place in that epoch; --resume continues there, and the weights, optimizer,
+    metrics and losses are those of the run never stopped. The whole epoch's last.pt takes
+    mid-epoch.pt's place."""
+    cfg = dict(SMALL, epochs=3, seed=5, batch_size=4)
+    whole = train(tiny, tmp_path / "whole", TrainConfig(**cfg), plots=False, keep_every=None)
+
+    def stop_at(stop_epoch, stop_done):   # (the caller's stop, as Ctrl-C raises it, after a batch)
+        def heartbeat(epoch, done, total):
+            if (epoch, done) == (stop_epoch, stop_done):
+                raise KeyboardInterrupt
+        return heartbeat
+    with pytest.raises(KeyboardInterrupt):
+        train(tiny, tmp_path / "part", TrainConfig(**cfg), plots=False, keep_every=0, heartbeat=stop_at(1, 12))
+    mid = load_checkpoint(tmp_path / "part" / "mid-epoch.pt")
+    assert (mid["epoch"], mid["position"]["next"], len(mid["history"])) == (1, 12, 1)
+    assert load_checkpoint(tmp_path / "part" / "last.pt")["epoch"] == 0
+    resumed = train(tiny, tmp_path / "part", resume=True, plots=False, keep_every=0)
+    assert not (tmp_path / "part" / "mid-epoch.pt").exists()
+    a, b = (load_checkpoint(tmp_path / run / "last.pt") for run in ("whole", "part"))
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert torch.equal(a["optimizer"]["state"][0]["exp_avg"], b["optimizer"]["state"][0]["exp_avg"])
+    losses_of = [[r["train_loss"], r["val_loss"]] for r in whole], [[r["train_loss"], r["val_loss"]] for r in resumed]
+    assert losses_of[0] == losses_of[1]
+    # a stop in the first epoch, before any last.pt: mid-epoch.pt alone is resumed
+    with pytest.raises(KeyboardInterrupt):
+        train(tiny, tmp_path / "first", TrainConfig(**cfg), plots=False, keep_every=0, heartbeat=stop_at(0, 8))
+    assert sorted(p.name for p in (tmp_path / "first").glob("*.pt")) == ["mid-epoch.pt"]
+    r = dc("train", str(tiny), "-o", str(tmp_path / "first"), "--resume", "--checkpoint-every", "0", "--no-plots", "-q")
+    assert r.returncode == 0, r.stderr
+    c = load_checkpoint(tmp_path / "first" / "last.pt")
+    assert all(torch.equal(a["model"][k], c["model"][k]) for k in a["model"])
+    # a mid-epoch checkpoint's place is checked before anything is built from it
+    mid["position"]["next"] = len(mid["position"]["order"]) + 1
+    torch.save(mid, tmp_path / "bad.pt")
+    with pytest.raises(InputError, match="'position' must hold"):
+        load_checkpoint(tmp_path / "bad.pt")
+
+
 def test_one_map_models_and_the_contacts_loss(tiny, tmp_path):
     h = train(tiny, tmp_path / "n", TrainConfig(**dict(SMALL, epochs=1, targets=["normal_impulse"], loss="contacts")),
               plots=False)

@@ -100,6 +100,15 @@ def _rows_of_numbers(v):
                                                                    for k, x in r.items()) for r in v)
 
 
+def _position(v):
+    """A mid-epoch checkpoint's place in its epoch: the epoch's sample order (whole numbers), the
+    next sample, and the loss summed and samples seen and seconds taken so far."""
+    return (isinstance(v, dict) and isinstance(v.get("order"), torch.Tensor) and v["order"].dtype == torch.int64
+            and v["order"].dim() == 1 and _whole(v.get("next")) and v["next"] <= len(v["order"])
+            and _whole(v.get("seen")) and _number(v.get("total")) and math.isfinite(v["total"])
+            and _number(v.get("seconds")) and v["seconds"] >= 0)
+
+
 def _grid_problem(grid):
     try:
         GridSpec.from_dict(grid)
@@ -120,6 +129,8 @@ _BOOKKEEPING = (
     (lambda ck: _names(ck["targets"]) and set(ck["targets"]) <= set(ck["dataset"]["labels"]),
      "'targets' must name label channels of its dataset"),
     (lambda ck: isinstance(ck["train_config"], dict), "'train_config' must be a dictionary"),
+    (lambda ck: "position" not in ck or _position(ck["position"]),
+     "'position' must hold the epoch's sample order, the next sample, and the sums and seconds so far"),
 )
 
 

@@ -7,7 +7,7 @@ from .. import output
 from ..errors import InputError
 
 # Everything a training folder holds: what --overwrite may replace.
-MODEL_FILES = output.Owned("training run", [r"(last|best)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
+MODEL_FILES = output.Owned("training run", [r"(last|best|mid-epoch)\.pt", r"metrics\.(csv|json)", r"loss\.(png|svg)"])
 
 
 def checkpoint_file(path) -> Path:

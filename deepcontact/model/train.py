@@ -4,7 +4,11 @@ Every epoch writes `metrics.csv` / `metrics.json`, `last.pt`, and `best.pt` when
 loss (the training loss without a validation split) improves, all atomically. A checkpoint holds
 the model config, weights, optimizer state, epoch, every RNG state, the history and the
 dataset's metadata, so `resume` continues as if never stopped, and the same seed gives the same
-weights. With WORLD_SIZE set (torchrun), training is data-parallel over gloo; rank 0 alone writes.
+weights. Within an epoch, `mid-epoch.pt` keeps the same at most every `keep_every` seconds, with
+the epoch's sample order and how far it got (its `position`), so that a stop within a long epoch
+loses minutes, not the epoch; it is removed when the epoch's last.pt is written. With WORLD_SIZE
+set (torchrun), training is data-parallel over gloo; rank 0 alone writes (epochs only: a
+mid-epoch checkpoint would hold rank 0's share of the epoch's sums alone).
 """
 import logging
 import math
@@ -36,6 +40,9 @@ from .plots import plot_losses, write_metrics
 
 log = logging.getLogger(__name__)
 
+MID_EPOCH = "mid-epoch.pt"   # the checkpoint kept within an epoch (removed once its last.pt is written)
+KEEP_EVERY = 300.0           # seconds between mid-epoch checkpoints at most (dc train --checkpoint-every)
+
 
 class TrainingDiverged(InputError):
     """The loss became NaN or infinite: the run stops, its last good checkpoint kept."""
@@ -52,7 +59,7 @@ def _distributed():
 def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConfig | None = None, resume: bool = False,
           progress: Callable | None = None, threads: int = 1, device: str = "cpu", overwrite: bool = False,
           epochs: int | None = None, max_memory: float | None = None, given: dict = (), plots: bool = True,
-          heartbeat: Callable | None = None) -> list[dict]:
+          heartbeat: Callable | None = None, keep_every: float | None = KEEP_EVERY) -> list[dict]:
     """Train; returns the history (a list of per-epoch metric dicts).
 
     progress(row): called after each epoch with its metrics (and "epochs", the run's number of
@@ -67,13 +74,14 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
     trained weights 1.3e-4 apart), and the same seed must give the same weights on any machine;
     more processes (torchrun) are the way to train on more cores. plots: draw loss.png/svg at the
     end (False: none; refused when resuming a run that has one, which would no longer match its
-    metrics)."""
+    metrics). keep_every: write mid-epoch.pt at most every this many seconds within an epoch (None:
+    never; 0: after every batch), which `resume` continues from as if never stopped."""
     device = _device(threads, device)
     world, rank = _distributed()
     ds = GridDataset(dataset)
     out_dir = Path(out_dir)
     last = out_dir / "last.pt"
-    ck = _resumed(last, ds.metadata, given, threads, dataset, plots) if resume else None
+    ck = _resumed(last, ds, given, threads, dataset, plots) if resume else None
     cfg = TrainConfig(**ck["train_config"]) if ck is not None else (cfg or TrainConfig())
     if epochs is not None:
         cfg.epochs = epochs
@@ -94,7 +102,8 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
         if rank == 0:
             trainer.say_what_it_trains(fresh=ck is None)
         trainer.heartbeat = heartbeat if rank == 0 else None
-        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir, plots=plots)
+        history = trainer.fit(work, progress, dataset_path=str(dataset), out_dir=out_dir, plots=plots,
+                              keep_every=keep_every)
         if world > 1:
             torch.distributed.barrier()   # no rank leaves while rank 0 still writes
             torch.distributed.destroy_process_group()
@@ -116,9 +125,10 @@ def _device(threads, device):
     return device
 
 
-def _resumed(last, meta, given, threads, dataset, plots):
+def _resumed(last, ds, given, threads, dataset, plots):
     """The checkpoint --resume continues from, checked against the dataset and the options."""
-    ck = load_checkpoint(last)
+    meta = ds.metadata
+    ck = _latest(last, ds)
     try:
         TrainConfig(**ck["train_config"])
     except TypeError as e:
@@ -129,6 +139,25 @@ def _resumed(last, meta, given, threads, dataset, plots):
         raise OptionError("the run has a loss plot from before, which its new epochs would leave behind: "
                           "resume without --no-plots to redraw it", "--no-plots")
     return ck
+
+
+def _latest(last, ds):
+    """The checkpoint a run continues from: mid-epoch.pt where it is of the epoch after last.pt's
+    (the run stopped within that epoch), else last.pt (a mid-epoch.pt of an epoch last.pt has
+    finished is left over from a stop between the two writes, and ignored)."""
+    mid = last.with_name(MID_EPOCH)
+    done = load_checkpoint(last) if last.exists() or not mid.exists() else None   # (none there: it says so)
+    within = load_checkpoint(mid) if mid.exists() else None
+    if within is not None and within["epoch"] == (done["epoch"] + 1 if done is not None else 0):
+        if "position" not in within:
+            raise InputError("refused: a mid-epoch checkpoint without its 'position' in the epoch", mid)
+        order = within["position"]["order"].numpy()
+        if not np.array_equal(np.sort(order), np.sort(ds.indices("train"))):
+            raise InputError("refused: its sample order is not an order of this dataset's training samples", mid)
+        return within
+    if done is None:
+        raise InputError(f"no last.pt of epoch {within['epoch']} beside it, which it continues", mid)
+    return done
 
 
 def _check_run(cfg, ds, dataset, max_memory):
@@ -219,6 +248,8 @@ class Trainer:
         self.opt = _optimizer(cfg, self.model)
         self.net = torch.nn.parallel.DistributedDataParallel(self.model) if world > 1 else self.model
         self.history, self.best, self.bad_epochs, self.start = [], math.inf, 0, 0
+        self.position = None                  # where the first epoch run continues (a mid-epoch checkpoint's)
+        self.keep, self.keep_every = None, KEEP_EVERY   # keep(epoch, position): writes a mid-epoch checkpoint
 
     def say_what_it_trains(self, fresh):
         """The log lines a run starts with: an empty validation split warned of, and (fresh) the
@@ -232,12 +263,14 @@ class Trainer:
                      len(self.train_idx), len(self.val_idx))
 
     def resume_from(self, ck):
-        """Every state the checkpoint ck holds, restored."""
+        """Every state the checkpoint ck holds, restored: after its epoch, or within it (a
+        mid-epoch checkpoint's position)."""
         self.model.load_state_dict(ck["model"])
         self.opt.load_state_dict(ck["optimizer"])  # (its tensors follow the parameters' device)
         set_rng_state(ck["rng"])
-        self.history, self.best, self.bad_epochs, self.start = ck["history"], ck["best"], ck["bad_epochs"], \
-            ck["epoch"] + 1
+        self.history, self.best, self.bad_epochs = ck["history"], ck["best"], ck["bad_epochs"]
+        self.position = ck.get("position")
+        self.start = ck["epoch"] if self.position is not None else ck["epoch"] + 1
 
     def batch(self, indices):
         """(sorted indices, inputs, labels) on the device; a NaN or inf in either is refused."""
@@ -254,18 +287,25 @@ class Trainer:
     def loss(self, pred, y, idx):
         return LOSS_OF[self.cfg.loss](self, pred, y, idx)
 
-    def run_epoch(self, epoch):
-        """One pass over the training samples in this epoch's seeded order; the metrics row."""
+    def run_epoch(self, epoch, position=None):
+        """One pass over the training samples in this epoch's seeded order, or the rest of it from
+        `position` (a mid-epoch checkpoint's: its order, next sample and sums so far); the
+        metrics row. Keeps a mid-epoch checkpoint (keep) at most every keep_every seconds."""
         cfg = self.cfg
         lr = thesis_lr(epoch) if cfg.optimizer == "sgd" else cfg.lr
         for g in self.opt.param_groups:
             g["lr"] = lr
-        gen = torch.Generator().manual_seed(cfg.seed * 100003 + epoch)
-        order = self.train_idx[torch.randperm(len(self.train_idx), generator=gen).numpy()]
+        if position is None:
+            gen = torch.Generator().manual_seed(cfg.seed * 100003 + epoch)
+            order = self.train_idx[torch.randperm(len(self.train_idx), generator=gen).numpy()]
+            position = {"next": 0, "total": 0.0, "seen": 0, "seconds": 0.0}
+        else:
+            order = position["order"].numpy()
         self.net.train()
-        t0 = time.perf_counter()
-        total, seen = 0.0, 0
-        for b0 in range(0, len(order), cfg.batch_size):
+        t0 = time.perf_counter() - position["seconds"]
+        total, seen = position["total"], position["seen"]
+        self.kept_at = time.monotonic()
+        for b0 in range(position["next"], len(order), cfg.batch_size):
             chunk = order[b0:b0 + cfg.batch_size][self.rank::self.world]
             if len(chunk) == 0:
                 continue
@@ -278,6 +318,9 @@ class Trainer:
             self.opt.step()
             total += loss.item() * len(idx)
             seen += len(idx)
+            if b0 + cfg.batch_size < len(order):
+                self.keep_within(epoch, {"order": order, "next": b0 + cfg.batch_size, "total": total, "seen": seen,
+                                         "seconds": time.perf_counter() - t0})
             if getattr(self, "heartbeat", None) is not None:
                 self.heartbeat(epoch, min(b0 + cfg.batch_size, len(order)), len(order))
         seconds = time.perf_counter() - t0
@@ -287,6 +330,13 @@ class Trainer:
             total, seen = float(sums[0]), int(sums[1])
         return {"epoch": epoch, "lr": lr, "train_loss": total / max(seen, 1), "seconds": seconds,
                 "samples_per_second": seen / max(seconds, 1e-9)}
+
+    def keep_within(self, epoch, position):
+        """A mid-epoch checkpoint at `position` (keep), if keep_every seconds have passed since the
+        last one (or the epoch's start)."""
+        if self.keep is not None and time.monotonic() - self.kept_at >= self.keep_every:
+            self.keep(epoch, {**position, "order": torch.from_numpy(np.asarray(position["order"], dtype=np.int64))})
+            self.kept_at = time.monotonic()
 
     @torch.no_grad()
     def validate(self):
@@ -362,18 +412,23 @@ class Trainer:
             "network_origin": NETWORKS.origin(self.cfg.model),
         }
 
-    def fit(self, work, progress=None, dataset_path="", out_dir=None, plots=True):
+    def fit(self, work, progress=None, dataset_path="", out_dir=None, plots=True, keep_every=KEEP_EVERY):
         """The remaining epochs, writing last.pt (every epoch), best.pt (on improvement) and the
         metrics into work (rank 0), and at the end the loss plot (unless not plots); early stopping
-        after `patience` epochs without improvement."""
+        after `patience` epochs without improvement. keep_every: seconds between mid-epoch
+        checkpoints at most (None: none), in one process only (see the module's note)."""
         cfg = self.cfg
+        if keep_every is not None and self.world == 1:
+            self.keep_every = keep_every
+            self.keep = lambda epoch, position: save(work / MID_EPOCH, {**self.checkpoint(epoch, dataset_path),
+                                                                      "position": position})
         # a plug-in network's code runs in every batch (forward and backward): what leaves it is
         # one line naming it (plugins.guest)
         guarded = (lambda: nullcontext()) if cfg.model in BUILTIN else (lambda: guest(f"the network {cfg.model!r}"))
         for epoch in range(self.start, cfg.epochs):
             try:
                 with guarded():
-                    row = self.run_epoch(epoch)
+                    row = self.run_epoch(epoch, self.position if epoch == self.start else None)
             except TrainingDiverged as e:
                 raise TrainingDiverged(e.message, out_dir) from None
             with guarded():
@@ -389,6 +444,7 @@ class Trainer:
                 save(work / "last.pt", self.checkpoint(epoch, dataset_path))
                 if improved:
                     save(work / "best.pt", self.checkpoint(epoch, dataset_path))
+                (work / MID_EPOCH).unlink(missing_ok=True)   # (the epoch it was within is whole in last.pt)
                 write_metrics(work, self.history)
                 if progress is not None:
                     progress({**row, "epochs": cfg.epochs})
