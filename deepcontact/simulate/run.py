@@ -29,6 +29,7 @@ from ..errors import InputError, OptionError, count
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from ..scene.check import check_scene
 from ..scene.xml import fmt, to_xml
+from ..step.check import stray_contact
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
 from . import stepping
@@ -141,7 +142,7 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
         try:
             for done in stepping.steps(world, scene, step):
                 k, bodies, contacts = done.index, done.bodies, done.contacts
-                checked_step(k, bodies, contacts, engine)
+                checked_step(k, bodies, contacts, engine, len(scene.bodies))
                 extent.add(bodies)
                 n = len(contacts["manifold"])
                 at_cap, over = _short_of_tolerance(loop, done.solution)
@@ -165,26 +166,49 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
     return per_file, capped, above
 
 
-def checked_step(k, bodies, contacts, engine):
+def checked_step(k, bodies, contacts, engine, scene_bodies=None):
     """What an engine returned for step k, held to a step file's layout before it is written:
-    arrays of one length per table, and every contact naming bodies the step has (an engine is
-    anyone's code: contacts naming body 999 of a 7-body scene were written, and validated).
-    InputError naming the engine otherwise."""
-    import numpy as np
+    arrays of one length per table, the bodies' indexes those of the scene's bodies (scene_bodies
+    of them, where given) in its order, and every contact naming bodies the step has, by that index
+    (an engine is anyone's code: contacts naming body 999 of a 7-body scene were written, and
+    validated; a removed body leaves a gap in the indexes, not a row). InputError naming the
+    engine otherwise."""
+    who = f"the engine {engine.name!r}"
     if not isinstance(bodies, dict) or not isinstance(contacts, dict):
-        raise InputError(f"the engine {engine.name!r} returned no bodies and contacts for step {k} (got "
+        raise InputError(f"{who} returned no bodies and contacts for step {k} (got "
                          f"{type(bodies).__name__} and {type(contacts).__name__})")
     for table, arrays in (("bodies", bodies), ("contacts", contacts)):
         lengths = {name: len(a) for name, a in arrays.items() if hasattr(a, "__len__")}
         if len(set(lengths.values())) > 1:
-            raise InputError(f"the engine {engine.name!r} returned {table} of different lengths for step {k}: "
+            raise InputError(f"{who} returned {table} of different lengths for step {k}: "
                              + ", ".join(f"{n} {v}" for n, v in sorted(lengths.items())))
-    count = len(next(iter(bodies.values()))) if bodies else 0
-    for side in ("body_a", "body_b"):
-        ids = np.asarray(contacts.get(side, ()))
-        if len(ids) and (ids.min() < 0 or ids.max() >= count):
-            raise InputError(f"the engine {engine.name!r} returned a contact of step {k} naming body "
-                             f"{int(ids.max() if ids.max() >= count else ids.min())}, but the step has {count} bodies")
+    _check_body_indexes(k, bodies, who, scene_bodies)
+    stray = stray_contact(bodies, contacts)
+    if stray is not None:
+        raise InputError(f"{who} returned a contact of step {k} naming body {stray[2]}, but the step has no "
+                         f"body {stray[2]} ({len(bodies.get('index', ()))} bodies)")
+
+
+def _check_body_indexes(k, bodies, who, scene_bodies):
+    """The bodies' `index` column (each body's number in the scene, which contacts name): there,
+    increasing (the scene's order, no body twice) and, given scene_bodies, below it."""
+    if not bodies:
+        return
+    if "index" not in bodies:
+        raise InputError(f"{who} returned bodies of step {k} without their index (each body's number in "
+                         "the scene, which its contacts name)")
+    index = np.asarray(bodies["index"])
+    if len(index) and (np.any(np.diff(index) <= 0) or index[0] < 0
+                       or (scene_bodies is not None and index[-1] >= scene_bodies)):
+        raise InputError(f"{who} returned bodies of step {k} whose indexes are not the scene's bodies in its "
+                         f"order (distinct, from 0 to {'its count' if scene_bodies is None else scene_bodies - 1}"
+                         f"): {_shown(index)}")
+
+
+def _shown(values, most=8):
+    """At most `most` values, for a message."""
+    head = ", ".join(str(v) for v in values[:most].tolist())
+    return head + (", ..." if len(values) > most else "")
 
 
 def prepare_output(out_dir, seeds):

@@ -67,11 +67,23 @@ def _semantic_errors(path, step, origin):
 def _contacts_name_its_bodies(bodies, contacts, path):
     """Every contact names bodies of its own step (the schema cannot say: master="999" of 101
     bodies validated); InputError naming the file and the contact otherwise."""
+    stray = stray_contact(bodies, contacts)
+    if stray is not None:
+        row, side, body = stray
+        attribute = {"body_a": "master", "body_b": "slave"}[side]
+        raise InputError(f"contact {row} names body {body} ({attribute}), but the step has no body {body} "
+                         f"({len(bodies.get('index', ()))} bodies)", path)
+
+
+def stray_contact(bodies, contacts):
+    """The first contact naming a body its step has not, as (contact row, "body_a" or "body_b",
+    body), or None. Contacts name bodies by their index in the scene (the bodies' `index`
+    column), not by row: a removed body leaves a gap, and the bodies after it keep their index."""
     import numpy as np
-    count = len(next(iter(bodies.values()))) if bodies else 0
-    for side, attribute in (("body_a", "master"), ("body_b", "slave")):
+    known = np.asarray(bodies.get("index", ()))
+    for side in ("body_a", "body_b"):
         ids = np.asarray(contacts.get(side, ()))
-        bad = np.flatnonzero((ids < 0) | (ids >= count)) if len(ids) else ()
+        bad = np.flatnonzero(~np.isin(ids, known)) if len(ids) else ()
         if len(bad):
-            raise InputError(f"contact {int(bad[0])} names body {int(ids[bad[0]])} ({attribute}), but the step has "
-                             f"{count} bodies", path)
+            return int(bad[0]), side, int(ids[bad[0]])
+    return None
