@@ -91,7 +91,7 @@ def test_every_engine_steps_the_removals_through_the_one_loop(engine):
     world = e.build(scene)
     for done in steps(world, scene, e.stepper(world, scene)):
         assert done.bodies["index"].tolist() == BODIES[done.index]
-        checked_step(done.index, done.bodies, done.contacts, e, len(scene.bodies))
+        checked_step(done.index, done.bodies, done.contacts, e)
 
 
 def test_the_projects_solver_replay_and_the_closed_loop_take_removals(tmp_path):
