@@ -169,7 +169,7 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
 def checked_step(k, bodies, contacts, engine, scene_bodies=None):
     """What an engine returned for step k, held to a step file's layout before it is written:
     arrays of one length per table, the bodies' indexes those of the scene's bodies (scene_bodies
-    of them, where given) in its order, and every contact naming bodies the step has, by that index
+    of them, where given), each once, and every contact naming bodies the step has, by that index
     (an engine is anyone's code: contacts naming body 999 of a 7-body scene were written, and
     validated; a removed body leaves a gap in the indexes, not a row). InputError naming the
     engine otherwise."""
@@ -191,18 +191,17 @@ def checked_step(k, bodies, contacts, engine, scene_bodies=None):
 
 def _check_body_indexes(k, bodies, who, scene_bodies):
     """The bodies' `index` column (each body's number in the scene, which contacts name): there,
-    increasing (the scene's order, no body twice) and, given scene_bodies, below it."""
+    no body twice and, given scene_bodies, each below it."""
     if not bodies:
         return
     if "index" not in bodies:
         raise InputError(f"{who} returned bodies of step {k} without their index (each body's number in "
                          "the scene, which its contacts name)")
     index = np.asarray(bodies["index"])
-    if len(index) and (np.any(np.diff(index) <= 0) or index[0] < 0
-                       or (scene_bodies is not None and index[-1] >= scene_bodies)):
-        raise InputError(f"{who} returned bodies of step {k} whose indexes are not the scene's bodies in its "
-                         f"order (distinct, from 0 to {'its count' if scene_bodies is None else scene_bodies - 1}"
-                         f"): {_shown(index)}")
+    if len(index) and (len(np.unique(index)) != len(index) or index.min() < 0
+                       or (scene_bodies is not None and index.max() >= scene_bodies)):
+        raise InputError(f"{who} returned bodies of step {k} whose indexes are not the scene's bodies (each once, "
+                         f"from 0 to {'its count' if scene_bodies is None else scene_bodies - 1}): {_shown(index)}")
 
 
 def _shown(values, most=8):
