@@ -21,7 +21,9 @@ _MODULES = {
     "scene.xml": ("read_scene",),
     "scene.generators": ("generate",),
     "simulate.source": ("SceneSource",),
-    "simulate.engines": ("SoftStep", "Box2D", "Box2D3", "Engine", "ENGINES", "engine_named"),
+    "simulate.engines": ("SoftStep", "Box2D", "Box2D3", "Engine", "ENGINES", "engine_named", "empty_bodies",
+                         "empty_contacts", "scene_bodies"),
+    "simulate.pgs_loop": ("LoopStep",),
     "simulate.world": ("World",),
     "studies": ("Study", "STUDIES"),
     "solver.problem": ("StepProblem", "contact_keys", "impulses_by_key"),
@@ -45,6 +47,7 @@ _RENAMED = {
     "simulate_run": ("simulate.run", "run"),
     "local_residual": ("solver.local", "residual"),
     "evaluate_starts": ("evaluate.replay", "evaluate"),
+    "EngineSetting": ("simulate.engines", "Setting"),
 }
 _PUBLIC = {**{name: (module, name) for module, names in _MODULES.items() for name in names}, **_RENAMED}
 __all__ = ["__version__", *_PUBLIC]

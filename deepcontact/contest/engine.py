@@ -13,7 +13,7 @@ import pickle
 import numpy as np
 
 from ..plugins import PluginError
-from ..simulate.engines import Engine
+from ..simulate.engines import Engine, layout_error
 from ..simulate.pgs_loop import LoopStep
 from .client import CALL_FLOOR, Contestant
 
@@ -97,9 +97,12 @@ class GuestWorld:
             if dtype not in ("float32", "float64") and not np.all(values == np.round(values)):
                 raise PluginError(f"{self.label} returned {key} with a fraction in a whole-number field")
             tables[table][field] = values.reshape(shape).astype(dtype)
-        stats = header.get("stats") or None
+        wrong = layout_error(tables["bodies"], tables["contacts"])
+        if wrong:   # (the writer's own refusal was not a message of ours)
+            raise PluginError(f"{self.label} returned {wrong}")
+        stats, ratio = header.get("stats") or None, header.get("dt_ratio")
         return LoopStep(tables["bodies"], tables["contacts"], None, float(header.get("deepest", 0.0)),
-                        dt_ratio=float(header.get("dt_ratio", 1.0)), engine_stats=stats)
+                        dt_ratio=None if ratio is None else float(ratio), engine_stats=stats)
 
     def remove_body(self, index):
         self._call({"op": "remove", "index": int(index)})

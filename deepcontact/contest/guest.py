@@ -247,8 +247,9 @@ def _packed_step(what, done):
             raise PluginError(f"{what}'s account of its step: {k}: the value {v!r} is not finite")
         stats[str(k)] = v if isinstance(v, (str, bool, int, float)) else str(v)
     deepest, ratio = float(getattr(done, "deepest", 0.0) or 0.0), getattr(done, "dt_ratio", None)
-    header = {"layout": layout, "stats": stats, "deepest": deepest if math.isfinite(deepest) else 0.0,
-              "dt_ratio": float(ratio) if ratio is not None and math.isfinite(float(ratio)) else 1.0}
+    header = {"layout": layout, "stats": stats, "deepest": deepest if math.isfinite(deepest) else 0.0}
+    if ratio is not None:   # (none: the loop's own, 0 on the first step, as in a caller's process)
+        header["dt_ratio"] = float(ratio) if math.isfinite(float(ratio)) else 1.0
     return pack(header, arrays)
 
 

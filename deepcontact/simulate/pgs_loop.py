@@ -67,13 +67,17 @@ def check_scene_for_loop(scene, source=None):
 
 @dataclass
 class LoopStep:
-    """What one step of the loop did."""
-    bodies: dict         # the bodies before the step, as a step file records them (None unless recording)
-    contacts: dict       # the contacts solved, with the impulses applied (None unless recording)
-    solution: Solution   # None when the step had no contact points
-    deepest: float       # the deepest penetration among the step's contact points (m), >= 0
-    dt_ratio: float = None   # Box2D's warm-start scale, where Box2D's own solver reports it
-    engine_stats: dict = None   # another engine's own account of its solve (MuJoCo's iterations, ...)
+    """What one step of an engine did: what every engine's step function returns (the Box2D loop's
+    and any engine of one's own; docs/engines.md, "An engine of your own", lists every field of the
+    two tables with its dtype, shape and unit)."""
+    bodies: dict         # the bodies before the step: field -> array, as empty_bodies (None unless recording)
+    contacts: dict       # the contact points the step solved, impulses applied: as empty_contacts (None
+                         # unless recording)
+    solution: Solution = None   # the project's solver's answer; None for another engine's step or no contacts
+    deepest: float = 0.0   # the deepest penetration among the step's contact points (m), >= 0
+    dt_ratio: float = None   # Box2D's warm-start scale, where Box2D's own solver reports it (another engine: 1.0)
+    engine_stats: dict = None   # another engine's own account of its solve, name -> number or text
+                                # (MuJoCo's iterations, ...): the step file's <engine_step>
 
 
 class PGSStepper:

@@ -21,6 +21,7 @@ from ... import arguments
 from ..._box2d import World
 from ...errors import OptionError
 from ...plugins import Registry
+from ...scene.model import Scene  # noqa: F401  (the annotations)
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,9 @@ class Engine:
     contacts as the arrays a step file records (`stepping.steps` runs it). The defaults here are
     an engine with no solver of the project's and no rows of Box2D's own.
 
-    A subclass sets `name`, `label`, `SETTINGS` and implements `version`, `build` and `stepper`."""
+    A subclass sets `name`, `label`, `SETTINGS` and implements `version`, `build` and `stepper`;
+    the world `build` returns has `remove_body(index)` (a scene's removal event, by scene index)
+    and `bodies()` (its bodies now, as `empty_bodies`). docs/engines.md, "An engine of your own"."""
     name = None                 # --engine, the manifest's engine, the step files' <engine name>
     label = None                # how tables and reports name it ("pymunk")
     rows = "own"                # whose own contact rows its step files hold: box2d, box2d3, or own (none)
@@ -115,9 +118,9 @@ class Engine:
         raise NotImplementedError
 
     def stepper(self, world, scene, record=True):
-        """A function stepping `world` once, returning a pgs_loop.LoopStep: with `record`, the
-        bodies before the step and the contacts it solved (the step file's arrays); without, the
-        engine's own step alone (what the studies time)."""
+        """A function stepping `world` once, returning a LoopStep: with `record`, the bodies
+        before the step and the contact points it solved (the step file's arrays: empty_bodies',
+        empty_contacts' fields); without, the engine's own step alone (what the studies time)."""
         raise NotImplementedError
 
     def header_lines(self, scene) -> str:
@@ -144,16 +147,58 @@ class Engine:
         return f"{type(self).__name__}({args})"
 
 
-def empty_contacts(n) -> dict:
-    """n contact rows of zeros in a step file's layout (the native record table's fields, dtypes
-    and widths, as a Box2D world reports them): what an engine other than Box2D fills."""
-    global _CONTACT_LAYOUT
-    if _CONTACT_LAYOUT is None:
-        _CONTACT_LAYOUT = {k: (v.dtype, v.shape[1:]) for k, v in World(0.0, 0.0).contacts().items()}
-    return {k: np.zeros((n, *shape), dtype) for k, (dtype, shape) in _CONTACT_LAYOUT.items()}
+def step_layout() -> dict:
+    """{"bodies": ..., "contacts": ...}: each table's fields, field -> (dtype, shape of one row),
+    as a step file records them (the native record tables, records.hpp, as a Box2D world
+    reports them): what every engine's step returns (docs/engines.md, "An engine of your own")."""
+    global _LAYOUT
+    if _LAYOUT is None:
+        world = World(0.0, 0.0)
+        _LAYOUT = {table: {k: (v.dtype, v.shape[1:]) for k, v in arrays.items()}
+                   for table, arrays in (("bodies", world.bodies()), ("contacts", world.contacts()))}
+    return _LAYOUT
 
 
-_CONTACT_LAYOUT = None
+def empty_bodies(n: int) -> dict:
+    """n body rows of zeros in a step file's layout (every field, in its dtype and width), for an
+    engine that fills its bodies itself; `scene_bodies` gives a scene's, filled."""
+    return _zeros("bodies", n)
+
+
+def empty_contacts(n: int) -> dict:
+    """n contact rows of zeros in a step file's layout (every field, in its dtype and width):
+    what an engine other than Box2D fills with its contact points."""
+    return _zeros("contacts", n)
+
+
+def _zeros(table, n):
+    return {k: np.zeros((n, *shape), dtype) for k, (dtype, shape) in step_layout()[table].items()}
+
+
+def scene_bodies(scene: "Scene") -> dict:
+    """The scene's bodies at its start, in a step file's layout, with Box2D 2.4.1's mass
+    properties (mass, centre of mass, inertia about it, their inverses): what an engine of its own
+    starts from, as pymunk's and MuJoCo's do, so that every engine moves the same bodies."""
+    from ..build import build_world
+    return build_world(scene).bodies()
+
+
+def layout_error(bodies, contacts) -> str | None:
+    """What breaks a step file's layout in an engine's step (a field missing, or of another dtype or
+    width), in words, or None. (Each table's lengths and the bodies contacts name: run.checked_step.)"""
+    for table, arrays in (("bodies", bodies), ("contacts", contacts)):
+        for field, (dtype, shape) in step_layout()[table].items():
+            a = arrays.get(field)
+            if a is None:
+                return f"{table} without {field!r} (every field of empty_{table} is needed)"
+            if not isinstance(a, np.ndarray) or a.dtype != dtype or a.shape[1:] != shape or a.ndim != 1 + len(shape):
+                got = f"{a.dtype} of shape {a.shape}" if isinstance(a, np.ndarray) else type(a).__name__
+                wanted = "(n, " + ", ".join(map(str, shape)) + ")" if shape else "(n,)"
+                return f"{table}.{field} as {got}; a step file's is {dtype} of shape {wanted}"
+    return None
+
+
+_LAYOUT = None
 
 ENGINES = Registry("engine", "deepcontact.engines")
 ENGINES.register("box2d", "deepcontact.simulate.engines.box2d:Box2D")

@@ -1,2 +1,2 @@
-"""Example deepcontact plug-ins (docs/api.md): a warm start, a network and a solver method to copy
-and change."""
+"""Example deepcontact plug-ins (docs/api.md): a warm start, a network, a solver method and an
+engine to copy and change."""
