@@ -136,6 +136,10 @@ def test_a_contact_naming_a_removed_body_is_refused(tmp_path):
     (broken / step.relative_to(run)).write_text(re.sub(r'slave="6"', 'slave="3"', text, count=1))
     r = dc("validate", broken)
     assert r.returncode == 1 and "names body 3 (slave), but the step has no body 3" in r.stdout, r.stdout
+    # (and a body recorded twice, which the schema cannot see either)
+    (broken / step.relative_to(run)).write_text(text.replace('<body index="2"', '<body index="5"', 1))
+    r = dc("validate", broken)
+    assert r.returncode == 1 and f'{step.name}:0:0: body 5 is recorded twice' in r.stdout, r.stdout
 
 
 @pytest.mark.parametrize("index, contacts, needle", [

@@ -19,6 +19,12 @@ def check_file(path, origin=None, xsd=False):
     simulation the file lies in, and optionally its run's pgs record (None: the project's solver
     did not step it), or None. xsd: a valid file is validated by the XSD itself too (a sample of
     dc validate's: its table is checked against its source)."""
+    return check_and_read(path, origin, xsd)[:2]
+
+
+def check_and_read(path, origin=None, xsd=False):
+    """check_file's (kind, error lines), and the step the pass read: (header, bodies, contacts) of
+    a valid step file, else None (what dc validate --residuals judges, without reading it again)."""
     try:   # a valid step file (nearly every file): checked against the schema's table and read in one pass
         step = read_step(path, validate=True)
     except InputError:   # not one: the second pass below lists the XSD's errors (up to MAX_ERRORS), or says why
@@ -28,24 +34,25 @@ def check_file(path, origin=None, xsd=False):
         if errors:   # (the table let through what the XSD refuses: the XSD is the authority)
             step = None
     if step is not None:
-        return "step", _semantic_errors(path, step, origin)
+        lines = _semantic_errors(path, step, origin)
+        return "step", lines, None if lines else step
     shown = show_path(path)
     try:
         root, scene, seed, errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)
     except StepFileError as e:   # cannot be read at all (missing, not a regular file, cut gzip)
         message, line = e.args
-        return None, [one_line(f"{shown}:{line}:0: {message}")]
+        return None, [one_line(f"{shown}:{line}:0: {message}")], None
     if root != "step":
         kind, _, lines = schema.validate(path)
-        return kind, lines
+        return kind, lines, None
     lines = [one_line(f"{shown}:{line}:{column}: {message}") for line, column, message in sorted(errors)]
     if not lines:
         try:
             step = read_step(path, validate=False)
         except InputError as e:
-            return "step", [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")]
+            return "step", [one_line(f"{show_path(e.path)}:{e.line or 0}:0: {e.message}")], None
         lines = _semantic_errors(path, step, origin)
-    return "step", lines
+    return "step", lines, None if lines else step
 
 
 def _semantic_errors(path, step, origin):
@@ -65,8 +72,15 @@ def _semantic_errors(path, step, origin):
 
 
 def _contacts_name_its_bodies(bodies, contacts, path):
-    """Every contact names bodies of its own step (the schema cannot say: master="999" of 101
-    bodies validated); InputError naming the file and the contact otherwise."""
+    """Every body of the step is there once, and every contact names bodies of its own step (the
+    schema cannot say: master="999" of 101 bodies validated); InputError naming the file and the
+    body or contact otherwise."""
+    import numpy as np
+    index = np.asarray(bodies.get("index", ()))
+    known, seen = np.unique(index, return_counts=True)
+    if len(known) != len(index):
+        body = int(known[np.flatnonzero(seen > 1)[0]])
+        raise InputError(f'body {body} is recorded twice (two <body index="{body}">)', path)
     stray = stray_contact(bodies, contacts)
     if stray is not None:
         row, side, body = stray
