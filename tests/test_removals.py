@@ -2,8 +2,8 @@
 static one among them (datasets/scenes/removals.xml): simulated in every engine and by the
 project's solver, validated (replay and residuals too), drawn, rasterized, and driven by every
 start in the closed loop. Contacts name bodies by their index in the scene, which a removal
-makes differ from their row in the step (a run of such a scene was refused as "naming body 5,
-but the step has 5 bodies")."""
+makes differ from their row in the step (a run of this scene was refused as "naming body 6,
+but the step has 6 bodies")."""
 import importlib.util
 import json
 import re
