@@ -150,7 +150,33 @@ BROKEN = textwrap.dedent('''
     class FlatNormal(Broken):
         def breaks(self, contacts):
             contacts["normal"] = contacts["normal"][:, 0].copy()
+
+    class NoRatio(Circles):
+        def stepper(self, world, scene, record=True):
+            step = super().stepper(world, scene, record)
+            def unscaled():
+                done = step()
+                done.dt_ratio = None
+                return done
+            return unscaled
     ''')
+
+
+def test_a_step_that_names_no_dt_ratio_is_written_alike_in_its_sandbox_and_here(tmp_path, monkeypatch,
+                                                                                 example_on_path):
+    """LoopStep's dt_ratio left None is the loop's own (0 on the first step, 1 after) in the
+    sandbox as in a caller's process (the sandbox made it 1 on every step)."""
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "broken_engines.py").write_text(BROKEN)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    from broken_engines import NoRatio
+    r = invoke("simulate", *PILE, "--steps", "2", "--engine", "broken_engines:NoRatio", "-q", "-o", tmp_path / "run")
+    assert r.exit_code == 0, r.stderr
+    dc.simulate_run(dc.SceneSource("pile", PILE_PARAMS, steps=2), [0], tmp_path / "here", engine=NoRatio())
+    for k, ratio in ((0, "0"), (1, "1")):
+        name = f"seed-000000/step-{k:06d}.xml"
+        assert (tmp_path / "run" / name).read_bytes() == (tmp_path / "here" / name).read_bytes()
+        assert dc.read_step(tmp_path / "run" / name)[0]["dt_ratio"] == float(ratio)
 
 
 @pytest.mark.parametrize("engine, needle", [
