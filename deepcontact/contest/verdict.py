@@ -33,7 +33,7 @@ MIN_STEPS = 5   # a winner is never named from fewer steps (one step's interval 
 SEED = 0   # (the intervals are a function of the times: the same report twice is the same report)
 RESOLUTION_MS = 1e-3   # the smallest time a ratio of medians takes as it is (1 microsecond)
 # The A/A interval beyond which the machine is too noisy to time (module docstring): quiet reports
-# measured A/A intervals within [0.90, 1.12] (docs/results/warm-starts.md), one at load 8 0.54x.
+# measured A/A intervals within [0.90, 1.12], loaded ones [0.41, 2.81] (docs/results/measuring.md).
 NOISE_LIMIT = 1.25
 
 

@@ -6,7 +6,8 @@ interval resamples the steps (the same steps for both: a pair per step) with a f
 report repeats. The noise floor is Box2D's warm start against itself: its first timed solve of
 each step against its second (A/A), which should be 1 and shows how far from 1 the machine moves
 a ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
-start's time and the runner-up's; else it says there is no clear winner within noise.
+start's time and the runner-up's, and never where the A/A itself reaches beyond NOISE_LIMIT (the
+machine too noisy to time); else it says there is no clear winner (contest/verdict.py).
 """
 from ..contest.verdict import decide, paired as _paired
 
