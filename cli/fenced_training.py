@@ -81,10 +81,9 @@ class _Sync:
 def run(ctx, model, out, overwrite, resume, device):
     """Runs the training fenced; returns its exit status."""
     from deepcontact import output, protocol
-    from deepcontact.contest import job
+    from deepcontact.contest import job, result
     from deepcontact.errors import InputError
     from deepcontact.model.checkpoint_file import MODEL_FILES
-    from deepcontact.plugins import PluginError
     if os.environ.get("WORLD_SIZE") or os.environ.get("RANK"):
         raise InputError("a plug-in network trains in a sandbox of its own, where torchrun's processes cannot reach "
                          "one another: train it in one process (without torchrun)")
@@ -110,10 +109,10 @@ def run(ctx, model, out, overwrite, resume, device):
         sync = _Sync(staged, work)
         code = job.run(["train", *args], [private], private, {INSIDE: str(out)}, protocol.command_line, devices,
                        poll=None if replace else sync)
-        if not replace or code == 0:
+        record = job.ended(private)
+        if not replace or result.ended_in_order(record, code) and code == 0:
             sync()
-        if code not in (0, 1, 2):
-            raise PluginError(f"the training of the network {model!r} ended its process ({job.how(code)})")
+        job.refuse_unordered(code, record, f"the training of the network {model!r}")
         if code != 0:
             raise click.exceptions.Exit(code)   # (its own line said why; an earlier run replaced is as it was)
     return 0

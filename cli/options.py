@@ -9,7 +9,8 @@ import click
 from click.core import ParameterSource
 
 from deepcontact import interrupts, output
-from deepcontact.errors import Failure, InputError, OptionError, missing_module, one_line, show_path
+from deepcontact.contest import result
+from deepcontact.errors import Failure, InputError, OptionError, StudyFailed, missing_module, one_line, show_path
 from deepcontact.interrupts import Terminated
 
 from .terminal import setup_logging
@@ -56,16 +57,32 @@ def command(name):
             interrupts.install(f"dc {name}")
             output.completed.clear()
             try:
-                return f(*args, verbose=verbose, quiet=quiet, **kwargs)
+                done = f(*args, verbose=verbose, quiet=quiet, **kwargs)
             except BaseException as e:
                 ended = _ending(name, e, verbose, kwargs)
+                _say_how_it_ended(e, ended)
                 if ended is None:
                     raise
                 code, line = ended
                 click.echo(line, err=True)
                 sys.exit(code)
+            result.say(result.IN_ORDER, 0)
+            return done
+        wrapper.dc_command = True   # (cli/study.py: a command held already)
         return wrapper
     return decorate
+
+
+def _say_how_it_ended(e, ended):
+    """The fenced command's record (contest/result.py) for a command that raised e: in order for
+    click's Exit and a study whose verdict is a failure, failed for the rest (a traceback with -v
+    included); nothing where no fence asked for one."""
+    if isinstance(e, click.exceptions.Exit):
+        result.say(result.IN_ORDER, e.exit_code)
+    elif isinstance(e, StudyFailed):   # (its table is written: a verdict, not a failure to run)
+        result.say(result.IN_ORDER, 1, str(e))
+    else:
+        result.say(result.FAILED, ended[0] if ended is not None else 1, ended[1] if ended is not None else repr(e))
 
 
 _CLICKS = (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort)

@@ -54,7 +54,7 @@ class StudyGroup(click.Group):
         if fence.fenced(name):
             return _fenced_command(name)
         try:
-            return command_of(name)
+            return _held(name, command_of(name))
         except PluginError as e:   # (one line naming its distribution and entry point; -v: the traceback)
             if "-v" in sys.argv or "--verbose" in sys.argv:
                 raise
@@ -78,6 +78,32 @@ class StudyGroup(click.Group):
 
     def format_commands(self, ctx, formatter):
         pass   # (the list above says what each does)
+
+
+def _held(name, command):
+    """A study's command as every dc command runs: whatever it raises one line (-v: the
+    traceback), its end recorded for the fence that runs it (contest/result.py). The project's
+    own commands are already (options.command); a plug-in's plain click command was a raw
+    traceback, and its crash was published as its output."""
+    from . import options
+    if getattr(command.callback, "dc_command", False):
+        return command
+    invoke = command.invoke
+
+    @options.command(f"study {name}")
+    def held(ctx, verbose=0, quiet=0):
+        from deepcontact.errors import Failure, InputError
+        from deepcontact.plugins import PluginError
+        from deepcontact.studies import where_from
+        try:
+            return invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort, InputError, Failure,
+                MemoryError):
+            raise   # (its own words: a message, a verdict, click's usage)
+        except Exception as e:   # (chained: -v shows its file and line)
+            raise PluginError(f"the study {name!r} ({where_from(name)}) raised {type(e).__name__}: {e}") from e
+    command.invoke = lambda ctx: held(ctx, verbose=sum(a in ("-v", "--verbose") for a in sys.argv))
+    return command
 
 
 def _fenced_command(name):

@@ -82,6 +82,13 @@ STUDY = textwrap.dedent("""
         _out(out, {"written": True})
         if how == "exit":
             os._exit(9)
+        if how in ("exit 1", "exit 200"):   # (a crash that exits as a verdict does; a status above 128)
+            os._exit(int(how.split()[1]))
+        if how == "raise":
+            raise ZeroDivisionError("half-way")
+        if how == "verdict":
+            from deepcontact.errors import StudyFailed
+            raise StudyFailed("a configuration never met its criteria")
         if how == "signal":
             os.kill(os.getpid(), signal.SIGSEGV)
         if how == "link":
@@ -147,12 +154,24 @@ def test_a_study_reaches_no_process_file_or_socket_of_the_users(installed, tmp_p
         listener.close()
 
 
-@pytest.mark.parametrize("how, needle", [("exit", "exit status 9"), ("signal", "killed by SIGSEGV")])
+@pytest.mark.parametrize("how, needle", [
+    ("exit", "exit status 9"), ("signal", "killed by SIGSEGV"),
+    # a crash exits 1 as a failed verdict does, and was published over the user's output
+    ("exit 1", "without saying it ended in order"), ("raise", "ZeroDivisionError: half-way"),
+    ("exit 200", "exit status 200"),   # (was "killed by signal 72")
+])
 def test_a_study_that_ends_its_own_process_is_one_line_and_publishes_nothing(installed, tmp_path, how, needle):
     out = tmp_path / "out.json"
     out.write_text("earlier")
     one_line_error(dc("study", "leave", "-o", out, "--how", how, "--overwrite"), "the study 'leave'", needle)
     assert out.read_text() == "earlier" and sorted(p.name for p in tmp_path.iterdir()) == ["lib", "out.json"]
+
+
+def test_a_study_whose_verdict_is_a_failure_is_published(installed, tmp_path):
+    out = tmp_path / "out.json"
+    out.write_text("earlier")
+    one_line_error(dc("study", "leave", "-o", out, "--how", "verdict", "--overwrite"), "never met its criteria")
+    assert json.loads(out.read_text()) == {"written": True}
 
 
 def test_a_link_in_a_studys_output_is_not_published(installed, tmp_path):

@@ -18,9 +18,9 @@ from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from .. import output, protocol
-from ..errors import InputError
+from ..errors import InputError, show_path
 from ..plugins import PluginError
-from . import sandbox
+from . import result, sandbox
 from .broker import ENV as BROKER_ENV, Broker
 
 COMMAND_LINE = "DC_COMMAND_LINE"   # the user's command line, for the job's reports (not the staged one)
@@ -34,13 +34,14 @@ def python_path():
 
 def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(), poll=None):
     """Runs `dc DC_ARGS` in a JobSandbox writing in `writable` (its TMPDIR `private`, one of
-    them); returns its exit status (how(): in words). env_extra: more of its environment;
+    them); returns its exit status (how(): in words; ended(private): its own record of its end). env_extra: more of its environment;
     devices: device files it may use (an accelerator's); poll(): called every POLL seconds while
     it runs (what the caller keeps up to date from what it writes)."""
     broker = Broker()
     box = sandbox.JobSandbox(writable=writable, devices=devices)
     env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=python_path())
-    env.update({BROKER_ENV: str(broker.job_fd), COMMAND_LINE: command_line or "", **(env_extra or {})})
+    env.update({BROKER_ENV: str(broker.job_fd), COMMAND_LINE: command_line or "", **(env_extra or {}),
+                result.ENV: os.path.join(private, result.NAME)})
     env.setdefault("MPLCONFIGDIR", _matplotlib_dir(private))
     if type(sys.stdout).__name__ == "ClosedStdout":
         env["DC_STDOUT_CLOSED"] = "1"
@@ -69,9 +70,30 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
     return code
 
 
-def how(code):
-    """A job's exit status in words ("exit status 9", "killed by SIGSEGV")."""
-    return sandbox.exit_words(code)
+def how(code, record=None):
+    """A job's exit status in words ("exit status 9", "killed by SIGSEGV"); record: its own
+    (ended()), which says the process ended itself, so that a status over 128 is no signal."""
+    return sandbox.exit_words(code, ended_itself=record is not None)
+
+
+def ended(private):
+    """The record the job wrote of its end in its private folder (contest/result.py), or None."""
+    return result.read(os.path.join(private, result.NAME))
+
+
+def refuse_unordered(code, record, who, target=None):
+    """PluginError where a job's end is no order to publish (nothing was): a crash, a signal, an
+    exit status its record does not give, a status beyond 0-2; None where it ended in order, or
+    failed with its own line said (exit 1 or 2: returned as it is)."""
+    if result.ended_in_order(record, code) or code == 2:
+        return
+    if record is not None and record["ended"] == result.FAILED and record["code"] == code == 1:
+        return
+    kept = f"; {show_path(target)} is as it was" if target is not None else ""
+    if code in (0, 1):
+        raise PluginError(f"{who} ended its process ({how(code, record)}) without saying it ended in order (a "
+                          f"crash?): nothing it wrote was published{kept}")
+    raise PluginError(f"{who} ended its process ({how(code, record)}): nothing it wrote was published{kept}")
 
 
 # --- A fenced command's output -----------------------------------------------------------------------------------
@@ -125,10 +147,11 @@ def _check_contents(produced, target, who):
 
 
 def publish(produced, target, command, who):
-    """What the fenced command wrote in its staging folder, swapped in at target."""
+    """What the fenced command wrote in its staging folder, swapped in at target; whether it
+    wrote anything there."""
     produced, target = Path(produced), Path(target)
     if not os.path.lexists(produced):
-        return
+        return False
     _check_contents(produced, target, who)
     if produced.is_dir():
         if os.path.lexists(target) and not target.is_dir():
@@ -140,6 +163,7 @@ def publish(produced, target, command, who):
     else:
         output.check_replaceable(target)
         os.replace(produced, target)
+    return True
 
 
 @contextmanager
@@ -158,16 +182,19 @@ def _staging(target, command):
         output.release_building(stage)
 
 
-def run_with_output(head, args, command, writes, env_extra, who):
+def run_with_output(head, args, command, writes, env_extra, who, aside=None):
     """Runs `dc HEAD ARGS` fenced, its -o staged beside the output and published when it ends in
     order (exit 0, or 1 with a verdict); returns its exit status. command: the output's record
     ("study engines"); writes(): what its -o is ("folder", "file", "text"), asked only when there
-    is one; who: how its errors name it."""
+    is one; who: how its errors name it. aside(target): where there is an output, a context
+    manager entered under its lock for what the job keeps beside it across runs (a study's
+    finished units: studies.units.Beside), giving the folders it may write (`writable`), what it
+    is told (`env`) and published(), called once the output is published."""
     args = list(args)
     where, prefix, target, overwrite = output_argument(args)
     with ExitStack() as stack:
         private = stack.enter_context(tempfile.TemporaryDirectory(prefix="dc-job-"))
-        writable, staged = [private], None
+        writable, staged, kept = [private], None, None
         if target is not None:
             kind = writes()
             check_output(target, command, overwrite, kind)
@@ -178,13 +205,18 @@ def run_with_output(head, args, command, writes, env_extra, who):
             stage = stack.enter_context(_staging(target, command))
             writable.append(str(stage))
             staged = stage / Path(target).name
+            if aside is not None:   # (kept beside the output across runs: outlives the staging folder)
+                kept = stack.enter_context(aside(target))
+                writable += kept.writable
+                env_extra = {**(env_extra or {}), **kept.env}
             args[where] = prefix + str(staged)
             env_extra = {**(env_extra or {}), "DC_OUTPUT_STAGED": str(staged), "DC_OUTPUT_SHOWN": str(target)}
         code = run([*head, *args], writable, private, env_extra, protocol.command_line)
-        if staged is not None and code in (0, 1):
-            publish(staged, target, command, who)
-    if code not in (0, 1, 2):
-        raise PluginError(f"{who} ended its process ({how(code)}): nothing it wrote was published")
+        record = ended(private)
+        if staged is not None and result.ended_in_order(record, code):
+            if publish(staged, target, command, who) and kept is not None:
+                kept.published()
+        refuse_unordered(code, record, who, target)
     return code
 
 

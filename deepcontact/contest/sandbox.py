@@ -342,9 +342,11 @@ class JobSandbox(Sandbox):
         return out + list(argv)
 
 
-def exit_words(code):
-    """A sandboxed process's exit status in words ("exit status 9", "killed by SIGSEGV")."""
-    if code > 128 and machine.bwrap() is not None:   # (bubblewrap passes its child's signal on as 128 + it)
+def exit_words(code, ended_itself=False):
+    """A sandboxed process's exit status in words ("exit status 9", "killed by SIGSEGV").
+    Bubblewrap passes its child's signal on as 128 + it, which an exit status can also be: read as
+    a signal only where it names one and the process did not say it ended itself (its record)."""
+    if 128 < code <= 128 + signal.SIGRTMAX and not ended_itself and machine.bwrap() is not None:
         code = 128 - code
     if code < 0:
         try:

@@ -29,7 +29,7 @@ class Study:
 STUDIES = Registry("study", "deepcontact.studies")
 
 
-def _where(name):
+def where_from(name):
     """Where a study's entry point comes from, for a line naming it: "distribution 1.0, entry
     point name = module:attr", or "registered in code"."""
     ep = STUDIES.installed().get(name) if name not in STUDIES.builtin() else None
@@ -43,7 +43,7 @@ def _healthy(name):
     """The study named `name`, loaded and held to the contract (a Study whose command() makes a
     click command); PluginError, one line naming its distribution and entry point, otherwise."""
     import click
-    where = _where(name)
+    where = where_from(name)
     try:
         found = STUDIES.load(name)
     except PluginError as e:

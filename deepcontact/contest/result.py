@@ -1,0 +1,69 @@
+"""How a fenced command ended, in its own words: one small record per run (DOMjudge's runguard
+writes one meta record that the daemon reads). The fenced `dc` writes it as its command ends:
+"in order" (it returned, or its verdict is a failure: StudyFailed, click's Exit) or "failed" (an
+error, already said in its one line). A crash, a signal or os._exit writes none. dc's own process
+reads it beside the exit status and publishes the staged output only when the two agree that the
+command ended in order: an exit 1 alone cannot tell a failed verdict from a crash.
+
+The record is no proof against a hostile plug-in (its code runs in the process that writes it,
+and could write the whole output too); it keeps a crash from being published as a result."""
+import json
+import os
+import stat
+
+ENV = "DC_RESULT_FILE"   # where the fenced command writes its record (in its private TMPDIR)
+NAME = "dc-result.json"
+LIMIT = 16 << 10         # bytes: a record is a few dozen; anything larger is not one
+IN_ORDER, FAILED = "in order", "failed"
+# Taken from the environment as the fenced command starts (its modules are imported before any
+# plug-in code runs), so that no process it starts inherits it and writes a record of its own.
+_PATH = os.environ.pop(ENV, None)
+
+
+def say(ended, code, message=""):
+    """In the fenced command: its record, written whole (a temporary name renamed) where ENV
+    says; nothing outside a fence."""
+    path = _PATH
+    if not path:
+        return
+    data = json.dumps({"ended": ended, "code": int(code), "message": str(message)[:2000]})
+    part = f"{path}.part"
+    try:
+        with open(part, "w") as f:
+            f.write(data)
+        os.replace(part, path)
+    except OSError:   # (a full private folder: no record, so nothing is published; the exit says why)
+        pass
+
+
+def read(path):
+    """dc's side: the record at path as {"ended", "code", "message"}, or None where there is none
+    or it is not one (a link, a FIFO, too large, not the JSON written above): read once, through
+    a descriptor opened without following links, never blocking."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > LIMIT:
+            return None
+        data = os.read(fd, LIMIT + 1)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    try:
+        record = json.loads(data)
+    except (ValueError, RecursionError):
+        return None
+    if not (isinstance(record, dict) and record.get("ended") in (IN_ORDER, FAILED)
+            and type(record.get("code")) is int and isinstance(record.get("message", ""), str)):
+        return None
+    return {"ended": record["ended"], "code": record["code"], "message": record.get("message", "")}
+
+
+def ended_in_order(record, code):
+    """Whether a fenced command's staged output may be published: its record says it ended in
+    order, with the exit status it ended with (0, or 1 for a verdict that is a failure)."""
+    return record is not None and record["ended"] == IN_ORDER and record["code"] == code and code in (0, 1)
