@@ -102,8 +102,9 @@ def too_noisy_words(base):
 
 def not_converged_words(best, base, unfinished):
     """Why a verdict does not name best, which ended steps above the tolerance ({label: steps})."""
-    return (f"but it ended {count(unfinished[best], 'step')} above the tolerance ({md_text(base)}: "
-            f"{unfinished.get(base, 0):,}): a variant that did not converge is never named")
+    theirs = f" ({md_text(base)}: {unfinished.get(base, 0):,})" if best != base else ""
+    return (f"but it ended {count(unfinished[best], 'step')} above the tolerance{theirs}: a variant that did not "
+            f"converge is never named")
 
 
 def lost_the_run_words(best, beaten_by, totals):
