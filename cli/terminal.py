@@ -1,11 +1,15 @@
 """What a command shows on the terminal: its logs and progress on stderr, the line naming its
 output on stdout (none to a closed stdout)."""
+import atexit
 import errno
 import io
 import logging
+import math
 import os
 import sys
+import threading
 import time
+import weakref
 
 import click
 
@@ -56,8 +60,8 @@ def setup_logging(verbose, quiet):
 
 
 # Off a terminal (a log file, Make, CI, nohup, a cluster's batch job), a long run says where it is
-# in one line at least this often: what is done, the rate, about how long is left
-# (DC_PROGRESS_EVERY=SECONDS sets another period).
+# in one line at least this often, on a clock (the first unit of work may take minutes): what is
+# done of the total, the rate, about how long is left (DC_PROGRESS_EVERY=SECONDS sets another period).
 PROGRESS_EVERY = 30.0   # seconds
 
 
@@ -69,16 +73,19 @@ def progress_every():
     return value if value >= 0 else PROGRESS_EVERY
 
 
-def progress_bar(quiet, total, unit, desc):
+def progress_bar(quiet, total, unit, desc, work=None, **line):
     """A tqdm bar on stderr when it is a terminal; elsewhere a line every PROGRESS_EVERY seconds
-    (LineBar); nothing when quiet (every bar takes update() and close(), so callers need not ask
-    which). Neither off-terminal bar is tqdm's: a command in a pipeline need not import it."""
+    (LineBar, which takes `line`); nothing when quiet. total: the units the run will count (always
+    known: a bar that could pass it would lie). work: the units' total weight, where units differ
+    in cost and each update(n, work) says its own (LineBar's time left then follows the work).
+    Every bar takes update(n, work=None) and close(), so callers need not ask which. Neither
+    off-terminal bar is tqdm's: a command in a pipeline need not import it."""
     if quiet:
         return SilentBar()
     if not _is_terminal(sys.stderr):
-        return LineBar(total, unit, desc)
+        return LineBar(total, unit, desc, work, **line)
     from tqdm import tqdm
-    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False)
+    return TerminalBar(tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False))
 
 
 def _is_terminal(stream):
@@ -94,55 +101,157 @@ class SilentBar:
     def __init__(self):
         self.n = 0
 
-    def update(self, n=1):
+    def update(self, n=1, work=None):
         self.n += n
 
     def close(self):
         pass
 
 
-class LineBar(SilentBar):
-    """Progress off a terminal: a line on stderr at the first update PROGRESS_EVERY seconds after
-    the last line (what is done, the rate, what is left), and one at the end of a run that wrote
-    any; a short run says nothing."""
+class TerminalBar:
+    """tqdm's bar on a terminal, taking what every bar takes (the work is tqdm's own rate's business)."""
 
-    def __init__(self, total, unit, desc):
-        super().__init__()
-        self.total, self.unit, self.desc = total, unit, desc
-        self.started = self.said = time.monotonic()
-        self.lines, self.every = 0, progress_every()
+    def __init__(self, bar):
+        self.bar = bar
 
-    def update(self, n=1):
-        self.n += n
-        now = time.monotonic()
-        if now - self.said >= self.every:
-            self.said = now
-            self._say(now, done=False)
+    def update(self, n=1, work=None):
+        self.bar.update(n)
 
     def close(self):
+        self.bar.close()
+
+
+# A clock thread writes while holding this lock, and a fork waits for it: a worker forked in the
+# middle of a line would inherit stderr's buffer locked.
+_SAYING = threading.Lock()
+_LIVE = weakref.WeakSet()   # bars whose clock runs (stopped at exit: no thread writes while Python ends)
+
+
+def _before_fork():
+    _SAYING.acquire()
+
+
+def _after_fork():
+    _SAYING.release()
+
+
+os.register_at_fork(before=_before_fork, after_in_parent=_after_fork, after_in_child=_after_fork)
+
+
+@atexit.register
+def _stop_clocks():
+    for bar in list(_LIVE):
+        bar.stop_clock()
+
+
+class LineBar(SilentBar):
+    """Progress off a terminal: a line on stderr every PROGRESS_EVERY seconds from a clock thread,
+    whether or not a unit finished (what is done of the total, the rate, what is left), and one at
+    the end of a run that wrote any; a short run says nothing. With a period of 0, a line at every
+    update instead (no thread)."""
+
+    def __init__(self, total, unit, desc, work=None, started=None, then=None, done=0):
+        """started: when the work began (time.monotonic(); now by default), the first line one
+        period after it. then(seconds left here): a clause on what follows this bar, or ''.
+        done: units done before the bar began (a resumed run's), in the count, not in the rate."""
+        super().__init__()
+        self.total, self.unit, self.desc, self.then = total, unit, desc, then
+        self.n = self.before = done
+        self.total_work, self.work = work, 0.0
+        self.started = time.monotonic() if started is None else started
+        self.lines, self.every = 0, progress_every()
+        self._stop, self._clock, self.closed = threading.Event(), None, False
+        if self.every > 0:
+            self._clock = threading.Thread(target=self._tick, name=f"dc progress: {desc}", daemon=True)
+            _LIVE.add(self)
+            self._clock.start()
+
+    def update(self, n=1, work=None):
+        self.n += n
+        self.work += 0.0 if work is None else work
+        if self.every == 0:
+            self._say(time.monotonic(), done=False)
+
+    def _tick(self):
+        wait = max(0.0, self.every - (time.monotonic() - self.started))   # (the first: a period after the start)
+        while not self._stop.wait(min(wait, threading.TIMEOUT_MAX)):
+            wait = self.every
+            with _SAYING:
+                if self._stop.is_set():
+                    return
+                try:
+                    self._say(time.monotonic(), done=False)
+                except (OSError, ValueError):   # stderr closed or full: the run goes on unsaid
+                    return
+
+    def stop_clock(self):
+        self._stop.set()
+        if self._clock is not None and self._clock is not threading.current_thread():
+            self._clock.join(timeout=5)   # (a line being written: stderr's own time)
+
+    def close(self):
+        if self.closed:
+            return
+        self.closed = True
+        self.stop_clock()
+        _LIVE.discard(self)
         if self.lines:
-                self._say(time.monotonic(), done=True)
+            self._say(time.monotonic(), done=True)
 
     def _say(self, now, done):
-        took = max(now - self.started, 1e-9)
-        rate = self.n / took
-        of = f"/{self.total:,}" if self.total else ""
-        share = f" ({100 * self.n / self.total:.0f}%)" if self.total else ""
-        left = ""
-        if not done and self.total and rate > 0 and self.n < self.total:
-            left = f", about {duration((self.total - self.n) / rate)} left"
-        what = "so far" if not done else "done" if not self.total or self.n >= self.total else "when it ended"
-        sys.stderr.write(f"dc {self.desc}: {self.n:,}{of} {self.unit}s{share} {what} in {duration(took)}, "
-                         f"{rate:.3g} {self.unit}s/s{left}\n")
+        sys.stderr.write(progress_line(self, now - self.started, done) + "\n")
         sys.stderr.flush()
         self.lines += 1
 
 
+def progress_line(bar, took, done):
+    """'dc DESC: 12/40 UNITs (30%) so far in 1m05s, 5.4 s a UNIT, about 2m31s left': the count never
+    shown past its total, nor the share past 100% (a count that overran its total is a bug of the
+    caller's; the line stays true meanwhile); the time left follows the work where the bar weighs it."""
+    n = min(bar.n, bar.total) if bar.total is not None else bar.n
+    of = f"/{bar.total:,}" if bar.total is not None else ""
+    share = f" ({math.floor(100 * n / bar.total)}%)" if bar.total else ""
+    finished = bar.total is None or bar.n >= bar.total
+    what = "so far" if not done else "done" if finished else "when it ended"
+    line = f"dc {bar.desc}: {n:,}{of} {bar.unit}s{share} {what} in {duration(took)}"
+    counted = n - bar.before   # (what this bar saw done: the rate's)
+    if counted <= 0:   # (nothing done, or only a resumed run's part: no rate yet)
+        return line + ("" if done or n else f", the first {bar.unit} still running")
+    line += f", {rate(counted, took, bar.unit)}"
+    share = _share(bar)
+    if done or share is None:
+        return line
+    left = took * (1 - share[0]) / share[1]
+    if share[0] < 1:
+        line += f", about {duration(left)} left"
+    return line + (bar.then(left) if bar.then is not None else "")
+
+
+def _share(bar):
+    """(the share of the run done, the share this bar saw done): by weight where the bar weighs its
+    units, else by count; None where no share is known."""
+    if bar.total_work and bar.work > 0:
+        return min(bar.work / bar.total_work, 1.0), min(bar.work / bar.total_work, 1.0)
+    if bar.total and bar.n > bar.before:
+        return min(bar.n / bar.total, 1.0), (min(bar.n, bar.total) - bar.before) / bar.total
+    return None
+
+
+def rate(n, seconds, unit):
+    """'250 steps/s', or for slow units the time each takes: '4m10s a setting'."""
+    per_second = n / max(seconds, 1e-9)
+    if per_second >= 1:
+        return f"{per_second:.3g} {unit}s/s"
+    return f"{duration(seconds / n)} a {unit}"
+
+
 def duration(seconds):
-    """A time for a progress line: 42s, 3m05s, 2h10m."""
+    """A time for a progress line: 42s, 3m05s, 2h10m, 2d03h."""
     seconds = int(round(seconds))
     if seconds < 60:
         return f"{seconds}s"
     if seconds < 3600:
         return f"{seconds // 60}m{seconds % 60:02d}s"
-    return f"{seconds // 3600}h{seconds // 60 % 60:02d}m"
+    if seconds < 86400:
+        return f"{seconds // 3600}h{seconds // 60 % 60:02d}m"
+    return f"{seconds // 86400}d{seconds // 3600 % 24:02d}h"

@@ -28,15 +28,19 @@ def torch_device(ctx, param, value):
 class EpochLines:
     """What a training says as it goes (stderr; nothing with -q): a line an epoch with its
     metrics, the time an epoch takes and at most how long is left (early stopping may end it
-    sooner), and a line within an epoch every DC_PROGRESS_EVERY seconds (a long epoch)."""
+    sooner), and within an epoch a line every DC_PROGRESS_EVERY seconds on a clock (an epoch on
+    2 cores can take an hour): the samples done of the epoch's, the rate, the time left in the
+    epoch and in the run. epochs: the run's epochs where known before its first epoch ends."""
 
-    def __init__(self, quiet):
-        self.quiet, self.epochs_done = quiet, 0
+    def __init__(self, quiet, epochs=None):
+        self.quiet, self.epochs_done, self.epochs = quiet, 0, epochs
         self.start = self.last = time.monotonic()
+        self.bar, self.bar_epoch = None, None
 
     def epoch(self, row):
         self.epochs_done += 1
         self.last = time.monotonic()
+        self.epochs = row["epochs"]
         if self.quiet:
             return
 
@@ -47,16 +51,44 @@ class EpochLines:
                    ([f"the grid's floor {floor:.4g}"] if floor is not None else [])
             return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
         extra = "".join(shown(k) for k in sorted(row) if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
-        each = (self.last - self.start) / self.epochs_done
-        left = each * max(0, row["epochs"] - row["epoch"] - 1)
+        left = self.each() * max(0, row["epochs"] - row["epoch"] - 1)
         click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{extra} "
-                   f"({row['samples_per_second']:.0f} samples/s; {terminal.duration(each)} an epoch, at most "
+                   f"({row['samples_per_second']:.0f} samples/s; {terminal.duration(self.each())} an epoch, at most "
                    f"{terminal.duration(left)} left)", err=True)
 
+    def each(self, projected=None):
+        """An epoch's time: the mean of those this process finished, else this one's projected time."""
+        return (self.last - self.start) / self.epochs_done if self.epochs_done else projected
+
     def within(self, epoch, done, total):
-        if not self.quiet and time.monotonic() - self.last >= terminal.progress_every():
-            self.last = time.monotonic()
-            click.echo(f"epoch {epoch + 1}: {done:,} of {total:,} training samples", err=True)
+        """After each batch (the trainer's heartbeat): the epoch's bar counts its samples, its clock
+        says the lines. A later epoch's bar is dated from the last epoch's end; the process's first
+        from its first batch (before it: the set-up, or the part of the epoch a resumed run did)."""
+        if self.quiet:
+            return
+        if self.bar_epoch != epoch:
+            self.close()
+            first = self.epochs_done == 0
+            of = f" of {self.epochs}" if self.epochs else ""
+            self.bar = terminal.LineBar(total, "sample", f"train, epoch {epoch + 1}{of}",
+                                        started=None if first else self.last, done=done if first else 0,
+                                        then=lambda left: self.run_left(epoch, left))
+            self.bar_epoch = epoch
+        self.bar.update(done - self.bar.n)
+
+    def run_left(self, epoch, left):
+        """The clause on the run after this epoch: at most how long it has left."""
+        if not self.epochs:
+            return ""
+        after = self.epochs - epoch - 1
+        projected = time.monotonic() - self.bar.started + left   # (this epoch's time, as it goes)
+        return f"; the run: at most {terminal.duration(left + after * self.each(projected))} left"
+
+    def close(self):
+        """The epoch's bar stopped (the epoch's own line follows)."""
+        if self.bar is not None:
+            self.bar.stop_clock()
+            self.bar = None
 
 
 @click.command(cls=fenced_training.RawArgsCommand)
@@ -141,7 +173,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
                       patience=patience, seed=seed, final_relu=not no_final_relu, fcn_width=fcn_width,
                       fcn_depth=fcn_depth, solver_sweeps=solver_sweeps)
 
-    lines = EpochLines(quiet)
+    lines = EpochLines(quiet, epochs if resume else cfg.epochs)
     fields = {"model": "model", "targets": "targets", "loss": "loss", "optimizer": "optimizer", "lr": "lr",
               "weight_decay": "weight_decay", "batch_size": "batch_size", "patience": "patience", "seed": "seed",
               "no_final_relu": "final_relu", "fcn_width": "fcn_width", "fcn_depth": "fcn_depth",
@@ -151,9 +183,12 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
         raise click.exceptions.Exit(fenced_training.run(click.get_current_context(), model, out, overwrite, resume,
                                                         device))
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
-    history = run(dataset, out, None if resume else cfg, resume=resume, progress=lines.epoch, threads=threads,
-                  device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
-                  given=given, plots=plots, heartbeat=lines.within, keep_every=checkpoint_every * 60)
+    try:
+        history = run(dataset, out, None if resume else cfg, resume=resume, progress=lines.epoch, threads=threads,
+                      device=device, overwrite=overwrite, epochs=epochs if resume else None, max_memory=max_memory,
+                      given=given, plots=plots, heartbeat=lines.within, keep_every=checkpoint_every * 60)
+    finally:
+        lines.close()
     import os
     if not quiet and history and os.environ.get("RANK", "0") == "0":
         shown = os.environ.get(fenced_training.INSIDE) or out   # (fenced: the user's folder, not the staged one)

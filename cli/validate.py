@@ -48,11 +48,16 @@ def validate(paths, replay, residuals, jobs, verbose, quiet):
         return replay_runs(paths, quiet, jobs)
     from deepcontact.simulate.validate import validate as check
 
-    bar = terminal.progress_bar(quiet, None, "file", "validate")
+    bars = []
+
+    def bar(total):
+        bars.append(terminal.progress_bar(quiet, total, "file", "validate"))
+        return bars[-1]
     try:
-        files, invalid, above = check(paths, click.echo, jobs=jobs, progress=bar.update, residuals=residuals)
+        files, invalid, above = check(paths, click.echo, jobs=jobs, progress=bar, residuals=residuals)
     finally:
-        bar.close()
+        for b in bars:
+            b.close()
     if not quiet:
         click.echo(f"{count(files, 'file')} checked, {invalid} invalid"
                    + (f"; {count(above, 'step')} with a residual above its tolerance (those that stopped at "
@@ -66,8 +71,10 @@ def replay_runs(paths, quiet, jobs):
     failed = False
     for run_dir in paths:
         bar = terminal.progress_bar(quiet, len(replayable_run(run_dir).step_files), "step", f"replay {run_dir}")
-        report = replay_run(run_dir, on_file=lambda _: bar.update(1), jobs=jobs)
-        bar.close()
+        try:
+            report = replay_run(run_dir, on_file=lambda _: bar.update(1), jobs=jobs)
+        finally:
+            bar.close()
         verdict = "exact" if report.exact else f"NOT exact in {report.inexact_steps} steps (worst: {report.worst})"
         click.echo(f"{run_dir}: {report.steps} steps, {report.points} contact points replayed; "
                    f"largest difference {report.max_difference:.9g}: {verdict}")

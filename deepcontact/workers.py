@@ -21,12 +21,17 @@ _PR_SET_PDEATHSIG = 1
 _report = None   # where progress() goes: a worker's pipe to its parent, or the serial run's callback
 
 
-def progress(n=1):
+def progress(n=1, work=None):
     """Counts n units of a task's work as done, from inside the task: a worker sends it to its
     parent, whose pool hands it to the command's progress callback; a serial run calls it at once.
-    So a bar moves per step, not per task, with any -j."""
+    So a bar moves per step, not per task, with any -j. work: what those units weigh, where units
+    differ (a setting of a 10,000-body scene against one of 40 bodies), so that a bar given the
+    total weight estimates the time left from it; the callback then gets (n, work)."""
     if _report is not None:
-        _report(n)
+        if work is None:
+            _report(n)
+        else:
+            _report(n, work)
 
 
 def die_with_parent(parent=None):
@@ -51,7 +56,7 @@ def _serve(conn):
     """A worker's loop: (fn, task) in, ("progress", n) as it goes, then ("ok", result) or
     ("error", exception) out, until None."""
     global _report
-    _report = lambda n: conn.send(("progress", n))   # noqa: E731 (one line, one job)
+    _report = lambda *counted: conn.send(("progress", counted))   # noqa: E731 (one line, one job)
     while True:
         try:
             job = conn.recv()
@@ -120,7 +125,7 @@ class Pool:
                                   "command's output was kept") from None
                 if status == "progress":   # (the task goes on)
                     if self.on_progress is not None:
-                        self.on_progress(value)
+                        self.on_progress(*value)   # (n, and the work where the task weighed it)
                     continue
                 index = busy.pop(conn)
                 if status == "error":

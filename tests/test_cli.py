@@ -165,13 +165,18 @@ def test_off_a_terminal_a_long_run_says_where_it_is(tmp_path, monkeypatch):
 
 def test_training_says_where_it_is_in_every_epoch_and_within_a_long_one(dataset, tmp_path, monkeypatch):
     """dc train printed "epoch N: loss" and nothing else: not how many epochs are left, nor a word
-    within an epoch however long (here every batch is "long": the period is 0)."""
+    within an epoch however long (here every batch is "long": the period is 0); within one, epoch
+    1's line gave no rate nor time left: now the samples of the epoch's, the rate, the time left in
+    the epoch and in the run."""
     monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
-    r = dc("train", dataset, "-o", tmp_path / "m", "--epochs", "2", "--width", "4", "--depth", "2")
+    r = dc("train", dataset, "-o", tmp_path / "m", "--epochs", "2", "--width", "4", "--depth", "2",
+           "--batch-size", "10")
     assert r.returncode == 0, r.stderr
     lines = r.stderr.splitlines()
     assert any(x.startswith("epoch 1 of 2: loss ") and " an epoch, at most " in x and x.endswith(" left)")
                for x in lines), r.stderr
-    assert any(x.startswith("epoch 2: ") and " training samples" in x for x in lines), r.stderr
+    for epoch in (1, 2):
+        assert any(x.startswith(f"dc train, epoch {epoch} of 2: ") and " samples (" in x and " samples/s, about " in x
+                   and "; the run: at most " in x for x in lines), r.stderr
     r = dc("train", dataset, "-o", tmp_path / "q", "--epochs", "2", "--width", "4", "--depth", "2", "-q")
     assert r.returncode == 0 and r.stderr == "", r.stderr

@@ -166,14 +166,15 @@ def _follow(world, scene, steps, step, solved=None, report=True):
     return follower.trajectory()
 
 
-def reference_trajectory(scene, steps):
-    """The scene stepped with every step's reference solution (float64 PGS to 1e-12)."""
+def reference_trajectory(scene, steps, report=True):
+    """The scene stepped with every step's reference solution (float64 PGS to 1e-12). report: each
+    step to workers.progress (a caller that counts other units, a study's settings, says False)."""
     exact = SolveSettings(mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
 
     def reference_fn(bodies, contacts, problem, builtin_n, builtin_t):
         r = reference_solution(problem)
         return r.normal_impulse, r.tangent_impulse
-    return run_loop(scene, reference_fn, exact, steps)
+    return run_loop(scene, reference_fn, exact, steps, report=report)
 
 
 def _compare(t, ref):

@@ -224,7 +224,8 @@ def _recounted(simulation, above):
 
 def validate(paths, report, jobs=1, progress=None, residuals=False):
     """Checks every file of paths; report(line) gets each error line, in file order whatever
-    `jobs`; progress(n): n more files checked. residuals: also each step our solver stepped,
+    `jobs`; progress(total files) makes a counter whose update(n) hears of n more files checked
+    (or progress is None). residuals: also each step our solver stepped,
     its residual recomputed from the file's problem and held to its run's tolerance
     (held_to_tolerance), and each simulation's count of such steps in the manifest. Returns
     (files checked, invalid files and runs, steps above their tolerance)."""
@@ -240,6 +241,7 @@ def validate(paths, report, jobs=1, progress=None, residuals=False):
               for group in (list(g) for _, g in groupby(files, key=lambda f: f.parent))
               for i in range(0, len(group), CHUNK)]
     per_folder = {}
+    counter = progress(len(files)) if progress is not None else None
     with workers.for_jobs(jobs, chunks) as pool:
         for checked in pool.imap(check_files, [(chunk, residuals) for chunk in chunks]):
             for path, lines, is_above in checked:
@@ -249,8 +251,8 @@ def validate(paths, report, jobs=1, progress=None, residuals=False):
                 per_folder[folder] = per_folder.get(folder, 0) + is_above
                 for line in lines:
                     report(line)
-            if progress is not None:
-                progress(len(checked))
+            if counter is not None:
+                counter.update(len(checked))
     if residuals:
         for folder, simulation in simulations.items():
             line = _recounted(simulation, per_folder.get(folder, 0)) if folder in per_folder else None

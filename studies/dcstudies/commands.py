@@ -80,7 +80,11 @@ def stability(out, fast, scenes, jobs, overwrite, verbose, quiet):
     with output_file(out, overwrite):
         measured = protocol(jobs=jobs)
         click.echo(S.HEADER)
-        rows = S.study(cases, log=click.echo, jobs=jobs)
+        bar = terminal.progress_bar(quiet, len(S.tasks(cases)), "configuration", "study stability")
+        try:
+            rows = S.study(cases, log=click.echo, jobs=jobs, progress=bar.update)
+        finally:
+            bar.close()
         if out:
             outputs.write_text(out, S.markdown(rows, fast, protocol_line(measured)))
     # Other engines' rows are measured, not required: their contacts are what they are (a
@@ -142,7 +146,8 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
     chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins), fast)
     with outputs.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
         measured = protocol(jobs=jobs)
-        bar = terminal.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines")
+        bar = terminal.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines",
+                                    work=E.tasks_work(cases, chosen))
         try:
             rows = E.study(cases, jobs=jobs, progress=bar.update, chosen=chosen)
         finally:
@@ -200,6 +205,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
     from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
     from dcstudies import frontier as F
+    from dcstudies.engines import tasks_work
 
     cases = options.pick_cases(F.FAST if fast else F.SCALE, scenes)
     chosen = F.settings(fast, options.pick_families(F.FAMILIES, families), tolerances,
@@ -208,7 +214,8 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
         samples = F.FAST_SAMPLES
     with outputs.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:
         measured = protocol(jobs=jobs)
-        bar = terminal.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier")
+        bar = terminal.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier",
+                                    work=tasks_work(cases, chosen))
         try:
             rows, lines = F.study(cases, chosen, samples, jobs=jobs, progress=bar.update)
         finally:

@@ -45,7 +45,7 @@ from . import stability as S
 from deepcontact.contest import RemoteMethod
 from deepcontact.solver.methods import is_native
 from .engines import (Setting, applicable, engine_families, engine_settings, families_of, picked, plugin_line,
-                      plugin_settings, run_setting, step_ms)
+                      plugin_settings, run_setting, step_ms, work_of)
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
@@ -149,7 +149,7 @@ def one_step(setting, samples):
 def run_scene(case, chosen, samples):
     """Every applicable setting on one case (Rows, in order)."""
     picked = samples_of(case, samples)
-    rows = []
+    rows, work = [], work_of(case)
     for setting in chosen:
         if not applicable(case, setting):
             continue
@@ -160,7 +160,7 @@ def run_scene(case, chosen, samples):
                         residual_median=median, residual_max=largest, velocity_error=error,
                         penetration=r.penetration, energy_rise=r.energy_rise, energy_allowed=r.energy_allowed,
                         capped=r.capped, samples=len(picked)))
-        workers.progress(1)
+        workers.progress(1, work)
     return rows, _reference_line(case, picked)
 
 
@@ -194,6 +194,7 @@ def _scene_task(task):
 
 
 def tasks_count(cases, chosen):
+    """The settings the study runs (what its progress counts)."""
     return sum(applicable(c, s) for c in cases for s in chosen)
 
 

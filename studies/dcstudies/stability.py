@@ -286,13 +286,19 @@ def applicable(case, solver):
     return not (solver == "pgs" and case.generator == "bullet")
 
 
-def study(cases, configs=CONFIGS, log=None, jobs=1):
+def tasks(cases, configs=CONFIGS):
+    """(case, configuration) of every run the study makes, in order (what its progress counts)."""
+    return [(case, config) for case in cases for config in configs if applicable(case, config[0])]
+
+
+def study(cases, configs=CONFIGS, log=None, jobs=1, progress=None):
     """(default, found) for every case and applicable configuration, in order; log(row) as each
-    row is known. jobs > 1: configurations side by side in worker processes (the same rows)."""
-    tasks = [(case, config) for case in cases for config in configs if applicable(case, config[0])]
+    row is known; progress(1) as each configuration is done. jobs > 1: configurations side by side
+    in worker processes (the same rows)."""
+    todo = tasks(cases, configs)
     rows = []
-    with workers.for_jobs(jobs, tasks) as pool:
-        for default, found in pool.imap(_passing, tasks):
+    with workers.for_jobs(jobs, todo, progress) as pool:
+        for default, found in pool.imap(_passing, todo):
             rows.append((default, found))
             if log:
                 log(format_row(default, found))
@@ -303,8 +309,11 @@ def _passing(task):
     case, (solver, start, relaxation, accelerate) = task
     first = effort(_engine_class(solver)).default if solver != "pgs" else None
     if first is not None:   # (an engine of its own default effort: from there, doubled up to 16x it)
-        return passing(case, solver, start, relaxation, first=first, cap=OWN_CAP * first)
-    return passing(case, solver, start, relaxation, accelerate=accelerate)
+        found = passing(case, solver, start, relaxation, first=first, cap=OWN_CAP * first)
+    else:
+        found = passing(case, solver, start, relaxation, accelerate=accelerate)
+    workers.progress(1)
+    return found
 
 
 CRITERIA = (

@@ -1,0 +1,93 @@
+"""Every long run says how long, off a terminal (a log file, Make, CI): a first line on a clock,
+whether or not a unit of work has finished, then what is done of a total that the count never
+passes, the rate and the time left (cli/terminal.py's LineBar)."""
+import re
+import time
+
+from conftest import dc
+
+from deepcontact.cli import terminal
+
+LINE = re.compile(r"^dc (?P<desc>[^:]+): (?P<n>[\d,]+)/(?P<total>[\d,]+) (?P<unit>\w+)s \((?P<share>\d+)%\) ")
+
+
+def counts(stderr, desc):
+    """(done, total, share) of each progress line of `desc`, in order."""
+    out = []
+    for line in stderr.splitlines():
+        m = LINE.match(line)
+        if m and m["desc"] == desc:
+            out.append((int(m["n"].replace(",", "")), int(m["total"].replace(",", "")), int(m["share"])))
+    return out
+
+
+def test_a_line_comes_on_the_clock_while_the_first_unit_is_still_running(capsys, monkeypatch):
+    """The line came at the first update a period after the last: a first unit that took four
+    minutes (dc study stability's) left the log silent for four minutes."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0.05")
+    bar = terminal.LineBar(3, "setting", "study x")
+    try:
+        time.sleep(0.4)   # the first setting still running: no update
+        first = capsys.readouterr().err.splitlines()
+        assert first and first[0].startswith("dc study x: 0/3 settings (0%) so far in "), first
+        assert first[0].endswith(", the first setting still running"), first
+        bar.update(1)
+        time.sleep(0.3)
+        later = capsys.readouterr().err.splitlines()
+        assert later and later[-1].startswith("dc study x: 1/3 settings (33%) so far in ") and " left" in later[-1]
+    finally:
+        bar.close()
+    assert capsys.readouterr().err.startswith("dc study x: 1/3 settings (33%) when it ended in ")
+    time.sleep(0.2)
+    assert capsys.readouterr().err == ""   # (the clock stops with the bar)
+
+
+def test_the_count_and_its_share_never_pass_the_total(capsys, monkeypatch):
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")   # (a line at every update)
+    bar = terminal.LineBar(2, "setting", "study x")
+    for _ in range(5):
+        bar.update(1)
+    bar.close()
+    lines = counts(capsys.readouterr().err, "study x")
+    assert lines and all(n <= total == 2 and share <= 100 for n, total, share in lines), lines
+
+
+def test_the_time_left_follows_the_work_where_units_differ(monkeypatch):
+    """A setting of a 10,000-circle pile is not one of 40 boxes: weighed, the first, light unit
+    done in 10 s says the other 99 parts of the work take about 16m30s, not another 10 s."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "1e9")
+    bar = terminal.LineBar(2, "setting", "study x", work=100)
+    bar.update(1, work=1)
+    bar.close()
+    assert terminal.progress_line(bar, 10.0, done=False).endswith("50%) so far in 10s, 10s a setting, "
+                                                                  "about 16m30s left")
+
+
+def test_the_engines_study_counts_its_settings_and_nothing_else(tmp_path, monkeypatch):
+    """It counted every step of its reference trajectories as well: "4,049/520 settings (779%)"
+    after "about 14 s left". Each setting once, up to the total."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("study", "engines", "--fast", "--scenes", "stack 8", "--families", "Box2D 2.4.1", "-o", tmp_path / "e")
+    assert r.returncode == 0, r.stderr
+    lines = counts(r.stderr, "study engines")
+    total = lines[0][1]
+    assert [n for n, _, _ in lines] == [*range(1, total + 1), total], r.stderr   # (the last: "done")
+
+
+def test_the_stability_study_says_where_it_is(tmp_path, monkeypatch):
+    """It said nothing until its first configuration had passed (4 minutes on the full scenes)."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("study", "stability", "--fast", "--scenes", "stack 8", "-o", tmp_path / "s.md")
+    assert r.returncode == 0, r.stderr
+    lines = counts(r.stderr, "study stability")
+    assert lines and lines[-1][0] == lines[-1][1] == len(lines) - 1, r.stderr
+
+
+def test_validate_gives_its_total(run, monkeypatch):
+    """Its lines had no total: "1,200 files so far"."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("validate", run)
+    assert r.returncode == 0, r.stderr
+    files = len(list(run.rglob("*.xml")))
+    lines = counts(r.stderr, "validate")
+    assert lines and lines[-1][:2] == (files, files), r.stderr
