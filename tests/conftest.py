@@ -18,7 +18,7 @@ os.environ["DC_PROGRESS_EVERY"] = "1e9"
 # The audits of hostile input and of what a failure may lose, and the studies' fast runs: whole
 # modules, in `make test`, not in `make test-quick` (the inner loop).
 AUDITS = {"test_nothing_lost", "test_hostile", "test_mutations", "test_bad_input"}
-STUDIES = {"test_stability", "test_study"}   # the fast runs of dc study's measurements
+STUDIES = {"test_stability", "test_study", "test_study_resume"}   # the fast runs of dc study's measurements
 
 
 def pytest_collection_modifyitems(config, items):

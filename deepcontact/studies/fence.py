@@ -9,7 +9,9 @@ has ended in order (exit 0, or 1 with its verdict). Its processes are in a PID n
 own: it cannot name, signal or read a process outside, and nothing it starts outlives it; it has
 no network and no AF_UNIX socket (the sockets on the file system are out of reach). Contestants
 it runs are started by dc's process on its behalf (contest.broker). The user's stop ends it at
-once. Its output is checked before it is published: no link, device or FIFO in it.
+once. Its output is checked before it is published: no link, device or FIFO in it. Beside its
+output it may also write the folder of its finished units (units.py), which outlives a stopped
+run for --resume and is removed once the output is published.
 
 A study registered in code runs in the caller's process: it is the caller's code already.
 """
@@ -20,7 +22,7 @@ import sys
 
 from ..contest import job, sandbox
 from ..plugins import PluginError
-from . import STUDIES, survey as loaded
+from . import STUDIES, survey as loaded, units
 
 INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME it runs in place
 
@@ -42,7 +44,7 @@ def run(name, args):
             raise PluginError(broken[name])
         return healthy[0]["writes"] if healthy else "folder"
     return job.run_with_output(["study", name], list(args), f"study {name}", writes, {INSIDE: name},
-                               f"the study {name!r}")
+                               f"the study {name!r}", aside=units.Beside)
 
 
 # --- The list -------------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ import click
 
 from deepcontact import output as outputs
 from deepcontact.cli import options, terminal, types
-from deepcontact.studies import Study
+from deepcontact.studies import Study, units
 
 
 def text_report(f):
@@ -16,6 +16,21 @@ def text_report(f):
     f = click.option("-o", "--output", "output", type=click.Path(dir_okay=False),
                      help="Also write the report to this file (once the study ends).")(f)
     return options.threads(f)
+
+
+def resumable(f):
+    """What a study that keeps its finished units of work takes: --resume (deepcontact.studies.units)."""
+    return click.option("--resume", is_flag=True, help="Reuse the finished units of work (a setting on a scene) that a "
+                        "stopped run kept beside the same output, where measured with the same options, and measure "
+                        "the rest. A run refuses to start over such units without it (--overwrite: measure all "
+                        "again).")(f)
+
+
+def keeping(study, resume, overwrite):
+    """The study's finished units kept beside its output (units.keeping), keyed by this
+    distribution's code as well as deepcontact's."""
+    import dcstudies
+    return units.keeping(f"study {study}", resume, overwrite, code=[dcstudies])
 
 
 @contextlib.contextmanager
@@ -51,16 +66,18 @@ def _study_text(threads, output=None, overwrite=False):
 @click.option("--scenes", type=types.CommaList(click.STRING, "LABEL[,...]"),
               help="Only these scenes, by their labels in the table (e.g. 'stack 8,bullet').")
 @options.jobs
+@resumable
 @options.overwrite
 @options.verbosity
 @options.command("study stability")
-def stability(out, fast, scenes, jobs, overwrite, verbose, quiet):
+def stability(out, fast, scenes, jobs, resume, overwrite, verbose, quiet):
     """Run every hard scene with Box2D's solver and ours until it meets its criteria.
 
     Criteria (deepcontact/studies/stability.py): finite, penetration at rest
     within 3 linear slops, no energy gained, a stack's top within 1 cm. Where
     a configuration fails at the scene's 8 iterations, the count is doubled
-    until it passes; the table gives that count. Box2D v3's rows count
+    until it passes; the table gives that count. With -o, each run finished
+    is kept until the table is written: --resume continues a stopped study. Box2D v3's rows count
     substeps (4 to 64), from its own rest. Exit 1 if any configuration of Box2D
     2.4.1 or ours never passes, or a v3 run becomes non-finite (v3 rows short
     of the criteria are listed on stderr).
@@ -70,6 +87,7 @@ def stability(out, fast, scenes, jobs, overwrite, verbose, quiet):
       dc study stability --fast
       dc study stability --fast --scenes 'stack 8,bullet'
       dc study stability -o runs/stability.md --overwrite -j 2
+      dc study stability -o runs/stability.md --resume
     """
     if not out:
         terminal.require_stdout("give -o FILE")
@@ -77,7 +95,7 @@ def stability(out, fast, scenes, jobs, overwrite, verbose, quiet):
     from dcstudies import stability as S
 
     cases = options.pick_cases(S.FAST if fast else S.FULL, scenes)
-    with output_file(out, overwrite):
+    with keeping("stability", resume, overwrite), output_file(out, overwrite):
         measured = protocol(jobs=jobs)
         click.echo(S.HEADER)
         bar = terminal.progress_bar(quiet, len(S.tasks(cases)), "configuration", "study stability")
@@ -112,10 +130,11 @@ def stability(out, fast, scenes, jobs, overwrite, verbose, quiet):
 @options.families_option("Box2D v3,lagged")
 @options.plugin_methods
 @options.jobs
+@resumable
 @options.overwrite
 @options.verbosity
 @options.command("study engines")
-def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quiet):
+def engines(out, fast, scenes, families, plugins, jobs, resume, overwrite, verbose, quiet):
     """What accuracy costs in time across engines: Box2D 2.4.1 at 1-256
     iterations, Box2D v3 at 1-16 substeps (and without warm starting), pymunk
     at 1-256 iterations, MuJoCo's Newton, CG and PGS at tolerances and caps
@@ -128,7 +147,9 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
     Writes engines.md (the cheapest passing setting of each engine per scene,
     and a table per scene), engines.csv and pareto-SCENE.png. Times are one
     thread's; -j runs scenes side by side (each time is then taken beside
-    another process: use -j 1 for the published table).
+    another process: use -j 1 for the published table). Each setting measured
+    on a scene is kept beside the output until it is written: after a stop,
+    the same command with --resume measures only the rest.
 
     \b
     Examples:
@@ -137,6 +158,7 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
       dc study engines -o reports/lagged --families lagged
       dc study engines -o reports/peers --families 'pymunk,MuJoCo Newton'
       dc study engines --fast -o reports/mine --families project --accelerate mypkg.solvers:Mine
+      dc study engines -o reports/engines --resume
     """
     from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
@@ -144,7 +166,8 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
 
     cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
     chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins), fast)
-    with outputs.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work:
+    with (keeping("engines", resume, overwrite),
+          outputs.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work):
         measured = protocol(jobs=jobs)
         bar = terminal.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines",
                                     work=E.tasks_work(cases, chosen))
@@ -171,10 +194,11 @@ def engines(out, fast, scenes, families, plugins, jobs, overwrite, verbose, quie
               help="Recorded steps per scene the one-step error is measured on (2 with --fast).")
 @options.plugin_methods
 @options.jobs
+@resumable
 @options.overwrite
 @options.verbosity
 @options.command("study frontier")
-def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, overwrite, verbose, quiet):
+def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, resume, overwrite, verbose, quiet):
     """What accuracy costs at scale: Box2D 2.4.1 at 1-256 iterations, Box2D v3
     at 1-16 substeps, pymunk at 1-256 iterations, MuJoCo's Newton, CG and PGS
     at tolerances and caps (Newton also at the stiffer impedances 0.99 and
@@ -190,7 +214,9 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
     frontier-SCENE.png. Times are one thread's; -j runs scenes side by side
     (each time then taken beside another process). The full study takes hours;
     --families and --tolerances run part of it (the summary then matches
-    among the settings run).
+    among the settings run), and each setting measured on a scene is kept
+    beside the output until it is written: after a stop, the same command
+    with --resume measures only the rest.
 
     \b
     Examples:
@@ -201,6 +227,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
       dc study frontier -o reports/peers --scenes 'pile 1000' --families 'pymunk,MuJoCo Newton'
       dc study frontier -o reports/one --scenes 'pile 10000' --families 'MuJoCo Newton:tolerance 1e-08'
       dc study frontier --fast -o reports/mine --families PGS --accelerate mypkg.solvers:Mine
+      dc study frontier -o reports/frontier --scenes 'pile 1000,pyramid 40' --resume
     """
     from deepcontact.errors import OptionError
     from deepcontact.protocol import protocol, protocol_line
@@ -212,7 +239,8 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, ov
                         options.described_methods(plugins))
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES
-    with outputs.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work:
+    with (keeping("frontier", resume, overwrite),
+          outputs.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work):
         measured = protocol(jobs=jobs)
         bar = terminal.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier",
                                     work=tasks_work(cases, chosen))

@@ -35,6 +35,7 @@ from deepcontact.scene.generators import parameters
 from deepcontact.simulate import stepping
 from deepcontact.solver.metrics import drift
 from deepcontact.solver.settings import CAP, SolveSettings
+from deepcontact.studies import units
 from . import efforts, stability as S
 from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
 
@@ -221,23 +222,30 @@ def run_scene(case, chosen=None):
     for setting in chosen:
         if not applicable(case, setting):
             continue
-        trail = []
-        params = params_of(case, setting)
-        r = run_setting(case, setting, trail=trail)
-        far = float("nan")
-        reference = reference_of(params) if S.applicable(case, "pgs") else None
-        if reference is not None:
-            n = min(len(trail), len(reference))
-            far = max((drift(trail[k], reference[k]) for k in range(n)), default=0.0)
-            if not r.finite:
-                far = float("inf")
-        rows.append(Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
-                        finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
-                        drift=far, penetration=r.penetration, peak_penetration=r.peak_penetration,
-                        energy_rise=r.energy_rise, energy_allowed=r.energy_allowed, top_drift=r.top_drift,
-                        final_speed=r.final_speed, capped=r.capped, variant=setting.variant))
+        # (a unit of work: kept, and reused by a resumed run measured with the same options)
+        rows.append(units.kept({"scene": case, "setting": setting}, lambda: measure(case, setting, reference_of), Row))
         workers.progress(1, work)
     return rows
+
+
+def measure(case, setting, reference_of):
+    """The Row of one setting on one case; reference_of(params): the reference trajectory's
+    positions from those scene parameters."""
+    trail = []
+    params = params_of(case, setting)
+    r = run_setting(case, setting, trail=trail)
+    far = float("nan")
+    reference = reference_of(params) if S.applicable(case, "pgs") else None
+    if reference is not None:
+        n = min(len(trail), len(reference))
+        far = max((drift(trail[k], reference[k]) for k in range(n)), default=0.0)
+        if not r.finite:
+            far = float("inf")
+    return Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
+               finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
+               drift=far, penetration=r.penetration, peak_penetration=r.peak_penetration,
+               energy_rise=r.energy_rise, energy_allowed=r.energy_allowed, top_drift=r.top_drift,
+               final_speed=r.final_speed, capped=r.capped, variant=setting.variant)
 
 
 def study(cases, jobs=1, progress=None, chosen=None):

@@ -31,6 +31,7 @@ one such solve of the 1000-circle pile took 14-15 s, 3 hours for a run.
 
     dc study frontier [--fast] -o DIR
 """
+import functools
 import math
 from dataclasses import dataclass
 
@@ -41,6 +42,7 @@ from deepcontact.simulate.problems import problems
 from deepcontact.solver.methods import solve
 from deepcontact.solver.reference import reference_solution
 from deepcontact.solver.settings import CAP
+from deepcontact.studies import units
 from . import stability as S
 from deepcontact.contest import RemoteMethod
 from deepcontact.solver.methods import is_native
@@ -147,21 +149,29 @@ def one_step(setting, samples):
 
 
 def run_scene(case, chosen, samples):
-    """Every applicable setting on one case (Rows, in order)."""
-    picked = samples_of(case, samples)
+    """Every applicable setting on one case (Rows, in order), each a unit of work kept (units:
+    a resumed run reuses those measured with the same options), and the line on its samples."""
+    picked = functools.cache(lambda: samples_of(case, samples))   # (made only where a unit is measured)
     rows, work = [], work_of(case)
     for setting in chosen:
         if not applicable(case, setting):
             continue
-        r = run_setting(case, setting)
-        median, largest, error = one_step(setting, picked)
-        rows.append(Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
-                        finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
-                        residual_median=median, residual_max=largest, velocity_error=error,
-                        penetration=r.penetration, energy_rise=r.energy_rise, energy_allowed=r.energy_allowed,
-                        capped=r.capped, samples=len(picked)))
+        rows.append(units.kept({"scene": case, "setting": setting, "samples": samples},
+                               lambda: measure(case, setting, picked()), Row))
         workers.progress(1, work)
-    return rows, _reference_line(case, picked)
+    return rows, units.kept({"scene": case, "samples": samples, "line": "reference"},
+                            lambda: _reference_line(case, picked()))
+
+
+def measure(case, setting, picked):
+    """The Row of one setting on one case, its one-step measures on the sampled steps `picked`."""
+    r = run_setting(case, setting)
+    median, largest, error = one_step(setting, picked)
+    return Row(scene=case.label, family=setting.family, setting=setting.label, passed=r.passed,
+               finite=r.finite, ms_per_step=step_ms(case, setting) if r.finite else float("nan"),
+               residual_median=median, residual_max=largest, velocity_error=error,
+               penetration=r.penetration, energy_rise=r.energy_rise, energy_allowed=r.energy_allowed,
+               capped=r.capped, samples=len(picked))
 
 
 def _reference_line(case, picked):

@@ -31,6 +31,7 @@ from deepcontact.simulate.engines import ENGINES, Box2D
 from deepcontact.solver.methods import is_native
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.solver.metrics import deepest, energy, positions
+from deepcontact.studies import units
 from .efforts import counted, effort
 
 PENETRATION_LIMIT = 3 * linear_slop
@@ -270,14 +271,18 @@ def _fastest(bodies):
 
 
 def passing(case, solver, start, relaxation=1.0, first=8, cap=MAX_ITERATIONS, accelerate="none"):
-    """(result at the default count, result at the smallest passing count or the cap)."""
-    default = run_case(case, solver, start, first, relaxation, accelerate)
+    """(result at the default count, result at the smallest passing count or the cap). Each run
+    a unit of work kept (units: a resumed study reuses those it finished)."""
+    def run(n):
+        return units.kept({"case": case, "run": [solver, start, n, relaxation, accelerate]},
+                          lambda: run_case(case, solver, start, n, relaxation, accelerate), Result)
+    default = run(first)
     if default.passed:
         return default, default
     n, result = first, default
     while not result.passed and n < cap:
         n *= 2
-        result = run_case(case, solver, start, n, relaxation, accelerate)
+        result = run(n)
     return default, result
 
 
