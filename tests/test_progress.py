@@ -91,3 +91,12 @@ def test_validate_gives_its_total(run, monkeypatch):
     files = len(list(run.rglob("*.xml")))
     lines = counts(r.stderr, "validate")
     assert lines and lines[-1][:2] == (files, files), r.stderr
+
+
+def test_a_text_study_says_where_it_is(monkeypatch):
+    """dc study scale, exact and peer said nothing until a table's row was measured (a settled
+    10,000-circle pile: minutes)."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("study", "scale", "--quick", "--sizes", "100", "--samples", "1", "--methods", "PGS")
+    assert r.returncode == 0, r.stderr
+    assert [n for n, _, _ in counts(r.stderr, "study scale")] == [1, 2, 2], r.stderr   # (from zero, warm; done)

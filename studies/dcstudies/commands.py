@@ -60,6 +60,16 @@ def _study_text(threads, output=None, overwrite=False):
             outputs.write_text(output, text.text())
 
 
+@contextlib.contextmanager
+def counting(quiet, total, unit, desc, work=None):
+    """A text study's progress bar (terminal.progress_bar) for the block: its update, closed at the end."""
+    bar = terminal.progress_bar(quiet, total, unit, desc, work=work)
+    try:
+        yield bar.update
+    finally:
+        bar.close()
+
+
 @click.command("stability")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="Also write the table to this file.")
 @click.option("--fast", is_flag=True, help="The small variants the test suite runs.")
@@ -316,8 +326,11 @@ def scale(samples, cap, quick, methods, sizes, threads, output, overwrite, verbo
     if unknown:
         raise click.BadParameter(f"no method {unknown[0]!r}; the methods are: {', '.join(S.METHODS)}",
                                  param_hint="--methods")
-    with _study_text(threads, output, overwrite) as text:
-        S.run(samples=samples, cap=cap, quick=quick, methods=tuple(methods or S.METHODS), sizes=sizes, out=text)
+    chosen = tuple(methods or S.METHODS)
+    rows, work = S.rows_work(quick, chosen, sizes)
+    with (_study_text(threads, output, overwrite) as text,
+          counting(quiet, rows, "row", "study scale", work) as tick):
+        S.run(samples=samples, cap=cap, quick=quick, methods=chosen, sizes=sizes, out=text, progress=tick)
 
 
 @click.command("exact")
@@ -338,10 +351,11 @@ def exact(scene, every, siconos, threads, output, overwrite, verbose, quiet):
       dc study exact --siconos
       dc study exact --scene hard --every 1
     """
-    from dcstudies.exact import run
+    from dcstudies.exact import run, scenes
     options.refuse_inapplicable([("siconos", scene != "hard", "does not apply to --scene hard")])
-    with _study_text(threads, output, overwrite) as text:
-        run(scene, every, siconos, out=text)
+    with (_study_text(threads, output, overwrite) as text,
+          counting(quiet, scenes(scene), "scene", "study exact") as tick):
+        run(scene, every, siconos, out=text, progress=tick)
 
 
 @click.command("peer")
@@ -365,9 +379,10 @@ def peer(scene, every, tolerances, cap, threads, output, overwrite, verbose, qui
       dc study peer
       dc study peer --scene pyramid40 --tolerances 1e-4
     """
-    from dcstudies.peer import run
-    with _study_text(threads, output, overwrite) as text:
-        run(scene, every, tuple(tolerances), cap, out=text)
+    from dcstudies.peer import rows_count, run
+    with (_study_text(threads, output, overwrite) as text,
+          counting(quiet, rows_count(scene, tolerances), "row", "study peer") as tick):
+        run(scene, every, tuple(tolerances), cap, out=text, progress=tick)
 
 
 # The studies, as `dc study` lists them (pyproject.toml's entry points name these classes).

@@ -93,8 +93,9 @@ def report(name, steps, use_siconos, out):
               f"({hard_ms / base_hard:.3f}x) | | |")
 
 
-def report_hard(every, out):
-    """The reference on every `every`-th step of each scene of the stability study."""
+def report_hard(every, out, progress=lambda n: None):
+    """The reference on every `every`-th step of each scene of the stability study; progress(1)
+    as each is done."""
     which = "every step" if every == 1 else f"one step in {every}"
     out(f"\nthe reference on {which} of the stability study's scenes (to 1e-12, from zero)")
     out("| scene | steps | contact points (mean) | reach 1e-12 | pivoted | worst residual | total s |")
@@ -106,15 +107,23 @@ def report_hard(every, out):
         out(f"| {case.label} | {len(steps)} | {statistics.mean(p.points for p in steps):.0f} | "
               f"{len(steps) - len(misses)} | {sum(s.pivoted for s, _ in runs)} | {max(s.residual for s, _ in runs):.1e} | "
               f"{sum(t for _, t in runs):.3f} |" + (f" misses: {'; '.join(misses[:5])}" if misses else ""))
+        progress(1)
 
 
-def run(scene="both", every=5, siconos=False, out=None) -> StudyText:
+def scenes(scene="both"):
+    """How many scenes the study solves (what its progress counts)."""
+    return len(FULL) if scene == "hard" else 2 if scene == "both" else 1
+
+
+def run(scene="both", every=5, siconos=False, out=None, progress=None) -> StudyText:
     """The study's tables (a StudyText; `out` one to add to): the pile and the pyramid (or one of
-    them), or the hard scenes."""
+    them), or the hard scenes. progress(1) as each scene is done."""
     out = StudyText() if out is None else out
+    progress = progress or (lambda n: None)
     if scene == "hard":
-        report_hard(every, out)
+        report_hard(every, out, progress)
         return out
     for name in (["pile", "pyramid"] if scene == "both" else [scene]):
         report(name, problems(name, every), siconos, out)
+        progress(1)
     return out

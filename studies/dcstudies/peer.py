@@ -45,7 +45,21 @@ def first_steps(base, count):
     return problems("pyramid", 1, [scene])
 
 
-def report(name, steps, tolerances, cap, out):
+def solvers(name):
+    """The solvers of a scene's table at each tolerance: ours, and Siconos's where it runs."""
+    return len(OURS) + (0 if name == "pyramid40" else 2 if name == "pile" else 1)
+
+
+def scenes(scene="both"):
+    return ["pyramid40"] if scene == "pyramid40" else ["pile", "pyramid"] if scene == "both" else [scene]
+
+
+def rows_count(scene="both", tolerances=(1e-4, 1e-8)):
+    """The rows the study measures (what its progress counts)."""
+    return sum(solvers(name) for name in scenes(scene)) * len(tolerances)
+
+
+def report(name, steps, tolerances, cap, out, progress=lambda n: None):
     out(f"\n{name}: {len(steps)} steps, {statistics.mean(p.points for p in steps):.0f} contact points on average")
     out("| tolerance | solver | reach it (our residual) | worst residual | median ms | total s |")
     out("| ---: | --- | ---: | ---: | ---: | ---: |")
@@ -55,24 +69,29 @@ def report(name, steps, tolerances, cap, out):
         for tolerance in tolerances:
             for accelerate in OURS:
                 row(f"ours, {accelerate}", tolerance, *ours(steps, accelerate, tolerance, cap), out)
+                progress(1)
             if name == "pyramid40":
                 continue
             results = peer.run(paths, "nsgs", tolerance)
             row("Siconos NSGS", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results], out)
+            progress(1)
             if name == "pile":   # Lemke on the pyramid's 1,600-row dense problems takes minutes a step
                 results = peer.run(paths, "lemke", tolerance)
                 row("Siconos Lemke", tolerance, [r["seconds"] for r in results], [r["residual"] for r in results],
                     out)
+                progress(1)
 
 
-def run(scene="both", every=5, tolerances=(1e-4, 1e-8), cap=100_000, out=None) -> StudyText:
-    """The study's tables (a StudyText; `out` one to add to)."""
+def run(scene="both", every=5, tolerances=(1e-4, 1e-8), cap=100_000, out=None, progress=None) -> StudyText:
+    """The study's tables (a StudyText; `out` one to add to); progress(1) as each row is measured
+    (rows_count in all)."""
     if not peer.available():
         raise InputError("Siconos is not installed for /usr/bin/python3 (make setup installs python3-siconos)")
     out = StudyText() if out is None else out
+    progress = progress or (lambda n: None)
     if scene == "pyramid40":
-        report("pyramid40", first_steps(40, 5), list(tolerances), cap, out)
+        report("pyramid40", first_steps(40, 5), list(tolerances), cap, out, progress)
         return out
-    for name in (["pile", "pyramid"] if scene == "both" else [scene]):
-        report(name, problems(name, every if name == "pile" else 50), list(tolerances), cap, out)
+    for name in scenes(scene):
+        report(name, problems(name, every if name == "pile" else 50), list(tolerances), cap, out, progress)
     return out

@@ -25,7 +25,7 @@ from deepcontact.simulate.problems import recorded_between, step_problem
 from deepcontact.simulate.source import SceneSource
 from deepcontact.solver.methods import solve
 from deepcontact.solver.settings import TOLERANCE
-from .text import StudyText, progress
+from .text import StudyText, progress as said
 
 # name: (bodies, generator parameters, steps until settled)
 FULL = {
@@ -48,16 +48,28 @@ def settled_problems(params, steps, samples):
             if done.index >= steps - samples]
 
 
-def run(samples=3, cap=100_000, quick=False, methods=tuple(METHODS), sizes=None, out=None) -> StudyText:
+def piles(quick=False, sizes=None):
+    """{name: (bodies, parameters, steps)} of the piles run: `sizes` their body counts (default all)."""
+    chosen = QUICK if quick else FULL
+    return {name: size for name, size in chosen.items() if not sizes or size[0] in set(sizes)}
+
+
+def rows_work(quick=False, methods=tuple(METHODS), sizes=None):
+    """(rows measured, what they weigh: bodies x settling steps each), what progress counts."""
+    chosen = piles(quick, sizes)
+    rows = len(STARTS) * len(methods)
+    return rows * len(chosen), rows * sum(bodies * steps for bodies, _, steps in chosen.values())
+
+
+def run(samples=3, cap=100_000, quick=False, methods=tuple(METHODS), sizes=None, out=None,
+        progress=None) -> StudyText:
     """The tables (a StudyText; `out` one to add to): per start, method and pile size, the median
     time, iterations and factorizations to TOLERANCE, and the fitted exponent. `sizes`: body
-    counts to keep (default all)."""
+    counts to keep (default all). progress(1, work) as each row is measured (rows_work)."""
     out = StudyText() if out is None else out
+    progress = progress or (lambda n, work: None)
     methods = {label: METHODS[label] for label in methods}
-    piles = QUICK if quick else FULL
-    if sizes:
-        piles = {name: size for name, size in piles.items() if size[0] in set(sizes)}
-    sizes = piles
+    sizes = piles(quick, sizes)
     table = {}   # (start, method, size) -> (median ms, median iterations, converged, samples)
     contacts = {}
     for name, (bodies, params, steps) in sizes.items():
@@ -79,8 +91,9 @@ def run(samples=3, cap=100_000, quick=False, methods=tuple(METHODS), sizes=None,
                 row = (1e3 * statistics.median(times), statistics.median(iterations), converged, len(problems),
                        statistics.median(factorizations))
                 table[start, label, name] = row
-                progress(f"{name}, from {start}, {label}: {row[0]:.1f} ms, {row[1]:.0f} iterations, "
-                         f"{converged}/{len(problems)} converged")
+                said(f"{name}, from {start}, {label}: {row[0]:.1f} ms, {row[1]:.0f} iterations, "
+                     f"{converged}/{len(problems)} converged")
+                progress(1, bodies * steps)
     names = list(sizes)
     for start in STARTS:
         out(f"\nFrom {start}: time per step to a residual of {TOLERANCE:g} (median of {samples} settled "
