@@ -13,9 +13,11 @@ from . import options, terminal
                    "and compare with the impulses Box2D produced (exit 1 unless identical).")
 @click.option("--residuals", is_flag=True,
               help="Also judge every step a solver of ours stepped (--solver pgs): the residual of its recorded "
-                   "impulses, recomputed from the file's own problem (never the residual the file claims), must be "
-                   "within its run's tolerance (manifest.json), and each simulation's count of steps above it true; "
-                   "else an error line (exit 1).")
+                   "impulses, recomputed in float64 from the file's own problem (never the residual the file "
+                   "claims), must be within its run's tolerance (manifest.json), plus, in a float64 run, exactly "
+                   "the most that the file's float32 rounding of the impulses can move it (a float32 run's step "
+                   "above it is replayed: the run's solve must give it bit for bit, stopping below the tolerance); "
+                   "and each simulation's count of steps above it true; else an error line (exit 1).")
 @options.jobs
 @options.verbosity
 @options.command("validate")

@@ -442,3 +442,94 @@ def test_dcs_own_runs_pass_validate_at_any_tolerance(tmp_path):
         assert above > 0, name
         r = dc("validate", "--residuals", tmp_path / name)
         assert r.returncode == 0 and ", 0 invalid;" in r.stderr, (name, r.stdout, r.stderr)
+
+
+# One measure, one arithmetic: what dc simulate records as converged, dc validate --residuals accepts.
+
+SETTLING = ["--param", "count=30", "--param", "box=16", "--param", "sigma=4", "--steps", "200", "--solver", "pgs",
+            "--max-iterations", "300"]   # a pile that settles: its late steps stop on long sweeps
+
+
+def _readme_runs_of_our_solver():
+    """The README's `dc simulate ... --solver pgs` lines, as arguments without their -o."""
+    import shlex
+    from pathlib import Path
+    lines = [line.split("#")[0] for line in (Path(__file__).parent.parent / "README.md").read_text().splitlines()
+             if line.startswith("dc simulate") and "--solver pgs" in line]
+    runs = []
+    for line in lines:
+        args = shlex.split(line)[1:]
+        out = args.index("-o")
+        runs.append(args[:out] + args[out + 2:])
+    assert runs, "the README shows no run of the project's solver"
+    return runs
+
+
+def test_the_readmes_runs_of_our_solver_pass_validate_residuals(tmp_path):
+    """The README's `--solver pgs --tolerance 1e-4 --max-iterations 1000 --relaxation 1.7` run:
+    ten of its steps stop just under 1e-4, and their impulses, stored as float32, recompute just
+    over it (validate called 5 files invalid, after 116 s, printing "residual 0.0001 ... above its
+    run's tolerance 0.0001"); the float32 rounding's bound lets them through, and nothing else."""
+    for k, args in enumerate(_readme_runs_of_our_solver()):
+        r = dc(*args, "-q", "-o", tmp_path / str(k))
+        assert r.returncode == 0, r.stderr
+        r = dc("validate", "--residuals", tmp_path / str(k))
+        assert r.returncode == 0 and ", 0 invalid;" in r.stderr, (args, r.stdout, r.stderr)
+
+
+@pytest.mark.parametrize("mode", ["float64", "float32", "exact"])
+def test_runs_stopped_just_under_their_tolerance_pass_validate_residuals(tmp_path, mode):
+    """float64: 2 steps stop under 2e-6 whose stored impulses recompute above it (validate refused
+    one); float32 and exact: 2 steps whose float32 sweeps measured them under 1e-4, their impulses
+    above it in float64, replayed bit for bit."""
+    tolerance = {"float64": "2e-6"}.get(mode, "1e-4")
+    r = dc("simulate", "pile", *SETTLING, "--mode", mode, "--tolerance", tolerance, "-q", "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    assert _recomputed_above(tmp_path / "run", float(tolerance)) > 0   # (what the rule is for is there)
+    r = dc("validate", "--residuals", tmp_path / "run")
+    assert r.returncode == 0 and ", 0 invalid;" in r.stderr, (r.stdout, r.stderr)
+
+
+def _recomputed_above(run, tolerance):
+    """Steps not at the cap whose stored impulses' residual, recomputed in float64, is above the tolerance."""
+    import numpy as np
+    from deepcontact.solver.pgs import solve
+    from deepcontact.solver.problem import StepProblem
+    from deepcontact.step.reader import read_step
+    above = 0
+    for f in sorted(run.glob("seed-*/step-*.xml")):
+        header, bodies, contacts = read_step(f)
+        claim = header["solve"]
+        if not len(contacts["manifold"]) or int(claim["iterations"]) >= int(claim["max_iterations"]):
+            continue
+        problem = StepProblem.from_step(header, bodies, contacts)
+        found = solve(problem, *(contacts[k].astype(np.float64) for k in ("normal_impulse", "tangent_impulse")),
+                      max_iterations=0, cone=False).residual
+        above += found > tolerance
+    return above
+
+
+@pytest.mark.parametrize("mode", ["float64", "float32"])
+def test_a_wrong_impulse_is_still_refused(tmp_path, mode):
+    """One impulse of a converged step made a thousandth larger: above the tolerance by far more
+    than float32 rounding moves it (float64), and not what the run's solve gives (float32); the
+    line says the residual to seven digits."""
+    import re
+    r = dc("simulate", "pile", *SETTLING, "--steps", "80", "--mode", mode, "--tolerance", "1e-4", "-q",
+           "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    step = next(f for f in sorted((tmp_path / "run").glob("seed-*/step-*.xml"))[::-1]   # (converged, not capped)
+                if f.read_text().count("<impulse ") > 10 and ' iterations="300"' not in f.read_text())
+    values = [float(v) for v in re.findall(r'<impulse n="([0-9.e+-]+)"', step.read_text())]
+    largest = max(range(len(values)), key=values.__getitem__)
+    count = iter(range(len(values)))
+    _edit(step, r'(<impulse n=")([0-9.e+-]+)',
+          lambda m: m.group(1) + (repr(float(m.group(2)) * 1.001) if next(count) == largest else m.group(2)), 0)
+    r = dc("validate", "--residuals", tmp_path / "run")
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    lines = r.stdout.strip().splitlines()
+    assert step.name in lines[0] and "is above its run's tolerance 0.0001" in lines[0], lines
+    assert ("the most float32 rounding of its impulses can move it" if mode == "float64"
+            else "solve from its recorded start gives other impulses") in lines[0], lines
+    found = re.search(r"the step's residual ([0-9.e+-]+),", lines[0]).group(1)
+    assert float(found) > 1e-4 and len(found.replace("0.", "").lstrip("0")) >= 6, lines[0]

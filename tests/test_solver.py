@@ -103,6 +103,31 @@ def test_float64_differs_from_float32_only_by_rounding():
     assert 0 < worst < 1e-4
 
 
+@pytest.mark.parametrize("name", ["pile", "boxes-and-circles", "frictionless"])
+def test_the_rounding_bound_holds_everywhere_float32_rounding_can_reach(name):
+    """solver.rounding: no impulses within half a float32 spacing of stored ones (the box a float64
+    answer lies in once written) have a residual further from theirs than the bound, at the box's
+    corners (the worst signs) and inside it; and the bound is the rounding's size, not a blanket."""
+    from deepcontact.solver.rounding import half_spacing, rounding_bound
+    rng = np.random.default_rng(0)
+    widest = 0.0
+    for problem, _ in recorded_steps(scenes()[name], steps=150, every=30):
+        answer = solve(problem, mode="float64", max_iterations=200)
+        stored = [v.astype(np.float32).astype(np.float64) for v in (answer.normal_impulse, answer.tangent_impulse)]
+        bound = rounding_bound(problem, *stored)
+        at_stored = solve(problem, *stored, max_iterations=0, cone=False).residual
+        for k in range(40):
+            signs = rng.choice([-1.0, 1.0], 2 * problem.points)
+            draw = signs if k % 2 else signs * rng.uniform(size=2 * problem.points)   # (a corner, or inside)
+            moved = [v + d * half_spacing(v) for v, d in zip(stored, np.split(draw, 2))]
+            moved_residual = solve(problem, *moved, max_iterations=0, cone=False).residual
+            widest = max(widest, abs(moved_residual - at_stored) / bound)
+            # (the bound is reached, to float64's own rounding of the two residuals: frictionless rows)
+            assert abs(moved_residual - at_stored) <= bound * (1 + 1e-6), (bound, moved_residual, at_stored)
+        assert bound < 1e-5
+    assert widest > 0.5   # (the rounding moves the residual by most of the bound: it is no blanket)
+
+
 def test_reference_solution_solves_the_lcp():
     problem, _ = recorded_steps(scenes()["boxes-and-circles"], steps=150)[-1]
     from deepcontact.solver.reference import reference_solution
