@@ -133,3 +133,13 @@ def test_a_stopped_stability_study_reuses_the_runs_it_finished(tmp_path, monkeyp
     assert journal.tally()["reused"] == first and journal.tally()["measured"] > 0
     strip = [[{k: v for k, v in vars(r).items() if k != "seconds"} for r in pair] for pair in whole]
     assert [[{k: v for k, v in vars(r).items() if k != "seconds"} for r in pair] for pair in resumed] == strip
+
+
+def test_a_link_where_the_units_are_kept_is_refused_before_the_study_runs(tmp_path):
+    """The units folder is written by the fenced study: a link planted in its place (to a folder of
+    the user's) is refused, never made writable or followed."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (tmp_path / ".out.units").symlink_to(mine)
+    one_line_error(dc(*ENGINES, "-o", tmp_path / "out"), ".out.units beside it", "is not a folder")
+    assert list(mine.iterdir()) == [] and not (tmp_path / "out").exists()

@@ -28,6 +28,7 @@ import logging
 import os
 import re
 import shutil
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -54,14 +55,18 @@ class Beside:
     output is published (published()), or at the end when it holds nothing."""
 
     def __init__(self, target):
-        self.folder = beside(target, "units")
+        self.target, self.folder = target, beside(target, "units")
 
     def __enter__(self):
         found = kind(self.folder)
         if found not in (None, "folder"):
             raise InputError(f"{self.folder.name} beside it, where a stopped study keeps its finished units, is not "
-                             f"a folder (a link, file or device): nothing was done; remove it", self.folder.parent)
-        self.folder.mkdir(exist_ok=True)
+                             f"a folder (a link, file or device): nothing was done; remove it", self.target)
+        try:
+            self.folder.mkdir(exist_ok=True)
+        except OSError as e:
+            raise InputError(f"cannot keep a study's finished units beside it: {e.strerror or e}",
+                             self.folder) from None
         return self
 
     @property
@@ -129,8 +134,7 @@ class Journal:
         """The value kept in path for key, or _MISSING (no such file, another key, or not one this
         module wrote: then measured again and written over)."""
         try:
-            with open(path, "rb") as f:
-                data = json.loads(f.read(UNIT_MAX + 1))
+            data = json.loads(_regular_bytes(path, UNIT_MAX))
             if json.dumps(data["key"], sort_keys=True, separators=(",", ":")) != key:
                 return _MISSING
             return restored(data["value"], as_type)
@@ -138,20 +142,24 @@ class Journal:
             return _MISSING
 
     def _count(self, what):
-        """One line in the tally, appended (whole lines from any process: O_APPEND)."""
-        fd = os.open(self.folder / TALLY, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        """One line in the tally, appended (whole lines from any process: O_APPEND); a tally that
+        cannot be written (not a regular file of ours) counts nothing, and costs no unit."""
         try:
-            os.write(fd, f"{what}\n".encode())
+            fd = os.open(self.folder / TALLY, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK,
+                         0o644)
+        except OSError:
+            return
+        try:
+            if stat.S_ISREG(os.fstat(fd).st_mode):
+                os.write(fd, f"{what}\n".encode())
         finally:
             os.close(fd)
 
     def tally(self):
         """{"reused": n, "measured": n} of this run."""
         try:
-            with open(self.folder / TALLY, "rb") as f:
-                f.seek(self.tally_from)
-                lines = f.read().decode(errors="replace").split()
-        except OSError:
+            lines = _regular_bytes(self.folder / TALLY, 64 << 20)[self.tally_from:].decode(errors="replace").split()
+        except (OSError, ValueError):
             lines = []
         return {what: lines.count(what) for what in ("reused", "measured")}
 
@@ -263,6 +271,21 @@ def code_hash(packages=()):
         for path in sorted(p for p in root.rglob("*") if p.suffix in _CODE_SUFFIXES and p.is_file()):
             h.update(str(path.relative_to(root.parent)).encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
+
+
+def _regular_bytes(path, limit):
+    """The bytes of the regular file at path, no link followed and nothing else opened for
+    reading (a FIFO would block); ValueError where it is not one, or holds more than limit."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError("not a regular file")
+        data = os.read(fd, limit + 1)
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise ValueError("too large")
+    return data
 
 
 def _size(path):
