@@ -204,10 +204,14 @@ class LineBar(SilentBar):
         self.lines += 1
 
 
+SURE = 0.01   # the share of the work a time left is estimated from, at least (and two units)
+
+
 def progress_line(bar, took, done):
     """'dc DESC: 12/40 UNITs (30%) so far in 1m05s, 5.4 s a UNIT, about 2m31s left': the count never
     shown past its total, nor the share past 100% (a count that overran its total is a bug of the
-    caller's; the line stays true meanwhile); the time left follows the work where the bar weighs it."""
+    caller's; the line stays true meanwhile); the time left follows the work where the bar weighs it,
+    once two units and SURE of the work are done (a study's first setting carries its scene's set-up)."""
     n = min(bar.n, bar.total) if bar.total is not None else bar.n
     of = f"/{bar.total:,}" if bar.total is not None else ""
     share = f" ({math.floor(100 * n / bar.total)}%)" if bar.total else ""
@@ -219,7 +223,7 @@ def progress_line(bar, took, done):
         return line + ("" if done or n else f", the first {bar.unit} still running")
     line += f", {rate(counted, took, bar.unit)}"
     share = _share(bar)
-    if done or share is None:
+    if done or share is None or counted < 2 or share[1] < SURE:   # (one unit, or 1% of the work, says little)
         return line
     left = took * (1 - share[0]) / share[1]
     if share[0] < 1:

@@ -32,12 +32,13 @@ def test_a_line_comes_on_the_clock_while_the_first_unit_is_still_running(capsys,
         assert first and first[0].startswith("dc study x: 0/3 settings (0%) so far in "), first
         assert first[0].endswith(", the first setting still running"), first
         bar.update(1)
+        bar.update(1)
         time.sleep(0.3)
         later = capsys.readouterr().err.splitlines()
-        assert later and later[-1].startswith("dc study x: 1/3 settings (33%) so far in ") and " left" in later[-1]
+        assert later and later[-1].startswith("dc study x: 2/3 settings (66%) so far in ") and " left" in later[-1]
     finally:
         bar.close()
-    assert capsys.readouterr().err.startswith("dc study x: 1/3 settings (33%) when it ended in ")
+    assert capsys.readouterr().err.startswith("dc study x: 2/3 settings (66%) when it ended in ")
     time.sleep(0.2)
     assert capsys.readouterr().err == ""   # (the clock stops with the bar)
 
@@ -53,14 +54,18 @@ def test_the_count_and_its_share_never_pass_the_total(capsys, monkeypatch):
 
 
 def test_the_time_left_follows_the_work_where_units_differ(monkeypatch):
-    """A setting of a 10,000-circle pile is not one of 40 boxes: weighed, the first, light unit
-    done in 10 s says the other 99 parts of the work take about 16m30s, not another 10 s."""
+    """A setting of a 10,000-circle pile is not one of 40 boxes: weighed, two light units done in
+    10 s say the other 98 parts of the work take about 8m10s, not another 10 s; one unit, or less
+    than 1% of the work, gives no estimate (a study's first setting on a scene carries the scene's
+    set-up: its reference solves)."""
     monkeypatch.setenv("DC_PROGRESS_EVERY", "1e9")
-    bar = terminal.LineBar(2, "setting", "study x", work=100)
+    bar = terminal.LineBar(4, "setting", "study x", work=100)
+    bar.update(1, work=1)
+    assert terminal.progress_line(bar, 10.0, done=False).endswith("(25%) so far in 10s, 10s a setting")
     bar.update(1, work=1)
     bar.close()
-    assert terminal.progress_line(bar, 10.0, done=False).endswith("50%) so far in 10s, 10s a setting, "
-                                                                  "about 16m30s left")
+    assert terminal.progress_line(bar, 10.0, done=False).endswith("(50%) so far in 10s, 5s a setting, "
+                                                                  "about 8m10s left")
 
 
 def test_the_engines_study_counts_its_settings_and_nothing_else(tmp_path, monkeypatch):
