@@ -101,7 +101,7 @@ class SilentBar:
     def __init__(self):
         self.n = 0
 
-    def update(self, n=1, work=None):
+    def update(self, n=1, work=None, kept=False):
         self.n += n
 
     def close(self):
@@ -114,7 +114,7 @@ class TerminalBar:
     def __init__(self, bar):
         self.bar = bar
 
-    def update(self, n=1, work=None):
+    def update(self, n=1, work=None, kept=False):
         self.bar.update(n)
 
     def close(self):
@@ -157,7 +157,7 @@ class LineBar(SilentBar):
         super().__init__()
         self.total, self.unit, self.desc, self.then = total, unit, desc, then
         self.n = self.before = done
-        self.total_work, self.work = work, 0.0
+        self.total_work, self.work, self.work_before = work, 0.0, 0.0
         self.started = time.monotonic() if started is None else started
         self.lines, self.every = 0, progress_every()
         self._stop, self._clock, self.closed = threading.Event(), None, False
@@ -166,9 +166,13 @@ class LineBar(SilentBar):
             _LIVE.add(self)
             self._clock.start()
 
-    def update(self, n=1, work=None):
+    def update(self, n=1, work=None, kept=False):
+        """n more units done (weighing `work`); kept: done before this run (a resumed study's)."""
         self.n += n
         self.work += 0.0 if work is None else work
+        if kept:
+            self.before += n
+            self.work_before += 0.0 if work is None else work
         if self.every == 0:
             self._say(time.monotonic(), done=False)
 
@@ -234,8 +238,8 @@ def progress_line(bar, took, done):
 def _share(bar):
     """(the share of the run done, the share this bar saw done): by weight where the bar weighs its
     units, else by count; None where no share is known."""
-    if bar.total_work and bar.work > 0:
-        return min(bar.work / bar.total_work, 1.0), min(bar.work / bar.total_work, 1.0)
+    if bar.total_work and bar.work > bar.work_before:
+        return min(bar.work / bar.total_work, 1.0), (bar.work - bar.work_before) / bar.total_work
     if bar.total and bar.n > bar.before:
         return min(bar.n / bar.total, 1.0), (min(bar.n, bar.total) - bar.before) / bar.total
     return None

@@ -21,14 +21,18 @@ _PR_SET_PDEATHSIG = 1
 _report = None   # where progress() goes: a worker's pipe to its parent, or the serial run's callback
 
 
-def progress(n=1, work=None):
+def progress(n=1, work=None, kept=False):
     """Counts n units of a task's work as done, from inside the task: a worker sends it to its
     parent, whose pool hands it to the command's progress callback; a serial run calls it at once.
     So a bar moves per step, not per task, with any -j. work: what those units weigh, where units
     differ (a setting of a 10,000-body scene against one of 40 bodies), so that a bar given the
-    total weight estimates the time left from it; the callback then gets (n, work)."""
+    total weight estimates the time left from it; the callback then gets (n, work). kept: the
+    units were done before this run (a resumed study's, read back), in the count, not the rate;
+    the callback then gets (n, work, True)."""
     if _report is not None:
-        if work is None:
+        if kept:
+            _report(n, work, True)
+        elif work is None:
             _report(n)
         else:
             _report(n, work)

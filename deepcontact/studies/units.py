@@ -45,6 +45,7 @@ UNIT_MAX = 1 << 20       # bytes: a unit file is a row or a few
 _CODE_SUFFIXES = (".py", ".so")
 
 _journal = None          # the Journal of the study running in this process (keeping)
+_measured = 0            # units this process measured (not read back): measured()
 
 
 # --- dc's side: the folder beside the output ---------------------------------------------------------
@@ -227,8 +228,20 @@ def kept(unit, compute, as_type=None):
     values), to make it again from its file."""
     journal = _journal
     if journal is None:
-        return compute()
-    return journal.kept(unit, compute, as_type)
+        return _measuring(compute)
+    return journal.kept(unit, lambda: _measuring(compute), as_type)
+
+
+def _measuring(compute):
+    global _measured
+    _measured += 1
+    return compute()
+
+
+def measured() -> int:
+    """How many units this process has measured, not read back: a study's progress tells a
+    resumed run's reused units (done before it, no part of its rate) from those it measures."""
+    return _measured
 
 
 # --- values and keys as JSON ----------------------------------------------------------------------------

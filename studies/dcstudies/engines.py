@@ -223,8 +223,9 @@ def run_scene(case, chosen=None):
         if not applicable(case, setting):
             continue
         # (a unit of work: kept, and reused by a resumed run measured with the same options)
+        before = units.measured()
         rows.append(units.kept({"scene": case, "setting": setting}, lambda: measure(case, setting, reference_of), Row))
-        workers.progress(1, work)
+        workers.progress(1, work, kept=units.measured() == before)
     return rows
 
 

@@ -156,9 +156,10 @@ def run_scene(case, chosen, samples):
     for setting in chosen:
         if not applicable(case, setting):
             continue
+        before = units.measured()
         rows.append(units.kept({"scene": case, "setting": setting, "samples": samples},
                                lambda: measure(case, setting, picked()), Row))
-        workers.progress(1, work)
+        workers.progress(1, work, kept=units.measured() == before)
     return rows, units.kept({"scene": case, "samples": samples, "line": "reference"},
                             lambda: _reference_line(case, picked()))
 

@@ -313,11 +313,12 @@ def study(cases, configs=CONFIGS, log=None, jobs=1, progress=None):
 def _passing(task):
     case, (solver, start, relaxation, accelerate) = task
     first = effort(_engine_class(solver)).default if solver != "pgs" else None
+    before = units.measured()
     if first is not None:   # (an engine of its own default effort: from there, doubled up to 16x it)
         found = passing(case, solver, start, relaxation, first=first, cap=OWN_CAP * first)
     else:
         found = passing(case, solver, start, relaxation, accelerate=accelerate)
-    workers.progress(1)
+    workers.progress(1, kept=units.measured() == before)   # (kept: every run of it read back)
     return found
 
 
