@@ -533,3 +533,14 @@ def test_a_wrong_impulse_is_still_refused(tmp_path, mode):
             else "solve from its recorded start gives other impulses") in lines[0], lines
     found = re.search(r"the step's residual ([0-9.e+-]+),", lines[0]).group(1)
     assert float(found) > 1e-4 and len(found.replace("0.", "").lstrip("0")) >= 6, lines[0]
+
+
+def test_a_run_whose_w_is_tuned_as_it_goes_passes_validate(tmp_path):
+    """`--relaxation auto` writes "auto" as the manifest's w, which every reader of the run refused
+    ("not a w in (0, 2) or null"): dc validate called it invalid, with or without --residuals."""
+    r = dc("simulate", "pile", *SETTLING[:6], "--steps", "60", "--solver", "pgs", "--relaxation", "auto",
+           "--tolerance", "1e-4", "--max-iterations", "300", "-q", "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    for extra in ([], ["--residuals"]):
+        r = dc("validate", *extra, tmp_path / "run")
+        assert r.returncode == 0 and ", 0 invalid" in r.stderr, (extra, r.stdout, r.stderr)

@@ -33,8 +33,8 @@ def check_pgs(record, path, builtin_methods=None):
         if record.get(key) not in allowed:
             raise InputError(f"the manifest's pgs {key} is {record.get(key)!r}, not one of {', '.join(allowed)}", path)
     w = record.get("relaxation")
-    if w is not None and (type(w) not in (int, float) or not math.isfinite(w) or not 0 < w < 2):
-        raise InputError(f"the manifest's pgs relaxation is {w!r}, not a w in (0, 2) or null", path)
+    if w is not None and w != "auto" and (type(w) not in (int, float) or not math.isfinite(w) or not 0 < w < 2):
+        raise InputError(f"the manifest's pgs relaxation is {w!r}, not a w in (0, 2), \"auto\" or null", path)
     if not isinstance(record.get("accelerate"), str) or not isinstance(record.get("start"), str):
         raise InputError("the manifest's pgs record names no start or method", path)
     origin = record.get("accelerate_origin")
