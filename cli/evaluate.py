@@ -50,6 +50,7 @@ from . import options, terminal, types
 @options.max_memory
 @options.overwrite
 @options.verbosity
+@options.unfenced
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
              seed, closed_loop, steps, relaxation, accelerate, budgets, bands, plots, jobs, threads, max_memory,

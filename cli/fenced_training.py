@@ -108,7 +108,7 @@ def run(ctx, model, out, overwrite, resume, device):
         # or a failure leaves the last one), or swapped in once it has finished (replacing a run)
         sync = _Sync(staged, work)
         code = job.run(["train", *args], [private], private, {INSIDE: str(out)}, protocol.command_line, devices,
-                       poll=None if replace else sync)
+                       poll=None if replace else sync, who=f"the training of the network {model!r}")
         record = job.ended(private)
         if not replace or result.ended_in_order(record, code) and code == 0:
             sync()

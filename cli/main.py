@@ -81,6 +81,7 @@ def main():
     if os.environ.get("DC_COMMAND_LINE") and "DC_SANDBOX_BROKER" in os.environ:
         protocol.command_line = os.environ["DC_COMMAND_LINE"]   # (a fenced job: the user's line, not the staged one)
     from deepcontact import interrupts, leftovers
+    from deepcontact.contest import result   # (first: it takes its path from the environment before any plug-in runs)
     interrupts.own_process()
     leftovers.adopt_orphans()
     try:
@@ -88,6 +89,7 @@ def main():
         code = 0
     except SystemExit as e:   # (click ends every command with one)
         code = e.code
+    result.settle(code)   # (in a fence: how it ended, where its command said nothing)
     leftovers.end_process(code)
 
 

@@ -2,6 +2,7 @@
 one log level, logs and progress on stderr, clean one-line errors unless -v."""
 import functools
 import logging
+import os
 import signal
 import sys
 
@@ -49,6 +50,7 @@ def command(name):
             try:
                 return run(*args, **kwargs)
             finally:   # (in-process callers, the tests: the next command starts afresh)
+                _say_what_ran_bare(name)
                 interrupts.uninstall()
 
         def run(*args, verbose=0, quiet=0, **kwargs):
@@ -56,6 +58,8 @@ def command(name):
             _take_aliases(name, kwargs)
             interrupts.install(f"dc {name}")
             output.completed.clear()
+            if "deepcontact.contest.sandbox" in sys.modules:   # (in-process callers: what an earlier one ran bare)
+                sys.modules["deepcontact.contest.sandbox"].ran_bare.clear()
             try:
                 done = f(*args, verbose=verbose, quiet=quiet, **kwargs)
             except BaseException as e:
@@ -71,6 +75,33 @@ def command(name):
         wrapper.dc_command = True   # (cli/study.py: a command held already)
         return wrapper
     return decorate
+
+
+# --unfenced: plug-in code may run without its sandbox where this machine cannot build one (it
+# fails closed otherwise: contest/sandbox.py, refuse_bare); the command's last line says what ran bare.
+_UNFENCED_HELP = ("Run plug-in code bare where this machine cannot build its sandbox (no bubblewrap, user "
+                  "namespaces or control group); without it such a run is refused. The last line names what "
+                  "was missing.")
+
+
+def _allow_unfenced(ctx, param, value):
+    if value:
+        from deepcontact.contest import sandbox
+        os.environ[sandbox.UNFENCED_ENV] = "1"
+        ctx.call_on_close(lambda: os.environ.pop(sandbox.UNFENCED_ENV, None))
+
+
+def unfenced(f):
+    return click.option("--unfenced", is_flag=True, expose_value=False, callback=_allow_unfenced, is_eager=True,
+                        help=_UNFENCED_HELP)(f)   # (eager: before --help, which lists plug-in studies)
+
+
+def _say_what_ran_bare(name):
+    box = sys.modules.get("deepcontact.contest.sandbox")   # (not loaded: nothing was fenced, nor ran bare)
+    if box is not None and box.ran_bare:
+        click.echo(f"dc {name}: plug-in code ran without its sandbox, as --unfenced allowed (missing here: "
+                   f"{', '.join(sorted(box.ran_bare))})", err=True)
+        box.ran_bare.clear()
 
 
 def _say_how_it_ended(e, ended):

@@ -55,6 +55,7 @@ def kind_of(path):
 @options.jobs
 @options.overwrite
 @options.verbosity
+@options.unfenced
 @options.command("render")
 def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, seed, every, fps, compare, sample, model,
            arch, threads, jobs, overwrite, verbose, quiet):

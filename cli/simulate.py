@@ -97,6 +97,7 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
               help="Refuse a run estimated to write more than this (the free space is always a limit).")
 @options.overwrite
 @options.verbosity
+@options.unfenced
 @options.command("simulate")
 def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip_contactless, compress, write_scene,
              list_generators, engine, engine_settings, substeps, contact_hertz, damping_ratio, push_speed, solver, start, mode, tolerance, max_iterations, stop_on, relaxation, accelerate, jobs,

@@ -7,6 +7,8 @@ import sys
 
 import click
 
+from . import options
+
 
 # The studies of the project's own distribution (studies/): named when it is missing.
 PROJECT_STUDIES = ("stability", "engines", "frontier", "figures", "exact", "peer", "scale")
@@ -21,8 +23,10 @@ class StudyGroup(click.Group):
 
     def _listing(self):
         """([(order, name, summary)] of the healthy studies, {name: line} of the broken ones)."""
+        from deepcontact.contest import machine, sandbox
         from deepcontact.studies import STUDIES, fence, survey
-        key = tuple(STUDIES.names())   # (a study registered since is listed too)
+        # (a study registered since is listed too; so is one a fence, or --unfenced, now lets run)
+        key = (tuple(STUDIES.names()), os.environ.get(sandbox.UNFENCED_ENV), machine.bwrap())
         if getattr(self, "_listed", (None,))[0] != key:
             if os.environ.get(fence.INSIDE):   # (the sandbox that lists or runs them: here, in place)
                 healthy, broken = survey()
@@ -56,10 +60,13 @@ class StudyGroup(click.Group):
         try:
             return _held(name, command_of(name))
         except PluginError as e:   # (one line naming its distribution and entry point; -v: the traceback)
+            from deepcontact.contest import result
+            from deepcontact.errors import one_line
+            line = one_line(f"dc study: error: {e}")
+            result.say(result.FAILED, 1, line)   # (the fence running it: its own line said why)
             if "-v" in sys.argv or "--verbose" in sys.argv:
                 raise
-            from deepcontact.errors import one_line
-            click.echo(one_line(f"dc study: error: {e}"), err=True)
+            click.echo(line, err=True)
             sys.exit(1)
 
     def format_help_text(self, ctx, formatter):
@@ -85,7 +92,7 @@ def _held(name, command):
     traceback), its end recorded for the fence that runs it (contest/result.py). The project's
     own commands are already (options.command); a plug-in's plain click command was a raw
     traceback, and its crash was published as its output."""
-    from . import options
+
     if getattr(command.callback, "dc_command", False):
         return command
     invoke = command.invoke
@@ -109,11 +116,16 @@ def _held(name, command):
 def _fenced_command(name):
     """`dc study NAME ARGS`: the study run in its sandbox (its own --help and errors come from
     there); this process checks, stages and publishes its output."""
-    from . import options
+
 
     @options.command(f"study {name}")
     def body(args, verbose=0, quiet=0):
+        from deepcontact.contest import sandbox
         from deepcontact.studies import fence
+        if sandbox.UNFENCED_OPTION in args:   # (dc's own option, wherever it stands: the study never sees it)
+            args = [a for a in args if a != sandbox.UNFENCED_OPTION]
+            os.environ[sandbox.UNFENCED_ENV] = "1"
+            click.get_current_context().call_on_close(lambda: os.environ.pop(sandbox.UNFENCED_ENV, None))
         raise click.exceptions.Exit(fence.run(name, args))
 
     @click.command(name, add_help_option=False,
@@ -125,6 +137,7 @@ def _fenced_command(name):
 
 
 @click.group(cls=StudyGroup)
+@options.unfenced
 def study():
     """Longer measurements built on the pipeline.
 

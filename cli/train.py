@@ -134,6 +134,7 @@ class EpochLines:
 @options.max_memory
 @options.overwrite
 @options.verbosity
+@options.unfenced
 @options.command("train")
 def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch_size, epochs, patience, seed,
           threads, device, fcn_width, fcn_depth, no_final_relu, solver_sweeps, resume, checkpoint_every, plots,

@@ -538,3 +538,27 @@ def test_nothing_a_plugin_method_starts_outlives_a_simulation(tmp_path, kind):
     if kind == "fork":   # the child ended where it came out of the plug-in: nothing said twice
         assert proc.stderr == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mods", "r"]
+
+
+def test_without_its_fence_a_plugin_start_runs_only_when_the_user_says_so(run, tmp_path, monkeypatch):
+    """Without bubblewrap a plug-in start ran as a plain process with the user's access, and no
+    line said so; the project's own starts still run, their report naming the missing fences."""
+    from deepcontact.contest import machine
+    name = "guest_start_unfenced"
+    write_module(tmp_path, monkeypatch, name, START)
+    monkeypatch.setenv("PATH", os.path.dirname(sys.executable))   # (a machine without bubblewrap)
+    machine.bwrap.cache_clear()
+    try:
+        args = ["evaluate", "--no-plots", run, "--every", "40", "--no-budgets", "-q"]
+        one_line_naming(dc(*args, "--starts", f"builtin,{name}:Start", "-o", tmp_path / "r"), "only with --unfenced")
+        assert not (tmp_path / "r").exists()
+        assert dc(*args, "--starts", "zero,builtin", "-o", tmp_path / "own").returncode == 0
+        r = dc(*args, "--starts", f"builtin,{name}:Start", "--unfenced", "-o", tmp_path / "r")
+        assert r.returncode == 0, r.stderr
+        assert r.stderr.strip().splitlines()[-1].startswith("dc evaluate: plug-in code ran without its sandbox, as "
+                                                            "--unfenced allowed (missing here: ")
+        assert "MISSING here: " in (tmp_path / "r" / "report.md").read_text()
+    finally:
+        forget(name)
+        monkeypatch.undo()
+        machine.bwrap.cache_clear()

@@ -174,6 +174,35 @@ def test_a_study_whose_verdict_is_a_failure_is_published(installed, tmp_path):
     assert json.loads(out.read_text()) == {"written": True}
 
 
+@pytest.fixture
+def no_bubblewrap(tmp_path, monkeypatch):
+    """This process as on a machine without bubblewrap: a PATH that finds no bwrap."""
+    from deepcontact.contest import machine
+    monkeypatch.setenv("PATH", os.path.dirname(sys.executable))
+    machine.bwrap.cache_clear()
+    yield
+    monkeypatch.undo()
+    machine.bwrap.cache_clear()
+
+
+def test_without_its_fence_a_study_runs_only_when_the_user_says_so(installed, tmp_path, no_bubblewrap):
+    """Without bubblewrap, an installed study ran as a plain process with the user's write access,
+    and nothing said so."""
+    out = tmp_path / "out.json"
+    out.write_text("earlier")
+    one_line_error(dc("study", "leave", "-o", out, "--how", "in order", "--overwrite"), "the study 'leave'",
+                   "cannot build its fence (missing: namespaces", "only with --unfenced")
+    assert out.read_text() == "earlier"
+    listed = dc("study", "--help")
+    assert "the study 'leave' is plug-in code, and this machine cannot build" in " ".join(listed.stdout.split())
+    r = dc("study", "leave", "-o", out, "--how", "in order", "--overwrite", "--unfenced")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(out.read_text()) == {"written": True}
+    assert r.stderr.strip().splitlines()[-1] == ("dc study leave: plug-in code ran without its sandbox, as --unfenced "
+                                                 "allowed (missing here: namespaces, read-only view, seccomp)")
+    assert "leave" in dc("study", "--unfenced", "--help").stdout
+
+
 def test_a_link_in_a_studys_output_is_not_published(installed, tmp_path):
     out = tmp_path / "out"
     one_line_error(dc("study", "leave", "-o", out, "--how", "link"), "holds a link", "not published")
@@ -355,3 +384,53 @@ def test_dc_render_with_a_plug_in_network_draws_fenced(dataset, tmp_path, networ
     assert r.stdout.strip() == str(out) and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert user_file.read_text() == "mine" and "dc_hostile_net" not in sys.modules
     assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
+
+
+NOISY = {
+    "dc_noisy_print": ("import sys\nsys.stdout.write('{\"healthy\": []}' + 'x' * (5 << 20))\nsys.stdout.flush()\n"
+                       "from deepcontact.studies import Study\n"
+                       "class Printer(Study):\n    name, summary, order, writes = 'printer', 'prints at import', 80, "
+                       "'text'\n    command = staticmethod(lambda: __import__('click').command('printer')(lambda: None))\n"),
+    "dc_noisy_long": ("from deepcontact.studies import Study\n"
+                      "class Long(Study):\n    name, summary, order, writes = 'long', 'a' * 100000 + '\\nmore', 81, "
+                      "'text'\n    command = staticmethod(lambda: __import__('click').command('long')(lambda: None))\n"),
+    "dc_noisy_block": "import time\ntime.sleep(600)\n",
+    "dc_noisy_fine": ("import click\nfrom deepcontact.studies import Study\n@click.command('fine')\ndef fine():\n"
+                      "    '''Fine.'''\nclass Fine(Study):\n    name, summary, order, writes = 'fine', 'a fine study', 83, "
+                      "'text'\n    command = staticmethod(lambda: fine)\n"),
+}
+
+
+@pytest.fixture
+def noisy(tmp_path, monkeypatch):
+    """Studies whose listing misbehaves: one prints 5 MB at import, one has a 100,000-character
+    summary, one's import blocks; and a fine one listed after the blocking one."""
+    from deepcontact.studies import fence
+    lib = tmp_path / "lib"
+    info = lib / "dc_noisy_studies-1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: dc-noisy-studies\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[deepcontact.studies]\nprinter = dc_noisy_print:Printer\n"
+                                           "long = dc_noisy_long:Long\nblock = dc_noisy_block:Block\n"
+                                           "fine = dc_noisy_fine:Fine\n")
+    for module, text in NOISY.items():
+        (lib / f"{module}.py").write_text(text)
+    monkeypatch.syspath_prepend(str(lib))
+    monkeypatch.setattr(fence, "SURVEY_DEADLINE", 4.0)
+    yield lib
+    for module in NOISY:
+        sys.modules.pop(module, None)
+
+
+def test_a_study_that_prints_stalls_or_runs_long_at_listing_hides_no_other(noisy):
+    """A study printing at import made `dc study --help` a traceback hiding every study; one whose
+    import blocked made it hang."""
+    t0 = time.monotonic()
+    r = dc("study", "--help")
+    assert r.returncode == 0 and "Traceback" not in r.stdout + r.stderr, r.stdout + r.stderr
+    flat = " ".join(r.stdout.split())
+    for name in ("stability", "printer", "fine"):
+        assert f" {name} " in flat, flat
+    assert "the study 'block' could not be listed: loading it took over 4 s" in flat
+    assert " long aaaa" in flat and "a" * 301 not in flat and "more" not in flat
+    assert time.monotonic() - t0 < 60

@@ -22,7 +22,7 @@ from ..simulate.engines import ENGINES
 from ..solver.methods import SOLVERS, check_plausible, is_native, judge
 from ..warmstart.starts import NAMES, STARTS, Builtin, Checked, Remote
 from .guest import TRAITS
-from . import broker as _broker
+from . import broker as _broker, sandbox
 from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
@@ -120,6 +120,13 @@ def _plugin_modules(names):
     return out, metadata
 
 
+def _runs_plugin_code(names, modules):
+    """Whether a contestant runs code that is not the project's: an object's module, or a name
+    no registry has built in."""
+    registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
+    return bool(modules) or any(isinstance(n, str) and not any(n in r.builtin() for r in registries) for n in names)
+
+
 def readable_paths(names=(), modules=(), files=()):
     """What a contestant's sandbox may read: the interpreter and its installed packages,
     deepcontact, the plug-ins' own modules (by name, and `modules`) and `files`."""
@@ -187,6 +194,8 @@ class Contestant:
             names = [name, method, *networks]
             modules = [] if made else [type(getattr(start, "start", start)).__module__]
         self._setup = setup
+        if _runs_plugin_code(names, modules):
+            sandbox.refuse_bare(self.who, _broker.missing_fences())
         self.sandbox = _broker.new(readable_paths(names, modules, [checkpoint] if checkpoint else []),
                                    threads=setup["threads"])
         import socket

@@ -20,7 +20,7 @@ from pathlib import Path
 from .. import output, protocol
 from ..errors import InputError, show_path
 from ..plugins import PluginError
-from . import result, sandbox
+from . import machine, result, sandbox
 from .broker import ENV as BROKER_ENV, Broker
 
 COMMAND_LINE = "DC_COMMAND_LINE"   # the user's command line, for the job's reports (not the staged one)
@@ -32,11 +32,14 @@ def python_path():
     return os.pathsep.join(p or os.getcwd() for p in sys.path)
 
 
-def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(), poll=None):
+def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(), poll=None, who="a plug-in's job"):
     """Runs `dc DC_ARGS` in a JobSandbox writing in `writable` (its TMPDIR `private`, one of
-    them); returns its exit status (how(): in words; ended(private): its own record of its end). env_extra: more of its environment;
-    devices: device files it may use (an accelerator's); poll(): called every POLL seconds while
-    it runs (what the caller keeps up to date from what it writes)."""
+    them); returns its exit status (how(): in words; ended(private): its own record of its end).
+    env_extra: more of its environment; devices: device files it may use (an accelerator's);
+    poll(): called every POLL seconds while
+    it runs (what the caller keeps up to date from what it writes); who: how a refusal names it
+    (it is plug-in code: where its fence cannot be built it runs only with --unfenced)."""
+    sandbox.refuse_bare(who, [f for f in sandbox.JOB_FENCES if f in machine.missing_fences()])
     broker = Broker()
     box = sandbox.JobSandbox(writable=writable, devices=devices)
     env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=python_path())
@@ -211,7 +214,7 @@ def run_with_output(head, args, command, writes, env_extra, who, aside=None):
                 env_extra = {**(env_extra or {}), **kept.env}
             args[where] = prefix + str(staged)
             env_extra = {**(env_extra or {}), "DC_OUTPUT_STAGED": str(staged), "DC_OUTPUT_SHOWN": str(target)}
-        code = run([*head, *args], writable, private, env_extra, protocol.command_line)
+        code = run([*head, *args], writable, private, env_extra, protocol.command_line, who=who)
         record = ended(private)
         if staged is not None and result.ended_in_order(record, code):
             if publish(staged, target, command, who) and kept is not None:

@@ -18,14 +18,25 @@ IN_ORDER, FAILED = "in order", "failed"
 # Taken from the environment as the fenced command starts (its modules are imported before any
 # plug-in code runs), so that no process it starts inherits it and writes a record of its own.
 _PATH = os.environ.pop(ENV, None)
+_said = False
+
+
+def settle(code):
+    """In the fenced command, as its process ends through dc's main with `code`: where its
+    command said nothing (click's own --help or usage error, a name dc could not load), its
+    record from the code: in order for 0, failed for the rest (their line is said)."""
+    if not _said:
+        say(IN_ORDER if code in (0, None) else FAILED, code if type(code) is int else 1)
 
 
 def say(ended, code, message=""):
     """In the fenced command: its record, written whole (a temporary name renamed) where ENV
     says; nothing outside a fence."""
+    global _said
     path = _PATH
     if not path:
         return
+    _said = True
     data = json.dumps({"ended": ended, "code": int(code), "message": str(message)[:2000]})
     part = f"{path}.part"
     try:

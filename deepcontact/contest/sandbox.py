@@ -15,9 +15,11 @@ starts, detached ones included, from its start to its end; read by the judge, ne
 contestant. When the sandbox ends, its PID namespace ends with it: nothing it started survives.
 
 Where the kernel or the machine refuses a fence (no bubblewrap, no user namespaces, no writable
-control group), the contestant still runs, as a plain process of its own, and `fences()` says
-which fences are missing: the report's protocol line and the verdict print it. Nothing is dropped
-silently.
+control group), the project's own code (a built-in start, the null contestant) still runs, as a
+plain process of its own, and `fences()` says which fences are missing: the report's protocol
+line and the verdict print it. Plug-in code fails closed there (refuse_bare): it runs bare only
+where the user's option --unfenced says so, and the command's last line names what was missing.
+Nothing is dropped silently.
 """
 import os
 import signal
@@ -26,6 +28,7 @@ import sys
 import time
 
 from ..leftovers import at_end
+from ..plugins import PluginError
 from . import machine
 
 MEMORY_LIMIT = 8 << 30     # bytes a contestant's processes may hold together
@@ -42,6 +45,27 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 _ETC = ("ld.so.cache", "ld.so.conf", "ld.so.conf.d", "localtime", "passwd", "group", "nsswitch.conf",
         "alternatives", "os-release")
 _SYSTEM = ("/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin")
+
+
+# --- Fail closed ------------------------------------------------------------------------------------
+
+UNFENCED_OPTION = "--unfenced"
+UNFENCED_ENV = "DC_UNFENCED"   # set by the option; a job's environment carries it to the job's own checks
+JOB_FENCES = ("namespaces", "read-only view", "seccomp")   # what a job's fence is made of (no control group)
+ran_bare = set()               # the fences plug-in code of this command ran without (the option said so)
+
+
+def refuse_bare(who, missing):
+    """Plug-in code (`who` names it) about to run where the fences `missing` cannot be built:
+    PluginError, one line naming them and the option, unless the user gave --unfenced; then
+    noted in ran_bare, for the command's last line."""
+    if not missing:
+        return
+    if os.environ.get(UNFENCED_ENV) != "1":
+        raise PluginError(f"{who} is plug-in code, and this machine cannot build its fence (missing: "
+                          f"{', '.join(missing)}): it runs bare, with your access to your files, only with "
+                          f"{UNFENCED_OPTION}")
+    ran_bare.update(missing)
 
 
 # --- Groups left behind ---------------------------------------------------------------------------

@@ -19,10 +19,11 @@ import json
 import os
 import subprocess
 import sys
+import time
 
-from ..contest import job, sandbox
+from ..contest import job, machine, sandbox
 from ..plugins import PluginError
-from . import STUDIES, survey as loaded, units
+from . import STUDIES, units
 
 INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME it runs in place
 
@@ -52,40 +53,111 @@ def run(name, args):
 def survey(names=None):
     """(the healthy installed studies as [{"name", "summary", "order", "writes"}], {name: line} of
     the broken ones), of every one or of `names`, loaded in a sandbox of their own: listing
-    imports every study's code, which runs fenced like the rest of it."""
+    imports every study's code, which runs fenced like the rest of it: where its fence cannot be
+    built, each is listed as broken, saying so, unless --unfenced allows it bare."""
+    who = f"the study {names[0]!r}" if names and len(names) == 1 else "the installed studies' code"
+    try:
+        sandbox.refuse_bare(who, [f for f in sandbox.JOB_FENCES if f in machine.missing_fences()])
+    except PluginError as e:
+        why = str(e).split(", and ", 1)[-1]
+        return [], {name: f"the study {name!r} is plug-in code, and {why}"
+                    for name in (names or [n for n in STUDIES.names() if n not in STUDIES.builtin()])}
+    wanted = list(names or [n for n in STUDIES.names() if n not in STUDIES.builtin()])
+    healthy, broken = [], {}
+    while wanted:   # (a study that ends or stalls its listing is broken; the ones after it are listed again)
+        found, stalled = _survey_round(wanted)
+        for entry in (found[name] for name in wanted if name in found):
+            if "broken" in entry:
+                broken[entry["name"]] = entry["broken"]
+            else:
+                healthy.append(entry)
+        if stalled is None:
+            break
+        broken[stalled[0]] = f"the study {stalled[0]!r} could not be listed: {stalled[1]}"
+        wanted = wanted[wanted.index(stalled[0]) + 1:]
+    return sorted(healthy, key=lambda s: (s["order"], s["name"])), broken
+
+
+SURVEY_DEADLINE = float(os.environ.get("DC_SURVEY_DEADLINE", 60))   # seconds a listing may take
+SUMMARY_MAX = 300                                                   # characters of a summary in the list
+_LINE_MAX = 8 << 10                                                 # bytes of one study's entry
+
+
+def _survey_round(names):
+    """({name: entry} the listing process reported, over a pipe of its own, one line a study as
+    each loads; (the study being loaded when it ended or stalled, how) or None)."""
     box = sandbox.JobSandbox()
     env = dict(os.environ, PYTHONPATH=job.python_path(), **{INSIDE: "-"})
     read, write = os.pipe()
     try:
         box.start([sys.executable, "-c", "import sys; from deepcontact.studies.fence import _survey_here; "
-                   "_survey_here(sys.argv[1:] or None)", *(names or [])],
-                  env=env, stdout=write, stderr=subprocess.DEVNULL)
+                   "_survey_here(int(sys.argv[1]), sys.argv[2:])", str(write), *names],
+                  pass_fds=[write], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.close(write)
         write = None
-        with os.fdopen(read, "rb") as f:
-            read = None
-            data = f.read(4 << 20)
-        code = box.process.wait()
+        data, ended = _read_until(read, time.monotonic() + SURVEY_DEADLINE, len(names) * _LINE_MAX)
     finally:
         box.kill()
         for fd in (read, write):
             if fd is not None:
                 os.close(fd)
-    try:
-        found = json.loads(data)
-        healthy, broken = found["healthy"], found["broken"]
-    except (ValueError, KeyError, TypeError):
-        raise PluginError(f"the installed studies could not be listed: their process ended ({job.how(code)}) "
-                          f"without a list") from None
-    return healthy, broken
+    found = _entries(data, names)
+    missing = [n for n in names if n not in found]
+    if not missing:
+        return found, None
+    how = (f"loading it ended the listing's process ({job.how(box.process.returncode)})" if ended
+           else f"loading it took over {SURVEY_DEADLINE:g} s")
+    return found, (missing[0], how)
 
 
-def _survey_here(names=None):
-    """In the survey's sandbox: the installed studies (or those named), loaded, as JSON on stdout."""
-    builtin = set(STUDIES.builtin())
-    healthy, broken = loaded(names)
-    out = {"healthy": [{"name": s.name, "summary": str(s.summary), "order": float(s.order), "writes": str(s.writes)}
-                       for s in healthy if s.name not in builtin],
-           "broken": {k: v for k, v in broken.items() if k not in builtin}}
-    sys.stdout.write(json.dumps(out))
-    sys.stdout.flush()
+def _read_until(fd, deadline, limit):
+    """(what a pipe gave until its writer closed it, the deadline or the limit; whether it closed)."""
+    import select
+    chunks, size = [], 0
+    while size <= limit:
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            return b"".join(chunks), False
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            return b"".join(chunks), True
+        chunks.append(chunk)
+        size += len(chunk)
+    return b"".join(chunks), False
+
+
+def _entries(data, names):
+    """{name: entry} from the listing's lines, each checked (typed, a study asked for); anything
+    else on the pipe is ignored."""
+    found = {}
+    for line in data.split(b"\n"):
+        try:
+            e = json.loads(line) if len(line) <= _LINE_MAX else None
+        except (ValueError, RecursionError):
+            continue
+        if not isinstance(e, dict) or e.get("name") not in names or e["name"] in found:
+            continue
+        if isinstance(e.get("broken"), str):
+            found[e["name"]] = {"name": e["name"], "broken": e["broken"]}
+        elif (isinstance(e.get("summary"), str) and type(e.get("order")) in (int, float)
+              and e.get("writes") in ("folder", "file", "text")):
+            found[e["name"]] = {k: e[k] for k in ("name", "summary", "order", "writes")}
+    return found
+
+
+def _survey_here(fd, names):
+    """In the listing's sandbox: each study named, loaded in turn, one line of JSON for it on the
+    pipe fd as soon as it loads (its standard output is not the channel: a study that prints at
+    import corrupts nothing); a summary is its first line, at most SUMMARY_MAX characters."""
+    from . import _healthy
+    from ..plugins import PluginError
+    for name in names:
+        try:
+            s = _healthy(name)[0]
+            entry = {"name": name, "summary": str(s.summary).strip().split("\n")[0][:SUMMARY_MAX],
+                     "order": float(s.order), "writes": str(s.writes)}
+        except PluginError as e:
+            entry = {"name": name, "broken": str(e)[:SUMMARY_MAX * 4]}
+        except Exception as e:   # (its own summary or order that is no text or number)
+            entry = {"name": name, "broken": f"the study {name!r}: {type(e).__name__}: {e}"[:SUMMARY_MAX * 4]}
+        os.write(fd, json.dumps(entry).encode() + b"\n")
