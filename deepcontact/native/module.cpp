@@ -104,7 +104,8 @@ py::dict to_dict(const dc::StepHeader& h) {
 // enumeration, fixed)], any attribute, [(names, declarations, min, max)])].
 dc::StrictTable strict_table(const py::sequence& declarations) {
     static const std::pair<const char*, dc::ValueKind> kinds[] = {
-        {"float", dc::ValueKind::Float}, {"int", dc::ValueKind::Int}, {"boolean", dc::ValueKind::Boolean},
+        {"float", dc::ValueKind::Float}, {"int", dc::ValueKind::Int}, {"unsigned", dc::ValueKind::Unsigned},
+        {"integer", dc::ValueKind::Integer}, {"boolean", dc::ValueKind::Boolean},
         {"token", dc::ValueKind::Token}, {"string", dc::ValueKind::String}};
     dc::StrictTable t;
     for (const auto& item : declarations) {
@@ -179,6 +180,20 @@ void bind_step_reader(py::module_& m) {
         "(header, bodies, contacts) of a step file (.xml or .xml.gz), streamed with libxml2; validated\n"
         "against schema in the same pass if given, or checked against the schema's table (strict).\n"
         "Raises StepFileError(message, line).");
+    m.def(
+        "check_step_table",
+        [](const std::string& path, const dc::StrictTable& table) {
+            dc::TableVerdict v;
+            {
+                py::gil_scoped_release release;
+                v = dc::check_step_table(path, table);
+            }
+            return py::make_tuple(v.problem.empty() ? "valid" : v.deferred ? "xsd" : "invalid", v.problem);
+        },
+        py::arg("path"), py::arg("table"),
+        "(verdict, problem): the schema's table's own verdict on a step file, no record read: \"valid\",\n"
+        "\"invalid\", or \"xsd\" for a form the table leaves to the XSD; problem: its first, or \"\".\n"
+        "Raises StepFileError for a file it cannot read.");
     m.def(
         "validate_step_file",
         [](const std::string& path, const dc::StepSchema& schema, size_t max_errors) {

@@ -658,22 +658,26 @@ void on_start(void* data, const xmlChar* name, const xmlChar*, const xmlChar* ur
     if (r->strict != nullptr && r->problem.message.empty() &&
         !r->strict->start(reinterpret_cast<const char*>(name), reinterpret_cast<const char*>(uri), n_attributes,
                           reinterpret_cast<const char**>(attributes)))
-        r->fail("not valid against the schema: " + r->strict->problem);
+        r->fail(r->strict->verdict_line());
     r->start(name, n_attributes, attributes);
 }
 
 void on_end(void* data, const xmlChar*, const xmlChar*, const xmlChar*) {
     Reader* r = reader_of(data);
     if (r->strict != nullptr && r->problem.message.empty() && !r->strict->end())
-        r->fail("not valid against the schema: " + r->strict->problem);
+        r->fail(r->strict->verdict_line());
     r->end();
 }
 
-void on_text(void* data, const xmlChar* text, int n) {
+void on_text(void* data, const xmlChar* text, int n, bool cdata) {
     Reader* r = reader_of(data);
-    if (r->strict != nullptr && r->problem.message.empty() && !r->strict->text(reinterpret_cast<const char*>(text), n))
-        r->fail("not valid against the schema: " + r->strict->problem);
+    if (r->strict != nullptr && r->problem.message.empty() &&
+        !r->strict->text(reinterpret_cast<const char*>(text), n, cdata))
+        r->fail(r->strict->verdict_line());
 }
+
+void on_characters(void* data, const xmlChar* text, int n) { on_text(data, text, n, false); }
+void on_cdata(void* data, const xmlChar* text, int n) { on_text(data, text, n, true); }
 
 void on_doctype(void*, const xmlChar*, const xmlChar*, const xmlChar*) {
     // Entities would hide values from the schema (or read other files): refused outright.
@@ -742,8 +746,8 @@ void parse(Reader& reader, const StepSchema* schema, Source& source, std::string
     handler.internalSubset = on_doctype;
     handler.serror = on_syntax_error;
     if (reader.strict != nullptr) {   // (text matters only to the table: without it, never read)
-        handler.characters = on_text;
-        handler.cdataBlock = on_text;
+        handler.characters = on_characters;
+        handler.cdataBlock = on_cdata;
     }
     xmlSAXHandlerPtr sax = &handler;
     void* data = &reader;
@@ -844,7 +848,8 @@ StepFile read_step_file(const std::string& path, const StepSchema* schema, const
     }
     parse(reader, schema, source, std::string());
     if (check && reader.problem.message.empty() && reader.syntax.message.empty() && !check->finished())
-        throw StepFileError("not valid against the schema: " + (check->ok() ? std::string("it ends early") : check->problem), 0);
+        throw StepFileError(
+            check->ok() ? std::string("not valid against the schema: it ends early") : check->verdict_line(), 0);
     if (!reader.schema_errors.empty()) {   // the schema's first complaint, where it came first
         const SchemaIssue& e = reader.schema_errors.front();
         if (reader.problem.message.empty() || e.line <= reader.problem.line) throw StepFileError(e.message, e.line);
@@ -855,6 +860,18 @@ StepFile read_step_file(const std::string& path, const StepSchema* schema, const
     reader.finish();
     if (!reader.problem.message.empty()) throw StepFileError(reader.problem.message, reader.problem.line);
     return std::move(reader.out);
+}
+
+TableVerdict check_step_table(const std::string& path, const StrictTable& table) {
+    Source source(path);
+    Reader reader(Reader::RootOnly);   // (the root's attributes only: no record's own checks)
+    StrictCheck check(table);
+    reader.strict = &check;
+    parse(reader, nullptr, source, std::string());
+    if (!reader.problem.message.empty()) return {reader.problem.message, !check.ok() && check.deferred};
+    if (!reader.syntax.message.empty()) return {"not a well-formed step file: " + reader.syntax.message, false};
+    if (!check.finished()) return {"not valid against the schema: it ends early", false};
+    return {};
 }
 
 Validation validate_step_file(const std::string& path, const StepSchema& schema, size_t max_errors) {

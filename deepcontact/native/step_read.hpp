@@ -82,6 +82,13 @@ struct StrictTable;
 // step_strict.hpp). Reading never blocks on a FIFO: anything but a regular file is refused.
 StepFile read_step_file(const std::string& path, const StepSchema* schema, const StrictTable* strict = nullptr);
 
+// The schema's table's own verdict on a file, no record read (what the tests hold to the XSD's).
+struct TableVerdict {
+    std::string problem;     // "" when the table accepts the file, else its first problem
+    bool deferred = false;   // the problem is a form the table leaves to the XSD
+};
+TableVerdict check_step_table(const std::string& path, const StrictTable& table);
+
 // Checks one file against the schema in one streaming pass. Only files whose root is <step>
 // are parsed; for any other root, `root` says what it is and nothing else is filled in.
 Validation validate_step_file(const std::string& path, const StepSchema& schema, size_t max_errors);

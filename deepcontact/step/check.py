@@ -1,10 +1,10 @@
 """Checking files against the schemas, one error a line as ``path:line:col: message``.
 
 Step files are checked in one streaming pass against the step schema's table as they are read
-(strict.py; as .xml or .xml.gz), the XSD itself listing the errors of a file the table refuses
-and checking a sample of the files it accepts; anything whose root is not <step> (scene files, a DOCTYPE, a stray XML file)
-goes through lxml (schema.validate). A step file is also checked to belong to the simulation it
-lies in, where that is known."""
+(strict.py; as .xml or .xml.gz): a file it accepts is valid, and the XSD itself judges every
+other (one it refuses or leaves to it) and lists its errors; anything whose root is not <step>
+(scene files, a DOCTYPE, a stray XML file) goes through lxml (schema.validate). A step file is
+also checked to belong to the simulation it lies in, where that is known."""
 from .. import schema
 from .._box2d import StepFileError, validate_step_file
 from ..errors import InputError, one_line, show_path
@@ -14,25 +14,20 @@ from .records import check_solve
 MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
 
-def check_file(path, origin=None, xsd=False):
+def check_file(path, origin=None):
     """(kind, error lines): kind "step", "scene" or None. origin: (scene, seed, engine) of the
     simulation the file lies in, and optionally its run's pgs record (None: the project's solver
-    did not step it), or None. xsd: a valid file is validated by the XSD itself too (a sample of
-    dc validate's: its table is checked against its source)."""
-    return check_and_read(path, origin, xsd)[:2]
+    did not step it), or None."""
+    return check_and_read(path, origin)[:2]
 
 
-def check_and_read(path, origin=None, xsd=False):
+def check_and_read(path, origin=None):
     """check_file's (kind, error lines), and the step the pass read: (header, bodies, contacts) of
     a valid step file, else None (what dc validate --residuals judges, without reading it again)."""
     try:   # a valid step file (nearly every file): checked against the schema's table and read in one pass
         step = read_step(path, validate=True)
     except InputError:   # not one: the second pass below lists the XSD's errors (up to MAX_ERRORS), or says why
         step = None
-    if step is not None and xsd:
-        errors = validate_step_file(str(path), step_schema(), MAX_ERRORS)[3]
-        if errors:   # (the table let through what the XSD refuses: the XSD is the authority)
-            step = None
     if step is not None:
         lines = _semantic_errors(path, step, origin)
         return "step", lines, None if lines else step

@@ -35,8 +35,9 @@ def strict_table() -> StrictTable:
 
 def read_step(path: str | os.PathLike, validate: bool = True) -> tuple[dict, dict, dict]:
     """Returns (header dict, bodies dict of arrays, contacts dict of arrays). validate: held to
-    the step schema, by its table as the file is read (strict.py); a file the table refuses is
-    validated by the XSD itself, which says what is wrong (or, being the authority, accepts it)."""
+    the step schema, by its table as the file is read (strict.py): a file it accepts is valid; one
+    it refuses or leaves to the XSD is validated by the XSD itself, which says what is wrong (or,
+    being the authority, accepts it)."""
     arguments.path(path, "path")
     try:
         try:
