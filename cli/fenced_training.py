@@ -10,7 +10,6 @@ import os
 import re
 import shutil
 import stat
-import tempfile
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -90,7 +89,7 @@ def run(ctx, model, out, overwrite, resume, device):
     out = Path(out)
     replace = overwrite and out.is_dir() and any(out.iterdir())
     with ExitStack() as stack:
-        private = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="dc-train-")))
+        private = Path(stack.enter_context(output.private_folder("train")))
         work = Path(stack.enter_context(output.output_folder(
             out, MODEL_FILES, overwrite, command="train", in_place=not replace, existing_ok=resume,
             hint="use --resume to continue a run there or --overwrite to replace it")))

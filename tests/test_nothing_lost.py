@@ -1036,3 +1036,25 @@ def test_a_full_or_read_only_disk_in_the_swap_leaves_the_output_as_it_was_and_no
     with output.output_folder(out, output.Owned("report"), overwrite=True, command="evaluate") as work:
         output.write_text(work / "report.md", "newer")
     assert (out / "report.md").read_text() == "newer" and sorted(os.listdir(tmp_path)) == ["out"]
+
+
+def test_a_tree_of_any_depth_is_removed_and_no_link_in_it_followed(tmp_path):
+    """shutil.rmtree recursed (RecursionError past about 1,000 levels) and walked by path (past
+    PATH_MAX it cannot name the entries): what a job left could not be removed."""
+    from deepcontact.output import remove_tree
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "keep").write_text("mine")
+    top = tmp_path / "left"
+    top.mkdir()
+    fd = os.open(top, os.O_RDONLY)
+    for k in range(1500):
+        os.mkdir("d" * 40, dir_fd=fd)
+        os.symlink(outside, f"link-{k}", dir_fd=fd)
+        child = os.open("d" * 40, os.O_RDONLY, dir_fd=fd)
+        os.close(fd)
+        fd = child
+    os.fchmod(fd, 0)   # (a folder of mode 000 at the bottom)
+    os.close(fd)
+    remove_tree(top)
+    assert not top.exists() and (outside / "keep").read_text() == "mine"

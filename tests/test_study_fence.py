@@ -11,6 +11,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 
@@ -84,6 +85,17 @@ STUDY = textwrap.dedent("""
             os._exit(9)
         if how in ("exit 1", "exit 200"):   # (a crash that exits as a verdict does; a status above 128)
             os._exit(int(how.split()[1]))
+        if how == "deep":   # (a staging folder deeper than a recursive removal or PATH_MAX reaches)
+            os.remove(out)
+            os.mkdir(out)
+            fd = os.open(out, os.O_RDONLY)
+            for _ in range(3000):
+                os.mkdir("level-of-a-deep-tree", dir_fd=fd)
+                child = os.open("level-of-a-deep-tree", os.O_RDONLY, dir_fd=fd)
+                os.close(fd)
+                fd = child
+            os.fchmod(fd, 0)
+            os._exit(3)
         if how == "raise":
             raise ZeroDivisionError("half-way")
         if how == "verdict":
@@ -165,6 +177,23 @@ def test_a_study_that_ends_its_own_process_is_one_line_and_publishes_nothing(ins
     out.write_text("earlier")
     one_line_error(dc("study", "leave", "-o", out, "--how", how, "--overwrite"), "the study 'leave'", needle)
     assert out.read_text() == "earlier" and sorted(p.name for p in tmp_path.iterdir()) == ["lib", "out.json"]
+
+
+def test_what_a_killed_job_leaves_is_removed_whatever_its_depth(installed, tmp_path):
+    """A staging folder 3,000 folders deep (past PATH_MAX, past a recursive removal) was left
+    beside the output and made every later run there fail; a killed run's private TMPDIR was
+    never swept."""
+    import tempfile
+    dead = subprocess.Popen(["true"])
+    dead.wait()   # (a process that is gone: its folder is a killed run's)
+    left = Path(tempfile.mkdtemp(prefix=f"dc-job-{dead.pid}-"))
+    (left / "checkpoint-copy").write_bytes(b"x" * 1000)
+    out = tmp_path / "out.json"
+    one_line_error(dc("study", "leave", "-o", out, "--how", "deep"), "the study 'leave'", "exit status 3")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lib"]
+    r = dc("study", "leave", "-o", out, "--how", "in order")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(out.read_text()) == {"written": True} and not left.exists()
 
 
 def test_a_study_whose_verdict_is_a_failure_is_published(installed, tmp_path):

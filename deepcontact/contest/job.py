@@ -181,7 +181,7 @@ def _staging(target, command):
     try:
         yield stage
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        output.remove_tree_quietly(stage)   # (whatever the job left there: any depth)
         output.release_building(stage)
 
 
@@ -196,7 +196,7 @@ def run_with_output(head, args, command, writes, env_extra, who, aside=None):
     args = list(args)
     where, prefix, target, overwrite = output_argument(args)
     with ExitStack() as stack:
-        private = stack.enter_context(tempfile.TemporaryDirectory(prefix="dc-job-"))
+        private = stack.enter_context(output.private_folder("job"))
         writable, staged, kept = [private], None, None
         if target is not None:
             kind = writes()

@@ -9,7 +9,6 @@ import errno
 import json
 import logging
 import os
-import shutil
 import stat
 import tempfile
 from contextlib import contextmanager
@@ -20,6 +19,7 @@ from ..errors import InputError
 from . import files, lock, record
 from .names import beside, kind, own_name, short_name
 from .record import RECORD, entries, our_folder, read_record
+from .trees import remove_tree_quietly
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ def recover(path, command=None):
         if own_name(path, "partial", p.name) and our_folder(p, command=command):
             if read_record(p)["state"] == "partial":
                 log.info("removing %s, left by an interrupted earlier run", p)
-                shutil.rmtree(p, ignore_errors=True)
+                remove_tree_quietly(p)
 
 
 def _finish_or_undo(path, claims, journal, command):
@@ -105,10 +105,10 @@ def _finish_or_undo(path, claims, journal, command):
     elif old_ours:
         # killed after the swap, while the earlier output was being removed
         log.info("removing %s, the output an interrupted replacement had already replaced", old)
-        shutil.rmtree(old, ignore_errors=True)
+        remove_tree_quietly(old)
     if new_ours:   # never swapped in: ours, unfinished
         log.info("removing %s, left by an interrupted earlier run", new)
-        shutil.rmtree(new, ignore_errors=True)
+        remove_tree_quietly(new)
     for p, ours in ((old, old_ours), (new, new_ours)):
         if not ours and os.path.lexists(p) and p != path:
             log.warning("left %s alone: the journal %s names it, but it is not the folder the journal "
@@ -189,7 +189,7 @@ class _Swap:
         self.swapped = True
         completed.append(path)
         if self.old.exists():
-            shutil.rmtree(self.old, ignore_errors=True)
+            remove_tree_quietly(self.old)
         files.remove_quietly(beside(path, "swap"))
 
     def undo(self):
@@ -202,7 +202,7 @@ class _Swap:
             if old is not None and os.path.lexists(old) and not os.path.lexists(path) and _is(old, self.before):
                 os.replace(old, path)
             if _is(tmp, self.built):
-                shutil.rmtree(tmp, ignore_errors=True)
+                remove_tree_quietly(tmp)
             if self.journalled and not os.path.lexists(tmp) and not os.path.lexists(old):
                 files.remove_quietly(beside(path, "swap"))
         except OSError:   # (what is left, the journal names: the next run finishes or undoes it)
@@ -263,7 +263,7 @@ def _abandon():
     partial folders being built, the temporary files noted in our locks, and the locks. A folder
     written in place keeps what its record lists, as after a kill."""
     for tmp in list(_building):
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_tree_quietly(tmp)
     lock.abandon()
 
 

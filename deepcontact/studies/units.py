@@ -27,7 +27,6 @@ import json
 import logging
 import os
 import re
-import shutil
 import stat
 from contextlib import contextmanager
 from pathlib import Path
@@ -80,7 +79,7 @@ class Beside:
 
     def published(self):
         """The output is whole and in place: its units have served."""
-        shutil.rmtree(self.folder, ignore_errors=True)
+        output.remove_tree_quietly(self.folder)
 
     def __exit__(self, stopped, *exc):
         try:
