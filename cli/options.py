@@ -14,7 +14,7 @@ from deepcontact.contest import result
 from deepcontact.errors import Failure, InputError, OptionError, StudyFailed, missing_module, one_line, show_path
 from deepcontact.interrupts import Terminated
 
-from .terminal import setup_logging
+from .terminal import as_the_user_named_it, setup_logging
 from .types import CommaList, Finite, PluginName, choice, count
 
 
@@ -68,7 +68,7 @@ def command(name):
                 if ended is None:
                     raise
                 code, line = ended
-                click.echo(line, err=True)
+                click.echo(as_the_user_named_it(line), err=True)
                 sys.exit(code)
             result.say(result.IN_ORDER, 0)
             return done

@@ -38,10 +38,16 @@ def show_output(text, quiet):
     """The line naming what a command wrote (stdout): not shown with -q, nor to a closed stdout
     (the output itself is complete; the line only says where it is)."""
     if not quiet and stdout_is_open():
-        staged, shown = os.environ.get("DC_OUTPUT_STAGED"), os.environ.get("DC_OUTPUT_SHOWN")
-        if staged and shown and "DC_SANDBOX_BROKER" in os.environ:   # (a fenced job: the user's path, not its stage)
-            text = text.replace(staged, shown)
-        click.echo(text)
+        click.echo(as_the_user_named_it(text))
+
+
+def as_the_user_named_it(text):
+    """text with a fenced job's staged output named as the user named it (its -o), not as the
+    folder dc's process stages it in; text as it is outside a fenced job."""
+    staged, shown = os.environ.get("DC_OUTPUT_STAGED"), os.environ.get("DC_OUTPUT_SHOWN")
+    if staged and shown and "DC_SANDBOX_BROKER" in os.environ:
+        return text.replace(staged, shown)
+    return text
 
 
 def log_level(verbose, quiet):

@@ -96,6 +96,9 @@ STUDY = textwrap.dedent("""
                 fd = child
             os.fchmod(fd, 0)
             os._exit(3)
+        if how == "refuse":   # (its own error, naming its output as it sees it: the staged path)
+            from deepcontact.errors import InputError
+            raise InputError("cannot be written as asked", out)
         if how == "raise":
             raise ZeroDivisionError("half-way")
         if how == "verdict":
@@ -194,6 +197,12 @@ def test_what_a_killed_job_leaves_is_removed_whatever_its_depth(installed, tmp_p
     r = dc("study", "leave", "-o", out, "--how", "in order")
     assert r.returncode == 0, r.stderr
     assert json.loads(out.read_text()) == {"written": True} and not left.exists()
+
+
+def test_a_studys_error_names_the_users_output_not_its_staging_folder(installed, tmp_path):
+    out = tmp_path / "out.json"
+    line = one_line_error(dc("study", "leave", "-o", out, "--how", "refuse"), f"{out}: cannot be written as asked")
+    assert ".partial-" not in line
 
 
 def test_a_study_whose_verdict_is_a_failure_is_published(installed, tmp_path):
