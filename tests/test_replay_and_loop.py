@@ -140,3 +140,35 @@ def test_the_native_loop_step_matches_the_step_in_pieces(scene, start, mode, w):
     if scene == "pile":   # auto tunes in time here: most of its steps are one native call too
         assert in_one_call > 60
     assert np.array_equal(native.world.bodies()["position"], pieces.world.bodies()["position"])
+
+
+
+
+def test_the_closed_loops_reference_is_computed_once_and_checked_before_use(tmp_path, monkeypatch):
+    """The reference trajectory depends on no variant, yet every `dc evaluate --closed-loop` of a
+    run stepped it again (92% of the command on the settled 1000-circle pile)."""
+    from deepcontact.evaluate import closed_loop, reference_cache
+    run = tmp_path / "run"
+    assert dc("simulate", *SMALL_PILE[:-2], "--steps", "40", "--seeds", "0..1", "-q", "-o", run).returncode == 0
+    args = ["evaluate", run, "--closed-loop", "--starts", "builtin", "--no-budgets", "--no-plots", "-q"]
+    assert dc(*args, "-o", tmp_path / "first").returncode == 0
+    kept = sorted(reference_cache.folder_for(run).iterdir())
+    assert len(kept) == 2   # (one a simulation: its seed's scene)
+    computed = []
+    original = closed_loop.reference_trajectory
+    monkeypatch.setattr(closed_loop, "reference_trajectory", lambda *a, **k: computed.append(a) or original(*a, **k))
+    assert dc(*args, "-o", tmp_path / "again").returncode == 0
+    assert computed == []   # (both read back)
+    drift = {p.name: (p / "report.md").read_text().split("| builtin |")[1].split("|")[9:12]
+             for p in (tmp_path / "first", tmp_path / "again")}
+    assert drift["first"] == drift["again"], drift
+    # another step count is another reference; a tampered or replaced file is not used
+    assert dc(*args, "--steps", "30", "-o", tmp_path / "shorter").returncode == 0
+    assert len(computed) == 2 and len(list(reference_cache.folder_for(run).iterdir())) == 4
+    kept[0].write_bytes(kept[0].read_bytes()[:-40] + bytes(40))
+    kept[1].unlink()
+    kept[1].symlink_to(kept[0])
+    assert dc(*args, "-o", tmp_path / "third").returncode == 0
+    assert len(computed) == 4
+    third = (tmp_path / "third" / "report.md").read_text().split("| builtin |")[1].split("|")[9:12]
+    assert third == drift["first"]

@@ -34,6 +34,7 @@ from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.settings import SolveSettings
 from ..warmstart.starts import StepContext, is_oracle, make_starts
+from . import reference_cache
 from .replay import open_contestants, variants, visible_context
 
 
@@ -166,15 +167,19 @@ def _follow(world, scene, steps, step, solved=None, report=True):
     return follower.trajectory()
 
 
+# How the reference trajectory's steps are solved (each from its reference solution): part of the
+# key its kept copy is found by (reference_cache.py).
+REFERENCE_SETTINGS = SolveSettings(mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
+
+
 def reference_trajectory(scene, steps, report=True):
     """The scene stepped with every step's reference solution (float64 PGS to 1e-12). report: each
     step to workers.progress (a caller that counts other units, a study's settings, says False)."""
-    exact = SolveSettings(mode="float64", max_iterations=100_000, tolerance=1e-12, stop_on="residual")
 
     def reference_fn(bodies, contacts, problem, builtin_n, builtin_t):
         r = reference_solution(problem)
         return r.normal_impulse, r.tangent_impulse
-    return run_loop(scene, reference_fn, exact, steps, report=report)
+    return run_loop(scene, reference_fn, REFERENCE_SETTINGS, steps, report=report)
 
 
 def _compare(t, ref):
@@ -303,11 +308,13 @@ def box2d_iterations(scene, counts=BOX2D_COUNTS, steps=None, reference=None):
 
 def loop_simulation(task):
     """One simulation's closed-loop rows: every start, and Box2D's iteration counts when asked,
-    against one reference trajectory. task: (scene, starts, options, budgets); a function of its
-    own so that worker processes can run simulations side by side."""
-    scene, starts, options, budgets = task
+    against one reference trajectory. task: (scene, starts, options, budgets, the folder its
+    reference is kept in or None); a function of its own so that worker processes can run
+    simulations side by side."""
+    scene, starts, options, budgets, kept = task
     steps = options.get("steps") or scene.steps
-    reference = reference_trajectory(scene, steps)
+    reference = (reference_trajectory(scene, steps) if kept is None
+                 else reference_cache.cached(scene, steps, kept, lambda: reference_trajectory(scene, steps)))
     results = closed_loop(scene, starts, reference=reference, **options)
     if budgets:
         results += box2d_iterations(scene, steps=steps, reference=reference)
@@ -321,11 +328,13 @@ def steps_stepped(scenes, variants, budgets, steps=None):
     return sum((steps or scene.steps) * per for scene in scenes)
 
 
-def every_simulation(scenes, starts, *, budgets=False, jobs=1, progress=None, **options):
+def every_simulation(scenes, starts, *, budgets=False, jobs=1, progress=None, references=None, **options):
     """The closed loop on every scene (one per simulation: its seed's initial state), side by side
     in `jobs` worker processes; returns one list of LoopResult per scene, in order. options:
-    those of closed_loop. progress(n): n more steps stepped (steps_stepped in all)."""
-    tasks = [(scene, starts, options, budgets) for scene in scenes]
+    those of closed_loop. progress(n): n more steps stepped (steps_stepped in all). references:
+    for each scene, the folder its reference trajectory is kept in (reference_cache.py), or None."""
+    tasks = [(scene, starts, options, budgets, None if references is None else references[k])
+             for k, scene in enumerate(scenes)]
     with workers.for_jobs(jobs, tasks, progress) as pool:
         return list(pool.imap(loop_simulation, tasks))
 

@@ -15,6 +15,7 @@ from ..scene.xml import read_scene
 from ..solver.methods import method_origin
 from ..solver.settings import VERDICT_CAP, SolveSettings
 from ..warmstart import starts as registry
+from . import reference_cache
 from .closed_loop import every_simulation, pooled, steps_stepped
 from .loop_report import write_loop_report
 from .replay import box2d_runs, evaluate
@@ -159,6 +160,7 @@ def _closed_loop(s, out, table, measured, progress):
                          "the closed loop pools one kind of scene at a time")
     per_simulation = every_simulation(
         scenes, table, budgets=s.budgets, jobs=s.jobs,
+        references=[reference_cache.folder_for(run) for run, _ in sims],
         progress=progress(steps_stepped(scenes, s.variants, s.budgets, s.steps), "step"),
         settings=s.solve, steps=s.steps, relaxations=s.relaxations, accelerations=s.accelerations)
     results = plotted = per_simulation[0] if len(sims) == 1 else pooled(per_simulation)

@@ -1,0 +1,144 @@
+"""The closed loop's reference trajectory computed once: it depends on no variant, only on the
+scene (its initial state), the steps, the reference's settings and the build that stepped it, and
+on the settled 1000-circle pile it was 92% of `dc evaluate --closed-loop` (200 of 216 s).
+
+Each is kept beside the run (`.RUN.references/`, one file per trajectory, named by the SHA-256 of
+what determines it: content-addressed), written whole (a temporary name renamed), and checked
+before it is used: its stored key must equal the key asked for (a changed scene, step count,
+setting or build is another name, and a file renamed into its place is refused by its key), its
+arrays must have the shapes the key implies and hash to the digest stored with them. Anything
+else is recomputed, and the file replaced. A run folder that cannot be written beside is no
+error: the reference is then computed as before.
+"""
+import hashlib
+import io
+import json
+import logging
+import os
+import stat
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import output, workers
+from ..errors import InputError
+from ..output.names import beside
+from ..scene.xml import to_xml
+
+log = logging.getLogger(__name__)
+
+VERSION = 1              # of the file's layout
+FILE_MAX = 1 << 30       # bytes: a 10,000-body, 1,000-step trajectory is about 240 MB
+
+
+def folder_for(run):
+    """Where a run's reference trajectories are kept: `.RUN.references` beside it."""
+    return beside(Path(run), "references")
+
+
+def cached(scene, steps, folder, compute):
+    """The reference trajectory of scene over steps: read from folder where a checked one is
+    there, else compute() (reference_trajectory) and kept there. Its steps are reported to
+    workers.progress either way (the progress total counts them)."""
+    key = _key(scene, steps)
+    path = Path(folder) / f"{hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()}.npz"
+    found = _load(path, key)
+    if found is not None:
+        workers.progress(steps)
+        return found
+    trajectory = compute()
+    _keep(path, key, trajectory)
+    return trajectory
+
+
+def _build():
+    """What identifies the arithmetic that stepped a reference: the native module's bytes (its
+    compiler and flags), the package's and numpy's versions."""
+    from .. import _box2d, __version__
+    digest = hashlib.sha256()
+    with open(_box2d.__file__, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return {"native": digest.hexdigest(), "deepcontact": __version__, "numpy": np.__version__,
+            "python": sys.version.split()[0]}
+
+
+def _key(scene, steps):
+    from .closed_loop import REFERENCE_SETTINGS
+    return {"version": VERSION, "scene": hashlib.sha256(to_xml(scene)).hexdigest(), "steps": int(steps),
+            "settings": repr(REFERENCE_SETTINGS), "build": _build()}
+
+
+# --- The file --------------------------------------------------------------------------------------------
+
+def _arrays(trajectory):
+    """The trajectory as flat arrays: each step's bodies' indexes and positions, in order."""
+    counts = np.array([len(p) for p in trajectory.positions], dtype=np.int64)
+    index = np.array([k for p in trajectory.positions for k in p], dtype=np.int64)
+    position = (np.array([v for p in trajectory.positions for v in p.values()], dtype=np.float64).reshape(-1, 2))
+    return {"counts": counts, "index": index, "position": position,
+            "energies": np.asarray(trajectory.energies, dtype=np.float64),
+            "iterations": np.asarray(trajectory.iterations, dtype=np.int64),
+            "seconds": np.asarray(trajectory.seconds, dtype=np.float64),
+            "residuals": np.asarray(trajectory.residuals, dtype=np.float64),
+            "scalars": np.array([trajectory.deepest, float(trajectory.finite)], dtype=np.float64)}
+
+
+def _digest(arrays):
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        h.update(name.encode() + str(arrays[name].dtype).encode() + str(arrays[name].shape).encode())
+        h.update(np.ascontiguousarray(arrays[name]).tobytes())
+    return h.hexdigest()
+
+
+def _keep(path, key, trajectory):
+    arrays = _arrays(trajectory)
+    meta = json.dumps({"key": key, "digest": _digest(arrays)}, sort_keys=True)
+    buffer = io.BytesIO()
+    np.savez(buffer, meta=np.array(meta), **arrays)
+    try:
+        os.makedirs(path.parent, exist_ok=True)
+        if os.path.islink(path):   # (no file of ours: a link is removed, never written through)
+            os.unlink(path)
+        output.write_bytes(path, buffer.getvalue())
+    except (OSError, InputError) as e:   # (a run one may read but not write beside: computed each time)
+        log.info("the reference trajectory is not kept (%s): it is computed again next time",
+                 getattr(e, "strerror", None) or e)
+
+
+def _load(path, key):
+    """The trajectory kept at path if it is one and its key is key; None otherwise."""
+    from .closed_loop import Trajectory
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > FILE_MAX:
+            return None
+        with os.fdopen(fd, "rb", closefd=False) as f:
+            data = f.read(FILE_MAX + 1)
+    finally:
+        os.close(fd)
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            arrays = {name: z[name] for name in z.files if name != "meta"}
+        if meta.get("key") != key or meta.get("digest") != _digest(arrays):
+            return None
+        counts, index, position = arrays["counts"], arrays["index"], arrays["position"]
+        n = len(counts)
+        if (n > key["steps"] or counts.sum() != len(index) or position.shape != (len(index), 2)
+                or any(len(arrays[k]) != n for k in ("energies", "iterations", "seconds", "residuals"))):
+            return None
+    except (ValueError, KeyError, TypeError, OSError, EOFError, RecursionError, zipfile.BadZipFile):
+        return None   # (not a file of ours, or not whole: computed again and replaced)
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    trail = [dict(zip(index[a:b].tolist(), position[a:b])) for a, b in zip(bounds[:-1], bounds[1:])]
+    deepest, finite = arrays["scalars"]
+    return Trajectory(trail, arrays["energies"], arrays["iterations"], arrays["seconds"], float(deepest),
+                      bool(finite), arrays["residuals"])
