@@ -17,7 +17,9 @@ from . import options, terminal
                    "claims), must be within its run's tolerance (manifest.json), plus, in a float64 run, exactly "
                    "the most that the file's float32 rounding of the impulses can move it (a float32 run's step "
                    "above it is replayed: the run's solve must give it bit for bit, stopping below the tolerance); "
-                   "and each simulation's count of steps above it true; else an error line (exit 1).")
+                   "a step at its cap need not meet the tolerance, but the residual it records must be the one "
+                   "measured (to that rounding, or replayed); and each simulation's count of steps above it true; "
+                   "else an error line (exit 1).")
 @options.jobs
 @options.verbosity
 @options.command("validate")
@@ -63,7 +65,7 @@ def validate(paths, replay, residuals, jobs, verbose, quiet):
     if not quiet:
         click.echo(f"{count(files, 'file')} checked, {invalid} invalid"
                    + (f"; {count(above, 'step')} with a residual above its tolerance (those that stopped at "
-                      f"the cap, as their runs recorded, are not invalid)" if residuals else ""), err=True)
+                      f"their cap with the residual they record are not invalid)" if residuals else ""), err=True)
     click.get_current_context().exit(1 if invalid else 0)
 
 

@@ -16,10 +16,10 @@ from ..scene.xml import read_scene
 from ..solver.methods import SOLVERS
 from ..solver.pgs import solve
 from ..solver.problem import StepProblem
-from ..solver.rounding import rounding_bound
+from ..solver.rounding import half_spacing, rounding_bound
 from ..step.check import check_and_read
 from ..step.reader import read_step
-from ..step.records import check_pgs
+from ..step.records import check_pgs, solve_line
 from ..step.run_folder import MANIFEST, read_run
 from .build import check_overlaps
 
@@ -62,14 +62,14 @@ def check_files(task):
                 errors = [f"{e.path}:{e.line or 0}:0: {e.message}"]
         elif not errors and kind == "step" and residuals:
             try:
-                line, capped = held_to_tolerance(path, *(tolerance or (None,)), step=step)
+                line, counted = held_to_tolerance(path, *(tolerance or (None,)), step=step)
             except InputError as e:
-                line, capped = f"{e.message}", False
+                line, counted = f"{e.message}", False
             if line:
                 above = ABOVE in line
-                # a step its own <solve> says stopped at the cap is above the tolerance as its run
-                # recorded (counted against the manifest's above_tolerance), not a lie
-                errors = [] if above and capped else [one_line(f"{show_path(path)}:0:0: {line}")]
+                # a step that stopped at its cap above the tolerance, measured as it records, is
+                # counted (against the manifest's above_tolerance), not invalid
+                errors = [] if counted else [one_line(f"{show_path(path)}:{solve_line(path)}:0: {line}")]
         out.append((path, errors, above))
     return out
 
@@ -79,54 +79,77 @@ def held_to_tolerance(path, tolerance, mode="float64", step=None):
     recorded impulses, recomputed in float64 from the file's own problem and never read from the
     file, held to `tolerance`, its run's manifest's (None for a step file alone: then its own
     <solve>'s, and mode), in the run's arithmetic `mode` (the manifest's): (the line saying what
-    is wrong, or None if nothing is, or the step was not stepped by our solver to a residual;
-    whether its own <solve> says it stopped at the cap). step: the file's (header, bodies,
-    contacts), where the caller has read it.
+    is wrong or that the step is above the tolerance, or None if neither, or the step was not
+    stepped by our solver to a residual; whether the step is above the tolerance as its record
+    says, stopped at its cap: counted, not wrong). step: the file's (header, bodies, contacts),
+    where the caller has read it; its <solve> checked against itself as it was read.
 
     One rule per arithmetic, no factor (docs/formats.md, "Validating"). A float64 solve stops on
     its own iterate, which the file holds rounded to float32: the step is held to the tolerance
     plus the most that rounding can move its residual (solver.rounding.rounding_bound, from the
-    stored impulses). A float32 solve (float32, exact) is stored as computed, but measured its
-    residual on the body velocities its sweeps carried in float32: a step above the tolerance is
-    replayed, and passes where the run's own solve, from the step's recorded start with its
-    recorded settings, gives its impulses bit for bit and stops below the tolerance."""
+    stored impulses); a step at its cap need not meet it, but the residual it records must be its
+    impulses' to that bound. A float32 solve (float32, exact) is stored as computed, but measured
+    its residual on the body velocities its sweeps carried in float32: a step above the tolerance
+    is replayed, and passes where the run's own solve, from the step's recorded start with its
+    recorded settings, gives its impulses bit for bit and stops below the tolerance, or at the cap
+    with the sweeps and residual the step records."""
     header, bodies, contacts = read_step(path, validate=False) if step is None else step
     claim = header.get("solve")
     if claim is None:
         return (None if tolerance is None else ("has no <solve> record, but its run's manifest says the project's "
                                                 "solver stepped it (an edited file?)")), False
-    cap = _whole(claim.get("max_iterations"))
-    capped = cap > 0 and _whole(claim.get("iterations")) >= cap
     source = "its run's manifest"
     if tolerance is None:
         if claim.get("stop_on") != "residual":
-            return None, capped
+            return None, False
         tolerance, mode, source = float(claim["tolerance"]), claim.get("mode"), "its own <solve>, as it lies outside a run"
     if not tolerance > 0 or len(contacts["manifold"]) == 0:
-        return None, capped
+        return None, False
     problem = StepProblem.from_step(header, bodies, contacts, path)
     recorded = (contacts["normal_impulse"].astype(float), contacts["tangent_impulse"].astype(float))
-    return _judged(problem, claim, recorded, tolerance, mode == "float64", capped, source)
-
-
-def _judged(problem, claim, recorded, tolerance, float64, capped, source):
-    """held_to_tolerance's verdict on a step with contacts, by its run's arithmetic (float64 or not)."""
     found = _residual(problem, *recorded)
-    # (the bound only where it decides: nearly every step is below the tolerance itself)
-    rounding = rounding_bound(problem, *recorded) if float64 and not found <= tolerance else 0.0
-    if found <= tolerance + rounding:   # (never where found is NaN)
-        return None, capped
-    why = f" plus {rounding:.3g}, the most float32 rounding of its impulses can move it" if rounding else ""
-    # (a step its <solve> says stopped at the cap above the tolerance is counted, not replayed: that
-    # would cost its cap in sweeps, and the manifest's count is checked against it)
-    claimed_above = capped and not _number(claim.get("residual")) < tolerance
-    if not float64 and not claimed_above and claim.get("origin") == "built-in":
-        replayed = _replayed(problem, claim, recorded, tolerance)
-        if replayed is not None:
-            return replayed
-        why = f", and its run's {claim.get('mode')} solve from its recorded start gives other impulses"
+    if found <= tolerance:   # (nearly every step; never where found is NaN)
+        return None, False
+    # a float64 solve, and a plug-in's in any mode (the project judges its answer in float64),
+    # measured the residual of the impulses the file rounds; a built-in float32 solve is replayed
+    if mode == "float64" or claim.get("origin") == "plug-in":
+        return _judged_on_rounding(problem, claim, recorded, found, (tolerance, source))
+    return _judged_on_replay(problem, claim, recorded, found, (tolerance, source))
+
+
+def _judged_on_rounding(problem, claim, recorded, found, held):
+    """held_to_tolerance's verdict on a step whose solve measured, in float64, the impulses the
+    file holds rounded to float32 (found: their residual recomputed, above the tolerance). held:
+    (tolerance, where it comes from)."""
+    tolerance, source = held
+    rounding = rounding_bound(problem, *recorded)
+    if found <= tolerance + rounding:
+        return None, False
+    line = (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {ABOVE} "
+            f"{tolerance:.7g} plus {rounding:.3g}, the most float32 rounding of its impulses can move it "
+            f"({source}; the file records {claim.get('residual')})")
+    cap = _whole(claim.get("max_iterations"))
+    if _whole(claim.get("iterations")) < cap:
+        return line, False
+    claimed = _number(claim.get("residual"))
+    if _agrees(found, claimed, rounding):   # (stopped at the cap with the residual it records)
+        return line, True
     return (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {ABOVE} "
-            f"{tolerance:.7g}{why} ({source}; the file records {claim.get('residual')})"), capped
+            f"{tolerance:.7g} at its cap of {cap} sweeps, but the file records {claim.get('residual')}: further "
+            f"apart than the most float32 rounding of its impulses and residual can move them "
+            f"({rounding + _half_spacing(claimed):.3g}; {source})"), False
+
+
+def _judged_on_replay(problem, claim, recorded, found, held):
+    """held_to_tolerance's verdict on a step a built-in float32 solve (float32, exact) stepped
+    (found: its residual recomputed in float64, above the tolerance): replayed."""
+    tolerance, source = held
+    replayed = _replayed(problem, claim, recorded, tolerance)
+    if replayed is not None:
+        return replayed
+    return (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {ABOVE} "
+            f"{tolerance:.7g}, and its run's {claim.get('mode')} solve from its recorded start gives other impulses "
+            f"({source}; the file records {claim.get('residual')})"), False
 
 
 def _residual(problem, normal, tangent):
@@ -139,7 +162,8 @@ def _replayed(problem, claim, recorded, tolerance):
     start with its <solve>'s settings (checked against the run's manifest as the file was read).
     (None, False) where it gives the recorded impulses bit for bit and stops below the tolerance
     (the run's arithmetic measured it so); (a line, True) where it gives them and stops above it
-    at the cap (counted, as its run recorded); None where it does not give them."""
+    at the cap after the sweeps and with the residual the step records (counted, as its run
+    recorded); (a line, False) where the step records others; None where it does not give them."""
     try:
         s = solve(problem, problem.start_normal, problem.start_tangent, mode=claim.get("mode"),
                   tolerance=tolerance, stop_on="residual", max_iterations=_whole(claim.get("max_iterations")),
@@ -152,8 +176,23 @@ def _replayed(problem, claim, recorded, tolerance):
         return None
     if s.residual < tolerance:
         return None, False
-    return (f"the step's residual {s.residual:.7g}, as its run's {claim.get('mode')} solve measured it (replayed), "
-            f"{ABOVE} {tolerance:.7g} at the cap of {s.iterations} sweeps"), True
+    line = (f"the step's residual {s.residual:.7g}, as its run's {claim.get('mode')} solve measured it (replayed), "
+            f"{ABOVE} {tolerance:.7g} at the cap of {s.iterations} sweeps")
+    if s.iterations == _whole(claim.get("iterations")) and _agrees(s.residual, _number(claim.get("residual")), 0.0):
+        return line, True
+    return f"{line}, but the file records {claim.get('iterations')} sweeps and residual {claim.get('residual')}", False
+
+
+def _agrees(measured, claimed, allowance):
+    """Whether a residual the file records (the shortest text of a float32) is the one measured, to
+    `allowance` (what rounding the impulses can move it) and its own rounding to float32."""
+    stored = float(np.float32(claimed))   # (the text reads back to the float32 it was written from)
+    return abs(measured - stored) <= allowance + _half_spacing(stored)   # (never where either is NaN)
+
+
+def _half_spacing(value):
+    """Half the float32 spacing at a value (solver.rounding.half_spacing; NaN where it is none)."""
+    return float(half_spacing(np.array([value]))[0])
 
 
 def _number(text):

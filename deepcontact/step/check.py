@@ -9,7 +9,7 @@ from .. import schema
 from .._box2d import StepFileError, validate_step_file
 from ..errors import InputError, one_line, show_path
 from .reader import check_origin, read_step, step_schema
-from .records import check_solve
+from .records import check_solve, check_solve_itself
 
 MAX_ERRORS = 100   # per file: past these, a broken file says nothing new
 
@@ -52,10 +52,13 @@ def check_and_read(path, origin=None):
 
 def _semantic_errors(path, step, origin):
     """What the schema cannot say of a valid step file, as error lines: contacts naming bodies of
-    their own step, the file where it belongs and its <solve> agreeing with its run."""
+    their own step, its <solve> agreeing with itself, the file where it belongs and its <solve>
+    agreeing with its run."""
     header, bodies, contacts = step
     try:
         _contacts_name_its_bodies(bodies, contacts, path)
+        if header.get("solve") is not None:   # (in a run or alone: its record is consistent)
+            check_solve_itself(header["solve"], path)
         if origin is not None:
             scene_of, seed_of, engine, *record = origin
             check_origin(header, scene_of, seed_of, path, engine)

@@ -2,6 +2,8 @@
 each simulation's steps above the tolerance, and each step file's <solve>, checked for type,
 range and agreement with the run, so that an edited or hand-made record is one line naming its
 file instead of a number every reader trusts (dc validate, rasterize, evaluate, export)."""
+import gzip
+from itertools import islice
 import math
 
 from ..errors import InputError
@@ -64,28 +66,115 @@ def check_above(record, path):
 
 
 def check_solve(solve, record, path):
-    """A step file's <solve> against its run's manifest: `record` the run's pgs record, or None
-    for a run the project's solver did not step. InputError naming the step file otherwise."""
+    """A step file's <solve> against its run's manifest: every field both record (the start, mode,
+    stop rule, tolerance, cap, w and method, and where the method comes from); `record` the run's
+    pgs record, or None for a run the project's solver did not step. InputError naming the step
+    file and its <solve>'s line otherwise."""
     if record is None:
         if solve is not None:
             raise InputError("the step file records a <solve> of the project's solver, but its run was not stepped "
-                             "by it (copied or edited?)", path, 1)
+                             "by it (copied or edited?)", path, solve_line(path))
         return
     if solve is None:
         raise InputError("the step file records no <solve>, but its run's manifest says the project's solver "
                          "stepped it (edited?)", path, 1)
-    origin = (record.get("accelerate_origin") or {}).get("origin", "built-in")
+    origin = record.get("accelerate_origin") or {}
     wanted = {"start": record.get("start"), "mode": record.get("mode"), "stop_on": record.get("stop_on"),
-              "accelerate": record.get("accelerate"), "origin": origin}
+              "accelerate": record.get("accelerate"), "origin": origin.get("origin", "built-in")}
+    if wanted["origin"] == "plug-in":   # (and which plug-in: a built-in's step names none)
+        wanted.update({key: origin.get(key) for key in ("target", "distribution", "version")})
     for key, value in wanted.items():
-        if str(solve.get(key)) != str(value):
-            raise InputError(f"the step file's <solve {key}=\"{solve.get(key)}\"> disagrees with its run's manifest "
-                             f"({value!r})", path, 1)
+        if solve.get(key) != (None if value is None else str(value)):
+            _disagrees(solve, key, repr(value), path)
     for key in ("tolerance", "max_iterations"):
-        try:
-            same = math.isclose(float(solve.get(key)), float(record.get(key)), rel_tol=1e-6, abs_tol=0.0)
-        except (TypeError, ValueError):
-            same = False
-        if not same:
-            raise InputError(f"the step file's <solve {key}=\"{solve.get(key)}\"> disagrees with its run's manifest "
-                             f"({record.get(key)!r})", path, 1)
+        if not _same(solve.get(key), record.get(key)):
+            _disagrees(solve, key, repr(record.get(key)), path)
+    _same_relaxation(solve, record.get("relaxation"), path)
+
+
+def _same_relaxation(solve, w, path):
+    """The step's w is the manifest's; any w in (0, 2) where the manifest's is "auto" (tuned as the
+    run went: check_solve_itself bounds it); none where the manifest's is null (a method that takes
+    no w)."""
+    if w == "auto":
+        if solve.get("relaxation") is None:
+            _disagrees(solve, "relaxation", "'auto': a w in (0, 2) each step", path)
+    elif w is None:
+        if solve.get("relaxation") is not None:
+            _disagrees(solve, "relaxation", "null: the method takes no w", path)
+    elif not _same(solve.get("relaxation"), w):
+        _disagrees(solve, "relaxation", repr(w), path)
+
+
+def _same(text, value):
+    """Whether a <solve> value (float32 text) is the manifest's number, to float32's rounding."""
+    try:
+        return math.isclose(float(text), float(value), rel_tol=1e-6, abs_tol=0.0)
+    except (TypeError, ValueError):
+        return False
+
+
+def _disagrees(solve, key, manifest_says, path):
+    shown = "" if solve.get(key) is None else f'="{solve.get(key)}"'
+    raise InputError(f"the step file's <solve {key}{shown}> disagrees with its run's manifest ({manifest_says})",
+                     path, solve_line(path))
+
+
+def check_solve_itself(solve, path):
+    """A step file's <solve> against itself, in a run or alone: its mode, stop rule and origin
+    ones the solver has, its cap and tolerance in the manifest's ranges, w in (0, 2), a finite
+    residual, at most its cap in iterations, and a built-in method that stopped before its cap
+    stopped on its tolerance. InputError naming the step file and its <solve>'s line otherwise."""
+    def wrong(what):
+        return InputError(f"the step file's <solve> {what}", path, solve_line(path))
+
+    for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("origin", ORIGINS)):
+        if solve.get(key, "built-in") not in allowed:
+            raise wrong(f'{key}="{solve.get(key)}" is not one of {", ".join(allowed)}')
+    cap, iterations = (_whole(solve.get(key)) for key in ("max_iterations", "iterations"))
+    tolerance, residual, w = (_finite(solve.get(key)) for key in ("tolerance", "residual", "relaxation"))
+    if cap is None or not 1 <= cap <= ITERATIONS_MAX:
+        raise wrong(f'max_iterations="{solve.get("max_iterations")}" is not a whole number from 1 to {ITERATIONS_MAX}')
+    if iterations is None or not 0 <= iterations <= cap:
+        raise wrong(f'iterations="{solve.get("iterations")}" is past its own cap, max_iterations="{cap}"')
+    if tolerance is None or not 0 <= tolerance <= TOLERANCE_MAX:
+        raise wrong(f'tolerance="{solve.get("tolerance")}" is not a finite number from 0 to {TOLERANCE_MAX:g}')
+    if residual is None or residual < 0:
+        raise wrong(f'residual="{solve.get("residual")}" is not a finite number of at least 0')
+    if "relaxation" in solve and (w is None or not 0 < w < 2):
+        raise wrong(f'relaxation="{solve.get("relaxation")}" is not a w in (0, 2)')
+    if solve.get("origin", "built-in") == "built-in" and solve.get("stop_on") == "residual" and iterations < cap \
+            and residual > tolerance:   # (the built-in methods stop only there or at the cap)
+        raise wrong(f'stopped after {iterations} of its {cap} sweeps with residual="{solve.get("residual")}", '
+                    f'above its tolerance="{solve.get("tolerance")}"')
+
+
+def _whole(text):
+    """A <solve> count as an int, or None where it is none."""
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def _finite(text):
+    """A <solve> value as a finite float, or None where it is none."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
+
+
+def solve_line(path, within=64):
+    """The line of a step file's <solve> element (its header's first lines; .xml or .xml.gz), for
+    an error naming it; 1 where it is not there. Read only when there is an error to report."""
+    opener = gzip.open if str(path).endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="utf-8", errors="replace") as f:
+            for number, line in enumerate(islice(f, within), 1):
+                if "<solve " in line:
+                    return number
+    except (OSError, EOFError):
+        pass
+    return 1
