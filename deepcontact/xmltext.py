@@ -15,10 +15,14 @@ def _shown(match):
     return f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
 
 
+def held(value) -> str:
+    """The text an attribute holds of a value, as a reader reads it back: a character XML cannot
+    hold written as its Python escape (\\x01)."""
+    text = str(value)
+    return _NOT_XML.sub(_shown, text) if _NOT_XML.search(text) else text
+
+
 def quoteattr(value) -> str:
     """An attribute value in double quotes, escaped; a character XML cannot hold is written as its
     Python escape (\\x01), so the file stays valid and the value readable."""
-    text = str(value)
-    if _NOT_XML.search(text):
-        text = _NOT_XML.sub(_shown, text)
-    return '"' + text.translate(_ESCAPES) + '"'
+    return '"' + held(value).translate(_ESCAPES) + '"'

@@ -7,6 +7,7 @@ from itertools import islice
 import math
 
 from ..errors import InputError
+from ..xmltext import held
 
 MODES = ("exact", "float32", "float64")
 MEASURES = ("thesis", "velocity", "residual")
@@ -84,7 +85,7 @@ def check_solve(solve, record, path):
     if wanted["origin"] == "plug-in":   # (and which plug-in: a built-in's step names none)
         wanted.update({key: origin.get(key) for key in ("target", "distribution", "version")})
     for key, value in wanted.items():
-        if solve.get(key) != (None if value is None else str(value)):
+        if solve.get(key) != (None if value is None else held(value)):   # (as the file holds it: \x01)
             _disagrees(solve, key, repr(value), path)
     for key in ("tolerance", "max_iterations"):
         if not _same(solve.get(key), record.get(key)):
