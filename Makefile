@@ -95,6 +95,7 @@ bench: setup
 	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
 	$(PYTHON) benchmarks/bench_converged_piles.py
 	$(PYTHON) benchmarks/bench_report.py
+	$(PYTHON) benchmarks/bench_reference_cache.py
 
 # The measured studies behind docs/results/'s tables that `make study` does not make (minutes each).
 studies: setup
