@@ -107,7 +107,7 @@ class Journal:
     and writes one; tally() counts what this run reused and measured (all its processes)."""
 
     def __init__(self, folder, study, code=()):
-        from ..protocol import protocol
+        from ..protocol import protocol   # (it loads the native module: kept off dc's start, which imports this)
         self.folder, self.study = Path(folder), study
         self.versions = protocol()["versions"]
         self.code = code_hash(code)
@@ -120,6 +120,8 @@ class Journal:
         return hashlib.sha256(text.encode()).hexdigest() + ".json", text
 
     def kept(self, unit, compute, as_type=None):
+        """The unit's value read back from its file, or compute()'s, written to its file first
+        (module kept())."""
         name, key = self.key(unit)
         found = self._read(self.folder / name, key, as_type)
         if found is not _MISSING:
@@ -275,7 +277,7 @@ def restored(value, as_type):
 def code_hash(packages=()):
     """A hash of the code that measures: every module and native library of deepcontact and of
     `packages` (modules or folders), by path and content."""
-    import deepcontact
+    import deepcontact   # (the package's own folder; imported by its name: this module is inside it)
     h = hashlib.sha256()
     for root in [deepcontact, *packages]:
         root = Path(getattr(root, "__file__", None) or root)
