@@ -51,6 +51,13 @@ def number(value, name, low=-math.inf, high=math.inf):
     return float(value)
 
 
+def flag(value, name):
+    """True or False (numpy's bool too; never a str, whose every non-empty value is true)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise refuse(name, "True or False", value)
+    return bool(value)
+
+
 def text(value, name):
     """A str."""
     if not isinstance(value, str):

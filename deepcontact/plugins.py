@@ -120,10 +120,13 @@ class Registry:
         factory may be "package.module:Name", imported when first used (a built-in whose module
         needs what its registry must not import, torch say). traits: what the rest of the
         pipeline may ask of it (see the kind's contract)."""
-        if not _NAME.fullmatch(name):
-            raise ValueError(f"a {self.kind} name is lower case letters, digits and '-': {name!r}")
+        if not isinstance(name, str) or not _NAME.fullmatch(name):
+            raise PluginError(f"a {self.kind} name is lower case letters, digits and '-': {name!r}")
 
         def add(f):
+            if not (callable(f) or isinstance(f, str) and _TARGET.fullmatch(f)):
+                raise PluginError(f"the {self.kind} {name!r} must be registered as a class or function (or "
+                                  f"'package.module:Name'), got {type(f).__name__}")
             if not isinstance(f, str):
                 for key, value in traits.items():
                     setattr(f, key, value)

@@ -47,6 +47,20 @@ class TrainConfig:
             if type(value) is not int or not low <= value <= 2 ** 31 - 1:
                 raise OptionError(f"{name.replace('_', ' ')} must be a whole number from {low} to {2 ** 31 - 1}, "
                                   f"got {value!r}", "--" + name.replace("_", "-"))
+        self._check_choices()
+
+    def _check_choices(self):
+        """The named settings, as a config file's are held (config_problem): refused here, not at the
+        first use of a name that names nothing (a list of numbers as targets, a number as loss)."""
+        if isinstance(self.targets, tuple):
+            self.targets = list(self.targets)
+        for name, flag in (("model", "--arch"), ("targets", "--targets"), ("loss", "--loss"),
+                           ("optimizer", "--optimizer"), ("final_relu", "--no-final-relu")):
+            value = getattr(self, name)
+            problem = _kind_problem(name, value, bool if name == "final_relu" else list if name == "targets" else str)
+            problem = problem or _value_problem(name, value)
+            if problem:
+                raise OptionError(problem, flag)
 
 
 def _in_range(name, value, low, high, low_open):

@@ -131,7 +131,12 @@ def build(config):
     if name in BUILTIN:
         return factory(**grid, **extra)
     with guest(f"the network {name!r}", "could not be built:"):
-        return factory(**grid, **extra)
+        model = factory(**grid, **extra)
+    if not isinstance(model, nn.Module):   # (a function given where the factory goes, say: it ran as the factory)
+        raise PluginError(f"the network {name!r} is a factory returning {type(model).__name__}, not a "
+                          "torch.nn.Module: register a class or a function that builds the network "
+                          "(docs/api.md, \"Bring your own network\")")
+    return model
 
 
 def check_network(model, config, name=None):

@@ -23,18 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import interrupts, output, workers
+from .. import arguments, interrupts, output, workers
 from .._box2d import NonFiniteError
 from ..errors import InputError, OptionError, count
 from ..resources import COMPRESSION_RATIO, check_disk, step_bytes
 from ..scene.check import check_scene
+from ..scene.model import Scene
 from ..scene.xml import fmt, to_xml
 from ..step.check import stray_contact
 from ..step.run_folder import MANIFEST, write_manifest
 from ..step.writer import compressed, step_filename, step_writer
 from . import stepping
 from .build import check_overlaps
-from .engines import Engine  # noqa: F401  (the annotations)
+from .engines import Engine
 from .engines.box2d import Box2D
 
 log = logging.getLogger(__name__)
@@ -238,7 +239,7 @@ def _short_of_tolerance(loop, solution):
 
 def _worker(args):
     make_scene, seed, out_dir, skip, engine, compress = args
-    scene = make_scene(seed)
+    scene = _made(make_scene, seed)
     return run_simulation(scene, Path(out_dir) / sim_dirname(seed), seed, skip, engine=engine, compress=compress)
 
 
@@ -267,12 +268,14 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     (a simulate.engines.Engine: Box2D(), the default; Box2D(solver=SolveSettings(...), start=...);
     Box2D3(SoftStep()); Pymunk(); MuJoCo()).
     Returns the manifest as a dict."""
+    _check_arguments(make_scene, seeds, out_dir, jobs, engine, max_disk, progress,
+                     overwrite=overwrite, skip_contactless=skip_contactless, compress=compress)
     if not len(seeds):
         raise InputError("no seeds to simulate (is the shard empty?)")
     check_seeds(seeds)
     engine = Box2D() if engine is None else engine
     # Build (and check) the first scene before touching the output folder.
-    first = make_scene(seeds[0])
+    first = _made(make_scene, seeds[0])
     check_overlaps(first, source)
     engine.check(first, source)
     out_dir = Path(out_dir)
@@ -288,6 +291,32 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
              count(sum(r["files"] for r in manifest["simulations"]), "step file"), os.fspath(out_dir))
     _warn_short_of_tolerance(manifest, engine.solve_settings())
     return manifest
+
+
+def _check_arguments(make_scene, seeds, out_dir, jobs, engine, max_disk, progress, **flags):
+    """InputError naming the first of run's arguments that it cannot use (before anything is made)."""
+    if not callable(make_scene):
+        raise arguments.refuse("make_scene", "a function of a seed making its Scene (SceneSource(...), say)", make_scene)
+    arguments.instance(seeds, "seeds", (list, tuple, range, np.ndarray), "a list or range of seeds")
+    arguments.path(out_dir, "out_dir")
+    arguments.whole(jobs, "jobs", 1)
+    if engine is not None:
+        arguments.instance(engine, "engine", Engine, "an engine: Box2D(), Box2D3(), engine_named(NAME), ...")
+    if max_disk is not None:
+        arguments.number(max_disk, "max_disk", 0)
+    if progress is not None and not callable(progress):
+        raise arguments.refuse("progress", "None or a function of a total making a counter", progress)
+    for name, value in flags.items():
+        arguments.flag(value, name)
+
+
+def _made(make_scene, seed):
+    """make_scene(seed), held to be a Scene (a caller's function may return anything)."""
+    scene = make_scene(seed)
+    if not isinstance(scene, Scene):
+        raise InputError(f"argument 'make_scene' must make a Scene (generate, read_scene and SceneSource do); "
+                         f"for seed {seed} it returned {type(scene).__name__}")
+    return scene
 
 
 def _warn_short_of_tolerance(manifest, loop):
@@ -323,7 +352,7 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
     results = []
     if jobs <= 1:
         for seed in seeds:
-            scene = first if seed == seeds[0] else make_scene(seed)
+            scene = first if seed == seeds[0] else _made(make_scene, seed)
             if seed != seeds[0]:
                 check_overlaps(scene, source)
             tick = (lambda k: progress.update(1)) if progress is not None else None
@@ -331,7 +360,7 @@ def _simulate_all(make_scene, first, seeds, out_dir, skip_contactless, jobs, pro
                                           engine=engine, compress=compress))
     else:
         for seed in seeds[1:]:
-            check_overlaps(make_scene(seed), source)
+            check_overlaps(_made(make_scene, seed), source)
         with workers.pool(min(jobs, len(seeds))) as pool:
             tasks = ((make_scene, seed, str(out_dir), skip_contactless, engine, compress) for seed in seeds)
             for r in pool.imap_unordered(_worker, tasks):

@@ -16,8 +16,7 @@ import scipy.sparse as sp
 
 from .. import arguments
 from .._box2d import contact_rows
-from ..errors import InputError
-from .pgs import require_problem
+from .pgs import native_refusal, require_problem
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
@@ -55,8 +54,8 @@ def jacobian(problem: "StepProblem"):
     (v*); rows the native assembly; points the problem's contact points solved."""
     try:
         rows = contact_rows(problem.bodies, problem.contacts, problem.settings(prune=False))
-    except ValueError as e:   # (the native checks of the step's values, as solve's)
-        raise InputError(str(e)) from None
+    except (ValueError, TypeError, KeyError, IndexError) as e:   # (the native checks of the step's arrays, as solve's)
+        raise native_refusal(e) from None
     points = np.nonzero(rows["active"])[0]
     m, nb = len(points), len(problem.bodies["inv_mass"])
     jac = rows["jacobian"][points].reshape(m, 2, 6)   # (native/body_rows.hpp: normal, tangent rows)

@@ -29,15 +29,15 @@ import numpy as np
 from .. import arguments
 from .._box2d import Acceleration, is_global
 from ..errors import InputError
-from ..plugins import PluginError, Registry, guest
+from ..plugins import PluginError, guest
 from .pgs import MEASURES, Solution, require_problem
+from .registry import SOLVERS
 from .pgs import solve as native_solve
 from .settings import SolveSettings
 
 if TYPE_CHECKING:   # (for the annotations only)
     from .problem import StepProblem
 
-SOLVERS = Registry("solver method", "deepcontact.solvers")
 # built-ins whose work is not only sweeps (and which are float64 only): the native table says which
 GLOBAL = tuple(name for name, a in Acceleration.__members__.items() if is_global(a))
 
@@ -136,6 +136,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in
     stops on the residual only and runs in float32 or float64. carry: the loop's native World,
     whose carried state a built-in method uses as the native loop's step would."""
+    arguments.flag(history, "history")
     if settings is None:
         arguments.text(accelerate, "accelerate")
         if is_native(accelerate):
@@ -143,9 +144,12 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
                                 tolerance=tolerance, stop_on=stop_on, relaxation=1.0 if relaxation is None else relaxation,
                                 history=history, final_residual=final_residual, guard=guard, accelerate=accelerate,
                                 prune=prune, carry=carry)
+        require_problem(problem)
         cap = problem.velocity_iterations if max_iterations is None else max_iterations
-        return _plugin_solve(problem, start_normal, start_tangent, history,
-                             _plugin_settings(accelerate, mode, int(cap), float(tolerance), stop_on, relaxation, guard))
+        # (checked as every solve's settings are, before any number is read from them)
+        settings = SolveSettings(mode=mode, max_iterations=cap, tolerance=tolerance, stop_on=stop_on,
+                                 relaxation=relaxation, accelerate=accelerate, guard=guard)
+    arguments.instance(settings, "settings", SolveSettings, "a SolveSettings (or None: the keywords say it)")
     if is_native(settings.accelerate):   # (the settings themselves, down to the native struct)
         return native_solve(problem, start_normal, start_tangent, history=history, final_residual=final_residual,
                             prune=prune, carry=carry,

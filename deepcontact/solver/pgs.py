@@ -95,23 +95,35 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     struct: SolveSettings.native).
     Bad options raise OptionError (an InputError naming the flag)."""
     require_problem(problem)
+    for value, name in ((history, "history"), (prune, "prune"), (final_residual, "final_residual"), (cone, "cone")):
+        arguments.flag(value, name)
     if settings is None:
         settings = SolveSettings(mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, guard=guard,
                                  accelerate=accelerate,
                                  max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
+    step = problem.settings(prune)   # (its dt checked before the options divide by it)
     opts = settings.native(dt=problem.dt, history=history, final_residual=final_residual, cone=cone)
-    starts = []
-    for name, given, own in (("start_normal", start_normal, problem.start_normal),
-                             ("start_tangent", start_tangent, problem.start_tangent)):
-        try:   # (not held finite: a garbage start, NaN and all, is a stability test's input)
-            starts.append(np.asarray(own if given is None else given, dtype=np.float64))
-        except (TypeError, ValueError):
-            starts.append(None)
-        if starts[-1] is None or starts[-1].shape != (problem.points,):
-            raise arguments.refuse(name, f"one value per contact point, an array of shape ({problem.points},)",
-                                   given)
+    starts = [_start(name, given, own, problem.points) for name, given, own in (
+        ("start_normal", start_normal, problem.start_normal), ("start_tangent", start_tangent, problem.start_tangent))]
     try:
-        out = solve_contacts(problem.bodies, problem.contacts, *starts, problem.settings(prune), opts, carry)
-    except ValueError as e:   # the native shape checks ("start impulses must have one value per ...")
-        raise InputError(str(e)) from None
+        out = solve_contacts(problem.bodies, problem.contacts, *starts, step, opts, carry)
+    except (ValueError, TypeError, KeyError, IndexError) as e:   # the native checks of the problem's arrays
+        raise native_refusal(e) from None
     return Solution.from_native(out, settings.relaxation)
+
+
+def _start(name, given, own, points):
+    """A start's impulses as float64, one a contact point: real numbers (not held finite: a
+    garbage start, NaN and all, is a stability test's input), never text, complex or objects."""
+    a = np.asarray(own if given is None else given)
+    if a.dtype.kind not in "iuf" or a.shape != (points,):
+        raise arguments.refuse(name, f"one value per contact point (a real number), an array of shape ({points},)", given)
+    return a.astype(np.float64)
+
+
+def native_refusal(e):
+    """InputError for what the native solver refused in a problem's arrays (a column missing, of
+    another dtype or shape, a contact naming no body): a StepProblem built or edited by hand."""
+    message = e.args[0] if e.args and isinstance(e.args[0], str) else str(e)
+    return InputError(f"the step's problem cannot be solved: {message} (StepProblem.from_arrays checks and "
+                      "converts each column)")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import arguments
-from .._box2d import SOLVER_BODY_FIELDS, SOLVER_CONTACT_FIELDS, StepSettings
+from .._box2d import SOLVER_BODY_FIELDS, SOLVER_CONTACT_FIELDS, StepSettings, World
 from ..errors import InputError
 from ..step.engines import engine_of, poses_box2d_problem
 
@@ -26,7 +26,12 @@ def contact_keys(contacts: dict) -> list[tuple]:
     child indices, and the feature id (a body pair alone is not enough: a circle in a corner
     touches two walls of one static body)."""
     _require_columns(contacts, KEY_COLUMNS, "contacts")
-    return list(zip(*(np.asarray(contacts[k]).tolist() for k in KEY_COLUMNS)))
+    columns = [np.asarray(contacts[k]) for k in KEY_COLUMNS]
+    for name, a in zip(KEY_COLUMNS, columns):
+        if a.dtype.kind not in "iu" or a.shape != columns[0].shape[:1]:
+            raise InputError(f"contacts column {name!r} must be whole numbers, one a contact point (as read_step "
+                             f"returns them), got {a.dtype} of shape {a.shape}")
+    return list(zip(*(a.tolist() for a in columns)))
 
 
 def _require_columns(table, names, what):
@@ -36,6 +41,52 @@ def _require_columns(table, names, what):
     missing = [k for k in names if k not in table]
     if missing:
         raise InputError(f"{what} lack the columns {', '.join(missing)} (as read_step returns them)")
+
+
+def _layout():
+    """{column: (dtype, shape of one row)} of the record tables, as the native solver reads them."""
+    global _LAYOUT
+    if _LAYOUT is None:
+        world = World(0.0, 0.0)
+        _LAYOUT = {k: (v.dtype, v.shape[1:]) for table in (world.bodies(), world.contacts()) for k, v in table.items()}
+    return _LAYOUT
+
+
+_LAYOUT = None
+
+
+def _columns(table, names, what):
+    """The columns `names` of a table (a dict of arrays), each of one row a body or point, in the
+    native dtype (converted where every value is kept: float64 positions to float32, say),
+    contiguous; InputError naming the first that is text, of another shape, or whose whole numbers
+    the native dtype cannot hold. (Every value the solver reads is held finite where it reads it.)"""
+    _require_columns(table, names, what)
+    out, rows = {}, None
+    layout = _layout()
+    for name in names:
+        dtype, shape = layout[name]
+        a = table[name]
+        a = a if type(a) is np.ndarray else np.asarray(a)
+        rows = len(a) if rows is None and a.ndim else rows
+        if a.dtype is dtype and a.shape[1:] == shape and len(a) == rows:   # (as read: the closed loop's every step)
+            out[name] = a if a.flags.c_contiguous else np.ascontiguousarray(a)
+            continue
+        if a.dtype.kind not in "biuf" or a.shape != (rows, *shape):
+            raise _column_error(what, name, rows, f"got {a.dtype} of shape {a.shape}")
+        if a.dtype != dtype:
+            converted = np.ascontiguousarray(a, dtype=dtype)
+            if dtype.kind in "iu" and not np.array_equal(converted, a):
+                raise _column_error(what, name, rows, f"it holds values {dtype} cannot "
+                                                      f"({'fractions' if a.dtype.kind == 'f' else 'beyond its range'})")
+            a = converted
+        out[name] = np.ascontiguousarray(a)
+    return out
+
+
+def _column_error(what, name, rows, got):
+    dtype, shape = _layout()[name]
+    row = f" ({', '.join(map(str, shape))} a row)" if shape else ""
+    return InputError(f"{what} column {name!r} must be {rows} rows of {dtype}{row}, as read_step returns it; {got}")
 
 
 def impulses_by_key(keys: list[tuple], normal: np.ndarray, tangent: np.ndarray) -> dict:
@@ -103,23 +154,31 @@ class StepProblem:
 
     def settings(self, prune=True) -> StepSettings:
         """The step the native solver assembles the problem for."""
+        try:   # (held here as from_arrays holds them: a problem edited by hand reaches no native error)
+            arguments.number(self.dt, "dt", low=0)
+            arguments.vector(self.gravity, "gravity", 2)
+            arguments.flag(self.block_solve, "block_solve")
+        except InputError as e:
+            raise InputError(f"the step's problem: {e}") from None
         return StepSettings(dt=self.dt, gravity=self.gravity, block_solve=self.block_solve, prune=prune)
 
     @classmethod
     def from_arrays(cls, bodies, contacts, *, dt, gravity, block_solve=True, velocity_iterations=8, index=0):
         """From the arrays of World.step(record=True) or of step.reader.read_step."""
-        _require_columns(bodies, ("index", *BODY_KEYS), "bodies")
-        _require_columns(contacts, (*CONTACT_KEYS, "body_a", "body_b", *KEY_COLUMNS, "start_normal_impulse",
-                                    "start_tangent_impulse", "normal_impulse", "tangent_impulse"), "contacts")
-        c = {k: np.ascontiguousarray(contacts[k]) for k in CONTACT_KEYS}
+        bodies = _columns(bodies, ("index", *BODY_KEYS), "bodies")
+        contacts = _columns(contacts, (*CONTACT_KEYS, "body_a", "body_b", *KEY_COLUMNS, "start_normal_impulse",
+                                       "start_tangent_impulse", "normal_impulse", "tangent_impulse"), "contacts")
+        c = {k: contacts[k] for k in CONTACT_KEYS}
         c["row_a"], c["row_b"] = (_rows(bodies["index"], contacts[k]) for k in ("body_a", "body_b"))
-        b = {k: np.ascontiguousarray(bodies[k]) for k in BODY_KEYS}
+        b = {k: bodies[k] for k in BODY_KEYS}
         keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
-        return cls(bodies=b, contacts=c, dt=float(np.float32(dt)), gravity=tuple(float(g) for g in gravity),
-                   block_solve=bool(block_solve), velocity_iterations=int(velocity_iterations),
+        return cls(bodies=b, contacts=c, dt=float(np.float32(arguments.number(dt, "dt", low=0))),
+                   gravity=tuple(arguments.vector(gravity, "gravity", 2).tolist()),
+                   block_solve=arguments.flag(block_solve, "block_solve"),
+                   velocity_iterations=arguments.whole(velocity_iterations, "velocity_iterations"),
                    start_normal=contacts["start_normal_impulse"], start_tangent=contacts["start_tangent_impulse"],
                    normal_impulse=contacts["normal_impulse"], tangent_impulse=contacts["tangent_impulse"],
-                   keys=keys, index=index)
+                   keys=keys, index=arguments.whole(index, "index"))
 
     @classmethod
     def from_step_file(cls, path):

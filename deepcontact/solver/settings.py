@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 
 from .._box2d import Acceleration, SolveOptions, is_global
 from ..errors import OptionError
+from .registry import SOLVERS
 
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
 # dc evaluate's cap: a verdict needs variants that reach the tolerance on every step, and at 1000
@@ -85,6 +86,10 @@ class SolveSettings:
         for name in ("mode", "accelerate"):
             if not isinstance(getattr(self, name), str):
                 raise OptionError(f"{name} must be a name, got {getattr(self, name)!r}", FLAGS[name])
+        if not isinstance(self.guard, bool):   # (the native struct's bool: pybind11's refusal otherwise)
+            raise OptionError(f"guard must be True or False, got {self.guard!r}", None)
+        if self.accelerate not in Acceleration.__members__:
+            _check_method_name(self.accelerate)
 
     def native(self, *, dt, history=False, final_residual=True, cone=True):
         """The native solver's SolveOptions for a step of length dt (the only place one is made):
@@ -121,6 +126,15 @@ def check_mode(accelerate: str, mode: str) -> None:
     if accelerate in Acceleration.__members__ and is_global(Acceleration.__members__[accelerate]) \
             and mode != "float64":
         raise _error(f"{accelerate} is float64 only: use --mode float64", "accelerate")
+
+
+def _check_method_name(name):
+    """OptionError naming --accelerate unless `name` could name a solver method (registered,
+    installed, or package.module:Name): a name no registry can resolve would be refused only at
+    the first step that solves. (A name's code is loaded where the method runs, never here.)"""
+    if not SOLVERS.is_name(name):
+        raise _error(f"accelerate must be one of {', '.join(Acceleration.__members__)}, not {name!r}, or a plug-in's "
+                     "name: an installed one's, or package.module:Name", "accelerate")
 
 
 _CHECKED = set()   # requests already checked (frozen values: equal ones pass the same checks)

@@ -20,7 +20,7 @@ import numpy as np
 from ... import arguments
 from ..._box2d import World
 from ...errors import OptionError
-from ...plugins import Registry
+from ...plugins import PluginError, Registry, guest
 from ...scene.model import Scene  # noqa: F401  (the annotations)
 
 
@@ -211,7 +211,15 @@ def engine_named(name: str, settings: dict | None = None) -> Engine:
     """The engine registered as `name` with `settings` (name -> value or text, as --set gives)."""
     arguments.text(name, "name")
     settings = {} if settings is None else arguments.mapping(settings, "settings")
-    return ENGINES.load(name).from_settings(**settings)
+    cls = ENGINES.load(name)
+    if not (isinstance(cls, type) and issubclass(cls, Engine)):
+        raise PluginError(f"the engine {name!r} is not a deepcontact Engine (a subclass of "
+                          "deepcontact.simulate.engines.Engine)")
+    settings = cls.parsed(settings)   # (a setting it does not take: one line naming --set, not a TypeError)
+    if cls.__module__.startswith("deepcontact."):
+        return cls.from_settings(**settings)
+    with guest(f"the engine {name!r}"):
+        return cls.from_settings(**settings)
 
 
 # The engines by their old place (simulate.engines.Box2D): each module imported on first use,

@@ -5,6 +5,7 @@ import math
 
 from ... import arguments
 from ..._box2d import box2d_version
+from ...errors import InputError
 from ...resources import check_step_work
 from ...scene.xml import fmt
 from ...solver.methods import GLOBAL, method_origin, takes_relaxation
@@ -21,13 +22,19 @@ class Box2D(Engine):
     `velocity_iterations`). Given `solver` (a SolveSettings), the engine is a Box2DLoop instead:
     the project's solver in Box2D's loop (docs/solver.md, "The loop")."""
 
-    def __new__(cls, solver: SolveSettings | None = None, start: str = "builtin",
+    def __new__(cls, solver: SolveSettings | None = None, start: str | None = None,
                 velocity_iterations: int | None = None, start_fn: Callable | None = None):
         return super().__new__(Box2DLoop if cls is Box2D and solver is not None else cls)
 
-    def __init__(self, solver: SolveSettings | None = None, start: str = "builtin",
+    def __init__(self, solver: SolveSettings | None = None, start: str | None = None,
                  velocity_iterations: int | None = None, start_fn: Callable | None = None):
-        arguments.text(start, "start")
+        if not isinstance(self, Box2DLoop) and (start is not None or start_fn is not None):
+            # (Box2D's own solver starts from its own warm start: a start would be dropped without a word)
+            given = "start" if start is not None else "start_fn"
+            raise InputError(f"argument {given!r} is where the project's solver starts: give solver=SolveSettings(...) "
+                             "too (Box2D's own solver, solver=None, starts from its own warm start)")
+        if start is not None:
+            arguments.text(start, "start")
         if velocity_iterations is not None:
             arguments.whole(velocity_iterations, "velocity_iterations")
         if start_fn is not None and not callable(start_fn):
@@ -89,8 +96,9 @@ class Box2DLoop(Box2D):
     each step's first iterate instead (the closed loop's starts; no step file records one). Made
     by Box2D(solver=...)."""
 
-    def __init__(self, solver: SolveSettings, start: str = "builtin", velocity_iterations: int | None = None,
+    def __init__(self, solver: SolveSettings, start: str | None = "builtin", velocity_iterations: int | None = None,
                  start_fn: Callable | None = None):
+        start = "builtin" if start is None else start
         super().__init__(None, start, velocity_iterations, start_fn)
         arguments.instance(solver, "solver", SolveSettings, "a SolveSettings (or None: Box2D's own solver)")
         check_loop(solver, start, own_start=start_fn is not None)
