@@ -123,31 +123,39 @@ def _disagrees(solve, key, manifest_says, path):
 
 def check_solve_itself(solve, path):
     """A step file's <solve> against itself, in a run or alone: its mode, stop rule and origin
-    ones the solver has, its cap and tolerance in the manifest's ranges, w in (0, 2), a finite
-    residual, at most its cap in iterations, and a built-in method that stopped before its cap
+    ones the solver has, its cap and tolerance in the manifest's ranges, a finite residual, w in
+    (0, 2), at most its cap in iterations, and a built-in method that stopped before its cap
     stopped on its tolerance. InputError naming the step file and its <solve>'s line otherwise."""
     def wrong(what):
         return InputError(f"the step file's <solve> {what}", path, solve_line(path))
 
     for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("origin", ORIGINS)):
-        if solve.get(key, "built-in") not in allowed:
+        if solve.get(key, "built-in" if key == "origin" else None) not in allowed:
             raise wrong(f'{key}="{solve.get(key)}" is not one of {", ".join(allowed)}')
-    cap, iterations = (_whole(solve.get(key)) for key in ("max_iterations", "iterations"))
-    tolerance, residual, w = (_finite(solve.get(key)) for key in ("tolerance", "residual", "relaxation"))
-    if cap is None or not 1 <= cap <= ITERATIONS_MAX:
-        raise wrong(f'max_iterations="{solve.get("max_iterations")}" is not a whole number from 1 to {ITERATIONS_MAX}')
+    cap = _in_range(solve, "max_iterations", (1, float(ITERATIONS_MAX)), "a whole number", wrong)
+    iterations = _whole(solve.get("iterations"))
     if iterations is None or not 0 <= iterations <= cap:
-        raise wrong(f'iterations="{solve.get("iterations")}" is past its own cap, max_iterations="{cap}"')
-    if tolerance is None or not 0 <= tolerance <= TOLERANCE_MAX:
-        raise wrong(f'tolerance="{solve.get("tolerance")}" is not a finite number from 0 to {TOLERANCE_MAX:g}')
-    if residual is None or residual < 0:
-        raise wrong(f'residual="{solve.get("residual")}" is not a finite number of at least 0')
-    if "relaxation" in solve and (w is None or not 0 < w < 2):
-        raise wrong(f'relaxation="{solve.get("relaxation")}" is not a w in (0, 2)')
-    if solve.get("origin", "built-in") == "built-in" and solve.get("stop_on") == "residual" and iterations < cap \
+        why = "is past its own cap" if iterations is not None and iterations > cap else "is no count up to its cap"
+        raise wrong(f'iterations="{solve.get("iterations")}" {why}, max_iterations="{cap}"')
+    tolerance = _in_range(solve, "tolerance", (0, TOLERANCE_MAX), "a finite number", wrong)
+    residual = _in_range(solve, "residual", (0, math.inf), "a finite number", wrong)
+    if "relaxation" in solve and not 0 < (_finite(solve["relaxation"]) or 0) < 2:
+        raise wrong(f'relaxation="{solve["relaxation"]}" is not a w in (0, 2)')
+    if solve.get("origin", "built-in") == "built-in" and solve["stop_on"] == "residual" and iterations < cap \
             and residual > tolerance:   # (the built-in methods stop only there or at the cap)
-        raise wrong(f'stopped after {iterations} of its {cap} sweeps with residual="{solve.get("residual")}", '
-                    f'above its tolerance="{solve.get("tolerance")}"')
+        raise wrong(f'stopped after {iterations} of its {cap} sweeps with residual="{solve["residual"]}", '
+                    f'above its tolerance="{solve["tolerance"]}"')
+
+
+def _in_range(solve, key, span, kind, wrong):
+    """A <solve> value in span (low, high), as an int where kind is "a whole number"; else wrong's
+    InputError."""
+    value = (_whole if kind == "a whole number" else _finite)(solve.get(key))
+    low, high = span
+    if value is None or not low <= value <= high:
+        upto = f"from {low} to {high:.10g}" if math.isfinite(high) else f"of at least {low}"
+        raise wrong(f'{key}="{solve.get(key)}" is not {kind} {upto}')
+    return value
 
 
 def _whole(text):
