@@ -35,6 +35,7 @@ from ..solver.reference import reference_solution
 from ..solver.settings import SolveSettings
 from ..warmstart.starts import StepContext, is_oracle, make_starts
 from . import reference_cache
+from .reference_cache import Trajectory
 from .replay import open_contestants, variants, visible_context
 
 
@@ -104,17 +105,6 @@ class _Adapter:
                                                                      solution.tangent_impulse)
         self.transport.append(self.pending + (self.method.take_transport() if self.method is not None else 0.0))
         self.pending = 0.0
-
-
-@dataclass
-class Trajectory:
-    positions: list            # per step: {body index: position (2,) float64}
-    energies: np.ndarray
-    iterations: np.ndarray
-    seconds: np.ndarray
-    deepest: float
-    finite: bool
-    residuals: np.ndarray = None
 
 
 def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True, solve_fn=None):
@@ -314,7 +304,8 @@ def loop_simulation(task):
     scene, starts, options, budgets, kept = task
     steps = options.get("steps") or scene.steps
     reference = (reference_trajectory(scene, steps) if kept is None
-                 else reference_cache.cached(scene, steps, kept, lambda: reference_trajectory(scene, steps)))
+                 else reference_cache.cached(scene, steps, kept, REFERENCE_SETTINGS,
+                                             lambda: reference_trajectory(scene, steps)))
     results = closed_loop(scene, starts, reference=reference, **options)
     if budgets:
         results += box2d_iterations(scene, steps=steps, reference=reference)

@@ -18,6 +18,7 @@ import os
 import stat
 import sys
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,11 +39,23 @@ def folder_for(run):
     return beside(Path(run), "references")
 
 
-def cached(scene, steps, folder, compute):
-    """The reference trajectory of scene over steps: read from folder where a checked one is
-    there, else compute() (reference_trajectory) and kept there. Its steps are reported to
-    workers.progress either way (the progress total counts them)."""
-    key = _key(scene, steps)
+@dataclass
+class Trajectory:
+    """What a closed loop records of a trajectory, step by step (the reference's, a variant's)."""
+    positions: list            # per step: {body index: position (2,) float64}
+    energies: np.ndarray
+    iterations: np.ndarray
+    seconds: np.ndarray
+    deepest: float
+    finite: bool
+    residuals: np.ndarray = None
+
+
+def cached(scene, steps, folder, settings, compute):
+    """The reference trajectory of scene over steps, each step solved as settings say: read from
+    folder where a checked one is there, else compute() (a Trajectory) and kept there. Its steps
+    are reported to workers.progress either way (the progress total counts them)."""
+    key = _key(scene, steps, settings)
     path = Path(folder) / f"{hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()}.npz"
     found = _load(path, key)
     if found is not None:
@@ -65,10 +78,9 @@ def _build():
             "python": sys.version.split()[0]}
 
 
-def _key(scene, steps):
-    from .closed_loop import REFERENCE_SETTINGS
+def _key(scene, steps, settings):
     return {"version": VERSION, "scene": hashlib.sha256(to_xml(scene)).hexdigest(), "steps": int(steps),
-            "settings": repr(REFERENCE_SETTINGS), "build": _build()}
+            "settings": repr(settings), "build": _build()}
 
 
 # --- The file --------------------------------------------------------------------------------------------
@@ -111,7 +123,6 @@ def _keep(path, key, trajectory):
 
 def _load(path, key):
     """The trajectory kept at path if it is one and its key is key; None otherwise."""
-    from .closed_loop import Trajectory
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
