@@ -182,7 +182,7 @@ def train(dataset, out, model, targets, loss, optimizer, lr, weight_decay, batch
     given = {field: getattr(cfg, field) for param, field in fields.items() if options.was_given(param)}
     if fenced_training.fenced(model):   # (a plug-in network's code never runs in this process)
         raise click.exceptions.Exit(fenced_training.run(click.get_current_context(), model, out, overwrite, resume,
-                                                        device))
+                                                        device, max_memory))
     options.load_network(model if not resume or "model" in given else None)   # (the user's explicit choice)
     try:
         history = run(dataset, out, None if resume else cfg, resume=resume, progress=lines.epoch, threads=threads,

@@ -137,7 +137,8 @@ def test_a_network_plugin_trains_evaluates_and_draws_and_is_never_loaded_by_a_ch
     assert r.exit_code == 0, r.stderr
     ck = tmp_path / "m" / "best.pt"
     from deepcontact.model.arch import NETWORKS
-    NETWORKS._loaded.clear()   # a fresh process: nothing loaded but what the user names
+    NETWORKS._loaded.clear()   # a fresh process: nothing loaded or chosen but what the user names
+    NETWORKS._chosen.clear()   # (dc train chose the network it trained, to read its checkpoints)
     r = invoke("evaluate", run, "--starts", "cnn", "--checkpoint", ck, "--every", "30", "--no-budgets",
                "-o", tmp_path / "r")
     assert r.exit_code == 1 and "name it with --arch" in r.stderr and not (tmp_path / "r").exists(), r.stderr

@@ -12,7 +12,7 @@ import torch
 from .. import output
 from ..errors import InputError, OptionError
 from ..grid.spec import GridSpec
-from .checkpoint_file import checkpoint_file
+from .checkpoint_file import NOT_TORCH, checkpoint_file, torch_file
 from .config import config_problem
 from .networks import check_config, shape_problem
 
@@ -38,13 +38,15 @@ def set_rng_state(state):
     random.setstate(state["python"])
 
 
-def load_checkpoint(path):
-    """A checkpoint, loaded without running any code it might carry (weights_only)."""
-    path = checkpoint_file(path)
+def load_checkpoint(path, data=None):
+    """A checkpoint, loaded without running any code it might carry (weights_only). data: its
+    bytes, read already (what a fenced training hands back, checked as it was read): loaded from
+    them, never from path, which then only names it."""
+    source = checkpoint_file(path) if data is None else _from_bytes(data, path)
     try:
         with warnings.catch_warnings():   # torch's own advice on weights_only is not for our users
             warnings.simplefilter("ignore")
-            ck = torch.load(path, map_location="cpu", weights_only=True)
+            ck = torch.load(source, map_location="cpu", weights_only=True)
     except (FileNotFoundError, IsADirectoryError):   # (gone or replaced since the check)
         raise InputError("no such checkpoint", path) from None
     except pickle.UnpicklingError:
@@ -68,6 +70,35 @@ def load_checkpoint(path):
     if problem:
         raise InputError(f"refused: {problem}", path)
     return ck
+
+
+def _from_bytes(data, path):
+    if not torch_file(data[:4]):
+        raise InputError(NOT_TORCH, path)
+    return io.BytesIO(data)
+
+
+def run_of(ck):
+    """What every checkpoint of one run shares (a resumed run keeps them): its network's name,
+    its dataset and its targets."""
+    return {"network": ck["network"].get("model"), "dataset": ck["dataset"], "targets": ck["targets"]}
+
+
+def succession_problem(ck, within, run=None, after=None):
+    """Why the checkpoint ck cannot take the place of a run's own, or None. within: whether it
+    is the one kept within an epoch (mid-epoch.pt, which alone has a position in it); its history
+    must be a row for each epoch before it (a whole epoch's: and its own); run: run_of the run's
+    checkpoints, which it must share; after: the epoch of the one it replaces, not to go back from."""
+    if ("position" in ck) != within:
+        return "no position within its epoch" if within else "a position within an epoch, in a whole epoch's"
+    done = ck["epoch"] + (0 if within else 1)
+    if [row["epoch"] for row in ck["history"]] != list(range(done)):
+        return f"its history is not a row for each of its {done} epochs"
+    if run is not None and run_of(ck) != run:
+        return "it is of another run (another network, dataset or targets)"
+    if after is not None and ck["epoch"] < after:
+        return f"it is of epoch {ck['epoch'] + 1}, before the run's own (epoch {after + 1})"
+    return None
 
 
 def checkpoint_problem(ck):

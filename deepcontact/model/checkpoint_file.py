@@ -23,6 +23,14 @@ def checkpoint_file(path) -> Path:
         raise InputError("not a regular file", path)
     with open(path, "rb") as f:
         magic = f.read(4)
-    if magic[:2] != b"PK" and magic[:1] != b"\x80":
-        raise InputError("not a checkpoint: not a file torch.save writes (a picture? another file?)", path)
+    if not torch_file(magic):
+        raise InputError(NOT_TORCH, path)
     return path
+
+
+NOT_TORCH = "not a checkpoint: not a file torch.save writes (a picture? another file?)"
+
+
+def torch_file(first: bytes) -> bool:
+    """Whether a file's first bytes are torch.save's: its zip format, or a legacy pickle."""
+    return first[:2] == b"PK" or first[:1] == b"\x80"
