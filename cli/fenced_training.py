@@ -24,7 +24,7 @@ INSIDE = "DC_TRAIN_FENCED"   # set for the fenced training's own process (to the
 MID_EPOCH = "mid-epoch.pt"   # (model/train.py's, named here without importing torch)
 # The most a file a training writes may hold, but a checkpoint (bounded by the training's own
 # memory, --max-memory: it holds the weights and the optimizer's state, a part of what training
-# needs): the metrics (a row of about 400 bytes an epoch) and the loss plot.
+# needs): the metrics (metrics.json: 470 bytes an epoch, tests/conftest.py's model) and the plot.
 FILE_LIMIT = 64 << 20
 
 

@@ -70,7 +70,7 @@ class Staging:
             problem = file_problem(fd, st, limit)
             if problem:
                 raise Refused(problem)
-            return read_bounded(fd, limit), _identity(st)
+            return read_whole(fd, st.st_size), _identity(st)
         finally:
             os.close(fd)
 
@@ -113,15 +113,22 @@ def sparse(fd, st):
         return True
 
 
-def read_bounded(fd, limit):
-    """The bytes of fd from its start to its end, in chunks; Refused where there are more than
-    limit (a file that grows while it is read)."""
-    parts, total = [], 0
-    while True:
-        part = os.pread(fd, min(CHUNK, limit + 1 - total), total)
-        if not part:
-            return b"".join(parts)
-        parts.append(part)
-        total += len(part)
-        if total > limit:
-            raise Refused(f"a file that grew past {limit:,} bytes as it was read")
+def read_whole(fd, size):
+    """The `size` bytes of the regular file fd (its fstat's st_size, within its bound), read in
+    chunks into one buffer of that size; Refused where it holds more or fewer by the end (a file
+    changed as it was read: a training replaces its files whole, never writes one in place)."""
+    buf = bytearray(size + 1)   # (one byte over: a file that grew fills it)
+    view, total = memoryview(buf), 0
+    try:
+        while total < len(buf):
+            n = os.preadv(fd, [view[total:total + CHUNK]], total)
+            if not n:
+                break
+            total += n
+    finally:
+        view.release()
+    if total != size:
+        now = "more" if total > size else f"{total:,}"
+        raise Refused(f"a file that changed size as it was read ({size:,} bytes, then {now})")
+    del buf[size:]
+    return buf
