@@ -77,6 +77,17 @@ HOSTILE = textwrap.dedent("""
             for path in (RUN + '/manifest.json', RUN, os.path.dirname(RUN)):   # (the run being judged, named here)
                 if os.path.exists(path):
                     reached.append(f'found {path}')
+            import ctypes, socket   # (a socket of its own reaches every listening one on the machine)
+            try:
+                socket.socket(socket.AF_UNIX).close()
+                reached.append('made an AF_UNIX socket')
+            except OSError:
+                pass
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.syscall.restype = ctypes.c_long
+            fd = libc.syscall(ctypes.c_long(41), ctypes.c_long((1 << 32) | 1), ctypes.c_long(1), ctypes.c_long(0))
+            if fd >= 0:
+                reached.append('made an AF_UNIX socket with the high bits of its family set')
             if reached:
                 raise RuntimeError('reached: ' + ', '.join(reached))
             return box2d(ctx)

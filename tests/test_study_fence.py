@@ -63,6 +63,25 @@ STUDY = textwrap.dedent("""
             seen["socket"] = "connected"
         except OSError as e:
             seen["socket"] = type(e).__name__
+        import ctypes   # (socket() with the family's high bits set: the kernel reads 32 of them, AF_UNIX)
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.syscall.restype = ctypes.c_long
+        fd = libc.syscall(ctypes.c_long(41), ctypes.c_long((1 << 32) | socket.AF_UNIX),
+                          ctypes.c_long(socket.SOCK_STREAM), ctypes.c_long(0))
+        seen["high socket"] = "made" if fd >= 0 else os.strerror(ctypes.get_errno())
+        from deepcontact.contest import broker
+        a, b = socket.socketpair()
+        asks = {   # (what the broker lent a job before: bubblewrap's options, the whole host, many fds)
+            "options": {"argv": ["--bind", "/", "/tmp/x", "true"], "readable": ["/"], "fd_numbers": [b.fileno()]},
+            "root": {"grant": {"names": [], "modules": [], "files": ["/"]}},
+            "fds": {"grant": {"names": [], "modules": [], "files": []}, "fd_numbers": [b.fileno()] * 2},
+        }
+        for name, fields in asks.items():
+            try:
+                broker.remote("start", fds=[b.fileno()] * (2 if name == "fds" else 1), **fields)
+                seen[f"broker {name}"] = "started"
+            except broker.BrokerError as e:
+                seen[f"broker {name}"] = str(e)
         seen["processes"] = sorted(int(p) for p in os.listdir("/proc") if p.isdigit())
         from deepcontact.contest import fences, sandbox
         from deepcontact.contest.client import Contestant
@@ -160,6 +179,9 @@ def test_a_study_reaches_no_process_file_or_socket_of_the_users(installed, tmp_p
         assert seen["write"] == seen["unlink"] == "OSError" and user_file.read_text() == "mine"
         assert seen["read"] == "mine"                                     # (it reads the user's inputs)
         assert seen["socket"] == "PermissionError"
+        assert seen["high socket"] == os.strerror(1), seen   # (EPERM: the family's low 32 bits compared)
+        assert seen["broker options"].startswith("refused") and "broker root" in seen, seen
+        assert "must be a regular file" in seen["broker root"] and "one descriptor" in seen["broker fds"], seen
         assert len(seen["processes"]) <= 3, seen["processes"]             # (bubblewrap's init, itself, a child)
         # its contestants: started by dc's process, in a contestant's fence, charged
         assert seen["contestant"] == "RemoteSandbox" and seen["charged"] and seen["fences"] == fences()

@@ -17,7 +17,7 @@ import socket
 import threading
 import time
 
-from . import machine, sandbox
+from . import grants, machine, sandbox
 
 ENV = "DC_SANDBOX_BROKER"   # the job's end of the broker's socket (a descriptor number)
 LIVE_LIMIT = 64             # sandboxes a job may hold at once
@@ -83,10 +83,18 @@ def _connection():
     return _conn
 
 
-def new(readable=(), threads=1):
-    """A contestant's sandbox: this process's own, or, in a fenced job, one the judge's process
-    starts and owns on the job's behalf (RemoteSandbox)."""
-    return RemoteSandbox(readable, threads) if inside() else sandbox.Sandbox(readable, threads)
+def new(grant, threads=1):
+    """A contestant's sandbox for what it runs (a grants.Grant): this process's own, or, in a
+    fenced job, one the judge's process starts and owns on the job's behalf (RemoteSandbox). Its
+    start_guest(channel, torch) starts the guest with its line to the judge."""
+    return RemoteSandbox(grant, threads) if inside() else GuestSandbox(grant.readable(), threads)
+
+
+class GuestSandbox(sandbox.Sandbox):
+    """A contestant's sandbox in this process, running the guest and nothing else."""
+
+    def start_guest(self, channel, torch=False):
+        return self.start(grants.guest_argv(channel, torch), pass_fds=[channel])
 
 
 def fences():
@@ -131,17 +139,16 @@ class RemoteSandbox:
     """A contestant's sandbox that the judge's process starts and owns for this job: the members
     of sandbox.Sandbox that a contestant's client uses."""
 
-    def __init__(self, readable=(), threads=1):
-        self.readable = [os.path.abspath(p) for p in readable if p and os.path.exists(p)]
-        self.threads = threads
+    def __init__(self, grant, threads=1):
+        self.grant, self.threads = grant, threads
         self.id, self.process, self._how = None, None, ""
 
-    def start(self, argv, pass_fds=(), env=None):
-        """Starts argv in a contestant's sandbox; the descriptors in pass_fds are passed on, each
-        under the broker's number for it wherever argv names it."""
+    def start_guest(self, channel, torch=False):
+        """Asks the judge's process for a contestant's sandbox running the guest, its line to the
+        judge the descriptor channel (passed on): a typed request (what the contestant runs),
+        from which the judge grants and builds what it would for its own contestant."""
         sandbox._registered()
-        answer = remote("start", fds=pass_fds, argv=[str(a) for a in argv], readable=self.readable,
-                        fd_numbers=[int(fd) for fd in pass_fds], threads=self.threads)
+        answer = remote("start", fds=[channel], grant=self.grant.as_request(), torch=bool(torch), threads=self.threads)
         self.id = answer["id"]
         self.process = RemoteProcess(self)
         sandbox._live.add(self)
@@ -263,26 +270,25 @@ class Broker:
         raise ValueError(f"no such request {op!r}")
 
     def _start(self, request, fds):
-        argv, readable, numbers = request["argv"], request["readable"], request["fd_numbers"]
-        if not (isinstance(argv, list) and argv and all(isinstance(a, str) for a in argv)):
-            raise ValueError("argv must be a list of strings")
-        if not (isinstance(readable, list) and all(isinstance(p, str) for p in readable)):
-            raise ValueError("readable must be a list of paths")
-        if not (isinstance(numbers, list) and len(numbers) == len(fds)):
-            raise ValueError("one number for each descriptor passed")
-        threads = request.get("threads", 1)
+        """A contestant's sandbox for the job: granted and commanded as the judge would its own
+        (grants.py), from a typed request; no argument, option or path of the job's reaches
+        bubblewrap, and exactly one descriptor (the contestant's line) is passed on."""
+        grant = grants.Grant.from_request(request.get("grant") if isinstance(request.get("grant"), dict) else {})
+        torch, threads = request.get("torch", False), request.get("threads", 1)
+        if type(torch) is not bool:
+            raise ValueError("torch must be true or false")
         if type(threads) is not int or not 1 <= threads <= sandbox.PROCESS_LIMIT:
             raise ValueError(f"threads must be a whole number from 1 to {sandbox.PROCESS_LIMIT}")
+        if len(fds) != 1:
+            raise ValueError("one descriptor, the contestant's line, must be passed")
         if len(self.boxes) >= LIVE_LIMIT:
             raise ValueError(f"at most {LIVE_LIMIT} contestants' sandboxes at once")
-        # each descriptor under our number for it (the job's numbers mean nothing here)
-        ours = {str(old): os.dup(fd) for old, fd in zip(numbers, fds)}
+        channel = os.dup(fds[0])
         try:
-            box = sandbox.Sandbox(readable, threads)
-            box.start([str(ours[a]) if a in ours else a for a in argv], pass_fds=list(ours.values()))
+            box = GuestSandbox(grant.readable(), threads)
+            box.start_guest(channel, torch)
         finally:
-            for fd in ours.values():
-                os.close(fd)
+            os.close(channel)
         self._count += 1
         self.boxes[self._count] = box
         return {"id": self._count}

@@ -8,21 +8,16 @@ contestant is stopped and named. Transport is measured against the null contesta
 sandbox and path, no plug-in code: `Contestant.null()`), never by a contestant; what the
 contestant left running is counted from its control group by the judge, never asked.
 """
-import importlib.util
 import os
 import pickle
 import sys
 import time
 
-import deepcontact
-
-from ..model.arch import NETWORKS
 from ..plugins import PluginError
-from ..simulate.engines import ENGINES
 from ..solver.methods import SOLVERS, check_plausible, is_native, judge
 from ..warmstart.starts import NAMES, STARTS, Builtin, Checked, Remote
 from .guest import TRAITS
-from . import broker as _broker, sandbox
+from . import broker as _broker, grants, sandbox
 from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
@@ -39,119 +34,6 @@ def deadline_for(points):
 def deadline_rule():
     """The deadline rule in words, for reports."""
     return f"{CALL_FLOOR:g} s + {1e3 * CALL_PER_POINT:g} ms per contact point a call; {SETUP_DEADLINE:g} s to set up"
-
-
-# --- What a contestant may read ---------------------------------------------------------------------
-
-def _module_root(module):
-    """The file or folder of the top-level module `module` belongs to (found, never imported), or None."""
-    top = module.split(".")[0]
-    if not top or top in sys.builtin_module_names or top in sys.stdlib_module_names:
-        return None
-    try:
-        spec = importlib.util.find_spec(top)
-    except (ImportError, ValueError):
-        return None
-    if spec is None:
-        return None
-    if spec.submodule_search_locations:
-        return list(spec.submodule_search_locations)
-    return [spec.origin] if spec.origin and os.path.isabs(spec.origin) else None
-
-
-def _imported_tops(path):
-    """The top-level modules a source file imports (read, never run)."""
-    import ast
-    try:
-        with open(path, "rb") as f:
-            tree = ast.parse(f.read())
-    except (OSError, SyntaxError, ValueError):
-        return []
-    out = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            out += [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
-            out.append(node.module)
-    return out
-
-
-def _module_roots(modules, seen_roots):
-    """The files and folders of these modules and of the single-file modules they import beside
-    them (a plug-in's own helpers), outside what is readable already."""
-    out, todo, done = [], list(modules), set()
-    while todo and len(done) < 100:
-        module = todo.pop().split(".")[0]
-        if module in done:
-            continue
-        done.add(module)
-        for root in _module_root(module) or []:
-            root = os.path.abspath(root)
-            if any(root == r or root.startswith(r + os.sep) for r in seen_roots):
-                continue
-            out.append(root)
-            if root.endswith(".py"):
-                todo += _imported_tops(root)
-    return out
-
-
-def _plugin_modules(names):
-    """(modules, metadata folders) of the plug-ins named here (module:attr names, entry points of
-    installed packages: their distribution's metadata too, where the entry point is read), read
-    from their names and the packages' metadata, nothing imported."""
-    out, metadata = [], []
-    for name in names:
-        if not isinstance(name, str):
-            continue
-        if ":" in name:
-            out.append(name.partition(":")[0])
-            continue
-        registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
-        if any(name in r.builtin() for r in registries):   # (a built-in's: no scan of the installed packages)
-            continue
-        for registry in registries:
-            found = registry.installed().get(name)
-            if found is not None:
-                out.append(found.value.partition(":")[0])
-                folder = getattr(getattr(found, "dist", None), "_path", None)
-                if folder is not None:
-                    metadata.append(os.fspath(folder))
-                break
-    return out, metadata
-
-
-def _runs_plugin_code(names, modules):
-    """Whether a contestant runs code that is not the project's: an object's module, or a name
-    no registry has built in."""
-    registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
-    return bool(modules) or any(isinstance(n, str) and not any(n in r.builtin() for r in registries) for n in names)
-
-
-def readable_paths(names=(), modules=(), files=()):
-    """What a contestant's sandbox may read: the interpreter and its installed packages,
-    deepcontact, the plug-ins' own modules (by name, and `modules`) and `files`."""
-    import site
-    out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
-           os.path.dirname(deepcontact.__file__), *_cli_folder()]
-    try:
-        out += site.getsitepackages() + [site.getusersitepackages()]
-    except AttributeError:
-        pass
-    out = [os.path.abspath(p) for p in out]
-    found, metadata = _plugin_modules(names)
-    out += _module_roots([*found, *modules], out) + metadata
-    out += [os.fspath(f) for f in files if f]
-    return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
-
-
-def _cli_folder():
-    """deepcontact.cli's folder, where it lies apart from the package (an editable install): part
-    of the distribution a plug-in may import."""
-    try:
-        spec = importlib.util.find_spec("deepcontact.cli")
-    except (ImportError, ValueError):
-        return []
-    return list(spec.submodule_search_locations or []) if spec is not None else []
 
 
 def _path_for_guest():
@@ -194,19 +76,16 @@ class Contestant:
             names = [name, method, *networks]
             modules = [] if made else [type(getattr(start, "start", start)).__module__]
         self._setup = setup
-        if _runs_plugin_code(names, modules):
+        if grants.runs_plugin_code(names, modules):
             sandbox.refuse_bare(self.who, _broker.missing_fences())
-        self.sandbox = _broker.new(readable_paths(names, modules, [checkpoint] if checkpoint else []),
+        self.sandbox = _broker.new(grants.Grant(names, modules, [checkpoint] if checkpoint else []),
                                    threads=setup["threads"])
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()
-        # (its module imported by name, not run as __main__: the one copy a plug-in could patch is the one that serves)
-        argv = [sys.executable, "-c", "import sys; from deepcontact.contest.guest import main; main(sys.argv)",
-                str(theirs.fileno())] + (["torch"] if checkpoint else [])
         self._started = time.perf_counter()
         try:
-            self.sandbox.start(argv, pass_fds=[theirs.fileno()])
+            self.sandbox.start_guest(theirs.fileno(), torch=bool(checkpoint))
         except BaseException:
             ours.close()
             self.sandbox.kill()

@@ -16,7 +16,8 @@ DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidf
                 "delete_module", "reboot", "swapon", "swapoff", "syslog", "acct", "quotactl", "settimeofday",
                 "clock_settime", "clock_adjtime", "adjtimex", "iopl", "ioperm", "lookup_dcookie",
                 "io_uring_setup", "io_uring_enter", "io_uring_register")
-AF_UNIX = 1   # socket(AF_UNIX, ...) is refused a job (JobSandbox): see seccomp_program
+AF_UNIX = 1   # socket(AF_UNIX, ...) is refused every sandbox: see seccomp_program
+SCMP_CMP_MASKED_EQ = 7   # libseccomp's (argument & datum_a) == datum_b
 
 @lru_cache(maxsize=None)
 def bwrap():
@@ -114,10 +115,11 @@ class _ArgRule(ctypes.Structure):
 
 @lru_cache(maxsize=None)
 def seccomp_program(job=False):
-    """The seccomp filter (a BPF program's bytes, from libseccomp) refusing DENIED_CALLS with EPERM,
-    or None without libseccomp. job: socket(AF_UNIX) refused too, because a job sees the whole file
-    system read-only, and a read-only bind still lets a process connect to the sockets on it (a
-    session bus, an agent) and ask a process outside the fence to act; socketpair() stays."""
+    """The seccomp filter (a BPF program's bytes, from libseccomp) refusing DENIED_CALLS and
+    socket(AF_UNIX) with EPERM, or None without libseccomp. AF_UNIX: a read-only bind still lets a
+    process connect to the sockets on it (a session bus, an agent, in a job's view of the whole
+    file system) and ask a process outside the fence to act; socketpair() stays. job: the same
+    filter today (the argument keeps the cache per profile)."""
     try:
         lib = ctypes.CDLL("libseccomp.so.2", use_errno=True)
     except OSError:
@@ -134,8 +136,9 @@ def seccomp_program(job=False):
     if not ctx:
         return None
     rules = [(name, []) for name in DENIED_CALLS]
-    if job:
-        rules.append(("socket", [_ArgRule(0, 4, AF_UNIX, 0)]))   # (argument 0, SCMP_CMP_EQ, AF_UNIX)
+    # socket(AF_UNIX) refused to every profile; the kernel reads the family as a 32-bit int, so the
+    # rule compares the low 32 bits (SCMP_CMP_MASKED_EQ): a family of 1 + 2**32 was let through
+    rules.append(("socket", [_ArgRule(0, SCMP_CMP_MASKED_EQ, 0xFFFFFFFF, AF_UNIX)]))
     try:
         for name, args in rules:
             number = lib.seccomp_syscall_resolve_name(name.encode())

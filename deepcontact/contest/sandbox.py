@@ -184,7 +184,7 @@ class Sandbox:
             out += ["--setenv", key, value]
         if seccomp_fd is not None:
             out += ["--seccomp", str(seccomp_fd)]
-        return out + list(argv)
+        return out + ["--"] + list(argv)   # ("--": nothing of the command is ever bubblewrap's option)
 
     job = False   # (JobSandbox: a whole job's fence, not a contestant's)
 
@@ -363,7 +363,7 @@ class JobSandbox(Sandbox):
         out += ["--chdir", self.cwd]
         if seccomp_fd is not None:
             out += ["--seccomp", str(seccomp_fd)]
-        return out + list(argv)
+        return out + ["--"] + list(argv)
 
 
 def exit_words(code, ended_itself=False):

@@ -1,0 +1,178 @@
+"""What a contestant's sandbox is granted, decided by the judge from what the contestant is (its
+plug-ins' names and modules, the files it is given), never from a path or argument a job hands
+it: the same for a contestant of `dc evaluate` and one a fenced job asks the broker for. Its
+command is the guest's, built here; no option of the job's reaches bubblewrap."""
+import importlib.util
+import os
+import stat
+import sys
+from dataclasses import dataclass
+
+import deepcontact
+
+from ..model.arch import NETWORKS
+from ..simulate.engines import ENGINES
+from ..solver.methods import SOLVERS
+from ..warmstart.starts import STARTS
+
+NAMES_MAX, NAME_MAX = 64, 1000   # a grant's names (or modules, or files), and the characters of each
+
+
+@dataclass(frozen=True)
+class Grant:
+    """What a contestant runs, as the judge reads it: plug-in names (a registry's name or
+    module:attr), modules (an object's), files it is given (a checkpoint)."""
+    names: tuple = ()
+    modules: tuple = ()
+    files: tuple = ()
+
+    def __post_init__(self):
+        for field in ("names", "modules", "files"):
+            object.__setattr__(self, field, tuple(getattr(self, field)))
+
+    def as_request(self):
+        return {"names": list(self.names), "modules": list(self.modules), "files": list(self.files)}
+
+    @classmethod
+    def from_request(cls, request):
+        """A job's grant, each field checked (ValueError naming what is wrong): lists of short
+        strings; a file a regular file (a checkpoint), never a folder: `/` asked for as a
+        checkpoint showed the host's processes."""
+        fields = {}
+        for field in ("names", "modules", "files"):
+            values = request.get(field)
+            if not (isinstance(values, list) and len(values) <= NAMES_MAX
+                    and all(isinstance(v, str) and 0 < len(v) <= NAME_MAX and "\0" not in v for v in values)):
+                raise ValueError(f"{field} must be a list of at most {NAMES_MAX} names")
+            fields[field] = values
+        for path in fields["files"]:
+            if not os.path.isabs(path) or not stat.S_ISREG(os.stat(path).st_mode):
+                raise ValueError(f"a file given to a contestant must be a regular file: {path!r}")
+        for module in fields["modules"]:
+            if not all(part.isidentifier() for part in module.split(".")):
+                raise ValueError(f"not a module name: {module!r}")
+        return cls(**fields)
+
+    def readable(self):
+        return readable_paths(self.names, self.modules, self.files)
+
+
+def guest_argv(channel, torch=False):
+    """The contestant's command: the guest, its module imported by name (not run as __main__: the
+    one copy a plug-in could patch is the one that serves), its line to the judge the descriptor
+    `channel`; torch: loaded before its clock (a checkpoint's network)."""
+    return [sys.executable, "-c", "import sys; from deepcontact.contest.guest import main; main(sys.argv)",
+            str(int(channel))] + (["torch"] if torch else [])
+
+
+def _module_root(module):
+    """The file or folder of the top-level module `module` belongs to (found, never imported), or None."""
+    top = module.split(".")[0]
+    if not top or top in sys.builtin_module_names or top in sys.stdlib_module_names:
+        return None
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    if spec.submodule_search_locations:
+        return list(spec.submodule_search_locations)
+    return [spec.origin] if spec.origin and os.path.isabs(spec.origin) else None
+
+
+def _imported_tops(path):
+    """The top-level modules a source file imports (read, never run)."""
+    import ast
+    try:
+        with open(path, "rb") as f:
+            tree = ast.parse(f.read())
+    except (OSError, SyntaxError, ValueError):
+        return []
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.append(node.module)
+    return out
+
+
+def _module_roots(modules, seen_roots):
+    """The files and folders of these modules and of the single-file modules they import beside
+    them (a plug-in's own helpers), outside what is readable already."""
+    out, todo, done = [], list(modules), set()
+    while todo and len(done) < 100:
+        module = todo.pop().split(".")[0]
+        if module in done:
+            continue
+        done.add(module)
+        for root in _module_root(module) or []:
+            root = os.path.abspath(root)
+            if any(root == r or root.startswith(r + os.sep) for r in seen_roots):
+                continue
+            out.append(root)
+            if root.endswith(".py"):
+                todo += _imported_tops(root)
+    return out
+
+
+def _plugin_modules(names):
+    """(modules, metadata folders) of the plug-ins named here (module:attr names, entry points of
+    installed packages: their distribution's metadata too, where the entry point is read), read
+    from their names and the packages' metadata, nothing imported."""
+    out, metadata = [], []
+    for name in names:
+        if not isinstance(name, str):
+            continue
+        if ":" in name:
+            out.append(name.partition(":")[0])
+            continue
+        registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
+        if any(name in r.builtin() for r in registries):   # (a built-in's: no scan of the installed packages)
+            continue
+        for registry in registries:
+            found = registry.installed().get(name)
+            if found is not None:
+                out.append(found.value.partition(":")[0])
+                folder = getattr(getattr(found, "dist", None), "_path", None)
+                if folder is not None:
+                    metadata.append(os.fspath(folder))
+                break
+    return out, metadata
+
+
+def runs_plugin_code(names, modules):
+    """Whether a contestant runs code that is not the project's: an object's module, or a name
+    no registry has built in."""
+    registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
+    return bool(modules) or any(isinstance(n, str) and not any(n in r.builtin() for r in registries) for n in names)
+
+
+def readable_paths(names=(), modules=(), files=()):
+    """What a contestant's sandbox may read: the interpreter and its installed packages,
+    deepcontact, the plug-ins' own modules (by name, and `modules`) and `files`."""
+    import site
+    out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
+           os.path.dirname(deepcontact.__file__), *_cli_folder()]
+    try:
+        out += site.getsitepackages() + [site.getusersitepackages()]
+    except AttributeError:
+        pass
+    out = [os.path.abspath(p) for p in out]
+    found, metadata = _plugin_modules(names)
+    out += _module_roots([*found, *modules], out) + metadata
+    out += [os.fspath(f) for f in files if f]
+    return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
+
+
+def _cli_folder():
+    """deepcontact.cli's folder, where it lies apart from the package (an editable install): part
+    of the distribution a plug-in may import."""
+    try:
+        spec = importlib.util.find_spec("deepcontact.cli")
+    except (ImportError, ValueError):
+        return []
+    return list(spec.submodule_search_locations or []) if spec is not None else []
+
+
