@@ -9,6 +9,7 @@ import struct
 
 import numpy as np
 
+from .. import jsontext
 from ..plugins import PluginError
 
 ANSWER_MAX = 1 << 28   # bytes an answer may take (three float64 arrays of 10 million contact points): no more is read
@@ -37,7 +38,7 @@ def unpack(data, who):
     `who` for bytes that are not one."""
     try:
         (n,) = struct.unpack_from("<I", data)
-        header = json.loads(data[4:4 + n], parse_constant=_no_constant)
+        header = jsontext.loads(data[4:4 + n], parse_constant=_no_constant)
         if not isinstance(header, dict):
             raise ValueError("its header is not an object")
         arrays, at = {}, 4 + n

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import output, workers
+from .. import jsontext, output, workers
 from ..errors import InputError
 from ..output.names import beside
 from ..scene.xml import to_xml
@@ -137,7 +137,7 @@ def _load(path, key):
         os.close(fd)
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
+            meta = jsontext.loads(str(z["meta"]))
             arrays = {name: z[name] for name in z.files if name != "meta"}
         if meta.get("key") != key or meta.get("digest") != _digest(arrays):
             return None

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, arguments, output, workers
+from .. import __version__, arguments, jsontext, output, workers
 from .._box2d import box2d_version
 from ..errors import InputError
 from ..resources import check_disk, check_memory
@@ -305,7 +305,7 @@ class GridDataset:
         if not meta.is_file():
             raise InputError("not a dataset (no metadata.json)", self.path)
         try:
-            self.metadata = json.loads(meta.read_bytes())
+            self.metadata = jsontext.loads(meta.read_bytes())
         except (ValueError, UnicodeDecodeError) as e:
             raise InputError(f"unreadable metadata: {e}", meta) from None
         self._check_metadata(meta)

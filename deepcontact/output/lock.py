@@ -11,6 +11,7 @@ import stat
 from contextlib import contextmanager
 from pathlib import Path
 
+from .. import jsontext
 from ..errors import InputError
 from . import files
 from .names import beside, own_name
@@ -62,7 +63,7 @@ def locked(path):
     fd = _open_lock(path, lock)
     # temporary files that the lock's last holder noted and did not live to remove: ours
     try:
-        noted = json.loads(os.pread(fd, 1 << 16, 0) or b"[]")
+        noted = jsontext.loads(os.pread(fd, 1 << 16, 0) or b"[]")
     except (OSError, ValueError, UnicodeDecodeError):
         noted = []
     for name in noted if isinstance(noted, list) else ():

@@ -10,6 +10,7 @@ import os
 import stat
 from pathlib import Path
 
+from .. import jsontext
 from ..errors import InputError
 from . import files
 from .names import kind, temporary_name
@@ -59,7 +60,7 @@ def read_record(folder):
         st = os.lstat(p)
         if not stat.S_ISREG(st.st_mode) or st.st_size > RECORD_MAX:
             return None
-        rec = json.loads(p.read_bytes())
+        rec = jsontext.loads(p.read_bytes())
     except (OSError, ValueError, UnicodeDecodeError):
         return None
     ok = (isinstance(rec, dict) and isinstance(rec.get("command"), str) and rec.get("state") in ("partial", "done")

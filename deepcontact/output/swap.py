@@ -14,7 +14,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from .. import interrupts
+from .. import interrupts, jsontext
 from ..errors import InputError
 from . import files, lock, record
 from .names import beside, kind, own_name, short_name
@@ -132,7 +132,7 @@ def _read_journal(journal, path):
             data = os.read(fd, JOURNAL_MAX + 1) if stat.S_ISREG(os.fstat(fd).st_mode) else None
         finally:
             os.close(fd)
-        claims = json.loads(data) if data is not None and len(data) <= JOURNAL_MAX else None
+        claims = jsontext.loads(data) if data is not None and len(data) <= JOURNAL_MAX else None
     except OSError as e:
         if e.errno == errno.ENOENT:
             return None

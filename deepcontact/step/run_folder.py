@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 import re
 
-from .. import __version__, arguments, output
+from .. import __version__, arguments, jsontext, output
 from ..errors import InputError, count
 from ..scene.xml import fmt
 from .records import check_above, check_pgs
@@ -177,19 +177,44 @@ def read_manifest(run_dir):
     if not path.is_file():
         raise InputError("no manifest.json: not a finished `dc simulate` run", run_dir)
     try:
-        m = json.loads(path.read_bytes())
+        m = jsontext.loads(path.read_bytes())
     except (ValueError, UnicodeDecodeError) as e:
         raise InputError(f"unreadable manifest: {e}", path) from None
     if not isinstance(m, dict):
         raise InputError(f"the manifest must be a JSON object, not {type(m).__name__}", path)
     if not isinstance(m.get("simulations"), list):
         raise InputError("the manifest has no list of simulations", path)
+    _check_field_kinds(m, path)
     if m.get("solver") == "pgs":
         check_pgs(m.get("pgs"), path)
     for record in m["simulations"]:
         if isinstance(record, dict):
             check_above(record, path)
     return m
+
+
+# What each field write_manifest writes holds (None: where a run may record none): a reader
+# compares, hashes and prints them, and a list where a name goes was the catch-all's TypeError.
+_TEXT, _WHOLE, _TABLE = (str,), (int,), (dict,)
+FIELD_KINDS = {"format": _WHOLE, "kind": _TEXT, "scene": _TEXT, "source": _TEXT + (type(None),),
+               "generator": _TEXT + (type(None),), "params": _TABLE + (type(None),), "solver": _TEXT,
+               "pgs": _TABLE + (type(None),), "engine": _TEXT, "engine_label": _TEXT, "engine_settings": _TABLE,
+               "poses_box2d_problem": (bool,), "velocity_iterations": _WHOLE + (type(None),),
+               "position_iterations": _WHOLE + (type(None),), "soft_step": _TABLE, "dt": (int, float),
+               "skip_contactless": (bool,), "compression": _TEXT, "engine_version": _TEXT, "versions": _TABLE}
+_KIND_WORDS = {str: "text", int: "a whole number", dict: "an object", bool: "true or false", float: "a number",
+               type(None): "null"}
+
+
+def _check_field_kinds(m, path):
+    """InputError naming the first field of the manifest m whose value is of another kind than
+    write_manifest writes (a field it lacks is an older run's: its readers say what they need)."""
+    for key, kinds in FIELD_KINDS.items():
+        value = m.get(key)
+        if key in m and (not isinstance(value, kinds) or isinstance(value, bool) and bool not in kinds):
+            wanted = " or ".join(dict.fromkeys(_KIND_WORDS[k] for k in kinds))
+            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+            raise InputError(f"the manifest's {key!r} must be {wanted}, got {shown}", path)
 
 
 def simulation_folder(run_dir, name, manifest_path):

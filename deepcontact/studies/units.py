@@ -31,7 +31,7 @@ import stat
 from contextlib import contextmanager
 from pathlib import Path
 
-from .. import output
+from .. import jsontext, output
 from ..errors import InputError, OptionError, count
 from ..output.names import beside, kind
 
@@ -136,7 +136,7 @@ class Journal:
         """The value kept in path for key, or _MISSING (no such file, another key, or not one this
         module wrote: then measured again and written over)."""
         try:
-            data = json.loads(_regular_bytes(path, UNIT_MAX))
+            data = jsontext.loads(_regular_bytes(path, UNIT_MAX))
             if json.dumps(data["key"], sort_keys=True, separators=(",", ":")) != key:
                 return _MISSING
             return restored(data["value"], as_type)
