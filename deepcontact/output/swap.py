@@ -3,7 +3,8 @@
 The output is built in ``.NAME.partial-*``; when complete the journal ``.NAME.swap`` names the
 earlier output while it is moved aside to ``.NAME.old-*``, and the new one is renamed into place.
 The swap is held against stop signals; a process killed in the middle of it is finished or undone
-by the next command on that output (`recover`).
+by the next command on that output (`recover`). An empty folder the user made for the output is
+kept instead: the output's entries are renamed into it, its record last (the journal says "fill").
 """
 import errno
 import json
@@ -55,11 +56,13 @@ def _keep_attributes(folder, onto):
     this user may not set is left as it is."""
     st = os.lstat(folder)
     os.chmod(onto, stat.S_IMODE(st.st_mode))
-    try:
-        os.chown(onto, -1, st.st_gid)
-        os.chmod(onto, stat.S_IMODE(st.st_mode))   # (chown clears a setgid bit: set it again)
-    except OSError:
-        pass
+    for owner in (st.st_uid, -1):   # (its owner too where this user may set it: root)
+        try:
+            os.chown(onto, owner, st.st_gid)
+            os.chmod(onto, stat.S_IMODE(st.st_mode))   # (chown clears a setgid bit: set it again)
+            break
+        except OSError:
+            pass
     try:
         names = os.listxattr(folder, follow_symlinks=False)
     except OSError:
@@ -92,6 +95,9 @@ def recover(path, command=None):
 
 def _finish_or_undo(path, claims, journal, command):
     """The replacement a journal names, finished or undone."""
+    if claims.get("fill") is True:
+        _finish_or_undo_fill(path, claims, journal, command)
+        return
     old, new = (path.parent / claims[k] for k in ("old", "new"))
     # each the very folder the journal named (by identity, not only by name and record: a
     # complete output of dc's moved under one of those names is not a swap's leftover)
@@ -113,6 +119,49 @@ def _finish_or_undo(path, claims, journal, command):
         if not ours and os.path.lexists(p) and p != path:
             log.warning("left %s alone: the journal %s names it, but it is not the folder the journal "
                         "wrote of (no record of dc's, or another folder under that name)", p, journal.name)
+
+
+def _empty_folder(path):
+    """Whether path is a folder (not a link) holding nothing: one a user made for the output."""
+    return kind(path) == "folder" and not os.listdir(path)
+
+
+def _fill(tmp, path):
+    """The finished output's entries moved from tmp into the empty folder path, each by a rename,
+    its record last (until then path holds no record, and the next run moves them back)."""
+    names = sorted(os.listdir(tmp), key=lambda name: name == RECORD)
+    for name in names:
+        if os.path.lexists(path / name):   # (put there since the check: a rename would replace it)
+            raise OSError(errno.EEXIST, "appeared in the output folder during the run", str(path / name))
+        os.rename(tmp / name, path / name)
+
+
+def _unfill(tmp, path):
+    """What _fill moved into path (the entries tmp's record lists, and the record), moved back."""
+    rec = read_record(tmp) or read_record(path)
+    moved = {entry.split("/")[0] for entry in (rec or {}).get("files", [])} | {RECORD}
+    for name in moved:
+        if os.path.lexists(path / name) and not os.path.lexists(tmp / name):
+            os.rename(path / name, tmp / name)
+
+
+def _finish_or_undo_fill(path, claims, journal, command):
+    """A filling of the user's empty folder (_fill) a killed run left: finished where its record
+    is in place, else every entry it moved goes back, and the partial folder is removed; path is
+    the user's folder again, empty, or the whole output."""
+    new = path.parent / claims["new"]
+    same = _is(path, claims.get("old_id")) and _is(new, claims.get("new_id"))
+    done = read_record(path)
+    if same and not (done and done["state"] == "done" and (command is None or done["command"] == command)):
+        if our_folder(new, command=command):
+            _unfill(new, path)
+            log.warning("undid the filling of %s that an interrupted run began: it is empty again", path)
+    elif not same:
+        log.warning("left %s alone: the journal %s names it, but it is not the folder the journal wrote of",
+                    new, journal.name)
+        return
+    if our_folder(new, empty_ok=True, command=command):
+        remove_tree_quietly(new)
 
 
 def _read_journal(journal, path):
@@ -153,7 +202,7 @@ class _Swap:
 
     def __init__(self, path):
         self.path, self.tmp, self.built, self.old = path, None, None, None
-        self.before, self.journalled, self.swapped = None, False, False
+        self.before, self.journalled, self.swapped, self.fill = None, False, False, False
 
     def start(self, command):
         """The partial folder beside path, made, held and recorded as ours."""
@@ -178,10 +227,19 @@ class _Swap:
         # the journal first: from here on, a kill at any instruction is finished or undone by
         # the next command (recover), which finds the earlier output or the new one, whole
         self.before = _identity(path) if os.path.lexists(path) else None
+        self.fill = self.before is not None and _empty_folder(path)
         files.write_text(beside(path, "swap"), json.dumps({
-            "old": self.old.name, "new": tmp.name, "new_id": _identity(tmp), "old_id": self.before}) + "\n")
+            "old": self.old.name, "new": tmp.name, "new_id": _identity(tmp), "old_id": self.before,
+            **({"fill": True} if self.fill else {})}) + "\n")
         self.journalled = True
         record.write_record(tmp, command, "done", [r for r in entries(tmp) if r != RECORD])
+        if self.fill:   # the user's own empty folder is kept (its owner, mode, inode): filled, not replaced
+            _fill(tmp, path)
+            self.swapped = True
+            completed.append(path)
+            os.rmdir(tmp)
+            files.remove_quietly(beside(path, "swap"))
+            return
         if os.path.lexists(path):
             _keep_attributes(path, tmp)
             os.replace(path, self.old)
@@ -199,6 +257,8 @@ class _Swap:
         if tmp is None:
             return
         try:
+            if self.fill and _is(path, self.before) and _is(tmp, self.built):
+                _unfill(tmp, path)
             if old is not None and os.path.lexists(old) and not os.path.lexists(path) and _is(old, self.before):
                 os.replace(old, path)
             if _is(tmp, self.built):
