@@ -5,6 +5,7 @@ file, an existing output kept without --overwrite), lock it against a second com
 atomically. A folder is replaced only if its record says the same command wrote every entry in it.
 """
 import os
+import re
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -17,9 +18,32 @@ from .record import RECORD, InPlace, check_owned_folder
 
 def check_file(path, overwrite):
     """Refuses (InputError) an output file path before any work: one that is there but is not a
-    regular file (files.check_replaceable), or one that is there without overwrite."""
+    regular file (files.check_replaceable), a mount point, or one that is there without overwrite."""
     files.check_replaceable(path)
+    _refuse_mounted_file(path)
     _refuse_existing(path, overwrite)
+
+
+def mount_point(path):
+    """Whether path is a mount point: of another file system (os.path.ismount), or a bind mount
+    of a folder or file of the same one, which only the mount table names (/proc/self/mountinfo)."""
+    if os.path.ismount(path):
+        return True
+    try:
+        with open("/proc/self/mountinfo", "rb") as f:
+            table = f.read()
+    except OSError:   # (no /proc: what ismount sees is all that is known)
+        return False
+    where = os.fsencode(os.path.realpath(path))
+    unescape = re.compile(rb"\\([0-7]{3})")   # (the table writes a space, tab, newline or \ as \ooo)
+    return any(len(fields) > 4 and unescape.sub(lambda m: bytes([int(m.group(1), 8)]), fields[4]) == where
+               for fields in (line.split(b" ") for line in table.splitlines()))
+
+
+def _refuse_mounted_file(path):
+    if os.path.isfile(path) and mount_point(path):
+        raise InputError("is a mount point: an output file is replaced by renaming over it, which a mount point "
+                         "refuses; give another name", path)
 
 
 def _refuse_existing(path, overwrite):
@@ -33,6 +57,7 @@ def output_file(path, overwrite):
     block writing it atomically (files.write_bytes). A file there is replaced only with overwrite;
     a link, folder, device or FIFO never."""
     files.check_replaceable(path)   # before the lock file: a device or a FIFO is never replaced
+    _refuse_mounted_file(path)
     with locked(path):
         _refuse_existing(path, overwrite)   # (under the lock: a file another command just wrote counts)
         yield Path(path)
@@ -47,9 +72,13 @@ def check_folder(path, in_place=False):
         raise InputError("is a symbolic link: refusing to write through it; give the folder itself", path)
     if os.path.lexists(path) and not path.is_dir():
         raise InputError("exists and is not a folder", path)
-    if not in_place and path.is_dir() and os.path.ismount(path):
+    if not in_place and path.is_dir() and mount_point(path):
         raise InputError(f"is a mount point: an output is swapped in by renaming, which a mount point refuses; "
                          f"give a folder inside it (-o {show_path(path / 'out')})", path)
+    if not in_place and path.is_dir() and not os.access(path, os.W_OK) and not any(path.iterdir()):
+        # (an empty folder of the user's is filled, not replaced: it must take the output's entries)
+        raise InputError("is a folder this user cannot write in (or on a read-only file system): the output "
+                         "goes into it", path)
     here = Path.cwd().resolve()
     if path.resolve() == here or path.resolve() in here.parents:
         raise InputError("is the current folder or one above it: give the output a folder of its own "
