@@ -12,6 +12,7 @@ import pickle
 
 import numpy as np
 
+from ..errors import InputError
 from ..plugins import PluginError
 from ..simulate.engines import Engine, layout_error
 from ..simulate.pgs_loop import LoopStep
@@ -40,6 +41,11 @@ def _described(name, d):
     if not ok:
         raise PluginError(f"the engine {name!r} described itself as {d!r}: a name, label and version, its own rows "
                           f"(a plug-in engine's step files hold no Box2D rows) and its settings")
+    from ..step.writer import engine_xml   # (the step writer: dc's side only, never a contestant's start)
+    try:   # (what its step files' <engine> would say, refused now, naming the plug-in as the user named it)
+        engine_xml(d["name"], d["version"], d["settings"])
+    except InputError as e:
+        raise PluginError(f"the engine {name!r} described itself in text no step file can hold: {e.message}") from None
     return d
 
 

@@ -32,7 +32,7 @@ from ..scene.model import Scene
 from ..scene.xml import fmt, to_xml
 from ..step.check import stray_contact
 from ..step.run_folder import MANIFEST, write_manifest
-from ..step.writer import compressed, step_filename, step_writer
+from ..step.writer import compressed, header_xml, step_filename, step_writer
 from . import stepping
 from .build import check_overlaps
 from .engines import Engine
@@ -278,6 +278,7 @@ def run(make_scene: Callable, seeds: Sequence[int], out_dir: str | os.PathLike, 
     first = _made(make_scene, seeds[0])
     check_overlaps(first, source)
     engine.check(first, source)
+    header_xml(first, engine)   # (what a plug-in engine says of itself that no step file can hold: refused now)
     out_dir = Path(out_dir)
     with output.output_folder(out_dir, RUN_FILES, overwrite, command="simulate") as work:
         # (by fixtures as well as bodies: a body of many fixtures makes many contact points)

@@ -114,9 +114,18 @@ def _attributes(pairs, what) -> str:
 
 def engine_xml(name, version, settings) -> str:
     """An engine's <engine> line (an engine without Box2D's own lines): its name, its library's
-    version and its settings in effect, one attribute each."""
+    version and its settings in effect, one attribute each. InputError naming the engine for text
+    XML cannot hold (a plug-in's version() with a control character was the catch-all's ValueError)."""
     extra = _attributes(settings.items(), f"the engine {name!r}'s settings")
-    return f"    <engine name={quoteattr(_value(name))} version={quoteattr(_value(str(version)))}{extra}/>\n"
+    said = {}
+    for what, value in (("name", name), ("version", str(version))):
+        try:
+            said[what] = _value(value)
+        except ValueError:
+            whose = "the engine's name is" if what == "name" else f"the engine {name!r}: its version() returned"
+            raise InputError(f"{whose} {value!r}, which holds a character XML cannot (a control character, a lone "
+                             "surrogate, U+FFFE or U+FFFF): no step file could record it") from None
+    return f"    <engine name={quoteattr(said['name'])} version={quoteattr(said['version'])}{extra}/>\n"
 
 
 def engine_step_xml(stats) -> str:
