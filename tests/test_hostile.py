@@ -88,19 +88,20 @@ def test_a_kill_at_any_point_of_a_replacement_loses_nothing(tmp_path, when):
     with output.output_folder(out, output.Owned("report"), command="evaluate") as work:
         (work / "report.md").write_text("old")
     script = f"""
-import os, shutil, signal, sys
+import os, signal, sys
 from deepcontact import output
+from deepcontact.output import swap
 when = {when!r}
-real_replace, real_rmtree = os.replace, shutil.rmtree
+real_replace, real_rmtree = os.replace, swap.remove_tree_quietly
 def replace(src, dst, **kw):
     real_replace(src, dst, **kw)
     if (when == "moved aside" and ".old-" in str(dst)) or (when == "swapped" and str(dst) == {str(out)!r}):
         os.kill(os.getpid(), signal.SIGKILL)
-def rmtree(p, *a, **k):
+def rmtree(p):
     if when == "old removed" and ".old-" in str(p):
         os.remove(os.path.join(p, "report.md")); os.kill(os.getpid(), signal.SIGKILL)
-    real_rmtree(p, *a, **k)
-os.replace, shutil.rmtree = replace, rmtree
+    real_rmtree(p)
+os.replace, swap.remove_tree_quietly = replace, rmtree
 with output.output_folder({str(out)!r}, output.Owned("report"), overwrite=True, command="evaluate") as work:
     (work / "report.md").write_text("new")
 """
