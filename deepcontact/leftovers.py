@@ -27,6 +27,15 @@ def at_end(clean_up):
 
 
 _inherited = set()   # the children this process had when dc began (the user's, kept across exec): never signalled
+_ours = []           # checks naming processes of dc's own sandboxes: ended at the end, never blamed on a plug-in
+
+
+def own_processes(check):
+    """Registers check(pid) -> bool: whether a process under dc is one of dc's own (a sandbox's
+    bubblewrap, or a process of a sandbox's namespace, still ending as dc ends it), which
+    end_process kills like any other but never counts among what plug-ins left."""
+    if check not in _ours:
+        _ours.append(check)
 
 
 def adopt_orphans():
@@ -62,7 +71,7 @@ def children(pid=None):
 def kill_descendants():
     """SIGKILLs every process still running under this one, reaped as they go (each round adopts
     the orphans the last made); one that has ended already is only reaped. Returns how many were
-    killed."""
+    killed that were not dc's own (own_processes)."""
     killed = set()
     for _ in range(100):
         found = [c for c in children() if c not in _inherited]
@@ -70,9 +79,11 @@ def kill_descendants():
             break
         for c in found:
             if not _ended(c):
+                ours = any(check(c) for check in _ours)   # (asked before the kill: /proc then says nothing)
                 try:
                     os.kill(c, signal.SIGKILL)
-                    killed.add(c)
+                    if not ours:
+                        killed.add(c)
                 except OSError:
                     pass
         for c in found:

@@ -27,7 +27,7 @@ import subprocess
 import sys
 import time
 
-from ..leftovers import at_end
+from ..leftovers import at_end, own_processes
 from ..plugins import PluginError
 from . import machine
 
@@ -73,6 +73,7 @@ def refuse_bare(who, missing):
 _PREFIX = "dc-contestant-"
 _swept = set()
 _live = set()        # the sandboxes this process runs (ended by kill_all on the way out)
+_started = set()     # the pids of their first processes (bubblewrap) until reaped: dc's own, never a plug-in's
 
 
 def _sweep(base):
@@ -98,6 +99,18 @@ def kill_all():
     """Ends every sandbox this process still runs (dc's way out: nothing it started outlives it)."""
     for box in list(_live):
         box.kill()
+
+
+def _sandbox_process(pid):
+    """Whether pid is a process of a sandbox dc started: its bubblewrap, or one in a PID namespace
+    other than dc's (only a sandbox makes one; its first process outlives bubblewrap by a moment
+    as it is killed, and was blamed on a plug-in)."""
+    if pid in _started:
+        return True
+    try:
+        return os.readlink(f"/proc/{pid}/ns/pid") != os.readlink("/proc/self/ns/pid")
+    except OSError:
+        return False
 
 
 # --- One sandbox -----------------------------------------------------------------------------------
@@ -214,6 +227,7 @@ class Sandbox:
         finally:
             if seccomp_fd is not None:
                 os.close(seccomp_fd)
+        _started.add(self.process.pid)
         return self.process
 
     def cpu_seconds(self):
@@ -300,6 +314,8 @@ class Sandbox:
                     time.sleep(0.01)
         self.groups = {}
         _live.discard(self)
+        if self.process is not None and self.process.returncode is not None:   # (reaped: its pid may be reused)
+            _started.discard(self.process.pid)
 
 
 class JobSandbox(Sandbox):
@@ -386,6 +402,7 @@ def _registered():
         import atexit
         atexit.register(kill_all)
         at_end(kill_all)
+        own_processes(_sandbox_process)
         _registered.done = True
 
 
