@@ -65,8 +65,8 @@ def guest(what, doing="raised"):
             with interrupts.guest_code() if keep else nullcontext():
                 yield
         finally:
-            if os.getpid() != pid:   # a child the plug-in forked, coming back out: it ends here, quietly
-                interrupts.real_exit(0)
+            if os.getpid() != pid:   # a child the plug-in forked, coming back out: it ends here, said
+                _forked_child_ends(what)
             if outermost:
                 os._exit = interrupts.real_exit
     except _GuestExit as e:
@@ -85,6 +85,19 @@ def guest(what, doing="raised"):
         if keep:
             _put_back(cwd, mask, threads)
     interrupts.check()
+
+
+def _forked_child_ends(what):
+    """In a process the plug-in forked that carried on out of its code (it would run the rest of
+    the command: a second report, a second swap): one line on standard error naming the plug-in,
+    then the process ends, running nothing of dc's (no handler, no flush of what the parent holds)."""
+    import os
+    line = f"dc: {what} forked a process that carried on out of its code: it was ended there, running nothing of dc's\n"
+    try:
+        os.write(2, line.encode(errors="backslashreplace"))
+    except OSError:   # (standard error closed: ended all the same)
+        pass
+    interrupts.real_exit(0)
 
 
 def _put_back(cwd, mask, threads):
