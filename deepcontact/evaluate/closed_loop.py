@@ -45,7 +45,8 @@ class LoopResult:
     steps: int
     iterations: np.ndarray
     ms_per_step: np.ndarray
-    predict_ms: np.ndarray
+    predict_ms: np.ndarray     # per step, the start's share of ms_per_step (0 where the step asked it nothing:
+                               # no contact point), so that both are taken over the same steps
     drift: np.ndarray          # max over surviving bodies of |position - reference position|, per step
     penetration: float
     finite: bool
@@ -73,6 +74,7 @@ class _Adapter:
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         self.keys, self.known, self.previous = [], set(), {}
         self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
+        self.predicting = 0.0   # the start's time in the step being taken (timing: one a step, as the steps')
         self.method = None   # a plug-in method's RemoteMethod, in the same process
 
 
@@ -91,7 +93,7 @@ class _Adapter:
         took, _, arrays = self.contestant.call(request, deadline)
         # the step's time holds the null's round trip and the call's own: neither is the contestant's
         self.pending += null + min(null, took)
-        self.timing.append(max(took - null, 0.0))
+        self.predicting += max(took - null, 0.0)
         return tuple(checked_answer(self.name, arrays, problem.points))
 
     def solve(self, problem, start_n, start_t, settings):
@@ -104,7 +106,8 @@ class _Adapter:
         self.previous = {} if solution is None else impulses_by_key(self.keys, solution.normal_impulse,
                                                                      solution.tangent_impulse)
         self.transport.append(self.pending + (self.method.take_transport() if self.method is not None else 0.0))
-        self.pending = 0.0
+        self.timing.append(self.predicting)   # (a step without contact points asked nothing: 0, not left out)
+        self.pending = self.predicting = 0.0
 
 
 def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True, solve_fn=None):
