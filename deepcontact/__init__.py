@@ -20,6 +20,7 @@ _MODULES = {
     "step.table": ("run_tables",),
     "scene.xml": ("read_scene",),
     "scene.generators": ("generate",),
+    "scene.model": ("Scene", "Body", "Circle", "Polygon", "Edge", "Effects"),
     "simulate.source": ("SceneSource",),
     "simulate.engines": ("SoftStep", "Box2D", "Box2D3", "Engine", "ENGINES", "engine_named", "empty_bodies",
                          "empty_contacts", "scene_bodies"),
@@ -48,6 +49,7 @@ _RENAMED = {
     "local_residual": ("solver.local", "residual"),
     "evaluate_starts": ("evaluate.replay", "evaluate"),
     "EngineSetting": ("simulate.engines", "Setting"),
+    "SceneSolver": ("scene.model", "Solver"),
 }
 _PUBLIC = {**{name: (module, name) for module, names in _MODULES.items() for name in names}, **_RENAMED}
 __all__ = ["__version__", *_PUBLIC]

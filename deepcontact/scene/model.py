@@ -30,6 +30,7 @@ def f32(value) -> float:
 
 @dataclass
 class Circle:
+    """A circle of `radius` (m) centred at (x, y) in its body's frame (m), `density` in kg/m²."""
     radius: float
     x: float = 0.0
     y: float = 0.0
@@ -43,6 +44,7 @@ class Circle:
 
 @dataclass
 class Polygon:
+    """A convex polygon: its vertices (m) in its body's frame, in order; `density` in kg/m²."""
     vertices: tuple   # ((x, y), ...) in the body frame, convex, 3 to 8 of them
     density: float = 0.0
     friction: Optional[float] = None
@@ -54,6 +56,7 @@ class Polygon:
 
 @dataclass
 class Edge:
+    """A line segment from (x1, y1) to (x2, y2), m, in its body's frame; it has no mass."""
     x1: float
     y1: float
     x2: float
@@ -68,6 +71,8 @@ class Edge:
 
 @dataclass
 class Body:
+    """A body: its `type` (static, kinematic, dynamic), its origin (x, y) (m) and `angle` (rad) in
+    the world, its velocity (vx, vy) (m/s) and spin `omega` (rad/s) at the start, and its `shapes`."""
     type: str = "dynamic"
     x: float = 0.0
     y: float = 0.0
@@ -95,6 +100,7 @@ class Body:
 
 @dataclass
 class Effects:
+    """What the scene simulates besides contact (each None or False: off)."""
     gravity: Optional[tuple] = None            # (gx, gy) or None: no gravity
     friction: Optional[float] = None           # default coefficient, or None: frictionless
     restitution: Optional[float] = None        # default coefficient, or None: perfectly inelastic
@@ -121,6 +127,8 @@ class RemoveEvent:
 
 @dataclass
 class Solver:
+    """What the scene asks of the solver: Box2D 2.4.1's iterations and switches (`warm_starting`:
+    each contact starts from its impulses of the step before)."""
     velocity_iterations: int = 8
     position_iterations: int = 3
     warm_starting: bool = True
@@ -130,6 +138,8 @@ class Solver:
 
 @dataclass
 class Scene:
+    """A scene: its world (`dt` s, `steps`), `solver`, `effects`, `bodies` (a body's index is its
+    place here) and removal `events`; what `read_scene` and `generate` return."""
     name: str
     dt: float = f32(0.01)
     steps: int = 600
@@ -183,11 +193,13 @@ class Scene:
         return [(i, s) for i, b in enumerate(self.bodies) for s in b.shapes]
 
     def friction_of(self, shape) -> float:
+        """The shape's friction coefficient: its own, else the friction effect's, 0 with no friction effect."""
         if self.effects.friction is None:
             return 0.0
         return self.effects.friction if shape.friction is None else shape.friction
 
     def restitution_of(self, shape) -> float:
+        """The shape's restitution: its own, else the restitution effect's, 0 with no restitution effect."""
         if self.effects.restitution is None:
             return 0.0
         return self.effects.restitution if shape.restitution is None else shape.restitution

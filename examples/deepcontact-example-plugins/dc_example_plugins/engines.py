@@ -84,6 +84,7 @@ class CircleWorld:
         self.center, self.angle = r["center"].astype(float), r["angle"].astype(float)
         self.velocity, self.omega = r["velocity"].astype(float), r["omega"].astype(float)
         self.live = np.ones(len(scene.bodies), bool)
+        self.warm = scene.solver.warm_starting   # (the scene's <solver warm_starting>, which the step files record)
         self.carried = {}   # (fixture a, fixture b) -> the pair's impulses (normal, tangent) of the last step
         self.circles, self.edges = [], []   # (body, fixture, geometry in the body's frame, friction, restitution)
         for fixture, (i, s) in enumerate(scene.fixtures()):
@@ -113,7 +114,7 @@ class CircleWorld:
         v, w = self.velocity.tolist(), self.omega.tolist()   # (Python floats: the solve is scalar work)
         rows = [Row(self, c, v, w) for c in found]
         for row in rows:   # (the warm start: each pair's impulses of the step before, applied first)
-            row.pn, row.pt = self.carried.get(row.key, (0.0, 0.0))
+            row.pn, row.pt = self.carried.get(row.key, (0.0, 0.0)) if self.warm else (0.0, 0.0)
             row.push(row.n, row.pn, v, w)
             row.push(row.t, row.pt, v, w)
         sweeps, change = self._solve(rows, v, w)
