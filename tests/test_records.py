@@ -149,3 +149,17 @@ def test_a_step_files_solve_record_agrees_with_itself(pgs_run, tmp_path, attribu
         lines = r.stdout.strip().splitlines()
         assert r.returncode == 1 and len(lines) == 1, (where, r.stdout, r.stderr)
         assert lines[0].startswith(f"{step}:{solve_line_of(step)}:0: the step file's <solve> ") and refused in lines[0], lines
+
+
+@pytest.mark.parametrize("method", ["none", "nncg", "newton", "subspace", "bodyspace", "lagged"])
+def test_a_builtin_method_at_its_default_tolerance_is_valid(tmp_path, method):
+    """With no --tolerance (0) a global method stops at its own (1e-12), the sweeps at their cap:
+    a run of each built-in method is valid, its residuals too (tolerance 0 was held to be 0, and
+    every early stop of newton, subspace, bodyspace and lagged refused)."""
+    out = tmp_path / "run"
+    r = dc("simulate", "pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4", "--steps", "40",
+           "--solver", "pgs", "--accelerate", method, "-q", "-o", out)   # (the global methods stop early)
+    assert r.returncode == 0, r.stderr
+    for flags in ([], ["--residuals"]):
+        r = dc("validate", *flags, out)
+        assert r.returncode == 0, (flags, r.stdout, r.stderr)

@@ -6,6 +6,9 @@ import gzip
 from itertools import islice
 import math
 
+import numpy as np
+
+from .._box2d import Acceleration, is_global
 from ..errors import InputError
 from ..xmltext import held
 
@@ -14,6 +17,7 @@ MEASURES = ("thesis", "velocity", "residual")
 TOLERANCE_MAX = 1e3       # (the residual is relative: 1 at a zero start; past this a tolerance stops nothing)
 ITERATIONS_MAX = 2**31 - 1
 ORIGINS = ("built-in", "plug-in")
+EXACT_TOLERANCE = 1e-12   # what a global method solves to at tolerance 0 (native solve_options.hpp, kExactTolerance)
 
 
 def _number(value, low, high, what, path, whole=False):
@@ -125,7 +129,7 @@ def check_solve_itself(solve, path):
     """A step file's <solve> against itself, in a run or alone: its mode, stop rule and origin
     ones the solver has, its cap and tolerance in the manifest's ranges, a finite residual, w in
     (0, 2), at most its cap in iterations, and a built-in method that stopped before its cap
-    stopped on its tolerance. InputError naming the step file and its <solve>'s line otherwise."""
+    stopped on its tolerance (_stops_below). InputError naming the step file and its <solve>'s line otherwise."""
     def wrong(what):
         return InputError(f"the step file's <solve> {what}", path, solve_line(path))
 
@@ -141,10 +145,22 @@ def check_solve_itself(solve, path):
     residual = _in_range(solve, "residual", (0, math.inf), "a finite number", wrong)
     if "relaxation" in solve and not 0 < (_finite(solve["relaxation"]) or 0) < 2:
         raise wrong(f'relaxation="{solve["relaxation"]}" is not a w in (0, 2)')
+    stops_at = _stops_below(solve, tolerance)
     if solve.get("origin", "built-in") == "built-in" and solve["stop_on"] == "residual" and iterations < cap \
-            and residual > tolerance:   # (the built-in methods stop only there or at the cap)
+            and np.float32(residual) > np.float32(stops_at):   # (the built-in methods stop only there or at the cap)
+        own = "" if tolerance > 0 else f" (at 0, the method's own: {stops_at:g})"
         raise wrong(f'stopped after {iterations} of its {cap} sweeps with residual="{solve["residual"]}", '
-                    f'above its tolerance="{solve["tolerance"]}"')
+                    f'above its tolerance="{solve["tolerance"]}"{own}')
+
+
+def _stops_below(solve, tolerance):
+    """The residual below which a built-in method stops before its cap: the tolerance, or at 0 the
+    method's own: a global method's EXACT_TOLERANCE, the sweeps' none (0: they go on to the cap). The
+    residual is recorded rounded to float32, so it is compared as float32 (rounding keeps order)."""
+    if tolerance > 0:
+        return tolerance
+    method = Acceleration.__members__.get(str(solve.get("accelerate", "none")))
+    return EXACT_TOLERANCE if method is not None and is_global(method) else 0.0
 
 
 def _in_range(solve, key, span, kind, wrong):
