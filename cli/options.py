@@ -110,6 +110,8 @@ def _say_how_it_ended(e, ended):
     included); nothing where no fence asked for one."""
     if isinstance(e, click.exceptions.Exit):
         result.say(result.IN_ORDER, e.exit_code)
+    elif isinstance(e, click.exceptions.ClickException):   # (a bad option found by the command: click's exit 2)
+        result.say(result.FAILED, e.exit_code, e.format_message())
     elif isinstance(e, StudyFailed):   # (its table is written: a verdict, not a failure to run)
         result.say(result.IN_ORDER, 1, str(e))
     else:

@@ -102,12 +102,20 @@ def _held(name, command):
         from deepcontact.errors import Failure, InputError
         from deepcontact.plugins import PluginError
         from deepcontact.studies import where_from
+        from deepcontact import interrupts
         try:
             return invoke(ctx)
         except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort, InputError, Failure,
                 MemoryError):
             raise   # (its own words: a message, a verdict, click's usage)
-        except Exception as e:   # (chained: -v shows its file and line)
+        except KeyboardInterrupt:
+            if interrupts.user_stopped():
+                raise
+            raise PluginError(f"the study {name!r} ({where_from(name)}) raised KeyboardInterrupt itself, with no "
+                              f"stop signal") from None
+        except SystemExit as e:
+            raise PluginError(f"the study {name!r} ({where_from(name)}) called sys.exit({e.code!r})") from e
+        except BaseException as e:   # (chained: -v shows its file and line)
             raise PluginError(f"the study {name!r} ({where_from(name)}) raised {type(e).__name__}: {e}") from e
     command.invoke = lambda ctx: held(ctx, verbose=sum(a in ("-v", "--verbose") for a in sys.argv))
     return command

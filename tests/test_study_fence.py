@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from conftest import dc, dc_command, one_line_error
+from deepcontact import output
 from deepcontact.contest import fences
 
 pytestmark = pytest.mark.skipif(not all(fences().values()),
@@ -97,7 +98,8 @@ STUDY = textwrap.dedent("""
     @click.option("-o", "--output", "out")
     @click.option("--how")
     @click.option("--overwrite", is_flag=True)
-    def leave(out, how, overwrite):
+    @click.option("-q", "--quiet", is_flag=True)
+    def leave(out, how, overwrite, quiet):
         '''Ends its process its own way, after writing its output.'''
         _out(out, {"written": True})
         if how == "exit":
@@ -115,6 +117,13 @@ STUDY = textwrap.dedent("""
                 fd = child
             os.fchmod(fd, 0)
             os._exit(3)
+        if how in ("link out", "link out folder"):   # (its staged output itself a link: to the user's file)
+            os.remove(out)
+            os.symlink(os.environ["VICTIM"], out)
+        if how == "exit 2":
+            os._exit(2)
+        if how == "sys.exit":
+            sys.exit(0)
         if how == "refuse":   # (its own error, naming its output as it sees it: the staged path)
             from deepcontact.errors import InputError
             raise InputError("cannot be written as asked", out)
@@ -213,12 +222,46 @@ def test_what_a_killed_job_leaves_is_removed_whatever_its_depth(installed, tmp_p
     dead.wait()   # (a process that is gone: its folder is a killed run's)
     left = Path(tempfile.mkdtemp(prefix=f"dc-job-{dead.pid}-"))
     (left / "checkpoint-copy").write_bytes(b"x" * 1000)
+    (left / ".dc-alive").write_text("")   # (its lock, freed as its run was killed)
+    alive = Path(tempfile.mkdtemp(prefix="dc-job-1-"))   # (a live run's, perhaps in another PID namespace)
+    (alive / ".dc-alive").write_text("")
+    held = os.open(alive / ".dc-alive", os.O_RDONLY)
+    import fcntl
+    fcntl.flock(held, fcntl.LOCK_EX)
     out = tmp_path / "out.json"
     one_line_error(dc("study", "leave", "-o", out, "--how", "deep"), "the study 'leave'", "exit status 3")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lib"]
     r = dc("study", "leave", "-o", out, "--how", "in order")
     assert r.returncode == 0, r.stderr
-    assert json.loads(out.read_text()) == {"written": True} and not left.exists()
+    assert json.loads(out.read_text()) == {"written": True} and not left.exists() and alive.exists()
+    os.close(held)
+    output.remove_tree(alive)
+
+
+def test_a_staged_output_that_is_a_link_is_not_published(installed, tmp_path, monkeypatch):
+    """The staged path itself a link was published: the user's file named by it became the output."""
+    victim = tmp_path / "secret.txt"
+    victim.write_text("mine")
+    monkeypatch.setenv("VICTIM", str(victim))
+    out = tmp_path / "out.json"
+    out.write_text("earlier")
+    one_line_error(dc("study", "leave", "-o", out, "--how", "link out", "--overwrite"), "is a link", "not published")
+    assert out.read_text() == "earlier" and not out.is_symlink() and victim.read_text() == "mine"
+
+
+@pytest.mark.parametrize("how, needle", [("exit 2", "exit status 2"), ("sys.exit", "the study 'leave' (")])
+def test_a_study_that_exits_its_own_way_is_named(installed, tmp_path, how, needle):
+    """os._exit(2) was exit 2 and no line; sys.exit(0) was "something the command ran called
+    sys.exit(0) (a plug-in?)", naming nobody."""
+    one_line_error(dc("study", "leave", "-o", tmp_path / "out.json", "--how", how), needle)
+
+
+def test_short_options_together_stage_the_output_too(installed, tmp_path):
+    """`-qo OUT` (click's short options together) was not found: nothing was staged, and the
+    study failed at its end on the read-only file system."""
+    r = dc("study", "leave", "-qo", tmp_path / "out.json", "--how", "in order")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "out.json").read_text()) == {"written": True}
 
 
 def test_a_studys_error_names_the_users_output_not_its_staging_folder(installed, tmp_path):

@@ -203,7 +203,8 @@ class Broker:
     `job_fd` is the descriptor the job inherits (its number in ENV); `close()` ends every sandbox
     it started."""
 
-    def __init__(self):
+    def __init__(self, writable=()):
+        self.writable = list(writable)   # (the job's own folders: nothing there is granted to a contestant)
         self._ours, self._theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         self.job_fd = self._theirs.fileno()
         self.boxes, self._count, self._lines = {}, 0, []
@@ -233,7 +234,11 @@ class Broker:
     def _serve(self, line):
         while True:
             data, fds = _receive(line, MESSAGE_MAX, 16)
-            if data is None:
+            if data is None:   # (the process that held it is gone: its line no longer counts)
+                with self._lock:
+                    if line in self._lines:
+                        self._lines.remove(line)
+                line.close()
                 return
             try:
                 with self._lock:
@@ -273,7 +278,8 @@ class Broker:
         """A contestant's sandbox for the job: granted and commanded as the judge would its own
         (grants.py), from a typed request; no argument, option or path of the job's reaches
         bubblewrap, and exactly one descriptor (the contestant's line) is passed on."""
-        grant = grants.Grant.from_request(request.get("grant") if isinstance(request.get("grant"), dict) else {})
+        grant = grants.Grant.from_request(request.get("grant") if isinstance(request.get("grant"), dict) else {},
+                                          self.writable)
         torch, threads = request.get("torch", False), request.get("threads", 1)
         if type(torch) is not bool:
             raise ValueError("torch must be true or false")

@@ -34,10 +34,12 @@ class Grant:
         return {"names": list(self.names), "modules": list(self.modules), "files": list(self.files)}
 
     @classmethod
-    def from_request(cls, request):
+    def from_request(cls, request, writable=()):
         """A job's grant, each field checked (ValueError naming what is wrong): lists of short
-        strings; a file a regular file (a checkpoint), never a folder: `/` asked for as a
-        checkpoint showed the host's processes."""
+        strings; a file a regular file (a checkpoint), named without a link in any part, outside
+        /proc, /sys and /dev and outside every folder the job may write (`writable`): bubblewrap
+        binds it by its path after this check, so nothing the job can change may lie on that path
+        (a link flipped to `/`, or to /proc/PID/cmdline of a process the job cannot see)."""
         fields = {}
         for field in ("names", "modules", "files"):
             values = request.get(field)
@@ -45,9 +47,13 @@ class Grant:
                     and all(isinstance(v, str) and 0 < len(v) <= NAME_MAX and "\0" not in v for v in values)):
                 raise ValueError(f"{field} must be a list of at most {NAMES_MAX} names")
             fields[field] = values
+        fenced = [os.path.realpath(w) for w in writable] + ["/proc", "/sys", "/dev"]
         for path in fields["files"]:
-            if not os.path.isabs(path) or not stat.S_ISREG(os.stat(path).st_mode):
-                raise ValueError(f"a file given to a contestant must be a regular file: {path!r}")
+            if (not os.path.isabs(path) or os.path.realpath(path) != os.path.normpath(path)
+                    or any(path == w or path.startswith(w.rstrip("/") + "/") for w in fenced)
+                    or not stat.S_ISREG(os.lstat(path).st_mode)):
+                raise ValueError(f"a file given to a contestant must be a regular file named without a link, "
+                                 f"outside the job's own folders: {path!r}")
         for module in fields["modules"]:
             if not all(part.isidentifier() for part in module.split(".")):
                 raise ValueError(f"not a module name: {module!r}")

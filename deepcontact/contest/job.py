@@ -40,7 +40,7 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
     it runs (what the caller keeps up to date from what it writes); who: how a refusal names it
     (it is plug-in code: where its fence cannot be built it runs only with --unfenced)."""
     sandbox.refuse_bare(who, [f for f in sandbox.JOB_FENCES if f in machine.missing_fences()])
-    broker = Broker()
+    broker = Broker(writable)
     box = sandbox.JobSandbox(writable=writable, devices=devices)
     env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=python_path())
     env.update({BROKER_ENV: str(broker.job_fd), COMMAND_LINE: command_line or "", **(env_extra or {}),
@@ -88,10 +88,10 @@ def refuse_unordered(code, record, who, target=None):
     """PluginError where a job's end is no order to publish (nothing was): a crash, a signal, an
     exit status its record does not give, a status beyond 0-2; None where it ended in order, or
     failed with its own line said (exit 1 or 2: returned as it is)."""
-    if result.ended_in_order(record, code) or code == 2:
+    if result.ended_in_order(record, code):
         return
-    if record is not None and record["ended"] == result.FAILED and record["code"] == code == 1:
-        return
+    if record is not None and record["ended"] == result.FAILED and record["code"] == code in (1, 2):
+        return   # (its own line said why: an error, click's usage)
     kept = f"; {show_path(target)} is as it was" if target is not None else ""
     if code in (0, 1):
         raise PluginError(f"{who} ended its process ({how(code, record)}) without saying it ended in order (a "
@@ -110,14 +110,20 @@ def output_argument(args):
         a = args[k]
         if a == "--":
             break
-        if a in ("-o", "--output") and k + 1 < len(args):
+        if a == "--output" and k + 1 < len(args):
             where, prefix, path = k + 1, "", args[k + 1]
             k += 2
             continue
+        cluster = a[1:] if a.startswith("-") and not a.startswith("--") else ""
         if a.startswith("--output="):
             where, prefix, path = k, "--output=", a[len("--output="):]
-        elif a.startswith("-o") and len(a) > 2:
-            where, prefix, path = k, "-o", a[2:]
+        elif "o" in cluster and all(c.isalpha() for c in cluster[:cluster.index("o")]):   # (-o PATH, -oPATH, -qo PATH: click's short options)
+            cut = cluster.index("o") + 2
+            if cut < len(a):
+                where, prefix, path = k, a[:cut], a[cut:]
+            elif k + 1 < len(args):
+                where, prefix, path = k + 1, "", args[k + 1]
+                k += 1
         elif a == "--overwrite":
             overwrite = True
         k += 1
@@ -138,15 +144,50 @@ def check_output(path, command, overwrite, writes):
         output.check_owned_folder(path, command, overwrite)
 
 
+OUTPUT_DEPTH = 64   # folders a fenced command's output may nest (a walk past it is no output of ours)
+_FOLDER = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
+
+
 def _check_contents(produced, target, who):
-    """Refuses (InputError) an output that holds anything but files and folders."""
-    for root, dirs, files in os.walk(produced):
-        for entry in dirs + files:
-            mode = os.lstat(os.path.join(root, entry)).st_mode
-            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-                shown = Path(target) / os.path.relpath(os.path.join(root, entry), produced)
-                raise InputError(f"the output of {who} holds a {'link' if stat.S_ISLNK(mode) else 'special file'}: "
-                                 f"not published (a fenced command writes files and folders only)", shown)
+    """Refuses (InputError naming the user's output) a staged output that is, or holds, anything
+    but files and folders, or folders nested deeper than OUTPUT_DEPTH. Walked through descriptors,
+    one folder opened at a time from the staged one, never by path (past PATH_MAX a path names
+    nothing) and never through a link (the staged path itself a link published the folder it
+    named, the user's files moved into the output)."""
+    def refuse(parts, what):
+        raise InputError(f"the output of {who} {what}: not published (a fenced command writes files and folders "
+                         f"only)", Path(target, *parts))
+    mode = os.lstat(produced).st_mode
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        refuse((), "is a link" if stat.S_ISLNK(mode) else "is a special file")
+    todo = [()] if stat.S_ISDIR(mode) else []
+    while todo:
+        parts = todo.pop()
+        fd = _open_under(produced, parts)
+        try:
+            with os.scandir(fd) as found:
+                for entry in found:
+                    mode = entry.stat(follow_symlinks=False).st_mode
+                    if stat.S_ISDIR(mode):
+                        if len(parts) >= OUTPUT_DEPTH:
+                            refuse(parts, f"nests folders deeper than {OUTPUT_DEPTH}")
+                        todo.append((*parts, entry.name))
+                    elif not stat.S_ISREG(mode):
+                        refuse((*parts, entry.name), f"holds a {'link' if stat.S_ISLNK(mode) else 'special file'}")
+        finally:
+            os.close(fd)
+
+
+def _open_under(top, parts):
+    """A descriptor of the folder top/parts..., each step opened without following a link."""
+    fd = os.open(top, _FOLDER)
+    for part in parts:
+        try:
+            child = os.open(part, _FOLDER, dir_fd=fd)
+        finally:
+            os.close(fd)
+        fd = child
+    return fd
 
 
 def publish(produced, target, command, who):
@@ -156,7 +197,7 @@ def publish(produced, target, command, who):
     if not os.path.lexists(produced):
         return False
     _check_contents(produced, target, who)
-    if produced.is_dir():
+    if stat.S_ISDIR(os.lstat(produced).st_mode):
         if os.path.lexists(target) and not target.is_dir():
             raise InputError(f"is a file, and {who} wrote a folder: refusing to replace it", target)
         with output.folder(target, command=command) as work:

@@ -382,11 +382,14 @@ class JobSandbox(Sandbox):
         return out + ["--"] + list(argv)
 
 
+_NAMED_SIGNALS = {int(s) for s in signal.Signals}
+
+
 def exit_words(code, ended_itself=False):
     """A sandboxed process's exit status in words ("exit status 9", "killed by SIGSEGV").
     Bubblewrap passes its child's signal on as 128 + it, which an exit status can also be: read as
     a signal only where it names one and the process did not say it ended itself (its record)."""
-    if 128 < code <= 128 + signal.SIGRTMAX and not ended_itself and machine.bwrap() is not None:
+    if code - 128 in _NAMED_SIGNALS and not ended_itself and machine.bwrap() is not None:
         code = 128 - code
     if code < 0:
         try:

@@ -6,16 +6,20 @@ output fail) and walks by path (past PATH_MAX it cannot name the entries). Here 
 descriptor at a time, opened without following a link, goes down by name and back up by "..",
 and makes each folder writable before it empties it (a job may leave one mode 000).
 
-`private_folder` makes a command's private temporary folder named after its process; a run
-killed with SIGKILL leaves its folder (hundreds of MB of a training's copies), and the next one
-made sweeps every such folder whose process is gone.
+`private_folder` makes a command's private temporary folder, holding a lock on a file in it
+for as long as it lives; a run killed with SIGKILL leaves its folder (hundreds of MB of a
+training's copies), and the next one made sweeps every such folder whose lock it can take. A lock
+proves a run dead where a process number cannot: /proc answers for this PID namespace only, and
+a run in another (a container sharing /tmp) had its live folder swept.
 """
+import fcntl
 import os
 import stat
 import tempfile
 from contextlib import contextmanager
 
 _DIRECTORY = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
+ALIVE = ".dc-alive"   # the file a private folder's run holds locked while it lives
 
 
 def remove_tree(path):
@@ -89,25 +93,36 @@ def private_folder(kind):
     base = tempfile.gettempdir()
     sweep(base, kind)
     folder = tempfile.mkdtemp(prefix=f"dc-{kind}-{os.getpid()}-", dir=base)
+    alive = os.open(os.path.join(folder, ALIVE), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
     try:
+        fcntl.flock(alive, fcntl.LOCK_EX)
         yield folder
     finally:
+        os.close(alive)
         remove_tree_quietly(folder)
 
 
 def sweep(base, kind):
-    """Removes the "dc-KIND-PID-*" folders in base that are this user's and whose process is gone."""
+    """Removes the "dc-KIND-*" folders in base that are this user's and whose run is over: the
+    lock on their ALIVE file is free (its holder ended, however it ended). A folder without one
+    is left: nothing proves it dead."""
     prefix = f"dc-{kind}-"
     try:
         found = [n for n in os.listdir(base) if n.startswith(prefix)]
     except OSError:
         return
     for name in found:
-        owner = name[len(prefix):].split("-")[0]
         full = os.path.join(base, name)
         try:
-            mine = os.lstat(full).st_uid == os.getuid()
+            if os.lstat(full).st_uid != os.getuid():
+                continue
+            fd = os.open(os.path.join(full, ALIVE), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
         except OSError:
             continue
-        if owner.isdigit() and mine and not os.path.exists(f"/proc/{owner}"):
-            remove_tree_quietly(full)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:   # (held: its run goes on)
+            continue
+        finally:
+            os.close(fd)
+        remove_tree_quietly(full)

@@ -64,8 +64,14 @@ def survey(names=None):
                     for name in (names or [n for n in STUDIES.names() if n not in STUDIES.builtin()])}
     wanted = list(names or [n for n in STUDIES.names() if n not in STUDIES.builtin()])
     healthy, broken = [], {}
+    # (each round at most SURVEY_DEADLINE, the whole listing twice that: stalling studies share it)
+    ends = time.monotonic() + 2 * SURVEY_DEADLINE
     while wanted:   # (a study that ends or stalls its listing is broken; the ones after it are listed again)
-        found, stalled = _survey_round(wanted)
+        if time.monotonic() >= ends:
+            broken.update({n: f"the study {n!r} could not be listed: the listing took over {2 * SURVEY_DEADLINE:g} s"
+                           for n in wanted})
+            break
+        found, stalled = _survey_round(wanted, min(ends, time.monotonic() + SURVEY_DEADLINE))
         for entry in (found[name] for name in wanted if name in found):
             if "broken" in entry:
                 broken[entry["name"]] = entry["broken"]
@@ -83,7 +89,7 @@ SUMMARY_MAX = 300                                                   # characters
 _LINE_MAX = 8 << 10                                                 # bytes of one study's entry
 
 
-def _survey_round(names):
+def _survey_round(names, deadline):
     """({name: entry} the listing process reported, over a pipe of its own, one line a study as
     each loads; (the study being loaded when it ended or stalled, how) or None)."""
     box = sandbox.JobSandbox()
@@ -95,7 +101,7 @@ def _survey_round(names):
                   pass_fds=[write], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.close(write)
         write = None
-        data, ended = _read_until(read, time.monotonic() + SURVEY_DEADLINE, len(names) * _LINE_MAX)
+        data, ended = _read_until(read, deadline, len(names) * _LINE_MAX)
     finally:
         box.kill()
         for fd in (read, write):
