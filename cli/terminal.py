@@ -71,12 +71,26 @@ def setup_logging(verbose, quiet):
 PROGRESS_EVERY = 30.0   # seconds
 
 
+_WARNED = set()   # the bad DC_PROGRESS_EVERY values already said (one line a process, not one a bar)
+
+
 def progress_every():
-    try:
-        value = float(os.environ.get("DC_PROGRESS_EVERY", PROGRESS_EVERY))
-    except ValueError:
+    """DC_PROGRESS_EVERY's seconds (0: a line at every update; inf: none on the clock); a value
+    that is not a number of seconds >= 0 is one warning line naming it, and the default used."""
+    given = os.environ.get("DC_PROGRESS_EVERY")
+    if given is None:
         return PROGRESS_EVERY
-    return value if value >= 0 else PROGRESS_EVERY
+    try:
+        value = float(given)
+    except ValueError:
+        value = math.nan
+    if value >= 0:   # (False for nan)
+        return value
+    if given not in _WARNED:
+        _WARNED.add(given)
+        logging.getLogger(__name__).warning("DC_PROGRESS_EVERY=%s is not a number of seconds >= 0: a progress "
+                                            "line every %gs (the default) instead", given, PROGRESS_EVERY)
+    return PROGRESS_EVERY
 
 
 def progress_bar(quiet, total, unit, desc, work=None, **line):

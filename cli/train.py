@@ -27,33 +27,30 @@ def torch_device(ctx, param, value):
 
 class EpochLines:
     """What a training says as it goes (stderr; nothing with -q): a line an epoch with its
-    metrics, the time an epoch takes and at most how long is left (early stopping may end it
-    sooner), and within an epoch a line every DC_PROGRESS_EVERY seconds on a clock (an epoch on
-    2 cores can take an hour): the samples done of the epoch's, the rate, the time left in the
-    epoch and in the run. epochs: the run's epochs where known before its first epoch ends."""
+    metrics, the time an epoch takes and about how long is left (early stopping may end it
+    sooner), and within an epoch a line every DC_PROGRESS_EVERY seconds on a clock from the
+    epoch's start (an epoch on 2 cores can take an hour; its first batch minutes): the samples
+    done of the epoch's, the rate, the time left in the epoch and in the run, validation included
+    once one was timed. epochs: the run's epochs where known before its first epoch ends."""
 
     def __init__(self, quiet, epochs=None):
         self.quiet, self.epochs_done, self.epochs = quiet, 0, epochs
         self.start = self.last = time.monotonic()
         self.bar, self.bar_epoch = None, None
+        self.trained, self.validation = None, None   # (when the pass ended; what followed it, timed)
 
     def epoch(self, row):
         self.epochs_done += 1
         self.last = time.monotonic()
+        if self.trained is not None:   # (validation and checkpoints: after the pass, before this line)
+            self.validation, self.trained = self.last - self.trained, None
         self.epochs = row["epochs"]
+        self.close()   # (the epoch over: its bar says no more)
         if self.quiet:
             return
-
-        def shown(k):   # each contact RMSE between what predicting 0 scores and the grid's floor
-            zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
-            floor = row.get(k.replace("val_contact_rmse_", "val_floor_rmse_"))
-            bars = ([f"0 scores {zero:.4g}"] if zero is not None else []) + \
-                   ([f"the grid's floor {floor:.4g}"] if floor is not None else [])
-            return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
-        extra = "".join(shown(k) for k in sorted(row) if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
         left = self.each() * max(0, row["epochs"] - row["epoch"] - 1)
-        click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{extra} "
-                   f"({row['samples_per_second']:.0f} samples/s; {terminal.duration(self.each())} an epoch, at most "
+        click.echo(f"epoch {row['epoch'] + 1} of {row['epochs']}: loss {row['train_loss']:.4g}{_metrics(row)} "
+                   f"({row['samples_per_second']:.0f} samples/s; {terminal.duration(self.each())} an epoch, about "
                    f"{terminal.duration(left)} left)", err=True)
 
     def each(self, projected=None):
@@ -61,12 +58,15 @@ class EpochLines:
         return (self.last - self.start) / self.epochs_done if self.epochs_done else projected
 
     def within(self, epoch, done, total):
-        """After each batch (the trainer's heartbeat): the epoch's bar counts its samples, its clock
-        says the lines. A later epoch's bar is dated from the last epoch's end; the process's first
-        from its first batch (before it: the set-up, or the part of the epoch a resumed run did)."""
+        """As an epoch's pass begins and after each batch (the trainer's heartbeat): the epoch's bar
+        counts its samples, its clock says the lines. A later epoch's bar is dated from the last
+        epoch's end; the process's first from its pass's start (before it: the set-up; in its count
+        but not its rate, the part of the epoch a resumed run did)."""
+        if done >= total:
+            self.trained = time.monotonic()
         if self.quiet:
             return
-        if self.bar_epoch != epoch:
+        if self.bar is None or self.bar_epoch != epoch:
             self.close()
             first = self.epochs_done == 0
             of = f" of {self.epochs}" if self.epochs else ""
@@ -77,18 +77,35 @@ class EpochLines:
         self.bar.update(done - self.bar.n)
 
     def run_left(self, epoch, left):
-        """The clause on the run after this epoch: at most how long it has left."""
+        """The clause on the run after this epoch's pass: about how long it has left, this epoch's
+        validation and the later epochs included (each timed whole once one ended here), or "plus
+        validation" until a validation was timed."""
         if not self.epochs:
             return ""
         after = self.epochs - epoch - 1
-        projected = time.monotonic() - self.bar.started + left   # (this epoch's time, as it goes)
-        return f"; the run: at most {terminal.duration(left + after * self.each(projected))} left"
+        projected = time.monotonic() - self.bar.started + left   # (this epoch's pass, as it goes)
+        if self.validation is None:
+            return f"; the run: about {terminal.duration(left + after * self.each(projected))} left plus validation"
+        return (f"; the run: about {terminal.duration(left + self.validation + after * self.each(projected))} left, "
+                f"validation included")
 
     def close(self):
         """The epoch's bar stopped (the epoch's own line follows)."""
         if self.bar is not None:
             self.bar.stop_clock()
             self.bar = None
+
+
+def _metrics(row):
+    """' val_loss=… val_contact_rmse_normal=… (0 scores …, the grid's floor …)': each contact RMSE
+    between what predicting 0 scores and the grid's floor."""
+    def shown(k):
+        zero = row.get(k.replace("val_contact_rmse_", "val_zero_rmse_"))
+        floor = row.get(k.replace("val_contact_rmse_", "val_floor_rmse_"))
+        bars = ([f"0 scores {zero:.4g}"] if zero is not None else []) + \
+               ([f"the grid's floor {floor:.4g}"] if floor is not None else [])
+        return f" {k}={row[k]:.4g}" + (f" ({', '.join(bars)})" if bars and k != "val_loss" else "")
+    return "".join(shown(k) for k in sorted(row) if k.startswith("val") and not k.startswith(("val_zero", "val_floor")))
 
 
 @click.command(cls=fenced_training.RawArgsCommand)

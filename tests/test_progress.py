@@ -134,3 +134,92 @@ def test_a_resumed_studys_kept_units_count_but_give_no_rate(tmp_path, monkeypatc
     bar.close()
     assert terminal.progress_line(bar, 10.0, done=False).endswith("(52%) so far in 10s, 5s a setting, "
                                                                   "about 4m00s left")
+
+
+def test_a_bad_period_is_one_warning_naming_it_and_the_default(tmp_path, monkeypatch, caplog):
+    """DC_PROGRESS_EVERY=abc, -1 or nan was silently the default: one warning line each (not one a
+    bar) naming the variable and the period used."""
+    monkeypatch.setattr(terminal, "_WARNED", set())
+    for bad in ("abc", "-1", "nan"):
+        monkeypatch.setenv("DC_PROGRESS_EVERY", bad)
+        caplog.clear()
+        assert terminal.progress_every() == terminal.PROGRESS_EVERY
+        assert terminal.progress_every() == terminal.PROGRESS_EVERY
+        said = [r.getMessage() for r in caplog.records if "DC_PROGRESS_EVERY" in r.getMessage()]
+        assert said == [f"DC_PROGRESS_EVERY={bad} is not a number of seconds >= 0: a progress line every 30s "
+                        "(the default) instead"], said
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "abc")
+    monkeypatch.setattr(terminal, "_WARNED", set())   # (a command is its own process: said once in it)
+    r = dc("simulate", "pile", "--param", "count=12", "--steps", "5", "-o", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    assert [x for x in r.stderr.splitlines() if "DC_PROGRESS_EVERY" in x] == [
+        "WARNING: DC_PROGRESS_EVERY=abc is not a number of seconds >= 0: a progress line every 30s (the default) "
+        "instead"], r.stderr
+
+
+def test_evaluate_counts_the_steps_it_evaluates(run, tmp_path, monkeypatch):
+    """With --every 3 it counted every step file of the run (600) though a third were evaluated:
+    the total is the every-th steps, each counted once."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")
+    r = dc("evaluate", "--no-plots", run, "--starts", "zero", "--every", "7", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    evaluated = sum(-(-len(list(sim.glob("*.xml"))) // 7) for sim in run.iterdir() if sim.is_dir())
+    lines = counts(r.stderr, "evaluate")
+    assert lines and {total for _, total, _ in lines} == {evaluated}, r.stderr
+    assert [n for n, _, _ in lines] == [*range(1, evaluated + 1), evaluated], r.stderr   # (the last: "done")
+
+
+def row(epoch, epochs):
+    return {"epoch": epoch, "epochs": epochs, "train_loss": 1.0, "samples_per_second": 10.0}
+
+
+def test_an_epochs_bar_says_no_more_once_the_epoch_ended(capsys, monkeypatch):
+    """After "epoch 1 of 2: loss ..." came "epoch 1 of 2: 348/348 samples (100%) so far" on the
+    clock while epoch 2 ran: the bar is closed with its epoch."""
+    from deepcontact.cli.train import EpochLines
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0.05")
+    lines = EpochLines(False, 2)
+    try:
+        lines.within(0, 0, 10)
+        lines.within(0, 10, 10)
+        lines.epoch(row(0, 2))
+        capsys.readouterr()
+        time.sleep(0.3)   # (epoch 2's first batch still running)
+        assert capsys.readouterr().err == ""
+    finally:
+        lines.close()
+
+
+def test_the_runs_time_left_counts_validation(monkeypatch):
+    """"the run: at most 0s left" came before each epoch's validation: the time left leaves it out
+    until one is timed ("plus validation"), then counts it in this epoch and every later one."""
+    from deepcontact.cli.train import EpochLines
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "1e9")
+    lines = EpochLines(False, 3)
+    try:
+        lines.within(0, 0, 10)
+        assert lines.run_left(0, 5.0) == "; the run: about 15s left plus validation"   # (5 s a pass, 3 passes)
+        lines.within(0, 10, 10)
+        time.sleep(1.2)   # (the validation)
+        lines.epoch(row(0, 3))
+        assert lines.validation >= 1.2
+        lines.within(1, 0, 10)
+        lines.within(1, 5, 10)
+        said = lines.run_left(1, 0.0)   # (the pass's end: its validation and a whole epoch left)
+    finally:
+        lines.close()
+    m = re.fullmatch(r"; the run: about (\d+)s left, validation included", said)
+    assert m and int(m[1]) >= 2, said
+
+
+def test_training_says_its_first_line_before_its_first_batch_ends(dataset, tmp_path, monkeypatch):
+    """With one batch an epoch nothing came until epoch 1's line (32 s): the bar was made after
+    the first batch. Now each epoch's bar begins with its pass, so its clock runs from there."""
+    monkeypatch.setenv("DC_PROGRESS_EVERY", "0")   # (a line at every heartbeat)
+    r = dc("train", dataset, "-o", tmp_path / "m", "--epochs", "2", "--width", "4", "--depth", "2",
+           "--batch-size", "4096", "--no-plots")
+    assert r.returncode == 0, r.stderr
+    for epoch in (1, 2):
+        said = [x for x in r.stderr.splitlines() if x.startswith(f"dc train, epoch {epoch} of 2: ")]
+        assert said and re.match(rf"dc train, epoch {epoch} of 2: 0/\d+ samples \(0%\) so far in \d+s, "
+                                 r"the first sample still running", said[0]), r.stderr

@@ -128,7 +128,7 @@ def run_evaluation(s: EvaluateSettings, out, bar: Callable | None = None) -> str
 
 
 def _replay(s, out, table, measured, progress):
-    total = sum(len(sim.files) for r in s.read_runs() for sim in r.simulations)
+    total = sum(-(-len(sim.files) // s.every) for r in s.read_runs() for sim in r.simulations)   # (the evaluated)
     rows = evaluate(s.read_runs(), table, settings=s.solve, every=s.every, seed=s.seed, progress=progress(total, "step"),
                     relaxations=s.relaxations, budgets=s.budgets, accelerations=s.accelerations, jobs=s.jobs)
     summary = summarize(rows, table, s.solve.max_iterations)

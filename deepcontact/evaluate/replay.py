@@ -268,18 +268,21 @@ def evaluate_simulation(task):
 
 def _steps_to_judge(files, scene, engine, sim_seed, every):
     """(header, bodies, contacts, path, persisted, the step before) of every `every`-th step file
-    with contacts, each checked as this simulation's; persisted: which contacts the step before had."""
+    with contacts, each checked as this simulation's; persisted: which contacts the step before had.
+    Each `every`-th step counts one to the progress once judged (or found without contacts): the
+    steps between are read for their contacts only, not evaluated."""
     previous, before = set(), None
     for k, path in enumerate(files):
-        workers.progress(1)
-        header, bodies, contacts = read_step(path, validate=False)
+        header, bodies, contacts = read_step(path)   # (held to the schema in the same pass)
         check_origin(header, scene, sim_seed, path, engine)
         keys = contact_keys(contacts)
         persisted = np.array([key in previous for key in keys], dtype=bool)
         previous, earlier, before = set(keys), before, (header, bodies, contacts, path)
-        if k % every or len(contacts["manifold"]) == 0:
+        if k % every:
             continue
-        yield header, bodies, contacts, path, persisted, earlier
+        if len(contacts["manifold"]):
+            yield header, bodies, contacts, path, persisted, earlier
+        workers.progress(1)   # (after the yield: the caller has judged the step)
 
 
 class _JudgedStep:
@@ -387,8 +390,8 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
 
     budgets: also time exactly BUDGETS[i] sweeps (no early stop) and record the residual reached.
     jobs > 1: simulations side by side in worker processes (the same rows, in the same order; the
-    times are each worker's own). progress(n) is called as n more step files are done (each
-    step file as it is reached, in any worker)."""
+    times are each worker's own). progress(n) is called as n more of the evaluated steps (each
+    `every`-th step file) are done, in any worker."""
     arguments.starts(starts, "starts")
     every = arguments.whole(every, "every", 1)
     plan = _plan(arguments.paths(run_dirs, "run_dirs", also=Run))   # (folders, or runs already read)

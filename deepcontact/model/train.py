@@ -63,8 +63,9 @@ def train(dataset: str | os.PathLike, out_dir: str | os.PathLike, cfg: TrainConf
     """Train; returns the history (a list of per-epoch metric dicts).
 
     progress(row): called after each epoch with its metrics (and "epochs", the run's number of
-    epochs); heartbeat(epoch, samples done, samples in the epoch): after each batch (a caller's
-    sign of life within a long epoch).
+    epochs); heartbeat(epoch, samples done, samples in the epoch): as an epoch's training pass
+    begins (the samples a resumed one had done) and after each batch (a caller's sign of life
+    within a long epoch).
 
     Everything is checked before the output folder is touched. With `overwrite`, the new run is
     built beside the old one and replaces it only when it finishes. `epochs` overrides the
@@ -305,6 +306,8 @@ class Trainer:
         t0 = time.perf_counter() - position["seconds"]
         total, seen = position["total"], position["seen"]
         self.kept_at = time.monotonic()
+        if getattr(self, "heartbeat", None) is not None:   # (the epoch begun: its bar's clock runs from here)
+            self.heartbeat(epoch, position["next"], len(order))
         for b0 in range(position["next"], len(order), cfg.batch_size):
             chunk = order[b0:b0 + cfg.batch_size][self.rank::self.world]
             if len(chunk) == 0:
