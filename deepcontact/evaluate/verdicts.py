@@ -48,8 +48,11 @@ def oracle(label):
 
 
 def interval(triple):
-    """A ratio and its interval: 0.95x [0.90, 1.01]."""
+    """A ratio and its interval: 0.95x [0.90, 1.01]; "did not converge" where the ratio is
+    infinite (half the steps or more unfinished: contest/verdict.py), never "infx"."""
     ratio, lo, hi = triple
+    if not np.isfinite(ratio):
+        return "did not converge"
     return f"{ratio:.2f}x [{lo:.2f}, {hi:.2f}]"
 
 
@@ -78,19 +81,29 @@ def _verdict(summary, noise=None):
     left_out = _unfinished_note({n: summary[n].get("above", 0) for n in candidates})
     base = baseline(summary)
     if not noise or noise.get("best") is None:
-        return _unjudged(ranked(summary, oracle)[0]) + left_out
+        return _unjudged(_unjudged_smallest(summary)) + left_out
     best = noise["best"]
-    undecided = _no_winner(noise, best, base)
+    undecided = _no_winner(noise, best, base, candidates)
     if undecided:
         return undecided + left_out
     return _winner(summary, noise, best, base) + "." + left_out
 
 
+def _unjudged_smallest(summary):
+    """The non-oracle variant with the smallest median time per step that ended no step above the
+    tolerance, or None where none did (one that did not converge is never named)."""
+    done = [n for n in ranked(summary, oracle) if not summary[n].get("above", 0)]
+    return done[0] if done else None
+
+
 def _unjudged(best):
-    """The verdict where no variant is Box2D's warm start at w = 1: no yardstick, no A/A, no winner."""
-    return (f"**Verdict**: no clear winner: {md_text(best)} has the smallest median time per step (prediction "
-            f"included; oracles left out), but a winner is named only against Box2D's warm start at w = 1 "
-            f"(builtin), timed against itself for the noise floor, and it is not among the variants.")
+    """The verdict where no variant is Box2D's warm start at w = 1: no yardstick, no A/A, no winner
+    (best: the smallest median of the variants that converged, or None)."""
+    smallest = (f"{md_text(best)} has the smallest median time per step of the variants that converged "
+                f"(prediction included; oracles left out)" if best is not None else
+                "no variant converged on every step, and one that did not is never named")
+    return (f"**Verdict**: no clear winner: {smallest}, but a winner is named only against Box2D's warm start at "
+            f"w = 1 (builtin), timed against itself for the noise floor, and it is not among the variants.")
 
 
 def too_noisy_words(base):
@@ -100,43 +113,62 @@ def too_noisy_words(base):
             f"contest/verdict.py)")
 
 
-def not_converged_words(best, base, unfinished):
-    """Why a verdict does not name best, which ended steps above the tolerance ({label: steps})."""
-    theirs = f" ({md_text(base)}: {unfinished.get(base, 0):,})" if best != base else ""
-    return (f"but it ended {count(unfinished[best], 'step')} above the tolerance{theirs}: a variant that did not "
-            f"converge is never named")
+def converged_smallest(unfinished, vs_base, candidates):
+    """The candidate with the smallest time against the base ({label: (ratio, low, high)}) of
+    those that ended no step above the tolerance ({label: steps}), or None where none did."""
+    done = [n for n in candidates if not unfinished.get(n, 0) and n in vs_base]
+    return min(done, key=lambda n: vs_base[n][0], default=None)
 
 
-def lost_the_run_words(best, beaten_by, totals):
-    """Why a verdict does not name best, whose whole run (setup included) cost more than beaten_by's."""
+def smallest_words(best, shown, base, vs_base, unfinished, what):
+    """The clause on the smallest median: best's where it converged, else (best never named) the
+    smallest of the variants that converged (shown) or that none did."""
+    def against(n):
+        return f", {interval(vs_base[n])} of {md_text(base)}'s" if n != base else ""
+    if shown == best:
+        return f"{md_text(best)} has the smallest {what}{against(best)}"
+    lead = (f"The smallest {what} is that of a variant that ended {count(unfinished.get(best, 0), 'step')} above "
+            f"the tolerance: a variant that did not converge is never named")
+    if shown is None:
+        return lead + "; no variant converged on every step"
+    return lead + f"; of those that converged on every step, {md_text(shown)} has the smallest{against(shown)}"
+
+
+def lost_the_run_words(best, beaten_by, totals, unfinished):
+    """Why a verdict does not name best, whose whole run (setup included) cost more than beaten_by's
+    (one that did not converge, by {label: steps} unfinished, is not named)."""
     return ("but over the whole run, setup included, it took longer than "
-            + " and ".join(f"{md_text(n)} ({totals[best]:.4g} ms against {totals[n]:.4g} ms)" for n in beaten_by)
+            + " and ".join(f"{runner_name(n, unfinished)} ({totals[best]:.4g} ms against {totals[n]:.4g} ms)"
+                           for n in beaten_by)
             + ": a heavy tail of slow steps")
 
 
-def _no_winner(noise, best, base):
+def _no_winner(noise, best, base, candidates):
     """The verdict where the rule names no winner (too few steps, a machine too noisy to time, a
     fastest median that did not converge or lost the whole run, or one within noise), or None."""
     aa = f"{md_text(base)} timed against itself (A/A) measured {interval(noise['aa'])} " \
          f"({100 * noise['level']:.0f}% intervals over the steps)."
-    smallest = f"{md_text(best)} has the smallest median time per step (prediction included; oracles left out)" \
-        + (f", {interval(noise['vs_base'][best])} of {md_text(base)}'s" if best != base else "")
+    unfinished = noise.get("unfinished", {})
+    shown = best if not unfinished.get(best, 0) else converged_smallest(unfinished, noise["vs_base"], candidates)
+    smallest = smallest_words(best, shown, base, noise["vs_base"], unfinished,
+                              "median time per step (prediction included; oracles left out)")
     if noise.get("too_few_steps"):
         return (f"**Verdict**: no clear winner: {count(noise['steps'], 'step')} to judge on, and a winner is named "
                 f"from at least {MIN_STEPS}.")
     if noise.get("noisy"):
         return f"**Verdict**: {too_noisy_words(base)}. {smallest}; {aa}"
     if noise.get("did_not_converge"):
-        return f"**Verdict**: no clear winner. {smallest}, {not_converged_words(best, base, noise['unfinished'])}; {aa}"
+        return f"**Verdict**: no clear winner. {smallest}; {aa}"
     if noise.get("beaten_on_total_by"):   # a heavy tail: the median's fastest lost the whole run
         return (f"**Verdict**: no clear winner. {smallest}, "
-                f"{lost_the_run_words(best, noise['beaten_on_total_by'], noise['total_ms'])}; {aa}")
+                f"{lost_the_run_words(best, noise['beaten_on_total_by'], noise['total_ms'], unfinished)}; {aa}")
     if noise["clear"]:
         return None
     runner = noise.get("runner_up")
     # (no winner, so none is called the fastest: the smallest median, with its intervals)
     return (f"**Verdict**: no clear winner within noise. {smallest}"
-            + (f"; against the runner-up {md_text(runner)} it takes {interval(noise['best_vs_runner_up'])}"
+            + (f"; against the runner-up {runner_name(runner, unfinished)} it takes "
+               f"{interval(noise['best_vs_runner_up'])}"
                if runner else "") + f"; {aa}")
 
 
@@ -155,7 +187,8 @@ def _winner(summary, noise, best, base):
     if b["at_cap"] > 0:
         text += f" ({as_share(b['at_cap'])} of its steps stopped at the cap)"
     parts = ([f"time {interval(noise['vs_base'][best])} of {md_text(base)}'s"] if best != base else []) \
-        + ([f"{interval(noise['best_vs_runner_up'])} of the runner-up {md_text(noise['runner_up'])}'s"]
+        + ([f"{interval(noise['best_vs_runner_up'])} of the runner-up "
+            f"{runner_name(noise['runner_up'], noise.get('unfinished', {}))}'s"]
            if noise.get("runner_up") else []) + [f"A/A noise floor {interval(noise['aa'])}"]
     return text + f" ({'; '.join(parts)}; {100 * noise['level']:.0f}% intervals over the steps)"
 
@@ -211,8 +244,9 @@ def loop_verdict(results, tolerance):
     if v.too_few_steps:
         return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
                 f"least {MIN_STEPS}." + left_out + _fence_caveat())
-    return (f"{_loop_head(v, base.start)} ({'; '.join(_loop_intervals(v, base.start))}; 95% intervals over the "
-            f"steps)." + left_out + _fence_caveat())
+    head = _loop_head(v, base.start, [r.start for r in fair])
+    return (f"{head} ({'; '.join(_loop_intervals(v, base.start))}; 95% intervals over the steps)."
+            + left_out + _fence_caveat())
 
 
 def _loop_left_out(candidates, fair, tolerance):
@@ -223,10 +257,17 @@ def _loop_left_out(candidates, fair, tolerance):
 
 
 def _loop_intervals(v, base):
-    """The intervals the loop verdict states: against the base, the runner-up, and A/A."""
-    return ([f"{interval(v.vs_base[v.best])} of {md_text(base)}'s time per step"] if v.best != base else []) \
-        + ([f"{interval(v.best_vs_runner_up)} of the runner-up {md_text(v.runner_up)}'s"] if v.runner_up else []) \
-        + [f"A/A noise floor {interval(v.aa)}"]
+    """The intervals the loop verdict states: best's against the base and the runner-up (only
+    where best converged: else it is not named, nor are they its), and A/A."""
+    mine = not v.unfinished.get(v.best, 0)
+    return ([f"{interval(v.vs_base[v.best])} of {md_text(base)}'s time per step"] if mine and v.best != base else []) \
+        + ([f"{interval(v.best_vs_runner_up)} of the runner-up {runner_name(v.runner_up, v.unfinished)}'s"]
+           if mine and v.runner_up else []) + [f"A/A noise floor {interval(v.aa)}"]
+
+
+def runner_name(runner, unfinished):
+    """The runner-up as a verdict names it: by its label only where it converged."""
+    return md_text(runner) if not unfinished.get(runner, 0) else "(a variant that did not converge)"
 
 
 def _loop_unfinished(r, tolerance):
@@ -236,16 +277,19 @@ def _loop_unfinished(r, tolerance):
     return set(np.flatnonzero(np.nan_to_num(np.asarray(r.residuals, np.float64), nan=0.0) > tolerance).tolist())
 
 
-def _loop_head(v, base):
+def _loop_head(v, base, candidates):
     """The loop verdict's first sentence, for the decision v against the baseline base (the
-    reasons for no winner in replay's order: _no_winner)."""
-    smallest = f"{md_text(v.best)} has the smallest median time per step of the loop"
+    reasons for no winner in replay's order: _no_winner; one that did not converge never named)."""
+    shown = v.best if not v.unfinished.get(v.best, 0) else converged_smallest(v.unfinished, v.vs_base, candidates)
+    smallest = smallest_words(v.best, shown, base, v.vs_base, v.unfinished, "median time per step of the loop") \
+        if shown != v.best else f"{md_text(v.best)} has the smallest median time per step of the loop"
     if v.noisy:
         return f"**Verdict**: {too_noisy_words(base)}. {smallest}"
     if v.did_not_converge:
-        return f"**Verdict**: no clear winner. {smallest}, {not_converged_words(v.best, base, v.unfinished)}"
+        return f"**Verdict**: no clear winner. {smallest}"
     if v.heavy_tail:
-        return f"**Verdict**: no clear winner. {smallest}, {lost_the_run_words(v.best, v.beaten_on_total_by, v.totals)}"
+        lost = lost_the_run_words(v.best, v.beaten_on_total_by, v.totals, v.unfinished)
+        return f"**Verdict**: no clear winner. {smallest}, {lost}"
     if v.clear:
         return ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
                 f"**{md_text(v.best)}**")
