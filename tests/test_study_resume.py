@@ -159,3 +159,23 @@ def test_a_link_where_the_units_are_kept_is_refused_before_the_study_runs(tmp_pa
     (tmp_path / ".out.units").symlink_to(mine)
     one_line_error(dc(*ENGINES, "-o", tmp_path / "out"), ".out.units beside it", "is not a folder")
     assert list(mine.iterdir()) == [] and not (tmp_path / "out").exists()
+
+
+def test_a_unit_timed_with_other_worker_processes_is_not_reused(tmp_path, monkeypatch, caplog):
+    """A unit timed at -j 2 (its solves beside another process's) is measured again at -j 1, and
+    reused at -j 2: the worker count is part of every unit's key."""
+    monkeypatch.setenv(units.ENV, str(tmp_path))
+    calls = []
+
+    def measure():
+        calls.append(1)
+        return {"ms": float(len(calls))}
+    with units.keeping("study engines", conditions={"jobs": 2}):
+        assert units.kept({"setting": "PGS"}, measure) == {"ms": 1.0}
+    with caplog.at_level("INFO", logger="deepcontact.studies"), units.keeping("study engines", resume=True,
+                                                                              conditions={"jobs": 1}):
+        assert units.kept({"setting": "PGS"}, measure) == {"ms": 2.0}
+    assert "another number of worker processes (-j)" in caplog.text, caplog.text
+    with units.keeping("study engines", resume=True, conditions={"jobs": 2}):
+        assert units.kept({"setting": "PGS"}, measure) == {"ms": 1.0}
+    assert len(calls) == 2

@@ -4,8 +4,9 @@ A fenced study with an output (`dc study NAME -o OUT`, fence.py) is given a fold
 output, ``.OUT.units``, which outlives the run. The study keeps there each unit of work it
 finishes (one setting measured on one scene, ...): one file a unit, written atomically, named by a
 hash of everything that decides the unit's result: the study, the versions of what it measures
-with, a hash of the code (deepcontact's and the study's own modules and native libraries), and
-the unit's own settings. A stopped run (Ctrl-C, SIGTERM, a crash, a kill) publishes nothing and
+with, a hash of the code (deepcontact's and the study's own modules and native libraries), the
+conditions it was timed under (the worker processes, -j: units timed side by side are not timed
+alone), and the unit's own settings. A stopped run (Ctrl-C, SIGTERM, a crash, a kill) publishes nothing and
 leaves the folder; the same command with --resume reuses the units whose key is the same and
 measures the rest, so that its output is the uninterrupted run's (timings apart: a unit kept
 keeps the times it was measured with). Once the output is published whole, dc's process removes
@@ -14,7 +15,7 @@ everything again), as `dc train` refuses a folder that holds a run.
 
 A study keeps its units with two calls:
 
-    with units.keeping("study engines", resume, overwrite, code=[dcstudies]):
+    with units.keeping("study engines", resume, overwrite, code=[dcstudies], conditions={"jobs": jobs}):
         row = units.kept({"scene": case, "setting": setting}, lambda: measure(case, setting), Row)
 
 kept() may be called from the study's worker processes (forked inside `keeping`). A value goes
@@ -106,16 +107,17 @@ class Journal:
     """The units of one study run: kept(key, compute, as_type) reads a unit's file or measures it
     and writes one; tally() counts what this run reused and measured (all its processes)."""
 
-    def __init__(self, folder, study, code=()):
+    def __init__(self, folder, study, code=(), conditions=None):
         from ..protocol import protocol   # (it loads the native module: kept off dc's start, which imports this)
-        self.folder, self.study = Path(folder), study
+        self.folder, self.study, self.conditions = Path(folder), study, plain(conditions or {})
         self.versions = protocol()["versions"]
         self.code = code_hash(code)
         self.tally_from = _size(self.folder / TALLY)
 
     def key(self, unit):
         """(the file name of a unit, its whole key as JSON text)."""
-        whole = {"study": self.study, "versions": self.versions, "code": self.code, "unit": plain(unit)}
+        whole = {"study": self.study, "versions": self.versions, "code": self.code, "conditions": self.conditions,
+                 "unit": plain(unit)}
         text = json.dumps(whole, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest() + ".json", text
 
@@ -170,12 +172,13 @@ _MISSING = object()
 
 
 @contextmanager
-def keeping(study, resume=False, overwrite=False, code=()):
+def keeping(study, resume=False, overwrite=False, code=(), conditions=None):
     """The units of the study run in this block, kept (kept()) where dc's process gave it a
     folder (a fenced study with -o); elsewhere kept() just measures. Refuses to start over the
     units a stopped run kept unless resume (reuse them) or overwrite (remove them) says which;
     resume without a folder is a bad option. code: the study's own packages (modules or
-    folders), whose code is part of every unit's key."""
+    folders), whose code is part of every unit's key; conditions: what the units are timed under
+    and no unit's settings say ({"jobs": worker processes}), part of every unit's key too."""
     global _journal
     folder = os.environ.get(ENV)
     if not folder:
@@ -186,7 +189,7 @@ def keeping(study, resume=False, overwrite=False, code=()):
         return
     found = units_in(folder)
     _check_start(Path(folder), study, found, resume, overwrite)
-    _journal = Journal(folder, study, code)
+    _journal = Journal(folder, study, code, conditions)
     try:
         yield _journal
         _said(_journal, resume, len(found))
@@ -216,7 +219,8 @@ def _said(journal, resume, found):
     """The line a resumed run ends its work with: what it reused and what it measured."""
     if resume:
         t = journal.tally()
-        other = (f"; the other {found - t['reused']:,} kept were measured with other options or other code, and "
+        other = (f"; the other {found - t['reused']:,} kept were measured with other options, other code or "
+                 f"another number of worker processes (-j), and "
                  f"not reused" if t["reused"] < found else "")
         log.info("kept units: %s reused, %s measured now%s", count(t["reused"], "unit"),
                  count(t["measured"], "unit"), other)

@@ -26,11 +26,11 @@ def resumable(f):
                         "again).")(f)
 
 
-def keeping(study, resume, overwrite):
+def keeping(study, resume, overwrite, jobs):
     """The study's finished units kept beside its output (units.keeping), keyed by this
-    distribution's code as well as deepcontact's."""
+    distribution's code as well as deepcontact's, and by the worker processes (-j) that time them."""
     import dcstudies
-    return units.keeping(f"study {study}", resume, overwrite, code=[dcstudies])
+    return units.keeping(f"study {study}", resume, overwrite, code=[dcstudies], conditions={"jobs": jobs})
 
 
 @contextlib.contextmanager
@@ -105,7 +105,7 @@ def stability(out, fast, scenes, jobs, resume, overwrite, verbose, quiet):
     from dcstudies import stability as S
 
     cases = options.pick_cases(S.FAST if fast else S.FULL, scenes)
-    with keeping("stability", resume, overwrite), output_file(out, overwrite):
+    with keeping("stability", resume, overwrite, jobs), output_file(out, overwrite):
         measured = protocol(jobs=jobs)
         click.echo(S.HEADER)
         bar = terminal.progress_bar(quiet, len(S.tasks(cases)), "configuration", "study stability")
@@ -176,7 +176,7 @@ def engines(out, fast, scenes, families, plugins, jobs, resume, overwrite, verbo
 
     cases = options.pick_cases(E.FAST if fast else E.FULL, scenes)
     chosen = E.settings(options.pick_families(E.FAMILIES, families), options.described_methods(plugins), fast)
-    with (keeping("engines", resume, overwrite),
+    with (keeping("engines", resume, overwrite, jobs),
           outputs.output_folder(out, E.ENGINE_FILES, overwrite, command="study engines") as work):
         measured = protocol(jobs=jobs)
         bar = terminal.progress_bar(quiet, E.tasks_count(cases, chosen), "setting", "study engines",
@@ -249,7 +249,7 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, re
                         options.described_methods(plugins))
     if fast and not options.was_given("samples"):
         samples = F.FAST_SAMPLES
-    with (keeping("frontier", resume, overwrite),
+    with (keeping("frontier", resume, overwrite, jobs),
           outputs.output_folder(out, F.FRONTIER_FILES, overwrite, command="study frontier") as work):
         measured = protocol(jobs=jobs)
         bar = terminal.progress_bar(quiet, F.tasks_count(cases, chosen), "setting", "study frontier",
