@@ -9,7 +9,9 @@ Families (each a line of settings, cheapest first):
                 switched off without rebuilding Box2D v3)
   project       the project's solver in the loop (float64 sweeps from Box2D's warm start, as
                 `dc simulate --solver pgs --tolerance T`) to residuals 1e-2 ... 1e-8, 1000 sweeps
-                at most a step (steps stopped by the cap are counted)
+                at most a step (steps stopped by the cap are counted; a setting with any is
+                marked "cap hit on N steps: not at its tolerance" and is never named its family's
+                cheapest passing setting, whatever its criteria: it did not solve to its tolerance)
   lagged        the same with the solve in body space and its lagged factor (`--accelerate
                 lagged`, the factor carried from step to step) to 1e-4 and 1e-8
 
@@ -37,7 +39,8 @@ from deepcontact.solver.metrics import drift
 from deepcontact.solver.settings import CAP, SolveSettings
 from deepcontact.studies import units
 from . import efforts, stability as S
-from .tables import SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, slug
+from .tables import (SettingRow, accuracy_plot, csv_text, fmt as _fmt, markdown_table, setting_cell,
+                     short_of_tolerance, slug)
 
 TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 
@@ -294,13 +297,14 @@ TIE = 0.05   # times within 5% of each other are one time (timing noise on micro
 def cheapest(rows):
     """{family: the passing row of its sweep (not an ablation) with the least time per step, or
     None} of one scene's rows. Rows within TIE of the least time count as tied, and the tie goes
-    to the least effort (the first in the sweep's order)."""
+    to the least effort (the first in the sweep's order). A row whose cap stopped steps above its
+    tolerance is not a candidate (tables.short_of_tolerance)."""
     out = {}
     for family in families_of(rows):
         mine = [r for r in rows if r.family == family and not r.variant]
         if not mine:
             continue
-        ok = [r for r in mine if r.passed and math.isfinite(r.ms_per_step)]
+        ok = [r for r in mine if r.passed and math.isfinite(r.ms_per_step) and not short_of_tolerance(r)]
         if not ok:
             out[family] = None
             continue
@@ -314,7 +318,7 @@ def _most(rows, family):
     return [r for r in rows if r.family == family and not r.variant][-1].setting
 
 
-COLUMNS = [("family", lambda r: r.family), ("setting", lambda r: r.setting),
+COLUMNS = [("family", lambda r: r.family), ("setting", setting_cell),
            ("passes", lambda r: "yes" if r.passed else "no"), ("ms / step", lambda r: _fmt(r.ms_per_step)),
            ("drift from reference (cm)", lambda r: _fmt(r.drift, 100)),
            ("penetration at rest (cm)", lambda r: _fmt(r.penetration, 100)),

@@ -22,6 +22,20 @@ class SettingRow:
     ms_per_step: float   # mean over a run stepped without recording
 
 
+def short_of_tolerance(row):
+    """Whether a setting with a tolerance left steps above it, stopped by its cap (row.capped:
+    the project's sweep cap, or an engine's own where it says so): such a setting is marked in
+    the tables and never named the cheapest passing setting (it did not solve to its tolerance)."""
+    return bool(getattr(row, "capped", None))
+
+
+def setting_cell(row):
+    """A row's setting as the tables show it, marked where its cap stopped steps above its tolerance."""
+    if not short_of_tolerance(row):
+        return row.setting
+    return f"{row.setting} (cap hit on {row.capped:,} step{'s' if row.capped != 1 else ''}: not at its tolerance)"
+
+
 def fmt(v, scale=1.0, digits=3):
     """A table cell: v * scale to `digits` significant digits; "" for None or nan, "inf"."""
     if v is None or (isinstance(v, float) and math.isnan(v)):
