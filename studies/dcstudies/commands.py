@@ -155,7 +155,8 @@ def engines(out, fast, scenes, families, plugins, jobs, resume, overwrite, verbo
     trajectory (docs/results/engines.md, "Engines").
 
     Writes engines.md (the cheapest passing setting of each engine per scene,
-    and a table per scene), engines.csv and pareto-SCENE.png. Times are one
+    never one whose cap stopped steps above its tolerance: marked "cap hit on
+    N steps" in the table per scene), engines.csv and pareto-SCENE.png. Times are one
     thread's; -j runs scenes side by side (each time is then taken beside
     another process: use -j 1 for the published table). Each setting measured
     on a scene is kept beside the output until it is written: after a stop,
@@ -220,7 +221,8 @@ def frontier(out, fast, scenes, families, tolerances, samples, plugins, jobs, re
     (docs/results/frontier.md, "The frontier at scale").
 
     Writes frontier.md (for each engine setting, the cheapest project setting
-    at least as accurate, and a table per scene), frontier.csv and
+    at least as accurate, never one whose cap stopped steps above its
+    tolerance: marked "cap hit on N steps" in the table per scene), frontier.csv and
     frontier-SCENE.png. Times are one thread's; -j runs scenes side by side
     (each time then taken beside another process). The full study takes hours;
     --families and --tolerances run part of it (the summary then matches
