@@ -155,7 +155,7 @@ def _step(path, out, size, window, contacts, color_by, fmt, impulse_scale=None):
     from deepcontact.step.reader import read_step
     from deepcontact.step.run_folder import STEP_FILE
 
-    header, bodies, contacts_ = read_step(path, validate=False)
+    header, bodies, contacts_ = read_step(path)
     shapes = read_shapes(path)
     win = Window(*window) if window else window_for(shapes, [(header, bodies, contacts_)])
     if impulse_scale is None and contacts:   # the simulation's scale, as its movie and viewer use

@@ -147,7 +147,8 @@ def test_bad_requests(pile_run, tmp_path):
     assert out.read_bytes() == before
     bad = tmp_path / "bad.xml"
     bad.write_text(step.read_text().replace('<spin omega="', '<spin omega="x', 1))
-    one_line_error(dc("render", str(bad), "-o", str(tmp_path / "b.png")), f"{bad}:", "is not a number")
+    one_line_error(dc("render", str(bad), "-o", str(tmp_path / "b.png")), f"{bad}:",
+                   "is not a valid value of the atomic type 'finite'")   # (the schema's words: read through it)
     assert not (tmp_path / "b.png").exists()
 
 

@@ -121,3 +121,23 @@ def test_what_the_table_does_not_decide_the_xsd_does(pile_run, tmp_path, case):
         assert xsd_valid
     except InputError as e:
         assert "left to the XSD" not in e.message
+
+
+@pytest.mark.parametrize("case", ["white space in an empty element", "xsi:nil false"])
+def test_every_command_that_reads_a_run_refuses_what_the_xsd_refuses(pile_run, tmp_path, case):
+    """dc validate refused such a file, but dc rasterize built a dataset from it, dc render drew
+    it and dc evaluate judged it: they read with the schema's table off."""
+    import shutil
+    run = tmp_path / "run"
+    shutil.copytree(pile_run, run)
+    path = max(run.glob("seed-000000/step-*.xml"), key=lambda p: p.stat().st_size)
+    edited, n = re.subn(REFUSED[case][0], REFUSED[case][1], path.read_text(), count=1)
+    assert n == 1
+    path.write_text(edited)
+    step = int(path.stem.split("-")[1])
+    for args in (["rasterize", run, "-o", tmp_path / "data"], ["render", path, "-o", tmp_path / "s.png"],
+                 ["evaluate", run, "--starts", "builtin", "--every", str(step), "--no-budgets", "--no-plots",
+                  "-o", tmp_path / "e"]):
+        r = dc(*args)
+        assert r.returncode == 1 and str(path) in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+        assert not (tmp_path / "data").exists() and not (tmp_path / "s.png").exists() and not (tmp_path / "e").exists()

@@ -42,7 +42,7 @@ def replay_simulation(task):
     steps = points = 0
     differences = []
     for path in files:
-        header, bodies, contacts = read_step(path, validate=False)
+        header, bodies, contacts = read_step(path)
         if scene is not None:
             check_origin(header, scene, seed, path, engine)
         problem = StepProblem.from_step(header, bodies, contacts, path)

@@ -56,7 +56,7 @@ def simulation_files(run_dir, seed=None, every=1):
 
 
 def read_frame(clip, path):
-    header, bodies, contacts = read_step(path, validate=False)
+    header, bodies, contacts = read_step(path)
     if clip.scene is not None:
         check_origin(header, clip.scene, clip.seed, path, clip.engine)
     return header, bodies, contacts
@@ -92,7 +92,7 @@ def run_impulse_scale(files):
     if not files:
         return 0.0
     picked = [files[round(i)] for i in np.linspace(0, len(files) - 1, min(SCALE_SAMPLE, len(files)))]
-    steps = {f: read_step(f, validate=False) for f in dict.fromkeys([files[0], files[-1], *picked])}
+    steps = {f: read_step(f) for f in dict.fromkeys([files[0], files[-1], *picked])}
     window = window_for(read_shapes(files[0]), [steps[files[0]], steps[files[-1]]])
     return impulse_scale_for([steps[f][2]["normal_impulse"] for f in picked], window)
 
