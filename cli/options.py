@@ -60,6 +60,7 @@ def command(name):
             output.completed.clear()
             if "deepcontact.contest.sandbox" in sys.modules:   # (in-process callers: what an earlier one ran bare)
                 sys.modules["deepcontact.contest.sandbox"].ran_bare.clear()
+            output.record.remarks.clear()
             try:
                 done = f(*args, verbose=verbose, quiet=quiet, **kwargs)
             except BaseException as e:

@@ -558,6 +558,7 @@ def test_without_its_fence_a_plugin_start_runs_only_when_the_user_says_so(run, t
         assert r.stderr.strip().splitlines()[-1].startswith("dc evaluate: plug-in code ran without its sandbox, as "
                                                             "--unfenced allowed (missing here: ")
         assert "MISSING here: " in (tmp_path / "r" / "report.md").read_text()
+        assert "namespaces" in json.loads((tmp_path / "r" / ".dc-output.json").read_text())["unfenced"]
     finally:
         forget(name)
         monkeypatch.undo()

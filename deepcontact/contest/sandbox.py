@@ -28,6 +28,7 @@ import sys
 import time
 
 from ..leftovers import at_end, own_processes
+from ..output import record
 from ..plugins import PluginError
 from . import machine
 
@@ -66,6 +67,7 @@ def refuse_bare(who, missing):
                           f"{', '.join(missing)}): it runs bare, with your access to your files, only with "
                           f"{UNFENCED_OPTION}")
     ran_bare.update(missing)
+    record.remarks["unfenced"] = sorted(ran_bare)   # (in the record of every output the command writes)
 
 
 # --- Groups left behind ---------------------------------------------------------------------------

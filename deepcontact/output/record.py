@@ -69,10 +69,16 @@ def read_record(folder):
     return rec if ok else None
 
 
+# What the command says of how it ran, in every record it writes (filled by the layers above: the
+# fences plug-in code ran without, "unfenced", where --unfenced allowed it; cleared as a command starts).
+remarks = {}
+
+
 def write_record(folder, command, state, names=(), temporary=()):
-    """The record of an output folder (state "partial" while it is built, "done" when whole)."""
+    """The record of an output folder (state "partial" while it is built, "done" when whole), with
+    the command's remarks."""
     files.write_text(Path(folder) / RECORD, json.dumps({"command": command, "state": state, "files": sorted(names),
-                                                        "temporary": sorted(temporary)}, indent=0) + "\n")
+                                                        "temporary": sorted(temporary), **remarks}, indent=0) + "\n")
 
 
 def our_folder(p, empty_ok=False, command=None):
