@@ -85,14 +85,15 @@ def held_to_tolerance(path, tolerance, mode="float64", step=None):
     where the caller has read it; its <solve> checked against itself as it was read.
 
     One rule per arithmetic, no factor (docs/formats.md, "Validating"). A float64 solve stops on
-    its own iterate, which the file holds rounded to float32: the step is held to the tolerance
-    plus the most that rounding can move its residual (solver.rounding.rounding_bound, from the
-    stored impulses); a step at its cap need not meet it, but the residual it records must be its
-    impulses' to that bound. A float32 solve (float32, exact) is stored as computed, but measured
-    its residual on the body velocities its sweeps carried in float32: a step above the tolerance
-    is replayed, and passes where the run's own solve, from the step's recorded start with its
-    recorded settings, gives its impulses bit for bit and stops below the tolerance, or at the cap
-    with the sweeps and residual the step records."""
+    its own iterate, which the file holds rounded to float32: the residual every step records must
+    be its impulses' to the most that rounding can move it (solver.rounding.rounding_bound, from
+    the stored impulses), and the step is held to the tolerance plus that; a step at its cap need
+    not meet it, and is counted above it where the residual it records is (as its run counted it).
+    A float32 solve (float32, exact) is stored as computed, but measured its residual on the body
+    velocities its sweeps carried in float32: a step above the tolerance or at its cap is replayed,
+    and passes where the run's own solve, from the step's recorded start with its recorded
+    settings, gives its impulses bit for bit and stops below the tolerance, or at the cap with the
+    sweeps and residual the step records."""
     header, bodies, contacts = read_step(path, validate=False) if step is None else step
     claim = header.get("solve")
     if claim is None:
@@ -108,36 +109,52 @@ def held_to_tolerance(path, tolerance, mode="float64", step=None):
     problem = StepProblem.from_step(header, bodies, contacts, path)
     recorded = (contacts["normal_impulse"].astype(float), contacts["tangent_impulse"].astype(float))
     found = _residual(problem, *recorded)
-    if found <= tolerance:   # (nearly every step; never where found is NaN)
-        return None, False
     # a float64 solve, and a plug-in's in any mode (the project judges its answer in float64),
     # measured the residual of the impulses the file rounds; a built-in float32 solve is replayed
     if mode == "float64" or claim.get("origin") == "plug-in":
         return _judged_on_rounding(problem, claim, recorded, found, (tolerance, source))
+    if found <= tolerance and not _at_cap(claim):   # (nearly every step; never where found is NaN)
+        return None, False
     return _judged_on_replay(problem, claim, recorded, found, (tolerance, source))
+
+
+def _at_cap(claim):
+    """Whether a <solve> records as many sweeps as its cap."""
+    return _whole(claim.get("iterations")) >= _whole(claim.get("max_iterations"))
 
 
 def _judged_on_rounding(problem, claim, recorded, found, held):
     """held_to_tolerance's verdict on a step whose solve measured, in float64, the impulses the
-    file holds rounded to float32 (found: their residual recomputed, above the tolerance). held:
-    (tolerance, where it comes from)."""
+    file holds rounded to float32 (found: their residual recomputed). The residual the file records
+    is the one measured, to the most that rounding moves it; a step that stopped before its cap is
+    within that of the tolerance; one at its cap is above the tolerance (counted, as its run counted
+    it) where the residual it records is. held: (tolerance, where it comes from)."""
     tolerance, source = held
-    rounding = rounding_bound(problem, *recorded)
-    if found <= tolerance + rounding:
-        return None, False
-    line = (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {ABOVE} "
-            f"{tolerance:.7g} plus {rounding:.3g}, the most float32 rounding of its impulses can move it "
-            f"({source}; the file records {claim.get('residual')})")
-    cap = _whole(claim.get("max_iterations"))
-    if _whole(claim.get("iterations")) < cap:
-        return line, False
-    claimed = _number(claim.get("residual"))
-    if _agrees(found, claimed, rounding):   # (stopped at the cap with the residual it records)
-        return line, True
-    return (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {ABOVE} "
-            f"{tolerance:.7g} at its cap of {cap} sweeps, but the file records {claim.get('residual')}: further "
-            f"apart than the most float32 rounding of its impulses and residual can move them "
-            f"({rounding + _half_spacing(claimed):.3g}; {source})"), False
+    claimed, capped = _number(claim.get("residual")), _at_cap(claim)
+    # (the bound only where it decides: a residual recorded as recomputed, below the tolerance, needs none)
+    decides = not _agrees(found, claimed, 0.0) or (found > tolerance and not capped)
+    rounding = rounding_bound(problem, *recorded) if decides else 0.0
+    recomputed = f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64)"
+    if not capped and found > tolerance + rounding:
+        return (f"{recomputed}, {ABOVE} {tolerance:.7g} plus {rounding:.3g}, the most float32 rounding of its "
+                f"impulses can move it ({source}; the file records {claim.get('residual')})"), False
+    if not _agrees(found, claimed, rounding):
+        return _disagreement(claim, found, recomputed, rounding, held), False
+    if capped and np.float32(claimed) > np.float32(tolerance):   # (as its run counted it: recorded, above)
+        return (f"{recomputed}, as its <solve> records it, {ABOVE} {tolerance:.7g} at its cap of "
+                f"{claim.get('max_iterations')} sweeps ({source})"), True
+    return None, False
+
+
+def _disagreement(claim, found, recomputed, rounding, held):
+    """The line for a step whose recorded residual is not its impulses' (found) to `rounding`."""
+    tolerance, source = held
+    above = f" {ABOVE} {tolerance:.7g}" if found > tolerance else ","
+    cap = claim.get("max_iterations")
+    where = f" at its cap of {cap} sweeps" if _at_cap(claim) else f" after {claim.get('iterations')} of {cap} sweeps"
+    return (f"{recomputed}{above}{where}, but the file records {claim.get('residual')}: further apart than the "
+            f"most float32 rounding of its impulses and residual can move them "
+            f"({rounding + _half_spacing(_number(claim.get('residual'))):.3g}; {source})")
 
 
 def _judged_on_replay(problem, claim, recorded, found, held):
@@ -161,7 +178,8 @@ def _replayed(problem, claim, recorded, tolerance):
     """A float32 step above the tolerance, replayed: the run's own solve from the step's recorded
     start with its <solve>'s settings (checked against the run's manifest as the file was read).
     (None, False) where it gives the recorded impulses bit for bit and stops below the tolerance
-    (the run's arithmetic measured it so); (a line, True) where it gives them and stops above it
+    after the sweeps and with the residual the step records (the run's arithmetic measured it so);
+    (a line, True) where it gives them and stops above it
     at the cap after the sweeps and with the residual the step records (counted, as its run
     recorded); (a line, False) where the step records others; None where it does not give them."""
     try:
@@ -174,11 +192,16 @@ def _replayed(problem, claim, recorded, tolerance):
                zip((s.normal_impulse, s.tangent_impulse), recorded))
     if not same:
         return None
-    if s.residual < tolerance:
+    # (the sweeps and residual it records are the replay's, below the tolerance or at the cap)
+    recorded_so = (s.iterations == _whole(claim.get("iterations"))
+                   and _agrees(s.residual, _number(claim.get("residual")), 0.0))
+    below = s.residual < tolerance
+    if below and recorded_so:
         return None, False
     line = (f"the step's residual {s.residual:.7g}, as its run's {claim.get('mode')} solve measured it (replayed), "
-            f"{ABOVE} {tolerance:.7g} at the cap of {s.iterations} sweeps")
-    if s.iterations == _whole(claim.get("iterations")) and _agrees(s.residual, _number(claim.get("residual")), 0.0):
+            + (f"below {tolerance:.7g} after {s.iterations} sweeps" if below else
+               f"{ABOVE} {tolerance:.7g} at the cap of {s.iterations} sweeps"))
+    if recorded_so:
         return line, True
     return f"{line}, but the file records {claim.get('iterations')} sweeps and residual {claim.get('residual')}", False
 
