@@ -253,19 +253,14 @@ JOURNALS = {"fifo": os.mkfifo, "folder": os.mkdir, "link": lambda p: os.symlink(
 @pytest.mark.parametrize("command", sorted(FOLDER_COMMANDS))
 def test_a_journal_that_is_not_a_file_is_refused_before_any_work_by_every_command(root, run, dataset, command,
                                                                                  monkeypatch):
-    import time
     monkeypatch.chdir(root)
     before = mine(root)
     for kind, make in JOURNALS.items():
         make(root / ".out.swap")
-        started = time.perf_counter()
         r = dc(*FOLDER_COMMANDS[command](run, dataset, root / "out"))
-        took = time.perf_counter() - started
+        # the message is the one the checks before any work give ("nothing was done"; at the swap
+        # the message would be another): no timing, which a loaded machine makes a coin toss
         one_line_error(r, ".out.swap", "nothing was done")
-        # the message is the one the checks before any work give (at the swap the message would be
-        # another); the time says no command did its work first (each study runs minutes; the
-        # first call imports torch)
-        assert took < 10, (kind, took)
         assert not (root / "out").exists() and mine(root) == before, kind
         os.rmdir(root / ".out.swap") if kind == "folder" else os.unlink(root / ".out.swap")
 
