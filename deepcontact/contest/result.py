@@ -9,7 +9,8 @@ The record is no proof against a hostile plug-in (its code runs in the process t
 and could write the whole output too); it keeps a crash from being published as a result."""
 import json
 import os
-import stat
+
+from ..regular import read_regular
 
 ENV = "DC_RESULT_FILE"   # where the fenced command writes its record (in its private TMPDIR)
 NAME = "dc-result.json"
@@ -51,19 +52,9 @@ def read(path):
     """dc's side: the record at path as {"ended", "code", "message"}, or None where there is none
     or it is not one (a link, a FIFO, too large, not the JSON written above): read once, through
     a descriptor opened without following links, never blocking."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError:
+    data = read_regular(path, LIMIT)
+    if data is None:
         return None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > LIMIT:
-            return None
-        data = os.read(fd, LIMIT + 1)
-    except OSError:
-        return None
-    finally:
-        os.close(fd)
     try:
         record = json.loads(data)
     except (ValueError, RecursionError):

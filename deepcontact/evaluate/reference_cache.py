@@ -15,7 +15,6 @@ import io
 import json
 import logging
 import os
-import stat
 import sys
 import zipfile
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ import numpy as np
 
 from .. import jsontext, output, workers
 from ..errors import InputError
+from ..regular import read_regular
 from ..output.names import beside
 from ..scene.xml import to_xml
 
@@ -123,18 +123,9 @@ def _keep(path, key, trajectory):
 
 def _load(path, key):
     """The trajectory kept at path if it is one and its key is key; None otherwise."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError:
+    data = read_regular(path, FILE_MAX)
+    if data is None:
         return None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > FILE_MAX:
-            return None
-        with os.fdopen(fd, "rb", closefd=False) as f:
-            data = f.read(FILE_MAX + 1)
-    finally:
-        os.close(fd)
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
             meta = jsontext.loads(str(z["meta"]))
