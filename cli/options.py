@@ -85,7 +85,8 @@ _UNFENCED_HELP = ("Run plug-in code bare where this machine cannot build its san
                   "was missing.")
 
 
-def _allow_unfenced(ctx, param, value):
+def allow_unfenced(ctx, param=None, value=True):
+    """--unfenced's callback: plug-in code may run bare for the rest of the command ctx."""
     if value:
         from deepcontact.contest import sandbox
         os.environ[sandbox.UNFENCED_ENV] = "1"
@@ -93,7 +94,7 @@ def _allow_unfenced(ctx, param, value):
 
 
 def unfenced(f):
-    return click.option("--unfenced", is_flag=True, expose_value=False, callback=_allow_unfenced, is_eager=True,
+    return click.option("--unfenced", is_flag=True, expose_value=False, callback=allow_unfenced, is_eager=True,
                         help=_UNFENCED_HELP)(f)   # (eager: before --help, which lists plug-in studies)
 
 

@@ -132,8 +132,7 @@ def _fenced_command(name):
         from deepcontact.studies import fence
         if sandbox.UNFENCED_OPTION in args:   # (dc's own option, wherever it stands: the study never sees it)
             args = [a for a in args if a != sandbox.UNFENCED_OPTION]
-            os.environ[sandbox.UNFENCED_ENV] = "1"
-            click.get_current_context().call_on_close(lambda: os.environ.pop(sandbox.UNFENCED_ENV, None))
+            options.allow_unfenced(click.get_current_context())
         raise click.exceptions.Exit(fence.run(name, args))
 
     @click.command(name, add_help_option=False,

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from .. import output, protocol
 from ..errors import InputError, show_path
+from ..output.trees import open_folder_under
 from ..plugins import PluginError
 from . import machine, result, sandbox
 from .broker import ENV as BROKER_ENV, Broker
@@ -145,7 +146,6 @@ def check_output(path, command, overwrite, writes):
 
 
 OUTPUT_DEPTH = 64   # folders a fenced command's output may nest (a walk past it is no output of ours)
-_FOLDER = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
 
 
 def _check_contents(produced, target, who):
@@ -163,7 +163,7 @@ def _check_contents(produced, target, who):
     todo = [()] if stat.S_ISDIR(mode) else []
     while todo:
         parts = todo.pop()
-        fd = _open_under(produced, parts)
+        fd = open_folder_under(produced, parts)
         try:
             with os.scandir(fd) as found:
                 for entry in found:
@@ -177,17 +177,6 @@ def _check_contents(produced, target, who):
         finally:
             os.close(fd)
 
-
-def _open_under(top, parts):
-    """A descriptor of the folder top/parts..., each step opened without following a link."""
-    fd = os.open(top, _FOLDER)
-    for part in parts:
-        try:
-            child = os.open(part, _FOLDER, dir_fd=fd)
-        finally:
-            os.close(fd)
-        fd = child
-    return fd
 
 
 def publish(produced, target, command, who):

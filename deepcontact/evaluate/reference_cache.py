@@ -18,6 +18,7 @@ import os
 import sys
 import zipfile
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -66,9 +67,11 @@ def cached(scene, steps, folder, settings, compute):
     return trajectory
 
 
+@lru_cache(maxsize=None)
 def _build():
     """What identifies the arithmetic that stepped a reference: the native module's bytes (its
-    compiler and flags), the package's and numpy's versions."""
+    compiler and flags), the package's and numpy's versions. (Once a process: the module is
+    megabytes, and a run's every simulation asks.)"""
     from .. import _box2d, __version__
     digest = hashlib.sha256()
     with open(_box2d.__file__, "rb") as f:

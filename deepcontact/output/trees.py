@@ -62,6 +62,19 @@ def remove_tree_quietly(path):
         pass
 
 
+def open_folder_under(top, parts):
+    """A descriptor of the folder top/parts..., each step opened without following a link (one
+    descriptor held at a time: a path past PATH_MAX is never named)."""
+    fd = os.open(top, _DIRECTORY)
+    for part in parts:
+        try:
+            child = os.open(part, _DIRECTORY, dir_fd=fd)
+        finally:
+            os.close(fd)
+        fd = child
+    return fd
+
+
 def _enter(name, dir_fd=None):
     """A descriptor of the folder name (never through a link), made ours to empty."""
     fd = os.open(name, _DIRECTORY, dir_fd=dir_fd)

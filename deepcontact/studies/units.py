@@ -35,6 +35,7 @@ from pathlib import Path
 from .. import jsontext, output
 from ..errors import InputError, OptionError, count
 from ..output.names import beside, kind
+from ..regular import read_regular
 
 log = logging.getLogger("deepcontact.studies")
 
@@ -137,8 +138,11 @@ class Journal:
     def _read(self, path, key, as_type):
         """The value kept in path for key, or _MISSING (no such file, another key, or not one this
         module wrote: then measured again and written over)."""
+        raw = read_regular(path, UNIT_MAX)
+        if raw is None:
+            return _MISSING
         try:
-            data = jsontext.loads(_regular_bytes(path, UNIT_MAX))
+            data = jsontext.loads(raw)
             if json.dumps(data["key"], sort_keys=True, separators=(",", ":")) != key:
                 return _MISSING
             return restored(data["value"], as_type)
@@ -161,10 +165,8 @@ class Journal:
 
     def tally(self):
         """{"reused": n, "measured": n} of this run."""
-        try:
-            lines = _regular_bytes(self.folder / TALLY, 64 << 20)[self.tally_from:].decode(errors="replace").split()
-        except (OSError, ValueError):
-            lines = []
+        raw = read_regular(self.folder / TALLY, 64 << 20) or b""
+        lines = raw[self.tally_from:].decode(errors="replace").split()
         return {what: lines.count(what) for what in ("reused", "measured")}
 
 
@@ -289,21 +291,6 @@ def code_hash(packages=()):
         for path in sorted(p for p in root.rglob("*") if p.suffix in _CODE_SUFFIXES and p.is_file()):
             h.update(str(path.relative_to(root.parent)).encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
-
-
-def _regular_bytes(path, limit):
-    """The bytes of the regular file at path, no link followed and nothing else opened for
-    reading (a FIFO would block); ValueError where it is not one, or holds more than limit."""
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise ValueError("not a regular file")
-        data = os.read(fd, limit + 1)
-    finally:
-        os.close(fd)
-    if len(data) > limit:
-        raise ValueError("too large")
-    return data
 
 
 def _size(path):
