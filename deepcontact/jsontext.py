@@ -17,12 +17,12 @@ def loads(data, **kwargs):
         value = json.loads(data, **kwargs)
     except RecursionError:
         raise ValueError(f"it is nested deeper than {MAX_DEPTH} levels (dc writes none so deep)") from None
-    if _deeper(value, MAX_DEPTH):
+    if deeper(value, MAX_DEPTH):
         raise ValueError(f"it is nested deeper than {MAX_DEPTH} levels (dc writes none so deep)")
     return value
 
 
-def _deeper(value, limit):
+def deeper(value, limit):
     """Whether value (parsed JSON) nests lists and objects more than `limit` deep; walked with a
     stack of its own, not by recursion."""
     stack = [(value, 1)]

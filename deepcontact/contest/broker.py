@@ -17,7 +17,7 @@ import socket
 import threading
 import time
 
-from . import grants, machine, sandbox
+from . import grants, machine, sandbox, shape
 
 ENV = "DC_SANDBOX_BROKER"   # the job's end of the broker's socket (a descriptor number)
 LIVE_LIMIT = 64             # sandboxes a job may hold at once
@@ -241,9 +241,12 @@ class Broker:
                 line.close()
                 return
             try:
+                request = shape.parsed(data, "broker request", MESSAGE_MAX)   # (every field typed and bounded)
                 with self._lock:
-                    answer = self._answer(json.loads(data), fds)
-            except Exception as e:   # (a request the job made up: refused in one line, the broker goes on)
+                    answer = self._answer(request, fds)
+            except shape.ShapeError as e:   # (a request the job made up: refused naming its field)
+                answer = {"error": f"refused: {e}"}
+            except Exception as e:   # (one the form allows that cannot be done: refused in one line, the broker goes on)
                 answer = {"error": f"refused: {type(e).__name__}: {e}"}
             finally:
                 for fd in fds:

@@ -18,7 +18,7 @@ from ..solver.methods import SOLVERS, check_plausible, is_native, judge
 from ..warmstart.starts import NAMES, STARTS, Builtin, Checked, Remote
 from .guest import TRAITS
 from . import broker as _broker, grants, sandbox
-from .wire import ANSWER_MAX, checked_answer, unanswered, unpack
+from .wire import ANSWER_MAX, checked_answer, held_claims, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
 CALL_FLOOR = 60.0        # seconds every call may take, at least
@@ -268,6 +268,7 @@ class RemoteMethod:
         took, header, arrays = self.contestant.call(request, deadline_for(n))
         self.pending += min(self.null.call(request, deadline_for(n))[0], took)
         normal, tangent = checked_answer(self.contestant.label, arrays, n)
+        held_claims(self.contestant.label, header, arrays, settings.max_iterations)   # (its iterations are recorded)
         check_plausible(self.name, problem, normal, tangent)
         judged = judge(problem, normal, tangent)
         return dataclasses.replace(judged, iterations=int(header.get("iterations", 0)), relaxation=settings.relaxation)

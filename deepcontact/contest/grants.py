@@ -14,8 +14,10 @@ from ..model.arch import NETWORKS
 from ..simulate.engines import ENGINES
 from ..solver.methods import SOLVERS
 from ..warmstart.starts import STARTS
+from .shape import KEY_MOST, NAMES_MOST
 
-NAMES_MAX, NAME_MAX = 64, 1000   # a grant's names (or modules, or files), and the characters of each
+# a grant's names (or modules, or files), and the characters of each (the broker's form of a request)
+NAMES_MAX, NAME_MAX = NAMES_MOST, KEY_MOST
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from ..simulate.engines import ENGINES, Engine
 from ..solver import methods
 from ..solver.methods import call_plugin, is_native, solve
 from ..warmstart.starts import STARTS, Checked, asks, make_starts
+from .shape import ERROR_MOST, TRACEBACK_MOST
 from .wire import pack
 
 TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
@@ -95,7 +96,9 @@ def _traceback(e):
 
 
 def _error(e):
-    return pack({"error": _line(e), "traceback": _traceback(e)})
+    """An error's answer, its line and traceback cut to what the judge reads (shape.ANSWER: the
+    line's start, the traceback's innermost frames)."""
+    return pack({"error": _line(e)[:ERROR_MOST], "traceback": _traceback(e)[-TRACEBACK_MOST:]})
 
 
 def _answer(op, request, setup, start):

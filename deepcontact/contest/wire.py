@@ -1,28 +1,19 @@
 """The wire between the judge and a contestant: requests (the judge's own data, pickled) and
 answers (a JSON header and float64 arrays, never unpickled: an answer is data, not code). One
-place packs an answer and one place reads it, checking every field before the judge uses it: a
-field of the wrong type, a number that is not finite, an array of the wrong length, is one line
-naming the contestant."""
+place packs an answer and one place reads it, its header held to its form by the one checker of
+every message (shape.py: each field's type and bounds, the header's bytes, its depth) before the
+judge uses it: a field of the wrong type, a number that is not finite, an array of the wrong
+length, a header nested or sized past its form, is one line naming the contestant."""
 import json
-import math
 import struct
 
 import numpy as np
 
-from .. import jsontext
 from ..plugins import PluginError
+from . import shape
 
 ANSWER_MAX = 1 << 28   # bytes an answer may take (three float64 arrays of 10 million contact points): no more is read
-
-# The fields an answer's header may hold, with their checks: (type, lowest value).
-FIELDS = {"iterations": (int, 0), "fallback": (int, 0), "factorizations": (int, 0), "traits": (dict, None),
-          "seconds": (dict, None), "described": (dict, None), "error": (str, None), "traceback": (str, None),
-          "ready": (int, 0), "engine": (dict, None), "layout": (dict, None), "stats": (dict, None),
-          "dt_ratio": (float, 0.0), "deepest": (float, 0.0), "built": (int, 0)}
-
-
-def _no_constant(name):
-    raise ValueError(f"{name} is not a number JSON allows")
+HEADER_MAX = 1 << 20   # bytes of its header (every field's text and entries bounded by its form: shape.ANSWER)
 
 
 def pack(header, arrays=None):
@@ -34,50 +25,32 @@ def pack(header, arrays=None):
 
 
 def unpack(data, who):
-    """(header, arrays) of an answer, every header field checked (FIELDS); PluginError naming
-    `who` for bytes that are not one."""
+    """(header, arrays) of an answer, its header held to its form (shape.ANSWER); PluginError
+    naming `who` for bytes that are not one."""
     try:
         (n,) = struct.unpack_from("<I", data)
-        header = jsontext.loads(data[4:4 + n], parse_constant=_no_constant)
-        if not isinstance(header, dict):
-            raise ValueError("its header is not an object")
-        arrays, at = {}, 4 + n
-        entries = header.pop("arrays", None)
-        if not isinstance(entries, list):
-            raise ValueError("its header names no arrays")
-        for entry in entries:
-            if not (isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], str)
-                    and type(entry[1]) is int and entry[1] >= 0):
-                raise ValueError("a bad array entry")
-            name, size = entry
-            if at + 8 * size > len(data):
-                raise ValueError("an array runs past the answer's end")
-            arrays[name] = np.frombuffer(data, np.float64, size, at).copy()
-            at += 8 * size
-            if name not in ("normal", "tangent") and not np.all(np.isfinite(arrays[name])):
-                raise ValueError(f"its {name} hold a value that is not finite")   # (impulses: checked_answer)
-        if at != len(data):
-            raise ValueError("trailing bytes")
-        for key, value in header.items():
-            _check_field(key, value)
-    except (ValueError, TypeError, KeyError, struct.error) as e:
+        if 4 + n > len(data):
+            raise ValueError("its header runs past the answer's end")
+        header = shape.parsed(data[4:4 + n], "answer", HEADER_MAX)
+        arrays = _arrays(data, 4 + n, header.pop("arrays"))
+    except (ValueError, struct.error) as e:
         raise PluginError(f"{who} answered with something that is not an answer ({e})") from None
     return header, arrays
 
 
-def _check_field(key, value):
-    if key not in FIELDS:
-        raise ValueError(f"an unknown field {key!r}")
-    kind, lowest = FIELDS[key]
-    if kind is int and (type(value) is not int or value < lowest):
-        raise ValueError(f"{key} is {value!r}, not a whole number >= {lowest}")
-    if kind is float and (type(value) not in (int, float) or not math.isfinite(value) or value < lowest):
-        raise ValueError(f"{key} is {value!r}, not a finite number >= {lowest}")
-    if kind not in (int, float) and not isinstance(value, kind):
-        raise ValueError(f"{key} is {type(value).__name__}, not {kind.__name__}")
-    if key == "seconds" and not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
-                                    for v in value.values()):
-        raise ValueError("seconds holds a value that is not a finite number >= 0")
+def _arrays(data, at, entries):
+    """The arrays an answer's header names ([name, length] each), read from `data` at `at` on."""
+    arrays = {}
+    for name, size in entries:
+        if at + 8 * size > len(data):
+            raise ValueError("an array runs past the answer's end")
+        arrays[name] = np.frombuffer(data, np.float64, size, at).copy()
+        at += 8 * size
+        if name not in ("normal", "tangent") and not np.all(np.isfinite(arrays[name])):
+            raise ValueError(f"its {name} hold a value that is not finite")   # (impulses: checked_answer)
+    if at != len(data):
+        raise ValueError("trailing bytes")
+    return arrays
 
 
 def checked_answer(label, arrays, points):
@@ -95,6 +68,19 @@ def checked_answer(label, arrays, points):
     if np.any(out[0] < 0):
         raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
     return out
+
+
+def held_claims(label, header, arrays, cap):
+    """A plug-in method's claims held to the sweeps it was asked to stop at (`cap`): its claimed
+    iterations and its residuals ("claims", one a sweep) at most `cap` each, as its own process
+    checks them (solver.methods), so what the judge keeps of an answer is at most one float64 a
+    sweep of the cap; PluginError naming `label` otherwise. Returns the claims."""
+    claims = arrays.get("claims", np.zeros(0))
+    claimed = max(int(header.get("iterations", 0)), len(claims))
+    if claimed > cap:
+        raise PluginError(f"the variant {label!r} claimed {claimed:,} iterations (or residuals) for a solve "
+                          f"asked to stop at {cap:,} sweeps")
+    return claims
 
 
 def unanswered(problem):

@@ -22,7 +22,7 @@ import numpy as np
 from .. import arguments, protocol, workers
 from ..contest import Contestant, deadline_for, start_all
 from ..contest.client import packed
-from ..contest.wire import checked_answer, unanswered
+from ..contest.wire import checked_answer, held_claims, unanswered
 from ..errors import InputError
 from ..model.arch import NETWORKS
 from ..solver.methods import check_plausible, is_native, judge, solve, takes_relaxation
@@ -328,7 +328,7 @@ class _JudgedStep:
         for _ in range(-1, REPEATS):
             for i in order:
                 t, head, arrays = self.variants[i][1].call(wire[i], deadline)
-                self.answers[i].append((head, arrays))
+                self.answers[i].append(self._kept(i, head, arrays))
                 took[i].append(t)
         self.nulls.append(self.null.call(wire[first], deadline)[0])
         # each call's time (the first, the warming one, kept apart: a memo shows against it)
@@ -337,13 +337,23 @@ class _JudgedStep:
         for row in self.variants.values():
             row[1].status()
 
+    def _kept(self, i, head, arrays):
+        """An answer of variant i as the judge keeps it: a plug-in's claims held to its cap
+        (wire.held_claims) and kept from its first answer only, the one its history is read from."""
+        v = self.variants[i][0]
+        if not is_native(v.accelerate):
+            held_claims(v.label, head, arrays, self.asked[i].max_iterations)
+        if self.answers[i]:
+            arrays.pop("claims", None)
+        return head, arrays
+
     def history(self, i, v, normal, tangent, head, arrays, judged):
         """(the stopping measure per iterate, the iterations) of variant i's solve: the judge's own
         solver traced here, untimed (the same iterates), or a plug-in's claims with our residual last."""
         if is_native(v.accelerate):
             traced = solve(self.problem, normal, tangent, history=True, settings=self.asked[i])
             return traced.history[:, MEASURES.index(self.settings.stop_on)], traced.iterations
-        hist, iterations = arrays["claims"].copy(), int(head["iterations"])
+        hist, iterations = arrays.get("claims", np.zeros(0)).copy(), int(head.get("iterations", 0))
         if len(hist):
             hist[-1] = judged[0].residual   # (the last iterate's residual is ours, not its claim)
         return hist, iterations
@@ -374,9 +384,9 @@ class _JudgedStep:
                    predict_ms=predict_s * 1e3, solve_ms=float(np.median(self.times[i])),
                    history=np.concatenate([[first], hist]),
                    relaxation=None if v.relaxation is None else float(v.relaxation),
-                   accelerate=v.accelerate, fallback=bool(head["fallback"]),
+                   accelerate=v.accelerate, fallback=bool(head.get("fallback", 0)),
                    reference_residual=reference.residual, reference_pivoted=reference.pivoted,
-                   factorizations=int(head["factorizations"]), solve_ms_repeats=np.array(self.times[i]),
+                   factorizations=int(head.get("factorizations", 0)), solve_ms_repeats=np.array(self.times[i]),
                    transport_ms=min(self.nulls) * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3,
                    first_ms=self.firsts[i])
 
