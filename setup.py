@@ -44,6 +44,7 @@ ext = Pybind11Extension(
         "deepcontact/native/pgs_step.cpp",
         "deepcontact/native/step_read.cpp",
         "deepcontact/native/world.cpp",
+        "deepcontact/native/world_loop.cpp",
         "deepcontact/native/step_xml.cpp",
     ],
     # the solver's drivers are headers (compiled in solve.cpp): a change to one must rebuild the module

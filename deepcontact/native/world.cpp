@@ -1,5 +1,7 @@
 #include "world.hpp"
 
+#include "box2d_access.hpp"
+
 #include <algorithm>
 #include <array>
 #include <mutex>
@@ -12,32 +14,6 @@ extern B2_API bool g_blockSolve;
 
 namespace dc {
 namespace {
-
-// Reading the few private members the solver needs exactly (inverse mass and inertia about
-// the centre as Box2D stores them, and the previous step's 1/dt). An explicit template
-// instantiation may name private members; this is the standard-conforming way to do so.
-template <typename Tag, typename Tag::type Member>
-struct Expose {
-    friend typename Tag::type member(Tag) { return Member; }
-};
-struct BodyInvMass { using type = float b2Body::*; friend type member(BodyInvMass); };
-struct BodyInvI { using type = float b2Body::*; friend type member(BodyInvI); };
-struct BodyI { using type = float b2Body::*; friend type member(BodyI); };
-struct WorldInvDt0 { using type = float b2World::*; friend type member(WorldInvDt0); };
-struct WorldSolveTOI { using type = void (b2World::*)(const b2TimeStep&); friend type member(WorldSolveTOI); };
-struct WorldSolve { using type = void (b2World::*)(const b2TimeStep&); friend type member(WorldSolve); };
-struct WorldNewContacts { using type = bool b2World::*; friend type member(WorldNewContacts); };
-struct WorldLocked { using type = bool b2World::*; friend type member(WorldLocked); };
-struct WorldStepComplete { using type = bool b2World::*; friend type member(WorldStepComplete); };
-template struct Expose<BodyInvMass, &b2Body::m_invMass>;
-template struct Expose<BodyInvI, &b2Body::m_invI>;
-template struct Expose<BodyI, &b2Body::m_I>;
-template struct Expose<WorldInvDt0, &b2World::m_inv_dt0>;
-template struct Expose<WorldSolveTOI, &b2World::SolveTOI>;
-template struct Expose<WorldSolve, &b2World::Solve>;
-template struct Expose<WorldNewContacts, &b2World::m_newContacts>;
-template struct Expose<WorldLocked, &b2World::m_locked>;
-template struct Expose<WorldStepComplete, &b2World::m_stepComplete>;
 
 // g_blockSolve is one flag for the whole process; worlds that differ must not race on it.
 std::mutex g_step_mutex;
@@ -231,11 +207,25 @@ void World::box2d_step(float dt, int velocity_iterations, int position_iteration
     step.inv_dt = dt > 0.0f ? 1.0f / dt : 0.0f;
     step.dtRatio = w->*member(WorldInvDt0()) * dt;
     step.warmStarting = w->GetWarmStarting();
-    if (w->*member(WorldStepComplete()) && step.dt > 0.0f) (w->*member(WorldSolve()))(step);
+    if (w->*member(WorldStepComplete()) && step.dt > 0.0f) {
+        if (solves_islands(velocity_iterations))
+            solve_islands(step);
+        else
+            (w->*member(WorldSolve()))(step);
+    }
     if (w->GetContinuousPhysics() && step.dt > 0.0f) (w->*member(WorldSolveTOI()))(step);
     if (step.dt > 0.0f) w->*member(WorldInvDt0()) = step.inv_dt;
     if (w->GetAutoClearForces()) w->ClearForces();
     w->*member(WorldLocked()) = false;
+}
+
+bool World::recorder_active() const { return recorder_->active; }
+
+// The islands gather_loop() found are still the world's, and b2World::Solve would do nothing the
+// loop's island solve does not (no joints, no sleeping, no velocity iterations).
+bool World::solves_islands(int velocity_iterations) const {
+    return velocity_iterations == 0 && loop_generation_ == generation_ && !world_->GetAllowSleeping() &&
+           world_->GetJointCount() == 0;
 }
 
 void World::step(float dt, int velocity_iterations, int position_iterations, bool record, bool collided) {

@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "loop_frame.hpp"
 #include "records.hpp"
 #include "state.hpp"
 
@@ -46,6 +47,13 @@ public:
     ContactState contacts();
     // Writes impulses into the manifold points of the contacts last returned by contacts().
     void set_manifold_impulses(const float* normal, const float* tangent, size_t count);
+
+    // The loop's step read out once (pgs_step.cpp), after collide(): the islands as b2World::Solve
+    // finds them, and the solver's columns of their bodies and points (kept from step to step).
+    // Until the world changes, step(..., collided) then steps those islands itself with no
+    // velocity iterations (world_loop.cpp) instead of running Box2D's Solve, which would find
+    // them again and pose every contact's constraint a second time.
+    const LoopFrame& gather_loop();
 
     BodyState bodies() const;
     void set_body_state(const int32_t* index, const float* position, const float* angle,
@@ -96,6 +104,21 @@ private:
     std::vector<b2Transform> record_xf_;
     size_t collided_generation_ = 0;   // generation_ right after the last collide()
     void box2d_step(float dt, int velocity_iterations, int position_iterations, bool collided);   // the bodies' transforms at the start of the step
+    bool recorder_active() const;
+
+    // The loop's own island solve (world_loop.cpp).
+    bool solves_islands(int velocity_iterations) const;
+    void find_islands();
+    void gather_loop_bodies();
+    void gather_loop_contacts();
+    void solve_islands(const b2TimeStep& step);
+    void solve_island(const b2TimeStep& step, int32_t body_begin, int32_t body_end, int32_t contact_begin,
+                      int32_t contact_end);
+    void apply_impulses(const b2TimeStep& step, b2Contact* contact);
+    float correct_positions(b2Contact* contact);
+    LoopFrame loop_;
+    std::vector<b2Body*> loop_stack_;
+    uint64_t loop_generation_ = ~uint64_t(0);   // generation_ when gather_loop() ran
     std::vector<int> record_bodies_;       // the island each body was last seen in
     int record_island_ = -1, record_manifold_ = 0;
 
