@@ -106,6 +106,7 @@ class StepSolve:
         self.coarse_iterations = coarse_iterations
         self.regularisation = regularisation   # of W_FF's diagonal: definite, small beside the rows' own stiffness
         self.hierarchy = AGGREGATIONS[aggregation]
+        self.breakdowns = 0   # coarse steps skipped: pyamg's hierarchy or its solve not finite
 
     def smooth(self, r, sweeps, w):
         """r after `sweeps` sweeps of the native PGS (PSOR at w) from r."""
@@ -141,49 +142,56 @@ class StepSolve:
         d = np.zeros(self.W.shape[0])
         d[rows] = hierarchy.solve(-u[rows], x0=np.zeros(len(rows)), tol=1e-12,
                                   maxiter=self.coarse_iterations, accel="cg")
-        return d, len(hierarchy.levels)
+        return d
 
     def line_search(self, r, u, d, bound):
-        """(r moved along its projected correction by the exact minimiser in [0, 1], that step)."""
+        """(r moved along its projected correction by the exact minimiser in [0, 1], that step, the
+        rows the projection moved)."""
         dp = self.clip(r + d, bound) - r
+        clipped = int(np.count_nonzero(np.abs(dp - d) > 1e-12 * np.abs(d).max(initial=0.0)))
         curvature = dp @ (self.W @ dp)
         if curvature <= 0.0:
-            return r, 0.0
+            return r, 0.0, clipped
         alpha = min(1.0, max(0.0, -(dp @ u) / curvature))
-        return r + alpha * dp, alpha
+        return r + alpha * dp, alpha, clipped
 
     def coarse_step(self, r, kind):
-        """One truncated, projected coarse correction: (r, its step length, levels)."""
+        """One truncated, projected coarse correction: (r, its step length, rows clipped)."""
         bound = self.bounds(r)
         r = self.clip(r, bound)
         rows = self.free_rows(r, bound, kind)
         if not len(rows):
             return r, 0.0, 0
         u = self.W @ r + self.lp.q
-        d, levels = self.coarse_direction(rows, u)
-        r, alpha = self.line_search(r, u, d, bound)
-        return r, alpha, levels
+        try:
+            d = self.coarse_direction(rows, u)
+        except ValueError:   # (a coarse operator with NaN in it: pyamg's pinv refuses it)
+            d = np.full(len(r), np.nan)
+        if not np.isfinite(d).all():
+            self.breakdowns += 1
+            return r, 0.0, 0
+        return self.line_search(r, u, d, bound)
 
     def cycle(self, r, variant):
-        """One cycle: (r, the coarse step's length or nan without one)."""
+        """One cycle: (r, the coarse step's length and rows clipped, nan without one)."""
         r = self.smooth(r, variant.sweeps, variant.w)
-        alpha = np.nan
+        alpha, clipped = np.nan, np.nan
         if variant.kind != "none":
-            r, alpha, _ = self.coarse_step(r, variant.kind)
-        return self.smooth(r, variant.sweeps, variant.w), alpha
+            r, alpha, clipped = self.coarse_step(r, variant.kind)
+        return self.smooth(r, variant.sweeps, variant.w), alpha, clipped
 
     def run(self, r, variant, most, tolerance):
-        """(r, cycles to the tolerance or inf, seconds of the cycles, steps lengths): the residual
-        checked after each cycle, its time left out (the native sweeps' time leaves it out too)."""
-        seconds, alphas = 0.0, []
+        """(r, cycles to the tolerance or inf, seconds a cycle, (step length, rows clipped) a cycle):
+        the residual checked after each cycle, its time left out (the native sweeps' too)."""
+        seconds, coarse = 0.0, []
         for cycles in range(1, most + 1):
             t = time.perf_counter()
-            r, alpha = self.cycle(r, variant)
+            r, alpha, clipped = self.cycle(r, variant)
             seconds += time.perf_counter() - t
-            alphas.append(alpha)
+            coarse.append((alpha, clipped))
             if residual(self.lp, r) < tolerance:
-                return r, cycles, seconds / cycles, alphas
-        return r, np.inf, seconds / most, alphas
+                return r, cycles, seconds / cycles, coarse
+        return r, np.inf, seconds / most, coarse
 
 
 def sweep_seconds(step, r, sweeps=200):
@@ -239,12 +247,15 @@ def solve_one_step(step, args, figures):
     figures["sweep"].append(sweep_seconds(step, start))
     answer = None
     for variant in args.variants:
-        r, cycles, seconds, alphas = step.run(start, variant, args.most, args.tolerance)
+        before = step.breakdowns
+        r, cycles, seconds, coarse = step.run(start, variant, args.most, args.tolerance)
         row = figures[variant.name]
+        row["breakdowns"].append(step.breakdowns - before)
         row["cycles"].append(cycles)
         row["seconds"].append(seconds)
         row["end_residual"].append(residual(step.lp, r))
-        row["alpha"].extend(a for a in alphas if np.isfinite(a))
+        row["alpha"].extend(a for a, _ in coarse if np.isfinite(a))
+        row["clipped"].extend(c for _, c in coarse if np.isfinite(c))
         if answer is None and np.isfinite(cycles) and variant is args.variants[0]:
             answer = r
     r, sweeps = psor_to_tolerance(step, start, args.tolerance)
@@ -256,7 +267,7 @@ def run_loop(world, scene, args):
     """The loop's steps, each solved by every variant: the gate's figures, per step."""
     figures = {k: [] for k in ("points", "start_residual", "sweep", "psor")}
     for variant in args.variants:
-        figures[variant.name] = {k: [] for k in ("cycles", "seconds", "end_residual", "alpha")}
+        figures[variant.name] = {k: [] for k in ("cycles", "seconds", "end_residual", "alpha", "clipped", "breakdowns")}
     for _ in range(args.steps):
         problem = next_problem(world, scene)
         if problem is None:
@@ -276,7 +287,12 @@ def variant_line(name, row, sweep):
     """One variant's line: cycles to the tolerance, within 10 and 40, time a cycle in sweeps."""
     cycles, ends = np.array(row["cycles"]), np.array(row["end_residual"])
     alpha = np.array(row["alpha"]) if row["alpha"] else np.array([np.nan])
-    steps = f"coarse step length median {np.median(alpha):.2g}" if np.isfinite(alpha).any() else "no coarse step"
+    steps = "no coarse step"
+    if np.isfinite(alpha).any():
+        steps = (f"coarse step length median {np.median(alpha):.2g}, rows its projection clips median "
+                 f"{np.median(row['clipped']):.0f}")
+    if sum(row["breakdowns"]):
+        steps += f" ({sum(row['breakdowns'])} skipped: the hierarchy not finite)"
     return (f"  {name:>14}: cycles median {np.median(cycles):.0f}, max {cycles.max():.0f}; within 10: "
             f"{100 * np.mean(cycles <= 10):.0f}%, within 40: {100 * np.mean(cycles <= 40):.0f}%; residual after "
             f"the cycles median {np.median(ends):.2g}; a cycle {1e3 * np.median(row['seconds']):.1f} ms = "

@@ -41,8 +41,8 @@ def test_the_coarse_correction_beats_the_same_sweeps_alone(prototype, kind):
     solves the stack's pressed rows at once, so its residual is a small part of the sweeps' alone."""
     step = stacked_circles(prototype, 100)
     start = np.zeros(step.W.shape[0])
-    alone, _ = step.cycle(start, prototype.Variant("none", 1, 1.0))
-    corrected, alpha = step.cycle(start, prototype.Variant(kind, 1, 1.0))
+    alone, _, _ = step.cycle(start, prototype.Variant("none", 1, 1.0))
+    corrected, alpha, _ = step.cycle(start, prototype.Variant(kind, 1, 1.0))
     assert alpha > 0.5
     assert residual(step.lp, alone) > 0.1
     assert residual(step.lp, corrected) < 0.01 * residual(step.lp, alone)
