@@ -22,7 +22,17 @@ with 95% bootstrap intervals over the steps (paired, the same steps for both):
 - on at least MIN_STEPS steps.
 When one of these fails there is no clear winner, and a variant beaten on the total, or one that
 did not converge, is never called the fastest.
+
+The verdict's power is stated too (`power`): for each variant, its setup charged beyond the
+base's, what it saves a step against the base on the mean (setup apart: what the totals add up),
+the steps that saving needs to pay the setup back, and the steps a run needs to name it at the
+noise measured: enough to pay its setup back, at least MIN_STEPS, enough for the A/A to come
+within NOISE_LIMIT and for its interval against the base to clear 1 and the A/A floor, every
+interval taken to narrow as one over the square root of the steps (a bootstrap interval of a
+median does). A run shorter than that is too
+short to name it; one that saves nothing a step, or is no faster on the median, is named at no length.
 """
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,6 +45,10 @@ RESOLUTION_MS = 1e-3   # the smallest time a ratio of medians takes as it is (1 
 # The A/A interval beyond which the machine is too noisy to time (module docstring): quiet reports
 # measured A/A intervals within [0.90, 1.12], loaded ones [0.41, 2.81] (docs/results/measuring.md).
 NOISE_LIMIT = 1.25
+# How sure the steps a run needs to name a variant are (power_of): its saving a step taken Z standard
+# errors below its mean, and over those steps clearing its extra setup by Z standard deviations of
+# their sum (one-sided 95% each), at the noise measured.
+Z = 1.645
 
 
 def _median(x, axis=None):
@@ -99,6 +113,7 @@ class Verdict:
     level: float = LEVEL
     steps: int = 0                                  # the steps best and the base were paired on
     unfinished: dict = field(default_factory=dict)  # {label: steps it ended above the tolerance}
+    power: dict = field(default_factory=dict)       # {label: what naming it needs (power_of)}, the base aside
 
     @property
     def heavy_tail(self):
@@ -114,7 +129,7 @@ class Verdict:
                 "clear": self.clear, "total_ms": dict(self.totals), "beaten_on_total_by": list(self.beaten_on_total_by),
                 "heavy_tail": self.heavy_tail, "steps": self.steps, "too_few_steps": self.too_few_steps,
                 "unfinished": dict(self.unfinished), "did_not_converge": self.did_not_converge,
-                "noisy": self.noisy, "noise_limit": NOISE_LIMIT}
+                "noisy": self.noisy, "noise_limit": NOISE_LIMIT, "power": {k: dict(v) for k, v in self.power.items()}}
 
     @property
     def did_not_converge(self):
@@ -164,6 +179,9 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
     v.unfinished = {name: len(set(unfinished.get(name, ())) & set(t)) for name, t in times.items()}
     v.vs_base = {name: ratio_interval(*paired(t, ranked_times[base]), rng) for name, t in ranked_times.items()}
     v.totals = {name: float(sum(t.values())) + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
+    quiet = aa_steps(len(aa_pair[0]), v.aa)
+    v.power = {name: power_of(times[name], times[base], setup_ms.get(name, 0.0) - setup_ms.get(base, 0.0),
+                              v.vs_base[name], v.aa, quiet) for name in times if name != base}
     fair = _fastest_first(times, ranked_times, candidates)
     if not fair:
         return v
@@ -184,3 +202,65 @@ def _beyond_noise(v):
     upper = v.vs_base[v.best][2]
     faster = v.best == v.base or (upper < 1.0 and upper < v.aa[1])
     return bool(faster and (v.runner_up is None or v.best_vs_runner_up[2] < 1.0))
+
+
+def power_of(mine, base, extra_setup_ms, vs_base, aa, quiet):
+    """What naming a variant needs against the base (module docstring), from its per-step times
+    `mine` and the base's ({step key: ms}), its setup beyond the base's, its (ratio, low, high)
+    against the base, the A/A's and the steps the A/A needs to be quiet enough (aa_steps):
+    {"setup_ms", "saving_ms", "payback_steps", "needed_steps", "quiet_steps", "steps"}, a count of
+    steps None where no length of run does it."""
+    a, b = paired(mine, base)
+    saved = np.asarray(b, np.float64) - np.asarray(a, np.float64)   # (per step: what it saves)
+    saving = float(np.mean(saved)) if len(saved) else 0.0
+    needs = (total_steps(extra_setup_ms, saved), interval_steps(len(a), vs_base, aa), quiet)
+    needed = None if None in needs else max(MIN_STEPS, *needs)
+    return {"setup_ms": float(extra_setup_ms), "saving_ms": saving, "payback_steps": payback_steps(extra_setup_ms, saving),
+            "needed_steps": needed, "quiet_steps": quiet, "steps": len(a)}
+
+
+def payback_steps(extra_setup_ms, saving_ms):
+    """The steps after which a variant saving `saving_ms` a step on the mean has paid back
+    `extra_setup_ms` of setup beyond the base's (0 where it has nothing to pay), or None where it
+    saves nothing a step (never)."""
+    if saving_ms <= 0:
+        return None
+    return max(math.ceil(extra_setup_ms / saving_ms), 0)
+
+
+def total_steps(extra_setup_ms, saved):
+    """The steps after which a variant's total, setup included, lies below the base's at the noise
+    measured: its saving a step (`saved`, per paired step; its mean taken Z standard errors low)
+    summed over n steps, less Z of that sum's standard deviations (the steps' own spread), clears
+    its extra setup. None where that saving is not above 0: no length can be told from this run."""
+    if len(saved) < 2:
+        return None
+    spread = Z * float(np.std(saved, ddof=1))
+    mean = float(np.mean(saved)) - spread / math.sqrt(len(saved))
+    if mean <= 0:
+        return None
+    # n mean - spread sqrt(n) >= extra: a quadratic in sqrt(n)
+    root = (spread + math.sqrt(spread ** 2 + 4 * mean * max(extra_setup_ms, 0.0))) / (2 * mean)
+    return math.ceil(root ** 2)
+
+
+def aa_steps(steps, aa):
+    """The steps the base's A/A (ratio, low, high over `steps` steps) needs to lie within
+    [1/NOISE_LIMIT, NOISE_LIMIT] (the machine quiet enough to time), its interval narrowing as one
+    over the square root of the steps; None where its ratio itself lies beyond (no length helps)."""
+    ratio, low, high = aa
+    if not (np.all(np.isfinite(aa)) and 1 / NOISE_LIMIT < ratio < NOISE_LIMIT) or steps < 1:
+        return None
+    reach = max((high - ratio) / (NOISE_LIMIT - ratio), (ratio - low) / (ratio - 1 / NOISE_LIMIT))
+    return math.floor(steps * reach ** 2) + 1
+
+
+def interval_steps(steps, vs_base, aa):
+    """The steps a run needs for a variant's interval against the base (ratio, low, high, measured
+    on `steps` steps) to lie below 1 and below the A/A's low end, both half-widths narrowing as
+    one over the square root of the steps; None where its ratio is not below 1 (no length does)."""
+    ratio, _, high = vs_base
+    if not (np.isfinite(ratio) and ratio < 1 and np.isfinite(high) and np.isfinite(aa[1])) or steps < 1:
+        return None
+    spread = (high - ratio) + max(1.0 - aa[1], 0.0)   # (its upper half-width, and how far the A/A's reaches below 1)
+    return math.floor(steps * (spread / (1.0 - ratio)) ** 2) + 1

@@ -6,7 +6,8 @@ from ..contest import missing_fences
 from ..contest.verdict import MIN_STEPS, NOISE_LIMIT, decide
 from ..errors import count
 from ..escape import md_text
-from ..warmstart.starts import is_oracle
+from ..solver.methods import is_native
+from ..warmstart.starts import NAMES, is_oracle
 from .noise import judge, ranked
 
 
@@ -64,9 +65,66 @@ def _fence_caveat():
 
 
 def verdict(summary, noise=None):
-    """The replay's verdict line (_verdict), with the fences this machine refused, if any."""
+    """The replay's verdict line (_verdict), with its power (power_words) and the fences this
+    machine refused, if any."""
     line = _verdict(summary, noise)
-    return None if line is None else line + _fence_caveat()
+    return None if line is None else line + power_words(noise) + _fence_caveat()
+
+
+def plugin_variant(label):
+    """Whether a variant label names a plug-in: its start or its method is not one of dc's own."""
+    start, _, method = label.split("@")[0].partition("+")
+    return start not in NAMES or not is_native(method or "none")
+
+
+def power_words(noise):
+    """The verdict's power, said of each plug-in variant that converged (contest/verdict.py,
+    power_of): what its setup beyond the base's costs and the steps its saving a step needs to pay
+    it back (or that it never does), and, where it is faster on the median but not named, that the
+    run was too short to name it and about how many steps would be. "" where there is none to say."""
+    if not noise or not noise.get("power"):
+        return ""
+    base, unfinished = noise["base"], noise.get("unfinished", {})
+    named = noise["best"] if noise.get("clear") else None
+    parts = [_power_part(n, p, base, noise["vs_base"][n][0], n == named) for n, p in noise["power"].items()
+             if plugin_variant(n) and not unfinished.get(n, 0) and n in noise["vs_base"]]
+    parts = [p for p in parts if p]
+    return f" Power against {md_text(base)}: " + "; ".join(parts) + "." if parts else ""
+
+
+def _power_part(name, power, base, ratio, named):
+    """What power_words says of one plug-in variant (power: power_of's), or ""."""
+    said = []
+    if power["setup_ms"] > 0:
+        said.append(payback_words(name, power, base))
+    if ratio < 1 and not named:
+        short = too_short_words(name, power)
+        said += [short] if short else []
+    return "; ".join(said)
+
+
+def payback_words(name, power, base):
+    """The steps a variant's saving a step needs to pay back its setup beyond the base's, or never."""
+    setup = f"{power['setup_ms']:.3g} ms beyond {md_text(base)}'s"
+    if power["payback_steps"] is None:
+        return (f"{md_text(name)} saves nothing a step on the mean ({-power['saving_ms']:.3g} ms more), so its setup, "
+                f"{setup}, never pays back")
+    return (f"{md_text(name)}'s setup, {setup}, pays back after about {count(power['payback_steps'], 'step')} "
+            f"(it saves {power['saving_ms']:.3g} ms a step on the mean)")
+
+
+def too_short_words(name, power):
+    """That a run was too short to name a variant faster on the median, and about how many steps
+    would do, or that its saving is within this run's noise; "" where the run was long enough."""
+    needed, steps = power["needed_steps"], power["steps"]
+    if power.get("quiet_steps", 0) is None:   # (its A/A is off at any length: the verdict's noise clause says so)
+        return ""
+    if needed is None:
+        return (f"too short to name {md_text(name)}: its saving a step is within the noise of this run's "
+                f"{count(steps, 'step')}")
+    if steps >= needed:
+        return ""
+    return f"too short to name {md_text(name)}: about {count(needed, 'step')} needed (this run: {steps:,})"
 
 
 def _verdict(summary, noise=None):
@@ -134,13 +192,22 @@ def smallest_words(best, shown, base, vs_base, unfinished, what):
     return lead + f"; of those that converged on every step, {md_text(shown)} has the smallest{against(shown)}"
 
 
-def lost_the_run_words(best, beaten_by, totals, unfinished):
+def lost_the_run_words(best, beaten_by, totals, unfinished, setup_unpaid=False):
     """Why a verdict does not name best, whose whole run (setup included) cost more than beaten_by's
-    (one that did not converge, by {label: steps} unfinished, is not named)."""
+    (one that did not converge, by {label: steps} unfinished, is not named): its setup, where its
+    steps took less than the base's (setup_unpaid), else a heavy tail of slow steps."""
     return ("but over the whole run, setup included, it took longer than "
             + " and ".join(f"{runner_name(n, unfinished)} ({totals[best]:.4g} ms against {totals[n]:.4g} ms)"
                            for n in beaten_by)
-            + ": a heavy tail of slow steps")
+            + (": its setup, which its steps did not pay back in this run" if setup_unpaid
+               else ": a heavy tail of slow steps"))
+
+
+def setup_unpaid(v):
+    """Whether a verdict's best lost the run to the base by its setup alone: its steps took less than
+    the base's on the mean (v: the verdict's dict)."""
+    mine = v.get("power", {}).get(v["best"])
+    return bool(mine and v["base"] in v.get("beaten_on_total_by", ()) and mine["saving_ms"] > 0 and mine["setup_ms"] > 0)
 
 
 def _no_winner(noise, best, base, candidates):
@@ -161,7 +228,8 @@ def _no_winner(noise, best, base, candidates):
         return f"**Verdict**: no clear winner. {smallest}; {aa}"
     if noise.get("beaten_on_total_by"):   # a heavy tail: the median's fastest lost the whole run
         return (f"**Verdict**: no clear winner. {smallest}, "
-                f"{lost_the_run_words(best, noise['beaten_on_total_by'], noise['total_ms'], unfinished)}; {aa}")
+                f"{lost_the_run_words(best, noise['beaten_on_total_by'], noise['total_ms'], unfinished, setup_unpaid(noise))}"
+                f"; {aa}")
     if noise["clear"]:
         return None
     runner = noise.get("runner_up")
@@ -241,12 +309,13 @@ def loop_verdict(results, tolerance):
     unfinished = {r.start: _loop_unfinished(r, tolerance) for r in ours}
     v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
                {r.start: r.setup_ms for r in ours}, unfinished)
+    power = power_words(v.as_dict())
     if v.too_few_steps:
         return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
-                f"least {MIN_STEPS}." + left_out + _fence_caveat())
+                f"least {MIN_STEPS}." + left_out + power + _fence_caveat())
     head = _loop_head(v, base.start, [r.start for r in fair])
     return (f"{head} ({'; '.join(_loop_intervals(v, base.start))}; 95% intervals over the steps)."
-            + left_out + _fence_caveat())
+            + left_out + power + _fence_caveat())
 
 
 def _loop_left_out(candidates, fair, tolerance):
@@ -288,7 +357,7 @@ def _loop_head(v, base, candidates):
     if v.did_not_converge:
         return f"**Verdict**: no clear winner. {smallest}"
     if v.heavy_tail:
-        lost = lost_the_run_words(v.best, v.beaten_on_total_by, v.totals, v.unfinished)
+        lost = lost_the_run_words(v.best, v.beaten_on_total_by, v.totals, v.unfinished, setup_unpaid(v.as_dict()))
         return f"**Verdict**: no clear winner. {smallest}, {lost}"
     if v.clear:
         return ("**Verdict**: the fastest start per step of the loop (prediction included; oracles left out) is "
