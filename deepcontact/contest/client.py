@@ -15,9 +15,8 @@ import time
 
 from ..plugins import PluginError
 from ..solver.methods import SOLVERS, check_plausible, is_native, judge
-from ..warmstart.starts import NAMES, STARTS, Builtin, Checked, Remote
-from .guest import TRAITS
-from . import broker as _broker, grants, sandbox
+from ..warmstart.starts import NAMES, STARTS, TRAITS, Builtin, Checked, Remote, described
+from . import broker as _broker, grants, sandbox, shape
 from .wire import ANSWER_MAX, checked_answer, held_claims, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
@@ -58,6 +57,9 @@ class Contestant:
         self.who = who or f"the variant {label!r}"   # (how its errors name it)
         self.left_running = [0, 0]
         self.setup_s, self.setup_wall_s, self.start_s, self.after_s = 0.0, 0.0, 0.0, 0.0
+        # what its ctx holds: the judge's one description of its start (starts.described), the same
+        # that says whether it is an oracle; never what its process says of itself
+        self.traits = dict.fromkeys(TRAITS, False)
         if engine is not None:   # (a plug-in engine: (its name, its settings); contest/engine.py)
             setup = {"engine": engine[0], "settings": engine[1], "name": engine[0], "path": _path_for_guest(),
                      "threads": 1}
@@ -69,6 +71,7 @@ class Contestant:
             setup = {"null": True, "name": "null", "path": _path_for_guest(), "threads": 1}
             names, modules = [], []
         else:
+            self.traits = described(name, start)
             made = _by_name(name, start)
             setup = {"name": name, "start": ("name", name) if made else ("object", pickle.dumps(start)),
                      "method": method, "spec": spec, "checkpoint": checkpoint, "threads": threads,
@@ -115,8 +118,6 @@ class Contestant:
         except BaseException:
             self.close()
             raise
-        if "traits" in header:
-            self.traits = {k: bool(header["traits"].get(k)) for k in TRAITS}
         self.header = header
         return self
 
@@ -221,6 +222,21 @@ def _by_name(name, start):
     return name in NAMES and type(start).__module__.startswith("deepcontact.")
 
 
+# What the judge decides from, as a plug-in's process describes it (guest._describe), every field
+# typed before any of it is used: a start's traits are exactly the known names, each true or false
+# (its ctx and whether it is an oracle follow from them: starts.described); an origin is text.
+_ORIGIN = shape.Record({"origin": shape.Text(), "name": shape.Text(), "target": shape.Text(),
+                        "distribution": shape.Maybe(shape.Text()), "version": shape.Maybe(shape.Text()),
+                        "runs": shape.Text(choices=("native", "python"))}, required=("origin",))
+_DESCRIBED = shape.Record({
+    "starts": shape.Table(shape.Record({"traits": shape.Record({k: shape.Flag() for k in TRAITS}, required=TRAITS),
+                                        "origin": _ORIGIN}, required=("traits", "origin")), most=shape.NAMES_MOST),
+    "methods": shape.Table(shape.Record({"origin": _ORIGIN, "takes_relaxation": shape.Flag()},
+                                        required=("origin", "takes_relaxation")), most=shape.NAMES_MOST),
+}, required=("starts", "methods"))
+shape.declare("plug-ins described", _DESCRIBED)
+
+
 def describe(starts=(), methods=()):
     """Describes the plug-in starts and methods among these names from a sandbox of their own
     (their code is imported there, never in this process): fills STARTS.described and
@@ -235,11 +251,10 @@ def describe(starts=(), methods=()):
         c.begin()
         found = c.header.get("described")
         for registry, kind in ((STARTS, "starts"), (SOLVERS, "methods")):
-            for name in wanted[kind]:
-                info = (found or {}).get(kind, {}).get(name)
-                if not isinstance(info, dict):
+            for name in wanted[kind]:   # (every field typed as it came: _DESCRIBED, wire.unpack)
+                if name not in (found or {}).get(kind, {}):
                     raise PluginError(f"the plug-in {name!r} was not described by its process")
-                registry.described[name] = info
+                registry.described[name] = found[kind][name]
     finally:
         c.close()
 

@@ -22,11 +22,9 @@ from ..plugins import PluginError, guest
 from ..simulate.engines import ENGINES, Engine
 from ..solver import methods
 from ..solver.methods import call_plugin, is_native, solve
-from ..warmstart.starts import STARTS, Checked, asks, make_starts
+from ..warmstart.starts import STARTS, TRAITS, Checked, declared, make_starts
 from .shape import ERROR_MOST, TRACEBACK_MOST
 from .wire import pack
-
-TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")
 
 
 def _parameters(factory):
@@ -38,7 +36,9 @@ def _parameters(factory):
 
 
 def _make(setup):
-    """(start, traits) made from the setup's names (and the method made, where a plug-in)."""
+    """The start made from the setup's names (and the method made, where a plug-in). What its ctx
+    holds is the judge's to decide, from its own description (starts.described): nothing this
+    process or its start says of itself is asked."""
     for name in setup["networks"]:   # (the checkpoint's plug-in network, which the user named with --arch)
         NETWORKS.load(name)
     kind, what = setup["start"]
@@ -57,7 +57,6 @@ def _make(setup):
         start = pickle.loads(what)
     if not methods.is_native(setup["method"]):
         methods.method(setup["method"])
-    traits = {k: bool(asks(setup["name"], start, k)) for k in TRAITS}
     if isinstance(start, Checked):
         # (its step is its own already, unpickled for each call: no private copy; and its answer is
         # checked by the judge, off its clock, not here on it)
@@ -66,16 +65,17 @@ def _make(setup):
         def start(ctx):
             with guest(f"the start {name!r}"):
                 return inner(ctx)
-    return start, traits
+    return start
 
 
 def _describe(names):
     """What a judge may know of these plug-ins (starts and methods, by name), loaded here: each
-    start's traits and origin, each method's origin and whether it takes a w."""
+    start's traits (as its factory declares them: True or False) and origin, each method's origin
+    and whether it takes a w. The judge checks every field of it as it comes (client.describe)."""
     out = {"starts": {}, "methods": {}}
     for name in names["starts"]:
         factory = STARTS.load(name)
-        traits = {k: bool(getattr(factory, k, False)) for k in TRAITS}
+        traits = {k: declared(factory, k, f"the start {name!r}") for k in TRAITS}
         traits["needs_model"] = traits["needs_model"] or "predictor" in _parameters(factory)
         out["starts"][name] = {"traits": traits, "origin": STARTS.origin(name)}
     for name in names["methods"]:
@@ -178,10 +178,8 @@ def serve(conn):
     start = None
     try:
         if not setup.get("null"):
-            start, traits = _make(setup)
-        else:
-            traits = {k: False for k in TRAITS}
-        conn.send_bytes(pack({"traits": traits}))
+            start = _make(setup)
+        conn.send_bytes(pack({"built": 1}))
     except BaseException as e:
         conn.send_bytes(_error(e))
         return

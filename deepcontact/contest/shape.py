@@ -97,6 +97,16 @@ class Scalar:
         return value
 
 
+class Maybe:
+    """null, or a value of the form `of` (a plug-in's distribution where it comes from none)."""
+
+    def __init__(self, of):
+        self.of = of
+
+    def check(self, value, at):
+        return value if value is None else self.of.check(value, at)
+
+
 class Listing:
     """A list of at most `most` values of the form `of`."""
 

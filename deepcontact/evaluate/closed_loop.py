@@ -33,7 +33,7 @@ from ..solver.metrics import drift, energy, positions
 from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.settings import SolveSettings
-from ..warmstart.starts import StepContext, is_oracle, make_starts
+from ..warmstart.starts import ORACLE_TRAITS, StepContext, make_starts
 from . import reference_cache
 from .reference_cache import Trajectory
 from .replay import open_contestants, variants, visible_context
@@ -55,7 +55,7 @@ class LoopResult:
     residuals: np.ndarray = None   # per step, the project's residual of the solution applied (NaN: no contact,
                                    # or Box2D's own solver)
     ms_again: np.ndarray = None    # Box2D's warm start only: the same run timed a second time (A/A)
-    oracle: bool = False           # the start asks for the step's answer (starts.is_oracle)
+    oracle: bool = False           # the start asks for the step's answer (its description: starts.described)
     ours: bool = True              # the project's solver (False: Box2D's own at k iterations)
     transport_ms: np.ndarray = None   # per step: the round trips to its contestant's process, subtracted
     path_ms: float = 0.0           # the contestants' path's cost a step over the native loop (in ms_per_step)
@@ -72,6 +72,8 @@ class _Adapter:
         self.name, self.contestant, self.null, self.timing = label, contestant, null, []
         self.setup_ms = max(contestant.setup_s - null.setup_s, 0.0) * 1e3
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
+        # (the same description that says what its ctx holds: starts.described)
+        self.oracle = any(contestant.traits[k] for k in ORACLE_TRAITS)
         self.keys, self.known, self.previous = [], set(), {}
         self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
         self.predicting = 0.0   # the start's time in the step being taken (timing: one a step, as the steps')
@@ -213,7 +215,7 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
                                   ms_per_step=ms, predict_ms=np.array(adapter.timing) * 1e3, drift=drift,
                                   penetration=t.deepest, finite=t.finite, energy_error=err,
                                   relaxation=v.relaxation if v.relaxation != "auto" else float("nan"),
-                                  residuals=t.residuals, ms_again=again, oracle=is_oracle(v.name),
+                                  residuals=t.residuals, ms_again=again, oracle=adapter.oracle,
                                   transport_ms=np.array(adapter.transport[:len(t.seconds)]) * 1e3,
                                   setup_ms=adapter.setup_ms + adapter.contestant.after_s * 1e3))
     # The path every variant takes (each step through Python, its start's request built and sent)

@@ -25,6 +25,7 @@ from ..contest.client import packed
 from ..contest.wire import checked_answer, held_claims, unanswered
 from ..errors import InputError
 from ..model.arch import NETWORKS
+from ..plugins import PluginError
 from ..solver.methods import check_plausible, is_native, judge, solve, takes_relaxation
 from ..solver.pgs import MEASURES
 from ..solver.problem import StepProblem, contact_keys, impulses_by_key
@@ -184,8 +185,8 @@ def _velocity_error(solution, reference):
 
 
 def visible_context(ctx, traits, label):
-    """ctx as a start with these traits may see it (starts.seen_by, by the contestant's own word on
-    what it asks for)."""
+    """ctx as a start with these traits may see it: the judge's one description of it
+    (Contestant.traits, starts.described), never its process's word on what it asks for."""
     changes = {"variant": label, "cache": {}}
     if not traits["needs_reference"]:
         changes["reference"] = None
@@ -351,12 +352,20 @@ class _JudgedStep:
         """(the stopping measure per iterate, the iterations) of variant i's solve: the judge's own
         solver traced here, untimed (the same iterates), or a plug-in's claims with our residual last."""
         if is_native(v.accelerate):
-            traced = solve(self.problem, normal, tangent, history=True, settings=self.asked[i])
+            traced = self.traced(i, v, normal, tangent)
             return traced.history[:, MEASURES.index(self.settings.stop_on)], traced.iterations
         hist, iterations = arrays.get("claims", np.zeros(0)).copy(), int(head.get("iterations", 0))
         if len(hist):
             hist[-1] = judged[0].residual   # (the last iterate's residual is ours, not its claim)
         return hist, iterations
+
+    def traced(self, i, v, normal, tangent):
+        """The judge's own run of variant i's built-in method from its start (untimed, with its
+        history), every answer the variant's process gave held to it (same_as_traced)."""
+        traced = solve(self.problem, normal, tangent, history=True, settings=self.asked[i])
+        for head, arrays in self.answers[i]:   # (the warming call's too: every answer is judged)
+            same_as_traced(v.label, v.accelerate, head, arrays, traced)
+        return traced
 
     def row(self, i, run, sim_seed, index):
         """Variant i's Row: every timed answer judged by our residual, the worst of them its own."""
@@ -389,6 +398,26 @@ class _JudgedStep:
                    factorizations=int(head.get("factorizations", 0)), solve_ms_repeats=np.array(self.times[i]),
                    transport_ms=min(self.nulls) * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3,
                    first_ms=self.firsts[i])
+
+
+def same_as_traced(label, method, head, arrays, traced):
+    """A built-in method's answer from a contestant's process held to the judge's own run of it
+    from the same start (traced): the native methods are deterministic, so the same start and
+    settings give the same impulses bit for bit, after as many sweeps. One that differs (a start
+    that swapped the method in its process for a faster one, whatever count it claims) is one
+    line naming the variant, which no verdict then names."""
+    differs = [what for what, same in (
+        (f"{head.get('iterations', 0)} iterations, not {traced.iterations}",
+         head.get("iterations", 0) == traced.iterations),
+        ("other impulses", np.array_equal(arrays["normal"], traced.normal_impulse)
+         and np.array_equal(arrays["tangent"], traced.tangent_impulse)),
+        ("another fallback", head.get("fallback", 0) == int(traced.relaxation_fallback > 0)),
+        ("other factorizations", head.get("factorizations", 0) == int(getattr(traced, "factorizations", 0))),
+    ) if not same]
+    if differs:
+        raise PluginError(f"the variant {label!r} answered a solve of the built-in method {method!r} that the judge's "
+                          f"own run of it from the same start does not give ({'; '.join(differs)}): a built-in "
+                          f"method's answer is the built-in's, bit for bit")
 
 
 def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSettings(), every: int = 1, seed: int = 0,
@@ -430,10 +459,12 @@ def _budgets(contestant, problem, request, null, label):
     call of a series ran 3x slower: 0.30 ms for one sweep against 0.11 ms for two); both judged."""
     ms, residual = [], []
     for k, b in enumerate((BUDGETS[0], *BUDGETS)):
-        took, _, arrays = contestant.call({**request, "settings": request["settings"].but(max_iterations=b,
-                                                                                           tolerance=0.0)},
-                                          deadline_for(problem.points))
+        asked = request["settings"].but(max_iterations=b, tolerance=0.0)
+        took, head, arrays = contestant.call({**request, "settings": asked}, deadline_for(problem.points))
         judged = judge(problem, *checked_answer(label, arrays, problem.points)).residual
+        if is_native(asked.accelerate):   # (the judge's own run of the same sweeps, off the clock)
+            same_as_traced(label, asked.accelerate, head, arrays,
+                           solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False))
         if k:
             ms.append(_net(took, [null]) * 1e3)
             residual.append(judged)

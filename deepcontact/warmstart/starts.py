@@ -52,25 +52,15 @@ class StepContext:
 ANSWER_COLUMNS = ("normal_impulse", "tangent_impulse")   # a step's recorded answer, in its contacts
 
 
-def asks(name, start, key):
-    """Whether a start asks for `key` (needs_reference, needs_recorded): its registered trait, or
-    its object's own (a start made under a label of its own, as dc study figures does)."""
-    if getattr(getattr(start, "start", start), key, False):   # (a Checked plug-in: its object)
-        return True
-    try:
-        return trait(name, key)
-    except PluginError:
-        return False
-
-
 def seen_by(name, ctx, variant="", start=None):
-    """ctx as the start `name` (the object `start`) may see it: without the step's reference
-    solution unless it asks for it (needs_reference), without the impulses recorded for the step
-    (Box2D's answer in replay) unless it asks for them (needs_recorded)."""
+    """ctx as the start `name` (the object `start`) may see it, by its one description (described):
+    without the step's reference solution unless it asks for it (needs_reference), without the
+    impulses recorded for the step (Box2D's answer in replay) unless it asks for them (needs_recorded)."""
+    traits = described(name, start)
     changes = {"variant": variant}
-    if not asks(name, start, "needs_reference"):
+    if not traits["needs_reference"]:
         changes["reference"] = None
-    if not asks(name, start, "needs_recorded"):
+    if not traits["needs_recorded"]:
         changes["contacts"] = {k: v for k, v in ctx.contacts.items() if k not in ANSWER_COLUMNS}
         changes["problem"] = dataclasses.replace(ctx.problem, normal_impulse=None, tangent_impulse=None)
     out = dataclasses.replace(ctx, **changes)
@@ -266,13 +256,31 @@ NAMES = tuple(STARTS.builtin())
 NEEDS_MODEL = tuple(n for n in NAMES if getattr(STARTS.load(n), "needs_model", False))
 
 
+TRAITS = ("needs_reference", "needs_recorded", "needs_model", "oracle")   # what a start may declare
+ORACLE_TRAITS = ("oracle", "needs_reference", "needs_recorded")   # any one of them: it knows the answer
+
+
+def declared(obj, key, who):
+    """The trait `key` as `obj` (a start's factory) declares it: True or False (absent: False);
+    anything else is one line naming `who` (a "no" or a [] is not False)."""
+    value = getattr(obj, key, False)
+    if type(value) is not bool:
+        raise PluginError(f"{who} declares {key} = {_short(value)} ({type(value).__name__}), not True or False")
+    return value
+
+
+def _short(value):
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def trait(name, key):
-    """A start's trait (oracle, needs_model, needs_reference, needs_recorded), False where it
-    does not say. A plug-in described from its own process (STARTS.described) is never imported
-    here."""
+    """A start's trait (oracle, needs_model, needs_reference, needs_recorded), as its factory or
+    registration declares it. A plug-in described from its own process (STARTS.described, checked
+    as it came: contest.describe) is never imported here."""
     if name not in STARTS._builtin and name in STARTS.described:
-        return bool(STARTS.described[name]["traits"].get(key, False))
-    return bool(getattr(STARTS.load(name), key, False))
+        return STARTS.described[name]["traits"][key]
+    return declared(STARTS.load(name), key, f"the start {name!r}")
 
 
 class Remote:
@@ -288,14 +296,36 @@ class Remote:
         raise PluginError(f"the start {self.name!r} runs only in a contestant process of its own")
 
 
-def is_oracle(name):
-    """Whether a start knows the answer: it asks for the step's reference or recorded impulses,
-    or says so (derived from what it asks for, never from a list of names). A name no registry
-    resolves (a label of its own, as dc study figures gives) is no oracle."""
+def described(name, start=None):
+    """The one description of a start that the judge decides from, taken in the judge's process
+    ({trait: bool}): both what its ctx holds (the reference, the recorded impulses) and whether it
+    is an oracle (is_oracle). By its name: its registration, its factory's declared traits, or
+    what its own process described (contest.describe), never what an instance sets on itself.
+    Only a label no registry resolves (an object a library caller hands in under a name of its
+    own, as dc study figures does) is described by the object given, read here once."""
+    if _resolves(name):
+        return {k: trait(name, k) for k in TRAITS}
+    inner = getattr(start, "start", start)
+    return {k: declared(inner, k, f"the start {name!r}") for k in TRAITS}
+
+
+def _resolves(name):
+    """Whether a registry knows the start `name` (a built-in, a plug-in loaded or described)."""
+    if name in STARTS._builtin or name in STARTS.described:
+        return True
     try:
-        return any(trait(name, key) for key in ("oracle", "needs_reference", "needs_recorded"))
+        STARTS.load(name)
     except PluginError:
         return False
+    return True
+
+
+def is_oracle(name):
+    """Whether a start knows the answer: it asks for the step's reference or recorded impulses,
+    or says so (derived from what it asks for, never from a list of names), by its one
+    description (described). A name no registry resolves (a label of its own, as dc study
+    figures gives) is no oracle."""
+    return _resolves(name) and any(trait(name, key) for key in ORACLE_TRAITS)
 
 
 ORACLES = tuple(n for n in NAMES if is_oracle(n))
