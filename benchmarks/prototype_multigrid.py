@@ -138,6 +138,7 @@ class StepSolve:
         """d on the free rows: pyamg's aggregation V-cycles on W_FF d = -u_F (CG-accelerated)."""
         WF = self.W[rows][:, rows]
         WF = (WF + sp.diags(self.regularisation * WF.diagonal())).tocsr()
+        np.random.seed(0)   # (pyamg estimates spectral radii from a random vector: the same one every build)
         hierarchy = getattr(pyamg, self.hierarchy)(WF, max_coarse=50)
         d = np.zeros(self.W.shape[0])
         d[rows] = hierarchy.solve(-u[rows], x0=np.zeros(len(rows)), tol=1e-12,
