@@ -194,3 +194,19 @@ def test_a_broker_request_with_a_wrong_typed_field_is_refused_naming_it(asking_s
     r = dc("study", "asks", "-o", tmp_path / "out", "--ask", json.dumps(ask))
     one_line_error(r, "the study 'asks'", "refused: " + needle)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_fenced_commands_result_record_is_held_to_its_form(tmp_path):
+    """The record a fenced dc writes as it ends (contest/result.py) is read through the same checker:
+    one of another form is no record (nothing is published), whatever it holds."""
+    from deepcontact.contest import result
+    path = tmp_path / result.NAME
+    good = {"ended": "in order", "code": 0, "message": ""}
+    path.write_text(json.dumps(good))
+    assert result.read(path) == good
+    for bad in ({**good, "code": "0"}, {**good, "code": True}, {**good, "ended": ["in order"]},
+                {**good, "message": "x" * 2001}, {**good, "published": True}, {"ended": "in order"}):
+        path.write_text(json.dumps(bad))
+        assert result.read(path) is None, bad
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    assert result.read(path) is None

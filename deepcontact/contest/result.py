@@ -11,11 +11,17 @@ import json
 import os
 
 from ..regular import read_regular
+from . import shape
 
 ENV = "DC_RESULT_FILE"   # where the fenced command writes its record (in its private TMPDIR)
 NAME = "dc-result.json"
 LIMIT = 16 << 10         # bytes: a record is a few dozen; anything larger is not one
 IN_ORDER, FAILED = "in order", "failed"
+MESSAGE_MOST = 2000      # characters of its message (the rest is cut as it is written)
+# Its form, for the one checker of every message dc reads from a fenced job or a contestant
+shape.declare("result record", shape.Record({"ended": shape.Text(choices=(IN_ORDER, FAILED)),
+                                             "code": shape.Whole(lowest=-shape.WHOLE_MOST),
+                                             "message": shape.Text(most=MESSAGE_MOST)}, required=("ended", "code")))
 # Taken from the environment as the fenced command starts (its modules are imported before any
 # plug-in code runs), so that no process it starts inherits it and writes a record of its own.
 _PATH = os.environ.pop(ENV, None)
@@ -38,7 +44,7 @@ def say(ended, code, message=""):
     if not path:
         return
     _said = True
-    data = json.dumps({"ended": ended, "code": int(code), "message": str(message)[:2000]})
+    data = json.dumps({"ended": ended, "code": int(code), "message": str(message)[:MESSAGE_MOST]})
     part = f"{path}.part"
     try:
         with open(part, "w") as f:
@@ -50,17 +56,14 @@ def say(ended, code, message=""):
 
 def read(path):
     """dc's side: the record at path as {"ended", "code", "message"}, or None where there is none
-    or it is not one (a link, a FIFO, too large, not the JSON written above): read once, through
+    or it is not one (a link, a FIFO, too large, not of its form: shape.py): read once, through
     a descriptor opened without following links, never blocking."""
     data = read_regular(path, LIMIT)
     if data is None:
         return None
     try:
-        record = json.loads(data)
-    except (ValueError, RecursionError):
-        return None
-    if not (isinstance(record, dict) and record.get("ended") in (IN_ORDER, FAILED)
-            and type(record.get("code")) is int and isinstance(record.get("message", ""), str)):
+        record = shape.parsed(data, "result record", LIMIT)
+    except shape.ShapeError:
         return None
     return {"ended": record["ended"], "code": record["code"], "message": record.get("message", "")}
 
