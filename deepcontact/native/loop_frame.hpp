@@ -35,7 +35,29 @@ struct LoopFrame {
     size_t body_count = 0, points = 0;
     float deepest = 0.0f;   // deepest penetration among the points (m), >= 0
 
-    // Scratch of the island solve: each island body's state, and where a body sits in its island.
+    // Per island contact, b2ContactSolver's constraint as its warm start, StoreImpulses and
+    // position correction read it (in Box2D's float32 arithmetic, whatever precision the solve is
+    // in): the bodies' slots in the island arrays and their inverse masses, the manifold in body
+    // frames, and what InitializeVelocityConstraints computes for the warm start (the normal, the
+    // lever arms, the points kept: a redundant pair is cut to its first).
+    struct Constraint {
+        b2Manifold* manifold;
+        int32_t slot_a, slot_b;
+        float mA, mB, iA, iB;
+        b2Vec2 local_center_a, local_center_b;
+        b2Vec2 local_normal, local_point, local_points[b2_maxManifoldPoints];
+        float radius_a, radius_b;
+        b2Manifold::Type type;
+        int32_t point_count;   // the manifold's (positions correct every point)
+        int32_t count;         // the warm start's
+        b2Vec2 normal;
+        b2Vec2 rA[b2_maxManifoldPoints], rB[b2_maxManifoldPoints];
+    };
+    std::vector<Constraint> constraints;
+    std::vector<b2Rot> rotation;   // each live body's, by scene index (one sine and cosine a body)
+
+    // The island solve's state, one slot per island body; where each body sits in the island
+    // being searched (scene index); each live body's solver row (scene index).
     std::vector<b2Position> positions;
     std::vector<b2Velocity> velocities;
     std::vector<int32_t> slot, row_of;

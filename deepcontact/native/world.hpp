@@ -114,8 +114,9 @@ private:
     void solve_islands(const b2TimeStep& step);
     void solve_island(const b2TimeStep& step, int32_t body_begin, int32_t body_end, int32_t contact_begin,
                       int32_t contact_end);
-    void apply_impulses(const b2TimeStep& step, b2Contact* contact);
-    float correct_positions(b2Contact* contact);
+    b2WorldManifold pose(b2Contact* contact, LoopFrame::Constraint& constraint) const;
+    void apply_impulses(const b2TimeStep& step, const LoopFrame::Constraint& constraint);
+    float correct_positions(const LoopFrame::Constraint& constraint);
     LoopFrame loop_;
     std::vector<b2Body*> loop_stack_;
     uint64_t loop_generation_ = ~uint64_t(0);   // generation_ when gather_loop() ran

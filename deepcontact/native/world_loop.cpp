@@ -12,8 +12,6 @@
 #include "box2d_access.hpp"
 #include "world.hpp"
 
-extern B2_API bool g_blockSolve;
-
 namespace dc {
 namespace {
 
@@ -62,6 +60,8 @@ void World::find_islands() {
     for (b2Body* b = w->GetBodyList(); b; b = b->GetNext()) flags(b) &= ~kBodyIslandFlag;
     for (b2Contact* c = w->GetContactList(); c; c = c->GetNext()) flags(c) &= ~kContactIslandFlag;
     std::vector<b2Body*>& stack = loop_stack_;
+    f.slot.resize(bodies_.size());
+    f.constraints.clear();
     for (b2Body* seed = w->GetBodyList(); seed; seed = seed->GetNext()) {
         if ((flags(seed) & kBodyIslandFlag) || !seed->IsAwake() || !seed->IsEnabled()) continue;
         if (seed->GetType() == b2_staticBody) continue;
@@ -71,6 +71,7 @@ void World::find_islands() {
         while (!stack.empty()) {
             b2Body* b = stack.back();
             stack.pop_back();
+            f.slot[body_index(b)] = static_cast<int32_t>(f.island_bodies.size());
             f.island_bodies.push_back(b);
             if (b->GetType() == b2_staticBody) continue;
             flags(b) |= kBodyAwakeFlag;   // awake, without resetting its sleep time
@@ -88,6 +89,12 @@ void World::find_islands() {
         }
         f.bodies_end.push_back(static_cast<int32_t>(f.island_bodies.size()));
         f.contacts_end.push_back(static_cast<int32_t>(f.island_contacts.size()));
+        // the island's contacts know their bodies' slots (a static body has one in each island)
+        for (size_t i = f.constraints.size(); i < f.island_contacts.size(); ++i) {
+            LoopFrame::Constraint& k = f.constraints.emplace_back();
+            k.slot_a = f.slot[body_index(f.island_contacts[i]->GetFixtureA()->GetBody())];
+            k.slot_b = f.slot[body_index(f.island_contacts[i]->GetFixtureB()->GetBody())];
+        }
         // static bodies may join later islands too
         for (size_t i = first_body; i < f.island_bodies.size(); ++i)
             if (f.island_bodies[i]->GetType() == b2_staticBody) flags(f.island_bodies[i]) &= ~kBodyIslandFlag;
@@ -111,10 +118,12 @@ void World::gather_loop_bodies() {
     s.angular_damping.resize(n);
     s.gravity_scale.resize(n);
     loop_.row_of.assign(bodies_.size(), -1);
+    loop_.rotation.resize(bodies_.size());
     size_t i = 0;
     for (b2Body* b : bodies_) {
         if (b == nullptr) continue;
         loop_.row_of[body_index(b)] = static_cast<int32_t>(i);
+        loop_.rotation[body_index(b)].Set(b->GetAngle());   // (the same angle gives the same bits)
         s.type[i] = static_cast<int8_t>(b->GetType());
         s.angle[i] = b->GetAngle();
         put2(s.center, i, b->GetWorldCenter());
@@ -132,7 +141,9 @@ void World::gather_loop_bodies() {
     loop_.body_count = n;
 }
 
-// Every point of the islands' contacts, in island order; the rows set_manifold_impulses writes.
+// Every point of the islands' contacts, in island order (the rows set_manifold_impulses writes),
+// each contact posed once for the warm start that applies the solution; the penetration is the
+// posed manifold's (the transforms Box2D's solver builds from the bodies' positions).
 void World::gather_loop_contacts() {
     LoopFrame::Contacts& s = loop_.contacts;
     size_t n = 0;
@@ -144,7 +155,7 @@ void World::gather_loop_contacts() {
     for (auto* v : {&s.normal_impulse, &s.tangent_impulse}) v->resize(n);
     gathered_.clear();
     float deepest = 0.0f;
-    size_t k = 0;
+    size_t k = 0, index = 0;
     int32_t manifold = 0;
     for (b2Contact* c : loop_.island_contacts) {
         const b2Fixture* fa = c->GetFixtureA();
@@ -152,8 +163,7 @@ void World::gather_loop_contacts() {
         const b2Body* ba = fa->GetBody();
         const b2Body* bb = fb->GetBody();
         const b2Manifold* m = c->GetManifold();
-        b2WorldManifold wm;   // for the penetration, from the bodies' transforms (as contacts())
-        wm.Initialize(m, ba->GetTransform(), fa->GetShape()->m_radius, bb->GetTransform(), fb->GetShape()->m_radius);
+        const b2WorldManifold wm = pose(c, loop_.constraints[index++]);   // (also the penetration)
         for (int j = 0; j < m->pointCount; ++j, ++k) {
             const b2ManifoldPoint& p = m->points[j];
             s.manifold[k] = manifold;
@@ -196,7 +206,6 @@ void World::solve_islands(const b2TimeStep& step) {
     LoopFrame& f = loop_;
     f.positions.resize(f.island_bodies.size());
     f.velocities.resize(f.island_bodies.size());
-    f.slot.resize(bodies_.size());
     int32_t first_body = 0, first_contact = 0;
     for (size_t island = 0; island < f.bodies_end.size(); ++island) {
         solve_island(step, first_body, f.bodies_end[island], first_contact, f.contacts_end[island]);
@@ -224,7 +233,6 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
     // Integrate velocities and apply damping.
     for (int32_t i = body_begin; i < body_end; ++i) {
         b2Body* b = f.island_bodies[i];
-        f.slot[body_index(b)] = i;
         b2Sweep& sweep = b->*member(BodySweep());
         b2Vec2 c = sweep.c;
         float a = sweep.a;
@@ -244,10 +252,9 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
         velocities[i].v = v;
         velocities[i].w = w;
     }
-    // The impulses written into the manifolds, applied as b2ContactSolver's warm start (with the
-    // normal and lever arms InitializeVelocityConstraints computes, a redundant pair cut to its
-    // first point as it cuts it), and stored back as StoreImpulses stores them.
-    for (int32_t i = contact_begin; i < contact_end; ++i) apply_impulses(step, f.island_contacts[i]);
+    // The impulses written into the manifolds, applied as b2ContactSolver's warm start and stored
+    // back as StoreImpulses stores them.
+    for (int32_t i = contact_begin; i < contact_end; ++i) apply_impulses(step, f.constraints[i]);
     // Integrate positions.
     for (int32_t i = body_begin; i < body_end; ++i) {
         b2Vec2 c = positions[i].c;
@@ -275,7 +282,7 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
         bool solved = true;
         float min_separation = 0.0f;
         for (int32_t i = contact_begin; i < contact_end; ++i)
-            min_separation = b2Min(min_separation, correct_positions(f.island_contacts[i]));
+            min_separation = b2Min(min_separation, correct_positions(f.constraints[i]));
         solved = min_separation >= -3.0f * b2_linearSlop;
         if (solved) break;
     }
@@ -294,122 +301,139 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
         for (int32_t i = contact_begin; i < contact_end; ++i) record_solved(f.island_contacts[i]);
 }
 
-// One contact of b2ContactSolver: InitializeVelocityConstraints' normal and lever arms, the
-// block solver's cut of a redundant pair, WarmStart, StoreImpulses.
-void World::apply_impulses(const b2TimeStep& step, b2Contact* contact) {
-    LoopFrame& f = loop_;
+// One contact as b2ContactSolver's constructor and InitializeVelocityConstraints pose it for its
+// warm start and position correction: the manifold in body frames, the world manifold from the
+// transforms the bodies' positions give (each body's rotation computed once a step), the normal
+// and lever arms, and the block solver's cut of a redundant pair. Returns the world manifold
+// (its separations: the penetration).
+b2WorldManifold World::pose(b2Contact* contact, LoopFrame::Constraint& k) const {
+    const LoopFrame& f = loop_;
     b2Fixture* fa = contact->GetFixtureA();
     b2Fixture* fb = contact->GetFixtureB();
     b2Body* ba = fa->GetBody();
     b2Body* bb = fb->GetBody();
+    const b2Sweep& sa = ba->*member(BodySweep());
+    const b2Sweep& sb = bb->*member(BodySweep());
     b2Manifold* manifold = contact->GetManifold();
-    const int32_t indexA = f.slot[body_index(ba)], indexB = f.slot[body_index(bb)];
-    const float mA = ba->*member(BodyInvMass()), mB = bb->*member(BodyInvMass());
-    const float iA = ba->*member(BodyInvI()), iB = bb->*member(BodyInvI());
-    const b2Vec2 cA = f.positions[indexA].c, cB = f.positions[indexB].c;
-    const float aA = f.positions[indexA].a, aB = f.positions[indexB].a;
+    k.manifold = manifold;
+    k.mA = ba->*member(BodyInvMass());
+    k.mB = bb->*member(BodyInvMass());
+    k.iA = ba->*member(BodyInvI());
+    k.iB = bb->*member(BodyInvI());
+    k.local_center_a = sa.localCenter;
+    k.local_center_b = sb.localCenter;
+    k.local_normal = manifold->localNormal;
+    k.local_point = manifold->localPoint;
+    k.radius_a = fa->GetShape()->m_radius;
+    k.radius_b = fb->GetShape()->m_radius;
+    k.type = manifold->type;
+    k.point_count = k.count = manifold->pointCount;
+
+    const b2Vec2 cA = sa.c, cB = sb.c;
     b2Transform xfA, xfB;
-    xfA.q.Set(aA);
-    xfB.q.Set(aB);
-    xfA.p = cA - b2Mul(xfA.q, (ba->*member(BodySweep())).localCenter);
-    xfB.p = cB - b2Mul(xfB.q, (bb->*member(BodySweep())).localCenter);
+    xfA.q = f.rotation[body_index(ba)];
+    xfB.q = f.rotation[body_index(bb)];
+    xfA.p = cA - b2Mul(xfA.q, k.local_center_a);
+    xfB.p = cB - b2Mul(xfB.q, k.local_center_b);
     b2WorldManifold wm;
-    wm.Initialize(manifold, xfA, fa->GetShape()->m_radius, xfB, fb->GetShape()->m_radius);
-    const b2Vec2 normal = wm.normal;
-    b2Vec2 rA[b2_maxManifoldPoints], rB[b2_maxManifoldPoints];
-    float normal_impulse[b2_maxManifoldPoints], tangent_impulse[b2_maxManifoldPoints];
-    int32 point_count = manifold->pointCount;
-    for (int32 j = 0; j < point_count; ++j) {
-        rA[j] = wm.points[j] - cA;
-        rB[j] = wm.points[j] - cB;
-        const b2ManifoldPoint& cp = manifold->points[j];
-        normal_impulse[j] = step.warmStarting ? step.dtRatio * cp.normalImpulse : 0.0f;
-        tangent_impulse[j] = step.warmStarting ? step.dtRatio * cp.tangentImpulse : 0.0f;
+    wm.Initialize(manifold, xfA, k.radius_a, xfB, k.radius_b);
+    k.normal = wm.normal;
+    for (int32 j = 0; j < k.point_count; ++j) {
+        k.local_points[j] = manifold->points[j].localPoint;
+        k.rA[j] = wm.points[j] - cA;
+        k.rB[j] = wm.points[j] - cB;
     }
-    if (point_count == 2 && g_blockSolve) {
-        float rn1A = b2Cross(rA[0], normal);
-        float rn1B = b2Cross(rB[0], normal);
-        float rn2A = b2Cross(rA[1], normal);
-        float rn2B = b2Cross(rB[1], normal);
+    if (k.count == 2 && block_solve_) {
+        const float mA = k.mA, mB = k.mB, iA = k.iA, iB = k.iB;
+        float rn1A = b2Cross(k.rA[0], k.normal);
+        float rn1B = b2Cross(k.rB[0], k.normal);
+        float rn2A = b2Cross(k.rA[1], k.normal);
+        float rn2B = b2Cross(k.rB[1], k.normal);
         float k11 = mA + mB + iA * rn1A * rn1A + iB * rn1B * rn1B;
         float k22 = mA + mB + iA * rn2A * rn2A + iB * rn2B * rn2B;
         float k12 = mA + mB + iA * rn1A * rn2A + iB * rn1B * rn2B;
         const float k_maxConditionNumber = 1000.0f;
-        if (!(k11 * k11 < k_maxConditionNumber * (k11 * k22 - k12 * k12))) point_count = 1;
+        if (!(k11 * k11 < k_maxConditionNumber * (k11 * k22 - k12 * k12))) k.count = 1;
+    }
+    return wm;
+}
+
+// One contact of b2ContactSolver: the impulses written into its manifold applied as WarmStart
+// applies them, then stored as StoreImpulses stores them.
+void World::apply_impulses(const b2TimeStep& step, const LoopFrame::Constraint& k) {
+    LoopFrame& f = loop_;
+    b2ManifoldPoint* points = k.manifold->points;
+    float normal_impulse[b2_maxManifoldPoints], tangent_impulse[b2_maxManifoldPoints];
+    for (int32 j = 0; j < k.count; ++j) {
+        normal_impulse[j] = step.warmStarting ? step.dtRatio * points[j].normalImpulse : 0.0f;
+        tangent_impulse[j] = step.warmStarting ? step.dtRatio * points[j].tangentImpulse : 0.0f;
     }
     if (step.warmStarting) {
-        b2Vec2 vA = f.velocities[indexA].v;
-        float wA = f.velocities[indexA].w;
-        b2Vec2 vB = f.velocities[indexB].v;
-        float wB = f.velocities[indexB].w;
+        b2Velocity& A = f.velocities[k.slot_a];
+        b2Velocity& B = f.velocities[k.slot_b];
+        b2Vec2 vA = A.v;
+        float wA = A.w;
+        b2Vec2 vB = B.v;
+        float wB = B.w;
+        const b2Vec2 normal = k.normal;
         const b2Vec2 tangent = b2Cross(normal, 1.0f);
-        for (int32 j = 0; j < point_count; ++j) {
+        for (int32 j = 0; j < k.count; ++j) {
             b2Vec2 P = normal_impulse[j] * normal + tangent_impulse[j] * tangent;
-            wA -= iA * b2Cross(rA[j], P);
-            vA -= mA * P;
-            wB += iB * b2Cross(rB[j], P);
-            vB += mB * P;
+            wA -= k.iA * b2Cross(k.rA[j], P);
+            vA -= k.mA * P;
+            wB += k.iB * b2Cross(k.rB[j], P);
+            vB += k.mB * P;
         }
-        f.velocities[indexA].v = vA;
-        f.velocities[indexA].w = wA;
-        f.velocities[indexB].v = vB;
-        f.velocities[indexB].w = wB;
+        A.v = vA;
+        A.w = wA;
+        B.v = vB;
+        B.w = wB;
     }
-    for (int32 j = 0; j < point_count; ++j) {
-        manifold->points[j].normalImpulse = normal_impulse[j];
-        manifold->points[j].tangentImpulse = tangent_impulse[j];
+    for (int32 j = 0; j < k.count; ++j) {
+        points[j].normalImpulse = normal_impulse[j];
+        points[j].tangentImpulse = tangent_impulse[j];
     }
 }
 
 // One contact of b2ContactSolver::SolvePositionConstraints (b2PositionSolverManifold inline);
 // returns the least separation it saw.
-float World::correct_positions(b2Contact* contact) {
+float World::correct_positions(const LoopFrame::Constraint& k) {
     LoopFrame& f = loop_;
-    b2Fixture* fa = contact->GetFixtureA();
-    b2Fixture* fb = contact->GetFixtureB();
-    b2Body* ba = fa->GetBody();
-    b2Body* bb = fb->GetBody();
-    const b2Manifold* manifold = contact->GetManifold();
-    const int32_t indexA = f.slot[body_index(ba)], indexB = f.slot[body_index(bb)];
-    const b2Vec2 localCenterA = (ba->*member(BodySweep())).localCenter;
-    const b2Vec2 localCenterB = (bb->*member(BodySweep())).localCenter;
-    const float mA = ba->*member(BodyInvMass()), mB = bb->*member(BodyInvMass());
-    const float iA = ba->*member(BodyInvI()), iB = bb->*member(BodyInvI());
-    const float radiusA = fa->GetShape()->m_radius, radiusB = fb->GetShape()->m_radius;
-    b2Vec2 cA = f.positions[indexA].c;
-    float aA = f.positions[indexA].a;
-    b2Vec2 cB = f.positions[indexB].c;
-    float aB = f.positions[indexB].a;
+    const float mA = k.mA, mB = k.mB, iA = k.iA, iB = k.iB;
+    b2Vec2 cA = f.positions[k.slot_a].c;
+    float aA = f.positions[k.slot_a].a;
+    b2Vec2 cB = f.positions[k.slot_b].c;
+    float aB = f.positions[k.slot_b].a;
     float min_separation = 0.0f;
-    for (int32 j = 0; j < manifold->pointCount; ++j) {
+    for (int32 j = 0; j < k.point_count; ++j) {
         b2Transform xfA, xfB;
         xfA.q.Set(aA);
         xfB.q.Set(aB);
-        xfA.p = cA - b2Mul(xfA.q, localCenterA);
-        xfB.p = cB - b2Mul(xfB.q, localCenterB);
+        xfA.p = cA - b2Mul(xfA.q, k.local_center_a);
+        xfB.p = cB - b2Mul(xfB.q, k.local_center_b);
         b2Vec2 normal, point;
         float separation;
-        switch (manifold->type) {
+        switch (k.type) {
         case b2Manifold::e_circles: {
-            b2Vec2 pointA = b2Mul(xfA, manifold->localPoint);
-            b2Vec2 pointB = b2Mul(xfB, manifold->points[0].localPoint);
+            b2Vec2 pointA = b2Mul(xfA, k.local_point);
+            b2Vec2 pointB = b2Mul(xfB, k.local_points[0]);
             normal = pointB - pointA;
             normal.Normalize();
             point = 0.5f * (pointA + pointB);
-            separation = b2Dot(pointB - pointA, normal) - radiusA - radiusB;
+            separation = b2Dot(pointB - pointA, normal) - k.radius_a - k.radius_b;
         } break;
         case b2Manifold::e_faceA: {
-            normal = b2Mul(xfA.q, manifold->localNormal);
-            b2Vec2 planePoint = b2Mul(xfA, manifold->localPoint);
-            b2Vec2 clipPoint = b2Mul(xfB, manifold->points[j].localPoint);
-            separation = b2Dot(clipPoint - planePoint, normal) - radiusA - radiusB;
+            normal = b2Mul(xfA.q, k.local_normal);
+            b2Vec2 planePoint = b2Mul(xfA, k.local_point);
+            b2Vec2 clipPoint = b2Mul(xfB, k.local_points[j]);
+            separation = b2Dot(clipPoint - planePoint, normal) - k.radius_a - k.radius_b;
             point = clipPoint;
         } break;
         default: {   // e_faceB: the normal still points from A to B
-            normal = b2Mul(xfB.q, manifold->localNormal);
-            b2Vec2 planePoint = b2Mul(xfB, manifold->localPoint);
-            b2Vec2 clipPoint = b2Mul(xfA, manifold->points[j].localPoint);
-            separation = b2Dot(clipPoint - planePoint, normal) - radiusA - radiusB;
+            normal = b2Mul(xfB.q, k.local_normal);
+            b2Vec2 planePoint = b2Mul(xfB, k.local_point);
+            b2Vec2 clipPoint = b2Mul(xfA, k.local_points[j]);
+            separation = b2Dot(clipPoint - planePoint, normal) - k.radius_a - k.radius_b;
             point = clipPoint;
             normal = -normal;
         } break;
@@ -428,10 +452,10 @@ float World::correct_positions(b2Contact* contact) {
         cB += mB * P;
         aB += iB * b2Cross(rB, P);
     }
-    f.positions[indexA].c = cA;
-    f.positions[indexA].a = aA;
-    f.positions[indexB].c = cB;
-    f.positions[indexB].a = aB;
+    f.positions[k.slot_a].c = cA;
+    f.positions[k.slot_a].a = aA;
+    f.positions[k.slot_b].c = cB;
+    f.positions[k.slot_b].a = aB;
     return min_separation;
 }
 

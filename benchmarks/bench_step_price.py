@@ -1,0 +1,69 @@
+"""What the project's step costs against Box2D 2.4.1's own, for the same sweeps (issue 75's step
+price): a settled pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a box of 300 with
+--count 10000) is built three times and each copy settled by Box2D at its 8 iterations (the same
+steps, so the same state). Then the copies step in turn, one step each per round: Box2D's own step
+at 8 iterations, the loop's step at 8 sweeps in float64, and the loop's step at 8 sweeps in
+Box2D's exact float32 arithmetic (each one native call: Collide, the islands found once, the
+solve, the islands stepped with the impulses written). Each round's ratio is a loop step over the
+Box2D step of the same round (the same load on both); a step's time is the CPU time of the thread
+that steps (so a busy machine's other work is not counted; one thread does it all). Printed: the
+median ratio and its interquartile range, and each world's median step. Unrecorded.
+
+Usage: python benchmarks/bench_step_price.py [--count 1000] [--settle 500] [--steps 200] [--sweeps 8]
+"""
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deepcontact.scene.generators import generate
+from deepcontact.simulate import stepping
+from deepcontact.simulate.engines import Box2D
+from deepcontact.solver.settings import SolveSettings
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import arguments  # noqa: E402
+
+
+def settled(scene, settle):
+    """A world of the scene after `settle` steps of Box2D's own solver at 8 iterations."""
+    box2d = Box2D(velocity_iterations=8)
+    world = box2d.build(scene)
+    for _ in stepping.steps(world, scene, box2d.stepper(world, scene, record=False), settle):
+        pass
+    return world
+
+
+def main():
+    args = arguments(__doc__, count=1000, settle=500, steps=200, sweeps=8)
+    big = args.count > 1000
+    params = dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0,
+                  steps=args.settle + args.steps + 1)
+    scene = generate("pile", 9, params)
+    steppers = {}
+    for name, settings in ((f"Box2D 2.4.1, {args.sweeps} iterations", None),
+                           (f"the loop, {args.sweeps} sweeps, float64", "float64"),
+                           (f"the loop, {args.sweeps} sweeps, exact", "exact")):
+        world = settled(scene, args.settle)
+        engine = Box2D(velocity_iterations=args.sweeps) if settings is None else Box2D(
+            solver=SolveSettings(max_iterations=args.sweeps, tolerance=0, mode=settings))
+        steppers[name] = engine.stepper(world, scene, record=False)
+    times = {name: [] for name in steppers}
+    for _ in range(args.steps):   # each world in turn, one step each a round
+        for name, step in steppers.items():
+            t = time.thread_time()
+            step()
+            times[name].append(time.thread_time() - t)
+    base_name = next(iter(times))
+    base = np.array(times[base_name])
+    print(f"the {args.count:,}-circle pile (seed 9), settled for {args.settle} steps; {args.steps} rounds")
+    print(f"{'':34s} {'median CPU ms':>13s} {'x Box2D (median of rounds)':>27s} {'IQR':>15s}")
+    for name, values in times.items():
+        ratio = np.array(values) / base
+        q1, med, q3 = np.percentile(ratio, [25, 50, 75])
+        print(f"{name:34s} {np.median(values) * 1e3:13.3f} {med:26.2f}x {q1:7.2f}-{q3:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
