@@ -239,9 +239,11 @@ void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>
     }
 }
 
+// The problem posed into pb, whose buffers are reused (the native loop keeps one from step to step).
 template <class R>
-ContactProblem<R> assemble(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st) {
-    ContactProblem<R> pb;
+void assemble_into(ContactProblem<R>& pb, const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st) {
+    pb.manifolds.clear();
+    pb.stats = ProblemStats{};
     const R h = R(st.dt);
     const V2<R> gravity{R(st.gravity[0]), R(st.gravity[1])};
     const bool has_gravity = gravity.x != R(0) || gravity.y != R(0);
@@ -381,6 +383,12 @@ ContactProblem<R> assemble(const BodyColumns& bc, const ContactColumns& cc, cons
         k += count;
     }
     pb.points = cc.n;
+}
+
+template <class R>
+ContactProblem<R> assemble(const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st) {
+    ContactProblem<R> pb;
+    assemble_into(pb, bc, cc, st);
     return pb;
 }
 

@@ -62,6 +62,10 @@ struct LoopFrame {
     std::vector<b2Velocity> velocities;
     std::vector<int32_t> slot, row_of;
 
+    // The step's problem, posed into buffers kept from step to step (one for each precision).
+    ContactProblem<float> problem32;
+    ContactProblem<double> problem64;
+
     BodyColumns body_columns() const;
     ContactColumns contact_columns() const;
 };

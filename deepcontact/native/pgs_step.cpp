@@ -6,10 +6,10 @@ namespace dc {
 namespace {
 
 template <class R>
-void solve_step(const BodyColumns& bc, const ContactColumns& cc, const PGSStepSettings& s,
+void solve_step(ContactProblem<R>& pb, const BodyColumns& bc, const ContactColumns& cc, const PGSStepSettings& s,
                 const std::vector<double>& start_n, const std::vector<double>& start_t, PGSStepReport& out,
                 LaggedFactor* carried) {
-    ContactProblem<R> pb = assemble<R>(bc, cc, s.step);
+    assemble_into(pb, bc, cc, s.step);
     out.solve = solve(pb, start_n.data(), start_t.data(), s.solve, carried);
     out.stats = pb.stats;
     // A point Box2D drops from an ill-conditioned pair keeps its start, as in solve_contacts.
@@ -27,7 +27,7 @@ void solve_step(const BodyColumns& bc, const ContactColumns& cc, const PGSStepSe
 PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
     PGSStepReport out;
     world.collide();
-    const LoopFrame& f = world.gather_loop();
+    LoopFrame& f = world.gather_loop();
     const size_t n = f.points;
     if (n > 0) {
         const BodyColumns bc = f.body_columns();
@@ -45,9 +45,9 @@ PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
         if (!world.carried_factor) world.carried_factor = new_carried_factor();
         LaggedFactor* carried = world.carried_factor.get();
         if (s.solve.float64())
-            solve_step<double>(bc, cc, s, start_n, start_t, out, carried);
+            solve_step(f.problem64, bc, cc, s, start_n, start_t, out, carried);
         else
-            solve_step<float>(bc, cc, s, start_n, start_t, out, carried);
+            solve_step(f.problem32, bc, cc, s, start_n, start_t, out, carried);
         out.start_normal = std::move(start_n);
         out.start_tangent = std::move(start_t);
         out.solved = true;

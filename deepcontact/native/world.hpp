@@ -53,7 +53,7 @@ public:
     // Until the world changes, step(..., collided) then steps those islands itself with no
     // velocity iterations (world_loop.cpp) instead of running Box2D's Solve, which would find
     // them again and pose every contact's constraint a second time.
-    const LoopFrame& gather_loop();
+    LoopFrame& gather_loop();
 
     BodyState bodies() const;
     void set_body_state(const int32_t* index, const float* position, const float* angle,

@@ -191,7 +191,7 @@ void World::gather_loop_contacts() {
     loop_.deepest = deepest;
 }
 
-const LoopFrame& World::gather_loop() {
+LoopFrame& World::gather_loop() {
     find_islands();
     gather_loop_bodies();
     gather_loop_contacts();
