@@ -78,7 +78,7 @@ def plugin_variant(label):
 
 
 def power_words(noise):
-    """The verdict's power, said of each plug-in variant that converged (contest/verdict.py,
+    """The verdict's power, said of each plug-in variant that converged and is no oracle (contest/verdict.py,
     power_of): what its setup beyond the base's costs and the steps its saving a step needs to pay
     it back (or that it never does), and, where it is faster on the median but not named, that the
     run was too short to name it and about how many steps would be. "" where there is none to say."""
@@ -87,7 +87,7 @@ def power_words(noise):
     base, unfinished = noise["base"], noise.get("unfinished", {})
     named = noise["best"] if noise.get("clear") else None
     parts = [_power_part(n, p, base, noise["vs_base"][n][0], n == named) for n, p in noise["power"].items()
-             if plugin_variant(n) and not unfinished.get(n, 0) and n in noise["vs_base"]]
+             if plugin_variant(n) and not oracle(n) and not unfinished.get(n, 0) and n in noise["vs_base"]]
     parts = [p for p in parts if p]
     return f" Power against {md_text(base)}: " + "; ".join(parts) + "." if parts else ""
 
