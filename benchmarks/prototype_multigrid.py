@@ -1,6 +1,6 @@
 """The gate of a nonsmooth multigrid, measured before any native code: does a method whose cost
 should not grow with the pile's depth bring each step of the settled rigid pile to 1e-4 in a few
-cycles? (issue 75, item 3; docs/results/bodyspace.md, "A nonsmooth multigrid: the prototype gate")
+cycles? (issue 75, item 3; docs/results/multigrid.md)
 
 The 1000-circle pile (seed 9) settles under Box2D at its 8 iterations for --settle steps; then the
 loop steps it (collide, solve, write the impulses, Box2D's Step with 0 velocity iterations) for
@@ -139,10 +139,11 @@ class StepSolve:
         WF = self.W[rows][:, rows]
         WF = (WF + sp.diags(self.regularisation * WF.diagonal())).tocsr()
         np.random.seed(0)   # (pyamg estimates spectral radii from a random vector: the same one every build)
-        hierarchy = getattr(pyamg, self.hierarchy)(WF, max_coarse=50)
         d = np.zeros(self.W.shape[0])
-        d[rows] = hierarchy.solve(-u[rows], x0=np.zeros(len(rows)), tol=1e-12,
-                                  maxiter=self.coarse_iterations, accel="cg")
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):   # (a d not finite is counted)
+            hierarchy = getattr(pyamg, self.hierarchy)(WF, max_coarse=50)
+            d[rows] = hierarchy.solve(-u[rows], x0=np.zeros(len(rows)), tol=1e-12,
+                                      maxiter=self.coarse_iterations, accel="cg")
         return d
 
     def line_search(self, r, u, d, bound):
@@ -347,7 +348,7 @@ def main():
     if pyamg is None:
         print(INSTALL_HINT, file=sys.stderr)
         sys.exit(1)
-    print(protocol_line(current()) + "; OMP, OpenBLAS and MKL threads set to 1\n")
+    print(protocol_line(current()).rstrip(".") + "; OMP, OpenBLAS and MKL threads set to 1.\n")
     world, scene = settled_pile(args)
     report(run_loop(world, scene, args), args)
 
