@@ -5,17 +5,18 @@ cycles? (issue 75, item 3; docs/results/multigrid.md)
 The 1000-circle pile (seed 9) settles under Box2D at its 8 iterations for --settle steps; then the
 loop steps it (collide, solve, write the impulses, Box2D's Step with 0 velocity iterations) for
 --steps steps. Each step's contact problem (u = W r + q, solver/local.py) is solved from Box2D's
-warm start by every variant, each a truncated nonsmooth Newton multigrid cycle (TNNMG, Graeser and
-Sander) on Coulomb's law as a fixed point of Tresca problems:
+warm start by every variant, each a truncated nonsmooth Newton multigrid cycle (TNNMG, Graeser, Sack
+and Sander) on Coulomb's law as a fixed point of Tresca problems:
 
   pre-smoothing   NU sweeps of the project's native PGS (PSOR at w), on the whole friction cone;
   truncation      the impulses put in the cone (r_n >= 0, |r_t| <= mu r_n: the Tresca bound of this
                   cycle); the rows strictly inside their bounds are free, those at a bound are held
                   (TNNMG's truncation): the free normal rows, and with `cone` the free tangent rows;
-  coarse          the defect system W_FF d_F = -u_F of the free rows, W_FF made definite by 1e-6 of
-                  its diagonal (a rigid pile has more rows than degrees of freedom), solved by
-                  pyamg's smoothed aggregation hierarchy of W_FF (--coarse-iterations V-cycles,
-                  as a preconditioner of conjugate gradients);
+  coarse          the defect system W_FF d_F = -u_F of the free rows, W_FF made definite by
+                  --regularisation of its diagonal (a rigid pile has more rows than degrees of
+                  freedom), solved by pyamg's smoothed (or root-node: --aggregation) aggregation
+                  hierarchy of W_FF, built each cycle (--coarse-iterations V-cycles, as a
+                  preconditioner of conjugate gradients);
   projection      d' = clip(r + d) - r, the correction projected onto the Tresca box, then the exact
                   minimiser of the Tresca energy 1/2 r.W r + q.r along d' in [0, 1] (a convex
                   quadratic: the step never raises it);
@@ -36,6 +37,7 @@ Needs pyamg (pip install '.[prototype]').
 
 Usage: python benchmarks/prototype_multigrid.py [--settle N] [--steps N] [--seed S] [--most N]
            [--tolerance T] [--variants KIND:NU:W,...] [--coarse-iterations K]
+           [--aggregation smoothed|rootnode] [--regularisation R]
 """
 import os
 import sys
