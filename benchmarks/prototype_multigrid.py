@@ -260,7 +260,7 @@ def solve_one_step(step, args, figures):
         row["end_residual"].append(residual(step.lp, r))
         row["alpha"].extend(a for a, _ in coarse if np.isfinite(a))
         row["clipped"].extend(c for _, c in coarse if np.isfinite(c))
-        if answer is None and np.isfinite(cycles) and variant is args.variants[0]:
+        if variant is args.variants[0] and np.isfinite(cycles):
             answer = r
     r, sweeps = psor_to_tolerance(step, start, args.tolerance)
     figures["psor"].append(sweeps)
@@ -284,6 +284,7 @@ def run_loop(world, scene, args):
 
 
 def passes_gate(cycles):
+    """Issue 75's gate: the median step within 10 cycles, every step within 40."""
     return bool(np.median(cycles) <= 10 and np.all(cycles <= 40))
 
 
