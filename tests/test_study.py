@@ -144,8 +144,30 @@ def test_the_frontier_study_judges_every_setting_by_one_residual(tmp_path):
     assert summary.count("\n| pile 30 | Box2D") + summary.count("\n| pyramid 5 | Box2D") == engine_rows
     assert (out / "frontier-pile-30.png").stat().st_size > 0 and (out / "frontier-pyramid-5.png").stat().st_size > 0
     assert (out / "frontier-pile-30-penetration.png").stat().st_size > 0   # (every engine: pymunk's, MuJoCo's)
+    equal = text.split("## At equal time")[1].split("\n## ")[0]
+    assert equal.count("\n| pile 30 | ") == sum(row["scene"] == "pile 30" and row["family"] == "Box2D 2.4.1" for row in rows)
     r = dc("study", "frontier", "--scenes", "pile 7", "-o", tmp_path / "none")
     assert r.returncode == 2 and "no scene 'pile 7'" in r.stderr
+
+
+def test_at_equal_time_the_best_residual_within_the_engines_time_is_named():
+    """For each Box2D 2.4.1 setting, the project setting with the smallest residual among those no
+    slower: a faster but less accurate one loses to a slower, more accurate one that still fits; one
+    over the time never counts; a cap does not disqualify (at equal time the residual reached counts)."""
+    from dcstudies import frontier as F
+
+    def row(family, setting, ms, residual, capped=None):
+        return F.Row(scene="s", family=family, setting=setting, passed=True, finite=True, ms_per_step=ms,
+                     residual_median=residual, residual_max=residual, velocity_error=float("nan"), penetration=0.0,
+                     energy_rise=0.0, energy_allowed=1.0, capped=capped, samples=4)
+    box2d = [row("Box2D 2.4.1", "1 iteration", 1.0, 0.5), row("Box2D 2.4.1", "8 iterations", 2.0, 0.1)]
+    ours = [row("PGS", "4 sweeps", 0.9, 0.4), row("PSOR 1.7", "8 sweeps", 1.9, 0.05),
+            row("NNCG", "residual 0.0001", 5.0, 1e-4, capped=3), row("Box2D v3", "4 substeps", 0.1, float("nan"))]
+    got = {e.setting: (p.family if p else None) for e, p in F.at_equal_time(box2d + ours)}
+    assert got == {"1 iteration": "PGS", "8 iterations": "PSOR 1.7"}
+    assert F.at_equal_time([row("Box2D 2.4.1", "1 iteration", 0.5, 0.5)] + ours)[0][1] is None
+    table = F.equal_time_table(box2d + ours)
+    assert "| s | 8 iterations | 2 | 0.1 | PSOR 1.7, 8 sweeps | 1.9 | 0.05 | 0.5x |" in table
 
 
 def test_the_frontier_study_runs_the_part_asked_for(tmp_path):

@@ -261,6 +261,35 @@ def summary_table(rows):
     return "\n".join(lines) + "\n"
 
 
+def at_equal_time(rows):
+    """For each Box2D 2.4.1 setting of one scene, the project setting with the smallest one-step
+    residual (median) among those whose time per step is at most the engine's: what the project
+    reaches in the same time, whatever its method (a budget or a tolerance, capped or not: at equal
+    time the residual reached is what counts). (engine row, project row or None)."""
+    ours = [r for r in rows if _project(r) and r.finite and math.isfinite(r.ms_per_step)
+            and math.isfinite(r.residual_median)]
+    out = []
+    for e in (r for r in rows if r.family == "Box2D 2.4.1" and math.isfinite(r.ms_per_step)):
+        fits = [r for r in ours if r.ms_per_step <= e.ms_per_step]
+        out.append((e, min(fits, key=lambda r: (r.residual_median, r.ms_per_step)) if fits else None))
+    return out
+
+
+def equal_time_table(rows):
+    """One line per Box2D 2.4.1 setting of every scene: the best project residual in at most its
+    time per step, and how it compares (the ratio of the project's median residual to 2.4.1's:
+    below 1, the project is more accurate in the same time)."""
+    lines = ["| scene | Box2D 2.4.1 | ms / step | residual (median) | best project setting in at most that time | "
+             "ms / step | residual (median) | residual ratio |", "| --- | --- | ---: | ---: | --- | ---: | ---: | ---: |"]
+    for scene in dict.fromkeys(r.scene for r in rows):
+        for e, p in at_equal_time([r for r in rows if r.scene == scene]):
+            best = "none as fast" if p is None else f"{p.family}, {setting_cell(p)}"
+            lines.append(f"| {scene} | {e.setting} | {_fmt(e.ms_per_step)} | {_fmt(e.residual_median)} | {best} | "
+                         f"{'' if p is None else _fmt(p.ms_per_step)} | {'' if p is None else _fmt(p.residual_median)} | "
+                         f"{'' if p is None else _fmt(p.residual_median / e.residual_median, digits=2) + 'x'} |")
+    return "\n".join(lines) + "\n"
+
+
 COLUMNS = [("family", lambda r: r.family), ("setting", setting_cell),
            ("passes", lambda r: "yes" if r.passed else "no"), ("ms / step", lambda r: _fmt(r.ms_per_step)),
            ("one-step residual (median / largest)", lambda r: f"{_fmt(r.residual_median)} / {_fmt(r.residual_max)}"),
@@ -307,7 +336,9 @@ def markdown(rows, lines, fast, protocol_text):
              f"Criteria: {S.CRITERIA}\n", protocol_text + "\n", "Samples: " + " ".join(lines) + "\n",
              *plugin_line(rows, FAMILIES),
              "## For each engine setting, the cheapest project setting at least as accurate\n",
-             summary_table(rows)]
+             summary_table(rows),
+             "## At equal time: for each Box2D 2.4.1 setting, the project's best residual in at most its time\n",
+             equal_time_table(rows)]
     for scene in dict.fromkeys(r.scene for r in rows):
         parts += [f"## {scene}\n", f"![{scene}](frontier-{slug(scene)}.png)\n",
                   f"![{scene}: penetration](frontier-{slug(scene)}-penetration.png)\n",
