@@ -80,7 +80,11 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
 @click.option("--mode", type=types.choice(MODES),
               help="[pgs] exact: Box2D's float32 arithmetic; float64: double precision (default).")
-@click.option("--tolerance", type=types.Finite(min=0), help="[pgs] Stop when the measure falls below this.")
+@click.option("--tolerance", type=types.Finite(min=0),
+              help="[pgs] Stop when the measure falls below this. A converged pile is a reference, "
+                   "not a fast mode: the settled 1000-circle pile to 1e-4 costs about 40x Box2D's "
+                   "step (PSOR 1.7) and still ends most steps above it at the cap "
+                   "(docs/results/bodyspace.md, \"Converged piles\").")
 @click.option("--max-iterations", type=types.count(),
               help=f"[pgs] Sweep cap (default: {CAP} with --tolerance, as dc evaluate's; else the scene's).")
 @click.option("--stop-on", type=types.choice(MEASURES),
