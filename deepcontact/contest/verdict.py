@@ -29,7 +29,7 @@ the steps that saving needs to pay the setup back, and the steps a run needs to 
 noise measured: enough to pay its setup back, at least MIN_STEPS, enough for the A/A to come
 within NOISE_LIMIT and for its interval against the base to clear 1 and the A/A floor, every
 interval taken to narrow as one over the square root of the steps (a bootstrap interval of a
-median does). A run shorter than that is too
+median does), the A/A's toward its own ratio (a bias of the machine's stays). A run shorter than that is too
 short to name it; one that saves nothing a step, or is no faster on the median, is named at no length.
 """
 import math
@@ -258,9 +258,12 @@ def aa_steps(steps, aa):
 def interval_steps(steps, vs_base, aa):
     """The steps a run needs for a variant's interval against the base (ratio, low, high, measured
     on `steps` steps) to lie below 1 and below the A/A's low end, both half-widths narrowing as
-    one over the square root of the steps; None where its ratio is not below 1 (no length does)."""
+    one over the square root of the steps: the A/A's low end narrows to the A/A's own ratio, not
+    to 1 (a machine that times the base's first solve faster than its second keeps doing so at
+    any length). None where its ratio is not below both (no length does)."""
     ratio, _, high = vs_base
-    if not (np.isfinite(ratio) and ratio < 1 and np.isfinite(high) and np.isfinite(aa[1])) or steps < 1:
+    floor = min(1.0, aa[0])   # (where the bound it must clear settles)
+    if not (np.isfinite(ratio) and ratio < floor and np.isfinite(high) and np.isfinite(aa[1])) or steps < 1:
         return None
-    spread = (high - ratio) + max(1.0 - aa[1], 0.0)   # (its upper half-width, and how far the A/A's reaches below 1)
-    return math.floor(steps * (spread / (1.0 - ratio)) ** 2) + 1
+    spread = (high - ratio) + max(floor - aa[1], 0.0)   # (its upper half-width, and how far the A/A's reaches below)
+    return math.floor(steps * (spread / (floor - ratio)) ** 2) + 1
