@@ -186,9 +186,12 @@ class Registry:
         return list(self._builtin)
 
     def installed(self):
-        """{name: entry point} of the installed packages' plug-ins of this kind."""
+        """{name: entry point} of the installed packages' plug-ins of this kind, each name of the
+        form a registered one has (lower case letters, digits and '-'): a name with '+' or '@'
+        reads as a variant's label ('builtin+peek': builtin with the method 'peek'), so an
+        installed oracle so named was taken for builtin, no oracle. One of another form is none."""
         from importlib.metadata import entry_points   # (scans every installed package: only when asked)
-        return {ep.name: ep for ep in entry_points(group=self.group)}
+        return {ep.name: ep for ep in entry_points(group=self.group) if _NAME.fullmatch(ep.name)}
 
     def names(self):
         return self.builtin() + [n for n in self.installed() if n not in self._builtin]
