@@ -170,3 +170,20 @@ def test_no_length_is_promised_where_the_machine_times_builtin_against_itself_fu
     assert f"too short to name {PSOR}: its saving a step is within the noise" in line, line
     _, longer = judged(biased_rows(2000, seed + 100, 0.93, 1.15))   # (and indeed: none named at 2,000 steps)
     assert not longer["clear"] and longer["power"][PSOR]["needed_steps"] is None, (longer["aa"], longer["vs_base"])
+
+
+def test_a_loop_variant_left_out_as_it_stopped_being_finite_is_promised_no_length():
+    """It blew up after 30 steps, faster per step until then: the verdict leaves it out, and its
+    power clause is not said. Before, the same line said 'too short to name it: about 163 steps
+    needed (this run: 30)' of a variant that no run names."""
+    rows = replay_rows(48)
+    t = {name: np.array([r.solve_ms for r in rows if r.start == name]) for name in ("builtin", PSOR)}
+    again = np.array([r.solve_ms_repeats[1] for r in rows if r.start == "builtin"])
+
+    def loop(name, setup, n, finite=True, ms_again=None):
+        return LoopResult(start=name, steps=n, iterations=np.full(n, 10), ms_per_step=t[name][:n],
+                          predict_ms=np.zeros(n), drift=np.zeros(n), penetration=0.0, finite=finite,
+                          residuals=np.full(n, 1e-5), ms_again=ms_again, setup_ms=setup)
+    line = loop_verdict([loop("builtin", 1.0, 48, ms_again=again), loop(PSOR, 61.0, 30, finite=False)], 1e-4)
+    assert f"Left out, as they stopped being finite: {PSOR}" in line, line
+    assert "too short" not in line and "Power against" not in line, line

@@ -309,7 +309,9 @@ def loop_verdict(results, tolerance):
     unfinished = {r.start: _loop_unfinished(r, tolerance) for r in ours}
     v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
                {r.start: r.setup_ms for r in ours}, unfinished)
-    power = power_words(v.as_dict())
+    said = v.as_dict()   # (the power of the variants it may name: one that stopped being finite is named at no length)
+    said["power"] = {n: p for n, p in said["power"].items() if n in {r.start for r in fair}}
+    power = power_words(said)
     if v.too_few_steps:
         return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
                 f"least {MIN_STEPS}." + left_out + power + _fence_caveat())
