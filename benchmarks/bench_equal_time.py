@@ -1,0 +1,136 @@
+"""At equal time per step, who is more accurate on the pile: Box2D 2.4.1 at 1-256 iterations, or
+the project's built-in methods at a sweep budget (issue 75 item 2)? Measured so that the load of a
+shared machine does not decide it.
+
+Accuracy, the one-step residual: the pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a box
+of 300 with --count 10000) is settled by Box2D at its 8 iterations, then stepped on by it; every
+--every-th step's contact problem is a sample. Each setting solves each sample from the same state
+and Box2D's warm start, judged by the project's residual: Box2D at k iterations is its own PGS
+replayed bit for bit (the exact mode at k sweeps), the project's settings are PGS, PSOR (w = 1.7)
+and NNCG at n sweeps in float64. The median over the samples.
+
+Time: every setting gets a world of its own, set to the settled pile's bodies and given --warm
+steps of its own solver; then the worlds step in turn, one step each a round, each step timed by
+the CPU time of the thread that steps (the machine's other work is not counted). The median over
+the rounds; a second world of Box2D's 8 iterations (an A/A) states the noise. For each Box2D count:
+its time and residual, and the project's setting with the smallest residual among those whose time
+is at most Box2D's.
+
+Usage: python benchmarks/bench_equal_time.py [--count 1000] [--settle 500] [--samples 8] [--every 10]
+       [--rounds 60] [--most 256]
+"""
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deepcontact.scene.generators import generate
+from deepcontact.simulate import stepping
+from deepcontact.simulate.engines import Box2D
+from deepcontact.solver.methods import solve
+from deepcontact.solver.problem import StepProblem
+from deepcontact.solver.settings import SolveSettings
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import arguments  # noqa: E402
+
+FAMILIES = {"PGS": dict(), "PSOR 1.7": dict(relaxation=1.7), "NNCG": dict(accelerate="nncg")}
+
+
+def counts(most):
+    return [n for n in (1, 2, 4, 8, 16, 32, 64, 128, 256, 512) if n <= most]
+
+
+def settings(most):
+    """(family, count, engine, SolveSettings for the one-step residual) of every setting."""
+    out = [("Box2D 2.4.1", k, Box2D(velocity_iterations=k), SolveSettings(mode="exact", max_iterations=k, tolerance=0))
+           for k in counts(most)]
+    # the noise: a second world of Box2D's 8 iterations, timed as a contestant (an A/A)
+    out.append(("A/A: Box2D 2.4.1 again", 8, Box2D(velocity_iterations=8), out[min(3, len(out) - 1)][3]))
+    for family, extra in FAMILIES.items():
+        for n in counts(most):
+            s = SolveSettings(max_iterations=n, tolerance=0, **extra)
+            out.append((family, n, Box2D(solver=s), s))
+    return out
+
+
+def settled_and_samples(scene, settle, samples, every):
+    """The bodies of the pile after `settle` steps of Box2D's own 8 iterations, and the contact
+    problems of `samples` later steps (every `every`-th) of the same run."""
+    engine = Box2D(velocity_iterations=8)
+    world = engine.build(scene)
+    bare, recording = engine.stepper(world, scene, record=False), engine.stepper(world, scene)
+    for _ in stepping.steps(world, scene, bare, settle):
+        pass
+    bodies = world.bodies()
+    problems = []
+    while len(problems) < samples:
+        for _ in range(every - 1):
+            bare()
+        done = recording()
+        if len(done.contacts["manifold"]):
+            problems.append(StepProblem.from_arrays(done.bodies, done.contacts, dt=scene.dt,
+                                                    gravity=scene.effects.gravity or (0.0, 0.0),
+                                                    block_solve=scene.solver.block_solve, velocity_iterations=8))
+    return bodies, problems
+
+
+def residuals(problems, chosen):
+    """The median one-step residual of each setting over the samples."""
+    return {(f, n): float(np.median([solve(p, settings=s).residual for p in problems])) for f, n, _, s in chosen}
+
+
+def step_times(scene, bodies, chosen, warm, rounds):
+    """The median CPU ms of a step of each setting, its world set to the settled bodies."""
+    steppers = {}
+    for family, n, engine, _ in chosen:
+        world = engine.build(scene)
+        world.set_body_state(bodies["index"], bodies["position"], bodies["angle"], bodies["velocity"], bodies["omega"])
+        step = engine.stepper(world, scene, record=False)
+        for _ in range(warm):
+            step()
+        steppers[(family, n)] = step
+    times = {key: [] for key in steppers}
+    for _ in range(rounds):   # each world in turn, one step each a round
+        for key, step in steppers.items():
+            t = time.thread_time()
+            step()
+            times[key].append(time.thread_time() - t)
+    return {key: 1e3 * float(np.median(v)) for key, v in times.items()}
+
+
+def main():
+    args = arguments(__doc__, count=1000, settle=500, samples=8, every=10, rounds=60, warm=5, most=256)
+    big = args.count > 1000
+    scene = generate("pile", 9, dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0,
+                                     steps=args.settle + args.samples * args.every + args.warm + args.rounds + 10))
+    chosen = settings(args.most)
+    bodies, problems = settled_and_samples(scene, args.settle, args.samples, args.every)
+    accuracy = residuals(problems, chosen)
+    ms = step_times(scene, bodies, chosen, args.warm, args.rounds)
+    points = int(np.median([p.stats["points"] for p in problems])) if hasattr(problems[0], "stats") else 0
+    print(f"the {args.count:,}-circle pile (seed 9), settled {args.settle} steps; {len(problems)} samples "
+          f"(every {args.every}th step), {args.rounds} rounds of the worlds in turn" +
+          (f"; about {points:,} contact points a sample" if points else ""))
+    print("\n| setting | CPU ms / step | one-step residual (median) |\n| --- | ---: | ---: |")
+    for key in ms:
+        print(f"| {key[0]}, {key[1]} | {ms[key]:.3g} | {accuracy[key]:.3g} |")
+    aa = ms[("A/A: Box2D 2.4.1 again", 8)] / ms[("Box2D 2.4.1", 8)]
+    print(f"\nThe noise: the second world of Box2D's 8 iterations (an A/A) measured {aa:.2f}x the first.")
+    print("\n| Box2D 2.4.1 | ms / step | residual | the project's best in at most that time | ms / step | residual "
+          "| residual ratio |\n| --- | ---: | ---: | --- | ---: | ---: | ---: |")
+    ours = [key for key in ms if key[0] in FAMILIES]
+    for k in counts(args.most):
+        e = ("Box2D 2.4.1", k)
+        fits = [key for key in ours if ms[key] <= ms[e]]
+        best = min(fits, key=lambda key: (accuracy[key], ms[key])) if fits else None
+        if best is None:
+            print(f"| {k} iterations | {ms[e]:.3g} | {accuracy[e]:.3g} | none as fast | | | |")
+        else:
+            print(f"| {k} iterations | {ms[e]:.3g} | {accuracy[e]:.3g} | {best[0]}, {best[1]} sweeps | {ms[best]:.3g} | "
+                  f"{accuracy[best]:.3g} | {accuracy[best] / accuracy[e]:.2g}x |")
+
+
+if __name__ == "__main__":
+    main()
