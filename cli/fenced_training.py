@@ -203,7 +203,7 @@ def run(ctx, model, out, overwrite, resume, device, max_memory=None):
         # kept in place as it is written (an unfenced run keeps each whole epoch as it ends: a stop
         # or a failure leaves the last one), or swapped in once it has finished (replacing a run)
         code = job.run(["train", *args], [private], private, {INSIDE: str(out)}, protocol.command_line, devices,
-                       poll=None if replace else keeper, who=who)
+                       poll=None if replace else keeper, who=who, profile="training")
         record = job.ended(private)
         ordered = result.ended_in_order(record, code)
         if not replace or ordered and code == 0:

@@ -94,7 +94,7 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
         from deepcontact.contest import job
         raise click.exceptions.Exit(job.run_with_output(
             ["render"], click.get_current_context().meta["raw_args"], "render", lambda: "file", {RENDER_INSIDE: "1"},
-            f"dc render with the network {arch!r}"))
+            f"dc render with the network {arch!r}", profile="drawing"))
     options.load_network(arch)
     _check_drawing(kind, suffix, compare, window)
     out = Path(out)

@@ -16,7 +16,7 @@ from deepcontact import leftovers
 from deepcontact.contest.sandbox import JobSandbox
 leftovers.adopt_orphans()
 box = JobSandbox(writable=[sys.argv[1]], cwd=sys.argv[1])
-box.start(["sleep", "100"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+box.start(["sleep", "100"])   # (its streams the fence's: relayed pipes)
 deadline = time.monotonic() + 30   # (until its namespace's first process and the job run)
 while len(leftovers.children(box.process.pid)) == 0 and time.monotonic() < deadline:
     time.sleep(0.05)

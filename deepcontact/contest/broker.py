@@ -1,6 +1,6 @@
 """Contestants of a fenced job, started by the judge's process on the job's behalf.
 
-A job (a study) runs in a sandbox of its own (sandbox.JobSandbox), which cannot build the
+A job (a study) runs in a sandbox of its own (sandbox.JobSandbox: fence.JOB), which cannot build the
 namespaces of a contestant's sandbox: bubblewrap inside bubblewrap cannot mount the contestant's
 own /proc. So, as flatpak's portal spawns a sandboxed process for an application already inside
 one, the job asks the process that started it, over a socket it inherits: that process starts
@@ -17,7 +17,10 @@ import socket
 import threading
 import time
 
+from dataclasses import replace
+
 from . import grants, machine, sandbox, shape
+from .fence import PROFILES
 
 ENV = "DC_SANDBOX_BROKER"   # the job's end of the broker's socket (a descriptor number)
 LIVE_LIMIT = 64             # sandboxes a job may hold at once
@@ -83,15 +86,23 @@ def _connection():
     return _conn
 
 
-def new(grant, threads=1):
+def new(grant, threads=1, name=None):
     """A contestant's sandbox for what it runs (a grants.Grant): this process's own, or, in a
     fenced job, one the judge's process starts and owns on the job's behalf (RemoteSandbox). Its
-    start_guest(channel, torch) starts the guest with its line to the judge."""
-    return RemoteSandbox(grant, threads) if inside() else GuestSandbox(grant.readable(), threads)
+    start_guest(channel, torch) starts the guest with its line to the judge; name: how its
+    relayed output is named."""
+    return RemoteSandbox(grant, threads) if inside() else guest_sandbox(grant, threads, name)
+
+
+def guest_sandbox(grant, threads=1, name=None, profile="contestant"):
+    """A contestant's sandbox (fence.PROFILES[profile]) in this process, granted what it runs."""
+    fence = replace(PROFILES[profile].with_paths(readable=grant.readable()), threads=threads)
+    return GuestSandbox(fence, name)
 
 
 class GuestSandbox(sandbox.Sandbox):
-    """A contestant's sandbox in this process, running the guest and nothing else."""
+    """A contestant's sandbox in this process, running the guest and nothing else (the same
+    fence as any: only its command is the guest's)."""
 
     def start_guest(self, channel, torch=False):
         return self.start(grants.guest_argv(channel, torch), pass_fds=[channel])
@@ -294,7 +305,7 @@ class Broker:
             raise ValueError(f"at most {LIVE_LIMIT} contestants' sandboxes at once")
         channel = os.dup(fds[0])
         try:
-            box = GuestSandbox(grant.readable(), threads)
+            box = guest_sandbox(grant, threads, f"a job's contestant {self._count + 1}")
             box.start_guest(channel, torch)
         finally:
             os.close(channel)

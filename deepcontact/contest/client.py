@@ -82,7 +82,7 @@ class Contestant:
         if grants.runs_plugin_code(names, modules):
             sandbox.refuse_bare(self.who, _broker.missing_fences())
         self.sandbox = _broker.new(grants.Grant(names, modules, [checkpoint] if checkpoint else []),
-                                   threads=setup["threads"])
+                                   threads=setup["threads"], name=self.who)
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()

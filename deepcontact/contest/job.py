@@ -1,10 +1,10 @@
 """A whole dc command run fenced: a plug-in that is a job rather than a call (a study, the training
-of a plug-in network) runs in `dc ARGS` inside a JobSandbox, and the process that started it
+of a plug-in network) runs in `dc ARGS` inside a job's fence (fence.JOB, TRAINING, DRAWING), and the process that started it
 keeps the output rules (staging, checks, the swap) and the user's stop.
 
 The job sees the file system read-only and writes only in the folders given; its standard output
-and error are the caller's (copied where the caller's stream has no descriptor: click's
-CliRunner); the contestants it runs are started by this process on its behalf (broker.py); the
+and error are pipes this process relays to its own (contest/relay.py, bounded: no descriptor of
+dc's own stream is the job's); the contestants it runs are started by this process on its behalf (broker.py); the
 user's stop (Terminated, KeyboardInterrupt) ends it at once, with everything it started.
 """
 import os
@@ -13,7 +13,6 @@ import stat
 import subprocess
 import sys
 import tempfile
-import threading
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
@@ -33,33 +32,30 @@ def python_path():
     return os.pathsep.join(p or os.getcwd() for p in sys.path)
 
 
-def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(), poll=None, who="a plug-in's job"):
-    """Runs `dc DC_ARGS` in a JobSandbox writing in `writable` (its TMPDIR `private`, one of
-    them); returns its exit status (how(): in words; ended(private): its own record of its end).
-    env_extra: more of its environment; devices: device files it may use (an accelerator's);
-    poll(): called every POLL seconds while
+def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(), poll=None, who="a plug-in's job",
+        profile="job"):
+    """Runs `dc DC_ARGS` in a job's fence (fence.PROFILES[profile]: "job", "training", "drawing")
+    writing in `writable` (its TMPDIR `private`, one of them); returns its exit status (how(): in
+    words; ended(private): its own record of its end). env_extra: more of its environment;
+    devices: device files it may use (an accelerator's); poll(): called every POLL seconds while
     it runs (what the caller keeps up to date from what it writes); who: how a refusal names it
-    (it is plug-in code: where its fence cannot be built it runs only with --unfenced)."""
+    (it is plug-in code: where its fence cannot be built it runs only with --unfenced).
+    PluginError, in one line, where one of its limits stopped it."""
     sandbox.refuse_bare(who, [f for f in sandbox.JOB_FENCES if f in machine.missing_fences()])
     broker = Broker(writable)
-    box = sandbox.JobSandbox(writable=writable, devices=devices)
+    box = sandbox.JobSandbox(writable=writable, devices=devices, profile=profile)
     env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=python_path())
     env.update({BROKER_ENV: str(broker.job_fd), COMMAND_LINE: command_line or "", **(env_extra or {}),
                 result.ENV: os.path.join(private, result.NAME)})
     env.setdefault("MPLCONFIGDIR", _matplotlib_dir(private))
     if type(sys.stdout).__name__ == "ClosedStdout":
         env["DC_STDOUT_CLOSED"] = "1"
-    out, out_pipe = _stream(sys.stdout)
-    err, err_pipe = _stream(sys.stderr)
-    copiers = []
+    for stream in (sys.stdout, sys.stderr):   # (what dc said so far comes before what the job says)
+        if stream is not None:
+            stream.flush()
     try:
-        box.start([sys.executable, "-m", "deepcontact.cli.main", *dc_args], pass_fds=[broker.job_fd], env=env,
-                  stdout=out, stderr=err)
+        box.start([sys.executable, "-m", "deepcontact.cli.main", *dc_args], pass_fds=[broker.job_fd], env=env)
         broker.job_started()
-        for pipe, sink, fd in ((out_pipe, sys.stdout, out), (err_pipe, sys.stderr, err)):
-            if pipe is not None:   # (a caller's buffer: copied)
-                os.close(fd)
-                copiers.append(_copier(pipe, sink))
         while True:
             try:
                 code = box.process.wait(None if poll is None else POLL)
@@ -69,8 +65,8 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
     finally:
         box.kill()
         broker.close()
-        for t in copiers:
-            t.join(5)
+    if box.stopped_by is not None:
+        raise PluginError(f"{who} was stopped at {box.stopped_by} ({how(code)}): nothing it wrote was published")
     return code
 
 
@@ -215,7 +211,7 @@ def _staging(target, command):
         output.release_building(stage)
 
 
-def run_with_output(head, args, command, writes, env_extra, who, aside=None):
+def run_with_output(head, args, command, writes, env_extra, who, aside=None, profile="job"):
     """Runs `dc HEAD ARGS` fenced, its -o staged beside the output and published when it ends in
     order (exit 0, or 1 with a verdict); returns its exit status. command: the output's record
     ("study engines"); writes(): what its -o is ("folder", "file", "text"), asked only when there
@@ -244,37 +240,13 @@ def run_with_output(head, args, command, writes, env_extra, who, aside=None):
                 env_extra = {**(env_extra or {}), **kept.env}
             args[where] = prefix + str(staged)
             env_extra = {**(env_extra or {}), "DC_OUTPUT_STAGED": str(staged), "DC_OUTPUT_SHOWN": str(target)}
-        code = run([*head, *args], writable, private, env_extra, protocol.command_line, who=who)
+        code = run([*head, *args], writable, private, env_extra, protocol.command_line, who=who, profile=profile)
         record = ended(private)
         if staged is not None and result.ended_in_order(record, code):
             if publish(staged, target, command, who) and kept is not None:
                 kept.published()
         refuse_unordered(code, record, who, target)
     return code
-
-
-def _copier(source, sink):
-    """Copies a pipe's text to a stream (our stdout or stderr when it has no descriptor: a caller's
-    buffer, click's CliRunner)."""
-    def copy():
-        with os.fdopen(source, "r", errors="replace") as f:
-            for line in f:
-                sink.write(line)
-                sink.flush()
-    t = threading.Thread(target=copy, daemon=True)
-    t.start()
-    return t
-
-
-def _stream(stream):
-    """(what the job's process gets for stream, the read end to copy from or None)."""
-    if stream is None or type(stream).__name__ == "ClosedStdout":   # (the shell closed it: so is the job's)
-        return subprocess.DEVNULL, None
-    if sandbox._has_fileno(stream):
-        stream.flush()
-        return stream.fileno(), None
-    read, write = os.pipe()
-    return write, read
 
 
 def _matplotlib_dir(private):

@@ -1,6 +1,6 @@
 """A study from an installed distribution runs fenced, as every plug-in does (docs/reliability.md,
 "Plug-ins are guests"): `dc study NAME ARGS` starts the study in a sandbox of its own
-(contest.sandbox.JobSandbox) and dc's own process only checks, stages and publishes its output.
+(contest.sandbox.JobSandbox: the profile fence.JOB) and dc's own process only checks, stages and publishes its output.
 
 In the sandbox the study sees the whole file system read-only (it reads the user's inputs where
 they are) and writes in two folders only: a private TMPDIR, and a staging folder beside its -o
@@ -17,7 +17,6 @@ A study registered in code runs in the caller's process: it is the caller's code
 """
 import json
 import os
-import subprocess
 import sys
 import time
 
@@ -92,13 +91,13 @@ _LINE_MAX = 8 << 10                                                 # bytes of o
 def _survey_round(names, deadline):
     """({name: entry} the listing process reported, over a pipe of its own, one line a study as
     each loads; (the study being loaded when it ended or stalled, how) or None)."""
-    box = sandbox.JobSandbox()
+    box = sandbox.JobSandbox(profile="listing")   # (its streams discarded: the pipe below is its channel)
     env = dict(os.environ, PYTHONPATH=job.python_path(), **{INSIDE: "-"})
     read, write = os.pipe()
     try:
         box.start([sys.executable, "-c", "import sys; from deepcontact.studies.fence import _survey_here; "
                    "_survey_here(int(sys.argv[1]), sys.argv[2:])", str(write), *names],
-                  pass_fds=[write], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                  pass_fds=[write], env=env)
         os.close(write)
         write = None
         data, ended = _read_until(read, deadline, len(names) * _LINE_MAX)

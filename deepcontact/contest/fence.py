@@ -1,0 +1,202 @@
+"""A fence is one record (as nsjail keeps every rule of a jail in one config): the namespaces, what
+is readable and writable, the devices, the folder it starts in, its limits, its seccomp policy,
+its environment and its standard streams. A contestant, a plug-in engine, a job (a study), a
+training run, a drawing and a listing are profiles of it, values in PROFILES, never subclasses;
+`bwrap_argv` is the one function that turns a fence into bubblewrap's arguments.
+
+Every process inside carries one marker, MARKER (the profile's name): `inside()` reads it.
+"""
+import os
+from dataclasses import dataclass, field, replace
+
+from . import machine
+
+MARKER = "DC_FENCE"   # set in every sandbox, to its profile's name
+
+ALL_NAMESPACES = ("user", "pid", "mount", "ipc", "net", "uts", "cgroup")
+# (a job keeps the cgroup namespace of its starter: its own group's files stay where the kernel shows them)
+JOB_NAMESPACES = ("user", "pid", "mount", "ipc", "net", "uts")
+
+# Files of /etc an interpreter reads (the loader's cache, names of users and zones); the rest of
+# /etc is not a contestant's to read.
+ETC = ("ld.so.cache", "ld.so.conf", "ld.so.conf.d", "localtime", "passwd", "group", "nsswitch.conf",
+       "alternatives", "os-release")
+SYSTEM = ("/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin")
+# dc's variables a contestant keeps (its environment is otherwise cleared)
+KEPT_ENV = ("PATH", "LANG", "LC_ALL", "TZ", "OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE")
+# The thread pools a library starts at import (numpy's OpenBLAS, torch's OpenMP) size themselves to
+# the machine's cores unless told: a contestant's are told its own thread count.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+MEMORY_FLOOR = 1 << 30   # bytes: the least share of the machine's memory a sandbox gets
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What a fence's processes may use together: processes and threads at once, bytes of memory
+    (at most `memory`, and at most the machine's share: memory_share), bytes of one file."""
+    processes: int
+    memory: int = None   # (None: the machine's share alone)
+    file_size: int = 256 << 20
+
+
+@dataclass(frozen=True)
+class Streams:
+    """Where a fence's standard output and error go: "relay" (a pipe dc owns, relayed to dc's own
+    stream `to`, at most `cap` bytes, each line after `prefix` the fence's name where set) or
+    "discard". Its standard input is always empty."""
+    stdout: str = "relay"
+    stderr: str = "relay"
+    stdout_to: str = "stderr"   # (which of dc's streams a relayed output reaches)
+    prefix: bool = True
+    cap: int = 64 << 10
+
+
+@dataclass(frozen=True)
+class Fence:
+    """One sandbox's every rule. view: "system" (the interpreter's folders and a few of /etc, then
+    `readable`) or "root" (the whole file system read-only); tmp: a private /tmp of file_size
+    bytes; environment: "clear" (KEPT_ENV only) or "given" (the caller's env); threads: the
+    thread pools' size (None: theirs)."""
+    profile: str
+    namespaces: tuple = ALL_NAMESPACES
+    view: str = "system"
+    readable: tuple = ()
+    writable: tuple = ()
+    devices: tuple = ()
+    cwd: str = "/tmp"   # (None: dc's current folder as it starts)
+    tmp: bool = True
+    limits: Limits = field(default_factory=lambda: Limits(64, 8 << 30))
+    seccomp: str = "contestant"
+    environment: str = "clear"
+    threads: int = 1
+    streams: Streams = Streams()
+    accounted: bool = True   # (its CPU read from its control group)
+
+    def with_paths(self, readable=(), writable=(), devices=(), cwd=None):
+        """This fence with these folders (each made absolute; missing readable ones and devices dropped)."""
+        return replace(self, readable=tuple(os.path.abspath(p) for p in readable if p and os.path.exists(p)),
+                       writable=tuple(os.path.abspath(p) for p in writable),
+                       devices=tuple(d for d in devices if os.path.exists(d)),
+                       cwd=os.path.abspath(cwd) if cwd else self.cwd)
+
+
+def _contestant():
+    return Fence("contestant")
+
+
+def _job(profile, streams=Streams(stdout_to="stdout", prefix=False, cap=256 << 20)):
+    # (a job is dc's own command run fenced, in dc's current folder: its output is the command's,
+    # so unprefixed; its contestants are started outside it, broker.py)
+    return Fence(profile, namespaces=JOB_NAMESPACES, view="root", cwd=None, tmp=False,
+                 limits=Limits(1024), seccomp="job", environment="given", threads=None, streams=streams)
+
+
+CONTESTANT = _contestant()
+ENGINE = replace(_contestant(), profile="engine")   # (a plug-in engine's world: a guest as a contestant is)
+JOB = _job("job")
+TRAINING = _job("training")   # (given the accelerator's device files where it uses one)
+DRAWING = _job("drawing")
+LISTING = _job("listing", streams=Streams(stdout="discard", stderr="discard"))
+PROFILES = {f.profile: f for f in (CONTESTANT, ENGINE, JOB, TRAINING, DRAWING, LISTING)}
+JOB_FENCES = ("namespaces", "read-only view", "seccomp")   # what a job's fence needs of the machine
+
+
+def inside():
+    """The profile of the fence this process runs in, or None outside every fence."""
+    return os.environ.get(MARKER) or None
+
+
+def memory_share(live):
+    """Bytes of memory one of `live` + 1 sandboxes may hold: the machine's memory shared with the
+    others and dc, never under MEMORY_FLOOR."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError):
+        return None
+    return max(MEMORY_FLOOR, total // (1 + live))
+
+
+def memory_limit(fence, live):
+    """The memory limit of `fence` started beside `live` sandboxes: its own cap, at most its share."""
+    share = memory_share(live)
+    caps = [m for m in (fence.limits.memory, share) if m is not None]
+    return min(caps) if caps else None
+
+
+def thread_env(fence):
+    """The thread pools' variables a fence sets (none where it keeps their defaults)."""
+    return {} if fence.threads is None else dict.fromkeys(THREAD_VARIABLES, str(fence.threads))
+
+
+def bwrap_argv(fence, command, seccomp_fd=None):
+    """bubblewrap's arguments for `command` inside `fence`: the options, then "--", then the
+    command (nothing of the command is ever read as bubblewrap's option). Without bubblewrap here,
+    the command alone."""
+    bwrap = machine.bwrap()
+    if bwrap is None:
+        return list(command)
+    out = [bwrap, *_namespace_options(fence), "--disable-userns", "--die-with-parent", "--new-session",
+           "--cap-drop", "ALL"]
+    out += _view_options(fence) + _environment_options(fence)
+    if seccomp_fd is not None:
+        out += ["--seccomp", str(seccomp_fd)]
+    return out + ["--", *command]
+
+
+def _namespace_options(fence):
+    if set(fence.namespaces) == set(ALL_NAMESPACES):
+        return ["--unshare-all", "--unshare-user", "--uid", "65534", "--gid", "65534"]
+    return [f"--unshare-{name}" for name in fence.namespaces if name != "mount"]   # (bubblewrap always makes one)
+
+
+def _view_options(fence):
+    """The mounts: the view, /proc and /dev, the private /tmp, the readable, writable and device binds."""
+    out = []
+    if fence.view == "root":
+        out += ["--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/dev/shm"]
+    else:
+        out += ["--proc", "/proc", "--dev", "/dev"]
+    if fence.tmp:
+        out += ["--size", str(fence.limits.file_size), "--tmpfs", "/tmp"]
+    if fence.view == "system":
+        for path in SYSTEM:
+            if os.path.exists(path):
+                out += ["--ro-bind", path, path] if not os.path.islink(path) else ["--symlink", os.readlink(path), path]
+        out += [a for name in ETC if os.path.exists(f"/etc/{name}") for a in ("--ro-bind", f"/etc/{name}", f"/etc/{name}")]
+    out += [a for p in dict.fromkeys(fence.readable) for a in ("--ro-bind", p, p)]
+    out += [a for p in dict.fromkeys(fence.writable) for a in ("--bind", p, p)]
+    out += [a for p in dict.fromkeys(fence.devices) for a in ("--dev-bind", p, p)]
+    return out + ["--chdir", fence.cwd or os.getcwd()]
+
+
+def _environment_options(fence):
+    """Its environment: cleared to KEPT_ENV and its own variables, or the caller's (given to Popen)."""
+    out = []
+    if fence.environment == "clear":
+        out += ["--clearenv"]
+        out += [a for key in KEPT_ENV if key in os.environ for a in ("--setenv", key, os.environ[key])]
+        out += ["--setenv", "HOME", "/tmp", "--setenv", "PYTHONDONTWRITEBYTECODE", "1"]
+        out += [a for key, value in thread_env(fence).items() for a in ("--setenv", key, value)]
+    return out + ["--setenv", MARKER, fence.profile]
+
+
+def describe(fence):
+    """{"sees", "writes", "limits", "streams"} of a profile, in words (the docs' table)."""
+    sees = ("the interpreter, its installed packages, deepcontact, the plug-in's own module and the files it "
+            "is given" if fence.view == "system" else "the whole file system, read-only")
+    writes = "a private /tmp" if fence.tmp else "its private TMPDIR and its output's staging folder"
+    memory = f"at most {fence.limits.memory >> 30} GiB and " if fence.limits.memory else ""
+    limits = (f"{fence.limits.processes} processes, {memory}the machine's memory / (1 + live sandboxes), "
+              f"{fence.limits.file_size >> 20} MiB a file")
+    s = fence.streams
+    if s.stdout == "discard":
+        streams = "none: output and error discarded"
+    else:
+        streams = (f"output to dc's {s.stdout_to}, error to dc's stderr{', each line after its name' if s.prefix else ''}, "
+                   f"at most {_size(s.cap)} each")
+    return {"sees": sees, "writes": writes, "limits": limits, "streams": streams}
+
+
+def _size(n):
+    return f"{n >> 20} MiB" if n >= 1 << 20 else f"{n >> 10} KiB"

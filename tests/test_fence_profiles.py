@@ -1,0 +1,116 @@
+"""One fence, one record (issue 72 items 1 and 3): every sandbox is a profile of contest.fence.Fence,
+made into bubblewrap's arguments by one function; every profile has limits a job cannot pass
+unsaid; and nothing of dc's is inside: a sandbox's streams are pipes dc owns, relayed under its
+name and bounded."""
+import os
+import subprocess
+import sys
+import textwrap
+from dataclasses import replace
+
+import pytest
+
+from deepcontact.contest import fence, job, machine
+from deepcontact.plugins import PluginError
+
+needs_fence = pytest.mark.skipif(not all(machine.fences().values()),
+                                 reason=f"a fence is missing here: {machine.fences()}")
+
+
+@pytest.mark.skipif(machine.bwrap() is None, reason="no bubblewrap here")
+@pytest.mark.parametrize("profile", sorted(fence.PROFILES))
+def test_every_profile_is_options_then_the_command(profile):
+    command = ["--ro-bind", "/", "/home", "--", "x"]   # (a command that reads as bubblewrap's options)
+    argv = fence.bwrap_argv(fence.PROFILES[profile], command, 9)
+    cut = argv.index("--")
+    assert argv[cut + 1:] == command
+    assert argv[cut - 2:cut] == ["--seccomp", "9"]
+    assert ["--setenv", fence.MARKER, profile] == argv[cut - 5:cut - 2]
+
+
+# A job (its sitecustomize, run as its interpreter starts, before dc's own code) that goes past one limit.
+EXCEEDS = textwrap.dedent("""
+    import os, time
+    what = os.environ.get("DC_TEST_EXCEED")
+    if what == "memory":
+        hog = b"x" * (512 << 20)
+    elif what == "processes":
+        for _ in range(40):
+            try:
+                if os.fork() == 0:
+                    time.sleep(5)
+                    os._exit(0)
+            except OSError:
+                break
+    elif what == "file size":
+        with open(os.path.join(os.environ["TMPDIR"], "big"), "wb") as f:
+            try:
+                f.write(b"x" * (2 << 20))
+            except OSError:
+                pass
+""")
+
+
+@needs_fence
+@pytest.mark.parametrize("limit", ["memory", "processes", "file size"])
+def test_a_job_past_each_limit_is_stopped_and_named_in_one_line(tmp_path, monkeypatch, limit):
+    small = fence.Limits(processes=16, memory=128 << 20, file_size=1 << 20)
+    monkeypatch.setitem(fence.PROFILES, "job", replace(fence.JOB, limits=small))
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(EXCEEDS)
+    private = tmp_path / "private"
+    private.mkdir()
+    env = {"PYTHONPATH": os.pathsep.join([str(site), job.python_path()]), "DC_TEST_EXCEED": limit}
+    with pytest.raises(PluginError) as e:
+        job.run(["--help"], [str(private)], str(private), env, who="the test's job")
+    said = str(e.value)
+    assert "\n" not in said and said.startswith("the test's job was stopped at its"), said
+    assert {"memory": "memory limit (128 MiB)", "processes": "process limit (16 processes",
+            "file size": "file size limit (1 MiB"}[limit] in said, said
+
+
+def test_a_job_within_its_limits_ends_as_it_would(tmp_path):
+    private = tmp_path / "private"
+    private.mkdir()
+    if not all(machine.fences()[f] for f in fence.JOB_FENCES):
+        pytest.skip("no job fence here")
+    assert job.run(["--help"], [str(private)], str(private), who="the test's job") == 0
+
+
+# dc's side: a contestant's sandbox started with dc's standard error a file; the contestant says
+# what its descriptors are, then writes 10 MB to its standard error.
+CONTESTANT = textwrap.dedent("""
+    import os, sys
+    from deepcontact.contest import fence, grants, sandbox
+    box = sandbox.Sandbox(fence.CONTESTANT.with_paths(readable=grants.readable_paths()), name="rival")
+    box.start([sys.executable, "-c", sys.argv[1]])
+    box.process.wait(60)
+    box.kill()
+""")
+INSIDE = textwrap.dedent("""
+    import os, sys
+    fds = sorted(int(f) for f in os.listdir("/proc/self/fd"))
+    seen = {}
+    for path in ("/proc/self/fd/2", "/proc/1/fd/2", "/proc/self/fd/1"):
+        st = os.stat(path)
+        seen[path] = (st.st_dev, st.st_ino)
+    print("FDS", fds, "SEEN", seen, flush=True)
+    sys.stderr.write("y" * 10_000_000)
+""")
+
+
+@needs_fence
+def test_a_contestant_reaches_no_stream_of_dcs_and_cannot_flood_its_log(tmp_path):
+    log = tmp_path / "dc.log"
+    with open(log, "wb") as err:
+        subprocess.run([sys.executable, "-c", CONTESTANT, INSIDE], stderr=err, stdout=err, timeout=120, check=True)
+    text = log.read_text()
+    report = next(line for line in text.splitlines() if "FDS" in line)
+    assert report.startswith("[rival] FDS [0, 1, 2, 3] SEEN"), report   # (3: listdir's own)
+    ours = os.stat(log)
+    assert repr((ours.st_dev, ours.st_ino)) not in report, report       # (its streams are no file of dc's)
+    cap = fence.CONTESTANT.streams.cap
+    assert len(text) < 2 * cap + 4096, len(text)
+    shown = sum(line.count("y") for line in text.splitlines() if line.startswith("[rival] y"))
+    assert shown == cap and f"[rival] {10_000_000 - cap} bytes more not shown" in text, text[-300:]
