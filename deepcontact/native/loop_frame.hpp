@@ -19,6 +19,11 @@ struct LoopFrame {
     std::vector<b2Body*> island_bodies;
     std::vector<b2Contact*> island_contacts;
     std::vector<int32_t> bodies_end, contacts_end;
+    // A static body given a velocity (a body definition keeps one) is moved by every island it is
+    // in, and Box2D poses a later island's contacts where an earlier one left it: its own Solve
+    // steps such islands.
+    bool static_moves = false;
+    bool block_solve = true;   // the setting the redundant pairs were cut with
 
     // The solver's columns: every live body in scene index order; every point of the islands'
     // contacts in island order, with what Collide carried over by feature id.
@@ -55,6 +60,9 @@ struct LoopFrame {
     };
     std::vector<Constraint> constraints;
     std::vector<b2Rot> rotation;   // each live body's, by scene index (one sine and cosine a body)
+    // By scene index: the body's transform is not the one its sweep gives (placed since its last
+    // step: created or set_body_state, where Box2D keeps the position given).
+    std::vector<uint8_t> placed;
 
     // The island solve's state, one slot per island body; where each body sits in the island
     // being searched (scene index); each live body's solver row (scene index).

@@ -221,11 +221,12 @@ void World::box2d_step(float dt, int velocity_iterations, int position_iteration
 
 bool World::recorder_active() const { return recorder_->active; }
 
-// The islands gather_loop() found are still the world's, and b2World::Solve would do nothing the
-// loop's island solve does not (no joints, no sleeping, no velocity iterations).
+// The islands gather_loop() found are still the world's, posed as Box2D would pose them now, and
+// b2World::Solve would do nothing the loop's island solve does not (no joints, no sleeping, no
+// velocity iterations, no static body moved from one island to the next).
 bool World::solves_islands(int velocity_iterations) const {
     return velocity_iterations == 0 && loop_generation_ == generation_ && !world_->GetAllowSleeping() &&
-           world_->GetJointCount() == 0;
+           world_->GetJointCount() == 0 && !loop_.static_moves && loop_.block_solve == block_solve_;
 }
 
 void World::step(float dt, int velocity_iterations, int position_iterations, bool record, bool collided) {

@@ -115,6 +115,8 @@ private:
     void solve_island(const b2TimeStep& step, int32_t body_begin, int32_t body_end, int32_t contact_begin,
                       int32_t contact_end);
     b2WorldManifold pose(b2Contact* contact, LoopFrame::Constraint& constraint) const;
+    static bool placed(const b2Body* body, const b2Rot& rotation);
+    float penetration(b2Contact* contact, const b2WorldManifold& posed) const;
     void apply_impulses(const b2TimeStep& step, const LoopFrame::Constraint& constraint);
     float correct_positions(const LoopFrame::Constraint& constraint);
     LoopFrame loop_;

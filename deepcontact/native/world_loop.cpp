@@ -8,6 +8,7 @@
 // b2_contact_solver.cpp) and the module is built without FMA contraction, so the bits are the same
 // as Box2D's own Step with zero velocity iterations would leave.
 #include <algorithm>
+#include <cstring>
 
 #include "box2d_access.hpp"
 #include "world.hpp"
@@ -62,6 +63,8 @@ void World::find_islands() {
     std::vector<b2Body*>& stack = loop_stack_;
     f.slot.resize(bodies_.size());
     f.constraints.clear();
+    f.static_moves = false;
+    f.block_solve = block_solve_;
     for (b2Body* seed = w->GetBodyList(); seed; seed = seed->GetNext()) {
         if ((flags(seed) & kBodyIslandFlag) || !seed->IsAwake() || !seed->IsEnabled()) continue;
         if (seed->GetType() == b2_staticBody) continue;
@@ -73,7 +76,10 @@ void World::find_islands() {
             stack.pop_back();
             f.slot[body_index(b)] = static_cast<int32_t>(f.island_bodies.size());
             f.island_bodies.push_back(b);
-            if (b->GetType() == b2_staticBody) continue;
+            if (b->GetType() == b2_staticBody) {
+                f.static_moves |= b->GetLinearVelocity() != b2Vec2_zero || b->GetAngularVelocity() != 0.0f;
+                continue;
+            }
             flags(b) |= kBodyAwakeFlag;   // awake, without resetting its sleep time
             for (b2ContactEdge* ce = b->GetContactList(); ce; ce = ce->next) {
                 b2Contact* c = ce->contact;
@@ -119,11 +125,13 @@ void World::gather_loop_bodies() {
     s.gravity_scale.resize(n);
     loop_.row_of.assign(bodies_.size(), -1);
     loop_.rotation.resize(bodies_.size());
+    loop_.placed.resize(bodies_.size());
     size_t i = 0;
     for (b2Body* b : bodies_) {
         if (b == nullptr) continue;
         loop_.row_of[body_index(b)] = static_cast<int32_t>(i);
         loop_.rotation[body_index(b)].Set(b->GetAngle());   // (the same angle gives the same bits)
+        loop_.placed[body_index(b)] = placed(b, loop_.rotation[body_index(b)]);
         s.type[i] = static_cast<int8_t>(b->GetType());
         s.angle[i] = b->GetAngle();
         put2(s.center, i, b->GetWorldCenter());
@@ -141,9 +149,32 @@ void World::gather_loop_bodies() {
     loop_.body_count = n;
 }
 
+// Whether a body's transform differs, in any bit, from the one Box2D's solver rebuilds from its
+// sweep (rotation: its angle's).
+bool World::placed(const b2Body* b, const b2Rot& rotation) {
+    const b2Sweep& sweep = b->*member(BodySweep());
+    const b2Transform rebuilt(sweep.c - b2Mul(rotation, sweep.localCenter), rotation);
+    return std::memcmp(&rebuilt, &b->GetTransform(), sizeof rebuilt) != 0;
+}
+
+// The deepest penetration of a contact's points as contacts() measures it: from the bodies'
+// transforms, which are the posed ones but for a body placed since its last step.
+float World::penetration(b2Contact* c, const b2WorldManifold& posed) const {
+    const b2Fixture* fa = c->GetFixtureA();
+    const b2Fixture* fb = c->GetFixtureB();
+    const b2Body* ba = fa->GetBody();
+    const b2Body* bb = fb->GetBody();
+    b2WorldManifold measured = posed;
+    if (loop_.placed[body_index(ba)] || loop_.placed[body_index(bb)])
+        measured.Initialize(c->GetManifold(), ba->GetTransform(), fa->GetShape()->m_radius, bb->GetTransform(),
+                            fb->GetShape()->m_radius);
+    float deepest = 0.0f;
+    for (int j = 0; j < c->GetManifold()->pointCount; ++j) deepest = std::max(deepest, -measured.separations[j]);
+    return deepest;
+}
+
 // Every point of the islands' contacts, in island order (the rows set_manifold_impulses writes),
-// each contact posed once for the warm start that applies the solution; the penetration is the
-// posed manifold's (the transforms Box2D's solver builds from the bodies' positions).
+// each contact posed once for the warm start that applies the solution.
 void World::gather_loop_contacts() {
     LoopFrame::Contacts& s = loop_.contacts;
     size_t n = 0;
@@ -163,7 +194,8 @@ void World::gather_loop_contacts() {
         const b2Body* ba = fa->GetBody();
         const b2Body* bb = fb->GetBody();
         const b2Manifold* m = c->GetManifold();
-        const b2WorldManifold wm = pose(c, loop_.constraints[index++]);   // (also the penetration)
+        const b2WorldManifold wm = pose(c, loop_.constraints[index++]);
+        deepest = std::max(deepest, penetration(c, wm));
         for (int j = 0; j < m->pointCount; ++j, ++k) {
             const b2ManifoldPoint& p = m->points[j];
             s.manifold[k] = manifold;
@@ -182,7 +214,6 @@ void World::gather_loop_contacts() {
             s.row_b[k] = loop_.row_of[body_index(bb)];
             s.normal_impulse[k] = p.normalImpulse;
             s.tangent_impulse[k] = p.tangentImpulse;
-            deepest = std::max(deepest, -wm.separations[j]);
             gathered_.emplace_back(c, j);
         }
         ++manifold;
