@@ -114,3 +114,78 @@ def test_a_contestant_reaches_no_stream_of_dcs_and_cannot_flood_its_log(tmp_path
     assert len(text) < 2 * cap + 4096, len(text)
     shown = sum(line.count("y") for line in text.splitlines() if line.startswith("[rival] y"))
     assert shown == cap and f"[rival] {10_000_000 - cap} bytes more not shown" in text, text[-300:]
+
+
+# --- The readable set: a plug-in's own files, never the folder of a run ------------------------------
+
+BESIDE = """
+import numpy as np
+from deepcontact.warmstart.starts import StartValue
+class Start:
+    def __call__(self, ctx):
+        return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {})
+"""
+
+
+def _evaluate_from(work, pythonpath, out):
+    from conftest import dc_command
+    return subprocess.run([*dc_command(), "evaluate", "--no-plots", "run", "--starts", "builtin,beside:Start",
+                           "--every", "40", "--no-budgets", "-q", "-o", out], cwd=work, capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "PYTHONPATH": pythonpath})
+
+
+@needs_fence
+def test_a_plugin_in_the_folder_of_the_run_is_refused_naming_it(run, tmp_path):
+    import shutil
+
+    from conftest import one_line_error
+    work = tmp_path / "work"
+    shutil.copytree(run, work / "run")
+    (work / "beside.py").write_text(BESIDE)
+    r = _evaluate_from(work, ".", "report")
+    one_line_error(r, "'beside:Start'", "run", "own module's files")
+    assert not (work / "report").exists()
+    mods = tmp_path / "mods"   # (the same plug-in in a folder of its own is judged)
+    mods.mkdir()
+    (work / "beside.py").rename(mods / "beside.py")
+    r = _evaluate_from(work, str(mods), "report")
+    assert r.returncode == 0, r.stderr
+
+
+def test_the_readable_set_follows_no_import_statement(tmp_path, monkeypatch):
+    from conftest import forget_plugins
+    from deepcontact.contest import grants
+    work = tmp_path / "work"
+    (work / "secret").mkdir(parents=True)   # (a folder of the working directory: a run's, a dataset's)
+    (work / "secret" / "steps.txt").write_text("data")
+    (work / "importer.py").write_text("import secret\n")
+    monkeypatch.chdir(work)
+    monkeypatch.syspath_prepend(str(work))
+    try:
+        readable = grants.readable_paths(modules=["importer"])
+    finally:
+        forget_plugins(("importer",))
+    assert str(work / "importer.py") in readable
+    assert not any(p == str(work) or p.startswith(str(work / "secret")) for p in readable), readable
+
+
+def test_a_plugin_package_holding_the_working_directory_is_refused(tmp_path, monkeypatch):
+    from deepcontact.contest import grants
+    package = tmp_path / "pkgplug"
+    (package / "runs").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    monkeypatch.chdir(package / "runs")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(PluginError, match="'pkgplug' lives in .*the working directory"):
+        grants.readable_paths(modules=["pkgplug"])
+
+
+@pytest.mark.parametrize("page", ["docs/reliability.md", "docs/api.md"])
+def test_the_docs_table_of_the_profiles_is_the_profiles_own(page):
+    from pathlib import Path
+    text = (Path(__file__).parent.parent / page).read_text()
+    lines = [line.strip() for line in text.splitlines()]
+    table = fence.table().splitlines()
+    starts = [k for k, line in enumerate(lines) if line == table[0]]
+    assert starts, f"{page} has no table of the fence profiles"
+    assert lines[starts[0]:starts[0] + len(table)] == table, f"{page}'s table differs from fence.table()"

@@ -2,7 +2,9 @@
 charge submissions.
 
 - `wire`: the requests and answers between the judge and a contestant, packed and checked in one place;
-- `sandbox`: one contestant's fence (bubblewrap namespaces, seccomp, a control group, limits);
+- `fence`: the one record of a sandbox's rules and its profiles (contestant, engine, job, ...);
+- `sandbox`: one fence around one command (bubblewrap namespaces, seccomp, a control group, limits);
+- `relay`: a sandbox's output and error, relayed by dc under its name, bounded;
 - `guest`: the contestant's side, a fresh interpreter in its sandbox;
 - `broker`: contestants of a fenced job (a study), started by the judge's process on its behalf;
 - `client`: the judge's side, one charged call (wall time or CPU, the larger) with its deadline;

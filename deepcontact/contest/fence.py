@@ -182,21 +182,30 @@ def _environment_options(fence):
 
 
 def describe(fence):
-    """{"sees", "writes", "limits", "streams"} of a profile, in words (the docs' table)."""
-    sees = ("the interpreter, its installed packages, deepcontact, the plug-in's own module and the files it "
-            "is given" if fence.view == "system" else "the whole file system, read-only")
-    writes = "a private /tmp" if fence.tmp else "its private TMPDIR and its output's staging folder"
-    memory = f"at most {fence.limits.memory >> 30} GiB and " if fence.limits.memory else ""
-    limits = (f"{fence.limits.processes} processes, {memory}the machine's memory / (1 + live sandboxes), "
-              f"{fence.limits.file_size >> 20} MiB a file")
+    """{"sees", "writes", "limits", "streams"} of a profile, in words (a row of table())."""
+    sees = ("the interpreter, its installed packages, deepcontact, the plug-in's own module's files and the files "
+            "it is given" if fence.view == "system" else "the whole file system, read-only")
+    writes = (f"a private /tmp of {_size(fence.limits.file_size)}" if fence.tmp
+              else "only the folders it is given: its TMPDIR and its output's staging folder (a listing: none)")
+    cap = f"at most {fence.limits.memory >> 30} GiB and " if fence.limits.memory else ""
+    limits = (f"{fence.limits.processes} processes and threads; memory {cap}at most the machine's / (1 + live "
+              f"sandboxes), never under {_size(MEMORY_FLOOR)}; {_size(fence.limits.file_size)} a file")
     s = fence.streams
-    if s.stdout == "discard":
-        streams = "none: output and error discarded"
-    else:
-        streams = (f"output to dc's {s.stdout_to}, error to dc's stderr{', each line after its name' if s.prefix else ''}, "
-                   f"at most {_size(s.cap)} each")
+    streams = "input empty; " + ("output and error discarded" if s.stdout == "discard" else
+                                 f"output to dc's {s.stdout_to}, error to dc's stderr, relayed by dc"
+                                 f"{', each line after its name' if s.prefix else ''}, {_size(s.cap)} each, the "
+                                 f"rest counted")
     return {"sees": sees, "writes": writes, "limits": limits, "streams": streams}
 
 
+def table():
+    """The profiles as a Markdown table (docs/reliability.md and docs/api.md hold it as it is)."""
+    rows = ["| profile | sees | writes | limits | streams | seccomp |", "|---|---|---|---|---|---|"]
+    for name, fence in PROFILES.items():
+        d = describe(fence)
+        rows.append(f"| {name} | {d['sees']} | {d['writes']} | {d['limits']} | {d['streams']} | {fence.seccomp} |")
+    return "\n".join(rows)
+
+
 def _size(n):
-    return f"{n >> 20} MiB" if n >= 1 << 20 else f"{n >> 10} KiB"
+    return f"{n >> 30} GiB" if n >= 1 << 30 else f"{n >> 20} MiB" if n >= 1 << 20 else f"{n >> 10} KiB"

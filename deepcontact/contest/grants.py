@@ -4,13 +4,17 @@ it: the same for a contestant of `dc evaluate` and one a fenced job asks the bro
 command is the guest's, built here; no option of the job's reaches bubblewrap."""
 import importlib.util
 import os
+import shlex
 import stat
 import sys
 from dataclasses import dataclass
 
 import deepcontact
 
+from ..errors import show_path
+from ..output.argument import output_argument
 from ..model.arch import NETWORKS
+from ..plugins import PluginError
 from ..simulate.engines import ENGINES
 from ..solver.methods import SOLVERS
 from ..warmstart.starts import STARTS
@@ -89,44 +93,57 @@ def _module_root(module):
     return [spec.origin] if spec.origin and os.path.isabs(spec.origin) else None
 
 
-def _imported_tops(path):
-    """The top-level modules a source file imports (read, never run)."""
-    import ast
-    try:
-        with open(path, "rb") as f:
-            tree = ast.parse(f.read())
-    except (OSError, SyntaxError, ValueError):
-        return []
+def _own_files(who, module, readable):
+    """The files and folders of the plug-in `who`'s module (its package's folder, or its one
+    file), outside what is readable already: never what its source imports (a plug-in naming a
+    folder of the working directory in an import statement named it into view). PluginError
+    where they lie in a folder holding the working directory or a path of this command."""
     out = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            out += [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
-            out.append(node.module)
-    return out
-
-
-def _module_roots(modules, seen_roots):
-    """The files and folders of these modules and of the single-file modules they import beside
-    them (a plug-in's own helpers), outside what is readable already."""
-    out, todo, done = [], list(modules), set()
-    while todo and len(done) < 100:
-        module = todo.pop().split(".")[0]
-        if module in done:
+    for root in _module_root(module) or []:
+        root = os.path.abspath(root)
+        if any(root == r or root.startswith(r + os.sep) for r in readable):
             continue
-        done.add(module)
-        for root in _module_root(module) or []:
-            root = os.path.abspath(root)
-            if any(root == r or root.startswith(r + os.sep) for r in seen_roots):
-                continue
-            out.append(root)
-            if root.endswith(".py"):
-                todo += _imported_tops(root)
+        _refuse_data_folder(who, root)
+        out.append(root)
     return out
+
+
+def _refuse_data_folder(who, root):
+    """PluginError, in one line naming the plug-in, where its module's folder (`root`, or the
+    folder of `root`, its one file) is or holds the working directory (a package) or a path this
+    command reads or writes (a run, a dataset, a checkpoint, its output)."""
+    folder = root if os.path.isdir(root) else os.path.dirname(root)
+    cwd = os.getcwd()
+    held = [p for p in command_paths() if _within(p, folder)]
+    if os.path.isdir(root) and _within(cwd, folder):
+        held.insert(0, cwd)
+    if held:
+        what = "the working directory" if held[0] == cwd else show_path(held[0])
+        raise PluginError(f"the plug-in {who!r} lives in {show_path(folder)}, which holds {what} of this command: "
+                          f"a plug-in's sandbox reads only its own module's files; move it to a folder of its own "
+                          f"(on PYTHONPATH) or install it")
+
+
+def _within(path, folder):
+    return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
+
+
+def command_paths():
+    """The paths this dc command names (its runs, datasets, checkpoints, its -o output), absolute,
+    read from its command line as the user gave it."""
+    from .. import protocol
+    try:
+        args = shlex.split(protocol.command_line or "")[1:]
+    except ValueError:
+        return []
+    found = [v for a in args for v in (a, a.partition("=")[2] if a.startswith("--") else "") if v]
+    out = [os.path.abspath(p) for p in found if os.path.lexists(p)]
+    target = output_argument(args)[2]
+    return out + ([os.path.abspath(target)] if target else [])
 
 
 def _plugin_modules(names):
-    """(modules, metadata folders) of the plug-ins named here (module:attr names, entry points of
+    """([(name, module)], metadata folders) of the plug-ins named here (module:attr names, entry points of
     installed packages: their distribution's metadata too, where the entry point is read), read
     from their names and the packages' metadata, nothing imported."""
     out, metadata = [], []
@@ -134,7 +151,7 @@ def _plugin_modules(names):
         if not isinstance(name, str):
             continue
         if ":" in name:
-            out.append(name.partition(":")[0])
+            out.append((name, name.partition(":")[0]))
             continue
         registries = (STARTS, SOLVERS, NETWORKS, ENGINES)
         if any(name in r.builtin() for r in registries):   # (a built-in's: no scan of the installed packages)
@@ -142,7 +159,7 @@ def _plugin_modules(names):
         for registry in registries:
             found = registry.installed().get(name)
             if found is not None:
-                out.append(found.value.partition(":")[0])
+                out.append((name, found.value.partition(":")[0]))
                 folder = getattr(getattr(found, "dist", None), "_path", None)
                 if folder is not None:
                     metadata.append(os.fspath(folder))
@@ -159,7 +176,9 @@ def runs_plugin_code(names, modules):
 
 def readable_paths(names=(), modules=(), files=()):
     """What a contestant's sandbox may read: the interpreter and its installed packages,
-    deepcontact, the plug-ins' own modules (by name, and `modules`) and `files`."""
+    deepcontact, the plug-ins' own modules (by name, and `modules`: each its package's folder or
+    its one file, never a folder holding the working directory or a path of this command:
+    PluginError) and `files`."""
     import site
     out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
            os.path.dirname(deepcontact.__file__), *_cli_folder()]
@@ -169,7 +188,9 @@ def readable_paths(names=(), modules=(), files=()):
         pass
     out = [os.path.abspath(p) for p in out]
     found, metadata = _plugin_modules(names)
-    out += _module_roots([*found, *modules], out) + metadata
+    for who, module in [*found, *((m, m) for m in modules)]:
+        out += _own_files(who, module, out)
+    out += metadata
     out += [os.fspath(f) for f in files if f]
     return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
 

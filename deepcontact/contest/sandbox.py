@@ -1,6 +1,7 @@
-"""A contestant's fence, built the way contest judges build theirs (IOI's isolate, DOMjudge's
-runguard): each contestant is a fresh interpreter started by bubblewrap in namespaces of its own
-(user, PID, mount, IPC, network, UTS, cgroup), in a control group of its own that the judge owns.
+"""A fence around one command, built the way contest judges build theirs (IOI's isolate, DOMjudge's
+runguard): its rules are one record (fence.py: a contestant's, a job's, ...); a contestant is a
+fresh interpreter started by bubblewrap in namespaces of its own (user, PID, mount, IPC, network,
+UTS, cgroup), in a control group of its own that the judge owns.
 
 What it sees: a read-only view of the interpreter, the installed packages, deepcontact and the
 plug-in's own module (and a checkpoint it is given); a private /tmp; its own /proc, which shows
@@ -8,7 +9,8 @@ only its own processes. No run folder, no output being written, no other process
 judge cannot be named, so cannot be signalled, reniced, traced or read. Seccomp refuses ptrace,
 cross-process memory reads and the calls that would change the fence; no new privileges; no
 capabilities. Limits: processes, memory (the control group where the kernel lends one, else the
-address space), file size.
+address space), file size. Its standard input is empty; its output and error are pipes dc relays
+(relay.py): no descriptor of dc's is inherited.
 
 What it is charged: the CPU time of its control group, which counts every process and thread it
 starts, detached ones included, from its start to its end; read by the judge, never asked of the
