@@ -50,7 +50,9 @@ ContactColumns LoopFrame::contact_columns() const {
 }
 
 // b2World::Solve's islands: flags cleared, then a depth-first search from each awake non-static
-// seed in body-list order, not crossing static bodies (which it adds and leaves).
+// seed in body-list order, not crossing static bodies (which it adds and leaves). The bodies it
+// reaches are woken only when they are stepped (solve_island): where Box2D's own Solve steps
+// them instead, a body woken here would seed a search of its own there.
 void World::find_islands() {
     LoopFrame& f = loop_;
     f.island_bodies.clear();
@@ -80,7 +82,6 @@ void World::find_islands() {
                 f.static_moves |= b->GetLinearVelocity() != b2Vec2_zero || b->GetAngularVelocity() != 0.0f;
                 continue;
             }
-            flags(b) |= kBodyAwakeFlag;   // awake, without resetting its sleep time
             for (b2ContactEdge* ce = b->GetContactList(); ce; ce = ce->next) {
                 b2Contact* c = ce->contact;
                 if ((flags(c) & kContactIslandFlag) || !c->IsEnabled() || !c->IsTouching()) continue;
@@ -264,6 +265,8 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
     // Integrate velocities and apply damping.
     for (int32_t i = body_begin; i < body_end; ++i) {
         b2Body* b = f.island_bodies[i];
+        // (b2World::Solve's search wakes them, without resetting their sleep time)
+        if (b->GetType() != b2_staticBody) flags(b) |= kBodyAwakeFlag;
         b2Sweep& sweep = b->*member(BodySweep());
         b2Vec2 c = sweep.c;
         float a = sweep.a;
