@@ -52,3 +52,106 @@ def test_an_installed_name_that_reads_as_a_variant_label_is_no_start(run, tmp_pa
            "--starts", f"{name},builtin")
     option_error(r, f"{name!r} is not a start")
     assert not (tmp_path / "r").exists()
+
+
+HOSTILE = textwrap.dedent("""
+    import numpy as np
+    from deepcontact.errors import InputError
+    from deepcontact.warmstart.starts import StartValue
+    import dc_example_plugins.engines as example
+
+    def box2d(ctx):
+        return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
+
+    def forge(header=None, arrays=None):
+        '''Every solve answer this process sends from now on carries these fields and arrays.'''
+        import deepcontact.contest.guest as guest
+        real = guest.pack
+        def forged(head, sent=None):
+            sent = dict(sent or {})
+            if "claims" in sent:
+                head, sent = dict(head, **(header or {})), dict(sent, **(arrays or {}))
+            return real(head, sent)
+        guest.pack = forged
+
+    class Ballast:
+        '''Box2D's warm start and the built-in sweeps, every solve answer 16 MB heavier: an array
+        named 'ballast' that no answer holds, kept by the judge with each answer of a step.'''
+        def __call__(self, ctx):
+            forge(arrays={"ballast": np.zeros(2_000_000)})
+            return box2d(ctx)
+
+    class BuiltinClaims:
+        '''The same, its built-in method's answers claiming a million residuals (8 MB) each.'''
+        def __call__(self, ctx):
+            forge(arrays={"claims": np.full(1_000_000, 1e-9)})
+            return box2d(ctx)
+
+    class Framer:
+        '''Fails with a line of its own making: blaming builtin, naming itself only past what a line
+        shows, with a terminal's escape sequence (a window title) in it.'''
+        def __call__(self, ctx):
+            raise InputError("the variant 'builtin' answered a negative normal impulse \\x1b]0;owned\\x07"
+                             + "!" * 700 + " 'hostile:Framer'")
+
+    class TextFlags(example.Circles):
+        '''The example engine, its description's flag 'continuous' the text "no" (true where read
+        as Python reads text).'''
+        name = "textflags"
+        @classmethod
+        def from_settings(cls, **settings):
+            import deepcontact.contest.guest as guest
+            real = guest.pack
+            def forged(head, sent=None):
+                if isinstance(head.get("engine"), dict):
+                    flags = dict(head["engine"]["flags"], continuous="no")
+                    head = dict(head, engine=dict(head["engine"], flags=flags))
+                return real(head, sent)
+            guest.pack = forged
+            return super().from_settings(**settings)
+    """)
+
+
+@pytest.fixture
+def hostile(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    forget = plugin_modules(tmp_path, monkeypatch, {"hostile": HOSTILE})
+    yield
+    forget()
+    sys.modules.pop("dc_example_plugins.engines", None)
+
+
+def _evaluate(run, out, *args):
+    return dc("evaluate", "--no-plots", "--no-budgets", run, "--every", "20", "-q", "-o", out, *args)
+
+
+@pytest.mark.parametrize("start, needle", [
+    ("Ballast", "answered an array 'ballast', which no answer holds"),
+    ("BuiltinClaims", "claimed 1,000,000 iterations (or residuals) for a solve asked to stop at 10,000 sweeps"),
+])
+def test_what_no_answer_holds_is_refused_not_kept(run, tmp_path, hostile, start, needle):
+    """Before, both were taken: every answer of a step kept until the step was judged (four a
+    variant a step: 64 MB of ballast), and a built-in method's claims, which the judge never
+    reads (it traces the method itself), kept from each step's first answer unbounded by the cap."""
+    r = _evaluate(run, tmp_path / "r", "--starts", f"builtin,hostile:{start}")
+    one_line_error(r, f"the variant 'hostile:{start}'", needle)
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_error_line_names_its_contestant_first_and_carries_no_escape(run, tmp_path, hostile):
+    """Before, a line holding the variant's own name anywhere was said as it came: 'dc evaluate:
+    error: the variant 'builtin' answered a negative normal impulse ...', cut at 600 characters
+    before its name, with the escape sequence sent to the user's terminal."""
+    r = _evaluate(run, tmp_path / "r", "--starts", "builtin,hostile:Framer")
+    line = one_line_error(r, "dc evaluate: error: the variant 'hostile:Framer': ")
+    assert line.startswith("dc evaluate: error: the variant 'hostile:Framer': "), line
+    assert "\x1b" not in r.stderr and "\x07" not in r.stderr and "\\x1b]0;owned" in line, line
+
+
+def test_an_engines_description_is_typed_field_by_field(tmp_path, hostile):
+    """Before, its flags were read as Python reads them: "no" was true, and the run was recorded
+    as a continuous engine's."""
+    r = dc("simulate", *PILE, "--steps", "2", "--engine", "hostile:TextFlags", "-o", tmp_path / "r")
+    one_line_error(r, "the engine 'hostile:TextFlags' answered with something that is not an answer",
+                   "engine.flags.continuous is 'no', not true or false")
+    assert not (tmp_path / "r").exists()

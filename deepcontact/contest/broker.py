@@ -86,12 +86,12 @@ def _connection():
     return _conn
 
 
-def new(grant, threads=1, name=None):
+def new(grant, threads=1, name=None, profile="contestant"):
     """A contestant's sandbox for what it runs (a grants.Grant): this process's own, or, in a
     fenced job, one the judge's process starts and owns on the job's behalf (RemoteSandbox). Its
     start_guest(channel, torch) starts the guest with its line to the judge; name: how its
-    relayed output is named."""
-    return RemoteSandbox(grant, threads) if inside() else guest_sandbox(grant, threads, name)
+    relayed output is named; profile: its fence's (fence.PROFILES: "contestant", "engine")."""
+    return RemoteSandbox(grant, threads) if inside() else guest_sandbox(grant, threads, name, profile)
 
 
 def guest_sandbox(grant, threads=1, name=None, profile="contestant"):

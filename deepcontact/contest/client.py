@@ -10,6 +10,7 @@ contestant left running is counted from its control group by the judge, never as
 """
 import os
 import pickle
+import re
 import sys
 import time
 
@@ -82,7 +83,8 @@ class Contestant:
         if grants.runs_plugin_code(names, modules):
             sandbox.refuse_bare(self.who, _broker.missing_fences())
         self.sandbox = _broker.new(grants.Grant(names, modules, [checkpoint] if checkpoint else []),
-                                   threads=setup["threads"], name=self.who)
+                                   threads=setup["threads"], name=self.who,
+                                   profile="engine" if engine is not None else "contestant")
         import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()
@@ -154,9 +156,8 @@ class Contestant:
             raise PluginError(f"{self.who}: its answer could not be read ({e}; at most "
                               f"{ANSWER_MAX >> 20} MiB)") from None
         header, arrays = unpack(data, self.who)
-        if "error" in header:   # (named once: an error that names its plug-in already needs no prefix)
-            error = header["error"]
-            raise PluginError(error if f"'{self.label}'" in error else f"{self.who}: {error}") \
+        if "error" in header:
+            raise PluginError(said_by(self.who, self.label, header["error"])) \
                 from ContestantTraceback(str(header.get("traceback", "")))
         return header, arrays
 
@@ -200,6 +201,21 @@ def start_all(contestants):
             c.close()
         raise
     return contestants
+
+
+# How dc's own lines in a contestant's process begin: "the start 'x' raised ...", "the solver method 'x' ..."
+_NAMING = re.compile(r"the [a-z-]+(?: [a-z-]+){0,3} ")
+
+
+def said_by(who, label, error):
+    """A contestant's error line as the judge says it: its text (the contestant's own: what a
+    terminal would act on, an escape sequence, shown escaped) after `who`, its name, unless the
+    line begins by naming `label` (one of dc's own lines from its process, named once). A line
+    that names it anywhere else (past the 600 characters a line shows, after blaming a rival) is
+    the contestant's, and said as its."""
+    text = "".join(c if c.isprintable() or c.isspace() else c.encode("unicode_escape").decode() for c in error)
+    begins = _NAMING.match(text)
+    return text if begins and text.startswith(repr(label), begins.end()) else f"{who}: {text}"
 
 
 class ContestantTraceback(Exception):
@@ -282,7 +298,7 @@ class RemoteMethod:
             self.null = Contestant.null()
         took, header, arrays = self.contestant.call(request, deadline_for(n))
         self.pending += min(self.null.call(request, deadline_for(n))[0], took)
-        normal, tangent = checked_answer(self.contestant.label, arrays, n)
+        normal, tangent = checked_answer(self.contestant.label, arrays, n, also=("claims",))
         held_claims(self.contestant.label, header, arrays, settings.max_iterations)   # (its iterations are recorded)
         check_plausible(self.name, problem, normal, tangent)
         judged = judge(problem, normal, tangent)

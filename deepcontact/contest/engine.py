@@ -17,9 +17,18 @@ from ..errors import InputError
 from ..plugins import PluginError
 from ..simulate.engines import Engine, layout_error
 from ..simulate.pgs_loop import LoopStep
+from . import shape
 from .client import CALL_FLOOR, Contestant
 
 FLAGS = ("poses_box2d_problem", "continuous", "sleeps", "block_solve", "rests_in_skin")
+# What its sandbox says of a plug-in engine (guest._engine_made), every field typed before any is
+# read (wire.unpack): a flag true or false ("no" read as Python reads text was true), its settings
+# each a name and a value of its own account.
+shape.declare("engine described", shape.Record({
+    "name": shape.Text(), "label": shape.Text(), "version": shape.Text(), "rows": shape.Text(),
+    "settings": shape.Table(shape.Scalar(), most=256),
+    "flags": shape.Record({f: shape.Flag() for f in FLAGS}, required=FLAGS),
+}, required=("name", "label", "version", "rows", "settings", "flags")))
 
 
 def guest_engine(name, settings=None):
@@ -56,7 +65,7 @@ class GuestEngine(Engine):
         self.target, self.asked, self.described = target, settings, described
         self.name, self.label, self.rows = described["name"], described["label"], "own"
         for flag in FLAGS:
-            setattr(self, flag, bool(described["flags"].get(flag)))
+            setattr(self, flag, described["flags"][flag])
         self._settings = dict(described["settings"])
 
     def version(self) -> str:

@@ -42,6 +42,8 @@ def _arrays(data, at, entries):
     """The arrays an answer's header names ([name, length] each), read from `data` at `at` on."""
     arrays = {}
     for name, size in entries:
+        if name in arrays:
+            raise ValueError(f"it names the array {name[:60]!r} twice")
         if at + 8 * size > len(data):
             raise ValueError("an array runs past the answer's end")
         arrays[name] = np.frombuffer(data, np.float64, size, at).copy()
@@ -53,9 +55,16 @@ def _arrays(data, at, entries):
     return arrays
 
 
-def checked_answer(label, arrays, points):
+def checked_answer(label, arrays, points, also=()):
     """A contestant's impulses (normal, tangent), checked by the judge: one finite value per
-    contact point, no pull; PluginError naming `label` otherwise."""
+    contact point, no pull, and no array beside them but those named in `also` (a solve's
+    claims: what the judge keeps of an answer is what it reads); PluginError naming `label`
+    otherwise."""
+    held = ("normal", "tangent", *also)
+    for name in arrays:
+        if name not in held:
+            raise PluginError(f"the variant {label!r} answered an array {name[:60]!r}, which no answer holds "
+                              f"(this one holds {', '.join(held)})")
     out = []
     for what in ("normal", "tangent"):
         a = arrays.get(what)

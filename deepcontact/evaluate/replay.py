@@ -339,12 +339,14 @@ class _JudgedStep:
             row[1].status()
 
     def _kept(self, i, head, arrays):
-        """An answer of variant i as the judge keeps it: a plug-in's claims held to its cap
-        (wire.held_claims) and kept from its first answer only, the one its history is read from."""
+        """An answer of variant i as the judge keeps it: its impulses and no other array
+        (checked_answer), its claims held to its cap (wire.held_claims) and kept from a plug-in's
+        first answer only, the one its history is read from (a built-in's history is the judge's
+        own: traced)."""
         v = self.variants[i][0]
-        if not is_native(v.accelerate):
-            held_claims(v.label, head, arrays, self.asked[i].max_iterations)
-        if self.answers[i]:
+        checked_answer(v.label, arrays, self.problem.points, also=("claims",))
+        held_claims(v.label, head, arrays, self.asked[i].max_iterations)
+        if self.answers[i] or is_native(v.accelerate):
             arrays.pop("claims", None)
         return head, arrays
 
@@ -372,7 +374,8 @@ class _JudgedStep:
         problem, reference, s = self.problem, self.reference, self.settings
         v, c, normal, tangent, predict_s = self.variants[i]
         answers = self.answers[i]
-        judged = [judge(problem, *checked_answer(v.label, arrays, problem.points)) for _, arrays in answers]
+        judged = [judge(problem, *checked_answer(v.label, arrays, problem.points, also=("claims",)))
+                  for _, arrays in answers]
         if not is_native(v.accelerate):   # (a plug-in's answer: one a step could need at all?)
             for _, arrays in answers:
                 check_plausible(v.accelerate, problem, arrays["normal"], arrays["tangent"])
@@ -461,7 +464,8 @@ def _budgets(contestant, problem, request, null, label):
     for k, b in enumerate((BUDGETS[0], *BUDGETS)):
         asked = request["settings"].but(max_iterations=b, tolerance=0.0)
         took, head, arrays = contestant.call({**request, "settings": asked}, deadline_for(problem.points))
-        judged = judge(problem, *checked_answer(label, arrays, problem.points)).residual
+        judged = judge(problem, *checked_answer(label, arrays, problem.points, also=("claims",))).residual
+        held_claims(label, head, arrays, b)
         if is_native(asked.accelerate):   # (the judge's own run of the same sweeps, off the clock)
             same_as_traced(label, asked.accelerate, head, arrays,
                            solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False))
