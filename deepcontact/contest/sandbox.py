@@ -130,10 +130,6 @@ class Sandbox:
         self._cpu_file = None
         self._relays = []
 
-    @property
-    def readable(self):
-        return list(self.fence.readable)
-
     def _make_groups(self, memory):
         for controller, (kind, base) in machine.cgroup_roots().items():
             _sweep(base)
