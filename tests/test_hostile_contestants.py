@@ -3,7 +3,6 @@ each written here as a hostile plug-in author would: a start installed under a n
 a variant label, answers carrying arrays no answer holds, an error line that names another
 contestant, an engine describing itself in fields of the wrong type. Each is one line naming
 it (exit 1; 2 for a name no registry takes), no traceback, nothing written."""
-import sys
 import textwrap
 from pathlib import Path
 
@@ -58,7 +57,6 @@ HOSTILE = textwrap.dedent("""
     import numpy as np
     from deepcontact.errors import InputError
     from deepcontact.warmstart.starts import StartValue
-    import dc_example_plugins.engines as example
 
     def box2d(ctx):
         return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
@@ -94,7 +92,13 @@ HOSTILE = textwrap.dedent("""
             raise InputError("the variant 'builtin' answered a negative normal impulse \\x1b]0;owned\\x07"
                              + "!" * 700 + " 'hostile:Framer'")
 
-    class TextFlags(example.Circles):
+    """)
+
+
+# The example engine (one file: a plug-in's sandbox reads its own module only), and one that forges
+ENGINE = (EXAMPLE / "dc_example_plugins" / "engines.py").read_text() + textwrap.dedent("""
+
+    class TextFlags(Circles):
         '''The example engine, its description's flag 'continuous' the text "no" (true where read
         as Python reads text).'''
         name = "textflags"
@@ -114,11 +118,9 @@ HOSTILE = textwrap.dedent("""
 
 @pytest.fixture
 def hostile(tmp_path, monkeypatch):
-    monkeypatch.syspath_prepend(str(EXAMPLE))
-    forget = plugin_modules(tmp_path, monkeypatch, {"hostile": HOSTILE})
+    forget = plugin_modules(tmp_path, monkeypatch, {"hostile": HOSTILE, "hostile_engine": ENGINE})
     yield
     forget()
-    sys.modules.pop("dc_example_plugins.engines", None)
 
 
 def _evaluate(run, out, *args):
@@ -151,7 +153,7 @@ def test_an_error_line_names_its_contestant_first_and_carries_no_escape(run, tmp
 def test_an_engines_description_is_typed_field_by_field(tmp_path, hostile):
     """Before, its flags were read as Python reads them: "no" was true, and the run was recorded
     as a continuous engine's."""
-    r = dc("simulate", *PILE, "--steps", "2", "--engine", "hostile:TextFlags", "-o", tmp_path / "r")
-    one_line_error(r, "the engine 'hostile:TextFlags' answered with something that is not an answer",
+    r = dc("simulate", *PILE, "--steps", "2", "--engine", "hostile_engine:TextFlags", "-o", tmp_path / "r")
+    one_line_error(r, "the engine 'hostile_engine:TextFlags' answered with something that is not an answer",
                    "engine.flags.continuous is 'no', not true or false")
     assert not (tmp_path / "r").exists()
