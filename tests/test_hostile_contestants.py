@@ -113,6 +113,20 @@ ENGINE = (EXAMPLE / "dc_example_plugins" / "engines.py").read_text() + textwrap.
                 return real(head, sent)
             guest.pack = forged
             return super().from_settings(**settings)
+
+    class WideTypes(Circles):
+        '''The example engine, its bodies' types sent past an int8's range (258 for a dynamic body, 2).'''
+        name = "widetypes"
+        @classmethod
+        def from_settings(cls, **settings):
+            import deepcontact.contest.guest as guest
+            real = guest.pack
+            def forged(head, sent=None):
+                if "bodies.type" in (sent or {}):
+                    sent = dict(sent, **{"bodies.type": sent["bodies.type"] + 256})
+                return real(head, sent)
+            guest.pack = forged
+            return super().from_settings(**settings)
     """)
 
 
@@ -156,4 +170,13 @@ def test_an_engines_description_is_typed_field_by_field(tmp_path, hostile):
     r = dc("simulate", *PILE, "--steps", "2", "--engine", "hostile_engine:TextFlags", "-o", tmp_path / "r")
     one_line_error(r, "the engine 'hostile_engine:TextFlags' answered with something that is not an answer",
                    "engine.flags.continuous is 'no', not true or false")
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_engines_value_its_field_cannot_hold_is_one_line(tmp_path, hostile):
+    """Before, a body's type of 258 in an int8 field was cast and written as 2 (dynamic: the step
+    files the same as the honest engine's), one of 1e300 as 0 (every body static), silently."""
+    r = dc("simulate", *PILE, "--steps", "2", "--engine", "hostile_engine:WideTypes", "-o", tmp_path / "r")
+    one_line_error(r, "the engine 'hostile_engine:WideTypes' returned bodies.type with a value int8 cannot hold "
+                      "(a whole number from -128 to 127)")
     assert not (tmp_path / "r").exists()

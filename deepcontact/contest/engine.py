@@ -58,6 +58,23 @@ def _described(name, d):
     return d
 
 
+def unheld(values, dtype):
+    """What in `values` (float64, as an answer carries them) the field's `dtype` cannot hold as it
+    is, in words ("" where it holds them all): a fraction or a number past an integer's range (a
+    body type of 258 was written as 2, one of 1e300 as 0: static), past float32's. Cast, they
+    would be written as another number, silently."""
+    kind = np.dtype(dtype)
+    if kind.kind in "biu":
+        low, high = (0, 1) if kind.kind == "b" else (int(np.iinfo(kind).min), int(np.iinfo(kind).max))
+        if not np.all(values == np.round(values)):
+            return "a fraction in a whole-number field"
+        if len(values) and not (values.min() >= low and values.max() < high + 1):   # (high + 1: a power of 2, exact)
+            return f"a value {dtype} cannot hold (a whole number from {low} to {high})"
+    elif kind == np.float32 and len(values) and np.abs(values).max() > np.finfo(np.float32).max:
+        return "a value float32 cannot hold (beyond its largest, 3.4e38)"
+    return ""
+
+
 class GuestEngine(Engine):
     """A plug-in engine whose code runs in its own sandbox: each world a sandbox of its own."""
 
@@ -108,8 +125,9 @@ class GuestWorld:
             if table not in tables or key not in arrays or math.prod(shape) != arrays[key].size:
                 raise PluginError(f"{self.label} returned the array {key!r} in a form no step file holds")
             values = arrays[key]
-            if dtype not in ("float32", "float64") and not np.all(values == np.round(values)):
-                raise PluginError(f"{self.label} returned {key} with a fraction in a whole-number field")
+            wrong = unheld(values, dtype)
+            if wrong:
+                raise PluginError(f"{self.label} returned {key} with {wrong}")
             tables[table][field] = values.reshape(shape).astype(dtype)
         wrong = layout_error(tables["bodies"], tables["contacts"])
         if wrong:   # (the writer's own refusal was not a message of ours)
