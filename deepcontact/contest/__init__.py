@@ -8,6 +8,7 @@ charge submissions.
 - `guest`: the contestant's side, a fresh interpreter in its sandbox;
 - `broker`: contestants of a fenced job (a study), started by the judge's process on its behalf;
 - `client`: the judge's side, one charged call (wall time or CPU, the larger) with its deadline;
+- `charge`: a loop step's calls charged, less the null contestant's least round trip over the run;
 - `verdict`: one rule that names a winner, or says there is none, for replay and loop alike.
 
 evaluate/ and the studies consume it; it imports nothing above the warm starts.

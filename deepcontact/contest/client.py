@@ -140,6 +140,7 @@ class Contestant:
         cpu = self.sandbox.cpu_seconds()
         used = 0.0 if cpu is None or self.cpu_last is None else cpu - self.cpu_last
         self.cpu_last = cpu
+        self.last = (self._wall, used)   # (both, for a loop's charge: charge.py)
         return max(self._wall, used), header, arrays
 
     def _receive(self, deadline, doing):
@@ -279,13 +280,14 @@ class RemoteMethod:
     """A plug-in solver method in a contestant's sandbox, as a loop's solve_fn (the closed loop's,
     in the variant's own contestant; the studies', in one of its own): each solve a call charged
     here, the same request's round trip through the null contestant (take_transport) to be
-    subtracted from the step's time, the answer checked and judged here."""
+    subtracted from the step's time, the answer checked and judged here. charges: the closed
+    loop's StepCharges (charge.py), which then records each solve's round trips instead."""
 
-    def __init__(self, name, contestant=None, null=None):
+    def __init__(self, name, contestant=None, null=None, charges=None):
         self.name = name
         self.contestant = contestant or Contestant(name, "builtin", Builtin(), name).begin()
         self.null, self._own_null = null, null is None
-        self.pending = 0.0
+        self.pending, self.charges = 0.0, charges
 
     def solve(self, problem, start_n, start_t, settings):
         import dataclasses
@@ -297,7 +299,11 @@ class RemoteMethod:
         if self.null is None:
             self.null = Contestant.null()
         took, header, arrays = self.contestant.call(request, deadline_for(n))
-        self.pending += min(self.null.call(request, deadline_for(n))[0], took)
+        null = self.null.call(request, deadline_for(n))[0]
+        if self.charges is not None:
+            self.charges.record("solve", self.contestant, self.null)
+        else:
+            self.pending += min(null, took)
         normal, tangent = checked_answer(self.contestant.label, arrays, n, also=("claims",))
         held_claims(self.contestant.label, header, arrays, settings.max_iterations)   # (its iterations are recorded)
         check_plausible(self.name, problem, normal, tangent)

@@ -2,9 +2,10 @@
 
 Unlike replay, errors feed back: a start that leaves the solver short of the answer changes the
 next state. Every variant runs alike: its start (and a plug-in method) in a sandbox of its own
-(deepcontact/contest), each step through Python; every call is charged here (its wall time or its
-sandbox's CPU, the larger) and the null contestant's round trip of the same request is subtracted,
-so a start that gives what Box2D's warm start gives measures what builtin does. What the path itself costs over
+(deepcontact/contest), each step through Python; every call is charged here, as replay's: the
+larger of its wall time and its sandbox's CPU since its previous call, each less the null
+contestant's least over the run (contest/charge.py), so a start that gives what Box2D's warm start
+gives measures what builtin does, and work it leaves running is charged to it. What the path itself costs over
 one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
 same scene from the same initial state under the same stopping rule; the reference trajectory is
 the one stepped with each step's reference solution (float64 PGS to a residual of 1e-12).
@@ -21,6 +22,7 @@ import numpy as np
 
 from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
+from ..contest.charge import StepCharges, floors as null_floors
 from ..contest.client import packed
 from ..contest.wire import checked_answer
 from ..scene.check import check_scene
@@ -57,28 +59,28 @@ class LoopResult:
     ms_again: np.ndarray = None    # Box2D's warm start only: the same run timed a second time (A/A)
     oracle: bool = False           # the start asks for the step's answer (its description: starts.described)
     ours: bool = True              # the project's solver (False: Box2D's own at k iterations)
-    transport_ms: np.ndarray = None   # per step: the round trips to its contestant's process, subtracted
+    transport_ms: np.ndarray = None   # per step: its wall time not charged (the round trips in it, less its
+                                      # calls' charges: contest/charge.py), subtracted
     path_ms: float = 0.0           # the contestants' path's cost a step over the native loop (in ms_per_step)
     setup_ms: float = 0.0          # its contestant's setup, charged (beyond the null contestant's), in its total
 
 
 class _Adapter:
     """A variant's contestant (its own sandbox: replay.open_contestants) as the loop's start_fn, and
-    for a plug-in method as its solve_fn; every call charged here, the transport (the null
-    contestant's round trip of the same request) subtracted, and each answer checked and judged
-    here. Remembers the solution applied, for the prev start."""
+    for a plug-in method as its solve_fn; every call and the null contestant's round trip of the
+    same request recorded (contest/charge.py) and charged once the run is over, each answer checked
+    and judged here. Remembers the solution applied, for the prev start."""
 
     def __init__(self, label, contestant, null):
-        self.name, self.contestant, self.null, self.timing = label, contestant, null, []
+        self.name, self.contestant, self.null = label, contestant, null
         self.setup_ms = max(contestant.setup_s - null.setup_s, 0.0) * 1e3
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         # (the same description that says what its ctx holds: starts.described)
         self.oracle = any(contestant.traits[k] for k in ORACLE_TRAITS)
         self.keys, self.known, self.previous = [], set(), {}
-        self.transport, self.pending = [], 0.0   # per step: the round trips' fixed cost, to be subtracted
-        self.predicting = 0.0   # the start's time in the step being taken (timing: one a step, as the steps')
+        self.charges = StepCharges()
+        self.transport = self.timing = np.zeros(0)   # per step, once settled: seconds not charged, the start's charge
         self.method = None   # a plug-in method's RemoteMethod, in the same process
-
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
@@ -91,25 +93,27 @@ class _Adapter:
                           variant=self.name, trajectory="loop")
         request = packed({"op": "start", "ctx": visible_context(ctx, self.contestant.traits, self.name)})
         deadline = deadline_for(problem.points)
-        null = self.null.call(request, deadline)[0]   # (just before: a first touch of the step's bytes, as the call's)
-        took, _, arrays = self.contestant.call(request, deadline)
-        # the step's time holds the null's round trip and the call's own: neither is the contestant's
-        self.pending += null + min(null, took)
-        self.predicting += max(took - null, 0.0)
+        self.null.call(request, deadline)   # (just before: a first touch of the step's bytes, as the call's)
+        arrays = self.contestant.call(request, deadline)[2]
+        self.charges.record("start", self.contestant, self.null)
         return tuple(checked_answer(self.name, arrays, problem.points))
 
     def solve(self, problem, start_n, start_t, settings):
         """A plug-in method's solve, in the contestant's process (RemoteMethod); its answer judged here."""
         if self.method is None:
-            self.method = RemoteMethod(settings.accelerate, self.contestant, self.null)
+            self.method = RemoteMethod(settings.accelerate, self.contestant, self.null, self.charges)
         return self.method.solve(problem, start_n, start_t, settings)
 
     def solved(self, solution):
         self.previous = {} if solution is None else impulses_by_key(self.keys, solution.normal_impulse,
                                                                      solution.tangent_impulse)
-        self.transport.append(self.pending + (self.method.take_transport() if self.method is not None else 0.0))
-        self.timing.append(self.predicting)   # (a step without contact points asked nothing: 0, not left out)
-        self.pending = self.predicting = 0.0
+        self.charges.step_done()   # (a step without contact points asked nothing: charged 0, not left out)
+
+    def settle(self, floors):
+        """Once the run is over, with the null's least round trips over it (charge.floors): per
+        step, the seconds not charged (transport) and the start's charge (timing)."""
+        self.transport = self.charges.uncharged(floors)
+        self.timing = self.charges.charged(floors, ("start",))
 
 
 def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True, solve_fn=None):
@@ -257,10 +261,12 @@ def _interleaved(scene, runs, steps):
     finally:
         for c in (*contestants, *([null] if null is not None else [])):
             c.close()
+    floors = null_floors([a.charges for a in loops])   # (the null's least over the whole run: no variant moves it)
     out = []
     for adapter in loops:
+        adapter.settle(floors)
         t = adapter.follower.trajectory()
-        out.append((t, adapter, t.seconds * 1e3 - np.array(adapter.transport[:len(t.seconds)]) * 1e3))
+        out.append((t, adapter, t.seconds * 1e3 - adapter.transport[:len(t.seconds)] * 1e3))
     return out
 
 
