@@ -61,3 +61,61 @@ def test_work_left_running_in_the_loop_is_charged_and_never_named_faster(stacked
     verdict = next(line for line in (tmp_path / "loop" / "report.md").read_text().splitlines()
                    if line.startswith("**Verdict**"))
     assert f"{busy}**" not in verdict and f"{busy} has the smallest" not in verdict, verdict
+
+
+def loop_row(name, ms, again=None):
+    from deepcontact.evaluate.closed_loop import LoopResult
+    n = len(ms)
+    return LoopResult(start=name, steps=n, iterations=np.full(n, 10), ms_per_step=np.asarray(ms, np.float64),
+                      predict_ms=np.zeros(n), drift=np.zeros(n), penetration=0.0, finite=True,
+                      residuals=np.full(n, 1e-5), ms_again=again)
+
+
+def test_a_net_time_at_or_below_zero_is_a_measurement_error_never_a_win():
+    from deepcontact.evaluate.loop_report import loop_table
+    from deepcontact.evaluate.verdicts import loop_verdict
+    rng = np.random.default_rng(7)
+    builtin = rng.uniform(1.0, 1.2, 60)
+    again = builtin * (1 + 0.01 * rng.standard_normal(60))
+    under = builtin / 3
+    under[::10] = -0.4   # (what the loop once reported for a start that slowed the null: -0.4 to -3.9 ms)
+    fast = builtin / 2
+    rows = [loop_row("builtin", builtin, again), loop_row("under", under), loop_row("fast", fast)]
+    line = loop_verdict(rows, 1e-4)
+    # (its median alone is a third of builtin's: named on it, were its steps believed)
+    assert "**under**" not in line and "is **fast**" in line, line
+    assert "Left out as a measurement error, a net time per step at or below zero" in line and "under (6 steps)" in line
+    row = next(r for r in loop_table(rows, 1e-4).splitlines() if r.startswith("| under"))
+    assert "measurement error: a net time at or below zero on 6 steps" in row
+    zero = under.copy()
+    zero[::10] = 0.0   # (zero is no faster than measured: an error too)
+    assert "**under**" not in loop_verdict([rows[0], loop_row("under", zero)], 1e-4)
+    broken = builtin.copy()
+    broken[3] = -1.0
+    line = loop_verdict([loop_row("builtin", broken, again), loop_row("fast", fast)], 1e-4)
+    assert line.startswith("**Verdict**: none is named: Box2D's warm start's own time") and "**fast**" not in line
+
+
+class Answered:
+    """What a Contestant's last call measured (Contestant.last: wall seconds, CPU seconds)."""
+
+    def __init__(self, wall, cpu):
+        self.last = (wall, cpu)
+
+
+def test_a_null_slowed_by_a_contestant_does_not_enlarge_what_is_subtracted():
+    from deepcontact.contest.charge import StepCharges, call_charge, floors
+    quiet, slowed = StepCharges(), StepCharges()
+    # one step each: the same call (1.0 ms wall, 0.2 ms CPU), the null's round trip 0.5 ms, or 3 ms slowed
+    quiet.record("start", Answered(1.0e-3, 0.2e-3), Answered(0.5e-3, 0.1e-3))
+    quiet.step_done()
+    slowed.record("start", Answered(1.0e-3, 0.2e-3), Answered(3.0e-3, 0.1e-3))
+    slowed.step_done()
+    least = floors([quiet, slowed])
+    assert least == {"start": (0.5e-3, 0.1e-3)}
+    assert quiet.charged(least)[0] == slowed.charged(least)[0] == pytest.approx(0.5e-3)
+    # the slowed null's own round trip is taken out of the step (not the contestant's), and no more
+    assert slowed.uncharged(least)[0] == pytest.approx(3.0e-3 + 1.0e-3 - 0.5e-3)
+    # CPU its sandbox used since its previous call (work left running) is charged beyond the wall time
+    assert call_charge(1.0e-3, 9.0e-3, least["start"]) == pytest.approx(8.9e-3)
+    assert call_charge(0.2e-3, 0.0, least["start"]) == 0.0   # (never below zero)

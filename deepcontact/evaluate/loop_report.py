@@ -6,12 +6,13 @@ import numpy as np
 
 from .. import output
 from ..contest.client import deadline_rule
+from ..errors import count
 from ..escape import CsvWriter, md_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
 from .plots import loop_plot
 from .report import fenced_line
-from .verdicts import as_share, loop_above, loop_residuals, loop_verdict, not_converged_tag
+from .verdicts import as_share, loop_above, loop_residuals, loop_verdict, net_time_errors, not_converged_tag
 
 
 def _loop_path_line(results):
@@ -90,6 +91,7 @@ def loop_table(results, tolerance=None):
              "ms per step (median) | of which prediction | "
              "final drift (m) | max drift (m) | energy error | deepest contact (cm) | finite |",
              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+    errors = net_time_errors(results)
     for r in results:
         it = r.iterations[r.iterations > 0] if np.any(r.iterations > 0) else r.iterations
         pred = float(np.median(r.predict_ms)) if len(r.predict_ms) else 0.0
@@ -97,7 +99,9 @@ def loop_table(results, tolerance=None):
         above = loop_above(r, tolerance)
         judged = (f"{np.median(res):.2g} / {np.percentile(res, 95):.2g}" if len(res) else "-",
                   "-" if above is None else as_share(above))
-        marks = (" (oracle)" if r.oracle else "") + not_converged_tag(above, len(res))
+        marks = (" (oracle)" if r.oracle else "") + not_converged_tag(above, len(res)) + (
+            f" (measurement error: a net time at or below zero on {count(errors[r.start], 'step')})"
+            if r.start in errors else "")
         lines.append(f"| {md_text(r.start)}{marks} | {r.steps} | {np.median(it):.0f} | {np.percentile(it, 80):.0f} | "
                      f"{it.max():.0f} | {judged[0]} | {judged[1]} | "
                      f"{np.median(r.ms_per_step):.3f} | {pred:.2f} | {r.drift[-1] if len(r.drift) else float('nan'):.3g} | "

@@ -299,12 +299,13 @@ def loop_verdict(results, tolerance):
     base = next((r for r in results if r.ms_again is not None), None)
     if base is None:
         return None
-    candidates = [r for r in results if r.ours and not r.oracle]
-    fair = [r for r in candidates if r.finite]
-    left_out = _loop_left_out(candidates, fair, tolerance)
-    if not fair:
-        return "**Verdict**: no start stayed finite on every step of the loop, so none is named." + left_out
     ours = [r for r in results if r.ours]
+    errors = net_time_errors(ours)
+    candidates = [r for r in ours if not r.oracle]
+    fair = [r for r in candidates if r.finite and r.start not in errors]
+    left_out = _loop_left_out(candidates, fair, tolerance, errors)
+    if base.start in errors or not fair:
+        return _none_left(base.start in errors) + left_out
     times = {r.start: dict(enumerate(np.asarray(r.ms_per_step, np.float64))) for r in ours}
     unfinished = {r.start: _loop_unfinished(r, tolerance) for r in ours}
     v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
@@ -320,11 +321,36 @@ def loop_verdict(results, tolerance):
             + left_out + power + _fence_caveat())
 
 
-def _loop_left_out(candidates, fair, tolerance):
-    """What the loop verdict says of the variants it left out or found unfinished."""
-    left = [r.start for r in candidates if r not in fair]
+def _none_left(base_in_error):
+    """The loop verdict where nothing can be named: the baseline mismeasured, or no start left."""
+    if base_in_error:
+        return ("**Verdict**: none is named: Box2D's warm start's own time, which every ratio is taken to, is a "
+                "measurement error.")
+    return "**Verdict**: no start stayed finite, and measured, on every step of the loop, so none is named."
+
+
+def _loop_left_out(candidates, fair, tolerance, errors):
+    """What the loop verdict says of the variants it left out (not finite, a measurement error:
+    errors, net_time_errors') or found unfinished."""
+    left = [r.start for r in candidates if not r.finite]
     return (f" Left out, as they stopped being finite: {', '.join(md_text(n) for n in left)}." if left else "") \
-        + _unfinished_note({r.start: loop_above(r, tolerance) or 0 for r in fair})
+        + measurement_error_words(errors) + _unfinished_note({r.start: loop_above(r, tolerance) or 0 for r in fair})
+
+
+def net_time_errors(rows):
+    """{label: its steps whose net time was at or below zero} of the loop rows that have any. A
+    step holds at least the judge's own stepping, so such a step means more was subtracted than
+    was measured: every step of that row is suspect (its median and total with it), a measurement
+    error, never a win."""
+    counts = {r.start: int(np.sum(np.asarray(r.ms_per_step, np.float64) <= 0.0)) for r in rows}
+    return {name: n for name, n in counts.items() if n}
+
+
+def measurement_error_words(errors):
+    """The loop verdict's clause on the rows with a net time at or below zero (net_time_errors)."""
+    named = ", ".join(f"{md_text(n)} ({count(k, 'step')})" for n, k in errors.items())
+    return (f" Left out as a measurement error, a net time per step at or below zero (more subtracted than "
+            f"measured): {named}." if errors else "")
 
 
 def _loop_intervals(v, base):
