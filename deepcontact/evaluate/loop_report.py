@@ -17,14 +17,16 @@ from .verdicts import as_share, loop_above, loop_residuals, loop_verdict, net_ti
 
 def _loop_path_line(results):
     """How the project's rows were measured in the loop: each variant's start (and plug-in method)
-    in a process of its own, the round trips subtracted, the path's own cost stated."""
+    in a process of its own, its calls charged (contest/charge.py), the path's own cost stated."""
     ours = [r for r in results if r.ours and getattr(r, "transport_ms", None) is not None and len(r.transport_ms)]
     if not ours:
         return ""
     transport = max(float(np.median(r.transport_ms)) for r in ours)
     path = max(getattr(r, "path_ms", 0.0) for r in ours)
-    return (f"{fenced_line()} Every step went through Python; the null contestant's round trip of the same "
-            f"request (at most {transport:.3f} ms a step, median) was subtracted from every variant alike. Deadlines: "
+    return (f"{fenced_line()} Every step went through Python; each call was charged the larger of its wall time "
+            f"and its sandbox's CPU since its previous call, each less the null contestant's least over the run, "
+            f"for every variant alike (the round trips left uncharged: at most {transport:.3f} ms a step, median). "
+            f"A net time per step at or below zero is a measurement error, never a win. Deadlines: "
             f"{deadline_rule()}. What that path costs over the project's native loop (one call a step), "
             f"{path:.3f} ms a step (builtin both ways, median), is in every row of the project's solver, alike; "
             f"Box2D's own rows are without it.\n\n")
