@@ -152,20 +152,21 @@ def test_a_plugin_in_the_folder_of_the_run_is_refused_naming_it(run, tmp_path):
     assert r.returncode == 0, r.stderr
 
 
-def test_the_readable_set_follows_no_import_statement(tmp_path, monkeypatch):
+def test_the_readable_set_follows_no_import_of_a_plain_folder(tmp_path, monkeypatch):
     from conftest import forget_plugins
     from deepcontact.contest import grants
     work = tmp_path / "work"
     (work / "secret").mkdir(parents=True)   # (a folder of the working directory: a run's, a dataset's)
     (work / "secret" / "steps.txt").write_text("data")
-    (work / "importer.py").write_text("import secret\n")
+    (work / "importer.py").write_text("import secret, helper\n")
+    (work / "helper.py").write_text("")   # (its own helper beside it: read)
     monkeypatch.chdir(work)
     monkeypatch.syspath_prepend(str(work))
     try:
         readable = grants.readable_paths(modules=["importer"])
     finally:
-        forget_plugins(("importer",))
-    assert str(work / "importer.py") in readable
+        forget_plugins(("importer", "helper"))
+    assert str(work / "importer.py") in readable and str(work / "helper.py") in readable
     assert not any(p == str(work) or p.startswith(str(work / "secret")) for p in readable), readable
 
 

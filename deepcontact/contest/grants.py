@@ -77,8 +77,9 @@ def guest_argv(channel, torch=False):
             str(int(channel))] + (["torch"] if torch else [])
 
 
-def _module_root(module):
-    """The file or folder of the top-level module `module` belongs to (found, never imported), or None."""
+def _module_root(module, plain_folder=True):
+    """The file or folder of the top-level module `module` belongs to (found, never imported), or
+    None; plain_folder: also where it is a folder with no __init__.py (a namespace package)."""
     top = module.split(".")[0]
     if not top or top in sys.builtin_module_names or top in sys.stdlib_module_names:
         return None
@@ -89,22 +90,48 @@ def _module_root(module):
     if spec is None:
         return None
     if spec.submodule_search_locations:
-        return list(spec.submodule_search_locations)
+        return list(spec.submodule_search_locations) if spec.origin is not None or plain_folder else None
     return [spec.origin] if spec.origin and os.path.isabs(spec.origin) else None
+
+
+def _imported_tops(path):
+    """The top-level modules a source file imports (read, never run)."""
+    import ast
+    try:
+        with open(path, "rb") as f:
+            tree = ast.parse(f.read())
+    except (OSError, SyntaxError, ValueError):
+        return []
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.append(node.module)
+    return out
 
 
 def _own_files(who, module, readable):
     """The files and folders of the plug-in `who`'s module (its package's folder, or its one
-    file), outside what is readable already: never what its source imports (a plug-in naming a
-    folder of the working directory in an import statement named it into view). PluginError
-    where they lie in a folder holding the working directory or a path of this command."""
-    out = []
-    for root in _module_root(module) or []:
-        root = os.path.abspath(root)
-        if any(root == r or root.startswith(r + os.sep) for r in readable):
+    file) and of the modules and packages its one file imports (its own helpers), outside what is
+    readable already; never a plain folder an import statement names (no __init__.py: a run's, a
+    dataset's, which `import runs` with PYTHONPATH=. named into view). PluginError where one lies
+    in a folder holding the working directory or a path of this command."""
+    out, todo, done = [], [(module, True)], set()
+    while todo and len(done) < 100:
+        name, own = todo.pop()
+        top = name.split(".")[0]
+        if top in done:
             continue
-        _refuse_data_folder(who, root)
-        out.append(root)
+        done.add(top)
+        for root in _module_root(top, plain_folder=own) or []:
+            root = os.path.abspath(root)
+            if any(_within(root, r) for r in [*readable, *out]):
+                continue
+            _refuse_data_folder(who, root)
+            out.append(root)
+            if root.endswith(".py"):
+                todo += [(t, False) for t in _imported_tops(root)]
     return out
 
 
