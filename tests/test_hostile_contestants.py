@@ -180,3 +180,19 @@ def test_an_engines_value_its_field_cannot_hold_is_one_line(tmp_path, hostile):
     one_line_error(r, "the engine 'hostile_engine:WideTypes' returned bodies.type with a value int8 cannot hold "
                       "(a whole number from -128 to 127)")
     assert not (tmp_path / "r").exists()
+
+
+def test_an_answer_naming_an_array_twice_is_not_an_answer():
+    """Before, the second array of a name replaced the first (whichever the judge was to read)."""
+    import json
+    import struct
+
+    import numpy as np
+
+    from deepcontact.contest.wire import unpack
+    from deepcontact.plugins import PluginError
+    head = json.dumps({"arrays": [["normal", 1], ["normal", 1]]}).encode()
+    data = struct.pack("<I", len(head)) + head + np.array([1.0, -1.0]).tobytes()
+    with pytest.raises(PluginError, match="the variant 'x' answered with something that is not an answer "
+                                          r"\(it names the array 'normal' twice\)"):
+        unpack(data, "the variant 'x'")
