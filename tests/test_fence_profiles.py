@@ -95,7 +95,8 @@ INSIDE = textwrap.dedent("""
     for path in ("/proc/self/fd/2", "/proc/1/fd/2", "/proc/self/fd/1"):
         st = os.stat(path)
         seen[path] = (st.st_dev, st.st_ino)
-    print("FDS", fds, "SEEN", seen, flush=True)
+    from deepcontact.contest import fence
+    print("FDS", fds, "SEEN", seen, "INSIDE", fence.inside(), flush=True)
     sys.stderr.write("y" * 10_000_000)
 """)
 
@@ -108,6 +109,7 @@ def test_a_contestant_reaches_no_stream_of_dcs_and_cannot_flood_its_log(tmp_path
     text = log.read_text()
     report = next(line for line in text.splitlines() if "FDS" in line)
     assert report.startswith("[rival] FDS [0, 1, 2, 3] SEEN"), report   # (3: listdir's own)
+    assert report.endswith("INSIDE contestant"), report
     ours = os.stat(log)
     assert repr((ours.st_dev, ours.st_ino)) not in report, report       # (its streams are no file of dc's)
     cap = fence.CONTESTANT.streams.cap

@@ -185,9 +185,8 @@ class Sandbox:
             seccomp_fd = os.memfd_create("dc-seccomp", 0)
             os.write(seccomp_fd, program)
             os.lseek(seccomp_fd, 0, os.SEEK_SET)
-        env = dict(os.environ if env is None else env, **{fences.MARKER: self.fence.profile})
-        if machine.bwrap() is None:   # (else set inside: fence.bwrap_argv)
-            env.update(fences.thread_env(self.fence))
+        if machine.bwrap() is None:   # (else set inside, with the marker of a fence: fence.bwrap_argv)
+            env = dict(os.environ if env is None else env, **fences.thread_env(self.fence))
         out, err = (self._stream(which) for which in ("stdout", "stderr"))
         try:
             self.process = subprocess.Popen(
