@@ -4,9 +4,9 @@ A step's wall time holds its contestant's calls and the null contestant's round 
 requests. Both are taken out of it, and each call put back at its charge: the larger of its wall
 time less the null's least round trip of that kind of request over the whole run, and its
 sandbox's CPU since its previous call (Contestant.call measures both) less the null's least CPU
-for that kind of request; never below zero. The floors are the null's least over the run, so that
-a contestant that slows the null (work left running in its sandbox, charged to it by its CPU)
-cannot enlarge what is subtracted from anyone.
+for that kind of request; never below zero. The floors are the null's least over the run, of the
+variant's own requests (an oracle's carry the reference), so that a contestant that slows the null
+(work left running in its sandbox, charged to it by its CPU) cannot enlarge what is subtracted.
 """
 import math
 
@@ -16,7 +16,8 @@ import numpy as np
 class StepCharges:
     """One variant's calls in a loop, step by step: `record` after each call (with the null's
     round trip of the same request), `step_done` after each step; at the end of the run, with the
-    floors of every variant's null round trips (`floors`), `charged` and `uncharged` per step."""
+    floors its null round trips set (`nulls`: the least of each kind), `charged` and `uncharged`
+    per step."""
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
@@ -36,15 +37,15 @@ class StepCharges:
         self.steps.append((self.within, self.calls))
         self.within, self.calls = 0.0, []
 
-    def charged(self, floors, kinds=None):
-        """Seconds charged per step for its calls (of `kinds`, default all)."""
-        return np.array([sum(call_charge(wall, cpu, floors[kind]) for kind, wall, cpu in calls
+    def charged(self, kinds=None):
+        """Seconds charged per step for its calls (of `kinds`, default all), once the run is over."""
+        return np.array([sum(call_charge(wall, cpu, self.nulls[kind]) for kind, wall, cpu in calls
                              if kinds is None or kind in kinds) for _, calls in self.steps], np.float64)
 
-    def uncharged(self, floors):
+    def uncharged(self):
         """Seconds of each step's wall time not charged to it: the round trips in it, less the
         charges of its calls (negative where a call's CPU exceeded its wall time)."""
-        return np.array([w for w, _ in self.steps], np.float64) - self.charged(floors)
+        return np.array([w for w, _ in self.steps], np.float64) - self.charged()
 
 
 def call_charge(wall, cpu, floor):
@@ -52,12 +53,3 @@ def call_charge(wall, cpu, floor):
     floor: (least wall, least CPU) of the null for that kind of request."""
     return max(wall - floor[0], cpu - floor[1], 0.0)
 
-
-def floors(charges):
-    """{kind: (least wall, least CPU)} of the null's round trips over every variant's run."""
-    out = {}
-    for c in charges:
-        for kind, (wall, cpu) in c.nulls.items():
-            least = out.get(kind, (math.inf, math.inf))
-            out[kind] = (min(least[0], wall), min(least[1], cpu))
-    return out

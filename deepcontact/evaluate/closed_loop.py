@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
-from ..contest.charge import StepCharges, floors as null_floors
+from ..contest.charge import StepCharges
 from ..contest.client import packed
 from ..contest.wire import checked_answer
 from ..scene.check import check_scene
@@ -109,11 +109,11 @@ class _Adapter:
                                                                      solution.tangent_impulse)
         self.charges.step_done()   # (a step without contact points asked nothing: charged 0, not left out)
 
-    def settle(self, floors):
-        """Once the run is over, with the null's least round trips over it (charge.floors): per
-        step, the seconds not charged (transport) and the start's charge (timing)."""
-        self.transport = self.charges.uncharged(floors)
-        self.timing = self.charges.charged(floors, ("start",))
+    def settle(self):
+        """Once the run is over (the null's least round trips over it known): per step, the
+        seconds not charged (transport) and the start's charge (timing)."""
+        self.transport = self.charges.uncharged()
+        self.timing = self.charges.charged(("start",))
 
 
 def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True, solve_fn=None):
@@ -261,10 +261,9 @@ def _interleaved(scene, runs, steps):
     finally:
         for c in (*contestants, *([null] if null is not None else [])):
             c.close()
-    floors = null_floors([a.charges for a in loops])   # (the null's least over the whole run: no variant moves it)
     out = []
     for adapter in loops:
-        adapter.settle(floors)
+        adapter.settle()
         t = adapter.follower.trajectory()
         out.append((t, adapter, t.seconds * 1e3 - adapter.transport[:len(t.seconds)] * 1e3))
     return out
