@@ -192,3 +192,16 @@ def test_the_docs_table_of_the_profiles_is_the_profiles_own(page):
     starts = [k for k, line in enumerate(lines) if line == table[0]]
     assert starts, f"{page} has no table of the fence profiles"
     assert lines[starts[0]:starts[0] + len(table)] == table, f"{page}'s table differs from fence.table()"
+
+
+@needs_fence
+def test_a_contestant_past_its_memory_limit_is_said_to_be(tmp_path):
+    from deepcontact.contest import grants, sandbox
+    small = replace(fence.CONTESTANT, limits=fence.Limits(16, 128 << 20))
+    box = sandbox.Sandbox(small.with_paths(readable=grants.readable_paths()), name="hog")
+    try:
+        box.start([sys.executable, "-c", "hog = b'x' * (512 << 20)"]).wait(60)
+        said = box.exit_description()
+    finally:
+        box.kill()
+    assert said.endswith("at its memory limit (128 MiB)"), said

@@ -244,11 +244,13 @@ class Sandbox:
         return None
 
     def exit_description(self):
-        """How the sandbox's process ended, in words ("" while running)."""
+        """How the sandbox's process ended, in words, with the limit it reached if one stopped it
+        ("killed by SIGKILL at its memory limit (8192 MiB)"; "" while running)."""
         code = None if self.process is None else self.process.poll()
         if code is None:
             return ""
-        return exit_words(code)
+        limit = self.stopped_by or _limit_reached(self.groups, self.fence.limits)
+        return exit_words(code) + (f" at {limit}" if limit else "")
 
     def kill(self):
         """Ends everything the sandbox runs (its PID namespace ends with its first process), notes
