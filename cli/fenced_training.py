@@ -20,7 +20,7 @@ from pathlib import Path
 
 import click
 
-INSIDE = "DC_TRAIN_FENCED"   # set for the fenced training's own process (to the user's output): it trains in place
+INSIDE = "DC_TRAIN_FENCED"   # set for the fenced training's own process: the user's output, for its lines
 MID_EPOCH = "mid-epoch.pt"   # (model/train.py's, named here without importing torch)
 # The most a file a training writes may hold, but a checkpoint (bounded by the training's own
 # memory, --max-memory: it holds the weights and the optimizer's state, a part of what training
@@ -39,7 +39,8 @@ class RawArgsCommand(click.Command):
 def fenced(model):
     """Whether training with the network `model` runs fenced here."""
     from deepcontact.model.arch import BUILTIN
-    return model not in BUILTIN and not os.environ.get(INSIDE)
+    from deepcontact.contest.fence import fenced as plugin_fenced
+    return plugin_fenced(model not in BUILTIN)
 
 
 class _Keeper:

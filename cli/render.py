@@ -1,5 +1,4 @@
 """dc render: pictures of steps, runs and grid samples, and a run viewer in one HTML file."""
-import os
 from pathlib import Path
 
 import click
@@ -10,7 +9,6 @@ from deepcontact.model.arch import BUILTIN as BUILTIN_NETWORKS
 
 from . import fenced_training, options, terminal, types
 
-RENDER_INSIDE = "DC_RENDER_FENCED"   # set for a fenced render's own process: it draws in place
 
 FORMS = {"step": (".png", ".svg"), "run": (".gif", ".mp4", ".webm", ".html"), "dataset": (".png",)}
 
@@ -89,11 +87,12 @@ def render(input_path, out, size, window, no_contacts, impulse_scale, color_by, 
     kind = kind_of(input_path)
     suffix = Path(out).suffix.lower()
     _refuse_inapplicable(kind, suffix, model, no_contacts)
-    if arch is not None and arch not in BUILTIN_NETWORKS and not os.environ.get(RENDER_INSIDE):
+    from deepcontact.contest.fence import fenced
+    if fenced(arch is not None and arch not in BUILTIN_NETWORKS):
         # a plug-in network's code runs to predict: the whole drawing runs fenced, as a study does
         from deepcontact.contest import job
         raise click.exceptions.Exit(job.run_with_output(
-            ["render"], click.get_current_context().meta["raw_args"], "render", lambda: "file", {RENDER_INSIDE: "1"},
+            ["render"], click.get_current_context().meta["raw_args"], "render", lambda: "file", {},
             f"dc render with the network {arch!r}", profile="drawing"))
     options.load_network(arch)
     _check_drawing(kind, suffix, compare, window)

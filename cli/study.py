@@ -24,11 +24,12 @@ class StudyGroup(click.Group):
     def _listing(self):
         """([(order, name, summary)] of the healthy studies, {name: line} of the broken ones)."""
         from deepcontact.contest import machine, sandbox
+        from deepcontact.contest.fence import inside
         from deepcontact.studies import STUDIES, fence, survey
         # (a study registered since is listed too; so is one a fence, or --unfenced, now lets run)
         key = (tuple(STUDIES.names()), os.environ.get(sandbox.UNFENCED_ENV), machine.bwrap())
         if getattr(self, "_listed", (None,))[0] != key:
-            if os.environ.get(fence.INSIDE):   # (the sandbox that lists or runs them: here, in place)
+            if inside():   # (the sandbox that lists or runs them: here, in place)
                 healthy, broken = survey()
                 rows = [(s.order, s.name, s.summary) for s in healthy]
             else:

@@ -205,3 +205,10 @@ def test_a_contestant_past_its_memory_limit_is_said_to_be(tmp_path):
     finally:
         box.kill()
     assert said.endswith("at its memory limit (128 MiB)"), said
+
+
+def test_one_function_says_who_is_fenced(monkeypatch):
+    monkeypatch.delenv(fence.MARKER, raising=False)
+    assert fence.fenced(True) and not fence.fenced(False)   # (plug-in code, in dc's own process)
+    monkeypatch.setenv(fence.MARKER, "job")                 # (in a job dc started: in place)
+    assert not fence.fenced(True) and fence.inside() == "job"

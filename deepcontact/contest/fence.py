@@ -4,7 +4,8 @@ its environment and its standard streams. A contestant, a plug-in engine, a job 
 training run, a drawing and a listing are profiles of it, values in PROFILES, never subclasses;
 `bwrap_argv` is the one function that turns a fence into bubblewrap's arguments.
 
-Every process inside carries one marker, MARKER (the profile's name): `inside()` reads it.
+Every process inside carries one marker, MARKER (the profile's name): `inside()` reads it, and
+`fenced()` alone says whether plug-in code is to be started in a fence of its own.
 """
 import os
 from dataclasses import dataclass, field, replace
@@ -103,8 +104,16 @@ JOB_FENCES = ("namespaces", "read-only view", "seccomp")   # what a job's fence 
 
 
 def inside():
-    """The profile of the fence this process runs in, or None outside every fence."""
+    """The profile dc started this process under (in its fence, or bare where --unfenced let it
+    run so), or None in a process dc started in no profile."""
     return os.environ.get(MARKER) or None
+
+
+def fenced(plugin_code):
+    """Who is fenced: whether code runs in a sandbox of its own, where `plugin_code` says it is a
+    plug-in's: always, unless this process is one dc started under a profile (inside()), where it
+    runs in place, its fence already around it."""
+    return bool(plugin_code) and inside() is None
 
 
 def memory_share(live):

@@ -185,8 +185,9 @@ class Sandbox:
             seccomp_fd = os.memfd_create("dc-seccomp", 0)
             os.write(seccomp_fd, program)
             os.lseek(seccomp_fd, 0, os.SEEK_SET)
-        if machine.bwrap() is None:   # (else set inside, with the marker of a fence: fence.bwrap_argv)
-            env = dict(os.environ if env is None else env, **fences.thread_env(self.fence))
+        if machine.bwrap() is None:   # (else set inside: fence.bwrap_argv; a bare run is marked all the same)
+            env = dict(os.environ if env is None else env, **fences.thread_env(self.fence),
+                       **{fences.MARKER: self.fence.profile})
         out, err = (self._stream(which) for which in ("stdout", "stderr"))
         try:
             self.process = subprocess.Popen(

@@ -20,17 +20,14 @@ import os
 import sys
 import time
 
-from ..contest import job, machine, sandbox
+from ..contest import fence as fences, job, machine, sandbox
 from ..plugins import PluginError
 from . import STUDIES, units
 
-INSIDE = "DC_STUDY_FENCED"   # set for the study's own process: the study NAME it runs in place
-
-
 def fenced(name):
-    """Whether `dc study NAME` runs fenced here: an installed study, unless this process is the
-    sandbox that runs it."""
-    return os.environ.get(INSIDE) != name and name not in STUDIES.builtin()
+    """Whether `dc study NAME` runs fenced here: an installed study, unless this process is a
+    sandbox dc started (contest.fence.fenced)."""
+    return fences.fenced(name not in STUDIES.builtin())
 
 
 # --- The run --------------------------------------------------------------------------------------
@@ -43,7 +40,7 @@ def run(name, args):
         if name in broken:
             raise PluginError(broken[name])
         return healthy[0]["writes"] if healthy else "folder"
-    return job.run_with_output(["study", name], list(args), f"study {name}", writes, {INSIDE: name},
+    return job.run_with_output(["study", name], list(args), f"study {name}", writes, {},
                                f"the study {name!r}", aside=units.Beside)
 
 
@@ -92,7 +89,7 @@ def _survey_round(names, deadline):
     """({name: entry} the listing process reported, over a pipe of its own, one line a study as
     each loads; (the study being loaded when it ended or stalled, how) or None)."""
     box = sandbox.JobSandbox(profile="listing")   # (its streams discarded: the pipe below is its channel)
-    env = dict(os.environ, PYTHONPATH=job.python_path(), **{INSIDE: "-"})
+    env = dict(os.environ, PYTHONPATH=job.python_path())
     read, write = os.pipe()
     try:
         box.start([sys.executable, "-c", "import sys; from deepcontact.studies.fence import _survey_here; "
