@@ -51,7 +51,10 @@ def test_a_plugins_forked_child_that_carries_on_is_said_naming_it(run, tmp_path)
                    tmp_path / "report", env=env, timeout=600)
     said = [line for line in r.stderr.splitlines() if "forked a process" in line]
     assert r.returncode == 0 and said, r.stderr[-2000:]
-    assert all(line.startswith("dc: the start 'forking_plugins:Forks' forked a process that carried on") for line in said)
+    # (said inside the contestant's sandbox, by dc's side of it: relayed under the variant's name)
+    relayed = [line.split("] ", 1)[1] if line.startswith("[the variant ") else line for line in said]
+    assert all(line.startswith("dc: the start 'forking_plugins:Forks' forked a process that carried on")
+               for line in relayed), said
     assert (tmp_path / "report" / "report.md").is_file()
     r = dc_process("simulate", "pile", "--param", "count=10", "--param", "box=12", "--steps", "100", "--solver", "pgs",
                    "--tolerance", "1e-4", "--accelerate", "forking_plugins:ForkingSweeps", "-q", "-o", tmp_path / "run",

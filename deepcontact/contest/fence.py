@@ -7,6 +7,7 @@ training run, a drawing and a listing are profiles of it, values in PROFILES, ne
 Every process inside carries one marker, MARKER (the profile's name): `inside()` reads it, and
 `fenced()` alone says whether plug-in code is to be started in a fence of its own.
 """
+import logging
 import os
 from dataclasses import dataclass, field, replace
 
@@ -134,8 +135,14 @@ def memory_limit(fence, live):
 
 
 def thread_env(fence):
-    """The thread pools' variables a fence sets (none where it keeps their defaults)."""
-    return {} if fence.threads is None else dict.fromkeys(THREAD_VARIABLES, str(fence.threads))
+    """The variables a fence sets besides the marker: its thread pools' (none where it keeps their
+    defaults), and, in a cleared environment, Python's warnings off unless dc shows its own (-v):
+    a library's warning in a contestant is advice to its author, not a line of dc's report, as in
+    dc's own process (cli/terminal.setup_logging)."""
+    out = {} if fence.threads is None else dict.fromkeys(THREAD_VARIABLES, str(fence.threads))
+    if fence.environment == "clear" and not logging.getLogger("py.warnings").isEnabledFor(logging.WARNING):
+        out["PYTHONWARNINGS"] = "ignore"
+    return out
 
 
 def bwrap_argv(fence, command, seccomp_fd=None):
