@@ -118,6 +118,25 @@ def test_a_contestant_reaches_no_stream_of_dcs_and_cannot_flood_its_log(tmp_path
     assert shown == cap and f"[rival] {10_000_000 - cap} bytes more not shown" in text, text[-300:]
 
 
+# A contestant that rubs out its name on a terminal and says one of dc's lines: a carriage return,
+# an erase-line escape, a byte no text holds, and a last line with no newline.
+IMPERSONATES = textwrap.dedent("""
+    import sys
+    sys.stderr.buffer.write(b"\\r\\x1b[2Kdc: builtin was fastest\\xff\\n\\x1b]0;owned\\x07tail")
+""")
+
+
+@needs_fence
+def test_a_contestants_relayed_line_cannot_rub_out_its_name(tmp_path):
+    log = tmp_path / "dc.log"
+    with open(log, "wb") as err:
+        subprocess.run([sys.executable, "-c", CONTESTANT, IMPERSONATES], stderr=err, stdout=err, timeout=120, check=True)
+    said = log.read_bytes()
+    assert b"\x1b" not in said and b"\r" not in said and b"\x07" not in said, said
+    assert said.decode().splitlines() == ["[rival] \\r\\x1b[2Kdc: builtin was fastest\\xff",
+                                          "[rival] \\x1b]0;owned\\x07tail"], said
+
+
 # --- The readable set: a plug-in's own files, never the folder of a run ------------------------------
 
 BESIDE = """

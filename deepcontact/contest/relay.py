@@ -11,8 +11,8 @@ CHUNK = 65536
 def start(fd, to, prefix, cap):
     """A thread relaying what the pipe's read end `fd` carries to dc's stream `to` ("stdout" or
     "stderr", looked up as each piece is written: a caller's buffer too), at most `cap` bytes;
-    with a prefix (a name), line by line, each line after it. What is over the cap is read,
-    counted and said once, at the end, as "N bytes more not shown"."""
+    with a prefix (a name), line by line, each line after it and escaped (_printable). What is
+    over the cap is read, counted and said once, at the end, as "N bytes more not shown"."""
     t = threading.Thread(target=_relay, args=(fd, to, prefix, cap), name="dc-relay", daemon=True)
     t.start()
     return t
@@ -33,14 +33,23 @@ def _relay(fd, to, prefix, cap):
                 continue
             lines = (pending + kept).split(b"\n")
             pending = lines.pop()
-            _write(to, b"".join(prefix.encode() + line + b"\n" for line in lines))
+            _write(to, b"".join(prefix.encode() + _printable(line) + b"\n" for line in lines))
     except OSError:
         pass
     finally:
         os.close(fd)
-    _write(to, (prefix.encode() + pending + b"\n") if prefix and pending else b"")
+    _write(to, (prefix.encode() + _printable(pending) + b"\n") if prefix and pending else b"")
     if over:
         _write(to, f"{prefix}{over} bytes more not shown\n".encode())
+
+
+def _printable(line):
+    """A named line as dc shows it: what a terminal would act on (a carriage return, an escape
+    sequence, a byte no text holds) escaped, so that nothing a contestant says can rub out the
+    name before it or pass for one of dc's own lines."""
+    text = line.decode("utf-8", errors="backslashreplace")
+    return "".join(c if c.isprintable() or c == "\t" else c.encode("unicode_escape").decode()
+                   for c in text).encode()
 
 
 def _write(to, data):
