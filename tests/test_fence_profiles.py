@@ -202,6 +202,30 @@ def test_a_plugin_package_holding_the_working_directory_is_refused(tmp_path, mon
         grants.readable_paths(modules=["pkgplug"])
 
 
+@pytest.mark.parametrize("target", ["secret", "root"])
+def test_a_plugins_link_to_a_file_or_folder_not_its_own_is_refused(tmp_path, monkeypatch, target):
+    from conftest import forget_plugins
+    from deepcontact.contest import grants
+    plugins, work = tmp_path / "plugins", tmp_path / "work"
+    plugins.mkdir()
+    (work / "run").mkdir(parents=True)
+    (tmp_path / "id_rsa").write_text("the user's key")
+    # (its helper a link the import in a try never loads, bound by its path: bubblewrap reads the target)
+    (plugins / "linker.py").write_text("try:\n    import loot\nexcept Exception:\n    pass\n")
+    if target == "secret":
+        (plugins / "loot.py").symlink_to(tmp_path / "id_rsa")
+    else:   # (a package linked to a folder above the working directory, its __init__.py there)
+        (tmp_path / "__init__.py").write_text("")
+        (plugins / "loot").symlink_to(tmp_path)
+    monkeypatch.chdir(work)
+    monkeypatch.syspath_prepend(str(plugins))
+    try:
+        with pytest.raises(PluginError, match="'linker'"):
+            grants.readable_paths(modules=["linker"])
+    finally:
+        forget_plugins(("linker", "loot"))
+
+
 @pytest.mark.parametrize("page", ["docs/reliability.md", "docs/api.md"])
 def test_the_docs_table_of_the_profiles_is_the_profiles_own(page):
     from pathlib import Path

@@ -2,6 +2,7 @@
 plug-ins' names and modules, the files it is given), never from a path or argument a job hands
 it: the same for a contestant of `dc evaluate` and one a fenced job asks the broker for. Its
 command is the guest's, built here; no option of the job's reaches bubblewrap."""
+import importlib.machinery
 import importlib.util
 import os
 import shlex
@@ -129,6 +130,7 @@ def _own_files(who, module, readable):
             if any(_within(root, r) for r in [*readable, *out]):
                 continue
             _refuse_data_folder(who, root)
+            _refuse_link_out(who, root)
             out.append(root)
             if root.endswith(".py"):
                 todo += [(t, False) for t in _imported_tops(root)]
@@ -149,6 +151,20 @@ def _refuse_data_folder(who, root):
         raise PluginError(f"the plug-in {who!r} lives in {show_path(folder)}, which holds {what} of this command: "
                           f"a plug-in's sandbox reads only its own module's files; move it to a folder of its own "
                           f"(on PYTHONPATH) or install it")
+
+
+def _refuse_link_out(who, root):
+    """PluginError where `root` is a link (or lies in a linked folder) to what no import reads as a
+    module, or to a folder holding the working directory or a path of this command: bubblewrap
+    binds what the link points at, so `helper.py -> ~/.ssh/id_rsa` (an import in a try) or a
+    package linked to `/` would be read under the plug-in's name."""
+    real = os.path.realpath(root)
+    if real == root:
+        return
+    if os.path.isfile(real) and not real.endswith(tuple(importlib.machinery.all_suffixes())):
+        raise PluginError(f"the plug-in {who!r} names {show_path(root)}, a link to {show_path(real)}, which is no "
+                          f"module: a plug-in's sandbox reads only its own module's files")
+    _refuse_data_folder(who, real)
 
 
 def _within(path, folder):
