@@ -226,6 +226,33 @@ def test_a_plugins_link_to_a_file_or_folder_not_its_own_is_refused(tmp_path, mon
         forget_plugins(("linker", "loot"))
 
 
+# Inside, a contestant of a venv made in the project's own folder reads the project's run.
+READS_THE_RUN = textwrap.dedent("""
+    import deepcontact, os
+    try:
+        said = open(os.path.join(PROJECT, "runs", "steps.txt")).read()
+    except OSError as e:
+        said = type(e).__name__
+    print("RUN", said, flush=True)
+""")
+
+
+@needs_fence
+def test_a_venv_in_the_projects_folder_shows_a_contestant_none_of_it_but_the_interpreters(tmp_path):
+    project = tmp_path / "project"
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", project], check=True,
+                   timeout=60)
+    (project / "runs").mkdir()
+    (project / "runs" / "steps.txt").write_text("the reference's impulses")
+    log = tmp_path / "dc.log"
+    inside = f"PROJECT = {str(project)!r}\n" + READS_THE_RUN
+    with open(log, "wb") as err:
+        subprocess.run([project / "bin" / "python", "-c", CONTESTANT, inside], cwd=project, stderr=err, stdout=err,
+                       timeout=120, check=True)
+    said = log.read_text()
+    assert "[rival] RUN FileNotFoundError" in said, said   # (it started: the interpreter's parts are there)
+
+
 @pytest.mark.parametrize("page", ["docs/reliability.md", "docs/api.md"])
 def test_the_docs_table_of_the_profiles_is_the_profiles_own(page):
     from pathlib import Path

@@ -223,8 +223,8 @@ def readable_paths(names=(), modules=(), files=()):
     its one file, never a folder holding the working directory or a path of this command:
     PluginError) and `files`."""
     import site
-    out = [sys.prefix, sys.base_prefix, sys.exec_prefix, os.path.dirname(os.path.realpath(sys.executable)),
-           os.path.dirname(deepcontact.__file__), *_cli_folder()]
+    out = [*_interpreter_parts(sys.prefix, sys.base_prefix, sys.exec_prefix),
+           os.path.dirname(os.path.realpath(sys.executable)), os.path.dirname(deepcontact.__file__), *_cli_folder()]
     try:
         out += site.getsitepackages() + [site.getusersitepackages()]
     except AttributeError:
@@ -236,6 +236,24 @@ def readable_paths(names=(), modules=(), files=()):
     out += metadata
     out += [os.fspath(f) for f in files if f]
     return [p for p in dict.fromkeys(os.path.abspath(p) for p in out) if os.path.exists(p)]
+
+
+# What of an environment's folder the interpreter reads (a venv's, a conda environment's)
+PREFIX_PARTS = ("bin", "lib", "lib64", "include", "pyvenv.cfg", "conda-meta", "share", "ssl")
+
+
+def _interpreter_parts(*prefixes):
+    """The interpreter's folders: each prefix whole, or, where it holds the working directory or a
+    path of this command (a venv made in the project's own folder: `python3 -m venv .`), only its
+    PREFIX_PARTS: before, a contestant read the project folder, its runs with it."""
+    held = [os.getcwd(), *command_paths()]
+    out = []
+    for prefix in dict.fromkeys(os.path.abspath(p) for p in prefixes):
+        if any(_within(p, prefix) or _within(p, os.path.realpath(prefix)) for p in held):
+            out += [os.path.join(prefix, part) for part in PREFIX_PARTS]
+        else:
+            out.append(prefix)
+    return out
 
 
 def _cli_folder():
