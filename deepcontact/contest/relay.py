@@ -11,36 +11,78 @@ CHUNK = 65536
 def start(fd, to, prefix, cap):
     """A thread relaying what the pipe's read end `fd` carries to dc's stream `to` ("stdout" or
     "stderr", looked up as each piece is written: a caller's buffer too), at most `cap` bytes;
-    with a prefix (a name), line by line, each line after it and escaped (_printable). What is
-    over the cap is read, counted and said once, at the end, as "N bytes more not shown"."""
+    with a prefix (a name), line by line, each line after it and escaped (_printable), the names
+    counted in the cap (Named). What is over the cap is read, counted and said once, at the end,
+    as "N bytes more not shown"."""
     t = threading.Thread(target=_relay, args=(fd, to, prefix, cap), name="dc-relay", daemon=True)
     t.start()
     return t
 
 
 def _relay(fd, to, prefix, cap):
-    shown, over, pending = 0, 0, b""
+    stream = Named(prefix.encode(), cap) if prefix else Raw(cap)
     try:
         while True:
             chunk = os.read(fd, CHUNK)
             if not chunk:
                 break
-            room = max(0, cap - shown)
-            kept, over = chunk[:room], over + max(0, len(chunk) - room)
-            shown += len(kept)
-            if not prefix:
-                _write(to, kept)
-                continue
-            lines = (pending + kept).split(b"\n")
-            pending = lines.pop()
-            _write(to, b"".join(prefix.encode() + _printable(line) + b"\n" for line in lines))
+            _write(to, stream.feed(chunk))
     except OSError:
         pass
     finally:
         os.close(fd)
-    _write(to, (prefix.encode() + _printable(pending) + b"\n") if prefix and pending else b"")
-    if over:
-        _write(to, f"{prefix}{over} bytes more not shown\n".encode())
+    _write(to, stream.end())
+
+
+class Raw:
+    """A stream relayed as it is (a job's, the command's own output): its first `cap` bytes."""
+
+    def __init__(self, cap):
+        self.room, self.over = cap, 0
+
+    def feed(self, chunk):
+        kept = chunk[:max(0, self.room)]
+        self.room -= len(kept)
+        self.over += len(chunk) - len(kept)
+        return kept
+
+    def end(self):
+        return f"{self.over} bytes more not shown\n".encode() if self.over else b""
+
+
+class Named:
+    """A contestant's stream as dc shows it: whole lines, each after its name, at most `cap` bytes
+    written, names and newlines counted (64 KiB of empty lines made 64 Ki lines of names: 1.3 MB);
+    a line longer than what is left, cut."""
+
+    def __init__(self, prefix, cap):
+        self.prefix, self.room, self.over, self.pending = prefix, cap, 0, b""
+
+    def feed(self, chunk):
+        if self.room <= 0:
+            self.over += len(chunk)
+            return b""
+        lines = (self.pending + chunk).split(b"\n")
+        self.pending = lines.pop()
+        out = [self._line(line, 1) for line in lines]
+        if len(self.prefix) + len(self.pending) + 1 > self.room:   # (a line longer than what is left)
+            out.append(self._line(self.pending, 0))
+            self.pending = b""
+        return b"".join(out)
+
+    def _line(self, line, ended):
+        """One line, after the name, as much of it as is left room for (`ended`: its newline read)."""
+        keep = self.room - len(self.prefix) - 1
+        if keep < min(len(line), 1):   # (no room for its name and one byte of it)
+            self.over += len(line) + ended
+            return b""
+        self.room -= len(self.prefix) + min(len(line), keep) + 1
+        self.over += max(0, len(line) - keep)
+        return self.prefix + _printable(line[:keep]) + b"\n"
+
+    def end(self):
+        out = self._line(self.pending, 0) if self.pending else b""
+        return out + (self.prefix + f"{self.over} bytes more not shown\n".encode() if self.over else b"")
 
 
 def _printable(line):
