@@ -12,7 +12,7 @@ def start(fd, to, prefix, cap):
     """A thread relaying what the pipe's read end `fd` carries to dc's stream `to` ("stdout" or
     "stderr", looked up as each piece is written: a caller's buffer too), at most `cap` bytes;
     with a prefix (a name), line by line, each line after it and escaped (_printable), the names
-    counted in the cap (Named). What is over the cap is read, counted and said once, at the end,
+    counted in the cap (_Named). What is over the cap is read, counted and said once, at the end,
     as "N bytes more not shown"."""
     t = threading.Thread(target=_relay, args=(fd, to, prefix, cap), name="dc-relay", daemon=True)
     t.start()
@@ -20,7 +20,7 @@ def start(fd, to, prefix, cap):
 
 
 def _relay(fd, to, prefix, cap):
-    stream = Named(prefix.encode(), cap) if prefix else Raw(cap)
+    stream = _Named(prefix.encode(), cap) if prefix else _Raw(cap)
     try:
         while True:
             chunk = os.read(fd, CHUNK)
@@ -34,7 +34,7 @@ def _relay(fd, to, prefix, cap):
     _write(to, stream.end())
 
 
-class Raw:
+class _Raw:
     """A stream relayed as it is (a job's, the command's own output): its first `cap` bytes."""
 
     def __init__(self, cap):
@@ -50,7 +50,7 @@ class Raw:
         return f"{self.over} bytes more not shown\n".encode() if self.over else b""
 
 
-class Named:
+class _Named:
     """A contestant's stream as dc shows it: whole lines, each after its name, at most `cap` bytes
     written, names and newlines counted (64 KiB of empty lines made 64 Ki lines of names: 1.3 MB);
     a line longer than what is left, cut."""
