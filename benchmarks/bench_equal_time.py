@@ -1,6 +1,6 @@
 """At equal time per step, who is more accurate on the pile: Box2D 2.4.1 at 1-256 iterations, or
-the project's built-in methods at a sweep budget (issue 75 item 2)? Measured so that the load of a
-shared machine does not decide it.
+the project's built-in methods at a sweep budget? Measured so that the load of a shared machine
+does not decide it (docs/results/frontier.md, "At equal time").
 
 Accuracy, the one-step residual: the pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a box
 of 300 with --count 10000) is settled by Box2D at its 8 iterations, then stepped on by it; every
@@ -21,20 +21,21 @@ Usage: python benchmarks/bench_equal_time.py [--count 1000] [--settle 500] [--sa
 """
 import sys
 import time
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
 
 from deepcontact.scene.generators import generate
-from deepcontact.simulate import stepping
+from deepcontact.simulate.problems import problems
 from deepcontact.simulate.engines import Box2D
 from deepcontact.solver.methods import solve
-from deepcontact.solver.problem import StepProblem
 from deepcontact.solver.settings import SolveSettings
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import arguments  # noqa: E402
 
+AA = "A/A: Box2D 2.4.1 again"
 FAMILIES = {"PGS": dict(), "PSOR 1.7": dict(relaxation=1.7), "NNCG": dict(accelerate="nncg")}
 
 
@@ -46,8 +47,9 @@ def settings(most):
     """(family, count, engine, SolveSettings for the one-step residual) of every setting."""
     out = [("Box2D 2.4.1", k, Box2D(velocity_iterations=k), SolveSettings(mode="exact", max_iterations=k, tolerance=0))
            for k in counts(most)]
-    # the noise: a second world of Box2D's 8 iterations, timed as a contestant (an A/A)
-    out.append(("A/A: Box2D 2.4.1 again", 8, Box2D(velocity_iterations=8), out[min(3, len(out) - 1)][3]))
+    # the noise: a second world of Box2D at 8 iterations (or the most asked), timed as a contestant (an A/A)
+    k = min(8, counts(most)[-1])
+    out.append((AA, k, Box2D(velocity_iterations=k), next(s for f, n, _, s in out if n == k)))
     for family, extra in FAMILIES.items():
         for n in counts(most):
             s = SolveSettings(max_iterations=n, tolerance=0, **extra)
@@ -57,28 +59,14 @@ def settings(most):
 
 def settled_and_samples(scene, settle, samples, every):
     """The bodies of the pile after `settle` steps of Box2D's own 8 iterations, and the contact
-    problems of `samples` later steps (every `every`-th) of the same run."""
-    engine = Box2D(velocity_iterations=8)
-    world = engine.build(scene)
-    bare, recording = engine.stepper(world, scene, record=False), engine.stepper(world, scene)
-    for _ in stepping.steps(world, scene, bare, settle):
-        pass
-    bodies = world.bodies()
-    problems = []
-    while len(problems) < samples:
-        for _ in range(every - 1):
-            bare()
-        done = recording()
-        if len(done.contacts["manifold"]):
-            problems.append(StepProblem.from_arrays(done.bodies, done.contacts, dt=scene.dt,
-                                                    gravity=scene.effects.gravity or (0.0, 0.0),
-                                                    block_solve=scene.solver.block_solve, velocity_iterations=8))
-    return bodies, problems
+    problems of `samples` steps from there (every `every`-th) of the same run."""
+    taken = list(islice(problems(scene, Box2D(velocity_iterations=8), first=settle, every=every), samples))
+    return taken[0][0].bodies, [problem for _, problem in taken]
 
 
-def residuals(problems, chosen):
+def residuals(samples, chosen):
     """The median one-step residual of each setting over the samples."""
-    return {(f, n): float(np.median([solve(p, settings=s).residual for p in problems])) for f, n, _, s in chosen}
+    return {(f, n): float(np.median([solve(p, settings=s).residual for p in samples])) for f, n, _, s in chosen}
 
 
 def step_times(scene, bodies, chosen, warm, rounds):
@@ -106,18 +94,19 @@ def main():
     scene = generate("pile", 9, dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0,
                                      steps=args.settle + args.samples * args.every + args.warm + args.rounds + 10))
     chosen = settings(args.most)
-    bodies, problems = settled_and_samples(scene, args.settle, args.samples, args.every)
-    accuracy = residuals(problems, chosen)
+    bodies, samples = settled_and_samples(scene, args.settle, args.samples, args.every)
+    accuracy = residuals(samples, chosen)
     ms = step_times(scene, bodies, chosen, args.warm, args.rounds)
-    points = int(np.median([p.stats["points"] for p in problems])) if hasattr(problems[0], "stats") else 0
-    print(f"the {args.count:,}-circle pile (seed 9), settled {args.settle} steps; {len(problems)} samples "
-          f"(every {args.every}th step), {args.rounds} rounds of the worlds in turn" +
-          (f"; about {points:,} contact points a sample" if points else ""))
+    points = int(np.median([p.points for p in samples]))
+    print(f"the {args.count:,}-circle pile (seed 9), settled {args.settle} steps; {len(samples)} samples "
+          f"(every {args.every}th step), {args.rounds} rounds of the worlds in turn; about {points:,} contact "
+          "points a sample")
     print("\n| setting | CPU ms / step | one-step residual (median) |\n| --- | ---: | ---: |")
     for key in ms:
         print(f"| {key[0]}, {key[1]} | {ms[key]:.3g} | {accuracy[key]:.3g} |")
-    aa = ms[("A/A: Box2D 2.4.1 again", 8)] / ms[("Box2D 2.4.1", 8)]
-    print(f"\nThe noise: the second world of Box2D's 8 iterations (an A/A) measured {aa:.2f}x the first.")
+    k = next(n for f, n in ms if f == AA)
+    print(f"\nThe noise: the second world of Box2D's {k} iterations (an A/A) measured "
+          f"{ms[(AA, k)] / ms[('Box2D 2.4.1', k)]:.2f}x the first.")
     print("\n| Box2D 2.4.1 | ms / step | residual | the project's best in at most that time | ms / step | residual "
           "| residual ratio |\n| --- | ---: | ---: | --- | ---: | ---: | ---: |")
     ours = [key for key in ms if key[0] in FAMILIES]

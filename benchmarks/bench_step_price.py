@@ -1,5 +1,5 @@
-"""What the project's step costs against Box2D 2.4.1's own, for the same sweeps (issue 75's step
-price): a settled pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a box of 300 with
+"""What the project's step costs against Box2D 2.4.1's own, for the same sweeps (the step's
+price, docs/results/step-price.md): a settled pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a box of 300 with
 --count 10000) is built three times and each copy settled by Box2D at its 8 iterations (the same
 steps, so the same state). Then the copies step in turn, one step each per round: Box2D's own step
 at 8 iterations, the loop's step at 8 sweeps in float64, and the loop's step at 8 sweeps in

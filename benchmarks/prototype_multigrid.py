@@ -1,6 +1,6 @@
 """The gate of a nonsmooth multigrid, measured before any native code: does a method whose cost
 should not grow with the pile's depth bring each step of the settled rigid pile to 1e-4 in a few
-cycles? (issue 75, item 3; docs/results/multigrid.md)
+cycles? (docs/results/multigrid.md)
 
 The 1000-circle pile (seed 9) settles under Box2D at its 8 iterations for --settle steps; then the
 loop steps it (collide, solve, write the impulses, Box2D's Step with 0 velocity iterations) for
@@ -29,7 +29,7 @@ project's residual (solver/local.py: the min-map residual every solve reports) i
 reached the tolerance, else with PSOR's (w = 1.7 from the same start, cap 10,000 sweeps: the
 scale, also counted each step).
 
-The gate (issue 75): go if the median step reaches 1e-4 within 10 cycles and every step within
+The gate, set before building anything native: go if the median step reaches 1e-4 within 10 cycles and every step within
 40, judged on the best variant. Times are Python's and scipy's (a prototype), per cycle against one
 sweep of the native PSOR on the same step; one thread (OMP, OpenBLAS and MKL set to 1 here).
 
