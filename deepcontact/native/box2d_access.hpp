@@ -48,6 +48,10 @@ DC_BOX2D_MEMBER(WorldJointCount, int32 b2World::*, &b2World::m_jointCount)
 
 }  // namespace
 
+// A body's scene index, which the project keeps as its user data (Box2D 2.4.1's GetUserData() is
+// not const; reading it changes nothing).
+inline int body_index(const b2Body* b) { return static_cast<int>(const_cast<b2Body*>(b)->GetUserData().pointer); }
+
 // The flags' values (private enums of b2_body.h and b2_contact.h, 2.4.1).
 constexpr uint16 kBodyIslandFlag = 0x0001;
 constexpr uint16 kBodyAwakeFlag = 0x0002;

@@ -240,6 +240,21 @@ void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>
 }
 
 // The problem posed into pb, whose buffers are reused (the native loop keeps one from step to step).
+// The 2x2 block of a two-point manifold's normal rows (b2ContactSolver::InitializeVelocityConstraints),
+// from each point's lever arms crossed with the normal; Box2D keeps the pair for its block solver
+// where K's condition number is under 1000, else solves the first point only.
+template <class R>
+struct PairBlock {
+    R k11, k12, k22;
+    bool kept() const { return k11 * k11 < R(1000) * (k11 * k22 - k12 * k12); }
+};
+
+template <class R>
+PairBlock<R> pair_block(R mA, R mB, R iA, R iB, R rn1A, R rn1B, R rn2A, R rn2B) {
+    return {mA + mB + iA * rn1A * rn1A + iB * rn1B * rn1B, mA + mB + iA * rn1A * rn2A + iB * rn1B * rn2B,
+            mA + mB + iA * rn2A * rn2A + iB * rn2B * rn2B};
+}
+
 template <class R>
 void assemble_into(ContactProblem<R>& pb, const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st) {
     pb.manifolds.clear();
@@ -355,17 +370,11 @@ void assemble_into(ContactProblem<R>& pb, const BodyColumns& bc, const ContactCo
         if (count == 2 && st.block_solve) {
             const ContactPoint<R>& p1 = m.p[0];
             const ContactPoint<R>& p2 = m.p[1];
-            R rn1A = cross(p1.rA, m.normal);
-            R rn1B = cross(p1.rB, m.normal);
-            R rn2A = cross(p2.rA, m.normal);
-            R rn2B = cross(p2.rB, m.normal);
-            R k11 = mA + mB + iA * rn1A * rn1A + iB * rn1B * rn1B;
-            R k22 = mA + mB + iA * rn2A * rn2A + iB * rn2B * rn2B;
-            R k12 = mA + mB + iA * rn1A * rn2A + iB * rn1B * rn2B;
-            const R max_condition = R(1000);
-            if (k11 * k11 < max_condition * (k11 * k22 - k12 * k12)) {
-                m.K.ex = {k11, k12};
-                m.K.ey = {k12, k22};
+            const PairBlock<R> pair = pair_block(mA, mB, iA, iB, cross(p1.rA, m.normal), cross(p1.rB, m.normal),
+                                                 cross(p2.rA, m.normal), cross(p2.rB, m.normal));
+            if (pair.kept()) {
+                m.K.ex = {pair.k11, pair.k12};
+                m.K.ey = {pair.k12, pair.k22};
                 m.normal_mass = m.K.inverse();
                 m.block = true;
             } else {

@@ -18,8 +18,7 @@ namespace {
 // g_blockSolve is one flag for the whole process; worlds that differ must not race on it.
 std::mutex g_step_mutex;
 
-// Box2D 2.4.1's GetUserData() is not const; reading it changes nothing.
-int body_index(const b2Body* b) { return static_cast<int>(const_cast<b2Body*>(b)->GetUserData().pointer); }
+// A fixture's index, kept as its user data (as body_index, box2d_access.hpp).
 int fixture_index(const b2Fixture* f) {
     return static_cast<int>(const_cast<b2Fixture*>(f)->GetUserData().pointer);
 }

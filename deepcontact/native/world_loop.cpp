@@ -16,8 +16,6 @@
 namespace dc {
 namespace {
 
-int body_index(const b2Body* b) { return static_cast<int>(const_cast<b2Body*>(b)->GetUserData().pointer); }
-
 uint16& flags(b2Body* b) { return b->*member(BodyFlags()); }
 uint32& flags(b2Contact* c) { return c->*member(ContactFlags()); }
 
@@ -377,18 +375,10 @@ b2WorldManifold World::pose(b2Contact* contact, LoopFrame::Constraint& k) const 
         k.rA[j] = wm.points[j] - cA;
         k.rB[j] = wm.points[j] - cB;
     }
-    if (k.count == 2 && block_solve_) {
-        const float mA = k.mA, mB = k.mB, iA = k.iA, iB = k.iB;
-        float rn1A = b2Cross(k.rA[0], k.normal);
-        float rn1B = b2Cross(k.rB[0], k.normal);
-        float rn2A = b2Cross(k.rA[1], k.normal);
-        float rn2B = b2Cross(k.rB[1], k.normal);
-        float k11 = mA + mB + iA * rn1A * rn1A + iB * rn1B * rn1B;
-        float k22 = mA + mB + iA * rn2A * rn2A + iB * rn2B * rn2B;
-        float k12 = mA + mB + iA * rn1A * rn2A + iB * rn1B * rn2B;
-        const float k_maxConditionNumber = 1000.0f;
-        if (!(k11 * k11 < k_maxConditionNumber * (k11 * k22 - k12 * k12))) k.count = 1;
-    }
+    if (k.count == 2 && block_solve_ &&
+        !pair_block(k.mA, k.mB, k.iA, k.iB, b2Cross(k.rA[0], k.normal), b2Cross(k.rB[0], k.normal),
+                    b2Cross(k.rA[1], k.normal), b2Cross(k.rB[1], k.normal)).kept())
+        k.count = 1;
     return wm;
 }
 
