@@ -239,7 +239,6 @@ void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>
     }
 }
 
-// The problem posed into pb, whose buffers are reused (the native loop keeps one from step to step).
 // The 2x2 block of a two-point manifold's normal rows (b2ContactSolver::InitializeVelocityConstraints),
 // from each point's lever arms crossed with the normal; Box2D keeps the pair for its block solver
 // where K's condition number is under 1000, else solves the first point only.
@@ -255,36 +254,127 @@ PairBlock<R> pair_block(R mA, R mB, R iA, R iB, R rn1A, R rn1B, R rn2A, R rn2B) 
             mA + mB + iA * rn2A * rn2A + iB * rn2B * rn2B};
 }
 
+// One body's values as Box2D stores them (float32), what the solver's v* is made from.
+struct FreeBody {
+    int8_t type;   // b2BodyType: 2 is dynamic
+    float vx, vy, omega, mass, inv_mass, inv_inertia, linear_damping, angular_damping, gravity_scale;
+};
+
+// b2Island::Solve for one body: integrate its velocity, then damping (dynamic bodies only).
+template <class R>
+BodyVelocity<R> free_velocity(const FreeBody& body, const StepSettings& st) {
+    const R h = R(st.dt);
+    const V2<R> gravity{R(st.gravity[0]), R(st.gravity[1])};
+    const bool has_gravity = gravity.x != R(0) || gravity.y != R(0);
+    V2<R> v{R(body.vx), R(body.vy)};
+    R w = R(body.omega);
+    if (body.type == 2) {
+        const R inv_mass = R(body.inv_mass);
+        if (has_gravity || !st.prune) {
+            const V2<R> force = (R(body.gravity_scale) * R(body.mass)) * gravity + V2<R>{R(0), R(0)};
+            v = v + (h * inv_mass) * force;
+            w = w + h * R(body.inv_inertia) * R(0);
+        }
+        const R ld = R(body.linear_damping), ad = R(body.angular_damping);
+        if (ld != R(0) || ad != R(0) || !st.prune) {
+            const R sv = R(1) / (R(1) + h * ld);
+            v.x *= sv;
+            v.y *= sv;
+            w *= R(1) / (R(1) + h * ad);
+        }
+    }
+    return {v, w};
+}
+
+// A manifold's bodies (rows, inverse masses) and material, before its geometry: what the solver
+// keeps of it, no block yet.
+template <class R>
+void start_manifold(ContactManifold<R>& m, int32_t a, int32_t b, size_t first, int count, float friction,
+                    float restitution, float threshold, float mA, float mB, float iA, float iB, const StepSettings& st) {
+    m.a = a;
+    m.b = b;
+    m.first = static_cast<int32_t>(first);
+    m.count = m.given = count;
+    m.friction = R(friction);
+    m.restitution = R(restitution);
+    m.threshold = R(threshold);
+    m.mA = R(mA);
+    m.mB = R(mB);
+    m.iA = R(iA);
+    m.iB = R(iB);
+    m.friction_row = !st.prune || m.friction > R(0);
+    m.angular = !st.prune || m.iA != R(0) || m.iB != R(0);
+    m.block = false;
+    m.K = M22<R>{};
+    m.normal_mass = M22<R>{};
+}
+
+// b2ContactSolver::InitializeVelocityConstraints for a manifold whose bodies, normal and lever
+// arms are set: each point's effective masses and restitution bias, then the block solver's 2x2
+// block of a two-point manifold (or its cut to the first point); counted in stats.
+template <class R>
+void pose_rows(ContactManifold<R>& m, const std::vector<BodyVelocity<R>>& velocity, const StepSettings& st,
+               ProblemStats& stats) {
+    const R mA = m.mA, mB = m.mB, iA = m.iA, iB = m.iB;
+    const V2<R> vA = velocity[m.a].v, vB = velocity[m.b].v;
+    const R wA = velocity[m.a].w, wB = velocity[m.b].w;
+    const V2<R> tangent = cross(m.normal, R(1));
+    for (int j = 0; j < m.given; ++j) {
+        ContactPoint<R>& p = m.p[j];
+        R rnA = cross(p.rA, m.normal);
+        R rnB = cross(p.rB, m.normal);
+        R kNormal = mA + mB + iA * rnA * rnA + iB * rnB * rnB;
+        p.k_normal = kNormal;
+        p.normal_mass = kNormal > R(0) ? R(1) / kNormal : R(0);
+        R rtA = cross(p.rA, tangent);
+        R rtB = cross(p.rB, tangent);
+        R kTangent = mA + mB + iA * rtA * rtA + iB * rtB * rtB;
+        p.k_tangent = kTangent;
+        p.tangent_mass = kTangent > R(0) ? R(1) / kTangent : R(0);
+        p.bias = R(0);
+        if (m.restitution != R(0) || !st.prune) {
+            R vRel = dot(m.normal, vB + cross(wB, p.rB) - vA - cross(wA, p.rA));
+            if (vRel < -m.threshold) {
+                p.bias = -m.restitution * vRel;
+                ++stats.bias_rows;
+            }
+        }
+    }
+    if (m.given == 2 && st.block_solve) {
+        const ContactPoint<R>& p1 = m.p[0];
+        const ContactPoint<R>& p2 = m.p[1];
+        const PairBlock<R> pair = pair_block(mA, mB, iA, iB, cross(p1.rA, m.normal), cross(p1.rB, m.normal),
+                                             cross(p2.rA, m.normal), cross(p2.rB, m.normal));
+        if (pair.kept()) {
+            m.K.ex = {pair.k11, pair.k12};
+            m.K.ey = {pair.k12, pair.k22};
+            m.normal_mass = m.K.inverse();
+            m.block = true;
+        } else {
+            m.count = 1;  // redundant pair: Box2D solves the first point only
+            ++stats.dropped_points;
+        }
+    }
+    stats.manifolds += 1;
+    stats.points += m.given;
+    stats.normal_rows += m.count;
+    stats.tangent_rows += m.friction_row ? m.count : 0;
+    stats.block_manifolds += m.block;
+    stats.angular_manifolds += m.angular;
+}
+
+// The problem posed from the columns into pb, whose buffers are reused.
 template <class R>
 void assemble_into(ContactProblem<R>& pb, const BodyColumns& bc, const ContactColumns& cc, const StepSettings& st) {
     pb.manifolds.clear();
     pb.stats = ProblemStats{};
-    const R h = R(st.dt);
-    const V2<R> gravity{R(st.gravity[0]), R(st.gravity[1])};
-    const bool has_gravity = gravity.x != R(0) || gravity.y != R(0);
 
-    // b2Island::Solve: integrate velocities, then damping (dynamic bodies only).
     pb.velocity.resize(bc.n);
-    for (size_t i = 0; i < bc.n; ++i) {
-        V2<R> v{R(bc.velocity[2 * i]), R(bc.velocity[2 * i + 1])};
-        R w = R(bc.omega[i]);
-        if (bc.type[i] == 2) {
-            const R inv_mass = R(bc.inv_mass[i]);
-            if (has_gravity || !st.prune) {
-                const V2<R> force = (R(bc.gravity_scale[i]) * R(bc.mass[i])) * gravity + V2<R>{R(0), R(0)};
-                v = v + (h * inv_mass) * force;
-                w = w + h * R(bc.inv_inertia[i]) * R(0);
-            }
-            const R ld = R(bc.linear_damping[i]), ad = R(bc.angular_damping[i]);
-            if (ld != R(0) || ad != R(0) || !st.prune) {
-                const R sv = R(1) / (R(1) + h * ld);
-                v.x *= sv;
-                v.y *= sv;
-                w *= R(1) / (R(1) + h * ad);
-            }
-        }
-        pb.velocity[i] = {v, w};
-    }
+    for (size_t i = 0; i < bc.n; ++i)
+        pb.velocity[i] = free_velocity<R>({bc.type[i], bc.velocity[2 * i], bc.velocity[2 * i + 1], bc.omega[i], bc.mass[i],
+                                           bc.inv_mass[i], bc.inv_inertia[i], bc.linear_damping[i],
+                                           bc.angular_damping[i], bc.gravity_scale[i]},
+                                          st);
 
     // b2ContactSolver::InitializeVelocityConstraints, manifold by manifold in the given order.
     // Each body's rotation is computed once (a body touches several manifolds; the same angle
@@ -314,19 +404,8 @@ void assemble_into(ContactProblem<R>& pb, const BodyColumns& bc, const ContactCo
             throw std::out_of_range("contact point " + std::to_string(k) + " names a body that is not given");
 
         ContactManifold<R> m{};
-        m.a = a;
-        m.b = b;
-        m.first = static_cast<int32_t>(k);
-        m.count = m.given = count;
-        m.friction = R(cc.friction[k]);
-        m.restitution = R(cc.restitution[k]);
-        m.threshold = R(cc.restitution_threshold[k]);
-        m.mA = R(bc.inv_mass[a]);
-        m.mB = R(bc.inv_mass[b]);
-        m.iA = R(bc.inv_inertia[a]);
-        m.iB = R(bc.inv_inertia[b]);
-        m.friction_row = !st.prune || m.friction > R(0);
-        m.angular = !st.prune || m.iA != R(0) || m.iB != R(0);
+        start_manifold(m, a, b, k, count, cc.friction[k], cc.restitution[k], cc.restitution_threshold[k],
+                       bc.inv_mass[a], bc.inv_mass[b], bc.inv_inertia[a], bc.inv_inertia[b], st);
 
         const V2<R> cA{R(bc.center[2 * a]), R(bc.center[2 * a + 1])};
         const V2<R> cB{R(bc.center[2 * b]), R(bc.center[2 * b + 1])};
@@ -339,55 +418,11 @@ void assemble_into(ContactProblem<R>& pb, const BodyColumns& bc, const ContactCo
         world_manifold<R>(cc.manifold_type[k], {R(cc.local_normal[2 * k]), R(cc.local_normal[2 * k + 1])},
                           {R(cc.local_point[2 * k]), R(cc.local_point[2 * k + 1])}, point_local, count, xfA,
                           R(cc.radius_a[k]), xfB, R(cc.radius_b[k]), m.normal, points);
-
-        const R mA = m.mA, mB = m.mB, iA = m.iA, iB = m.iB;
-        const V2<R> vA = pb.velocity[a].v, vB = pb.velocity[b].v;
-        const R wA = pb.velocity[a].w, wB = pb.velocity[b].w;
-        const V2<R> tangent = cross(m.normal, R(1));
         for (int j = 0; j < count; ++j) {
-            ContactPoint<R>& p = m.p[j];
-            p.rA = points[j] - cA;
-            p.rB = points[j] - cB;
-            R rnA = cross(p.rA, m.normal);
-            R rnB = cross(p.rB, m.normal);
-            R kNormal = mA + mB + iA * rnA * rnA + iB * rnB * rnB;
-            p.k_normal = kNormal;
-            p.normal_mass = kNormal > R(0) ? R(1) / kNormal : R(0);
-            R rtA = cross(p.rA, tangent);
-            R rtB = cross(p.rB, tangent);
-            R kTangent = mA + mB + iA * rtA * rtA + iB * rtB * rtB;
-            p.k_tangent = kTangent;
-            p.tangent_mass = kTangent > R(0) ? R(1) / kTangent : R(0);
-            p.bias = R(0);
-            if (m.restitution != R(0) || !st.prune) {
-                R vRel = dot(m.normal, vB + cross(wB, p.rB) - vA - cross(wA, p.rA));
-                if (vRel < -m.threshold) {
-                    p.bias = -m.restitution * vRel;
-                    ++pb.stats.bias_rows;
-                }
-            }
+            m.p[j].rA = points[j] - cA;
+            m.p[j].rB = points[j] - cB;
         }
-        if (count == 2 && st.block_solve) {
-            const ContactPoint<R>& p1 = m.p[0];
-            const ContactPoint<R>& p2 = m.p[1];
-            const PairBlock<R> pair = pair_block(mA, mB, iA, iB, cross(p1.rA, m.normal), cross(p1.rB, m.normal),
-                                                 cross(p2.rA, m.normal), cross(p2.rB, m.normal));
-            if (pair.kept()) {
-                m.K.ex = {pair.k11, pair.k12};
-                m.K.ey = {pair.k12, pair.k22};
-                m.normal_mass = m.K.inverse();
-                m.block = true;
-            } else {
-                m.count = 1;  // redundant pair: Box2D solves the first point only
-                ++pb.stats.dropped_points;
-            }
-        }
-        pb.stats.manifolds += 1;
-        pb.stats.points += count;
-        pb.stats.normal_rows += m.count;
-        pb.stats.tangent_rows += m.friction_row ? m.count : 0;
-        pb.stats.block_manifolds += m.block;
-        pb.stats.angular_manifolds += m.angular;
+        pose_rows(m, pb.velocity, st, pb.stats);
         pb.manifolds.push_back(m);
         k += count;
     }

@@ -1,6 +1,7 @@
 // What the loop's step (pgs_step.cpp) reads out of a Box2D world once a step, into buffers kept
-// from step to step: the islands as b2World::Solve builds them, and the solver's columns of their
-// bodies and contact points (records.hpp's solver rows, and nothing else).
+// from step to step: the islands as b2World::Solve builds them, each of their contacts posed once
+// in Box2D's float32 arithmetic (the constraint its warm start and position correction read), and
+// the step's problem posed from those in the solve's precision.
 #pragma once
 
 #include <box2d/box2d.h>
@@ -9,7 +10,6 @@
 #include <vector>
 
 #include "contact_problem.hpp"
-#include "records.hpp"
 
 namespace dc {
 
@@ -25,19 +25,7 @@ struct LoopFrame {
     bool static_moves = false;
     bool block_solve = true;   // the setting the redundant pairs were cut with
 
-    // The solver's columns: every live body in scene index order; every point of the islands'
-    // contacts in island order, with what Collide carried over by feature id.
-#define DC_LOOP_COLUMN(T, name, width, solver) DC_IF_##solver(std::vector<T> name;)
-    struct Bodies {
-        DC_BODY_FIELDS(DC_LOOP_COLUMN)
-    } bodies;
-    struct Contacts {
-        DC_CONTACT_FIELDS(DC_LOOP_COLUMN)
-        std::vector<int32_t> row_a, row_b;
-        std::vector<float> normal_impulse, tangent_impulse;
-    } contacts;
-#undef DC_LOOP_COLUMN
-    size_t body_count = 0, points = 0;
+    size_t points = 0;      // the islands' contact points
     float deepest = 0.0f;   // deepest penetration among the points (m), >= 0
 
     // Per island contact, b2ContactSolver's constraint as its warm start, StoreImpulses and
@@ -59,6 +47,14 @@ struct LoopFrame {
         b2Vec2 rA[b2_maxManifoldPoints], rB[b2_maxManifoldPoints];
     };
     std::vector<Constraint> constraints;
+    // Per island contact, what the solve's rows take beyond the constraint: the bodies' solver rows,
+    // the material, and the impulses Collide carried over by feature id (per point).
+    struct Input {
+        int32_t row_a, row_b;
+        float friction, restitution, threshold;
+        float normal_impulse[b2_maxManifoldPoints], tangent_impulse[b2_maxManifoldPoints];
+    };
+    std::vector<Input> inputs;
     std::vector<b2Rot> rotation;   // each live body's, by scene index (one sine and cosine a body)
     // By scene index: the body's transform is not the one its sweep gives (placed since its last
     // step: created or set_body_state, where Box2D keeps the position given).
@@ -70,12 +66,12 @@ struct LoopFrame {
     std::vector<b2Velocity> velocities;
     std::vector<int32_t> slot, row_of;
 
-    // The step's problem, posed into buffers kept from step to step (one for each precision).
+    // The step's problem, posed into buffers kept from step to step (one for each precision), and
+    // each body's rotation in double by solver row, computed once a step where a contact needs it.
     ContactProblem<float> problem32;
     ContactProblem<double> problem64;
-
-    BodyColumns body_columns() const;
-    ContactColumns contact_columns() const;
+    std::vector<Rot<double>> rotation64;
+    std::vector<uint8_t> rotated64;
 };
 
 }  // namespace dc

@@ -49,11 +49,15 @@ public:
     void set_manifold_impulses(const float* normal, const float* tangent, size_t count);
 
     // The loop's step read out once (pgs_step.cpp), after collide(): the islands as b2World::Solve
-    // finds them, and the solver's columns of their bodies and points (kept from step to step).
-    // Until the world changes, step(..., collided) then steps those islands itself with no
-    // velocity iterations (world_loop.cpp) instead of running Box2D's Solve, which would find
-    // them again and pose every contact's constraint a second time.
+    // finds them, each of their contacts posed once (kept from step to step). Until the world
+    // changes, step(..., collided) then steps those islands itself with no velocity iterations
+    // (world_loop.cpp) instead of running Box2D's Solve, which would find them again and pose
+    // every contact's constraint a second time.
     LoopFrame& gather_loop();
+    // The step's problem in R from what gather_loop() posed: every live body a row (scene index
+    // order), every island contact a manifold (island order). Instantiated for float and double.
+    template <class R>
+    void pose_loop_problem(ContactProblem<R>& pb, const StepSettings& st);
 
     BodyState bodies() const;
     void set_body_state(const int32_t* index, const float* position, const float* angle,
@@ -109,8 +113,10 @@ private:
     // The loop's own island solve (world_loop.cpp).
     bool solves_islands(int velocity_iterations) const;
     void find_islands();
-    void gather_loop_bodies();
-    void gather_loop_contacts();
+    void place_loop_bodies();
+    void pose_loop_contacts();
+    template <class R>
+    void pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k);
     void solve_islands(const b2TimeStep& step);
     void solve_island(const b2TimeStep& step, int32_t body_begin, int32_t body_end, int32_t contact_begin,
                       int32_t contact_end);

@@ -9,6 +9,7 @@
 // as Box2D's own Step with zero velocity iterations would leave.
 #include <algorithm>
 #include <cstring>
+#include <type_traits>
 
 #include "box2d_access.hpp"
 #include "world.hpp"
@@ -19,33 +20,7 @@ namespace {
 uint16& flags(b2Body* b) { return b->*member(BodyFlags()); }
 uint32& flags(b2Contact* c) { return c->*member(ContactFlags()); }
 
-template <class T>
-void put2(std::vector<T>& v, size_t k, const b2Vec2& p) {
-    v[2 * k] = p.x;
-    v[2 * k + 1] = p.y;
-}
-
 }  // namespace
-
-BodyColumns LoopFrame::body_columns() const {
-    BodyColumns c;
-    c.n = body_count;
-#define DC_TAKE(T, name, width, solver) DC_IF_##solver(c.name = bodies.name.data();)
-    DC_BODY_FIELDS(DC_TAKE)
-#undef DC_TAKE
-    return c;
-}
-
-ContactColumns LoopFrame::contact_columns() const {
-    ContactColumns c;
-    c.n = points;
-#define DC_TAKE(T, name, width, solver) DC_IF_##solver(c.name = contacts.name.data();)
-    DC_CONTACT_FIELDS(DC_TAKE)
-#undef DC_TAKE
-    c.row_a = contacts.row_a.data();
-    c.row_b = contacts.row_b.data();
-    return c;
-}
 
 // b2World::Solve's islands: flags cleared, then a depth-first search from each awake non-static
 // seed in body-list order, not crossing static bodies (which it adds and leaves). The bodies it
@@ -106,46 +81,20 @@ void World::find_islands() {
     }
 }
 
-// Every live body's solver columns, in scene index order (the rows contacts name).
-void World::gather_loop_bodies() {
-    LoopFrame::Bodies& s = loop_.bodies;
-    const size_t n = live_bodies_;
-    s.type.resize(n);
-    s.angle.resize(n);
-    s.center.resize(2 * n);
-    s.local_center.resize(2 * n);
-    s.velocity.resize(2 * n);
-    s.omega.resize(n);
-    s.mass.resize(n);
-    s.inv_mass.resize(n);
-    s.inv_inertia.resize(n);
-    s.linear_damping.resize(n);
-    s.angular_damping.resize(n);
-    s.gravity_scale.resize(n);
+// Every live body's solver row (scene index order: the rows contacts name), rotation and whether
+// it was placed since its last step.
+void World::place_loop_bodies() {
     loop_.row_of.assign(bodies_.size(), -1);
     loop_.rotation.resize(bodies_.size());
     loop_.placed.resize(bodies_.size());
-    size_t i = 0;
+    int32_t i = 0;
     for (b2Body* b : bodies_) {
         if (b == nullptr) continue;
-        loop_.row_of[body_index(b)] = static_cast<int32_t>(i);
-        loop_.rotation[body_index(b)].Set(b->GetAngle());   // (the same angle gives the same bits)
-        loop_.placed[body_index(b)] = placed(b, loop_.rotation[body_index(b)]);
-        s.type[i] = static_cast<int8_t>(b->GetType());
-        s.angle[i] = b->GetAngle();
-        put2(s.center, i, b->GetWorldCenter());
-        put2(s.local_center, i, b->GetLocalCenter());
-        put2(s.velocity, i, b->GetLinearVelocity());
-        s.omega[i] = b->GetAngularVelocity();
-        s.mass[i] = b->GetMass();
-        s.inv_mass[i] = b->*member(BodyInvMass());
-        s.inv_inertia[i] = b->*member(BodyInvI());
-        s.linear_damping[i] = b->GetLinearDamping();
-        s.angular_damping[i] = b->GetAngularDamping();
-        s.gravity_scale[i] = b->GetGravityScale();
-        ++i;
+        const int index = body_index(b);
+        loop_.row_of[index] = i++;
+        loop_.rotation[index].Set(b->GetAngle());   // (the same angle gives the same bits)
+        loop_.placed[index] = placed(b, loop_.rotation[index]);
     }
-    loop_.body_count = n;
 }
 
 // Whether a body's transform differs, in any bit, from the one Box2D's solver rebuilds from its
@@ -172,63 +121,120 @@ float World::penetration(b2Contact* c, const b2WorldManifold& posed) const {
     return deepest;
 }
 
-// Every point of the islands' contacts, in island order (the rows set_manifold_impulses writes),
-// each contact posed once for the warm start that applies the solution.
-void World::gather_loop_contacts() {
-    LoopFrame::Contacts& s = loop_.contacts;
-    size_t n = 0;
-    for (b2Contact* c : loop_.island_contacts) n += c->GetManifold()->pointCount;
-#define DC_SIZE(T, name, width, solver) DC_IF_##solver(s.name.resize(n * (width));)
-    DC_CONTACT_FIELDS(DC_SIZE)
-#undef DC_SIZE
-    for (auto* v : {&s.row_a, &s.row_b}) v->resize(n);
-    for (auto* v : {&s.normal_impulse, &s.tangent_impulse}) v->resize(n);
-    gathered_.clear();
+// Every island contact posed once for the warm start that applies the solution, with what the
+// solve's rows take beside it; the points counted, the deepest penetration measured.
+void World::pose_loop_contacts() {
+    LoopFrame& f = loop_;
+    f.inputs.resize(f.island_contacts.size());
     float deepest = 0.0f;
-    size_t k = 0, index = 0;
-    int32_t manifold = 0;
-    for (b2Contact* c : loop_.island_contacts) {
-        const b2Fixture* fa = c->GetFixtureA();
-        const b2Fixture* fb = c->GetFixtureB();
-        const b2Body* ba = fa->GetBody();
-        const b2Body* bb = fb->GetBody();
-        const b2Manifold* m = c->GetManifold();
-        const b2WorldManifold wm = pose(c, loop_.constraints[index++]);
+    size_t n = 0;
+    for (size_t i = 0; i < f.island_contacts.size(); ++i) {
+        b2Contact* c = f.island_contacts[i];
+        LoopFrame::Constraint& k = f.constraints[i];
+        const b2WorldManifold wm = pose(c, k);
         deepest = std::max(deepest, penetration(c, wm));
-        for (int j = 0; j < m->pointCount; ++j, ++k) {
-            const b2ManifoldPoint& p = m->points[j];
-            s.manifold[k] = manifold;
-            s.point[k] = static_cast<int8_t>(j);
-            s.point_count[k] = static_cast<int8_t>(m->pointCount);
-            s.manifold_type[k] = static_cast<int8_t>(m->type);
-            put2(s.local_normal, k, m->localNormal);
-            put2(s.local_point, k, m->localPoint);
-            put2(s.point_local, k, p.localPoint);
-            s.friction[k] = c->GetFriction();
-            s.restitution[k] = c->GetRestitution();
-            s.restitution_threshold[k] = c->GetRestitutionThreshold();
-            s.radius_a[k] = fa->GetShape()->m_radius;
-            s.radius_b[k] = fb->GetShape()->m_radius;
-            s.row_a[k] = loop_.row_of[body_index(ba)];
-            s.row_b[k] = loop_.row_of[body_index(bb)];
-            s.normal_impulse[k] = p.normalImpulse;
-            s.tangent_impulse[k] = p.tangentImpulse;
-            gathered_.emplace_back(c, j);
+        LoopFrame::Input& in = f.inputs[i];
+        in.row_a = f.row_of[body_index(c->GetFixtureA()->GetBody())];
+        in.row_b = f.row_of[body_index(c->GetFixtureB()->GetBody())];
+        in.friction = c->GetFriction();
+        in.restitution = c->GetRestitution();
+        in.threshold = c->GetRestitutionThreshold();
+        for (int j = 0; j < k.point_count; ++j) {
+            in.normal_impulse[j] = k.manifold->points[j].normalImpulse;
+            in.tangent_impulse[j] = k.manifold->points[j].tangentImpulse;
         }
-        ++manifold;
+        n += k.point_count;
     }
-    loop_.points = n;
-    loop_.deepest = deepest;
+    f.points = n;
+    f.deepest = deepest;
 }
 
 LoopFrame& World::gather_loop() {
     find_islands();
-    gather_loop_bodies();
-    gather_loop_contacts();
-    gathered_generation_ = generation_;
+    place_loop_bodies();
+    pose_loop_contacts();
     loop_generation_ = generation_;
     return loop_;
 }
+
+// The step's problem from the posed contacts: each live body's v* (b2Island::Solve's integration
+// and damping), then each island contact's rows (InitializeVelocityConstraints), as
+// assemble_into poses them from the columns, bit for bit, without the columns.
+template <class R>
+void World::pose_loop_problem(ContactProblem<R>& pb, const StepSettings& st) {
+    LoopFrame& f = loop_;
+    pb.stats = ProblemStats{};
+    pb.points = f.points;
+    pb.velocity.resize(live_bodies_);
+    size_t row = 0;
+    for (b2Body* b : bodies_) {
+        if (b == nullptr) continue;
+        pb.velocity[row++] = free_velocity<R>(
+            {static_cast<int8_t>(b->GetType()), b->GetLinearVelocity().x, b->GetLinearVelocity().y,
+             b->GetAngularVelocity(), b->GetMass(), b->*member(BodyInvMass()), b->*member(BodyInvI()),
+             b->GetLinearDamping(), b->GetAngularDamping(), b->GetGravityScale()},
+            st);
+    }
+    if constexpr (!std::is_same_v<R, float>) {
+        f.rotation64.resize(live_bodies_);
+        f.rotated64.assign(live_bodies_, 0);
+    }
+    pb.manifolds.resize(f.constraints.size());
+    size_t first = 0;
+    for (size_t i = 0; i < f.constraints.size(); ++i) {
+        const LoopFrame::Constraint& k = f.constraints[i];
+        const LoopFrame::Input& in = f.inputs[i];
+        ContactManifold<R>& m = pb.manifolds[i];
+        start_manifold(m, in.row_a, in.row_b, first, k.point_count, in.friction, in.restitution, in.threshold, k.mA,
+                       k.mB, k.iA, k.iB, st);
+        pose_geometry(m, k);
+        if (k.point_count < 2) m.p[1] = ContactPoint<R>{};   // (a kept buffer: nothing stale in it)
+        pose_rows(m, pb.velocity, st, pb.stats);
+        first += k.point_count;
+    }
+}
+
+// A manifold's normal and lever arms. In float32 they are the constraint's, which pose() computed
+// as b2WorldManifold::Initialize does (the same operations world_manifold makes); in double,
+// world_manifold from the manifold in body frames and the bodies' centres and rotations.
+template <class R>
+void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k) {
+    if constexpr (std::is_same_v<R, float>) {
+        m.normal = {k.normal.x, k.normal.y};
+        for (int j = 0; j < k.point_count; ++j) {
+            m.p[j].rA = {k.rA[j].x, k.rA[j].y};
+            m.p[j].rB = {k.rB[j].x, k.rB[j].y};
+        }
+    } else {
+        LoopFrame& f = loop_;
+        auto rotation = [&](int32_t row, const b2Body* b) -> const Rot<R>& {
+            if (!f.rotated64[row]) {
+                f.rotation64[row] = Rot<R>(R(b->GetAngle()));
+                f.rotated64[row] = 1;
+            }
+            return f.rotation64[row];
+        };
+        const b2Body* ba = f.island_bodies[k.slot_a];
+        const b2Body* bb = f.island_bodies[k.slot_b];
+        const V2<R> cA{R(ba->GetWorldCenter().x), R(ba->GetWorldCenter().y)};
+        const V2<R> cB{R(bb->GetWorldCenter().x), R(bb->GetWorldCenter().y)};
+        Xf<R> xfA{{0, 0}, rotation(m.a, ba)}, xfB{{0, 0}, rotation(m.b, bb)};
+        xfA.p = cA - mul(xfA.q, V2<R>{R(k.local_center_a.x), R(k.local_center_a.y)});
+        xfB.p = cB - mul(xfB.q, V2<R>{R(k.local_center_b.x), R(k.local_center_b.y)});
+        V2<R> point_local[b2_maxManifoldPoints], points[b2_maxManifoldPoints];
+        for (int j = 0; j < k.point_count; ++j) point_local[j] = {R(k.local_points[j].x), R(k.local_points[j].y)};
+        world_manifold<R>(static_cast<int>(k.type), {R(k.local_normal.x), R(k.local_normal.y)},
+                          {R(k.local_point.x), R(k.local_point.y)}, point_local, k.point_count, xfA, R(k.radius_a),
+                          xfB, R(k.radius_b), m.normal, points);
+        for (int j = 0; j < k.point_count; ++j) {
+            m.p[j].rA = points[j] - cA;
+            m.p[j].rB = points[j] - cB;
+        }
+    }
+}
+
+template void World::pose_loop_problem<float>(ContactProblem<float>&, const StepSettings&);
+template void World::pose_loop_problem<double>(ContactProblem<double>&, const StepSettings&);
 
 // b2World::Step's Solve for the loop: the islands found by gather_loop, stepped with no velocity
 // iterations, then the fixtures synchronised and new pairs found.
