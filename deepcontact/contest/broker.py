@@ -19,7 +19,7 @@ import time
 
 from dataclasses import replace
 
-from . import grants, machine, sandbox, shape
+from . import grants, machine, sandbox, shape, zygote
 from .fence import PROFILES
 
 ENV = "DC_SANDBOX_BROKER"   # the job's end of the broker's socket (a descriptor number)
@@ -105,6 +105,15 @@ class GuestSandbox(sandbox.Sandbox):
     fence as any: only its command is the guest's)."""
 
     def start_guest(self, channel, torch=False):
+        """The guest on `channel`: a fork of the zygote where this machine lends one (zygote.py),
+        else a fresh interpreter; the same fence either way."""
+        if zygote.usable(self.fence):
+            try:
+                return self.start_forked(zygote.for_fence(self.fence), channel, torch)
+            except zygote.Refused as e:
+                zygote.refused(e)
+                self.kill()
+                self.stopped_by, self.process = None, None
         return self.start(grants.guest_argv(channel, torch), pass_fds=[channel])
 
 

@@ -74,6 +74,8 @@ class Fence:
     threads: int = 1
     streams: Streams = Streams()
     accounted: bool = True   # (its CPU read from its control group)
+    proc: str = "own"        # (its /proc: "own", or "host" bound, so that its forks may mount their own)
+    nested: bool = False     # (whether it may make namespaces inside: the zygote's forks do)
 
     def with_paths(self, readable=(), writable=(), devices=(), cwd=None):
         """This fence with these folders (each made absolute; missing readable ones and devices dropped)."""
@@ -94,13 +96,22 @@ def _job(profile, streams=Streams(stdout_to="stdout", prefix=False, cap=256 << 2
                  limits=Limits(1024), seccomp="job", environment="given", threads=None, streams=streams)
 
 
+def _zygote():
+    # (dc's own code only: it imports the contestant's side once and forks each contestant,
+    # which fences itself as CONTESTANT before any code of its own runs: forked.py)
+    # (its /tmp the machine's, read-only: a plug-in's files may lie there, and its forks bind them)
+    return Fence("zygote", view="root", tmp=False, limits=Limits(256, 4 << 30), seccomp="zygote", proc="host",
+                 nested=True)
+
+
 CONTESTANT = _contestant()
 ENGINE = replace(_contestant(), profile="engine")   # (a plug-in engine's world: a guest as a contestant is)
 JOB = _job("job")
 TRAINING = _job("training")   # (given the accelerator's device files where it uses one)
 DRAWING = _job("drawing")
 LISTING = _job("listing", streams=Streams(stdout="discard", stderr="discard"))
-PROFILES = {f.profile: f for f in (CONTESTANT, ENGINE, JOB, TRAINING, DRAWING, LISTING)}
+ZYGOTE = _zygote()
+PROFILES = {f.profile: f for f in (CONTESTANT, ENGINE, JOB, TRAINING, DRAWING, LISTING, ZYGOTE)}
 JOB_FENCES = ("namespaces", "read-only view", "seccomp")   # what a job's fence needs of the machine
 
 
@@ -152,8 +163,8 @@ def bwrap_argv(fence, command, seccomp_fd=None):
     bwrap = machine.bwrap()
     if bwrap is None:
         return list(command)
-    out = [bwrap, *_namespace_options(fence), "--disable-userns", "--die-with-parent", "--new-session",
-           "--cap-drop", "ALL"]
+    out = [bwrap, *_namespace_options(fence), *([] if fence.nested else ["--disable-userns"]),
+           "--die-with-parent", "--new-session", "--cap-drop", "ALL"]
     out += _view_options(fence) + _environment_options(fence)
     if seccomp_fd is not None:
         out += ["--seccomp", str(seccomp_fd)]
@@ -169,10 +180,13 @@ def _namespace_options(fence):
 def _view_options(fence):
     """The mounts: the view, /proc and /dev, the private /tmp, the readable, writable and device binds."""
     out = []
+    # (bubblewrap's own /proc covers parts of itself, and the kernel lets a namespace mount a new
+    # /proc only where one is wholly visible: the zygote binds the host's, its forks cover it)
+    proc = ["--bind", "/proc", "/proc"] if fence.proc == "host" else ["--proc", "/proc"]
     if fence.view == "root":
-        out += ["--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/dev/shm"]
+        out += ["--ro-bind", "/", "/", "--dev", "/dev", *proc, "--tmpfs", "/dev/shm"]
     else:
-        out += ["--proc", "/proc", "--dev", "/dev"]
+        out += [*proc, "--dev", "/dev"]
     if fence.tmp:
         out += ["--size", str(fence.limits.file_size), "--tmpfs", "/tmp"]
     if fence.view == "system":
@@ -186,23 +200,35 @@ def _view_options(fence):
     return out + ["--chdir", fence.cwd or os.getcwd()]
 
 
+def environment(fence):
+    """The variables a process inside `fence` starts with, in a cleared environment (KEPT_ENV,
+    HOME, its own and the marker), or None where it is given the caller's (Popen's env)."""
+    if fence.environment != "clear":
+        return None
+    out = {key: os.environ[key] for key in KEPT_ENV if key in os.environ}
+    out.update(HOME="/tmp", PYTHONDONTWRITEBYTECODE="1", **thread_env(fence))
+    out[MARKER] = fence.profile
+    return out
+
+
 def _environment_options(fence):
-    """Its environment: cleared to KEPT_ENV and its own variables, or the caller's (given to Popen)."""
-    out = []
-    if fence.environment == "clear":
-        out += ["--clearenv"]
-        out += [a for key in KEPT_ENV if key in os.environ for a in ("--setenv", key, os.environ[key])]
-        out += ["--setenv", "HOME", "/tmp", "--setenv", "PYTHONDONTWRITEBYTECODE", "1"]
-        out += [a for key, value in thread_env(fence).items() for a in ("--setenv", key, value)]
-    return out + ["--setenv", MARKER, fence.profile]
+    """Its environment as bubblewrap's options: cleared to environment(fence), or the caller's
+    (given to Popen) and the marker."""
+    variables = environment(fence)
+    if variables is None:
+        return ["--setenv", MARKER, fence.profile]
+    return ["--clearenv"] + [a for key, value in variables.items() for a in ("--setenv", key, value)]
 
 
 def describe(fence):
     """{"sees", "writes", "limits", "streams"} of a profile, in words (a row of table())."""
     sees = ("the interpreter, its installed packages, deepcontact, the plug-in's own module's files and the files "
             "it is given" if fence.view == "system" else "the whole file system, read-only")
-    writes = (f"a private /tmp of {_size(fence.limits.file_size)}" if fence.tmp
-              else "only the folders it is given: its TMPDIR and its output's staging folder (a listing: none)")
+    if fence.proc == "host":
+        sees += ", and the machine's /proc (each contestant it forks covers it with its own)"
+    writes = (f"a private /tmp of {_size(fence.limits.file_size)}" if fence.tmp else
+              "only the folders it is given: its TMPDIR and its output's staging folder (a listing: none)"
+              if fence.cwd is None else "nothing")
     cap = f"at most {fence.limits.memory >> 30} GiB and " if fence.limits.memory else ""
     limits = (f"{fence.limits.processes} processes and threads; memory {cap}at most the machine's / (1 + live "
               f"sandboxes), never under {_size(MEMORY_FLOOR)}; {_size(fence.limits.file_size)} a file")

@@ -113,13 +113,39 @@ class _ArgRule(ctypes.Structure):
                 ("datum_b", ctypes.c_uint64)]
 
 
+# What each policy refuses beyond DENIED_CALLS and socket(AF_UNIX) (fence.Fence.seccomp names one).
+# "contestant": a contestant forked from the zygote (forked.py) runs in a user namespace of its
+# own, where making a namespace needs no capability, so clone may not ask for one, and clone3
+# (whose flags a filter cannot read) answers ENOSYS: the C library then falls back to clone.
+# "zygote": dc's own code only, which makes each fork's namespaces and mounts before the fork's
+# own filter is on.
+SECCOMP_POLICIES = ("contestant", "job", "zygote")
+ZYGOTE_ALLOWED = ("mount", "umount2", "unshare", "pivot_root")
+CLONE_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
+
+
+def _policy_rules(policy):
+    """[(call, action, [argument rules])] of a policy (action: "refuse" (EPERM) or "absent" (ENOSYS))."""
+    denied = [c for c in DENIED_CALLS if policy != "zygote" or c not in ZYGOTE_ALLOWED]
+    rules = [(name, "refuse", []) for name in denied]
+    # socket(AF_UNIX) refused to every profile; the kernel reads the family as a 32-bit int, so the
+    # rule compares the low 32 bits (SCMP_CMP_MASKED_EQ): a family of 1 + 2**32 was let through
+    rules.append(("socket", "refuse", [_ArgRule(0, SCMP_CMP_MASKED_EQ, 0xFFFFFFFF, AF_UNIX)]))
+    if policy == "contestant":   # (one rule a flag: any of them set refuses the call)
+        rules += [("clone", "refuse", [_ArgRule(0, SCMP_CMP_MASKED_EQ, flag, flag)]) for flag in CLONE_FLAGS]
+        rules.append(("clone3", "absent", []))
+    return rules
+
+
 @lru_cache(maxsize=None)
-def seccomp_program(job=False):
-    """The seccomp filter (a BPF program's bytes, from libseccomp) refusing DENIED_CALLS and
-    socket(AF_UNIX) with EPERM, or None without libseccomp. AF_UNIX: a read-only bind still lets a
-    process connect to the sockets on it (a session bus, an agent, in a job's view of the whole
-    file system) and ask a process outside the fence to act; socketpair() stays. job: the same
-    filter today (the argument keeps the cache per profile)."""
+def seccomp_program(policy="contestant"):
+    """The seccomp filter of `policy` (SECCOMP_POLICIES), a BPF program's bytes from libseccomp,
+    or None without libseccomp: DENIED_CALLS and socket(AF_UNIX) answered EPERM, and what
+    _policy_rules adds. AF_UNIX: a read-only bind still lets a process connect to the sockets on
+    it (a session bus, an agent, in a job's view of the whole file system) and ask a process
+    outside the fence to act; socketpair() stays."""
+    if policy not in SECCOMP_POLICIES:
+        raise ValueError(f"no seccomp policy {policy!r}")
     try:
         lib = ctypes.CDLL("libseccomp.so.2", use_errno=True)
     except OSError:
@@ -131,21 +157,18 @@ def seccomp_program(job=False):
                                            ctypes.POINTER(_ArgRule)]
     lib.seccomp_export_bpf.argtypes = [ctypes.c_void_p, ctypes.c_int]
     lib.seccomp_release.argtypes = [ctypes.c_void_p]
-    allow, refuse = 0x7FFF0000, 0x00050000 | errno.EPERM   # SCMP_ACT_ALLOW, SCMP_ACT_ERRNO(EPERM)
+    allow = 0x7FFF0000   # SCMP_ACT_ALLOW; SCMP_ACT_ERRNO(e) is 0x00050000 | e
+    actions = {"refuse": 0x00050000 | errno.EPERM, "absent": 0x00050000 | errno.ENOSYS}
     ctx = lib.seccomp_init(allow)
     if not ctx:
         return None
-    rules = [(name, []) for name in DENIED_CALLS]
-    # socket(AF_UNIX) refused to every profile; the kernel reads the family as a 32-bit int, so the
-    # rule compares the low 32 bits (SCMP_CMP_MASKED_EQ): a family of 1 + 2**32 was let through
-    rules.append(("socket", [_ArgRule(0, SCMP_CMP_MASKED_EQ, 0xFFFFFFFF, AF_UNIX)]))
     try:
-        for name, args in rules:
+        for name, action, args in _policy_rules(policy):
             number = lib.seccomp_syscall_resolve_name(name.encode())
             if number < 0:
                 continue
             array = (_ArgRule * max(1, len(args)))(*args)
-            if lib.seccomp_rule_add_array(ctx, refuse, number, len(args), array) != 0:
+            if lib.seccomp_rule_add_array(ctx, actions[action], number, len(args), array) != 0:
                 return None
         fd = os.memfd_create("dc-seccomp")
         try:

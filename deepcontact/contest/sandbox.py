@@ -180,7 +180,7 @@ class Sandbox:
         _live.add(self)
         self._make_groups(memory)
         seccomp_fd = None
-        program = machine.seccomp_program(self.fence.seccomp == "job") if machine.bwrap() is not None else None
+        program = machine.seccomp_program(self.fence.seccomp) if machine.bwrap() is not None else None
         if program is not None:
             seccomp_fd = os.memfd_create("dc-seccomp", 0)
             os.write(seccomp_fd, program)
@@ -199,6 +199,43 @@ class Sandbox:
                 if isinstance(fd, int) and fd >= 0:
                     os.close(fd)
         _started.add(self.process.pid)
+        return self.process
+
+    def start_forked(self, zygote, channel, torch=False):
+        """Starts the guest on `channel` as a fork of `zygote` (zygote.py) that fences itself by
+        this fence's record before any code of its own runs, charged to this sandbox's groups
+        from its birth; returns once it is fenced (zygote.Refused where it cannot be)."""
+        from dataclasses import asdict
+
+        from .zygote import ForkedProcess, Refused
+        _registered()
+        memory = fences.memory_limit(self.fence, len(_live))
+        _live.add(self)
+        self._make_groups(memory)
+        if "cpu" not in self.groups or "pids" not in self.groups:
+            raise Refused("no control group for its CPU or its processes")
+        ours = []   # (every descriptor made here, closed once the zygote has its copies)
+        try:
+            ours += [os.open(os.path.join(folder, "cgroup.procs"), os.O_WRONLY | os.O_CLOEXEC)
+                     for _, folder in dict.fromkeys(self.groups.values())]
+            seccomp = os.memfd_create("dc-seccomp", os.MFD_CLOEXEC)
+            ours.append(seccomp)
+            os.write(seccomp, machine.seccomp_program(self.fence.seccomp))
+            os.lseek(seccomp, 0, os.SEEK_SET)
+            out, err = (self._stream(which) for which in ("stdout", "stderr"))
+            out, err = (os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC) if fd == subprocess.DEVNULL else fd
+                        for fd in (out, err))
+            ours += [out, err]
+            status, status_w = os.pipe()
+            ours.append(status_w)
+            self.process = ForkedProcess(status)
+            request = {"fence": asdict(self.fence), "env": fences.environment(self.fence), "torch": bool(torch),
+                       "memory": memory if "memory" not in self.groups else None}
+            zygote.fork(request, [channel, out, err, status_w, seccomp, *ours[:-4]])
+        finally:
+            for fd in ours:
+                os.close(fd)
+        self.process.wait_fenced()
         return self.process
 
     def _stream(self, which):
@@ -258,7 +295,7 @@ class Sandbox:
         the limit that stopped it (stopped_by), removes its control groups and waits for its relays."""
         if self.fence.view == "root":
             self._kill_first_inside()
-        if self.process is not None and self.process.poll() is None:
+        if self.process is not None and self.process.pid is not None and self.process.poll() is None:
             try:
                 os.killpg(self.process.pid, signal.SIGKILL)
             except OSError:

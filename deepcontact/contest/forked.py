@@ -1,0 +1,254 @@
+"""The zygote's side (zygote.py is the judge's): one interpreter in its own bubblewrap sandbox
+(fence.ZYGOTE) that imports numpy and the contestant's side once and runs nothing else, then
+forks a contestant for each request. No plug-in code ever runs in it.
+
+A request is a fence record (the contestant's: fence.Fence, as a dict), the contestant's
+environment, and its descriptors: its line to the judge, its output and error, a status pipe,
+its seccomp program, and the `cgroup.procs` files of its control groups, opened by the judge.
+Each fork, before any code of its own runs, fences itself as bubblewrap fences a contestant:
+
+1. into its control groups (the kernel checks the judge who opened the files), so its charge
+   starts at birth; its limits on; a session of its own;
+2. new user, mount, PID, network, IPC, UTS and cgroup namespaces, and a fork that is PID 1 of
+   its own (it reaps, and its end ends every process of the namespace);
+3. its own view, built from the record: a new root holding the system folders and the few files
+   of /etc, the readable folders, all read-only; its own /dev (the harmless device nodes and a
+   size-limited /dev/shm), its own /tmp of file_size bytes, its own /proc (read-only) showing
+   only its processes; pivot_root, the old root detached;
+4. every capability dropped, no new privileges, the contest's seccomp filter (which also
+   refuses clone of namespace flags);
+5. a last fork runs the guest (guest.py) on its line, its standard input empty.
+
+The status pipe carries "J" once the fence is up, then "X" and the contestant's exit code
+(128 + a signal, as bubblewrap reports one) from the fork outside the namespace; "E" and a line
+ended by NUL where the fence could not be built.
+"""
+import json
+import os
+import signal
+import socket
+import struct
+import sys
+
+from . import fence as fences, kernel
+
+DEVICES = ("null", "zero", "full", "random", "urandom", "tty")   # (bubblewrap's --dev, less its devpts)
+DEV_LINKS = {"fd": "/proc/self/fd", "stdin": "/proc/self/fd/0", "stdout": "/proc/self/fd/1",
+             "stderr": "/proc/self/fd/2"}
+REQUEST_MAX = 1 << 20   # bytes of one request
+FDS_MAX = 16            # descriptors of one request
+# Where a fork's new root is built, on a tmpfs of its own: a folder of the zygote's own (its
+# private /dev/shm), which no path a contestant reads lies under (grants: never /dev)
+BASE = "/dev/shm"
+
+
+def main(fd):
+    """The zygote: imports the contestant's side, then forks a contestant for each request on
+    the socket `fd` until the judge closes it."""
+    import multiprocessing.connection  # noqa: F401  (the contestant's libraries, loaded once)
+
+    import numpy  # noqa: F401
+
+    from . import guest  # noqa: F401
+    signal.signal(signal.SIGCHLD, signal.SIG_IGN)   # (its forks are reaped by the kernel)
+    import gc
+    import resource  # noqa: F401
+    gc.freeze()   # (its objects out of every fork's collections: a collection touched each page, so copied it)
+    line = socket.socket(fileno=fd)
+    while True:
+        try:
+            data, fds, _, _ = socket.recv_fds(line, REQUEST_MAX, FDS_MAX)
+        except OSError:
+            return
+        if not data:
+            return
+        if os.fork() == 0:
+            line.close()
+            _outside(json.loads(data), fds)
+        for f in fds:
+            os.close(f)
+
+
+def _report(status, kind, text=b""):
+    try:
+        os.write(status, kind + text)
+    except OSError:
+        pass
+
+
+def _outside(request, fds):
+    """The fork in the zygote's namespaces: into the groups, the limits, new namespaces; then the
+    namespace's PID 1, whose exit code it reports. Never returns."""
+    channel, out, err, status, seccomp, *groups = fds
+    try:
+        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+        null = os.open(os.devnull, os.O_RDWR)   # (the zygote's streams are not a contestant's to hold)
+        for std in (0, 1, 2):
+            os.dup2(null, std)
+        os.close(null)
+        for g in groups:   # (first: every CPU second from here on is the contestant's)
+            os.write(g, b"0")
+            os.close(g)
+        kernel.die_with_parent(signal.SIGKILL)
+        _limits(request)
+        os.setsid()
+        uid, gid = os.getuid(), os.getgid()
+        kernel.unshare(kernel.ALL_NAMESPACES)
+        kernel.map_user(uid, gid)
+        pid = os.fork()
+        if pid == 0:
+            _init(request, channel, out, err, status, seccomp)
+        for f in (channel, out, err, seccomp):
+            os.close(f)
+        _, code = os.waitpid(pid, 0)
+        code = os.waitstatus_to_exitcode(code)
+        _report(status, b"X", struct.pack("i", 128 - code if code < 0 else code))
+    except BaseException as e:
+        _report(status, b"E", _line(e) + b"\0")
+    os._exit(0)
+
+
+def _line(e):
+    return f"{type(e).__name__}: {e}".encode(errors="replace")[:1000].replace(b"\0", b" ")
+
+
+def _limits(request):
+    import resource
+    size = request["fence"]["limits"]["file_size"]
+    resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    if request.get("memory"):   # (no memory group here: the address space instead)
+        resource.setrlimit(resource.RLIMIT_AS, (request["memory"], request["memory"]))
+
+
+def _init(request, channel, out, err, status, seccomp):
+    """PID 1 of the contestant's namespaces: its view, its capabilities and filter; then the
+    contestant's process, whose end is its own. Never returns."""
+    try:
+        kernel.die_with_parent(signal.SIGKILL)
+        record = request["fence"]
+        _view(record)
+        program = os.read(seccomp, 1 << 20)
+        os.close(seccomp)
+        kernel.drop_capabilities()
+        kernel.install_seccomp(program)
+        _report(status, b"J")
+        os.close(status)
+        pid = os.fork()
+        if pid == 0:
+            _contestant(request, channel, out, err)
+    except BaseException as e:
+        _report(status, b"E", _line(e) + b"\0")
+        os._exit(1)
+    for f in (channel, out, err):
+        os.close(f)
+    while True:   # (the reaper of the namespace's orphans, until the contestant ends)
+        ended, code = os.waitpid(-1, 0)
+        if ended == pid:
+            code = os.waitstatus_to_exitcode(code)
+            os._exit(128 - code if code < 0 else code)
+
+
+def _view(record):
+    """The contestant's file system, from its fence record, in the order bubblewrap builds it
+    (fence.bwrap_argv): /proc, /dev, /tmp, the system folders, /etc's few files, the readable,
+    writable and device binds (a plug-in's file under /tmp is bound into the private /tmp)."""
+    kernel.mount(None, "/", None, kernel.MS_REC | kernel.MS_PRIVATE)
+    kernel.mount("tmpfs", BASE, "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV, "size=1m,mode=0755")
+    root = BASE
+    os.mkdir(root + "/proc")
+    kernel.mount("proc", root + "/proc", "proc",
+                 kernel.MS_RDONLY | kernel.MS_NOSUID | kernel.MS_NODEV | kernel.MS_NOEXEC)
+    _dev(root, record)
+    os.mkdir(root + "/tmp", 0o1777)
+    if record["tmp"]:
+        kernel.mount("tmpfs", root + "/tmp", "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV,
+                     f"size={record['limits']['file_size']},mode=1777")
+    for path in fences.SYSTEM:
+        if os.path.islink(path):
+            os.symlink(os.readlink(path), root + path)
+        elif os.path.exists(path):
+            _bound(path, root)
+    os.mkdir(root + "/etc")
+    for name in fences.ETC:
+        if os.path.exists(f"/etc/{name}"):
+            _bound(f"/etc/{name}", root)
+    for path in sorted(dict.fromkeys(record["readable"]), key=lambda p: p.count("/")):
+        _bound(path, root)
+    for path in record["writable"]:
+        _bound(path, root, read_only=False)
+    for path in record["devices"]:
+        _bound(path, root, read_only=False)
+    os.chdir(root)
+    os.mkdir(".old")
+    kernel.pivot_root(".", ".old")
+    kernel.umount("/.old")
+    os.rmdir("/.old")
+    kernel.mount(None, "/", None, kernel.MS_REMOUNT | kernel.MS_RDONLY | kernel.MS_NOSUID | kernel.MS_NODEV)
+    os.chdir(record["cwd"] or "/tmp")
+
+
+def _bound(path, root, read_only=True):
+    """path bound at the same path under root (its mount point made where it is missing)."""
+    target = root + path
+    if not os.path.lexists(target):
+        os.makedirs(os.path.dirname(target), exist_ok=True)
+        if os.path.isdir(path):
+            os.mkdir(target)
+        else:
+            open(target, "w").close()
+    kernel.bind(path, target, read_only=read_only)
+
+
+def _dev(root, record):
+    """Its own /dev: a tmpfs with the harmless device nodes bound in, the usual links, and a
+    /dev/shm of file_size bytes (none shared with another contestant)."""
+    dev = root + "/dev"
+    os.mkdir(dev)
+    kernel.mount("tmpfs", dev, "tmpfs", kernel.MS_NOSUID, "size=64k,mode=0755")
+    for name in DEVICES:
+        if os.path.exists(f"/dev/{name}"):
+            open(f"{dev}/{name}", "w").close()
+            kernel.bind(f"/dev/{name}", f"{dev}/{name}", read_only=False, recursive=False)
+    for name, target in DEV_LINKS.items():
+        os.symlink(target, f"{dev}/{name}")
+    os.mkdir(f"{dev}/shm")
+    kernel.mount("tmpfs", f"{dev}/shm", "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV,
+                 f"size={record['limits']['file_size']},mode=1777")
+
+
+def _contestant(request, channel, out, err):
+    """The contestant's process: its streams, its environment, then the guest. Never returns."""
+    try:
+        null = os.open("/dev/null", os.O_RDONLY)
+        os.dup2(null, 0)
+        os.dup2(out, 1)
+        os.dup2(err, 2)
+        os.closerange(3, channel)   # (nothing of the zygote's but its line: channel >= 3)
+        os.closerange(channel + 1, os.sysconf("SC_OPEN_MAX"))
+        os.environ.clear()
+        os.environ.update(request["env"])
+        _fresh_state()
+        if request.get("torch"):   # (a contestant that loads a trained model: torch before its clock)
+            import deepcontact.model.inference  # noqa: F401
+        from .guest import main as guest_main
+        guest_main(["", str(channel)])
+    except BaseException as e:
+        try:
+            os.write(2, _line(e) + b"\n")
+        except OSError:
+            pass
+    os._exit(1)
+
+
+def _fresh_state():
+    """What a fresh interpreter would not share with its siblings: its random seeds, and the
+    import system's view of folders that changed since the zygote looked."""
+    import importlib
+    import random
+
+    import numpy as np
+    random.seed()
+    if "numpy.random" in sys.modules:   # (else seeded afresh where a contestant imports it)
+        np.random.seed()
+    importlib.invalidate_caches()

@@ -1,0 +1,117 @@
+"""The Linux calls a fork of the zygote makes to fence itself (forked.py): namespaces, mounts,
+pivot_root, capabilities, no new privileges, seccomp. Through libc, as bubblewrap makes them:
+Python 3.11 has no os.unshare, mount or seccomp. Every call that fails raises OSError naming it."""
+import ctypes
+import os
+
+CLONE_NEWNS = 0x00020000
+CLONE_NEWCGROUP = 0x02000000
+CLONE_NEWUTS = 0x04000000
+CLONE_NEWIPC = 0x08000000
+CLONE_NEWUSER = 0x10000000
+CLONE_NEWPID = 0x20000000
+CLONE_NEWNET = 0x40000000
+# every namespace a contestant gets of its own (bubblewrap's --unshare-all and --unshare-user)
+ALL_NAMESPACES = (CLONE_NEWUSER | CLONE_NEWNS | CLONE_NEWPID | CLONE_NEWNET | CLONE_NEWIPC | CLONE_NEWUTS
+                  | CLONE_NEWCGROUP)
+NAMESPACE_FLAGS = ALL_NAMESPACES   # (what a contestant's clone may not ask for: machine.seccomp_program)
+
+MS_RDONLY, MS_NOSUID, MS_NODEV, MS_NOEXEC = 1, 2, 4, 8
+MS_REMOUNT, MS_BIND, MS_REC, MS_PRIVATE = 32, 4096, 0x4000, 1 << 18
+MNT_DETACH = 2
+
+_PR_SET_PDEATHSIG = 1
+_PR_SET_SECCOMP, _SECCOMP_MODE_FILTER = 22, 2
+_PR_CAPBSET_DROP = 24
+_PR_SET_NO_NEW_PRIVS = 38
+_PR_CAP_AMBIENT, _PR_CAP_AMBIENT_CLEAR_ALL = 47, 4
+_CAPABILITY_VERSION_3 = 0x20080522
+_SYS_PIVOT_ROOT = 155   # (x86_64; glibc has no wrapper)
+
+_libc = ctypes.CDLL(None, use_errno=True)
+_libc.mount.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_ulong, ctypes.c_char_p]
+_libc.umount2.argtypes = [ctypes.c_char_p, ctypes.c_int]
+_libc.prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
+
+
+def _checked(result, what):
+    if result != 0:
+        code = ctypes.get_errno()
+        raise OSError(code, f"{what}: {os.strerror(code)}")
+
+
+def _bytes(text):
+    return None if text is None else os.fsencode(text)
+
+
+def unshare(flags):
+    """New namespaces (CLONE_* flags) for this process (a thread-less one: a user namespace needs it)."""
+    _checked(_libc.unshare(ctypes.c_int(flags)), "unshare")
+
+
+def map_user(uid, gid):
+    """In a new user namespace: this process's user and group mapped to themselves (one id each;
+    setgroups refused, as the kernel asks of an unprivileged map)."""
+    for name, text in (("setgroups", "deny"), ("uid_map", f"{uid} {uid} 1"), ("gid_map", f"{gid} {gid} 1")):
+        with open(f"/proc/self/{name}", "w") as f:
+            f.write(text)
+
+
+def mount(source, target, fstype=None, flags=0, data=None):
+    _checked(_libc.mount(_bytes(source), _bytes(target), _bytes(fstype), flags, _bytes(data)), f"mount {target}")
+
+
+def bind(source, target, read_only=True, recursive=True):
+    """source bound on target (made first: a folder or an empty file), read-only unless asked."""
+    flags = MS_BIND | (MS_REC if recursive else 0)
+    mount(source, target, None, flags)
+    if read_only:
+        mount(None, target, None, flags | MS_REMOUNT | MS_RDONLY | MS_NOSUID | MS_NODEV)
+
+
+def pivot_root(new_root, put_old):
+    _checked(_libc.syscall(_SYS_PIVOT_ROOT, _bytes(new_root), _bytes(put_old)), "pivot_root")
+
+
+def umount(target, flags=MNT_DETACH):
+    _checked(_libc.umount2(_bytes(target), flags), f"umount {target}")
+
+
+def die_with_parent(signal_number):
+    """This process sent signal_number when the thread that forked it ends."""
+    _checked(_libc.prctl(_PR_SET_PDEATHSIG, signal_number, 0, 0, 0), "prctl(PDEATHSIG)")
+
+
+class _CapHeader(ctypes.Structure):
+    _fields_ = [("version", ctypes.c_uint32), ("pid", ctypes.c_int)]
+
+
+class _CapData(ctypes.Structure):
+    _fields_ = [("effective", ctypes.c_uint32), ("permitted", ctypes.c_uint32), ("inheritable", ctypes.c_uint32)]
+
+
+def drop_capabilities():
+    """Every capability gone: the bounding set, the ambient set, then the effective, permitted
+    and inheritable ones (bubblewrap's --cap-drop ALL)."""
+    for cap in range(64):
+        if _libc.prctl(_PR_CAPBSET_DROP, cap, 0, 0, 0) != 0:
+            if ctypes.get_errno() == 22:   # (EINVAL: past the kernel's last capability)
+                break
+            _checked(-1, f"prctl(CAPBSET_DROP {cap})")
+    _checked(_libc.prctl(_PR_CAP_AMBIENT, _PR_CAP_AMBIENT_CLEAR_ALL, 0, 0, 0), "prctl(CAP_AMBIENT_CLEAR_ALL)")
+    header, data = _CapHeader(_CAPABILITY_VERSION_3, 0), (_CapData * 2)()
+    _checked(_libc.capset(ctypes.byref(header), data), "capset")
+
+
+class _SockFprog(ctypes.Structure):
+    _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.c_void_p)]
+
+
+def install_seccomp(program):
+    """No new privileges, then the seccomp filter `program` (a BPF program's bytes, 8 a rule)."""
+    _checked(_libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "prctl(NO_NEW_PRIVS)")
+    if len(program) % 8 or not program:
+        raise OSError(22, "seccomp: the program is not whole BPF rules")
+    rules = ctypes.create_string_buffer(bytes(program), len(program))
+    fprog = _SockFprog(len(program) // 8, ctypes.cast(rules, ctypes.c_void_p))
+    _checked(_libc.prctl(_PR_SET_SECCOMP, _SECCOMP_MODE_FILTER, ctypes.addressof(fprog), 0, 0), "prctl(SECCOMP)")

@@ -1,0 +1,176 @@
+"""The judge's side of the contestants' zygote (forked.py is the zygote's): the interpreter and
+its libraries are made once, in a sandbox of their own (fence.ZYGOTE), and each contestant is a
+fork of it that fences itself as a contestant before any code of its own runs. What a contestant
+sees, is charged and may do is its fence record's (fence.CONTESTANT), whichever way it starts:
+only the start is cheaper (a fork in place of a fresh interpreter).
+
+One zygote serves every contestant of this process (one a setting of Python's warnings, which an
+interpreter reads as it starts); it is a Sandbox like any (ended with them, kill_all). Where the machine cannot fork fenced
+contestants (no bubblewrap, no writable control groups for CPU and processes, a kernel that
+refuses a fork's namespace or mount), `usable` is False or the first fork says so (Refused), and
+contestants start as fresh sandboxes, as before: the fence is the same, only slower.
+"""
+import json
+import logging
+import os
+import select
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+from . import fence as fences, machine
+
+FENCE_DEADLINE = 60.0   # seconds a fork may take to fence itself (a loaded machine)
+ZYGOTE_COMMAND = "import sys; from deepcontact.contest.forked import main; main(int(sys.argv[1]))"
+_zygotes = {}           # {the variables its contestants start with: Zygote}
+_refused = []           # why a fork could not be fenced here (then no zygote is used again)
+
+log = logging.getLogger(__name__)
+
+
+class Refused(Exception):
+    """A fork of the zygote could not fence itself on this machine (the line says which step)."""
+
+
+def usable(fence):
+    """Whether a contestant of `fence` may be forked from a zygote here: a contestant's fence of
+    one thread (the zygote's libraries are loaded for one) on a machine that lends bubblewrap,
+    seccomp and control groups for CPU and processes, and no fork refused before."""
+    roots = machine.cgroup_roots()
+    return (not _refused and fence.seccomp == "contestant" and fence.threads == 1 and fence.view == "system"
+            and fence.environment == "clear" and machine.bwrap() is not None
+            and machine.seccomp_program(fence.seccomp) is not None and "cpu" in roots and "pids" in roots
+            and os.environ.get("DC_NO_ZYGOTE") != "1")
+
+
+def for_fence(fence):
+    """The live zygote for contestants of `fence` (started here the first time)."""
+    # (its interpreter started with the variables its contestants' would: the warnings' setting
+    # among them, which Python reads as it starts)
+    key = tuple(sorted((k, v) for k, v in fences.environment(fences.ZYGOTE).items() if k != fences.MARKER))
+    zygote = _zygotes.get(key)
+    if zygote is None or not zygote.alive():
+        if zygote is not None:
+            zygote.close()
+        zygote = _zygotes[key] = Zygote()
+    return zygote
+
+
+def refused(error):
+    """Notes that forking fenced contestants failed here (error: Refused); later ones start fresh."""
+    if not _refused:
+        log.info("dc: contestants start as fresh sandboxes: %s", error)
+    _refused.append(str(error))
+
+
+class Zygote:
+    """One zygote in its sandbox and the line to it."""
+
+    def __init__(self):
+        from . import sandbox
+        self.box = sandbox.Sandbox(fences.ZYGOTE, name="the contestants' zygote")
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        try:
+            self.box.start([sys.executable, "-c", ZYGOTE_COMMAND, str(theirs.fileno())], pass_fds=[theirs.fileno()])
+        except BaseException:
+            ours.close()
+            self.box.kill()
+            raise
+        finally:
+            theirs.close()
+        self.line = ours
+
+    def alive(self):
+        return self.box.process is not None and self.box.process.poll() is None and self.line is not None
+
+    def fork(self, request, fds):
+        """Asks for a contestant: request (its fence record, variables, limits) and its descriptors."""
+        try:
+            socket.send_fds(self.line, [json.dumps(request).encode()], fds)
+        except OSError as e:
+            raise Refused(f"the zygote did not take the request ({e})") from None
+
+    def close(self):
+        if self.line is not None:
+            self.line.close()
+            self.line = None
+        self.box.kill()
+
+
+def close_all():
+    """Ends every zygote of this process."""
+    for zygote in list(_zygotes.values()):
+        zygote.close()
+    _zygotes.clear()
+
+
+class ForkedProcess:
+    """The part of a Popen a sandbox uses, for a contestant forked by the zygote, read from its
+    status pipe (forked.py): "J" fenced, "X" and its exit code, or "E" and why it could not be
+    fenced. pid is None: the judge ends it through its control groups (Sandbox.kill)."""
+
+    pid = None
+
+    def __init__(self, status_fd):
+        self.fd = status_fd
+        self.returncode = None
+        self.fenced = False
+        self.error = None
+        self._data = b""
+
+    def _read(self, timeout):
+        if self.fd is None:
+            return
+        ready, _, _ = select.select([self.fd], [], [], max(timeout, 0))
+        if not ready:
+            return
+        chunk = os.read(self.fd, 4096)
+        self._data += chunk
+        self.fenced = self.fenced or self._data.startswith(b"J")
+        if chunk:
+            return
+        os.close(self.fd)
+        self.fd = None
+        body = self._data[1:] if self.fenced else self._data
+        if body.startswith(b"E"):
+            self.error = body[1:].split(b"\0")[0].decode(errors="replace") or "no reason given"
+            self.returncode = 1
+        elif body.startswith(b"X") and len(body) >= 5:
+            self.returncode = struct.unpack("i", body[1:5])[0]
+        else:   # (its fork outside the namespace killed: by the judge, or at a limit)
+            self.returncode = -9
+
+    def wait_fenced(self, timeout=FENCE_DEADLINE):
+        """Waits until the contestant's fence is up; Refused where it could not be built."""
+        due = time.monotonic() + timeout
+        while not self.fenced and self.returncode is None and time.monotonic() < due:
+            self._read(due - time.monotonic())
+        if not self.fenced:
+            raise Refused(f"a fork of the zygote could not fence itself: {self.error or 'it did not say it was fenced'}")
+
+    def poll(self):
+        self._read(0)
+        while self.fd is not None and self._readable():
+            self._read(0)
+        return self.returncode
+
+    def _readable(self):
+        return bool(select.select([self.fd], [], [], 0)[0])
+
+    def wait(self, timeout=None):
+        due = None if timeout is None else time.monotonic() + timeout
+        while self.returncode is None:
+            if due is not None and time.monotonic() >= due:
+                raise subprocess.TimeoutExpired("contestant", timeout)
+            self._read(1.0 if due is None else min(1.0, due - time.monotonic()))
+        return self.returncode
+
+    def kill(self):
+        """(its sandbox ends it, by its control groups)"""
+
+    def close(self):
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None

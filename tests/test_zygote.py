@@ -1,0 +1,172 @@
+"""Contestants forked from a sandboxed zygote (contest/zygote.py, contest/forked.py): a fork
+fences itself by the contestant's fence record before any code of its own runs, so that what it
+sees and may do is what a fresh sandbox's contestant sees and may do. Each probe below runs inside
+a contestant, forked and fresh, and the two must agree; where the zygote cannot fence a fork,
+the contestant starts fresh."""
+import json
+import os
+import sys
+import textwrap
+from dataclasses import replace
+
+import pytest
+
+from deepcontact.contest import fence, machine, zygote
+from deepcontact.contest.broker import GuestSandbox
+from deepcontact.contest.client import Contestant
+from deepcontact.plugins import PluginError
+
+pytestmark = pytest.mark.skipif(not zygote.usable(fence.CONTESTANT),
+                                reason="this machine forks no fenced contestant (zygote.usable)")
+
+PROBE = textwrap.dedent("""
+    import ctypes, json, os, time
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.syscall.restype = ctypes.c_long
+    SECRET = {secret!r}
+
+    def refused(result):
+        return 0 if result != -1 else ctypes.get_errno()
+
+    class Probe:
+        def __init__(self, token):
+            self.token = token
+
+        def __call__(self, ctx):
+            out = {{"pids": sorted(int(p) for p in os.listdir("/proc") if p.isdigit()), "uid": os.getuid()}}
+            status = dict(l.split(":", 1) for l in open("/proc/self/status").read().splitlines() if ":" in l)
+            for key in ("CapEff", "CapPrm", "CapBnd", "NoNewPrivs", "Seccomp"):
+                out[key] = status[key].strip()
+            out["unshare"] = refused(libc.unshare(0x10000000))
+            out["mount"] = refused(libc.mount(b"none", b"/tmp", b"tmpfs", 0, None))
+            child = libc.syscall(56, ctypes.c_long(0x10000000 | 17), 0, 0, 0, 0)   # clone(CLONE_NEWUSER)
+            if child == 0:
+                os._exit(0)
+            if child > 0:
+                os.waitpid(child, 0)
+            out["clone_newuser"] = refused(child)
+            out["socket_unix"] = refused(libc.syscall(41, ctypes.c_long(1), 1, 0))
+            out["socket_unix_high_bits"] = refused(libc.syscall(41, ctypes.c_long(1 | (1 << 32)), 1, 0))
+            out["ptrace"] = refused(libc.syscall(101, ctypes.c_long(16), ctypes.c_long(1), 0, 0))
+            try:
+                open(SECRET).read()
+                out["secret"] = "read"
+            except OSError as e:
+                out["secret"] = type(e).__name__
+            for folder in ("/dev/shm", "/tmp"):
+                with open(os.path.join(folder, "token-" + self.token), "w") as f:
+                    f.write("x")
+                out[folder] = sorted(n for n in os.listdir(folder) if n.startswith("token-"))
+            out["root"] = sorted(os.listdir("/"))
+            out["read_only_root"] = refused(libc.mkdir(b"/new", 0o755))
+            raise RuntimeError("PROBE" + json.dumps(out))
+
+    class Spin:
+        def __call__(self, ctx):
+            end = time.process_time() + 0.3
+            while time.process_time() < end:
+                pass
+            raise RuntimeError("SPUN")
+""")
+
+
+@pytest.fixture
+def probe_module(tmp_path, monkeypatch):
+    folder = tmp_path / "plug"
+    folder.mkdir()
+    secret = tmp_path / "secret.txt"
+    secret.write_text("the user's")
+    (folder / "zygote_probe.py").write_text(PROBE.format(secret=str(secret)))
+    monkeypatch.syspath_prepend(str(folder))
+    monkeypatch.delitem(sys.modules, "zygote_probe", raising=False)   # (each test's own copy)
+    import importlib
+    importlib.invalidate_caches()
+    return importlib.import_module("zygote_probe")
+
+
+def probed(contestant):
+    with pytest.raises(PluginError) as e:
+        contestant.call({"op": "start", "ctx": None})
+    said = str(e.value)
+    assert "PROBE" in said, said
+    return json.loads(said[said.index("PROBE") + 5:])
+
+
+def probe_two(module):
+    """Two contestants side by side, each probed; (kind of process, their findings)."""
+    a = Contestant("a", "zygote_probe", start=module.Probe("a")).begin()
+    b = Contestant("b", "zygote_probe", start=module.Probe("b")).begin()
+    try:
+        return type(a.sandbox.process).__name__, probed(a), probed(b)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_a_forked_contestant_sees_and_may_do_what_a_fresh_one_may(probe_module, monkeypatch):
+    kind, forked_a, forked_b = probe_two(probe_module)
+    assert kind == "ForkedProcess"
+    monkeypatch.setenv("DC_NO_ZYGOTE", "1")
+    kind, fresh_a, fresh_b = probe_two(probe_module)
+    assert kind == "Popen"
+    # (bubblewrap leaves its root folder writable, a tmpfs of no size limit; a fork's root is
+    # read-only: stricter, never looser; its bounding set is the one thing else that may differ)
+    assert forked_b["read_only_root"] == 30 and fresh_b["read_only_root"] in (0, 30)
+    for found in (forked_a, forked_b, fresh_a, fresh_b):
+        found.pop("CapBnd"), found.pop("read_only_root")
+    assert forked_a == fresh_a and forked_b == fresh_b
+    eperm = 1
+    assert forked_b["pids"] == [1, 2]   # (its own namespace: neither the zygote nor a rival)
+    assert forked_b["CapEff"] == forked_b["CapPrm"] == "0000000000000000"
+    assert (forked_b["NoNewPrivs"], forked_b["Seccomp"], forked_b["uid"]) == ("1", "2", 65534)
+    for call in ("unshare", "mount", "clone_newuser", "socket_unix", "socket_unix_high_bits", "ptrace"):
+        assert forked_b[call] == eperm, (call, forked_b)
+    assert forked_b["secret"] == "FileNotFoundError"
+    assert forked_b["/dev/shm"] == forked_b["/tmp"] == ["token-b"]   # (nothing of a's)
+
+
+def test_a_forked_contestant_is_charged_its_cpu_from_its_own_group(probe_module):
+    c = Contestant("spin", "zygote_probe", start=probe_module.Spin()).begin()
+    try:
+        assert type(c.sandbox.process).__name__ == "ForkedProcess"
+        before = c.sandbox.cpu_seconds()
+        with pytest.raises(PluginError, match="SPUN"):
+            c.call({"op": "start", "ctx": None})
+        assert c.sandbox.cpu_seconds() - before >= 0.3
+    finally:
+        c.close()
+    assert c.sandbox.exit_description() == "killed by SIGKILL"
+
+
+def test_where_the_zygote_cannot_fence_a_fork_the_contestant_starts_fresh(tmp_path, monkeypatch):
+    # (a file in the machine's /dev/shm: the zygote has a /dev/shm of its own, so its fork cannot
+    # bind it; a fresh sandbox can)
+    shared = f"/dev/shm/dc-zygote-test-{os.getpid()}"
+    with open(shared, "w") as f:
+        f.write("x")
+    monkeypatch.setattr(zygote, "_refused", [])
+    try:
+        box = GuestSandbox(replace(fence.CONTESTANT, readable=(shared,)), name="the test's contestant")
+        import socket
+        ours, theirs = socket.socketpair()
+        try:
+            box.start_guest(theirs.fileno())
+            assert type(box.process).__name__ == "Popen"
+            assert zygote._refused and "could not fence itself" in zygote._refused[0]
+            assert not zygote.usable(fence.CONTESTANT)
+        finally:
+            theirs.close()
+            ours.close()
+            box.kill()
+    finally:
+        os.unlink(shared)
+
+
+def test_the_zygotes_fence_is_a_profile_of_the_one_record():
+    argv = fence.bwrap_argv(fence.ZYGOTE, ["x"])
+    assert "--disable-userns" not in argv   # (its forks make their namespaces)
+    assert argv[argv.index("--bind") + 1:argv.index("--bind") + 3] == ["/proc", "/proc"]
+    assert "--disable-userns" in fence.bwrap_argv(fence.CONTESTANT, ["x"])
+    # its seccomp lets it mount and unshare (for its forks); a contestant's refuses both, and clone of a namespace
+    assert machine.seccomp_program("zygote") != machine.seccomp_program("contestant")
+    assert {"mount", "unshare"} <= set(machine.ZYGOTE_ALLOWED)
