@@ -1,22 +1,25 @@
 """What does a contestant's sandbox cost, against the same contestant as a bare process?
 
-Both ways run the same guest (deepcontact/contest/guest.py) and the same judge's call:
-  fenced  bubblewrap namespaces, seccomp, its own control group, whose CPU the judge reads after
-          every call (what dc evaluate uses where the machine lends every fence)
+Every way runs the same guest (deepcontact/contest/guest.py) and the same judge's call:
+  forked  a fork of the contestants' zygote (contest/zygote.py) that fences itself as a contestant:
+          its own namespaces, view, /proc, control group from birth, seccomp (what dc evaluate
+          uses where the machine lends it)
+  fresh   a fresh interpreter started by bubblewrap in the same fence (DC_NO_ZYGOTE=1: the way
+          before the zygote, and where a machine refuses a fork's fence)
   bare    a plain process of its own, no namespace, no control group (what a machine without
           bubblewrap or user namespaces gets, its missing fences stated in the report)
 Measured in the same run, one thread, on a settled step of the thesis pile (100 circles):
-  start   seconds from asking for a contestant to its "ready" (a fresh interpreter with the solver
-          imported), and its setup (making the builtin start), best of --starts, interleaved; and,
-          fenced, the CPU its control group used to the end of its setup (median: what a thousand
-          contestants cost a machine, its thread pools' start included)
+  start   seconds from asking for a contestant to its "ready", and its setup (making the builtin
+          start), best of --starts, the ways interleaved (the zygote's own start, once, before);
+          and, fenced, the CPU its control group used to the end of its setup (median: what a
+          thousand contestants cost a machine); and the wall time of ending it (median)
   call    the round trip of a solve request capped at one sweep, the median of --calls calls per
-          way, the two ways alternating call by call
-The issue's goals: at most 0.1 ms a call and 150 ms of start a contestant over the bare path.
+          way, the ways alternating call by call
 
 Usage: python benchmarks/bench_contest.py [--calls N] [--starts N]
 """
 import argparse
+import os
 import pickle
 import tempfile
 import time
@@ -45,14 +48,25 @@ def bare(on):
 _fenced = (machine.bwrap, machine.cgroup_roots)
 
 
-def contestant(fenced):
-    bare(not fenced)
+WAYS = ("forked", "fresh", "bare")
+
+
+def contestant(way):
+    bare(way == "bare")
+    os.environ["DC_NO_ZYGOTE"] = "1" if way == "fresh" else "0"
     try:
         t0 = time.perf_counter()
         c = Contestant("builtin", "builtin", Builtin(), "none").begin()
         return c, time.perf_counter() - t0
     finally:
         bare(False)
+        os.environ.pop("DC_NO_ZYGOTE")
+
+
+def ended(c):
+    t0 = time.perf_counter()
+    c.close()
+    return time.perf_counter() - t0
 
 
 def main():
@@ -66,45 +80,45 @@ def main():
         problem = StepProblem.from_step_file(files[0])
     request = {"op": "solve", "problem": pickle.dumps(unanswered(problem)), "normal": problem.start_normal,
                "tangent": problem.start_tangent, "settings": SolveSettings().but(max_iterations=1)}
-    starts = {True: [], False: []}
-    setups = {True: [], False: []}
-    cpu = []
+    starts, setups, cpu, ends = ({w: [] for w in WAYS} for _ in range(4))
+    ended(contestant("forked")[0])   # (the zygote started, once)
     for _ in range(a.starts):
-        for fenced in (True, False):
-            c, took = contestant(fenced)
-            starts[fenced].append(c.start_s)
-            setups[fenced].append(c.setup_s)
-            if fenced and c.cpu_last is not None:
-                cpu.append(c.cpu_last)
-            c.close()
-    pair = {fenced: contestant(fenced)[0] for fenced in (True, False)}
-    calls = {True: [], False: []}
+        for way in WAYS:
+            c, took = contestant(way)
+            starts[way].append(c.start_s)
+            setups[way].append(c.setup_s)
+            if c.cpu_last is not None:   # (its group's CPU when its setup ended)
+                cpu[way].append(c.cpu_last)
+            ends[way].append(ended(c))
+    assert os.environ.get("DC_NO_ZYGOTE") is None
+    pair = {way: contestant(way)[0] for way in WAYS}
+    kinds = {way: type(c.sandbox.process).__name__ for way, c in pair.items()}
+    calls = {way: [] for way in WAYS}
     try:
         for c in pair.values():   # (warmed)
             for _ in range(20):
                 c.call(request)
         for _ in range(a.calls):
-            for fenced, c in pair.items():
+            for way, c in pair.items():
                 t0 = time.perf_counter()
                 c.call(request)
-                calls[fenced].append(time.perf_counter() - t0)
+                calls[way].append(time.perf_counter() - t0)
     finally:
         for c in pair.values():
             c.close()
     print(protocol_line(current()))
     print(f"step: {problem.points} contact points; fences here: {machine.describe_fences()}")
-    print(f"deadline rule: {client.deadline_rule()}")
-    print(f"{'':8} {'start ms (best)':>16} {'setup ms (best)':>16} {'call ms (median)':>17} {'call ms (p90)':>14}")
-    for fenced in (True, False):
-        c = np.array(calls[fenced]) * 1e3
-        print(f"{'fenced' if fenced else 'bare':8} {1e3 * min(starts[fenced]):16.1f} {1e3 * min(setups[fenced]):16.2f} "
-              f"{np.median(c):17.4f} {np.percentile(c, 90):14.4f}")
-    if cpu:
-        print(f"fenced start and setup: {1e3 * np.median(cpu):.0f} ms of CPU (median of {len(cpu)})")
-    extra = np.median(calls[True]) - np.median(calls[False])
-    print(f"the sandbox adds {1e3 * extra:.4f} ms a call (median) and "
-          f"{1e3 * (min(starts[True]) - min(starts[False])):.1f} ms of start a contestant")
-
+    print(f"deadline rule: {client.deadline_rule()}; processes: {kinds}")
+    print(f"{'':8} {'start ms (best)':>16} {'setup ms (best)':>16} {'start+setup CPU ms (median)':>28} "
+          f"{'end ms (median)':>16} {'call ms (median)':>17} {'call ms (p90)':>14}")
+    for way in WAYS:
+        c = np.array(calls[way]) * 1e3
+        used = f"{1e3 * np.median(cpu[way]):28.1f}" if cpu[way] else f"{'-':>28}"
+        print(f"{way:8} {1e3 * min(starts[way]):16.1f} {1e3 * min(setups[way]):16.2f} {used} "
+              f"{1e3 * np.median(ends[way]):16.1f} {np.median(c):17.4f} {np.percentile(c, 90):14.4f}")
+    extra = np.median(calls["forked"]) - np.median(calls["bare"])
+    print(f"the fork's sandbox adds {1e3 * extra:.4f} ms a call (median) and "
+          f"{1e3 * (min(starts['forked']) - min(starts['bare'])):.1f} ms of start a contestant over bare")
 
 if __name__ == "__main__":
     main()
