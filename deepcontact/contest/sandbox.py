@@ -109,6 +109,11 @@ def _sandbox_process(pid):
         return False
 
 
+class ForkRefused(Exception):
+    """A fork of the zygote could not fence itself here (the line says which step): contestants
+    then start as fresh sandboxes (zygote.py)."""
+
+
 # --- One sandbox -----------------------------------------------------------------------------------
 
 class Sandbox:
@@ -202,18 +207,16 @@ class Sandbox:
         return self.process
 
     def start_forked(self, zygote, channel, torch=False):
-        """Starts the guest on `channel` as a fork of `zygote` (zygote.py) that fences itself by
-        this fence's record before any code of its own runs, charged to this sandbox's groups
-        from its birth; returns once it is fenced (zygote.Refused where it cannot be)."""
+        """Starts the guest on `channel` as a fork of `zygote` (zygote.Zygote) that fences itself
+        by this fence's record before any code of its own runs, charged to this sandbox's groups
+        from its birth; returns once it is fenced (ForkRefused where it cannot be)."""
         from dataclasses import asdict
-
-        from .zygote import ForkedProcess, Refused
         _registered()
         memory = fences.memory_limit(self.fence, len(_live))
         _live.add(self)
         self._make_groups(memory)
         if "cpu" not in self.groups or "pids" not in self.groups:
-            raise Refused("no control group for its CPU or its processes")
+            raise ForkRefused("no control group for its CPU or its processes")
         ours = []   # (every descriptor made here, closed once the zygote has its copies)
         try:
             ours += [os.open(os.path.join(folder, "cgroup.procs"), os.O_WRONLY | os.O_CLOEXEC)
@@ -226,12 +229,9 @@ class Sandbox:
             out, err = (os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC) if fd == subprocess.DEVNULL else fd
                         for fd in (out, err))
             ours += [out, err]
-            status, status_w = os.pipe()
-            ours.append(status_w)
-            self.process = ForkedProcess(status)
             request = {"fence": asdict(self.fence), "env": fences.environment(self.fence), "torch": bool(torch),
                        "memory": memory if "memory" not in self.groups else None}
-            zygote.fork(request, [channel, out, err, status_w, seccomp, *ours[:-4]])
+            self.process = zygote.fork(request, [channel, out, err, seccomp, *ours[:-3]])
         finally:
             for fd in ours:
                 os.close(fd)
@@ -430,7 +430,8 @@ def _remove_groups(groups):
     for _, folder in dict.fromkeys(groups.values()):
         # (the kernel empties a group as its processes exit; waited for up to 5 s, where it was
         # 1 s, so that none is still alive when dc looks for what outlives the command)
-        deadline = time.monotonic() + 5.0
+        # (polled from 0.5 ms up to 10 ms: a killed contestant's group empties within a few ms)
+        deadline, pause = time.monotonic() + 5.0, 0.0005
         while True:
             try:
                 os.rmdir(folder)
@@ -441,7 +442,8 @@ def _remove_groups(groups):
                 if time.monotonic() > deadline:
                     break
                 _kill_listed(folder)
-                time.sleep(0.01)
+                time.sleep(pause)
+                pause = min(2 * pause, 0.01)
 
 
 _NAMED_SIGNALS = {int(s) for s in signal.Signals}

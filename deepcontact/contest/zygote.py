@@ -20,7 +20,7 @@ import subprocess
 import sys
 import time
 
-from . import fence as fences, machine
+from . import fence as fences, machine, sandbox
 
 FENCE_DEADLINE = 60.0   # seconds a fork may take to fence itself (a loaded machine)
 ZYGOTE_COMMAND = "import sys; from deepcontact.contest.forked import main; main(int(sys.argv[1]))"
@@ -30,8 +30,7 @@ _refused = []           # why a fork could not be fenced here (then no zygote is
 log = logging.getLogger(__name__)
 
 
-class Refused(Exception):
-    """A fork of the zygote could not fence itself on this machine (the line says which step)."""
+Refused = sandbox.ForkRefused   # (a fork could not fence itself here: the line says which step)
 
 
 def usable(fence):
@@ -69,7 +68,6 @@ class Zygote:
     """One zygote in its sandbox and the line to it."""
 
     def __init__(self):
-        from . import sandbox
         self.box = sandbox.Sandbox(fences.ZYGOTE, name="the contestants' zygote")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
@@ -86,11 +84,18 @@ class Zygote:
         return self.box.process is not None and self.box.process.poll() is None and self.line is not None
 
     def fork(self, request, fds):
-        """Asks for a contestant: request (its fence record, variables, limits) and its descriptors."""
+        """Asks for a contestant: request (its fence record, variables, limits) and its descriptors
+        [line, output, error, seccomp, cgroup.procs files...]; its ForkedProcess (the status pipe
+        put after its error)."""
+        status, status_w = os.pipe()
         try:
-            socket.send_fds(self.line, [json.dumps(request).encode()], fds)
+            socket.send_fds(self.line, [json.dumps(request).encode()], [*fds[:3], status_w, *fds[3:]])
         except OSError as e:
+            os.close(status)
             raise Refused(f"the zygote did not take the request ({e})") from None
+        finally:
+            os.close(status_w)
+        return ForkedProcess(status)
 
     def close(self):
         if self.line is not None:
