@@ -170,3 +170,31 @@ def test_the_zygotes_fence_is_a_profile_of_the_one_record():
     # its seccomp lets it mount and unshare (for its forks); a contestant's refuses both, and clone of a namespace
     assert machine.seccomp_program("zygote") != machine.seccomp_program("contestant")
     assert {"mount", "unshare"} <= set(machine.ZYGOTE_ALLOWED)
+
+
+def test_a_zygote_first_asked_for_by_a_thread_that_ends_serves_on(probe_module):
+    # (a broker's line thread starts contestants for a job and ends with it: bubblewrap's
+    # --die-with-parent follows the thread that started the zygote, and took every contestant
+    # forked from it along)
+    import threading
+    zygote.close_all()
+    kinds, started, go_on = [], threading.Event(), threading.Event()
+
+    def first():
+        c = Contestant("first", "zygote_probe", start=probe_module.Spin()).begin()
+        kinds.append(type(c.sandbox.process).__name__)
+        started.set()
+        go_on.wait(60)
+        c.close()
+    t = threading.Thread(target=first)
+    t.start()
+    started.wait(60)
+    c = Contestant("later", "zygote_probe", start=probe_module.Spin()).begin()
+    go_on.set()
+    t.join()
+    try:
+        assert kinds == ["ForkedProcess"] and type(c.sandbox.process).__name__ == "ForkedProcess"
+        with pytest.raises(PluginError, match="SPUN"):
+            c.call({"op": "start", "ctx": None})
+    finally:
+        c.close()

@@ -13,11 +13,13 @@ contestants start as fresh sandboxes, as before: the fence is the same, only slo
 import json
 import logging
 import os
+import queue
 import select
 import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 
 from . import fence as fences, machine, sandbox
@@ -45,16 +47,47 @@ def usable(fence):
 
 
 def for_fence(fence):
-    """The live zygote for contestants of `fence` (started here the first time)."""
+    """The live zygote for contestants of `fence` (started the first time it is asked for)."""
     # (its interpreter started with the variables its contestants' would: the warnings' setting
     # among them, which Python reads as it starts)
     key = tuple(sorted((k, v) for k, v in fences.environment(fences.ZYGOTE).items() if k != fences.MARKER))
-    zygote = _zygotes.get(key)
-    if zygote is None or not zygote.alive():
-        if zygote is not None:
-            zygote.close()
-        zygote = _zygotes[key] = Zygote()
-    return zygote
+    with _lock:
+        zygote = _zygotes.get(key)
+        if zygote is None or not zygote.alive():
+            if zygote is not None:
+                zygote.close()
+            zygote = _zygotes[key] = _by_keeper()
+        return zygote
+
+
+_lock = threading.Lock()
+_asks = queue.Queue()
+_keeper = []
+
+
+def _by_keeper():
+    """A new Zygote, started by a thread that lives as long as this process: bubblewrap's
+    --die-with-parent follows the thread that started it, and a broker's line thread, which
+    ends with its job, left every later contestant without its zygote."""
+    if not _keeper:
+        _keeper.append(threading.Thread(target=_keep, name="dc-zygote-keeper", daemon=True))
+        _keeper[0].start()
+    done, answer = threading.Event(), []
+    _asks.put((done, answer))
+    done.wait()
+    if isinstance(answer[0], BaseException):
+        raise answer[0]
+    return answer[0]
+
+
+def _keep():
+    while True:
+        done, answer = _asks.get()
+        try:
+            answer.append(Zygote())
+        except BaseException as e:
+            answer.append(e)
+        done.set()
 
 
 def refused(error):
