@@ -36,6 +36,7 @@ DC_BOX2D_MEMBER(BodyAngularVelocity, float b2Body::*, &b2Body::m_angularVelocity
 DC_BOX2D_MEMBER(BodySynchronizeFixtures, void (b2Body::*)(), &b2Body::SynchronizeFixtures)
 DC_BOX2D_MEMBER(BodySynchronizeTransform, void (b2Body::*)(), &b2Body::SynchronizeTransform)
 DC_BOX2D_MEMBER(ContactFlags, uint32 b2Contact::*, &b2Contact::m_flags)
+DC_BOX2D_MEMBER(ContactNodeA, b2ContactEdge b2Contact::*, &b2Contact::m_nodeA)
 DC_BOX2D_MEMBER(WorldInvDt0, float b2World::*, &b2World::m_inv_dt0)
 DC_BOX2D_MEMBER(WorldSolveTOI, void (b2World::*)(const b2TimeStep&), &b2World::SolveTOI)
 DC_BOX2D_MEMBER(WorldSolve, void (b2World::*)(const b2TimeStep&), &b2World::Solve)

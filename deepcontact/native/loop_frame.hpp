@@ -7,6 +7,7 @@
 #include <box2d/box2d.h>
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "contact_problem.hpp"
@@ -18,6 +19,7 @@ struct LoopFrame {
     // them) and touching contacts, each island's end in both lists.
     std::vector<b2Body*> island_bodies;
     std::vector<b2Contact*> island_contacts;
+    std::vector<std::pair<b2Body*, b2Body*>> contact_bodies;   // per island contact: its bodies A and B
     std::vector<int32_t> bodies_end, contacts_end;
     // A static body given a velocity (a body definition keeps one) is moved by every island it is
     // in, and Box2D poses a later island's contacts where an earlier one left it: its own Solve

@@ -34,9 +34,9 @@ SolveReport solve(ContactProblem<R>& pb, const S* start_n, const S* start_t, con
                   LaggedFactor* carried) {
     SolveReport rep;
     Sweeps<R> k(pb);
-    k.load_start(start_n, start_t, opt, rep.sanitized);
     // The residual is normalised by the free velocities, taken before the warm start.
-    if (opt.history || opt.stop_on == Measure::residual || opt.final_residual) k.measure_scale();
+    k.load_start(start_n, start_t, opt, rep.sanitized,
+                 opt.history || opt.stop_on == Measure::residual || opt.final_residual);
     k.warm_start();
     run_method(k, opt, rep, carried);
     return rep;

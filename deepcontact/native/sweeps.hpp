@@ -39,9 +39,8 @@ public:
 
     ContactProblem<R>& problem() { return pb_; }
     // The residual's denominator: the free velocities' scale, measured before the warm start
-    // (1 until measured).
+    // (1 until load_start measures it).
     double scale() const { return scale_; }
-    void measure_scale() { scale_ = free_velocity_scale(); }
     // The impulses save_impulses kept, 2 per contact point (normal, tangent).
     const std::vector<R>& saved() const { return saved_; }
 
@@ -74,11 +73,7 @@ public:
         double worst = 0;
         for (const auto& m : pb_.manifolds) {
             const V2<R> tangent = cross(m.normal, R(1));
-            for (int j = 0; j < m.count; ++j) {
-                const V2<R> dv = relative_velocity(m, m.p[j]);
-                worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(m.p[j].bias)));
-                if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
-            }
+            for (int j = 0; j < m.count; ++j) take_free_velocity(m, m.p[j], tangent, worst);
         }
         return worst > 1e-30 ? worst : 1e-30;
     }
@@ -105,36 +100,26 @@ public:
         residual = this->residual();
     }
 
+    // The start loaded (sanitised, unless exact), then, in one more pass, judged plausible as a
+    // whole (where the options ask) and, with `scale`, the residual's denominator measured (the
+    // free velocities, before the warm start).
     template <class S>
-    void load_start(const S* sn, const S* st, const SolveOptions& opt, SanitizeReport& rep) {
-        for (auto& m : pb_.manifolds) {
-            for (int j = 0; j < m.given; ++j) {
-                auto& p = m.p[j];
-                double n = double(sn[m.first + j]), t = double(st[m.first + j]);
-                if (opt.sanitize()) {
-                    if (!std::isfinite(n) || !std::isfinite(t)) {
-                        ++rep.nonfinite;
-                        n = t = 0;
-                    }
-                    if (n < 0 && opt.cone) {   // (cone false: an answer judged as given, its sign too)
-                        ++rep.negative;
-                        n = 0;
-                    }
-                    const double bound = double(m.friction) * n;
-                    if (opt.cone && std::abs(t) > bound) {
-                        ++rep.cone;
-                        t = std::clamp(t, -bound, bound);
-                    }
-                }
-                p.normal_impulse = R(n);
-                p.tangent_impulse = m.friction_row ? R(t) : R(0);
-            }
-        }
+    void load_start(const S* sn, const S* st, const SolveOptions& opt, SanitizeReport& rep, bool scale) {
         // Plausible as a whole, never one impulse alone: under a heavy body resting on a light
         // one, impulses that each would fling a body balance each other, and the exact answer is
         // a start like any other. A start whose impulses together change some contact's relative
         // velocity by more than max_velocity (faster than Box2D lets a body travel) is no start.
-        if (opt.sanitize() && opt.cone && opt.max_velocity > 0 && !plausible(opt.max_velocity)) {
+        const bool judge = opt.sanitize() && opt.cone && opt.max_velocity > 0;
+        if (judge) {   // (the impulses' sum on each body, in double whatever R is, made as they load)
+            dv_.assign(pb_.velocity.size(), V2<double>{0, 0});
+            dw_.assign(pb_.velocity.size(), 0.0);
+        }
+        for (auto& m : pb_.manifolds) {
+            for (int j = 0; j < m.given; ++j) load_point(m, j, sn[m.first + j], st[m.first + j], opt, rep);
+            if (judge) add_start(m);
+        }
+        const bool plausible = check_and_scale(judge ? opt.max_velocity : 0.0, scale);
+        if (judge && !plausible) {
             for (auto& m : pb_.manifolds) {
                 for (int j = 0; j < m.given; ++j) {
                     m.p[j].normal_impulse = m.p[j].tangent_impulse = R(0);
@@ -143,35 +128,6 @@ public:
             }
         }
     }
-
-    // Whether the loaded impulses, all applied at once, change every contact's relative velocity
-    // (normal and tangent) by at most max_velocity; in double, whatever R is.
-    bool plausible(double max_velocity) const {
-        std::vector<V2<double>> dv(pb_.velocity.size(), V2<double>{0, 0});
-        std::vector<double> dw(pb_.velocity.size(), 0.0);
-        auto d = [](V2<R> v) { return V2<double>{double(v.x), double(v.y)}; };
-        for (const auto& m : pb_.manifolds) {
-            const V2<double> normal = d(m.normal), tangent = cross(normal, 1.0);
-            for (int j = 0; j < m.count; ++j) {
-                const auto& p = m.p[j];
-                const V2<double> P = double(p.normal_impulse) * normal + double(p.tangent_impulse) * tangent;
-                dv[m.a] = dv[m.a] - double(m.mA) * P;
-                dw[m.a] -= double(m.iA) * cross(d(p.rA), P);
-                dv[m.b] = dv[m.b] + double(m.mB) * P;
-                dw[m.b] += double(m.iB) * cross(d(p.rB), P);
-            }
-        }
-        for (const auto& m : pb_.manifolds) {
-            const V2<double> normal = d(m.normal), tangent = cross(normal, 1.0);
-            for (int j = 0; j < m.count; ++j) {
-                const V2<double> rel = dv[m.b] + cross(dw[m.b], d(m.p[j].rB)) - dv[m.a] - cross(dw[m.a], d(m.p[j].rA));
-                const double vn = std::abs(dot(rel, normal)), vt = std::abs(dot(rel, tangent));
-                if (!(vn <= max_velocity && vt <= max_velocity)) return false;   // (NaN: not plausible)
-            }
-        }
-        return true;
-    }
-
 
     // b2ContactSolver::WarmStart
     void warm_start() {
@@ -226,6 +182,77 @@ public:
     }
 
 private:
+    template <class S>
+    void load_point(ContactManifold<R>& m, int j, S sn, S st, const SolveOptions& opt, SanitizeReport& rep) {
+        auto& p = m.p[j];
+        double n = double(sn), t = double(st);
+        if (opt.sanitize()) {
+            if (!std::isfinite(n) || !std::isfinite(t)) {
+                ++rep.nonfinite;
+                n = t = 0;
+            }
+            if (n < 0 && opt.cone) {   // (cone false: an answer judged as given, its sign too)
+                ++rep.negative;
+                n = 0;
+            }
+            const double bound = double(m.friction) * n;
+            if (opt.cone && std::abs(t) > bound) {
+                ++rep.cone;
+                t = std::clamp(t, -bound, bound);
+            }
+        }
+        p.normal_impulse = R(n);
+        p.tangent_impulse = m.friction_row ? R(t) : R(0);
+    }
+
+    // A manifold's loaded impulses added to its bodies' sums (dv_, dw_).
+    void add_start(const ContactManifold<R>& m) {
+        auto d = [](V2<R> v) { return V2<double>{double(v.x), double(v.y)}; };
+        const V2<double> normal = d(m.normal), tangent = cross(normal, 1.0);
+        for (int j = 0; j < m.count; ++j) {
+            const auto& p = m.p[j];
+            const V2<double> P = double(p.normal_impulse) * normal + double(p.tangent_impulse) * tangent;
+            dv_[m.a] = dv_[m.a] - double(m.mA) * P;
+            dw_[m.a] -= double(m.iA) * cross(d(p.rA), P);
+            dv_[m.b] = dv_[m.b] + double(m.mB) * P;
+            dw_[m.b] += double(m.iB) * cross(d(p.rB), P);
+        }
+    }
+
+    // One pass over the points: whether the sums dv_, dw_ change every contact's relative velocity
+    // by at most max_velocity (0: not judged, true), and with `scale` the free velocities' scale
+    // (free_velocity_scale) kept as the residual's denominator.
+    bool check_and_scale(double max_velocity, bool scale) {
+        auto d = [](V2<R> v) { return V2<double>{double(v.x), double(v.y)}; };
+        bool plausible = true;
+        double worst = 0;
+        if (!(max_velocity > 0) && !scale) return true;
+        for (const auto& m : pb_.manifolds) {
+            const V2<double> normal = d(m.normal), tangent = cross(normal, 1.0);
+            const V2<R> tangent_r = cross(m.normal, R(1));
+            for (int j = 0; j < m.count; ++j) {
+                const auto& p = m.p[j];
+                if (max_velocity > 0 && plausible) {
+                    const V2<double> rel = dv_[m.b] + cross(dw_[m.b], d(p.rB)) - dv_[m.a] - cross(dw_[m.a], d(p.rA));
+                    const double vn = std::abs(dot(rel, normal)), vt = std::abs(dot(rel, tangent));
+                    plausible = vn <= max_velocity && vt <= max_velocity;   // (NaN: not plausible)
+                }
+                if (scale) take_free_velocity(m, p, tangent_r, worst);
+            }
+            if (!plausible && !scale) break;
+        }
+        if (scale) scale_ = worst > 1e-30 ? worst : 1e-30;
+        return plausible;
+    }
+
+    // A point's |relative normal velocity - bias| and (with a friction row) |tangent velocity| at
+    // the current velocities, each taken into worst where larger.
+    void take_free_velocity(const ContactManifold<R>& m, const ContactPoint<R>& p, V2<R> tangent, double& worst) const {
+        const V2<R> dv = relative_velocity(m, p);
+        worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(p.bias)));
+        if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
+    }
+
     // Velocity of B relative to A at a contact point, as the solver computes it.
     V2<R> relative_velocity(const ContactManifold<R>& m, const ContactPoint<R>& p) const {
         const auto& A = pb_.velocity[m.a];
@@ -338,6 +365,8 @@ private:
 
     ContactProblem<R>& pb_;
     std::vector<R> saved_;
+    std::vector<V2<double>> dv_;   // the start's impulses summed on each body (plausibility)
+    std::vector<double> dw_;
     double scale_ = 1.0;
 };
 

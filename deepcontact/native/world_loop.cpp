@@ -37,13 +37,13 @@ void World::find_islands() {
     for (b2Contact* c = w->GetContactList(); c; c = c->GetNext()) flags(c) &= ~kContactIslandFlag;
     std::vector<b2Body*>& stack = loop_stack_;
     f.slot.resize(bodies_.size());
-    f.constraints.clear();
+    f.contact_bodies.clear();
     f.static_moves = false;
     f.block_solve = block_solve_;
     for (b2Body* seed = w->GetBodyList(); seed; seed = seed->GetNext()) {
         if ((flags(seed) & kBodyIslandFlag) || !seed->IsAwake() || !seed->IsEnabled()) continue;
         if (seed->GetType() == b2_staticBody) continue;
-        const size_t first_body = f.island_bodies.size();
+        const size_t first_body = f.island_bodies.size(), first_contact = f.island_contacts.size();
         stack.assign(1, seed);
         flags(seed) |= kBodyIslandFlag;
         while (!stack.empty()) {
@@ -62,6 +62,9 @@ void World::find_islands() {
                 f.island_contacts.push_back(c);
                 flags(c) |= kContactIslandFlag;
                 b2Body* other = ce->other;
+                // (the edge in body A's list is the contact's node A: no read of its fixtures)
+                const bool b_is_a = ce == &(c->*member(ContactNodeA()));
+                f.contact_bodies.emplace_back(b_is_a ? b : other, b_is_a ? other : b);
                 if (flags(other) & kBodyIslandFlag) continue;
                 stack.push_back(other);
                 flags(other) |= kBodyIslandFlag;
@@ -69,16 +72,18 @@ void World::find_islands() {
         }
         f.bodies_end.push_back(static_cast<int32_t>(f.island_bodies.size()));
         f.contacts_end.push_back(static_cast<int32_t>(f.island_contacts.size()));
-        // the island's contacts know their bodies' slots (a static body has one in each island)
-        for (size_t i = f.constraints.size(); i < f.island_contacts.size(); ++i) {
-            LoopFrame::Constraint& k = f.constraints.emplace_back();
-            k.slot_a = f.slot[body_index(f.island_contacts[i]->GetFixtureA()->GetBody())];
-            k.slot_b = f.slot[body_index(f.island_contacts[i]->GetFixtureB()->GetBody())];
+        // the island's contacts know their bodies' slots (a static body has one in each island);
+        // the constraints are a kept buffer, grown (never cleared) to the contacts' count
+        if (f.constraints.size() < f.island_contacts.size()) f.constraints.resize(f.island_contacts.size());
+        for (size_t i = first_contact; i < f.island_contacts.size(); ++i) {
+            f.constraints[i].slot_a = f.slot[body_index(f.contact_bodies[i].first)];
+            f.constraints[i].slot_b = f.slot[body_index(f.contact_bodies[i].second)];
         }
         // static bodies may join later islands too
         for (size_t i = first_body; i < f.island_bodies.size(); ++i)
             if (f.island_bodies[i]->GetType() == b2_staticBody) flags(f.island_bodies[i]) &= ~kBodyIslandFlag;
     }
+    f.constraints.resize(f.island_contacts.size());
 }
 
 // Every live body's solver row (scene index order: the rows contacts name), rotation and whether
