@@ -1,7 +1,7 @@
 """What holding a built-in method's answers to the judge's own run of it costs the judge.
 
-In replay a built-in method's solve runs in the contestant's process; every answer it gives (the
-warming call, the timed repeats, each fixed sweep budget) is held to the judge's own run of that
+In replay a built-in method's solve runs in the contestant's process; every answer it gives (its one
+solve call a step, builtin's second for the A/A, each fixed sweep budget) is held to the judge's own run of that
 method from the same start, bit for bit (deepcontact/evaluate/replay.py, same_as_traced). The run
 for a solve to the tolerance the judge made before too (its convergence history): the check adds
 one comparison an answer. A budget's run is new: the judge solves each budget again. None of it is
@@ -10,7 +10,7 @@ method, one thread, on the steps of a thesis pile (100 circles), from builtin's 
 dc evaluate's settings (tolerance, cap), each part the median of --repeats timings:
 
   solve      one solve to the tolerance, as the contestant's process makes it (one timed call's work)
-  compare    same_as_traced on the REPEATS + 1 answers of a step (new)
+  compare    same_as_traced on ANSWERS answers of a step, the most a variant gives (new)
   budgets    the judge's own runs of the budget calls (new where budgets are measured)
 
 and for scale the whole replay of the same steps (replay.evaluate, builtin with each method, the
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from common import arguments, timed
-from deepcontact.evaluate.replay import BUDGETS, REPEATS, evaluate, same_as_traced
+from deepcontact.evaluate.replay import BUDGETS, evaluate, same_as_traced
 from deepcontact.solver.methods import solve
 from deepcontact.solver.problem import StepProblem
 from deepcontact.solver.settings import SolveSettings
@@ -33,6 +33,7 @@ from deepcontact.step.run_folder import read_run
 from deepcontact.warmstart.starts import make_starts
 
 METHODS = ("none", "nncg")
+ANSWERS = 2   # a step's solve answers of builtin: its one call, and its second for the A/A
 
 
 def best(fn, repeats):
@@ -54,7 +55,7 @@ def parts(problem, asked, repeats):
                "factorizations": int(getattr(s, "factorizations", 0))},
               {"normal": np.asarray(s.normal_impulse, np.float64), "tangent": np.asarray(s.tangent_impulse, np.float64)})
     compare_s, _ = best(lambda: [same_as_traced("builtin", asked.accelerate, *answer, traced)
-                                 for _ in range(REPEATS + 1)], repeats)
+                                 for _ in range(ANSWERS)], repeats)
     budgets_s, _ = best(lambda: [solve(problem, n, t, settings=asked.but(max_iterations=b, tolerance=0.0),
                                        final_residual=False) for b in (BUDGETS[0], *BUDGETS)], repeats)
     return solve_s, compare_s, budgets_s

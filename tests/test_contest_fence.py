@@ -3,6 +3,7 @@ same machine) used to move `dc evaluate`'s verdict, written here as a contestant
 judge says of it now that each contestant runs in a sandbox the judge owns and is charged for
 all the CPU it uses (deepcontact/contest)."""
 import json
+import re
 import sys
 import textwrap
 
@@ -263,18 +264,23 @@ def test_a_forged_answer_is_one_line_naming_its_contestant(run, tmp_path, hostil
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_colluding_memos_are_each_held_to_their_own_first_calls(run, tmp_path, hostile):
-    # three variants of one memoizing method, and no honest one: the bar is each one's own times
+def test_colluding_memos_are_each_charged_the_problem_they_have_not_seen(run, tmp_path, hostile):
+    # three variants of one memoizing method, and no honest one: each asked each step's problem once
     out = tmp_path / "r"
     s = summary_of(evaluate(run, out, "--starts", "builtin,zero,prev", "--accelerate", "tricks:Memo"), out)["starts"]
-    memos = {name: v["memo"] for name, v in s.items()}
-    assert len(memos) == 3 and all(memos.values()), memos
+    charged = {name: v["solve_ms_median"] for name, v in s.items()}
+    assert len(charged) == 3 and all(ms >= 3.5 for ms in charged.values()), charged   # (its 4 ms, each step)
 
 
-def test_an_honest_start_is_not_taken_for_a_memo(run, tmp_path, hostile):
+def test_the_noise_floor_is_builtin_asked_again_and_no_variant_is_flagged(run, tmp_path, hostile):
+    """builtin's solve is asked a second time a step for the A/A (its time stays its first call);
+    no variant carries a memo flag, for no threshold is left to set one."""
     out = tmp_path / "r"
-    s = summary_of(evaluate(run, out, "--starts", "zero,builtin,prev"), out)["starts"]
-    assert not any(v["memo"] for v in s.values()), {k: v["memo"] for k, v in s.items()}
+    data = summary_of(evaluate(run, out, "--starts", "zero,builtin,prev"), out)
+    aa = data["settings"]["noise"]["aa"]
+    assert all(np.isfinite(aa)) and aa[1] <= aa[0] <= aa[2], aa
+    assert not any("memo" in v for v in data["starts"].values())
+    assert not re.search(r"\bmemos?\b", (out / "report.md").read_text())
 
 
 def test_a_heavy_tail_is_never_called_the_fastest():

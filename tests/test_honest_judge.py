@@ -85,18 +85,19 @@ def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, conte
 
 
 def rows_of(times, seed=0):
-    """Replay rows with the given per-variant per-step solve times (ms), three repeats each, the
-    repeats drawn around the time with 10% noise."""
+    """Replay rows with the given per-variant per-step solve times (ms), each call drawn around the
+    time with 10% noise, builtin's asked twice (its A/A)."""
     import numpy as np
     from deepcontact.evaluate.replay import Row
     rng = np.random.default_rng(seed)
     out = []
     for name, per_step in times.items():
         for step, t in enumerate(per_step):
-            reps = t * (1 + 0.1 * rng.standard_normal(3))
+            calls = t * (1 + 0.1 * rng.standard_normal(2))
             out.append(Row(run="r", seed=0, step=step, points=10, start=name, iterations=10, capped=False,
                            residual=1e-5, error=0.0, velocity_error=0.0, predict_ms=0.0,
-                           solve_ms=float(np.median(reps)), history=np.zeros(1), solve_ms_repeats=reps))
+                           solve_ms=float(calls[0]), history=np.zeros(1),
+                           solve_ms_again=float(calls[1]) if name == "builtin" else None))
     return out
 
 
@@ -424,9 +425,13 @@ def test_a_three_percent_difference_is_no_clear_winner():
     from deepcontact.evaluate.noise import judge
     from deepcontact.evaluate.summary import summarize
     steps = np.random.default_rng(5).uniform(0.05, 0.2, 60)
-    rows = rows_of({"builtin": steps, "slightly": steps * 0.97}, seed=6)
-    noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
-    assert noise["best"] == "slightly" and not noise["clear"]
+    best = []
+    for seed in range(12):   # (one call a step at 10% noise: the smallest median is either of them)
+        rows = rows_of({"builtin": steps, "slightly": steps * 0.97}, seed=seed)
+        noise = judge(rows, summarize(rows, None, 1000), "builtin", lambda name: False)
+        assert not noise["clear"], (seed, noise["best"], noise["vs_base"])
+        best.append(noise["best"])
+    assert best.count("slightly") >= 8, best   # (mostly the faster on the median, never named)
 
 
 def test_dcs_own_runs_pass_validate_at_any_tolerance(tmp_path):

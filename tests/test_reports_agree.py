@@ -18,20 +18,20 @@ STEPS = 40
 
 
 def rows(times, above=None, capped=None, first=None, seed=0):
-    """Replay rows: per variant, per-step times (ms) timed three times with 2% noise; above and
-    capped {variant: step indices}; first {variant: factor} on its first timed repeat (the A/A's
-    first half)."""
+    """Replay rows: per variant, per-step times (ms) with 2% noise, builtin's asked twice (its
+    A/A); above and capped {variant: step indices}; first {variant: factor}: its A/A's first half
+    against its second (the second call's time divided by it)."""
     rng = np.random.default_rng(seed)
     above, capped, first = above or {}, capped or {}, first or {}
     out = []
     for name, per_step in times.items():
         for step, t in enumerate(per_step):
-            reps = t * (1 + 0.02 * rng.standard_normal(3))
-            reps[0] *= first.get(name, 1.0)
+            calls = t * (1 + 0.02 * rng.standard_normal(2))
             out.append(Row(run="r", seed=0, step=step, points=10, start=name, iterations=10,
                            capped=step in capped.get(name, ()), above=step in above.get(name, ()),
                            residual=1e-5, error=0.0, velocity_error=0.0, predict_ms=0.0,
-                           solve_ms=float(np.median(reps)), history=np.zeros(1), solve_ms_repeats=reps))
+                           solve_ms=float(calls[0]), history=np.zeros(1),
+                           solve_ms_again=float(calls[1] / first.get(name, 1.0)) if name == "builtin" else None))
     return out
 
 

@@ -1,10 +1,10 @@
 """How sure a time comparison is: bootstrap intervals over the steps, and the noise floor.
 
-A variant's time on a step is its start's whole call plus the median of its REPEATS interleaved
-solves (replay.py). Two variants are compared by the ratio of their median times per step; the
+A variant's time on a step is its start's whole call plus its one solve call of the step, the
+variants interleaved (replay.py). Two variants are compared by the ratio of their median times per step; the
 interval resamples the steps (the same steps for both: a pair per step) with a fixed seed, so the
-report repeats. The noise floor is Box2D's warm start against itself: its first timed solve of
-each step against its second (A/A), which should be 1 and shows how far from 1 the machine moves
+report repeats. The noise floor is Box2D's warm start against itself: its solve of each step
+(its time) against the same solve asked again after the round (A/A, replay.timed_twice), which should be 1 and shows how far from 1 the machine moves
 a ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
 start's time and the runner-up's, and never where the A/A itself reaches beyond NOISE_LIMIT (the
 machine too noisy to time); else it says there is no clear winner (contest/verdict.py).
@@ -12,10 +12,10 @@ machine too noisy to time); else it says there is no clear winner (contest/verdi
 from ..contest.verdict import decide, paired as _paired
 
 
-def _totals(rows, name, repeat=None):
-    """{step key: ms} of the variant `name`: prediction plus the median solve (or one repeat's)."""
-    return {(r.run, r.seed, r.step): r.predict_ms + (r.solve_ms if repeat is None else r.solve_ms_repeats[repeat])
-            for r in rows if r.start == name}
+def _totals(rows, name, again=False):
+    """{step key: ms} of the variant `name`: prediction plus its solve (or, again, its A/A's second)."""
+    return {(r.run, r.seed, r.step): r.predict_ms + (r.solve_ms_again if again else r.solve_ms)
+            for r in rows if r.start == name and not (again and r.solve_ms_again is None)}
 
 
 def ranked(summary, is_oracle):
@@ -39,7 +39,7 @@ def judge(rows, summary, base, is_oracle):
     if base is None or base not in summary:
         return None
     times = {name: _totals(rows, name) for name in summary}
-    aa = _paired(_totals(rows, base, 0), _totals(rows, base, 1))
+    aa = _paired(_totals(rows, base), _totals(rows, base, again=True))
     v = decide(times, ranked(summary, is_oracle), base, aa, {n: s.get("setup_ms", 0.0) for n, s in summary.items()},
                {name: _unfinished(rows, name) for name in summary})
     return v.as_dict()

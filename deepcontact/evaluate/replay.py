@@ -3,7 +3,8 @@ same problem.
 
 For each step and variant, in the variant's own sandbox (deepcontact/contest): the start is made, then
 the variant's method solves from it until the stopping measure falls below the tolerance or the
-cap, a warming call and REPEATS timed ones, each timed and judged here; a built-in method's
+cap, in one call a step, timed and judged here (no other call of the step for it to answer from
+memory; Box2D's warm start is asked a second time, for the A/A noise floor only); a built-in method's
 convergence history is traced here, off the clock, from the same start. Recorded per step
 and variant: iterations, whether the cap was hit, the history, the final residual, the errors
 against the step's reference solution (in impulses, and in body velocities after the solve),
@@ -35,7 +36,6 @@ from ..solver.settings import SolveSettings
 from ..step.reader import check_origin, read_step
 from ..step.run_folder import Run, read_run
 from ..warmstart.starts import ANSWER_COLUMNS, NAMES, StepContext, held_to_contract
-from .summary import flag_memos
 
 
 @dataclass
@@ -62,19 +62,17 @@ class Row:
     budget_residual: np.ndarray = None  # the residual after them
     factorizations: int = 0   # sparse systems a global method factorized or solved (newton, subspace)
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
-    solve_ms_repeats: np.ndarray = None   # each of the REPEATS timed solves (solve_ms is their median)
+    solve_ms_again: float = None   # Box2D's warm start only: its solve asked a second time (the A/A), never its time
     transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
     setup_ms: float = 0.0      # the variant's import and construction in its sandbox, and what it ran after its
                                # last call, charged (once, not per step)
-    memo: bool = False         # its repeats answered far faster than its own first calls: charged the first call
-    first_ms: float = 0.0      # the first solve call of the step (before the timed repeats; judged like them)
     left_running: tuple = (0, 0)   # threads and processes the variant's process had running after a call
 
 
-# Every variant's solve is timed this many times, the variants interleaved round by round (so a
-# busy moment of the machine touches them all alike); a step's time is the median. Box2D's warm
-# start's repeats also give the noise floor (its first timing against its second: A/A).
-REPEATS = 3
+# Every variant's solve is asked once a step, its one call its time: with no other call of the same
+# step, none can be answered from the memory of another (a memo gains nothing, at any threshold).
+# Only Box2D's warm start (the project's code, every answer held bit for bit to the judge's own
+# run: timed_twice) is asked once more, after the round, for the noise floor (A/A).
 
 # Fixed sweep budgets for "what accuracy costs in time", each timed on its own.
 BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
@@ -89,6 +87,12 @@ class Variant:
     start: object
     relaxation: object = 1.0     # a float, "auto" until resolved, or None for a method that takes no w
     accelerate: str = "none"     # a solver method (solver.methods.SOLVERS)
+
+
+def timed_twice(v):
+    """Whether variant v is Box2D's warm start with plain PGS (w = 1): the yardstick, whose solve
+    the judge asks a second time a step for the A/A noise floor."""
+    return v.name == "builtin" and v.relaxation in (1, 1.0) and v.accelerate == "none"
 
 
 def variants(starts, relaxations=(1.0,), accelerations=("none",)):
@@ -287,8 +291,8 @@ def _steps_to_judge(files, scene, engine, sim_seed, every):
 
 
 class _JudgedStep:
-    """One step put to every variant: each start asked, then every solve timed in interleaved
-    rounds, and each answer judged by our residual."""
+    """One step put to every variant: each start asked, then every solve asked once, interleaved,
+    and each answer judged by our residual."""
 
     def __init__(self, problem, reference, settings, null):
         self.problem, self.reference, self.settings, self.null = problem, reference, settings, null
@@ -310,33 +314,32 @@ class _JudgedStep:
             self.variants[i] = (v, c, normal, tangent, _net(took, [transport]))
 
     def solve(self, order):
-        """Every variant's solve from its start, in REPEATS interleaved rounds after a warming one
-        (a busy moment of the machine touches every variant), with the solve's transport measured
-        before and after them (the least counts)."""
+        """Every variant's solve from its start, asked once, in the step's order, with the solve's
+        transport measured before and after them (the least counts); then the yardstick's again
+        (timed_twice), its second time for the A/A only."""
         settings, deadline = self.settings, self.deadline
         self.asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate)
                       for i, (v, *_) in self.variants.items()}
         sent = pickle.dumps(unanswered(self.problem))
         self.requests = {i: {"op": "solve", "problem": sent, "normal": row[2], "tangent": row[3],
                              "settings": self.asked[i]} for i, row in self.variants.items()}
-        wire = {i: packed(r) for i, r in self.requests.items()}   # (packed once for all its calls)
-        took = {i: [] for i in self.variants}
+        wire = {i: packed(r) for i, r in self.requests.items()}
         self.answers = {i: [] for i in self.variants}
         first = next(iter(self.requests))
         self.nulls = [self.null.call(wire[first], deadline)[0]]
-        # (the first call after a start's ran slower; its answer is judged like every other, so no
-        # call is one a contestant could treat differently)
-        for _ in range(-1, REPEATS):
-            for i in order:
-                t, head, arrays = self.variants[i][1].call(wire[i], deadline)
-                self.answers[i].append(self._kept(i, head, arrays))
-                took[i].append(t)
+        took = {i: self._asked(i, wire[i]) for i in order}
+        again = {i: self._asked(i, wire[i]) for i in order if timed_twice(self.variants[i][0])}
         self.nulls.append(self.null.call(wire[first], deadline)[0])
-        # each call's time (the first, the warming one, kept apart: a memo shows against it)
-        self.times = {i: [_net(t, self.nulls) * 1e3 for t in took[i]] for i in self.variants}
-        self.firsts = {i: self.times[i].pop(0) for i in self.variants}
+        self.times = {i: _net(t, self.nulls) * 1e3 for i, t in took.items()}
+        self.again = {i: _net(t, self.nulls) * 1e3 for i, t in again.items()}
         for row in self.variants.values():
             row[1].status()
+
+    def _asked(self, i, wire):
+        """One solve call of variant i: its answer kept (to be judged) and its time returned."""
+        t, head, arrays = self.variants[i][1].call(wire, self.deadline)
+        self.answers[i].append(self._kept(i, head, arrays))
+        return t
 
     def _kept(self, i, head, arrays):
         """An answer of variant i as the judge keeps it: its impulses and no other array
@@ -365,7 +368,7 @@ class _JudgedStep:
         """The judge's own run of variant i's built-in method from its start (untimed, with its
         history), every answer the variant's process gave held to it (same_as_traced)."""
         traced = solve(self.problem, normal, tangent, history=True, settings=self.asked[i])
-        for head, arrays in self.answers[i]:   # (the warming call's too: every answer is judged)
+        for head, arrays in self.answers[i]:   # (the A/A's second call's too: every answer is judged)
             same_as_traced(v.label, v.accelerate, head, arrays, traced)
         return traced
 
@@ -393,14 +396,13 @@ class _JudgedStep:
                    residual=worst.residual,
                    error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
                    velocity_error=_velocity_error(judged[0], reference),
-                   predict_ms=predict_s * 1e3, solve_ms=float(np.median(self.times[i])),
+                   predict_ms=predict_s * 1e3, solve_ms=self.times[i], solve_ms_again=self.again.get(i),
                    history=np.concatenate([[first], hist]),
                    relaxation=None if v.relaxation is None else float(v.relaxation),
                    accelerate=v.accelerate, fallback=bool(head.get("fallback", 0)),
                    reference_residual=reference.residual, reference_pivoted=reference.pivoted,
-                   factorizations=int(head.get("factorizations", 0)), solve_ms_repeats=np.array(self.times[i]),
-                   transport_ms=min(self.nulls) * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3,
-                   first_ms=self.firsts[i])
+                   factorizations=int(head.get("factorizations", 0)),
+                   transport_ms=min(self.nulls) * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3)
 
 
 def same_as_traced(label, method, head, arrays, traced):
@@ -451,7 +453,7 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
             rows.extend(simulation_rows)
     if not rows:
         raise InputError("no steps with contacts to evaluate")
-    return flag_memos(rows)
+    return rows
 
 
 def _budgets(contestant, problem, request, null, label):

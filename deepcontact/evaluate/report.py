@@ -168,7 +168,7 @@ def markdown(summary, settings, pareto):
 def contestants_line(summary):
     """How the contestants were measured: each in a process of its own, what setting it up cost
     (import and construction, not in the per-step times), the transport subtracted, and what the
-    judge noticed (a memo, something left running)."""
+    judge noticed (something left running)."""
     if not any("setup_ms" in s for s in summary.values()):
         return []
     setup = ", ".join(f"{md_text(n)} {s['setup_ms']:.1f} ms" for n, s in summary.items())
@@ -178,10 +178,6 @@ def contestants_line(summary):
            f"the same request (the same sandbox and path, no plug-in code) measured per step and subtracted from "
            f"every variant alike, was at most {transport:.3f} ms (median per step); times below it are within its "
            f"noise. Deadlines: {deadline_rule()}.\n"]
-    memo = [n for n, s in summary.items() if s.get("memo")]
-    if memo:
-        out.append(f"Answered repeats far faster than their own first calls (a memo of answers?), so charged their "
-                   f"first calls: {', '.join(md_text(n) for n in memo)}.\n")
     left = [(n, s["left_running"]) for n, s in summary.items() if any(s.get("left_running") or ())]
     if left:
         out.append("Left threads or processes running after their calls (counted by the judge; their CPU charged to "

@@ -1,35 +1,9 @@
-"""What a replay's rows say per variant: the summary its report and verdict read, the memos
-found among its answers, and how far the reference solutions reached."""
+"""What a replay's rows say per variant: the summary its report and verdict read, and how far the
+reference solutions reached."""
 import numpy as np
 
 from ..solver.methods import is_native
 from ..solver.reference import TOLERANCE as REFERENCE_TOLERANCE
-
-
-# A memo's repeats answer in a lookup's time: the bar below which a variant's own repeats, against
-# its own first calls, say it kept answers (the median over its steps of fastest repeat / first
-# call, each a whole call, transport included: net of it, a 4-point step's honest repeats measure
-# 0 and every ratio did), judged with at least MEMO_STEPS steps. The median over every step, not a
-# chosen few: steps picked for a slow first call pick the machine's hiccups.
-MEMO_BAR = 0.25
-MEMO_STEPS = 3
-
-
-def flag_memos(rows):
-    """Marks the variants whose repeated solves answered far faster than their own first call of
-    each step (a memo of answers by the problem's bytes): their rows are charged the first call
-    (Row.memo). Each variant is held to a fixed bar on its own times (MEMO_BAR), so no other
-    variant, colluding or slow, moves it."""
-    ratios = {}
-    for r in rows:
-        if r.solve_ms_repeats is not None and len(r.solve_ms_repeats):
-            whole = r.transport_ms + np.asarray(r.solve_ms_repeats, np.float64)
-            ratios.setdefault(r.start, []).append(float(np.min(whole) / max(r.transport_ms + r.first_ms, 1e-9)))
-    flagged = {name for name, v in ratios.items() if len(v) >= MEMO_STEPS and float(np.median(v)) < MEMO_BAR}
-    for r in rows:
-        if r.start in flagged:
-            r.memo, r.solve_ms = True, float(r.first_ms)
-    return rows
 
 
 def summarize(rows, starts, max_iterations):
@@ -70,7 +44,6 @@ def _summary(rs):
         "total_ms_sum": float(np.sum(total)) + setup,
         "transport_ms_median": median("transport_ms"),
         "setup_ms": setup,
-        "memo": bool(any(r.memo for r in rs)),
         "left_running": [int(max(r.left_running[k] for r in rs)) for k in (0, 1)],
     }
 
