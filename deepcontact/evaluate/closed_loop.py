@@ -24,6 +24,7 @@ from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
 from ..contest.charge import StepCharges
 from ..contest.client import packed
+from ..contest.keyed import KeyedImpulses, KeySet, hashes
 from ..contest.wire import checked_answer
 from ..scene.check import check_scene
 from ..scene.model import Scene
@@ -32,7 +33,6 @@ from ..simulate.engines import Box2D
 from ..simulate.pgs_loop import PGSStepper
 from ..solver.methods import is_native
 from ..solver.metrics import drift, energy, positions
-from ..solver.problem import contact_keys, impulses_by_key
 from ..solver.reference import reference_solution
 from ..solver.settings import SolveSettings
 from ..warmstart.starts import ORACLE_TRAITS, StepContext, make_starts
@@ -77,16 +77,18 @@ class _Adapter:
         self.needs_reference = contestant.traits["needs_reference"]   # (the reference costs a solve a step)
         # (the same description that says what its ctx holds: starts.described)
         self.oracle = any(contestant.traits[k] for k in ORACLE_TRAITS)
-        self.keys, self.known, self.previous = [], set(), {}
+        # (the step's contact keys, and those of the step before, as arrays: contest/keyed.py)
+        self.keys, self.known, self.previous = None, KeySet(), KeyedImpulses()
         self.charges = StepCharges()
         self.transport = self.timing = np.zeros(0)   # per step, once settled: seconds not charged, the start's charge
         self.method = None   # a plug-in method's RemoteMethod, in the same process
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
-        self.keys = contact_keys(contacts)
-        persisted = np.array([k in self.known for k in self.keys], dtype=bool)
-        self.known = set(self.keys)
+        self.keys = np.ascontiguousarray(problem.keys, np.int64)
+        h = hashes(self.keys)
+        persisted = self.known.find(self.keys, h)[0]
+        self.known = KeySet(self.keys, h)
         reference = reference_solution(problem) if self.needs_reference else None
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),
@@ -105,8 +107,8 @@ class _Adapter:
         return self.method.solve(problem, start_n, start_t, settings)
 
     def solved(self, solution):
-        self.previous = {} if solution is None else impulses_by_key(self.keys, solution.normal_impulse,
-                                                                     solution.tangent_impulse)
+        self.previous = KeyedImpulses() if solution is None else \
+            KeyedImpulses(self.keys, solution.normal_impulse, solution.tangent_impulse)
         self.charges.step_done()   # (a step without contact points asked nothing: charged 0, not left out)
 
     def settle(self):

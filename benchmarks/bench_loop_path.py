@@ -1,0 +1,87 @@
+"""What the closed loop's path through the contestants costs a step: the held-out thesis pile
+(seed 1000, 100 circles) stepped by `closed_loop` with builtin, a plug-in start that gives back
+exactly what builtin gives (`Same`, from a module of its own on the path) and builtin timed again
+(the loop's A/A), each in a sandbox of its own, against the native loop (one call a step) in the
+same run.
+
+Per run: the native loop's median step, builtin's through the path, the path's cost a step
+(`path_ms`: the median over the steps of builtin through the path less the native step), and the
+ratios Same / builtin and builtin again / builtin of the median step (a start identical to builtin
+should measure 1.00x). The reference trajectory is not what is measured: the native loop's own
+trajectory stands in for it (the drift it gives is not read here).
+
+--profile: the judge's side of one run under cProfile (its 25 largest by own time), after the table.
+
+Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
+"""
+import cProfile
+import os
+import pstats
+import subprocess
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from deepcontact.evaluate.closed_loop import closed_loop, run_loop
+from deepcontact.scene.generators import generate
+from deepcontact.solver.settings import SolveSettings
+from deepcontact.warmstart.starts import make_starts
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import arguments  # noqa: E402
+
+SAME = textwrap.dedent("""
+    from deepcontact.warmstart.starts import StartValue
+
+    class Same:
+        '''Box2D's warm start, given back from a plug-in: what builtin gives.'''
+        def __call__(self, ctx):
+            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), {})
+    """)
+
+
+def one_run(scene, steps, reference):
+    """{start: LoopResult} of one closed loop of builtin and Same."""
+    results = closed_loop(scene, make_starts(["builtin", "bench_same_start:Same"]), steps=steps, reference=reference)
+    return {r.start: r for r in results}
+
+
+def line(k, rows, native):
+    b, s = rows["builtin"], rows["bench_same_start:Same"]
+    med = float(np.median(b.ms_per_step))
+    again = float(np.median(b.ms_again)) if b.ms_again is not None else float("nan")
+    print(f"| {k} | {np.median(native):.3f} | {med:.3f} | {b.path_ms:.3f} | "
+          f"{float(np.median(s.ms_per_step)) / med:.3f} | {again / med:.3f} |", flush=True)
+
+
+def main():
+    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0)
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    folder = tempfile.mkdtemp(prefix="bench-loop-path-")
+    Path(folder, "bench_same_start.py").write_text(SAME)
+    sys.path.insert(0, folder)
+    os.environ["PYTHONPATH"] = os.pathsep.join([folder, *filter(None, [os.environ.get("PYTHONPATH")])])
+    scene = generate("pile", args.seed, {"count": args.count} if args.count != 100 else None)
+    steps = min(args.steps, scene.steps)
+    settings = SolveSettings()
+    reference = run_loop(scene, None, settings, steps, "builtin", report=False)
+    print(f"\nthe pile of seed {args.seed}, {args.count} circles, {steps} steps, {settings.tolerance:g} tolerance")
+    print("| run | native ms/step | builtin through the path | path_ms | Same / builtin | builtin again / builtin |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    for k in range(args.runs):
+        native = run_loop(scene, None, settings, steps, "builtin", report=False).seconds * 1e3
+        line(k + 1, one_run(scene, steps, reference), native)
+    if args.profile:
+        profiler = cProfile.Profile()
+        profiler.enable()
+        one_run(scene, steps, reference)
+        profiler.disable()
+        pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+
+
+if __name__ == "__main__":
+    main()
