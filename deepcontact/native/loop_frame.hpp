@@ -49,14 +49,6 @@ struct LoopFrame {
         b2Vec2 rA[b2_maxManifoldPoints], rB[b2_maxManifoldPoints];
     };
     std::vector<Constraint> constraints;
-    // Per island contact, what the solve's rows take beyond the constraint: the bodies' solver rows,
-    // the material, and the impulses Collide carried over by feature id (per point).
-    struct Input {
-        int32_t row_a, row_b;
-        float friction, restitution, threshold;
-        float normal_impulse[b2_maxManifoldPoints], tangent_impulse[b2_maxManifoldPoints];
-    };
-    std::vector<Input> inputs;
     std::vector<b2Rot> rotation;   // each live body's, by scene index (one sine and cosine a body)
     // By scene index: the body's transform is not the one its sweep gives (placed since its last
     // step: created or set_body_state, where Box2D keeps the position given).

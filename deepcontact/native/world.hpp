@@ -49,15 +49,16 @@ public:
     void set_manifold_impulses(const float* normal, const float* tangent, size_t count);
 
     // The loop's step read out once (pgs_step.cpp), after collide(): the islands as b2World::Solve
-    // finds them, each of their contacts posed once (kept from step to step). Until the world
-    // changes, step(..., collided) then steps those islands itself with no velocity iterations
-    // (world_loop.cpp) instead of running Box2D's Solve, which would find them again and pose
-    // every contact's constraint a second time.
+    // finds them, kept from step to step; then pose_loop poses each of their contacts once, in
+    // the solve's precision R (float or double) and in Box2D's float32 for the warm start that
+    // applies the solution, with its start (the carried impulses times warm_scale, or zero).
+    // Until the world changes, step(..., collided) then steps those islands itself with no
+    // velocity iterations (world_loop.cpp) instead of running Box2D's Solve, which would find
+    // them again and pose every contact's constraint a second time.
     LoopFrame& gather_loop();
-    // The step's problem in R from what gather_loop() posed: every live body a row (scene index
-    // order), every island contact a manifold (island order). Instantiated for float and double.
     template <class R>
-    void pose_loop_problem(ContactProblem<R>& pb, const StepSettings& st);
+    void pose_loop(ContactProblem<R>& pb, const StepSettings& st, bool carried, float warm_scale,
+                   std::vector<double>& start_n, std::vector<double>& start_t);
 
     BodyState bodies() const;
     void set_body_state(const int32_t* index, const float* position, const float* angle,
@@ -114,7 +115,8 @@ private:
     bool solves_islands(int velocity_iterations) const;
     void find_islands();
     void place_loop_bodies();
-    void pose_loop_contacts();
+    template <class R>
+    void pose_free_velocities(ContactProblem<R>& pb, const StepSettings& st);
     template <class R>
     void pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k);
     void solve_islands(const b2TimeStep& step);

@@ -126,50 +126,15 @@ float World::penetration(b2Contact* c, const b2WorldManifold& posed) const {
     return deepest;
 }
 
-// Every island contact posed once for the warm start that applies the solution, with what the
-// solve's rows take beside it; the points counted, the deepest penetration measured.
-void World::pose_loop_contacts() {
-    LoopFrame& f = loop_;
-    f.inputs.resize(f.island_contacts.size());
-    float deepest = 0.0f;
-    size_t n = 0;
-    for (size_t i = 0; i < f.island_contacts.size(); ++i) {
-        b2Contact* c = f.island_contacts[i];
-        LoopFrame::Constraint& k = f.constraints[i];
-        const b2WorldManifold wm = pose(c, k);
-        deepest = std::max(deepest, penetration(c, wm));
-        LoopFrame::Input& in = f.inputs[i];
-        in.row_a = f.row_of[body_index(c->GetFixtureA()->GetBody())];
-        in.row_b = f.row_of[body_index(c->GetFixtureB()->GetBody())];
-        in.friction = c->GetFriction();
-        in.restitution = c->GetRestitution();
-        in.threshold = c->GetRestitutionThreshold();
-        for (int j = 0; j < k.point_count; ++j) {
-            in.normal_impulse[j] = k.manifold->points[j].normalImpulse;
-            in.tangent_impulse[j] = k.manifold->points[j].tangentImpulse;
-        }
-        n += k.point_count;
-    }
-    f.points = n;
-    f.deepest = deepest;
-}
-
 LoopFrame& World::gather_loop() {
     find_islands();
     place_loop_bodies();
-    pose_loop_contacts();
-    loop_generation_ = generation_;
     return loop_;
 }
 
-// The step's problem from the posed contacts: each live body's v* (b2Island::Solve's integration
-// and damping), then each island contact's rows (InitializeVelocityConstraints), as
-// assemble_into poses them from the columns, bit for bit, without the columns.
+// Every live body's v* in R (b2Island::Solve's integration and damping), by solver row.
 template <class R>
-void World::pose_loop_problem(ContactProblem<R>& pb, const StepSettings& st) {
-    LoopFrame& f = loop_;
-    pb.stats = ProblemStats{};
-    pb.points = f.points;
+void World::pose_free_velocities(ContactProblem<R>& pb, const StepSettings& st) {
     pb.velocity.resize(live_bodies_);
     size_t row = 0;
     for (b2Body* b : bodies_) {
@@ -181,22 +146,50 @@ void World::pose_loop_problem(ContactProblem<R>& pb, const StepSettings& st) {
             st);
     }
     if constexpr (!std::is_same_v<R, float>) {
-        f.rotation64.resize(live_bodies_);
-        f.rotated64.assign(live_bodies_, 0);
+        loop_.rotation64.resize(live_bodies_);
+        loop_.rotated64.assign(live_bodies_, 0);
     }
-    pb.manifolds.resize(f.constraints.size());
+}
+
+// Each island contact posed once, in one pass: its constraint in float32 for the warm start that
+// applies the solution, its rows of the step's problem in R (InitializeVelocityConstraints, as
+// assemble_into poses them from the columns, bit for bit) and its start; the points counted, the
+// deepest penetration measured. From here until the world changes, step() solves these islands.
+template <class R>
+void World::pose_loop(ContactProblem<R>& pb, const StepSettings& st, bool carried, float warm_scale,
+                      std::vector<double>& start_n, std::vector<double>& start_t) {
+    LoopFrame& f = loop_;
+    pose_free_velocities(pb, st);
+    pb.stats = ProblemStats{};
+    pb.manifolds.resize(f.island_contacts.size());
+    start_n.clear();
+    start_t.clear();
+    start_n.reserve(2 * f.island_contacts.size());
+    start_t.reserve(2 * f.island_contacts.size());
+    float deepest = 0.0f;
     size_t first = 0;
-    for (size_t i = 0; i < f.constraints.size(); ++i) {
-        const LoopFrame::Constraint& k = f.constraints[i];
-        const LoopFrame::Input& in = f.inputs[i];
+    for (size_t i = 0; i < f.island_contacts.size(); ++i) {
+        b2Contact* c = f.island_contacts[i];
+        LoopFrame::Constraint& k = f.constraints[i];
+        deepest = std::max(deepest, penetration(c, pose(c, k)));
         ContactManifold<R>& m = pb.manifolds[i];
-        start_manifold(m, in.row_a, in.row_b, first, k.point_count, in.friction, in.restitution, in.threshold, k.mA,
+        start_manifold(m, f.row_of[body_index(f.contact_bodies[i].first)], f.row_of[body_index(f.contact_bodies[i].second)],
+                       first, k.point_count, c->GetFriction(), c->GetRestitution(), c->GetRestitutionThreshold(), k.mA,
                        k.mB, k.iA, k.iB, st);
         pose_geometry(m, k);
         if (k.point_count < 2) m.p[1] = ContactPoint<R>{};   // (a kept buffer: nothing stale in it)
         pose_rows(m, pb.velocity, st, pb.stats);
+        // Box2D's warm start: the impulses Collide carried over by feature id, times dtRatio
+        // (rounded in float32 first, as Box2D scales them); or zero.
+        for (int j = 0; j < k.point_count; ++j) {
+            start_n.push_back(carried ? double(warm_scale * k.manifold->points[j].normalImpulse) : 0.0);
+            start_t.push_back(carried ? double(warm_scale * k.manifold->points[j].tangentImpulse) : 0.0);
+        }
         first += k.point_count;
     }
+    pb.points = f.points = first;
+    f.deepest = deepest;
+    loop_generation_ = generation_;
 }
 
 // A manifold's normal and lever arms. In float32 they are the constraint's, which pose() computed
@@ -238,8 +231,10 @@ void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k)
     }
 }
 
-template void World::pose_loop_problem<float>(ContactProblem<float>&, const StepSettings&);
-template void World::pose_loop_problem<double>(ContactProblem<double>&, const StepSettings&);
+template void World::pose_loop<float>(ContactProblem<float>&, const StepSettings&, bool, float, std::vector<double>&,
+                                      std::vector<double>&);
+template void World::pose_loop<double>(ContactProblem<double>&, const StepSettings&, bool, float, std::vector<double>&,
+                                       std::vector<double>&);
 
 // b2World::Step's Solve for the loop: the islands found by gather_loop, stepped with no velocity
 // iterations, then the fixtures synchronised and new pairs found.
