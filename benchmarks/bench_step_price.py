@@ -1,15 +1,23 @@
-"""What the project's step costs against Box2D 2.4.1's own, for the same sweeps (the step's
-price, docs/results/step-price.md): a settled pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a box of 300 with
---count 10000) is built three times and each copy settled by Box2D at its 8 iterations (the same
-steps, so the same state). Then the copies step in turn, one step each per round: Box2D's own step
-at 8 iterations, the loop's step at 8 sweeps in float64, and the loop's step at 8 sweeps in
-Box2D's exact float32 arithmetic (each one native call: Collide, the islands found once, the
-solve, the islands stepped with the impulses written). Each round's ratio is a loop step over the
-Box2D step of the same round (the same load on both); a step's time is the CPU time of the thread
-that steps (so a busy machine's other work is not counted; one thread does it all). Printed: the
-median ratio and its interquartile range, and each world's median step. Unrecorded.
+"""What the project's step costs against Box2D 2.4.1's own, for the same sweeps (the step's price,
+docs/results/step-price.md): a settled pile (seed 9; 1,000 circles in a box of 95, or 10,000 in a
+box of 300 with --count 10000) is built three times (and a fourth, below) and each copy settled
+by Box2D at its 8 iterations (the same steps, so the same state). Then the copies step in turn,
+one step each per round: Box2D's own step at 8 iterations, the loop's step at 8 sweeps in
+float64, and the loop's step at 8 sweeps in Box2D's exact float32 arithmetic (each one native
+call: Collide, the islands found once, the solve, the islands stepped with the impulses written).
+Each round's ratio is a loop step over the Box2D step of the same round (the same load on both);
+a step's time is the CPU time of the thread that steps (so a busy machine's other work is not
+counted; one thread does it all). Printed: the median ratio and its interquartile range, and each
+world's median step. Unrecorded.
 
-Usage: python benchmarks/bench_step_price.py [--count 1000] [--settle 500] [--steps 200] [--sweeps 8]
+The loop's stepper starts its first step from zero (it carries no impulse into the first step it
+takes, whatever Box2D carried), which sets its copies of the pile moving apart from Box2D's for a
+couple of hundred steps, each of them dearer whoever steps it: a fourth copy, stepped once by the
+loop (float64, from zero) and then by Box2D at 8 iterations, prices that against Box2D's own
+(its last line). --warm N: all four step N rounds untimed first; after --warm 200 they are settling
+piles again, though no longer the same pile.
+
+Usage: python benchmarks/bench_step_price.py [--count 1000] [--settle 500] [--warm 0] [--steps 200] [--sweeps 8]
 """
 import sys
 import time
@@ -35,11 +43,18 @@ def settled(scene, settle):
     return world
 
 
+def shaken(scene, args):
+    """Box2D's own step of a settled copy whose next step the loop took, from zero."""
+    world = settled(scene, args.settle)
+    Box2D(solver=SolveSettings(max_iterations=args.sweeps, tolerance=0)).stepper(world, scene, record=False)()
+    return Box2D(velocity_iterations=args.sweeps).stepper(world, scene, record=False)
+
+
 def main():
-    args = arguments(__doc__, count=1000, settle=500, steps=200, sweeps=8)
+    args = arguments(__doc__, count=1000, settle=500, warm=0, steps=200, sweeps=8)
     big = args.count > 1000
     params = dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0,
-                  steps=args.settle + args.steps + 1)
+                  steps=args.settle + args.warm + args.steps + 2)
     scene = generate("pile", 9, params)
     steppers = {}
     for name, settings in ((f"Box2D 2.4.1, {args.sweeps} iterations", None),
@@ -49,6 +64,10 @@ def main():
         engine = Box2D(velocity_iterations=args.sweeps) if settings is None else Box2D(
             solver=SolveSettings(max_iterations=args.sweeps, tolerance=0, mode=settings))
         steppers[name] = engine.stepper(world, scene, record=False)
+    steppers["Box2D, a copy once stepped from zero"] = shaken(scene, args)
+    for _ in range(args.warm):   # untimed
+        for step in steppers.values():
+            step()
     times = {name: [] for name in steppers}
     for _ in range(args.steps):   # each world in turn, one step each a round
         for name, step in steppers.items():
@@ -57,12 +76,13 @@ def main():
             times[name].append(time.thread_time() - t)
     base_name = next(iter(times))
     base = np.array(times[base_name])
-    print(f"the {args.count:,}-circle pile (seed 9), settled for {args.settle} steps; {args.steps} rounds")
-    print(f"{'':34s} {'median CPU ms':>13s} {'x Box2D (median of rounds)':>27s} {'IQR':>15s}")
+    warmed = f", then {args.warm} rounds untimed" if args.warm else ""
+    print(f"the {args.count:,}-circle pile (seed 9), settled for {args.settle} steps{warmed}; {args.steps} rounds")
+    print(f"{'':36s} {'median CPU ms':>13s} {'x Box2D (median of rounds)':>27s} {'IQR':>15s}")
     for name, values in times.items():
         ratio = np.array(values) / base
         q1, med, q3 = np.percentile(ratio, [25, 50, 75])
-        print(f"{name:34s} {np.median(values) * 1e3:13.3f} {med:26.2f}x {q1:7.2f}-{q3:.2f}x")
+        print(f"{name:36s} {np.median(values) * 1e3:13.3f} {med:26.2f}x {q1:7.2f}-{q3:.2f}x")
 
 
 if __name__ == "__main__":
