@@ -198,3 +198,54 @@ def test_a_zygote_first_asked_for_by_a_thread_that_ends_serves_on(probe_module):
             c.call({"op": "start", "ctx": None})
     finally:
         c.close()
+
+
+# --- A hostile contestant's tries (each must find what a fresh sandbox's contestant finds) -----------
+
+HOSTILE = textwrap.dedent("""
+    import json, os, resource, signal, time
+
+    class SignalsItsInit:
+        '''SIGINT to its namespace's PID 1: a fresh sandbox's (bubblewrap) takes no signal from inside.'''
+        def __call__(self, ctx):
+            os.kill(1, signal.SIGINT)
+            time.sleep(0.3)
+            raise RuntimeError("ALIVE")
+
+    class Limits:
+        def __call__(self, ctx):
+            raise RuntimeError("LIMITS" + json.dumps({"as": resource.getrlimit(resource.RLIMIT_AS)}))
+""")
+
+
+@pytest.fixture
+def hostile(tmp_path, monkeypatch):
+    folder = tmp_path / "hostile"
+    folder.mkdir()
+    (folder / "zygote_hostile.py").write_text(HOSTILE)
+    monkeypatch.syspath_prepend(str(folder))
+    monkeypatch.delitem(sys.modules, "zygote_hostile", raising=False)
+    import importlib
+    importlib.invalidate_caches()
+    return importlib.import_module("zygote_hostile")
+
+
+def said_by(contestant):
+    """What the contestant's start raised (its one line), and how its process was started."""
+    try:
+        with pytest.raises(PluginError) as e:
+            contestant.call({"op": "start", "ctx": None})
+        return type(contestant.sandbox.process).__name__, str(e.value)
+    finally:
+        contestant.close()
+
+
+@pytest.mark.parametrize("fresh", [False, True])
+def test_a_contestant_cannot_end_its_namespaces_first_process_by_a_signal(hostile, monkeypatch, fresh):
+    # (a fork's PID 1 is a fork of the zygote's Python, which handles SIGINT: the contestant ended
+    # itself, and was said to have exited with status 0)
+    if fresh:
+        monkeypatch.setenv("DC_NO_ZYGOTE", "1")
+    kind, said = said_by(Contestant("sig", "zygote_hostile", start=hostile.SignalsItsInit()).begin())
+    assert kind == ("Popen" if fresh else "ForkedProcess")
+    assert "ALIVE" in said, said

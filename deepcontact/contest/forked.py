@@ -126,6 +126,9 @@ def _init(request, channel, out, err, status, seccomp):
     contestant's process, whose end is its own. Never returns."""
     try:
         kernel.die_with_parent(signal.SIGKILL)
+        # (the zygote's Python handles SIGINT; a namespace's PID 1 with a handler takes the signal
+        # from inside, and a contestant ended itself as "exit status 0": bubblewrap's PID 1 takes none)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
         record = request["fence"]
         _view(record)
         program = os.read(seccomp, 1 << 20)
@@ -220,6 +223,7 @@ def _dev(root, record):
 def _contestant(request, channel, out, err):
     """The contestant's process: its streams, its environment, then the guest. Never returns."""
     try:
+        signal.signal(signal.SIGINT, signal.default_int_handler)   # (a fresh interpreter's)
         null = os.open("/dev/null", os.O_RDONLY)
         os.dup2(null, 0)
         os.dup2(out, 1)
