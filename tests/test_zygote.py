@@ -249,3 +249,20 @@ def test_a_contestant_cannot_end_its_namespaces_first_process_by_a_signal(hostil
     kind, said = said_by(Contestant("sig", "zygote_hostile", start=hostile.SignalsItsInit()).begin())
     assert kind == ("Popen" if fresh else "ForkedProcess")
     assert "ALIVE" in said, said
+
+
+def test_without_a_memory_group_contestants_are_forked_with_their_address_space_limit(hostile, monkeypatch):
+    # (where the machine lends no memory group, a sandbox's memory is its address space: the
+    # zygote's own (4 GiB, hard) was under a contestant's, which a fork cannot raise, so every fork
+    # was refused and every contestant started fresh)
+    roots = {k: v for k, v in machine.cgroup_roots().items() if k != "memory"}
+    monkeypatch.setattr(machine, "cgroup_roots", lambda: roots)
+    monkeypatch.setattr(zygote, "_refused", [])
+    zygote.close_all()
+    try:
+        kind, said = said_by(Contestant("as", "zygote_hostile", start=hostile.Limits()).begin())
+    finally:
+        zygote.close_all()   # (the next test's zygote starts with the machine's groups)
+    assert zygote._refused == [] and kind == "ForkedProcess", zygote._refused
+    soft, hard = json.loads(said[said.index("LIMITS") + 6:])["as"]
+    assert soft == hard >= fence.MEMORY_FLOOR

@@ -169,12 +169,15 @@ class Sandbox:
         for _, folder in dict.fromkeys(self.groups.values()):
             with open(os.path.join(folder, "cgroup.procs"), "w") as f:
                 f.write("0")
+        # (a zygote's forks set their own limits, which no process may raise past its hard one: its
+        # own are soft, under no hard limit)
+        hard = (lambda n: resource.RLIM_INFINITY) if self.fence.nested else (lambda n: n)
         size = self.fence.limits.file_size
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard(size)))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
         if "memory" not in self.groups and memory is not None and not self.fence.devices:
             # (an accelerator's driver maps more address space than memory: no such limit with one)
-            resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+            resource.setrlimit(resource.RLIMIT_AS, (memory, hard(memory)))
         os.setsid()
 
     def start(self, argv, pass_fds=(), env=None):
