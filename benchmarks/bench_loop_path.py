@@ -5,14 +5,21 @@ exactly what builtin gives (`Same`, from a module of its own on the path) and bu
 same run.
 
 Per run: the native loop's median step, builtin's through the path, the path's cost a step
-(`path_ms`: the median over the steps of builtin through the path less the native step), and the
+(`path_ms`: the median over the steps of builtin through the path less the native step), the
+median charge of builtin's start in it (its calls' wall time less the null contestant's least round
+trip over the run, or its CPU less the null's least CPU: contest/charge.py), and the
 ratios Same / builtin and builtin again / builtin of the median step (a start identical to builtin
 should measure 1.00x). The reference trajectory is not what is measured: the native loop's own
 trajectory stands in for it (the drift it gives is not read here).
 
 --profile: the judge's side of one run under cProfile (its 25 largest by own time), after the table.
+--doorbell N: the doorbell alone, N round trips between two bare processes, interleaved: a 16-byte
+request and answer on a socket pair as the loop's path sends them (multiprocessing's Connection,
+the judge polling before it reads) against an eventfd each way (the judge polling the eventfd);
+the median and 90th percentile of each.
 
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
+       [--doorbell 0]
 """
 import cProfile
 import os
@@ -53,13 +60,62 @@ def line(k, rows, native):
     b, s = rows["builtin"], rows["bench_same_start:Same"]
     med = float(np.median(b.ms_per_step))
     again = float(np.median(b.ms_again)) if b.ms_again is not None else float("nan")
-    print(f"| {k} | {np.median(native):.3f} | {med:.3f} | {b.path_ms:.3f} | "
+    charge = float(np.median(b.predict_ms))
+    print(f"| {k} | {np.median(native):.3f} | {med:.3f} | {b.path_ms:.3f} | {charge:.3f} | "
           f"{float(np.median(s.ms_per_step)) / med:.3f} | {again / med:.3f} |", flush=True)
 
 
+def doorbells(n):
+    """{name: [round trip seconds]} of n round trips each way, interleaved in blocks of 100."""
+    import select
+    import socket
+    import time
+    from multiprocessing.connection import Connection
+    ours, theirs = socket.socketpair()
+    conn, their_conn = Connection(ours.detach()), Connection(theirs.detach())
+    ring, back = os.eventfd(0), os.eventfd(0)
+    child = os.fork()
+    if child == 0:   # (the contestant: answers whichever bell rings)
+        poller = select.poll()
+        poller.register(their_conn.fileno(), select.POLLIN)
+        poller.register(ring, select.POLLIN)
+        while True:
+            for fd, _ in poller.poll():
+                if fd == ring:
+                    os.eventfd_read(ring)
+                    os.eventfd_write(back, 1)
+                else:
+                    data = their_conn.recv_bytes()
+                    if data == b"end":
+                        os._exit(0)
+                    their_conn.send_bytes(data)
+    times = {"socket pair": [], "eventfd": []}
+    request = bytes(16)
+    for _ in range(max(n // 100, 1)):
+        for _ in range(100):
+            t = time.perf_counter()
+            conn.send_bytes(request)
+            conn.poll(60)
+            conn.recv_bytes()
+            times["socket pair"].append(time.perf_counter() - t)
+        for _ in range(100):
+            t = time.perf_counter()
+            os.eventfd_write(ring, 1)
+            select.select([back], [], [], 60)
+            os.eventfd_read(back)
+            times["eventfd"].append(time.perf_counter() - t)
+    conn.send_bytes(b"end")
+    os.waitpid(child, 0)
+    return times
+
+
 def main():
-    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0)
+    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    if args.doorbell:
+        for name, t in doorbells(args.doorbell).items():
+            us = np.array(t) * 1e6
+            print(f"{name}: round trip median {np.median(us):.1f} us, p90 {np.percentile(us, 90):.1f} us ({len(us)})")
     folder = tempfile.mkdtemp(prefix="bench-loop-path-")
     Path(folder, "bench_same_start.py").write_text(SAME)
     sys.path.insert(0, folder)
@@ -69,8 +125,9 @@ def main():
     settings = SolveSettings()
     reference = run_loop(scene, None, settings, steps, "builtin", report=False)
     print(f"\nthe pile of seed {args.seed}, {args.count} circles, {steps} steps, {settings.tolerance:g} tolerance")
-    print("| run | native ms/step | builtin through the path | path_ms | Same / builtin | builtin again / builtin |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    print("| run | native ms/step | builtin through the path | path_ms | of which builtin's charge | Same / builtin "
+          "| builtin again / builtin |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for k in range(args.runs):
         native = run_loop(scene, None, settings, steps, "builtin", report=False).seconds * 1e3
         line(k + 1, one_run(scene, steps, reference), native)
@@ -80,6 +137,7 @@ def main():
         one_run(scene, steps, reference)
         profiler.disable()
         pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
+        pstats.Stats(profiler).sort_stats("cumulative").print_stats("pgs_loop|closed_loop|arena|client|methods|problem|world|replay|keyed|wire", 40)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
 
 

@@ -40,3 +40,231 @@ def test_previous_impulses_read_as_the_dict_a_start_was_given():
     assert again == plain and copy.deepcopy(again) == plain and not KeyedImpulses()
     previous[(0, 0, 0, 0, 0)] = (1.0, 1.0)   # (a start's own copy, changed as a dict is)
     assert pickle.loads(pickle.dumps(previous)) == {**plain, (0, 0, 0, 0, 0): (1.0, 1.0)}
+
+
+# --- The step's context through shared memory (contest/arena.py) ------------------------------------
+
+import dataclasses  # noqa: E402
+import textwrap  # noqa: E402
+
+import pytest  # noqa: E402
+
+from deepcontact.contest import arena  # noqa: E402
+from deepcontact.contest.arena import Mapped, StepChannel  # noqa: E402
+from deepcontact.contest.wire import unpack, pack  # noqa: E402
+from deepcontact.evaluate.replay import visible_context  # noqa: E402
+from deepcontact.plugins import PluginError  # noqa: E402
+from deepcontact.scene.generators import generate  # noqa: E402
+from deepcontact.simulate import stepping  # noqa: E402
+from deepcontact.simulate.engines import Box2D  # noqa: E402
+from deepcontact.simulate.pgs_loop import PGSStepper  # noqa: E402
+from deepcontact.solver.reference import reference_solution  # noqa: E402
+from deepcontact.solver.settings import SolveSettings  # noqa: E402
+from deepcontact.warmstart.starts import StepContext, described  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def steps():
+    """Two consecutive steps of a settling pile as the loop poses them: (bodies, contacts, problem)."""
+    scene = generate("pile", 0, {"count": 30, "box": 16.0, "sigma": 4.0})
+    caught = []
+
+    def start_fn(bodies, contacts, problem, builtin_n, builtin_t):
+        problem.start_normal, problem.start_tangent = builtin_n, builtin_t
+        caught.append((bodies, contacts, problem))
+        return builtin_n, builtin_t
+    engine = Box2D(solver=SolveSettings(), start="builtin", start_fn=start_fn)
+    world = engine.build(scene)
+    stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=start_fn, record=False)
+    for _ in stepping.steps(world, scene, stepper.step, 120):
+        pass
+    return caught[-2:]
+
+
+def step_ctx(step, traits, label="probe", previous=None):
+    """The ctx of a step as the loop's _Adapter makes it, as a start of `traits` may see it."""
+    bodies, contacts, problem = step
+    keys = np.ascontiguousarray(problem.keys)
+    ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts,
+                      reference=reference_solution(problem) if traits["needs_reference"] else None,
+                      persisted=np.arange(len(keys)) % 2 == 0, index=int(problem.index) + 7, variant=label,
+                      previous=previous if previous is not None else KeyedImpulses(keys[:3], [1.0, 2, 3], [0.5, 0, 0]),
+                      trajectory="loop")
+    return visible_context(ctx, traits, label)
+
+
+def same(a, b, where="ctx"):
+    if isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape, where
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), where
+    elif dataclasses.is_dataclass(a):
+        assert type(a) is type(b), where
+        for f in dataclasses.fields(a):
+            same(getattr(a, f.name), getattr(b, f.name), f"{where}.{f.name}")
+    elif isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b), where
+        for k in a:
+            same(a[k], b[k], f"{where}[{k!r}]")
+    else:
+        assert a == b, (where, a, b)
+
+
+def read_back(channel, request, mapped, receiver="reader"):
+    schema, fds = channel.setup_for(receiver)
+    if schema is not None:
+        mapped.setup(pickle.loads(schema), fds)
+    return mapped.context(request)
+
+
+@pytest.mark.parametrize("oracle", [False, True])
+def test_a_contestant_reads_the_ctx_the_judge_wrote(steps, oracle):
+    traits = dict(described("builtin"), needs_reference=oracle, needs_recorded=oracle)
+    channel, mapped = StepChannel(oracle), Mapped()
+    try:
+        for step in steps:   # (two steps: the second through the schema already held)
+            ctx = step_ctx(step, traits)
+            seq, got = read_back(channel, channel.write(ctx), mapped)
+            assert seq == channel.seq
+            same(dataclasses.replace(ctx, previous=dict(ctx.previous)), dataclasses.replace(got, previous=dict(got.previous)))
+            assert got.problem.contacts["friction"] is got.contacts["friction"]   # (shared as the judge's were)
+            assert (got.reference is not None) == oracle and ("normal_impulse" in got.contacts) == oracle
+            got.problem.start_normal[:] = -1.0   # (its own copy: writable, and nothing the judge holds)
+            assert not np.any(ctx.problem.start_normal == -1.0)
+        assert set(channel.arenas) == ({"plain", "oracle"} if oracle else {"plain"})
+    finally:
+        channel.close()
+
+
+def test_an_ordinary_channel_refuses_what_only_an_oracle_may_see(steps):
+    ctx = step_ctx(steps[0], dict(described("builtin"), needs_reference=True))
+    channel = StepChannel(False)
+    try:
+        with pytest.raises(ValueError, match="only an oracle"):
+            channel.write(ctx)
+    finally:
+        channel.close()
+
+
+def test_a_step_larger_than_its_arena_hands_the_reader_a_new_one(steps, monkeypatch):
+    monkeypatch.setattr(arena, "LEAST", 4096)
+    channel, mapped = StepChannel(False), Mapped()
+    try:
+        ctx = step_ctx(steps[0], described("builtin"))
+        small = dataclasses.replace(ctx, previous=KeyedImpulses())
+        read_back(channel, channel.write(small), mapped)
+        first = channel.arenas["plain"].generation
+        big = dataclasses.replace(ctx, previous=KeyedImpulses(np.zeros((4000, 5), np.int64), np.ones(4000), np.ones(4000)))
+        _, got = read_back(channel, channel.write(big), mapped)
+        assert channel.arenas["plain"].generation > first and len(got.previous._arrays[0]) == 4000
+    finally:
+        channel.close()
+
+
+def test_a_stale_sequence_number_is_refused(steps):
+    channel, mapped = StepChannel(False), Mapped()
+    try:
+        old = channel.write(step_ctx(steps[0], described("builtin")))
+        read_back(channel, old, mapped)
+        with pytest.raises(arena.StaleStep, match="not newer"):
+            mapped.context(old)   # (the same step again)
+        new = channel.write(step_ctx(steps[1], described("builtin")))
+        ahead = arena.REQUEST.pack(arena.STEP, channel.ident, channel.seq + 1)
+        with pytest.raises(arena.StaleStep, match="its arena holds"):
+            mapped.context(ahead)   # (a step the arena does not hold)
+        assert mapped.context(new)[0] == channel.seq
+    finally:
+        channel.close()
+
+
+def test_an_answer_is_copied_out_before_it_is_checked():
+    data = bytearray(pack({"seconds": {}}, {"normal": np.ones(4), "tangent": np.zeros(4)}))
+    _, arrays = unpack(data, "the variant 'x'")
+    data[-64:] = bytes(64)   # (the bytes it came in, changed after it was read)
+    assert np.array_equal(arrays["normal"], np.ones(4))
+    assert not any(np.shares_memory(a, np.frombuffer(data, np.uint8)) for a in arrays.values())
+
+
+PROBE = textwrap.dedent('''
+    import ctypes, gc, mmap
+    import numpy as np
+    from deepcontact.warmstart.starts import StartValue
+
+    def _maps():
+        from deepcontact.contest.arena import Mapped
+        return [m for o in gc.get_objects() if isinstance(o, Mapped)
+                for state in o.channels.values() for m in state["maps"].values()]
+
+    def _probe():
+        """What this process can do to the arenas it was handed: 1.0 where a write got through."""
+        out = {"arenas": 0.0, "oracle_arenas": 0.0, "item_write": 0.0, "mprotect_write": 0.0}
+        text = open("/proc/self/maps").read()
+        out["arenas"] = float(text.count("dc-arena"))
+        out["oracle_arenas"] = float(text.count("dc-oracle-arena"))
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+        for m in _maps():
+            try:
+                m[0] = 1
+                out["item_write"] = 1.0
+            except TypeError:
+                pass
+            address = np.frombuffer(m, np.uint8).ctypes.data
+            if libc.mprotect(address, len(m), mmap.PROT_READ | mmap.PROT_WRITE) == 0:
+                out["mprotect_write"] = 1.0
+        return out
+
+    class Probe:
+        """Box2D's warm start, after trying to write the arenas its ctx came in."""
+        def __call__(self, ctx):
+            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), _probe())
+
+    class OracleProbe(Probe):
+        """The same, as an oracle (it asks for the step's reference)."""
+        needs_reference = True
+''')
+
+
+@pytest.fixture
+def probes(tmp_path, monkeypatch):
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "arena_probe.py").write_text(PROBE)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    yield
+    import sys
+    from deepcontact.warmstart.starts import STARTS
+    sys.modules.pop("arena_probe", None)
+    for name in ("arena_probe:Probe", "arena_probe:OracleProbe"):
+        STARTS._loaded.pop(name, None)
+
+
+def probed(step, name):
+    """(the probe's findings, the judge's arena bytes before and after its call, its answer)."""
+    from deepcontact.contest.client import Contestant
+    from deepcontact.warmstart.starts import make_starts
+    start = make_starts([name])[name]
+    contestant = Contestant(name, name, start).begin()
+    channel = StepChannel(contestant.traits["needs_reference"])
+    try:
+        request = channel.write(step_ctx(step, contestant.traits, name))
+        before = {k: bytes(a.map) for k, a in channel.arenas.items()}
+        _, header, arrays = contestant.call_step(channel, request, 60)
+        after = {k: bytes(a.map) for k, a in channel.arenas.items()}
+        return header["seconds"], before, after, arrays
+    finally:
+        contestant.close()
+        channel.close()
+
+
+def test_a_contestant_cannot_write_the_arena(steps, probes):
+    found, before, after, arrays = probed(steps[0], "arena_probe:Probe")
+    assert found["arenas"] >= 1, found   # (it was handed the arena, mapped)
+    assert found["item_write"] == 0 and found["mprotect_write"] == 0, found
+    assert before == after   # (the judge's copy unchanged)
+    assert np.array_equal(arrays["normal"], steps[0][2].start_normal)
+
+
+def test_an_ordinary_start_never_gets_the_oracles_arena(steps, probes):
+    ordinary = probed(steps[0], "arena_probe:Probe")[0]
+    oracle, before, after, _ = probed(steps[0], "arena_probe:OracleProbe")
+    assert ordinary["arenas"] >= 1 and ordinary["oracle_arenas"] == 0, ordinary
+    assert oracle["oracle_arenas"] >= 1 and oracle["mprotect_write"] == 0 and before == after, oracle

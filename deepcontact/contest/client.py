@@ -18,6 +18,7 @@ from ..plugins import PluginError
 from ..solver.methods import SOLVERS, check_plausible, is_native, judge
 from ..warmstart.starts import NAMES, STARTS, TRAITS, Builtin, Checked, Remote, described
 from . import broker as _broker, grants, sandbox, shape
+from .arena import FDS
 from .wire import ANSWER_MAX, checked_answer, held_claims, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
@@ -129,9 +130,36 @@ class Contestant:
         data = request if isinstance(request, bytes) else packed(request)
         return self._timed(data, deadline or CALL_FLOOR, "answering")
 
-    def _timed(self, data, deadline, doing):
+    def call_step(self, channel, request, deadline=None):
+        """A loop step's start, its ctx written in `channel` (arena.StepChannel) and `request` the
+        bytes its write returned: what this contestant lacks of the channel (its schema, its
+        arenas' descriptors) sent first, in the call's time; (seconds charged, header, arrays) as
+        `call`, the answer refused unless it names the step's sequence number."""
+        schema, fds = channel.setup_for(self)
+        took, header, arrays = self._timed(request, deadline or CALL_FLOOR, "answering", schema, fds)
+        if header.get("seq") != channel.seq:
+            self.close()
+            raise PluginError(f"{self.who} answered step {header.get('seq')!r} of the loop when asked step "
+                              f"{channel.seq} (it was stopped)")
+        return took, header, arrays
+
+    def _send_descriptors(self, fds):
+        """Hands `fds` to the contestant over its socket (SCM_RIGHTS, with one byte), then closes them."""
+        import socket
+        try:
+            if getattr(self, "_socket", None) is None:
+                self._socket = socket.socket(fileno=os.dup(self.conn.fileno()))
+            socket.send_fds(self._socket, [FDS], fds)
+        finally:
+            for fd in fds:
+                os.close(fd)
+
+    def _timed(self, data, deadline, doing, before=None, fds=()):
         t0 = time.perf_counter()
         try:
+            if before is not None:   # (a step's arena set up: its schema, then its descriptors, maybe none)
+                self.conn.send_bytes(before)
+                self._send_descriptors(fds)
             self.conn.send_bytes(data)
         except OSError:
             self._ended(doing)
@@ -185,10 +213,12 @@ class Contestant:
         cpu, last = self.sandbox.cpu_seconds(), getattr(self, "cpu_last", None)
         if cpu is not None and last is not None:
             self.after_s = max(self.after_s, cpu - last)
-        try:
-            self.conn.close()
-        except OSError:
-            pass
+        for end in (self.conn, getattr(self, "_socket", None)):
+            try:
+                if end is not None:
+                    end.close()
+            except OSError:
+                pass
         self.sandbox.kill()
 
 

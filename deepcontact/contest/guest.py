@@ -23,6 +23,7 @@ from ..simulate.engines import ENGINES, Engine
 from ..solver import methods
 from ..solver.methods import call_plugin, is_native, solve
 from ..warmstart.starts import STARTS, TRAITS, Checked, declared, make_starts
+from . import arena
 from .shape import ERROR_MOST, TRACEBACK_MOST
 from .wire import pack
 
@@ -101,6 +102,11 @@ def _error(e):
     return pack({"error": _line(e)[:ERROR_MOST], "traceback": _traceback(e)[-TRACEBACK_MOST:]})
 
 
+def _step(request):
+    """A loop step's answer names its sequence number (the judge refuses any other)."""
+    return {"seq": request["seq"]} if "seq" in request else {}
+
+
 def _answer(op, request, setup, start):
     if setup.get("null"):   # (the judge's measure of transport: the request read, nothing done)
         if op == "solve":
@@ -108,11 +114,11 @@ def _answer(op, request, setup, start):
             return pack({"iterations": 0, "fallback": 0, "factorizations": 0},
                         {"normal": request["normal"], "tangent": request["tangent"], "claims": np.zeros(0)})
         n = request["ctx"].problem.points
-        return pack({"seconds": {}}, {"normal": np.zeros(n), "tangent": np.zeros(n)})
+        return pack({"seconds": {}, **_step(request)}, {"normal": np.zeros(n), "tangent": np.zeros(n)})
     if op == "start":
         value = start(request["ctx"])
         try:
-            return pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds or {}).items()}},
+            return pack({"seconds": {str(k): float(v) for k, v in dict(value.seconds or {}).items()}, **_step(request)},
                         {"normal": value.normal, "tangent": value.tangent})
         except (AttributeError, TypeError, ValueError) as e:
             raise PluginError(f"the start {setup['name']!r} must return a StartValue(normal, tangent, seconds): "
@@ -188,22 +194,48 @@ def serve(conn):
         # import or in a call, got torch's per-core default)
         protocol.keep_threads()
         return _answer(request["op"], request, setup, start)
-    _requests(conn, answer)
+    _requests(conn, answer, arena.Mapped())
 
 
-def _requests(conn, answer):
+def _requests(conn, answer, mapped=None):
     """Answers each request on conn with answer(request) (an error it raises as an error answer)
-    until the judge closes the connection."""
+    until the judge closes the connection. mapped: the loop's channels (arena.Mapped), where its
+    steps come through shared memory: a channel's setup is answered by the step that follows it."""
+    failed = None
     while True:
         try:
-            request = pickle.loads(conn.recv_bytes())
+            data = conn.recv_bytes()
         except EOFError:
             return
         try:
+            if failed is not None:
+                raise failed
+            if mapped is not None and data[:1] == arena.STEP:
+                seq, ctx = mapped.context(data)
+                request = {"op": "start", "ctx": ctx, "seq": seq}
+            else:
+                request = pickle.loads(data)
+                if mapped is not None and request.get("op") == "arena":
+                    failed = _set_up(conn, mapped, request)
+                    continue
             reply = answer(request)
         except BaseException as e:
-            reply = _error(e)
+            failed, reply = None, _error(e)
         conn.send_bytes(reply)
+
+
+def _set_up(conn, mapped, request):
+    """A channel set up from its schema and the descriptors that follow it; None, or the error to
+    answer the next request with."""
+    import socket
+    try:
+        if mapped.socket is None:
+            mapped.socket = socket.socket(fileno=os.dup(conn.fileno()))
+        _, fds, _, _ = socket.recv_fds(mapped.socket, 1, 4)
+        mapped.setup(request, fds)   # (which closes them)
+    except BaseException as e:
+        return e
+    return None
 
 
 def _engine_made(name, settings):

@@ -242,7 +242,7 @@ ANSWER = Record({
     "seconds": Table(Number(), most=256),
     "error": Text(most=ERROR_MOST), "traceback": Text(most=TRACEBACK_MOST),
     "layout": Declared("engine layout"), "stats": Table(Scalar(most=1 << 16), most=1024),
-    "dt_ratio": Number(), "deepest": Number(),
+    "dt_ratio": Number(), "deepest": Number(), "seq": Whole(),
     "traits": Declared("traits"), "described": Declared("plug-ins described"),
     "engine": Declared("engine described"),
 }, required=("arrays",))

@@ -23,7 +23,7 @@ import numpy as np
 from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
 from ..contest.charge import StepCharges
-from ..contest.client import packed
+from ..contest.arena import StepChannel
 from ..contest.keyed import KeyedImpulses, KeySet, hashes
 from ..contest.wire import checked_answer
 from ..scene.check import check_scene
@@ -82,6 +82,8 @@ class _Adapter:
         self.charges = StepCharges()
         self.transport = self.timing = np.zeros(0)   # per step, once settled: seconds not charged, the start's charge
         self.method = None   # a plug-in method's RemoteMethod, in the same process
+        # (its steps' ctx in shared memory; the columns only an oracle sees in an arena of their own)
+        self.channel = StepChannel(contestant.traits["needs_reference"] or contestant.traits["needs_recorded"])
 
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
@@ -93,10 +95,12 @@ class _Adapter:
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),
                           variant=self.name, trajectory="loop")
-        request = packed({"op": "start", "ctx": visible_context(ctx, self.contestant.traits, self.name)})
+        # (written once into the variant's shared arenas; read by the null contestant, just before,
+        # and by the variant's, each from its own copy: contest/arena.py)
+        request = self.channel.write(visible_context(ctx, self.contestant.traits, self.name))
         deadline = deadline_for(problem.points)
-        self.null.call(request, deadline)   # (just before: a first touch of the step's bytes, as the call's)
-        arrays = self.contestant.call(request, deadline)[2]
+        self.null.call_step(self.channel, request, deadline)
+        arrays = self.contestant.call_step(self.channel, request, deadline)[2]
         self.charges.record("start", self.contestant, self.null)
         return tuple(checked_answer(self.name, arrays, problem.points))
 
@@ -263,6 +267,8 @@ def _interleaved(scene, runs, steps):
     finally:
         for c in (*contestants, *([null] if null is not None else [])):
             c.close()
+        for adapter in loops:
+            adapter.channel.close()
     out = []
     for adapter in loops:
         adapter.settle()

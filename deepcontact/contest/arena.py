@@ -1,0 +1,321 @@
+"""The closed loop's steps in shared memory: a step's context written once by the judge, read by
+the variant's contestant and the null contestant, with no pickling on the path.
+
+Each variant has a channel (StepChannel): an arena (a memfd the judge maps for writing) holding the
+step's columns, and, for an oracle only, a second arena holding the columns only an oracle may see
+(the step's reference solution, the recorded impulses: OracleSlots). A contestant is handed
+read-only descriptors of them (SCM_RIGHTS over its socket, once, or again when an arena is made
+larger), maps them read-only, and copies a step out of them before building its ctx from the
+copy: what it keeps across steps is its own, and it can change nothing the judge or the null reads.
+
+An arena begins with a header: the step's sequence number, its index, the row count of each column;
+then the columns, each at a multiple of 64 bytes. What the columns are (their dtype, their shape but
+the rows, and which table of the ctx holds each) is the channel's schema, sent pickled once and
+again only when it changes (it does not while a loop runs). A step's request on the socket is then
+16 bytes: its sequence number and the channel; a contestant refuses a request whose sequence
+number is not the arena's or not newer than the last it read.
+"""
+import dataclasses
+import math
+import mmap
+import os
+import pickle
+import struct
+
+import numpy as np
+
+STEP = b"S"           # a step's request begins so (a pickled request begins b"\x80")
+FDS = b"F"            # the byte the descriptors come with
+HEAD = struct.Struct("<qqqIIQ")   # sequence number, ctx's index, its problem's, columns, schema version, bytes used
+REQUEST = struct.Struct("<cxxxIQ")   # STEP, the channel, the sequence number
+ALIGN = 64
+LEAST = 1 << 20       # bytes an arena starts with (a 100-circle step takes about 40 KiB)
+_PAD = bytes(ALIGN)
+ORACLE_SLOTS = {("contacts", "normal_impulse"), ("contacts", "tangent_impulse"), ("problem", "normal_impulse"),
+                ("problem", "tangent_impulse")}   # (and every ("reference", ...)): what only an oracle may see
+PROBLEM_ARRAYS = ("start_normal", "start_tangent", "normal_impulse", "tangent_impulse", "keys")
+PROBLEM_SCALARS = ("dt", "gravity", "block_solve", "velocity_iterations")
+CONTEXT_SCALARS = ("seed", "variant", "trajectory")
+
+
+class StaleStep(ValueError):
+    """A step's request whose sequence number is not its arena's, or not newer than the last read."""
+
+
+def _aligned(n):
+    return (n + ALIGN - 1) // ALIGN * ALIGN
+
+
+def _row_bytes(columns):
+    """The bytes of one row of each column [(dtype, trailing shape)]."""
+    return [np.dtype(dtype).itemsize * math.prod(shape) for dtype, shape in columns]
+
+
+def _layout(row_bytes, rows):
+    """(offset of each column, bytes used) for columns of `row_bytes` a row and `rows` rows."""
+    at = (HEAD.size + 4 * len(row_bytes) + ALIGN - 1) // ALIGN * ALIGN
+    offsets = []
+    for b, n in zip(row_bytes, rows):
+        offsets.append(at)
+        at = (at + b * int(n) + ALIGN - 1) // ALIGN * ALIGN
+    return offsets, at
+
+
+class Arena:
+    """One memfd of the judge's, mapped for writing; made again, larger, when a step does not fit
+    (its generation then counts up, and every reader is handed the new one)."""
+
+    def __init__(self, name, size=0):
+        self.name, self.generation, self.fd, self.map = name, 0, None, None
+        self._make(size)
+
+    def _make(self, size):
+        self.close()
+        self.size = _aligned(max(size, LEAST))
+        self.fd = os.memfd_create(self.name, os.MFD_CLOEXEC)
+        os.ftruncate(self.fd, self.size)
+        self.map = mmap.mmap(self.fd, self.size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+        self.view = memoryview(self.map)
+        self.generation += 1
+
+    def reader(self):
+        """A new read-only descriptor of it (the receiver's to close): neither it nor a mapping of
+        it can write, grow or seal the arena."""
+        return os.open(f"/proc/self/fd/{self.fd}", os.O_RDONLY | os.O_CLOEXEC)
+
+    def put(self, seq, index, arrays, version):
+        """Writes a step: its arrays (laid out as _layout lays them: each at a multiple of ALIGN),
+        then its header (index: the ctx's and its problem's), the sequence number last."""
+        rows, parts = [], []
+        for a in arrays:   # (one join and one copy in: an array's own buffer export costs more)
+            data = a.tobytes()
+            parts += (data, _PAD[:-len(data) % ALIGN])
+            rows.append(len(a))
+        start = _aligned(HEAD.size + 4 * len(rows))
+        blob = b"".join(parts)
+        used = start + len(blob)
+        if used > self.size:
+            self._make(2 * used)
+        self.view[HEAD.size:HEAD.size + 4 * len(rows)] = struct.pack(f"<{len(rows)}I", *rows)
+        self.view[start:used] = blob
+        HEAD.pack_into(self.map, 0, seq, *index, len(rows), version, used)
+
+    def close(self):
+        """Unmaps it and closes its descriptor (a reader's mapping stays valid)."""
+        if self.map is not None:
+            self.view.release()
+            self.map.close()
+            os.close(self.fd)
+            self.map = None
+
+
+@dataclasses.dataclass
+class Schema:
+    """What a channel's arenas hold: for each table entry of the ctx (slot, name) the arena and
+    column holding it; each arena's columns (dtype, trailing shape); the ctx's scalars."""
+    entries: tuple
+    columns: dict
+    scalars: tuple
+
+
+def _tables(ctx):
+    """[(slot, name, array)] of a ctx's arrays, in a fixed order; [(name, value)] of its scalars."""
+    out = [("bodies", k, v) for k, v in ctx.bodies.items()]
+    out += [("contacts", k, v) for k, v in ctx.contacts.items()]
+    p = ctx.problem
+    out += [("problem.bodies", k, v) for k, v in p.bodies.items()]
+    out += [("problem.contacts", k, v) for k, v in p.contacts.items()]
+    out += [("problem", k, getattr(p, k)) for k in PROBLEM_ARRAYS if getattr(p, k) is not None]
+    out.append(("ctx", "persisted", ctx.persisted))
+    out += [("previous", k, v) for k, v in zip(("keys", "normal", "tangent"), _previous_arrays(ctx.previous))]
+    if ctx.reference is not None:
+        r = ctx.reference
+        arrays = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)
+                  if isinstance(getattr(r, f.name), np.ndarray)}
+        rest = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name not in arrays}
+        out += [("reference", k, v) for k, v in arrays.items()]
+        out.append(("reference", "", np.frombuffer(pickle.dumps(rest, protocol=pickle.HIGHEST_PROTOCOL), np.uint8)))
+    scalars = (tuple((k, getattr(p, k)) for k in PROBLEM_SCALARS), tuple((k, getattr(ctx, k)) for k in CONTEXT_SCALARS))
+    return out, scalars
+
+
+def _previous_arrays(previous):
+    """(keys, normal, tangent) arrays of the previous step's impulses by key (keyed.KeyedImpulses
+    holds them so until read; any other mapping is read here)."""
+    held = getattr(previous, "_arrays", None)
+    if held is not None:
+        return held
+    items = list((previous or {}).items())
+    keys = np.array([k for k, _ in items], np.int64).reshape(-1, 5)
+    values = np.array([v for _, v in items], np.float64).reshape(-1, 2)
+    return keys, np.ascontiguousarray(values[:, 0]), np.ascontiguousarray(values[:, 1])
+
+
+def _is_oracle(slot, name):
+    return slot == "reference" or (slot, name) in ORACLE_SLOTS
+
+
+def _columns(items, oracle):
+    """(entries, columns, arrays) of a ctx's arrays (_tables): each array once, in the plain arena
+    unless only an oracle's entries hold it; ValueError where an oracle's entry is among the
+    items of a channel that is not an oracle's."""
+    plain = {id(a) for slot, name, a in items if not _is_oracle(slot, name)}
+    if not oracle and len(plain) < len({id(a) for _, _, a in items}):
+        raise ValueError("an ordinary start's ctx holds what only an oracle may see")
+    entries, where = [], {}
+    columns, arrays = {"plain": [], "oracle": []}, {"plain": [], "oracle": []}
+    for slot, name, a in items:
+        at = where.get(id(a))
+        if at is None:
+            kind = "plain" if id(a) in plain else "oracle"
+            at = where[id(a)] = (kind, len(arrays[kind]))
+            columns[kind].append((a.dtype.str, a.shape[1:]))
+            arrays[kind].append(a)
+        entries.append((slot, name, *at))
+    return tuple(entries), {k: tuple(v) for k, v in columns.items()}, arrays
+
+
+class StepChannel:
+    """One variant's steps in shared memory, written by the judge (write), each request sent to
+    its contestant and the null contestant alike (client.Contestant.call_step)."""
+
+    _count = 0
+
+    def __init__(self, oracle):
+        StepChannel._count += 1
+        self.ident, self.oracle = StepChannel._count, oracle
+        self.arenas = {"plain": Arena("dc-arena")}
+        if oracle:
+            self.arenas["oracle"] = Arena("dc-oracle-arena")
+        self.seq, self.version, self.schema, self.schema_bytes = 0, 0, None, b""
+        self.told = {}   # receiver -> (the generations of the arenas it holds, the schema version it holds)
+
+    def write(self, ctx):
+        """Writes a step's ctx (as its start may see it: replay.visible_context); its request's bytes."""
+        items, scalars = _tables(ctx)
+        arrays = self._as_before(items, scalars)
+        if arrays is None:   # (the first step, or one whose tables changed: a schema of its own)
+            entries, columns, arrays = _columns(items, self.oracle)
+            self._new_schema(Schema(entries, columns, scalars), items, arrays)
+        self.seq += 1
+        for kind, arena in self.arenas.items():
+            arena.put(self.seq, (int(ctx.index), int(ctx.problem.index)), arrays[kind], self.version)
+        return REQUEST.pack(STEP, self.ident, self.seq)
+
+    def _as_before(self, items, scalars):
+        """The arrays to write where the step's tables are laid out as the last schema's (the same
+        entries, the same arrays shared among them, each column's dtype and trailing shape), else None."""
+        if self.schema is None:
+            return None
+        first = {}
+        pattern = [first.setdefault(id(a), k) for k, (_, _, a) in enumerate(items)]
+        if pattern != self.pattern or scalars != self.schema.scalars or \
+                [(s, n) for s, n, _ in items] != self.names:
+            return None
+        arrays = {kind: [items[k][2] for k in at] for kind, at in self.positions.items()}
+        forms = {kind: [(a.dtype, a.shape[1:]) for a in v] for kind, v in arrays.items()}
+        return arrays if forms == self.forms else None
+
+    def _new_schema(self, schema, items, arrays):
+        self.schema, self.version = schema, self.version + 1
+        first = {}
+        self.pattern = [first.setdefault(id(a), k) for k, (_, _, a) in enumerate(items)]
+        self.names = [(s, n) for s, n, _ in items]
+        self.positions = {kind: [first[id(a)] for a in v] for kind, v in arrays.items()}
+        self.forms = {kind: [(a.dtype, a.shape[1:]) for a in v] for kind, v in arrays.items()}
+        self.schema_bytes = pickle.dumps({"op": "arena", "channel": self.ident, "version": self.version,
+                                          "schema": dataclasses.asdict(schema)}, protocol=pickle.HIGHEST_PROTOCOL)
+
+    def setup_for(self, receiver):
+        """(the schema's bytes or None, the read-only descriptors to hand `receiver`, or none):
+        what it lacks of this channel before it reads the step."""
+        generations = tuple(a.generation for a in self.arenas.values())
+        held = self.told.get(receiver)
+        if held == (generations, self.version):
+            return None, []
+        self.told[receiver] = (generations, self.version)
+        fds = [] if held is not None and held[0] == generations else [a.reader() for a in self.arenas.values()]
+        return self.schema_bytes, fds
+
+    def close(self):
+        """Closes its arenas."""
+        for arena in self.arenas.values():
+            arena.close()
+
+
+# --- The contestant's side ------------------------------------------------------------------------
+
+class Mapped:
+    """The channels a contestant was handed, mapped read-only; each step copied out and made a ctx."""
+
+    def __init__(self):
+        self.channels = {}   # channel -> {"schema", "version", "maps": {kind: mmap}, "seq"}
+        self.socket = None   # (the contestant's line as a socket, to receive descriptors on)
+
+    def setup(self, message, fds):
+        """A channel's schema (message: its pickled request, read) and, where given, its arenas'
+        descriptors (plain first, then oracle), mapped read-only and closed."""
+        try:
+            state = self.channels.setdefault(message["channel"], {"maps": {}, "seq": 0})
+            state["schema"], state["version"] = Schema(**message["schema"]), message["version"]
+            for kind, fd in zip(("plain", "oracle"), fds):
+                old = state["maps"].pop(kind, None)
+                if old is not None:
+                    old.close()
+                state["maps"][kind] = mmap.mmap(fd, os.fstat(fd).st_size, mmap.MAP_SHARED, mmap.PROT_READ)
+        finally:
+            for fd in fds:
+                os.close(fd)
+
+    def context(self, data):
+        """(sequence number, ctx) of a step's request: its arenas copied out, then read."""
+        _, channel, seq = REQUEST.unpack(data)
+        state = self.channels.get(channel)
+        if state is None:
+            raise StaleStep(f"a step of channel {channel}, which was never set up")
+        if seq <= state["seq"]:
+            raise StaleStep(f"a step's request of sequence number {seq}, not newer than the last read ({state['seq']})")
+        schema, columns = state["schema"], {}
+        for kind, mm in state["maps"].items():
+            columns[kind] = _copied(mm, schema.columns[kind], seq, state["version"])
+        state["seq"] = seq
+        return seq, _context(schema, columns, *_index(state["maps"]["plain"]))
+
+
+def _index(mm):
+    return HEAD.unpack_from(mm, 0)[1:3]
+
+
+def _copied(mm, columns, seq, version):
+    """The arrays of one arena, from one copy of the bytes it uses (its own, writable)."""
+    head_seq, _, _, n, held_version, used = HEAD.unpack_from(mm, 0)
+    if head_seq != seq or n != len(columns) or held_version != version or used > len(mm):
+        raise StaleStep(f"a step's request of sequence number {seq}; its arena holds {head_seq}")
+    buf = np.frombuffer(mm, np.uint8, used).copy()
+    if HEAD.unpack_from(buf, 0)[0] != seq:   # (the copy is of the step asked for)
+        raise StaleStep(f"the arena moved on from sequence number {seq} while it was read")
+    rows = struct.unpack_from(f"<{n}I", buf, HEAD.size)
+    offsets, _ = _layout(_row_bytes(columns), rows)
+    return [np.ndarray((r, *shape), dtype, buf, at) for (dtype, shape), r, at in zip(columns, rows, offsets)]
+
+
+def _context(schema, columns, index, problem_index):
+    """The StepContext the arrays make, as the judge's visible ctx held them."""
+    from ..solver.pgs import Solution
+    from ..solver.problem import StepProblem
+    from ..warmstart.starts import StepContext
+    from .keyed import KeyedImpulses
+    tables = {s: {} for s in ("bodies", "contacts", "problem.bodies", "problem.contacts", "problem", "ctx", "previous",
+                              "reference")}
+    for slot, name, kind, column in schema.entries:
+        tables[slot][name] = columns[kind][column]
+    problem_scalars, ctx_scalars = (dict(s) for s in schema.scalars)
+    problem = StepProblem(bodies=tables["problem.bodies"], contacts=tables["problem.contacts"], index=problem_index,
+                          **problem_scalars, **{k: tables["problem"].get(k) for k in PROBLEM_ARRAYS})
+    reference = None
+    if tables["reference"]:
+        rest = pickle.loads(tables["reference"].pop("").tobytes())
+        reference = Solution(**tables["reference"], **rest)
+    previous = KeyedImpulses(tables["previous"]["keys"], tables["previous"]["normal"], tables["previous"]["tangent"])
+    return StepContext(problem=problem, bodies=tables["bodies"], contacts=tables["contacts"], reference=reference,
+                       persisted=tables["ctx"]["persisted"], previous=previous, index=index, **ctx_scalars)
