@@ -266,3 +266,33 @@ def test_without_a_memory_group_contestants_are_forked_with_their_address_space_
     assert zygote._refused == [] and kind == "ForkedProcess", zygote._refused
     soft, hard = json.loads(said[said.index("LIMITS") + 6:])["as"]
     assert soft == hard >= fence.MEMORY_FLOOR
+
+
+def test_a_fork_of_the_judge_starts_its_own_zygote_and_leaves_its_parents_alone(probe_module):
+    # (a -j worker forked from a process that had a zygote waited forever for the keeper thread,
+    # which a fork does not copy; and the parent's zygote is not the worker's to end)
+    import signal
+    first = Contestant("parent", "zygote_probe", start=probe_module.Spin()).begin()
+    first.close()
+    pid = os.fork()
+    if pid == 0:
+        signal.alarm(60)
+        code = 1
+        try:
+            c = Contestant("child", "zygote_probe", start=probe_module.Spin()).begin()
+            try:
+                c.call({"op": "start", "ctx": None})
+            except PluginError as e:
+                code = 0 if "SPUN" in str(e) and type(c.sandbox.process).__name__ == "ForkedProcess" else 3
+            c.close()
+            zygote.close_all()
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+    later = Contestant("parent again", "zygote_probe", start=probe_module.Spin()).begin()
+    try:
+        with pytest.raises(PluginError, match="SPUN"):
+            later.call({"op": "start", "ctx": None})
+    finally:
+        later.close()

@@ -91,6 +91,14 @@ def _sweep(base):
                 pass
 
 
+def _forget_in_child():
+    # (a fork of this process, a -j worker, ends none of its parent's sandboxes on its way out)
+    _live.clear()
+
+
+os.register_at_fork(after_in_child=_forget_in_child)
+
+
 def kill_all():
     """Ends every sandbox this process still runs (dc's way out: nothing it started outlives it)."""
     for box in list(_live):

@@ -80,6 +80,23 @@ def _by_keeper():
     return answer[0]
 
 
+def _forget_in_child():
+    """In a fork of this process (a -j worker): the parent's zygotes are not its own to use or
+    end (its copies of their lines closed, nothing killed), and the keeper thread was not forked
+    (a worker that asked it for a zygote waited forever): it starts its own."""
+    global _lock, _asks
+    for zygote in _zygotes.values():
+        if zygote.line is not None:
+            zygote.line.close()
+            zygote.line = None
+    _zygotes.clear()
+    _keeper.clear()
+    _lock, _asks = threading.Lock(), queue.Queue()
+
+
+os.register_at_fork(after_in_child=_forget_in_child)
+
+
 def _keep():
     while True:
         done, answer = _asks.get()
