@@ -212,6 +212,13 @@ HOSTILE = textwrap.dedent("""
             time.sleep(0.3)
             raise RuntimeError("ALIVE")
 
+    class SignalsItsGroup:
+        '''SIGINT to its process group: a fresh sandbox's is the namespace's own (--new-session).'''
+        def __call__(self, ctx):
+            os.kill(0, signal.SIGINT)   # (the guest itself ignores SIGINT)
+            time.sleep(0.3)
+            raise RuntimeError("ALIVE" + json.dumps([os.getpgid(0), os.getsid(0)]))
+
     class Limits:
         def __call__(self, ctx):
             raise RuntimeError("LIMITS" + json.dumps({"as": resource.getrlimit(resource.RLIMIT_AS)}))
@@ -241,14 +248,18 @@ def said_by(contestant):
 
 
 @pytest.mark.parametrize("fresh", [False, True])
-def test_a_contestant_cannot_end_its_namespaces_first_process_by_a_signal(hostile, monkeypatch, fresh):
+@pytest.mark.parametrize("probe", ["SignalsItsInit", "SignalsItsGroup"])
+def test_a_contestant_signals_no_process_that_ends_its_namespace(hostile, monkeypatch, fresh, probe):
     # (a fork's PID 1 is a fork of the zygote's Python, which handles SIGINT: the contestant ended
-    # itself, and was said to have exited with status 0)
+    # itself, said as exit status 0; and its process group was the outer fork's, outside its PID
+    # namespace, which a SIGINT to the group ended: exit status 1)
     if fresh:
         monkeypatch.setenv("DC_NO_ZYGOTE", "1")
-    kind, said = said_by(Contestant("sig", "zygote_hostile", start=hostile.SignalsItsInit()).begin())
+    kind, said = said_by(Contestant("sig", "zygote_hostile", start=getattr(hostile, probe)()).begin())
     assert kind == ("Popen" if fresh else "ForkedProcess")
     assert "ALIVE" in said, said
+    if probe == "SignalsItsGroup":
+        assert json.loads(said[said.index("ALIVE") + 5:]) == [1, 1]   # (its group and session: its namespace's first process's)
 
 
 def test_without_a_memory_group_contestants_are_forked_with_their_address_space_limit(hostile, monkeypatch):

@@ -10,7 +10,8 @@ Each fork, before any code of its own runs, fences itself as bubblewrap fences a
 1. into its control groups (the kernel checks the judge who opened the files), so its charge
    starts at birth; its limits on; a session of its own;
 2. new user, mount, PID, network, IPC, UTS and cgroup namespaces, and a fork that is PID 1 of
-   its own (it reaps, and its end ends every process of the namespace);
+   its own (a session of the namespace's own; it reaps, and its end ends every process of the
+   namespace; it takes no signal from inside);
 3. its own view, built from the record: a new root holding the system folders and the few files
    of /etc, the readable folders, all read-only; its own /dev (the harmless device nodes and a
    size-limited /dev/shm), its own /tmp of file_size bytes, its own /proc (read-only) showing
@@ -129,6 +130,9 @@ def _init(request, channel, out, err, status, seccomp):
         # (the zygote's Python handles SIGINT; a namespace's PID 1 with a handler takes the signal
         # from inside, and a contestant ended itself as "exit status 0": bubblewrap's PID 1 takes none)
         signal.signal(signal.SIGINT, signal.SIG_DFL)
+        # (a session and process group of the namespace's own, as bubblewrap's --new-session: in the
+        # outer fork's, a contestant's kill(0, ...) reached that fork, outside its PID namespace)
+        os.setsid()
         record = request["fence"]
         _view(record)
         program = os.read(seccomp, 1 << 20)
