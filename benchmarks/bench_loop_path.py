@@ -7,7 +7,11 @@ same run.
 Per run: the native loop's median step, builtin's through the path, the path's cost a step
 (`path_ms`: the median over the steps of builtin through the path less the native step), the
 median charge of builtin's start in it (its calls' wall time less the null contestant's least round
-trip over the run, or its CPU less the null's least CPU: contest/charge.py), and the
+trip over the run, or its CPU less the null's least CPU: contest/charge.py), the round trips a step
+not charged (builtin's call and the null's: the transport taken out of its time), the judge's own
+CPU a step over the native loop's (builtin alone stepped through the path, its two contestants
+started and ended in it, against the native loop: the judge's side of the path alone, less noisy
+than wall time on a shared machine), and the
 ratios Same / builtin and builtin again / builtin of the median step (a start identical to builtin
 should measure 1.00x). The reference trajectory is not what is measured: the native loop's own
 trajectory stands in for it (the drift it gives is not read here).
@@ -18,8 +22,13 @@ request and answer on a socket pair as the loop's path sends them (multiprocessi
 the judge polling before it reads) against an eventfd each way (the judge polling the eventfd);
 the median and 90th percentile of each.
 
+--pieces N: what the path's per-step work costs on one settled step of the pile (its step 250),
+the way before (a Python tuple a contact key, the ctx pickled by the judge and unpickled by each
+contestant) and the way now (keys matched as arrays, the ctx written into the arena and read out of
+it), each timed N times, interleaved, in this process: medians in microseconds.
+
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
-       [--doorbell 0]
+       [--doorbell 0] [--pieces 0]
 """
 import cProfile
 import os
@@ -28,11 +37,13 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
 
-from deepcontact.evaluate.closed_loop import closed_loop, run_loop
+from deepcontact.evaluate.closed_loop import _interleaved, closed_loop, run_loop
+from deepcontact.evaluate.replay import variants, visible_context
 from deepcontact.scene.generators import generate
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.warmstart.starts import make_starts
@@ -56,13 +67,29 @@ def one_run(scene, steps, reference):
     return {r.start: r for r in results}
 
 
-def line(k, rows, native):
+def judge_cpu(scene, settings, steps):
+    """The judge's CPU ms a step stepping builtin alone through the path (as closed_loop's
+    _path_cost does: its contestant and the null contestant started, the steps, both ended)."""
+    v = variants(make_starts(["builtin"]))[0]
+    cpu = time.process_time()
+    done = _interleaved(scene, [(v, settings, False)], steps)
+    return (time.process_time() - cpu) / len(done[0][0].seconds) * 1e3
+
+
+def native_run(scene, settings, steps):
+    """(ms per step, the judge's CPU ms a step) of the native loop."""
+    cpu = time.process_time()
+    seconds = run_loop(scene, None, settings, steps, "builtin", report=False).seconds
+    return seconds * 1e3, (time.process_time() - cpu) / len(seconds) * 1e3
+
+
+def line(k, rows, judge, native, native_cpu):
     b, s = rows["builtin"], rows["bench_same_start:Same"]
     med = float(np.median(b.ms_per_step))
     again = float(np.median(b.ms_again)) if b.ms_again is not None else float("nan")
-    charge = float(np.median(b.predict_ms))
-    print(f"| {k} | {np.median(native):.3f} | {med:.3f} | {b.path_ms:.3f} | {charge:.3f} | "
-          f"{float(np.median(s.ms_per_step)) / med:.3f} | {again / med:.3f} |", flush=True)
+    charge, transport = float(np.median(b.predict_ms)), float(np.median(b.transport_ms))
+    print(f"| {k} | {np.median(native):.3f} | {med:.3f} | {b.path_ms:.3f} | {charge:.3f} | {transport:.3f} | "
+          f"{judge - native_cpu:.3f} | {float(np.median(s.ms_per_step)) / med:.3f} | {again / med:.3f} |", flush=True)
 
 
 def doorbells(n):
@@ -109,8 +136,80 @@ def doorbells(n):
     return times
 
 
+def settled_step(scene, k):
+    """(bodies, contacts, problem) of step k of the loop, as its start_fn is handed them."""
+    from deepcontact.simulate import stepping
+    from deepcontact.simulate.engines import Box2D
+    from deepcontact.simulate.pgs_loop import PGSStepper
+    caught = []
+
+    def start_fn(bodies, contacts, problem, builtin_n, builtin_t):
+        problem.start_normal, problem.start_tangent = builtin_n, builtin_t
+        caught.append((bodies, contacts, problem))
+        return builtin_n, builtin_t
+    engine = Box2D(solver=SolveSettings(), start="builtin", start_fn=start_fn)
+    world = engine.build(scene)
+    stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=start_fn, record=False)
+    for _ in stepping.steps(world, scene, stepper.step, k):
+        pass
+    return caught[-1]
+
+
+def pieces(scene, n):
+    """{piece: [seconds]} of the path's per-step work, before and now, on one settled step."""
+    import pickle
+
+    from deepcontact.contest.arena import Mapped, StepChannel
+    from deepcontact.contest.keyed import KeyedImpulses, KeySet, hashes
+    from deepcontact.solver.problem import contact_keys, impulses_by_key
+    from deepcontact.warmstart.starts import StepContext, described
+    bodies, contacts, problem = settled_step(scene, 250)
+    traits = described("builtin")
+    keys = contact_keys(contacts)
+    known, keyset = set(keys), KeySet(problem.keys)
+    normal, tangent = problem.start_normal.astype(np.float64), problem.start_tangent.astype(np.float64)
+
+    def ctx(previous, persisted):
+        return visible_context(StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=None,
+                                           persisted=persisted, previous=previous, index=250, variant="builtin",
+                                           trajectory="loop"), traits, "builtin")
+    channel, mapped = StepChannel(False), Mapped()
+    schema, fds = channel.setup_for("bench")
+    channel.write(ctx(KeyedImpulses(problem.keys, normal, tangent), np.zeros(problem.points, bool)))
+    mapped.setup(pickle.loads(channel.schema_bytes), fds)
+    work = {
+        "before: keys as tuples (persisted, previous by key)": lambda: (
+            np.array([k in known for k in contact_keys(contacts)], bool), impulses_by_key(keys, normal, tangent)),
+        "now: keys as arrays (persisted, previous by key)": lambda: (
+            keyset.find(problem.keys, hashes(np.ascontiguousarray(problem.keys))),
+            KeySet(problem.keys), KeyedImpulses(problem.keys, normal, tangent)),
+        "before: the ctx pickled (judge)": lambda: pickle.dumps(
+            {"op": "start", "ctx": ctx(impulses_by_key(keys, normal, tangent), np.zeros(problem.points, bool))},
+            protocol=pickle.HIGHEST_PROTOCOL),
+        "now: the ctx written into the arena (judge)": lambda: channel.write(
+            ctx(KeyedImpulses(problem.keys, normal, tangent), np.zeros(problem.points, bool))),
+    }
+    data = work["before: the ctx pickled (judge)"]()
+    work["before: the ctx unpickled (each contestant)"] = lambda: pickle.loads(data)
+    work["now: the ctx read out of the arena (each contestant)"] = lambda: mapped.context(channel.write(
+        ctx(KeyedImpulses(problem.keys, normal, tangent), np.zeros(problem.points, bool))))
+    times = {name: [] for name in work}
+    for _ in range(n):
+        for name, fn in work.items():
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+    # (reading includes a write: the write's median taken out)
+    reading = "now: the ctx read out of the arena (each contestant)"
+    times[reading] = list(np.array(times[reading]) - np.median(times["now: the ctx written into the arena (judge)"]))
+    channel.close()
+    print(f"\none settled step (250) of the pile: {problem.points} contact points, {len(data):,} bytes pickled")
+    for name, t in times.items():
+        print(f"{name:56s} {np.median(t) * 1e6:8.1f} us")
+
+
 def main():
-    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0)
+    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     if args.doorbell:
         for name, t in doorbells(args.doorbell).items():
@@ -122,15 +221,17 @@ def main():
     os.environ["PYTHONPATH"] = os.pathsep.join([folder, *filter(None, [os.environ.get("PYTHONPATH")])])
     scene = generate("pile", args.seed, {"count": args.count} if args.count != 100 else None)
     steps = min(args.steps, scene.steps)
+    if args.pieces:
+        pieces(scene, args.pieces)
     settings = SolveSettings()
     reference = run_loop(scene, None, settings, steps, "builtin", report=False)
     print(f"\nthe pile of seed {args.seed}, {args.count} circles, {steps} steps, {settings.tolerance:g} tolerance")
-    print("| run | native ms/step | builtin through the path | path_ms | of which builtin's charge | Same / builtin "
-          "| builtin again / builtin |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    print("| run | native ms/step | builtin through the path | path_ms | of which builtin's charge | round trips "
+          "(ms a step) | judge's CPU over native (ms a step) | Same / builtin | builtin again / builtin |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for k in range(args.runs):
-        native = run_loop(scene, None, settings, steps, "builtin", report=False).seconds * 1e3
-        line(k + 1, one_run(scene, steps, reference), native)
+        native, native_cpu = native_run(scene, settings, steps)
+        line(k + 1, one_run(scene, steps, reference), judge_cpu(scene, settings, steps), native, native_cpu)
     if args.profile:
         profiler = cProfile.Profile()
         profiler.enable()

@@ -10,6 +10,7 @@ charge submissions.
 - `client`: the judge's side, one charged call (wall time or CPU, the larger) with its deadline;
 - `charge`: a loop step's calls charged, less the null contestant's least round trip over the run;
 - `keyed`: contact keys matched as arrays (the loop's persisted points and previous impulses);
+- `arena`: the loop's step context in shared memory, mapped read-only by its contestants;
 - `verdict`: one rule that names a winner, or says there is none, for replay and loop alike.
 
 evaluate/ and the studies consume it; it imports nothing above the warm starts.

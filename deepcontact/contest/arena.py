@@ -16,6 +16,7 @@ again only when it changes (it does not while a loop runs). A step's request on 
 number is not the arena's or not newer than the last it read.
 """
 import dataclasses
+import itertools
 import math
 import mmap
 import os
@@ -53,12 +54,10 @@ def _row_bytes(columns):
 
 def _layout(row_bytes, rows):
     """(offset of each column, bytes used) for columns of `row_bytes` a row and `rows` rows."""
+    sizes = [(b * n + ALIGN - 1) // ALIGN * ALIGN for b, n in zip(row_bytes, rows)]
     at = (HEAD.size + 4 * len(row_bytes) + ALIGN - 1) // ALIGN * ALIGN
-    offsets = []
-    for b, n in zip(row_bytes, rows):
-        offsets.append(at)
-        at = (at + b * int(n) + ALIGN - 1) // ALIGN * ALIGN
-    return offsets, at
+    offsets = list(itertools.accumulate(sizes, initial=at))
+    return offsets[:-1], offsets[-1]
 
 
 class Arena:
@@ -86,13 +85,10 @@ class Arena:
     def put(self, seq, index, arrays, version):
         """Writes a step: its arrays (laid out as _layout lays them: each at a multiple of ALIGN),
         then its header (index: the ctx's and its problem's), the sequence number last."""
-        rows, parts = [], []
-        for a in arrays:   # (one join and one copy in: an array's own buffer export costs more)
-            data = a.tobytes()
-            parts += (data, _PAD[:-len(data) % ALIGN])
-            rows.append(len(a))
+        # (each array's bytes, padded, joined and copied in once: an array's buffer export costs more)
+        rows = [len(a) for a in arrays]
+        blob = b"".join([part for data in map(np.ndarray.tobytes, arrays) for part in (data, _PAD[:-len(data) % ALIGN])])
         start = _aligned(HEAD.size + 4 * len(rows))
-        blob = b"".join(parts)
         used = start + len(blob)
         if used > self.size:
             self._make(2 * used)
@@ -258,6 +254,7 @@ class Mapped:
         try:
             state = self.channels.setdefault(message["channel"], {"maps": {}, "seq": 0})
             state["schema"], state["version"] = Schema(**message["schema"]), message["version"]
+            state["forms"] = {kind: _forms(columns) for kind, columns in state["schema"].columns.items()}
             for kind, fd in zip(("plain", "oracle"), fds):
                 old = state["maps"].pop(kind, None)
                 if old is not None:
@@ -277,7 +274,7 @@ class Mapped:
             raise StaleStep(f"a step's request of sequence number {seq}, not newer than the last read ({state['seq']})")
         schema, columns = state["schema"], {}
         for kind, mm in state["maps"].items():
-            columns[kind] = _copied(mm, schema.columns[kind], seq, state["version"])
+            columns[kind] = _copied(mm, state["forms"][kind], seq, state["version"])
         state["seq"] = seq
         return seq, _context(schema, columns, *_index(state["maps"]["plain"]))
 
@@ -286,17 +283,24 @@ def _index(mm):
     return HEAD.unpack_from(mm, 0)[1:3]
 
 
-def _copied(mm, columns, seq, version):
-    """The arrays of one arena, from one copy of the bytes it uses (its own, writable)."""
+def _forms(columns):
+    """(dtypes, trailing shapes, bytes a row) of an arena's columns [(dtype, trailing shape)]."""
+    return [np.dtype(d) for d, _ in columns], [tuple(shape) for _, shape in columns], _row_bytes(columns)
+
+
+def _copied(mm, forms, seq, version):
+    """The arrays of one arena (forms: its columns', _forms), from one copy of the bytes it uses
+    (its own, writable)."""
+    dtypes, shapes, row_bytes = forms
     head_seq, _, _, n, held_version, used = HEAD.unpack_from(mm, 0)
-    if head_seq != seq or n != len(columns) or held_version != version or used > len(mm):
+    if head_seq != seq or n != len(dtypes) or held_version != version or used > len(mm):
         raise StaleStep(f"a step's request of sequence number {seq}; its arena holds {head_seq}")
     buf = np.frombuffer(mm, np.uint8, used).copy()
     if HEAD.unpack_from(buf, 0)[0] != seq:   # (the copy is of the step asked for)
         raise StaleStep(f"the arena moved on from sequence number {seq} while it was read")
     rows = struct.unpack_from(f"<{n}I", buf, HEAD.size)
-    offsets, _ = _layout(_row_bytes(columns), rows)
-    return [np.ndarray((r, *shape), dtype, buf, at) for (dtype, shape), r, at in zip(columns, rows, offsets)]
+    offsets, _ = _layout(row_bytes, rows)
+    return [np.ndarray((r, *shape), dtype, buf, at) for dtype, shape, r, at in zip(dtypes, shapes, rows, offsets)]
 
 
 def _context(schema, columns, index, problem_index):
