@@ -25,7 +25,8 @@ the median and 90th percentile of each.
 --pieces N: what the path's per-step work costs on one settled step of the pile (its step 250),
 the way before (a Python tuple a contact key, the ctx pickled by the judge and unpickled by each
 contestant) and the way now (keys matched as arrays, the ctx written into the arena and read out of
-it), each timed N times, interleaved, in this process: medians in microseconds.
+it), and the work both do (the world read out, the problem posed, the answer packed and checked),
+each timed N times, interleaved, in this process: medians in microseconds.
 
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
        [--doorbell 0] [--pieces 0]
@@ -137,7 +138,7 @@ def doorbells(n):
 
 
 def settled_step(scene, k):
-    """(bodies, contacts, problem) of step k of the loop, as its start_fn is handed them."""
+    """(bodies, contacts, problem) of step k of the loop, as its start_fn is handed them, and the world."""
     from deepcontact.simulate import stepping
     from deepcontact.simulate.engines import Box2D
     from deepcontact.simulate.pgs_loop import PGSStepper
@@ -152,7 +153,7 @@ def settled_step(scene, k):
     stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=start_fn, record=False)
     for _ in stepping.steps(world, scene, stepper.step, k):
         pass
-    return caught[-1]
+    return (*caught[-1], world)
 
 
 def pieces(scene, n):
@@ -163,7 +164,9 @@ def pieces(scene, n):
     from deepcontact.contest.keyed import KeyedImpulses, KeySet, hashes
     from deepcontact.solver.problem import contact_keys, impulses_by_key
     from deepcontact.warmstart.starts import StepContext, described
-    bodies, contacts, problem = settled_step(scene, 250)
+    from deepcontact.contest.wire import checked_answer, pack, unpack
+    from deepcontact.solver.problem import StepProblem
+    bodies, contacts, problem, world = settled_step(scene, 250)
     traits = described("builtin")
     keys = contact_keys(contacts)
     known, keyset = set(keys), KeySet(problem.keys)
@@ -173,26 +176,40 @@ def pieces(scene, n):
         return visible_context(StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=None,
                                            persisted=persisted, previous=previous, index=250, variant="builtin",
                                            trajectory="loop"), traits, "builtin")
+    persisted = np.zeros(problem.points, bool)
+    before = ctx(impulses_by_key(keys, normal, tangent), persisted)
+    now = ctx(KeyedImpulses(problem.keys, normal, tangent), persisted)
     channel, mapped = StepChannel(False), Mapped()
+    channel.write(now)
     schema, fds = channel.setup_for("bench")
-    channel.write(ctx(KeyedImpulses(problem.keys, normal, tangent), np.zeros(problem.points, bool)))
-    mapped.setup(pickle.loads(channel.schema_bytes), fds)
+    mapped.setup(pickle.loads(schema), fds)
+
+    def matched():
+        h = hashes(np.ascontiguousarray(problem.keys))
+        return keyset.find(problem.keys, h), KeySet(problem.keys, h), KeyedImpulses(problem.keys, normal, tangent)
     work = {
         "before: keys as tuples (persisted, previous by key)": lambda: (
             np.array([k in known for k in contact_keys(contacts)], bool), impulses_by_key(keys, normal, tangent)),
-        "now: keys as arrays (persisted, previous by key)": lambda: (
-            keyset.find(problem.keys, hashes(np.ascontiguousarray(problem.keys))),
-            KeySet(problem.keys), KeyedImpulses(problem.keys, normal, tangent)),
-        "before: the ctx pickled (judge)": lambda: pickle.dumps(
-            {"op": "start", "ctx": ctx(impulses_by_key(keys, normal, tangent), np.zeros(problem.points, bool))},
-            protocol=pickle.HIGHEST_PROTOCOL),
-        "now: the ctx written into the arena (judge)": lambda: channel.write(
-            ctx(KeyedImpulses(problem.keys, normal, tangent), np.zeros(problem.points, bool))),
+        "now: keys as arrays (persisted, previous by key)": matched,
+        "before: the ctx pickled (judge)": lambda: pickle.dumps({"op": "start", "ctx": before},
+                                                                protocol=pickle.HIGHEST_PROTOCOL),
+        "now: the ctx written into the arena (judge)": lambda: channel.write(now),
     }
     data = work["before: the ctx pickled (judge)"]()
     work["before: the ctx unpickled (each contestant)"] = lambda: pickle.loads(data)
-    work["now: the ctx read out of the arena (each contestant)"] = lambda: mapped.context(channel.write(
-        ctx(KeyedImpulses(problem.keys, normal, tangent), np.zeros(problem.points, bool))))
+    work["now: the ctx read out of the arena (each contestant)"] = lambda: mapped.context(channel.write(now))
+    answer = pack({"seconds": {}, "seq": 1}, {"normal": normal, "tangent": tangent})
+    work.update({   # (the same both ways: what else the judge's side of a step does in Python)
+        "both: the bodies read out of the world": world.bodies,
+        "both: the contacts read out of the world": world.contacts,
+        "both: the problem posed (StepProblem.from_arrays)": lambda: StepProblem.from_arrays(
+            bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity, block_solve=scene.solver.block_solve),
+        "both: the ctx as the start may see it (visible_context)": lambda: ctx(None, None),
+        "both: the answer packed (each contestant)": lambda: pack({"seconds": {}, "seq": 1},
+                                                                  {"normal": normal, "tangent": tangent}),
+        "both: the answer read and checked (judge)": lambda: checked_answer("b", unpack(answer, "b")[1],
+                                                                            problem.points),
+    })
     times = {name: [] for name in work}
     for _ in range(n):
         for name, fn in work.items():

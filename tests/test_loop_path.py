@@ -268,3 +268,19 @@ def test_an_ordinary_start_never_gets_the_oracles_arena(steps, probes):
     oracle, before, after, _ = probed(steps[0], "arena_probe:OracleProbe")
     assert ordinary["arenas"] >= 1 and ordinary["oracle_arenas"] == 0, ordinary
     assert oracle["oracle_arenas"] >= 1 and oracle["mprotect_write"] == 0 and before == after, oracle
+
+
+def test_the_null_contestant_reads_the_step_as_the_variant_does_and_a_stale_answer_is_refused(steps):
+    from deepcontact.contest.client import Contestant
+    null, channel = Contestant.null(), StepChannel(False)
+    try:
+        request = channel.write(step_ctx(steps[0], described("builtin")))
+        _, header, arrays = null.call_step(channel, request, 60)
+        assert header["seq"] == channel.seq and np.array_equal(arrays["normal"], np.zeros(steps[0][2].points))
+        request = channel.write(step_ctx(steps[1], described("builtin")))
+        channel.seq += 1   # (the judge now waits for a later step than the one its contestant reads)
+        with pytest.raises(PluginError, match="answered step"):
+            null.call_step(channel, request, 60)
+    finally:
+        null.close()
+        channel.close()
