@@ -307,3 +307,19 @@ def test_a_fork_of_the_judge_starts_its_own_zygote_and_leaves_its_parents_alone(
             later.call({"op": "start", "ctx": None})
     finally:
         later.close()
+
+
+def test_a_judge_holding_many_files_starts_and_ends_forked_contestants(hostile):
+    # (the judge waited for a fork's status with select, which refuses a descriptor numbered 1024
+    # or more: a library user's process holding many files got a traceback, and dc's way out
+    # (kill_all) stopped at that contestant, leaving the rest running)
+    import resource
+    if resource.getrlimit(resource.RLIMIT_NOFILE)[0] < 1200:
+        pytest.skip("this process may not hold 1200 files")
+    held = [os.open(os.devnull, os.O_RDONLY | os.O_CLOEXEC) for _ in range(1100)]
+    try:
+        kind, said = said_by(Contestant("many", "zygote_hostile", start=hostile.Limits()).begin())
+    finally:
+        for fd in held:
+            os.close(fd)
+    assert kind == "ForkedProcess" and "LIMITS" in said, said

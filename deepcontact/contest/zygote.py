@@ -161,6 +161,14 @@ def close_all():
     _zygotes.clear()
 
 
+def _ready(fd, timeout):
+    """Whether fd has something to read (or its end) within timeout seconds. By poll: select
+    refuses a descriptor numbered 1024 or more, which a process holding many files gets."""
+    waiting = select.poll()
+    waiting.register(fd, select.POLLIN)
+    return bool(waiting.poll(max(timeout, 0) * 1000))
+
+
 class ForkedProcess:
     """The part of a Popen a sandbox uses, for a contestant forked by the zygote, read from its
     status pipe (forked.py): "J" fenced, "X" and its exit code, or "E" and why it could not be
@@ -178,8 +186,7 @@ class ForkedProcess:
     def _read(self, timeout):
         if self.fd is None:
             return
-        ready, _, _ = select.select([self.fd], [], [], max(timeout, 0))
-        if not ready:
+        if not _ready(self.fd, timeout):
             return
         chunk = os.read(self.fd, 4096)
         self._data += chunk
@@ -212,7 +219,7 @@ class ForkedProcess:
         return self.returncode
 
     def _readable(self):
-        return bool(select.select([self.fd], [], [], 0)[0])
+        return _ready(self.fd, 0)
 
     def wait(self, timeout=None):
         due = None if timeout is None else time.monotonic() + timeout
