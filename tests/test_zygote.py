@@ -312,7 +312,7 @@ def test_a_fork_of_the_judge_starts_its_own_zygote_and_leaves_its_parents_alone(
 def test_a_judge_holding_many_files_starts_and_ends_forked_contestants(hostile):
     # (the judge waited for a fork's status with select, which refuses a descriptor numbered 1024
     # or more: a library user's process holding many files got a traceback, and dc's way out
-    # (kill_all) stopped at that contestant, leaving the rest running)
+    # (kill_all) stopped at that contestant, ending none after it)
     import resource
     if resource.getrlimit(resource.RLIMIT_NOFILE)[0] < 1200:
         pytest.skip("this process may not hold 1200 files")
