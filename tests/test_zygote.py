@@ -323,3 +323,20 @@ def test_a_judge_holding_many_files_starts_and_ends_forked_contestants(hostile):
         for fd in held:
             os.close(fd)
     assert kind == "ForkedProcess" and "LIMITS" in said, said
+
+
+def test_a_contestant_with_a_memory_group_has_no_address_space_limit_of_its_zygotes(hostile, monkeypatch):
+    # (a zygote started where no memory group was lent has an address space limit; a contestant
+    # forked from it into a memory group of its own inherited it, where a fresh one has none)
+    roots = machine.cgroup_roots()
+    monkeypatch.setattr(zygote, "_refused", [])
+    zygote.close_all()
+    monkeypatch.setattr(machine, "cgroup_roots", lambda: {k: v for k, v in roots.items() if k != "memory"})
+    zygote.for_fence(fence.CONTESTANT)
+    monkeypatch.setattr(machine, "cgroup_roots", lambda: roots)
+    try:
+        kind, said = said_by(Contestant("as", "zygote_hostile", start=hostile.Limits()).begin())
+    finally:
+        zygote.close_all()
+    assert kind == "ForkedProcess", said
+    assert json.loads(said[said.index("LIMITS") + 6:])["as"] == [-1, -1]

@@ -118,8 +118,10 @@ def _limits(request):
     size = request["fence"]["limits"]["file_size"]
     resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-    if request.get("memory"):   # (no memory group here: the address space instead)
-        resource.setrlimit(resource.RLIMIT_AS, (request["memory"], request["memory"]))
+    # (no memory group here: the address space instead; else none, as a fresh sandbox's, whatever
+    # the zygote's own soft limit)
+    memory = request.get("memory") or resource.RLIM_INFINITY
+    resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
 
 
 def _init(request, channel, out, err, status, seccomp):
