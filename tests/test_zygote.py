@@ -219,6 +219,17 @@ HOSTILE = textwrap.dedent("""
             time.sleep(0.3)
             raise RuntimeError("ALIVE" + json.dumps([os.getpgid(0), os.getsid(0)]))
 
+    class Loopback:
+        '''Its own 127.0.0.1 (bubblewrap brings a new network namespace's loopback up).'''
+        def __call__(self, ctx):
+            import socket
+            try:
+                socket.create_connection(("127.0.0.1", 9), timeout=5).close()
+                found = 0
+            except OSError as e:
+                found = e.errno
+            raise RuntimeError("ERRNO" + json.dumps(found))
+
     class Limits:
         def __call__(self, ctx):
             raise RuntimeError("LIMITS" + json.dumps({"as": resource.getrlimit(resource.RLIMIT_AS)}))
@@ -340,3 +351,15 @@ def test_a_contestant_with_a_memory_group_has_no_address_space_limit_of_its_zygo
         zygote.close_all()
     assert kind == "ForkedProcess", said
     assert json.loads(said[said.index("LIMITS") + 6:])["as"] == [-1, -1]
+
+
+@pytest.mark.parametrize("fresh", [False, True])
+def test_a_contestants_loopback_is_up_and_its_own(hostile, monkeypatch, fresh):
+    # (a fork's new network namespace had its loopback down: 127.0.0.1 unreachable, where a fresh
+    # sandbox's answers; a listener of its own is all it reaches either way: no port is open)
+    if fresh:
+        monkeypatch.setenv("DC_NO_ZYGOTE", "1")
+    kind, said = said_by(Contestant("lo", "zygote_hostile", start=hostile.Loopback()).begin())
+    assert kind == ("Popen" if fresh else "ForkedProcess")
+    import errno
+    assert json.loads(said[said.index("ERRNO") + 5:]) == errno.ECONNREFUSED, said

@@ -11,7 +11,7 @@ Each fork, before any code of its own runs, fences itself as bubblewrap fences a
    starts at birth; its limits on; a session of its own;
 2. new user, mount, PID, network, IPC, UTS and cgroup namespaces, and a fork that is PID 1 of
    its own (a session of the namespace's own; it reaps, and its end ends every process of the
-   namespace; it takes no signal from inside);
+   namespace; it takes no signal from inside); its loopback up, as bubblewrap's;
 3. its own view, built from the record: a new root holding the system folders and the few files
    of /etc, the readable folders, all read-only; its own /dev (the harmless device nodes and a
    size-limited /dev/shm), its own /tmp of file_size bytes, its own /proc (read-only) showing
@@ -137,6 +137,7 @@ def _init(request, channel, out, err, status, seccomp):
         os.setsid()
         record = request["fence"]
         _view(record)
+        kernel.loopback_up()
         program = os.read(seccomp, 1 << 20)
         os.close(seccomp)
         kernel.drop_capabilities()

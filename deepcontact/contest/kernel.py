@@ -77,6 +77,20 @@ def umount(target, flags=MNT_DETACH):
     _checked(_libc.umount2(_bytes(target), flags), f"umount {target}")
 
 
+_SIOCGIFFLAGS, _SIOCSIFFLAGS, _IFF_UP = 0x8913, 0x8914, 0x1
+
+
+def loopback_up():
+    """The network namespace's loopback device up (bubblewrap's --unshare-net does so: a
+    contestant's own 127.0.0.1, and nothing beyond it)."""
+    import fcntl
+    import socket
+    import struct
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        flags = struct.unpack_from("H", fcntl.ioctl(s, _SIOCGIFFLAGS, struct.pack("16s24x", b"lo")), 16)[0]
+        fcntl.ioctl(s, _SIOCSIFFLAGS, struct.pack("16sH22x", b"lo", flags | _IFF_UP))
+
+
 def die_with_parent(signal_number):
     """This process sent signal_number when the thread that forked it ends."""
     _checked(_libc.prctl(_PR_SET_PDEATHSIG, signal_number, 0, 0, 0), "prctl(PDEATHSIG)")
