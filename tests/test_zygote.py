@@ -230,6 +230,20 @@ HOSTILE = textwrap.dedent("""
                 found = e.errno
             raise RuntimeError("ERRNO" + json.dumps(found))
 
+    class Inherited:
+        '''Its descriptors, its PID 1's, and its mounts.'''
+        def __call__(self, ctx):
+            def targets(pid):
+                out = []
+                for fd in os.listdir(f"/proc/{pid}/fd"):
+                    try:
+                        out.append(os.readlink(f"/proc/{pid}/fd/{fd}"))
+                    except OSError:   # (the listing's own descriptor, closed)
+                        pass
+                return sorted(out)
+            mounts = [line.split()[4] for line in open("/proc/self/mountinfo")]
+            raise RuntimeError("FOUND" + json.dumps({"own": targets("self"), "init": targets(1), "mounts": mounts}))
+
     class Limits:
         def __call__(self, ctx):
             raise RuntimeError("LIMITS" + json.dumps({"as": resource.getrlimit(resource.RLIMIT_AS)}))
@@ -363,3 +377,23 @@ def test_a_contestants_loopback_is_up_and_its_own(hostile, monkeypatch, fresh):
     assert kind == ("Popen" if fresh else "ForkedProcess")
     import errno
     assert json.loads(said[said.index("ERRNO") + 5:]) == errno.ECONNREFUSED, said
+
+
+def test_a_forked_contestant_holds_no_descriptor_or_mount_of_the_zygotes(hostile):
+    kind, said = said_by(Contestant("fds", "zygote_hostile", start=hostile.Inherited()).begin())
+    assert kind == "ForkedProcess"
+    found = json.loads(said[said.index("FOUND") + 5:])
+    own = [t for t in found["own"] if t != "/dev/null"]
+    assert len(own) == 3 and sum(t.startswith("socket:") for t in own) == 1, found   # (its line, its two streams)
+    assert all(t.startswith("pipe:") for t in own if not t.startswith("socket:")), found
+    assert found["init"] == ["/dev/null"] * 3, found   # (its PID 1 holds nothing of the zygote's)
+    # (its root first, then only what its fence record names: no /proc of the machine's, no old root)
+    assert found["mounts"][0] == "/" and found["mounts"].count("/") == 1 and found["mounts"].count("/proc") == 1
+    allowed = ("/proc", "/dev", "/tmp", *fence.SYSTEM, "/etc/", sys.prefix, sys.base_prefix,
+               os.path.dirname(os.path.realpath(sys.executable)))
+    import deepcontact
+    allowed += (os.path.dirname(os.path.dirname(deepcontact.__file__)),)
+    import site
+    allowed += tuple(site.getsitepackages())
+    strays = [m for m in found["mounts"][1:] if not m.startswith(allowed)]
+    assert not strays, strays
