@@ -284,3 +284,32 @@ def test_the_null_contestant_reads_the_step_as_the_variant_does_and_a_stale_answ
     finally:
         null.close()
         channel.close()
+
+
+def test_a_descriptor_of_the_arena_opened_again_cannot_write_it(steps):
+    import mmap
+    import os
+    channel = StepChannel(False)
+    try:
+        plain = channel.arenas["plain"]
+        channel.write(step_ctx(steps[0], described("builtin")))
+        before = bytes(plain.map)
+        reader = plain.reader()
+        again = os.open(f"/proc/self/fd/{reader}", os.O_RDWR)   # (by the inode's mode: allowed)
+        try:
+            assert plain.sealed
+            with pytest.raises(PermissionError):
+                mmap.mmap(again, plain.size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+            with pytest.raises(PermissionError):
+                os.pwrite(again, b"\xff" * 64, 0)
+            with pytest.raises(OSError):
+                os.ftruncate(again, 0)
+            private = mmap.mmap(reader, plain.size, mmap.MAP_PRIVATE, mmap.PROT_READ | mmap.PROT_WRITE)
+            private[:64] = b"\xff" * 64   # (its own copy of the page: never the judge's)
+            private.close()
+        finally:
+            os.close(again)
+            os.close(reader)
+        assert bytes(plain.map) == before
+    finally:
+        channel.close()

@@ -32,6 +32,7 @@ REQUEST = struct.Struct("<cxxxIQ")   # STEP, the channel, the sequence number
 ALIGN = 64
 LEAST = 1 << 20       # bytes an arena starts with (a 100-circle step takes about 40 KiB)
 _PAD = bytes(ALIGN)
+F_SEAL_FUTURE_WRITE = 0x10   # (linux/fcntl.h; Python's fcntl does not name it)
 ORACLE_SLOTS = {("contacts", "normal_impulse"), ("contacts", "tangent_impulse"), ("problem", "normal_impulse"),
                 ("problem", "tangent_impulse")}   # (and every ("reference", ...)): what only an oracle may see
 PROBLEM_ARRAYS = ("start_normal", "start_tangent", "normal_impulse", "tangent_impulse", "keys")
@@ -71,11 +72,12 @@ class Arena:
     def _make(self, size):
         self.close()
         self.size = _aligned(max(size, LEAST))
-        self.fd = os.memfd_create(self.name, os.MFD_CLOEXEC)
+        self.fd = os.memfd_create(self.name, os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
         os.ftruncate(self.fd, self.size)
         self.map = mmap.mmap(self.fd, self.size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
         self.view = memoryview(self.map)
         self.generation += 1
+        self.sealed = _seal(self.fd)
 
     def reader(self):
         """A new read-only descriptor of it (the receiver's to close): neither it nor a mapping of
@@ -103,6 +105,21 @@ class Arena:
             self.map.close()
             os.close(self.fd)
             self.map = None
+
+
+def _seal(fd):
+    """Seals a memfd mapped for writing against every later write but through that mapping, and
+    against any change of size: a read-only descriptor can be opened again for writing (through
+    /proc/self/fd, by its inode's mode), and the seal is what refuses that descriptor a write or a
+    shared writable mapping. False on a kernel without F_SEAL_FUTURE_WRITE (before 5.1), where
+    the descriptors' being read-only and closed before any plug-in code runs is the fence."""
+    import fcntl
+    try:
+        fcntl.fcntl(fd, fcntl.F_ADD_SEALS, F_SEAL_FUTURE_WRITE | fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW
+                    | fcntl.F_SEAL_SEAL)
+    except OSError:
+        return False
+    return True
 
 
 @dataclasses.dataclass
