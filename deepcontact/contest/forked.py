@@ -43,9 +43,14 @@ FDS_MAX = 16            # descriptors of one request
 BASE = "/dev/shm"
 
 
-def main(fd):
+def main(fd, package):
     """The zygote: imports the contestant's side, then forks a contestant for each request on
-    the socket `fd` until the judge closes it."""
+    the socket `fd` until the judge closes it. package: the judge's deepcontact folder, which
+    the zygote's must be (else it ends, and contestants start fresh)."""
+    import deepcontact
+    if os.path.dirname(os.path.abspath(deepcontact.__file__)) != package:
+        sys.stderr.write(f"dc: the zygote found deepcontact at {deepcontact.__file__}, not in {package}\n")
+        os._exit(3)
     import multiprocessing.connection  # noqa: F401  (the contestant's libraries, loaded once)
 
     import numpy  # noqa: F401

@@ -70,12 +70,19 @@ class Grant:
         return readable_paths(self.names, self.modules, self.files)
 
 
+def package_folder():
+    """The folder of the deepcontact this process runs (a contestant imports the same one)."""
+    return os.path.dirname(os.path.abspath(deepcontact.__file__))
+
+
 def guest_argv(channel, torch=False):
     """The contestant's command: the guest, its module imported by name (not run as __main__: the
-    one copy a plug-in could patch is the one that serves), its line to the judge the descriptor
-    `channel`; torch: loaded before its clock (a checkpoint's network)."""
-    return [sys.executable, "-c", "import sys; from deepcontact.contest.guest import main; main(sys.argv)",
-            str(int(channel))] + (["torch"] if torch else [])
+    one copy a plug-in could patch is the one that serves) from the judge's own deepcontact (its
+    folder's parent put first: the interpreter's own path may find another copy), its line to the
+    judge the descriptor `channel`; torch: loaded before its clock (a checkpoint's network)."""
+    return [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(2)); "
+            "from deepcontact.contest.guest import main; main(sys.argv)",
+            str(int(channel)), os.path.dirname(package_folder())] + (["torch"] if torch else [])
 
 
 def _module_root(module, plain_folder=True):

@@ -22,10 +22,14 @@ import sys
 import threading
 import time
 
-from . import fence as fences, machine, sandbox
+from . import fence as fences, grants, machine, sandbox
 
 FENCE_DEADLINE = 60.0   # seconds a fork may take to fence itself (a loaded machine)
-ZYGOTE_COMMAND = "import sys; from deepcontact.contest.forked import main; main(int(sys.argv[1]))"
+# (deepcontact imported from the judge's own folder, put first: the interpreter's own path found
+# another copy where the judge's came from PYTHONPATH or its working directory, and a fork then
+# lacked every module the zygote had not imported)
+ZYGOTE_COMMAND = ("import sys; sys.path.insert(0, sys.argv[2]); from deepcontact.contest.forked import main; "
+                  "main(int(sys.argv[1]), sys.argv[3])")
 _zygotes = {}           # {the variables its contestants start with: Zygote}
 _refused = []           # why a fork could not be fenced here (then no zygote is used again)
 
@@ -121,7 +125,9 @@ class Zygote:
         self.box = sandbox.Sandbox(fences.ZYGOTE, name="the contestants' zygote")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
-            self.box.start([sys.executable, "-c", ZYGOTE_COMMAND, str(theirs.fileno())], pass_fds=[theirs.fileno()])
+            package = grants.package_folder()
+            self.box.start([sys.executable, "-c", ZYGOTE_COMMAND, str(theirs.fileno()), os.path.dirname(package),
+                            package], pass_fds=[theirs.fileno()])
         except BaseException:
             ours.close()
             self.box.kill()
