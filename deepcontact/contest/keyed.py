@@ -40,9 +40,8 @@ class KeySet:
         h = hashes(keys) if h is None else h
         at = np.minimum(np.searchsorted(self.sorted, h), len(self.sorted) - 1)
         row = self.order[at]
-        same_hash = self.sorted[at] == h
-        found = same_hash & np.all(self.keys[row] == keys, axis=1)
-        if np.any(same_hash & ~found):   # (two rows of one hash: matched as tuples)
+        found = self.sorted[at] == h
+        if not np.array_equal(self.keys[row[found]], keys[found]):   # (two rows of one hash: matched as tuples)
             return self._by_tuples(keys)
         return found, row
 
