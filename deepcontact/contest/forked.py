@@ -68,7 +68,13 @@ def main(fd, package):
             return
         if not data:
             return
-        if os.fork() == 0:
+        try:
+            pid = os.fork()
+        except OSError as e:   # (at its process limit: this contestant is refused, the zygote serves on)
+            if len(fds) > 3:
+                _report(fds[3], b"E", _line(e) + b"\0")
+            pid = None
+        if pid == 0:
             line.close()
             _outside(json.loads(data), fds)
         for f in fds:

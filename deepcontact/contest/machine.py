@@ -201,6 +201,7 @@ def describe_fences():
     missing = missing_fences()
     roots = cgroup_roots()
     memory = "memory (control group)" if "memory" in roots else "memory (address space)"
-    used = ("bubblewrap namespaces (user, PID, mount, IPC, network), a read-only view, seccomp, "
+    # (made by bubblewrap, or by a fork of the contestants' zygote itself: the same fence record)
+    used = ("namespaces of its own (user, PID, mount, IPC, network, UTS), a read-only view, seccomp, "
             f"CPU charged from the control group, limits on processes, {memory} and file size")
     return used if not missing else f"{used}; MISSING here: {', '.join(missing)}"

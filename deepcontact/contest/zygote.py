@@ -24,7 +24,9 @@ import time
 
 from . import fence as fences, grants, machine, sandbox
 
-FENCE_DEADLINE = 60.0   # seconds a fork may take to fence itself (a loaded machine)
+# seconds a fork may take to fence itself (about 20 ms; a loaded machine's hiccup allowed for):
+# past it the zygote is taken for stopped, and the contestant starts fresh
+FENCE_DEADLINE = 10.0
 # (deepcontact imported from the judge's own folder, put first: the interpreter's own path found
 # another copy where the judge's came from PYTHONPATH or its working directory, and a fork then
 # lacked every module the zygote had not imported)
