@@ -144,15 +144,11 @@ class Contestant:
         return took, header, arrays
 
     def _send_descriptors(self, fds):
-        """Hands `fds` to the contestant over its socket (SCM_RIGHTS, with one byte), then closes them."""
+        """Hands `fds` to the contestant over its socket (SCM_RIGHTS, with one byte)."""
         import socket
-        try:
-            if getattr(self, "_socket", None) is None:
-                self._socket = socket.socket(fileno=os.dup(self.conn.fileno()))
-            socket.send_fds(self._socket, [FDS], fds)
-        finally:
-            for fd in fds:
-                os.close(fd)
+        if getattr(self, "_socket", None) is None:
+            self._socket = socket.socket(fileno=os.dup(self.conn.fileno()))
+        socket.send_fds(self._socket, [FDS], fds)
 
     def _timed(self, data, deadline, doing, before=None, fds=()):
         t0 = time.perf_counter()
@@ -163,6 +159,9 @@ class Contestant:
             self.conn.send_bytes(data)
         except OSError:
             self._ended(doing)
+        finally:   # (ours to close, sent or not: the contestant holds its own copies)
+            for fd in fds:
+                os.close(fd)
         header, arrays = self._receive(deadline, doing)
         self._wall = time.perf_counter() - t0
         cpu = self.sandbox.cpu_seconds()
