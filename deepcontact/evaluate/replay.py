@@ -22,6 +22,7 @@ import numpy as np
 
 from .. import arguments, protocol, workers
 from ..contest import Contestant, deadline_for, start_all
+from ..contest.charge import call_charge
 from ..contest.client import packed
 from ..contest.wire import checked_answer, held_claims, unanswered
 from ..errors import InputError
@@ -63,7 +64,7 @@ class Row:
     factorizations: int = 0   # sparse systems a global method factorized or solved (newton, subspace)
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
     solve_ms_again: float = None   # Box2D's warm start only: its solve asked a second time (the A/A), never its time
-    transport_ms: float = 0.0  # the null contestant's round trip on this step (subtracted from every time)
+    transport_ms: float = 0.0  # the null contestant's least solve round trip over the run so far (subtracted)
     setup_ms: float = 0.0      # the variant's import and construction in its sandbox, and what it ran after its
                                # last call, charged (once, not per step)
     left_running: tuple = (0, 0)   # threads and processes the variant's process had running after a call
@@ -200,10 +201,27 @@ def visible_context(ctx, traits, label):
     return dataclasses.replace(ctx, **changes)
 
 
-def _net(took, nulls):
-    """A call's time less the transport: the least of the step's null round trips for that kind of
-    call (a fixed cost; what varies above it, the call may have caused)."""
-    return max(took - min(nulls), 0.0)
+def _net(call, floor):
+    """A call's charge less the transport (contest/charge.py's rule, as the loop's): the larger of
+    its wall time less the least of the null contestant's round trips of that kind of call over
+    the run so far, and its sandbox's CPU less the least of theirs; never below zero. call and
+    floor: (wall, CPU) seconds (Contestant.last; _Floors). One null round trip of the step, slowed
+    by a loaded machine, took 3 ms off a start's 10 ms of work."""
+    return call_charge(*call, floor)
+
+
+class _Floors:
+    """The null contestant's least round trip (wall, CPU) of each kind of request over a
+    simulation's run so far: what no contestant can raise by slowing the null."""
+
+    def __init__(self):
+        self.least = {}
+
+    def seen(self, kind, null):
+        """Takes the null's round trip `null` (its `last`) of a `kind` request; the floor now."""
+        wall, cpu = self.least.get(kind, (float("inf"), float("inf")))
+        self.least[kind] = (min(wall, null[0]), min(cpu, null[1]))
+        return self.least[kind]
 
 
 def open_contestants(table, settings):
@@ -242,7 +260,7 @@ def evaluate_simulation(task):
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
     made, null = open_contestants(table, settings)
     contestants = {v.label: c for v, c in zip(table, made)}
-    rows = []
+    rows, floors = [], _Floors()
     try:
         for header, bodies, contacts, path, persisted, earlier in _steps_to_judge(files, scene, engine, sim_seed,
                                                                                    every):
@@ -252,14 +270,14 @@ def evaluate_simulation(task):
                               persisted=persisted, seed=seed, index=int(header["index"]), trajectory="replay",
                               previous=previous_solution(earlier, header["index"], settings))
             order = np.random.default_rng([seed, sim_seed, int(header["index"])]).permutation(len(table))
-            step = _JudgedStep(problem, reference, settings, null)
+            step = _JudgedStep(problem, reference, settings, null, floors)
             step.start(table, contestants, ctx, order)
             step.solve(order)
             for i in sorted(step.variants):
                 row = step.row(i, run, sim_seed, header["index"])
                 if budgets:
                     row.budget_ms, row.budget_residual = _budgets(step.variants[i][1], problem, step.requests[i],
-                                                                  min(step.nulls), table[i].label)
+                                                                  step.floor, table[i].label)
                 rows.append(row)
     finally:
         for c in (*contestants.values(), null):
@@ -294,8 +312,9 @@ class _JudgedStep:
     """One step put to every variant: each start asked, then every solve asked once, interleaved,
     and each answer judged by our residual."""
 
-    def __init__(self, problem, reference, settings, null):
+    def __init__(self, problem, reference, settings, null, floors):
         self.problem, self.reference, self.settings, self.null = problem, reference, settings, null
+        self.floors = floors
         self.deadline = deadline_for(problem.points)
         self.variants = {}   # i -> (variant, contestant, normal, tangent, prediction seconds)
 
@@ -308,10 +327,11 @@ class _JudgedStep:
             # (the null contestant's round trip of the same request, just before: a first touch
             # of the step's bytes, as the variant's call is; a repeat of it measured the
             # null 0.2 ms faster than any real start's call)
-            transport = self.null.call(request, self.deadline)[0]
-            took, _, arrays = c.call(request, self.deadline)
+            self.null.call(request, self.deadline)
+            floor = self.floors.seen("start", self.null.last)
+            _, _, arrays = c.call(request, self.deadline)
             normal, tangent = checked_answer(v.label, arrays, self.problem.points)
-            self.variants[i] = (v, c, normal, tangent, _net(took, [transport]))
+            self.variants[i] = (v, c, normal, tangent, _net(c.last, floor))
 
     def solve(self, order):
         """Every variant's solve from its start, asked once, in the step's order, with the solve's
@@ -326,20 +346,23 @@ class _JudgedStep:
         wire = {i: packed(r) for i, r in self.requests.items()}
         self.answers = {i: [] for i in self.variants}
         first = next(iter(self.requests))
-        self.nulls = [self.null.call(wire[first], deadline)[0]]
+        self.null.call(wire[first], deadline)
+        self.floors.seen("solve", self.null.last)
         took = {i: self._asked(i, wire[i]) for i in order}
         again = {i: self._asked(i, wire[i]) for i in order if timed_twice(self.variants[i][0])}
-        self.nulls.append(self.null.call(wire[first], deadline)[0])
-        self.times = {i: _net(t, self.nulls) * 1e3 for i, t in took.items()}
-        self.again = {i: _net(t, self.nulls) * 1e3 for i, t in again.items()}
+        self.null.call(wire[first], deadline)
+        self.floor = self.floors.seen("solve", self.null.last)
+        self.times = {i: _net(t, self.floor) * 1e3 for i, t in took.items()}
+        self.again = {i: _net(t, self.floor) * 1e3 for i, t in again.items()}
         for row in self.variants.values():
             row[1].status()
 
     def _asked(self, i, wire):
-        """One solve call of variant i: its answer kept (to be judged) and its time returned."""
-        t, head, arrays = self.variants[i][1].call(wire, self.deadline)
+        """One solve call of variant i: its answer kept (to be judged) and its (wall, CPU) returned."""
+        c = self.variants[i][1]
+        _, head, arrays = c.call(wire, self.deadline)
         self.answers[i].append(self._kept(i, head, arrays))
-        return t
+        return c.last
 
     def _kept(self, i, head, arrays):
         """An answer of variant i as the judge keeps it: its impulses and no other array
@@ -402,7 +425,7 @@ class _JudgedStep:
                    accelerate=v.accelerate, fallback=bool(head.get("fallback", 0)),
                    reference_residual=reference.residual, reference_pivoted=reference.pivoted,
                    factorizations=int(head.get("factorizations", 0)),
-                   transport_ms=min(self.nulls) * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3)
+                   transport_ms=self.floor[0] * 1e3, setup_ms=max(c.setup_s - self.null.setup_s, 0.0) * 1e3)
 
 
 def same_as_traced(label, method, head, arrays, traced):
@@ -465,13 +488,14 @@ def _budgets(contestant, problem, request, null, label):
     ms, residual = [], []
     for k, b in enumerate((BUDGETS[0], *BUDGETS)):
         asked = request["settings"].but(max_iterations=b, tolerance=0.0)
-        took, head, arrays = contestant.call({**request, "settings": asked}, deadline_for(problem.points))
+        _, head, arrays = contestant.call({**request, "settings": asked}, deadline_for(problem.points))
+        took = contestant.last
         judged = judge(problem, *checked_answer(label, arrays, problem.points, also=("claims",))).residual
         held_claims(label, head, arrays, b)
         if is_native(asked.accelerate):   # (the judge's own run of the same sweeps, off the clock)
             same_as_traced(label, asked.accelerate, head, arrays,
                            solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False))
         if k:
-            ms.append(_net(took, [null]) * 1e3)
+            ms.append(_net(took, null) * 1e3)
             residual.append(judged)
     return np.array(ms), np.array(residual)
