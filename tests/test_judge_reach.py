@@ -192,3 +192,27 @@ def test_a_method_that_answers_repeats_with_the_start_is_never_asked_a_repeat(ru
     lazy, builtin = s["builtin+tricks:Lazy"], s["builtin"]
     assert lazy["above"] == 0 and builtin["above"] == 0, (lazy["above"], builtin["above"])
     assert lazy["iterations_median"] == builtin["iterations_median"]
+
+
+def test_the_yardsticks_second_solve_follows_a_null_round_trip_as_its_first_follows_other_calls(run, tmp_path,
+                                                                                                  monkeypatch):
+    """The A/A compares builtin's solve with itself asked again: the two must be asked alike. Asked
+    straight after the round (the last call before it another contestant's solve, or its own), the
+    second ran 0.05-0.08 ms faster than the first, an A/A of 1.29-1.36 on a quiet machine (above
+    the noise limit, 1.25: every replay too noisy to time); after the null's round trip that
+    closes the round, 1.03-1.15."""
+    from deepcontact.contest import client
+    from deepcontact.evaluate import replay
+    from deepcontact.warmstart.starts import make_starts
+    calls, real = [], client.Contestant.call
+
+    def logged(self, request, deadline=None):
+        calls.append(self.label)
+        return real(self, request, deadline)
+
+    monkeypatch.setattr(client.Contestant, "call", logged)
+    rows = replay.evaluate([run], make_starts(["builtin", "zero"]), every=10)
+    builtin = [k for k, label in enumerate(calls) if label == "builtin"]
+    seconds = builtin[2::3]   # (a step: its start, its solve, the A/A's second solve)
+    assert len(seconds) == sum(r.start == "builtin" for r in rows) > 0
+    assert all(calls[k - 1] == "(null)" for k in seconds), [calls[k - 1] for k in seconds]
