@@ -4,8 +4,9 @@ A variant's time on a step is its start's whole call plus its one solve call of 
 variants interleaved (replay.py). Two variants are compared by the ratio of their median times per step; the
 interval resamples the steps (the same steps for both: a pair per step) with a fixed seed, so the
 report repeats. The noise floor is Box2D's warm start against itself: its solve of each step
-(its time) against the same solve asked again after the round and the null's round trip closing it (A/A, replay.timed_twice), which should be 1 and shows how far from 1 the machine moves
-a ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
+(its time) against the same solve asked again after the round and the null's round trip closing
+it (A/A, replay.timed_twice), which should be 1 and shows how far from 1 the machine moves a
+ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
 start's time and the runner-up's, and never where the A/A itself reaches beyond NOISE_LIMIT (the
 machine too noisy to time); else it says there is no clear winner (contest/verdict.py).
 """

@@ -73,7 +73,8 @@ class Row:
 # Every variant's solve is asked once a step, its one call its time: with no other call of the same
 # step, none can be answered from the memory of another (a memo gains nothing, at any threshold).
 # Only Box2D's warm start (the project's code, every answer held bit for bit to the judge's own
-# run: timed_twice) is asked once more, after the round and the null's round trip that closes it, for the noise floor (A/A).
+# run: timed_twice) is asked once more, after the round and the null's round trip that closes
+# it, for the noise floor (A/A).
 
 # Fixed sweep budgets for "what accuracy costs in time", each timed on its own.
 BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
