@@ -1,4 +1,4 @@
-"""Is the honest over-relaxing control named, run after run? (issue 72: power stated)
+"""Is the honest over-relaxing control named, run after run? (the verdict's power, stated)
 
 The control (benchmarks/controls/psor_control.py) is a plug-in solver method that honestly runs
 the project's projected SOR at w = 1.7: in the judge's eyes a plug-in like any other, fenced,

@@ -1,6 +1,6 @@
 """The honest over-relaxing control: a plug-in solver method that runs projected SOR at w = 1.7.
 
-Used by issue 72's power check (docs/results/warm-starts.md): named on the command line as
+Used by the check of the verdict's power (docs/results/warm-starts.md): named on the command line as
 `--accelerate none,psor_control:PSOR` with this folder on PYTHONPATH, it runs in the contestant's
 sandbox like any plug-in and does honestly what builtin@1.7 does, through the public API: the
 project's own native sweeps at w = 1.7, returning the impulses and the residual after each sweep.
