@@ -284,7 +284,7 @@ def run_loop(world, scene, args):
 
 
 def passes_gate(cycles):
-    """Issue 75's gate: the median step within 10 cycles, every step within 40."""
+    """The gate: the median step within 10 cycles, every step within 40."""
     return bool(np.median(cycles) <= 10 and np.all(cycles <= 40))
 
 
