@@ -77,7 +77,10 @@ def test_a_start_that_hides_its_cost_is_timed_by_the_caller(run, tmp_path, conte
     assert r.returncode == 0, r.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())["starts"]
     assert summary["contestants:HidesItsCost"]["predict_ms_median"] >= 8   # (10 ms, less the transport)
-    assert summary["builtin"]["predict_ms_median"] < 1.0
+    # (builtin's start is charged its own time, not the other's: far below it; an absolute bound
+    # on a loaded machine is the load's to break, 1.7 ms once at load 3.5 with the transport's
+    # floor the null's least round trip over the run)
+    assert summary["builtin"]["predict_ms_median"] < summary["contestants:HidesItsCost"]["predict_ms_median"] - 5
     report = (tmp_path / "r" / "report.md").read_text()
     verdict = next(line for line in report.splitlines() if line.startswith("**Verdict**"))
     # (named the winner, or, where a loaded machine's noise keeps it from being clear, the smallest median)
