@@ -1,4 +1,4 @@
-"""One fence, one record (issue 72 items 1 and 3): every sandbox is a profile of contest.fence.Fence,
+"""One fence, one record: every sandbox is a profile of contest.fence.Fence,
 made into bubblewrap's arguments by one function; every profile has limits a job cannot pass
 unsaid; and nothing of dc's is inside: a sandbox's streams are pipes dc owns, relayed under its
 name and bounded."""

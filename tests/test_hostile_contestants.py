@@ -1,4 +1,4 @@
-"""Contestants that attack what the judge decides from, keeps and says (issue 72, items 4 and 7),
+"""Contestants that attack what the judge decides from, keeps and says,
 each written here as a hostile plug-in author would: a start installed under a name that reads as
 a variant label, answers carrying arrays no answer holds, an error line that names another
 contestant, an engine describing itself in fields of the wrong type. Each is one line naming

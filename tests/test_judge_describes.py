@@ -1,4 +1,4 @@
-"""The judge owns what it decides from (issue 72, item 4). A contestant is described once, by the
+"""The judge owns what it decides from. A contestant is described once, by the
 judge, from its factory's declared traits (its own process's description, every field checked):
 that one description decides both what its ctx holds and whether it is an oracle, never what its
 instance sets on itself. A built-in method's answer from a contestant's process is held to the

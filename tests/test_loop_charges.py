@@ -1,4 +1,4 @@
-"""The closed loop charged like replay (issue 72 item 6): every call its wall time or its sandbox's
+"""The closed loop charged like replay: every call its wall time or its sandbox's
 CPU since its previous call, the larger, each less the null contestant's least over the run; work a
 contestant leaves running is charged to it, and a net time at or below zero is a measurement error
 stated, never a win."""

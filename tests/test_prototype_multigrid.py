@@ -1,5 +1,5 @@
-"""The nonsmooth multigrid prototype (benchmarks/prototype_multigrid.py, the gate of issue 75 item
-3): its coarse correction does what a coarse correction is for, on a problem small enough to see."""
+"""The nonsmooth multigrid prototype (benchmarks/prototype_multigrid.py, before its
+gate): its coarse correction does what a coarse correction is for, on a problem small enough to see."""
 import argparse
 import importlib.util
 from pathlib import Path

@@ -1,7 +1,7 @@
 """One verdict for a step file: the schema's table (step/strict.py, native step_strict.hpp) is final
 where it accepts a file (no XSD runs on it), so it must refuse whatever libxml2's validator of
 step.xsd refuses. Held to it on the schema's own edge cases, generated from the XSD
-(schema_corpus.py), and on the disagreements an audit found (issue 73, class 7)."""
+(schema_corpus.py), and on the disagreements an audit found."""
 import re
 from collections import Counter
 
