@@ -126,13 +126,9 @@ def _line(e):
 
 def _limits(request):
     import resource
-    size = request["fence"]["limits"]["file_size"]
-    resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     # (no memory group here: the address space instead; else none, as a fresh sandbox's, whatever
     # the zygote's own soft limit)
-    memory = request.get("memory") or resource.RLIM_INFINITY
-    resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+    kernel.set_limits(request["fence"]["limits"]["file_size"], request.get("memory") or resource.RLIM_INFINITY)
 
 
 def _init(request, channel, out, err, status, seccomp):

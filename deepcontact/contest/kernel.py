@@ -11,10 +11,10 @@ CLONE_NEWIPC = 0x08000000
 CLONE_NEWUSER = 0x10000000
 CLONE_NEWPID = 0x20000000
 CLONE_NEWNET = 0x40000000
-# every namespace a contestant gets of its own (bubblewrap's --unshare-all and --unshare-user)
-ALL_NAMESPACES = (CLONE_NEWUSER | CLONE_NEWNS | CLONE_NEWPID | CLONE_NEWNET | CLONE_NEWIPC | CLONE_NEWUTS
-                  | CLONE_NEWCGROUP)
-NAMESPACE_FLAGS = ALL_NAMESPACES   # (what a contestant's clone may not ask for: machine.seccomp_program)
+# every namespace a contestant gets of its own (bubblewrap's --unshare-all and --unshare-user), and
+# so what a contestant's clone may not ask for (machine.seccomp_program)
+NAMESPACES = (CLONE_NEWUSER, CLONE_NEWNS, CLONE_NEWPID, CLONE_NEWNET, CLONE_NEWIPC, CLONE_NEWUTS, CLONE_NEWCGROUP)
+ALL_NAMESPACES = sum(NAMESPACES)
 
 MS_RDONLY, MS_NOSUID, MS_NODEV, MS_NOEXEC = 1, 2, 4, 8
 MS_REMOUNT, MS_BIND, MS_REC, MS_PRIVATE = 32, 4096, 0x4000, 1 << 18
@@ -42,6 +42,17 @@ def _checked(result, what):
 
 def _bytes(text):
     return None if text is None else os.fsencode(text)
+
+
+def set_limits(file_size, memory=None, soft_only=False):
+    """This process's limits: bytes of one file, no core file, bytes of address space (where
+    memory is given); soft_only: no hard limit, so that a process it forks may set its own."""
+    import resource
+    hard = (lambda n: resource.RLIM_INFINITY) if soft_only else (lambda n: n)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (file_size, hard(file_size)))
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    if memory is not None:
+        resource.setrlimit(resource.RLIMIT_AS, (memory, hard(memory)))
 
 
 def unshare(flags):

@@ -8,6 +8,8 @@ import shutil
 import subprocess
 from functools import lru_cache
 
+from . import kernel
+
 # System calls a contestant never needs and a hostile one would use to cross its fence.
 DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidfd_getfd", "perf_event_open",
                 "bpf", "userfaultfd", "keyctl", "add_key", "request_key", "mount", "umount2", "pivot_root",
@@ -121,7 +123,7 @@ class _ArgRule(ctypes.Structure):
 # own filter is on.
 SECCOMP_POLICIES = ("contestant", "job", "zygote")
 ZYGOTE_ALLOWED = ("mount", "umount2", "unshare", "pivot_root")
-CLONE_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
+CLONE_FLAGS = kernel.NAMESPACES
 
 
 def _policy_rules(policy):

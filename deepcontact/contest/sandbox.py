@@ -31,7 +31,7 @@ import time
 from ..leftovers import at_end, own_processes
 from ..output import record
 from ..plugins import PluginError
-from . import fence as fences, machine, relay
+from . import fence as fences, kernel, machine, relay
 
 # A contestant's limits (fence.CONTESTANT): its threads are told their count (THREAD_VARIABLES),
 # so that neither its charge (OpenBLAS's idle pool cost each start 0.1 s of CPU on two cores) nor
@@ -173,19 +173,14 @@ class Sandbox:
 
     def _enter(self, memory):
         """In the child, before exec: into the control groups, the limits on."""
-        import resource
         for _, folder in dict.fromkeys(self.groups.values()):
             with open(os.path.join(folder, "cgroup.procs"), "w") as f:
                 f.write("0")
-        # (a zygote's forks set their own limits, which no process may raise past its hard one: its
+        # (an accelerator's driver maps more address space than memory: no such limit with one; a
+        # zygote's forks set their own limits, which no process may raise past its hard one: its
         # own are soft, under no hard limit)
-        hard = (lambda n: resource.RLIM_INFINITY) if self.fence.nested else (lambda n: n)
-        size = self.fence.limits.file_size
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard(size)))
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-        if "memory" not in self.groups and memory is not None and not self.fence.devices:
-            # (an accelerator's driver maps more address space than memory: no such limit with one)
-            resource.setrlimit(resource.RLIMIT_AS, (memory, hard(memory)))
+        space = memory if "memory" not in self.groups and not self.fence.devices else None
+        kernel.set_limits(self.fence.limits.file_size, space, soft_only=self.fence.nested)
         os.setsid()
 
     def start(self, argv, pass_fds=(), env=None):
