@@ -357,7 +357,7 @@ def test_a_contestant_with_a_memory_group_has_no_address_space_limit_of_its_zygo
     monkeypatch.setattr(zygote, "_refused", [])
     zygote.close_all()
     monkeypatch.setattr(machine, "cgroup_roots", lambda: {k: v for k, v in roots.items() if k != "memory"})
-    zygote.for_fence(fence.CONTESTANT)
+    zygote.live()
     monkeypatch.setattr(machine, "cgroup_roots", lambda: roots)
     try:
         kind, said = said_by(Contestant("as", "zygote_hostile", start=hostile.Limits()).begin())

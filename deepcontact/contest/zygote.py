@@ -52,8 +52,9 @@ def usable(fence):
             and os.environ.get("DC_NO_ZYGOTE") != "1")
 
 
-def for_fence(fence):
-    """The live zygote for contestants of `fence` (started the first time it is asked for)."""
+def live():
+    """This process's live zygote (started the first time it is asked for): every contestant's
+    fence is carried by its request, so one serves them all."""
     # (its interpreter started with the variables its contestants' would: the warnings' setting
     # among them, which Python reads as it starts)
     key = tuple(sorted((k, v) for k, v in fences.environment(fences.ZYGOTE).items() if k != fences.MARKER))
