@@ -3,10 +3,10 @@
 A variant's time on a step is its start's whole call plus its one solve call of the step, the
 variants interleaved (replay.py). Two variants are compared by the ratio of their median times per step; the
 interval resamples the steps (the same steps for both: a pair per step) with a fixed seed, so the
-report repeats. The noise floor is Box2D's warm start against itself: its solve of each step
-(its time) against the same solve asked again after the round and the null's round trip closing
-it (A/A, replay.timed_twice), which should be 1 and shows how far from 1 the machine moves a
-ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
+report repeats. The noise floor is Box2D's warm start against itself: its time on each step
+against its twin's, the same variant run in a sandbox of its own and asked in the step's shuffled
+order like every variant (A/A, replay.timed_twice), which should be 1 and shows how far from 1
+the machine moves a ratio of two equal things. A verdict names a winner only when its interval excludes Box2D's warm
 start's time and the runner-up's, and never where the A/A itself reaches beyond NOISE_LIMIT (the
 machine too noisy to time); else it says there is no clear winner (contest/verdict.py).
 """
@@ -14,8 +14,10 @@ from ..contest.verdict import decide, paired as _paired
 
 
 def _totals(rows, name, again=False):
-    """{step key: ms} of the variant `name`: prediction plus its solve (or, again, its A/A's second)."""
-    return {(r.run, r.seed, r.step): r.predict_ms + (r.solve_ms_again if again else r.solve_ms)
+    """{step key: ms} of the variant `name`: prediction plus its solve (or, again, its A/A twin's)."""
+    def twin(r):
+        return (r.predict_ms if r.predict_ms_again is None else r.predict_ms_again) + r.solve_ms_again
+    return {(r.run, r.seed, r.step): twin(r) if again else r.predict_ms + r.solve_ms
             for r in rows if r.start == name and not (again and r.solve_ms_again is None)}
 
 

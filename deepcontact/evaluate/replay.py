@@ -4,7 +4,8 @@ same problem.
 For each step and variant, in the variant's own sandbox (deepcontact/contest): the start is made, then
 the variant's method solves from it until the stopping measure falls below the tolerance or the
 cap, in one call a step, timed and judged here (no other call of the step for it to answer from
-memory; Box2D's warm start is asked a second time, for the A/A noise floor only); a built-in method's
+memory; Box2D's warm start runs a second time in a sandbox of its own, the A/A noise floor, asked
+exactly as every variant is); a built-in method's
 convergence history is traced here, off the clock, from the same start. Recorded per step
 and variant: iterations, whether the cap was hit, the history, the final residual, the errors
 against the step's reference solution (in impulses, and in body velocities after the solve),
@@ -63,7 +64,8 @@ class Row:
     budget_residual: np.ndarray = None  # the residual after them
     factorizations: int = 0   # sparse systems a global method factorized or solved (newton, subspace)
     above: bool = False       # ended above the tolerance, judged by our residual (not by what the method said)
-    solve_ms_again: float = None   # Box2D's warm start only: its solve asked a second time (the A/A), never its time
+    solve_ms_again: float = None   # Box2D's warm start only: its A/A twin's solve (its own sandbox), never its time
+    predict_ms_again: float = None   # and the twin's start
     transport_ms: float = 0.0  # the null contestant's least solve round trip over the run so far (subtracted)
     setup_ms: float = 0.0      # the variant's import and construction in its sandbox, and what it ran after its
                                # last call, charged (once, not per step)
@@ -72,9 +74,11 @@ class Row:
 
 # Every variant's solve is asked once a step, its one call its time: with no other call of the same
 # step, none can be answered from the memory of another (a memo gains nothing, at any threshold).
-# Only Box2D's warm start (the project's code, every answer held bit for bit to the judge's own
-# run: timed_twice) is asked once more, after the round and the null's round trip that closes
-# it, for the noise floor (A/A).
+# Box2D's warm start (timed_twice) runs twice, in two sandboxes, each asked once a step in the
+# step's shuffled order like every variant: the two are the noise floor (A/A). (Asking the same
+# sandbox a second time after the round measured its second call 3-10% slower than its first on a
+# quiet machine, and a plug-in handing back its values 3% slower than the first: an order of the
+# calls, not the machine's noise.)
 
 # Fixed sweep budgets for "what accuracy costs in time", each timed on its own.
 BUDGETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
@@ -92,9 +96,18 @@ class Variant:
 
 
 def timed_twice(v):
-    """Whether variant v is Box2D's warm start with plain PGS (w = 1): the yardstick, whose solve
-    the judge asks a second time a step for the A/A noise floor."""
+    """Whether variant v is Box2D's warm start with plain PGS (w = 1): the yardstick, which runs a
+    second time in a sandbox of its own for the A/A noise floor."""
     return v.name == "builtin" and v.relaxation in (1, 1.0) and v.accelerate == "none"
+
+
+def with_twin(table):
+    """(the table and, last, the yardstick's A/A twin (timed_twice): the same variant under its
+    own label, in a sandbox of its own; the index of the yardstick, or None where there is none)."""
+    yard = next((i for i, v in enumerate(table) if timed_twice(v)), None)
+    if yard is None:
+        return list(table), None
+    return [*table, dataclasses.replace(table[yard], label=table[yard].label + " (A/A)")], yard
 
 
 def variants(starts, relaxations=(1.0,), accelerations=("none",)):
@@ -259,8 +272,9 @@ def evaluate_simulation(task):
     the larger) less the null contestant's round trip of the same request, and its answer judged
     here."""
     (run, sim_seed, files, (scene, engine)), table, settings, every, seed, budgets = task
-    made, null = open_contestants(table, settings)
-    contestants = {v.label: c for v, c in zip(table, made)}
+    asked, yard = with_twin(table)
+    made, null = open_contestants(asked, settings)
+    contestants = {v.label: c for v, c in zip(asked, made)}
     rows, floors = [], _Floors()
     try:
         for header, bodies, contacts, path, persisted, earlier in _steps_to_judge(files, scene, engine, sim_seed,
@@ -270,11 +284,11 @@ def evaluate_simulation(task):
             ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                               persisted=persisted, seed=seed, index=int(header["index"]), trajectory="replay",
                               previous=previous_solution(earlier, header["index"], settings))
-            order = np.random.default_rng([seed, sim_seed, int(header["index"])]).permutation(len(table))
-            step = _JudgedStep(problem, reference, settings, null, floors)
-            step.start(table, contestants, ctx, order)
+            order = np.random.default_rng([seed, sim_seed, int(header["index"])]).permutation(len(asked))
+            step = _JudgedStep(problem, reference, settings, null, floors, yard, len(table))
+            step.start(asked, contestants, ctx, order)
             step.solve(order)
-            for i in sorted(step.variants):
+            for i in range(len(table)):
                 row = step.row(i, run, sim_seed, header["index"])
                 if budgets:
                     row.budget_ms, row.budget_residual = _budgets(step.variants[i][1], problem, step.requests[i],
@@ -313,9 +327,10 @@ class _JudgedStep:
     """One step put to every variant: each start asked, then every solve asked once, interleaved,
     and each answer judged by our residual."""
 
-    def __init__(self, problem, reference, settings, null, floors):
+    def __init__(self, problem, reference, settings, null, floors, yard=None, twin=None):
+        """yard: the index of the yardstick (timed_twice), twin: its A/A twin's (with_twin), or None."""
         self.problem, self.reference, self.settings, self.null = problem, reference, settings, null
-        self.floors = floors
+        self.floors, self.yard, self.twin = floors, yard, (twin if yard is not None else None)
         self.deadline = deadline_for(problem.points)
         self.variants = {}   # i -> (variant, contestant, normal, tangent, prediction seconds)
 
@@ -335,9 +350,8 @@ class _JudgedStep:
             self.variants[i] = (v, c, normal, tangent, _net(c.last, floor))
 
     def solve(self, order):
-        """Every variant's solve from its start, asked once, in the step's order, with the solve's
-        transport measured before and after them (the least counts); then the yardstick's again
-        (timed_twice), its second time for the A/A only."""
+        """Every variant's solve from its start (the yardstick's twin's too), asked once, in the
+        step's order, with the solve's transport measured before and after them (the least counts)."""
         settings, deadline = self.settings, self.deadline
         self.asked = {i: settings.but(relaxation=v.relaxation, accelerate=v.accelerate)
                       for i, (v, *_) in self.variants.items()}
@@ -354,12 +368,7 @@ class _JudgedStep:
         self.floor = self.floors.seen("solve", self.null.last)
         for row in self.variants.values():
             row[1].status()
-        # (the second after the null's round trip, as the first came after other processes' calls:
-        # asked straight after the round, it ran 0.05-0.08 ms faster than the first, an A/A of
-        # 1.2-1.5 on a quiet machine, every replay too noisy to time)
-        again = {i: self._asked(i, wire[i]) for i in order if timed_twice(self.variants[i][0])}
         self.times = {i: _net(t, self.floor) * 1e3 for i, t in took.items()}
-        self.again = {i: _net(t, self.floor) * 1e3 for i, t in again.items()}
 
     def _asked(self, i, wire):
         """One solve call of variant i: its answer kept (to be judged) and its (wall, CPU) returned."""
@@ -395,15 +404,26 @@ class _JudgedStep:
         """The judge's own run of variant i's built-in method from its start (untimed, with its
         history), every answer the variant's process gave held to it (same_as_traced)."""
         traced = solve(self.problem, normal, tangent, history=True, settings=self.asked[i])
-        for head, arrays in self.answers[i]:   # (the A/A's second call's too: every answer is judged)
+        for head, arrays in self._all_answers(i):   # (the A/A twin's too: every answer is judged)
             same_as_traced(v.label, v.accelerate, head, arrays, traced)
         return traced
+
+    def _all_answers(self, i):
+        """Variant i's answers, and for the yardstick its A/A twin's (the same start, bit for bit)."""
+        if i == self.yard and self.twin is not None:
+            twin = self.variants[self.twin]
+            row = self.variants[i]
+            if not (np.array_equal(twin[2], row[2]) and np.array_equal(twin[3], row[3])):
+                raise PluginError(f"the variant {row[0].label!r} made another start in its A/A twin's sandbox: "
+                                  f"Box2D's warm start is the same, bit for bit, in any sandbox")
+            return self.answers[i] + self.answers[self.twin]
+        return self.answers[i]
 
     def row(self, i, run, sim_seed, index):
         """Variant i's Row: every timed answer judged by our residual, the worst of them its own."""
         problem, reference, s = self.problem, self.reference, self.settings
         v, c, normal, tangent, predict_s = self.variants[i]
-        answers = self.answers[i]
+        answers = self._all_answers(i)
         judged = [judge(problem, *checked_answer(v.label, arrays, problem.points, also=("claims",)))
                   for _, arrays in answers]
         if not is_native(v.accelerate):   # (a plug-in's answer: one a step could need at all?)
@@ -423,7 +443,9 @@ class _JudgedStep:
                    residual=worst.residual,
                    error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
                    velocity_error=_velocity_error(judged[0], reference),
-                   predict_ms=predict_s * 1e3, solve_ms=self.times[i], solve_ms_again=self.again.get(i),
+                   predict_ms=predict_s * 1e3, solve_ms=self.times[i],
+                   solve_ms_again=self.times[self.twin] if i == self.yard and self.twin is not None else None,
+                   predict_ms_again=self.variants[self.twin][4] * 1e3 if i == self.yard and self.twin is not None else None,
                    history=np.concatenate([[first], hist]),
                    relaxation=None if v.relaxation is None else float(v.relaxation),
                    accelerate=v.accelerate, fallback=bool(head.get("fallback", 0)),
