@@ -224,6 +224,50 @@ def test_the_yardsticks_a_a_twin_is_asked_as_every_variant_in_a_sandbox_of_its_o
     assert not any(r.start == "builtin (A/A)" for r in rows)
 
 
+ZEROS = textwrap.dedent("""
+    import numpy as np
+    from deepcontact.warmstart.starts import StartValue
+
+    class Zeros:
+        '''A start of zeros.'''
+        def __call__(self, ctx):
+            return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {})
+""")
+
+
+def test_a_start_labelled_as_the_a_a_twin_runs_its_own_code_in_its_own_sandbox(run, tmp_path, monkeypatch):
+    """A library caller may label a start as it likes, "builtin (A/A)" too: it must run its own
+    code in a sandbox of its own, every sandbox closed. (Keyed by label, the twin's sandbox took
+    its place: its row was builtin's, and its own sandbox was never asked nor closed.)"""
+    from deepcontact.contest import client
+    from deepcontact.evaluate import replay
+    from deepcontact.warmstart.starts import make_starts
+    forget = plugin_modules(tmp_path, monkeypatch, {"zeros_start": ZEROS})
+    try:
+        import zeros_start
+        opened, closed, real_init, real_close = [], [], client.Contestant.__init__, client.Contestant.close
+
+        def init(self, *args, **kwargs):
+            real_init(self, *args, **kwargs)
+            opened.append(id(self))
+
+        def close(self):
+            closed.append(id(self))
+            return real_close(self)
+
+        monkeypatch.setattr(client.Contestant, "__init__", init)
+        monkeypatch.setattr(client.Contestant, "close", close)
+        starts = {**make_starts(["builtin", "zero"]), "builtin (A/A)": zeros_start.Zeros()}
+        rows = replay.evaluate([run], starts, every=20)
+    finally:
+        forget()
+    first = {}   # (each variant's first residual a step: its start's)
+    for r in rows:
+        first.setdefault(r.start, []).append(r.history[0])
+    assert first["builtin (A/A)"] == first["zero"] != first["builtin"]
+    assert sorted(opened) == sorted(set(closed)), "a sandbox left open"
+
+
 def test_a_memo_is_charged_the_first_budget_it_has_not_seen(run, tmp_path, tricks):
     """Each sweep budget is asked once (replay._budgets): the first was asked twice and its second
     call timed, which a memo answered from the first (Memo's one sweep: 0.42 ms, its two 4.9 ms)."""

@@ -107,7 +107,12 @@ def with_twin(table):
     yard = next((i for i, v in enumerate(table) if timed_twice(v)), None)
     if yard is None:
         return list(table), None
-    return [*table, dataclasses.replace(table[yard], label=table[yard].label + " (A/A)")], yard
+    # (a label no variant has: a library caller's start labelled "builtin (A/A)" must not share
+    # the twin's sandbox, its own left unasked and open)
+    labels, label = {v.label for v in table}, table[yard].label + " (A/A)"
+    while label in labels:
+        label += " (A/A)"
+    return [*table, dataclasses.replace(table[yard], label=label)], yard
 
 
 def variants(starts, relaxations=(1.0,), accelerations=("none",)):
