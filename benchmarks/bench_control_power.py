@@ -10,7 +10,11 @@ Box2D's warm start with plain sweeps against the control,
 and prints each run's verdict line (its report's "Verdict" and "Power" sentences) and how many
 runs named the control the fastest. The pile is simulated first unless --heldout names it.
 
-Usage: python benchmarks/bench_control_power.py [--runs 10] [--every 5] [--heldout DIR]
+--twin 1: builtin's twin in place of the control (benchmarks/controls/twin_start.py: a plug-in
+start handing back exactly Box2D's warm start), `--starts builtin,twin_start:Twin`; it should
+never be named, and the count is of runs that named it.
+
+Usage: python benchmarks/bench_control_power.py [--runs 10] [--every 5] [--heldout DIR] [--twin 0]
 """
 import os
 import re
@@ -24,6 +28,7 @@ from common import DC, arguments
 
 CONTROLS = Path(__file__).resolve().parent / "controls"
 CONTROL = "psor_control:PSOR"
+TWIN = "twin_start:Twin"
 
 
 def heldout_pile(folder):
@@ -32,31 +37,36 @@ def heldout_pile(folder):
     return folder
 
 
-def verdict(heldout, every, output):
-    """(seconds, the report's verdict line) of one evaluation of builtin against the control."""
+def verdict(heldout, every, output, twin=False):
+    """(seconds, the report's verdict line) of one evaluation of builtin against the control (or
+    against its twin)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(CONTROLS), os.environ.get("PYTHONPATH")]))}
     t = time.perf_counter()
-    subprocess.run([*DC, "evaluate", str(heldout), "--starts", "builtin", "--accelerate", f"none,{CONTROL}",
+    variants = ["--starts", f"builtin,{TWIN}"] if twin else ["--starts", "builtin", "--accelerate", f"none,{CONTROL}"]
+    subprocess.run([*DC, "evaluate", str(heldout), *variants,
                     "--every", str(every), "--no-plots", "--no-budgets", "-q", "-o", str(output)],
                    check=True, env=env, stdout=subprocess.DEVNULL)
     report = (output / "report.md").read_text()
     return time.perf_counter() - t, re.search(r"^\*\*Verdict\*\*:.*$", report, flags=re.M).group(0)
 
 
-def named(line):
-    """Whether a verdict line names the control the fastest."""
-    return line.startswith("**Verdict**: the fastest") and re.search(r"is \*\*[^*]*" + re.escape(CONTROL) + r"\*\*", line) is not None
+def named(line, who=CONTROL):
+    """Whether a verdict line names `who` the fastest."""
+    return line.startswith("**Verdict**: the fastest") and re.search(r"is \*\*[^*]*" + re.escape(who) + r"\*\*", line) is not None
 
 
 def main():
-    args = arguments(__doc__, runs=10, every=5, heldout="")
+    args = arguments(__doc__, runs=10, every=5, heldout="", twin=0)
     with tempfile.TemporaryDirectory(prefix="dc-power-") as scratch:
         heldout = Path(args.heldout) if args.heldout else heldout_pile(Path(scratch) / "heldout")
         count = 0
         for run in range(args.runs):
-            seconds, line = verdict(heldout, args.every, Path(scratch) / f"run{run}")
-            count += named(line)
+            seconds, line = verdict(heldout, args.every, Path(scratch) / f"run{run}", bool(args.twin))
+            count += named(line, TWIN if args.twin else CONTROL)
             print(f"run {run + 1} ({seconds:.0f} s, load {os.getloadavg()[0]:.1f}): {line}\n", flush=True)
+        if args.twin:
+            print(f"builtin's twin named the fastest in {count} of {args.runs} runs")
+            return 0 if count == 0 else 1
         print(f"the control named the fastest in {count} of {args.runs} runs")
     return 0 if count == args.runs else 1
 
