@@ -293,12 +293,15 @@ def evaluate_simulation(task):
             step = _JudgedStep(problem, reference, settings, null, floors, yard, len(table))
             step.start(asked, contestants, ctx, order)
             step.solve(order)
-            for i in range(len(table)):
-                row = step.row(i, run, sim_seed, header["index"])
-                if budgets:
-                    row.budget_ms, row.budget_residual = _budgets(step.variants[i][1], problem, step.requests[i],
-                                                                  step.floor, table[i].label)
-                rows.append(row)
+            made_rows = [step.row(i, run, sim_seed, header["index"]) for i in range(len(table))]
+            if budgets:
+                # (every sandbox asked its budgets, the twin's too, in the step's order: the last one
+                # busy before the next step measured quicker in it, so no variant may always be it)
+                for i in order:
+                    measured = _budgets(step.variants[i][1], problem, step.requests[i], step.floor, asked[i].label)
+                    if i < len(table):
+                        made_rows[i].budget_ms, made_rows[i].budget_residual = measured
+            rows.extend(made_rows)
     finally:
         for c in (*contestants.values(), null):
             c.close()
@@ -419,8 +422,9 @@ class _JudgedStep:
             twin = self.variants[self.twin]
             row = self.variants[i]
             if not (np.array_equal(twin[2], row[2]) and np.array_equal(twin[3], row[3])):
-                raise PluginError(f"the variant {row[0].label!r} made another start in its A/A twin's sandbox: "
-                                  f"Box2D's warm start is the same, bit for bit, in any sandbox")
+                raise PluginError(f"the variant {row[0].label!r} made another start in its A/A twin's sandbox: the "
+                                  f"yardstick runs twice for the noise floor, and must give the same start, bit for "
+                                  f"bit, in either")
             return self.answers[i] + self.answers[self.twin]
         return self.answers[i]
 

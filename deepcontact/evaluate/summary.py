@@ -25,6 +25,7 @@ def _summary(rs):
         return float(np.mean([getattr(r, field) for r in rs]))
     return {
         "steps": len(rs),
+        "yardstick": any(getattr(r, "solve_ms_again", None) is not None for r in rs),   # (run twice: the A/A)
         "relaxation": rs[0].relaxation,
         "accelerate": rs[0].accelerate,
         "iterations_median": float(np.median(it)), "iterations_p80": float(np.percentile(it, 80)),

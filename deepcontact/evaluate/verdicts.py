@@ -36,7 +36,11 @@ def base_start(label):
 
 
 def baseline(summary):
-    """The label of Box2D's own warm start with plain PGS (w = 1), the yardstick, or None."""
+    """The label of Box2D's own warm start with plain PGS (w = 1), the yardstick, or None: the
+    variant the judge ran twice for the A/A where it did (replay.timed_twice), else by its label."""
+    twinned = [name for name, s in summary.items() if s.get("yardstick")]
+    if twinned:
+        return twinned[0]
     for name, s in summary.items():
         if base_start(name) == "builtin" and s.get("relaxation") in (1, 1.0) and s.get("accelerate", "none") == "none":
             return name
