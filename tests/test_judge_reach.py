@@ -307,6 +307,18 @@ def test_the_yardstick_is_the_variant_run_twice_whatever_the_labels(run):
     assert verdicts.noise_of(rows, summary)["base"] == "builtin"
 
 
+def test_two_variants_of_one_label_are_one_line_not_one_sandbox(run):
+    """A library caller's start named "builtin+nncg" beside builtin with --accelerate none,nncg:
+    two variants of one label shared one sandbox and one set of rows. One line, before anything
+    runs."""
+    from deepcontact.errors import InputError
+    from deepcontact.evaluate import replay
+    from deepcontact.warmstart.starts import Zero, make_starts
+    with pytest.raises(InputError, match="both be labelled 'builtin\\+nncg'"):
+        replay.evaluate([run], {"builtin+nncg": Zero(), **make_starts(["builtin"])}, every=20,
+                        accelerations=("none", "nncg"))
+
+
 def test_a_memo_is_charged_the_first_budget_it_has_not_seen(run, tmp_path, tricks):
     """Each sweep budget is asked once (replay._budgets): the first was asked twice and its second
     call timed, which a memo answered from the first (Memo's one sweep: 0.42 ms, its two 4.9 ms)."""

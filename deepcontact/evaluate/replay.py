@@ -132,6 +132,11 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
                 out.append(Variant(name + ("" if a == "none" else f"+{a}")
                                    + ("" if plain or w is None else f"@{w if w == 'auto' else format(w, 'g')}"),
                                    name, own, w, a))
+    labels = [v.label for v in out]
+    twice = next((label for label in labels if labels.count(label) > 1), None)
+    if twice is not None:   # (a library caller's start named "builtin+nncg" beside builtin with nncg)
+        raise InputError(f"two variants would both be labelled {twice!r} (a start's name and another start with a "
+                         f"method or a w): every variant's rows, sandbox and report line go by its label")
     return out
 
 
