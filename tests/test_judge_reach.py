@@ -319,6 +319,19 @@ def test_two_variants_of_one_label_are_one_line_not_one_sandbox(run):
                         accelerations=("none", "nncg"))
 
 
+def test_two_ws_that_print_alike_at_six_digits_are_two_variants(run, tmp_path):
+    """--relaxation 1,1.0000001: two w's the option takes as two, whose labels ("@1" both, at
+    format's six digits) merged their rows into one line before, and were refused as one label
+    after (exit 1, naming "a start's name"). Each w's label gives every digit its w needs."""
+    out = tmp_path / "r"
+    r = dc("evaluate", "--no-plots", "--no-budgets", run, "--every", "40", "-q", "-o", out, "--starts", "builtin",
+           "--relaxation", "1,1.0000001")
+    assert r.returncode == 0, r.stderr
+    starts = json.loads((out / "summary.json").read_text())["starts"]
+    assert {name: s["relaxation"] for name, s in starts.items()} == {"builtin@1": 1.0, "builtin@1.0000001": 1.0000001}
+    assert [s["yardstick"] for s in starts.values()] == [True, False]
+
+
 def test_a_memo_is_charged_the_first_budget_it_has_not_seen(run, tmp_path, tricks):
     """Each sweep budget is asked once (replay._budgets): the first was asked twice and its second
     call timed, which a memo answered from the first (Memo's one sweep: 0.42 ms, its two 4.9 ms)."""

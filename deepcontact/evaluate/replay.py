@@ -130,7 +130,7 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
                 own = copy.deepcopy(start) if name in used and _plugin(name) else start
                 used.add(name)
                 out.append(Variant(name + ("" if a == "none" else f"+{a}")
-                                   + ("" if plain or w is None else f"@{w if w == 'auto' else format(w, 'g')}"),
+                                   + ("" if plain or w is None else f"@{w if w == 'auto' else _w_text(w)}"),
                                    name, own, w, a))
     labels = [v.label for v in out]
     twice = next((label for label in labels if labels.count(label) > 1), None)
@@ -138,6 +138,13 @@ def variants(starts, relaxations=(1.0,), accelerations=("none",)):
         raise InputError(f"two variants would both be labelled {twice!r} (a start's name and another start with a "
                          f"method or a w): every variant's rows, sandbox and report line go by its label")
     return out
+
+
+def _w_text(w):
+    """w as its label gives it: six digits (1.7) where they give w back, else every digit it needs
+    (1,1.0000001 read "@1" both, one label for two variants)."""
+    short = format(w, "g")
+    return short if float(short) == w else repr(float(w))
 
 
 def _plugin(name):
