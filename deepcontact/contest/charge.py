@@ -13,6 +13,20 @@ import math
 import numpy as np
 
 
+class NullFloors:
+    """The null contestant's least round trip (wall, CPU) of each kind of request over a run so
+    far: the floors call_charge takes, which no contestant can raise by slowing the null."""
+
+    def __init__(self):
+        self.least = {}   # kind of request -> (least wall, least CPU)
+
+    def seen(self, kind, null):
+        """Takes the null's round trip `null` ((wall, CPU): its `last`) of a `kind` request; the floor now."""
+        wall, cpu = self.least.get(kind, (math.inf, math.inf))
+        self.least[kind] = (min(wall, null[0]), min(cpu, null[1]))
+        return self.least[kind]
+
+
 class StepCharges:
     """One variant's calls in a loop, step by step: `record` after each call (with the null's
     round trip of the same request), `step_done` after each step; at the end of the run, with the
@@ -21,16 +35,15 @@ class StepCharges:
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
-        self.nulls = {}   # kind of request -> (least wall, least CPU) of the null's round trips
+        self.floors = NullFloors()
+        self.nulls = self.floors.least   # kind of request -> (least wall, least CPU) of the null's round trips
 
     def record(self, kind, contestant, null):
         """After `contestant` and `null` answered the same request of this kind (their `last`)."""
         wall, cpu = contestant.last
-        null_wall, null_cpu = null.last
-        self.within += wall + null_wall
+        self.within += wall + null.last[0]
         self.calls.append((kind, wall, cpu))
-        least = self.nulls.get(kind, (math.inf, math.inf))
-        self.nulls[kind] = (min(least[0], null_wall), min(least[1], null_cpu))
+        self.floors.seen(kind, null.last)
 
     def step_done(self):
         """Closes the step (a step that asked nothing: no calls, charged nothing)."""

@@ -38,7 +38,7 @@ from ..solver.settings import SolveSettings
 from ..warmstart.starts import ORACLE_TRAITS, StepContext, make_starts
 from . import reference_cache
 from .reference_cache import Trajectory
-from .replay import open_contestants, variants, visible_context
+from .replay import open_contestants, timed_twice, variants, visible_context
 
 
 @dataclass
@@ -212,8 +212,7 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
     ref = reference or reference_trajectory(scene, steps)
     table = variants(starts, relaxations, accelerations)
     runs = [(v, settings.but(relaxation=v.relaxation, accelerate=v.accelerate), True) for v in table]
-    runs += [(v, asked, False) for v, asked, _ in runs   # the noise floor: builtin timed again (A/A)
-             if v.name == "builtin" and v.relaxation in (1, 1.0) and v.accelerate == "none"]
+    runs += [(v, asked, False) for v, asked, _ in runs if timed_twice(v)]   # the noise floor: builtin again (A/A)
     done = _interleaved(scene, runs, steps)
     results = []
     for (v, asked, counted), (t, adapter, ms) in zip(runs, done):

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import arguments, protocol, workers
 from ..contest import Contestant, deadline_for, start_all
-from ..contest.charge import call_charge
+from ..contest.charge import NullFloors, call_charge
 from ..contest.client import packed
 from ..contest.wire import checked_answer, held_claims, unanswered
 from ..errors import InputError
@@ -232,29 +232,6 @@ def visible_context(ctx, traits, label):
     return dataclasses.replace(ctx, **changes)
 
 
-def _net(call, floor):
-    """A call's charge less the transport (contest/charge.py's rule, as the loop's): the larger of
-    its wall time less the least of the null contestant's round trips of that kind of call over
-    the run so far, and its sandbox's CPU less the least of theirs; never below zero. call and
-    floor: (wall, CPU) seconds (Contestant.last; _Floors). One null round trip of the step, slowed
-    by a loaded machine, took 3 ms off a start's 10 ms of work."""
-    return call_charge(*call, floor)
-
-
-class _Floors:
-    """The null contestant's least round trip (wall, CPU) of each kind of request over a
-    simulation's run so far: what no contestant can raise by slowing the null."""
-
-    def __init__(self):
-        self.least = {}
-
-    def seen(self, kind, null):
-        """Takes the null's round trip `null` (its `last`) of a `kind` request; the floor now."""
-        wall, cpu = self.least.get(kind, (float("inf"), float("inf")))
-        self.least[kind] = (min(wall, null[0]), min(cpu, null[1]))
-        return self.least[kind]
-
-
 def open_contestants(table, settings):
     """([Contestant] in the table's order, the null contestant): one sandbox per variant
     (deepcontact/contest), started side by side, and the null contestant that measures transport
@@ -292,7 +269,7 @@ def evaluate_simulation(task):
     asked, yard = with_twin(table)
     made, null = open_contestants(asked, settings)
     contestants = {v.label: c for v, c in zip(asked, made)}
-    rows, floors = [], _Floors()
+    rows, floors = [], NullFloors()
     try:
         for header, bodies, contacts, path, persisted, earlier in _steps_to_judge(files, scene, engine, sim_seed,
                                                                                    every):
@@ -308,9 +285,12 @@ def evaluate_simulation(task):
             made_rows = [step.row(i, run, sim_seed, header["index"]) for i in range(len(table))]
             if budgets:
                 # (every sandbox asked its budgets, the twin's too, in the step's order: the last one
-                # busy before the next step measured quicker in it, so no variant may always be it)
+                # busy before the next step measured quicker in it, so no variant may always be it;
+                # the yardstick and its twin, the same start bit for bit, held to one trace)
+                pair = {}
                 for i in order:
-                    measured = _budgets(step.variants[i][1], problem, step.requests[i], step.floor, asked[i].label)
+                    measured = _budgets(step.variants[i][1], problem, step.requests[i], step.floor, asked[i].label,
+                                        pair if yard is not None and i in (yard, len(table)) else {})
                     if i < len(table):
                         made_rows[i].budget_ms, made_rows[i].budget_residual = measured
             rows.extend(made_rows)
@@ -367,7 +347,7 @@ class _JudgedStep:
             floor = self.floors.seen("start", self.null.last)
             _, _, arrays = c.call(request, self.deadline)
             normal, tangent = checked_answer(v.label, arrays, self.problem.points)
-            self.variants[i] = (v, c, normal, tangent, _net(c.last, floor))
+            self.variants[i] = (v, c, normal, tangent, call_charge(*c.last, floor))
 
     def solve(self, order):
         """Every variant's solve from its start (the yardstick's twin's too), asked once, in the
@@ -388,7 +368,7 @@ class _JudgedStep:
         self.floor = self.floors.seen("solve", self.null.last)
         for row in self.variants.values():
             row[1].status()
-        self.times = {i: _net(t, self.floor) * 1e3 for i, t in took.items()}
+        self.times = {i: call_charge(*t, self.floor) * 1e3 for i, t in took.items()}
 
     def _asked(self, i, wire):
         """One solve call of variant i: its answer kept (to be judged) and its (wall, CPU) returned."""
@@ -526,13 +506,14 @@ def evaluate(run_dirs: list, starts: dict, *, settings: SolveSettings = SolveSet
     return rows
 
 
-def _budgets(contestant, problem, request, null, label):
+def _budgets(contestant, problem, request, null, label, traced):
     """Measured: the time of exactly b sweeps for every budget b (no early stop; a global method
     gets b sweeps and the Newton steps between them, a plug-in b iterations), each a call to the
     variant's process timed here less the solve's transport (null), and the residual its answer
     reaches, judged here. Each budget is asked once: a repeat of the same request (the first
     budget was once asked twice, the second call timed) is one a memo answers from its first (the
-    tests' `Memo`: 0.42 ms for one sweep, 4.9 ms for two)."""
+    tests' `Memo`: 0.42 ms for one sweep, 4.9 ms for two). traced: {budget: the judge's own run},
+    filled here, shared by variants asked from the same start."""
     ms, residual = [], []
     for b in BUDGETS:
         asked = request["settings"].but(max_iterations=b, tolerance=0.0)
@@ -541,8 +522,9 @@ def _budgets(contestant, problem, request, null, label):
         judged = judge(problem, *checked_answer(label, arrays, problem.points, also=("claims",))).residual
         held_claims(label, head, arrays, b)
         if is_native(asked.accelerate):   # (the judge's own run of the same sweeps, off the clock)
-            same_as_traced(label, asked.accelerate, head, arrays,
-                           solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False))
-        ms.append(_net(took, null) * 1e3)
+            if b not in traced:
+                traced[b] = solve(problem, request["normal"], request["tangent"], settings=asked, final_residual=False)
+            same_as_traced(label, asked.accelerate, head, arrays, traced[b])
+        ms.append(call_charge(*took, null) * 1e3)
         residual.append(judged)
     return np.array(ms), np.array(residual)
