@@ -408,9 +408,13 @@ class _JudgedStep:
             same_as_traced(v.label, v.accelerate, head, arrays, traced)
         return traced
 
+    def _twinned(self, i):
+        """Whether variant i is the yardstick with an A/A twin."""
+        return i == self.yard and self.twin is not None
+
     def _all_answers(self, i):
         """Variant i's answers, and for the yardstick its A/A twin's (the same start, bit for bit)."""
-        if i == self.yard and self.twin is not None:
+        if self._twinned(i):
             twin = self.variants[self.twin]
             row = self.variants[i]
             if not (np.array_equal(twin[2], row[2]) and np.array_equal(twin[3], row[3])):
@@ -445,8 +449,8 @@ class _JudgedStep:
                    error=float(np.linalg.norm(got - ref) / max(np.linalg.norm(ref), 1e-300)),
                    velocity_error=_velocity_error(judged[0], reference),
                    predict_ms=predict_s * 1e3, solve_ms=self.times[i],
-                   solve_ms_again=self.times[self.twin] if i == self.yard and self.twin is not None else None,
-                   predict_ms_again=self.variants[self.twin][4] * 1e3 if i == self.yard and self.twin is not None else None,
+                   solve_ms_again=self.times[self.twin] if self._twinned(i) else None,
+                   predict_ms_again=self.variants[self.twin][4] * 1e3 if self._twinned(i) else None,
                    history=np.concatenate([[first], hist]),
                    relaxation=None if v.relaxation is None else float(v.relaxation),
                    accelerate=v.accelerate, fallback=bool(head.get("fallback", 0)),
