@@ -172,3 +172,25 @@ def test_the_closed_loops_reference_is_computed_once_and_checked_before_use(tmp_
     assert len(computed) == 4
     third = (tmp_path / "third" / "report.md").read_text().split("| builtin |")[1].split("|")[9:12]
     assert third == drift["first"]
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_a_world_box2d_stepped_goes_on_in_the_loop_from_what_box2d_carried(native):
+    # The loop's first step of a world Box2D has been stepping carries Box2D's impulses, times
+    # the dtRatio Box2D's own next step would use: in Box2D's exact arithmetic at its 8 sweeps that
+    # step's impulses are Box2D's own next step's, bit for bit (from zero they were not).
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    settings = SolveSettings(mode="exact", max_iterations=8, tolerance=0)
+    ours, theirs = build_world(scene), build_world(scene)
+    for world in (ours, theirs):
+        for _ in range(80):
+            world.step(scene.dt, 8, scene.solver.position_iterations)
+    _, want = theirs.step(scene.dt, 8, scene.solver.position_iterations, record=True)
+    done = PGSStepper(ours, scene, settings, "builtin", native=native).step()
+    assert len(want["normal_impulse"]) > 10 and np.any(done.contacts["start_normal_impulse"])
+    assert done.dt_ratio == float(np.float32(np.float32(1 / np.float32(scene.dt)) * np.float32(scene.dt)))
+    assert np.array_equal(done.contacts["normal_impulse"], want["normal_impulse"])
+    assert np.array_equal(done.contacts["tangent_impulse"], want["tangent_impulse"])
+    # a world that no one stepped carries nothing into its first step, as Box2D's own first step
+    fresh = PGSStepper(build_world(scene), scene, settings, "builtin", native=native).step()
+    assert fresh.dt_ratio == 0.0

@@ -126,8 +126,17 @@ class PGSStepper:
             self.relaxation.solved_without_trial()
         return done
 
+    def _carried_scale(self):
+        """Box2D's warm-start scale for this step, dtRatio, as b2World::Step computes it (float32
+        inv_dt0 * dt): on the loop's first step of a world, what Box2D's own next step would carry
+        (0 for a new world; about 1 after Box2D's own steps at this dt, so a world switched to the
+        loop goes on as one pile); after the loop's steps exactly 1 (unit_dt_ratio_inv)."""
+        if not self.first:
+            return np.float32(1.0)
+        return np.float32(np.float32(self.world.inv_dt0) * np.float32(self.scene.dt))
+
     def _native_step(self, w):
-        self.step_settings.warm_scale = 0.0 if self.first else 1.0
+        scale = self.step_settings.warm_scale = float(self._carried_scale())
         if w != self.solve_options.relaxation:
             self.solve_options.relaxation = w
             self.step_settings.solve = self.solve_options
@@ -136,7 +145,7 @@ class PGSStepper:
         solution = None if out is None else Solution.from_native(out, w)
         deepest = 0.0 if out is None else out["deepest"]
         if not self.record:
-            return LoopStep(None, None, solution, deepest)
+            return LoopStep(None, None, solution, deepest, dt_ratio=scale)
         before, recorded = self.world.recorded()
         # Box2D applied what we wrote; the step file records our start as the step's start.
         # (Box2D's recorder saw our solution carried over as its warm start.)
@@ -144,16 +153,15 @@ class PGSStepper:
         same = out is not None and len(out["start_normal"]) == n
         recorded["start_normal_impulse"] = out["start_normal"].astype(np.float32) if same else np.zeros(n, np.float32)
         recorded["start_tangent_impulse"] = out["start_tangent"].astype(np.float32) if same else np.zeros(n, np.float32)
-        return LoopStep(before, recorded, solution, deepest)
+        return LoopStep(before, recorded, solution, deepest, dt_ratio=scale)
 
     def _python_step(self):
         world, scene, o = self.world, self.scene, self.settings
         bodies = world.bodies()
         world.collide()
         contacts = world.contacts()
-        # Box2D's own warm start: the impulses carried over by feature id, times dtRatio (0 on
-        # the first step, when nothing was carried).
-        ratio = np.float32(0.0 if self.first else 1.0)
+        # Box2D's own warm start: the impulses carried over by feature id, times dtRatio
+        ratio = self._carried_scale()
         builtin_n = ratio * contacts["normal_impulse"]
         builtin_t = ratio * contacts["tangent_impulse"]
         problem = None
@@ -186,7 +194,7 @@ class PGSStepper:
         # (collided: Box2D's Step skips its own Collide, which would rebuild the same manifolds)
         out = world.step(scene.dt, 0, scene.solver.position_iterations, record=self.record, collided=True)
         if not self.record:
-            return LoopStep(None, None, solution, deepest)
+            return LoopStep(None, None, solution, deepest, dt_ratio=float(ratio))
         before, recorded = out
         # What Box2D applied is what we wrote; record our start as the step's start.
         # (a garbage start is recorded as sanitised: no NaN ever reaches a file)
@@ -195,4 +203,4 @@ class PGSStepper:
             used_n, used_t = np.zeros_like(builtin_n), np.zeros_like(builtin_t)
         recorded["start_normal_impulse"] = used_n.astype(np.float32)
         recorded["start_tangent_impulse"] = used_t.astype(np.float32)
-        return LoopStep(before, recorded, solution, deepest)
+        return LoopStep(before, recorded, solution, deepest, dt_ratio=float(ratio))
