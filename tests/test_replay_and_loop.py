@@ -194,3 +194,34 @@ def test_a_world_box2d_stepped_goes_on_in_the_loop_from_what_box2d_carried(nativ
     # a world that no one stepped carries nothing into its first step, as Box2D's own first step
     fresh = PGSStepper(build_world(scene), scene, settings, "builtin", native=native).step()
     assert fresh.dt_ratio == 0.0
+
+
+@pytest.mark.parametrize("mode, w, accelerate", [("exact", 1.0, "none"), ("float64", 1.0, "none"),
+                                                 ("float32", 1.7, "none"), ("float64", 1.3, "nncg")])
+def test_an_unrecorded_step_at_fixed_sweeps_skips_only_its_residual(mode, w, accelerate):
+    # The residual after the sweeps (and its scale before them) is measured only where something
+    # reads it: an unrecorded step at a fixed sweep count reports none, and every iterate, the
+    # guard's decisions included, is the same as the step that reports it.
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    settings = SolveSettings(mode=mode, max_iterations=12, tolerance=0, relaxation=w, accelerate=accelerate)
+    bare, told = (PGSStepper(build_world(scene), scene, settings, "builtin", record=False, residual=r)
+                  for r in (None, True))
+    assert not bare.residual and told.residual
+    solved = 0
+    for _ in range(100):
+        a, b = bare.step(), told.step()
+        assert (a.solution is None) == (b.solution is None)
+        if a.solution is not None:
+            solved += 1
+            assert np.isnan(a.solution.residual) and np.isfinite(b.solution.residual)
+            assert a.solution.iterations == b.solution.iterations
+            assert a.solution.relaxation_fallback == b.solution.relaxation_fallback
+            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
+            assert np.array_equal(a.solution.tangent_impulse, b.solution.tangent_impulse)
+    assert solved > 50
+    assert np.array_equal(bare.world.bodies()["position"], told.world.bodies()["position"])
+    # recorded, or solved to a tolerance, a step states its residual unasked
+    recorded = PGSStepper(build_world(scene), scene, settings, "builtin")
+    to_tolerance = PGSStepper(build_world(scene), scene, settings.but(tolerance=1e-3, max_iterations=50), "builtin",
+                              record=False)
+    assert recorded.residual and to_tolerance.residual

@@ -128,7 +128,8 @@ def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, rep
     (not for the A/A run, which the progress total does not count). solve_fn: PGSStepper's."""
     engine = Box2D(solver=settings, start=start, start_fn=start_fn)
     world = engine.build(scene)
-    stepper = PGSStepper(world, scene, engine.solver, start, start_fn=start_fn, record=False, solve_fn=solve_fn)
+    stepper = PGSStepper(world, scene, engine.solver, start, start_fn=start_fn, record=False, solve_fn=solve_fn,
+                         residual=True)
     return _follow(world, scene, steps, stepper.step, solved, report)
 
 
@@ -253,7 +254,7 @@ def _interleaved(scene, runs, steps):
             engine = Box2D(solver=asked, start="builtin", start_fn=adapter)
             world = engine.build(scene)
             stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=adapter, record=False,
-                                 solve_fn=None if is_native(v.accelerate) else adapter.solve)
+                                 solve_fn=None if is_native(v.accelerate) else adapter.solve, residual=True)
             adapter.follower = _Follower(world, scene, adapter.solved, counted)
             adapter.stepping = stepping.steps(world, scene, stepper.step, steps)
         going = list(range(len(loops)))

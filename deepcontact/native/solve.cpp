@@ -34,9 +34,13 @@ SolveReport solve(ContactProblem<R>& pb, const S* start_n, const S* start_t, con
                   LaggedFactor* carried) {
     SolveReport rep;
     Sweeps<R> k(pb);
-    // The residual is normalised by the free velocities, taken before the warm start.
+    // The residual is normalised by the free velocities, taken before the warm start: measured
+    // wherever a residual may be read (reported, stopped on, looked at by the sweeps' guard or by
+    // a global method), so that skipping it changes no iterate.
+    const bool sweeps = opt.accelerate == Acceleration::none || opt.accelerate == Acceleration::nncg;
+    const bool guarded = opt.guard && (opt.relaxation != 1.0 || opt.accelerate == Acceleration::nncg);
     k.load_start(start_n, start_t, opt, rep.sanitized,
-                 opt.history || opt.stop_on == Measure::residual || opt.final_residual);
+                 opt.history || opt.stop_on == Measure::residual || opt.final_residual || guarded || !sweeps);
     k.warm_start();
     run_method(k, opt, rep, carried);
     return rep;

@@ -286,8 +286,10 @@ py::object step_world(World& world, const PGSStepSettings& settings) {
     py::dict out = report_dict(rep.solve, rep.stats);
     out["normal_impulse"] = to_array(rep.normal_impulse);
     out["tangent_impulse"] = to_array(rep.tangent_impulse);
-    out["start_normal"] = to_array(rep.start_normal);
-    out["start_tangent"] = to_array(rep.start_tangent);
+    if (settings.record) {   // (the first iterate is the step file's; an unrecorded step reads none)
+        out["start_normal"] = to_array(rep.start_normal);
+        out["start_tangent"] = to_array(rep.start_tangent);
+    }
     out["deepest"] = rep.deepest;
     return out;
 }
@@ -396,7 +398,8 @@ void bind_solver(py::module_& m) {
           "ray or when max_pivots run out (native/lemke.hpp; solver/pivoting.py has the tableau form).");
     m.def("pgs_step", &step_world, py::arg("world"), py::arg("settings"),
           "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"
-          "velocity iterations), whole in native code. Returns the solve's report, or None without contacts.");
+          "velocity iterations), whole in native code. Returns the solve's report (with the first iterate,\n"
+          "start_normal and start_tangent, where settings.record), or None without contacts.");
 }
 
 }  // namespace dc

@@ -84,21 +84,27 @@ class PGSStepper:
     """Steps a world with the project's PGS; step() returns a LoopStep."""
 
     def __init__(self, world, scene, settings: SolveSettings, start="builtin", start_fn=None, record=True,
-                 native=True, solve_fn=None):
+                 native=True, solve_fn=None, residual=None):
         """settings: the solve's (its mode, tolerance, cap, w and method); start: zero, builtin
         (Box2D's warm start) or garbage. start_fn(bodies, contacts, problem, builtin_n, builtin_t)
         -> (normal, tangent), if given, makes the first iterate instead (dc evaluate --closed-loop).
         record: keep the bodies and contacts of each step (step files need them; a timed loop does
         not). native=False steps in pieces through Python even where one native call could.
         solve_fn(problem, start_n, start_t, settings) -> Solution, if given, solves each step in place
-        of solver.methods.solve (the closed loop's plug-in methods, in their own processes)."""
+        of solver.methods.solve (the closed loop's plug-in methods, in their own processes).
+        residual: each step's solution reports its residual (solution.residual; NaN where not):
+        by default where the step is recorded (a step file states it) or the solve has a tolerance
+        (it stops on a measure); an unrecorded step at a fixed sweep count skips the pass after its
+        sweeps and the scale before them, whose answer nothing reads (a built-in method's iterates
+        are the same either way)."""
         self.start_fn, self.solve_fn = start_fn, solve_fn
         check_loop(settings, start, own_start=start_fn is not None)
         check_scene_for_loop(scene)
         auto = settings.relaxation == "auto"
         # (w: "auto" and None stand as 1; a plug-in method's steps sweep nothing natively)
         native_part = settings if is_native(settings.accelerate) else settings.but(accelerate="none")
-        self.solve_options = native_part.native(dt=scene.dt)
+        self.residual = (record or settings.tolerance > 0) if residual is None else bool(residual)
+        self.solve_options = native_part.native(dt=scene.dt, final_residual=self.residual)
         self.world, self.scene, self.settings, self.start, self.record = world, scene, settings, start, record
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
@@ -184,7 +190,8 @@ class PGSStepper:
         if problem is not None:
             w = self.relaxation(problem, start_n, start_t) if callable(self.relaxation) else self.relaxation
             # (the world's carried state, as the native step offers it: the two paths agree)
-            solution = (solve(problem, start_n, start_t, settings=o.but(relaxation=w), carry=world)
+            solution = (solve(problem, start_n, start_t, settings=o.but(relaxation=w), carry=world,
+                              final_residual=self.residual)
                         if self.solve_fn is None else self.solve_fn(problem, start_n, start_t, o.but(relaxation=w)))
             world.set_manifold_impulses(solution.normal_impulse.astype(np.float32),
                                         solution.tangent_impulse.astype(np.float32))
