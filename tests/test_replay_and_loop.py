@@ -225,3 +225,29 @@ def test_an_unrecorded_step_at_fixed_sweeps_skips_only_its_residual(mode, w, acc
     to_tolerance = PGSStepper(build_world(scene), scene, settings.but(tolerance=1e-3, max_iterations=50), "builtin",
                               record=False)
     assert recorded.residual and to_tolerance.residual
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_the_loop_honours_a_world_without_warm_starting(native):
+    # Off, Box2D's solver starts every step from zero, and it applies written impulses only as its
+    # warm start: the loop carried the impulses in and its answers were dropped (the pile fell
+    # through the ground). Now each step starts from zero and moves the bodies: from a world Box2D
+    # stepped, in exact mode at its 8 sweeps, the step's impulses are Box2D's own next step's.
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    scene.solver.warm_starting = False
+    settings = SolveSettings(mode="exact", max_iterations=8, tolerance=0)
+    ours, theirs = build_world(scene), build_world(scene)
+    for world in (ours, theirs):
+        for _ in range(80):
+            world.step(scene.dt, 8, scene.solver.position_iterations)
+    _, want = theirs.step(scene.dt, 8, scene.solver.position_iterations, record=True)
+    done = PGSStepper(ours, scene, settings, "builtin", native=native).step()
+    assert len(want["normal_impulse"]) > 10 and not np.any(done.contacts["start_normal_impulse"])
+    assert np.array_equal(done.contacts["normal_impulse"], want["normal_impulse"])
+    assert np.array_equal(done.contacts["tangent_impulse"], want["tangent_impulse"])
+    assert not ours.warm_starting   # (the world's own switch as it was)
+    stepper = PGSStepper(build_world(scene), scene, settings, "builtin", native=native)
+    for _ in range(150):
+        stepper.step()
+    bodies = stepper.world.bodies()
+    assert bodies["position"][bodies["type"] == 2, 1].min() > 0.9   # radius 1, on the ground at 0

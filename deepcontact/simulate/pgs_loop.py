@@ -8,7 +8,8 @@ step moves with our answer; Box2D's Step runs without its own Collide (it would 
 same manifolds and carry the written impulses onto themselves by feature id: the same step,
 bit for bit, at twice the collision's cost). This needs
 continuous collision and sleeping off (time-of-impact sub-steps and sleeping islands are solved
-or skipped inside Box2D), and Box2D's warm-start scale dtRatio held at exactly 1.
+or skipped inside Box2D), Box2D's warm-start scale dtRatio held at exactly 1 and its warm starting on
+for the Step (a world with it off starts each step from zero, as Box2D's own solver does).
 
 Starts from zero or from Box2D's warm start run the whole step in one native call
 (deepcontact._box2d.pgs_step); a start made in Python, `garbage`, a plug-in solver method and the
@@ -141,17 +142,34 @@ class PGSStepper:
             return np.float32(1.0)
         return np.float32(np.float32(self.world.inv_dt0) * np.float32(self.scene.dt))
 
+    def _carried(self, scale):
+        """What the carried impulses are multiplied by: dtRatio, or 0 where the world's warm
+        starting is off (Box2D's own solver then starts every step from zero)."""
+        return scale if self.world.warm_starting else np.float32(0.0)
+
+    def _applied(self, step, *args, **kw):
+        """step(*args, **kw) with the world's warm starting on: Box2D applies the written impulses
+        only as its warm start (off, it dropped the loop's answer and the bodies fell through)."""
+        if self.world.warm_starting:
+            return step(*args, **kw)
+        self.world.warm_starting = True
+        try:
+            return step(*args, **kw)
+        finally:
+            self.world.warm_starting = False
+
     def _native_step(self, w):
-        scale = self.step_settings.warm_scale = float(self._carried_scale())
+        scale = self._carried_scale()
+        self.step_settings.warm_scale = float(self._carried(scale))
         if w != self.solve_options.relaxation:
             self.solve_options.relaxation = w
             self.step_settings.solve = self.solve_options
-        out = pgs_step(self.world, self.step_settings)
+        out = self._applied(pgs_step, self.world, self.step_settings)
         self.first = False
         solution = None if out is None else Solution.from_native(out, w)
         deepest = 0.0 if out is None else out["deepest"]
         if not self.record:
-            return LoopStep(None, None, solution, deepest, dt_ratio=scale)
+            return LoopStep(None, None, solution, deepest, dt_ratio=float(scale))
         before, recorded = self.world.recorded()
         # Box2D applied what we wrote; the step file records our start as the step's start.
         # (Box2D's recorder saw our solution carried over as its warm start.)
@@ -159,7 +177,7 @@ class PGSStepper:
         same = out is not None and len(out["start_normal"]) == n
         recorded["start_normal_impulse"] = out["start_normal"].astype(np.float32) if same else np.zeros(n, np.float32)
         recorded["start_tangent_impulse"] = out["start_tangent"].astype(np.float32) if same else np.zeros(n, np.float32)
-        return LoopStep(before, recorded, solution, deepest, dt_ratio=scale)
+        return LoopStep(before, recorded, solution, deepest, dt_ratio=float(scale))
 
     def _python_step(self):
         world, scene, o = self.world, self.scene, self.settings
@@ -168,8 +186,8 @@ class PGSStepper:
         contacts = world.contacts()
         # Box2D's own warm start: the impulses carried over by feature id, times dtRatio
         ratio = self._carried_scale()
-        builtin_n = ratio * contacts["normal_impulse"]
-        builtin_t = ratio * contacts["tangent_impulse"]
+        builtin_n = self._carried(ratio) * contacts["normal_impulse"]
+        builtin_t = self._carried(ratio) * contacts["tangent_impulse"]
         problem = None
         if len(contacts["manifold"]):
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
@@ -199,7 +217,8 @@ class PGSStepper:
         self.first = False
         deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
         # (collided: Box2D's Step skips its own Collide, which would rebuild the same manifolds)
-        out = world.step(scene.dt, 0, scene.solver.position_iterations, record=self.record, collided=True)
+        out = self._applied(world.step, scene.dt, 0, scene.solver.position_iterations, record=self.record,
+                            collided=True)
         if not self.record:
             return LoopStep(None, None, solution, deepest, dt_ratio=float(ratio))
         before, recorded = out
