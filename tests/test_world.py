@@ -120,3 +120,20 @@ def test_the_loops_step_skips_box2ds_second_collide_bit_for_bit(spec, params):
             states.append(world.bodies())
         for key in ("position", "angle", "velocity", "omega"):
             assert np.array_equal(states[0][key], states[1][key]), (step, key)
+
+
+def test_a_world_stepped_without_recording_still_states_each_residual():
+    """record=False keeps no bodies nor contacts, but the project's solver at a fixed sweep count
+    still states each step's residual (it read NaN once the loop skipped the residual nothing
+    recorded asked), the same as the recorded world's, on the same iterates."""
+    scene = dc.generate("pile", 3, {"count": 30, "box": 16, "sigma": 4})
+    engine = dc.Box2D(solver=dc.SolveSettings(max_iterations=8, tolerance=0))
+    bare, recorded = dc.World(scene, engine, record=False), dc.World(scene, engine)
+    solved = 0
+    for _ in range(80):
+        a, b = bare.step(), recorded.step()
+        assert a.bodies is None and (a.solution is None) == (b.solution is None)
+        if a.solution is not None:
+            solved += 1
+            assert np.isfinite(a.solution.residual) and a.solution.residual == b.solution.residual
+    assert solved > 40

@@ -11,7 +11,7 @@ from ..scene.model import Scene
 from ..scene.xml import read_scene
 from .build import check_overlaps
 from .engines import Engine
-from .engines.box2d import Box2D
+from .engines.box2d import Box2D, Box2DLoop
 from .stepping import Stepped, steps
 
 
@@ -19,7 +19,8 @@ class World:
     """The world of `scene` (a Scene, or a scene file's path) stepped by `engine` (simulate.engines:
     Box2D() by default, Box2D(solver=SolveSettings(...)) for the project's solver with any method,
     Box2D3(SoftStep()) for Box2D v3, engine_named("pymunk" or "mujoco", settings) for the peers, or
-    any Engine of one's own).
+    any Engine of one's own). record: keep each step's bodies and contacts (False: None, a step
+    the engine's own alone; the project's solver still states each step's residual).
 
     Each `step()` applies the scene's removal events due, steps once and returns a Stepped: the
     bodies before the step and the contacts the solver saw (arrays, as a step file records them),
@@ -42,7 +43,7 @@ class World:
         self.engine.check(scene)
         self._world = self.engine.build(scene)
         # (stepped on past the scene's own count as long as asked: the removals are at their steps)
-        self._steps = steps(self._world, scene, self.engine.stepper(self._world, scene, record), count=sys.maxsize)
+        self._steps = steps(self._world, scene, _stepper(self.engine, self._world, scene, record), count=sys.maxsize)
         self.index = 0   # the next step's number
 
     def step(self) -> Stepped:
@@ -64,3 +65,11 @@ class World:
 
     def __repr__(self):
         return f"World({self.scene.name!r}, {self.engine!r}, step {self.index})"
+
+
+def _stepper(engine, world, scene, record):
+    """The engine's step function; the project's solver's states each step's residual, recorded or
+    not (a notebook reads it: only a timed loop skips it)."""
+    if isinstance(engine, Box2DLoop):
+        return engine.stepper(world, scene, record, residual=True)
+    return engine.stepper(world, scene, record)

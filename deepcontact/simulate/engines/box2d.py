@@ -120,8 +120,11 @@ class Box2DLoop(Box2D):
         check_scene_for_loop(scene, source)
         check_step_work(len(scene.bodies), self.solver.max_iterations, f"a cap of {self.solver.max_iterations:,} sweeps a step")
 
-    def stepper(self, world, scene, record=True):
-        return PGSStepper(world, scene, self.solver, self.start, start_fn=self.start_fn, record=record).step
+    def stepper(self, world, scene, record=True, residual=None):
+        """As Engine.stepper; residual: each step states its residual (PGSStepper's: by default
+        where recorded or solved to a tolerance, so that a timed step at a fixed sweep count skips it)."""
+        return PGSStepper(world, scene, self.solver, self.start, start_fn=self.start_fn, record=record,
+                          residual=residual).step
 
     def solve_line(self, solution, stats=None) -> str:
         """The line a step file's header gets for how the step was solved (`<solve>`)."""
