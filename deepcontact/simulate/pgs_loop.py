@@ -76,7 +76,7 @@ class LoopStep:
                          # unless recording)
     solution: Solution = None   # the project's solver's answer; None for another engine's step or no contacts
     deepest: float = 0.0   # the deepest penetration among the step's contact points (m), >= 0
-    dt_ratio: float = None   # Box2D's warm-start scale, where Box2D's own solver reports it (another engine: 1.0)
+    dt_ratio: float = None   # Box2D's warm-start scale, where Box2D's solver or the loop reports it (another engine: 1.0)
     engine_stats: dict = None   # another engine's own account of its solve, name -> number or text
                                 # (MuJoCo's iterations, ...): the step file's <engine_step>
 

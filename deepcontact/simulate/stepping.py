@@ -69,8 +69,8 @@ def steps(world, scene, step, count=None, after_removal=None):
         t0 = time.perf_counter()
         done = step()
         seconds = time.perf_counter() - t0
-        # Box2D's warm start is scaled by dt_ratio: 0 on the first step, exactly 1 at constant dt
-        # (the project's solver steps at constant dt; Box2D's reports its own).
+        # Box2D's warm start is scaled by dt_ratio: 0 on a new world's first step, exactly 1 at
+        # constant dt (Box2D's solver and the project's loop report their own; an unrecorded Box2D step none).
         dt_ratio = done.dt_ratio if done.dt_ratio is not None else (0.0 if k == 0 else 1.0)
         yield Stepped(index=k, bodies=done.bodies, contacts=done.contacts, solution=done.solution,
                       dt_ratio=dt_ratio, deepest=done.deepest, seconds=seconds, engine_stats=done.engine_stats)
