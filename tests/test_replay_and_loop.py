@@ -227,6 +227,25 @@ def test_an_unrecorded_step_at_fixed_sweeps_skips_only_its_residual(mode, w, acc
     assert recorded.residual and to_tolerance.residual
 
 
+@pytest.mark.parametrize("mode, w", [("float32", 1.9), ("float64", 1.95)])
+def test_the_guard_decides_the_same_without_the_residual(mode, w):
+    # Where the guard fires on step after step (a pyramid, NNCG at a high w), an unrecorded step at
+    # a fixed sweep count takes the same iterates and the same fallbacks as one stating its residual.
+    scene = generate("pyramid", 0, dict(base=8))
+    settings = SolveSettings(mode=mode, max_iterations=64, tolerance=0, relaxation=w, accelerate="nncg")
+    bare, told = (PGSStepper(build_world(scene), scene, settings, "builtin", record=False, residual=r)
+                  for r in (None, True))
+    fallbacks = 0
+    for _ in range(60):
+        a, b = bare.step(), told.step()
+        if b.solution is not None:
+            fallbacks += b.solution.relaxation_fallback > 0
+            assert np.isnan(a.solution.residual) and a.solution.relaxation_fallback == b.solution.relaxation_fallback
+            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
+    assert fallbacks >= 5
+    assert np.array_equal(bare.world.bodies()["position"], told.world.bodies()["position"])
+
+
 @pytest.mark.parametrize("native", [True, False])
 def test_the_loop_honours_a_world_without_warm_starting(native):
     # Off, Box2D's solver starts every step from zero, and it applies written impulses only as its
