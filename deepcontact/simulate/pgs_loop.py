@@ -142,15 +142,11 @@ class PGSStepper:
             return np.float32(1.0)
         return np.float32(np.float32(self.world.inv_dt0) * np.float32(self.scene.dt))
 
-    def _carried(self, scale):
-        """What the carried impulses are multiplied by: dtRatio, or 0 where the world's warm
-        starting is off (Box2D's own solver then starts every step from zero)."""
-        return scale if self.world.warm_starting else np.float32(0.0)
-
-    def _applied(self, step, *args, **kw):
-        """step(*args, **kw) with the world's warm starting on: Box2D applies the written impulses
-        only as its warm start (off, it dropped the loop's answer and the bodies fell through)."""
-        if self.world.warm_starting:
+    def _applying(self, warm, step, *args, **kw):
+        """step(*args, **kw) with the world's warm starting on (warm: it is already): Box2D applies
+        the written impulses only as its warm start (off, it dropped the loop's answer and the bodies
+        fell through). Its own solver starts such a world's steps from zero: so does the loop."""
+        if warm:
             return step(*args, **kw)
         self.world.warm_starting = True
         try:
@@ -159,12 +155,12 @@ class PGSStepper:
             self.world.warm_starting = False
 
     def _native_step(self, w):
-        scale = self._carried_scale()
-        self.step_settings.warm_scale = float(self._carried(scale))
+        scale, warm = self._carried_scale(), self.world.warm_starting
+        self.step_settings.warm_scale = float(scale) if warm else 0.0
         if w != self.solve_options.relaxation:
             self.solve_options.relaxation = w
             self.step_settings.solve = self.solve_options
-        out = self._applied(pgs_step, self.world, self.step_settings)
+        out = self._applying(warm, pgs_step, self.world, self.step_settings)
         self.first = False
         solution = None if out is None else Solution.from_native(out, w)
         deepest = 0.0 if out is None else out["deepest"]
@@ -185,9 +181,10 @@ class PGSStepper:
         world.collide()
         contacts = world.contacts()
         # Box2D's own warm start: the impulses carried over by feature id, times dtRatio
-        ratio = self._carried_scale()
-        builtin_n = self._carried(ratio) * contacts["normal_impulse"]
-        builtin_t = self._carried(ratio) * contacts["tangent_impulse"]
+        ratio, warm = self._carried_scale(), world.warm_starting
+        carried = ratio if warm else np.float32(0.0)   # (off: Box2D's own solver starts from zero)
+        builtin_n = carried * contacts["normal_impulse"]
+        builtin_t = carried * contacts["tangent_impulse"]
         problem = None
         if len(contacts["manifold"]):
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
@@ -217,8 +214,8 @@ class PGSStepper:
         self.first = False
         deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
         # (collided: Box2D's Step skips its own Collide, which would rebuild the same manifolds)
-        out = self._applied(world.step, scene.dt, 0, scene.solver.position_iterations, record=self.record,
-                            collided=True)
+        out = self._applying(warm, world.step, scene.dt, 0, scene.solver.position_iterations, record=self.record,
+                             collided=True)
         if not self.record:
             return LoopStep(None, None, solution, deepest, dt_ratio=float(ratio))
         before, recorded = out
