@@ -95,6 +95,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_loop_parts.py
 	$(PYTHON) benchmarks/bench_step_price.py
 	$(PYTHON) benchmarks/bench_step_price.py --count 10000 --steps 60
+	$(PYTHON) benchmarks/bench_equal_time.py
+	$(PYTHON) benchmarks/bench_equal_time.py --scene confined --count 625
 	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
 	$(PYTHON) benchmarks/bench_converged_piles.py
 	$(PYTHON) benchmarks/bench_report.py
