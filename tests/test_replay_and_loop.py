@@ -270,3 +270,24 @@ def test_the_loop_honours_a_world_without_warm_starting(native):
         stepper.step()
     bodies = stepper.world.bodies()
     assert bodies["position"][bodies["type"] == 2, 1].min() > 0.9   # radius 1, on the ground at 0
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_a_loop_step_after_box2d_stepped_the_world_at_another_dt_carries_box2ds_ratio(native):
+    # The loop's steps leave dtRatio exactly 1; a step Box2D's own solver took in between, at
+    # another dt, leaves what Box2D's next step would use (here 2): the loop's next step carries
+    # that (it carried 1), and in exact mode at 8 sweeps its impulses are Box2D's own, bit for bit.
+    scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    settings = SolveSettings(mode="exact", max_iterations=8, tolerance=0)
+    ours, theirs = (PGSStepper(build_world(scene), scene, settings, "builtin", native=native) for _ in range(2))
+    for _ in range(90):
+        ours.step(), theirs.step()
+    for stepper in (ours, theirs):
+        stepper.world.step(scene.dt / 2, 8, scene.solver.position_iterations)
+    _, want = theirs.world.step(scene.dt, 8, scene.solver.position_iterations, record=True)
+    done = ours.step()
+    assert done.dt_ratio == theirs.world.last_dt_ratio > 1.99
+    assert len(want["normal_impulse"]) > 10
+    assert np.array_equal(done.contacts["normal_impulse"], want["normal_impulse"])
+    assert np.array_equal(done.contacts["tangent_impulse"], want["tangent_impulse"])
+    assert ours.step().dt_ratio == 1.0   # (the loop's own steps again: exactly 1)

@@ -109,6 +109,7 @@ class PGSStepper:
         self.world, self.scene, self.settings, self.start, self.record = world, scene, settings, start, record
         self.gravity = scene.effects.gravity or (0.0, 0.0)
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
+        self.stepped_inv_dt0 = float(np.float32(1.0) / np.float32(scene.dt))   # (what Step leaves in inv_dt0)
         self.first = True
         self.relaxation = settings.relaxation
         if auto:
@@ -137,10 +138,12 @@ class PGSStepper:
         """Box2D's warm-start scale for this step, dtRatio, as b2World::Step computes it (float32
         inv_dt0 * dt): on the loop's first step of a world, what Box2D's own next step would carry
         (0 for a new world; about 1 after Box2D's own steps at this dt, so a world switched to the
-        loop goes on as one pile); after the loop's steps exactly 1 (unit_dt_ratio_inv)."""
-        if not self.first:
+        loop goes on as one pile); after the loop's steps exactly 1 (unit_dt_ratio_inv), unless a
+        step at another dt (Box2D's own, in between) left another inv_dt0."""
+        inv_dt0 = self.world.inv_dt0
+        if not self.first and inv_dt0 == self.stepped_inv_dt0:
             return np.float32(1.0)
-        return np.float32(np.float32(self.world.inv_dt0) * np.float32(self.scene.dt))
+        return np.float32(np.float32(inv_dt0) * np.float32(self.scene.dt))
 
     def _applying(self, warm, step, *args, **kw):
         """step(*args, **kw) with the world's warm starting on (warm: it is already): Box2D applies
