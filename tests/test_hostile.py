@@ -338,6 +338,15 @@ def test_a_simulation_that_leaves_float32_is_one_line(tmp_path):
     assert_clean(r, tmp_path / "run")
 
 
+def test_a_solve_whose_residual_is_not_a_number_is_one_line_and_publishes_nothing(tmp_path):
+    # exact mode uses a start as given: garbage (1e30, NaN) leaves the solver's velocities NaN while
+    # its clamped answer stays finite; the residual read 0 there, and the step files said so
+    r = invoke("simulate", "pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4", "--steps",
+               "120", "--solver", "pgs", "--start", "garbage", "--mode", "exact", "-q", "-o", tmp_path / "run")
+    assert_clean(r, tmp_path / "run")
+    assert "without a finite residual (exact mode, 8 sweeps)" in r.stderr, r.stderr
+
+
 def test_a_deep_tree_is_walked_without_recursion(tmp_path):
     d = tmp_path
     for _ in range(1200):   # deeper than Python's recursion limit (os.makedirs itself recurses)

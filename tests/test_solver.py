@@ -185,6 +185,17 @@ def test_garbage_starts_are_sanitised_and_reported(bad):
     assert np.array_equal(s.normal_impulse, zero.normal_impulse)
 
 
+def test_a_residual_that_is_not_a_number_says_so():
+    # exact mode uses a start as given: a NaN start leaves the velocities NaN whatever the clamps
+    # make of the impulses, and the residual is NaN (a max that dropped NaN terms read 0)
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    n = np.full(problem.points, np.nan)
+    s = solve(problem, n, n, mode="exact", max_iterations=8)
+    assert np.isnan(s.residual), s.residual
+    finite = solve(problem, mode="exact", max_iterations=8)
+    assert np.isfinite(finite.residual) and finite.residual > 0
+
+
 def test_only_the_effects_a_scene_calls_for():
     # frictionless: no tangent rows at all, and the answer equals the full problem's
     problem, _ = recorded_steps(scenes()["frictionless"], steps=200)[-1]

@@ -44,6 +44,10 @@ public:
     // The impulses save_impulses kept, 2 per contact point (normal, tangent).
     const std::vector<R>& saved() const { return saved_; }
 
+    // The larger of two, a NaN kept (std::max drops a NaN term: a start used as given, 1e30 and
+    // NaN, left the velocities NaN and the residual read 0).
+    static double larger(double worst, double term) { return term > worst || term != term ? term : worst; }
+
     // The normalised min-map residual of the LCP at the current iterate (see docs/solver.md).
     double residual() const {
         double worst = 0;
@@ -54,13 +58,13 @@ public:
                 const V2<R> dv = relative_velocity(m, p);
                 const double vn = double(dot(dv, m.normal)) - double(p.bias);
                 const double n = double(p.normal_impulse);
-                worst = std::max(worst, std::abs(std::min(double(p.k_normal) * n, vn)));
+                worst = larger(worst, std::abs(std::min(double(p.k_normal) * n, vn)));
                 if (m.friction_row) {
                     const double kt = double(p.k_tangent);
                     const double vt = double(dot(dv, tangent));
                     const double hi = double(m.friction) * n * kt;
                     const double x = kt * double(p.tangent_impulse);
-                    worst = std::max(worst, std::abs(x - std::clamp(x - vt, -hi, hi)));
+                    worst = larger(worst, std::abs(x - std::clamp(x - vt, -hi, hi)));
                 }
             }
         }

@@ -144,6 +144,7 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
             for done in stepping.steps(world, scene, step):
                 k, bodies, contacts = done.index, done.bodies, done.contacts
                 checked_step(k, bodies, contacts, engine, len(scene.bodies))
+                _check_residual(k, done.solution, loop)
                 extent.add(bodies)
                 n = len(contacts["manifold"])
                 at_cap, over = _short_of_tolerance(loop, done.solution)
@@ -165,6 +166,16 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
                 f.cancel()
             raise
     return per_file, capped, above
+
+
+def _check_residual(k, solution, loop):
+    """A step of the project's solver is written with its residual: one that is not a number (a
+    start used as given in exact mode, 1e30 and NaN: the solver's velocities left float range) is
+    no step to record (its file said 0 once). InputError."""
+    if solution is not None and not np.isfinite(solution.residual):
+        raise InputError(f"step {k}: the project's solver ended without a finite residual ({loop.mode} mode, "
+                         f"{solution.iterations} sweeps): its velocities left float range, so its answer "
+                         "cannot be judged")
 
 
 def checked_step(k, bodies, contacts, engine, scene_bodies=None):
