@@ -174,6 +174,17 @@ def test_the_closed_loops_reference_is_computed_once_and_checked_before_use(tmp_
     assert third == drift["first"]
 
 
+def box2d_then_loop(scene, settings, native, steps=80):
+    """Two copies of the scene stepped `steps` times by Box2D at 8 iterations; then one more step of
+    the first by the loop and of the second by Box2D: (the loop's world, its step, Box2D's contacts)."""
+    ours, theirs = build_world(scene), build_world(scene)
+    for world in (ours, theirs):
+        for _ in range(steps):
+            world.step(scene.dt, 8, scene.solver.position_iterations)
+    _, want = theirs.step(scene.dt, 8, scene.solver.position_iterations, record=True)
+    return ours, PGSStepper(ours, scene, settings, "builtin", native=native).step(), want
+
+
 @pytest.mark.parametrize("native", [True, False])
 def test_a_world_box2d_stepped_goes_on_in_the_loop_from_what_box2d_carried(native):
     # The loop's first step of a world Box2D has been stepping carries Box2D's impulses, times
@@ -181,12 +192,7 @@ def test_a_world_box2d_stepped_goes_on_in_the_loop_from_what_box2d_carried(nativ
     # step's impulses are Box2D's own next step's, bit for bit (from zero they were not).
     scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
     settings = SolveSettings(mode="exact", max_iterations=8, tolerance=0)
-    ours, theirs = build_world(scene), build_world(scene)
-    for world in (ours, theirs):
-        for _ in range(80):
-            world.step(scene.dt, 8, scene.solver.position_iterations)
-    _, want = theirs.step(scene.dt, 8, scene.solver.position_iterations, record=True)
-    done = PGSStepper(ours, scene, settings, "builtin", native=native).step()
+    ours, done, want = box2d_then_loop(scene, settings, native)
     assert len(want["normal_impulse"]) > 10 and np.any(done.contacts["start_normal_impulse"])
     assert done.dt_ratio == float(np.float32(np.float32(1 / np.float32(scene.dt)) * np.float32(scene.dt)))
     assert np.array_equal(done.contacts["normal_impulse"], want["normal_impulse"])
@@ -255,12 +261,7 @@ def test_the_loop_honours_a_world_without_warm_starting(native):
     scene = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
     scene.solver.warm_starting = False
     settings = SolveSettings(mode="exact", max_iterations=8, tolerance=0)
-    ours, theirs = build_world(scene), build_world(scene)
-    for world in (ours, theirs):
-        for _ in range(80):
-            world.step(scene.dt, 8, scene.solver.position_iterations)
-    _, want = theirs.step(scene.dt, 8, scene.solver.position_iterations, record=True)
-    done = PGSStepper(ours, scene, settings, "builtin", native=native).step()
+    ours, done, want = box2d_then_loop(scene, settings, native)
     assert len(want["normal_impulse"]) > 10 and not np.any(done.contacts["start_normal_impulse"])
     assert np.array_equal(done.contacts["normal_impulse"], want["normal_impulse"])
     assert np.array_equal(done.contacts["tangent_impulse"], want["tangent_impulse"])
