@@ -313,9 +313,11 @@ private:
         }
     }
 
-    // The 2x2 total-enumeration block solver of Box2D (cases 1-4, first valid one wins).
+    // The 2x2 total-enumeration block solver of Box2D (cases 1-4, first valid one wins). Inlined
+    // into the sweep, as in Box2D's own loop: called, the bodies' velocities went through memory.
     template <bool Relax>
-    void block_solve(ContactManifold<R>& m, V2<R>& vA, R& wA, V2<R>& vB, R& wB, R w) {
+    __attribute__((always_inline)) inline void block_solve(ContactManifold<R>& m, V2<R>& vA, R& wA, V2<R>& vB, R& wB,
+                                                           R w) {
         auto& cp1 = m.p[0];
         auto& cp2 = m.p[1];
         const R mA = m.mA, mB = m.mB, iA = m.iA, iB = m.iB;
