@@ -16,7 +16,9 @@ copy, stepped once by the loop (float64) and then by Box2D at 8 iterations, chec
 line: about 1.00x; when the loop's first step started from zero, the pile it shook cost Box2D
 1.18-1.22x for some 200 steps). --warm N: all four step N rounds untimed first.
 
-Usage: python benchmarks/bench_step_price.py [--count 1000] [--settle 500] [--warm 0] [--steps 200] [--sweeps 8]
+--base N prices the same on a pyramid of boxes of base N (seed 9) instead.
+
+Usage: python benchmarks/bench_step_price.py [--count 1000] [--base 0] [--settle 500] [--warm 0] [--steps 200] [--sweeps 8]
 """
 import sys
 import time
@@ -50,11 +52,14 @@ def shaken(scene, args):
 
 
 def main():
-    args = arguments(__doc__, count=1000, settle=500, warm=0, steps=200, sweeps=8)
-    big = args.count > 1000
-    params = dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0,
-                  steps=args.settle + args.warm + args.steps + 2)
-    scene = generate("pile", 9, params)
+    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8)
+    steps = args.settle + args.warm + args.steps + 2
+    if args.base:   # a pyramid of boxes: two-point manifolds and Box2D's block solver
+        scene = generate("pyramid", 9, dict(base=args.base, steps=steps))
+    else:
+        big = args.count > 1000
+        scene = generate("pile", 9, dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0,
+                                         steps=steps))
     steppers = {}
     for name, settings in ((f"Box2D 2.4.1, {args.sweeps} iterations", None),
                            (f"the loop, {args.sweeps} sweeps, float64", "float64"),
@@ -76,7 +81,8 @@ def main():
     base_name = next(iter(times))
     base = np.array(times[base_name])
     warmed = f", then {args.warm} rounds untimed" if args.warm else ""
-    print(f"the {args.count:,}-circle pile (seed 9), settled for {args.settle} steps{warmed}; {args.steps} rounds")
+    what = f"the pyramid of base {args.base}" if args.base else f"the {args.count:,}-circle pile"
+    print(f"{what} (seed 9), settled for {args.settle} steps{warmed}; {args.steps} rounds")
     print(f"{'':36s} {'median CPU ms':>13s} {'x Box2D (median of rounds)':>27s} {'IQR':>15s}")
     for name, values in times.items():
         ratio = np.array(values) / base
