@@ -347,6 +347,23 @@ def test_a_solve_whose_residual_is_not_a_number_is_one_line_and_publishes_nothin
     assert "without a finite residual (exact mode, 8 sweeps)" in r.stderr, r.stderr
 
 
+def test_only_the_projects_solver_is_held_to_a_finite_residual(tmp_path):
+    # another engine's step has no residual of ours to judge: the check read its solution field
+    # (an engine of one's own, in this process, handing its deepest penetration third, where
+    # LoopStep keeps the project's solution), an AttributeError and a traceback
+    import deepcontact as dc
+
+    class DeepestThird(dc.Box2D):
+        def stepper(self, world, scene, record=True):
+            step = super().stepper(world, scene, record)
+            return lambda: (lambda done: dc.LoopStep(done.bodies, done.contacts, done.deepest,
+                                                     dt_ratio=done.dt_ratio))(step())
+
+    dc.simulate_run(dc.SceneSource("pile", {"count": "6", "box": "8", "sigma": "2"}, steps=3), [0], tmp_path / "run",
+                    engine=DeepestThird())
+    assert len(list((tmp_path / "run").glob("seed-000000/step-*.xml"))) == 3
+
+
 def test_a_deep_tree_is_walked_without_recursion(tmp_path):
     d = tmp_path
     for _ in range(1200):   # deeper than Python's recursion limit (os.makedirs itself recurses)

@@ -171,8 +171,9 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
 def _check_residual(k, solution, loop):
     """A step of the project's solver is written with its residual: one that is not a number (a
     start used as given in exact mode, 1e30 and NaN: the solver's velocities left float range) is
-    no step to record (its file said 0 once). InputError."""
-    if solution is not None and not np.isfinite(solution.residual):
+    no step to record (its file said 0 once). InputError. Another engine's step (loop None) has no
+    residual of ours: its solution field is not read."""
+    if loop is not None and solution is not None and not np.isfinite(solution.residual):
         raise InputError(f"step {k}: the project's solver ended without a finite residual ({loop.mode} mode, "
                          f"{solution.iterations} sweeps): its velocities left float range, so its answer "
                          "cannot be judged")
