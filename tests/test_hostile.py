@@ -347,6 +347,15 @@ def test_a_solve_whose_residual_is_not_a_number_is_one_line_and_publishes_nothin
     assert "without a finite residual (exact mode, 8 sweeps)" in r.stderr, r.stderr
 
 
+def test_a_residual_that_is_not_a_number_names_its_seed(tmp_path):
+    # one seed of several: the line said "step 11" and not whose
+    r = invoke("simulate", "pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4", "--steps",
+               "120", "--seeds", "4..5", "--solver", "pgs", "--start", "garbage", "--mode", "exact", "-q", "-o",
+               tmp_path / "run")
+    assert_clean(r, tmp_path / "run")
+    assert re.search(r"seed [45], step \d+: the project's solver ended without a finite residual", r.stderr), r.stderr
+
+
 def test_only_the_projects_solver_is_held_to_a_finite_residual(tmp_path):
     # another engine's step has no residual of ours to judge: the check read its solution field
     # (an engine of one's own, in this process, handing its deepest penetration third, where

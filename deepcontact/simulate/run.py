@@ -120,7 +120,7 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
                              "more than Box2D's float32 holds (bodies too far or too fast, forces too large, or a "
                              "start that diverged); nothing of it was kept") from None
         output.write_bytes(out_dir / step_filename(k, compress), compressed(xml) if compress else xml)
-    per_file, capped, above = _stepped(world, scene, engine, write, extent, skip_contactless, on_step)
+    per_file, capped, above = _stepped(world, scene, engine, write, extent, skip_contactless, on_step, seed)
     judged = loop is not None and loop.tolerance > 0
     return SimulationResult(seed=seed, dir=out_dir.name, steps=scene.steps, files=len(per_file),
                             contact_points=sum(per_file), scene_sha256=hashlib.sha256(scene_xml).hexdigest(),
@@ -129,10 +129,11 @@ def run_simulation(scene, out_dir, seed, skip_contactless=False, on_step=None, e
                             above_tolerance=above if judged and loop.stop_on == "residual" else None)
 
 
-def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
+def _stepped(world, scene, engine, write, extent, skip_contactless, on_step, seed):
     """Steps `world` through the scene, each step checked and handed to write(k, dt_ratio, bodies,
     contacts, solve line) (skipped without contacts, if asked); returns (the contact points of each
-    file written, the steps at the sweep cap, the steps above the tolerance)."""
+    file written, the steps at the sweep cap, the steps above the tolerance). seed: what its errors
+    name."""
     step, loop = engine.stepper(world, scene), engine.solve_settings()
     per_file, capped, above = [], 0, 0
     # Rendering, compressing and writing a step (GIL released in each) overlap with stepping the next.
@@ -144,7 +145,7 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
             for done in stepping.steps(world, scene, step):
                 k, bodies, contacts = done.index, done.bodies, done.contacts
                 checked_step(k, bodies, contacts, engine, len(scene.bodies))
-                _check_residual(k, done.solution, loop)
+                _check_residual(seed, k, done.solution, loop)
                 extent.add(bodies)
                 n = len(contacts["manifold"])
                 at_cap, over = _short_of_tolerance(loop, done.solution)
@@ -168,15 +169,15 @@ def _stepped(world, scene, engine, write, extent, skip_contactless, on_step):
     return per_file, capped, above
 
 
-def _check_residual(k, solution, loop):
+def _check_residual(seed, k, solution, loop):
     """A step of the project's solver is written with its residual: one that is not a number (a
     start used as given in exact mode, 1e30 and NaN: the solver's velocities left float range) is
     no step to record (its file said 0 once). InputError. Another engine's step (loop None) has no
     residual of ours: its solution field is not read."""
     if loop is not None and solution is not None and not np.isfinite(solution.residual):
-        raise InputError(f"step {k}: the project's solver ended without a finite residual ({loop.mode} mode, "
-                         f"{solution.iterations} sweeps): its velocities left float range, so its answer "
-                         "cannot be judged")
+        raise InputError(f"seed {seed}, step {k}: the project's solver ended without a finite residual "
+                         f"({loop.mode} mode, {solution.iterations} sweeps): its velocities left float range, so "
+                         "its answer cannot be judged")
 
 
 def checked_step(k, bodies, contacts, engine, scene_bodies=None):
