@@ -196,6 +196,17 @@ def test_a_residual_that_is_not_a_number_says_so():
     assert np.isfinite(finite.residual) and finite.residual > 0
 
 
+def test_pivoting_finishes_an_answer_whose_residual_is_not_a_number():
+    # each attempt was kept only if below the best so far: below NaN nothing is, and the
+    # reference handed back the NaN answer it started from
+    from deepcontact.solver.reference import TOLERANCE, finish_by_pivoting
+    problem, _ = recorded_steps(scenes()["pile"], steps=150)[-1]
+    n = np.full(problem.points, np.nan)
+    lost = solve(problem, n, n, mode="exact", max_iterations=8)
+    assert np.isnan(lost.residual)
+    assert finish_by_pivoting(problem, lost).residual < TOLERANCE
+
+
 def test_only_the_effects_a_scene_calls_for():
     # frictionless: no tangent rows at all, and the answer equals the full problem's
     problem, _ = recorded_steps(scenes()["frictionless"], steps=200)[-1]

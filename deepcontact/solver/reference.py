@@ -78,7 +78,7 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
             continue
         t = _newton(problem, *pair, POLISH_SWEEPS, tolerance)
         work.append(t)
-        if t.residual < best.residual:
+        if _better(t, best):
             best = t
             best.pivoted = True
         if best.residual < tolerance:
@@ -88,9 +88,15 @@ def finish_by_pivoting(problem, s: Solution, tolerance=TOLERANCE, cap=CAP) -> So
         zero = np.zeros(problem.points)
         t = _newton(problem, zero, zero, left, tolerance, accelerate="bodyspace")
         work.append(t)
-        if t.residual < best.residual:
+        if _better(t, best):
             best = t
     return _summed(best, work)
+
+
+def _better(t: Solution, best: Solution) -> bool:
+    """t's residual below best's, any number below none (a NaN residual, an iterate that left float
+    range: compared, no answer ever replaced it)."""
+    return t.residual < best.residual or (np.isnan(best.residual) and not np.isnan(t.residual))
 
 
 def _summed(best: Solution, work) -> Solution:
