@@ -1,7 +1,6 @@
 """Box2D 2.4.1 (Debian's): its own velocity solver, or the project's solver in its loop."""
 from collections.abc import Callable
 import functools
-import math
 
 from ... import arguments
 from ..._box2d import box2d_version
@@ -144,7 +143,8 @@ class Box2DLoop(Box2D):
 
 def _solve_xml(options, start, solution):
     """A step header's `<solve>` line: the options the step was solved with, where its method comes
-    from, and what the solve did (iterations, the residual, a global method's work)."""
+    from, and what the solve did (iterations, the residual, a global method's work). The residual is
+    finite: run.py refuses a step whose residual is not before it is written (it read 0 here once)."""
     o = options
     w = 1.0 if o.relaxation == "auto" else o.relaxation   # (None: the method takes no w)
     if solution is None:
@@ -152,7 +152,6 @@ def _solve_xml(options, start, solution):
     else:
         iterations, residual, w = solution.iterations, solution.residual, solution.relaxation
         sanitized = sum(solution.sanitized.values())
-    residual = residual if math.isfinite(residual) else 0.0
     work = ""
     if o.accelerate in GLOBAL:   # a global method's work is more than its iterations
         s = solution
