@@ -61,11 +61,11 @@ struct LoopFrame {
     std::vector<int32_t> slot, row_of;
 
     // The step's problem, posed into buffers kept from step to step (one for each precision), and
-    // each body's rotation in double by solver row, computed once a step where a contact needs it.
+    // each live body's rotation and centre in double by solver row (the double posing's).
     ContactProblem<float> problem32;
     ContactProblem<double> problem64;
     std::vector<Rot<double>> rotation64;
-    std::vector<uint8_t> rotated64;
+    std::vector<V2<double>> center64;
 };
 
 }  // namespace dc

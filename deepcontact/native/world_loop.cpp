@@ -132,22 +132,29 @@ LoopFrame& World::gather_loop() {
     return loop_;
 }
 
-// Every live body's v* in R (b2Island::Solve's integration and damping), by solver row.
+// Every live body's v* in R (b2Island::Solve's integration and damping), by solver row; in
+// double also its centre and rotation (one sine and cosine a body, in this tight pass: the
+// contacts' double posing reads them by row, not through the bodies).
 template <class R>
 void World::pose_free_velocities(ContactProblem<R>& pb, const StepSettings& st) {
     pb.velocity.resize(live_bodies_);
+    if constexpr (!std::is_same_v<R, float>) {
+        loop_.rotation64.resize(live_bodies_);
+        loop_.center64.resize(live_bodies_);
+    }
     size_t row = 0;
     for (b2Body* b : bodies_) {
         if (b == nullptr) continue;
-        pb.velocity[row++] = free_velocity<R>(
+        pb.velocity[row] = free_velocity<R>(
             {static_cast<int8_t>(b->GetType()), b->GetLinearVelocity().x, b->GetLinearVelocity().y,
              b->GetAngularVelocity(), b->GetMass(), b->*member(BodyInvMass()), b->*member(BodyInvI()),
              b->GetLinearDamping(), b->GetAngularDamping(), b->GetGravityScale()},
             st);
-    }
-    if constexpr (!std::is_same_v<R, float>) {
-        loop_.rotation64.resize(live_bodies_);
-        loop_.rotated64.assign(live_bodies_, 0);
+        if constexpr (!std::is_same_v<R, float>) {
+            loop_.rotation64[row] = Rot<R>(R(b->GetAngle()));
+            loop_.center64[row] = {R(b->GetWorldCenter().x), R(b->GetWorldCenter().y)};
+        }
+        ++row;
     }
 }
 
@@ -194,7 +201,8 @@ void World::pose_loop(ContactProblem<R>& pb, const StepSettings& st, bool carrie
 
 // A manifold's normal and lever arms. In float32 they are the constraint's, which pose() computed
 // as b2WorldManifold::Initialize does (the same operations world_manifold makes); in double,
-// world_manifold from the manifold in body frames and the bodies' centres and rotations.
+// world_manifold from the manifold in body frames and the bodies' centres and rotations
+// (pose_free_velocities').
 template <class R>
 void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k) {
     if constexpr (std::is_same_v<R, float>) {
@@ -204,19 +212,9 @@ void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k)
             m.p[j].rB = {k.rB[j].x, k.rB[j].y};
         }
     } else {
-        LoopFrame& f = loop_;
-        auto rotation = [&](int32_t row, const b2Body* b) -> const Rot<R>& {
-            if (!f.rotated64[row]) {
-                f.rotation64[row] = Rot<R>(R(b->GetAngle()));
-                f.rotated64[row] = 1;
-            }
-            return f.rotation64[row];
-        };
-        const b2Body* ba = f.island_bodies[k.slot_a];
-        const b2Body* bb = f.island_bodies[k.slot_b];
-        const V2<R> cA{R(ba->GetWorldCenter().x), R(ba->GetWorldCenter().y)};
-        const V2<R> cB{R(bb->GetWorldCenter().x), R(bb->GetWorldCenter().y)};
-        Xf<R> xfA{{0, 0}, rotation(m.a, ba)}, xfB{{0, 0}, rotation(m.b, bb)};
+        const LoopFrame& f = loop_;
+        const V2<R> cA = f.center64[m.a], cB = f.center64[m.b];
+        Xf<R> xfA{{0, 0}, f.rotation64[m.a]}, xfB{{0, 0}, f.rotation64[m.b]};
         xfA.p = cA - mul(xfA.q, V2<R>{R(k.local_center_a.x), R(k.local_center_a.y)});
         xfB.p = cB - mul(xfB.q, V2<R>{R(k.local_center_b.x), R(k.local_center_b.y)});
         V2<R> point_local[b2_maxManifoldPoints], points[b2_maxManifoldPoints];
