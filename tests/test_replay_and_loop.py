@@ -174,6 +174,62 @@ def test_the_closed_loops_reference_is_computed_once_and_checked_before_use(tmp_
     assert third == drift["first"]
 
 
+def a_start_of_ones_own(bodies, contacts, problem, builtin_n, builtin_t):
+    # (a start no step carries: Box2D's warm start reshaped by the bodies and points it was asked on)
+    lean = 0.5 + 0.25 * np.cos(np.arange(len(builtin_n)) + float(bodies["position"][:, 1].sum()))
+    return builtin_n * lean, builtin_t * lean[::-1]
+
+
+@pytest.mark.parametrize("mode,w,accelerate", [("float64", 1.0, "none"), ("exact", 1.0, "none"),
+                                               ("float32", 1.3, "nncg"), ("float64", 1.0, "lagged")])
+@pytest.mark.parametrize("scene", ["pile", "pyramid"])
+def test_a_start_made_between_the_native_halves_is_the_step_in_pieces(scene, mode, w, accelerate):
+    # A start made in Python (the closed loop's) steps on pgs_pose and pgs_finish: the same
+    # trajectory, bit for bit, as the step in pieces, which poses it a second time in Python
+    s = generate(scene, 0, dict(count=30, box=16.0, sigma=4.0) if scene == "pile" else dict(base=6))
+    global_method = accelerate == "lagged"
+    settings = SolveSettings(mode=mode, max_iterations=200 if mode != "exact" else 8,
+                             tolerance=1e-4 if mode != "exact" else 0.0, relaxation=w, accelerate=accelerate,
+                             **(dict(stop_on="residual") if global_method else {}))
+    posed, pieces = (PGSStepper(build_world(s), s, settings, "builtin", start_fn=a_start_of_ones_own, record=False,
+                                native=n, residual=True) for n in (True, False))
+    assert posed.posed and not pieces.posed
+    solved = 0
+    for _ in range(100):
+        a, b = posed.step(), pieces.step()
+        assert (a.solution is None) == (b.solution is None)
+        if a.solution is not None:
+            solved += 1
+            assert a.solution.iterations == b.solution.iterations
+            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
+            assert np.array_equal(a.solution.tangent_impulse, b.solution.tangent_impulse)
+            assert a.solution.residual == b.solution.residual or np.isnan(a.solution.residual) == np.isnan(b.solution.residual)
+        assert a.deepest == b.deepest and a.dt_ratio == b.dt_ratio
+        for key in ("position", "angle", "velocity", "omega"):
+            assert np.array_equal(posed.world.bodies()[key], pieces.world.bodies()[key]), key
+    assert solved > 20
+
+
+def test_the_native_halves_refuse_a_world_changed_between_them():
+    from deepcontact._box2d import pgs_finish, pgs_pose
+    s = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    stepper = PGSStepper(build_world(s), s, SolveSettings(), "builtin", start_fn=a_start_of_ones_own, record=False)
+    for _ in range(40):
+        stepper.step()
+    world, settings = stepper.world, stepper.step_settings
+    points = pgs_pose(world, settings)
+    assert points > 0
+    with pytest.raises(ValueError, match="impulses a row"):
+        pgs_finish(world, settings, np.zeros(points + 1), np.zeros(points + 1))
+    world.set_body_state([0], [[0.0, 3.0]], [0.0], [[0.0, 0.0]], [0.0])
+    with pytest.raises(ValueError, match="changed since pgs_pose"):
+        pgs_finish(world, settings, np.zeros(points), np.zeros(points))
+    pgs_pose(world, settings)
+    settings.solve.mode = "float32"
+    with pytest.raises(ValueError, match="another precision"):
+        pgs_finish(world, settings, np.zeros(points), np.zeros(points))
+
+
 def box2d_then_loop(scene, settings, native, steps=80):
     """Two copies of the scene stepped `steps` times by Box2D at 8 iterations; then one more step of
     the first by the loop and of the second by Box2D: (the loop's world, its step, Box2D's contacts)."""

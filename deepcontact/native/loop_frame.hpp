@@ -28,6 +28,7 @@ struct LoopFrame {
     bool block_solve = true;   // the setting the redundant pairs were cut with
 
     size_t points = 0;      // the islands' contact points
+    bool posed_float64 = false;   // the precision of the problem posed last (pgs_pose)
     float deepest = 0.0f;   // deepest penetration among the points (m), >= 0
 
     // Per island contact, b2ContactSolver's constraint as its warm start, StoreImpulses and

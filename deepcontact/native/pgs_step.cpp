@@ -1,5 +1,7 @@
 #include "pgs_step.hpp"
 
+#include <string>
+
 namespace dc {
 namespace {
 
@@ -23,34 +25,72 @@ void write_solution(const ContactProblem<R>& pb, const LoopFrame& f, PGSStepRepo
     }
 }
 
-// The step's contacts posed in R, then (where there are any) solved and the solution written.
+// The step's contacts posed in R with their start (Box2D's carried impulses or zero).
 template <class R>
-void solve_step(World& world, ContactProblem<R>& pb, const LoopFrame& f, const PGSStepSettings& s,
-                PGSStepReport& out) {
+void pose_step(World& world, ContactProblem<R>& pb, const PGSStepSettings& s, PGSStepReport& out) {
     world.pose_loop(pb, s.step, s.start == LoopStart::builtin, s.warm_scale, out.start_normal, out.start_tangent);
+}
+
+// The posed step (where it has contact points) solved from the start given and the solution written.
+template <class R>
+void solve_step(World& world, ContactProblem<R>& pb, const LoopFrame& f, const PGSStepSettings& s, const double* sn,
+                const double* st, PGSStepReport& out) {
     if (f.points == 0) return;
     // What a method keeps from one step to the next lives in the world (a method that keeps
     // nothing leaves it empty).
     if (!world.carried_factor) world.carried_factor = new_carried_factor();
-    out.solve = solve(pb, out.start_normal.data(), out.start_tangent.data(), s.solve, world.carried_factor.get());
+    out.solve = solve(pb, sn, st, s.solve, world.carried_factor.get());
     out.stats = pb.stats;
     write_solution(pb, f, out);
     out.solved = true;
     out.deepest = double(f.deepest);
 }
 
+// Box2D stepped with the written impulses as its warm start and no velocity iterations.
+void step_box2d(World& world, const PGSStepSettings& s) {
+    world.set_inv_dt0(s.inv_dt0);
+    world.step(s.step.dt, 0, s.position_iterations, s.record, /*collided=*/true);
+}
+
 }  // namespace
 
-PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
-    PGSStepReport out;
+size_t pgs_pose(World& world, const PGSStepSettings& s, PGSStepReport& out) {
     world.collide();
     LoopFrame& f = world.gather_loop();
     if (s.solve.float64())
-        solve_step(world, f.problem64, f, s, out);
+        pose_step(world, f.problem64, s, out);
     else
-        solve_step(world, f.problem32, f, s, out);
-    world.set_inv_dt0(s.inv_dt0);
-    world.step(s.step.dt, 0, s.position_iterations, s.record, /*collided=*/true);
+        pose_step(world, f.problem32, s, out);
+    f.posed_float64 = s.solve.float64();
+    return f.points;
+}
+
+void pgs_finish(World& world, const PGSStepSettings& s, const double* sn, const double* st, size_t points,
+                PGSStepReport& out) {
+    LoopFrame& f = world.loop_frame();
+    if (!world.posed_now())
+        throw std::invalid_argument("pgs_finish: the world changed since pgs_pose posed its step (or none was posed)");
+    if (f.posed_float64 != s.solve.float64())
+        throw std::invalid_argument("pgs_finish: the step was posed in another precision");
+    if (points != f.points)
+        throw std::invalid_argument("pgs_finish: the start has " + std::to_string(points) +
+                                    " impulses a row; the posed step has " + std::to_string(f.points) + " points");
+    if (s.solve.float64())
+        solve_step(world, f.problem64, f, s, sn, st, out);
+    else
+        solve_step(world, f.problem32, f, s, sn, st, out);
+    step_box2d(world, s);
+}
+
+PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
+    PGSStepReport out;
+    pgs_pose(world, s, out);
+    const LoopFrame& f = world.loop_frame();
+    if (s.solve.float64())
+        solve_step(world, world.loop_frame().problem64, f, s, out.start_normal.data(), out.start_tangent.data(), out);
+    else
+        solve_step(world, world.loop_frame().problem32, f, s, out.start_normal.data(), out.start_tangent.data(), out);
+    step_box2d(world, s);
     return out;
 }
 

@@ -48,4 +48,15 @@ struct PGSStepReport {
 
 PGSStepReport pgs_step(World& world, const PGSStepSettings& settings);
 
+// The same step in two halves, for a start made between them (the closed loop's, in Python):
+// pgs_pose collides and poses the step (its builtin or zero start into report.start_normal and
+// start_tangent) and returns its contact points, in the order World::contacts() reads them;
+// pgs_finish solves that posed step from the start given (one impulse a point, each), writes the
+// answer and steps Box2D. The two give the bits pgs_step gives from the same start. pgs_finish
+// throws std::invalid_argument where the world changed since pgs_pose (or it posed nothing), or
+// the start or the precision is not the pose's.
+size_t pgs_pose(World& world, const PGSStepSettings& settings, PGSStepReport& report);
+void pgs_finish(World& world, const PGSStepSettings& settings, const double* start_normal,
+                const double* start_tangent, size_t points, PGSStepReport& report);
+
 }  // namespace dc

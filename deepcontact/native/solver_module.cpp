@@ -275,13 +275,8 @@ py::array_t<double> to_array(const std::vector<double>& v) {
     return a;
 }
 
-py::object step_world(World& world, const PGSStepSettings& settings) {
-    check(settings);
-    PGSStepReport rep;
-    {
-        py::gil_scoped_release release;
-        rep = pgs_step(world, settings);
-    }
+// A step's report as pgs_step returns it: None without contact points.
+py::object step_report(const PGSStepReport& rep, const PGSStepSettings& settings) {
     if (!rep.solved) return py::none();
     py::dict out = report_dict(rep.solve, rep.stats);
     out["normal_impulse"] = to_array(rep.normal_impulse);
@@ -292,6 +287,38 @@ py::object step_world(World& world, const PGSStepSettings& settings) {
     }
     out["deepest"] = rep.deepest;
     return out;
+}
+
+py::object step_world(World& world, const PGSStepSettings& settings) {
+    check(settings);
+    PGSStepReport rep;
+    {
+        py::gil_scoped_release release;
+        rep = pgs_step(world, settings);
+    }
+    return step_report(rep, settings);
+}
+
+size_t pose_world(World& world, const PGSStepSettings& settings) {
+    check(settings);
+    PGSStepReport rep;
+    py::gil_scoped_release release;
+    return pgs_pose(world, settings, rep);
+}
+
+py::object finish_world(World& world, const PGSStepSettings& settings,
+                        py::array_t<double, py::array::c_style | py::array::forcecast> start_normal,
+                        py::array_t<double, py::array::c_style | py::array::forcecast> start_tangent) {
+    check(settings);
+    if (start_normal.ndim() != 1 || start_tangent.ndim() != 1 || start_normal.size() != start_tangent.size())
+        throw py::value_error("start_normal and start_tangent must each have one impulse a contact point");
+    PGSStepReport rep;
+    {
+        py::gil_scoped_release release;
+        pgs_finish(world, settings, start_normal.data(), start_tangent.data(),
+                   static_cast<size_t>(start_normal.size()), rep);
+    }
+    return step_report(rep, settings);
 }
 
 void bind_options(py::module_& m) {
@@ -400,6 +427,14 @@ void bind_solver(py::module_& m) {
           "One step with our PGS in place of Box2D's velocity solver (collide, solve, write, Step with 0\n"
           "velocity iterations), whole in native code. Returns the solve's report (with the first iterate,\n"
           "start_normal and start_tangent, where settings.record), or None without contacts.");
+    m.def("pgs_pose", &pose_world, py::arg("world"), py::arg("settings"),
+          "The first half of pgs_step, for a start made in between: collide and pose the step; returns its\n"
+          "contact points (in the order World.contacts() reads them). pgs_finish takes the start.");
+    m.def("pgs_finish", &finish_world, py::arg("world"), py::arg("settings"), py::arg("start_normal"),
+          py::arg("start_tangent"),
+          "The second half: the step pgs_pose posed solved from this start (float64, one impulse a\n"
+          "point), the answer written and Box2D stepped, as pgs_step from the same start; its report, or\n"
+          "None without contacts. ValueError where the world changed since the pose.");
 }
 
 }  // namespace dc

@@ -56,6 +56,9 @@ public:
     // velocity iterations (world_loop.cpp) instead of running Box2D's Solve, which would find
     // them again and pose every contact's constraint a second time.
     LoopFrame& gather_loop();
+    LoopFrame& loop_frame() { return loop_; }
+    // Whether pose_loop's step is still the world's (nothing changed it since).
+    bool posed_now() const { return loop_generation_ == generation_; }
     template <class R>
     void pose_loop(ContactProblem<R>& pb, const StepSettings& st, bool carried, float warm_scale,
                    std::vector<double>& start_n, std::vector<double>& start_t);

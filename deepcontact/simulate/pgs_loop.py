@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._box2d import PGSStepSettings, StepSettings, pgs_step
+from .._box2d import PGSStepSettings, StepSettings, pgs_finish, pgs_pose, pgs_step
 from ..errors import InputError, OptionError
 from ..solver.methods import is_native, solve, takes_relaxation
 from ..solver.pgs import Solution
@@ -117,7 +117,11 @@ class PGSStepper:
         # (a plug-in solver method is Python: its steps go through Python too)
         self.native = native and start_fn is None and solve_fn is None and start in ("zero", "builtin") \
             and is_native(settings.accelerate)
-        if self.native:
+        # a start made in Python (start_fn) between the native step's halves (pgs_pose, pgs_finish):
+        # the world read out and the problem posed once, natively, as pgs_step poses it
+        self.posed = native and start_fn is not None and solve_fn is None and not record \
+            and is_native(settings.accelerate)
+        if self.native or self.posed:
             self.step_settings = PGSStepSettings(
                 step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve),
                 solve=self.solve_options, start=start, warm_scale=0.0, inv_dt0=self.inv_dt,
@@ -127,6 +131,8 @@ class PGSStepper:
     def step(self) -> LoopStep:
         # `auto` tries every w on a step now and then: that step goes through Python
         auto = callable(self.relaxation)
+        if self.posed and not auto:
+            return self._posed_step()
         if not self.native or (auto and self.relaxation.wants_trial()):
             return self._python_step()
         done = self._native_step(self.relaxation.w if auto else self.relaxation)
@@ -177,6 +183,38 @@ class PGSStepper:
         recorded["start_normal_impulse"] = out["start_normal"].astype(np.float32) if same else np.zeros(n, np.float32)
         recorded["start_tangent_impulse"] = out["start_tangent"].astype(np.float32) if same else np.zeros(n, np.float32)
         return LoopStep(before, recorded, solution, deepest, dt_ratio=float(scale))
+
+    def _posed_step(self):
+        """A step whose start start_fn makes, between the native step's halves: posed (Collide, the
+        islands, each contact's rows and Box2D's carried start) by pgs_pose, the start asked for on
+        the contacts World.contacts() reads (the posed step's points, in its order), then solved,
+        written and stepped by pgs_finish: the bits of the step in pieces (_python_step), without
+        its second posing in Python and in Box2D's own Step."""
+        world, scene = self.world, self.scene
+        bodies = world.bodies()
+        ratio, warm = self._carried_scale(), world.warm_starting
+        self.step_settings.warm_scale = float(ratio) if warm else 0.0
+        w = self.relaxation
+        if w != self.solve_options.relaxation:
+            self.solve_options.relaxation = w
+            self.step_settings.solve = self.solve_options
+        points = self._applying(warm, pgs_pose, world, self.step_settings)
+        contacts = world.contacts()
+        carried = ratio if warm else np.float32(0.0)   # (off: Box2D's own solver starts from zero)
+        builtin_n = carried * contacts["normal_impulse"]
+        builtin_t = carried * contacts["tangent_impulse"]
+        if points:
+            problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
+                                              block_solve=scene.solver.block_solve,
+                                              velocity_iterations=self.settings.max_iterations)
+            start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+        else:
+            start_n = start_t = np.zeros(0)
+        out = self._applying(warm, pgs_finish, world, self.step_settings, start_n, start_t)
+        self.first = False
+        solution = None if out is None else Solution.from_native(out, w)
+        deepest = 0.0 if out is None else out["deepest"]
+        return LoopStep(None, None, solution, deepest, dt_ratio=float(ratio))
 
     def _python_step(self):
         world, scene, o = self.world, self.scene, self.settings

@@ -169,7 +169,8 @@ class StepProblem:
         contacts = _columns(contacts, (*CONTACT_KEYS, "body_a", "body_b", *KEY_COLUMNS, "start_normal_impulse",
                                        "start_tangent_impulse", "normal_impulse", "tangent_impulse"), "contacts")
         c = {k: contacts[k] for k in CONTACT_KEYS}
-        c["row_a"], c["row_b"] = (_rows(bodies["index"], contacts[k]) for k in ("body_a", "body_b"))
+        both = _rows(bodies["index"], np.concatenate((contacts["body_a"], contacts["body_b"])))   # (one search)
+        c["row_a"], c["row_b"] = both[:len(both) // 2], both[len(both) // 2:]
         b = {k: bodies[k] for k in BODY_KEYS}
         keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
         return cls(bodies=b, contacts=c, dt=float(np.float32(arguments.number(dt, "dt", low=0))),
