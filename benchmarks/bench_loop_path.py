@@ -28,8 +28,14 @@ contestant) and the way now (keys matched as arrays, the ctx written into the ar
 it), and the work both do (the world read out, the problem posed, the answer packed and checked),
 each timed N times, interleaved, in this process: medians in microseconds.
 
+--halves N: the judge's step alone, in this process, N rounds: the native loop (one call a step), a start
+made in Python (an in-process start_fn handing back Box2D's warm start, no contestant) between the
+native step's halves (pgs_pose, pgs_finish: what the closed loop takes), and the same start with the
+step in pieces (PGSStepper's native=False: posed a second time in Python and in Box2D's own Step),
+stepped in turn; each one's median CPU ms a step, and its median over the native step of the same round.
+
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
-       [--doorbell 0] [--pieces 0]
+       [--doorbell 0] [--pieces 0] [--halves 0]
 """
 import cProfile
 import os
@@ -46,6 +52,8 @@ import numpy as np
 from deepcontact.evaluate.closed_loop import _interleaved, closed_loop, run_loop
 from deepcontact.evaluate.replay import variants, visible_context
 from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.simulate.pgs_loop import PGSStepper
 from deepcontact.solver.settings import SolveSettings
 from deepcontact.warmstart.starts import make_starts
 
@@ -225,8 +233,29 @@ def pieces(scene, n):
         print(f"{name:56s} {np.median(t) * 1e6:8.1f} us")
 
 
+def halves(scene, settings, rounds):
+    """The judge's step alone, three ways, stepped in turn (see --halves)."""
+    def builtin(bodies, contacts, problem, builtin_n, builtin_t):
+        return builtin_n, builtin_t
+    ways = {"the native loop": PGSStepper(build_world(scene), scene, settings, record=False, residual=True),
+            "a start made between the halves": PGSStepper(build_world(scene), scene, settings, start_fn=builtin,
+                                                          record=False, residual=True),
+            "the same start, the step in pieces": PGSStepper(build_world(scene), scene, settings, start_fn=builtin,
+                                                             record=False, residual=True, native=False)}
+    times = {name: [] for name in ways}
+    for _ in range(min(rounds, scene.steps)):
+        for name, stepper in ways.items():
+            t = time.thread_time()
+            stepper.step()
+            times[name].append(time.thread_time() - t)
+    native = np.array(times["the native loop"])
+    print(f"\nthe judge's step alone, {len(native)} rounds (CPU ms a step: median; median over the native step)")
+    for name, t in times.items():
+        print(f"{name:38s} {np.median(t) * 1e3:7.3f} {np.median(np.array(t) - native) * 1e3:7.3f}")
+
+
 def main():
-    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0)
+    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0, halves=0)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     if args.doorbell:
         for name, t in doorbells(args.doorbell).items():
@@ -241,6 +270,8 @@ def main():
     if args.pieces:
         pieces(scene, args.pieces)
     settings = SolveSettings()
+    if args.halves:
+        halves(scene, settings, args.halves)
     reference = run_loop(scene, None, settings, steps, "builtin", report=False)
     print(f"\nthe pile of seed {args.seed}, {args.count} circles, {steps} steps, {settings.tolerance:g} tolerance")
     print("| run | native ms/step | builtin through the path | path_ms | of which builtin's charge | round trips "
