@@ -14,10 +14,26 @@ def arguments(doc, **defaults):
     protocol line (threads, -j, versions, CPU, load, command) is printed."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name, default in defaults.items():
-        ap.add_argument("--" + name.replace("_", "-"), type=type(default), default=default)
+        ap.add_argument("--" + name.replace("_", "-"), type=_typed(default), default=default)
     args = ap.parse_args()
     print(protocol_line(current()) + "\n")   # how these times were taken
     return args
+
+
+def _typed(default):
+    """The option's type, a number never below zero where its default is not (a count, a size, a
+    step: --base -1 was a traceback from the scene's generator): argparse's one line and exit 2."""
+    kind = type(default)
+    if kind not in (int, float) or default < 0:
+        return kind
+
+    def at_least_zero(text):
+        value = kind(text)
+        if not value >= 0:
+            raise argparse.ArgumentTypeError(f"must be at least 0, got {text}")
+        return value
+    at_least_zero.__name__ = kind.__name__   # (argparse names the type in its message)
+    return at_least_zero
 
 
 def timed(args):
