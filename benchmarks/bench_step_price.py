@@ -18,7 +18,12 @@ line: about 1.00x; when the loop's first step started from zero, the pile it sho
 
 --base N prices the same on a pyramid of boxes of base N (seed 9) instead.
 
+--glue N: what a step costs around its work, on a world of two circles resting in a box (a step
+of almost nothing): each stepper called N times in turn, Box2D's own at 1 iteration and the loop's
+at 1 sweep, exact and float64; the median wall microseconds of a call.
+
 Usage: python benchmarks/bench_step_price.py [--count 1000] [--base 0] [--settle 500] [--warm 0] [--steps 200] [--sweeps 8]
+       [--glue 0]
 """
 import sys
 import time
@@ -51,8 +56,29 @@ def shaken(scene, args):
     return Box2D(velocity_iterations=args.sweeps).stepper(world, scene, record=False)
 
 
+def glue(calls):
+    """Median wall microseconds of a step of two resting circles (see --glue)."""
+    scene = generate("pile", 0, dict(count=2, box=12.0, sigma=1.0, steps=calls + 202))
+    steppers = {"Box2D 2.4.1, 1 iteration": Box2D(velocity_iterations=1)}
+    for mode in ("exact", "float64"):
+        steppers[f"the loop, 1 sweep, {mode}"] = Box2D(solver=SolveSettings(max_iterations=1, tolerance=0, mode=mode))
+    steppers = {name: engine.stepper(engine.build(scene), scene, record=False) for name, engine in steppers.items()}
+    times = {name: [] for name in steppers}
+    for k in range(calls + 200):   # (the first 200 untimed: the circles come to rest)
+        for name, step in steppers.items():
+            t = time.perf_counter()
+            step()
+            if k >= 200:
+                times[name].append(time.perf_counter() - t)
+    print(f"a step of two resting circles, {calls:,} calls each, in turn (median wall us a call)")
+    for name, values in times.items():
+        print(f"{name:36s} {np.median(values) * 1e6:8.2f}")
+
+
 def main():
-    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8)
+    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0)
+    if args.glue:
+        return glue(args.glue)
     steps = args.settle + args.warm + args.steps + 2
     if args.base:   # a pyramid of boxes: two-point manifolds and Box2D's block solver
         scene = generate("pyramid", 9, dict(base=args.base, steps=steps))
