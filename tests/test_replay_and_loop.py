@@ -1,10 +1,12 @@
 """`dc validate --replay` and the project's solver driving Box2D (`dc simulate --solver pgs`)."""
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import dc
+from deepcontact.errors import InputError
 from deepcontact.scene.generators import generate
 from deepcontact.simulate.build import build_world
 from deepcontact.simulate.pgs_loop import PGSStepper
@@ -228,6 +230,87 @@ def test_the_native_halves_refuse_a_world_changed_between_them():
     settings.solve.mode = "float32"
     with pytest.raises(ValueError, match="another precision"):
         pgs_finish(world, settings, np.zeros(points), np.zeros(points))
+
+
+def trajectories(steppers, steps):
+    """Each stepper's steps: per step its answer, deepest point and the bodies after it."""
+    out = [[] for _ in steppers]
+    for _ in range(steps):
+        for stepper, seen in zip(steppers, out):
+            done = stepper.step()
+            b = stepper.world.bodies()
+            seen.append((None if done.solution is None else (done.solution.normal_impulse.tolist(),
+                                                              done.solution.tangent_impulse.tolist(),
+                                                              done.solution.iterations, done.solution.relaxation),
+                         done.deepest, done.dt_ratio, *(b[k].tobytes() for k in ("position", "angle", "velocity", "omega"))))
+    return out
+
+
+def a_start_that_changes_what_it_is_given(bodies, contacts, problem, builtin_n, builtin_t):
+    # (what it changes is its own: neither path solves, steps or measures it)
+    start = a_start_of_ones_own(bodies, contacts, problem, builtin_n, builtin_t)
+    problem.contacts["friction"][:] = 0.0
+    problem.bodies["velocity"][:] = 0.0
+    contacts["separation"][:] = -5.0
+    bodies["position"][:] = 0.0
+    builtin_n *= 0.0
+    return [float(x) for x in start[0]], start[1]
+
+
+@pytest.mark.parametrize("warm", [True, False])
+def test_a_start_that_changes_what_it_is_given_steps_alike_between_the_halves_and_in_pieces(warm):
+    # The step between the native halves reads nothing back from Python; the step in pieces
+    # (a recorded step, a plug-in method) solved the problem the start was handed, and measured
+    # its deepest point from the contacts: a start that changed them stepped another trajectory
+    s = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    s = replace(s, solver=replace(s.solver, warm_starting=warm))
+    settings = SolveSettings(max_iterations=200, tolerance=1e-4)
+    steppers = [PGSStepper(build_world(s), s, settings, "builtin", start_fn=f, record=False, native=n, residual=True)
+                for f in (a_start_that_changes_what_it_is_given, a_start_of_ones_own) for n in (True, False)]
+    assert [p.posed for p in steppers] == [True, False, True, False]
+    changing_posed, changing_pieces, posed, pieces = trajectories(steppers, 60)
+    assert changing_pieces == changing_posed == posed == pieces
+    assert sum(step[0] is not None for step in posed) > 20
+
+
+@pytest.mark.parametrize("made", [lambda n: n.astype(complex) + 1j, lambda n: n.astype(object), lambda n: n.astype(str),
+                                  lambda n: n > 0, lambda n: n[:, None], lambda n: np.append(n, 0.0), lambda n: 1.0],
+                         ids=["complex", "objects", "text", "bool", "2-d", "one-too-many", "a-number"])
+def test_a_start_of_another_form_is_refused_alike_between_the_halves_and_in_pieces(made):
+    # pgs_finish converted whatever numpy could cast (text, objects, booleans) and named itself
+    # for a wrong length; the step in pieces refuses them, naming the start, as solve does
+    s = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+
+    def start(bodies, contacts, problem, builtin_n, builtin_t):
+        return made(builtin_n), builtin_t
+    said = []
+    for native in (True, False):
+        stepper = PGSStepper(build_world(s), s, SolveSettings(), "builtin", start_fn=start, record=False, native=native)
+        with pytest.raises(InputError, match="argument 'start_normal' must be one value per contact point") as e:
+            for _ in range(60):
+                stepper.step()
+        said.append(str(e.value))
+    assert said[0] == said[1]
+
+
+def test_a_start_of_none_is_the_problems_own_between_the_halves_and_in_pieces():
+    s = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    steppers = [PGSStepper(build_world(s), s, SolveSettings(max_iterations=50, tolerance=1e-4), "builtin",
+                           start_fn=f, record=False, native=n, residual=True)
+                for f in (lambda *a: (None, None), lambda b, c, p, n, t: (n, t)) for n in (True, False)]
+    none_posed, none_pieces, builtin_posed, builtin_pieces = trajectories(steppers, 60)
+    assert none_posed == none_pieces == builtin_posed == builtin_pieces
+
+
+def test_a_relaxation_of_none_stands_as_one_on_every_path():
+    # SolveSettings(relaxation=None) is a built-in method's w of 1 (solve takes it so): the native
+    # step and the step between the halves handed None to the native options (a TypeError)
+    s = generate("pile", 0, dict(count=30, box=16.0, sigma=4.0))
+    steppers = [PGSStepper(build_world(s), s, SolveSettings(relaxation=w, max_iterations=50, tolerance=1e-4),
+                           "builtin", start_fn=f, record=False, native=n, residual=True)
+                for w in (None, 1.0) for f in (None, a_start_of_ones_own) for n in (True, False)]
+    native, pieces, posed, own_pieces, *ones = trajectories(steppers, 60)
+    assert native == pieces == ones[0] == ones[1] and posed == own_pieces == ones[2] == ones[3]
 
 
 def box2d_then_loop(scene, settings, native, steps=80):

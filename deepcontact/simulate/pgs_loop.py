@@ -12,18 +12,20 @@ or skipped inside Box2D), Box2D's warm-start scale dtRatio held at exactly 1 and
 for the Step (a world with it off starts each step from zero, as Box2D's own solver does).
 
 Starts from zero or from Box2D's warm start run the whole step in one native call
-(deepcontact._box2d.pgs_step); a start made in Python, `garbage`, a plug-in solver method and the
-steps on which `auto` tries every w take the same path in pieces. The two give identical trajectories
-(tests/test_replay_and_loop.py).
+(deepcontact._box2d.pgs_step); a start made in Python is asked between its two halves (pgs_pose,
+pgs_finish) where the step is not recorded; `garbage`, a recorded step with a start of one's own, a
+plug-in solver method and the steps on which `auto` tries every w take the same path in pieces. They
+give identical trajectories (tests/test_replay_and_loop.py): a start is held to solve's rule on
+either path, and what it changes in the step it is handed no path reads back.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .._box2d import PGSStepSettings, StepSettings, pgs_finish, pgs_pose, pgs_step
 from ..errors import InputError, OptionError
 from ..solver.methods import is_native, solve, takes_relaxation
-from ..solver.pgs import Solution
+from ..solver.pgs import Solution, start_impulses
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
@@ -81,6 +83,19 @@ class LoopStep:
                                 # (MuJoCo's iterations, ...): the step file's <engine_step>
 
 
+def _offered(bodies, contacts, problem):
+    """Copies of the step's bodies, contacts and problem for a start made in Python: what it
+    changes in them the step in pieces does not solve, as the step between the native halves,
+    which reads nothing back from Python, does not."""
+    def columns(d):
+        return {k: v.copy() for k, v in d.items()}
+    bodies, contacts = columns(bodies), columns(contacts)
+    arrays = ("start_normal", "start_tangent", "normal_impulse", "tangent_impulse", "keys")
+    problem = replace(problem, bodies=columns(problem.bodies), contacts=columns(problem.contacts),
+                      **{k: getattr(problem, k).copy() for k in arrays if getattr(problem, k) is not None})
+    return bodies, contacts, problem
+
+
 class PGSStepper:
     """Steps a world with the project's PGS; step() returns a LoopStep."""
 
@@ -88,7 +103,8 @@ class PGSStepper:
                  native=True, solve_fn=None, residual=None):
         """settings: the solve's (its mode, tolerance, cap, w and method); start: zero, builtin
         (Box2D's warm start) or garbage. start_fn(bodies, contacts, problem, builtin_n, builtin_t)
-        -> (normal, tangent), if given, makes the first iterate instead (dc evaluate --closed-loop).
+        -> (normal, tangent), if given, makes the first iterate instead (dc evaluate --closed-loop;
+        held to solve's rule; problem's start is Box2D's warm start, builtin_n and builtin_t).
         record: keep the bodies and contacts of each step (step files need them; a timed loop does
         not). native=False steps in pieces through Python even where one native call could.
         solve_fn(problem, start_n, start_t, settings) -> Solution, if given, solves each step in place
@@ -111,7 +127,8 @@ class PGSStepper:
         self.inv_dt = unit_dt_ratio_inv(scene.dt)
         self.stepped_inv_dt0 = float(np.float32(1.0) / np.float32(scene.dt))   # (what Step leaves in inv_dt0)
         self.first = True
-        self.relaxation = settings.relaxation
+        # (None stands as 1 for a built-in method, as solve takes it; a plug-in's stays None)
+        self.relaxation = 1.0 if settings.relaxation is None and is_native(settings.accelerate) else settings.relaxation
         if auto:
             self.relaxation = AutoRelaxation(settings)
         # (a plug-in solver method is Python: its steps go through Python too)
@@ -207,7 +224,9 @@ class PGSStepper:
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=self.settings.max_iterations)
+            problem.start_normal, problem.start_tangent = builtin_n, builtin_t   # (as in pieces)
             start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+            start_n, start_t = start_impulses(problem, start_n, start_t)   # (held as solve holds it, in pieces)
         else:
             start_n = start_t = np.zeros(0)
         out = self._applying(warm, pgs_finish, world, self.step_settings, start_n, start_t)
@@ -215,6 +234,14 @@ class PGSStepper:
         solution = None if out is None else Solution.from_native(out, w)
         deepest = 0.0 if out is None else out["deepest"]
         return LoopStep(None, None, solution, deepest, dt_ratio=float(ratio))
+
+    def _asked(self, bodies, contacts, problem, builtin_n, builtin_t):
+        """start_fn's start for the step in pieces, held as solve holds it; the problem's start is
+        Box2D's warm start (what a plug-in method is then sent with it), start_fn is offered copies
+        of the step (_offered)."""
+        problem.start_normal, problem.start_tangent = builtin_n, builtin_t
+        start_n, start_t = self.start_fn(*_offered(bodies, contacts, problem), builtin_n, builtin_t)
+        return start_impulses(problem, start_n, start_t)
 
     def _python_step(self):
         world, scene, o = self.world, self.scene, self.settings
@@ -232,8 +259,8 @@ class PGSStepper:
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=o.max_iterations)
         if self.start_fn is not None:
-            start_n, start_t = (np.zeros(0), np.zeros(0)) if problem is None else \
-                self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+            start_n, start_t = (np.zeros(0), np.zeros(0)) if problem is None else self._asked(bodies, contacts, problem,
+                                                                                             builtin_n, builtin_t)
         elif self.start == "builtin":
             start_n, start_t = builtin_n, builtin_t
         elif self.start == "garbage":

@@ -103,13 +103,20 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
                                  max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
     step = problem.settings(prune)   # (its dt checked before the options divide by it)
     opts = settings.native(dt=problem.dt, history=history, final_residual=final_residual, cone=cone)
-    starts = [_start(name, given, own, problem.points) for name, given, own in (
-        ("start_normal", start_normal, problem.start_normal), ("start_tangent", start_tangent, problem.start_tangent))]
+    starts = start_impulses(problem, start_normal, start_tangent)
     try:
         out = solve_contacts(problem.bodies, problem.contacts, *starts, step, opts, carry)
     except (ValueError, TypeError, KeyError, IndexError) as e:   # the native checks of the problem's arrays
         raise native_refusal(e) from None
     return Solution.from_native(out, settings.relaxation)
+
+
+def start_impulses(problem: "StepProblem", start_normal=None, start_tangent=None) -> tuple:
+    """A start as solve takes it, (normal, tangent): each float64, one real number a contact point
+    (None: the problem's own start); InputError naming the argument otherwise. The loop's step
+    between the native halves holds a start made in Python to this too (simulate/pgs_loop.py)."""
+    return tuple(_start(name, given, own, problem.points) for name, given, own in (
+        ("start_normal", start_normal, problem.start_normal), ("start_tangent", start_tangent, problem.start_tangent)))
 
 
 def _start(name, given, own, points):
