@@ -25,6 +25,10 @@ struct LoopFrame {
     // in, and Box2D poses a later island's contacts where an earlier one left it: its own Solve
     // steps such islands.
     bool static_moves = false;
+    // Every impulse written into the manifolds is finite. A NaN or infinite one (an answer from a
+    // start used as given, exact mode) makes the static bodies it touches NaN, and Box2D poses a
+    // later island's contacts from them: its own Solve steps such a step too.
+    bool finite_answer = true;
     bool block_solve = true;   // the setting the redundant pairs were cut with
 
     size_t points = 0;      // the islands' contact points

@@ -1,5 +1,6 @@
 #include "pgs_step.hpp"
 
+#include <cmath>
 #include <string>
 
 namespace dc {
@@ -9,9 +10,10 @@ namespace {
 // the warm start of the island solve to apply. A point Box2D drops from an ill-conditioned pair
 // keeps its start, as in solve_contacts.
 template <class R>
-void write_solution(const ContactProblem<R>& pb, const LoopFrame& f, PGSStepReport& out) {
+void write_solution(const ContactProblem<R>& pb, LoopFrame& f, PGSStepReport& out) {
     out.normal_impulse.resize(f.points);
     out.tangent_impulse.resize(f.points);
+    bool finite = true;
     for (size_t i = 0; i < pb.manifolds.size(); ++i) {
         const ContactManifold<R>& m = pb.manifolds[i];
         b2ManifoldPoint* points = f.constraints[i].manifold->points;
@@ -21,8 +23,10 @@ void write_solution(const ContactProblem<R>& pb, const LoopFrame& f, PGSStepRepo
             out.tangent_impulse[m.first + j] = tangent;
             points[j].normalImpulse = float(normal);
             points[j].tangentImpulse = float(tangent);
+            finite = finite && std::isfinite(points[j].normalImpulse) && std::isfinite(points[j].tangentImpulse);
         }
     }
+    f.finite_answer = finite;
 }
 
 // The step's contacts posed in R with their start (Box2D's carried impulses or zero).
@@ -33,7 +37,7 @@ void pose_step(World& world, ContactProblem<R>& pb, const PGSStepSettings& s, PG
 
 // The posed step (where it has contact points) solved from the start given and the solution written.
 template <class R>
-void solve_step(World& world, ContactProblem<R>& pb, const LoopFrame& f, const PGSStepSettings& s, const double* sn,
+void solve_step(World& world, ContactProblem<R>& pb, LoopFrame& f, const PGSStepSettings& s, const double* sn,
                 const double* st, PGSStepReport& out) {
     if (f.points == 0) return;
     // What a method keeps from one step to the next lives in the world (a method that keeps
@@ -85,7 +89,7 @@ void pgs_finish(World& world, const PGSStepSettings& s, const double* sn, const 
 PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
     PGSStepReport out;
     pgs_pose(world, s, out);
-    const LoopFrame& f = world.loop_frame();
+    LoopFrame& f = world.loop_frame();
     if (s.solve.float64())
         solve_step(world, world.loop_frame().problem64, f, s, out.start_normal.data(), out.start_tangent.data(), out);
     else

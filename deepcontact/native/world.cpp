@@ -225,7 +225,8 @@ bool World::recorder_active() const { return recorder_->active; }
 // velocity iterations, no static body moved from one island to the next).
 bool World::solves_islands(int velocity_iterations) const {
     return velocity_iterations == 0 && loop_generation_ == generation_ && !world_->GetAllowSleeping() &&
-           world_->GetJointCount() == 0 && !loop_.static_moves && loop_.block_solve == block_solve_;
+           world_->GetJointCount() == 0 && !loop_.static_moves && loop_.finite_answer &&
+           loop_.block_solve == block_solve_;
 }
 
 void World::step(float dt, int velocity_iterations, int position_iterations, bool record, bool collided) {

@@ -196,6 +196,7 @@ void World::pose_loop(ContactProblem<R>& pb, const StepSettings& st, bool carrie
     }
     pb.points = f.points = first;
     f.deepest = deepest;
+    f.finite_answer = true;   // (until an answer is written: pgs_step.cpp)
     loop_generation_ = generation_;
 }
 

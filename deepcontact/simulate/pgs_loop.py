@@ -18,6 +18,7 @@ plug-in solver method and the steps on which `auto` tries every w take the same 
 give identical trajectories (tests/test_replay_and_loop.py): a start is held to solve's rule on
 either path, and what it changes in the step it is handed no path reads back.
 """
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -25,7 +26,7 @@ import numpy as np
 from .._box2d import PGSStepSettings, StepSettings, pgs_finish, pgs_pose, pgs_step
 from ..errors import InputError, OptionError
 from ..solver.methods import is_native, solve, takes_relaxation
-from ..solver.pgs import Solution, start_impulses
+from ..solver.pgs import Solution, check_solvable, start_impulses
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
@@ -224,9 +225,7 @@ class PGSStepper:
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=self.settings.max_iterations)
-            problem.start_normal, problem.start_tangent = builtin_n, builtin_t   # (as in pieces)
-            start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
-            start_n, start_t = start_impulses(problem, start_n, start_t)   # (held as solve holds it, in pieces)
+            start_n, start_t = self._posed_start(bodies, contacts, problem, builtin_n, builtin_t)
         else:
             start_n = start_t = np.zeros(0)
         out = self._applying(warm, pgs_finish, world, self.step_settings, start_n, start_t)
@@ -242,6 +241,19 @@ class PGSStepper:
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
         start_n, start_t = self.start_fn(*_offered(bodies, contacts, problem), builtin_n, builtin_t)
         return start_impulses(problem, start_n, start_t)
+
+    def _posed_start(self, bodies, contacts, problem, builtin_n, builtin_t):
+        """start_fn's start for the posed step, as the step in pieces has it: the problem's start
+        Box2D's warm start, the start held to solve's rule, and a world gone non-finite refused as
+        solve refuses it (pgs_finish would step it on)."""
+        problem.start_normal, problem.start_tangent = builtin_n, builtin_t
+        start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+        start_n, start_t = start_impulses(problem, start_n, start_t)
+        # (the bodies' state, what a step can make non-finite, in one sum: NaN or inf in any of it
+        # makes it so; a sum that overflows only costs the check)
+        if not math.isfinite(sum(float(bodies[k].sum()) for k in ("angle", "center", "velocity", "omega"))):
+            check_solvable(problem)
+        return start_n, start_t
 
     def _python_step(self):
         world, scene, o = self.world, self.scene, self.settings

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._box2d import Acceleration, Mode, World, solve_contacts
+from .._box2d import Acceleration, Mode, World, contact_rows, solve_contacts
 from .. import arguments
 from ..errors import InputError
 from .problem import StepProblem
@@ -126,6 +126,16 @@ def _start(name, given, own, points):
     if a.dtype.kind not in "iuf" or a.shape != (points,):
         raise arguments.refuse(name, f"one value per contact point (a real number), an array of shape ({points},)", given)
     return a.astype(np.float64)
+
+
+def check_solvable(problem: "StepProblem") -> None:
+    """InputError where solve would refuse the problem's arrays (a column of another dtype or
+    shape, a value not finite, a contact naming no body), with solve's message, without solving."""
+    require_problem(problem)
+    try:
+        contact_rows(problem.bodies, problem.contacts, problem.settings())
+    except (ValueError, TypeError, KeyError, IndexError) as e:
+        raise native_refusal(e) from None
 
 
 def native_refusal(e):
