@@ -84,17 +84,15 @@ class LoopStep:
                                 # (MuJoCo's iterations, ...): the step file's <engine_step>
 
 
-def _offered(bodies, contacts, problem):
-    """Copies of the step's bodies, contacts and problem for a start made in Python: what it
-    changes in them the step in pieces does not solve, as the step between the native halves,
-    which reads nothing back from Python, does not."""
+def _private(problem):
+    """A copy of the problem's arrays, taken before a start made in Python is asked on the problem:
+    what the step in pieces solves (and sends a plug-in method), whatever the start then changes in
+    the step it was handed, as the step between the native halves reads nothing back from Python."""
     def columns(d):
         return {k: v.copy() for k, v in d.items()}
-    bodies, contacts = columns(bodies), columns(contacts)
     arrays = ("start_normal", "start_tangent", "normal_impulse", "tangent_impulse", "keys")
-    problem = replace(problem, bodies=columns(problem.bodies), contacts=columns(problem.contacts),
-                      **{k: getattr(problem, k).copy() for k in arrays if getattr(problem, k) is not None})
-    return bodies, contacts, problem
+    return replace(problem, bodies=columns(problem.bodies), contacts=columns(problem.contacts),
+                   **{k: getattr(problem, k).copy() for k in arrays if getattr(problem, k) is not None})
 
 
 class PGSStepper:
@@ -235,12 +233,13 @@ class PGSStepper:
         return LoopStep(None, None, solution, deepest, dt_ratio=float(ratio))
 
     def _asked(self, bodies, contacts, problem, builtin_n, builtin_t):
-        """start_fn's start for the step in pieces, held as solve holds it; the problem's start is
-        Box2D's warm start (what a plug-in method is then sent with it), start_fn is offered copies
-        of the step (_offered)."""
+        """(the problem to solve, start_fn's start held as solve holds it, as the posed step holds
+        it) for the step in pieces: the problem's start Box2D's warm start (what a plug-in method is
+        sent with it), solved as it was before the start was asked (_private)."""
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
-        start_n, start_t = self.start_fn(*_offered(bodies, contacts, problem), builtin_n, builtin_t)
-        return start_impulses(problem, start_n, start_t)
+        solved = _private(problem)
+        start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
+        return (solved, *start_impulses(problem, start_n, start_t))
 
     def _posed_start(self, bodies, contacts, problem, builtin_n, builtin_t):
         """start_fn's start for the posed step, as the step in pieces has it: the problem's start
@@ -270,9 +269,12 @@ class PGSStepper:
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=o.max_iterations)
+        # (measured before a start made in Python is handed the contacts)
+        deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
         if self.start_fn is not None:
-            start_n, start_t = (np.zeros(0), np.zeros(0)) if problem is None else self._asked(bodies, contacts, problem,
-                                                                                             builtin_n, builtin_t)
+            start_n, start_t = (np.zeros(0), np.zeros(0))
+            if problem is not None:
+                problem, start_n, start_t = self._asked(bodies, contacts, problem, builtin_n, builtin_t)
         elif self.start == "builtin":
             start_n, start_t = builtin_n, builtin_t
         elif self.start == "garbage":
@@ -292,7 +294,6 @@ class PGSStepper:
                                         solution.tangent_impulse.astype(np.float32))
         world.inv_dt0 = self.inv_dt
         self.first = False
-        deepest = max(0.0, float(-contacts["separation"].min())) if len(contacts["separation"]) else 0.0
         # (collided: Box2D's Step skips its own Collide, which would rebuild the same manifolds)
         out = self._applying(warm, world.step, scene.dt, 0, scene.solver.position_iterations, record=self.record,
                              collided=True)
