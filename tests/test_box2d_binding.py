@@ -140,6 +140,10 @@ def test_switches():
     assert not (world.block_solve or world.continuous or world.sleeping)
     world.inv_dt0 = 100.0
     assert world.inv_dt0 == 100.0
+    for bad in (float("nan"), float("inf"), -1.0):   # (the next warm start's scale, dt * inv_dt0)
+        with pytest.raises(ValueError, match="inv_dt0 must be finite and at least 0"):
+            world.inv_dt0 = bad
+    assert world.inv_dt0 == 100.0
 
 
 def test_step_releases_the_gil():

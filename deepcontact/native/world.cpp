@@ -3,6 +3,7 @@
 #include "box2d_access.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 #include <mutex>
 #include <stdexcept>
@@ -149,7 +150,12 @@ void World::remove_body(int index) {
 }
 
 float World::inv_dt0() const { return world_.get()->*member(WorldInvDt0()); }
-void World::set_inv_dt0(float value) { world_.get()->*member(WorldInvDt0()) = value; }
+// (Box2D scales the next warm start by dt * inv_dt0: a NaN or a negative one poisons it)
+void World::set_inv_dt0(float value) {
+    if (!(std::isfinite(value) && value >= 0.0f))
+        throw std::invalid_argument("inv_dt0 must be finite and at least 0, got " + std::to_string(value));
+    world_.get()->*member(WorldInvDt0()) = value;
+}
 
 BodyState World::bodies() const {
     BodyState s;
