@@ -177,6 +177,22 @@ def test_the_closed_loops_reference_is_computed_once_and_checked_before_use(tmp_
     assert third == drift["first"]
 
 
+def in_lockstep(a, b, steps):
+    """Two steppers stepped together `steps` times: each pair of their LoopSteps, whose solutions
+    are there or not alike."""
+    for _ in range(steps):
+        x, y = a.step(), b.step()
+        assert (x.solution is None) == (y.solution is None)
+        yield x, y
+
+
+def assert_same_answer(x, y):
+    """Two solutions of one step: the same sweeps and the same impulses, bit for bit."""
+    assert x.iterations == y.iterations
+    assert np.array_equal(x.normal_impulse, y.normal_impulse)
+    assert np.array_equal(x.tangent_impulse, y.tangent_impulse)
+
+
 def a_start_of_ones_own(bodies, contacts, problem, builtin_n, builtin_t):
     # (a start no step carries: Box2D's warm start reshaped by the bodies and points it was asked on)
     lean = 0.5 + 0.25 * np.cos(np.arange(len(builtin_n)) + float(bodies["position"][:, 1].sum()))
@@ -198,14 +214,10 @@ def test_a_start_made_between_the_native_halves_is_the_step_in_pieces(scene, mod
                                 native=n, residual=True) for n in (True, False))
     assert posed.posed and not pieces.posed
     solved = 0
-    for _ in range(100):
-        a, b = posed.step(), pieces.step()
-        assert (a.solution is None) == (b.solution is None)
+    for a, b in in_lockstep(posed, pieces, 100):
         if a.solution is not None:
             solved += 1
-            assert a.solution.iterations == b.solution.iterations
-            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
-            assert np.array_equal(a.solution.tangent_impulse, b.solution.tangent_impulse)
+            assert_same_answer(a.solution, b.solution)
             assert a.solution.residual == b.solution.residual or np.isnan(a.solution.residual) == np.isnan(b.solution.residual)
         assert a.deepest == b.deepest and a.dt_ratio == b.dt_ratio
         for key in ("position", "angle", "velocity", "omega"):
@@ -382,16 +394,12 @@ def test_an_unrecorded_step_at_fixed_sweeps_skips_only_its_residual(mode, w, acc
                   for r in (None, True))
     assert not bare.residual and told.residual
     solved = 0
-    for _ in range(100):
-        a, b = bare.step(), told.step()
-        assert (a.solution is None) == (b.solution is None)
+    for a, b in in_lockstep(bare, told, 100):
         if a.solution is not None:
             solved += 1
             assert np.isnan(a.solution.residual) and np.isfinite(b.solution.residual)
-            assert a.solution.iterations == b.solution.iterations
             assert a.solution.relaxation_fallback == b.solution.relaxation_fallback
-            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
-            assert np.array_equal(a.solution.tangent_impulse, b.solution.tangent_impulse)
+            assert_same_answer(a.solution, b.solution)
     assert solved > 50
     assert np.array_equal(bare.world.bodies()["position"], told.world.bodies()["position"])
     # recorded, or solved to a tolerance, a step states its residual unasked
