@@ -50,8 +50,14 @@ void solve_step(World& world, ContactProblem<R>& pb, LoopFrame& f, const PGSStep
     out.deepest = double(f.deepest);
 }
 
-// Box2D stepped with the written impulses as its warm start and no velocity iterations.
-void step_box2d(World& world, const PGSStepSettings& s) {
+// The posed step solved from the start given, the answer written, then Box2D stepped with it as
+// its warm start and no velocity iterations.
+void finish_step(World& world, LoopFrame& f, const PGSStepSettings& s, const double* sn, const double* st,
+                 PGSStepReport& out) {
+    if (s.solve.float64())
+        solve_step(world, f.problem64, f, s, sn, st, out);
+    else
+        solve_step(world, f.problem32, f, s, sn, st, out);
     world.set_inv_dt0(s.inv_dt0);
     world.step(s.step.dt, 0, s.position_iterations, s.record, /*collided=*/true);
 }
@@ -79,22 +85,13 @@ void pgs_finish(World& world, const PGSStepSettings& s, const double* sn, const 
     if (points != f.points)
         throw std::invalid_argument("pgs_finish: the start has " + std::to_string(points) +
                                     " impulses a row; the posed step has " + std::to_string(f.points) + " points");
-    if (s.solve.float64())
-        solve_step(world, f.problem64, f, s, sn, st, out);
-    else
-        solve_step(world, f.problem32, f, s, sn, st, out);
-    step_box2d(world, s);
+    finish_step(world, f, s, sn, st, out);
 }
 
 PGSStepReport pgs_step(World& world, const PGSStepSettings& s) {
     PGSStepReport out;
     pgs_pose(world, s, out);
-    LoopFrame& f = world.loop_frame();
-    if (s.solve.float64())
-        solve_step(world, world.loop_frame().problem64, f, s, out.start_normal.data(), out.start_tangent.data(), out);
-    else
-        solve_step(world, world.loop_frame().problem32, f, s, out.start_normal.data(), out.start_tangent.data(), out);
-    step_box2d(world, s);
+    finish_step(world, world.loop_frame(), s, out.start_normal.data(), out.start_tangent.data(), out);
     return out;
 }
 
