@@ -3,8 +3,8 @@
 #include "box2d_access.hpp"
 
 #include <algorithm>
-#include <cmath>
 #include <array>
+#include <cmath>
 #include <mutex>
 #include <stdexcept>
 #include <string>

@@ -95,6 +95,13 @@ def _private(problem):
                    **{k: getattr(problem, k).copy() for k in arrays if getattr(problem, k) is not None})
 
 
+def _builtin(contacts, ratio, warm):
+    """Box2D's own warm start: the impulses Collide carried over by feature id, times dtRatio; zero
+    where the world's warm starting is off (Box2D's own solver then starts from zero)."""
+    carried = ratio if warm else np.float32(0.0)
+    return carried * contacts["normal_impulse"], carried * contacts["tangent_impulse"]
+
+
 class PGSStepper:
     """Steps a world with the project's PGS; step() returns a LoopStep."""
 
@@ -179,12 +186,18 @@ class PGSStepper:
         finally:
             self.world.warm_starting = False
 
-    def _native_step(self, w):
-        scale, warm = self._carried_scale(), self.world.warm_starting
-        self.step_settings.warm_scale = float(scale) if warm else 0.0
+    def _set_step(self, w):
+        """The native step's settings for this step, (dtRatio, the world's warm starting): Box2D's
+        warm-start scale (0 where warm starting is off) and w."""
+        ratio, warm = self._carried_scale(), self.world.warm_starting
+        self.step_settings.warm_scale = float(ratio) if warm else 0.0
         if w != self.solve_options.relaxation:
             self.solve_options.relaxation = w
             self.step_settings.solve = self.solve_options
+        return ratio, warm
+
+    def _native_step(self, w):
+        scale, warm = self._set_step(w)
         out = self._applying(warm, pgs_step, self.world, self.step_settings)
         self.first = False
         solution = None if out is None else Solution.from_native(out, w)
@@ -206,19 +219,12 @@ class PGSStepper:
         the contacts World.contacts() reads (the posed step's points, in its order), then solved,
         written and stepped by pgs_finish: the bits of the step in pieces (_python_step), without
         its second posing in Python and in Box2D's own Step."""
-        world, scene = self.world, self.scene
+        world, scene, w = self.world, self.scene, self.relaxation
         bodies = world.bodies()
-        ratio, warm = self._carried_scale(), world.warm_starting
-        self.step_settings.warm_scale = float(ratio) if warm else 0.0
-        w = self.relaxation
-        if w != self.solve_options.relaxation:
-            self.solve_options.relaxation = w
-            self.step_settings.solve = self.solve_options
-        points = self._applying(warm, pgs_pose, world, self.step_settings)
+        ratio, warm = self._set_step(w)
+        points = pgs_pose(world, self.step_settings)   # (Collide and the pose read no warm-starting flag)
         contacts = world.contacts()
-        carried = ratio if warm else np.float32(0.0)   # (off: Box2D's own solver starts from zero)
-        builtin_n = carried * contacts["normal_impulse"]
-        builtin_t = carried * contacts["tangent_impulse"]
+        builtin_n, builtin_t = _builtin(contacts, ratio, warm)
         if points:
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
@@ -238,16 +244,19 @@ class PGSStepper:
         sent with it), solved as it was before the start was asked (_private)."""
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
         solved = _private(problem)
+        return (solved, *self._ask(bodies, contacts, problem, builtin_n, builtin_t))
+
+    def _ask(self, bodies, contacts, problem, builtin_n, builtin_t):
+        """start_fn's start, held to solve's rule (both paths)."""
         start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
-        return (solved, *start_impulses(problem, start_n, start_t))
+        return start_impulses(problem, start_n, start_t)
 
     def _posed_start(self, bodies, contacts, problem, builtin_n, builtin_t):
         """start_fn's start for the posed step, as the step in pieces has it: the problem's start
         Box2D's warm start, the start held to solve's rule, and a world gone non-finite refused as
         solve refuses it (pgs_finish would step it on)."""
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
-        start_n, start_t = self.start_fn(bodies, contacts, problem, builtin_n, builtin_t)
-        start_n, start_t = start_impulses(problem, start_n, start_t)
+        start_n, start_t = self._ask(bodies, contacts, problem, builtin_n, builtin_t)
         # (the bodies' state, what a step can make non-finite, in one sum: NaN or inf in any of it
         # makes it so; a sum that overflows only costs the check)
         if not math.isfinite(sum(float(bodies[k].sum()) for k in ("angle", "center", "velocity", "omega"))):
@@ -259,11 +268,8 @@ class PGSStepper:
         bodies = world.bodies()
         world.collide()
         contacts = world.contacts()
-        # Box2D's own warm start: the impulses carried over by feature id, times dtRatio
         ratio, warm = self._carried_scale(), world.warm_starting
-        carried = ratio if warm else np.float32(0.0)   # (off: Box2D's own solver starts from zero)
-        builtin_n = carried * contacts["normal_impulse"]
-        builtin_t = carried * contacts["tangent_impulse"]
+        builtin_n, builtin_t = _builtin(contacts, ratio, warm)
         problem = None
         if len(contacts["manifold"]):
             problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
