@@ -109,6 +109,17 @@ def same(a, b, where="ctx"):
         assert a == b, (where, a, b)
 
 
+
+def test_the_loops_problem_is_the_one_from_arrays_poses(steps):
+    from deepcontact.solver.problem import StepProblem
+    for bodies, contacts, problem in steps:
+        posed = StepProblem.from_arrays(bodies, contacts, dt=problem.dt, gravity=problem.gravity,
+                                        block_solve=problem.block_solve,
+                                        velocity_iterations=problem.velocity_iterations)
+        posed.start_normal, posed.start_tangent = problem.start_normal, problem.start_tangent   # (the loop's)
+        same(problem, posed, "problem")
+        assert problem.contacts["row_a"].dtype == np.int32 and len(problem.keys) == problem.points
+
 def read_back(channel, request, mapped, receiver="reader"):
     schema, fds = channel.setup_for(receiver)
     if schema is not None:
@@ -183,6 +194,34 @@ def test_an_answer_is_copied_out_before_it_is_checked():
     assert np.array_equal(arrays["normal"], np.ones(4))
     assert not any(np.shares_memory(a, np.frombuffer(data, np.uint8)) for a in arrays.values())
 
+
+
+@pytest.mark.parametrize("head", [
+    b'{"seconds": {}, "seq": 7, "arrays": [["normal", 3], ["tangent", 3]]}',
+    b'{"seconds": {}, "seq": 0, "arrays": [["normal", 0], ["tangent", 0]]}',
+    b'{"seconds": {}, "seq": 999999999999999999, "arrays": [["normal", 3], ["tangent", 3]]}',
+    b'{"seconds": {}, "seq": 9999999999999999999, "arrays": [["normal", 3], ["tangent", 3]]}',   # (past int64)
+    b'{"seconds": {}, "seq": 07, "arrays": [["normal", 3], ["tangent", 3]]}',    # (no JSON number)
+    b'{"seconds": {}, "seq": -1, "arrays": [["normal", 3], ["tangent", 3]]}',
+    b'{"seconds": {}, "seq": 7, "arrays": [["normal", 3], ["tangent", 2]]}',
+    b'{"seconds": {}, "seq": 7, "arrays": [["normal", 3], ["normal", 3]]}',
+    b'{"seconds": {}, "seq": 7, "arrays": [["normal", 3], ["tangent", 3]], "x": 1}',
+    b'{"seconds": {}, "seq": 7.0, "arrays": [["normal", 3], ["tangent", 3]]}',
+])
+def test_a_step_answer_read_without_the_parser_is_what_the_parser_reads(head, monkeypatch):
+    from deepcontact.contest import wire
+    body = np.arange(6, dtype=np.float64).tobytes()
+    data = len(head).to_bytes(4, "little") + head + body
+
+    def read():
+        try:
+            header, arrays = unpack(data, "the variant 'x'")
+            return header, {k: v.tolist() for k, v in arrays.items()}
+        except PluginError as e:
+            return "refused", str(e).split(" (")[0]
+    fast = read()
+    monkeypatch.setattr(wire, "_STEP_ANSWER", __import__("re").compile(b"(?!)"))   # (every header parsed)
+    assert read() == fast
 
 PROBE = textwrap.dedent('''
     import ctypes, gc, mmap

@@ -19,11 +19,14 @@ import dataclasses
 import itertools
 import math
 import mmap
+import operator
 import os
 import pickle
 import struct
 
 import numpy as np
+
+from .._box2d import arena_put
 
 STEP = b"S"           # a step's request begins so (a pickled request begins b"\x80")
 FDS = b"F"            # the byte the descriptors come with
@@ -31,7 +34,6 @@ HEAD = struct.Struct("<qqqIIQ")   # sequence number, ctx's index, its problem's,
 REQUEST = struct.Struct("<cxxxIQ")   # STEP, the channel, the sequence number
 ALIGN = 64
 LEAST = 1 << 20       # bytes an arena starts with (a 100-circle step takes about 40 KiB)
-_PAD = bytes(ALIGN)
 F_SEAL_FUTURE_WRITE = 0x10   # (linux/fcntl.h; Python's fcntl does not name it)
 ORACLE_SLOTS = {("contacts", "normal_impulse"), ("contacts", "tangent_impulse"), ("problem", "normal_impulse"),
                 ("problem", "tangent_impulse")}   # (and every ("reference", ...)): what only an oracle may see
@@ -84,19 +86,19 @@ class Arena:
         it can write, grow or seal the arena."""
         return os.open(f"/proc/self/fd/{self.fd}", os.O_RDONLY | os.O_CLOEXEC)
 
-    def put(self, seq, index, arrays, version):
-        """Writes a step: its arrays (laid out as _layout lays them: each at a multiple of ALIGN),
-        then its header (index: the ctx's and its problem's), the sequence number last."""
-        # (each array's bytes, padded, joined and copied in once: an array's buffer export costs more)
-        rows = [len(a) for a in arrays]
-        blob = b"".join([part for data in map(np.ndarray.tobytes, arrays) for part in (data, _PAD[:-len(data) % ALIGN])])
-        start = _aligned(HEAD.size + 4 * len(rows))
-        used = start + len(blob)
-        if used > self.size:
-            self._make(2 * used)
-        self.view[HEAD.size:HEAD.size + 4 * len(rows)] = struct.pack(f"<{len(rows)}I", *rows)
-        self.view[start:used] = blob
-        HEAD.pack_into(self.map, 0, seq, *index, len(rows), version, used)
+    def put(self, seq, index, arrays, version, forms):
+        """Writes a step: its arrays (laid out as _layout lays them: each at a multiple of ALIGN,
+        natively, in one call), then its header (index: the ctx's and its problem's), the sequence
+        number last. forms: each array's (dtype's number, byte order and size, trailing shape); False, and the header left
+        as it was, where an array is not of its form."""
+        used = arena_put(self.map, HEAD.size, arrays, forms)
+        if used < 0:
+            self._make(-2 * used)
+            used = arena_put(self.map, HEAD.size, arrays, forms)
+        if used == 0:
+            return False
+        HEAD.pack_into(self.map, 0, seq, *index, len(arrays), version, used)
+        return True
 
     def close(self):
         """Unmaps it and closes its descriptor (a reader's mapping stays valid)."""
@@ -207,35 +209,44 @@ class StepChannel:
         """Writes a step's ctx (as its start may see it: replay.visible_context); its request's bytes."""
         items, scalars = _tables(ctx)
         arrays = self._as_before(items, scalars)
-        if arrays is None:   # (the first step, or one whose tables changed: a schema of its own)
+        self.seq += 1
+        if arrays is None or not self._put(ctx, arrays):
+            # (the first step, or one whose tables changed: a schema of its own)
             entries, columns, arrays = _columns(items, self.oracle)
             self._new_schema(Schema(entries, columns, scalars), items, arrays)
-        self.seq += 1
-        for kind, arena in self.arenas.items():
-            arena.put(self.seq, (int(ctx.index), int(ctx.problem.index)), arrays[kind], self.version)
+            if not self._put(ctx, arrays):
+                raise ValueError("a step's column is not of the form its own schema gives it")
         return REQUEST.pack(STEP, self.ident, self.seq)
+
+    def _put(self, ctx, arrays):
+        index = (int(ctx.index), int(ctx.problem.index))
+        return all([arena.put(self.seq, index, arrays[kind], self.version, self.forms[kind])
+                    for kind, arena in self.arenas.items()])
 
     def _as_before(self, items, scalars):
         """The arrays to write where the step's tables are laid out as the last schema's (the same
-        entries, the same arrays shared among them, each column's dtype and trailing shape), else None."""
-        if self.schema is None:
+        entries, the same arrays shared among them), else None; each column's dtype and trailing
+        shape are held to the schema's as it is written (Arena.put)."""
+        if self.schema is None or scalars != self.schema.scalars or len(items) != len(self.names):
             return None
-        first = {}
-        pattern = [first.setdefault(id(a), k) for k, (_, _, a) in enumerate(items)]
-        if pattern != self.pattern or scalars != self.schema.scalars or \
+        ids = [id(a) for _, _, a in items]
+        # (the same arrays shared: each item's array that of the first item sharing it before, and
+        # as many arrays as before)
+        if self.firsts(ids) != tuple(ids) or len(set(ids)) != self.distinct or \
                 [(s, n) for s, n, _ in items] != self.names:
             return None
-        arrays = {kind: [items[k][2] for k in at] for kind, at in self.positions.items()}
-        forms = {kind: [(a.dtype, a.shape[1:]) for a in v] for kind, v in arrays.items()}
-        return arrays if forms == self.forms else None
+        return {kind: [items[k][2] for k in at] for kind, at in self.positions.items()}
 
     def _new_schema(self, schema, items, arrays):
         self.schema, self.version = schema, self.version + 1
         first = {}
-        self.pattern = [first.setdefault(id(a), k) for k, (_, _, a) in enumerate(items)]
+        pattern = [first.setdefault(id(a), k) for k, (_, _, a) in enumerate(items)]
+        self.firsts = operator.itemgetter(*pattern) if len(pattern) > 1 else lambda ids: tuple(ids[k] for k in pattern)
+        self.distinct = len(first)
         self.names = [(s, n) for s, n, _ in items]
         self.positions = {kind: [first[id(a)] for a in v] for kind, v in arrays.items()}
-        self.forms = {kind: [(a.dtype, a.shape[1:]) for a in v] for kind, v in arrays.items()}
+        self.forms = {kind: [(a.dtype.num, a.dtype.byteorder, a.dtype.itemsize, a.shape[1:]) for a in v]
+                      for kind, v in arrays.items()}
         self.schema_bytes = pickle.dumps({"op": "arena", "channel": self.ident, "version": self.version,
                                           "schema": dataclasses.asdict(schema)}, protocol=pickle.HIGHEST_PROTOCOL)
 

@@ -5,6 +5,7 @@ every message (shape.py: each field's type and bounds, the header's bytes, its d
 judge uses it: a field of the wrong type, a number that is not finite, an array of the wrong
 length, a header nested or sized past its form, is one line naming the contestant."""
 import json
+import re
 import struct
 
 import numpy as np
@@ -14,6 +15,13 @@ from . import shape
 
 ANSWER_MAX = 1 << 28   # bytes an answer may take (three float64 arrays of 10 million contact points): no more is read
 HEADER_MAX = 1 << 20   # bytes of its header (every field's text and entries bounded by its form: shape.ANSWER)
+
+# A loop step's answer as the guest packs it, byte for byte: its header read without the parser
+# (the closed loop reads two a step). Each number a whole one of at most 18 digits, no leading
+# zero: what JSON and shape.ANSWER allow of it; any other header is parsed and checked in full.
+_WHOLE = rb"(0|[1-9][0-9]{0,17})"
+_STEP_ANSWER = re.compile(rb'\{"seconds": \{\}, "seq": ' + _WHOLE + rb', "arrays": \[\["normal", ' + _WHOLE
+                          + rb'\], \["tangent", ' + _WHOLE + rb'\]\]\}')
 
 
 def pack(header, arrays=None):
@@ -31,8 +39,14 @@ def unpack(data, who):
         (n,) = struct.unpack_from("<I", data)
         if 4 + n > len(data):
             raise ValueError("its header runs past the answer's end")
-        header = shape.parsed(data[4:4 + n], "answer", HEADER_MAX)
-        arrays = _arrays(data, 4 + n, header.pop("arrays"))
+        step = _STEP_ANSWER.fullmatch(data, 4, 4 + n)
+        if step is not None:
+            seq, normal, tangent = map(int, step.groups())
+            header, entries = {"seconds": {}, "seq": seq}, (("normal", normal), ("tangent", tangent))
+        else:
+            header = shape.parsed(data[4:4 + n], "answer", HEADER_MAX)
+            entries = header.pop("arrays")
+        arrays = _arrays(data, 4 + n, entries)
     except (ValueError, struct.error) as e:
         raise PluginError(f"{who} answered with something that is not an answer ({e})") from None
     return header, arrays

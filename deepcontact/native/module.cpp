@@ -4,6 +4,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cstring>
 #include <string>
 
 #include "interrupt.hpp"
@@ -478,6 +479,60 @@ PYBIND11_MODULE(_box2d, m) {
             return out;
         },
         "Shortest text that reads back to the same float32, for each value.");
+
+    m.def(
+        "arena_put",
+        [](py::buffer arena, size_t head, const py::list& arrays, const py::list& forms) -> py::ssize_t {
+            // (the closed loop's step into its shared arena, laid out as contest/arena.py's
+            // _layout: the row counts after the header, each column at a multiple of 64 bytes,
+            // zero padding between; what a contestant reads back, with no Python a column)
+            constexpr size_t align = 64;
+            const py::buffer_info out = arena.request(true);
+            const size_t n = arrays.size();
+            if (forms.size() != n) throw py::value_error("arena_put: one form a column");
+            std::vector<py::array> columns;
+            columns.reserve(n);
+            size_t used = (head + 4 * n + align - 1) / align * align;
+            for (size_t i = 0; i < n; ++i) {
+                // each column as the schema holds it (its dtype's number, byte order and size, its
+                // trailing shape), one-dimensional or more; else 0: the caller makes a new schema
+                if (!py::isinstance<py::array>(arrays[i])) return 0;
+                py::array a = py::reinterpret_borrow<py::array>(arrays[i]);
+                if (!(a.flags() & py::array::c_style)) a = py::array::ensure(a, py::array::c_style);   // (a copy)
+                const py::tuple form = forms[i].cast<py::tuple>();
+                const py::dtype dtype = a.dtype();
+                const py::tuple trailing = form[3].cast<py::tuple>();
+                if (a.ndim() < 1 || dtype.num() != form[0].cast<int>() || dtype.byteorder() != form[1].cast<char>() ||
+                    dtype.itemsize() != form[2].cast<py::ssize_t>() ||
+                    static_cast<size_t>(a.ndim()) != trailing.size() + 1)
+                    return 0;
+                for (size_t d = 0; d < trailing.size(); ++d)
+                    if (a.shape(static_cast<py::ssize_t>(d + 1)) != trailing[d].cast<py::ssize_t>()) return 0;
+                if (static_cast<uint64_t>(a.shape(0)) > 0xFFFFFFFFu) return 0;
+                used += (static_cast<size_t>(a.nbytes()) + align - 1) / align * align;
+                columns.push_back(std::move(a));
+            }
+            if (used > static_cast<size_t>(out.size)) return -static_cast<py::ssize_t>(used);
+            auto* base = static_cast<unsigned char*>(out.ptr);
+            size_t at = (head + 4 * n + align - 1) / align * align;
+            for (size_t i = 0; i < n; ++i) {
+                const uint32_t rows = static_cast<uint32_t>(columns[i].shape(0));
+                for (int k = 0; k < 4; ++k) base[head + 4 * i + k] = static_cast<unsigned char>(rows >> (8 * k));   // ("<I")
+                const size_t bytes = static_cast<size_t>(columns[i].nbytes());
+                const size_t padded = (bytes + align - 1) / align * align;
+                if (bytes) std::memcpy(base + at, columns[i].data(), bytes);
+                std::memset(base + at + bytes, 0, padded - bytes);
+                at += padded;
+            }
+            return static_cast<py::ssize_t>(used);
+        },
+        py::arg("arena"), py::arg("head"), py::arg("arrays"), py::arg("forms"),
+        "Writes the columns `arrays` into `arena` (a writable buffer) after a header of `head` bytes:\n"
+        "each one's row count (uint32), then each at a multiple of 64 bytes, zero-padded; returns the\n"
+        "bytes used, 0 where a column is not of its form ((its dtype's number, byte order and size,\n"
+        "its trailing shape)) and nothing was written, or minus the bytes needed where the arena is too\n"
+        "small. A column not contiguous is copied first."
+        );
 
     py::register_exception<std::domain_error>(m, "NonFiniteError", PyExc_ValueError);
 }

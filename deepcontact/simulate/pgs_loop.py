@@ -226,7 +226,7 @@ class PGSStepper:
         contacts = world.contacts()
         builtin_n, builtin_t = _builtin(contacts, ratio, warm)
         if points:
-            problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
+            problem = StepProblem._from_world(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=self.settings.max_iterations)
             start_n, start_t = self._posed_start(bodies, contacts, problem, builtin_n, builtin_t)
@@ -272,7 +272,7 @@ class PGSStepper:
         builtin_n, builtin_t = _builtin(contacts, ratio, warm)
         problem = None
         if len(contacts["manifold"]):
-            problem = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=self.gravity,
+            problem = StepProblem._from_world(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=o.max_iterations)
         # (measured before a start made in Python is handed the contacts)

@@ -182,6 +182,22 @@ class StepProblem:
                    keys=keys, index=arguments.whole(index, "index"))
 
     @classmethod
+    def _from_world(cls, bodies, contacts, *, dt, gravity, block_solve, velocity_iterations):
+        """from_arrays of the columns World.bodies() and World.contacts() returned, as they are
+        (each of its native dtype and shape, contiguous): none checked or converted, one search
+        for the rows. The closed loop makes one a step; the loop's settings are held where it
+        starts."""
+        c = {k: contacts[k] for k in CONTACT_KEYS}
+        both = _rows(bodies["index"], np.concatenate((contacts["body_a"], contacts["body_b"])))
+        c["row_a"], c["row_b"] = both[:len(both) // 2], both[len(both) // 2:]
+        keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
+        return cls(bodies={k: bodies[k] for k in BODY_KEYS}, contacts=c, dt=float(np.float32(dt)),
+                   gravity=(float(gravity[0]), float(gravity[1])), block_solve=bool(block_solve),
+                   velocity_iterations=int(velocity_iterations), start_normal=contacts["start_normal_impulse"],
+                   start_tangent=contacts["start_tangent_impulse"], normal_impulse=contacts["normal_impulse"],
+                   tangent_impulse=contacts["tangent_impulse"], keys=keys)
+
+    @classmethod
     def from_step_file(cls, path):
         # with the schema: the rules `dc validate` holds a step to (friction >= 0, ...), in the same pass
         # (the reader, and the run folder and output rules below it: not imported in a contestant's
