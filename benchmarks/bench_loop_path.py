@@ -169,7 +169,7 @@ def pieces(scene, n):
     import pickle
 
     from deepcontact.contest.arena import Mapped, StepChannel
-    from deepcontact.contest.keyed import KeyedImpulses, KeySet, hashes
+    from deepcontact.contest.keyed import KeyedImpulses, KeySet
     from deepcontact.solver.problem import contact_keys, impulses_by_key
     from deepcontact.warmstart.starts import StepContext, described
     from deepcontact.contest.wire import checked_answer, pack, unpack
@@ -193,8 +193,8 @@ def pieces(scene, n):
     mapped.setup(pickle.loads(schema), fds)
 
     def matched():
-        h = hashes(np.ascontiguousarray(problem.keys))
-        return keyset.find(problem.keys, h), KeySet(problem.keys, h), KeyedImpulses(problem.keys, normal, tangent)
+        keys = np.ascontiguousarray(problem.keys)
+        return keyset.find(keys), KeySet(keys), KeyedImpulses(keys, normal, tangent)
     work = {
         "before: keys as tuples (persisted, previous by key)": lambda: (
             np.array([k in known for k in contact_keys(contacts)], bool), impulses_by_key(keys, normal, tangent)),

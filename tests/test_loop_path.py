@@ -4,7 +4,6 @@ import pickle
 
 import numpy as np
 
-from deepcontact.contest import keyed
 from deepcontact.contest.keyed import KeyedImpulses, KeySet
 
 
@@ -21,13 +20,19 @@ def test_keys_are_matched_exactly_as_tuples_are():
     assert np.array_equal(before[row[found]], now[found])
 
 
-def test_rows_of_one_hash_are_still_told_apart(monkeypatch):
-    monkeypatch.setattr(keyed, "hashes", lambda keys: np.zeros(len(keys), np.uint64))   # (every row collides)
+def test_keys_that_differ_in_any_column_or_repeat_are_told_apart():
     rng = np.random.default_rng(4)
-    before, now = rng.integers(0, 3, (50, 5)), rng.integers(0, 3, (40, 5))
+    before = rng.integers(-2, 2, (3000, 5))   # (most of the 1,024 keys, many twice: the first row kept)
+    now = np.concatenate((rng.integers(-2, 3, (2000, 5)), before[:10] + np.eye(5, dtype=np.int64)[np.arange(10) % 5]))
+    now[:3] = [2 ** 62, -2 ** 62, 0, 0, 2 ** 63 - 1], [0, 0, 0, 0, 0], [-1, -1, -1, -1, -1]
     found, row = KeySet(before).find(now)
     assert np.array_equal(found, _by_tuples(before, now)) and found.any() and not found.all()
     assert np.array_equal(before[row[found]], now[found])
+    first = {}
+    for i, k in enumerate(map(tuple, before.tolist())):
+        first.setdefault(k, i)
+    assert [first[k] for k in map(tuple, now[found].tolist())] == row[found].tolist()
+    assert not KeySet().find(now)[0].any() and len(KeySet(before).find(np.zeros((0, 5)))[0]) == 0
 
 
 def test_previous_impulses_read_as_the_dict_a_start_was_given():

@@ -9,15 +9,14 @@ larger), maps them read-only, and copies a step out of them before building its 
 copy: what it keeps across steps is its own, and it can change nothing the judge or the null reads.
 
 An arena begins with a header: the step's sequence number, its index, the row count of each column;
-then the columns, each at a multiple of 64 bytes. What the columns are (their dtype, their shape but
+then the columns, each at a multiple of 64 bytes (written and read back natively: arena_put,
+arena_views). What the columns are (their dtype, their shape but
 the rows, and which table of the ctx holds each) is the channel's schema, sent pickled once and
 again only when it changes (it does not while a loop runs). A step's request on the socket is then
 16 bytes: its sequence number and the channel; a contestant refuses a request whose sequence
 number is not the arena's or not newer than the last it read.
 """
 import dataclasses
-import itertools
-import math
 import mmap
 import operator
 import os
@@ -26,7 +25,7 @@ import struct
 
 import numpy as np
 
-from .._box2d import arena_put
+from .._box2d import arena_put, arena_views
 
 STEP = b"S"           # a step's request begins so (a pickled request begins b"\x80")
 FDS = b"F"            # the byte the descriptors come with
@@ -48,19 +47,6 @@ class StaleStep(ValueError):
 
 def _aligned(n):
     return (n + ALIGN - 1) // ALIGN * ALIGN
-
-
-def _row_bytes(columns):
-    """The bytes of one row of each column [(dtype, trailing shape)]."""
-    return [np.dtype(dtype).itemsize * math.prod(shape) for dtype, shape in columns]
-
-
-def _layout(row_bytes, rows):
-    """(offset of each column, bytes used) for columns of `row_bytes` a row and `rows` rows."""
-    sizes = [(b * n + ALIGN - 1) // ALIGN * ALIGN for b, n in zip(row_bytes, rows)]
-    at = (HEAD.size + 4 * len(row_bytes) + ALIGN - 1) // ALIGN * ALIGN
-    offsets = list(itertools.accumulate(sizes, initial=at))
-    return offsets[:-1], offsets[-1]
 
 
 class Arena:
@@ -87,10 +73,10 @@ class Arena:
         return os.open(f"/proc/self/fd/{self.fd}", os.O_RDONLY | os.O_CLOEXEC)
 
     def put(self, seq, index, arrays, version, forms):
-        """Writes a step: its arrays (laid out as _layout lays them: each at a multiple of ALIGN,
-        natively, in one call), then its header (index: the ctx's and its problem's), the sequence
-        number last. forms: each array's (dtype's number, byte order and size, trailing shape); False, and the header left
-        as it was, where an array is not of its form."""
+        """Writes a step: its arrays (natively, in one call: arena_put, each at a multiple of
+        ALIGN), then its header (index: the ctx's and its problem's), the sequence number last.
+        forms: each array's (dtype's number, byte order and size, trailing shape); False, and the
+        header left as it was, where an array is not of its form."""
         used = arena_put(self.map, HEAD.size, arrays, forms)
         if used < 0:
             self._make(-2 * used)
@@ -312,23 +298,24 @@ def _index(mm):
 
 
 def _forms(columns):
-    """(dtypes, trailing shapes, bytes a row) of an arena's columns [(dtype, trailing shape)]."""
-    return [np.dtype(d) for d, _ in columns], [tuple(shape) for _, shape in columns], _row_bytes(columns)
+    """(dtypes, trailing shapes) of an arena's columns [(dtype, trailing shape)]."""
+    return [np.dtype(d) for d, _ in columns], [tuple(shape) for _, shape in columns]
 
 
 def _copied(mm, forms, seq, version):
     """The arrays of one arena (forms: its columns', _forms), from one copy of the bytes it uses
-    (its own, writable)."""
-    dtypes, shapes, row_bytes = forms
+    (its own, writable), each a view of the copy (arena_views)."""
+    dtypes, shapes = forms
     head_seq, _, _, n, held_version, used = HEAD.unpack_from(mm, 0)
     if head_seq != seq or n != len(dtypes) or held_version != version or used > len(mm):
         raise StaleStep(f"a step's request of sequence number {seq}; its arena holds {head_seq}")
     buf = np.frombuffer(mm, np.uint8, used).copy()
     if HEAD.unpack_from(buf, 0)[0] != seq:   # (the copy is of the step asked for)
         raise StaleStep(f"the arena moved on from sequence number {seq} while it was read")
-    rows = struct.unpack_from(f"<{n}I", buf, HEAD.size)
-    offsets, _ = _layout(row_bytes, rows)
-    return [np.ndarray((r, *shape), dtype, buf, at) for dtype, shape, r, at in zip(dtypes, shapes, rows, offsets)]
+    try:
+        return arena_views(buf, HEAD.size, dtypes, shapes)
+    except ValueError:
+        raise StaleStep(f"the arena of sequence number {seq} holds columns past the bytes it uses") from None
 
 
 def _context(schema, columns, index, problem_index):

@@ -24,7 +24,7 @@ from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
 from ..contest.charge import StepCharges
 from ..contest.arena import StepChannel
-from ..contest.keyed import KeyedImpulses, KeySet, hashes
+from ..contest.keyed import KeyedImpulses, KeySet
 from ..contest.wire import checked_answer
 from ..scene.check import check_scene
 from ..scene.model import Scene
@@ -88,9 +88,8 @@ class _Adapter:
     def __call__(self, bodies, contacts, problem, builtin_n, builtin_t):
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
         self.keys = np.ascontiguousarray(problem.keys, np.int64)
-        h = hashes(self.keys)
-        persisted = self.known.find(self.keys, h)[0]
-        self.known = KeySet(self.keys, h)
+        persisted = self.known.find(self.keys)[0]
+        self.known = KeySet(self.keys)
         reference = reference_solution(problem) if self.needs_reference else None
         ctx = StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=reference,
                           persisted=persisted, previous=self.previous, index=int(problem.index),

@@ -4,6 +4,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cstring>
 #include <string>
 
@@ -533,6 +534,101 @@ PYBIND11_MODULE(_box2d, m) {
         "its trailing shape)) and nothing was written, or minus the bytes needed where the arena is too\n"
         "small. A column not contiguous is copied first."
         );
+
+    m.def(
+        "arena_views",
+        [](py::array_t<uint8_t, py::array::c_style> copy, size_t head, const py::list& dtypes,
+           const py::list& shapes) {
+            // (a contestant's copy of a step's arena, read as arena_put laid it out: one view a
+            // column, each sharing the copy's memory)
+            constexpr size_t align = 64;
+            const size_t n = dtypes.size(), size = static_cast<size_t>(copy.size());
+            if (shapes.size() != n) throw py::value_error("arena_views: one shape a column");
+            if (head + 4 * n > size) throw py::value_error("arena_views: the copy ends in its row counts");
+            const unsigned char* base = copy.data();
+            size_t at = (head + 4 * n + align - 1) / align * align;
+            py::list out(n);
+            for (size_t i = 0; i < n; ++i) {
+                uint32_t rows = 0;
+                for (int k = 0; k < 4; ++k) rows |= static_cast<uint32_t>(base[head + 4 * i + k]) << (8 * k);
+                const py::dtype dtype = dtypes[i].cast<py::dtype>();
+                const py::tuple trailing = shapes[i].cast<py::tuple>();
+                std::vector<py::ssize_t> shape{static_cast<py::ssize_t>(rows)};
+                size_t bytes = static_cast<size_t>(dtype.itemsize()) * rows;
+                for (const auto d : trailing) {
+                    shape.push_back(d.cast<py::ssize_t>());
+                    bytes *= static_cast<size_t>(shape.back());
+                }
+                if (at > size || bytes > size - at) throw py::value_error("arena_views: a column runs past the copy's end");
+                out[i] = py::array(dtype, shape, {}, base + at, copy);
+                at += (bytes + align - 1) / align * align;
+            }
+            return out;
+        },
+        py::arg("copy"), py::arg("head"), py::arg("dtypes"), py::arg("shapes"),
+        "The columns of a copy of an arena (a contiguous uint8 array) that arena_put wrote: one array a\n"
+        "column of `dtypes` and trailing `shapes`, its rows as written, each a view of the copy.\n"
+        "ValueError where a column would run past the copy's end.");
+
+    m.def(
+        "key_rows",
+        [](py::array_t<int64_t, py::array::c_style | py::array::forcecast> known,
+           py::array_t<int64_t, py::array::c_style | py::array::forcecast> keys) {
+            // (contact keys, rows of 5, matched whole: an open-addressed table of `known`'s rows,
+            // its first row of each key kept; a hash only finds where to compare)
+            auto rows_of = [](const py::array& a, const char* what) {
+                if (a.ndim() != 2 || a.shape(1) != 5)
+                    throw py::value_error(std::string("key_rows: ") + what + " must be rows of 5");
+                return static_cast<size_t>(a.shape(0));
+            };
+            const size_t n = rows_of(known, "known"), m = rows_of(keys, "keys");
+            py::array_t<bool> found(static_cast<py::ssize_t>(m));
+            py::array_t<py::ssize_t> row(static_cast<py::ssize_t>(m));
+            const int64_t* k = known.data();
+            const int64_t* q = keys.data();
+            bool* f = found.mutable_data();
+            py::ssize_t* r = row.mutable_data();
+            {
+                py::gil_scoped_release release;
+                auto hash = [](const int64_t* v) {
+                    uint64_t h = 0x9E3779B97F4A7C15ull;
+                    for (int c = 0; c < 5; ++c) {
+                        h ^= static_cast<uint64_t>(v[c]) + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
+                        h *= 0xFF51AFD7ED558CCDull;
+                        h ^= h >> 33;
+                    }
+                    return h;
+                };
+                size_t size = 16;
+                while (size < 2 * n) size <<= 1;
+                std::vector<int64_t> table(size, -1);
+                for (size_t i = 0; i < n; ++i) {
+                    for (size_t at = hash(k + 5 * i) & (size - 1);; at = (at + 1) & (size - 1)) {
+                        if (table[at] < 0) {
+                            table[at] = static_cast<int64_t>(i);
+                            break;
+                        }
+                        if (std::equal(k + 5 * i, k + 5 * i + 5, k + 5 * table[at])) break;   // (kept: the first)
+                    }
+                }
+                for (size_t j = 0; j < m; ++j) {
+                    f[j] = false;
+                    r[j] = 0;
+                    if (n == 0) continue;
+                    for (size_t at = hash(q + 5 * j) & (size - 1); table[at] >= 0; at = (at + 1) & (size - 1)) {
+                        if (std::equal(q + 5 * j, q + 5 * j + 5, k + 5 * table[at])) {
+                            f[j] = true;
+                            r[j] = static_cast<py::ssize_t>(table[at]);
+                            break;
+                        }
+                    }
+                }
+            }
+            return py::make_tuple(found, row);
+        },
+        py::arg("known"), py::arg("keys"),
+        "(found, row) of each row of `keys` (int64 rows of 5: contact keys) among the rows of `known`:\n"
+        "whether it is one of them, matched whole, and the first row holding it (0 where none does).");
 
     py::register_exception<std::domain_error>(m, "NonFiniteError", PyExc_ValueError);
 }

@@ -188,8 +188,14 @@ class StepProblem:
         for the rows. The closed loop makes one a step; the loop's settings are held where it
         starts."""
         c = {k: contacts[k] for k in CONTACT_KEYS}
-        both = _rows(bodies["index"], np.concatenate((contacts["body_a"], contacts["body_b"])))
-        c["row_a"], c["row_b"] = both[:len(both) // 2], both[len(both) // 2:]
+        index = bodies["index"]
+        if len(index) and index[0] == 0 and index[-1] == len(index) - 1:
+            # (a world's bodies are in scene order, each once: from 0 to n - 1 they are every
+            # index, and a body's row is its index)
+            c["row_a"], c["row_b"] = contacts["body_a"].astype(np.int32), contacts["body_b"].astype(np.int32)
+        else:
+            both = _rows(index, np.concatenate((contacts["body_a"], contacts["body_b"])))
+            c["row_a"], c["row_b"] = both[:len(both) // 2], both[len(both) // 2:]
         keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
         return cls(bodies={k: bodies[k] for k in BODY_KEYS}, contacts=c, dt=float(np.float32(dt)),
                    gravity=(float(gravity[0]), float(gravity[1])), block_solve=bool(block_solve),
