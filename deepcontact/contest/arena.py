@@ -75,8 +75,8 @@ class Arena:
     def put(self, seq, index, arrays, version, forms):
         """Writes a step: its arrays (natively, in one call: arena_put, each at a multiple of
         ALIGN), then its header (index: the ctx's and its problem's), the sequence number last.
-        forms: each array's (dtype's number, byte order and size, trailing shape); False, and the
-        header left as it was, where an array is not of its form."""
+        forms: _forms_of the schema's arrays; False, and the header left as it was, where an
+        array is not of its form."""
         used = arena_put(self.map, HEAD.size, arrays, forms)
         if used < 0:
             self._make(-2 * used)
@@ -120,24 +120,28 @@ class Schema:
 
 
 def _tables(ctx):
-    """[(slot, name, array)] of a ctx's arrays, in a fixed order; [(name, value)] of its scalars."""
-    out = [("bodies", k, v) for k, v in ctx.bodies.items()]
-    out += [("contacts", k, v) for k, v in ctx.contacts.items()]
+    """(names, arrays, scalars) of a ctx: its tables' names, ((slot, (name, ...)), ...), in a
+    fixed order; their arrays, in that order; ((name, value), ...) of its scalars."""
     p = ctx.problem
-    out += [("problem.bodies", k, v) for k, v in p.bodies.items()]
-    out += [("problem.contacts", k, v) for k, v in p.contacts.items()]
-    out += [("problem", k, getattr(p, k)) for k in PROBLEM_ARRAYS if getattr(p, k) is not None]
-    out.append(("ctx", "persisted", ctx.persisted))
-    out += [("previous", k, v) for k, v in zip(("keys", "normal", "tangent"), _previous_arrays(ctx.previous))]
+    tables = [("bodies", ctx.bodies), ("contacts", ctx.contacts), ("problem.bodies", p.bodies),
+              ("problem.contacts", p.contacts),
+              ("problem", {k: getattr(p, k) for k in PROBLEM_ARRAYS if getattr(p, k) is not None}),
+              ("ctx", {"persisted": ctx.persisted}),
+              ("previous", dict(zip(("keys", "normal", "tangent"), _previous_arrays(ctx.previous))))]
     if ctx.reference is not None:
         r = ctx.reference
         arrays = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)
                   if isinstance(getattr(r, f.name), np.ndarray)}
         rest = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name not in arrays}
-        out += [("reference", k, v) for k, v in arrays.items()]
-        out.append(("reference", "", np.frombuffer(pickle.dumps(rest, protocol=pickle.HIGHEST_PROTOCOL), np.uint8)))
+        arrays[""] = np.frombuffer(pickle.dumps(rest, protocol=pickle.HIGHEST_PROTOCOL), np.uint8)
+        tables.append(("reference", arrays))
     scalars = (tuple((k, getattr(p, k)) for k in PROBLEM_SCALARS), tuple((k, getattr(ctx, k)) for k in CONTEXT_SCALARS))
-    return out, scalars
+    return tuple((slot, tuple(t)) for slot, t in tables), [a for _, t in tables for a in t.values()], scalars
+
+
+def _items(names, arrays):
+    """[(slot, name, array)] of _tables' names and arrays."""
+    return [(slot, name, a) for (slot, name), a in zip(((s, n) for s, ns in names for n in ns), arrays)]
 
 
 def _previous_arrays(previous):
@@ -176,6 +180,24 @@ def _columns(items, oracle):
     return tuple(entries), {k: tuple(v) for k, v in columns.items()}, arrays
 
 
+def _forms_of(arrays):
+    """arena_put's forms of `arrays`: an int64 row each (its dtype's number, byte order, item
+    size, its count of trailing dimensions and each of them, padded with -1)."""
+    rows = [(a.dtype.num, ord(a.dtype.byteorder), a.dtype.itemsize, a.ndim - 1, *a.shape[1:]) for a in arrays]
+    out = np.full((len(rows), max([4, *map(len, rows)])), -1, np.int64)
+    for i, row in enumerate(rows):
+        out[i, :len(row)] = row
+    return out
+
+
+def _getter(positions):
+    """A function of a sequence: the tuple of its entries at `positions` (operator.itemgetter,
+    which gives a bare entry for one position and fails on none)."""
+    if len(positions) > 1:
+        return operator.itemgetter(*positions)
+    return lambda seq: tuple(seq[k] for k in positions)
+
+
 class StepChannel:
     """One variant's steps in shared memory, written by the judge (write), each request sent to
     its contestant and the null contestant alike (client.Contestant.call_step)."""
@@ -193,14 +215,15 @@ class StepChannel:
 
     def write(self, ctx):
         """Writes a step's ctx (as its start may see it: replay.visible_context); its request's bytes."""
-        items, scalars = _tables(ctx)
-        arrays = self._as_before(items, scalars)
+        names, arrays, scalars = _tables(ctx)
+        held = self._as_before(names, arrays, scalars)
         self.seq += 1
-        if arrays is None or not self._put(ctx, arrays):
+        if held is None or not self._put(ctx, held):
             # (the first step, or one whose tables changed: a schema of its own)
-            entries, columns, arrays = _columns(items, self.oracle)
-            self._new_schema(Schema(entries, columns, scalars), items, arrays)
-            if not self._put(ctx, arrays):
+            items = _items(names, arrays)
+            entries, columns, held = _columns(items, self.oracle)
+            self._new_schema(Schema(entries, columns, scalars), names, arrays, held)
+            if not self._put(ctx, held):
                 raise ValueError("a step's column is not of the form its own schema gives it")
         return REQUEST.pack(STEP, self.ident, self.seq)
 
@@ -209,30 +232,28 @@ class StepChannel:
         return all([arena.put(self.seq, index, arrays[kind], self.version, self.forms[kind])
                     for kind, arena in self.arenas.items()])
 
-    def _as_before(self, items, scalars):
-        """The arrays to write where the step's tables are laid out as the last schema's (the same
-        entries, the same arrays shared among them), else None; each column's dtype and trailing
-        shape are held to the schema's as it is written (Arena.put)."""
-        if self.schema is None or scalars != self.schema.scalars or len(items) != len(self.names):
+    def _as_before(self, names, arrays, scalars):
+        """The arrays to write, by arena, where the step's tables are laid out as the last
+        schema's (the same names, the same arrays shared among them), else None; each column's
+        dtype and trailing shape are held to the schema's as it is written (Arena.put)."""
+        if self.schema is None or names != self.names or scalars != self.schema.scalars:
             return None
-        ids = [id(a) for _, _, a in items]
-        # (the same arrays shared: each item's array that of the first item sharing it before, and
-        # as many arrays as before)
-        if self.firsts(ids) != tuple(ids) or len(set(ids)) != self.distinct or \
-                [(s, n) for s, n, _ in items] != self.names:
+        ids = tuple(map(id, arrays))
+        # (the same arrays shared: each entry's array that of the first entry sharing it before,
+        # and as many arrays as before)
+        if self.firsts(ids) != ids or len(set(ids)) != self.distinct:
             return None
-        return {kind: [items[k][2] for k in at] for kind, at in self.positions.items()}
+        return {kind: list(take(arrays)) for kind, take in self.takes.items()}
 
-    def _new_schema(self, schema, items, arrays):
+    def _new_schema(self, schema, names, arrays, held):
         self.schema, self.version = schema, self.version + 1
         first = {}
-        pattern = [first.setdefault(id(a), k) for k, (_, _, a) in enumerate(items)]
-        self.firsts = operator.itemgetter(*pattern) if len(pattern) > 1 else lambda ids: tuple(ids[k] for k in pattern)
+        pattern = [first.setdefault(id(a), k) for k, a in enumerate(arrays)]
+        self.firsts = _getter(pattern)
         self.distinct = len(first)
-        self.names = [(s, n) for s, n, _ in items]
-        self.positions = {kind: [first[id(a)] for a in v] for kind, v in arrays.items()}
-        self.forms = {kind: [(a.dtype.num, a.dtype.byteorder, a.dtype.itemsize, a.shape[1:]) for a in v]
-                      for kind, v in arrays.items()}
+        self.names = names
+        self.takes = {kind: _getter([first[id(a)] for a in v]) for kind, v in held.items()}
+        self.forms = {kind: _forms_of(v) for kind, v in held.items()}
         self.schema_bytes = pickle.dumps({"op": "arena", "channel": self.ident, "version": self.version,
                                           "schema": dataclasses.asdict(schema)}, protocol=pickle.HIGHEST_PROTOCOL)
 

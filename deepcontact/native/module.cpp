@@ -483,32 +483,37 @@ PYBIND11_MODULE(_box2d, m) {
 
     m.def(
         "arena_put",
-        [](py::buffer arena, size_t head, const py::list& arrays, const py::list& forms) -> py::ssize_t {
+        [](py::buffer arena, size_t head, const py::list& arrays,
+           py::array_t<int64_t, py::array::c_style> forms) -> py::ssize_t {
             // (the closed loop's step into its shared arena, laid out as contest/arena.py's
             // _layout: the row counts after the header, each column at a multiple of 64 bytes,
             // zero padding between; what a contestant reads back, with no Python a column)
             constexpr size_t align = 64;
             const py::buffer_info out = arena.request(true);
             const size_t n = arrays.size();
-            if (forms.size() != n) throw py::value_error("arena_put: one form a column");
+            if (forms.ndim() != 2 || static_cast<size_t>(forms.shape(0)) != n || forms.shape(1) < 4)
+                throw py::value_error("arena_put: one form a column (dtype number, byte order, item size, trailing shape)");
+            const size_t width = static_cast<size_t>(forms.shape(1));
+            const int64_t* form_rows = forms.data();
             std::vector<py::array> columns;
             columns.reserve(n);
             size_t used = (head + 4 * n + align - 1) / align * align;
             for (size_t i = 0; i < n; ++i) {
-                // each column as the schema holds it (its dtype's number, byte order and size, its
-                // trailing shape), one-dimensional or more; else 0: the caller makes a new schema
+                // each column as the schema holds it, one-dimensional or more; else 0: the
+                // caller makes a new schema
                 if (!py::isinstance<py::array>(arrays[i])) return 0;
                 py::array a = py::reinterpret_borrow<py::array>(arrays[i]);
                 if (!(a.flags() & py::array::c_style)) a = py::array::ensure(a, py::array::c_style);   // (a copy)
-                const py::tuple form = forms[i].cast<py::tuple>();
+                // (a form: dtype number, byte order (its character), item size, trailing
+                // dimensions, each trailing extent; padded with -1)
+                const int64_t* form = form_rows + i * width;
                 const py::dtype dtype = a.dtype();
-                const py::tuple trailing = form[3].cast<py::tuple>();
-                if (a.ndim() < 1 || dtype.num() != form[0].cast<int>() || dtype.byteorder() != form[1].cast<char>() ||
-                    dtype.itemsize() != form[2].cast<py::ssize_t>() ||
-                    static_cast<size_t>(a.ndim()) != trailing.size() + 1)
+                const int64_t trailing = form[3];
+                if (trailing < 0 || static_cast<size_t>(4 + trailing) > width || a.ndim() != trailing + 1 ||
+                    dtype.num() != form[0] || dtype.byteorder() != static_cast<char>(form[1]) || dtype.itemsize() != form[2])
                     return 0;
-                for (size_t d = 0; d < trailing.size(); ++d)
-                    if (a.shape(static_cast<py::ssize_t>(d + 1)) != trailing[d].cast<py::ssize_t>()) return 0;
+                for (int64_t d = 0; d < trailing; ++d)
+                    if (a.shape(static_cast<py::ssize_t>(d + 1)) != form[4 + d]) return 0;
                 if (static_cast<uint64_t>(a.shape(0)) > 0xFFFFFFFFu) return 0;
                 used += (static_cast<size_t>(a.nbytes()) + align - 1) / align * align;
                 columns.push_back(std::move(a));
@@ -530,9 +535,10 @@ PYBIND11_MODULE(_box2d, m) {
         py::arg("arena"), py::arg("head"), py::arg("arrays"), py::arg("forms"),
         "Writes the columns `arrays` into `arena` (a writable buffer) after a header of `head` bytes:\n"
         "each one's row count (uint32), then each at a multiple of 64 bytes, zero-padded; returns the\n"
-        "bytes used, 0 where a column is not of its form ((its dtype's number, byte order and size,\n"
-        "its trailing shape)) and nothing was written, or minus the bytes needed where the arena is too\n"
-        "small. A column not contiguous is copied first."
+        "bytes used, 0 where a column is not of its form and nothing was written, or minus the bytes\n"
+        "needed where the arena is too small. forms: int64 rows, one a column: its dtype's number, byte\n"
+        "order (the character's code), item size, the count of its trailing dimensions and each of\n"
+        "them (padded). A column not contiguous is copied first."
         );
 
     m.def(
