@@ -228,6 +228,23 @@ def test_a_step_answer_read_without_the_parser_is_what_the_parser_reads(head, mo
     monkeypatch.setattr(wire, "_STEP_ANSWER", __import__("re").compile(b"(?!)"))   # (every header parsed)
     assert read() == fast
 
+
+@pytest.mark.parametrize("header, arrays", [
+    ({"seconds": {}, "seq": 7}, {"normal": np.arange(3.0), "tangent": -np.arange(3.0)}),
+    ({"seconds": {}, "seq": 0}, {"normal": np.zeros(0), "tangent": np.zeros(0)}),
+    ({"seconds": {}, "seq": 2 ** 62}, {"normal": np.ones(2, np.float32), "tangent": [0.5, 1]}),
+    ({"seconds": {"net": 0.25}, "seq": 7}, {"normal": np.ones(1), "tangent": np.ones(1)}),
+    ({"seq": 7, "seconds": {}}, {"normal": np.ones(1), "tangent": np.ones(1)}),
+    ({"seconds": {}, "seq": True}, {"normal": np.ones(1), "tangent": np.ones(1)}),
+    ({"seconds": {}, "seq": 7}, {"tangent": np.ones(1), "normal": np.ones(1)}),
+])
+def test_a_step_answer_packed_without_json_is_the_bytes_json_writes(header, arrays):
+    import json
+    import struct
+    columns = {k: np.ascontiguousarray(v, np.float64) for k, v in arrays.items()}
+    head = json.dumps(dict(header, arrays=[[k, int(v.size)] for k, v in columns.items()])).encode()
+    assert pack(header, arrays) == struct.pack("<I", len(head)) + head + b"".join(v.tobytes() for v in columns.values())
+
 PROBE = textwrap.dedent('''
     import ctypes, gc, mmap
     import numpy as np

@@ -25,7 +25,7 @@ import struct
 
 import numpy as np
 
-from .._box2d import arena_put, arena_views
+from .._box2d import arena_put, arena_tables, arena_views
 
 STEP = b"S"           # a step's request begins so (a pickled request begins b"\x80")
 FDS = b"F"            # the byte the descriptors come with
@@ -290,6 +290,7 @@ class Mapped:
             state = self.channels.setdefault(message["channel"], {"maps": {}, "seq": 0})
             state["schema"], state["version"] = Schema(**message["schema"]), message["version"]
             state["forms"] = {kind: _forms(columns) for kind, columns in state["schema"].columns.items()}
+            state["plan"] = _plan(state["schema"])
             for kind, fd in zip(("plain", "oracle"), fds):
                 old = state["maps"].pop(kind, None)
                 if old is not None:
@@ -311,7 +312,7 @@ class Mapped:
         for kind, mm in state["maps"].items():
             columns[kind] = _copied(mm, state["forms"][kind], seq, state["version"])
         state["seq"] = seq
-        return seq, _context(schema, columns, *_index(state["maps"]["plain"]))
+        return seq, _context(state["plan"], schema, columns, *_index(state["maps"]["plain"]))
 
 
 def _index(mm):
@@ -339,16 +340,43 @@ def _copied(mm, forms, seq, version):
         raise StaleStep(f"the arena of sequence number {seq} holds columns past the bytes it uses") from None
 
 
-def _context(schema, columns, index, problem_index):
-    """The StepContext the arrays make, as the judge's visible ctx held them."""
-    from ..solver.pgs import Solution
-    from ..solver.problem import StepProblem
-    from ..warmstart.starts import StepContext
-    from .keyed import KeyedImpulses
-    tables = {s: {} for s in ("bodies", "contacts", "problem.bodies", "problem.contacts", "problem", "ctx", "previous",
-                              "reference")}
+SLOTS = ("bodies", "contacts", "problem.bodies", "problem.contacts", "problem", "ctx", "previous", "reference")
+
+
+def _plan(schema):
+    """[(names, positions)] of a schema, one a slot (SLOTS): each table's names in the order of
+    its entries and the position of each one's column among the plain arena's columns followed
+    by the oracle's (arena_tables)."""
+    plain = len(schema.columns.get("plain", ()))
+    slots = {slot: ([], []) for slot in SLOTS}
     for slot, name, kind, column in schema.entries:
-        tables[slot][name] = columns[kind][column]
+        names, at = slots[slot]
+        names.append(name)
+        at.append(column if kind == "plain" else plain + column)
+    return [(tuple(names), tuple(at)) for names, at in slots.values()]
+
+
+def _kinds():
+    """(Solution, StepProblem, StepContext, KeyedImpulses), imported on a contestant's first step
+    (not with this module: the judge's side needs none of them), then held: an import in the
+    function would look each up again, a few microseconds a step."""
+    global _KINDS
+    if _KINDS is None:
+        from ..solver.pgs import Solution
+        from ..solver.problem import StepProblem
+        from ..warmstart.starts import StepContext
+        from .keyed import KeyedImpulses
+        _KINDS = (Solution, StepProblem, StepContext, KeyedImpulses)
+    return _KINDS
+
+
+_KINDS = None
+
+
+def _context(plan, schema, columns, index, problem_index):
+    """The StepContext the arrays make, as the judge's visible ctx held them."""
+    Solution, StepProblem, StepContext, KeyedImpulses = _kinds()
+    tables = dict(zip(SLOTS, arena_tables(columns["plain"] + columns.get("oracle", []), plan)))
     problem_scalars, ctx_scalars = (dict(s) for s in schema.scalars)
     problem = StepProblem(bodies=tables["problem.bodies"], contacts=tables["problem.contacts"], index=problem_index,
                           **problem_scalars, **{k: tables["problem"].get(k) for k in PROBLEM_ARRAYS})

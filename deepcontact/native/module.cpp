@@ -636,5 +636,36 @@ PYBIND11_MODULE(_box2d, m) {
         "(found, row) of each row of `keys` (int64 rows of 5: contact keys) among the rows of `known`:\n"
         "whether it is one of them, matched whole, and the first row holding it (0 where none does).");
 
+    m.def(
+        "arena_tables",
+        [](const py::list& columns, const py::list& plan) {
+            // (a contestant's ctx tables from its copy's views: each (names, positions) of the plan
+            // a dict, its names in order, each name's column the one at its position; through
+            // CPython's own calls, 77 entries a step)
+            const Py_ssize_t n = PyList_GET_SIZE(columns.ptr());
+            py::list out(plan.size());
+            for (size_t t = 0; t < plan.size(); ++t) {
+                PyObject* table = PyList_GET_ITEM(plan.ptr(), static_cast<Py_ssize_t>(t));
+                if (!PyTuple_Check(table) || PyTuple_GET_SIZE(table) != 2) throw py::type_error("arena_tables: a plan of pairs");
+                PyObject* names = PyTuple_GET_ITEM(table, 0);
+                PyObject* at = PyTuple_GET_ITEM(table, 1);
+                if (!PyTuple_Check(names) || !PyTuple_Check(at) || PyTuple_GET_SIZE(names) != PyTuple_GET_SIZE(at))
+                    throw py::value_error("arena_tables: a position a name");
+                py::dict d;
+                for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(names); ++i) {
+                    const Py_ssize_t k = PyLong_AsSsize_t(PyTuple_GET_ITEM(at, i));
+                    if (k == -1 && PyErr_Occurred()) throw py::error_already_set();
+                    if (k < 0 || k >= n) throw py::value_error("arena_tables: no such column");
+                    if (PyDict_SetItem(d.ptr(), PyTuple_GET_ITEM(names, i), PyList_GET_ITEM(columns.ptr(), k)) != 0)
+                        throw py::error_already_set();
+                }
+                out[t] = std::move(d);
+            }
+            return out;
+        },
+        py::arg("columns"), py::arg("plan"),
+        "One dict a table of `plan` ((names, positions) each): each name's value the column of\n"
+        "`columns` at its position, in the names' order.");
+
     py::register_exception<std::domain_error>(m, "NonFiniteError", PyExc_ValueError);
 }
