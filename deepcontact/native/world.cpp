@@ -8,7 +8,6 @@
 #include <mutex>
 #include <stdexcept>
 #include <string>
-#include <unordered_set>
 
 // Box2D 2.4.1 defines this in b2_contact_solver.cpp without declaring it in a public header.
 extern B2_API bool g_blockSolve;
@@ -28,6 +27,8 @@ void push2(std::vector<float>& v, const b2Vec2& p) {
     v.push_back(p.x);
     v.push_back(p.y);
 }
+
+uint32& flags(b2Contact* c) { return c->*member(ContactFlags()); }
 
 }  // namespace
 
@@ -390,7 +391,9 @@ ContactState World::gather() {
     gathered_.clear();
     gathered_.reserve(2 * static_cast<size_t>(world_->GetContactCount()));
     std::vector<char> body_seen(bodies_.size(), 0);
-    std::unordered_set<const b2Contact*> contact_seen;
+    // (a contact seen: Box2D's island flag, as b2World::Solve marks it; its Solve and the loop's
+    // island search clear every contact's before they search)
+    for (b2Contact* c = world_->GetContactList(); c; c = c->GetNext()) flags(c) &= ~kContactIslandFlag;
     std::vector<b2Body*> stack;
     std::vector<b2Transform> xf(bodies_.size());
     for (b2Body* b : bodies_)
@@ -408,10 +411,10 @@ ContactState World::gather() {
             stack.pop_back();
             for (b2ContactEdge* ce = b->GetContactList(); ce; ce = ce->next) {
                 b2Contact* c = ce->contact;
-                if (contact_seen.count(c)) continue;
+                if (flags(c) & kContactIslandFlag) continue;
                 if (!c->IsEnabled() || !c->IsTouching()) continue;
                 if (c->GetFixtureA()->IsSensor() || c->GetFixtureB()->IsSensor()) continue;
-                contact_seen.insert(c);
+                flags(c) |= kContactIslandFlag;
                 emit(s, c, island, manifold++, xf, nullptr);
                 for (int j = 0; j < c->GetManifold()->pointCount; ++j) gathered_.emplace_back(c, j);
                 any = true;
