@@ -34,8 +34,14 @@ native step's halves (pgs_pose, pgs_finish: what the closed loop takes), and the
 step in pieces (PGSStepper's native=False: posed a second time in Python and in Box2D's own Step),
 stepped in turn; each one's median CPU ms a step, and its median over the native step of the same round.
 
+--instructions N: the judge's side counted in instructions, which the machine's load does not move
+(valgrind's callgrind, its children not traced: the contestants' processes are not counted): this
+script's own process stepping builtin through the path, then the native loop, each run twice, to
+N and to 2N steps (at most the scene's); the difference over the N steps between, a step, and the
+path's over the native loop's. Takes minutes (the judge runs about 50 times slower under valgrind).
+
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
-       [--doorbell 0] [--pieces 0] [--halves 0]
+       [--doorbell 0] [--pieces 0] [--halves 0] [--instructions 0]
 """
 import cProfile
 import os
@@ -210,8 +216,9 @@ def pieces(scene, n):
     work.update({   # (the same both ways: what else the judge's side of a step does in Python)
         "both: the bodies read out of the world": world.bodies,
         "both: the contacts read out of the world": world.contacts,
-        "both: the problem posed (StepProblem.from_arrays)": lambda: StepProblem.from_arrays(
-            bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity, block_solve=scene.solver.block_solve),
+        "both: the problem posed (as the loop poses it)": lambda: StepProblem._from_world(
+            bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity, block_solve=scene.solver.block_solve,
+            velocity_iterations=8),
         "both: the ctx as the start may see it (visible_context)": lambda: ctx(None, None),
         "both: the answer packed (each contestant)": lambda: pack({"seconds": {}, "seq": 1},
                                                                   {"normal": normal, "tangent": tangent}),
@@ -254,8 +261,42 @@ def halves(scene, settings, rounds):
         print(f"{name:38s} {np.median(t) * 1e3:7.3f} {np.median(np.array(t) - native) * 1e3:7.3f}")
 
 
+def instructions(seed, count, n):
+    """{"path", "native"}: instructions a step of this process over its steps n to 2n (callgrind)."""
+    import shutil
+    valgrind = shutil.which("valgrind")
+    if valgrind is None:
+        sys.exit("--instructions needs valgrind (Debian's valgrind package)")
+    out = {}
+    for way in ("path", "native"):
+        counted = []
+        for steps in (n, 2 * n):
+            proc = subprocess.run([valgrind, "--tool=callgrind", "--callgrind-out-file=/dev/null",
+                                   os.path.realpath(sys.executable), __file__, "--judge-only", way, str(seed), str(count),
+                                   str(steps)], capture_output=True, text=True, env=dict(os.environ, PYTHONHASHSEED="0"))
+            found = [line for line in proc.stderr.splitlines() if "Collected :" in line]
+            if proc.returncode != 0 or not found:
+                sys.exit(f"callgrind failed ({way}, {steps} steps):\n{proc.stderr[-2000:]}")
+            counted.append(int(found[-1].split(":")[-1].strip()))
+        out[way] = (counted[1] - counted[0]) / n
+    return out
+
+
+def judge_only(way, seed, count, steps):
+    """The process --instructions counts: builtin through the path, or the native loop."""
+    scene = generate("pile", seed, {"count": count} if count != 100 else None)
+    if way == "path":
+        _interleaved(scene, [(variants(make_starts(["builtin"]))[0], SolveSettings(), False)], steps)
+    else:
+        run_loop(scene, None, SolveSettings(), steps, "builtin", report=False)
+
+
 def main():
-    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0, halves=0)
+    if sys.argv[1:2] == ["--judge-only"]:
+        way, seed, count, steps = sys.argv[2], *map(int, sys.argv[3:6])
+        return judge_only(way, seed, count, steps)
+    args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0, halves=0,
+                     instructions=0)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     if args.doorbell:
         for name, t in doorbells(args.doorbell).items():
@@ -272,6 +313,12 @@ def main():
     settings = SolveSettings()
     if args.halves:
         halves(scene, settings, args.halves)
+    if args.instructions:
+        n = min(args.instructions, scene.steps // 2)
+        counts = instructions(args.seed, args.count, n)
+        print(f"\nthe judge's process, instructions a step over steps {n} to {2 * n} (callgrind): through the path "
+              f"{counts['path']:,.0f}, the native loop {counts['native']:,.0f}; the path's over the native loop's "
+              f"{counts['path'] - counts['native']:,.0f}")
     reference = run_loop(scene, None, settings, steps, "builtin", report=False)
     print(f"\nthe pile of seed {args.seed}, {args.count} circles, {steps} steps, {settings.tolerance:g} tolerance")
     print("| run | native ms/step | builtin through the path | path_ms | of which builtin's charge | round trips "
