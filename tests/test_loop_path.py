@@ -374,3 +374,62 @@ def test_a_descriptor_of_the_arena_opened_again_cannot_write_it(steps):
         assert bytes(plain.map) == before
     finally:
         channel.close()
+
+
+# --- The arena's native functions held to their buffers (contest/arena.py, native/module.cpp) ---------
+
+ARENA_ABUSE = textwrap.dedent('''
+    import numpy as np
+    from deepcontact._box2d import arena_put, arena_tables, arena_views
+    from deepcontact.contest.arena import HEAD, _forms_of
+
+    def tried(name, call):
+        try:
+            call()
+            print(name, "accepted", flush=True)
+        except Exception as e:
+            print(name, type(e).__name__, flush=True)
+
+    step = [np.arange(4.0)]
+    tried("head past the arena", lambda: arena_put(bytearray(4096), 2 ** 64 - 8, step, _forms_of(step)))
+    guard = np.zeros(1 << 16, np.uint8)
+    big = [np.full(200, 7.0)]
+    tried("reversed arena", lambda: arena_put(guard[:4096][::-1], HEAD.size, big, _forms_of(big)))
+    print("beyond the reversed arena", "written" if guard[4096:].any() else "untouched")
+    huge = [np.broadcast_to(np.zeros(1), (2 ** 32 - 1, 2 ** 20))]   # (its copy: 32 PiB)
+    tried("a column no copy fits", lambda: arena_put(bytearray(1 << 20), HEAD.size, huge, _forms_of(huge)))
+    mine = [np.array([object(), object()])]
+    tried("objects written", lambda: arena_put(bytearray(4096), HEAD.size, mine, _forms_of(mine)))
+    copy = np.full(4096, 0x41, np.uint8)
+    copy[HEAD.size:HEAD.size + 4] = [2, 0, 0, 0]
+    tried("objects read", lambda: arena_views(copy, HEAD.size, [np.dtype(object)], [()]))
+    tried("head past the copy", lambda: arena_views(copy, 2 ** 64 - 4, [np.dtype("f8")], [()]))
+    tried("a shape past any size", lambda: arena_views(copy, HEAD.size, [np.dtype("u1")], [(2 ** 62, 8)]))
+
+    class Name(str):
+        def __hash__(self):   # (Python code run mid-call: the columns it reads emptied)
+            columns.clear()
+            return str.__hash__(self)
+    columns = [np.arange(3.0), np.arange(2.0)]
+    tried("a name that empties the columns", lambda: arena_tables(columns, [((Name("a"), "b"), (0, 1))]))
+''')
+
+
+def test_the_arenas_native_functions_never_touch_memory_past_their_buffers():
+    """A hostile caller's arguments to arena_put, arena_views and arena_tables: refused with an
+    exception, never a write or read outside the buffers given (run in a child process: the
+    build before this one crashed on most of them, a wild write or a pointer dereferenced)."""
+    import os
+    import subprocess
+    import sys
+    import deepcontact
+    root = os.path.dirname(os.path.dirname(deepcontact.__file__))
+    r = subprocess.run([sys.executable, "-c", ARENA_ABUSE], capture_output=True, text=True, timeout=120,
+                       env=dict(os.environ, PYTHONPATH=root), cwd=root)
+    assert r.returncode == 0, (r.returncode, r.stdout, r.stderr[-2000:])
+    said = dict(line.rsplit(" ", 1) for line in r.stdout.splitlines())
+    assert said == {"head past the arena": "ValueError", "reversed arena": "ValueError",
+                    "beyond the reversed arena": "untouched", "a column no copy fits": "MemoryError",
+                    "objects written": "ValueError", "objects read": "ValueError",
+                    "head past the copy": "ValueError", "a shape past any size": "ValueError",
+                    "a name that empties the columns": "TypeError"}, said

@@ -225,6 +225,172 @@ void require(const py::array& a, size_t n, size_t width, const char* name) {
                                    (width > 1 ? ", " + std::to_string(width) : std::string(",")) + ")");
 }
 
+
+// --- The closed loop's shared arena (contest/arena.py): its step written, read back, made tables --
+
+constexpr size_t kArenaAlign = 64;
+
+size_t arena_aligned(size_t n) { return (n + kArenaAlign - 1) / kArenaAlign * kArenaAlign; }
+
+// The bytes of a buffer that is one C-contiguous block (a mapping, a bytearray); ValueError for
+// any other (a reversed or strided view: bytes written from its first element on would land
+// in memory it does not hold).
+size_t contiguous_bytes(const py::buffer_info& b) {
+    py::ssize_t step = b.itemsize;
+    for (py::ssize_t d = b.ndim - 1; d >= 0; --d) {
+        if (b.shape[static_cast<size_t>(d)] > 1 && b.strides[static_cast<size_t>(d)] != step)
+            throw py::value_error("arena_put: the arena must be one contiguous block of bytes");
+        step *= b.shape[static_cast<size_t>(d)];
+    }
+    return static_cast<size_t>(b.size) * static_cast<size_t>(b.itemsize);
+}
+
+// A column's dtype held to numbers (bool, integers, floats, complex): their dtype number, byte
+// order and item size say which they are, and their bytes mean the same in another process (an
+// object column's are pointers into the judge; made an array there, they are dereferenced).
+void numbers_only(const py::dtype& dtype, const char* who, size_t column) {
+    const char kind = dtype.kind();
+    if (kind == '\0' || std::strchr("biufc", kind) == nullptr)
+        throw py::value_error(std::string(who) + ": column " + std::to_string(column) + " is of kind '" +
+                              std::string(1, kind) + "'; an arena holds numbers only");
+}
+
+// Whether an array is of its arena form (a row of arena_put's forms, `width` long: dtype number,
+// byte order, item size, trailing dimensions, each trailing extent) with rows a uint32 holds.
+bool of_form(const py::array& a, const int64_t* form, size_t width) {
+    const py::dtype dtype = a.dtype();
+    const int64_t trailing = form[3];
+    if (trailing < 0 || static_cast<size_t>(4 + trailing) > width || a.ndim() != trailing + 1 ||
+        dtype.num() != form[0] || dtype.byteorder() != static_cast<char>(form[1]) || dtype.itemsize() != form[2])
+        return false;
+    for (int64_t d = 0; d < trailing; ++d)
+        if (a.shape(static_cast<py::ssize_t>(d + 1)) != form[4 + d]) return false;
+    return static_cast<uint64_t>(a.shape(0)) <= 0xFFFFFFFFu;
+}
+
+// The column arena_put writes of `item`, C-contiguous (copied where it is not, after its form is
+// checked: a broadcast view's copy can be larger than memory, and says so); None where it is not
+// an array of its form.
+py::object formed_column(const py::handle& item, const int64_t* form, size_t width, size_t column) {
+    if (!py::isinstance<py::array>(item)) return py::none();
+    py::array a = py::reinterpret_borrow<py::array>(item);
+    numbers_only(a.dtype(), "arena_put", column);
+    if (!of_form(a, form, width)) return py::none();
+    if (a.flags() & py::array::c_style) return std::move(a);
+    py::object copied = a.attr("copy")("C");   // (its MemoryError raised, as ensure would not)
+    if (!py::isinstance<py::array>(copied) || !(py::reinterpret_borrow<py::array>(copied).flags() & py::array::c_style))
+        return py::none();
+    return copied;
+}
+
+// The columns after a header of `head` bytes: each one's row count ("<I"), then each at a
+// multiple of kArenaAlign, zero-padded (the arena holds their bytes: arena_put counted them).
+void write_columns(unsigned char* base, size_t head, const std::vector<py::array>& columns) {
+    size_t at = arena_aligned(head + 4 * columns.size());
+    for (size_t i = 0; i < columns.size(); ++i) {
+        const uint32_t rows = static_cast<uint32_t>(columns[i].shape(0));
+        for (int k = 0; k < 4; ++k) base[head + 4 * i + k] = static_cast<unsigned char>(rows >> (8 * k));
+        const size_t bytes = static_cast<size_t>(columns[i].nbytes());
+        const size_t padded = arena_aligned(bytes);
+        if (bytes) std::memcpy(base + at, columns[i].data(), bytes);
+        std::memset(base + at + bytes, 0, padded - bytes);
+        at += padded;
+    }
+}
+
+// (the closed loop's step into its shared arena, laid out as contest/arena.py reads it back:
+// the row counts after the header, each column at a multiple of 64 bytes, zero padding between)
+py::ssize_t arena_put(const py::buffer& arena, size_t head, const py::list& arrays,
+                      const py::array_t<int64_t, py::array::c_style>& forms) {
+    const py::buffer_info out = arena.request(true);
+    const size_t size = contiguous_bytes(out), n = arrays.size();
+    if (forms.ndim() != 2 || static_cast<size_t>(forms.shape(0)) != n || forms.shape(1) < 4)
+        throw py::value_error("arena_put: one form a column (dtype number, byte order, item size, trailing shape)");
+    if (head > size) throw py::value_error("arena_put: a header longer than the arena");
+    const size_t width = static_cast<size_t>(forms.shape(1));
+    std::vector<py::array> columns;
+    columns.reserve(n);
+    size_t used = arena_aligned(head + 4 * n);
+    for (size_t i = 0; i < n; ++i) {
+        // (a column not of its form: 0, nothing written, and the caller makes a new schema)
+        py::object a = formed_column(arrays[i], forms.data() + i * width, width, i);
+        if (a.is_none()) return 0;
+        columns.push_back(py::reinterpret_steal<py::array>(a.release()));
+        used += arena_aligned(static_cast<size_t>(columns.back().nbytes()));
+    }
+    if (used > size) return -static_cast<py::ssize_t>(used);
+    write_columns(static_cast<unsigned char*>(out.ptr), head, columns);
+    return static_cast<py::ssize_t>(used);
+}
+
+// The bytes of one column of `rows` rows of `dtype` and trailing `extents` (appended to `shape`);
+// ValueError where an extent is negative or the count does not fit a size_t.
+size_t column_bytes(const py::dtype& dtype, uint32_t rows, const py::tuple& extents, std::vector<py::ssize_t>& shape) {
+    size_t row = static_cast<size_t>(dtype.itemsize()), bytes = 0;
+    for (const auto e : extents) {
+        const py::ssize_t extent = e.cast<py::ssize_t>();
+        if (extent < 0 || __builtin_mul_overflow(row, static_cast<size_t>(extent), &row))
+            throw py::value_error("arena_views: a column's trailing shape holds no bytes an arena could");
+        shape.push_back(extent);
+    }
+    if (__builtin_mul_overflow(row, static_cast<size_t>(rows), &bytes))
+        throw py::value_error("arena_views: a column larger than any arena");
+    return bytes;
+}
+
+// (a contestant's copy of a step's arena, read as arena_put laid it out: one view a column,
+// each sharing the copy's memory)
+py::list arena_views(const py::array_t<uint8_t, py::array::c_style>& copy, size_t head, const py::list& dtypes,
+                     const py::list& shapes) {
+    const size_t n = dtypes.size(), size = static_cast<size_t>(copy.size());
+    if (shapes.size() != n) throw py::value_error("arena_views: one shape a column");
+    if (head > size || 4 * n > size - head) throw py::value_error("arena_views: the copy ends in its row counts");
+    const unsigned char* base = copy.data();
+    size_t at = arena_aligned(head + 4 * n);
+    py::list out(n);
+    for (size_t i = 0; i < n; ++i) {
+        uint32_t rows = 0;
+        for (int k = 0; k < 4; ++k) rows |= static_cast<uint32_t>(base[head + 4 * i + k]) << (8 * k);
+        const py::dtype dtype = dtypes[i].cast<py::dtype>();
+        numbers_only(dtype, "arena_views", i);
+        std::vector<py::ssize_t> shape{static_cast<py::ssize_t>(rows)};
+        const size_t bytes = column_bytes(dtype, rows, shapes[i].cast<py::tuple>(), shape);
+        if (at > size || bytes > size - at) throw py::value_error("arena_views: a column runs past the copy's end");
+        out[i] = py::array(dtype, shape, {}, base + at, copy);
+        at += arena_aligned(bytes);
+    }
+    return out;
+}
+
+// One table of arena_tables: `table` (names, positions), a dict of each name's column. Names are
+// exact str, so that no Python code (a __hash__, an __eq__) runs while `columns` is read here.
+py::dict arena_table(const py::list& columns, const py::handle& table) {
+    PyObject* pair = table.ptr();
+    if (!PyTuple_Check(pair) || PyTuple_GET_SIZE(pair) != 2) throw py::type_error("arena_tables: a plan of pairs");
+    PyObject* names = PyTuple_GET_ITEM(pair, 0);
+    PyObject* at = PyTuple_GET_ITEM(pair, 1);
+    if (!PyTuple_Check(names) || !PyTuple_Check(at) || PyTuple_GET_SIZE(names) != PyTuple_GET_SIZE(at))
+        throw py::value_error("arena_tables: a position a name");
+    py::dict d;
+    for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(names); ++i) {
+        PyObject* name = PyTuple_GET_ITEM(names, i);
+        if (!PyUnicode_CheckExact(name)) throw py::type_error("arena_tables: a name is a str");
+        const Py_ssize_t k = PyLong_AsSsize_t(PyTuple_GET_ITEM(at, i));
+        if (k == -1 && PyErr_Occurred()) throw py::error_already_set();
+        if (k < 0 || k >= PyList_GET_SIZE(columns.ptr())) throw py::value_error("arena_tables: no such column");
+        if (PyDict_SetItem(d.ptr(), name, PyList_GET_ITEM(columns.ptr(), k)) != 0) throw py::error_already_set();
+    }
+    return d;
+}
+
+// (a contestant's ctx tables from its copy's views: each (names, positions) of the plan a dict,
+// its names in order, each name's column the one at its position; 77 entries a step)
+py::list arena_tables(const py::list& columns, const py::list& plan) {
+    py::list out(plan.size());
+    for (size_t t = 0; t < plan.size(); ++t) out[t] = arena_table(columns, plan[t]);
+    return out;
+}
+
 }  // namespace
 
 // An enumerated field's names as a list (None for a field that is not enumerated).
@@ -481,100 +647,19 @@ PYBIND11_MODULE(_box2d, m) {
         },
         "Shortest text that reads back to the same float32, for each value.");
 
-    m.def(
-        "arena_put",
-        [](py::buffer arena, size_t head, const py::list& arrays,
-           py::array_t<int64_t, py::array::c_style> forms) -> py::ssize_t {
-            // (the closed loop's step into its shared arena, laid out as contest/arena.py's
-            // _layout: the row counts after the header, each column at a multiple of 64 bytes,
-            // zero padding between; what a contestant reads back, with no Python a column)
-            constexpr size_t align = 64;
-            const py::buffer_info out = arena.request(true);
-            const size_t n = arrays.size();
-            if (forms.ndim() != 2 || static_cast<size_t>(forms.shape(0)) != n || forms.shape(1) < 4)
-                throw py::value_error("arena_put: one form a column (dtype number, byte order, item size, trailing shape)");
-            const size_t width = static_cast<size_t>(forms.shape(1));
-            const int64_t* form_rows = forms.data();
-            std::vector<py::array> columns;
-            columns.reserve(n);
-            size_t used = (head + 4 * n + align - 1) / align * align;
-            for (size_t i = 0; i < n; ++i) {
-                // each column as the schema holds it, one-dimensional or more; else 0: the
-                // caller makes a new schema
-                if (!py::isinstance<py::array>(arrays[i])) return 0;
-                py::array a = py::reinterpret_borrow<py::array>(arrays[i]);
-                if (!(a.flags() & py::array::c_style)) a = py::array::ensure(a, py::array::c_style);   // (a copy)
-                // (a form: dtype number, byte order (its character), item size, trailing
-                // dimensions, each trailing extent; padded with -1)
-                const int64_t* form = form_rows + i * width;
-                const py::dtype dtype = a.dtype();
-                const int64_t trailing = form[3];
-                if (trailing < 0 || static_cast<size_t>(4 + trailing) > width || a.ndim() != trailing + 1 ||
-                    dtype.num() != form[0] || dtype.byteorder() != static_cast<char>(form[1]) || dtype.itemsize() != form[2])
-                    return 0;
-                for (int64_t d = 0; d < trailing; ++d)
-                    if (a.shape(static_cast<py::ssize_t>(d + 1)) != form[4 + d]) return 0;
-                if (static_cast<uint64_t>(a.shape(0)) > 0xFFFFFFFFu) return 0;
-                used += (static_cast<size_t>(a.nbytes()) + align - 1) / align * align;
-                columns.push_back(std::move(a));
-            }
-            if (used > static_cast<size_t>(out.size)) return -static_cast<py::ssize_t>(used);
-            auto* base = static_cast<unsigned char*>(out.ptr);
-            size_t at = (head + 4 * n + align - 1) / align * align;
-            for (size_t i = 0; i < n; ++i) {
-                const uint32_t rows = static_cast<uint32_t>(columns[i].shape(0));
-                for (int k = 0; k < 4; ++k) base[head + 4 * i + k] = static_cast<unsigned char>(rows >> (8 * k));   // ("<I")
-                const size_t bytes = static_cast<size_t>(columns[i].nbytes());
-                const size_t padded = (bytes + align - 1) / align * align;
-                if (bytes) std::memcpy(base + at, columns[i].data(), bytes);
-                std::memset(base + at + bytes, 0, padded - bytes);
-                at += padded;
-            }
-            return static_cast<py::ssize_t>(used);
-        },
-        py::arg("arena"), py::arg("head"), py::arg("arrays"), py::arg("forms"),
-        "Writes the columns `arrays` into `arena` (a writable buffer) after a header of `head` bytes:\n"
-        "each one's row count (uint32), then each at a multiple of 64 bytes, zero-padded; returns the\n"
-        "bytes used, 0 where a column is not of its form and nothing was written, or minus the bytes\n"
-        "needed where the arena is too small. forms: int64 rows, one a column: its dtype's number, byte\n"
-        "order (the character's code), item size, the count of its trailing dimensions and each of\n"
-        "them (padded). A column not contiguous is copied first."
-        );
+    m.def("arena_put", &arena_put, py::arg("arena"), py::arg("head"), py::arg("arrays"), py::arg("forms"),
+          "Writes the columns `arrays` into `arena` (a writable buffer, one contiguous block) after a header\n"
+          "of `head` bytes: each one's row count (uint32), then each at a multiple of 64 bytes, zero-padded;\n"
+          "returns the bytes used, 0 where a column is not of its form and nothing was written, or minus\n"
+          "the bytes needed where the arena is too small. forms: int64 rows, one a column: its dtype's\n"
+          "number, byte order (the character's code), item size, the count of its trailing dimensions and\n"
+          "each of them (padded). A column not contiguous is copied first; ValueError for a column that is\n"
+          "not numbers (objects, records, text, times) or an arena that is not contiguous.");
 
-    m.def(
-        "arena_views",
-        [](py::array_t<uint8_t, py::array::c_style> copy, size_t head, const py::list& dtypes,
-           const py::list& shapes) {
-            // (a contestant's copy of a step's arena, read as arena_put laid it out: one view a
-            // column, each sharing the copy's memory)
-            constexpr size_t align = 64;
-            const size_t n = dtypes.size(), size = static_cast<size_t>(copy.size());
-            if (shapes.size() != n) throw py::value_error("arena_views: one shape a column");
-            if (head + 4 * n > size) throw py::value_error("arena_views: the copy ends in its row counts");
-            const unsigned char* base = copy.data();
-            size_t at = (head + 4 * n + align - 1) / align * align;
-            py::list out(n);
-            for (size_t i = 0; i < n; ++i) {
-                uint32_t rows = 0;
-                for (int k = 0; k < 4; ++k) rows |= static_cast<uint32_t>(base[head + 4 * i + k]) << (8 * k);
-                const py::dtype dtype = dtypes[i].cast<py::dtype>();
-                const py::tuple trailing = shapes[i].cast<py::tuple>();
-                std::vector<py::ssize_t> shape{static_cast<py::ssize_t>(rows)};
-                size_t bytes = static_cast<size_t>(dtype.itemsize()) * rows;
-                for (const auto d : trailing) {
-                    shape.push_back(d.cast<py::ssize_t>());
-                    bytes *= static_cast<size_t>(shape.back());
-                }
-                if (at > size || bytes > size - at) throw py::value_error("arena_views: a column runs past the copy's end");
-                out[i] = py::array(dtype, shape, {}, base + at, copy);
-                at += (bytes + align - 1) / align * align;
-            }
-            return out;
-        },
-        py::arg("copy"), py::arg("head"), py::arg("dtypes"), py::arg("shapes"),
-        "The columns of a copy of an arena (a contiguous uint8 array) that arena_put wrote: one array a\n"
-        "column of `dtypes` and trailing `shapes`, its rows as written, each a view of the copy.\n"
-        "ValueError where a column would run past the copy's end.");
+    m.def("arena_views", &arena_views, py::arg("copy"), py::arg("head"), py::arg("dtypes"), py::arg("shapes"),
+          "The columns of a copy of an arena (a contiguous uint8 array) that arena_put wrote: one array a\n"
+          "column of `dtypes` (numbers) and trailing `shapes`, its rows as written, each a view of the\n"
+          "copy. ValueError where a column would run past the copy's end or is not of numbers.");
 
     m.def(
         "key_rows",
@@ -636,36 +721,9 @@ PYBIND11_MODULE(_box2d, m) {
         "(found, row) of each row of `keys` (int64 rows of 5: contact keys) among the rows of `known`:\n"
         "whether it is one of them, matched whole, and the first row holding it (0 where none does).");
 
-    m.def(
-        "arena_tables",
-        [](const py::list& columns, const py::list& plan) {
-            // (a contestant's ctx tables from its copy's views: each (names, positions) of the plan
-            // a dict, its names in order, each name's column the one at its position; through
-            // CPython's own calls, 77 entries a step)
-            const Py_ssize_t n = PyList_GET_SIZE(columns.ptr());
-            py::list out(plan.size());
-            for (size_t t = 0; t < plan.size(); ++t) {
-                PyObject* table = PyList_GET_ITEM(plan.ptr(), static_cast<Py_ssize_t>(t));
-                if (!PyTuple_Check(table) || PyTuple_GET_SIZE(table) != 2) throw py::type_error("arena_tables: a plan of pairs");
-                PyObject* names = PyTuple_GET_ITEM(table, 0);
-                PyObject* at = PyTuple_GET_ITEM(table, 1);
-                if (!PyTuple_Check(names) || !PyTuple_Check(at) || PyTuple_GET_SIZE(names) != PyTuple_GET_SIZE(at))
-                    throw py::value_error("arena_tables: a position a name");
-                py::dict d;
-                for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(names); ++i) {
-                    const Py_ssize_t k = PyLong_AsSsize_t(PyTuple_GET_ITEM(at, i));
-                    if (k == -1 && PyErr_Occurred()) throw py::error_already_set();
-                    if (k < 0 || k >= n) throw py::value_error("arena_tables: no such column");
-                    if (PyDict_SetItem(d.ptr(), PyTuple_GET_ITEM(names, i), PyList_GET_ITEM(columns.ptr(), k)) != 0)
-                        throw py::error_already_set();
-                }
-                out[t] = std::move(d);
-            }
-            return out;
-        },
-        py::arg("columns"), py::arg("plan"),
-        "One dict a table of `plan` ((names, positions) each): each name's value the column of\n"
-        "`columns` at its position, in the names' order.");
+    m.def("arena_tables", &arena_tables, py::arg("columns"), py::arg("plan"),
+          "One dict a table of `plan` ((names, positions) each; names str): each name's value the column\n"
+          "of `columns` at its position, in the names' order.");
 
     py::register_exception<std::domain_error>(m, "NonFiniteError", PyExc_ValueError);
 }
