@@ -125,6 +125,41 @@ def test_the_loops_problem_is_the_one_from_arrays_poses(steps):
         same(problem, posed, "problem")
         assert problem.contacts["row_a"].dtype == np.int32 and len(problem.keys) == problem.points
 
+
+@pytest.mark.parametrize("spec, params, removed", [
+    ("pyramid", {"base": 6}, [(20, 5), (40, 21)]),   # (boxes: 2-point manifolds; a middle body, then the last)
+    ("pile", {"count": 30, "box": 16.0, "sigma": 4.0}, [(30, 30), (50, 1)]),   # (the last body first)
+])
+def test_the_loops_problem_is_the_one_from_arrays_poses_on_boxes_and_with_bodies_removed(spec, params, removed):
+    """_from_world's problem, each step through removals (rows by index only while the bodies
+    are every index from 0; found by search once one in the middle is gone), is from_arrays' on
+    the same columns, and its rows name the contacts' bodies."""
+    from deepcontact.scene.model import RemoveEvent
+    from deepcontact.solver.problem import StepProblem
+    scene = generate(spec, 0, params)
+    scene.events = [RemoveEvent(step=k, body=b) for k, b in removed]
+    seen = {"fast": 0, "searched": 0, "two points": 0}
+
+    def start_fn(bodies, contacts, problem, builtin_n, builtin_t):
+        posed = StepProblem.from_arrays(bodies, contacts, dt=scene.dt, gravity=scene.effects.gravity,
+                                        block_solve=scene.solver.block_solve,
+                                        velocity_iterations=problem.velocity_iterations)
+        posed.start_normal, posed.start_tangent = problem.start_normal, problem.start_tangent
+        same(problem, posed, "problem")
+        index = bodies["index"]
+        assert np.array_equal(index[problem.contacts["row_a"]], contacts["body_a"])
+        assert np.array_equal(index[problem.contacts["row_b"]], contacts["body_b"])
+        seen["fast" if np.array_equal(index, np.arange(len(index))) else "searched"] += 1
+        seen["two points"] += int(np.any(contacts["point_count"] == 2))
+        return builtin_n, builtin_t
+    engine = Box2D(solver=SolveSettings(), start="builtin", start_fn=start_fn)
+    world = engine.build(scene)
+    stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=start_fn, record=False)
+    for _ in stepping.steps(world, scene, stepper.step, 60):
+        pass
+    assert seen["fast"] and seen["searched"], seen
+    assert seen["two points"] or spec == "pile", seen
+
 def read_back(channel, request, mapped, receiver="reader"):
     schema, fds = channel.setup_for(receiver)
     if schema is not None:
