@@ -137,3 +137,36 @@ def test_a_world_stepped_without_recording_still_states_each_residual():
             solved += 1
             assert np.isfinite(a.solution.residual) and a.solution.residual == b.solution.residual
     assert solved > 40
+
+
+@pytest.mark.parametrize("spec, params", [("pyramid", {"base": 6}), ("pile", dict(count=30, box=16, sigma=4))])
+def test_contacts_are_box2ds_solve_order_and_reading_them_changes_no_bit(spec, params):
+    """World.contacts() (a contact seen marked by Box2D's own island flag, which it leaves set)
+    lists the points in the order Box2D's solve records them, on boxes (2-point manifolds) and
+    after a body in the middle is removed; read twice between steps, it changes no bit of the
+    trajectory nor of what the steps record."""
+    from deepcontact.simulate.build import build_world
+    scene = dc.generate(spec, 0, params)
+    worlds = [build_world(scene), build_world(scene)]   # (the second read each step)
+    for world in worlds:
+        world.find_new_contacts()   # (as Step would first: the first step's contacts touch)
+    columns = ("body_a", "body_b", "fixture_a", "fixture_b", "id_key", "point", "manifold", "island")
+    points = 0
+    for step in range(60):
+        if step == 20:
+            for world in worlds:
+                world.remove_body(5)
+        recorded = []
+        for reads, world in enumerate(worlds):
+            world.collide()
+            read = [world.contacts(), world.contacts()] if reads else []
+            recorded.append(world.step(scene.dt, scene.solver.velocity_iterations,
+                                       scene.solver.position_iterations, record=True))
+            for contacts in read:
+                for key in columns:
+                    assert np.array_equal(contacts[key], recorded[-1][1][key]), (step, key)
+            points += len(read[0]["manifold"]) if read else 0
+        for table in (0, 1):
+            for key, column in recorded[0][table].items():
+                assert np.array_equal(column, recorded[1][table][key], equal_nan=True), (step, key)
+    assert points > 100 and 5 not in worlds[1].bodies()["index"]
