@@ -264,6 +264,41 @@ def test_a_step_answer_read_without_the_parser_is_what_the_parser_reads(head, mo
     assert read() == fast
 
 
+def test_step_answers_mutated_at_random_are_read_as_the_parser_reads_them(monkeypatch):
+    """The guest's own step answers, a byte or a few changed, inserted or dropped (and a length
+    or a tail off): the header read without the parser gives what the parser gives, the same
+    header and arrays or the same refusal, on every one (a seeded sample; about a quarter still
+    the guest's form)."""
+    import random
+    import re
+    from deepcontact.contest import wire
+    fast, parsed = wire._STEP_ANSWER, re.compile(b"(?!)")
+    rng = random.Random(5)
+
+    def read(data, form):
+        monkeypatch.setattr(wire, "_STEP_ANSWER", form)
+        try:
+            header, arrays = unpack(data, "the variant 'x'")
+            return header, {k: v.tobytes() for k, v in arrays.items()}
+        except PluginError:
+            return "refused"
+    matched = 0
+    for _ in range(4000):
+        n = rng.choice([0, 1, 3])
+        seq = rng.choice([0, 7, 10 ** 17, 10 ** 18 - 1, 10 ** 18, 2 ** 63 - 1, 2 ** 63])
+        head = bytearray(f'{{"seconds": {{}}, "seq": {seq}, "arrays": [["normal", {n}], '
+                         f'["tangent", {rng.choice([n, n + 1])}]]}}'.encode())
+        for _ in range(rng.choice([0, 1, 1, 2, 3])):
+            at = rng.randrange(len(head))
+            [head.__delitem__, lambda k: head.insert(k, rng.choice(b'07 {}[]",:-.e\\u')),
+             lambda k: head.__setitem__(k, rng.choice(b'19 {}[]",:-.'))][rng.randrange(3)](at)
+        size = len(head) + rng.choice([0] * 18 + [-1, 8])
+        data = size.to_bytes(4, "little") + bytes(head) + np.arange(2 * n + 1.0).tobytes()[:8 * rng.choice([2 * n, 2 * n + 1])]
+        matched += fast.fullmatch(data, 4, 4 + size) is not None
+        assert read(data, fast) == read(data, parsed), data
+    assert 500 < matched < 3500, matched
+
+
 @pytest.mark.parametrize("header, arrays", [
     ({"seconds": {}, "seq": 7}, {"normal": np.arange(3.0), "tangent": -np.arange(3.0)}),
     ({"seconds": {}, "seq": 0}, {"normal": np.zeros(0), "tangent": np.zeros(0)}),
