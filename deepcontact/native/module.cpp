@@ -269,18 +269,19 @@ bool of_form(const py::array& a, const int64_t* form, size_t width) {
 }
 
 // The column arena_put writes of `item`, C-contiguous (copied where it is not, after its form is
-// checked: a broadcast view's copy can be larger than memory, and says so); None where it is not
-// an array of its form.
+// checked: a broadcast view's copy can be larger than memory, and raises MemoryError, which
+// py::array::ensure would clear and leave a null array); None where it is not an array of its form.
 py::object formed_column(const py::handle& item, const int64_t* form, size_t width, size_t column) {
     if (!py::isinstance<py::array>(item)) return py::none();
     py::array a = py::reinterpret_borrow<py::array>(item);
     numbers_only(a.dtype(), "arena_put", column);
     if (!of_form(a, form, width)) return py::none();
     if (a.flags() & py::array::c_style) return std::move(a);
-    py::object copied = a.attr("copy")("C");   // (its MemoryError raised, as ensure would not)
-    if (!py::isinstance<py::array>(copied) || !(py::reinterpret_borrow<py::array>(copied).flags() & py::array::c_style))
-        return py::none();
-    return copied;
+    auto& api = py::detail::npy_api::get();
+    PyObject* copied = api.PyArray_FromAny_(a.ptr(), nullptr, 0, 0,
+                                            py::detail::npy_api::NPY_ARRAY_ENSUREARRAY_ | py::array::c_style, nullptr);
+    if (copied == nullptr) throw py::error_already_set();
+    return py::reinterpret_steal<py::object>(copied);
 }
 
 // The columns after a header of `head` bytes: each one's row count ("<I"), then each at a
