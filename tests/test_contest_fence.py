@@ -149,6 +149,20 @@ HOSTILE = textwrap.dedent("""
                 time.sleep(1)
             return box2d(ctx)
 
+    class Stalls:
+        '''Begins its second answer on its line (the length of one) and never sends the rest.'''
+        calls = 0
+        def __call__(self, ctx):
+            import gc
+            from multiprocessing.connection import Connection
+            Stalls.calls += 1
+            if Stalls.calls > 1:
+                for line in [o for o in gc.get_objects() if isinstance(o, Connection)]:
+                    os.write(line.fileno(), struct.pack("!i", 1000))
+                while True:
+                    time.sleep(1)
+            return box2d(ctx)
+
     class Forges:
         '''From its second answer on, replaces the answer's framing with a header holding NaN.'''
         def __call__(self, ctx):
@@ -254,6 +268,32 @@ def test_a_call_that_never_returns_is_stopped_at_its_deadline_and_named(run, tmp
     t0 = time.monotonic()
     r = evaluate(run, tmp_path / "r", "--starts", "builtin,hostile:Hangs")
     assert r.returncode == 1 and "hostile:Hangs" in r.stderr and "did not answer within 3 s" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 30
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_answer_begun_and_never_finished_is_stopped_at_its_deadline_and_named(run, tmp_path, hostile,
+                                                                                  monkeypatch):
+    """Its line readable (the first bytes of an answer), the rest never sent: the judge waited for
+    that rest without end (Connection.recv_bytes after a poll); now the whole answer has the deadline.
+    (An alarm at 60 s ends the wait, should it come back, with an error instead of a hung suite.)"""
+    import signal
+    import time
+    from deepcontact.contest import client
+
+    def hung(signum, frame):
+        raise RuntimeError("the judge still waits for the rest of an answer, past its deadline")
+    monkeypatch.setattr(client, "CALL_FLOOR", 3.0)
+    monkeypatch.setattr(client, "CALL_PER_POINT", 0.0)
+    t0 = time.monotonic()
+    previous = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(60)
+    try:
+        r = evaluate(run, tmp_path / "r", "--starts", "builtin,hostile:Stalls")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert r.returncode == 1 and "hostile:Stalls" in r.stderr and "did not answer within 3 s" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 30
     assert not (tmp_path / "r").exists()
 

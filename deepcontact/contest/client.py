@@ -12,6 +12,7 @@ import os
 import pickle
 import re
 import select
+import struct
 import sys
 import time
 
@@ -176,12 +177,12 @@ class Contestant:
         return max(self._wall, used), header, arrays
 
     def _receive(self, deadline, doing):
-        if not self._waiting.poll(max(deadline, 0) * 1e3):
+        try:
+            data = self._message(time.monotonic() + max(deadline, 0))
+        except TimeoutError:
             self.close()
             raise PluginError(f"{self.who} did not answer within {deadline:g} s while {doing} "
-                              f"(its deadline: {deadline_rule()}); it was stopped")
-        try:
-            data = self.conn.recv_bytes(ANSWER_MAX)
+                              f"(its deadline: {deadline_rule()}); it was stopped") from None
         except (EOFError, ConnectionError):
             self._ended(doing)
         except OSError as e:   # (an answer over ANSWER_MAX: "bad message length")
@@ -193,6 +194,31 @@ class Contestant:
             raise PluginError(said_by(self.who, self.label, header["error"])) \
                 from ContestantTraceback(str(header.get("traceback", "")))
         return header, arrays
+
+    def _message(self, end):
+        """One message on its line, framed as Connection.send_bytes frames it (its length in 4
+        bytes; -1 and then 8 where it is longer), whole by `end` (time.monotonic()), or
+        TimeoutError: an answer begun and never finished is past its deadline too (recv_bytes
+        would wait for its rest without end). OSError for a length over ANSWER_MAX."""
+        (size,) = struct.unpack("!i", self._read(4, end))
+        if size == -1:
+            (size,) = struct.unpack("!Q", self._read(8, end))
+        if not 0 <= size <= ANSWER_MAX:
+            raise OSError("bad message length")
+        return self._read(size, end)
+
+    def _read(self, n, end):
+        """n bytes of its line, each part waited for no later than `end`; EOFError where it ends first."""
+        data, at = bytearray(n), 0
+        view = memoryview(data)
+        while at < n:
+            if not self._waiting.poll(max(end - time.monotonic(), 0.0) * 1e3):
+                raise TimeoutError
+            got = os.readv(self.conn.fileno(), [view[at:]])
+            if got == 0:
+                raise EOFError
+            at += got
+        return bytes(data)
 
     def _ended(self, doing):
         try:
