@@ -12,6 +12,7 @@ import os
 import pickle
 import re
 import select
+import socket
 import struct
 import sys
 import time
@@ -88,7 +89,6 @@ class Contestant:
         self.sandbox = _broker.new(grants.Grant(names, modules, [checkpoint] if checkpoint else []),
                                    threads=setup["threads"], name=self.who,
                                    profile="engine" if engine is not None else "contestant")
-        import socket
         from multiprocessing.connection import Connection
         ours, theirs = socket.socketpair()
         self._started = time.perf_counter()
@@ -151,10 +151,7 @@ class Contestant:
 
     def _send_descriptors(self, fds):
         """Hands `fds` to the contestant over its socket (SCM_RIGHTS, with one byte)."""
-        import socket
-        if getattr(self, "_socket", None) is None:
-            self._socket = socket.socket(fileno=os.dup(self.conn.fileno()))
-        socket.send_fds(self._socket, [FDS], fds)
+        socket.send_fds(self._line(), [FDS], fds)
 
     def _timed(self, data, deadline, doing, before=None, fds=()):
         t0 = time.perf_counter()
@@ -200,6 +197,7 @@ class Contestant:
         bytes; -1 and then 8 where it is longer), whole by `end` (time.monotonic()), or
         TimeoutError: an answer begun and never finished is past its deadline too (recv_bytes
         would wait for its rest without end). OSError for a length over ANSWER_MAX."""
+        self._wait(end)
         (size,) = struct.unpack("!i", self._read(4, end))
         if size == -1:
             (size,) = struct.unpack("!Q", self._read(8, end))
@@ -207,18 +205,32 @@ class Contestant:
             raise OSError("bad message length")
         return self._read(size, end)
 
+    def _wait(self, end):
+        """Until its line is readable; TimeoutError where it is not by `end`."""
+        if not self._waiting.poll(max(end - time.monotonic(), 0.0) * 1e3):
+            raise TimeoutError
+
     def _read(self, n, end):
-        """n bytes of its line, each part waited for no later than `end`; EOFError where it ends first."""
-        data, at = bytearray(n), 0
-        view = memoryview(data)
-        while at < n:
-            if not self._waiting.poll(max(end - time.monotonic(), 0.0) * 1e3):
-                raise TimeoutError
-            got = os.readv(self.conn.fileno(), [view[at:]])
-            if got == 0:
+        """n bytes of its line, each part as it is there (never a read that blocks), the line
+        waited for where none is, no later than `end`; EOFError where it ends first."""
+        line, parts = self._line(), []
+        while n:
+            try:
+                part = line.recv(n, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                self._wait(end)
+                continue
+            if not part:
                 raise EOFError
-            at += got
-        return bytes(data)
+            parts.append(part)
+            n -= len(part)
+        return b"".join(parts)
+
+    def _line(self):
+        """Its line as a socket (a descriptor of its own: descriptors are sent on it, answers read)."""
+        if getattr(self, "_socket", None) is None:
+            self._socket = socket.socket(fileno=os.dup(self.conn.fileno()))
+        return self._socket
 
     def _ended(self, doing):
         try:
