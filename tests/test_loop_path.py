@@ -78,12 +78,17 @@ def steps():
         problem.start_normal, problem.start_tangent = builtin_n, builtin_t
         caught.append((bodies, contacts, problem))
         return builtin_n, builtin_t
+    looped(scene, start_fn, 120)
+    return caught[-2:]
+
+
+def looped(scene, start_fn, steps):
+    """The scene stepped `steps` times by the loop, start_fn asked each step (as the closed loop asks)."""
     engine = Box2D(solver=SolveSettings(), start="builtin", start_fn=start_fn)
     world = engine.build(scene)
     stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=start_fn, record=False)
-    for _ in stepping.steps(world, scene, stepper.step, 120):
+    for _ in stepping.steps(world, scene, stepper.step, steps):
         pass
-    return caught[-2:]
 
 
 def step_ctx(step, traits, label="probe", previous=None):
@@ -152,13 +157,10 @@ def test_the_loops_problem_is_the_one_from_arrays_poses_on_boxes_and_with_bodies
         seen["fast" if np.array_equal(index, np.arange(len(index))) else "searched"] += 1
         seen["two points"] += int(np.any(contacts["point_count"] == 2))
         return builtin_n, builtin_t
-    engine = Box2D(solver=SolveSettings(), start="builtin", start_fn=start_fn)
-    world = engine.build(scene)
-    stepper = PGSStepper(world, scene, engine.solver, "builtin", start_fn=start_fn, record=False)
-    for _ in stepping.steps(world, scene, stepper.step, 60):
-        pass
+    looped(scene, start_fn, 60)
     assert seen["fast"] and seen["searched"], seen
     assert seen["two points"] or spec == "pile", seen
+
 
 def read_back(channel, request, mapped, receiver="reader"):
     schema, fds = channel.setup_for(receiver)
