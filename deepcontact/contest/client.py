@@ -213,18 +213,18 @@ class Contestant:
     def _read(self, n, end):
         """n bytes of its line, each part as it is there (never a read that blocks), the line
         waited for where none is, no later than `end`; EOFError where it ends first."""
-        line, parts = self._line(), []
-        while n:
+        line, data = self._line(), bytearray(n)   # (read into: a large answer is not allocated again a part)
+        view, at = memoryview(data), 0
+        while at < n:
             try:
-                part = line.recv(n, socket.MSG_DONTWAIT)
+                got = line.recv_into(view[at:], n - at, socket.MSG_DONTWAIT)
             except BlockingIOError:
                 self._wait(end)
                 continue
-            if not part:
+            if not got:
                 raise EOFError
-            parts.append(part)
-            n -= len(part)
-        return b"".join(parts)
+            at += got
+        return bytes(data)
 
     def _line(self):
         """Its line as a socket (a descriptor of its own: descriptors are sent on it, answers read)."""
