@@ -28,6 +28,7 @@ from ..errors import InputError
 from ..regular import read_regular
 from ..output.names import beside
 from ..scene.xml import to_xml
+from ..solver.metrics import Positions
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +144,7 @@ def _load(path, key):
     except (ValueError, KeyError, TypeError, OSError, EOFError, RecursionError, zipfile.BadZipFile):
         return None   # (not a file of ours, or not whole: computed again and replaced)
     bounds = np.concatenate([[0], np.cumsum(counts)])
-    trail = [dict(zip(index[a:b].tolist(), position[a:b])) for a, b in zip(bounds[:-1], bounds[1:])]
+    trail = [Positions(index[a:b], position[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
     deepest, finite = arrays["scalars"]
     return Trajectory(trail, arrays["energies"], arrays["iterations"], arrays["seconds"], float(deepest),
                       bool(finite), arrays["residuals"])
