@@ -168,40 +168,37 @@ class StepProblem:
         bodies = _columns(bodies, ("index", *BODY_KEYS), "bodies")
         contacts = _columns(contacts, (*CONTACT_KEYS, "body_a", "body_b", *KEY_COLUMNS, "start_normal_impulse",
                                        "start_tangent_impulse", "normal_impulse", "tangent_impulse"), "contacts")
-        c = {k: contacts[k] for k in CONTACT_KEYS}
-        both = _rows(bodies["index"], np.concatenate((contacts["body_a"], contacts["body_b"])))   # (one search)
-        c["row_a"], c["row_b"] = both[:len(both) // 2], both[len(both) // 2:]
-        b = {k: bodies[k] for k in BODY_KEYS}
-        keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
-        return cls(bodies=b, contacts=c, dt=float(np.float32(arguments.number(dt, "dt", low=0))),
-                   gravity=tuple(arguments.vector(gravity, "gravity", 2).tolist()),
-                   block_solve=arguments.flag(block_solve, "block_solve"),
-                   velocity_iterations=arguments.whole(velocity_iterations, "velocity_iterations"),
-                   start_normal=contacts["start_normal_impulse"], start_tangent=contacts["start_tangent_impulse"],
-                   normal_impulse=contacts["normal_impulse"], tangent_impulse=contacts["tangent_impulse"],
-                   keys=keys, index=arguments.whole(index, "index"))
+        rows = _rows(bodies["index"], np.concatenate((contacts["body_a"], contacts["body_b"])))   # (one search)
+        return cls._of_columns(bodies, contacts, rows, dt=float(np.float32(arguments.number(dt, "dt", low=0))),
+                               gravity=tuple(arguments.vector(gravity, "gravity", 2).tolist()),
+                               block_solve=arguments.flag(block_solve, "block_solve"),
+                               velocity_iterations=arguments.whole(velocity_iterations, "velocity_iterations"),
+                               index=arguments.whole(index, "index"))
 
     @classmethod
     def _from_world(cls, bodies, contacts, *, dt, gravity, block_solve, velocity_iterations):
         """from_arrays of the columns World.bodies() and World.contacts() returned, as they are
-        (each of its native dtype and shape, contiguous): none checked or converted, one search
-        for the rows. The closed loop makes one a step; the loop's settings are held where it
-        starts."""
+        (each of its native dtype and shape, contiguous): none checked or converted. The closed
+        loop makes one a step; the loop's settings are held where it starts."""
+        index, both = bodies["index"], np.concatenate((contacts["body_a"], contacts["body_b"]))
+        # (a world's bodies are in scene order, each once: from 0 to n - 1 they are every index,
+        # and a body's row is its index; a step file's may be anything, and are searched)
+        fast = len(index) and index[0] == 0 and index[-1] == len(index) - 1
+        rows = both.astype(np.int32) if fast else _rows(index, both)
+        return cls._of_columns(bodies, contacts, rows, dt=float(np.float32(dt)),
+                               gravity=(float(gravity[0]), float(gravity[1])), block_solve=bool(block_solve),
+                               velocity_iterations=int(velocity_iterations))
+
+    @classmethod
+    def _of_columns(cls, bodies, contacts, rows, **scalars):
+        """The problem of columns of the native dtypes and shapes, `rows` the bodies' rows of
+        every point's body a, then of its body b."""
         c = {k: contacts[k] for k in CONTACT_KEYS}
-        index = bodies["index"]
-        if len(index) and index[0] == 0 and index[-1] == len(index) - 1:
-            # (a world's bodies are in scene order, each once: from 0 to n - 1 they are every
-            # index, and a body's row is its index)
-            c["row_a"], c["row_b"] = contacts["body_a"].astype(np.int32), contacts["body_b"].astype(np.int32)
-        else:
-            both = _rows(index, np.concatenate((contacts["body_a"], contacts["body_b"])))
-            c["row_a"], c["row_b"] = both[:len(both) // 2], both[len(both) // 2:]
+        c["row_a"], c["row_b"] = rows[:len(rows) // 2], rows[len(rows) // 2:]
         keys = np.array([contacts[k] for k in KEY_COLUMNS], dtype=np.int64).T.reshape(-1, len(KEY_COLUMNS))
-        return cls(bodies={k: bodies[k] for k in BODY_KEYS}, contacts=c, dt=float(np.float32(dt)),
-                   gravity=(float(gravity[0]), float(gravity[1])), block_solve=bool(block_solve),
-                   velocity_iterations=int(velocity_iterations), start_normal=contacts["start_normal_impulse"],
+        return cls(bodies={k: bodies[k] for k in BODY_KEYS}, contacts=c, start_normal=contacts["start_normal_impulse"],
                    start_tangent=contacts["start_tangent_impulse"], normal_impulse=contacts["normal_impulse"],
-                   tangent_impulse=contacts["tangent_impulse"], keys=keys)
+                   tangent_impulse=contacts["tangent_impulse"], keys=keys, **scalars)
 
     @classmethod
     def from_step_file(cls, path):
