@@ -58,4 +58,8 @@ constexpr uint16 kBodyIslandFlag = 0x0001;
 constexpr uint16 kBodyAwakeFlag = 0x0002;
 constexpr uint32 kContactIslandFlag = 0x0001;
 
+// A body's and a contact's flags (private members of 2.4.1), to be read and set.
+inline uint16& flags(b2Body* b) { return b->*member(BodyFlags()); }
+inline uint32& flags(b2Contact* c) { return c->*member(ContactFlags()); }
+
 }  // namespace dc

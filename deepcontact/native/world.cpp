@@ -28,8 +28,6 @@ void push2(std::vector<float>& v, const b2Vec2& p) {
     v.push_back(p.y);
 }
 
-uint32& flags(b2Contact* c) { return c->*member(ContactFlags()); }
-
 }  // namespace
 
 // Records a step as the discrete velocity solver saw it. PreSolve sees each touching contact

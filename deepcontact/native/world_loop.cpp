@@ -15,12 +15,6 @@
 #include "world.hpp"
 
 namespace dc {
-namespace {
-
-uint16& flags(b2Body* b) { return b->*member(BodyFlags()); }
-uint32& flags(b2Contact* c) { return c->*member(ContactFlags()); }
-
-}  // namespace
 
 // b2World::Solve's islands: flags cleared, then a depth-first search from each awake non-static
 // seed in body-list order, not crossing static bodies (which it adds and leaves). The bodies it
