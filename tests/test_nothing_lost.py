@@ -1058,3 +1058,27 @@ def test_a_tree_of_any_depth_is_removed_and_no_link_in_it_followed(tmp_path):
     os.close(fd)
     remove_tree(top)
     assert not top.exists() and (outside / "keep").read_text() == "mine"
+
+
+def test_a_private_folder_being_made_is_never_swept_by_a_concurrent_run(tmp_path, monkeypatch):
+    # (another run's sweep at the moment between the lock file's creation and its lock: it found
+    # the file unlocked, took the folder for a dead run's and removed it under the live one)
+    import fcntl
+    import tempfile
+
+    from deepcontact.output import trees
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    real, swept = fcntl.flock, []
+
+    def flock(fd, operation):
+        if not swept:
+            swept.append(True)
+            trees.sweep(str(tmp_path), "race")
+        return real(fd, operation)
+    monkeypatch.setattr(fcntl, "flock", flock)
+    with trees.private_folder("race") as folder:
+        assert swept and os.path.isdir(folder)
+        monkeypatch.setattr(fcntl, "flock", real)
+        trees.sweep(str(tmp_path), "race")   # (a sweep while it lives leaves it)
+        assert os.path.isdir(folder)
+    assert not os.listdir(tmp_path)

@@ -106,9 +106,12 @@ def private_folder(kind):
     base = tempfile.gettempdir()
     sweep(base, kind)
     folder = tempfile.mkdtemp(prefix=f"dc-{kind}-{os.getpid()}-", dir=base)
-    alive = os.open(os.path.join(folder, ALIVE), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
+    # (the lock file locked under another name, then renamed: a concurrent sweep found it
+    # unlocked between its creation and its lock, and removed a live run's folder)
+    alive = os.open(os.path.join(folder, ALIVE + ".new"), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
     try:
         fcntl.flock(alive, fcntl.LOCK_EX)
+        os.rename(os.path.join(folder, ALIVE + ".new"), os.path.join(folder, ALIVE))
         yield folder
     finally:
         os.close(alive)
