@@ -15,8 +15,11 @@ Measured in the same run, one thread, on a settled step of the thesis pile (100 
           thousand contestants cost a machine); and the wall time of ending it (median)
   call    the round trip of a solve request capped at one sweep, the median of --calls calls per
           way, the ways alternating call by call
+--network: every contestant is given a trained network's checkpoint (a tiny one, trained here
+first), as dc evaluate gives every variant where one start uses a network: each loads torch and
+the network before its clock (forked: from a zygote of its own that has torch loaded).
 
-Usage: python benchmarks/bench_contest.py [--calls N] [--starts N]
+Usage: python benchmarks/bench_contest.py [--calls N] [--starts N] [--network]
 """
 import argparse
 import os
@@ -51,12 +54,12 @@ _fenced = (machine.bwrap, machine.cgroup_roots)
 WAYS = ("forked", "fresh", "bare")
 
 
-def contestant(way):
+def contestant(way, checkpoint=None):
     bare(way == "bare")
     os.environ["DC_NO_ZYGOTE"] = "1" if way == "fresh" else "0"
     try:
         t0 = time.perf_counter()
-        c = Contestant("builtin", "builtin", Builtin(), "none").begin()
+        c = Contestant("builtin", "builtin", Builtin(), "none", checkpoint=checkpoint).begin()
         return c, time.perf_counter() - t0
     finally:
         bare(False)
@@ -73,25 +76,28 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--calls", type=int, default=400)
     ap.add_argument("--starts", type=int, default=5)
+    ap.add_argument("--network", action="store_true", help="each contestant given a trained network's checkpoint")
     a = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        simulate_run(lambda seed: generate("pile", seed=seed), [0], Path(tmp) / "run")
-        files = sorted((Path(tmp) / "run").rglob("step-000350.xml"))
-        problem = StepProblem.from_step_file(files[0])
+    tmp_folder = tempfile.TemporaryDirectory()
+    tmp = tmp_folder.name
+    simulate_run(lambda seed: generate("pile", seed=seed), [0], Path(tmp) / "run")
+    files = sorted((Path(tmp) / "run").rglob("step-000350.xml"))
+    problem = StepProblem.from_step_file(files[0])
+    checkpoint = tiny_checkpoint(Path(tmp)) if a.network else None
     request = {"op": "solve", "problem": pickle.dumps(unanswered(problem)), "normal": problem.start_normal,
                "tangent": problem.start_tangent, "settings": SolveSettings().but(max_iterations=1)}
     starts, setups, cpu, ends = ({w: [] for w in WAYS} for _ in range(4))
-    ended(contestant("forked")[0])   # (the zygote started, once)
+    ended(contestant("forked", checkpoint)[0])   # (the zygote started, once)
     for _ in range(a.starts):
         for way in WAYS:
-            c, took = contestant(way)
+            c, took = contestant(way, checkpoint)
             starts[way].append(c.start_s)
             setups[way].append(c.setup_s)
             if c.cpu_last is not None:   # (its group's CPU when its setup ended)
                 cpu[way].append(c.cpu_last)
             ends[way].append(ended(c))
     assert os.environ.get("DC_NO_ZYGOTE") is None
-    pair = {way: contestant(way)[0] for way in WAYS}
+    pair = {way: contestant(way, checkpoint)[0] for way in WAYS}
     kinds = {way: type(c.sandbox.process).__name__ for way, c in pair.items()}
     calls = {way: [] for way in WAYS}
     try:
@@ -106,8 +112,11 @@ def main():
     finally:
         for c in pair.values():
             c.close()
+    tmp_folder.cleanup()
     print(protocol_line(current()))
-    print(f"step: {problem.points} contact points; fences here: {machine.describe_fences()}")
+    print(f"step: {problem.points} contact points; fences here: {machine.describe_fences()}"
+          + ("; every contestant given a trained network's checkpoint (torch loaded before its clock)"
+             if checkpoint else ""))
     print(f"deadline rule: {client.deadline_rule()}; processes: {kinds}")
     print(f"{'':8} {'start ms (best)':>16} {'setup ms (best)':>16} {'start+setup CPU ms (median)':>28} "
           f"{'end ms (median)':>16} {'call ms (median)':>17} {'call ms (p90)':>14}")
@@ -119,6 +128,21 @@ def main():
     extra = np.median(calls["forked"]) - np.median(calls["bare"])
     print(f"the fork's sandbox adds {1e3 * extra:.4f} ms a call (median) and "
           f"{1e3 * (min(starts['forked']) - min(starts['bare'])):.1f} ms of start a contestant over bare")
+
+
+def tiny_checkpoint(tmp):
+    """A checkpoint of a tiny network trained for one epoch on a few steps of a small pile."""
+    from deepcontact.grid.dataset import DatasetSettings, write_dataset
+    from deepcontact.model.config import TrainConfig
+    from deepcontact.model.train import train
+    from dataclasses import replace
+    small = {"count": 12, "box": 12, "sigma": 2.5}
+    simulate_run(lambda seed: replace(generate("pile", seed=seed, params=small), steps=60), [0, 1], tmp / "small",
+                 skip_contactless=True)
+    write_dataset([tmp / "small"], tmp / "ds", DatasetSettings(cell=1.0, h=1.0, validation_fraction=0.5))
+    train(tmp / "ds", tmp / "m", TrainConfig(model="fcn", fcn_width=4, fcn_depth=2, epochs=1, batch_size=8), plots=False)
+    return str(tmp / "m" / "last.pt")
+
 
 if __name__ == "__main__":
     main()

@@ -397,3 +397,54 @@ def test_a_forked_contestant_holds_no_descriptor_or_mount_of_the_zygotes(hostile
     allowed += tuple(site.getsitepackages())
     strays = [m for m in found["mounts"][1:] if not m.startswith(allowed)]
     assert not strays, strays
+
+
+def _loads_torch(box):
+    """Whether a process of the sandbox `box` has torch's library mapped."""
+    _, folder = box.groups["pids"]
+    with open(os.path.join(folder, "cgroup.procs")) as f:
+        pids = f.read().split()
+    found = False
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/maps") as f:
+                found = found or "libtorch" in f.read()
+        except OSError:
+            pass
+    return found
+
+
+def test_a_network_contestant_is_forked_from_a_zygote_of_its_own_with_torch_loaded():
+    # (torch loaded once in a zygote of its own, not in each such contestant; the other
+    # contestants' zygote never loads it, so no other contestant finds it loaded)
+    import socket
+    box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
+    ours, theirs = socket.socketpair()
+    try:
+        box.start_guest(theirs.fileno(), torch=True)
+        assert type(box.process).__name__ == "ForkedProcess"
+        with_torch, plain = zygote.live(torch=True), zygote.live()
+        assert with_torch is not plain and with_torch.alive() and plain.alive()
+        assert _loads_torch(with_torch.box) and not _loads_torch(plain.box)
+    finally:
+        theirs.close()
+        ours.close()
+        box.kill()
+
+
+def test_a_zygote_that_ends_before_it_is_ready_is_refused_and_contestants_start_fresh(monkeypatch):
+    import socket
+    monkeypatch.setattr(zygote, "_refused", [])
+    monkeypatch.setattr(zygote, "ZYGOTE_COMMAND", "import sys; sys.exit(3)")
+    zygote.close_all()
+    box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
+    ours, theirs = socket.socketpair()
+    try:
+        box.start_guest(theirs.fileno())
+        assert type(box.process).__name__ == "Popen"
+        assert zygote._refused == ["the zygote ended as it started"]
+    finally:
+        theirs.close()
+        ours.close()
+        box.kill()
+        zygote.close_all()

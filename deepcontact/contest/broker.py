@@ -109,7 +109,7 @@ class GuestSandbox(sandbox.Sandbox):
         else a fresh interpreter; the same fence either way."""
         if zygote.usable(self.fence):
             try:
-                return self.start_forked(zygote.live(), channel, torch)
+                return self.start_forked(zygote.live(torch), channel, torch)
             except zygote.Refused as e:
                 zygote.refused(e)
                 self.kill()

@@ -22,16 +22,18 @@ import sys
 import threading
 import time
 
-from . import fence as fences, grants, machine, sandbox
+from . import fence as fences, forked, grants, machine, sandbox
 
 # seconds a fork may take to fence itself (about 20 ms; a loaded machine's hiccup allowed for):
 # past it the zygote is taken for stopped, and the contestant starts fresh
 FENCE_DEADLINE = 10.0
+# seconds a zygote may take to load its libraries (numpy; torch for a network's contestants)
+READY_DEADLINE = 120.0
 # (deepcontact imported from the judge's own folder, put first: the interpreter's own path found
 # another copy where the judge's came from PYTHONPATH or its working directory, and a fork then
 # lacked every module the zygote had not imported)
 ZYGOTE_COMMAND = ("import sys; sys.path.insert(0, sys.argv[2]); from deepcontact.contest.forked import main; "
-                  "main(int(sys.argv[1]), sys.argv[3])")
+                  "main(int(sys.argv[1]), sys.argv[3], torch=sys.argv[4:] == ['torch'])")
 _zygotes = {}           # {the variables its contestants start with: Zygote}
 _refused = []           # why a fork could not be fenced here (then no zygote is used again)
 
@@ -52,18 +54,21 @@ def usable(fence):
             and os.environ.get("DC_NO_ZYGOTE") != "1")
 
 
-def live():
+def live(torch=False):
     """This process's live zygote (started the first time it is asked for): every contestant's
-    fence is carried by its request, so one serves them all."""
+    fence is carried by its request, so one serves them all; torch: the one whose interpreter has
+    torch and the model's side loaded too (a contestant that loads a trained network), apart, so
+    that no other contestant finds torch already loaded."""
     # (its interpreter started with the variables its contestants' would: the warnings' setting
     # among them, which Python reads as it starts)
-    key = tuple(sorted((k, v) for k, v in fences.environment(fences.ZYGOTE).items() if k != fences.MARKER))
+    key = (tuple(sorted((k, v) for k, v in fences.environment(fences.ZYGOTE).items() if k != fences.MARKER)),
+           bool(torch))
     with _lock:
         zygote = _zygotes.get(key)
         if zygote is None or not zygote.alive():
             if zygote is not None:
                 zygote.close()
-            zygote = _zygotes[key] = _by_keeper()
+            zygote = _zygotes[key] = _by_keeper(bool(torch))
         return zygote
 
 
@@ -72,7 +77,7 @@ _asks = queue.Queue()
 _keeper = []
 
 
-def _by_keeper():
+def _by_keeper(torch):
     """A new Zygote, started by a thread that lives as long as this process: bubblewrap's
     --die-with-parent follows the thread that started it, and a broker's line thread, which
     ends with its job, left every later contestant without its zygote."""
@@ -80,7 +85,7 @@ def _by_keeper():
         _keeper.append(threading.Thread(target=_keep, name="dc-zygote-keeper", daemon=True))
         _keeper[0].start()
     done, answer = threading.Event(), []
-    _asks.put((done, answer))
+    _asks.put((done, answer, torch))
     done.wait()
     if isinstance(answer[0], BaseException):
         raise answer[0]
@@ -106,9 +111,9 @@ os.register_at_fork(after_in_child=_forget_in_child)
 
 def _keep():
     while True:
-        done, answer = _asks.get()
+        done, answer, torch = _asks.get()
         try:
-            answer.append(Zygote())
+            answer.append(Zygote(torch))
         except BaseException as e:
             answer.append(e)
         done.set()
@@ -122,15 +127,16 @@ def refused(error):
 
 
 class Zygote:
-    """One zygote in its sandbox and the line to it."""
+    """One zygote in its sandbox and the line to it (torch: its interpreter has torch loaded)."""
 
-    def __init__(self):
+    def __init__(self, torch=False):
+        self.torch = torch
         self.box = sandbox.Sandbox(fences.ZYGOTE, name="the contestants' zygote")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             package = grants.package_folder()
             self.box.start([sys.executable, "-c", ZYGOTE_COMMAND, str(theirs.fileno()), os.path.dirname(package),
-                            package], pass_fds=[theirs.fileno()])
+                            package, *(["torch"] if torch else [])], pass_fds=[theirs.fileno()])
         except BaseException:
             ours.close()
             self.box.kill()
@@ -138,6 +144,13 @@ class Zygote:
         finally:
             theirs.close()
         self.line = ours
+        # (its libraries loaded before any fork is asked of it: torch takes seconds on a busy
+        # machine, which the first fork's fence deadline is not for)
+        said = ours.recv(len(forked.READY)) if _ready(ours.fileno(), READY_DEADLINE) else None
+        if said != forked.READY:
+            self.close()
+            raise Refused("the zygote " + ("ended as it started" if said is not None else
+                                           f"was not ready within {READY_DEADLINE:.0f} s"))
 
     def alive(self):
         return self.box.process is not None and self.box.process.poll() is None and self.line is not None
