@@ -81,7 +81,6 @@ def survey(names=None):
 
 
 SURVEY_DEADLINE = float(os.environ.get("DC_SURVEY_DEADLINE", 60))   # seconds a listing may take
-SUMMARY_MAX = 300                                                   # characters of a summary in the list
 _LINE_MAX = 8 << 10                                                 # bytes of one study's entry
 
 
@@ -92,8 +91,8 @@ def _survey_round(names, deadline):
     env = dict(os.environ, PYTHONPATH=job.python_path())
     read, write = os.pipe()
     try:
-        box.start([sys.executable, "-c", "import sys; from deepcontact.studies.fence import _survey_here; "
-                   "_survey_here(int(sys.argv[1]), sys.argv[2:])", str(write), *names],
+        box.start([sys.executable, "-c", "import sys; from deepcontact.studies.listing import survey_here; "
+                   "survey_here(int(sys.argv[1]), sys.argv[2:])", str(write), *names],
                   pass_fds=[write], env=env)
         os.close(write)
         write = None
@@ -145,21 +144,3 @@ def _entries(data, names):
               and e.get("writes") in ("folder", "file", "text")):
             found[e["name"]] = {k: e[k] for k in ("name", "summary", "order", "writes")}
     return found
-
-
-def _survey_here(fd, names):
-    """In the listing's sandbox: each study named, loaded in turn, one line of JSON for it on the
-    pipe fd as soon as it loads (its standard output is not the channel: a study that prints at
-    import corrupts nothing); a summary is its first line, at most SUMMARY_MAX characters."""
-    from . import _healthy
-    from ..plugins import PluginError
-    for name in names:
-        try:
-            s = _healthy(name)[0]
-            entry = {"name": name, "summary": str(s.summary).strip().split("\n")[0][:SUMMARY_MAX],
-                     "order": float(s.order), "writes": str(s.writes)}
-        except PluginError as e:
-            entry = {"name": name, "broken": str(e)[:SUMMARY_MAX * 4]}
-        except Exception as e:   # (its own summary or order that is no text or number)
-            entry = {"name": name, "broken": f"the study {name!r}: {type(e).__name__}: {e}"[:SUMMARY_MAX * 4]}
-        os.write(fd, json.dumps(entry).encode() + b"\n")
