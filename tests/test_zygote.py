@@ -247,6 +247,12 @@ HOSTILE = textwrap.dedent("""
     class Limits:
         def __call__(self, ctx):
             raise RuntimeError("LIMITS" + json.dumps({"as": resource.getrlimit(resource.RLIMIT_AS)}))
+
+    class TorchDraws:
+        '''torch's seed and first draws (torch seeds itself afresh as an interpreter starts).'''
+        def __call__(self, ctx):
+            import torch
+            raise RuntimeError("DRAWS" + json.dumps([torch.initial_seed(), torch.rand(4).tolist()]))
 """)
 
 
@@ -448,3 +454,17 @@ def test_a_zygote_that_ends_before_it_is_ready_is_refused_and_contestants_start_
         ours.close()
         box.kill()
         zygote.close_all()
+
+
+def test_contestants_forked_with_torch_loaded_draw_torchs_random_numbers_of_their_own(hostile, tmp_path):
+    # (every fork of the torch zygote had its generator's seed and state: two contestants drew the
+    # same numbers, where two fresh ones, each seeded afresh by torch as it starts, do not)
+    checkpoint = tmp_path / "net.pt"
+    checkpoint.write_bytes(b"")   # (torch loaded before its clock; this start never reads it)
+    draws = []
+    for name in ("a", "b"):
+        kind, said = said_by(Contestant(name, "zygote_hostile", start=hostile.TorchDraws(),
+                                        checkpoint=str(checkpoint)).begin())
+        assert kind == "ForkedProcess" and "DRAWS" in said, said
+        draws.append(json.loads(said[said.index("DRAWS") + 5:]))
+    assert draws[0][0] != draws[1][0] and draws[0][1] != draws[1][1], draws

@@ -269,8 +269,8 @@ def _contestant(request, channel, out, err):
 
 
 def _fresh_state():
-    """What a fresh interpreter would not share with its siblings: its random seeds, and the
-    import system's view of folders that changed since the zygote looked."""
+    """What a fresh interpreter would not share with its siblings: its random seeds (Python's,
+    numpy's, torch's), and the import system's view of folders that changed since the zygote looked."""
     import importlib
     import random
 
@@ -278,4 +278,6 @@ def _fresh_state():
     random.seed()
     if "numpy.random" in sys.modules:   # (else seeded afresh where a contestant imports it)
         np.random.seed()
+    if "torch" in sys.modules:   # (the torch zygote's forks: torch seeds itself afresh as it starts)
+        sys.modules["torch"].default_generator.seed()
     importlib.invalidate_caches()
