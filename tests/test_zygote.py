@@ -468,3 +468,30 @@ def test_contestants_forked_with_torch_loaded_draw_torchs_random_numbers_of_thei
         assert kind == "ForkedProcess" and "DRAWS" in said, said
         draws.append(json.loads(said[said.index("DRAWS") + 5:]))
     assert draws[0][0] != draws[1][0] and draws[0][1] != draws[1][1], draws
+
+
+def test_a_torch_zygote_that_is_never_ready_leaves_the_plain_one_forking(monkeypatch):
+    # (torch's import failing in its zygote, or slower than READY_DEADLINE, says nothing of the
+    # machine's fence: it refused every later contestant its fork, the plain ones too)
+    import socket
+    monkeypatch.setattr(zygote, "_refused", [])
+    monkeypatch.setattr(zygote, "_unready", [], raising=False)
+    monkeypatch.setattr(zygote, "ZYGOTE_COMMAND", "import sys; sys.argv[4:] == ['torch'] and sys.exit(3); "
+                        + zygote.ZYGOTE_COMMAND)
+    zygote.close_all()
+    kinds = []
+    try:
+        for torch in (True, False, True):
+            box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
+            ours, theirs = socket.socketpair()
+            try:
+                box.start_guest(theirs.fileno(), torch=torch)
+                kinds.append(type(box.process).__name__)
+            finally:
+                theirs.close()
+                ours.close()
+                box.kill()
+    finally:
+        zygote.close_all()
+    assert kinds == ["Popen", "ForkedProcess", "Popen"] and zygote._refused == [], (kinds, zygote._refused)
+    assert zygote._unready == ["the zygote ended as it started"]

@@ -107,11 +107,11 @@ class GuestSandbox(sandbox.Sandbox):
     def start_guest(self, channel, torch=False):
         """The guest on `channel`: a fork of the zygote where this machine lends one (zygote.py),
         else a fresh interpreter; the same fence either way."""
-        if zygote.usable(self.fence):
+        if zygote.usable(self.fence, torch):
             try:
                 return self.start_forked(zygote.live(torch), channel, torch)
             except zygote.Refused as e:
-                zygote.refused(e)
+                zygote.refused(e, torch)
                 self.kill()
                 self.stopped_by, self.process = None, None
         return self.start(grants.guest_argv(channel, torch), pass_fds=[channel])

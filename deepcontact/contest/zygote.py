@@ -36,6 +36,7 @@ ZYGOTE_COMMAND = ("import sys; sys.path.insert(0, sys.argv[2]); from deepcontact
                   "main(int(sys.argv[1]), sys.argv[3], torch=sys.argv[4:] == ['torch'])")
 _zygotes = {}           # {the variables its contestants start with: Zygote}
 _refused = []           # why a fork could not be fenced here (then no zygote is used again)
+_unready = []           # why the torch zygote was never ready (then contestants given torch start fresh)
 
 log = logging.getLogger(__name__)
 
@@ -43,13 +44,18 @@ log = logging.getLogger(__name__)
 Refused = sandbox.ForkRefused   # (a fork could not fence itself here: the line says which step)
 
 
-def usable(fence):
+class Unready(Refused):
+    """A zygote that ended, or was not ready in time, before any fork was asked of it."""
+
+
+def usable(fence, torch=False):
     """Whether a contestant of `fence` may be forked from a zygote here: a contestant's fence of
     one thread (the zygote's libraries are loaded for one) on a machine that lends bubblewrap,
-    seccomp and control groups for CPU and processes, and no fork refused before."""
+    seccomp and control groups for CPU and processes, and no fork refused before (torch: nor the
+    torch zygote's start)."""
     roots = machine.cgroup_roots()
-    return (not _refused and fence.seccomp == "contestant" and fence.threads == 1 and fence.view == "system"
-            and fence.environment == "clear" and machine.bwrap() is not None
+    return (not _refused and not (torch and _unready) and fence.seccomp == "contestant" and fence.threads == 1
+            and fence.view == "system" and fence.environment == "clear" and machine.bwrap() is not None
             and machine.seccomp_program(fence.seccomp) is not None and "cpu" in roots and "pids" in roots
             and os.environ.get("DC_NO_ZYGOTE") != "1")
 
@@ -119,8 +125,14 @@ def _keep():
         done.set()
 
 
-def refused(error):
-    """Notes that forking fenced contestants failed here (error: Refused); later ones start fresh."""
+def refused(error, torch=False):
+    """Notes that forking fenced contestants failed here (error: Refused); later ones start fresh.
+    Where the torch zygote was never ready (torch's import, not the machine's fence), only those
+    given torch do."""
+    if torch and isinstance(error, Unready):
+        log.info("dc: contestants given a network start as fresh sandboxes: %s", error)
+        _unready.append(str(error))
+        return
     if not _refused:
         log.info("dc: contestants start as fresh sandboxes: %s", error)
     _refused.append(str(error))
@@ -149,7 +161,7 @@ class Zygote:
         said = ours.recv(len(forked.READY)) if _ready(ours.fileno(), READY_DEADLINE) else None
         if said != forked.READY:
             self.close()
-            raise Refused("the zygote " + ("ended as it started" if said is not None else
+            raise Unready("the zygote " + ("ended as it started" if said is not None else
                                            f"was not ready within {READY_DEADLINE:.0f} s"))
 
     def alive(self):
