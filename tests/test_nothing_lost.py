@@ -1082,3 +1082,22 @@ def test_a_private_folder_being_made_is_never_swept_by_a_concurrent_run(tmp_path
         trees.sweep(str(tmp_path), "race")   # (a sweep while it lives leaves it)
         assert os.path.isdir(folder)
     assert not os.listdir(tmp_path)
+
+
+def test_a_signal_while_the_lock_is_taken_leaves_no_lock_file(tmp_path, monkeypatch):
+    """The window between making the lock file beside an output and owning it (a signal sent as
+    soon as the lock file shows, as a user's script may): the stop is raised, and the lock goes."""
+    from deepcontact.output import lock as locks
+    real = locks._open_lock
+
+    def signalled(*args):
+        fd = real(*args)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)   # (the handler has run: the stop is pending, not raised)
+        return fd
+    monkeypatch.setattr(locks, "_open_lock", signalled)
+    with stop_signals_handled() as interrupts:
+        with pytest.raises(interrupts.Terminated):
+            with locks.locked(tmp_path / "out"):
+                raise AssertionError("the block ran: the signal was lost")
+    assert leftovers(tmp_path) == [] and not locks._locks

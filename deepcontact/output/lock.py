@@ -11,7 +11,7 @@ import stat
 from contextlib import contextmanager
 from pathlib import Path
 
-from .. import jsontext
+from .. import interrupts, jsontext
 from ..errors import InputError
 from . import files
 from .names import beside, own_name
@@ -60,8 +60,30 @@ def locked(path):
     goes in is made first, as for every output (`dc render -o figures/x.png`)."""
     lock = beside(path, "lock")
     files.make_folder_for(path)
-    fd = _open_lock(path, lock)
-    # temporary files that the lock's last holder noted and did not live to remove: ours
+    key = os.path.abspath(path)
+    fd, ours = None, False
+    try:
+        # (a stop between making the lock file and owning it left it behind: held to here)
+        with interrupts.held():
+            fd = _open_lock(path, lock)
+            _clean_noted(path, lock, fd)
+            _locks[key] = (fd, [])
+            files.lock_notes[key] = lambda tmp: note_temporary(key, tmp)
+            ours = True
+        yield
+    finally:
+        if ours:
+            files.lock_notes.pop(key, None)
+            _locks.pop(key, None)
+            files.remove_quietly(lock)
+        if fd is not None:
+            os.close(fd)
+
+
+def _clean_noted(path, lock, fd):
+    """Removes the temporary files that the lock's last holder noted and did not live to remove
+    (ours now), then empties the lock; InputError where a noted name is no file of ours (the lock
+    then keeps its notes)."""
     try:
         noted = jsontext.loads(os.pread(fd, 1 << 16, 0) or b"[]")
     except (OSError, ValueError, UnicodeDecodeError):
@@ -71,16 +93,6 @@ def locked(path):
                        f"the lock file {lock.name} lists it, but it is not a temporary file dc makes for "
                        f"{Path(path).name}")
     os.ftruncate(fd, 0)
-    key = os.path.abspath(path)
-    _locks[key] = (fd, [])
-    files.lock_notes[key] = lambda tmp: note_temporary(key, tmp)
-    try:
-        yield
-    finally:
-        files.lock_notes.pop(key, None)
-        _locks.pop(key, None)
-        files.remove_quietly(lock)
-        os.close(fd)
 
 
 def note_temporary(path, tmp):
