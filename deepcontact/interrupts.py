@@ -202,11 +202,12 @@ def check():
 
 
 @contextmanager
-def held():
+def held(check_first=True):
     """A block that a stop signal does not interrupt: it is raised as the block is left. A stop
-    that came before it (and was swallowed) is raised on entry (check)."""
+    that came before it (and was swallowed) is raised on entry (check), but with check_first=False:
+    a clean-up (a finally) runs after a stop as well."""
     global _held, _pending
-    if not _held:
+    if not _held and check_first:
         check()
     _held += 1
     try:

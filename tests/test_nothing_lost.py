@@ -1101,3 +1101,42 @@ def test_a_signal_while_the_lock_is_taken_leaves_no_lock_file(tmp_path, monkeypa
             with locks.locked(tmp_path / "out"):
                 raise AssertionError("the block ran: the signal was lost")
     assert leftovers(tmp_path) == [] and not locks._locks
+
+
+def test_a_signal_while_the_lock_is_let_go_leaves_no_lock_file(tmp_path, monkeypatch):
+    """The other end of the lock's life: a first stop signal that lands as the block ends and the
+    lock is let go (its entries dropped, then the file removed) is raised once the lock file is gone."""
+    from deepcontact.output import files, lock as locks
+
+    class Signalling(dict):
+        def pop(self, *args):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)   # (the handler has run)
+            return super().pop(*args)
+    monkeypatch.setattr(files, "lock_notes", Signalling())
+    monkeypatch.setattr(locks, "_locks", {})   # (an entry left by a failure here reaches no other test)
+    with stop_signals_handled() as interrupts:
+        with pytest.raises(interrupts.Terminated):
+            with locks.locked(tmp_path / "out"):
+                pass
+    assert leftovers(tmp_path) == [] and not locks._locks and not files.lock_notes
+
+
+def test_a_lock_is_let_go_after_a_stop_its_block_swallowed(tmp_path):
+    """A stop that a library's bare except swallowed inside the block: the lock still goes as the
+    block ends (the clean-up does not raise the swallowed stop before it has run)."""
+    from deepcontact.output import lock as locks
+    with stop_signals_handled() as interrupts:
+        raised = False
+        try:
+            with locks.locked(tmp_path / "out"):
+                try:
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    time.sleep(0.05)
+                except interrupts.Terminated:
+                    pass
+        except interrupts.Terminated:   # (a KeyboardInterrupt: it would end pytest's session)
+            raised = True
+        with pytest.raises(interrupts.Terminated):   # (still raised where the command checks)
+            interrupts.check()
+    assert leftovers(tmp_path) == [] and not locks._locks and not raised

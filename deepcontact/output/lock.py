@@ -72,12 +72,14 @@ def locked(path):
             ours = True
         yield
     finally:
-        if ours:
-            files.lock_notes.pop(key, None)
-            _locks.pop(key, None)
-            files.remove_quietly(lock)
-        if fd is not None:
-            os.close(fd)
+        # (held too: a first stop as the block ended, raised half-way through, left the lock file)
+        with interrupts.held(check_first=False):
+            if ours:
+                files.lock_notes.pop(key, None)
+                _locks.pop(key, None)
+                files.remove_quietly(lock)
+            if fd is not None:
+                os.close(fd)
 
 
 def _clean_noted(path, lock, fd):
