@@ -84,8 +84,8 @@ def locked(path):
 
 def _clean_noted(path, lock, fd):
     """Removes the temporary files that the lock's last holder noted and did not live to remove
-    (ours now), then empties the lock; InputError where a noted name is no file of ours (the lock
-    then keeps its notes)."""
+    (ours now), then empties the lock. A noted name that is no file of ours is left alone, said in
+    one warning line, and dropped with the rest (remove_claimed): the command goes on."""
     try:
         noted = jsontext.loads(os.pread(fd, 1 << 16, 0) or b"[]")
     except (OSError, ValueError, UnicodeDecodeError):
