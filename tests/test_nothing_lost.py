@@ -1103,23 +1103,46 @@ def test_a_signal_while_the_lock_is_taken_leaves_no_lock_file(tmp_path, monkeypa
     assert leftovers(tmp_path) == [] and not locks._locks
 
 
-def test_a_signal_while_the_lock_is_let_go_leaves_no_lock_file(tmp_path, monkeypatch):
-    """The other end of the lock's life: a first stop signal that lands as the block ends and the
-    lock is let go (its entries dropped, then the file removed) is raised once the lock file is gone."""
-    from deepcontact.output import files, lock as locks
+def stop_at(n):
+    """A profile function that sends SIGTERM at the n-th place where Python raises a stop signal's
+    exception (a function's start, a generator's resumption, a C function's return), and its count."""
+    count = [0]
 
-    class Signalling(dict):
-        def pop(self, *args):
-            os.kill(os.getpid(), signal.SIGTERM)
-            time.sleep(0.05)   # (the handler has run)
-            return super().pop(*args)
-    monkeypatch.setattr(files, "lock_notes", Signalling())
-    monkeypatch.setattr(locks, "_locks", {})   # (an entry left by a failure here reaches no other test)
-    with stop_signals_handled() as interrupts:
-        with pytest.raises(interrupts.Terminated):
-            with locks.locked(tmp_path / "out"):
+    def profile(frame, event, arg):
+        if event in ("call", "c_return"):
+            count[0] += 1
+            if count[0] == n:
+                sys.setprofile(None)
+                os.kill(os.getpid(), signal.SIGTERM)   # (its handler runs here: raised at that place)
+    return profile, count
+
+
+def test_a_signal_anywhere_as_a_lock_is_taken_used_or_let_go_leaves_nothing(tmp_path):
+    """A stop signal at every place one can land, in turn, from taking an output's lock (whose last
+    holder was killed with a temporary file noted) to letting it go after writing the output: the
+    lock and the temporary files are gone, or (a stop before the lock was taken) untouched."""
+    from deepcontact.output import files, lock as locks
+    planted = {".out.lock": json.dumps([".out.7.tmp"]), ".out.7.tmp": "a killed run's"}
+    n, count = 0, [1]
+    while count[0] >= n:
+        n += 1
+        for name, text in planted.items():
+            (tmp_path / name).write_text(text)
+        profile, count = stop_at(n)
+        with stop_signals_handled() as interrupts:
+            try:
+                sys.setprofile(profile)
+                with locks.locked(tmp_path / "out"):
+                    files.write_text(tmp_path / "out", "whole")
+            except interrupts.Terminated:
                 pass
-    assert leftovers(tmp_path) == [] and not locks._locks and not files.lock_notes
+            finally:
+                sys.setprofile(None)
+        left = {p.name: p.read_text() for p in tmp_path.iterdir() if p.name != "out"}
+        assert left in ({}, planted) and not locks._locks and not files.lock_notes, (n, left)
+        if (tmp_path / "out").exists():
+            assert (tmp_path / "out").read_text() == "whole"
+    assert n > 100   # (every place was tried: the count ran out)
 
 
 def test_a_lock_is_let_go_after_a_stop_its_block_swallowed(tmp_path):

@@ -72,14 +72,29 @@ def locked(path):
             ours = True
         yield
     finally:
-        # (held too: a first stop as the block ended, raised half-way through, left the lock file)
-        with interrupts.held(check_first=False):
-            if ours:
-                files.lock_notes.pop(key, None)
-                _locks.pop(key, None)
-                files.remove_quietly(lock)
-            if fd is not None:
-                os.close(fd)
+        # held too: a first stop as the block ended, raised half-way through, left the lock file;
+        # one that comes as held() begins is raised before it holds: then let go here (a stop
+        # raises once, a repeat nothing)
+        gone = False
+        try:
+            with interrupts.held(check_first=False):
+                _let_go(key if ours else None, lock, fd)
+                gone = True
+        except interrupts.Terminated:
+            if not gone:
+                _let_go(key if ours else None, lock, fd)
+            raise
+
+
+def _let_go(key, lock, fd):
+    """Ends what locked() took: the lock's entries and its file where key is given (it was ours),
+    and the descriptor where there is one."""
+    if key is not None:
+        files.lock_notes.pop(key, None)
+        _locks.pop(key, None)
+        files.remove_quietly(lock)
+    if fd is not None:
+        os.close(fd)
 
 
 def _clean_noted(path, lock, fd):
