@@ -255,13 +255,15 @@ class Contestant:
         cpu, last = self.sandbox.cpu_seconds(), getattr(self, "cpu_last", None)
         if cpu is not None and last is not None:
             self.after_s = max(self.after_s, cpu - last)
+        # (killed before its line is closed: a guest that saw its line end first ended itself,
+        # "exit status 0", where it was ended by the judge)
+        self.sandbox.kill()
         for end in (self.conn, getattr(self, "_socket", None)):
             try:
                 if end is not None:
                     end.close()
             except OSError:
                 pass
-        self.sandbox.kill()
 
 
 def start_all(contestants):
