@@ -495,3 +495,36 @@ def test_a_torch_zygote_that_is_never_ready_leaves_the_plain_one_forking(monkeyp
         zygote.close_all()
     assert kinds == ["Popen", "ForkedProcess", "Popen"] and zygote._refused == [], (kinds, zygote._refused)
     assert zygote._unready == ["the zygote ended as it started"]
+
+
+def test_a_zygote_that_ends_under_a_request_is_replaced_and_forks_go_on(monkeypatch):
+    # (killed, or out of memory, between the judge's check that it lives and its request: every
+    # later contestant of the process started fresh, though the machine's fence held)
+    import socket
+    monkeypatch.setattr(zygote, "_refused", [])
+    zygote.close_all()
+    real, asked = zygote.live, []
+
+    def live_then_ended(torch=False):
+        z = real(torch)
+        if not asked:
+            z.box.kill()   # (its processes and groups gone; this process still holds it)
+        asked.append(z)
+        return z
+    monkeypatch.setattr(zygote, "live", live_then_ended)
+    kinds = []
+    try:
+        for _ in range(2):
+            box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
+            ours, theirs = socket.socketpair()
+            try:
+                box.start_guest(theirs.fileno())
+                kinds.append(type(box.process).__name__)
+            finally:
+                theirs.close()
+                ours.close()
+                box.kill()
+    finally:
+        zygote.close_all()
+    assert kinds == ["ForkedProcess", "ForkedProcess"] and zygote._refused == [], (kinds, zygote._refused)
+    assert asked[1] is not asked[0]

@@ -108,12 +108,20 @@ class GuestSandbox(sandbox.Sandbox):
         """The guest on `channel`: a fork of the zygote where this machine lends one (zygote.py),
         else a fresh interpreter; the same fence either way."""
         if zygote.usable(self.fence, torch):
-            try:
-                return self.start_forked(zygote.live(torch), channel, torch)
-            except zygote.Refused as e:
-                zygote.refused(e, torch)
-                self.kill()
-                self.stopped_by, self.process = None, None
+            for again in (True, False):
+                used = None
+                try:
+                    used = zygote.live(torch)
+                    return self.start_forked(used, channel, torch)
+                except zygote.Refused as e:
+                    self.kill()
+                    self.stopped_by, self.process = None, None
+                    # (a zygote that ended under the request, killed or out of memory, says nothing
+                    # of the machine's fence: a new one, once; else every later fork is refused)
+                    if again and used is not None and not used.alive():
+                        continue
+                    zygote.refused(e, torch)
+                    break
         return self.start(grants.guest_argv(channel, torch), pass_fds=[channel])
 
 
