@@ -528,3 +528,37 @@ def test_a_zygote_that_ends_under_a_request_is_replaced_and_forks_go_on(monkeypa
         zygote.close_all()
     assert kinds == ["ForkedProcess", "ForkedProcess"] and zygote._refused == [], (kinds, zygote._refused)
     assert asked[1] is not asked[0]
+
+
+def test_a_zygote_whose_interpreter_is_killed_is_replaced_though_bubblewrap_has_not_noticed(monkeypatch):
+    # (the out-of-memory killer ends the zygote's interpreter, not the bubblewrap around it, which
+    # ends a moment later: taken for alive then, the refused fork refused every later one)
+    import signal
+    import socket
+    import time
+    monkeypatch.setattr(zygote, "_refused", [])
+    zygote.close_all()
+    try:
+        z = zygote.live(False)
+        os.kill(z.box.process.pid, signal.SIGSTOP)   # (bubblewrap's moment, held: it cannot end)
+        folder = next(iter(z.box.groups.values()))[1]
+        with open(os.path.join(folder, "cgroup.procs")) as f:
+            pids = [int(p) for p in f.read().split()]
+        interpreter = [p for p in pids if not os.readlink(f"/proc/{p}/exe").endswith("bwrap")]
+        assert len(interpreter) == 1, pids
+        os.kill(interpreter[0], signal.SIGKILL)
+        due = time.monotonic() + 5
+        while os.path.exists(f"/proc/{interpreter[0]}") and time.monotonic() < due:
+            time.sleep(0.01)
+        box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
+        ours, theirs = socket.socketpair()
+        try:
+            box.start_guest(theirs.fileno())
+            kind = type(box.process).__name__
+        finally:
+            theirs.close()
+            ours.close()
+            box.kill()
+    finally:
+        zygote.close_all()
+    assert kind == "ForkedProcess" and zygote._refused == [], (kind, zygote._refused)

@@ -165,7 +165,10 @@ class Zygote:
                                            f"was not ready within {READY_DEADLINE:.0f} s"))
 
     def alive(self):
-        return self.box.process is not None and self.box.process.poll() is None and self.line is not None
+        # (its line hung up: the interpreter ended, killed or out of memory, though the bubblewrap
+        # around it has not yet; taken for alive, its refused fork refused every later one)
+        return (self.box.process is not None and self.box.process.poll() is None and self.line is not None
+                and not _hung_up(self.line.fileno()))
 
     def fork(self, request, fds):
         """Asks for a contestant: request (its fence record, variables, limits) and its descriptors
@@ -193,6 +196,13 @@ def close_all():
     for zygote in list(_zygotes.values()):
         zygote.close()
     _zygotes.clear()
+
+
+def _hung_up(fd):
+    """Whether the other end of the socket fd has closed."""
+    waiting = select.poll()
+    waiting.register(fd, 0)   # (a hang-up is reported whatever is asked)
+    return any(events & (select.POLLHUP | select.POLLERR) for _, events in waiting.poll(0))
 
 
 def _ready(fd, timeout):
