@@ -470,29 +470,37 @@ def test_contestants_forked_with_torch_loaded_draw_torchs_random_numbers_of_thei
     assert draws[0][0] != draws[1][0] and draws[0][1] != draws[1][1], draws
 
 
+def started_kind(torch=False):
+    """The kind of process a contestant (given torch or not) started as; ended before this returns."""
+    import socket
+    box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
+    ours, theirs = socket.socketpair()
+    try:
+        box.start_guest(theirs.fileno(), torch=torch)
+        return type(box.process).__name__
+    finally:
+        theirs.close()
+        ours.close()
+        box.kill()
+
+
+def started_kinds(torches):
+    """started_kind of each of torches in turn, every zygote ended after them."""
+    try:
+        return [started_kind(torch) for torch in torches]
+    finally:
+        zygote.close_all()
+
+
 def test_a_torch_zygote_that_is_never_ready_leaves_the_plain_one_forking(monkeypatch):
     # (torch's import failing in its zygote, or slower than READY_DEADLINE, says nothing of the
     # machine's fence: it refused every later contestant its fork, the plain ones too)
-    import socket
     monkeypatch.setattr(zygote, "_refused", [])
     monkeypatch.setattr(zygote, "_unready", [], raising=False)
     monkeypatch.setattr(zygote, "ZYGOTE_COMMAND", "import sys; sys.argv[4:] == ['torch'] and sys.exit(3); "
                         + zygote.ZYGOTE_COMMAND)
     zygote.close_all()
-    kinds = []
-    try:
-        for torch in (True, False, True):
-            box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
-            ours, theirs = socket.socketpair()
-            try:
-                box.start_guest(theirs.fileno(), torch=torch)
-                kinds.append(type(box.process).__name__)
-            finally:
-                theirs.close()
-                ours.close()
-                box.kill()
-    finally:
-        zygote.close_all()
+    kinds = started_kinds((True, False, True))
     assert kinds == ["Popen", "ForkedProcess", "Popen"] and zygote._refused == [], (kinds, zygote._refused)
     assert zygote._unready == ["the zygote ended as it started"]
 
@@ -500,7 +508,6 @@ def test_a_torch_zygote_that_is_never_ready_leaves_the_plain_one_forking(monkeyp
 def test_a_zygote_that_ends_under_a_request_is_replaced_and_forks_go_on(monkeypatch):
     # (killed, or out of memory, between the judge's check that it lives and its request: every
     # later contestant of the process started fresh, though the machine's fence held)
-    import socket
     monkeypatch.setattr(zygote, "_refused", [])
     zygote.close_all()
     real, asked = zygote.live, []
@@ -512,20 +519,7 @@ def test_a_zygote_that_ends_under_a_request_is_replaced_and_forks_go_on(monkeypa
         asked.append(z)
         return z
     monkeypatch.setattr(zygote, "live", live_then_ended)
-    kinds = []
-    try:
-        for _ in range(2):
-            box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
-            ours, theirs = socket.socketpair()
-            try:
-                box.start_guest(theirs.fileno())
-                kinds.append(type(box.process).__name__)
-            finally:
-                theirs.close()
-                ours.close()
-                box.kill()
-    finally:
-        zygote.close_all()
+    kinds = started_kinds((False, False))
     assert kinds == ["ForkedProcess", "ForkedProcess"] and zygote._refused == [], (kinds, zygote._refused)
     assert asked[1] is not asked[0]
 
@@ -534,7 +528,6 @@ def test_a_zygote_whose_interpreter_is_killed_is_replaced_though_bubblewrap_has_
     # (the out-of-memory killer ends the zygote's interpreter, not the bubblewrap around it, which
     # ends a moment later: taken for alive then, the refused fork refused every later one)
     import signal
-    import socket
     import time
     monkeypatch.setattr(zygote, "_refused", [])
     zygote.close_all()
@@ -550,15 +543,7 @@ def test_a_zygote_whose_interpreter_is_killed_is_replaced_though_bubblewrap_has_
         due = time.monotonic() + 5
         while os.path.exists(f"/proc/{interpreter[0]}") and time.monotonic() < due:
             time.sleep(0.01)
-        box = GuestSandbox(fence.CONTESTANT, name="the test's contestant")
-        ours, theirs = socket.socketpair()
-        try:
-            box.start_guest(theirs.fileno())
-            kind = type(box.process).__name__
-        finally:
-            theirs.close()
-            ours.close()
-            box.kill()
+        kind = started_kind()
     finally:
         zygote.close_all()
     assert kind == "ForkedProcess" and zygote._refused == [], (kind, zygote._refused)
