@@ -112,7 +112,7 @@ class GuestSandbox(sandbox.Sandbox):
                 used = None
                 try:
                     used = zygote.live(torch)
-                    return self.start_forked(used, channel, torch)
+                    return self.start_forked(used, channel)
                 except zygote.Refused as e:
                     self.kill()
                     self.stopped_by, self.process = None, None

@@ -256,8 +256,6 @@ def _contestant(request, channel, out, err):
         os.environ.clear()
         os.environ.update(request["env"])
         _fresh_state()
-        if request.get("torch"):   # (a contestant that loads a trained model: torch before its clock; its zygote's has)
-            import deepcontact.model.inference  # noqa: F401
         from .guest import main as guest_main
         guest_main(["", str(channel)])
     except BaseException as e:

@@ -212,10 +212,11 @@ class Sandbox:
         _started.add(self.process.pid)
         return self.process
 
-    def start_forked(self, zygote, channel, torch=False):
-        """Starts the guest on `channel` as a fork of `zygote` (zygote.Zygote) that fences itself
-        by this fence's record before any code of its own runs, charged to this sandbox's groups
-        from its birth; returns once it is fenced (ForkRefused where it cannot be)."""
+    def start_forked(self, zygote, channel):
+        """Starts the guest on `channel` as a fork of `zygote` (zygote.Zygote: the torch one for a
+        contestant that loads a trained network) that fences itself by this fence's record before
+        any code of its own runs, charged to this sandbox's groups from its birth; returns once it
+        is fenced (ForkRefused where it cannot be)."""
         from dataclasses import asdict
         _registered()
         memory = fences.memory_limit(self.fence, len(_live))
@@ -235,7 +236,7 @@ class Sandbox:
             out, err = (os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC) if fd == subprocess.DEVNULL else fd
                         for fd in (out, err))
             ours += [out, err]
-            request = {"fence": asdict(self.fence), "env": fences.environment(self.fence), "torch": bool(torch),
+            request = {"fence": asdict(self.fence), "env": fences.environment(self.fence),
                        "memory": memory if "memory" not in self.groups else None}
             self.process = zygote.fork(request, [channel, out, err, seccomp, *ours[:-3]])
         finally:

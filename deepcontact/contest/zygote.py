@@ -142,7 +142,6 @@ class Zygote:
     """One zygote in its sandbox and the line to it (torch: its interpreter has torch loaded)."""
 
     def __init__(self, torch=False):
-        self.torch = torch
         self.box = sandbox.Sandbox(fences.ZYGOTE, name="the contestants' zygote")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
