@@ -25,7 +25,9 @@ warnings.filterwarnings("ignore", message="Using padding='same' with even kernel
 
 
 def _he(module):
-    if isinstance(module, (nn.Conv2d, nn.Linear)):
+    # (none on torch's meta device, which has no values to draw: normal_ there imports
+    # torch._dynamo, about 1 s of CPU in each checkpoint's load, a network's contestant's setup too)
+    if isinstance(module, (nn.Conv2d, nn.Linear)) and not module.weight.is_meta:
         nn.init.kaiming_normal_(module.weight, nonlinearity="relu")
         nn.init.zeros_(module.bias)
 
