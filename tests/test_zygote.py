@@ -566,3 +566,25 @@ def test_a_contestant_given_a_network_is_charged_no_import_of_torch_at_its_setup
         assert c.last[1] < 0.4, f"its setup used {c.last[1]:.2f} s of CPU"   # (about 0.03 s: its network built)
     finally:
         c.close()
+
+
+def test_a_fenced_jobs_contestant_given_a_network_is_forked_from_the_torch_zygote(monkeypatch):
+    # (the broker's start for a job: its torch field picks the zygote, as the judge's own does)
+    import socket
+    from deepcontact.contest import broker, grants
+    judge = broker.Broker()
+    monkeypatch.setenv(broker.ENV, str(judge.job_fd))
+    monkeypatch.setattr(broker, "_conn", None)
+    ours, theirs = socket.socketpair()
+    box = broker.RemoteSandbox(grants.Grant([], [], []))
+    try:
+        box.start_guest(theirs.fileno(), torch=True)
+        started = judge.boxes[box.id]
+        assert type(started.process).__name__ == "ForkedProcess"
+        assert _loads_torch(started) and _loads_torch(zygote.live(torch=True).box)
+    finally:
+        box.kill()
+        theirs.close()
+        ours.close()
+        judge.close()
+        monkeypatch.setattr(broker, "_conn", None)
