@@ -104,6 +104,14 @@ def _zygote():
                  nested=True)
 
 
+def _job_zygote():
+    # (the jobs' zygote: dc's own code and the libraries a job imports (numpy, torch), made once;
+    # each job is a fork that fences itself as its own profile (JOB, TRAINING, ...) before dc's
+    # command runs in it: forked.py. A job's namespaces, so that its forks keep dc's control groups
+    # where the kernel shows them; the caller's environment, which its libraries read as they load)
+    return replace(_zygote(), profile="job-zygote", namespaces=JOB_NAMESPACES, environment="given", threads=None)
+
+
 CONTESTANT = _contestant()
 ENGINE = replace(_contestant(), profile="engine")   # (a plug-in engine's world: a guest as a contestant is)
 JOB = _job("job")
@@ -111,7 +119,8 @@ TRAINING = _job("training")   # (given the accelerator's device files where it u
 DRAWING = _job("drawing")
 LISTING = _job("listing", streams=Streams(stdout="discard", stderr="discard"))
 ZYGOTE = _zygote()
-PROFILES = {f.profile: f for f in (CONTESTANT, ENGINE, JOB, TRAINING, DRAWING, LISTING, ZYGOTE)}
+JOB_ZYGOTE = _job_zygote()
+PROFILES = {f.profile: f for f in (CONTESTANT, ENGINE, JOB, TRAINING, DRAWING, LISTING, ZYGOTE, JOB_ZYGOTE)}
 JOB_FENCES = ("namespaces", "read-only view", "seccomp")   # what a job's fence needs of the machine
 
 
@@ -174,7 +183,9 @@ def bwrap_argv(fence, command, seccomp_fd=None):
 def _namespace_options(fence):
     if set(fence.namespaces) == set(ALL_NAMESPACES):
         return ["--unshare-all", "--unshare-user", "--uid", "65534", "--gid", "65534"]
-    return [f"--unshare-{name}" for name in fence.namespaces if name != "mount"]   # (bubblewrap always makes one)
+    out = [f"--unshare-{name}" for name in fence.namespaces if name != "mount"]   # (bubblewrap always makes one)
+    # (a zygote's forks map the judge's own user onto its 65534: no user namespace may map its parent's root)
+    return out + (["--uid", "65534", "--gid", "65534"] if fence.nested else [])
 
 
 def _view_options(fence):
@@ -225,7 +236,7 @@ def describe(fence):
     sees = ("the interpreter, its installed packages, deepcontact, the plug-in's own module's files and the files "
             "it is given" if fence.view == "system" else "the whole file system, read-only")
     if fence.proc == "host":
-        sees += ", and the machine's /proc (each contestant it forks covers it with its own)"
+        sees += ", and the machine's /proc (each process it forks covers it with its own)"
     writes = (f"a private /tmp of {_size(fence.limits.file_size)}" if fence.tmp else
               "only the folders it is given: its TMPDIR and its output's staging folder (a listing: none)"
               if fence.cwd is None else "nothing")

@@ -44,7 +44,15 @@ FDS_MAX = 16            # descriptors of one request
 BASE = "/dev/shm"
 
 
-def main(fd, package, torch=False):
+# What the jobs' zygote loads once (a fresh training job's interpreter took 3-4 s of CPU importing
+# them: torch about 2, its compiler, which an optimiser's first step imports, about 1.5):
+# libraries only, none of dc's commands, so that nothing a job's own environment sets is read at an
+# import made before it (dc's modules read DC_* variables as they load)
+JOB_LIBRARIES = ("numpy", "torch", "torch.nn", "torch.optim", "torch._dynamo", "lxml.etree", "click",
+                 "deepcontact._box2d")
+
+
+def main(fd, package, torch=False, job=False):
     """The zygote: imports the contestant's side, then forks a contestant for each request on
     the socket `fd` until the judge closes it. package: the judge's deepcontact folder, which
     the zygote's must be (else it ends, and contestants start fresh); torch: torch and the model's
@@ -54,13 +62,20 @@ def main(fd, package, torch=False):
     if os.path.dirname(os.path.abspath(deepcontact.__file__)) != package:
         sys.stderr.write(f"dc: the zygote found deepcontact at {deepcontact.__file__}, not in {package}\n")
         os._exit(3)
-    import multiprocessing.connection  # noqa: F401  (the contestant's libraries, loaded once)
+    if job:
+        import importlib
+        for name in JOB_LIBRARIES:
+            importlib.import_module(name)
+        rest = sys.path[1:]   # (less the judge's folder put first, and -c's current folder)
+        _JOB_START["path"] = rest[1:] if rest[:1] == [""] else rest
+    else:
+        import multiprocessing.connection  # noqa: F401  (the contestant's libraries, loaded once)
 
-    import numpy  # noqa: F401
+        import numpy  # noqa: F401
 
-    from . import guest  # noqa: F401
-    if torch:
-        import deepcontact.model.inference  # noqa: F401
+        from . import guest  # noqa: F401
+        if torch:
+            import deepcontact.model.inference  # noqa: F401
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)   # (its forks are reaped by the kernel)
     import gc
     import resource  # noqa: F401
@@ -90,6 +105,9 @@ def main(fd, package, torch=False):
             os.close(f)
 
 
+_JOB_START = {}   # (the jobs' zygote: its import path as the interpreter made it)
+
+
 def _report(status, kind, text=b""):
     try:
         os.write(status, kind + text)
@@ -100,7 +118,9 @@ def _report(status, kind, text=b""):
 def _outside(request, fds):
     """The fork in the zygote's namespaces: into the groups, the limits, new namespaces; then the
     namespace's PID 1, whose exit code it reports. Never returns."""
-    channel, out, err, status, seccomp, *groups = fds
+    trees = len(request.get("job", {}).get("trees", ()))
+    channel, out, err, status, seccomp, *groups = fds[:len(fds) - trees]
+    trees = list(zip(request["job"]["trees"], fds[len(fds) - trees:])) if trees else []
     try:
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
         null = os.open(os.devnull, os.O_RDWR)   # (the zygote's streams are not a contestant's to hold)
@@ -114,12 +134,14 @@ def _outside(request, fds):
         _limits(request)
         os.setsid()
         uid, gid = os.getuid(), os.getgid()
-        kernel.unshare(kernel.ALL_NAMESPACES)
-        kernel.map_user(uid, gid)
+        kernel.unshare(kernel.namespace_flags(request["fence"]["namespaces"]) | kernel.CLONE_NEWUSER)
+        # (a job: as the judge's own user, as bubblewrap runs a fresh job; the zygote's user is
+        # 65534 in its namespace, since no user namespace may map its parent's root)
+        kernel.map_user(uid, gid, request["job"]["user"] if "job" in request else None)
         pid = os.fork()
         if pid == 0:
-            _init(request, channel, out, err, status, seccomp)
-        for f in (channel, out, err, seccomp):
+            _init(request, channel, out, err, status, seccomp, trees)
+        for f in (channel, out, err, seccomp, *(fd for _, fd in trees)):
             os.close(f)
         _, code = os.waitpid(pid, 0)
         code = os.waitstatus_to_exitcode(code)
@@ -137,10 +159,22 @@ def _limits(request):
     import resource
     # (no memory group here: the address space instead; else none, as a fresh sandbox's, whatever
     # the zygote's own soft limit)
-    kernel.set_limits(request["fence"]["limits"]["file_size"], request.get("memory") or resource.RLIM_INFINITY)
+    memory = request.get("memory")
+    if memory and "job" in request:   # (beyond the jobs' zygote's libraries, mapped before it ran: as a
+        memory += _address_space()     # memory group charges a fork only the pages it makes)
+    kernel.set_limits(request["fence"]["limits"]["file_size"], memory or resource.RLIM_INFINITY)
 
 
-def _init(request, channel, out, err, status, seccomp):
+def _address_space():
+    """Bytes of this process's address space now (0 where /proc does not say)."""
+    try:
+        with open("/proc/self/status") as f:
+            return next((int(line.split()[1]) << 10 for line in f if line.startswith("VmSize:")), 0)
+    except (OSError, ValueError):
+        return 0
+
+
+def _init(request, channel, out, err, status, seccomp, trees=()):
     """PID 1 of the contestant's namespaces: its view, its capabilities and filter; then the
     contestant's process, whose end is its own. Never returns."""
     try:
@@ -152,7 +186,10 @@ def _init(request, channel, out, err, status, seccomp):
         # outer fork's, a contestant's kill(0, ...) reached that fork, outside its PID namespace)
         os.setsid()
         record = request["fence"]
-        _view(record)
+        if record["view"] == "root":
+            _root_view(record, trees)
+        else:
+            _view(record)
         kernel.loopback_up()
         program = os.read(seccomp, 1 << 20)
         os.close(seccomp)
@@ -162,6 +199,8 @@ def _init(request, channel, out, err, status, seccomp):
         os.close(status)
         pid = os.fork()
         if pid == 0:
+            if "job" in request:
+                _job(request, channel, out, err)
             _contestant(request, channel, out, err)
     except BaseException as e:
         _report(status, b"E", _line(e) + b"\0")
@@ -214,6 +253,35 @@ def _view(record):
     os.chdir(record["cwd"] or "/tmp")
 
 
+# bubblewrap's --proc covers these read-only (a namespace's root may not write the kernel's settings)
+PROC_READ_ONLY = ("sys", "sysrq-trigger", "irq", "bus")
+
+
+def _root_view(record, trees):
+    """A job's file system, from its fence record, as bubblewrap builds a job's (fence.bwrap_argv):
+    the whole file system read-only (the zygote's view, itself read-only), its own /proc and
+    /dev, a /dev/shm of its own, and its writable folders: the detached trees the judge made of
+    them (kernel.detached_trees), attached where they lie. Then the new root made the root."""
+    kernel.mount(None, "/", None, kernel.MS_REC | kernel.MS_PRIVATE)
+    kernel.mount("tmpfs", BASE, "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV, "size=1m,mode=0755")
+    root = BASE + "/root"
+    os.mkdir(root)
+    kernel.bind("/", root)
+    kernel.mount("proc", root + "/proc", "proc", kernel.MS_NOSUID | kernel.MS_NODEV | kernel.MS_NOEXEC)
+    for name in PROC_READ_ONLY:
+        if os.path.exists(f"{root}/proc/{name}"):
+            kernel.bind(f"{root}/proc/{name}", f"{root}/proc/{name}")
+    _dev(root, record, shm_size=None)
+    for path, fd in trees:
+        kernel.attach_tree(fd, root + path)
+        kernel.restrict(root + path)   # (no set-user-ID, no device files: bubblewrap's --bind)
+        os.close(fd)
+    os.chdir(root)
+    kernel.pivot_root(".", ".")   # (the old root stacked under the new, then detached: no folder for it)
+    kernel.umount(".")
+    os.chdir(record["cwd"] or "/")
+
+
 def _bound(path, root, read_only=True):
     """path bound at the same path under root (its mount point made where it is missing)."""
     target = root + path
@@ -226,11 +294,13 @@ def _bound(path, root, read_only=True):
     kernel.bind(path, target, read_only=read_only)
 
 
-def _dev(root, record):
+def _dev(root, record, shm_size=""):
     """Its own /dev: a tmpfs with the harmless device nodes bound in, the usual links, and a
-    /dev/shm of file_size bytes (none shared with another contestant)."""
+    /dev/shm of file_size bytes (none shared with another contestant; shm_size None: the
+    kernel's default size, as bubblewrap's --tmpfs for a job's)."""
     dev = root + "/dev"
-    os.mkdir(dev)
+    if not os.path.isdir(dev):   # (a job's view has one: covered)
+        os.mkdir(dev)
     kernel.mount("tmpfs", dev, "tmpfs", kernel.MS_NOSUID, "size=64k,mode=0755")
     for name in DEVICES:
         if os.path.exists(f"/dev/{name}"):
@@ -239,8 +309,8 @@ def _dev(root, record):
     for name, target in DEV_LINKS.items():
         os.symlink(target, f"{dev}/{name}")
     os.mkdir(f"{dev}/shm")
-    kernel.mount("tmpfs", f"{dev}/shm", "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV,
-                 f"size={record['limits']['file_size']},mode=1777")
+    size = f"size={record['limits']['file_size']}," if shm_size is not None else ""
+    kernel.mount("tmpfs", f"{dev}/shm", "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV, f"{size}mode=1777")
 
 
 def _contestant(request, channel, out, err):
@@ -264,6 +334,133 @@ def _contestant(request, channel, out, err):
         except OSError:
             pass
     os._exit(1)
+
+
+def _job(request, channel, out, err):
+    """A job's process: its streams, its environment and folder, then what follows the
+    interpreter in its command line ("-m MODULE ARGS" or "-c CODE ARGS") run as a fresh
+    interpreter runs it, its descriptor at the number the judge gave it (as Popen's pass_fds
+    keeps one), ended as that interpreter ends (its threads joined, its exit functions run).
+    Never returns."""
+    code = 1
+    try:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        null = os.open("/dev/null", os.O_RDONLY)
+        os.dup2(null, 0)
+        os.dup2(out, 1)
+        os.dup2(err, 2)
+        os.closerange(3, channel)   # (nothing of the zygote's but the job's own descriptor)
+        os.closerange(channel + 1, os.sysconf("SC_OPEN_MAX"))
+        job = request["job"]
+        if job["fd"] != channel:
+            os.dup2(channel, job["fd"])
+            os.close(channel)
+        os.environ.clear()
+        os.environ.update(request["env"])
+        os.environ[fences.MARKER] = request["fence"]["profile"]
+        how, what, *args = job["argv"]
+        # (as the interpreter makes it: -m's folder or -c's "" first, then PYTHONPATH's, then its own)
+        given = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+        sys.path[:] = [os.getcwd() if how == "-m" else "", *given, *_JOB_START["path"]]
+        sys.argv = [how, *args]
+        _site_customized()
+        _fresh_state()
+        import tempfile
+        tempfile.tempdir = None   # (its TMPDIR, not one an import in the zygote looked up)
+        _torch_paths()
+        try:
+            _run(how, what)
+            code = 0
+        except SystemExit as e:
+            code = _exit_code(e.code)
+        except KeyboardInterrupt:
+            _flush()
+            signal.signal(signal.SIGINT, signal.SIG_DFL)   # (as an interpreter ends on one: by the signal)
+            os.kill(os.getpid(), signal.SIGINT)
+        except BaseException:
+            sys.excepthook(*sys.exc_info())
+            code = 1
+        import atexit
+        import threading
+        threading._shutdown()
+        atexit._run_exitfuncs()
+        _flush()
+    except BaseException as e:
+        try:
+            os.write(2, _line(e) + b"\n")
+        except OSError:
+            pass
+    os._exit(code)
+
+
+def _run(how, what):
+    """`python -m what` or `python -c what`, in this process, as __main__."""
+    if how == "-m":
+        import runpy
+        runpy.run_module(what, run_name="__main__", alter_sys=True)
+        return
+    import types
+    main = types.ModuleType("__main__")
+    sys.modules["__main__"] = main
+    exec(compile(what, "<string>", "exec"), vars(main))
+
+
+def _exit_code(code):
+    """An exit status from SystemExit's code, as the interpreter makes it (a text: said, then 1)."""
+    if code is None:
+        return 0
+    if isinstance(code, int):
+        return code & 0xFF
+    try:
+        sys.stderr.write(f"{code}\n")
+    except Exception:
+        pass
+    return 1
+
+
+def _flush():
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if stream is not None:
+                stream.flush()
+        except Exception:
+            pass
+
+
+def _site_customized():
+    """sitecustomize and usercustomize run as a fresh interpreter's site runs them, where the job's
+    import path finds one the zygote did not run (one on its PYTHONPATH: a coverage hook, say)."""
+    import importlib.util
+    import site
+    for name, run in (("sitecustomize", site.execsitecustomize), ("usercustomize", site.execusercustomize)):
+        if name == "usercustomize" and not site.ENABLE_USER_SITE:
+            continue
+        try:
+            found = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            found = None
+        ran = sys.modules.get(name)
+        if found is not None and found.origin != getattr(ran, "__file__", None):
+            sys.modules.pop(name, None)
+            run()
+
+
+def _torch_paths():
+    """The two paths torch's compiler looked up as the zygote imported it, looked up again as a
+    fresh interpreter would: its cache under TMPDIR (and the user's name), its debug folder under
+    the current folder. (Only these hold the zygote's folders: tests/test_zygote.py looks.)"""
+    package = sys.modules.get("torch._dynamo.package")
+    if package is not None:
+        given = os.environ.get("TORCHINDUCTOR_CACHE_DIR")
+        try:
+            package.DynamoCache._path_prefix = os.path.join(package.cache_dir(), "dynamo")
+        except OSError:   # (no folder to write in: a listing's; its own /dev/shm stays the cache's)
+            pass
+        if given is None:   # (the lookup sets it: a job that never compiles is not told)
+            os.environ.pop("TORCHINDUCTOR_CACHE_DIR", None)
+    config = sys.modules.get("torch._dynamo.config")
+    if config is not None:
+        config.debug_dir_root = config.default_debug_dir_root()
 
 
 def _fresh_state():

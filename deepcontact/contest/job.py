@@ -21,7 +21,7 @@ from ..errors import InputError, show_path
 from ..output.argument import output_argument   # noqa: F401  (job.output_argument: the callers' name)
 from ..output.trees import open_folder_under
 from ..plugins import PluginError
-from . import machine, result, sandbox
+from . import machine, result, sandbox, zygote
 from .broker import ENV as BROKER_ENV, Broker
 
 COMMAND_LINE = "DC_COMMAND_LINE"   # the user's command line, for the job's reports (not the staged one)
@@ -55,7 +55,7 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
         if stream is not None:
             stream.flush()
     try:
-        box.start([sys.executable, "-m", "deepcontact.cli.main", *dc_args], pass_fds=[broker.job_fd], env=env)
+        start(box, ["-m", "deepcontact.cli.main", *dc_args], broker.job_fd, env)
         broker.job_started()
         while True:
             try:
@@ -69,6 +69,27 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
     if box.stopped_by is not None:
         raise PluginError(f"{who} was stopped at {box.stopped_by} ({how(code)}): nothing it wrote was published")
     return code
+
+
+def start(box, argv, fd, env):
+    """`python ARGV` ("-m MODULE ARGS" or "-c CODE ARGS") started in box's fence (a job's), given
+    the descriptor fd: a fork of the jobs' zygote where this machine lends one (zygote.py), else
+    a fresh interpreter; the same fence either way."""
+    if zygote.usable_for_job(box.fence):
+        for again in (True, False):
+            used = None
+            try:
+                used = zygote.live_job(env)
+                box.start_job_forked(used, argv, fd, env)
+                return
+            except zygote.Refused as e:
+                box.kill()
+                box.stopped_by, box.process = None, None
+                if again and used is not None and not used.alive():   # (ended under the request: a new one, once)
+                    continue
+                zygote.refused_job(e)
+                break
+    box.start([sys.executable, *argv], pass_fds=[fd], env=env)
 
 
 def how(code, record=None):

@@ -27,6 +27,10 @@ _PR_SET_NO_NEW_PRIVS = 38
 _PR_CAP_AMBIENT, _PR_CAP_AMBIENT_CLEAR_ALL = 47, 4
 _CAPABILITY_VERSION_3 = 0x20080522
 _SYS_PIVOT_ROOT = 155   # (x86_64; glibc has no wrapper)
+_SYS_OPEN_TREE, _SYS_MOVE_MOUNT = 428, 429   # (x86_64, Linux 5.2: glibc 2.36 has wrappers, Debian 12 has 2.36)
+_AT_FDCWD, _OPEN_TREE_CLONE, _AT_RECURSIVE, _MOVE_MOUNT_F_EMPTY_PATH = -100, 1, 0x8000, 4
+NAMESPACE_FLAGS = {"user": CLONE_NEWUSER, "mount": CLONE_NEWNS, "pid": CLONE_NEWPID, "net": CLONE_NEWNET,
+                   "ipc": CLONE_NEWIPC, "uts": CLONE_NEWUTS, "cgroup": CLONE_NEWCGROUP}
 
 _libc = ctypes.CDLL(None, use_errno=True)
 _libc.mount.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_ulong, ctypes.c_char_p]
@@ -60,10 +64,12 @@ def unshare(flags):
     _checked(_libc.unshare(ctypes.c_int(flags)), "unshare")
 
 
-def map_user(uid, gid):
-    """In a new user namespace: this process's user and group mapped to themselves (one id each;
-    setgroups refused, as the kernel asks of an unprivileged map)."""
-    for name, text in (("setgroups", "deny"), ("uid_map", f"{uid} {uid} 1"), ("gid_map", f"{gid} {gid} 1")):
+def map_user(uid, gid, inside=None):
+    """In a new user namespace: this process's user and group (uid, gid, as they were outside)
+    mapped to themselves, or to the (user, group) `inside` (one id each; setgroups refused, as the
+    kernel asks of an unprivileged map)."""
+    inner_uid, inner_gid = inside or (uid, gid)
+    for name, text in (("setgroups", "deny"), ("uid_map", f"{inner_uid} {uid} 1"), ("gid_map", f"{inner_gid} {gid} 1")):
         with open(f"/proc/self/{name}", "w") as f:
             f.write(text)
 
@@ -78,6 +84,68 @@ def bind(source, target, read_only=True, recursive=True):
     mount(source, target, None, flags)
     if read_only:
         mount(None, target, None, flags | MS_REMOUNT | MS_RDONLY | MS_NOSUID | MS_NODEV)
+
+
+def namespace_flags(names):
+    """The CLONE_* flags of a fence record's namespaces ("user", "mount", ...)."""
+    return sum(NAMESPACE_FLAGS[name] for name in set(names))
+
+
+def detached_trees(paths):
+    """A detached copy of the mounts at each folder of `paths` (open_tree's clone, recursive, as
+    bubblewrap's --bind), one descriptor each, for a fork of a zygote to attach writable in its
+    own view (attach_tree): the zygote sees the file system read-only, so no fork of it can bind
+    a folder writable from its own view. Made by a short-lived fork of this process in a user and
+    mount namespace of its own, where cloning a mount needs no privilege (the kernel lets a
+    detached tree be attached in another namespace: Linux 5.2). OSError where it cannot be."""
+    import socket
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    uid, gid = os.getuid(), os.getgid()
+    pid = os.fork()
+    if pid == 0:   # (one thread here, as a user namespace needs; nothing of the parent's is touched)
+        fds = []
+        try:
+            ours.close()
+            unshare(CLONE_NEWUSER | CLONE_NEWNS)
+            map_user(uid, gid)
+            for path in paths:
+                fd = _libc.syscall(_SYS_OPEN_TREE, _AT_FDCWD, _bytes(path),
+                                   _OPEN_TREE_CLONE | _AT_RECURSIVE | os.O_CLOEXEC)
+                if fd < 0:
+                    _checked(-1, f"open_tree {path}")
+                fds.append(fd)
+            socket.send_fds(theirs, [b"T"], fds)
+        except BaseException as e:
+            try:
+                theirs.send(b"E" + f"{e}".encode(errors="replace")[:500])
+            except BaseException:
+                pass
+        os._exit(0)
+    theirs.close()
+    try:
+        said, fds, _, _ = socket.recv_fds(ours, 1024, max(1, len(paths)))
+    finally:
+        ours.close()
+        os.waitpid(pid, 0)
+    if said != b"T" or len(fds) != len(paths):
+        for fd in fds:
+            os.close(fd)
+        raise OSError(f"no detached tree of the folders ({said[1:].decode(errors='replace') or 'no answer'})")
+    return fds
+
+
+def attach_tree(fd, target):
+    """The detached tree `fd` (detached_trees) attached at target, in this mount namespace."""
+    _checked(_libc.syscall(_SYS_MOVE_MOUNT, fd, b"", _AT_FDCWD, _bytes(target), _MOVE_MOUNT_F_EMPTY_PATH),
+             f"move_mount {target}")
+
+
+def restrict(target):
+    """The mount at target made nosuid and nodev, its other flags kept (statvfs's ST_* flags are
+    the MS_* ones, but for relatime)."""
+    kept = os.statvfs(target).f_flag & (MS_RDONLY | MS_NOEXEC | 1024 | 2048)   # (noatime, nodiratime)
+    relatime = (1 << 21) if os.statvfs(target).f_flag & 4096 else 0
+    mount(None, target, None, MS_BIND | MS_REMOUNT | MS_NOSUID | MS_NODEV | kept | relatime)
 
 
 def pivot_root(new_root, put_old):

@@ -116,13 +116,14 @@ class _ArgRule(ctypes.Structure):
 
 
 # What each policy refuses beyond DENIED_CALLS and socket(AF_UNIX) (fence.Fence.seccomp names one).
-# "contestant": a contestant forked from the zygote (forked.py) runs in a user namespace of its
-# own, where making a namespace needs no capability, so clone may not ask for one, and clone3
-# (whose flags a filter cannot read) answers ENOSYS: the C library then falls back to clone.
-# "zygote": dc's own code only, which makes each fork's namespaces and mounts before the fork's
-# own filter is on.
+# "contestant" and "job": a contestant or job forked from a zygote (forked.py) runs in a user
+# namespace of its own, where making a namespace needs no capability, so clone may not ask for one
+# (bubblewrap's --disable-userns does this for a fresh job), and clone3 (whose flags a filter
+# cannot read) answers ENOSYS: the C library then falls back to clone.
+# "zygote": dc's own code only, which makes each fork's namespaces and mounts (a job's writable
+# folders attached from the trees the judge made) before the fork's own filter is on.
 SECCOMP_POLICIES = ("contestant", "job", "zygote")
-ZYGOTE_ALLOWED = ("mount", "umount2", "unshare", "pivot_root")
+ZYGOTE_ALLOWED = ("mount", "umount2", "unshare", "pivot_root", "move_mount")
 CLONE_FLAGS = kernel.NAMESPACES
 
 
@@ -133,7 +134,7 @@ def _policy_rules(policy):
     # socket(AF_UNIX) refused to every profile; the kernel reads the family as a 32-bit int, so the
     # rule compares the low 32 bits (SCMP_CMP_MASKED_EQ): a family of 1 + 2**32 was let through
     rules.append(("socket", "refuse", [_ArgRule(0, SCMP_CMP_MASKED_EQ, 0xFFFFFFFF, AF_UNIX)]))
-    if policy == "contestant":   # (one rule a flag: any of them set refuses the call)
+    if policy in ("contestant", "job"):   # (one rule a flag: any of them set refuses the call)
         rules += [("clone", "refuse", [_ArgRule(0, SCMP_CMP_MASKED_EQ, flag, flag)]) for flag in CLONE_FLAGS]
         rules.append(("clone3", "absent", []))
     return rules

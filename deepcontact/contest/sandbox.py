@@ -117,6 +117,9 @@ def _sandbox_process(pid):
         return False
 
 
+FDS_MAX = 16   # descriptors one request to a zygote carries (forked.FDS_MAX)
+
+
 class ForkRefused(Exception):
     """A fork of the zygote could not fence itself here (the line says which step): contestants
     then start as fresh sandboxes (zygote.py)."""
@@ -217,7 +220,29 @@ class Sandbox:
         contestant that loads a trained network) that fences itself by this fence's record before
         any code of its own runs, charged to this sandbox's groups from its birth; returns once it
         is fenced (ForkRefused where it cannot be)."""
-        from dataclasses import asdict
+        return self._forked(zygote, channel, {"env": fences.environment(self.fence)})
+
+    def start_job_forked(self, zygote, argv, fd, env):
+        """Starts `python ARGV` (a job of view "root": "-m MODULE ARGS" or "-c CODE ARGS") as a fork
+        of the jobs' zygote that fences itself by this fence's record before ARGV runs, as start()
+        would run it fresh: its environment `env`, the descriptor `fd` at its number (pass_fds),
+        its writable folders attached from detached trees of them (kernel.detached_trees)."""
+        if 5 + 3 + len(self.fence.writable) > FDS_MAX:
+            raise ForkRefused(f"more writable folders than a request carries ({len(self.fence.writable)})")
+        try:
+            trees = kernel.detached_trees(self.fence.writable)
+        except OSError as e:
+            raise ForkRefused(f"the job's writable folders could not be handed to it ({e})") from None
+        try:
+            return self._forked(zygote, fd, {"env": dict(env), "job": {
+                "argv": list(argv), "fd": fd, "trees": list(self.fence.writable), "user": [os.getuid(), os.getgid()]}},
+                trees)
+        finally:
+            for tree in trees:
+                os.close(tree)
+
+    def _forked(self, zygote, channel, request, trees=()):
+        from dataclasses import asdict, replace
         _registered()
         memory = fences.memory_limit(self.fence, len(_live))
         _live.add(self)
@@ -236,9 +261,10 @@ class Sandbox:
             out, err = (os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC) if fd == subprocess.DEVNULL else fd
                         for fd in (out, err))
             ours += [out, err]
-            request = {"fence": asdict(self.fence), "env": fences.environment(self.fence),
-                       "memory": memory if "memory" not in self.groups else None}
-            self.process = zygote.fork(request, [channel, out, err, seccomp, *ours[:-3]])
+            # (a job's folder, where its record leaves it to dc's: dc's current one, as bubblewrap's)
+            record = asdict(replace(self.fence, cwd=self.fence.cwd or os.getcwd()))
+            request = {"fence": record, **request, "memory": memory if "memory" not in self.groups else None}
+            self.process = zygote.fork(request, [channel, out, err, seccomp, *ours[:-3], *trees])
         finally:
             for fd in ours:
                 os.close(fd)
@@ -341,8 +367,8 @@ class Sandbox:
     def _kill_first_inside(self):
         """A job's namespace's first process killed first, so that bubblewrap reaps it and ends
         (killed first, bubblewrap would leave it to dc, the reaper of orphans, to find)."""
-        if self.process is None or self.process.poll() is not None:
-            return
+        if self.process is None or self.process.pid is None or self.process.poll() is not None:
+            return   # (a fork of the jobs' zygote: ended by its control groups)
         try:
             with open(f"/proc/{self.process.pid}/task/{self.process.pid}/children") as f:
                 children = [int(p) for p in f.read().split()]

@@ -33,7 +33,11 @@ READY_DEADLINE = 120.0
 # another copy where the judge's came from PYTHONPATH or its working directory, and a fork then
 # lacked every module the zygote had not imported)
 ZYGOTE_COMMAND = ("import sys; sys.path.insert(0, sys.argv[2]); from deepcontact.contest.forked import main; "
-                  "main(int(sys.argv[1]), sys.argv[3], torch=sys.argv[4:] == ['torch'])")
+                  "main(int(sys.argv[1]), sys.argv[3], torch='torch' in sys.argv[4:], job='job' in sys.argv[4:])")
+# The variables a job's interpreter reads as it starts or its libraries as they load (the jobs'
+# zygote is made with them, one zygote for each set); a job's others are set in its fork
+JOB_START_VARIABLES = ("PATH", "PYTHON", "LANG", "LC_", "HOME", "OMP_", "OPENBLAS_", "MKL_", "KMP_", "GOMP_", "TORCH",
+                       "PYTORCH", "CUDA", "LD_", "MALLOC", "NUMPY", "XDG_")
 _zygotes = {}           # {the variables its contestants start with: Zygote}
 _refused = []           # why a fork could not be fenced here (then no zygote is used again)
 _unready = []           # why the torch zygote was never ready (then contestants given torch start fresh)
@@ -78,6 +82,48 @@ def live(torch=False):
         return zygote
 
 
+def usable_for_job(fence):
+    """Whether a job of `fence` may be forked from the jobs' zygote here: a job's view of the
+    whole file system, no device files (an accelerator's driver is loaded by the job itself), a
+    machine that lends bubblewrap, seccomp and control groups for CPU and processes, and no job's
+    fork refused before."""
+    roots = machine.cgroup_roots()
+    return (not _job_refused and fence.view == "root" and not fence.devices and fence.environment == "given"
+            and machine.bwrap() is not None and machine.seccomp_program(fence.seccomp) is not None
+            and machine.seccomp_program(fences.JOB_ZYGOTE.seccomp) is not None and "cpu" in roots
+            and "pids" in roots and os.environ.get("DC_NO_ZYGOTE") != "1" and os.environ.get("DC_NO_JOB_ZYGOTE_AB") != "1")
+
+
+def job_environment(env):
+    """The part of a job's environment its zygote is made with (JOB_START_VARIABLES), less the
+    import path, which each fork sets from its own (forked._job)."""
+    return {key: value for key, value in env.items() if key.startswith(JOB_START_VARIABLES) and key != "PYTHONPATH"}
+
+
+def live_job(env):
+    """This process's live jobs' zygote for a job of environment `env` (its interpreter and
+    libraries loaded with env's job_environment)."""
+    start = job_environment(env)
+    key = ("job", tuple(sorted(start.items())))
+    with _lock:
+        zygote = _zygotes.get(key)
+        if zygote is None or not zygote.alive():
+            if zygote is not None:
+                zygote.close()
+            zygote = _zygotes[key] = _by_keeper(("job", start))
+        return zygote
+
+
+_job_refused = []   # why a job's fork could not be fenced here (then jobs start fresh)
+
+
+def refused_job(error):
+    """Notes that forking a fenced job failed here; later jobs start as fresh sandboxes."""
+    if not _job_refused:
+        log.info("dc: jobs start as fresh sandboxes: %s", error)
+    _job_refused.append(str(error))
+
+
 _lock = threading.Lock()
 _asks = queue.Queue()
 _keeper = []
@@ -119,7 +165,7 @@ def _keep():
     while True:
         done, answer, torch = _asks.get()
         try:
-            answer.append(Zygote(torch))
+            answer.append(Zygote(torch) if not isinstance(torch, tuple) else Zygote(True, job_env=torch[1]))
         except BaseException as e:
             answer.append(e)
         done.set()
@@ -141,13 +187,19 @@ def refused(error, torch=False):
 class Zygote:
     """One zygote in its sandbox and the line to it (torch: its interpreter has torch loaded)."""
 
-    def __init__(self, torch=False):
-        self.box = sandbox.Sandbox(fences.ZYGOTE, name="the contestants' zygote")
+    def __init__(self, torch=False, job_env=None):
+        job = job_env is not None
+        self.box = sandbox.Sandbox(fences.JOB_ZYGOTE if job else fences.ZYGOTE,
+                                   name="the jobs' zygote" if job else "the contestants' zygote")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             package = grants.package_folder()
             self.box.start([sys.executable, "-c", ZYGOTE_COMMAND, str(theirs.fileno()), os.path.dirname(package),
-                            package, *(["torch"] if torch else [])], pass_fds=[theirs.fileno()])
+                            package, *(["torch"] if torch else []), *(["job"] if job else [])],
+                           pass_fds=[theirs.fileno()],
+                           # (the jobs' zygote: a folder to write in for an import that asks for one,
+                           # torch's compiler's; its own /dev/shm, which each fork covers)
+                           env=None if not job else {**job_env, "TMPDIR": "/dev/shm"})
         except BaseException:
             ours.close()
             self.box.kill()

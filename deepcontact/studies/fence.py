@@ -17,7 +17,6 @@ A study registered in code runs in the caller's process: it is the caller's code
 """
 import json
 import os
-import sys
 import time
 
 from ..contest import fence as fences, job, machine, sandbox
@@ -91,9 +90,8 @@ def _survey_round(names, deadline):
     env = dict(os.environ, PYTHONPATH=job.python_path())
     read, write = os.pipe()
     try:
-        box.start([sys.executable, "-c", "import sys; from deepcontact.studies.listing import survey_here; "
-                   "survey_here(int(sys.argv[1]), sys.argv[2:])", str(write), *names],
-                  pass_fds=[write], env=env)
+        job.start(box, ["-c", "import sys; from deepcontact.studies.listing import survey_here; "
+                        "survey_here(int(sys.argv[1]), sys.argv[2:])", str(write), *names], write, env)
         os.close(write)
         write = None
         data, ended = _read_until(read, deadline, len(names) * _LINE_MAX)
