@@ -91,6 +91,7 @@ bench: setup
 	sh benchmarks/bench_loop_scale.sh
 	$(PYTHON) benchmarks/bench_bodyspace.py
 	$(PYTHON) benchmarks/bench_contest.py
+	$(PYTHON) benchmarks/bench_jobs.py
 	$(PYTHON) benchmarks/bench_loop_path.py --pieces 1000 --doorbell 5000 --halves 300 --instructions 100
 	$(PYTHON) benchmarks/bench_loop_parts.py
 	$(PYTHON) benchmarks/bench_step_price.py

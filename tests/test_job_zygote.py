@@ -128,6 +128,8 @@ def test_a_forked_job_sees_and_may_do_what_a_fresh_one_does(probe, tmp_path, mon
 
 
 def test_torchs_compiler_in_a_forked_job_looks_where_a_fresh_ones_does(probe, tmp_path, monkeypatch):
+    # (torch sets this as its compiler loads: here, where this process loaded it, neither job looks)
+    monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
     forked = _probed(tmp_path, "forked", "--torch")
     monkeypatch.setenv("DC_NO_ZYGOTE", "1")
     fresh = _probed(tmp_path, "fresh", "--torch")

@@ -91,7 +91,7 @@ def usable_for_job(fence):
     return (not _job_refused and fence.view == "root" and not fence.devices and fence.environment == "given"
             and machine.bwrap() is not None and machine.seccomp_program(fence.seccomp) is not None
             and machine.seccomp_program(fences.JOB_ZYGOTE.seccomp) is not None and "cpu" in roots
-            and "pids" in roots and os.environ.get("DC_NO_ZYGOTE") != "1" and os.environ.get("DC_NO_JOB_ZYGOTE_AB") != "1")
+            and "pids" in roots and os.environ.get("DC_NO_ZYGOTE") != "1")
 
 
 def job_environment(env):
