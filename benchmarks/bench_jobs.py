@@ -20,9 +20,10 @@ import os
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 
 from common import arguments
-from deepcontact.contest import job, machine, sandbox, zygote
+from deepcontact.contest import fence, job, machine, sandbox, zygote
 
 COMMANDS = {
     "dc --version": ["-m", "deepcontact.cli.main", "--version"],
@@ -30,13 +31,14 @@ COMMANDS = {
                            "o = torch.optim.Adam(m.parameters()); m(torch.zeros(1, 3, 8, 8)).sum().backward(); o.step()"],
 }
 WAYS = ("forked", "fresh")
+QUIET = replace(fence.JOB, streams=fence.Streams(stdout="discard"))   # (a job's fence, its output not shown)
 
 
 def one(way, argv, tmp):
     """(wall seconds, CPU seconds of its group, exit status) of one job run to its end."""
     os.environ["DC_NO_ZYGOTE"] = "1" if way == "fresh" else "0"
     private = tempfile.mkdtemp(dir=tmp)
-    box = sandbox.JobSandbox(writable=[private])
+    box = sandbox.Sandbox(QUIET.with_paths(writable=[private]))
     env = dict(os.environ, TMPDIR=private, PYTHONPATH=job.python_path())
     read, write = os.pipe()
     try:
@@ -57,7 +59,7 @@ def one(way, argv, tmp):
 
 def main():
     args = arguments(__doc__, rounds=10)
-    if not zygote.usable_for_job(sandbox.JobSandbox().fence):
+    if not zygote.usable_for_job(QUIET):
         raise SystemExit(f"no job can be forked here (fences: {machine.fences()})")
     with tempfile.TemporaryDirectory() as tmp:
         start = time.monotonic()
