@@ -1,9 +1,9 @@
 """A fenced job (a study, a plug-in network's training or drawing) is a fork of the jobs' zygote
-(contest/zygote.py, forked.py): an interpreter with numpy and torch loaded once, in a sandbox of its
-own, each job a fork that fences itself by the job's own fence record before dc's command runs. What
+(contest/zygote.py, forked.py): an interpreter with numpy (and, for a training or a drawing, torch)
+loaded once, in a sandbox of its own, each job a fork that fences itself by the job's own fence record before dc's command runs. What
 the job sees and may do is what a fresh sandbox's job sees and may do: each probe below runs both
 ways, forked and fresh (DC_NO_ZYGOTE=1), and their findings must agree, but for the one thing that
-tells them apart (torch's library already mapped in the fork)."""
+tells them apart (the namespace's first process: the zygote's fork, or bubblewrap)."""
 import json
 import os
 import re
@@ -13,7 +13,7 @@ import textwrap
 import pytest
 
 from conftest import dc
-from deepcontact.contest import fence as fence_records, fences, job, zygote
+from deepcontact.contest import fence as fence_records, fences, job, sandbox, zygote
 
 pytestmark = pytest.mark.skipif(not all(fences().values()), reason=f"a fence is missing here: {fences()}")
 
@@ -42,7 +42,7 @@ PROBE = textwrap.dedent("""
         '''Writes what its fence lets it see and do.'''
         libc = ctypes.CDLL(None, use_errno=True)
         seen = {
-            "torch mapped": any("libtorch" in line for line in open("/proc/self/maps")),
+            "first process": os.path.basename(open("/proc/1/cmdline").read().split(chr(0))[0]),
             "uid": [os.getuid(), os.getgid()],
             "profile": os.environ.get("DC_FENCE"),
             "tmpdir is TMPDIR": tempfile.gettempdir() == os.environ["TMPDIR"],
@@ -62,6 +62,7 @@ PROBE = textwrap.dedent("""
                 and not line.split()[4].startswith(("/proc/", "/dev/"))),
             "variables": sorted(k for k in os.environ if k not in ("PWD", "OLDPWD", "_", "DC_NO_ZYGOTE")),
             "argv": sys.argv[1:],
+            "click": click.__file__,
         }
         if with_torch:   # (what torch's compiler looked up as it loaded: the job's own, as a fresh one's)
             import torch._dynamo.config, torch._dynamo.package
@@ -114,7 +115,8 @@ def test_a_forked_job_sees_and_may_do_what_a_fresh_one_does(probe, tmp_path, mon
     forked = _probed(tmp_path, "forked")
     monkeypatch.setenv("DC_NO_ZYGOTE", "1")
     fresh = _probed(tmp_path, "fresh")
-    assert forked.pop("torch mapped") and not fresh.pop("torch mapped")   # (the fork's libraries: the zygote's)
+    # (the namespace's first process: the zygote's fork, an interpreter, or bubblewrap)
+    assert forked.pop("first process").startswith("python") and fresh.pop("first process") == "bwrap"
     assert forked["uid"] == [os.getuid(), os.getgid()] and forked["profile"] == "job"
     assert forked["tmpdir is TMPDIR"] and forked["TMPDIR written"] == "done"
     assert forked["cwd"] == forked["path first"] == os.getcwd()
@@ -127,18 +129,65 @@ def test_a_forked_job_sees_and_may_do_what_a_fresh_one_does(probe, tmp_path, mon
     assert _normalised(forked) == _normalised(fresh)
 
 
-def test_torchs_compiler_in_a_forked_job_looks_where_a_fresh_ones_does(probe, tmp_path, monkeypatch):
+TORCH_PROBE = """
+import json, os, sys
+before = "torch" in sys.modules
+import torch._dynamo.config, torch._dynamo.package
+seen = {"torch mapped before": before,
+        "compiler cache": torch._dynamo.package.DynamoCache._path_prefix,
+        "compiler debug": torch._dynamo.config.debug_dir_root,
+        "zygote folders kept": sorted(f"{name}.{key}" for name, module in list(sys.modules.items())
+                                      if name.startswith("torch") and module for key, value in list(vars(module).items())
+                                      if isinstance(value, str) and value.startswith("/dev/shm"))}
+os.write(int(sys.argv[1]), json.dumps(seen).encode())
+"""
+
+
+def _training_job(tmp_path, name):
+    """What TORCH_PROBE finds in a job of the training profile (forked from the torch zygote)."""
+    private = tmp_path / name
+    private.mkdir()
+    box = sandbox.JobSandbox(writable=[private], profile="training")
+    env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=job.python_path())
+    read, write = os.pipe()
+    try:
+        job.start(box, ["-c", TORCH_PROBE, str(write)], write, env)
+        os.close(write)
+        write = None
+        assert box.process.wait() == 0
+    finally:
+        box.kill()
+        if write is not None:
+            os.close(write)
+    with os.fdopen(read, "rb") as f:
+        return json.loads(f.read())
+
+
+def test_torchs_compiler_in_a_forked_training_job_looks_where_a_fresh_ones_does(tmp_path, monkeypatch):
     # (torch sets this as its compiler loads: here, where this process loaded it, neither job looks)
     monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
-    forked = _probed(tmp_path, "forked", "--torch")
+    forked = _training_job(tmp_path, "forked")
     monkeypatch.setenv("DC_NO_ZYGOTE", "1")
-    fresh = _probed(tmp_path, "fresh", "--torch")
+    fresh = _training_job(tmp_path, "fresh")
+    assert forked["torch mapped before"] and not fresh["torch mapped before"]   # (the torch zygote's fork)
     assert forked["zygote folders kept"] == [] == fresh["zygote folders kept"]
     assert forked["compiler debug"] == fresh["compiler debug"] == os.path.join(os.getcwd(), "torch_compile_debug")
     # (under each job's own TMPDIR, a private folder of its own)
-    tail = lambda p: p.split(os.sep)[-2:]   # noqa: E731
-    assert tail(forked["compiler cache"]) == tail(fresh["compiler cache"])
-    assert forked["compiler cache"] != fresh["compiler cache"] and not forked["compiler cache"].startswith("/dev/shm")
+    assert forked["compiler cache"].startswith(str(tmp_path / "forked"))
+    assert fresh["compiler cache"].startswith(str(tmp_path / "fresh"))
+    assert forked["compiler cache"][len(str(tmp_path / "forked")):] == fresh["compiler cache"][len(str(tmp_path / "fresh")):]
+
+
+def test_a_job_whose_path_holds_its_own_copy_of_a_zygotes_library_starts_fresh_and_imports_it(
+        probe, tmp_path, monkeypatch):
+    import shutil
+
+    import click
+    shadow = tmp_path / "shadow"
+    shutil.copytree(os.path.dirname(click.__file__), shadow / "click")
+    monkeypatch.syspath_prepend(str(shadow))   # (the job's PYTHONPATH: the caller's path, first)
+    seen = _probed(tmp_path, "shadowed")
+    assert seen["click"] == str(shadow / "click" / "__init__.py") and seen["first process"] == "bwrap"
 
 
 def test_a_job_whose_fork_cannot_be_asked_for_starts_fresh_and_runs(tmp_path, monkeypatch, caplog):

@@ -44,12 +44,15 @@ FDS_MAX = 16            # descriptors of one request
 BASE = "/dev/shm"
 
 
-# What the jobs' zygote loads once (a fresh training job's interpreter took 3-4 s of CPU importing
-# them: torch about 2, its compiler, which an optimiser's first step imports, about 1.5):
-# libraries only, none of dc's commands, so that nothing a job's own environment sets is read at an
-# import made before it (dc's modules read DC_* variables as they load)
-JOB_LIBRARIES = ("numpy", "torch", "torch.nn", "torch.optim", "torch._dynamo", "lxml.etree", "click",
-                 "deepcontact._box2d")
+# What the jobs' zygote loads once: libraries only, none of dc's commands, so that nothing a job's
+# own environment sets is read at an import made before it (dc's modules read DC_* variables as
+# they load). The torch one's too (a fresh training job's interpreter took 3-4 s of CPU importing
+# them: torch about 2, its compiler, which an optimiser's first step imports, about 1.5).
+JOB_LIBRARIES = ("numpy", "lxml.etree", "click", "deepcontact._box2d")
+JOB_TORCH_LIBRARIES = ("torch", "torch.nn", "torch.optim", "torch._dynamo")
+# The top-level packages of those: a job whose own import path finds another copy of one starts
+# fresh (zygote.py), as the zygote's copy is not the one it would import
+JOB_PACKAGES = ("numpy", "lxml", "click", "torch")
 
 
 def main(fd, package, torch=False, job=False):
@@ -64,7 +67,7 @@ def main(fd, package, torch=False, job=False):
         os._exit(3)
     if job:
         import importlib
-        for name in JOB_LIBRARIES:
+        for name in JOB_LIBRARIES + (JOB_TORCH_LIBRARIES if torch else ()):
             importlib.import_module(name)
         rest = sys.path[1:]   # (less the judge's folder put first, and -c's current folder)
         _JOB_START["path"] = rest[1:] if rest[:1] == [""] else rest
@@ -81,8 +84,10 @@ def main(fd, package, torch=False, job=False):
     import resource  # noqa: F401
     gc.freeze()   # (its objects out of every fork's collections: a collection touched each page, so copied it)
     line = socket.socket(fileno=fd)
+    # (a job's zygote says where its libraries are: a job whose own path finds another copy starts fresh)
+    origins = {name: sys.modules[name].__file__ for name in JOB_PACKAGES if name in sys.modules} if job else {}
     try:   # (ready: the judge counts a fork's fence deadline from here, not from its imports)
-        line.send(READY)
+        line.send(READY + (json.dumps(origins).encode() if origins else b""))
     except OSError:
         return
     while True:
@@ -253,10 +258,6 @@ def _view(record):
     os.chdir(record["cwd"] or "/tmp")
 
 
-# bubblewrap's --proc covers these read-only (a namespace's root may not write the kernel's settings)
-PROC_READ_ONLY = ("sys", "sysrq-trigger", "irq", "bus")
-
-
 def _root_view(record, trees):
     """A job's file system, from its fence record, as bubblewrap builds a job's (fence.bwrap_argv):
     the whole file system read-only (the zygote's view, itself read-only), its own /proc and
@@ -268,7 +269,7 @@ def _root_view(record, trees):
     os.mkdir(root)
     kernel.bind("/", root)
     kernel.mount("proc", root + "/proc", "proc", kernel.MS_NOSUID | kernel.MS_NODEV | kernel.MS_NOEXEC)
-    for name in PROC_READ_ONLY:
+    for name in fences.PROC_READ_ONLY:   # (the machine's settings: read-only, as a fresh job's)
         if os.path.exists(f"{root}/proc/{name}"):
             kernel.bind(f"{root}/proc/{name}", f"{root}/proc/{name}")
     _dev(root, record, shm_size=None)
@@ -308,6 +309,12 @@ def _dev(root, record, shm_size=""):
             kernel.bind(f"/dev/{name}", f"{dev}/{name}", read_only=False, recursive=False)
     for name, target in DEV_LINKS.items():
         os.symlink(target, f"{dev}/{name}")
+    if shm_size is None:   # (a job's /dev: bubblewrap's --dev whole, its terminals and /dev/core too)
+        os.mkdir(f"{dev}/pts")
+        kernel.mount("devpts", f"{dev}/pts", "devpts", kernel.MS_NOSUID | kernel.MS_NOEXEC,
+                     "newinstance,ptmxmode=0666,mode=620")
+        os.symlink("pts/ptmx", f"{dev}/ptmx")
+        os.symlink("/proc/kcore", f"{dev}/core")
     os.mkdir(f"{dev}/shm")
     size = f"size={record['limits']['file_size']}," if shm_size is not None else ""
     kernel.mount("tmpfs", f"{dev}/shm", "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV, f"{size}mode=1777")
@@ -359,10 +366,16 @@ def _job(request, channel, out, err):
         os.environ.update(request["env"])
         os.environ[fences.MARKER] = request["fence"]["profile"]
         how, what, *args = job["argv"]
-        # (as the interpreter makes it: -m's folder or -c's "" first, then PYTHONPATH's, then its own)
+        # (as the interpreter makes it: -m's folder or -c's "" first, unless safe_path, then
+        # PYTHONPATH's and its own, each once, made absolute, as site does)
         given = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-        sys.path[:] = [os.getcwd() if how == "-m" else "", *given, *_JOB_START["path"]]
+        first = [] if sys.flags.safe_path else [os.getcwd() if how == "-m" else ""]
+        sys.path[:] = first + [p for p in dict.fromkeys(os.path.abspath(p) for p in given + _JOB_START["path"])
+                               if p not in first]
         sys.argv = [how, *args]
+        sys.orig_argv = [sys.executable, how, what, *args]
+        import time
+        time.tzset()   # (TZ, as the interpreter read it)
         _site_customized()
         _fresh_state()
         import tempfile
@@ -475,4 +488,8 @@ def _fresh_state():
         np.random.seed()
     if "torch" in sys.modules:   # (the torch zygote's forks: torch seeds itself afresh as it starts)
         sys.modules["torch"].default_generator.seed()
+    process = sys.modules.get("multiprocessing.process")
+    if process is not None:   # (a key and a starting folder of its own, as multiprocessing draws them as it loads)
+        process.current_process().authkey = os.urandom(32)
+        process.ORIGINAL_DIR = os.getcwd()
     importlib.invalidate_caches()

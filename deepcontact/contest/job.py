@@ -71,6 +71,16 @@ def run(dc_args, writable, private, env_extra=None, command_line=None, devices=(
     return code
 
 
+def warm(fence, env):
+    """The jobs' zygote a job of `fence` and environment `env` would fork from, started now where
+    one is used: a deadline counted after this is the job's own, not the zygote's start."""
+    if zygote.usable_for_job(fence):
+        try:
+            zygote.live_job(env, torch=fence.profile in zygote.TORCH_PROFILES)
+        except zygote.Refused as e:
+            zygote.refused_job(e)
+
+
 def start(box, argv, fd, env):
     """`python ARGV` ("-m MODULE ARGS" or "-c CODE ARGS") started in box's fence (a job's), given
     the descriptor fd: a fork of the jobs' zygote where this machine lends one (zygote.py), else
@@ -79,7 +89,9 @@ def start(box, argv, fd, env):
         for again in (True, False):
             used = None
             try:
-                used = zygote.live_job(env)
+                used = zygote.live_job(env, torch=box.fence.profile in zygote.TORCH_PROFILES)
+                if zygote.shadowed(used, env, os.getcwd()) is not None:
+                    break   # (its own copy of a library the zygote has loaded: fresh, as it would import it)
                 box.start_job_forked(used, argv, fd, env)
                 return
             except zygote.Refused as e:

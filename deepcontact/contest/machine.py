@@ -13,7 +13,7 @@ from . import kernel
 # System calls a contestant never needs and a hostile one would use to cross its fence.
 DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidfd_getfd", "perf_event_open",
                 "bpf", "userfaultfd", "keyctl", "add_key", "request_key", "mount", "umount2", "pivot_root",
-                "move_mount", "open_tree", "fsopen", "fsmount", "unshare", "setns", "open_by_handle_at",
+                "move_mount", "open_tree", "fsopen", "fsmount", "fspick", "mount_setattr", "unshare", "setns", "open_by_handle_at",
                 "name_to_handle_at", "kexec_load", "kexec_file_load", "init_module", "finit_module",
                 "delete_module", "reboot", "swapon", "swapoff", "syslog", "acct", "quotactl", "settimeofday",
                 "clock_settime", "clock_adjtime", "adjtimex", "iopl", "ioperm", "lookup_dcookie",
@@ -123,7 +123,7 @@ class _ArgRule(ctypes.Structure):
 # "zygote": dc's own code only, which makes each fork's namespaces and mounts (a job's writable
 # folders attached from the trees the judge made) before the fork's own filter is on.
 SECCOMP_POLICIES = ("contestant", "job", "zygote")
-ZYGOTE_ALLOWED = ("mount", "umount2", "unshare", "pivot_root", "move_mount")
+ZYGOTE_ALLOWED = ("mount", "umount2", "unshare", "pivot_root", "move_mount", "mount_setattr")
 CLONE_FLAGS = kernel.NAMESPACES
 
 

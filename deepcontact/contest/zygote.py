@@ -34,10 +34,13 @@ READY_DEADLINE = 120.0
 # lacked every module the zygote had not imported)
 ZYGOTE_COMMAND = ("import sys; sys.path.insert(0, sys.argv[2]); from deepcontact.contest.forked import main; "
                   "main(int(sys.argv[1]), sys.argv[3], torch='torch' in sys.argv[4:], job='job' in sys.argv[4:])")
-# The variables a job's interpreter reads as it starts or its libraries as they load (the jobs'
-# zygote is made with them, one zygote for each set); a job's others are set in its fork
-JOB_START_VARIABLES = ("PATH", "PYTHON", "LANG", "LC_", "HOME", "OMP_", "OPENBLAS_", "MKL_", "KMP_", "GOMP_", "TORCH",
-                       "PYTORCH", "CUDA", "LD_", "MALLOC", "NUMPY", "XDG_")
+# A job's variables that are its own, set in its fork (its folders, dc's DC_* to it): every other
+# one is read as an interpreter starts or a library loads (TZ, OMP_NUM_THREADS, CXX), so the jobs'
+# zygote is made with them, one zygote for each set
+JOB_OWN_VARIABLES = ("TMPDIR", "PYTHONPATH", "MPLCONFIGDIR")
+# The job profiles whose zygote has torch loaded (a network's training, a drawing with one); a
+# study and the listing fork from one without it, which starts in a fraction of a second
+TORCH_PROFILES = ("training", "drawing")
 _zygotes = {}           # {the variables its contestants start with: Zygote}
 _refused = []           # why a fork could not be fenced here (then no zygote is used again)
 _unready = []           # why the torch zygote was never ready (then contestants given torch start fresh)
@@ -95,26 +98,42 @@ def usable_for_job(fence):
 
 
 def job_environment(env):
-    """The part of a job's environment its zygote is made with (JOB_START_VARIABLES), less the
-    import path, which each fork sets from its own (forked._job)."""
-    return {key: value for key, value in env.items() if key.startswith(JOB_START_VARIABLES) and key != "PYTHONPATH"}
+    """The part of a job's environment its zygote is made with: all but its own variables
+    (JOB_OWN_VARIABLES, DC_*), which each fork sets (forked._job)."""
+    return {key: value for key, value in env.items() if key not in JOB_OWN_VARIABLES and not key.startswith("DC_")}
 
 
-def live_job(env):
+def live_job(env, torch=False):
     """This process's live jobs' zygote for a job of environment `env` (its interpreter and
-    libraries loaded with env's job_environment)."""
+    libraries loaded with env's job_environment); torch: the one with torch loaded too."""
     start = job_environment(env)
-    key = ("job", tuple(sorted(start.items())))
+    key = ("job", tuple(sorted(start.items())), bool(torch))
     with _lock:
         zygote = _zygotes.get(key)
         if zygote is None or not zygote.alive():
             if zygote is not None:
                 zygote.close()
-            zygote = _zygotes[key] = _by_keeper(("job", start))
+            zygote = _zygotes[key] = _by_keeper(("job", start, bool(torch)))
         return zygote
 
 
 _job_refused = []   # why a job's fork could not be fenced here (then jobs start fresh)
+
+
+def shadowed(zygote, env, cwd):
+    """The first of the jobs' zygote's libraries that a job of environment `env` in folder `cwd`
+    would import from another copy (its folder or PYTHONPATH holds one), or None: such a job
+    starts fresh, as the fork's copy is the zygote's."""
+    from importlib.machinery import PathFinder
+    first = [cwd, *(p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p)]
+    for name, origin in zygote.origins.items():
+        try:
+            found = PathFinder.find_spec(name, first)
+        except (ImportError, ValueError):
+            found = None
+        if found is not None and found.origin and os.path.realpath(found.origin) != os.path.realpath(origin):
+            return name
+    return None
 
 
 def refused_job(error):
@@ -165,7 +184,7 @@ def _keep():
     while True:
         done, answer, torch = _asks.get()
         try:
-            answer.append(Zygote(torch) if not isinstance(torch, tuple) else Zygote(True, job_env=torch[1]))
+            answer.append(Zygote(torch) if not isinstance(torch, tuple) else Zygote(torch[2], job_env=torch[1]))
         except BaseException as e:
             answer.append(e)
         done.set()
@@ -209,8 +228,9 @@ class Zygote:
         self.line = ours
         # (its libraries loaded before any fork is asked of it: torch takes seconds on a busy
         # machine, which the first fork's fence deadline is not for)
-        said = ours.recv(len(forked.READY)) if _ready(ours.fileno(), READY_DEADLINE) else None
-        if said != forked.READY:
+        said = ours.recv(1 << 16) if _ready(ours.fileno(), READY_DEADLINE) else None
+        self.origins = json.loads(said[1:]) if said and said.startswith(forked.READY) and len(said) > 1 else {}
+        if not said or not said.startswith(forked.READY):
             self.close()
             raise Unready("the zygote " + ("ended as it started" if said is not None else
                                            f"was not ready within {READY_DEADLINE:.0f} s"))

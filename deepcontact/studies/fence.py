@@ -59,6 +59,7 @@ def survey(names=None):
                     for name in (names or [n for n in STUDIES.names() if n not in STUDIES.builtin()])}
     wanted = list(names or [n for n in STUDIES.names() if n not in STUDIES.builtin()])
     healthy, broken = [], {}
+    job.warm(fences.PROFILES["listing"], os.environ)   # (the zygote's start is not the listing's time)
     # (each round at most SURVEY_DEADLINE, the whole listing twice that: stalling studies share it)
     ends = time.monotonic() + 2 * SURVEY_DEADLINE
     while wanted:   # (a study that ends or stalls its listing is broken; the ones after it are listed again)
