@@ -34,10 +34,11 @@ READY_DEADLINE = 120.0
 # lacked every module the zygote had not imported)
 ZYGOTE_COMMAND = ("import sys; sys.path.insert(0, sys.argv[2]); from deepcontact.contest.forked import main; "
                   "main(int(sys.argv[1]), sys.argv[3], torch='torch' in sys.argv[4:], job='job' in sys.argv[4:])")
-# A job's variables that are its own, set in its fork (its folders, dc's DC_* to it): every other
-# one is read as an interpreter starts or a library loads (TZ, OMP_NUM_THREADS, CXX), so the jobs'
-# zygote is made with them, one zygote for each set
-JOB_OWN_VARIABLES = ("TMPDIR", "PYTHONPATH", "MPLCONFIGDIR")
+# A job's variables that are its own, set in its fork (its folders, dc's DC_* to it; where a shell
+# or a test runner is, which changes from command to command and no library reads as it loads):
+# any other may be read as an interpreter starts or a library loads (TZ, OMP_NUM_THREADS, CXX), so
+# the jobs' zygote is made with them, one zygote for each set
+JOB_OWN_VARIABLES = ("TMPDIR", "PYTHONPATH", "MPLCONFIGDIR", "PWD", "OLDPWD", "_", "PYTEST_CURRENT_TEST")
 # The job profiles whose zygote has torch loaded (a network's training, a drawing with one); a
 # study and the listing fork from one without it, which starts in a fraction of a second
 TORCH_PROFILES = ("training", "drawing")
