@@ -200,3 +200,15 @@ def test_a_job_whose_fork_cannot_be_asked_for_starts_fresh_and_runs(tmp_path, mo
         code = job.run(["--version"], [str(f) for f in folders], str(folders[0]))
     assert code == 0
     assert "jobs start as fresh sandboxes: more writable folders than a request carries (12)" in caplog.text
+
+
+def test_a_jobs_zygote_of_another_environment_is_ended_once_none_of_its_jobs_runs(tmp_path, monkeypatch):
+    private = tmp_path / "private"
+    private.mkdir()
+    for value in ("1", "2"):   # (a variable a library might read as it loads: a zygote of its own)
+        monkeypatch.setenv("DC_JOB_ZYGOTE_TEST", value)   # (a job's own: no new zygote)
+        monkeypatch.setenv("JOB_ZYGOTE_TEST", value)
+        assert job.run(["--version"], [str(private)], str(private)) == 0
+    kept = [key for key, made in zygote._zygotes.items() if key[0] == "job" and not key[2] and made.alive()]
+    assert len(kept) == 1 and ("JOB_ZYGOTE_TEST", "2") in kept[0][1]
+    assert all(key[0] != "DC_JOB_ZYGOTE_TEST" for key in kept[0][1])

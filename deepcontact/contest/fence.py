@@ -193,7 +193,7 @@ def _view_options(fence):
     out = []
     # (bubblewrap's own /proc covers parts of itself, and the kernel lets a namespace mount a new
     # /proc only where one is wholly visible: the zygote binds the host's, its forks cover it)
-    proc = ["--bind", "/proc", "/proc"] if fence.proc == "host" else ["--proc", "/proc", *_proc_read_only()]
+    proc = ["--bind", "/proc", "/proc"] if fence.proc == "host" else ["--proc", "/proc", *machine.proc_read_only()]
     if fence.view == "root":
         out += ["--ro-bind", "/", "/", "--dev", "/dev", *proc, "--tmpfs", "/dev/shm"]
     else:
@@ -209,18 +209,6 @@ def _view_options(fence):
     out += [a for p in dict.fromkeys(fence.writable) for a in ("--bind", p, p)]
     out += [a for p in dict.fromkeys(fence.devices) for a in ("--dev-bind", p, p)]
     return out + ["--chdir", fence.cwd or os.getcwd()]
-
-
-# What of a sandbox's own /proc is the machine's, not its namespace's: covered read-only. (bubblewrap
-# covers these only where it may write them, and /proc/sys is a folder no one may write: where dc
-# runs as root, a sandbox's user is the machine's root, who may write every setting in it. The
-# machine's own are bound, read-only: bubblewrap binds from outside the new root)
-PROC_READ_ONLY = ("sys", "sysrq-trigger", "irq", "bus")
-
-
-def _proc_read_only():
-    return [a for name in PROC_READ_ONLY if os.path.exists(f"/proc/{name}")
-            for a in ("--ro-bind", f"/proc/{name}", f"/proc/{name}")]
 
 
 def environment(fence):

@@ -31,7 +31,7 @@ import socket
 import struct
 import sys
 
-from . import fence as fences, kernel
+from . import fence as fences, kernel, machine
 
 DEVICES = ("null", "zero", "full", "random", "urandom", "tty")   # (bubblewrap's --dev, less its devpts)
 DEV_LINKS = {"fd": "/proc/self/fd", "stdin": "/proc/self/fd/0", "stdout": "/proc/self/fd/1",
@@ -50,9 +50,7 @@ BASE = "/dev/shm"
 # them: torch about 2, its compiler, which an optimiser's first step imports, about 1.5).
 JOB_LIBRARIES = ("numpy", "lxml.etree", "click", "deepcontact._box2d")
 JOB_TORCH_LIBRARIES = ("torch", "torch.nn", "torch.optim", "torch._dynamo")
-# The top-level packages of those: a job whose own import path finds another copy of one starts
-# fresh (zygote.py), as the zygote's copy is not the one it would import
-JOB_PACKAGES = ("numpy", "lxml", "click", "torch")
+
 
 
 def main(fd, package, torch=False, job=False):
@@ -84,8 +82,10 @@ def main(fd, package, torch=False, job=False):
     import resource  # noqa: F401
     gc.freeze()   # (its objects out of every fork's collections: a collection touched each page, so copied it)
     line = socket.socket(fileno=fd)
-    # (a job's zygote says where its libraries are: a job whose own path finds another copy starts fresh)
-    origins = {name: sys.modules[name].__file__ for name in JOB_PACKAGES if name in sys.modules} if job else {}
+    # (a job's zygote says where each module it loaded lies: a job whose own path finds another
+    # copy of one, its folder or its PYTHONPATH, starts fresh: the fork's copy is the zygote's)
+    origins = {name: module.__file__ for name, module in list(sys.modules.items())
+               if "." not in name and getattr(module, "__file__", None)} if job else {}
     try:   # (ready: the judge counts a fork's fence deadline from here, not from its imports)
         line.send(READY + (json.dumps(origins).encode() if origins else b""))
     except OSError:
@@ -269,7 +269,7 @@ def _root_view(record, trees):
     os.mkdir(root)
     kernel.bind("/", root)
     kernel.mount("proc", root + "/proc", "proc", kernel.MS_NOSUID | kernel.MS_NODEV | kernel.MS_NOEXEC)
-    for name in fences.PROC_READ_ONLY:   # (the machine's settings: read-only, as a fresh job's)
+    for name in machine.PROC_READ_ONLY:   # (the machine's settings: read-only, as a fresh job's)
         if os.path.exists(f"{root}/proc/{name}"):
             kernel.bind(f"{root}/proc/{name}", f"{root}/proc/{name}")
     _dev(root, record, shm_size=None)

@@ -90,7 +90,7 @@ def start(box, argv, fd, env):
             used = None
             try:
                 used = zygote.live_job(env, torch=box.fence.profile in zygote.TORCH_PROFILES)
-                if zygote.shadowed(used, env, os.getcwd()) is not None:
+                if zygote.shadowed(used, env, box.fence.cwd or os.getcwd()) is not None:
                     break   # (its own copy of a library the zygote has loaded: fresh, as it would import it)
                 box.start_job_forked(used, argv, fd, env)
                 return

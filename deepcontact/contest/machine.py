@@ -21,16 +21,29 @@ DENIED_CALLS = ("ptrace", "process_vm_readv", "process_vm_writev", "kcmp", "pidf
 AF_UNIX = 1   # socket(AF_UNIX, ...) is refused every sandbox: see seccomp_program
 SCMP_CMP_MASKED_EQ = 7   # libseccomp's (argument & datum_a) == datum_b
 
+# What of a sandbox's own /proc is the machine's, not its namespace's: covered read-only. (bubblewrap
+# covers these only where it may write them, and /proc/sys is a folder no one may write: where dc
+# runs as root, a sandbox's user is the machine's root, who may write every setting in it. The
+# machine's own are bound, read-only: bubblewrap binds from outside the new root)
+PROC_READ_ONLY = ("sys", "sysrq-trigger", "irq", "bus")
+
+
+def proc_read_only():
+    """bubblewrap's options that cover PROC_READ_ONLY, after its --proc."""
+    return [a for name in PROC_READ_ONLY if os.path.exists(f"/proc/{name}")
+            for a in ("--ro-bind", f"/proc/{name}", f"/proc/{name}")]
+
+
 @lru_cache(maxsize=None)
 def bwrap():
-    """The bubblewrap binary, if it can build a sandbox here (tried once: user namespaces may be
-    off), else None."""
+    """The bubblewrap binary, if it can build a sandbox here (tried once, with every sandbox's
+    /proc: user namespaces may be off, a mount under /proc/sys may refuse its bind), else None."""
     path = shutil.which("bwrap")
     if path is None:
         return None
     try:
         done = subprocess.run([path, "--unshare-all", "--unshare-user", "--die-with-parent", "--cap-drop", "ALL",
-                               "--ro-bind", "/", "/", "--proc", "/proc", "true"],
+                               "--ro-bind", "/", "/", "--proc", "/proc", *proc_read_only(), "true"],
                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                               timeout=30)
     except (OSError, subprocess.SubprocessError):

@@ -114,6 +114,12 @@ def live_job(env, torch=False):
         if zygote is None or not zygote.alive():
             if zygote is not None:
                 zygote.close()
+            # (one of each kind kept: another environment's, none of whose jobs still runs, ended;
+            # a job dies with its zygote)
+            for other, idle in list(_zygotes.items()):
+                if other[0] == "job" and other[2] == key[2] and not idle.busy():
+                    idle.close()
+                    del _zygotes[other]
             zygote = _zygotes[key] = _by_keeper(("job", start, bool(torch)))
         return zygote
 
@@ -122,9 +128,10 @@ _job_refused = []   # why a job's fork could not be fenced here (then jobs start
 
 
 def shadowed(zygote, env, cwd):
-    """The first of the jobs' zygote's libraries that a job of environment `env` in folder `cwd`
-    would import from another copy (its folder or PYTHONPATH holds one), or None: such a job
-    starts fresh, as the fork's copy is the zygote's."""
+    """The first of the modules the jobs' zygote loaded (its libraries, the standard library's,
+    deepcontact) that a job of environment `env` in folder `cwd` would import from another copy
+    (its folder or PYTHONPATH holds one), or None: such a job starts fresh, as the fork's copy is
+    the zygote's."""
     from importlib.machinery import PathFinder
     first = [cwd, *(p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p)]
     for name, origin in zygote.origins.items():
@@ -209,6 +216,7 @@ class Zygote:
 
     def __init__(self, torch=False, job_env=None):
         job = job_env is not None
+        self._forks = []
         self.box = sandbox.Sandbox(fences.JOB_ZYGOTE if job else fences.ZYGOTE,
                                    name="the jobs' zygote" if job else "the contestants' zygote")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
@@ -236,6 +244,11 @@ class Zygote:
             raise Unready("the zygote " + ("ended as it started" if said is not None else
                                            f"was not ready within {READY_DEADLINE:.0f} s"))
 
+    def busy(self):
+        """Whether a process forked from it may still run (its end would end them): one whose
+        status line its last writer has not closed. Asked without reading it (its own thread reads)."""
+        return any(p.returncode is None and p.fd is not None and not _hung_up(p.fd) for p in list(self._forks))
+
     def alive(self):
         # (its line hung up: the interpreter ended, killed or out of memory, though the bubblewrap
         # around it has not yet; taken for alive, its refused fork refused every later one)
@@ -254,7 +267,9 @@ class Zygote:
             raise Refused(f"the zygote did not take the request ({e})") from None
         finally:
             os.close(status_w)
-        return ForkedProcess(status)
+        forked = ForkedProcess(status)
+        self._forks = [p for p in self._forks if p.returncode is None and p.fd is not None] + [forked]
+        return forked
 
     def close(self):
         if self.line is not None:
