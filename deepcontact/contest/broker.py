@@ -107,21 +107,10 @@ class GuestSandbox(sandbox.Sandbox):
     def start_guest(self, channel, torch=False):
         """The guest on `channel`: a fork of the zygote where this machine lends one (zygote.py),
         else a fresh interpreter; the same fence either way."""
-        if zygote.usable(self.fence, torch):
-            for again in (True, False):
-                used = None
-                try:
-                    used = zygote.live(torch)
-                    return self.start_forked(used, channel)
-                except zygote.Refused as e:
-                    self.kill()
-                    self.stopped_by, self.process = None, None
-                    # (a zygote that ended under the request, killed or out of memory, says nothing
-                    # of the machine's fence: a new one, once; else every later fork is refused)
-                    if again and used is not None and not used.alive():
-                        continue
-                    zygote.refused(e, torch)
-                    break
+        if zygote.usable(self.fence, torch) and zygote.forked_start(
+                self, lambda: zygote.live(torch), lambda used: self.start_forked(used, channel),
+                lambda e: zygote.refused(e, torch)):
+            return self.process
         return self.start(grants.guest_argv(channel, torch), pass_fds=[channel])
 
 

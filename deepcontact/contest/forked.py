@@ -320,16 +320,22 @@ def _dev(root, record, shm_size=""):
     kernel.mount("tmpfs", f"{dev}/shm", "tmpfs", kernel.MS_NOSUID | kernel.MS_NODEV, f"{size}mode=1777")
 
 
+def _own_streams(channel, out, err):
+    """A fresh interpreter's SIGINT, standard input empty, output and error its own, and no
+    descriptor of the zygote's but `channel` (>= 3)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    null = os.open("/dev/null", os.O_RDONLY)
+    os.dup2(null, 0)
+    os.dup2(out, 1)
+    os.dup2(err, 2)
+    os.closerange(3, channel)
+    os.closerange(channel + 1, os.sysconf("SC_OPEN_MAX"))
+
+
 def _contestant(request, channel, out, err):
     """The contestant's process: its streams, its environment, then the guest. Never returns."""
     try:
-        signal.signal(signal.SIGINT, signal.default_int_handler)   # (a fresh interpreter's)
-        null = os.open("/dev/null", os.O_RDONLY)
-        os.dup2(null, 0)
-        os.dup2(out, 1)
-        os.dup2(err, 2)
-        os.closerange(3, channel)   # (nothing of the zygote's but its line: channel >= 3)
-        os.closerange(channel + 1, os.sysconf("SC_OPEN_MAX"))
+        _own_streams(channel, out, err)
         os.environ.clear()
         os.environ.update(request["env"])
         _fresh_state()
@@ -344,43 +350,12 @@ def _contestant(request, channel, out, err):
 
 
 def _job(request, channel, out, err):
-    """A job's process: its streams, its environment and folder, then what follows the
-    interpreter in its command line ("-m MODULE ARGS" or "-c CODE ARGS") run as a fresh
-    interpreter runs it, its descriptor at the number the judge gave it (as Popen's pass_fds
-    keeps one), ended as that interpreter ends (its threads joined, its exit functions run).
-    Never returns."""
+    """A job's process: what follows the interpreter in its command line ("-m MODULE ARGS" or "-c
+    CODE ARGS") run as a fresh interpreter runs it (_as_started), ended as that interpreter ends
+    (its threads joined, its exit functions run). Never returns."""
     code = 1
     try:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        null = os.open("/dev/null", os.O_RDONLY)
-        os.dup2(null, 0)
-        os.dup2(out, 1)
-        os.dup2(err, 2)
-        os.closerange(3, channel)   # (nothing of the zygote's but the job's own descriptor)
-        os.closerange(channel + 1, os.sysconf("SC_OPEN_MAX"))
-        job = request["job"]
-        if job["fd"] != channel:
-            os.dup2(channel, job["fd"])
-            os.close(channel)
-        os.environ.clear()
-        os.environ.update(request["env"])
-        os.environ[fences.MARKER] = request["fence"]["profile"]
-        how, what, *args = job["argv"]
-        # (as the interpreter makes it: -m's folder or -c's "" first, unless safe_path, then
-        # PYTHONPATH's and its own, each once, made absolute, as site does)
-        given = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-        first = [] if sys.flags.safe_path else [os.getcwd() if how == "-m" else ""]
-        sys.path[:] = first + [p for p in dict.fromkeys(os.path.abspath(p) for p in given + _JOB_START["path"])
-                               if p not in first]
-        sys.argv = [how, *args]
-        sys.orig_argv = [sys.executable, how, what, *args]
-        import time
-        time.tzset()   # (TZ, as the interpreter read it)
-        _site_customized()
-        _fresh_state()
-        import tempfile
-        tempfile.tempdir = None   # (its TMPDIR, not one an import in the zygote looked up)
-        _torch_paths()
+        how, what = _as_started(request, channel, out, err)
         try:
             _run(how, what)
             code = 0
@@ -404,6 +379,37 @@ def _job(request, channel, out, err):
         except OSError:
             pass
     os._exit(code)
+
+
+def _as_started(request, channel, out, err):
+    """This process made what a fresh interpreter started for the job would be: its streams, its
+    descriptor at the number the judge gave it (as Popen's pass_fds keeps one), its environment,
+    import path, argv and the state its libraries drew as they loaded; (how, what) of its argv."""
+    _own_streams(channel, out, err)
+    job = request["job"]
+    if job["fd"] != channel:
+        os.dup2(channel, job["fd"])
+        os.close(channel)
+    os.environ.clear()
+    os.environ.update(request["env"])
+    os.environ[fences.MARKER] = request["fence"]["profile"]
+    how, what, *args = job["argv"]
+    # (as the interpreter makes it: -m's folder or -c's "" first, unless safe_path, then
+    # PYTHONPATH's and its own, each once, made absolute, as site does)
+    given = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    first = [] if sys.flags.safe_path else [os.getcwd() if how == "-m" else ""]
+    sys.path[:] = first + [p for p in dict.fromkeys(os.path.abspath(p) for p in given + _JOB_START["path"])
+                           if p not in first]
+    sys.argv = [how, *args]
+    sys.orig_argv = [sys.executable, how, what, *args]
+    import time
+    time.tzset()   # (TZ, as the interpreter read it)
+    _site_customized()
+    _fresh_state()
+    import tempfile
+    tempfile.tempdir = None   # (its TMPDIR, not one an import in the zygote looked up)
+    _torch_paths()
+    return how, what
 
 
 def _run(how, what):

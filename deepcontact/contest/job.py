@@ -85,22 +85,13 @@ def start(box, argv, fd, env):
     """`python ARGV` ("-m MODULE ARGS" or "-c CODE ARGS") started in box's fence (a job's), given
     the descriptor fd: a fork of the jobs' zygote where this machine lends one (zygote.py), else
     a fresh interpreter; the same fence either way."""
-    if zygote.usable_for_job(box.fence):
-        for again in (True, False):
-            used = None
-            try:
-                used = zygote.live_job(env, torch=box.fence.profile in zygote.TORCH_PROFILES)
-                if zygote.shadowed(used, env, box.fence.cwd or os.getcwd()) is not None:
-                    break   # (its own copy of a library the zygote has loaded: fresh, as it would import it)
-                box.start_job_forked(used, argv, fd, env)
-                return
-            except zygote.Refused as e:
-                box.kill()
-                box.stopped_by, box.process = None, None
-                if again and used is not None and not used.alive():   # (ended under the request: a new one, once)
-                    continue
-                zygote.refused_job(e)
-                break
+    def made():   # (None where its folder or PYTHONPATH holds its own copy of a module the zygote loaded)
+        used = zygote.live_job(env, torch=box.fence.profile in zygote.TORCH_PROFILES)
+        return None if zygote.shadowed(used, env, box.fence.cwd or os.getcwd()) is not None else used
+
+    if zygote.usable_for_job(box.fence) and zygote.forked_start(
+            box, made, lambda used: box.start_job_forked(used, argv, fd, env), zygote.refused_job):
+        return
     box.start([sys.executable, *argv], pass_fds=[fd], env=env)
 
 

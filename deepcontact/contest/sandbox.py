@@ -31,7 +31,7 @@ import time
 from ..leftovers import at_end, own_processes
 from ..output import record
 from ..plugins import PluginError
-from . import fence as fences, kernel, machine, relay
+from . import fence as fences, forked, kernel, machine, relay
 
 # A contestant's limits (fence.CONTESTANT): its threads are told their count (THREAD_VARIABLES),
 # so that neither its charge (OpenBLAS's idle pool cost each start 0.1 s of CPU on two cores) nor
@@ -115,9 +115,6 @@ def _sandbox_process(pid):
         return os.readlink(f"/proc/{pid}/ns/pid") != os.readlink("/proc/self/ns/pid")
     except OSError:
         return False
-
-
-FDS_MAX = 16   # descriptors one request to a zygote carries (forked.FDS_MAX)
 
 
 class ForkRefused(Exception):
@@ -227,7 +224,8 @@ class Sandbox:
         of the jobs' zygote that fences itself by this fence's record before ARGV runs, as start()
         would run it fresh: its environment `env`, the descriptor `fd` at its number (pass_fds),
         its writable folders attached from detached trees of them (kernel.detached_trees)."""
-        if 5 + 3 + len(self.fence.writable) > FDS_MAX:
+        # (a request's descriptors: its line, streams, status, seccomp, up to three groups, the trees)
+        if 5 + 3 + len(self.fence.writable) > forked.FDS_MAX:
             raise ForkRefused(f"more writable folders than a request carries ({len(self.fence.writable)})")
         try:
             trees = kernel.detached_trees(self.fence.writable)

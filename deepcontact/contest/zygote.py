@@ -82,7 +82,7 @@ def live(torch=False):
         if zygote is None or not zygote.alive():
             if zygote is not None:
                 zygote.close()
-            zygote = _zygotes[key] = _by_keeper(bool(torch))
+            zygote = _zygotes[key] = _by_keeper(torch=bool(torch))
         return zygote
 
 
@@ -120,7 +120,7 @@ def live_job(env, torch=False):
                 if other[0] == "job" and other[2] == key[2] and not idle.busy():
                     idle.close()
                     del _zygotes[other]
-            zygote = _zygotes[key] = _by_keeper(("job", start, bool(torch)))
+            zygote = _zygotes[key] = _by_keeper(torch=bool(torch), job_env=start)
         return zygote
 
 
@@ -156,7 +156,7 @@ _asks = queue.Queue()
 _keeper = []
 
 
-def _by_keeper(torch):
+def _by_keeper(**made):
     """A new Zygote, started by a thread that lives as long as this process: bubblewrap's
     --die-with-parent follows the thread that started it, and a broker's line thread, which
     ends with its job, left every later contestant without its zygote."""
@@ -164,7 +164,7 @@ def _by_keeper(torch):
         _keeper.append(threading.Thread(target=_keep, name="dc-zygote-keeper", daemon=True))
         _keeper[0].start()
     done, answer = threading.Event(), []
-    _asks.put((done, answer, torch))
+    _asks.put((done, answer, made))
     done.wait()
     if isinstance(answer[0], BaseException):
         raise answer[0]
@@ -190,12 +190,35 @@ os.register_at_fork(after_in_child=_forget_in_child)
 
 def _keep():
     while True:
-        done, answer, torch = _asks.get()
+        done, answer, made = _asks.get()
         try:
-            answer.append(Zygote(torch) if not isinstance(torch, tuple) else Zygote(torch[2], job_env=torch[1]))
+            answer.append(Zygote(**made))
         except BaseException as e:
             answer.append(e)
         done.set()
+
+
+def forked_start(box, made, fork, refuse):
+    """Whether box's process was started as `fork(zygote)` of the zygote `made()` gives (None:
+    this one starts fresh, say nothing). A refused fork leaves box as it was before: a zygote that
+    ended under the request (killed or out of memory: nothing of the machine's fence) is made
+    again, once; else refuse(error) notes it and False is returned."""
+    for again in (True, False):
+        used = None
+        try:
+            used = made()
+            if used is None:
+                return False
+            fork(used)
+            return True
+        except Refused as e:
+            box.kill()
+            box.stopped_by, box.process = None, None
+            if again and used is not None and not used.alive():
+                continue
+            refuse(e)
+            return False
+    return False
 
 
 def refused(error, torch=False):
