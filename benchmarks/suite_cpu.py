@@ -1,0 +1,165 @@
+"""Where the test suite's CPU goes: `make test`'s run (or the pytest arguments given after --),
+each test charged the CPU of everything its worker ran meanwhile, its own process and every
+process under it (the `dc` commands it started, their sandboxes and zygotes' forks), read from the
+worker's own control group; then the tests and files that cost most, and the machine's time over
+the run (busy, idle, stolen by the host).
+
+pytest's --durations gives wall time, which a loaded machine stretches and a test that waits
+inflates; CPU is what `-n 2` on 2 cores divides, so the suite's wall time is about its CPU over 2
+where both cores stay busy. Each xdist worker moves itself into a control group of its own (a
+child of this process's group: cgroup v1 cpuacct or v2, where writable; root or a delegated
+group), whose usage counts its descendants. Where none is writable, a test is charged its
+worker's own CPU and that of the processes it waited for (getrusage), which misses a sandbox's
+forks: said on the first line.
+
+Usage: python benchmarks/suite_cpu.py [--top 25] [--out FILE.jsonl] [-- PYTEST ARGS]
+       (default pytest arguments: -q -m "not slow and not packaging" -n 2, as `make test`)
+"""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+WORKER_GROUP = "dc-suite-cpu"
+
+
+# --- the pytest plug-in (loaded in each worker with -p suite_cpu) -------------------------------
+
+_record = {}
+
+
+def _move_into_own_group():
+    """A usage reader of a new control group this process moved into, or None."""
+    from deepcontact.contest import machine
+    found = machine.cgroup_roots().get("cpu")
+    if not found:
+        return None
+    kind, base = found
+    folder = os.path.join(base, f"{WORKER_GROUP}-{os.getpid()}")
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with open(os.path.join(folder, "cgroup.procs"), "w") as f:
+            f.write(str(os.getpid()))
+    except OSError:
+        return None
+    machine.cgroup_roots.cache_clear()   # (the sandboxes' groups go under the worker's own now)
+    name = "cpuacct.usage" if kind == "v1" else "cpu.stat"
+    path = os.path.join(folder, name)
+
+    def usage():
+        with open(path) as f:
+            text = f.read()
+        if kind == "v1":
+            return int(text) * 1e-9
+        return next(int(line.split()[1]) for line in text.splitlines() if line.startswith("usage_usec ")) * 1e-6
+    return usage
+
+
+def _rusage():
+    import resource
+    return sum(getattr(resource.getrusage(who), f) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+               for f in ("ru_utime", "ru_stime"))
+
+
+def pytest_configure(config):
+    out = os.environ.get("DC_SUITE_CPU_OUT")
+    if not out or (getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput")):
+        return   # (xdist's controller runs no test)
+    usage = _move_into_own_group()
+    _record["usage"] = usage or _rusage
+    _record["how"] = "control group" if usage else "getrusage"
+    _record["file"] = open(f"{out}.{os.environ.get('PYTEST_XDIST_WORKER', 'main')}", "a")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if "usage" not in _record:
+        yield
+        return
+    wall, cpu = time.monotonic(), _record["usage"]()
+    yield
+    _record["file"].write(json.dumps({"test": item.nodeid, "cpu": _record["usage"]() - cpu,
+                                      "wall": time.monotonic() - wall, "how": _record["how"]}) + "\n")
+    _record["file"].flush()
+
+
+def _remove_worker_groups():
+    """The workers' groups, empty once they ended."""
+    from deepcontact.contest import machine
+    found = machine.cgroup_roots().get("cpu")
+    if found:
+        for name in os.listdir(found[1]):
+            if name.startswith(WORKER_GROUP + "-"):
+                try:
+                    os.rmdir(os.path.join(found[1], name))
+                except OSError:
+                    pass
+
+
+# --- the script --------------------------------------------------------------------------------
+
+def _machine_time():
+    """(busy, idle, steal) seconds of all CPUs so far, from /proc/stat."""
+    with open("/proc/stat") as f:
+        fields = [int(v) for v in f.readline().split()[1:]]
+    tick = os.sysconf("SC_CLK_TCK")
+    user, nice, system, idle, iowait, irq, softirq, steal = fields[:8]
+    return (user + nice + system + irq + softirq) / tick, (idle + iowait) / tick, steal / tick
+
+
+def _tables(rows, top):
+    by_file = {}
+    for r in rows:
+        f = by_file.setdefault(r["test"].split("::")[0], [0, 0.0, 0.0])
+        f[0] += 1
+        f[1] += r["cpu"]
+        f[2] += r["wall"]
+    print(f"\n{'CPU s':>8} {'wall s':>8} {'tests':>6}  file (the {top} dearest)")
+    for name, (n, cpu, wall) in sorted(by_file.items(), key=lambda kv: -kv[1][1])[:top]:
+        print(f"{cpu:8.1f} {wall:8.1f} {n:6d}  {name}")
+    print(f"\n{'CPU s':>8} {'wall s':>8}  test (the {top} dearest)")
+    for r in sorted(rows, key=lambda r: -r["cpu"])[:top]:
+        print(f"{r['cpu']:8.2f} {r['wall']:8.2f}  {r['test']}")
+
+
+def main():
+    argv = sys.argv[1:]
+    extra = argv[argv.index("--") + 1:] if "--" in argv else ["-q", "-m", "not slow and not packaging", "-n", "2"]
+    own = argv[:argv.index("--")] if "--" in argv else argv
+    top = int(own[own.index("--top") + 1]) if "--top" in own else 25
+    out = own[own.index("--out") + 1] if "--out" in own else None
+    from deepcontact.protocol import current, protocol_line
+    print(protocol_line(current()))
+    folder = tempfile.mkdtemp(prefix="dc-suite-cpu-")
+    stem = os.path.join(folder, "tests")
+    env = dict(os.environ, DC_SUITE_CPU_OUT=stem,
+               PYTHONPATH=os.pathsep.join(p for p in (os.path.dirname(os.path.abspath(__file__)),
+                                                      os.environ.get("PYTHONPATH")) if p))
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    busy0, idle0, steal0 = _machine_time()
+    wall0 = time.monotonic()
+    rc = subprocess.call([sys.executable, "-m", "pytest", "-p", "suite_cpu", *extra], cwd=root, env=env)
+    wall = time.monotonic() - wall0
+    busy1, idle1, steal1 = _machine_time()
+    _remove_worker_groups()
+    rows = [json.loads(line) for name in sorted(os.listdir(folder)) for line in open(os.path.join(folder, name))]
+    if out:
+        with open(out, "w") as f:
+            f.writelines(json.dumps(r) + "\n" for r in rows)
+    how = sorted({r["how"] for r in rows})
+    print(f"\npytest exit {rc}; {len(rows)} tests in {wall:.0f} s; the tests' CPU {sum(r['cpu'] for r in rows):.0f} s "
+          f"({', '.join(how) or 'none recorded'}); the machine over the run: busy {busy1 - busy0:.0f} s, idle "
+          f"{idle1 - idle0:.0f} s, stolen {steal1 - steal0:.0f} s of its {os.cpu_count()} CPUs")
+    if "getrusage" in how:
+        print("(no control group to write in: a test's CPU is its worker's and the processes it waited for; "
+              "the sandboxes' forks are not counted)")
+    _tables(rows, top)
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())
