@@ -12,7 +12,14 @@ group), whose usage counts its descendants. Where none is writable, a test is ch
 worker's own CPU and that of the processes it waited for (getrusage), which misses a sandbox's
 forks: said on the first line.
 
-Usage: python benchmarks/suite_cpu.py [--top 25] [--out FILE.jsonl] [-- PYTEST ARGS]
+--processes: also the run's CPU by kind of process, from the kernel's process accounting (acct(2):
+root, and a kernel built with it; every process that ends is written, its CPU, parent and whether
+it ran a new program): the test workers themselves; forks that ran no new program (a zygote's
+contestants and jobs, a plug-in's or pytest's forks); interpreters started afresh (python, dc: the
+tests' `dc` processes, zygotes, pip); everything else (bubblewrap, chromium, ffmpeg, make).
+Accounting is the machine's: another run of it at the same time is refused.
+
+Usage: python benchmarks/suite_cpu.py [--top 25] [--out FILE.jsonl] [--processes] [-- PYTEST ARGS]
        (default pytest arguments: -q -m "not slow and not packaging" -n 2, as `make test`)
 """
 import json
@@ -73,6 +80,7 @@ def pytest_configure(config):
     _record["usage"] = usage or _rusage
     _record["how"] = "control group" if usage else "getrusage"
     _record["file"] = open(f"{out}.{os.environ.get('PYTEST_XDIST_WORKER', 'main')}", "a")
+    _record["pid"] = os.getpid()
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -82,8 +90,8 @@ def pytest_runtest_protocol(item, nextitem):
         return
     wall, cpu = time.monotonic(), _record["usage"]()
     yield
-    _record["file"].write(json.dumps({"test": item.nodeid, "cpu": _record["usage"]() - cpu,
-                                      "wall": time.monotonic() - wall, "how": _record["how"]}) + "\n")
+    _record["file"].write(json.dumps({"test": item.nodeid, "cpu": _record["usage"]() - cpu, "wall": time.monotonic() - wall,
+                                      "how": _record["how"], "worker": _record["pid"]}) + "\n")
     _record["file"].flush()
 
 
@@ -111,6 +119,52 @@ def _machine_time():
     return (user + nice + system + irq + softirq) / tick, (idle + iowait) / tick, steal / tick
 
 
+def _accounting(path):
+    """Starts the kernel's process accounting into path (None: stops it); an OSError where refused."""
+    import ctypes
+    libc = ctypes.CDLL(None, use_errno=True)
+    if path is not None:
+        open(path, "ab").close()   # (acct appends to a file that exists)
+    if libc.acct(None if path is None else os.fsencode(path)) != 0:
+        raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()))
+
+
+def _comp(v):   # (comp_t: a 13-bit mantissa and a 3-bit base-8 exponent, in AHZ ticks)
+    return (v & 0x1FFF) << (3 * ((v >> 13) & 7))
+
+
+def _accounted(path):
+    """[(pid, ppid, forked without exec, command, CPU seconds)] of an acct_v3 file (linux/acct.h)."""
+    import struct
+    rows, data = [], open(path, "rb").read()
+    for at in range(0, len(data) - 63, 64):
+        flag, version, _, _, _, _, pid, ppid = struct.unpack_from("<BBHIIIII", data, at)
+        utime, stime = struct.unpack_from("<HH", data, at + 32)
+        if version != 3:
+            continue
+        comm = data[at + 48:at + 64].split(b"\0")[0].decode(errors="replace")
+        rows.append((pid, ppid, bool(flag & 0x01), comm, (_comp(utime) + _comp(stime)) / 100))
+    return rows
+
+
+def _by_kind(rows, workers):
+    kinds = {}
+    for pid, ppid, forked, comm, cpu in rows:
+        if pid in workers:
+            kind = "the test workers themselves"
+        elif forked:
+            kind = "forks that ran no new program (contestants, jobs, ...)"
+        elif comm in ("python3", "python", "dc") or comm.startswith("python"):
+            kind = "interpreters started afresh (dc, zygotes, pip, ...)"
+        else:
+            kind = "other programs (bubblewrap, chromium, ffmpeg, make, ...)"
+        n, total = kinds.get(kind, (0, 0.0))
+        kinds[kind] = (n + 1, total + cpu)
+    print(f"\n{'CPU s':>8} {'processes':>10}  kind (process accounting)")
+    for kind, (n, total) in sorted(kinds.items(), key=lambda kv: -kv[1][1]):
+        print(f"{total:8.1f} {n:10d}  {kind}")
+
+
 def _tables(rows, top):
     by_file = {}
     for r in rows:
@@ -132,6 +186,7 @@ def main():
     own = argv[:argv.index("--")] if "--" in argv else argv
     top = int(own[own.index("--top") + 1]) if "--top" in own else 25
     out = own[own.index("--out") + 1] if "--out" in own else None
+    processes = "--processes" in own
     from deepcontact.protocol import current, protocol_line
     print(protocol_line(current()))
     folder = tempfile.mkdtemp(prefix="dc-suite-cpu-")
@@ -140,13 +195,25 @@ def main():
                PYTHONPATH=os.pathsep.join(p for p in (os.path.dirname(os.path.abspath(__file__)),
                                                       os.environ.get("PYTHONPATH")) if p))
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    accounted = os.path.join(folder, "acct") if processes else None
+    if accounted:
+        try:
+            _accounting(accounted)
+        except OSError as e:
+            print(f"--processes: the kernel's process accounting is refused here ({e})", file=sys.stderr)
+            return 1
     busy0, idle0, steal0 = _machine_time()
     wall0 = time.monotonic()
-    rc = subprocess.call([sys.executable, "-m", "pytest", "-p", "suite_cpu", *extra], cwd=root, env=env)
+    try:
+        rc = subprocess.call([sys.executable, "-m", "pytest", "-p", "suite_cpu", *extra], cwd=root, env=env)
+    finally:
+        if accounted:
+            _accounting(None)
     wall = time.monotonic() - wall0
     busy1, idle1, steal1 = _machine_time()
     _remove_worker_groups()
-    rows = [json.loads(line) for name in sorted(os.listdir(folder)) for line in open(os.path.join(folder, name))]
+    rows = [json.loads(line) for name in sorted(os.listdir(folder))
+            if name.startswith("tests.") for line in open(os.path.join(folder, name))]
     if out:
         with open(out, "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in rows)
@@ -157,6 +224,8 @@ def main():
     if "getrusage" in how:
         print("(no control group to write in: a test's CPU is its worker's and the processes it waited for; "
               "the sandboxes' forks are not counted)")
+    if accounted:
+        _by_kind(_accounted(accounted), {r["worker"] for r in rows})
     _tables(rows, top)
     return rc
 
