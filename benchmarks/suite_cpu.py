@@ -181,21 +181,30 @@ def _tables(rows, top):
 
 
 def main():
-    argv = sys.argv[1:]
-    extra = argv[argv.index("--") + 1:] if "--" in argv else ["-q", "-m", "not slow and not packaging", "-n", "2"]
-    own = argv[:argv.index("--")] if "--" in argv else argv
-    top = int(own[own.index("--top") + 1]) if "--top" in own else 25
-    out = own[own.index("--out") + 1] if "--out" in own else None
-    processes = "--processes" in own
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--top", type=int, default=25, help="how many tests and files to list (default 25)")
+    ap.add_argument("--out", help="every test's row, as JSON lines, into this file")
+    ap.add_argument("--processes", action="store_true", help="the CPU by kind of process (process accounting)")
+    ap.add_argument("pytest_args", nargs="*", help="after --: pytest's arguments")
+    args = ap.parse_args()
+    if args.top < 1:
+        ap.error(f"--top must be at least 1, got {args.top}")
+    extra = args.pytest_args or ["-q", "-m", "not slow and not packaging", "-n", "2"]
     from deepcontact.protocol import current, protocol_line
     print(protocol_line(current()))
-    folder = tempfile.mkdtemp(prefix="dc-suite-cpu-")
+    with tempfile.TemporaryDirectory(prefix="dc-suite-cpu-") as folder:
+        return _run(folder, extra, args)
+
+
+def _run(folder, extra, args):
+    """pytest run with the plug-in, its rows written in folder; the tables printed; pytest's exit status."""
     stem = os.path.join(folder, "tests")
     env = dict(os.environ, DC_SUITE_CPU_OUT=stem,
                PYTHONPATH=os.pathsep.join(p for p in (os.path.dirname(os.path.abspath(__file__)),
                                                       os.environ.get("PYTHONPATH")) if p))
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    accounted = os.path.join(folder, "acct") if processes else None
+    accounted = os.path.join(folder, "acct") if args.processes else None
     if accounted:
         try:
             _accounting(accounted)
@@ -214,8 +223,8 @@ def main():
     _remove_worker_groups()
     rows = [json.loads(line) for name in sorted(os.listdir(folder))
             if name.startswith("tests.") for line in open(os.path.join(folder, name))]
-    if out:
-        with open(out, "w") as f:
+    if args.out:
+        with open(args.out, "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in rows)
     how = sorted({r["how"] for r in rows})
     print(f"\npytest exit {rc}; {len(rows)} tests in {wall:.0f} s; the tests' CPU {sum(r['cpu'] for r in rows):.0f} s "
@@ -226,7 +235,7 @@ def main():
               "the sandboxes' forks are not counted)")
     if accounted:
         _by_kind(_accounted(accounted), {r["worker"] for r in rows})
-    _tables(rows, top)
+    _tables(rows, args.top)
     return rc
 
 
