@@ -6,24 +6,30 @@ the run (busy, idle, stolen by the host).
 
 pytest's --durations gives wall time, which a loaded machine stretches and a test that waits
 inflates; CPU is what `-n 2` on 2 cores divides, so the suite's wall time is about its CPU over 2
-where both cores stay busy. Each xdist worker moves itself into a control group of its own (a
-child of this process's group: cgroup v1 cpuacct or v2, where writable; root or a delegated
-group), whose usage counts its descendants. Where none is writable, a test is charged its
-worker's own CPU and that of the processes it waited for (getrusage), which misses a sandbox's
-forks: said on the first line.
+where both cores stay busy. Each xdist worker moves itself into a cgroup v1 cpuacct group of its
+own (a child of its group, where writable: root or a delegated group), whose usage counts its
+descendants'. Elsewhere (cgroup v2 too, where a worker moved into a group of its own would leave
+the sandboxes' pids and memory controllers behind), a test is charged its worker's own CPU and
+that of the processes it waited for (getrusage), which misses a sandbox's forks: said after the
+run. A test that leaves a process running keeps its worker's group: named after the run.
 
 --processes: also the run's CPU by kind of process, from the kernel's process accounting (acct(2):
 root, and a kernel built with it; every process that ends is written, its CPU, parent and whether
-it ran a new program): the test workers themselves; forks that ran no new program (a zygote's
-contestants and jobs, a plug-in's or pytest's forks); interpreters started afresh (python, dc: the
-tests' `dc` processes, zygotes, pip); everything else (bubblewrap, chromium, ffmpeg, make).
-Accounting is the machine's: another run of it at the same time is refused.
+it ran a new program), of pytest's process and its descendants (a process whose parent ended
+before it is not found: its parent is then another): the test workers themselves; forks that ran
+no new program (a zygote's contestants and jobs, a plug-in's or pytest's forks, a shell's
+subshells); interpreters started afresh (python, dc: pytest itself, the tests' `dc` processes,
+zygotes, pip); everything else (bubblewrap, chromium, ffmpeg, make). The machine has one
+accounting file: a second `--processes` run at the same time is refused (a lock), and accounting
+the machine had on (psacct's, say) is turned off by the run.
 
 Usage: python benchmarks/suite_cpu.py [--top 25] [--out FILE.jsonl] [--processes] [-- PYTEST ARGS]
        (default pytest arguments: -q -m "not slow and not packaging" -n 2, as `make test`)
 """
+import fcntl
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -32,6 +38,7 @@ import time
 import pytest
 
 WORKER_GROUP = "dc-suite-cpu"
+ACCOUNTING_LOCK = os.path.join(tempfile.gettempdir(), "dc-process-accounting.lock")
 
 
 # --- the pytest plug-in (loaded in each worker with -p suite_cpu) -------------------------------
@@ -46,23 +53,20 @@ def _move_into_own_group():
     if not found:
         return None
     kind, base = found
-    folder = os.path.join(base, f"{WORKER_GROUP}-{os.getpid()}")
+    if kind != "v1":
+        return None
     try:
-        os.makedirs(folder, exist_ok=True)
+        folder = tempfile.mkdtemp(prefix=f"{WORKER_GROUP}-{os.getpid()}-", dir=base)   # (a name never taken)
         with open(os.path.join(folder, "cgroup.procs"), "w") as f:
             f.write(str(os.getpid()))
     except OSError:
         return None
-    machine.cgroup_roots.cache_clear()   # (the sandboxes' groups go under the worker's own now)
-    name = "cpuacct.usage" if kind == "v1" else "cpu.stat"
-    path = os.path.join(folder, name)
+    machine.cgroup_roots.cache_clear()   # (the sandboxes' cpuacct groups go under the worker's own now)
+    path = os.path.join(folder, "cpuacct.usage")
 
     def usage():
         with open(path) as f:
-            text = f.read()
-        if kind == "v1":
-            return int(text) * 1e-9
-        return next(int(line.split()[1]) for line in text.splitlines() if line.startswith("usage_usec ")) * 1e-6
+            return int(f.read()) * 1e-9
     return usage
 
 
@@ -81,6 +85,7 @@ def pytest_configure(config):
     _record["how"] = "control group" if usage else "getrusage"
     _record["file"] = open(f"{out}.{os.environ.get('PYTEST_XDIST_WORKER', 'main')}", "a")
     _record["pid"] = os.getpid()
+    open(os.path.join(os.path.dirname(out), f"workers.{os.getpid()}"), "w").close()
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -95,17 +100,49 @@ def pytest_runtest_protocol(item, nextitem):
     _record["file"].flush()
 
 
-def _remove_worker_groups():
-    """The workers' groups, empty once they ended."""
+def _remove_worker_groups(workers):
+    """The groups of the workers (pids) of this run, with the groups under them that a `dc` killed
+    in a test left (dc's next sandbox would have swept them from the group it started in). A
+    process still in one (a worker of a stopped run, or a process a test left running) is ended
+    first, and said."""
     from deepcontact.contest import machine
     found = machine.cgroup_roots().get("cpu")
-    if found:
-        for name in os.listdir(found[1]):
-            if name.startswith(WORKER_GROUP + "-"):
+    if not found or found[0] != "v1":
+        return
+    for name in os.listdir(found[1]):
+        if not any(name.startswith(f"{WORKER_GROUP}-{pid}-") for pid in workers):
+            continue
+        group = os.path.join(found[1], name)
+        left = _processes_in(group)
+        if left:
+            print(f"ending {len(left)} process(es) the run left in {group}: {', '.join(map(str, sorted(left)))}",
+                  file=sys.stderr)
+        deadline = time.monotonic() + 10
+        while left and time.monotonic() < deadline:
+            for pid in left:   # (listed in the group: one of the run's, whatever its number)
                 try:
-                    os.rmdir(os.path.join(found[1], name))
+                    os.kill(pid, signal.SIGKILL)
                 except OSError:
                     pass
+            time.sleep(0.05)
+            left = _processes_in(group)
+        for folder, _, _ in os.walk(group, topdown=False):
+            try:
+                os.rmdir(folder)
+            except OSError as e:
+                print(f"the control group {folder} is left: {e.strerror}", file=sys.stderr)
+
+
+def _processes_in(group):
+    """The pids in a group and the groups under it."""
+    pids = set()
+    for folder, _, _ in os.walk(group):
+        try:
+            with open(os.path.join(folder, "cgroup.procs")) as f:
+                pids.update(int(line) for line in f if line.strip())
+        except OSError:
+            pass
+    return pids
 
 
 # --- the script --------------------------------------------------------------------------------
@@ -147,13 +184,30 @@ def _accounted(path):
     return rows
 
 
+def _descendants(rows, root):
+    """The rows of root's process and its descendants, by the parents the records name."""
+    parent = {pid: ppid for pid, ppid, *_ in rows}
+    mine = {}
+
+    def of_root(pid):
+        seen = []
+        while pid not in mine and pid != root and pid in parent and pid > 1 and len(seen) < 10000:
+            seen.append(pid)
+            pid = parent[pid]
+        verdict = mine.get(pid, pid == root)
+        for p in seen:
+            mine[p] = verdict
+        return verdict
+    return [r for r in rows if r[0] == root or of_root(r[0])]
+
+
 def _by_kind(rows, workers):
     kinds = {}
     for pid, ppid, forked, comm, cpu in rows:
         if pid in workers:
             kind = "the test workers themselves"
         elif forked:
-            kind = "forks that ran no new program (contestants, jobs, ...)"
+            kind = "forks that ran no new program (contestants, jobs, subshells, ...)"
         elif comm in ("python3", "python", "dc") or comm.startswith("python"):
             kind = "interpreters started afresh (dc, zygotes, pip, ...)"
         else:
@@ -190,11 +244,35 @@ def main():
     args = ap.parse_args()
     if args.top < 1:
         ap.error(f"--top must be at least 1, got {args.top}")
+    if args.out:
+        try:
+            open(args.out, "a").close()
+        except OSError as e:
+            ap.error(f"--out {args.out}: {e.strerror}")
     extra = args.pytest_args or ["-q", "-m", "not slow and not packaging", "-n", "2"]
     from deepcontact.protocol import current, protocol_line
     print(protocol_line(current()))
+    # (a stop signal ends the run through the same clean-up as its end: accounting off, groups removed)
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGHUP, stop)
     with tempfile.TemporaryDirectory(prefix="dc-suite-cpu-") as folder:
         return _run(folder, extra, args)
+
+
+def _rows(folder):
+    return [json.loads(line) for name in sorted(os.listdir(folder))
+            if name.startswith("tests.") for line in open(os.path.join(folder, name)) if line.endswith("\n")]
+
+
+def _workers(folder):
+    """The pids of the workers that recorded (each writes its pid first)."""
+    pids = set()
+    for name in os.listdir(folder):
+        if name.startswith("workers."):
+            pids.add(int(name.split(".")[1]))
+    return pids
 
 
 def _run(folder, extra, args):
@@ -207,22 +285,37 @@ def _run(folder, extra, args):
     accounted = os.path.join(folder, "acct") if args.processes else None
     if accounted:
         try:
+            lock = open(ACCOUNTING_LOCK, "a")
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            print(f"--processes: another run holds the machine's process accounting ({ACCOUNTING_LOCK}: {e.strerror})",
+                  file=sys.stderr)
+            return 1
+        try:
             _accounting(accounted)
         except OSError as e:
-            print(f"--processes: the kernel's process accounting is refused here ({e})", file=sys.stderr)
+            print(f"--processes: the kernel's process accounting is refused here ({e.strerror})", file=sys.stderr)
             return 1
     busy0, idle0, steal0 = _machine_time()
     wall0 = time.monotonic()
+    pytest_run = None
     try:
-        rc = subprocess.call([sys.executable, "-m", "pytest", "-p", "suite_cpu", *extra], cwd=root, env=env)
+        pytest_run = subprocess.Popen([sys.executable, "-m", "pytest", "-p", "suite_cpu", *extra], cwd=root, env=env)
+        rc = pytest_run.wait()
     finally:
+        if pytest_run is not None and pytest_run.poll() is None:   # (stopped: pytest is stopped too, then waited for)
+            pytest_run.terminate()
+            try:
+                pytest_run.wait(30)
+            except subprocess.TimeoutExpired:
+                pytest_run.kill()
+                pytest_run.wait()
         if accounted:
             _accounting(None)
+        _remove_worker_groups(_workers(folder))
     wall = time.monotonic() - wall0
     busy1, idle1, steal1 = _machine_time()
-    _remove_worker_groups()
-    rows = [json.loads(line) for name in sorted(os.listdir(folder))
-            if name.startswith("tests.") for line in open(os.path.join(folder, name))]
+    rows = _rows(folder)
     if args.out:
         with open(args.out, "w") as f:
             f.writelines(json.dumps(r) + "\n" for r in rows)
@@ -234,7 +327,7 @@ def _run(folder, extra, args):
         print("(no control group to write in: a test's CPU is its worker's and the processes it waited for; "
               "the sandboxes' forks are not counted)")
     if accounted:
-        _by_kind(_accounted(accounted), {r["worker"] for r in rows})
+        _by_kind(_descendants(_accounted(accounted), pytest_run.pid), _workers(folder))
     _tables(rows, args.top)
     return rc
 
