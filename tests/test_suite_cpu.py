@@ -41,7 +41,7 @@ def test_it_leaves_no_control_group_behind(tmp_path):
     from deepcontact.contest import machine
     (tmp_path / "test_burn.py").write_text(BURN)
     out = tmp_path / "rows.jsonl"
-    r = subprocess.run([sys.executable, str(SCRIPT), "--out", str(out), "--", "-q", "-p", "no:cacheprovider", "-n", "2",
+    r = subprocess.run([sys.executable, str(SCRIPT), "--out", str(out), "--", "-q", "-p", "no:cacheprovider", "-n", "1",
                         str(tmp_path / "test_burn.py")], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     workers = {row["worker"] for row in map(json.loads, out.read_text().splitlines())}
