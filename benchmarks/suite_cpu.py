@@ -83,9 +83,8 @@ def pytest_configure(config):
     usage = _move_into_own_group()
     _record["usage"] = usage or _rusage
     _record["how"] = "control group" if usage else "getrusage"
-    _record["file"] = open(f"{out}.{os.environ.get('PYTEST_XDIST_WORKER', 'main')}", "a")
+    _record["file"] = open(f"{out}.{os.getpid()}", "a")   # (made now: a worker that runs no test is found too)
     _record["pid"] = os.getpid()
-    open(os.path.join(os.path.dirname(out), f"workers.{os.getpid()}"), "w").close()
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -102,47 +101,33 @@ def pytest_runtest_protocol(item, nextitem):
 
 def _remove_worker_groups(workers):
     """The groups of the workers (pids) of this run, with the groups under them that a `dc` killed
-    in a test left (dc's next sandbox would have swept them from the group it started in). A
-    process still in one (a worker of a stopped run, or a process a test left running) is ended
-    first, and said."""
-    from deepcontact.contest import machine
+    in a test left (dc's next sandbox would have swept them from the group it started in), each
+    removed as dc removes a sandbox's, a process still in it (a worker of a stopped run, or a
+    process a test left running) ended first, and said."""
+    from deepcontact.contest import machine, sandbox
     found = machine.cgroup_roots().get("cpu")
     if not found or found[0] != "v1":
         return
     for name in os.listdir(found[1]):
         if not any(name.startswith(f"{WORKER_GROUP}-{pid}-") for pid in workers):
             continue
-        group = os.path.join(found[1], name)
-        left = _processes_in(group)
-        if left:
-            print(f"ending {len(left)} process(es) the run left in {group}: {', '.join(map(str, sorted(left)))}",
-                  file=sys.stderr)
-        deadline = time.monotonic() + 10
-        while left and time.monotonic() < deadline:
-            for pid in left:   # (listed in the group: one of the run's, whatever its number)
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except OSError:
-                    pass
-            time.sleep(0.05)
-            left = _processes_in(group)
-        for folder, _, _ in os.walk(group, topdown=False):
-            try:
-                os.rmdir(folder)
-            except OSError as e:
-                print(f"the control group {folder} is left: {e.strerror}", file=sys.stderr)
+        for folder, _, _ in os.walk(os.path.join(found[1], name), topdown=False):
+            left = _processes_in(folder)
+            if left:
+                print(f"ending {len(left)} process(es) the run left in {folder}: {', '.join(map(str, sorted(left)))}",
+                      file=sys.stderr)
+            sandbox._remove_groups({"cpu": ("v1", folder)})
+            if os.path.exists(folder):
+                print(f"the control group {folder} is left", file=sys.stderr)
 
 
 def _processes_in(group):
-    """The pids in a group and the groups under it."""
-    pids = set()
-    for folder, _, _ in os.walk(group):
-        try:
-            with open(os.path.join(folder, "cgroup.procs")) as f:
-                pids.update(int(line) for line in f if line.strip())
-        except OSError:
-            pass
-    return pids
+    """The pids in a group."""
+    try:
+        with open(os.path.join(group, "cgroup.procs")) as f:
+            return {int(line) for line in f if line.strip()}
+    except OSError:
+        return set()
 
 
 # --- the script --------------------------------------------------------------------------------
@@ -267,12 +252,8 @@ def _rows(folder):
 
 
 def _workers(folder):
-    """The pids of the workers that recorded (each writes its pid first)."""
-    pids = set()
-    for name in os.listdir(folder):
-        if name.startswith("workers."):
-            pids.add(int(name.split(".")[1]))
-    return pids
+    """The pids of the workers (each makes its rows' file, tests.PID, as it starts)."""
+    return {int(name.split(".")[1]) for name in os.listdir(folder) if name.startswith("tests.")}
 
 
 def _run(folder, extra, args):

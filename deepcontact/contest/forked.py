@@ -52,7 +52,6 @@ JOB_LIBRARIES = ("numpy", "lxml.etree", "click", "deepcontact._box2d")
 JOB_TORCH_LIBRARIES = ("torch", "torch.nn", "torch.optim", "torch._dynamo")
 
 
-
 def main(fd, package, torch=False, job=False):
     """The zygote: imports the contestant's side, then forks a contestant for each request on
     the socket `fd` until the judge closes it. package: the judge's deepcontact folder, which
