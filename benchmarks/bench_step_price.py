@@ -113,7 +113,7 @@ def main():
     for name, values in times.items():
         ratio = np.array(values) / base
         q1, med, q3 = np.percentile(ratio, [25, 50, 75])
-        print(f"{name:36s} {np.median(values) * 1e3:13.3f} {med:26.2f}x {q1:7.2f}-{q3:.2f}x")
+        print(f"{name:36s} {np.median(values) * 1e3:13.3f} {med:26.3f}x {q1:7.3f}-{q3:.3f}x")
 
 
 if __name__ == "__main__":

@@ -90,10 +90,13 @@ struct ContactManifold {
     bool angular;           // any rotational inertia on either side
     bool block;             // 2x2 block solver for the normal rows
     V2<R> normal;
-    R friction, restitution, threshold;
+    R friction;
     R mA, mB, iA, iB;
-    M22<R> K, normal_mass;
+    // What a sweep reads of a one-point manifold first, so that it spans the fewest cache lines
+    // (a pile's manifolds are one point each); a pair's block after its points.
     ContactPoint<R> p[2];
+    M22<R> K, normal_mass;
+    R restitution, threshold;   // (read only where the rows are posed)
 };
 
 template <class R>
@@ -210,28 +213,36 @@ V2<R> face_points(const Xf<R>& ref, R radius_ref, const Xf<R>& inc, R radius_inc
     return normal;
 }
 
+// b2WorldManifold::Initialize of a circles manifold: its one point, and the normal returned.
+template <class R>
+inline V2<R> circle_point(const Xf<R>& xfA, V2<R> local_point, R radiusA, const Xf<R>& xfB, V2<R> point_local,
+                          R radiusB, V2<R>& point) {
+    const R eps = R(FLT_EPSILON);
+    V2<R> normal{R(1), R(0)};
+    V2<R> pointA = mul(xfA, local_point);
+    V2<R> pointB = mul(xfB, point_local);
+    V2<R> d = pointA - pointB;
+    if (d.x * d.x + d.y * d.y > eps * eps) {
+        normal = pointB - pointA;
+        R length = std::sqrt(normal.x * normal.x + normal.y * normal.y);
+        if (!(length < eps)) {
+            R inv = R(1) / length;
+            normal.x *= inv;
+            normal.y *= inv;
+        }
+    }
+    V2<R> cA = pointA + radiusA * normal;
+    V2<R> cB = pointB - radiusB * normal;
+    point = R(0.5) * (cA + cB);
+    return normal;
+}
+
 // Box2D's b2WorldManifold::Initialize.
 template <class R>
 void world_manifold(int type, V2<R> local_normal, V2<R> local_point, const V2<R>* point_local, int count,
                     const Xf<R>& xfA, R radiusA, const Xf<R>& xfB, R radiusB, V2<R>& normal, V2<R>* points) {
-    const R eps = R(FLT_EPSILON);
     if (type == 0) {  // circles
-        normal = {R(1), R(0)};
-        V2<R> pointA = mul(xfA, local_point);
-        V2<R> pointB = mul(xfB, point_local[0]);
-        V2<R> d = pointA - pointB;
-        if (d.x * d.x + d.y * d.y > eps * eps) {
-            normal = pointB - pointA;
-            R length = std::sqrt(normal.x * normal.x + normal.y * normal.y);
-            if (!(length < eps)) {
-                R inv = R(1) / length;
-                normal.x *= inv;
-                normal.y *= inv;
-            }
-        }
-        V2<R> cA = pointA + radiusA * normal;
-        V2<R> cB = pointB - radiusB * normal;
-        points[0] = R(0.5) * (cA + cB);
+        normal = circle_point(xfA, local_point, radiusA, xfB, point_local[0], radiusB, points[0]);
     } else if (type == 1) {  // face A
         normal = face_points(xfA, radiusA, xfB, radiusB, local_normal, local_point, point_local, count, points);
     } else {  // face B: the normal still points from A to B

@@ -7,12 +7,32 @@
 #include <box2d/box2d.h>
 
 #include <cstdint>
+#include <cstring>
 #include <utility>
 #include <vector>
 
 #include "contact_problem.hpp"
 
 namespace dc {
+
+// A rotation kept with the angle it was computed from: b2Rot::Set of the same angle, bit for bit,
+// gives the same rotation, so a body's sine and cosine are computed again only where its angle
+// moved (Box2D's position correction computes both bodies' at every contact point, and its
+// transform each body's again).
+struct KeptRotation {
+    static constexpr uint64_t kNone = uint64_t(1) << 32;   // (no float's bits)
+    uint64_t angle = kNone;
+    b2Rot q;
+    const b2Rot& at(float a) {
+        uint32_t bits;
+        std::memcpy(&bits, &a, sizeof bits);
+        if (bits != angle) {
+            q.Set(a);
+            angle = bits;
+        }
+        return q;
+    }
+};
 
 struct LoopFrame {
     // The islands in b2World::Solve's order: their bodies (static ones included, as Box2D adds
@@ -54,7 +74,9 @@ struct LoopFrame {
         b2Vec2 rA[b2_maxManifoldPoints], rB[b2_maxManifoldPoints];
     };
     std::vector<Constraint> constraints;
-    std::vector<b2Rot> rotation;   // each live body's, by scene index (one sine and cosine a body)
+    // Each live body's rotation by scene index: as the step is posed (its sweep's angle then, the
+    // step's a0 once stepped), and as the island solve left its transform (the next step's).
+    std::vector<KeptRotation> rotation, stepped_rotation;
     // By scene index: the body's transform is not the one its sweep gives (placed since its last
     // step: created or set_body_state, where Box2D keeps the position given).
     std::vector<uint8_t> placed;
@@ -63,14 +85,15 @@ struct LoopFrame {
     // being searched (scene index); each live body's solver row (scene index).
     std::vector<b2Position> positions;
     std::vector<b2Velocity> velocities;
+    std::vector<KeptRotation> position_rotation;   // (slot: position correction's)
     std::vector<int32_t> slot, row_of;
 
     // The step's problem, posed into buffers kept from step to step (one for each precision), and
-    // each live body's rotation and centre in double by solver row (the double posing's).
+    // each live body's centre and transform in double by solver row (the double posing's).
     ContactProblem<float> problem32;
     ContactProblem<double> problem64;
-    std::vector<Rot<double>> rotation64;
     std::vector<V2<double>> center64;
+    std::vector<Xf<double>> transform64;
 };
 
 }  // namespace dc

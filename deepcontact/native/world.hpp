@@ -123,6 +123,7 @@ private:
     template <class R>
     void pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k);
     void solve_islands(const b2TimeStep& step);
+    void synchronize_fixtures(b2Body* body);
     void solve_island(const b2TimeStep& step, int32_t body_begin, int32_t body_end, int32_t contact_begin,
                       int32_t contact_end);
     b2WorldManifold pose(b2Contact* contact, LoopFrame::Constraint& constraint) const;

@@ -85,14 +85,15 @@ void World::find_islands() {
 void World::place_loop_bodies() {
     loop_.row_of.assign(bodies_.size(), -1);
     loop_.rotation.resize(bodies_.size());
+    loop_.stepped_rotation.resize(bodies_.size());
     loop_.placed.resize(bodies_.size());
     int32_t i = 0;
     for (b2Body* b : bodies_) {
         if (b == nullptr) continue;
         const int index = body_index(b);
         loop_.row_of[index] = i++;
-        loop_.rotation[index].Set(b->GetAngle());   // (the same angle gives the same bits)
-        loop_.placed[index] = placed(b, loop_.rotation[index]);
+        loop_.rotation[index] = loop_.stepped_rotation[index];
+        loop_.placed[index] = placed(b, loop_.rotation[index].at(b->GetAngle()));
     }
 }
 
@@ -133,7 +134,7 @@ template <class R>
 void World::pose_free_velocities(ContactProblem<R>& pb, const StepSettings& st) {
     pb.velocity.resize(live_bodies_);
     if constexpr (!std::is_same_v<R, float>) {
-        loop_.rotation64.resize(live_bodies_);
+        loop_.transform64.resize(live_bodies_);
         loop_.center64.resize(live_bodies_);
     }
     size_t row = 0;
@@ -145,8 +146,12 @@ void World::pose_free_velocities(ContactProblem<R>& pb, const StepSettings& st) 
              b->GetLinearDamping(), b->GetAngularDamping(), b->GetGravityScale()},
             st);
         if constexpr (!std::is_same_v<R, float>) {
-            loop_.rotation64[row] = Rot<R>(R(b->GetAngle()));
-            loop_.center64[row] = {R(b->GetWorldCenter().x), R(b->GetWorldCenter().y)};
+            // (the transform once a body, not once each of its contacts: the same operands, the
+            // same bits)
+            const Rot<R> q(R(b->GetAngle()));
+            const V2<R> center{R(b->GetWorldCenter().x), R(b->GetWorldCenter().y)};
+            loop_.center64[row] = center;
+            loop_.transform64[row] = {center - mul(q, V2<R>{R(b->GetLocalCenter().x), R(b->GetLocalCenter().y)}), q};
         }
         ++row;
     }
@@ -209,9 +214,16 @@ void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k)
     } else {
         const LoopFrame& f = loop_;
         const V2<R> cA = f.center64[m.a], cB = f.center64[m.b];
-        Xf<R> xfA{{0, 0}, f.rotation64[m.a]}, xfB{{0, 0}, f.rotation64[m.b]};
-        xfA.p = cA - mul(xfA.q, V2<R>{R(k.local_center_a.x), R(k.local_center_a.y)});
-        xfB.p = cB - mul(xfB.q, V2<R>{R(k.local_center_b.x), R(k.local_center_b.y)});
+        const Xf<R>& xfA = f.transform64[m.a];
+        const Xf<R>& xfB = f.transform64[m.b];
+        if (k.type == b2Manifold::e_circles) {   // (a pile's every contact: world_manifold's case inline)
+            V2<R> point;
+            m.normal = circle_point(xfA, {R(k.local_point.x), R(k.local_point.y)}, R(k.radius_a), xfB,
+                                    {R(k.local_points[0].x), R(k.local_points[0].y)}, R(k.radius_b), point);
+            m.p[0].rA = point - cA;
+            m.p[0].rB = point - cB;
+            return;
+        }
         V2<R> point_local[b2_maxManifoldPoints], points[b2_maxManifoldPoints];
         for (int j = 0; j < k.point_count; ++j) point_local[j] = {R(k.local_points[j].x), R(k.local_points[j].y)};
         world_manifold<R>(static_cast<int>(k.type), {R(k.local_normal.x), R(k.local_normal.y)},
@@ -235,6 +247,7 @@ void World::solve_islands(const b2TimeStep& step) {
     LoopFrame& f = loop_;
     f.positions.resize(f.island_bodies.size());
     f.velocities.resize(f.island_bodies.size());
+    f.position_rotation.resize(f.island_bodies.size());
     int32_t first_body = 0, first_contact = 0;
     for (size_t island = 0; island < f.bodies_end.size(); ++island) {
         solve_island(step, first_body, f.bodies_end[island], first_contact, f.contacts_end[island]);
@@ -245,9 +258,24 @@ void World::solve_islands(const b2TimeStep& step) {
     for (b2Body* b = w->GetBodyList(); b; b = b->GetNext()) {
         // a body in no island did not move
         if ((flags(b) & kBodyIslandFlag) == 0 || b->GetType() == b2_staticBody) continue;
-        (b->*member(BodySynchronizeFixtures()))();
+        synchronize_fixtures(b);
     }
     const_cast<b2ContactManager&>(w->GetContactManager()).FindNewContacts();
+}
+
+// b2Body::SynchronizeFixtures, its rotation at the step's start (a0) the one the step was posed
+// with: each fixture's proxy moved in the broad-phase over the body's motion this step.
+void World::synchronize_fixtures(b2Body* b) {
+    b2BroadPhase* broad_phase = &const_cast<b2ContactManager&>(world_->GetContactManager()).m_broadPhase;
+    const b2Transform& xf2 = b->GetTransform();
+    b2Transform xf1 = xf2;
+    if (b->IsAwake()) {
+        const b2Sweep& sweep = b->*member(BodySweep());
+        xf1.q = loop_.rotation[body_index(b)].at(sweep.a0);
+        xf1.p = sweep.c0 - b2Mul(xf1.q, sweep.localCenter);
+    }
+    for (b2Fixture* fixture = b->GetFixtureList(); fixture; fixture = fixture->GetNext())
+        (fixture->*member(FixtureSynchronize()))(broad_phase, xf1, xf2);
 }
 
 // b2Island::Solve with zero velocity iterations (and no joints, no sleeping: the loop allows
@@ -325,7 +353,13 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
         sweep.a = positions[i].a;
         b->*member(BodyLinearVelocity()) = velocities[i].v;
         b->*member(BodyAngularVelocity()) = velocities[i].w;
-        (b->*member(BodySynchronizeTransform()))();
+        // b2Body::SynchronizeTransform, with the rotation position correction last computed
+        KeptRotation& kept = f.stepped_rotation[body_index(b)];
+        kept = f.position_rotation[i];
+        const b2Rot& q = kept.at(sweep.a);
+        b2Transform& xf = b->*member(BodyTransform());
+        xf.q = q;
+        xf.p = sweep.c - b2Mul(q, sweep.localCenter);
     }
     // b2Island::Report: what the recorder keeps of a step
     if (recorder_active())
@@ -362,8 +396,8 @@ b2WorldManifold World::pose(b2Contact* contact, LoopFrame::Constraint& k) const 
 
     const b2Vec2 cA = sa.c, cB = sb.c;
     b2Transform xfA, xfB;
-    xfA.q = f.rotation[body_index(ba)];
-    xfB.q = f.rotation[body_index(bb)];
+    xfA.q = f.rotation[body_index(ba)].q;
+    xfB.q = f.rotation[body_index(bb)].q;
     xfA.p = cA - b2Mul(xfA.q, k.local_center_a);
     xfB.p = cB - b2Mul(xfB.q, k.local_center_b);
     b2WorldManifold wm;
@@ -430,8 +464,8 @@ float World::correct_positions(const LoopFrame::Constraint& k) {
     float min_separation = 0.0f;
     for (int32 j = 0; j < k.point_count; ++j) {
         b2Transform xfA, xfB;
-        xfA.q.Set(aA);
-        xfB.q.Set(aB);
+        xfA.q = f.position_rotation[k.slot_a].at(aA);
+        xfB.q = f.position_rotation[k.slot_b].at(aB);
         xfA.p = cA - b2Mul(xfA.q, k.local_center_a);
         xfB.p = cB - b2Mul(xfB.q, k.local_center_b);
         b2Vec2 normal, point;
