@@ -1,8 +1,9 @@
 """Where the test suite's CPU goes: `make test`'s run (or the pytest arguments given after --),
 each test charged the CPU of everything its worker ran meanwhile, its own process and every
 process under it (the `dc` commands it started, their sandboxes and zygotes' forks), read from the
-worker's own control group; then the tests and files that cost most, and the machine's time over
-the run (busy, idle, stolen by the host).
+worker's own control group; then the tests and files that cost most, the tests that waited longest
+(wall time their CPU did not fill: a deadline or a sleep waited out, a core left idle), and the
+machine's time over the run (busy, idle, stolen by the host).
 
 pytest's --durations gives wall time, which a loaded machine stretches and a test that waits
 inflates; CPU is what `-n 2` on 2 cores divides, so the suite's wall time is about its CPU over 2
@@ -217,6 +218,13 @@ def _tables(rows, top):
     print(f"\n{'CPU s':>8} {'wall s':>8}  test (the {top} dearest)")
     for r in sorted(rows, key=lambda r: -r["cpu"])[:top]:
         print(f"{r['cpu']:8.2f} {r['wall']:8.2f}  {r['test']}")
+    # (a test's wall time its CPU does not fill: a deadline or a sleep waited out, a process waited
+    # for; with two workers, what leaves a core idle)
+    waits = sorted(rows, key=lambda r: r["cpu"] - r["wall"])[:top]
+    print(f"\n{'wait s':>8} {'wall s':>8}  test (the {top} that waited longest: wall less CPU; "
+          f"{sum(max(r['wall'] - r['cpu'], 0.0) for r in rows):.0f} s in all)")
+    for r in waits:
+        print(f"{r['wall'] - r['cpu']:8.2f} {r['wall']:8.2f}  {r['test']}")
 
 
 def main():

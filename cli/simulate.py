@@ -79,9 +79,9 @@ def box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxa
 @click.option("--start", type=types.choice(LOOP_STARTS),
               help="[pgs] First iterate (default builtin); garbage: 1e30, NaN, -1 (a stability test).")
 @click.option("--mode", type=types.choice(MODES),
-              help="[pgs] exact: Box2D's float32 arithmetic (a step at 8 sweeps costs what Box2D's own "
-                   "does on the settled 1000-circle pile); float64: double precision (default; about 1.15x "
-                   "Box2D's step: docs/results/step-price.md).")
+              help="[pgs] exact: Box2D's float32 arithmetic (a step at 8 sweeps costs about 0.92x Box2D's "
+                   "own on the settled 1000-circle pile); float64: double precision (default; about 1.04x "
+                   "there: docs/results/step-price.md).")
 @click.option("--tolerance", type=types.Finite(min=0),
               help="[pgs] Stop when the measure falls below this. A converged pile is a reference, "
                    "not a fast mode: the settled 1000-circle pile to 1e-4 costs about 40x Box2D's "
