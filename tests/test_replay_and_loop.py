@@ -468,3 +468,40 @@ def test_a_loop_step_after_box2d_stepped_the_world_at_another_dt_carries_box2ds_
     assert np.array_equal(done.contacts["normal_impulse"], want["normal_impulse"])
     assert np.array_equal(done.contacts["tangent_impulse"], want["tangent_impulse"])
     assert ours.step().dt_ratio == 1.0   # (the loop's own steps again: exactly 1)
+
+
+def test_a_step_in_pieces_after_bodies_are_placed_records_one_start_a_contact_row():
+    """Bodies turned in place (set_body_state) between steps: Box2D's Step of the step in pieces
+    recorded contact rows the collided ones did not have, and the step's start, one a collided row,
+    was recorded beside them, shorter than the contacts. Both paths now record no start there."""
+    from deepcontact.scene.model import Body, Circle, Edge, Effects, Polygon, Scene, Solver, f32
+
+    def box(hx, hy, cx=0.0, cy=0.0):
+        return Polygon(((cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)), density=1.0)
+    rng = np.random.default_rng(3)
+    bodies = [Body(type="static", shapes=[Edge(-30, 0, 30, 0)]), Body(type="static", x=-8, y=0.5, angle=-0.0, shapes=[box(0.5, 2)]),
+              Body(type="static", x=8, y=0.5, shapes=[box(0.5, 2)]),
+              Body(type="kinematic", y=0.6, omega=0.7, vx=0.2, angle=-0.0, shapes=[box(2, 0.2, cx=0.3, cy=0.1)])]
+    for i in range(40):
+        x, y = rng.uniform(-7, 7), rng.uniform(1, 14)
+        angle = float(rng.choice([-0.0, 0.0, rng.uniform(-3, 3), 1e5 * rng.uniform(-1, 1)]))
+        shapes = [[Circle(0.4, density=1)], [box(0.4, 0.25, cx=0.1, cy=-0.05)],
+                  [box(0.3, 0.3), Circle(0.25, x=0.5, y=0.0, density=2), box(0.1, 0.4, cx=-0.4)],
+                  [Circle(0.3, x=0.2, y=0.1, density=1), Circle(0.2, x=-0.3, density=1)]][i % 4]
+        bodies.append(Body(x=float(f32(x)), y=float(f32(y)), angle=angle, omega=float(rng.uniform(-3, 3)), shapes=shapes))
+    scene = Scene(name="turned", dt=f32(1 / 60), steps=200, solver=Solver(position_iterations=3), bodies=bodies,
+                  effects=Effects(gravity=(0.0, -9.81), friction=0.5, restitution=0.2))
+    for native in (False, True):
+        world = build_world(scene)
+        stepper = PGSStepper(world, scene, SolveSettings(mode="float64", max_iterations=30), "builtin", native=native)
+        for k in range(4):
+            if k == 3:
+                b = world.bodies()
+                turned = np.flatnonzero(b["type"] == 2)[::3]
+                world.set_body_state(b["index"][turned], b["position"].reshape(-1, 2)[turned],
+                                     np.full(len(turned), -0.0, np.float32), b["velocity"].reshape(-1, 2)[turned],
+                                     b["omega"][turned])
+            step = stepper.step()
+        rows = {name: len(step.contacts[name]) for name in ("normal_impulse", "start_normal_impulse",
+                                                              "start_tangent_impulse")}
+        assert len(set(rows.values())) == 1, (native, rows)

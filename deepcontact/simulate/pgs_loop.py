@@ -309,8 +309,11 @@ class PGSStepper:
         # What Box2D applied is what we wrote; record our start as the step's start.
         # (a garbage start is recorded as sanitised: no NaN ever reaches a file)
         used_n, used_t = (start_n, start_t) if self.start != "garbage" else (np.zeros_like(builtin_n),) * 2
-        if len(used_n) != len(builtin_n):
-            used_n, used_t = np.zeros_like(builtin_n), np.zeros_like(builtin_t)
+        # (the rows Box2D's step recorded may not be the ones collided: a body placed since the last
+        # step gave its Step pairs of its own; then, as the native step records it, no start)
+        n = len(recorded["normal_impulse"])
+        if len(used_n) != len(builtin_n) or len(used_n) != n:
+            used_n = used_t = np.zeros(n)
         recorded["start_normal_impulse"] = used_n.astype(np.float32)
         recorded["start_tangent_impulse"] = used_t.astype(np.float32)
         return LoopStep(before, recorded, solution, deepest, dt_ratio=float(ratio))
