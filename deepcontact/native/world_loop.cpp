@@ -128,8 +128,8 @@ LoopFrame& World::gather_loop() {
 }
 
 // Every live body's v* in R (b2Island::Solve's integration and damping), by solver row; in
-// double also its centre and rotation (one sine and cosine a body, in this tight pass: the
-// contacts' double posing reads them by row, not through the bodies).
+// double also its centre and transform (one sine and cosine a body, in this tight pass: the
+// contacts' double posing reads them by row, not through the bodies, nor each contact again).
 template <class R>
 void World::pose_free_velocities(ContactProblem<R>& pb, const StepSettings& st) {
     pb.velocity.resize(live_bodies_);
@@ -201,7 +201,7 @@ void World::pose_loop(ContactProblem<R>& pb, const StepSettings& st, bool carrie
 
 // A manifold's normal and lever arms. In float32 they are the constraint's, which pose() computed
 // as b2WorldManifold::Initialize does (the same operations world_manifold makes); in double,
-// world_manifold from the manifold in body frames and the bodies' centres and rotations
+// world_manifold from the manifold in body frames and the bodies' centres and transforms
 // (pose_free_velocities').
 template <class R>
 void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k) {
@@ -368,7 +368,7 @@ void World::solve_island(const b2TimeStep& step, int32_t body_begin, int32_t bod
 
 // One contact as b2ContactSolver's constructor and InitializeVelocityConstraints pose it for its
 // warm start and position correction: the manifold in body frames, the world manifold from the
-// transforms the bodies' positions give (each body's rotation computed once a step), the normal
+// transforms the bodies' positions give (each body's rotation kept: place_loop_bodies), the normal
 // and lever arms, and the block solver's cut of a redundant pair. Returns the world manifold
 // (its separations: the penetration).
 b2WorldManifold World::pose(b2Contact* contact, LoopFrame::Constraint& k) const {
