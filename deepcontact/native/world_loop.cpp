@@ -224,15 +224,22 @@ void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k)
             m.p[0].rB = point - cB;
             return;
         }
-        V2<R> point_local[b2_maxManifoldPoints], points[b2_maxManifoldPoints];
-        for (int j = 0; j < k.point_count; ++j) point_local[j] = {R(k.local_points[j].x), R(k.local_points[j].y)};
-        world_manifold<R>(static_cast<int>(k.type), {R(k.local_normal.x), R(k.local_normal.y)},
-                          {R(k.local_point.x), R(k.local_point.y)}, point_local, k.point_count, xfA, R(k.radius_a),
-                          xfB, R(k.radius_b), m.normal, points);
+        // (a face manifold: face_points' operations, each point written where it is made)
+        const bool face_a = k.type == b2Manifold::e_faceA;
+        const Xf<R>& ref = face_a ? xfA : xfB;
+        const Xf<R>& inc = face_a ? xfB : xfA;
+        const R radius_ref = R(face_a ? k.radius_a : k.radius_b), radius_inc = R(face_a ? k.radius_b : k.radius_a);
+        const V2<R> normal = mul(ref.q, V2<R>{R(k.local_normal.x), R(k.local_normal.y)});
+        const V2<R> plane = mul(ref, V2<R>{R(k.local_point.x), R(k.local_point.y)});
         for (int j = 0; j < k.point_count; ++j) {
-            m.p[j].rA = points[j] - cA;
-            m.p[j].rB = points[j] - cB;
+            const V2<R> clip = mul(inc, V2<R>{R(k.local_points[j].x), R(k.local_points[j].y)});
+            const V2<R> on_ref = clip + (radius_ref - dot(clip - plane, normal)) * normal;
+            const V2<R> on_inc = clip - radius_inc * normal;
+            const V2<R> point = R(0.5) * (on_ref + on_inc);
+            m.p[j].rA = point - cA;
+            m.p[j].rB = point - cB;
         }
+        m.normal = face_a ? normal : -normal;   // (the normal points from A to B)
     }
 }
 
