@@ -196,20 +196,25 @@ struct ContactProblem {
     size_t points = 0;
 };
 
-// A face manifold's points (b2WorldManifold::Initialize): each of the incident body's clip points
-// halfway between it and its projection onto the reference body's face; returns the face normal.
-// (Box2D adds the two in the order A, B; addition commutes, so the bits are Box2D's either way.)
+// One point of a face manifold (b2WorldManifold::Initialize): the incident body's clip point
+// halfway between it and its projection onto the reference body's face (normal, plane: the face
+// in world coordinates). (Box2D adds the two in the order A, B; addition commutes, so the bits are
+// Box2D's either way.)
+template <class R>
+inline V2<R> face_point(const Xf<R>& inc, R radius_ref, R radius_inc, V2<R> normal, V2<R> plane, V2<R> point_local) {
+    V2<R> clip = mul(inc, point_local);
+    V2<R> on_ref = clip + (radius_ref - dot(clip - plane, normal)) * normal;
+    V2<R> on_inc = clip - radius_inc * normal;
+    return R(0.5) * (on_ref + on_inc);
+}
+
+// A face manifold's points (face_point each); returns the face normal.
 template <class R>
 V2<R> face_points(const Xf<R>& ref, R radius_ref, const Xf<R>& inc, R radius_inc, V2<R> local_normal,
                   V2<R> local_point, const V2<R>* point_local, int count, V2<R>* points) {
     const V2<R> normal = mul(ref.q, local_normal);
     const V2<R> plane = mul(ref, local_point);
-    for (int i = 0; i < count; ++i) {
-        V2<R> clip = mul(inc, point_local[i]);
-        V2<R> on_ref = clip + (radius_ref - dot(clip - plane, normal)) * normal;
-        V2<R> on_inc = clip - radius_inc * normal;
-        points[i] = R(0.5) * (on_ref + on_inc);
-    }
+    for (int i = 0; i < count; ++i) points[i] = face_point(inc, radius_ref, radius_inc, normal, plane, point_local[i]);
     return normal;
 }
 

@@ -224,7 +224,7 @@ void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k)
             m.p[0].rB = point - cB;
             return;
         }
-        // (a face manifold: face_points' operations, each point written where it is made)
+        // (a face manifold: face_points' case inline, each point written where it is made)
         const bool face_a = k.type == b2Manifold::e_faceA;
         const Xf<R>& ref = face_a ? xfA : xfB;
         const Xf<R>& inc = face_a ? xfB : xfA;
@@ -232,10 +232,8 @@ void World::pose_geometry(ContactManifold<R>& m, const LoopFrame::Constraint& k)
         const V2<R> normal = mul(ref.q, V2<R>{R(k.local_normal.x), R(k.local_normal.y)});
         const V2<R> plane = mul(ref, V2<R>{R(k.local_point.x), R(k.local_point.y)});
         for (int j = 0; j < k.point_count; ++j) {
-            const V2<R> clip = mul(inc, V2<R>{R(k.local_points[j].x), R(k.local_points[j].y)});
-            const V2<R> on_ref = clip + (radius_ref - dot(clip - plane, normal)) * normal;
-            const V2<R> on_inc = clip - radius_inc * normal;
-            const V2<R> point = R(0.5) * (on_ref + on_inc);
+            const V2<R> point = face_point(inc, radius_ref, radius_inc, normal, plane,
+                                           V2<R>{R(k.local_points[j].x), R(k.local_points[j].y)});
             m.p[j].rA = point - cA;
             m.p[j].rB = point - cB;
         }
