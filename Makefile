@@ -92,13 +92,15 @@ bench: setup
 	$(PYTHON) benchmarks/bench_bodyspace.py
 	$(PYTHON) benchmarks/bench_contest.py
 	$(PYTHON) benchmarks/bench_jobs.py
-	$(PYTHON) benchmarks/bench_loop_path.py --pieces 1000 --doorbell 5000 --halves 300 --instructions 100
+	$(PYTHON) benchmarks/bench_loop_path.py --pieces 1000 --doorbell 5000 --halves 300 --instructions 100 --in-path 2
 	$(PYTHON) benchmarks/bench_loop_parts.py
 	$(PYTHON) benchmarks/bench_step_price.py
 	$(PYTHON) benchmarks/bench_step_price.py --count 10000 --steps 60
 	$(PYTHON) benchmarks/bench_step_price.py --glue 5000
 	$(PYTHON) benchmarks/bench_equal_time.py
 	$(PYTHON) benchmarks/bench_equal_time.py --scene confined --count 625
+	$(PYTHON) benchmarks/bench_sweep_order.py
+	$(PYTHON) benchmarks/bench_sweep_order.py --scene pile --samples 16
 	$(PYTHON) benchmarks/bench_loop_steps.py --methods none,bodyspace,lagged
 	$(PYTHON) benchmarks/bench_converged_piles.py
 	$(PYTHON) benchmarks/bench_report.py

@@ -28,19 +28,17 @@ Usage: python benchmarks/bench_equal_time.py [--scene pile] [--count 1000] [--ba
 """
 import sys
 import time
-from itertools import islice
 from pathlib import Path
 
 import numpy as np
 
 from deepcontact.scene.generators import generate
-from deepcontact.simulate.problems import problems
 from deepcontact.simulate.engines import Box2D
 from deepcontact.solver.methods import solve
 from deepcontact.solver.settings import SolveSettings
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import arguments  # noqa: E402
+from common import arguments, settled_and_samples  # noqa: E402
 
 AA = "A/A: Box2D 2.4.1 again"
 SAME_PILE = 0.03   # contact points within 3% of the Box2D world's: the same pile, for its time
@@ -72,13 +70,6 @@ def settings(most):
             s = SolveSettings(max_iterations=n, tolerance=0, **extra)
             out.append((family, n, Box2D(solver=s), s))
     return out
-
-
-def settled_and_samples(scene, settle, samples, every):
-    """The bodies of the pile after `settle` steps of Box2D's own 8 iterations, and the contact
-    problems of `samples` steps from there (every `every`-th) of the same run."""
-    taken = list(islice(problems(scene, Box2D(velocity_iterations=8), first=settle, every=every), samples))
-    return taken[0][0].bodies, [problem for _, problem in taken]
 
 
 def residuals(samples, chosen):

@@ -40,8 +40,15 @@ script's own process stepping builtin through the path, then the native loop, ea
 N and to 2N steps (at most the scene's); the difference over the N steps between, a step, and the
 path's over the native loop's. Takes minutes (the judge runs about 50 times slower under valgrind).
 
+--in-path N: the judge's pieces timed where they run, inside the path (builtin through it, as a run
+above) and in the native loop, N runs of each: every piece's wall time at each call (a timer around
+the function), the median over the steps from a third of the run on (the pile settled); then
+the native halves in the path (pgs_pose + pgs_finish) against the native loop's one call
+(pgs_step) over the same steps: what the path costs the native work itself. The pieces cost more
+here than --pieces measures them alone (their data cold after the native step and the calls).
+
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
-       [--doorbell 0] [--pieces 0] [--halves 0] [--instructions 0]
+       [--doorbell 0] [--pieces 0] [--halves 0] [--instructions 0] [--in-path 0]
 """
 import cProfile
 import os
@@ -261,6 +268,76 @@ def halves(scene, settings, rounds):
         print(f"{name:38s} {np.median(t) * 1e3:7.3f} {np.median(np.array(t) - native) * 1e3:7.3f}")
 
 
+# The judge's pieces --in-path times: (module, attribute) of each function on the path's step
+IN_PATH = (("deepcontact.simulate.pgs_loop", "pgs_pose"), ("deepcontact.simulate.pgs_loop", "pgs_finish"),
+           ("deepcontact.simulate.pgs_loop", "pgs_step"), ("deepcontact.simulate.pgs_loop", "_builtin"),
+           ("deepcontact.simulate.pgs_loop", "start_impulses"),
+           ("deepcontact.simulate.pgs_loop", "PGSStepper._posed_step"),
+           ("deepcontact.simulate.pgs_loop", "StepProblem._from_world"),
+           ("deepcontact.evaluate.closed_loop", "_Adapter.__call__"),
+           ("deepcontact.evaluate.closed_loop", "visible_context"), ("deepcontact.evaluate.closed_loop", "checked_answer"),
+           ("deepcontact.contest.arena", "StepChannel.write"), ("deepcontact.contest.client", "Contestant.call_step"),
+           ("deepcontact.contest.keyed", "KeySet.find"))
+
+
+def in_path(scene, settings, steps, runs):
+    """{piece: [seconds at each call]} of the judge's pieces, in the path and in the native loop
+    (IN_PATH's functions wrapped by a timer for the runs, then put back)."""
+    import importlib
+    times, put_back = {}, []
+
+    def timed(owner, name, label):
+        fn, raw = getattr(owner, name), vars(owner)[name]   # (raw: what is put back, a classmethod as one)
+
+        def wrapper(*args, **kw):
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kw)
+            finally:
+                times.setdefault(label, []).append(time.perf_counter() - t)
+        put_back.append((owner, name, raw))
+        # (a classmethod's fn is bound to its class already: the wrapper takes no class of its own)
+        setattr(owner, name, classmethod(lambda cls, *a, **k: wrapper(*a, **k)) if isinstance(raw, classmethod)
+                else wrapper)
+
+    for module, path in IN_PATH:
+        owner = importlib.import_module(module)
+        *outer, name = path.split(".")
+        for part in outer:
+            owner = getattr(owner, part)
+        timed(owner, name, path)
+    builtin = variants(make_starts(["builtin"]))[0]
+    try:
+        for _ in range(runs):
+            _interleaved(scene, [(builtin, settings, False)], steps)
+            run_loop(scene, None, settings, steps, "builtin", report=False)
+    finally:
+        for owner, name, fn in reversed(put_back):
+            setattr(owner, name, fn)
+    return times
+
+
+def in_path_table(times, steps, runs):
+    """Prints --in-path's table: each piece's median a call over the settled steps."""
+    def settled(label):
+        t = np.array(times.get(label, []))
+        per_run = len(t) // runs if runs else 0
+        if per_run == 0:
+            return np.zeros(0)
+        return np.concatenate([t[k * per_run:][per_run // 3:per_run] for k in range(runs)])
+    print(f"\nthe judge's pieces where they run, {runs} run(s) of {steps} steps each way (median us a call, "
+          "from a third of each run on)")
+    for label in sorted(times, key=lambda k: -np.median(settled(k)) if len(settled(k)) else 0):
+        t = settled(label)
+        print(f"{label:40s} {np.median(t) * 1e6:9.1f}  ({len(times[label]):,} calls)")
+    halves = settled("pgs_pose")[:len(settled("pgs_finish"))] + settled("pgs_finish")
+    native = settled("pgs_step")
+    n = min(len(halves), len(native))
+    if n:
+        print(f"the native halves in the path {np.median(halves[:n]) * 1e6:.1f} us against the native loop's "
+              f"step {np.median(native[:n]) * 1e6:.1f} us: {np.median(halves[:n]) / np.median(native[:n]):.3f}x")
+
+
 def instructions(seed, count, n):
     """{"path", "native"}: instructions a step of this process over its steps n to 2n (callgrind);
     None where valgrind is not installed."""
@@ -297,7 +374,7 @@ def main():
         way, seed, count, steps = sys.argv[2], *map(int, sys.argv[3:6])
         return judge_only(way, seed, count, steps)
     args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0, halves=0,
-                     instructions=0)
+                     instructions=0, in_path=0)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     if args.doorbell:
         for name, t in doorbells(args.doorbell).items():
@@ -314,6 +391,8 @@ def main():
     settings = SolveSettings()
     if args.halves:
         halves(scene, settings, args.halves)
+    if args.in_path:
+        in_path_table(in_path(scene, settings, steps, args.in_path), steps, args.in_path)
     if args.instructions:
         n = min(args.instructions, scene.steps // 2)
         counts = instructions(args.seed, args.count, n)

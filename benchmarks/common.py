@@ -3,6 +3,7 @@ import argparse
 import subprocess
 import sys
 import time
+from itertools import islice
 
 from deepcontact.protocol import current, protocol_line
 
@@ -47,3 +48,13 @@ def timed(args):
     if proc.returncode != 0:
         sys.exit(f"failed: dc {' '.join(args)}\n{proc.stderr[-2000:]}")
     return wall, int(proc.stderr.strip().splitlines()[-1]) / 1024
+
+
+def settled_and_samples(scene, settle, samples, every):
+    """The bodies of the scene after `settle` steps of Box2D's own 8 iterations, and the contact
+    problems of `samples` steps from there (every `every`-th) of the same run (bench_equal_time.py,
+    bench_sweep_order.py)."""
+    from deepcontact.simulate.engines import Box2D
+    from deepcontact.simulate.problems import problems
+    taken = list(islice(problems(scene, Box2D(velocity_iterations=8), first=settle, every=every), samples))
+    return taken[0][0].bodies, [problem for _, problem in taken]
