@@ -275,67 +275,86 @@ IN_PATH = (("deepcontact.simulate.pgs_loop", "pgs_pose"), ("deepcontact.simulate
            ("deepcontact.simulate.pgs_loop", "PGSStepper._posed_step"),
            ("deepcontact.simulate.pgs_loop", "StepProblem._from_world"),
            ("deepcontact.evaluate.closed_loop", "_Adapter.__call__"),
-           ("deepcontact.evaluate.closed_loop", "visible_context"), ("deepcontact.evaluate.closed_loop", "checked_answer"),
+           ("deepcontact.evaluate.closed_loop", "visible_context"),
+           ("deepcontact.evaluate.closed_loop", "checked_answer"),
            ("deepcontact.contest.arena", "StepChannel.write"), ("deepcontact.contest.client", "Contestant.call_step"),
            ("deepcontact.contest.keyed", "KeySet.find"))
 
 
 def in_path(scene, settings, steps, runs):
-    """{piece: [seconds at each call]} of the judge's pieces, in the path and in the native loop
+    """({piece: [seconds at each call]}, [(the posed step, its native halves, its calls to
+    contestants) in seconds, a step]) of the judge's pieces, in the path and in the native loop
     (IN_PATH's functions wrapped by a timer for the runs, then put back)."""
     import importlib
-    times, put_back = {}, []
+    times, put_back, per_step = {}, [], []
+    inner = {"pgs_pose": "native", "pgs_finish": "native", "Contestant.call_step": "calls"}
+    within = {"native": 0.0, "calls": 0.0}   # (the posed step's so far: it calls the others)
 
     def timed(owner, name, label):
-        fn, raw = getattr(owner, name), vars(owner)[name]   # (raw: what is put back, a classmethod as one)
+        raw = vars(owner)[name]   # (what is put back: a classmethod as one)
+        # (a classmethod's own function, its class passed on: a subclass's call stays the subclass's)
+        call = raw.__func__ if isinstance(raw, classmethod) else getattr(owner, name)
 
         def wrapper(*args, **kw):
             t = time.perf_counter()
             try:
-                return fn(*args, **kw)
+                return call(*args, **kw)
             finally:
-                times.setdefault(label, []).append(time.perf_counter() - t)
+                took = time.perf_counter() - t
+                times.setdefault(label, []).append(took)
+                if label in inner:
+                    within[inner[label]] += took
+                elif label == "PGSStepper._posed_step":
+                    per_step.append((took, within["native"], within["calls"]))
+                    within.update(native=0.0, calls=0.0)
         put_back.append((owner, name, raw))
-        # (a classmethod's fn is bound to its class already: the wrapper takes no class of its own)
-        setattr(owner, name, classmethod(lambda cls, *a, **k: wrapper(*a, **k)) if isinstance(raw, classmethod)
-                else wrapper)
+        setattr(owner, name, classmethod(wrapper) if isinstance(raw, classmethod) else wrapper)
 
-    for module, path in IN_PATH:
-        owner = importlib.import_module(module)
-        *outer, name = path.split(".")
-        for part in outer:
-            owner = getattr(owner, part)
-        timed(owner, name, path)
-    builtin = variants(make_starts(["builtin"]))[0]
     try:
+        for module, path in IN_PATH:
+            owner = importlib.import_module(module)
+            *outer, name = path.split(".")
+            for part in outer:
+                owner = getattr(owner, part)
+            timed(owner, name, path)
+        builtin = variants(make_starts(["builtin"]))[0]
         for _ in range(runs):
             _interleaved(scene, [(builtin, settings, False)], steps)
             run_loop(scene, None, settings, steps, "builtin", report=False)
     finally:
-        for owner, name, fn in reversed(put_back):
-            setattr(owner, name, fn)
-    return times
+        for owner, name, raw in reversed(put_back):
+            setattr(owner, name, raw)
+    return times, per_step
 
 
-def in_path_table(times, steps, runs):
-    """Prints --in-path's table: each piece's median a call over the settled steps."""
-    def settled(label):
-        t = np.array(times.get(label, []))
+def in_path_table(measured, steps, runs):
+    """Prints --in-path's table: each piece's median a call over the settled steps, then the
+    judge's own work a step (the posed step less its native halves and its calls, step by step)."""
+    times, per_step = measured
+
+    def settled(t):
+        t = np.asarray(t)
         per_run = len(t) // runs if runs else 0
         if per_run == 0:
-            return np.zeros(0)
+            return t[:0]
         return np.concatenate([t[k * per_run:][per_run // 3:per_run] for k in range(runs)])
     print(f"\nthe judge's pieces where they run, {runs} run(s) of {steps} steps each way (median us a call, "
           "from a third of each run on)")
-    for label in sorted(times, key=lambda k: -np.median(settled(k)) if len(settled(k)) else 0):
-        t = settled(label)
-        print(f"{label:40s} {np.median(t) * 1e6:9.1f}  ({len(times[label]):,} calls)")
-    halves = settled("pgs_pose")[:len(settled("pgs_finish"))] + settled("pgs_finish")
-    native = settled("pgs_step")
+    for label in sorted(times, key=lambda k: -np.median(settled(times[k])) if len(settled(times[k])) else 0):
+        print(f"{label:40s} {np.median(settled(times[label])) * 1e6:9.1f}  ({len(times[label]):,} calls)")
+    halves = settled(times.get("pgs_pose", []))[:len(settled(times.get("pgs_finish", [])))] + \
+        settled(times.get("pgs_finish", []))
+    native = settled(times.get("pgs_step", []))
     n = min(len(halves), len(native))
     if n:
         print(f"the native halves in the path {np.median(halves[:n]) * 1e6:.1f} us against the native loop's "
               f"step {np.median(native[:n]) * 1e6:.1f} us: {np.median(halves[:n]) / np.median(native[:n]):.3f}x")
+    rows = settled(np.array(per_step).reshape(-1, 3))
+    if len(rows):
+        own = rows[:, 0] - rows[:, 1] - rows[:, 2]
+        print(f"the judge's own work a step in the path (the posed step less its native halves and its calls, "
+              f"step by step): median {np.median(own) * 1e6:.1f} us, quartiles {np.percentile(own, 25) * 1e6:.1f}-"
+              f"{np.percentile(own, 75) * 1e6:.1f} us ({len(own)} steps)")
 
 
 def instructions(seed, count, n):

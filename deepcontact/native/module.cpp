@@ -32,7 +32,8 @@ namespace {
 template <typename T>
 py::array own(std::vector<T>&& v, size_t rows, size_t cols = 1) {
     auto* heap = new std::vector<T>(std::move(v));
-    heap->resize(rows * cols);  // never empty-with-null data
+    heap->resize(rows * cols);  // (an empty table's vector may hold no storage: numpy then allocates its
+                                // zero bytes itself, and the capsule only ends the vector)
     py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
     auto& api = py::detail::npy_api::get();
     Py_intptr_t dims[2] = {static_cast<Py_intptr_t>(rows), static_cast<Py_intptr_t>(cols)};
