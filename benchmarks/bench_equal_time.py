@@ -45,7 +45,8 @@ SAME_PILE = 0.03   # contact points within 3% of the Box2D world's: the same pil
 FAMILIES = {"PGS, exact": dict(mode="exact")}
 FAMILIES.update({f"{name}, {mode}": dict(mode=mode, **extra) for mode in ("float32", "float64")
                  for name, extra in (("PGS", {}), ("PSOR 1.3", dict(relaxation=1.3)),
-                                     ("PSOR 1.7", dict(relaxation=1.7)), ("NNCG", dict(accelerate="nncg")))})
+                                     ("PSOR 1.7", dict(relaxation=1.7)), ("NNCG", dict(accelerate="nncg")),
+                                     ("PGS, gravity's order", dict(order="gravity")))})
 
 
 def counts(most):

@@ -7,6 +7,8 @@
 // and no FMA contraction the numbers are Box2D's, bit for bit.
 #pragma once
 
+#include <algorithm>
+
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
@@ -194,7 +196,21 @@ struct ContactProblem {
     std::vector<BodyVelocity<R>> velocity;  // after gravity and damping: the solver's v*
     ProblemStats stats;
     size_t points = 0;
+    std::vector<int32_t> order;             // the manifolds in a sweep's order (empty: as posed)
 };
+
+// pb.order for Order::gravity: the manifolds from the highest to the lowest, height(i) the height
+// of manifold i along gravity; ties (and a scene without gravity: left empty) keep the posed order.
+template <class R, class Height>
+void order_by_height(ContactProblem<R>& pb, Height height) {
+    pb.order.clear();
+    const size_t n = pb.manifolds.size();
+    std::vector<std::pair<float, int32_t>> keyed(n);
+    for (size_t i = 0; i < n; ++i) keyed[i] = {height(i), static_cast<int32_t>(i)};
+    std::stable_sort(keyed.begin(), keyed.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+    pb.order.resize(n);
+    for (size_t i = 0; i < n; ++i) pb.order[i] = keyed[i].second;
+}
 
 // One point of a face manifold (b2WorldManifold::Initialize): the incident body's clip point
 // halfway between it and its projection onto the reference body's face (normal, plane: the face
@@ -216,6 +232,19 @@ V2<R> face_points(const Xf<R>& ref, R radius_ref, const Xf<R>& inc, R radius_inc
     const V2<R> plane = mul(ref, local_point);
     for (int i = 0; i < count; ++i) points[i] = face_point(inc, radius_ref, radius_inc, normal, plane, point_local[i]);
     return normal;
+}
+
+// order_by_height with each manifold's height its higher body's centre along -gravity (the body
+// columns' centres, by row); a scene without gravity keeps the posed order.
+template <class R>
+void gravity_order(ContactProblem<R>& pb, const float* center, const StepSettings& st) {
+    const float gx = -st.gravity[0], gy = -st.gravity[1];
+    pb.order.clear();
+    if (gx == 0.0f && gy == 0.0f) return;
+    order_by_height(pb, [&](size_t i) {
+        const auto& m = pb.manifolds[i];
+        return std::max(gx * center[2 * m.a] + gy * center[2 * m.a + 1], gx * center[2 * m.b] + gy * center[2 * m.b + 1]);
+    });
 }
 
 // b2WorldManifold::Initialize of a circles manifold: its one point, and the normal returned.

@@ -1,5 +1,6 @@
 #include "pgs_step.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -35,6 +36,19 @@ void pose_step(World& world, ContactProblem<R>& pb, const PGSStepSettings& s, PG
     world.pose_loop(pb, s.step, s.start == LoopStart::builtin, s.warm_scale, out.start_normal, out.start_tangent);
 }
 
+// The order its sweeps visit the posed manifolds in (SolveOptions::order): gravity's by each
+// contact's bodies' centres as the step was posed (the buffer is kept: cleared otherwise).
+template <class R>
+void set_order(ContactProblem<R>& pb, const LoopFrame& f, const PGSStepSettings& s) {
+    pb.order.clear();
+    const float gx = -s.step.gravity[0], gy = -s.step.gravity[1];
+    if (s.solve.order != Order::gravity || (gx == 0.0f && gy == 0.0f)) return;
+    order_by_height(pb, [&](size_t i) {
+        const b2Vec2 a = f.contact_bodies[i].first->GetWorldCenter(), b = f.contact_bodies[i].second->GetWorldCenter();
+        return std::max(gx * a.x + gy * a.y, gx * b.x + gy * b.y);
+    });
+}
+
 // The posed step (where it has contact points) solved from the start given and the solution written.
 template <class R>
 void solve_step(World& world, ContactProblem<R>& pb, LoopFrame& f, const PGSStepSettings& s, const double* sn,
@@ -43,6 +57,7 @@ void solve_step(World& world, ContactProblem<R>& pb, LoopFrame& f, const PGSStep
     // What a method keeps from one step to the next lives in the world (a method that keeps
     // nothing leaves it empty).
     if (!world.carried_factor) world.carried_factor = new_carried_factor();
+    set_order(pb, f, s);
     out.solve = solve(pb, sn, st, s.solve, world.carried_factor.get());
     out.stats = pb.stats;
     write_solution(pb, f, out);

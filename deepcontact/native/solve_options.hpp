@@ -24,6 +24,10 @@ enum class Mode { exact, float32, float64 };
 // lagged: the same, each Newton system solved by BiCGSTAB preconditioned with a factor kept from
 // an earlier system (lagged_factor.hpp), in the native loop from an earlier step.
 enum class Acceleration { none, nncg, newton, subspace, bodyspace, lagged };
+// The order a sweep visits the manifolds in. island: as posed (Box2D's, the islands' contacts in
+// the order it found them); gravity: from the highest to the lowest along gravity (each
+// manifold's higher body centre), so that one sweep carries a stack's weight down it.
+enum class Order { island, gravity };
 
 struct SolveOptions {
     Mode mode = Mode::float64;
@@ -37,6 +41,7 @@ struct SolveOptions {
                                    // by more than this is implausible (0: no such check)
     bool final_residual = true;    // report the residual at the end (one extra pass)
     bool guard = true;             // over-relaxation falls back to w = 1 if the residual climbs
+    Order order = Order::island;   // the manifolds' order in a sweep
     bool cone = true;              // a start is made feasible (normal >= 0, tangent clamped onto the
                                    // cone, an implausible start dropped); false to judge an answer
                                    // as given (what is infeasible in it counts in the residual)
@@ -60,6 +65,8 @@ inline void check(const SolveOptions& o) {
     if (!(o.max_velocity >= 0.0)) throw std::invalid_argument("max_velocity must be >= 0");
     if (o.mode == Mode::exact && (o.relaxation != 1.0 || o.accelerate != Acceleration::none))
         throw std::invalid_argument("exact mode is Box2D's PGS: no over-relaxation, no acceleration");
+    if (o.mode == Mode::exact && o.order != Order::island)
+        throw std::invalid_argument("exact mode is Box2D's PGS: it sweeps in Box2D's island order");
     const bool global = is_global(o.accelerate);
     if (global && o.mode != Mode::float64) throw std::invalid_argument("newton, subspace, bodyspace and lagged are float64 only");
     if (global && !(o.stop_on == Measure::residual || o.stop_on == Measure::none))

@@ -165,6 +165,7 @@ py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettin
     {
         py::gil_scoped_release release;
         pb = assemble<R>(bc, cc, st);
+        if (opt.order == Order::gravity) gravity_order(pb, bc.center, st);
         rep = solve(pb, sn, stt, opt, carried);
     }
     py::dict out = report_dict(rep, pb.stats);
@@ -341,6 +342,9 @@ void bind_options(py::module_& m) {
         "augmented-Lagrangian iterations on the bodies' velocities (float64, stops on the residual);\n"
         "lagged: the same, each Newton system preconditioned by a factor kept from an earlier one (in\n"
         "the native loop, from an earlier step).");
+    bind_enum<Order>(m, "Order", {{"island", Order::island}, {"gravity", Order::gravity}},
+                     "The order a sweep visits the manifolds in: island (Box2D's, as posed) or gravity (from\n"
+                     "the highest to the lowest along gravity; a scene without gravity keeps island order).");
     m.def("is_global", &is_global, py::arg("accelerate"),
           "Whether a method's work is more than sweeps (a global step over the whole problem): such a\n"
           "method is float64 only and stops on the residual (the traits the Python layer reads).");
@@ -364,6 +368,7 @@ void bind_options(py::module_& m) {
     enum_field(options, "mode", &SolveOptions::mode);
     enum_field(options, "stop_on", &SolveOptions::stop_on);
     enum_field(options, "accelerate", &SolveOptions::accelerate);
+    enum_field(options, "order", &SolveOptions::order);
     options.def(py::init([](const py::kwargs& kw) { return from_keywords<SolveOptions>("SolveOptions", kw); }))
         .def_readwrite("max_iterations", &SolveOptions::max_iterations)
         .def_readwrite("tolerance", &SolveOptions::tolerance, "stop once stop_on falls below it (0: never)")

@@ -268,7 +268,19 @@ private:
     template <bool Relax>
     void sweep(R w) {
         poll_signals();  // (every loop of every method sweeps)
-        for (auto& m : pb_.manifolds) {
+        // (two loops: island order's the one it always was, no index read a manifold)
+        if (pb_.order.empty())
+            sweep_in<Relax, false>(w);
+        else
+            sweep_in<Relax, true>(w);
+    }
+
+    template <bool Relax, bool Ordered>
+    void sweep_in(R w) {
+        const int32_t* order = pb_.order.data();
+        const size_t count = pb_.manifolds.size();
+        for (size_t i = 0; i < count; ++i) {
+            auto& m = pb_.manifolds[Ordered ? size_t(order[i]) : i];
             auto& A = pb_.velocity[m.a];
             auto& B = pb_.velocity[m.b];
             V2<R> vA = A.v, vB = B.v;

@@ -24,7 +24,7 @@ MAX_TRANSLATION = 2.0
 
 # The option that sets each field, for the one-line errors (OptionError names it).
 FLAGS = {"mode": "--mode", "max_iterations": "--max-iterations", "tolerance": "--tolerance",
-         "stop_on": "--stop-on", "relaxation": "--relaxation", "accelerate": "--accelerate"}
+         "stop_on": "--stop-on", "relaxation": "--relaxation", "accelerate": "--accelerate", "order": "--order"}
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,9 @@ class SolveSettings:
     TOLERANCE within CAP sweeps); `mode` float32, float64
     or exact (Box2D's own PGS); `relaxation` the over-relaxation w (a number in (0, 2), "auto" where
     a caller tunes it, or None for a plug-in method that takes none); `accelerate` the solver method
-    (solver.methods); `guard` drops over-relaxation when the residual climbs tenfold.
+    (solver.methods); `guard` drops over-relaxation when the residual climbs tenfold; `order` the
+    order a sweep visits the manifolds in: island (Box2D's, as posed) or gravity (from the highest
+    to the lowest along gravity: a stack's weight carried down in one sweep).
 
     Constructing one checks it (the native solver's own rules): an OptionError naming the flag.
     A plug-in method receives one (with relaxation None unless it takes a w)."""
@@ -45,10 +47,11 @@ class SolveSettings:
     relaxation: float | str | None = 1.0
     accelerate: str = "none"
     guard: bool = True
+    order: str = "island"
 
     def __post_init__(self):
         key = tuple((type(v), v) for v in (self.mode, self.max_iterations, self.tolerance, self.stop_on,
-                                            self.relaxation, self.accelerate, self.guard))
+                                            self.relaxation, self.accelerate, self.guard, self.order))
         try:
             if key in _CHECKED:   # (a solve makes one per call: the same request, types and all, is checked once)
                 return
@@ -57,6 +60,8 @@ class SolveSettings:
         self._check_types()
         if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
             raise _error("--mode exact is Box2D's PGS: it takes no over-relaxation", "relaxation")
+        if self.mode == "exact" and self.order != "island":
+            raise _error("--mode exact is Box2D's PGS: it sweeps in Box2D's island order", "order")
         if self.mode == "exact" and self.accelerate != "none":
             raise _error("--mode exact is Box2D's PGS: it takes no acceleration", "accelerate")
         check_mode(self.accelerate, self.mode)   # (the native rule, but naming the flag)
@@ -83,7 +88,7 @@ class SolveSettings:
                               FLAGS["max_iterations"])
         if not isinstance(self.stop_on, str):
             raise OptionError(f"stop_on must be a measure's name, got {self.stop_on!r}", FLAGS["stop_on"])
-        for name in ("mode", "accelerate"):
+        for name in ("mode", "accelerate", "order"):
             if not isinstance(getattr(self, name), str):
                 raise OptionError(f"{name} must be a name, got {getattr(self, name)!r}", FLAGS[name])
         if not isinstance(self.guard, bool):   # (the native struct's bool: pybind11's refusal otherwise)
@@ -105,7 +110,7 @@ class SolveSettings:
             return SolveOptions(mode=self.mode, max_iterations=self.max_iterations, tolerance=self.tolerance,
                                 stop_on=self.stop_on if self.tolerance > 0 else "none", relaxation=w,
                                 accelerate=accelerate, history=history, max_velocity=2.0 * MAX_TRANSLATION / dt,
-                                final_residual=final_residual, guard=self.guard, cone=cone)
+                                final_residual=final_residual, guard=self.guard, cone=cone, order=self.order)
         except (ValueError, TypeError) as e:   # the native check: "<field> must ..."
             field = str(e).split()[0] if str(e) else ""
             raise OptionError(str(e), FLAGS.get(field)) from None
