@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._box2d import Acceleration, Mode, World, contact_rows, solve_contacts
+from .._box2d import Acceleration, Mode, Order, World, contact_rows, solve_contacts
 from .. import arguments
 from ..errors import InputError
 from .problem import StepProblem
@@ -40,6 +40,8 @@ MEASURES = ("thesis", "velocity", "residual")
 # direction (nonsmooth nonlinear conjugate gradient, Silcowitz, Niebe and Erleben 2010).
 ACCELERATIONS = tuple(Acceleration.__members__)
 MODES = tuple(Mode.__members__)
+# The orders a sweep may visit the manifolds in (SolveSettings.order; native Order)
+ORDERS = tuple(Order.__members__)
 
 
 @dataclass

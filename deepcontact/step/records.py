@@ -8,12 +8,13 @@ import math
 
 import numpy as np
 
-from .._box2d import Acceleration, is_global
+from .._box2d import Acceleration, Order, is_global
 from ..errors import InputError
 from ..xmltext import held
 
 MODES = ("exact", "float32", "float64")
 MEASURES = ("thesis", "velocity", "residual")
+ORDERS = tuple(Order.__members__)   # (the order a sweep visits the manifolds in)
 TOLERANCE_MAX = 1e3       # (the residual is relative: 1 at a zero start; past this a tolerance stops nothing)
 ITERATIONS_MAX = 2**31 - 1
 ORIGINS = ("built-in", "plug-in")
@@ -36,8 +37,8 @@ def check_pgs(record, path, builtin_methods=None):
         raise InputError(f"the manifest's pgs record is {type(record).__name__}, not an object", path)
     _number(record.get("tolerance"), 0.0, TOLERANCE_MAX, "pgs tolerance", path)
     _number(record.get("max_iterations"), 1, ITERATIONS_MAX, "pgs max_iterations", path, whole=True)
-    for key, allowed in (("mode", MODES), ("stop_on", MEASURES)):
-        if record.get(key) not in allowed:
+    for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("order", ORDERS)):
+        if record.get(key, "island" if key == "order" else None) not in allowed:
             raise InputError(f"the manifest's pgs {key} is {record.get(key)!r}, not one of {', '.join(allowed)}", path)
     w = record.get("relaxation")
     if w is not None and w != "auto" and (type(w) not in (int, float) or not math.isfinite(w) or not 0 < w < 2):
@@ -86,6 +87,8 @@ def check_solve(solve, record, path):
     origin = record.get("accelerate_origin") or {}
     wanted = {"start": record.get("start"), "mode": record.get("mode"), "stop_on": record.get("stop_on"),
               "accelerate": record.get("accelerate"), "origin": origin.get("origin", "built-in")}
+    if solve.get("order", "island") != record.get("order", "island"):   # (island where neither says)
+        _disagrees(solve, "order", repr(record.get("order", "island")), path)
     if wanted["origin"] == "plug-in":   # (and which plug-in: a built-in's step names none)
         wanted.update({key: origin.get(key) for key in ("target", "distribution", "version")})
     for key, value in wanted.items():
@@ -133,8 +136,8 @@ def check_solve_itself(solve, path):
     def wrong(what):
         return InputError(f"the step file's <solve> {what}", path, solve_line(path))
 
-    for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("origin", ORIGINS)):
-        if solve.get(key, "built-in" if key == "origin" else None) not in allowed:
+    for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("origin", ORIGINS), ("order", ORDERS)):
+        if solve.get(key, {"origin": "built-in", "order": "island"}.get(key)) not in allowed:
             raise wrong(f'{key}="{solve.get(key)}" is not one of {", ".join(allowed)}')
     cap = _in_range(solve, "max_iterations", (1, float(ITERATIONS_MAX)), "a whole number", wrong)
     iterations = _whole(solve.get("iterations"))

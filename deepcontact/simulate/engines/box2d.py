@@ -135,7 +135,8 @@ class Box2DLoop(Box2D):
         return {"pgs": dict(start=self.start, mode=o.mode, max_iterations=o.max_iterations, tolerance=o.tolerance,
                             stop_on=o.stop_on, relaxation=o.relaxation, accelerate=o.accelerate,
                             accelerate_origin=method_origin(o.accelerate),
-                            **({} if o.guard else {"guard": False}))}   # (the guard is on unless said)
+                            **({} if o.guard else {"guard": False}),   # (the guard is on unless said)
+                            **({} if o.order == "island" else {"order": o.order}))}   # (island unless said)
 
     def __repr__(self):
         return f"Box2D(solver={self.solver!r}, start={self.start!r})"
@@ -159,8 +160,10 @@ def _solve_xml(options, start, solution):
                                                  s.newton_fallbacks)
         work = (' factorizations="%d" newton_iterations="%d" outer_iterations="%d" fallbacks="%d"' % counts)
     relaxation = "" if w is None else f' relaxation="{fmt(w)}"'
+    order = "" if o.order == "island" else f'order="{o.order}" '   # (island unless said: as before)
     return (f'    <solve start="{start}" mode="{o.mode}" stop_on="{o.stop_on}" tolerance="{fmt(o.tolerance)}" '
             f'max_iterations="{o.max_iterations}"{relaxation} accelerate="{o.accelerate}"{_origin_xml(o.accelerate)} '
+            f'{order}'
             f'iterations="{iterations}" '
             f'residual="{fmt(residual)}" sanitized="{sanitized}"{work}/>\n')
 

@@ -1,0 +1,126 @@
+"""Gravity's sweep order (SolveSettings.order): the manifolds swept from the highest to the lowest
+along gravity. It changes the iterates, never the problem: the same answer to a tolerance, the
+same step in one native call and in pieces, island order's bits where there is no gravity, and a
+step file that says which order solved it."""
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+
+from deepcontact.errors import OptionError
+from deepcontact.scene.generators import generate
+from deepcontact.simulate.build import build_world
+from deepcontact.simulate.engines import Box2D
+from deepcontact.simulate.pgs_loop import PGSStepper
+from deepcontact.simulate.problems import problems
+from deepcontact.solver.methods import solve
+from deepcontact.solver.settings import SolveSettings
+
+from conftest import dc
+
+
+def _settled(scene_name="pile", params=None, first=150):
+    scene = generate(scene_name, 3, dict(params or dict(count=40, box=20.0, sigma=5.0), steps=first + 5))
+    return next(iter(problems(scene, Box2D(), first=first, every=1)))[1]
+
+
+def test_gravitys_order_reaches_the_answer_island_order_reaches():
+    p = _settled()
+    assert p.points > 30
+    for order in ("island", "gravity"):
+        s = solve(p, settings=SolveSettings(mode="float64", max_iterations=20_000, tolerance=1e-9, order=order))
+        assert s.residual < 1e-9, (order, s.residual, s.iterations)
+
+
+def test_gravitys_order_changes_the_iterates_but_not_without_gravity():
+    p = _settled()
+    few = dict(mode="float32", max_iterations=3, tolerance=0)
+    island = solve(p, settings=SolveSettings(**few))
+    down = solve(p, settings=SolveSettings(**few, order="gravity"))
+    assert not np.array_equal(island.normal_impulse, down.normal_impulse)
+    weightless = dataclasses.replace(p, gravity=(0.0, 0.0))
+    a = solve(weightless, settings=SolveSettings(**few))
+    b = solve(weightless, settings=SolveSettings(**few, order="gravity"))
+    assert np.array_equal(a.normal_impulse, b.normal_impulse) and np.array_equal(a.tangent_impulse, b.tangent_impulse)
+
+
+def _top_down(problem):
+    """The problem with its manifolds posed from the highest to the lowest (their higher body's
+    centre), each one's points together: (the problem, its rows' places in the original)."""
+    c = problem.contacts
+    first = np.flatnonzero(np.r_[True, c["manifold"][1:] != c["manifold"][:-1]])
+    end = np.r_[first[1:], len(c["manifold"])]
+    y = problem.bodies["center"][:, 1]
+    order = np.argsort(-np.maximum(y[c["row_a"]], y[c["row_b"]])[first], kind="stable")
+    rows = np.concatenate([np.arange(first[m], end[m]) for m in order])
+    contacts = {k: v[rows] for k, v in c.items()}
+    contacts["manifold"] = np.repeat(np.arange(len(order)), (end - first)[order]).astype(c["manifold"].dtype)
+    return dataclasses.replace(problem, contacts=contacts, start_normal=problem.start_normal[rows],
+                               start_tangent=problem.start_tangent[rows], keys=None), rows
+
+
+@pytest.mark.parametrize("scene,params", [("pile", None), ("pyramid", dict(base=8))])
+def test_gravitys_order_is_island_order_of_the_manifolds_posed_top_down(scene, params):
+    # from rest (no start applied: applying one sums in the posed order) the sweeps of gravity's
+    # order are those of island order on the same problem posed from the highest manifold down
+    p = _settled(scene, params)
+    posed, rows = _top_down(p)
+    zero = np.zeros(p.points)
+    few = dict(mode="float32", max_iterations=3, tolerance=0)
+    down = solve(p, zero, zero, settings=SolveSettings(**few, order="gravity"))
+    island = solve(posed, zero, zero, settings=SolveSettings(**few))
+    assert np.array_equal(down.normal_impulse[rows], island.normal_impulse)
+    assert np.array_equal(down.tangent_impulse[rows], island.tangent_impulse)
+    assert not np.array_equal(rows, np.arange(p.points))   # (posed top-down is another order here)
+
+
+@pytest.mark.parametrize("scene,mode", [("pile", "float32"), ("pyramid", "float64")])
+def test_the_native_loop_sweeps_in_gravitys_order_as_the_step_in_pieces_does(scene, mode):
+    s = generate(scene, 0, dict(count=30, box=16.0, sigma=4.0) if scene == "pile" else dict(base=6))
+    settings = SolveSettings(mode=mode, max_iterations=4, tolerance=0, order="gravity")
+    native, pieces = (PGSStepper(build_world(s), s, settings, "builtin", native=n) for n in (True, False))
+    island = PGSStepper(build_world(s), s, settings.but(order="island"), "builtin")
+    assert native.native and not pieces.native
+    solved = 0
+    for _ in range(80):
+        a, b, c = native.step(), pieces.step(), island.step()
+        assert (a.solution is None) == (b.solution is None)
+        if a.solution is not None:
+            solved += 1
+            assert np.array_equal(a.solution.normal_impulse, b.solution.normal_impulse)
+            assert np.array_equal(a.solution.tangent_impulse, b.solution.tangent_impulse)
+    assert solved > 20
+    assert np.array_equal(native.world.bodies()["position"], pieces.world.bodies()["position"])
+    assert not np.array_equal(native.world.bodies()["position"], island.world.bodies()["position"])
+
+
+def test_box2ds_exact_arithmetic_keeps_box2ds_order():
+    with pytest.raises(OptionError, match="island order"):
+        SolveSettings(mode="exact", order="gravity")
+    with pytest.raises(OptionError, match="order must be one of island, gravity"):
+        SolveSettings(order="down")
+
+
+def test_a_step_file_says_which_order_solved_it(tmp_path):
+    out = tmp_path / "run"
+    r = dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=3", "--steps", "40",
+           "--solver", "pgs", "--mode", "float32", "--order", "gravity", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    step = out / "seed-000000" / "step-000039.xml"
+    assert ' order="gravity" ' in step.read_text()
+    assert r'"order": "gravity"' in (out / "manifest.json").read_text()
+    assert dc("validate", "-q", str(out)).returncode == 0
+    step.write_text(step.read_text().replace(' order="gravity" ', " "))   # (island, by its default)
+    r = dc("validate", "-q", str(out))   # (its findings are its report, on stdout)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert re.search(r"step-000039\.xml:\d+:\d+: the step file's <solve order> disagrees with its run's manifest "
+                     r"\('gravity'\)", r.stdout), r.stdout
+
+
+def test_the_order_is_a_pgs_option_and_not_box2ds_own_order(tmp_path):
+    r = dc("simulate", "pile", "--order", "gravity", "-o", str(tmp_path / "a"))
+    assert r.returncode == 2 and "--order only applies with --solver pgs" in r.stderr
+    r = dc("simulate", "pile", "--solver", "pgs", "--mode", "exact", "--order", "gravity", "-o", str(tmp_path / "b"))
+    assert r.returncode == 2 and re.search(r"--order.*island order", r.stderr), r.stderr
+    assert not (tmp_path / "b").exists()
