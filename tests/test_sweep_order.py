@@ -100,6 +100,8 @@ def test_box2ds_exact_arithmetic_keeps_box2ds_order():
         SolveSettings(mode="exact", order="gravity")
     with pytest.raises(OptionError, match="order must be one of island, gravity"):
         SolveSettings(order="down")
+    with pytest.raises(OptionError, match="the plug-in method 'mine:Method' sweeps in its own"):
+        SolveSettings(order="gravity", accelerate="mine:Method")
 
 
 def test_a_step_file_says_which_order_solved_it(tmp_path):

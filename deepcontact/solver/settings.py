@@ -64,6 +64,10 @@ class SolveSettings:
             raise _error("--mode exact is Box2D's PGS: it sweeps in Box2D's island order", "order")
         if self.mode == "exact" and self.accelerate != "none":
             raise _error("--mode exact is Box2D's PGS: it takes no acceleration", "accelerate")
+        if self.order != "island" and isinstance(self.accelerate, str) and \
+                self.accelerate not in Acceleration.__members__:
+            raise _error(f"--order {self.order} is the built-in sweeps' order; the plug-in method "
+                         f"{self.accelerate!r} sweeps in its own", "order")
         check_mode(self.accelerate, self.mode)   # (the native rule, but naming the flag)
         # the native rules, checked where they are written (a plug-in method's name stands as
         # plain sweeps: its own rules are its own)
