@@ -126,3 +126,29 @@ def test_the_order_is_a_pgs_option_and_not_box2ds_own_order(tmp_path):
     r = dc("simulate", "pile", "--solver", "pgs", "--mode", "exact", "--order", "gravity", "-o", str(tmp_path / "b"))
     assert r.returncode == 2 and re.search(r"--order.*island order", r.stderr), r.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_a_float32_run_in_gravitys_order_is_replayed_in_its_order(tmp_path):
+    # dc validate --residuals replays a float32 step that stopped at its cap: in island order it
+    # gave other impulses, and every such step of a valid run was called invalid
+    out = tmp_path / "run"
+    r = dc("simulate", "pile", "--param", "count=30", "--param", "box=16", "--param", "sigma=4", "--steps", "80",
+           "--solver", "pgs", "--mode", "float32", "--order", "gravity", "--tolerance", "1e-3", "--max-iterations",
+           "12", "-q", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    capped = [p for p in sorted(out.glob("seed-000000/step-*.xml")) if 'iterations="12"' in p.read_text()]
+    assert capped, "no step stopped at its cap: the replay is not reached"
+    r = dc("validate", "--residuals", str(out))
+    assert r.returncode == 0 and " 0 invalid" in r.stdout + r.stderr, r.stdout + r.stderr
+
+
+def test_exact_mode_in_gravitys_order_is_no_run_the_solver_makes(tmp_path):
+    out = tmp_path / "run"
+    assert dc("simulate", "pile", "--param", "count=12", "--param", "box=12", "--param", "sigma=3", "--steps", "20",
+              "--solver", "pgs", "--mode", "float32", "--order", "gravity", "-q", "-o", str(out)).returncode == 0
+    for step in out.glob("seed-000000/step-*.xml"):
+        step.write_text(step.read_text().replace('mode="float32"', 'mode="exact"'))
+    manifest = out / "manifest.json"
+    manifest.write_text(manifest.read_text().replace('"mode": "float32"', '"mode": "exact"'))
+    r = dc("validate", str(out))
+    assert r.returncode == 1 and "exact" in r.stdout + r.stderr and "order" in r.stdout + r.stderr, r.stdout + r.stderr

@@ -17,6 +17,7 @@ from ..solver.methods import SOLVERS
 from ..solver.pgs import solve
 from ..solver.problem import StepProblem
 from ..solver.rounding import half_spacing, rounding_bound
+from ..solver.settings import SolveSettings
 from ..step.check import check_and_read
 from ..step.reader import read_step
 from ..step.records import check_pgs, solve_line
@@ -164,8 +165,11 @@ def _judged_on_replay(problem, claim, recorded, found, held):
     replayed = _replayed(problem, claim, recorded, tolerance)
     if replayed is not None:
         return replayed
-    return (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {ABOVE} "
-            f"{tolerance:.7g}, and its run's {claim.get('mode')} solve from its recorded start gives other impulses "
+    # (a step at its cap is replayed though its residual is below the tolerance: said so, not "above")
+    where = (f"{ABOVE} {tolerance:.7g}" if not found <= tolerance else
+             f"is below its run's tolerance {tolerance:.7g} at its cap of {claim.get('max_iterations')} sweeps")
+    return (f"the step's residual {found:.7g}, recomputed from its problem and impulses (float64), {where}, and its "
+            f"run's {claim.get('mode')} solve from its recorded start gives other impulses "
             f"({source}; the file records {claim.get('residual')})"), False
 
 
@@ -183,9 +187,12 @@ def _replayed(problem, claim, recorded, tolerance):
     at the cap after the sweeps and with the residual the step records (counted, as its run
     recorded); (a line, False) where the step records others; None where it does not give them."""
     try:
-        s = solve(problem, problem.start_normal, problem.start_tangent, mode=claim.get("mode"),
-                  tolerance=tolerance, stop_on="residual", max_iterations=_whole(claim.get("max_iterations")),
-                  relaxation=float(claim.get("relaxation") or 1.0), accelerate=claim.get("accelerate") or "none")
+        # (in the order it records: island where it says none)
+        settings = SolveSettings(mode=claim.get("mode"), tolerance=tolerance, stop_on="residual",
+                                 max_iterations=_whole(claim.get("max_iterations")),
+                                 relaxation=float(claim.get("relaxation") or 1.0),
+                                 accelerate=claim.get("accelerate") or "none", order=claim.get("order") or "island")
+        s = solve(problem, problem.start_normal, problem.start_tangent, settings=settings)
     except (InputError, ValueError):   # (settings no solve takes: not the run's own)
         return None
     same = all(np.array_equal(a.astype(np.float32), b.astype(np.float32)) for a, b in

@@ -133,7 +133,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
           prune: bool = True, settings: SolveSettings | None = None, carry: "_box2d.World | None" = None) -> Solution:
     """Solve the step's contact problem from a start with the method `accelerate` (a built-in or a
     loaded plug-in); the keywords as solver.pgs.solve's, or `settings` (a SolveSettings: its mode,
-    cap, tolerance, stop_on, relaxation, method and guard, in place of those keywords). A plug-in
+    cap, tolerance, stop_on, relaxation, method, guard and sweep order, in place of those keywords). A plug-in
     stops on the residual only and runs in float32 or float64. carry: the loop's native World,
     whose carried state a built-in method uses as the native loop's step would."""
     arguments.flag(history, "history")

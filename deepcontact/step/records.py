@@ -40,6 +40,9 @@ def check_pgs(record, path, builtin_methods=None):
     for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("order", ORDERS)):
         if record.get(key, "island" if key == "order" else None) not in allowed:
             raise InputError(f"the manifest's pgs {key} is {record.get(key)!r}, not one of {', '.join(allowed)}", path)
+    if record["mode"] == "exact" and record.get("order", "island") != "island":
+        raise InputError(f"the manifest's pgs record sweeps Box2D's exact mode in {record['order']!r} order; exact "
+                         f"mode is Box2D's own, island order", path)
     w = record.get("relaxation")
     if w is not None and w != "auto" and (type(w) not in (int, float) or not math.isfinite(w) or not 0 < w < 2):
         raise InputError(f"the manifest's pgs relaxation is {w!r}, not a w in (0, 2), \"auto\" or null", path)
@@ -139,6 +142,8 @@ def check_solve_itself(solve, path):
     for key, allowed in (("mode", MODES), ("stop_on", MEASURES), ("origin", ORIGINS), ("order", ORDERS)):
         if solve.get(key, {"origin": "built-in", "order": "island"}.get(key)) not in allowed:
             raise wrong(f'{key}="{solve.get(key)}" is not one of {", ".join(allowed)}')
+    if solve["mode"] == "exact" and solve.get("order", "island") != "island":
+        raise wrong(f'mode="exact" is Box2D\'s own order, not order="{solve["order"]}"')
     cap = _in_range(solve, "max_iterations", (1, float(ITERATIONS_MAX)), "a whole number", wrong)
     iterations = _whole(solve.get("iterations"))
     if iterations is None or not 0 <= iterations <= cap:
