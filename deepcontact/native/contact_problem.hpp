@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
@@ -200,16 +201,31 @@ struct ContactProblem {
 };
 
 // pb.order for Order::gravity: the manifolds from the highest to the lowest, height(i) the height
-// of manifold i along gravity; ties (and a scene without gravity: left empty) keep the posed order.
+// of manifold i along gravity; ties keep the posed order (a stable sort). A radix sort of the
+// heights' bits, three passes of 11: a stable comparison sort cost a 1000-circle pile's step about
+// 35 us, most of what the order cost it. (-0 counts as 0, as a comparison has it.)
 template <class R, class Height>
 void order_by_height(ContactProblem<R>& pb, Height height) {
-    pb.order.clear();
     const size_t n = pb.manifolds.size();
-    std::vector<std::pair<float, int32_t>> keyed(n);
-    for (size_t i = 0; i < n; ++i) keyed[i] = {height(i), static_cast<int32_t>(i)};
-    std::stable_sort(keyed.begin(), keyed.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
-    pb.order.resize(n);
-    for (size_t i = 0; i < n; ++i) pb.order[i] = keyed[i].second;
+    std::vector<uint32_t> key(n);
+    for (size_t i = 0; i < n; ++i) {
+        float h = height(i);
+        if (h == 0.0f) h = 0.0f;
+        uint32_t u;
+        std::memcpy(&u, &h, sizeof u);
+        u = (u & 0x80000000u) ? ~u : (u | 0x80000000u);   // (ascending as the floats are)
+        key[i] = ~u;                                        // (the highest first)
+    }
+    std::vector<int32_t> from(n), to(n);
+    for (size_t i = 0; i < n; ++i) from[i] = static_cast<int32_t>(i);
+    for (int shift = 0; shift < 33; shift += 11) {
+        size_t count[2049] = {0};
+        for (size_t i = 0; i < n; ++i) ++count[((key[from[i]] >> shift) & 2047u) + 1];
+        for (size_t b = 1; b < 2049; ++b) count[b] += count[b - 1];
+        for (size_t i = 0; i < n; ++i) to[count[(key[from[i]] >> shift) & 2047u]++] = from[i];
+        from.swap(to);
+    }
+    pb.order.swap(from);
 }
 
 // One point of a face manifold (b2WorldManifold::Initialize): the incident body's clip point
