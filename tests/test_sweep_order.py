@@ -152,3 +152,26 @@ def test_exact_mode_in_gravitys_order_is_no_run_the_solver_makes(tmp_path):
     manifest.write_text(manifest.read_text().replace('"mode": "float32"', '"mode": "exact"'))
     r = dc("validate", str(out))
     assert r.returncode == 1 and "exact" in r.stdout + r.stderr and "order" in r.stdout + r.stderr, r.stdout + r.stderr
+
+
+def test_ties_negative_heights_and_negative_zero_keep_the_posed_order_as_a_stable_sort_does():
+    # the heights sorted natively (a radix sort of their bits) in the order numpy's stable sort
+    # gives: the bodies' centres moved to heights with many ties, below zero, and -0.0
+    p = _settled("pyramid", dict(base=8))
+    centre = p.bodies["center"].copy()
+    y = np.round(centre[:, 1] * 2) / 2 - 3.5            # (rows of boxes tie; the lowest below zero)
+    y[np.abs(y) < 0.3] = -0.0
+    centre[:, 1] = y.astype(centre.dtype)
+    # (centres either side of x = 0: a height of -0.0 along gravity (0, -g) is then -0.0 or +0.0)
+    centre[:, 0] -= np.median(centre[:, 0])
+    moved = dataclasses.replace(p, bodies={**p.bodies, "center": centre})
+    heights = np.maximum(centre[:, 1][p.contacts["row_a"]], centre[:, 1][p.contacts["row_b"]])
+    assert len(np.unique(heights)) < len(heights) / 2 and (heights < 0).any()
+    assert (np.signbit(heights) & (heights == 0)).any() and (heights > 0).any()
+    posed, rows = _top_down(moved)
+    zero = np.zeros(p.points)
+    few = dict(mode="float32", max_iterations=3, tolerance=0)
+    down = solve(moved, zero, zero, settings=SolveSettings(**few, order="gravity"))
+    island = solve(posed, zero, zero, settings=SolveSettings(**few))
+    assert np.array_equal(down.normal_impulse[rows], island.normal_impulse)
+    assert np.array_equal(down.tangent_impulse[rows], island.tangent_impulse)
