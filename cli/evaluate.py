@@ -3,7 +3,7 @@ import click
 
 from deepcontact.grid.kernels import KERNELS
 from deepcontact.solver.methods import BUILTIN as BUILTIN_SOLVERS, SOLVERS, methods_help
-from deepcontact.solver.pgs import MODES
+from deepcontact.solver.pgs import MODES, ORDERS
 from deepcontact.warmstart.starts import NAMES as START_NAMES, STARTS
 
 from . import options, terminal, types
@@ -38,6 +38,10 @@ from . import options, terminal, types
               default="none", show_default=True,
               help=f"The solver method: {methods_help()}. Several, comma-separated, or all (every built-in), "
                    f"compare them (each with every w).")
+@click.option("--order", type=types.choice(ORDERS), default="island", show_default=True,
+              help="The order every built-in method's sweep visits the contacts in: island (Box2D's) or gravity "
+                   "(from the highest to the lowest along gravity; docs/solver.md, \"Sweep order\"). Not with a "
+                   "plug-in method, which sweeps in its own.")
 @click.option("--budgets/--no-budgets", default=True, show_default=True,
               help="What accuracy costs in time, measured: solve every step with exactly 1, 2, 4, ... 1024 sweeps "
                    "and time each; with --closed-loop, also Box2D's own solver at 1, 2, 4, ... 256 iterations.")
@@ -53,8 +57,8 @@ from . import options, terminal, types
 @options.unfenced
 @options.command("evaluate")
 def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on, mode, every, cell, smoothing, kernel,
-             seed, closed_loop, steps, relaxation, accelerate, budgets, bands, plots, jobs, threads, max_memory,
-             overwrite, verbose, quiet):
+             seed, closed_loop, steps, relaxation, accelerate, order, budgets, bands, plots, jobs, threads,
+             max_memory, overwrite, verbose, quiet):
     """Solve every recorded step of RUNS from every start and compare.
 
     Each step's reference solution (float64 from zero to a residual of 1e-12:
@@ -78,6 +82,7 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
       dc evaluate runs/pile --closed-loop --starts zero,builtin,copy,bad --steps 200 -o r/loop
       dc evaluate runs/pile --starts builtin,prev --relaxation 1,1.5,1.7,auto --every 5 -o r/psor
       dc evaluate runs/pile --starts builtin --accelerate none,nncg --relaxation 1,1.3 --closed-loop -o r/nncg
+      dc evaluate runs/pile --starts builtin,prev --order gravity --closed-loop -o r/down
       dc evaluate runs/pile --starts builtin,prev --accelerate all --tolerance 1e-4 --every 5 -o r/global
       dc evaluate runs/heldout --starts zero,builtin,prev -j 2 -o r/fast
       dc evaluate runs/pile --starts builtin,prev --no-plots --no-budgets -o r/tables
@@ -96,7 +101,8 @@ def evaluate(runs, out, starts, model, arch, tolerance, max_iterations, stop_on,
     from deepcontact.solver.settings import SolveSettings
     settings = EvaluateSettings(
         runs=list(runs), starts=list(starts), checkpoint=model,
-        solve=SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on),
+        solve=SolveSettings(mode=mode, max_iterations=max_iterations, tolerance=tolerance, stop_on=stop_on,
+                            order=order),
         every=every, cell=cell, smoothing=smoothing, kernel=kernel, seed=seed,
         closed_loop=closed_loop, steps=steps, relaxations=tuple(relaxation), accelerations=tuple(accelerate),
         budgets=budgets, bands=bands, plots=plots, jobs=jobs,

@@ -176,3 +176,37 @@ def test_ties_negative_heights_and_negative_zero_keep_the_posed_order_as_a_stabl
     assert len(np.unique(heights)) < len(heights) / 2 and (heights < 0).any()
     assert (np.signbit(heights) & (heights == 0)).any() and (heights > 0).any()
     _as_posed_top_down(moved)
+
+
+def test_dc_evaluate_sweeps_every_variant_in_the_order_asked_and_says_so(tmp_path, monkeypatch):
+    import json
+    import sys
+    from pathlib import Path
+    run = tmp_path / "run"
+    assert dc("simulate", "pile", "--param", "count=20", "--param", "box=14", "--param", "sigma=3", "--steps", "150",
+              "-q", "-o", str(run)).returncode == 0
+    reports = {}
+    for order in ("island", "gravity"):
+        r = dc("evaluate", str(run), "--starts", "builtin", "--max-iterations", "4", "--tolerance", "1e-9", "--every",
+               "10", "--order", order, "--no-plots", "--no-budgets", "-q", "-o", str(tmp_path / order))
+        assert r.returncode == 0, r.stderr
+        reports[order] = json.loads((tmp_path / order / "summary.json").read_text())
+    assert reports["gravity"]["settings"]["order"] == "gravity" and reports["island"]["settings"]["order"] == "island"
+    assert "its sweeps in gravity's order" in (tmp_path / "gravity" / "report.md").read_text()
+    assert "gravity" not in (tmp_path / "island" / "report.md").read_text()
+    # (the same steps, each from the same start, in four sweeps: another order, other residuals)
+    assert reports["gravity"]["starts"]["builtin"] != reports["island"]["starts"]["builtin"]
+    r = dc("evaluate", str(run), "--starts", "builtin", "--closed-loop", "--steps", "15", "--order", "gravity",
+           "--no-plots", "--no-budgets", "-q", "-o", str(tmp_path / "loop"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "loop" / "closed-loop.json").read_text())["order"] == "gravity"
+    assert "sweeps in gravity order" in (tmp_path / "loop" / "report.md").read_text()
+    # a plug-in method sweeps in its own order: asked for gravity's, the command is refused before any work
+    monkeypatch.syspath_prepend(str(Path(__file__).parent.parent / "examples" / "deepcontact-example-plugins"))
+    try:
+        r = dc("evaluate", str(run), "--accelerate", "none,dc_example_plugins.solvers:ProjectedJacobi", "--order",
+               "gravity", "-o", str(tmp_path / "plugin"))
+    finally:
+        for name in [m for m in sys.modules if m.startswith("dc_example_plugins")]:
+            del sys.modules[name]
+    assert r.returncode == 2 and "sweeps in its own" in r.stderr and not (tmp_path / "plugin").exists(), r.stderr

@@ -135,7 +135,8 @@ def _replay(s, out, table, measured, progress):
     _record_origins(summary, table)
     settings = dict(runs=[str(r) for r in s.runs], starts=s.starts, relaxation=s.relaxations,
                     accelerate=s.accelerations, model=s.checkpoint, tolerance=s.solve.tolerance,
-                    max_iterations=s.solve.max_iterations, stop_on=s.solve.stop_on, mode=s.solve.mode, every=s.every,
+                    max_iterations=s.solve.max_iterations, stop_on=s.solve.stop_on, mode=s.solve.mode,
+                    order=s.solve.order, every=s.every,
                     steps=len({(r.run, r.seed, r.step) for r in rows}), protocol=measured, bands=s.bands,
                     plots=s.plots, noise=noise_of(rows, summary))
     write_report(out, rows, summary, settings)

@@ -42,7 +42,8 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
     pooled = results[:len(results) // (simulations + 1)] if simulations > 1 else results   # (the verdict's rows)
     line = loop_verdict(pooled, tolerance if stop_on == "residual" else None)
     page = (f"# Closed loop: {md_text(what)}\n\n" + (line + "\n\n" if line else "") +
-            f"Stopping: {stop_on} < {tolerance:g}, at most {settings.max_iterations} sweeps, {settings.mode}. Drift: "
+            f"Stopping: {stop_on} < {tolerance:g}, at most {settings.max_iterations} sweeps, {settings.mode}"
+            f"{'' if settings.order == 'island' else f', sweeps in {settings.order} order (highest contacts first)'}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
             f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
@@ -62,7 +63,7 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
     output.write_text(out / "report.html", markdown_to_html(page, out, f"Closed loop: {what}",
                                                             pictures=("closed-loop.png",) if plots else ()))
     _loop_summary_csv(out, results)
-    output.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "results": [{
+    output.write_text(out / "closed-loop.json", json.dumps({"protocol": measured, "order": settings.order, "results": [{
         "start": r.start, "steps": r.steps, "iterations": r.iterations.tolist(),
         "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
         "energy_error": r.energy_error, "finite": r.finite,

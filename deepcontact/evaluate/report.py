@@ -128,13 +128,19 @@ def summary_table(summary, noise=None):
     return "\n".join(lines)
 
 
+def _in_order(order):
+    """The sweep order as the report's line says it: nothing for Box2D's island order."""
+    return "" if order == "island" else f", its sweeps in {order}'s order (highest contacts first),"
+
+
 def markdown(summary, settings, pareto):
     """report.md's text: the verdict, the table, how it was measured, and the pareto table."""
     s = settings
     ref = s["reference"]
     line = verdict(summary, s.get("noise"))
     text = ["# Warm starts compared\n", *([line + "\n"] if line else []),
-            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, {_every(s['every'])}; solver {s['mode']} PGS stopped "
+            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, {_every(s['every'])}; solver {s['mode']} PGS"
+            f"{_in_order(s.get('order', 'island'))} stopped "
             f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
             f"Errors are against each step's reference solution (float64 from zero, PGS sweeps, Newton steps and, "
             f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it "
