@@ -199,8 +199,9 @@ def test_dc_evaluate_sweeps_every_variant_in_the_order_asked_and_says_so(tmp_pat
     r = dc("evaluate", str(run), "--starts", "builtin", "--closed-loop", "--steps", "15", "--order", "gravity",
            "--no-plots", "--no-budgets", "-q", "-o", str(tmp_path / "loop"))
     assert r.returncode == 0, r.stderr
-    assert json.loads((tmp_path / "loop" / "closed-loop.json").read_text())["order"] == "gravity"
-    assert "sweeps in gravity order" in (tmp_path / "loop" / "report.md").read_text()
+    loop = json.loads((tmp_path / "loop" / "closed-loop.json").read_text())
+    assert loop["order"] == "gravity" and {r["order"] for r in loop["results"]} == {"gravity"}
+    assert "its sweeps in gravity's order" in (tmp_path / "loop" / "report.md").read_text()
     # a plug-in method sweeps in its own order: asked for gravity's, the command is refused before any work
     monkeypatch.syspath_prepend(str(Path(__file__).parent.parent / "examples" / "deepcontact-example-plugins"))
     try:

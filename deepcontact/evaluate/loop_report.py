@@ -41,9 +41,11 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
     text = loop_table(results, tolerance if stop_on == "residual" else None)
     pooled = results[:len(results) // (simulations + 1)] if simulations > 1 else results   # (the verdict's rows)
     line = loop_verdict(pooled, tolerance if stop_on == "residual" else None)
+    order = "" if settings.order == "island" else (f", its sweeps in {settings.order}'s order (the highest manifolds "
+                                                   "first; Box2D's own rows in its island order)")
     page = (f"# Closed loop: {md_text(what)}\n\n" + (line + "\n\n" if line else "") +
             f"Stopping: {stop_on} < {tolerance:g}, at most {settings.max_iterations} sweeps, {settings.mode}"
-            f"{'' if settings.order == 'island' else f', sweeps in {settings.order} order (highest contacts first)'}. Drift: "
+            f"{order}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
             f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "
@@ -68,7 +70,8 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
         "ms_per_step": r.ms_per_step.tolist(), "drift": r.drift.tolist(), "penetration": r.penetration,
         "energy_error": r.energy_error, "finite": r.finite,
         "transport_ms": None if getattr(r, "transport_ms", None) is None else r.transport_ms.tolist(),
-        "path_ms": getattr(r, "path_ms", 0.0)} for r in results]}) + "\n")
+        "path_ms": getattr(r, "path_ms", 0.0),
+        "order": settings.order if r.ours else "island"} for r in results]}) + "\n")   # (Box2D's own: island)
     return text
 
 

@@ -130,7 +130,7 @@ def summary_table(summary, noise=None):
 
 def _in_order(order):
     """The sweep order as the report's line says it: nothing for Box2D's island order."""
-    return "" if order == "island" else f", its sweeps in {order}'s order (highest contacts first),"
+    return "" if order == "island" else f", its sweeps in {order}'s order (the highest manifolds first),"
 
 
 def markdown(summary, settings, pareto):
