@@ -251,16 +251,17 @@ V2<R> face_points(const Xf<R>& ref, R radius_ref, const Xf<R>& inc, R radius_inc
     return normal;
 }
 
-// order_by_height with each manifold's height its higher body's centre along -gravity (the body
-// columns' centres, by row); a scene without gravity keeps the posed order.
-template <class R>
-void gravity_order(ContactProblem<R>& pb, const float* center, const StepSettings& st) {
-    const float gx = -st.gravity[0], gy = -st.gravity[1];
+// pb.order for Order::gravity: order_by_height with each manifold's height its higher body's
+// centre along -gravity; centres(i) gives manifold i's bodies' centres, A's then B's (the body
+// columns' by row, or the loop's bodies as posed). A scene without gravity keeps the posed order.
+template <class R, class Centres>
+void gravity_order(ContactProblem<R>& pb, const float gravity[2], Centres centres) {
+    const float gx = -gravity[0], gy = -gravity[1];
     pb.order.clear();
     if (gx == 0.0f && gy == 0.0f) return;
     order_by_height(pb, [&](size_t i) {
-        const auto& m = pb.manifolds[i];
-        return std::max(gx * center[2 * m.a] + gy * center[2 * m.a + 1], gx * center[2 * m.b] + gy * center[2 * m.b + 1]);
+        const auto [a, b] = centres(i);
+        return std::max(gx * a.x + gy * a.y, gx * b.x + gy * b.y);
     });
 }
 

@@ -1,8 +1,8 @@
 #include "pgs_step.hpp"
 
-#include <algorithm>
 #include <cmath>
 #include <string>
+#include <utility>
 
 namespace dc {
 namespace {
@@ -40,12 +40,13 @@ void pose_step(World& world, ContactProblem<R>& pb, const PGSStepSettings& s, PG
 // contact's bodies' centres as the step was posed (the buffer is kept: cleared otherwise).
 template <class R>
 void set_order(ContactProblem<R>& pb, const LoopFrame& f, const PGSStepSettings& s) {
-    pb.order.clear();
-    const float gx = -s.step.gravity[0], gy = -s.step.gravity[1];
-    if (s.solve.order != Order::gravity || (gx == 0.0f && gy == 0.0f)) return;
-    order_by_height(pb, [&](size_t i) {
+    if (s.solve.order != Order::gravity) {
+        pb.order.clear();
+        return;
+    }
+    gravity_order(pb, s.step.gravity, [&](size_t i) {
         const b2Vec2 a = f.contact_bodies[i].first->GetWorldCenter(), b = f.contact_bodies[i].second->GetWorldCenter();
-        return std::max(gx * a.x + gy * a.y, gx * b.x + gy * b.y);
+        return std::pair{V2<float>{a.x, a.y}, V2<float>{b.x, b.y}};
     });
 }
 

@@ -165,7 +165,12 @@ py::dict solve(const BodyColumns& bc, const ContactColumns& cc, const StepSettin
     {
         py::gil_scoped_release release;
         pb = assemble<R>(bc, cc, st);
-        if (opt.order == Order::gravity) gravity_order(pb, bc.center, st);
+        if (opt.order == Order::gravity)
+            gravity_order(pb, st.gravity, [&](size_t i) {
+                const auto& m = pb.manifolds[i];
+                return std::pair{V2<float>{bc.center[2 * m.a], bc.center[2 * m.a + 1]},
+                                 V2<float>{bc.center[2 * m.b], bc.center[2 * m.b + 1]}};
+            });
         rep = solve(pb, sn, stt, opt, carried);
     }
     py::dict out = report_dict(rep, pb.stats);
