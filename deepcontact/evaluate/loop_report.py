@@ -11,7 +11,7 @@ from ..escape import CsvWriter, md_text
 from ..html import markdown_to_html
 from ..protocol import protocol_line
 from .plots import loop_plot
-from .report import fenced_line
+from .report import fenced_line, in_order
 from .verdicts import as_share, loop_above, loop_residuals, loop_verdict, net_time_errors, not_converged_tag
 
 
@@ -41,11 +41,9 @@ def write_loop_report(out, results, what, settings, measured=None, simulations=1
     text = loop_table(results, tolerance if stop_on == "residual" else None)
     pooled = results[:len(results) // (simulations + 1)] if simulations > 1 else results   # (the verdict's rows)
     line = loop_verdict(pooled, tolerance if stop_on == "residual" else None)
-    order = "" if settings.order == "island" else (f", its sweeps in {settings.order}'s order (the highest manifolds "
-                                                   "first; Box2D's own rows in its island order)")
     page = (f"# Closed loop: {md_text(what)}\n\n" + (line + "\n\n" if line else "") +
             f"Stopping: {stop_on} < {tolerance:g}, at most {settings.max_iterations} sweeps, {settings.mode}"
-            f"{order}. Drift: "
+            f"{in_order(settings.order, box2d_rows=True)}. Drift: "
             f"largest distance of any surviving body from the trajectory stepped with reference solutions "
             f"(float64 PGS to 1e-12); energy error: largest |E - E_ref| over the steps, relative to "
             f"|E_ref| at the first step (E: kinetic plus gravitational energy of the dynamic bodies). "

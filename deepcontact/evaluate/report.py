@@ -128,9 +128,13 @@ def summary_table(summary, noise=None):
     return "\n".join(lines)
 
 
-def _in_order(order):
-    """The sweep order as the report's line says it: nothing for Box2D's island order."""
-    return "" if order == "island" else f", its sweeps in {order}'s order (the highest manifolds first),"
+def in_order(order, box2d_rows=False):
+    """The sweep order as a report's line says it (replay's and the closed loop's): nothing for
+    Box2D's island order; box2d_rows: the report also holds Box2D's own solver's rows."""
+    if order == "island":
+        return ""
+    box2d = "; Box2D's own rows in its island order" if box2d_rows else ""
+    return f", its sweeps in {order}'s order (the highest manifolds first{box2d})"
 
 
 def markdown(summary, settings, pareto):
@@ -139,9 +143,9 @@ def markdown(summary, settings, pareto):
     ref = s["reference"]
     line = verdict(summary, s.get("noise"))
     text = ["# Warm starts compared\n", *([line + "\n"] if line else []),
-            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, {_every(s['every'])}; solver {s['mode']} PGS"
-            f"{_in_order(s.get('order', 'island'))} stopped "
-            f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps. "
+            f"Runs: {', '.join(md_text(r) for r in s['runs'])}; {s['steps']} steps, {_every(s['every'])}; solver {s['mode']} PGS stopped "
+            f"when the {s['stop_on']} measure falls below {s['tolerance']:g}, at most {s['max_iterations']} sweeps"
+            f"{in_order(s.get('order', 'island'))}. "
             f"Errors are against each step's reference solution (float64 from zero, PGS sweeps, Newton steps and, "
             f"where Newton stalls, Lemke's pivoting, to a residual of 1e-12; {ref['reached']} of {ref['steps']} steps reached it "
             f"({ref['pivoted']} by a pivot), the worst ended at "
