@@ -162,8 +162,7 @@ def simulate(scene, out_dir, steps, seed, seeds, shard, params, iterations, skip
     chosen = seed_list(seed, seeds, shard)
     source.check_memory(min(jobs, max(len(chosen), 1)), max_memory)
     first = source(chosen[0]) if chosen and solver == "pgs" else None   # (its iterations: the loop's cap)
-    box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate,
-                         order)
+    box2d = box2d_engine(solver, start, mode, tolerance, max_iterations, stop_on, relaxation, first, accelerate, order)
     soft = {"substeps": substeps, "contact_hertz": contact_hertz, "damping_ratio": damping_ratio,
             "push_speed": push_speed}
     stepper = _engine(engine, types.key_values(engine_settings, "--set"), solver, box2d, soft)

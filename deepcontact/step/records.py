@@ -48,16 +48,23 @@ def check_pgs(record, path, builtin_methods=None):
         raise InputError(f"the manifest's pgs relaxation is {w!r}, not a w in (0, 2), \"auto\" or null", path)
     if not isinstance(record.get("accelerate"), str) or not isinstance(record.get("start"), str):
         raise InputError("the manifest's pgs record names no start or method", path)
-    origin = record.get("accelerate_origin")
-    if isinstance(origin, dict):
-        if origin.get("origin") not in ORIGINS:
-            raise InputError(f"the manifest's pgs accelerate_origin is {origin.get('origin')!r}, not built-in or "
-                             f"plug-in", path)
-        if origin["origin"] == "built-in" and builtin_methods is not None and record["accelerate"] != "none" \
-                and record["accelerate"] not in builtin_methods:
-            raise InputError(f"the manifest says the built-in method {record['accelerate']!r} stepped the run, but no "
-                             f"built-in method has that name", path)
+    _check_origin(record, path, builtin_methods)
     return record
+
+
+def _check_origin(record, path, builtin_methods):
+    """The pgs record's accelerate_origin, where it has one: built-in or plug-in, and a built-in
+    one of the built-in methods' names (where the caller knows them)."""
+    origin = record.get("accelerate_origin")
+    if not isinstance(origin, dict):
+        return
+    if origin.get("origin") not in ORIGINS:
+        raise InputError(f"the manifest's pgs accelerate_origin is {origin.get('origin')!r}, not built-in or "
+                         f"plug-in", path)
+    if origin["origin"] == "built-in" and builtin_methods is not None and record["accelerate"] != "none" \
+            and record["accelerate"] not in builtin_methods:
+        raise InputError(f"the manifest says the built-in method {record['accelerate']!r} stepped the run, but no "
+                         f"built-in method has that name", path)
 
 
 def check_above(record, path):
