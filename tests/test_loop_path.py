@@ -52,6 +52,7 @@ def test_previous_impulses_read_as_the_dict_a_start_was_given():
 import dataclasses  # noqa: E402
 import textwrap  # noqa: E402
 
+from hypothesis import example, given, settings, strategies as st  # noqa: E402
 import pytest  # noqa: E402
 
 from deepcontact.contest import arena  # noqa: E402
@@ -316,6 +317,40 @@ def test_a_step_answer_packed_without_json_is_the_bytes_json_writes(header, arra
     columns = {k: np.ascontiguousarray(v, np.float64) for k, v in arrays.items()}
     head = json.dumps(dict(header, arrays=[[k, int(v.size)] for k, v in columns.items()])).encode()
     assert pack(header, arrays) == struct.pack("<I", len(head)) + head + b"".join(v.tobytes() for v in columns.values())
+
+
+_VALUES = st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-320, -1e-320, 1e308, -1e308, np.inf, -np.inf, np.nan])
+
+
+@settings(max_examples=400, deadline=None)
+@given(pairs=st.lists(st.tuples(_VALUES, _VALUES), max_size=4))
+@example(pairs=[(1.0, np.inf)]).via("each fault alone")
+@example(pairs=[(1.0, -np.inf)]).via("each fault alone")
+@example(pairs=[(1.0, np.nan)]).via("each fault alone")
+@example(pairs=[(np.inf, 0.0)]).via("each fault alone")
+@example(pairs=[(-np.inf, 0.0)]).via("each fault alone")
+@example(pairs=[(np.nan, 0.0)]).via("each fault alone")
+@example(pairs=[(-1e-320, 0.0)]).via("each fault alone")
+@example(pairs=[(1e308, 1e308), (1e308, -1e308)]).via("a sum that would overflow")
+def test_an_answer_is_refused_exactly_where_a_value_is_not_finite_or_a_normal_pulls(pairs):
+    # checked_answer reads a sound answer by four reductions: it must refuse what a look at every
+    # value refuses, with the same line, and nothing else
+    from deepcontact.contest.wire import checked_answer
+    n = len(pairs)
+    arrays = {k: np.array([p[i] for p in pairs], np.float64) for i, k in enumerate(("normal", "tangent"))}
+    expected = None
+    for what in ("normal", "tangent"):
+        if not all(np.isfinite(arrays[what])):
+            expected = f"answered a non-finite {what} impulse"
+            break
+    if expected is None and any(v < 0 for v in arrays["normal"]):
+        expected = "answered a negative normal impulse"
+    if expected is None:
+        out = checked_answer("v", arrays, n)
+        assert out[0] is arrays["normal"] and out[1] is arrays["tangent"]
+    else:
+        with pytest.raises(PluginError, match=expected):
+            checked_answer("v", arrays, n)
 
 PROBE = textwrap.dedent('''
     import ctypes, gc, mmap

@@ -5,6 +5,7 @@ every message (shape.py: each field's type and bounds, the header's bytes, its d
 judge uses it: a field of the wrong type, a number that is not finite, an array of the wrong
 length, a header nested or sized past its form, is one line naming the contestant."""
 import json
+import math
 import re
 import struct
 
@@ -91,11 +92,17 @@ def checked_answer(label, arrays, points, also=()):
         if a is None or a.shape != (points,):
             raise PluginError(f"the variant {label!r} answered {what} impulses of shape "
                               f"{None if a is None else a.shape}; the step has {points} contact points, so ({points},)")
-        if not np.all(np.isfinite(a)):
-            raise PluginError(f"the variant {label!r} answered a non-finite {what} impulse")
         out.append(a)
-    if np.any(out[0] < 0):
-        raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
+    # (four reductions where all is well, the loop's every step: NaN makes a least or greatest value
+    # NaN, which compares false; anything else is looked at value by value, and named)
+    normal, tangent = out
+    if points and not (0 <= normal.min() and normal.max() < math.inf and -math.inf < tangent.min()
+                       and tangent.max() < math.inf):
+        for what, a in zip(("normal", "tangent"), out):
+            if not np.all(np.isfinite(a)):
+                raise PluginError(f"the variant {label!r} answered a non-finite {what} impulse")
+        if np.any(out[0] < 0):
+            raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
     return out
 
 
