@@ -214,6 +214,113 @@ def test_a_step_larger_than_its_arena_hands_the_reader_a_new_one(steps, monkeypa
         channel.close()
 
 
+class _BothWays:
+    """A loop's start_fn that writes each posed step both ways, the ctx made in Python (write) and
+    straight from the world (write_world), into channels of its own, and compares their bytes."""
+
+    def __init__(self, scene, traits):
+        from deepcontact.contest.keyed import KeySet
+        self.scene, self.traits, self.known, self.previous = scene, traits, KeySet(), KeyedImpulses()
+        self.ctx_way, self.world_way = StepChannel(False), StepChannel(False)
+        self.compared, self.refused, self.rng = 0, 0, np.random.default_rng(5)
+
+    def __call__(self, *args):
+        raise AssertionError("every posed step comes through from_world here")
+
+    def from_world(self, world, carried, points):
+        from deepcontact.contest.keyed import KeySet
+        from deepcontact.solver.problem import StepProblem
+        bodies, contacts = world.bodies(), world.contacts()
+        start_n, start_t = carried * contacts["normal_impulse"], carried * contacts["tangent_impulse"]
+        problem = StepProblem._from_world(bodies, contacts, dt=self.scene.dt, gravity=self.scene.effects.gravity,
+                                          block_solve=self.scene.solver.block_solve, velocity_iterations=8)
+        problem.start_normal, problem.start_tangent = start_n, start_t
+        ctx = visible_context(StepContext(problem=problem, bodies=bodies, contacts=contacts, reference=None,
+                                          persisted=self.known.find(problem.keys)[0], previous=self.previous,
+                                          index=0, variant="v", trajectory="loop"), self.traits, "v")
+        self.ctx_way.write(ctx)
+        if self.world_way.schema is None:
+            self.world_way.write(ctx)
+        else:
+            done = self.world_way.write_world(world, carried, self.known.keys, self.previous)
+            if done is None:
+                self.refused += 1
+            else:
+                assert np.array_equal(done[1], problem.keys) and done[1].dtype == np.int64
+                a, b = (channel.arenas["plain"].map for channel in (self.ctx_way, self.world_way))
+                head_a, head_b = arena.HEAD.unpack_from(a, 0), arena.HEAD.unpack_from(b, 0)
+                assert head_a[1:] == head_b[1:], (head_a, head_b)   # (the same index, columns, schema, bytes)
+                assert a[arena.HEAD.size:head_a[-1]] == b[arena.HEAD.size:head_b[-1]]
+                self.compared += 1
+        self.known = KeySet(problem.keys)
+        # (a solution of the step, to be the next step's previous: values of its own)
+        self.previous = KeyedImpulses(problem.keys, self.rng.random(points), self.rng.normal(size=points))
+        return start_n.astype(np.float64), start_t.astype(np.float64)
+
+    def close(self):
+        self.ctx_way.close()
+        self.world_way.close()
+
+
+@pytest.mark.parametrize("spec, params, removed, least", [
+    ("pile", {"count": 30, "box": 16.0, "sigma": 4.0}, [], 1 << 20),
+    ("pile", {"count": 30, "box": 16.0, "sigma": 4.0}, [(30, 30), (50, 1)], 4096),   # (rows searched; arenas grown)
+    ("pyramid", {"base": 6}, [(20, 5), (40, 21)], 1 << 20),   # (boxes: two-point manifolds, static ground)
+])
+def test_a_step_written_from_the_world_is_the_bytes_its_ctx_writes(spec, params, removed, least, monkeypatch):
+    """write_world's arena holds, byte for byte, what write puts there of the ctx the judge makes
+    in Python: every column, shared as before, through removals and an arena made larger."""
+    from deepcontact.scene.model import RemoveEvent
+    from deepcontact.simulate import pgs_loop
+    monkeypatch.setattr(arena, "LEAST", least)
+    scene = generate(spec, 0, params)
+    scene.events = [RemoveEvent(step=k, body=b) for k, b in removed]
+    # (the world's bodies are read after the step is posed, where the ctx's were read before: the
+    # pose moves none of what they hold)
+    pose = pgs_loop.pgs_pose
+
+    def posed(world, settings):
+        before = world.bodies()
+        points = pose(world, settings)
+        same(before, world.bodies(), "bodies")
+        return points
+    monkeypatch.setattr(pgs_loop, "pgs_pose", posed)
+    both = _BothWays(scene, described("builtin"))
+    try:
+        looped(scene, both, 70)
+        grown = both.world_way.arenas["plain"].generation
+    finally:
+        both.close()
+    assert both.compared > 30 and both.refused == 0, (both.compared, both.refused)
+    assert grown > 1 or least > 4096
+
+
+def test_a_step_the_world_cannot_write_is_left_to_the_ctx(steps):
+    """An oracle's channel, one with no schema yet, and a world whose bodies are not finite get
+    None from write_world: the judge writes the ctx, which says what is wrong."""
+    scene = generate("pile", 0, {"count": 30, "box": 16.0, "sigma": 4.0})
+    world = Box2D().build(scene)
+    for _ in range(30):
+        world.step(scene.dt, 8, 3)
+    plain, oracle = StepChannel(False), StepChannel(True)
+    try:
+        keys = np.zeros((0, 5), np.int64)
+        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses()) is None   # (no schema yet)
+        traits = dict(described("builtin"), needs_reference=True)
+        oracle.write(step_ctx(steps[0], traits))
+        assert oracle.write_world(world, np.float32(1), keys, KeyedImpulses()) is None
+        plain.write(step_ctx(steps[0], described("builtin")))
+        seq = plain.seq
+        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses()) is not None and plain.seq == seq + 1
+        index = world.bodies()["index"]
+        world.set_body_state(index[:1], np.full((1, 2), np.nan, np.float32), np.zeros(1, np.float32),
+                             np.zeros((1, 2), np.float32), np.zeros(1, np.float32))
+        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses()) is None and plain.seq == seq + 1
+    finally:
+        plain.close()
+        oracle.close()
+
+
 def test_a_stale_sequence_number_is_refused(steps):
     channel, mapped = StepChannel(False), Mapped()
     try:

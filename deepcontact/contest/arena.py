@@ -15,6 +15,12 @@ the rows, and which table of the ctx holds each) is the channel's schema, sent p
 again only when it changes (it does not while a loop runs). A step's request on the socket is then
 16 bytes: its sequence number and the channel; a contestant refuses a request whose sequence
 number is not the arena's or not newer than the last it read.
+
+Once a channel's schema is made (from a ctx, as a start may see it), an ordinary start's later steps
+can be written straight from the world (write_world: arena_put_world), each column taken where
+World.bodies() and World.contacts() take it or made of them as the judge's ctx makes it, the same
+bytes without a numpy array or a dict a column; where a column is not one the world gives
+(an oracle's, say), or the step cannot be (see write_world), the ctx is written.
 """
 import dataclasses
 import mmap
@@ -25,7 +31,7 @@ import struct
 
 import numpy as np
 
-from .._box2d import arena_put, arena_tables, arena_views
+from .._box2d import arena_put, arena_put_world, arena_tables, arena_views, world_columns
 
 STEP = b"S"           # a step's request begins so (a pickled request begins b"\x80")
 FDS = b"F"            # the byte the descriptors come with
@@ -190,6 +196,25 @@ def _forms_of(arrays):
     return out
 
 
+def _world_codes(schema):
+    """The world_columns code of each of the schema's columns, an int64 array, or None where one
+    is not a column the world gives in its form (each column named by its first entry)."""
+    given = {(slot, name): (code, dtype.str, () if width == 1 else (width,))
+             for slot, name, code, dtype, width in world_columns()}
+    first = {}
+    for slot, name, kind, column in schema.entries:
+        if kind != "plain":
+            return None
+        first.setdefault(column, (slot, name))
+    codes = []
+    for column, form in enumerate(schema.columns["plain"]):
+        code, dtype, shape = given.get(first.get(column), (None, None, None))
+        if code is None or (dtype, shape) != (form[0], tuple(form[1])):
+            return None
+        codes.append(code)
+    return np.array(codes, np.int64)
+
+
 def _getter(positions):
     """A function of a sequence: the tuple of its entries at `positions` (operator.itemgetter,
     which gives a bare entry for one position and fails on none)."""
@@ -211,6 +236,7 @@ class StepChannel:
         if oracle:
             self.arenas["oracle"] = Arena("dc-oracle-arena")
         self.seq, self.version, self.schema, self.schema_bytes = 0, 0, None, b""
+        self.world_codes, self.index = None, (0, 0)   # (write_world's columns, by their world_columns codes)
         self.told = {}   # receiver -> (the generations of the arenas it holds, the schema version it holds)
 
     def write(self, ctx):
@@ -227,8 +253,29 @@ class StepChannel:
                 raise ValueError("a step's column is not of the form its own schema gives it")
         return REQUEST.pack(STEP, self.ident, self.seq)
 
+    def write_world(self, world, carried, known, previous):
+        """Writes the step `world` holds (posed: pgs_pose) as `write` writes its ctx, straight from
+        the world: (its request's bytes, its contact keys), or None where it cannot be (no schema
+        yet, an oracle's channel, a column the world does not give, a body not finite, a contact
+        naming a body the world does not hold: the caller writes the ctx, which says what is
+        wrong). carried: Box2D's warm-start scale (np.float32); known: the step before's keys
+        (int64 rows of 5); previous: its solution by key (ctx.previous: keyed.KeyedImpulses)."""
+        if self.world_codes is None:
+            return None
+        arena, previous = self.arenas["plain"], _previous_arrays(previous)
+        done = arena_put_world(world, arena.map, HEAD.size, self.world_codes, carried, known, *previous)
+        if done[0] < 0:
+            arena._make(-2 * done[0])
+            done = arena_put_world(world, arena.map, HEAD.size, self.world_codes, carried, known, *previous)
+        used, keys, finite = done
+        if used <= 0 or not finite:
+            return None
+        self.seq += 1
+        HEAD.pack_into(arena.map, 0, self.seq, *self.index, len(self.world_codes), self.version, used)
+        return REQUEST.pack(STEP, self.ident, self.seq), keys
+
     def _put(self, ctx, arrays):
-        index = (int(ctx.index), int(ctx.problem.index))
+        index = self.index = (int(ctx.index), int(ctx.problem.index))
         return all([arena.put(self.seq, index, arrays[kind], self.version, self.forms[kind])
                     for kind, arena in self.arenas.items()])
 
@@ -254,6 +301,7 @@ class StepChannel:
         self.names = names
         self.takes = {kind: _getter([first[id(a)] for a in v]) for kind, v in held.items()}
         self.forms = {kind: _forms_of(v) for kind, v in held.items()}
+        self.world_codes = None if self.oracle else _world_codes(schema)
         self.schema_bytes = pickle.dumps({"op": "arena", "channel": self.ident, "version": self.version,
                                           "schema": dataclasses.asdict(schema)}, protocol=pickle.HIGHEST_PROTOCOL)
 

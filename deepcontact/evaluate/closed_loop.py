@@ -96,12 +96,29 @@ class _Adapter:
                           variant=self.name, trajectory="loop")
         # (written once into the variant's shared arenas; read by the null contestant, just before,
         # and by the variant's, each from its own copy: contest/arena.py)
-        request = self.channel.write(visible_context(ctx, self.contestant.traits, self.name))
-        deadline = deadline_for(problem.points)
+        return self._asked(self.channel.write(visible_context(ctx, self.contestant.traits, self.name)), problem.points)
+
+    def from_world(self, world, carried, points):
+        """The start of the step `world` holds (posed), its ctx written straight from the world
+        into the channel (StepChannel.write_world: the bytes __call__ writes of it); None where it
+        cannot be, and the loop asks __call__."""
+        if self.needs_reference:
+            return None
+        done = self.channel.write_world(world, carried, self.known.keys, self.previous)
+        if done is None:
+            return None
+        request, self.keys = done
+        self.known = KeySet(self.keys)
+        return self._asked(request, points)
+
+    def _asked(self, request, points):
+        """The answer to a step's request (written in the channel): the null contestant's round
+        trip first, then the variant's, recorded; its impulses checked."""
+        deadline = deadline_for(points)
         self.null.call_step(self.channel, request, deadline)
         arrays = self.contestant.call_step(self.channel, request, deadline)[2]
         self.charges.record("start", self.contestant, self.null)
-        return tuple(checked_answer(self.name, arrays, problem.points))
+        return tuple(checked_answer(self.name, arrays, points))
 
     def solve(self, problem, start_n, start_t, settings):
         """A plug-in method's solve, in the contestant's process (RemoteMethod); its answer judged here."""

@@ -5,7 +5,10 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <memory>
+#include <optional>
 #include <string>
 
 #include "interrupt.hpp"
@@ -295,16 +298,22 @@ py::object formed_column(const py::handle& item, const int64_t* form, size_t wid
     return py::reinterpret_steal<py::object>(copied);
 }
 
+// One column's bytes as an arena holds them: where they are, its rows, their bytes.
+struct ArenaColumn {
+    const void* data;
+    uint32_t rows;
+    size_t bytes;
+};
+
 // The columns after a header of `head` bytes: each one's row count ("<I"), then each at a
-// multiple of kArenaAlign, zero-padded (the arena holds their bytes: arena_put counted them).
-void write_columns(unsigned char* base, size_t head, const std::vector<py::array>& columns) {
+// multiple of kArenaAlign, zero-padded (the arena holds their bytes: the caller counted them).
+void write_columns(unsigned char* base, size_t head, const std::vector<ArenaColumn>& columns) {
     size_t at = arena_aligned(head + 4 * columns.size());
     for (size_t i = 0; i < columns.size(); ++i) {
-        const uint32_t rows = static_cast<uint32_t>(columns[i].shape(0));
+        const uint32_t rows = columns[i].rows;
         for (int k = 0; k < 4; ++k) base[head + 4 * i + k] = static_cast<unsigned char>(rows >> (8 * k));
-        const size_t bytes = static_cast<size_t>(columns[i].nbytes());
-        const size_t padded = arena_aligned(bytes);
-        if (bytes) std::memcpy(base + at, columns[i].data(), bytes);
+        const size_t bytes = columns[i].bytes, padded = arena_aligned(bytes);
+        if (bytes) std::memcpy(base + at, columns[i].data, bytes);
         std::memset(base + at + bytes, 0, padded - bytes);
         at += padded;
     }
@@ -331,8 +340,195 @@ py::ssize_t arena_put(const py::buffer& arena, size_t head, const py::list& arra
         used += arena_aligned(static_cast<size_t>(columns.back().nbytes()));
     }
     if (used > size) return -static_cast<py::ssize_t>(used);
-    write_columns(static_cast<unsigned char*>(out.ptr), head, columns);
+    std::vector<ArenaColumn> spans;
+    spans.reserve(n);
+    for (const py::array& a : columns)
+        spans.push_back({a.data(), static_cast<uint32_t>(a.shape(0)), static_cast<size_t>(a.nbytes())});
+    write_columns(static_cast<unsigned char*>(out.ptr), head, spans);
     return static_cast<py::ssize_t>(used);
+}
+
+// --- The loop's step written from the world itself (contest/arena.py, StepChannel.write_world) --
+// What the judge's ctx of an ordinary start holds, each column taken where World.bodies() and
+// World.contacts() take it, or made from them as the judge makes it in Python (StepProblem's
+// rows and keys, Box2D's carried start, the points that persisted, the step before's solution):
+// the same bytes arena_put writes of that ctx, without a numpy array or a dict a column.
+
+enum WorldColumn : int64_t {
+    kBodyColumn = 0,          // + the field's place in DC_BODY_FIELDS
+    kContactColumn = 100,     // + the field's place in DC_CONTACT_FIELDS
+    kFixedRotation = 200,
+    kRowA, kRowB, kStartNormal, kStartTangent, kKeys, kPersisted, kPreviousKeys, kPreviousNormal, kPreviousTangent
+};
+
+// [(slot, name, code, dtype, row width)] of every column arena_put_world writes.
+py::list world_columns() {
+    py::list out;
+    int64_t k = 0;
+    auto add = [&out](const char* slot, const char* name, int64_t code, py::dtype dtype, int width) {
+        out.append(py::make_tuple(slot, name, code, dtype, width));
+    };
+#define DC_WORLD_COLUMN(T, name, width, solver) add(table, #name, base + k++, py::dtype::of<T>(), width);
+    {
+        const char* table = "bodies";
+        int64_t base = kBodyColumn;
+        DC_BODY_FIELDS(DC_WORLD_COLUMN)
+    }
+    k = 0;
+    {
+        const char* table = "contacts";
+        int64_t base = kContactColumn;
+        DC_CONTACT_FIELDS(DC_WORLD_COLUMN)
+    }
+#undef DC_WORLD_COLUMN
+    add("bodies", "fixed_rotation", kFixedRotation, py::dtype::of<bool>(), 1);
+    add("problem.contacts", "row_a", kRowA, py::dtype::of<int32_t>(), 1);
+    add("problem.contacts", "row_b", kRowB, py::dtype::of<int32_t>(), 1);
+    add("problem", "start_normal", kStartNormal, py::dtype::of<float>(), 1);
+    add("problem", "start_tangent", kStartTangent, py::dtype::of<float>(), 1);
+    add("problem", "keys", kKeys, py::dtype::of<int64_t>(), 5);
+    add("ctx", "persisted", kPersisted, py::dtype::of<bool>(), 1);
+    add("previous", "keys", kPreviousKeys, py::dtype::of<int64_t>(), 5);
+    add("previous", "normal", kPreviousNormal, py::dtype::of<double>(), 1);
+    add("previous", "tangent", kPreviousTangent, py::dtype::of<double>(), 1);
+    return out;
+}
+
+// Each row of `keys` (rows of 5) found among the rows of `known`, matched whole: an
+// open-addressed table of known's rows, the first row of each key kept (a hash only finds where
+// to compare). found[j] and row[j] (0 where none).
+void match_keys(const int64_t* k, size_t n, const int64_t* q, size_t m, bool* found, py::ssize_t* row) {
+    auto hash = [](const int64_t* v) {
+        uint64_t h = 0x9E3779B97F4A7C15ull;
+        for (int c = 0; c < 5; ++c) {
+            h ^= static_cast<uint64_t>(v[c]) + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
+            h *= 0xFF51AFD7ED558CCDull;
+            h ^= h >> 33;
+        }
+        return h;
+    };
+    size_t size = 16;
+    while (size < 2 * n) size <<= 1;
+    std::vector<int64_t> table(size, -1);
+    for (size_t i = 0; i < n; ++i) {
+        for (size_t at = hash(k + 5 * i) & (size - 1);; at = (at + 1) & (size - 1)) {
+            if (table[at] < 0) {
+                table[at] = static_cast<int64_t>(i);
+                break;
+            }
+            if (std::equal(k + 5 * i, k + 5 * i + 5, k + 5 * table[at])) break;   // (kept: the first)
+        }
+    }
+    for (size_t j = 0; j < m; ++j) {
+        found[j] = false;
+        row[j] = 0;
+        if (n == 0) continue;
+        for (size_t at = hash(q + 5 * j) & (size - 1); table[at] >= 0; at = (at + 1) & (size - 1)) {
+            if (std::equal(q + 5 * j, q + 5 * j + 5, k + 5 * table[at])) {
+                found[j] = true;
+                row[j] = static_cast<py::ssize_t>(table[at]);
+                break;
+            }
+        }
+    }
+}
+
+bool all_finite(const std::vector<float>& v) {
+    return std::all_of(v.begin(), v.end(), [](float x) { return std::isfinite(x); });
+}
+
+using Int64Rows = py::array_t<int64_t, py::array::c_style | py::array::forcecast>;
+using Doubles = py::array_t<double, py::array::c_style | py::array::forcecast>;
+
+// (bytes used, or minus those needed where the arena is too small, or 0 where a contact names a
+// body the world does not hold; the step's contact keys, int64 rows of 5; whether the bodies'
+// angle, centre, velocity and spin are finite). columns: world_columns' codes, one an arena
+// column; carried: Box2D's warm-start scale (dtRatio, 0 where warm starting is off); known: the
+// step before's keys (which of this step's points persisted); previous: its solution by key.
+py::tuple arena_put_world(dc::World& w, const py::buffer& arena, size_t head,
+                          const py::array_t<int64_t, py::array::c_style>& columns, float carried,
+                          const Int64Rows& known, const Int64Rows& previous_keys, const Doubles& previous_normal,
+                          const Doubles& previous_tangent) {
+    const py::buffer_info out = arena.request(true);
+    const size_t size = contiguous_bytes(out), n = static_cast<size_t>(columns.size());
+    if (head > size) throw py::value_error("arena_put_world: a header longer than the arena");
+    for (const py::array* a : {static_cast<const py::array*>(&known), static_cast<const py::array*>(&previous_keys)})
+        if (a->ndim() != 2 || a->shape(1) != 5) throw py::value_error("arena_put_world: keys must be rows of 5");
+    const size_t previous = static_cast<size_t>(previous_keys.shape(0));
+    if (previous_normal.ndim() != 1 || previous_tangent.ndim() != 1 ||
+        static_cast<size_t>(previous_normal.shape(0)) != previous ||
+        static_cast<size_t>(previous_tangent.shape(0)) != previous)
+        throw py::value_error("arena_put_world: the step before's impulses must be one a key");
+    const BodyState b = w.bodies();
+    ContactState c = w.contacts();
+    const size_t bodies = b.size(), points = c.size();
+    const bool finite = all_finite(b.angle) && all_finite(b.center) && all_finite(b.velocity) && all_finite(b.omega);
+    // the bodies' rows of each point's bodies (StepProblem._from_world: a body's index is its row
+    // where the indices run from 0 to n - 1, else it is looked up among them, which are ascending)
+    std::vector<int32_t> row_a(points), row_b(points);
+    const bool dense = bodies > 0 && b.index.front() == 0 && b.index.back() == static_cast<int32_t>(bodies - 1);
+    for (size_t i = 0; i < points; ++i) {
+        for (auto [body, row] : {std::pair{c.body_a[i], &row_a[i]}, std::pair{c.body_b[i], &row_b[i]}}) {
+            if (dense) {
+                *row = body;
+                continue;
+            }
+            const auto at = std::lower_bound(b.index.begin(), b.index.end(), body);
+            if (at == b.index.end() || *at != body) return py::make_tuple(0, py::none(), finite);
+            *row = static_cast<int32_t>(at - b.index.begin());
+        }
+    }
+    std::vector<float> start_normal(points), start_tangent(points);
+    std::vector<int64_t> keys(5 * points);
+    for (size_t i = 0; i < points; ++i) {
+        start_normal[i] = carried * c.normal_impulse[i];   // (numpy's float32 product: one rounding)
+        start_tangent[i] = carried * c.tangent_impulse[i];
+        const int64_t key[5] = {c.fixture_a[i], c.child_a[i], c.fixture_b[i], c.child_b[i], c.id_key[i]};
+        std::copy(key, key + 5, &keys[5 * i]);
+    }
+    std::unique_ptr<bool[]> persisted(new bool[points ? points : 1]);
+    std::vector<py::ssize_t> unused(points);
+    match_keys(known.data(), static_cast<size_t>(known.shape(0)), keys.data(), points, persisted.get(), unused.data());
+    std::vector<uint8_t> fixed_rotation(bodies);
+    for (size_t i = 0; i < bodies; ++i) fixed_rotation[i] = b.fixed_rotation[i] != 0;
+
+    std::vector<ArenaColumn> spans;
+    spans.reserve(n);
+    size_t used = arena_aligned(head + 4 * n);
+    const int64_t* code = columns.data();
+    const auto rows = static_cast<uint32_t>(points), before = static_cast<uint32_t>(previous);
+    for (size_t i = 0; i < n; ++i) {
+        std::optional<ArenaColumn> col;
+        int64_t k = 0;
+#define DC_BODY_SPAN(T, name, width, solver) \
+    if (code[i] == kBodyColumn + k++) col = ArenaColumn{b.name.data(), static_cast<uint32_t>(bodies), b.name.size() * sizeof(T)};
+#define DC_CONTACT_SPAN(T, name, width, solver) \
+    if (code[i] == kContactColumn + k++) col = ArenaColumn{c.name.data(), rows, c.name.size() * sizeof(T)};
+        DC_BODY_FIELDS(DC_BODY_SPAN)
+        k = 0;
+        DC_CONTACT_FIELDS(DC_CONTACT_SPAN)
+#undef DC_BODY_SPAN
+#undef DC_CONTACT_SPAN
+        switch (code[i]) {
+            case kFixedRotation: col = ArenaColumn{fixed_rotation.data(), static_cast<uint32_t>(bodies), bodies}; break;
+            case kRowA: col = ArenaColumn{row_a.data(), rows, 4 * points}; break;
+            case kRowB: col = ArenaColumn{row_b.data(), rows, 4 * points}; break;
+            case kStartNormal: col = ArenaColumn{start_normal.data(), rows, 4 * points}; break;
+            case kStartTangent: col = ArenaColumn{start_tangent.data(), rows, 4 * points}; break;
+            case kKeys: col = ArenaColumn{keys.data(), rows, 40 * points}; break;
+            case kPersisted: col = ArenaColumn{persisted.get(), rows, points}; break;
+            case kPreviousKeys: col = ArenaColumn{previous_keys.data(), before, 40 * previous}; break;
+            case kPreviousNormal: col = ArenaColumn{previous_normal.data(), before, 8 * previous}; break;
+            case kPreviousTangent: col = ArenaColumn{previous_tangent.data(), before, 8 * previous}; break;
+            default: break;
+        }
+        if (!col) throw py::value_error("arena_put_world: no column has the code " + std::to_string(code[i]));
+        spans.push_back(*col);
+        used += arena_aligned(col->bytes);
+    }
+    if (used <= size) write_columns(static_cast<unsigned char*>(out.ptr), head, spans);
+    const auto put = used <= size ? static_cast<py::ssize_t>(used) : -static_cast<py::ssize_t>(used);
+    return py::make_tuple(put, own(std::move(keys), points, 5), finite);
 }
 
 // The bytes of one column of `rows` rows of `dtype` and trailing `extents` (appended to `shape`);
@@ -673,12 +869,26 @@ PYBIND11_MODULE(_box2d, m) {
           "column of `dtypes` (numbers) and trailing `shapes`, its rows as written, each a view of the\n"
           "copy. ValueError where a column would run past the copy's end or is not of numbers.");
 
+    m.def("world_columns", &world_columns,
+          "[(slot, name, code, dtype, row width)] of each column of the closed loop's ctx that\n"
+          "arena_put_world writes straight from a world (a field of its bodies or contacts, or one the\n"
+          "judge's ctx makes of them).");
+
+    m.def("arena_put_world", &arena_put_world, py::arg("world"), py::arg("arena"), py::arg("head"),
+          py::arg("columns"), py::arg("carried"), py::arg("known"), py::arg("previous_keys"),
+          py::arg("previous_normal"), py::arg("previous_tangent"),
+          "Writes the step `world` holds into `arena` as arena_put writes the closed loop's ctx of it,\n"
+          "the columns named by their world_columns codes, each taken from the world (World.bodies(),\n"
+          "World.contacts()) or made of it: (bytes used, minus those needed where the arena is too small,\n"
+          "or 0 where a contact names a body the world does not hold; the step's contact keys, int64 rows\n"
+          "of 5; whether the bodies' angle, centre, velocity and spin are finite). carried: Box2D's\n"
+          "warm-start scale; known: the step before's keys; previous_*: its solution by key.");
+
     m.def(
         "key_rows",
         [](py::array_t<int64_t, py::array::c_style | py::array::forcecast> known,
            py::array_t<int64_t, py::array::c_style | py::array::forcecast> keys) {
-            // (contact keys, rows of 5, matched whole: an open-addressed table of `known`'s rows,
-            // its first row of each key kept; a hash only finds where to compare)
+            // (contact keys, rows of 5, matched whole: match_keys)
             auto rows_of = [](const py::array& a, const char* what) {
                 if (a.ndim() != 2 || a.shape(1) != 5)
                     throw py::value_error(std::string("key_rows: ") + what + " must be rows of 5");
@@ -693,39 +903,7 @@ PYBIND11_MODULE(_box2d, m) {
             py::ssize_t* r = row.mutable_data();
             {
                 py::gil_scoped_release release;
-                auto hash = [](const int64_t* v) {
-                    uint64_t h = 0x9E3779B97F4A7C15ull;
-                    for (int c = 0; c < 5; ++c) {
-                        h ^= static_cast<uint64_t>(v[c]) + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
-                        h *= 0xFF51AFD7ED558CCDull;
-                        h ^= h >> 33;
-                    }
-                    return h;
-                };
-                size_t size = 16;
-                while (size < 2 * n) size <<= 1;
-                std::vector<int64_t> table(size, -1);
-                for (size_t i = 0; i < n; ++i) {
-                    for (size_t at = hash(k + 5 * i) & (size - 1);; at = (at + 1) & (size - 1)) {
-                        if (table[at] < 0) {
-                            table[at] = static_cast<int64_t>(i);
-                            break;
-                        }
-                        if (std::equal(k + 5 * i, k + 5 * i + 5, k + 5 * table[at])) break;   // (kept: the first)
-                    }
-                }
-                for (size_t j = 0; j < m; ++j) {
-                    f[j] = false;
-                    r[j] = 0;
-                    if (n == 0) continue;
-                    for (size_t at = hash(q + 5 * j) & (size - 1); table[at] >= 0; at = (at + 1) & (size - 1)) {
-                        if (std::equal(q + 5 * j, q + 5 * j + 5, k + 5 * table[at])) {
-                            f[j] = true;
-                            r[j] = static_cast<py::ssize_t>(table[at]);
-                            break;
-                        }
-                    }
-                }
+                match_keys(k, n, q, m, f, r);
             }
             return py::make_tuple(found, row);
         },

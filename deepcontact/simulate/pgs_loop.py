@@ -26,7 +26,7 @@ import numpy as np
 from .._box2d import PGSStepSettings, StepSettings, pgs_finish, pgs_pose, pgs_step
 from ..errors import InputError, OptionError
 from ..solver.methods import is_native, solve, takes_relaxation
-from ..solver.pgs import Solution, check_solvable, start_impulses
+from ..solver.pgs import Solution, check_solvable, held_start, start_impulses
 from ..solver.problem import StepProblem
 from ..solver.relaxation import AutoRelaxation
 from ..solver.settings import SolveSettings
@@ -220,12 +220,17 @@ class PGSStepper:
         written and stepped by pgs_finish: the bits of the step in pieces (_python_step), without
         its second posing in Python and in Box2D's own Step."""
         world, scene, w = self.world, self.scene, self.relaxation
-        bodies = world.bodies()
         ratio, warm = self._set_step(w)
         points = pgs_pose(world, self.step_settings)   # (Collide and the pose read no warm-starting flag)
-        contacts = world.contacts()
-        builtin_n, builtin_t = _builtin(contacts, ratio, warm)
-        if points:
+        # (a start_fn that reads the posed step from the world itself, as the closed loop's contestants'
+        # channel can: None where it cannot, and it is asked as any start_fn)
+        from_world = getattr(self.start_fn, "from_world", None) if points else None
+        start = None if from_world is None else from_world(world, ratio if warm else np.float32(0.0), points)
+        if start is not None:
+            start_n, start_t = (held_start(name, a, points, a) for name, a in zip(("start_normal", "start_tangent"), start))
+        elif points:
+            bodies, contacts = world.bodies(), world.contacts()
+            builtin_n, builtin_t = _builtin(contacts, ratio, warm)
             problem = StepProblem._from_world(bodies, contacts, dt=scene.dt, gravity=self.gravity,
                                               block_solve=scene.solver.block_solve,
                                               velocity_iterations=self.settings.max_iterations)

@@ -117,14 +117,16 @@ def start_impulses(problem: "StepProblem", start_normal=None, start_tangent=None
     """A start as solve takes it, (normal, tangent): each float64, one real number a contact point
     (None: the problem's own start); InputError naming the argument otherwise. The loop's step
     between the native halves holds a start made in Python to this too (simulate/pgs_loop.py)."""
-    return tuple(_start(name, given, own, problem.points) for name, given, own in (
+    return tuple(held_start(name, own if given is None else given, problem.points, given) for name, given, own in (
         ("start_normal", start_normal, problem.start_normal), ("start_tangent", start_tangent, problem.start_tangent)))
 
 
-def _start(name, given, own, points):
-    """A start's impulses as float64, one a contact point: real numbers (not held finite: a
-    garbage start, NaN and all, is a stability test's input), never text, complex or objects."""
-    a = np.asarray(own if given is None else given)
+def held_start(name, values, points, given):
+    """One array of a start (`name`: start_normal or start_tangent) as float64, one a contact
+    point: real numbers (not held finite: a garbage start, NaN and all, is a stability test's
+    input), never text, complex or objects; InputError naming it and `given` (what the caller
+    handed: None where `values` is the problem's own) otherwise."""
+    a = np.asarray(values)
     if a.dtype.kind not in "iuf" or a.shape != (points,):
         raise arguments.refuse(name, f"one value per contact point (a real number), an array of shape ({points},)", given)
     return a.astype(np.float64)
