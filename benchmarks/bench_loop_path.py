@@ -26,7 +26,9 @@ the median and 90th percentile of each.
 the way before (a Python tuple a contact key, the ctx pickled by the judge and unpickled by each
 contestant) and the way now (keys matched as arrays, the ctx written into the arena and read out of
 it), and the work both do (the world read out, the problem posed, the answer packed and checked),
-each timed N times, interleaved, in this process: medians in microseconds.
+each timed N times, interleaved, in this process: medians in microseconds. And the way an ordinary
+start's steps after the first now take: the step written from the world (StepChannel.write_world:
+the world read out, the problem posed, the keys matched, the visible ctx written, in one call).
 
 --halves N: the judge's step alone, in this process, N rounds: the native loop (one call a step), a start
 made in Python (an in-process start_fn handing back Box2D's warm start, no contestant) between the
@@ -216,6 +218,10 @@ def pieces(scene, n):
                                                                 protocol=pickle.HIGHEST_PROTOCOL),
         "now: the ctx written into the arena (judge)": lambda: channel.write(now),
     }
+    previous = KeyedImpulses(problem.keys, normal, tangent)
+    # (the bodies and contacts read out, the problem posed, the keys matched, the ctx made visible
+    # and written: the steps after the first, in one call)
+    work["now: the step written from the world (judge)"] = lambda: channel.write_world(world, np.float32(1.0), problem.keys, previous)
     data = work["before: the ctx pickled (judge)"]()
     work["before: the ctx unpickled (each contestant)"] = lambda: pickle.loads(data)
     work["now: the ctx read out of the arena (each contestant)"] = lambda: mapped.context(channel.write(now))
@@ -275,6 +281,8 @@ IN_PATH = (("deepcontact.simulate.pgs_loop", "pgs_pose"), ("deepcontact.simulate
            ("deepcontact.simulate.pgs_loop", "PGSStepper._posed_step"),
            ("deepcontact.simulate.pgs_loop", "StepProblem._from_world"),
            ("deepcontact.evaluate.closed_loop", "_Adapter.__call__"),
+           ("deepcontact.evaluate.closed_loop", "_Adapter.from_world"),
+           ("deepcontact.contest.arena", "StepChannel.write_world"),
            ("deepcontact.evaluate.closed_loop", "visible_context"),
            ("deepcontact.evaluate.closed_loop", "checked_answer"),
            ("deepcontact.contest.arena", "StepChannel.write"), ("deepcontact.contest.client", "Contestant.call_step"),
