@@ -242,7 +242,7 @@ class _BothWays:
         if self.world_way.schema is None:
             self.world_way.write(ctx)
         else:
-            done = self.world_way.write_world(world, carried, self.known.keys, self.previous)
+            done = self.world_way.write_world(world, carried, self.known.keys, self.previous, (0, 0))
             if done is None:
                 self.refused += 1
             else:
@@ -295,9 +295,78 @@ def test_a_step_written_from_the_world_is_the_bytes_its_ctx_writes(spec, params,
     assert grown > 1 or least > 4096
 
 
+
+DIGEST = textwrap.dedent('''
+    import zlib
+    import numpy as np
+    from deepcontact.warmstart.starts import StartValue
+
+    class Digest:
+        """A start whose answer turns on every column of its ctx and on its scalars: Box2D's warm
+        start, scaled by a number a digest of them all makes, the persisted points' kept."""
+        def __call__(self, ctx):
+            p, h = ctx.problem, 0
+            for table in (ctx.bodies, ctx.contacts, p.bodies, p.contacts):
+                for k in sorted(table):
+                    h = zlib.crc32(k.encode() + np.ascontiguousarray(table[k]).tobytes(), h)
+            for a in (p.start_normal, p.start_tangent, p.keys, ctx.persisted):
+                h = zlib.crc32(np.ascontiguousarray(a).tobytes(), h)
+            h = zlib.crc32(repr((sorted(dict(ctx.previous).items()), ctx.index, p.index, p.dt, p.gravity,
+                                 p.block_solve, p.velocity_iterations, ctx.variant, ctx.trajectory)).encode(), h)
+            scale = 0.5 + (h % 1000) / 1000
+            normal = np.where(ctx.persisted, p.start_normal, 0.0) * scale
+            return StartValue(normal.astype(np.float64), np.asarray(p.start_tangent, np.float64), {})
+    ''')
+
+
+def test_the_loop_through_the_world_written_step_is_the_loop_through_the_ctx(tmp_path, monkeypatch):
+    """The closed loop's steps written from the world (its _Adapter's from_world) give a start
+    whose answer turns on its whole ctx what the ctx written in Python gives it, step by step:
+    the same trajectory, iterations and residuals, through removals and an arena made larger."""
+    from deepcontact.evaluate import closed_loop
+    from deepcontact.evaluate.replay import variants
+    from deepcontact.scene.model import RemoveEvent
+    from deepcontact.warmstart.starts import STARTS, make_starts
+    (tmp_path / "mods").mkdir()
+    (tmp_path / "mods" / "ctx_digest.py").write_text(DIGEST)
+    monkeypatch.syspath_prepend(str(tmp_path / "mods"))
+    monkeypatch.setattr(arena, "LEAST", 4096)
+    scene = generate("pile", 0, {"count": 30, "box": 16.0, "sigma": 4.0})
+    scene.events = [RemoveEvent(step=40, body=5), RemoveEvent(step=50, body=0)]
+    taken = []
+    from_world = closed_loop._Adapter.from_world
+
+    def counted(self, *args):
+        start = from_world(self, *args)
+        taken.append(start is not None)
+        return start
+    runs = {}
+    try:
+        v = variants(make_starts(["ctx_digest:Digest"]))[0]
+        for way in ("world", "ctx"):
+            if way == "world":
+                monkeypatch.setattr(closed_loop._Adapter, "from_world", counted)
+            else:
+                monkeypatch.delattr(closed_loop._Adapter, "from_world")
+            runs[way] = closed_loop._interleaved(scene, [(v, SolveSettings(), False)], 80)[0][0]
+    finally:
+        import sys
+        sys.modules.pop("ctx_digest", None)
+        STARTS._loaded.pop("ctx_digest:Digest", None)
+    assert sum(taken) > 40 and not all(taken), taken   # (the first step with points made the schema)
+    a, b = runs["world"], runs["ctx"]
+    assert np.array_equal(a.iterations, b.iterations) and np.array_equal(a.residuals, b.residuals, equal_nan=True)
+    assert len(a.positions) == len(b.positions) == 80
+    assert all(np.array_equal(p.index, q.index) and np.array_equal(p.array, q.array) for p, q in zip(a.positions, b.positions))
+
 def test_a_step_the_world_cannot_write_is_left_to_the_ctx(steps):
     """An oracle's channel, one with no schema yet, and a world whose bodies are not finite get
-    None from write_world: the judge writes the ctx, which says what is wrong."""
+    None from write_world: the judge writes the ctx, which says what is wrong. And no column the
+    world writes is one only an oracle may see: none is named, none is written by its code."""
+    from deepcontact._box2d import arena_put_world, world_columns
+    assert not any(arena._is_oracle(slot, name) for slot, name, *_ in world_columns())
+    fields = [name for slot, name, *_ in world_columns() if slot == "contacts"]
+    assert "normal_impulse" not in fields and "start_normal_impulse" in fields
     scene = generate("pile", 0, {"count": 30, "box": 16.0, "sigma": 4.0})
     world = Box2D().build(scene)
     for _ in range(30):
@@ -305,17 +374,21 @@ def test_a_step_the_world_cannot_write_is_left_to_the_ctx(steps):
     plain, oracle = StepChannel(False), StepChannel(True)
     try:
         keys = np.zeros((0, 5), np.int64)
-        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses()) is None   # (no schema yet)
+        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses(), (0, 0)) is None   # (no schema yet)
         traits = dict(described("builtin"), needs_reference=True)
         oracle.write(step_ctx(steps[0], traits))
-        assert oracle.write_world(world, np.float32(1), keys, KeyedImpulses()) is None
+        assert oracle.write_world(world, np.float32(1), keys, KeyedImpulses(), (0, 0)) is None
         plain.write(step_ctx(steps[0], described("builtin")))
         seq = plain.seq
-        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses()) is not None and plain.seq == seq + 1
+        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses(), (0, 0)) is not None and plain.seq == seq + 1
         index = world.bodies()["index"]
         world.set_body_state(index[:1], np.full((1, 2), np.nan, np.float32), np.zeros(1, np.float32),
                              np.zeros((1, 2), np.float32), np.zeros(1, np.float32))
-        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses()) is None and plain.seq == seq + 1
+        assert plain.write_world(world, np.float32(1), keys, KeyedImpulses(), (0, 0)) is None and plain.seq == seq + 1
+        recorded = 100 + 25   # (the contacts' normal_impulse, the 26th of their fields: native/records.hpp)
+        with pytest.raises(ValueError, match="no column has the code 125"):
+            arena_put_world(world, bytearray(1 << 16), 48, np.array([recorded], np.int64), 1.0, keys, keys,
+                            np.zeros(0), np.zeros(0))
     finally:
         plain.close()
         oracle.close()

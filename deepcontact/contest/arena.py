@@ -19,8 +19,9 @@ number is not the arena's or not newer than the last it read.
 Once a channel's schema is made (from a ctx, as a start may see it), an ordinary start's later steps
 can be written straight from the world (write_world: arena_put_world), each column taken where
 World.bodies() and World.contacts() take it or made of them as the judge's ctx makes it, the same
-bytes without a numpy array or a dict a column; where a column is not one the world gives
-(an oracle's, say), or the step cannot be (see write_world), the ctx is written.
+bytes without a numpy array or a dict a column. An oracle's channel never is (nor is a schema with
+an entry only an oracle may see, and the world gives no such column: world_columns), and where a
+step cannot be (see write_world) its ctx is written.
 """
 import dataclasses
 import mmap
@@ -198,12 +199,13 @@ def _forms_of(arrays):
 
 def _world_codes(schema):
     """The world_columns code of each of the schema's columns, an int64 array, or None where one
-    is not a column the world gives in its form (each column named by its first entry)."""
+    is not a column the world gives in its form (each column named by its first entry), or where
+    an entry is one only an oracle may see (which no column the world gives is)."""
     given = {(slot, name): (code, dtype.str, () if width == 1 else (width,))
              for slot, name, code, dtype, width in world_columns()}
     first = {}
     for slot, name, kind, column in schema.entries:
-        if kind != "plain":
+        if kind != "plain" or _is_oracle(slot, name):
             return None
         first.setdefault(column, (slot, name))
     codes = []
@@ -236,7 +238,7 @@ class StepChannel:
         if oracle:
             self.arenas["oracle"] = Arena("dc-oracle-arena")
         self.seq, self.version, self.schema, self.schema_bytes = 0, 0, None, b""
-        self.world_codes, self.index = None, (0, 0)   # (write_world's columns, by their world_columns codes)
+        self.world_codes = None   # (write_world's columns, by their world_columns codes)
         self.told = {}   # receiver -> (the generations of the arenas it holds, the schema version it holds)
 
     def write(self, ctx):
@@ -253,13 +255,14 @@ class StepChannel:
                 raise ValueError("a step's column is not of the form its own schema gives it")
         return REQUEST.pack(STEP, self.ident, self.seq)
 
-    def write_world(self, world, carried, known, previous):
+    def write_world(self, world, carried, known, previous, index):
         """Writes the step `world` holds (posed: pgs_pose) as `write` writes its ctx, straight from
         the world: (its request's bytes, its contact keys), or None where it cannot be (no schema
         yet, an oracle's channel, a column the world does not give, a body not finite, a contact
         naming a body the world does not hold: the caller writes the ctx, which says what is
         wrong). carried: Box2D's warm-start scale (np.float32); known: the step before's keys
-        (int64 rows of 5); previous: its solution by key (ctx.previous: keyed.KeyedImpulses)."""
+        (int64 rows of 5); previous: its solution by key (ctx.previous: keyed.KeyedImpulses);
+        index: (ctx.index, ctx.problem.index) of the step."""
         if self.world_codes is None:
             return None
         arena, previous = self.arenas["plain"], _previous_arrays(previous)
@@ -271,11 +274,11 @@ class StepChannel:
         if used <= 0 or not finite:
             return None
         self.seq += 1
-        HEAD.pack_into(arena.map, 0, self.seq, *self.index, len(self.world_codes), self.version, used)
+        HEAD.pack_into(arena.map, 0, self.seq, *index, len(self.world_codes), self.version, used)
         return REQUEST.pack(STEP, self.ident, self.seq), keys
 
     def _put(self, ctx, arrays):
-        index = self.index = (int(ctx.index), int(ctx.problem.index))
+        index = (int(ctx.index), int(ctx.problem.index))
         return all([arena.put(self.seq, index, arrays[kind], self.version, self.forms[kind])
                     for kind, arena in self.arenas.items()])
 

@@ -104,7 +104,8 @@ class _Adapter:
         cannot be, and the loop asks __call__."""
         if self.needs_reference:
             return None
-        done = self.channel.write_world(world, carried, self.known.keys, self.previous)
+        # (the loop poses each step's problem with index 0, and __call__'s ctx takes the problem's)
+        done = self.channel.write_world(world, carried, self.known.keys, self.previous, (0, 0))
         if done is None:
             return None
         request, self.keys = done

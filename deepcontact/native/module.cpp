@@ -249,11 +249,11 @@ size_t arena_aligned(size_t n) { return (n + kArenaAlign - 1) / kArenaAlign * kA
 // The bytes of a buffer that is one C-contiguous block (a mapping, a bytearray); ValueError for
 // any other (a reversed or strided view: bytes written from its first element on would land
 // in memory it does not hold).
-size_t contiguous_bytes(const py::buffer_info& b) {
+size_t contiguous_bytes(const py::buffer_info& b, const char* who = "arena_put") {
     py::ssize_t step = b.itemsize;
     for (py::ssize_t d = b.ndim - 1; d >= 0; --d) {
         if (b.shape[static_cast<size_t>(d)] > 1 && b.strides[static_cast<size_t>(d)] != step)
-            throw py::value_error("arena_put: the arena must be one contiguous block of bytes");
+            throw py::value_error(std::string(who) + ": the arena must be one contiguous block of bytes");
         step *= b.shape[static_cast<size_t>(d)];
     }
     return static_cast<size_t>(b.size) * static_cast<size_t>(b.itemsize);
@@ -368,7 +368,11 @@ py::list world_columns() {
     auto add = [&out](const char* slot, const char* name, int64_t code, py::dtype dtype, int width) {
         out.append(py::make_tuple(slot, name, code, dtype, width));
     };
-#define DC_WORLD_COLUMN(T, name, width, solver) add(table, #name, base + k++, py::dtype::of<T>(), width);
+// (the impulses a contact carries, Box2D's answer, are only an oracle's to see: given by no code)
+#define DC_WORLD_COLUMN(T, name, width, solver)                                                 \
+    if (std::strcmp(#name, "normal_impulse") != 0 && std::strcmp(#name, "tangent_impulse") != 0) \
+        add(table, #name, base + k, py::dtype::of<T>(), width);                                 \
+    ++k;
     {
         const char* table = "bodies";
         int64_t base = kBodyColumn;
@@ -450,8 +454,9 @@ py::tuple arena_put_world(dc::World& w, const py::buffer& arena, size_t head,
                           const Int64Rows& known, const Int64Rows& previous_keys, const Doubles& previous_normal,
                           const Doubles& previous_tangent) {
     const py::buffer_info out = arena.request(true);
-    const size_t size = contiguous_bytes(out), n = static_cast<size_t>(columns.size());
+    const size_t size = contiguous_bytes(out, "arena_put_world"), n = static_cast<size_t>(columns.size());
     if (head > size) throw py::value_error("arena_put_world: a header longer than the arena");
+    if (columns.ndim() != 1) throw py::value_error("arena_put_world: one code a column");
     for (const py::array* a : {static_cast<const py::array*>(&known), static_cast<const py::array*>(&previous_keys)})
         if (a->ndim() != 2 || a->shape(1) != 5) throw py::value_error("arena_put_world: keys must be rows of 5");
     const size_t previous = static_cast<size_t>(previous_keys.shape(0));
@@ -502,8 +507,10 @@ py::tuple arena_put_world(dc::World& w, const py::buffer& arena, size_t head,
         int64_t k = 0;
 #define DC_BODY_SPAN(T, name, width, solver) \
     if (code[i] == kBodyColumn + k++) col = ArenaColumn{b.name.data(), static_cast<uint32_t>(bodies), b.name.size() * sizeof(T)};
-#define DC_CONTACT_SPAN(T, name, width, solver) \
-    if (code[i] == kContactColumn + k++) col = ArenaColumn{c.name.data(), rows, c.name.size() * sizeof(T)};
+#define DC_CONTACT_SPAN(T, name, width, solver)                                          \
+    if (code[i] == kContactColumn + k++ && std::strcmp(#name, "normal_impulse") != 0 && \
+        std::strcmp(#name, "tangent_impulse") != 0)                                      \
+        col = ArenaColumn{c.name.data(), rows, c.name.size() * sizeof(T)};
         DC_BODY_FIELDS(DC_BODY_SPAN)
         k = 0;
         DC_CONTACT_FIELDS(DC_CONTACT_SPAN)

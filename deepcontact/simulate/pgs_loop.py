@@ -110,7 +110,11 @@ class PGSStepper:
         """settings: the solve's (its mode, tolerance, cap, w and method); start: zero, builtin
         (Box2D's warm start) or garbage. start_fn(bodies, contacts, problem, builtin_n, builtin_t)
         -> (normal, tangent), if given, makes the first iterate instead (dc evaluate --closed-loop;
-        held to solve's rule; problem's start is Box2D's warm start, builtin_n and builtin_t).
+        held to solve's rule; problem's start is Box2D's warm start, builtin_n and builtin_t). A
+        start_fn may also offer from_world(world, carried, points) -> (normal, tangent) or None: the
+        start of the posed step read from the world itself (carried: Box2D's warm-start scale, 0
+        where warm starting is off), asked first where a step is posed between the native halves;
+        None, and it is called as above (the closed loop's contestants: _Adapter.from_world).
         record: keep the bodies and contacts of each step (step files need them; a timed loop does
         not). native=False steps in pieces through Python even where one native call could.
         solve_fn(problem, start_n, start_t, settings) -> Solution, if given, solves each step in place
@@ -218,7 +222,8 @@ class PGSStepper:
         islands, each contact's rows and Box2D's carried start) by pgs_pose, the start asked for on
         the contacts World.contacts() reads (the posed step's points, in its order), then solved,
         written and stepped by pgs_finish: the bits of the step in pieces (_python_step), without
-        its second posing in Python and in Box2D's own Step."""
+        its second posing in Python and in Box2D's own Step. A start_fn's from_world is asked
+        first, and the step read out into Python only where it answers None."""
         world, scene, w = self.world, self.scene, self.relaxation
         ratio, warm = self._set_step(w)
         points = pgs_pose(world, self.step_settings)   # (Collide and the pose read no warm-starting flag)
