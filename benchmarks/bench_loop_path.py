@@ -221,7 +221,7 @@ def pieces(scene, n):
     previous = KeyedImpulses(problem.keys, normal, tangent)
     # (the bodies and contacts read out, the problem posed, the keys matched, the ctx made visible
     # and written: the steps after the first, in one call)
-    work["now: the step written from the world (judge)"] = lambda: channel.write_world(world, np.float32(1.0), problem.keys, previous)
+    work["now: the step written from the world (judge)"] = lambda: channel.write_world(world, np.float32(1.0), problem.keys, previous, (250, 0))
     data = work["before: the ctx pickled (judge)"]()
     work["before: the ctx unpickled (each contestant)"] = lambda: pickle.loads(data)
     work["now: the ctx read out of the arena (each contestant)"] = lambda: mapped.context(channel.write(now))
