@@ -513,7 +513,7 @@ _VALUES = st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-320, -1e-320, 1e308, -1e308,
 @example(pairs=[(-1e-320, 0.0)]).via("each fault alone")
 @example(pairs=[(1e308, 1e308), (1e308, -1e308)]).via("a sum that would overflow")
 def test_an_answer_is_refused_exactly_where_a_value_is_not_finite_or_a_normal_pulls(pairs):
-    # checked_answer reads a sound answer by four reductions: it must refuse what a look at every
+    # checked_answer reads an answer in one native pass: it must refuse what a look at every
     # value refuses, with the same line, and nothing else
     from deepcontact.contest.wire import checked_answer
     n = len(pairs)

@@ -348,6 +348,24 @@ py::ssize_t arena_put(const py::buffer& arena, size_t head, const py::list& arra
     return static_cast<py::ssize_t>(used);
 }
 
+// What is wrong with a contestant's answer (normal and tangent impulses, one a contact point), in
+// the judge's order: 0 nothing, 1 a normal impulse not finite, 2 a tangent impulse not finite,
+// 3 a normal impulse that pulls (below 0). One pass; contest/wire.py checked_answer names it.
+int answer_fault(const py::array_t<double, py::array::c_style | py::array::forcecast>& normal,
+                 const py::array_t<double, py::array::c_style | py::array::forcecast>& tangent) {
+    if (normal.ndim() != 1 || tangent.ndim() != 1 || normal.shape(0) != tangent.shape(0))
+        throw py::value_error("answer_fault: one normal and one tangent impulse a contact point");
+    const double* n = normal.data();
+    const double* t = tangent.data();
+    bool normal_finite = true, tangent_finite = true, pulls = false;
+    for (py::ssize_t i = 0; i < normal.shape(0); ++i) {
+        normal_finite &= std::isfinite(n[i]);
+        tangent_finite &= std::isfinite(t[i]);
+        pulls |= n[i] < 0.0;
+    }
+    return !normal_finite ? 1 : !tangent_finite ? 2 : pulls ? 3 : 0;
+}
+
 // --- The loop's step written from the world itself (contest/arena.py, StepChannel.write_world) --
 // What the judge's ctx of an ordinary start holds, each column taken where World.bodies() and
 // World.contacts() take it, or made from them as the judge makes it in Python (StepProblem's
@@ -875,6 +893,11 @@ PYBIND11_MODULE(_box2d, m) {
           "The columns of a copy of an arena (a contiguous uint8 array) that arena_put wrote: one array a\n"
           "column of `dtypes` (numbers) and trailing `shapes`, its rows as written, each a view of the\n"
           "copy. ValueError where a column would run past the copy's end or is not of numbers.");
+
+    m.def("answer_fault", &answer_fault, py::arg("normal"), py::arg("tangent"),
+          "What is wrong with an answer's impulses (float64, one a contact point), in the judge's order:\n"
+          "0 nothing, 1 a normal impulse not finite, 2 a tangent impulse not finite, 3 a normal impulse\n"
+          "below 0.");
 
     m.def("world_columns", &world_columns,
           "[(slot, name, code, dtype, row width)] of each column of the closed loop's ctx that\n"
