@@ -18,12 +18,16 @@ line: about 1.00x; when the loop's first step started from zero, the pile it sho
 
 --base N prices the same on a pyramid of boxes of base N (seed 9) instead.
 
+--block N: each world steps N times in a row a round, its first step untimed (its data back in
+the cache), the other N - 1 timed together, as a world stepped alone steps: what the step costs
+warm, where one step each a round (the default, 1) asks each world's data back every step.
+
 --glue N: what a step costs around its work, on a world of two circles resting in a box (a step
 of almost nothing): each stepper called N times in turn, Box2D's own at 1 iteration and the loop's
 at 1 sweep, exact and float64; the median wall microseconds of a call.
 
 Usage: python benchmarks/bench_step_price.py [--count 1000] [--base 0] [--settle 500] [--warm 0] [--steps 200] [--sweeps 8]
-       [--glue 0]
+       [--glue 0] [--block 1]
 """
 import sys
 import time
@@ -76,10 +80,10 @@ def glue(calls):
 
 
 def main():
-    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0)
+    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0, block=1)
     if args.glue:
         return glue(args.glue)
-    steps = args.settle + args.warm + args.steps + 2
+    steps = args.settle + args.warm + args.steps * args.block + 2
     if args.base:   # a pyramid of boxes: two-point manifolds and Box2D's block solver
         scene = generate("pyramid", 9, dict(base=args.base, steps=steps))
     else:
@@ -99,16 +103,20 @@ def main():
         for step in steppers.values():
             step()
     times = {name: [] for name in steppers}
-    for _ in range(args.steps):   # each world in turn, one step each a round
+    for _ in range(args.steps):   # each world in turn, one step (or --block) each a round
         for name, step in steppers.items():
+            if args.block > 1:
+                step()   # (untimed: the world's data back in the cache)
             t = time.thread_time()
-            step()
-            times[name].append(time.thread_time() - t)
+            for _ in range(max(args.block - 1, 1)):
+                step()
+            times[name].append((time.thread_time() - t) / max(args.block - 1, 1))
     base_name = next(iter(times))
     base = np.array(times[base_name])
     warmed = f", then {args.warm} rounds untimed" if args.warm else ""
     what = f"the pyramid of base {args.base}" if args.base else f"the {args.count:,}-circle pile"
-    print(f"{what} (seed 9), settled for {args.settle} steps{warmed}; {args.steps} rounds")
+    blocks = f", {args.block} steps a world a round (the first untimed)" if args.block > 1 else ""
+    print(f"{what} (seed 9), settled for {args.settle} steps{warmed}; {args.steps} rounds{blocks}")
     print(f"{'':36s} {'median CPU ms':>13s} {'x Box2D (median of rounds)':>27s} {'IQR':>15s}")
     for name, values in times.items():
         ratio = np.array(values) / base
