@@ -24,8 +24,12 @@ follows its own solver from the settled pile: a setting whose pile flew apart st
 --scene confined (--count circles) and --scene pyramid (--base) ask the same of the frontier
 study's other scale scenes.
 
+--block N: each world steps N times in a row a round, the first untimed and the others timed
+together (a world stepped alone, its data warm), where one step each a round (the default, 1) asks
+each world's data back into the cache every step (bench_step_price.py --block).
+
 Usage: python benchmarks/bench_equal_time.py [--scene pile] [--count 1000] [--base 40] [--settle 500] [--samples 8] [--every 10]
-       [--rounds 60] [--most 256]
+       [--rounds 60] [--most 256] [--block 1]
 """
 import sys
 import time
@@ -79,7 +83,7 @@ def residuals(samples, chosen):
     return {(f, n): float(np.median([solve(p, settings=s).residual for p in samples])) for f, n, _, s in chosen}
 
 
-def step_times(scene, bodies, chosen, warm, rounds):
+def step_times(scene, bodies, chosen, warm, rounds, block=1):
     """The median CPU ms of a step of each setting, its world set to the settled bodies; and the
     contact points of each world after its last step (each world follows its own solver, so the
     piles part a little: the points say by how much)."""
@@ -92,19 +96,23 @@ def step_times(scene, bodies, chosen, warm, rounds):
             step()
         steppers[(family, n)], worlds[(family, n)] = step, world
     times = {key: [] for key in steppers}
-    for _ in range(rounds):   # each world in turn, one step each a round
+    timed = max(block - 1, 1)
+    for _ in range(rounds):   # each world in turn, one step (or --block) each a round
         for key, step in steppers.items():
+            if block > 1:
+                step()   # (untimed: the world's data back in the cache)
             t = time.thread_time()
-            step()
-            times[key].append(time.thread_time() - t)
+            for _ in range(timed):
+                step()
+            times[key].append((time.thread_time() - t) / timed)
     points = {key: len(world.contacts()["normal_impulse"]) for key, world in worlds.items()}
     return {key: 1e3 * float(np.median(v)) for key, v in times.items()}, points
 
 
 def main():
     args = arguments(__doc__, scene="pile", count=1000, base=40, settle=500, samples=8, every=10, rounds=60, warm=5,
-                     most=256)
-    steps = args.settle + args.samples * args.every + args.warm + args.rounds + 10
+                     most=256, block=1)
+    steps = args.settle + args.samples * args.every + args.warm + args.rounds * args.block + 10
     if args.scene == "pile":
         big = args.count > 1000
         params = dict(count=args.count, box=300.0 if big else 95.0, sigma=60.0 if big else 19.0)
@@ -119,11 +127,12 @@ def main():
     chosen = settings(args.most)
     bodies, samples = settled_and_samples(scene, args.settle, args.samples, args.every)
     accuracy = residuals(samples, chosen)
-    ms, ends = step_times(scene, bodies, chosen, args.warm, args.rounds)
+    ms, ends = step_times(scene, bodies, chosen, args.warm, args.rounds, args.block)
     points = int(np.median([p.points for p in samples]))
     print(f"{name}, settled {args.settle} steps; {len(samples)} samples "
-          f"(every {args.every}th step), {args.rounds} rounds of the worlds in turn; about {points:,} contact "
-          "points a sample")
+          f"(every {args.every}th step), {args.rounds} rounds of the worlds in turn"
+          f"{f', {args.block} steps a world a round (the first untimed)' if args.block > 1 else ''}; about "
+          f"{points:,} contact points a sample")
     print("\n| setting | CPU ms / step | one-step residual (median) | contact points at the end |\n"
           "| --- | ---: | ---: | ---: |")
     for key in ms:
