@@ -112,6 +112,8 @@ def step_times(scene, bodies, chosen, warm, rounds, block=1):
 def main():
     args = arguments(__doc__, scene="pile", count=1000, base=40, settle=500, samples=8, every=10, rounds=60, warm=5,
                      most=256, block=1)
+    if args.block < 1:
+        sys.exit(f"--block: at least 1 step a world a round, not {args.block}")
     steps = args.settle + args.samples * args.every + args.warm + args.rounds * args.block + 10
     if args.scene == "pile":
         big = args.count > 1000

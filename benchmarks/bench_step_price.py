@@ -81,6 +81,8 @@ def glue(calls):
 
 def main():
     args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0, block=1)
+    if args.block < 1:
+        sys.exit(f"--block: at least 1 step a world a round, not {args.block}")
     if args.glue:
         return glue(args.glue)
     steps = args.settle + args.warm + args.steps * args.block + 2

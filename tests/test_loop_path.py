@@ -503,24 +503,34 @@ _VALUES = st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-320, -1e-320, 1e308, -1e308,
 
 
 @settings(max_examples=400, deadline=None)
-@given(pairs=st.lists(st.tuples(_VALUES, _VALUES), max_size=4))
-@example(pairs=[(1.0, np.inf)]).via("each fault alone")
-@example(pairs=[(1.0, -np.inf)]).via("each fault alone")
-@example(pairs=[(1.0, np.nan)]).via("each fault alone")
-@example(pairs=[(np.inf, 0.0)]).via("each fault alone")
-@example(pairs=[(-np.inf, 0.0)]).via("each fault alone")
-@example(pairs=[(np.nan, 0.0)]).via("each fault alone")
-@example(pairs=[(-1e-320, 0.0)]).via("each fault alone")
-@example(pairs=[(1e308, 1e308), (1e308, -1e308)]).via("a sum that would overflow")
-def test_an_answer_is_refused_exactly_where_a_value_is_not_finite_or_a_normal_pulls(pairs):
-    # checked_answer reads an answer in one native pass: it must refuse what a look at every
-    # value refuses, with the same line, and nothing else
+@given(pairs=st.lists(st.tuples(_VALUES, _VALUES), max_size=4), tangent=st.sampled_from(["as drawn", "one more", "none"]))
+@example(pairs=[(1.0, np.inf)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(1.0, -np.inf)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(1.0, np.nan)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(np.inf, 0.0)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(-np.inf, 0.0)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(np.nan, 0.0)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(-1e-320, 0.0)], tangent="as drawn").via("each fault alone")
+@example(pairs=[(np.nan, 0.0)], tangent="one more").via("a non-finite normal before a tangent of another shape")
+@example(pairs=[(-1.0, 0.0)], tangent="none").via("a pull after a missing tangent")
+@example(pairs=[(1e308, 1e308), (1e308, -1e308)], tangent="as drawn").via("a sum that would overflow")
+def test_an_answer_is_refused_exactly_where_a_value_is_not_finite_or_a_normal_pulls(pairs, tangent):
+    # checked_answer reads an answer in one native pass: it must refuse what a look at each array
+    # in turn refuses (its shape, then its values; then a pull), with the same line, and nothing else
     from deepcontact.contest.wire import checked_answer
     n = len(pairs)
     arrays = {k: np.array([p[i] for p in pairs], np.float64) for i, k in enumerate(("normal", "tangent"))}
+    if tangent == "one more":
+        arrays["tangent"] = np.append(arrays["tangent"], 0.0)
+    elif tangent == "none":
+        del arrays["tangent"]
     expected = None
     for what in ("normal", "tangent"):
-        if not all(np.isfinite(arrays[what])):
+        a = arrays.get(what)
+        if a is None or a.shape != (n,):
+            expected = f"answered {what} impulses of shape"
+            break
+        if not all(np.isfinite(a)):
             expected = f"answered a non-finite {what} impulse"
             break
     if expected is None and any(v < 0 for v in arrays["normal"]):
@@ -531,45 +541,6 @@ def test_an_answer_is_refused_exactly_where_a_value_is_not_finite_or_a_normal_pu
     else:
         with pytest.raises(PluginError, match=expected):
             checked_answer("v", arrays, n)
-
-PROBE = textwrap.dedent('''
-    import ctypes, gc, mmap
-    import numpy as np
-    from deepcontact.warmstart.starts import StartValue
-
-    def _maps():
-        from deepcontact.contest.arena import Mapped
-        return [m for o in gc.get_objects() if isinstance(o, Mapped)
-                for state in o.channels.values() for m in state["maps"].values()]
-
-    def _probe():
-        """What this process can do to the arenas it was handed: 1.0 where a write got through."""
-        out = {"arenas": 0.0, "oracle_arenas": 0.0, "item_write": 0.0, "mprotect_write": 0.0}
-        text = open("/proc/self/maps").read()
-        out["arenas"] = float(text.count("dc-arena"))
-        out["oracle_arenas"] = float(text.count("dc-oracle-arena"))
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-        for m in _maps():
-            try:
-                m[0] = 1
-                out["item_write"] = 1.0
-            except TypeError:
-                pass
-            address = np.frombuffer(m, np.uint8).ctypes.data
-            if libc.mprotect(address, len(m), mmap.PROT_READ | mmap.PROT_WRITE) == 0:
-                out["mprotect_write"] = 1.0
-        return out
-
-    class Probe:
-        """Box2D's warm start, after trying to write the arenas its ctx came in."""
-        def __call__(self, ctx):
-            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), _probe())
-
-    class OracleProbe(Probe):
-        """The same, as an oracle (it asks for the step's reference)."""
-        needs_reference = True
-''')
 
 
 @pytest.fixture

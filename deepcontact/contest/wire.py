@@ -86,19 +86,27 @@ def checked_answer(label, arrays, points, also=()):
         if name not in held:
             raise PluginError(f"the variant {label!r} answered an array {name[:60]!r}, which no answer holds "
                               f"(this one holds {', '.join(held)})")
-    out = []
-    for what in ("normal", "tangent"):
-        a = arrays.get(what)
-        if a is None or a.shape != (points,):
-            raise PluginError(f"the variant {label!r} answered {what} impulses of shape "
-                              f"{None if a is None else a.shape}; the step has {points} contact points, so ({points},)")
-        out.append(a)
+    normal, tangent = (_shaped(label, arrays, what, points) for what in ("normal", "tangent"))
     # (one native pass over both: the loop reads two answers a step)
-    fault = answer_fault(*out)
+    fault = answer_fault(normal, tangent)
     if fault in (1, 2):
         raise PluginError(f"the variant {label!r} answered a non-finite {('normal', 'tangent')[fault - 1]} impulse")
     if fault == 3:
         raise PluginError(f"the variant {label!r} answered a negative normal impulse (a contact only pushes)")
+    return [normal, tangent]
+
+
+def _shaped(label, arrays, what, points):
+    """An answer's `what` impulses held to one a contact point, PluginError naming `label` otherwise;
+    where the tangent's are not, a non-finite normal is named first (as a look at each array in
+    turn names it)."""
+    a = arrays.get(what)
+    if a is None or a.shape != (points,):
+        if what == "tangent" and not np.all(np.isfinite(arrays["normal"])):
+            raise PluginError(f"the variant {label!r} answered a non-finite normal impulse")
+        raise PluginError(f"the variant {label!r} answered {what} impulses of shape "
+                          f"{None if a is None else a.shape}; the step has {points} contact points, so ({points},)")
+    return a
     return out
 
 

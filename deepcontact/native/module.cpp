@@ -351,8 +351,9 @@ py::ssize_t arena_put(const py::buffer& arena, size_t head, const py::list& arra
 // What is wrong with a contestant's answer (normal and tangent impulses, one a contact point), in
 // the judge's order: 0 nothing, 1 a normal impulse not finite, 2 a tangent impulse not finite,
 // 3 a normal impulse that pulls (below 0). One pass; contest/wire.py checked_answer names it.
-int answer_fault(const py::array_t<double, py::array::c_style | py::array::forcecast>& normal,
-                 const py::array_t<double, py::array::c_style | py::array::forcecast>& tangent) {
+// (float64 arrays, or ones numpy casts to float64 safely, keeping every value: no forcecast)
+int answer_fault(const py::array_t<double, py::array::c_style>& normal,
+                 const py::array_t<double, py::array::c_style>& tangent) {
     if (normal.ndim() != 1 || tangent.ndim() != 1 || normal.shape(0) != tangent.shape(0))
         throw py::value_error("answer_fault: one normal and one tangent impulse a contact point");
     const double* n = normal.data();
