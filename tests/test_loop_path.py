@@ -542,6 +542,45 @@ def test_an_answer_is_refused_exactly_where_a_value_is_not_finite_or_a_normal_pu
         with pytest.raises(PluginError, match=expected):
             checked_answer("v", arrays, n)
 
+PROBE = textwrap.dedent('''
+    import ctypes, gc, mmap
+    import numpy as np
+    from deepcontact.warmstart.starts import StartValue
+
+    def _maps():
+        from deepcontact.contest.arena import Mapped
+        return [m for o in gc.get_objects() if isinstance(o, Mapped)
+                for state in o.channels.values() for m in state["maps"].values()]
+
+    def _probe():
+        """What this process can do to the arenas it was handed: 1.0 where a write got through."""
+        out = {"arenas": 0.0, "oracle_arenas": 0.0, "item_write": 0.0, "mprotect_write": 0.0}
+        text = open("/proc/self/maps").read()
+        out["arenas"] = float(text.count("dc-arena"))
+        out["oracle_arenas"] = float(text.count("dc-oracle-arena"))
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+        for m in _maps():
+            try:
+                m[0] = 1
+                out["item_write"] = 1.0
+            except TypeError:
+                pass
+            address = np.frombuffer(m, np.uint8).ctypes.data
+            if libc.mprotect(address, len(m), mmap.PROT_READ | mmap.PROT_WRITE) == 0:
+                out["mprotect_write"] = 1.0
+        return out
+
+    class Probe:
+        """Box2D's warm start, after trying to write the arenas its ctx came in."""
+        def __call__(self, ctx):
+            return StartValue(ctx.problem.start_normal.copy(), ctx.problem.start_tangent.copy(), _probe())
+
+    class OracleProbe(Probe):
+        """The same, as an oracle (it asks for the step's reference)."""
+        needs_reference = True
+''')
+
 
 @pytest.fixture
 def probes(tmp_path, monkeypatch):
