@@ -181,7 +181,12 @@ def test_in_the_closed_loop_a_start_identical_to_builtin_measures_about_builtin(
     # (what a step leaves uncharged is the round trips in it; one step's can be a little below 0,
     # where the call's CPU since the one before, the tail of the last answer's work, exceeds its
     # wall time: contest/charge.py's rule; it measured -0.02 ms in one step of 160 on a loaded machine)
-    assert rows["builtin"]["path_ms"] > 0 and np.median(rows["same_start:Same"]["transport_ms"]) >= 0
+    # (the path's cost, measured and stated: since a step's ctx is written natively, a fraction of a
+    # step, and on a small scene within the noise of zero; a difference of two runs' medians)
+    path = rows["builtin"]["path_ms"]
+    assert path != 0.0 and abs(path) < builtin and np.median(rows["same_start:Same"]["transport_ms"]) >= 0
+    report = (tmp_path / "r" / "report.md").read_text()
+    assert f"{path:.3f} ms a step (builtin both ways, median" in report
     verdict = next(line for line in (tmp_path / "r" / "report.md").read_text().splitlines()
                    if line.startswith("**Verdict**"))
     assert "same_start:Same**" not in verdict   # (never named the winner over what it copies)
