@@ -32,7 +32,6 @@ Usage: python benchmarks/bench_equal_time.py [--scene pile] [--count 1000] [--ba
        [--rounds 60] [--most 256] [--block 1]
 """
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +42,7 @@ from deepcontact.solver.methods import solve
 from deepcontact.solver.settings import SolveSettings
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import arguments, settled_and_samples  # noqa: E402
+from common import arguments, block_seconds, checked_block, settled_and_samples  # noqa: E402
 
 AA = "A/A: Box2D 2.4.1 again"
 SAME_PILE = 0.03   # contact points within 3% of the Box2D world's: the same pile, for its time
@@ -96,15 +95,9 @@ def step_times(scene, bodies, chosen, warm, rounds, block=1):
             step()
         steppers[(family, n)], worlds[(family, n)] = step, world
     times = {key: [] for key in steppers}
-    timed = max(block - 1, 1)
     for _ in range(rounds):   # each world in turn, one step (or --block) each a round
         for key, step in steppers.items():
-            if block > 1:
-                step()   # (untimed: the world's data back in the cache)
-            t = time.thread_time()
-            for _ in range(timed):
-                step()
-            times[key].append((time.thread_time() - t) / timed)
+            times[key].append(block_seconds(step, block))
     points = {key: len(world.contacts()["normal_impulse"]) for key, world in worlds.items()}
     return {key: 1e3 * float(np.median(v)) for key, v in times.items()}, points
 
@@ -112,8 +105,7 @@ def step_times(scene, bodies, chosen, warm, rounds, block=1):
 def main():
     args = arguments(__doc__, scene="pile", count=1000, base=40, settle=500, samples=8, every=10, rounds=60, warm=5,
                      most=256, block=1)
-    if args.block < 1:
-        sys.exit(f"--block: at least 1 step a world a round, not {args.block}")
+    checked_block(args.block)
     steps = args.settle + args.samples * args.every + args.warm + args.rounds * args.block + 10
     if args.scene == "pile":
         big = args.count > 1000

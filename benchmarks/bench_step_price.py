@@ -41,7 +41,7 @@ from deepcontact.simulate.engines import Box2D
 from deepcontact.solver.settings import SolveSettings
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import arguments  # noqa: E402
+from common import arguments, block_seconds, checked_block  # noqa: E402
 
 
 def settled(scene, settle):
@@ -81,8 +81,7 @@ def glue(calls):
 
 def main():
     args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0, block=1)
-    if args.block < 1:
-        sys.exit(f"--block: at least 1 step a world a round, not {args.block}")
+    checked_block(args.block)
     if args.glue:
         return glue(args.glue)
     steps = args.settle + args.warm + args.steps * args.block + 2
@@ -107,12 +106,7 @@ def main():
     times = {name: [] for name in steppers}
     for _ in range(args.steps):   # each world in turn, one step (or --block) each a round
         for name, step in steppers.items():
-            if args.block > 1:
-                step()   # (untimed: the world's data back in the cache)
-            t = time.thread_time()
-            for _ in range(max(args.block - 1, 1)):
-                step()
-            times[name].append((time.thread_time() - t) / max(args.block - 1, 1))
+            times[name].append(block_seconds(step, args.block))
     base_name = next(iter(times))
     base = np.array(times[base_name])
     warmed = f", then {args.warm} rounds untimed" if args.warm else ""

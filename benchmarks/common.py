@@ -50,6 +50,26 @@ def timed(args):
     return wall, int(proc.stderr.strip().splitlines()[-1]) / 1024
 
 
+
+def block_seconds(step, block):
+    """The thread's CPU seconds a call of `step` takes, called `block` times in a row: the first
+    untimed where block > 1 (the world's data back in the cache, as a world stepped alone has it),
+    the others timed together (--block in bench_step_price.py and bench_equal_time.py)."""
+    if block > 1:
+        step()
+    timed = max(block - 1, 1)
+    t = time.thread_time()
+    for _ in range(timed):
+        step()
+    return (time.thread_time() - t) / timed
+
+
+def checked_block(block):
+    """--block as the benchmarks take it: at least one step a world a round."""
+    if block < 1:
+        sys.exit(f"--block: at least 1 step a world a round, not {block}")
+    return block
+
 def settled_and_samples(scene, settle, samples, every):
     """The bodies of the scene after `settle` steps of Box2D's own 8 iterations, and the contact
     problems of `samples` steps from there (every `every`-th) of the same run (bench_equal_time.py,

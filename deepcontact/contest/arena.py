@@ -79,19 +79,20 @@ class Arena:
         it can write, grow or seal the arena."""
         return os.open(f"/proc/self/fd/{self.fd}", os.O_RDONLY | os.O_CLOEXEC)
 
-    def put(self, seq, index, arrays, version, forms):
-        """Writes a step: its arrays (natively, in one call: arena_put, each at a multiple of
-        ALIGN), then its header (index: the ctx's and its problem's), the sequence number last.
-        forms: _forms_of the schema's arrays; False, and the header left as it was, where an
-        array is not of its form."""
-        used = arena_put(self.map, HEAD.size, arrays, forms)
-        if used < 0:
-            self._make(-2 * used)
-            used = arena_put(self.map, HEAD.size, arrays, forms)
-        if used == 0:
-            return False
-        HEAD.pack_into(self.map, 0, seq, *index, len(arrays), version, used)
-        return True
+    def put(self, seq, index, count, version, write):
+        """Writes a step: its `count` columns by write(buffer, head) (natively, in one call:
+        arena_put or arena_put_world, each at a multiple of ALIGN after a header of `head` bytes),
+        which returns (bytes used, ...): minus the bytes needed where the arena is too small (made
+        larger, and written again), 0 where nothing is a step; then its header (index: the ctx's
+        and its problem's), the sequence number last, where the bytes used are more than 0. What
+        write returned."""
+        done = write(self.map, HEAD.size)
+        if done[0] < 0:
+            self._make(-2 * done[0])
+            done = write(self.map, HEAD.size)
+        if done[0] > 0:
+            HEAD.pack_into(self.map, 0, seq, *index, count, version, done[0])
+        return done
 
     def close(self):
         """Unmaps it and closes its descriptor (a reader's mapping stays valid)."""
@@ -265,22 +266,25 @@ class StepChannel:
         index: (ctx.index, ctx.problem.index) of the step."""
         if self.world_codes is None:
             return None
-        arena, previous = self.arenas["plain"], _previous_arrays(previous)
-        done = arena_put_world(world, arena.map, HEAD.size, self.world_codes, carried, known, *previous)
-        if done[0] < 0:
-            arena._make(-2 * done[0])
-            done = arena_put_world(world, arena.map, HEAD.size, self.world_codes, carried, known, *previous)
-        used, keys, finite = done
-        if used <= 0 or not finite:
+        previous = _previous_arrays(previous)
+
+        def write(buffer, head):   # (bodies not finite: no step, and the ctx says so)
+            used, keys, finite = arena_put_world(world, buffer, head, self.world_codes, carried, known, *previous)
+            return (used if finite or used < 0 else 0), keys
+        used, keys = self.arenas["plain"].put(self.seq + 1, index, len(self.world_codes), self.version, write)
+        if used <= 0:
             return None
         self.seq += 1
-        HEAD.pack_into(arena.map, 0, self.seq, *index, len(self.world_codes), self.version, used)
         return REQUEST.pack(STEP, self.ident, self.seq), keys
 
     def _put(self, ctx, arrays):
         index = (int(ctx.index), int(ctx.problem.index))
-        return all([arena.put(self.seq, index, arrays[kind], self.version, self.forms[kind])
-                    for kind, arena in self.arenas.items()])
+        written = []
+        for kind, arena in self.arenas.items():
+            def write(buffer, head, columns=arrays[kind], forms=self.forms[kind]):
+                return (arena_put(buffer, head, columns, forms),)
+            written.append(arena.put(self.seq, index, len(arrays[kind]), self.version, write)[0] > 0)
+        return all(written)
 
     def _as_before(self, names, arrays, scalars):
         """The arrays to write, by arena, where the step's tables are laid out as the last

@@ -10,6 +10,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 
 #include "interrupt.hpp"
 #include "step_names.hpp"
@@ -380,6 +381,10 @@ enum WorldColumn : int64_t {
     kRowA, kRowB, kStartNormal, kStartTangent, kKeys, kPersisted, kPreviousKeys, kPreviousNormal, kPreviousTangent
 };
 
+// The contacts' fields Box2D's answer lives in (the impulses each point carries): an oracle's alone
+// to see, so no code gives them.
+constexpr bool answer_field(std::string_view name) { return name == "normal_impulse" || name == "tangent_impulse"; }
+
 // [(slot, name, code, dtype, row width)] of every column arena_put_world writes.
 py::list world_columns() {
     py::list out;
@@ -387,10 +392,8 @@ py::list world_columns() {
     auto add = [&out](const char* slot, const char* name, int64_t code, py::dtype dtype, int width) {
         out.append(py::make_tuple(slot, name, code, dtype, width));
     };
-// (the impulses a contact carries, Box2D's answer, are only an oracle's to see: given by no code)
-#define DC_WORLD_COLUMN(T, name, width, solver)                                                 \
-    if (std::strcmp(#name, "normal_impulse") != 0 && std::strcmp(#name, "tangent_impulse") != 0) \
-        add(table, #name, base + k, py::dtype::of<T>(), width);                                 \
+#define DC_WORLD_COLUMN(T, name, width, solver)                                 \
+    if (!answer_field(#name)) add(table, #name, base + k, py::dtype::of<T>(), width); \
     ++k;
     {
         const char* table = "bodies";
@@ -516,41 +519,40 @@ py::tuple arena_put_world(dc::World& w, const py::buffer& arena, size_t head,
     std::vector<uint8_t> fixed_rotation(bodies);
     for (size_t i = 0; i < bodies; ++i) fixed_rotation[i] = b.fixed_rotation[i] != 0;
 
+    // every column the world gives, by its code (world_columns)
+    const auto rows = static_cast<uint32_t>(points), before = static_cast<uint32_t>(previous);
+    std::vector<std::optional<ArenaColumn>> given(kPreviousTangent + 1);
+    int64_t k = 0;
+#define DC_BODY_GIVEN(T, name, width, solver) \
+    given[kBodyColumn + k++] = ArenaColumn{b.name.data(), static_cast<uint32_t>(bodies), b.name.size() * sizeof(T)};
+#define DC_CONTACT_GIVEN(T, name, width, solver) \
+    if (!answer_field(#name)) given[kContactColumn + k] = ArenaColumn{c.name.data(), rows, c.name.size() * sizeof(T)}; \
+    ++k;
+    DC_BODY_FIELDS(DC_BODY_GIVEN)
+    k = 0;
+    DC_CONTACT_FIELDS(DC_CONTACT_GIVEN)
+#undef DC_BODY_GIVEN
+#undef DC_CONTACT_GIVEN
+    given[kFixedRotation] = ArenaColumn{fixed_rotation.data(), static_cast<uint32_t>(bodies), bodies};
+    given[kRowA] = ArenaColumn{row_a.data(), rows, 4 * points};
+    given[kRowB] = ArenaColumn{row_b.data(), rows, 4 * points};
+    given[kStartNormal] = ArenaColumn{start_normal.data(), rows, 4 * points};
+    given[kStartTangent] = ArenaColumn{start_tangent.data(), rows, 4 * points};
+    given[kKeys] = ArenaColumn{keys.data(), rows, 40 * points};
+    given[kPersisted] = ArenaColumn{persisted.get(), rows, points};
+    given[kPreviousKeys] = ArenaColumn{previous_keys.data(), before, 40 * previous};
+    given[kPreviousNormal] = ArenaColumn{previous_normal.data(), before, 8 * previous};
+    given[kPreviousTangent] = ArenaColumn{previous_tangent.data(), before, 8 * previous};
+
     std::vector<ArenaColumn> spans;
     spans.reserve(n);
     size_t used = arena_aligned(head + 4 * n);
-    const int64_t* code = columns.data();
-    const auto rows = static_cast<uint32_t>(points), before = static_cast<uint32_t>(previous);
     for (size_t i = 0; i < n; ++i) {
-        std::optional<ArenaColumn> col;
-        int64_t k = 0;
-#define DC_BODY_SPAN(T, name, width, solver) \
-    if (code[i] == kBodyColumn + k++) col = ArenaColumn{b.name.data(), static_cast<uint32_t>(bodies), b.name.size() * sizeof(T)};
-#define DC_CONTACT_SPAN(T, name, width, solver)                                          \
-    if (code[i] == kContactColumn + k++ && std::strcmp(#name, "normal_impulse") != 0 && \
-        std::strcmp(#name, "tangent_impulse") != 0)                                      \
-        col = ArenaColumn{c.name.data(), rows, c.name.size() * sizeof(T)};
-        DC_BODY_FIELDS(DC_BODY_SPAN)
-        k = 0;
-        DC_CONTACT_FIELDS(DC_CONTACT_SPAN)
-#undef DC_BODY_SPAN
-#undef DC_CONTACT_SPAN
-        switch (code[i]) {
-            case kFixedRotation: col = ArenaColumn{fixed_rotation.data(), static_cast<uint32_t>(bodies), bodies}; break;
-            case kRowA: col = ArenaColumn{row_a.data(), rows, 4 * points}; break;
-            case kRowB: col = ArenaColumn{row_b.data(), rows, 4 * points}; break;
-            case kStartNormal: col = ArenaColumn{start_normal.data(), rows, 4 * points}; break;
-            case kStartTangent: col = ArenaColumn{start_tangent.data(), rows, 4 * points}; break;
-            case kKeys: col = ArenaColumn{keys.data(), rows, 40 * points}; break;
-            case kPersisted: col = ArenaColumn{persisted.get(), rows, points}; break;
-            case kPreviousKeys: col = ArenaColumn{previous_keys.data(), before, 40 * previous}; break;
-            case kPreviousNormal: col = ArenaColumn{previous_normal.data(), before, 8 * previous}; break;
-            case kPreviousTangent: col = ArenaColumn{previous_tangent.data(), before, 8 * previous}; break;
-            default: break;
-        }
-        if (!col) throw py::value_error("arena_put_world: no column has the code " + std::to_string(code[i]));
-        spans.push_back(*col);
-        used += arena_aligned(col->bytes);
+        const int64_t code = columns.data()[i];
+        if (code < 0 || static_cast<size_t>(code) >= given.size() || !given[static_cast<size_t>(code)])
+            throw py::value_error("arena_put_world: no column has the code " + std::to_string(code));
+        spans.push_back(*given[static_cast<size_t>(code)]);
+        used += arena_aligned(spans.back().bytes);
     }
     if (used <= size) write_columns(static_cast<unsigned char*>(out.ptr), head, spans);
     const auto put = used <= size ? static_cast<py::ssize_t>(used) : -static_cast<py::ssize_t>(used);
