@@ -50,7 +50,6 @@ def timed(args):
     return wall, int(proc.stderr.strip().splitlines()[-1]) / 1024
 
 
-
 def block_seconds(step, block):
     """The thread's CPU seconds a call of `step` takes, called `block` times in a row: the first
     untimed where block > 1 (the world's data back in the cache, as a world stepped alone has it),
@@ -69,6 +68,7 @@ def checked_block(block):
     if block < 1:
         sys.exit(f"--block: at least 1 step a world a round, not {block}")
     return block
+
 
 def settled_and_samples(scene, settle, samples, every):
     """The bodies of the scene after `settle` steps of Box2D's own 8 iterations, and the contact

@@ -380,6 +380,11 @@ enum WorldColumn : int64_t {
     kFixedRotation = 200,
     kRowA, kRowB, kStartNormal, kStartTangent, kKeys, kPersisted, kPreviousKeys, kPreviousNormal, kPreviousTangent
 };
+#define DC_ONE_FIELD(T, name, width, solver) +1
+static_assert(0 DC_BODY_FIELDS(DC_ONE_FIELD) <= kContactColumn - kBodyColumn &&
+                  0 DC_CONTACT_FIELDS(DC_ONE_FIELD) <= kFixedRotation - kContactColumn,
+              "each table's fields have codes of their own");
+#undef DC_ONE_FIELD
 
 // The contacts' fields Box2D's answer lives in (the impulses each point carries): an oracle's alone
 // to see, so no code gives them.
