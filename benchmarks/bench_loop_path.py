@@ -49,8 +49,18 @@ the native halves in the path (pgs_pose + pgs_finish) against the native loop's 
 (pgs_step) over the same steps: what the path costs the native work itself. The pieces cost more
 here than --pieces measures them alone (their data cold after the native step and the calls).
 
+--calls N: builtin alone through the path, N runs, each call taken apart: its wall time and its
+sandbox's CPU, builtin's and the null contestant's, and the two terms of its charge (the median of
+each; the null's least over the run, the floors).
+
+--pinned 1: the whole benchmark held to one CPU (the highest this process may use), its contestants'
+sandboxes with it (they inherit it), as `taskset -c N` holds a command: each call to a contestant a
+switch on one core, where unpinned the host's scheduler wakes it on the same core or the other, run
+by run, and the call's time and CPU with it (docs/results/loop-path.md, "Held to one CPU"). The
+protocol line says so.
+
 Usage: python benchmarks/bench_loop_path.py [--steps 300] [--runs 3] [--seed 1000] [--count 100] [--profile 0]
-       [--doorbell 0] [--pieces 0] [--halves 0] [--instructions 0] [--in-path 0]
+       [--doorbell 0] [--pieces 0] [--halves 0] [--instructions 0] [--in-path 0] [--calls 0] [--pinned 0]
 """
 import cProfile
 import os
@@ -98,6 +108,39 @@ def judge_cpu(scene, settings, steps):
     cpu = time.process_time()
     done = _interleaved(scene, [(v, settings, False)], steps)
     return (time.process_time() - cpu) / len(done[0][0].seconds) * 1e3
+
+
+def calls(scene, settings, steps, runs):
+    """--calls: builtin alone through the path, `runs` times; for each run the medians over the
+    settled steps (from a third of the run on) of each call's wall time and its sandbox's CPU,
+    builtin's and the null contestant's (the same request), the null's least of each over the run
+    (the floors a call's charge is taken from: contest/charge.py), and the median charge's two
+    terms, wall less the null's least wall and CPU less its least CPU (microseconds)."""
+    from deepcontact.contest import charge
+    seen, record = [], charge.StepCharges.record
+
+    def recorded(self, kind, contestant, null):
+        seen.append((*contestant.last, *null.last))
+        return record(self, kind, contestant, null)
+    print(f"\neach call, builtin alone through the path, {runs} run(s) of {steps} steps (us; medians from a third "
+          "of each run on)")
+    print("| run | builtin wall | null wall | null's least wall | builtin CPU | null CPU | null's least CPU | "
+          "charge's wall term | charge's CPU term |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    charge.StepCharges.record = recorded
+    try:
+        for k in range(runs):
+            seen.clear()
+            _interleaved(scene, [(variants(make_starts(["builtin"]))[0], settings, False)], steps)
+            a = np.array(seen) * 1e6
+            wall, cpu, null_wall, null_cpu = (a[len(a) // 3:, i] for i in range(4))
+            least_wall, least_cpu = a[:, 2].min(), a[:, 3].min()
+            print(f"| {k + 1} | {np.median(wall):.0f} | {np.median(null_wall):.0f} | {least_wall:.0f} | "
+                  f"{np.median(cpu):.0f} | {np.median(null_cpu):.0f} | {least_cpu:.0f} | "
+                  f"{np.median(np.maximum(wall - least_wall, 0)):.0f} | {np.median(np.maximum(cpu - least_cpu, 0)):.0f} |",
+                  flush=True)
+    finally:
+        charge.StepCharges.record = record
 
 
 def native_run(scene, settings, steps):
@@ -401,7 +444,7 @@ def main():
         way, seed, count, steps = sys.argv[2], *map(int, sys.argv[3:6])
         return judge_only(way, seed, count, steps)
     args = arguments(__doc__, steps=300, runs=3, seed=1000, count=100, profile=0, doorbell=0, pieces=0, halves=0,
-                     instructions=0, in_path=0)
+                     instructions=0, in_path=0, calls=0, pinned=0)
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     if args.doorbell:
         for name, t in doorbells(args.doorbell).items():
@@ -420,6 +463,8 @@ def main():
         halves(scene, settings, args.halves)
     if args.in_path:
         in_path_table(in_path(scene, settings, steps, args.in_path), steps, args.in_path)
+    if args.calls:
+        calls(scene, settings, steps, args.calls)
     if args.instructions:
         n = min(args.instructions, scene.steps // 2)
         counts = instructions(args.seed, args.count, n)

@@ -17,8 +17,18 @@ def arguments(doc, **defaults):
     for name, default in defaults.items():
         ap.add_argument("--" + name.replace("_", "-"), type=_typed(default), default=default)
     args = ap.parse_args()
-    print(protocol_line(current()) + "\n")   # how these times were taken
+    if getattr(args, "pinned", 0):
+        pin_to_one_cpu()
+    print(protocol_line(current()) + "\n")   # how these times were taken (the CPUs held to, where pinned)
     return args
+
+
+def pin_to_one_cpu():
+    """Holds this process, and every process it starts (a contestant's sandbox among them), to the
+    highest-numbered CPU it may run on: a call to a contestant is then a switch on one core, not a
+    wake-up of another (whose cost the host's scheduler decides, run by run)."""
+    import os
+    os.sched_setaffinity(0, {max(os.sched_getaffinity(0))})
 
 
 def _typed(default):

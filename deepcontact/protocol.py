@@ -45,6 +45,24 @@ def keep_threads(wanted=None):
         torch.set_num_threads(wanted)
 
 
+def cpus_allowed():
+    """The CPUs this process may run on (its affinity, which its contestants' sandboxes inherit:
+    `taskset -c 1 dc ...` runs the judge and every contestant on CPU 1), sorted; None where the
+    system does not say."""
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+
+
+def _placement(p):
+    """The CPUs the measurement was held to, where fewer than the machine's ("; run on CPU 1 only")."""
+    cpus = p.get("cpus")
+    if not cpus or p.get("cores") is None or len(cpus) >= p["cores"]:
+        return ""
+    return f"; run on CPU{'s' if len(cpus) != 1 else ''} {', '.join(map(str, cpus))} only"
+
+
 def cpu_model():
     """The CPU's model name (Linux: /proc/cpuinfo), else what platform says."""
     try:
@@ -78,7 +96,7 @@ def protocol(threads=DEFAULT_THREADS, jobs=1):
                      "box2d3": getattr(_box2d, "box2d3_version", None),
                      # the peer engines' wheels (None where not installed)
                      "pymunk": _version("pymunk"), "mujoco": _version("mujoco")},
-        "cpu": cpu_model(), "cores": os.cpu_count(), "load_average": load,
+        "cpu": cpu_model(), "cores": os.cpu_count(), "cpus": cpus_allowed(), "load_average": load,
         "command": command_line, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
 
@@ -100,7 +118,7 @@ def protocol_line(p):
     load = "unknown" if p["load_average"] is None else ", ".join(f"{x:g}" for x in p["load_average"])
     command = f" Command: {md_text(p['command'])}." if p.get("command") else ""
     return (f"Measured with {p['threads']} torch thread{'s' if p['threads'] != 1 else ''} per process and "
-            f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {md_text(p['cpu'])} ({p['cores']} cores; "
+            f"{p['jobs']} worker process{'es' if p['jobs'] != 1 else ''} (-j), on {md_text(p['cpu'])} ({p['cores']} cores{_placement(p)}; "
             f"load average {load} at the start); deepcontact {v['deepcontact']}, Box2D {v['box2d']}"
             f"{' and ' + v['box2d3'] if v.get('box2d3') else ''}"
             f"{', pymunk ' + v['pymunk'] if v.get('pymunk') else ''}{', MuJoCo ' + v['mujoco'] if v.get('mujoco') else ''}, numpy "

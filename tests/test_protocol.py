@@ -28,6 +28,31 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
     torch.set_num_threads(1)
 
 
+def test_a_measurement_held_to_fewer_cpus_says_which(run, tmp_path):
+    # (taskset -c N, or the process's own affinity: its contestants' sandboxes inherit it, and the
+    # cross-core wake-ups it removes move a call's time; the report says where its times were taken)
+    import os
+    every = os.sched_getaffinity(0)
+    if os.cpu_count() < 2 or len(every) < 2:
+        pytest.skip("needs two CPUs to hold the command to one")
+    one = max(every)
+    os.sched_setaffinity(0, {one})
+    try:
+        r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "30", "--no-budgets", "-q",
+                   "-o", tmp_path / "r")
+    finally:
+        os.sched_setaffinity(0, every)
+    assert r.exit_code == 0, r.stderr
+    p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
+    assert p["cpus"] == [one]
+    assert f"({p['cores']} cores; run on CPU {one} only; load average" in (tmp_path / "r" / "report.md").read_text()
+    # and where it may run anywhere, nothing is said of it
+    from deepcontact.protocol import current, protocol_line
+    assert current()["cpus"] == sorted(every)
+    if len(every) == os.cpu_count():
+        assert " only;" not in protocol_line(current())
+
+
 THREADS_SEEN = """
 import os
 import numpy as np
