@@ -93,6 +93,8 @@ bench: setup
 	$(PYTHON) benchmarks/bench_contest.py
 	$(PYTHON) benchmarks/bench_jobs.py
 	$(PYTHON) benchmarks/bench_loop_path.py --pieces 1000 --doorbell 5000 --halves 300 --instructions 100 --in-path 2
+	$(PYTHON) benchmarks/bench_loop_path.py --runs 2 --calls 2 --pinned 1
+	$(PYTHON) benchmarks/bench_charge_lag.py
 	$(PYTHON) benchmarks/bench_loop_parts.py
 	$(PYTHON) benchmarks/bench_step_price.py
 	$(PYTHON) benchmarks/bench_step_price.py --count 10000 --steps 60
