@@ -53,7 +53,7 @@ here than --pieces measures them alone (their data cold after the native step an
 sandbox's CPU, builtin's and the null contestant's, and the two terms of its charge (the median of
 each; the null's least over the run, the floors).
 
---pinned 1: the whole benchmark held to one CPU (the highest this process may use), its contestants'
+--pinned 1 (or any number but 0): the whole benchmark held to one CPU (the highest this process may use), its contestants'
 sandboxes with it (they inherit it), as `taskset -c N` holds a command: each call to a contestant a
 switch on one core, where unpinned the host's scheduler wakes it on the same core or the other, run
 by run, and the call's time and CPU with it (docs/results/loop-path.md, "Held to one CPU"). The
@@ -132,6 +132,9 @@ def calls(scene, settings, steps, runs):
         for k in range(runs):
             seen.clear()
             _interleaved(scene, [(variants(make_starts(["builtin"]))[0], settings, False)], steps)
+            if not seen:
+                print(f"| {k + 1} | (no calls: no step had a contact) |")
+                continue
             a = np.array(seen) * 1e6
             wall, cpu, null_wall, null_cpu = (a[len(a) // 3:, i] for i in range(4))
             least_wall, least_cpu = a[:, 2].min(), a[:, 3].min()

@@ -28,7 +28,12 @@ def pin_to_one_cpu():
     highest-numbered CPU it may run on: a call to a contestant is then a switch on one core, not a
     wake-up of another (whose cost the host's scheduler decides, run by run)."""
     import os
-    os.sched_setaffinity(0, {max(os.sched_getaffinity(0))})
+    one = {max(os.sched_getaffinity(0))}
+    for tid in os.listdir("/proc/self/task"):   # (every thread: numpy's pool's, started at its import, too)
+        try:
+            os.sched_setaffinity(int(tid), one)
+        except OSError:
+            pass
 
 
 def _typed(default):

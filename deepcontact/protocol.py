@@ -46,13 +46,33 @@ def keep_threads(wanted=None):
 
 
 def cpus_allowed():
-    """The CPUs this process may run on (its affinity, which its contestants' sandboxes inherit:
-    `taskset -c 1 dc ...` runs the judge and every contestant on CPU 1), sorted; None where the
-    system does not say."""
+    """The CPUs this process's threads may run on (their affinities, together), sorted; None where
+    the system does not say. Its contestants are held to the CPUs of the thread that starts them
+    (`taskset -c 1 dc ...` runs the judge and every contestant on CPU 1)."""
     try:
-        return sorted(os.sched_getaffinity(0))
+        cpus = set()
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                cpus |= os.sched_getaffinity(int(tid))
+            except OSError:   # (a thread that ended meanwhile)
+                pass
+        return sorted(cpus or os.sched_getaffinity(0))
     except (AttributeError, OSError):
-        return None
+        try:
+            return sorted(os.sched_getaffinity(0))
+        except (AttributeError, OSError):
+            return None
+
+
+def _ranges(cpus):
+    """CPUs as runs: [0, 1, 2, 5] -> "0-2, 5"."""
+    runs = []
+    for c in cpus:
+        if runs and c == runs[-1][1] + 1:
+            runs[-1][1] = c
+        else:
+            runs.append([c, c])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
 def _placement(p):
@@ -60,7 +80,7 @@ def _placement(p):
     cpus = p.get("cpus")
     if not cpus or p.get("cores") is None or len(cpus) >= p["cores"]:
         return ""
-    return f"; run on CPU{'s' if len(cpus) != 1 else ''} {', '.join(map(str, cpus))} only"
+    return f"; run on CPU{'s' if len(cpus) != 1 else ''} {_ranges(cpus)} only"
 
 
 def cpu_model():

@@ -118,3 +118,22 @@ def test_a_null_slowed_by_a_contestant_does_not_enlarge_what_is_subtracted():
     # CPU its sandbox used since its previous call (work left running) is charged beyond the wall time
     assert call_charge(1.0e-3, 9.0e-3, charges.nulls["start"]) == pytest.approx(8.9e-3)
     assert call_charge(0.2e-3, 0.0, charges.nulls["start"]) == 0.0   # (never below zero)
+
+
+def test_every_answer_is_sent_after_its_threads_cpu_is_in_its_control_group(monkeypatch):
+    # A task's CPU reaches its control group at a scheduling event, a tick or a read of its own
+    # CPU clock; the judge reads the group as soon as an answer arrives. Without the read before
+    # the answer, a call whose work was not yet there read as no CPU: the null's least, the floor
+    # of every charge, read 0 (benchmarks/bench_charge_lag.py shows the race itself).
+    from deepcontact.contest import guest
+    order = []
+    monkeypatch.setattr(guest.time, "thread_time_ns", lambda: order.append("clock read") or 0)
+
+    class Line:
+        def send_bytes(self, data):
+            order.append("sent")
+    guest._send(Line(), b"answer")
+    assert order == ["clock read", "sent"]
+    # and every answer goes through it: the contestant's loop, its setup and the engines' replies
+    source = open(guest.__file__).read()
+    assert source.count("conn.send_bytes(") == 1 and "_send(conn, reply)" in source

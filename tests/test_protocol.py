@@ -28,29 +28,58 @@ def test_every_evaluate_report_records_its_protocol(run, tmp_path):
     torch.set_num_threads(1)
 
 
-def test_a_measurement_held_to_fewer_cpus_says_which(run, tmp_path):
-    # (taskset -c N, or the process's own affinity: its contestants' sandboxes inherit it, and the
-    # cross-core wake-ups it removes move a call's time; the report says where its times were taken)
+HELD_TO = """
+import os
+import numpy as np
+from deepcontact.warmstart.starts import StartValue
+class Start:
+    def __call__(self, ctx):
+        if os.sched_getaffinity(0) != {HELD}:   # (in the contestant's own process)
+            raise ValueError(f"this contestant may run on CPUs {sorted(os.sched_getaffinity(0))}")
+        return StartValue(np.zeros(ctx.problem.points), np.zeros(ctx.problem.points), {})
+"""
+
+
+def _hold(cpus):
+    """Every thread of this process held to `cpus` (as `taskset` holds a command's)."""
     import os
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), cpus)
+        except OSError:
+            pass
+
+
+def test_a_measurement_held_to_fewer_cpus_says_which_and_its_contestants_run_there(run, tmp_path, monkeypatch):
+    # (taskset -c N: the contestants' sandboxes run where the judge is held, forked from a zygote
+    # started before it was or not, and the report says where its times were taken)
+    import os
+    from conftest import plugin_modules
     every = os.sched_getaffinity(0)
     if os.cpu_count() < 2 or len(every) < 2:
         pytest.skip("needs two CPUs to hold the command to one")
     one = max(every)
-    os.sched_setaffinity(0, {one})
+    r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "40", "--no-budgets", "-q",
+               "-o", tmp_path / "before")   # (a zygote started where every CPU is allowed, where forks are made)
+    assert r.exit_code == 0, r.stderr
+    forget = plugin_modules(tmp_path, monkeypatch, {"held_to": HELD_TO.replace("HELD", str(one))})
+    _hold({one})
     try:
-        r = invoke("evaluate", "--no-plots", run, "--starts", "builtin", "--every", "30", "--no-budgets", "-q",
-                   "-o", tmp_path / "r")
+        r = invoke("evaluate", "--no-plots", run, "--starts", "builtin,held_to:Start", "--every", "30", "--no-budgets",
+                   "-q", "-o", tmp_path / "r")
     finally:
-        os.sched_setaffinity(0, every)
+        _hold(every)
+        forget()
     assert r.exit_code == 0, r.stderr
     p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
     assert p["cpus"] == [one]
     assert f"({p['cores']} cores; run on CPU {one} only; load average" in (tmp_path / "r" / "report.md").read_text()
     # and where it may run anywhere, nothing is said of it
-    from deepcontact.protocol import current, protocol_line
+    from deepcontact.protocol import _ranges, current, protocol_line
     assert current()["cpus"] == sorted(every)
     if len(every) == os.cpu_count():
         assert " only;" not in protocol_line(current())
+    assert _ranges([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
 
 
 THREADS_SEEN = """

@@ -105,6 +105,18 @@ def _error(e):
     return pack({"error": _line(e)[:ERROR_MOST], "traceback": _traceback(e)[-TRACEBACK_MOST:]})
 
 
+def _send(conn, data):
+    """An answer sent, this thread's CPU clock read first: the read makes the kernel account the
+    CPU the thread has run since it was scheduled (its time reaches its control group at a
+    scheduling event, a tick or such a read; the process's clock does not, where a CPU timer is
+    armed: a `ulimit -t`). The judge reads the group as soon as the answer arrives: a call whose
+    work was not yet there read as no CPU, a floor of 0 that every charge of the run then paid.
+    (Another thread's time, a plug-in's own, is accounted at its own events, and charged all the
+    same: by the next call, or at the end.)"""
+    time.thread_time_ns()
+    conn.send_bytes(data)
+
+
 def _step(request):
     """A loop step's answer names its sequence number (the judge refuses any other)."""
     return {"seq": request["seq"]} if "seq" in request else {}
@@ -170,16 +182,16 @@ def serve(conn):
     interrupts.install("dc contestant")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     plugins.contained = True
-    conn.send_bytes(pack({"ready": 1}))
+    _send(conn, pack({"ready": 1}))   # (its imports accounted before the judge starts its clock)
     setup = pickle.loads(conn.recv_bytes())
     _quiet(setup.get("name", "?"))
     sys.path[:0] = [p for p in setup["path"] if p not in sys.path]
     protocol.use_threads(setup["threads"])
     if "describe" in setup:   # (a description of plug-ins, for a judge that must not import them)
         try:
-            conn.send_bytes(pack({"described": _describe(setup["describe"])}))
+            _send(conn, pack({"described": _describe(setup["describe"])}))
         except BaseException as e:
-            conn.send_bytes(_error(e))
+            _send(conn, _error(e))
         return
     if "engine" in setup:   # (a plug-in engine: its worlds built and stepped here)
         serve_engine(conn, setup)
@@ -188,9 +200,9 @@ def serve(conn):
     try:
         if not setup.get("null"):
             start = _make(setup)
-        conn.send_bytes(pack({"built": 1}))
+        _send(conn, pack({"built": 1}))
     except BaseException as e:
-        conn.send_bytes(_error(e))
+        _send(conn, _error(e))
         return
     def answer(request):
         # (each call at the threads the report states: a plug-in that imported torch, at its
@@ -224,12 +236,7 @@ def _requests(conn, answer, mapped=None):
             reply = answer(request)
         except BaseException as e:
             failed, reply = None, _error(e)
-        # This process's CPU clock read, which makes the kernel account the CPU it has run since it
-        # was scheduled (a task's time reaches its control group only at a scheduling event, a tick
-        # or this): the judge reads the group as soon as the answer arrives, and a call whose work
-        # was not yet accounted read as no CPU at all, a floor of 0 that every charge then paid.
-        time.clock_gettime_ns(time.CLOCK_PROCESS_CPUTIME_ID)
-        conn.send_bytes(reply)
+        _send(conn, reply)
 
 
 def _set_up(conn, mapped, request):
@@ -300,9 +307,9 @@ def serve_engine(conn, setup):
     what = f"the engine {name!r}"
     try:
         engine, described = _engine_made(name, setup["settings"])
-        conn.send_bytes(pack({"engine": described}))
+        _send(conn, pack({"engine": described}))
     except BaseException as e:
-        conn.send_bytes(_error(e))
+        _send(conn, _error(e))
         return
     state = {}   # (its world and step function, once built)
 

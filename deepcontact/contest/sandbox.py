@@ -261,7 +261,10 @@ class Sandbox:
             ours += [out, err]
             # (a job's folder, where its record leaves it to dc's: dc's current one, as bubblewrap's)
             record = asdict(replace(self.fence, cwd=self.fence.cwd or os.getcwd()))
-            request = {"fence": record, **request, "memory": memory if "memory" not in self.groups else None}
+            request = {"fence": record, **request, "memory": memory if "memory" not in self.groups else None,
+                       # (the CPUs of the thread that asks, as a fresh sandbox inherits them: the
+                       # zygote's are those of the thread that started it, maybe before `taskset`)
+                       "cpus": sorted(os.sched_getaffinity(0))}
             self.process = zygote.fork(request, [channel, out, err, seccomp, *ours[:-3], *trees])
         finally:
             for fd in ours:
