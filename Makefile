@@ -48,6 +48,19 @@ $(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml studies/py
 
 setup: $(STAMPS)/install
 
+# The stamp says this tree was installed into $(PYTHON); where another clone was installed into the
+# same Python since (an editable install names one tree: this one's `dc` and tests would import the
+# other's code), the stamp goes and this tree is installed again.
+INSTALLED_HERE := $(shell $(PYTHON) -c "import json, os, sys, urllib.parse as u; \
+	from importlib.metadata import distribution as d; \
+	here = lambda n: urllib_path(json.loads(d(n).read_text('direct_url.json') or '{}').get('url', '')); \
+	urllib_path = lambda url: os.path.realpath(u.unquote(u.urlparse(url).path)); \
+	sys.exit(here('deepcontact') != os.path.realpath('.') or here('deepcontact-studies') != os.path.realpath('studies'))" \
+	2>/dev/null && echo yes)
+ifneq ($(INSTALLED_HERE),yes)
+$(shell rm -f $(STAMPS)/install)
+endif
+
 # The main job on the built-in default scene: the thesis pile, simulated, validated and drawn.
 demo: setup
 	$(DC) simulate pile --overwrite -o $(RUNS)/demo
