@@ -38,26 +38,29 @@ $(STAMPS)/system:
 # peer engines' pinned wheels (pymunk, MuJoCo: --engine pymunk, --engine mujoco), in one pip run.
 TORCH := torch==2.13.0+cpu
 TORCH_INDEX := https://download.pytorch.org/whl/cpu
-# Which trees $(PYTHON)'s editable installs of deepcontact and its studies name, in a file made
-# again at each run and changed only where they changed: another clone installed into the same
-# Python since (an editable install names one tree: this one's `dc` and tests would import the
-# other's code) makes it newer than the install's stamp, and this tree is installed again.
-INSTALLED_TREES = $(PYTHON) -I -c "import json; from importlib.metadata import distribution as d; \
-	[print(json.loads(d(n).read_text('direct_url.json') or '{}').get('url')) for n in ('deepcontact', 'deepcontact-studies')]"
-$(STAMPS)/installed-trees: FORCE
-	@mkdir -p $(STAMPS)
-	@($(INSTALLED_TREES) 2>/dev/null || echo none) > $@.new
-	@if cmp -s $@.new $@; then rm $@.new; else mv $@.new $@; fi
+# This tree and the trees $(PYTHON)'s editable installs of deepcontact and its studies name (their
+# direct_url.json; the current folder left off the path, whose egg-info names none), read as the
+# Makefile is read, against what the install's stamp recorded: where they differ (another clone
+# installed into the same Python since, this tree copied or moved: an editable install names one
+# tree, and this one's `dc` and tests would import the other's code), this tree is installed again.
+INSTALLED_TREES = $(PYTHON) -c "import json, os, sys; sys.path[:] = [p for p in sys.path if p not in ('', '.', os.getcwd())]; \
+	from importlib.metadata import distribution as d; from pathlib import Path; \
+	print(Path.cwd().resolve().as_uri(), *(json.loads(d(n).read_text('direct_url.json') or '{}').get('url') \
+	for n in ('deepcontact', 'deepcontact-studies')))"
+ifneq ($(shell $(INSTALLED_TREES) 2>/dev/null),$(file < $(STAMPS)/installed-trees))
+$(STAMPS)/install: FORCE
+endif
 
+.PHONY: FORCE
 FORCE:
 
-$(STAMPS)/install: $(STAMPS)/system $(STAMPS)/installed-trees setup.cfg setup.py pyproject.toml studies/pyproject.toml $(NATIVE)
+$(STAMPS)/install: $(STAMPS)/system setup.cfg setup.py pyproject.toml studies/pyproject.toml $(NATIVE)
 	$(PYTHON) -m pip install -q $(TORCH) 2>/dev/null || $(PYTHON) -m pip install -q $(TORCH) --extra-index-url $(TORCH_INDEX)
 	$(PYTHON) -m pip install -q "setuptools>=64" wheel "pybind11>=2.11" pyb2d3==0.11.1 pymunk==7.3.1 mujoco==4.0.1
 	@echo "installing deepcontact: building its native module (about a minute on 2 cores the first time)"
 	$(PYTHON) -m pip install -q --no-build-isolation -e ".[test]"
 	$(PYTHON) -m pip install -q --no-build-isolation --no-deps -e studies/
-	@($(INSTALLED_TREES) 2>/dev/null || echo none) > $(STAMPS)/installed-trees
+	@$(INSTALLED_TREES) > $(STAMPS)/installed-trees
 	@touch $@
 
 setup: $(STAMPS)/install
