@@ -266,6 +266,16 @@ def step_problems(generator, params, wanted, seed=0):
     return out
 
 
+def hold_threads(cpus):
+    """Every thread of this process held to `cpus`, as `taskset` holds a command's (a thread that
+    ended meanwhile skipped)."""
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), cpus)
+        except OSError:
+            pass
+
+
 def plugin_modules(tmp_path, monkeypatch, modules):
     """Writes `modules` ({name: source}) where this process imports them (tmp_path/mods, first on
     sys.path); returns forget(), which removes every trace of them from this process (the modules,

@@ -12,7 +12,7 @@ import textwrap
 
 import pytest
 
-from conftest import dc
+from conftest import dc, hold_threads
 from deepcontact.contest import fence as fence_records, fences, job, sandbox, zygote
 
 pytestmark = pytest.mark.skipif(not all(fences().values()), reason=f"a fence is missing here: {fences()}")
@@ -212,3 +212,41 @@ def test_a_jobs_zygote_of_another_environment_is_ended_once_none_of_its_jobs_run
     kept = [key for key, made in zygote._zygotes.items() if key[0] == "job" and not key[2] and made.alive()]
     assert len(kept) == 1 and ("JOB_ZYGOTE_TEST", "2") in kept[0][1]
     assert all(key[0] != "DC_JOB_ZYGOTE_TEST" for key in kept[0][1])
+
+
+AFFINITY_PROBE = "import json, os, sys; os.write(int(sys.argv[1]), json.dumps(sorted(os.sched_getaffinity(0))).encode())"
+
+
+def _job_cpus(tmp_path, name):
+    """The CPUs a job of the study profile (forked from the jobs' zygote) may run on."""
+    private = tmp_path / name
+    private.mkdir()
+    box = sandbox.JobSandbox(writable=[private])
+    env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=job.python_path())
+    read, write = os.pipe()
+    try:
+        job.start(box, ["-c", AFFINITY_PROBE, str(write)], write, env)
+        os.close(write)
+        write = None
+        assert box.process.wait() == 0
+    finally:
+        box.kill()
+        if write is not None:
+            os.close(write)
+    with os.fdopen(read, "rb") as f:
+        return json.loads(f.read())
+
+
+def test_a_forked_job_runs_on_the_cpus_of_the_thread_that_asks_for_it(tmp_path):
+    # (as a fresh sandbox inherits them: `taskset -c 1 dc study ...` holds its jobs to CPU 1, though
+    # the jobs' zygote was started before, where every CPU was allowed)
+    every = os.sched_getaffinity(0)
+    if len(every) < 2:
+        pytest.skip("needs two CPUs to hold the command to one")
+    assert _job_cpus(tmp_path, "before") == sorted(every)   # (the zygote started, or kept, unpinned)
+    one = max(every)
+    hold_threads({one})
+    try:
+        assert _job_cpus(tmp_path, "held") == [one]
+    finally:
+        hold_threads(every)

@@ -40,21 +40,11 @@ class Start:
 """
 
 
-def _hold(cpus):
-    """Every thread of this process held to `cpus` (as `taskset` holds a command's)."""
-    import os
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), cpus)
-        except OSError:
-            pass
-
-
 def test_a_measurement_held_to_fewer_cpus_says_which_and_its_contestants_run_there(run, tmp_path, monkeypatch):
     # (taskset -c N: the contestants' sandboxes run where the judge is held, forked from a zygote
     # started before it was or not, and the report says where its times were taken)
     import os
-    from conftest import plugin_modules
+    from conftest import hold_threads, plugin_modules
     every = os.sched_getaffinity(0)
     if os.cpu_count() < 2 or len(every) < 2:
         pytest.skip("needs two CPUs to hold the command to one")
@@ -63,12 +53,12 @@ def test_a_measurement_held_to_fewer_cpus_says_which_and_its_contestants_run_the
                "-o", tmp_path / "before")   # (a zygote started where every CPU is allowed, where forks are made)
     assert r.exit_code == 0, r.stderr
     forget = plugin_modules(tmp_path, monkeypatch, {"held_to": HELD_TO.replace("HELD", str(one))})
-    _hold({one})
+    hold_threads({one})
     try:
         r = invoke("evaluate", "--no-plots", run, "--starts", "builtin,held_to:Start", "--every", "30", "--no-budgets",
                    "-q", "-o", tmp_path / "r")
     finally:
-        _hold(every)
+        hold_threads(every)
         forget()
     assert r.exit_code == 0, r.stderr
     p = json.loads((tmp_path / "r" / "summary.json").read_text())["settings"]["protocol"]
