@@ -143,15 +143,16 @@ os.write(int(sys.argv[1]), json.dumps(seen).encode())
 """
 
 
-def _training_job(tmp_path, name):
-    """What TORCH_PROBE finds in a job of the training profile (forked from the torch zygote)."""
+def _job_wrote(tmp_path, name, script, profile="job"):
+    """What `script` (run as `python -c script FD`) wrote to FD in a job of this profile, forked
+    from the jobs' zygote where it can be."""
     private = tmp_path / name
     private.mkdir()
-    box = sandbox.JobSandbox(writable=[private], profile="training")
+    box = sandbox.JobSandbox(writable=[private], profile=profile)
     env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=job.python_path())
     read, write = os.pipe()
     try:
-        job.start(box, ["-c", TORCH_PROBE, str(write)], write, env)
+        job.start(box, ["-c", script, str(write)], write, env)
         os.close(write)
         write = None
         assert box.process.wait() == 0
@@ -161,6 +162,11 @@ def _training_job(tmp_path, name):
             os.close(write)
     with os.fdopen(read, "rb") as f:
         return json.loads(f.read())
+
+
+def _training_job(tmp_path, name):
+    """What TORCH_PROBE finds in a job of the training profile (forked from the torch zygote)."""
+    return _job_wrote(tmp_path, name, TORCH_PROBE, "training")
 
 
 def test_torchs_compiler_in_a_forked_training_job_looks_where_a_fresh_ones_does(tmp_path, monkeypatch):
@@ -219,22 +225,7 @@ AFFINITY_PROBE = "import json, os, sys; os.write(int(sys.argv[1]), json.dumps(so
 
 def _job_cpus(tmp_path, name):
     """The CPUs a job of the study profile (forked from the jobs' zygote) may run on."""
-    private = tmp_path / name
-    private.mkdir()
-    box = sandbox.JobSandbox(writable=[private])
-    env = dict(os.environ, TMPDIR=str(private), PYTHONPATH=job.python_path())
-    read, write = os.pipe()
-    try:
-        job.start(box, ["-c", AFFINITY_PROBE, str(write)], write, env)
-        os.close(write)
-        write = None
-        assert box.process.wait() == 0
-    finally:
-        box.kill()
-        if write is not None:
-            os.close(write)
-    with os.fdopen(read, "rb") as f:
-        return json.loads(f.read())
+    return _job_wrote(tmp_path, name, AFFINITY_PROBE)
 
 
 def test_a_forked_job_runs_on_the_cpus_of_the_thread_that_asks_for_it(tmp_path):
