@@ -100,10 +100,7 @@ def one_way(calls, clock_read):
 
 
 def main():
-    args = arguments(__doc__, calls=2000, rounds=2)
-    if args.calls < 1:
-        print("bench_charge_lag.py: error: --calls must be at least 1", file=sys.stderr)
-        sys.exit(2)
+    args = arguments(__doc__, calls=2000, rounds=2, at_least_one=("calls",))
     if not (HIERARCHY / "cgroup.procs").exists() or not os.access(HIERARCHY, os.W_OK):
         print(f"no writable cgroup v1 cpuacct hierarchy at {HIERARCHY} (root, cgroup v1): not measured")
         return

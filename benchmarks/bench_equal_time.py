@@ -42,7 +42,7 @@ from deepcontact.solver.methods import solve
 from deepcontact.solver.settings import SolveSettings
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import arguments, block_seconds, checked_block, settled_and_samples  # noqa: E402
+from common import arguments, block_seconds, settled_and_samples  # noqa: E402
 
 AA = "A/A: Box2D 2.4.1 again"
 SAME_PILE = 0.03   # contact points within 3% of the Box2D world's: the same pile, for its time
@@ -104,8 +104,7 @@ def step_times(scene, bodies, chosen, warm, rounds, block=1):
 
 def main():
     args = arguments(__doc__, scene="pile", count=1000, base=40, settle=500, samples=8, every=10, rounds=60, warm=5,
-                     most=256, block=1)
-    checked_block(args.block)
+                     most=256, block=1, at_least_one=("block",))
     steps = args.settle + args.samples * args.every + args.warm + args.rounds * args.block + 10
     if args.scene == "pile":
         big = args.count > 1000

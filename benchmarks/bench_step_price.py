@@ -41,7 +41,7 @@ from deepcontact.simulate.engines import Box2D
 from deepcontact.solver.settings import SolveSettings
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import arguments, block_seconds, checked_block  # noqa: E402
+from common import arguments, block_seconds  # noqa: E402
 
 
 def settled(scene, settle):
@@ -80,8 +80,8 @@ def glue(calls):
 
 
 def main():
-    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0, block=1)
-    checked_block(args.block)
+    args = arguments(__doc__, count=1000, base=0, settle=500, warm=0, steps=200, sweeps=8, glue=0, block=1,
+                     at_least_one=("block",))
     if args.glue:
         return glue(args.glue)
     steps = args.settle + args.warm + args.steps * args.block + 2

@@ -10,12 +10,14 @@ from deepcontact.protocol import current, protocol_line
 DC = [sys.executable, "-m", "deepcontact.cli.main"]   # dc, as this interpreter runs it
 
 
-def arguments(doc, **defaults):
-    """The script's options (--name for each keyword, typed by its default), parsed, after the
+def arguments(doc, at_least_one=(), **defaults):
+    """The script's options (--name for each keyword, typed by its default; the names in
+    at_least_one never below 1, a count of things each round must have), parsed, after the
     protocol line (threads, -j, versions, CPU, load, command) is printed."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name, default in defaults.items():
-        ap.add_argument("--" + name.replace("_", "-"), type=_typed(default), default=default)
+        ap.add_argument("--" + name.replace("_", "-"), type=_typed(default, 1 if name in at_least_one else 0),
+                        default=default)
     args = ap.parse_args()
     if getattr(args, "pinned", 0):
         pin_to_one_cpu()
@@ -36,20 +38,21 @@ def pin_to_one_cpu():
             pass
 
 
-def _typed(default):
-    """The option's type, a number never below zero where its default is not (a count, a size, a
-    step: --base -1 was a traceback from the scene's generator): argparse's one line and exit 2."""
+def _typed(default, least=0):
+    """The option's type, a number never below `least` where its default is not below zero (a
+    count, a size, a step: --base -1 was a traceback from the scene's generator): argparse's one
+    line and exit 2."""
     kind = type(default)
     if kind not in (int, float) or default < 0:
         return kind
 
-    def at_least_zero(text):
+    def at_least(text):
         value = kind(text)
-        if not value >= 0:
-            raise argparse.ArgumentTypeError(f"must be at least 0, got {text}")
+        if not value >= least:
+            raise argparse.ArgumentTypeError(f"must be at least {least}, got {text}")
         return value
-    at_least_zero.__name__ = kind.__name__   # (argparse names the type in its message)
-    return at_least_zero
+    at_least.__name__ = kind.__name__   # (argparse names the type in its message)
+    return at_least
 
 
 def timed(args):
@@ -76,13 +79,6 @@ def block_seconds(step, block):
     for _ in range(timed):
         step()
     return (time.thread_time() - t) / timed
-
-
-def checked_block(block):
-    """--block as the benchmarks take it: at least one step a world a round."""
-    if block < 1:
-        sys.exit(f"--block: at least 1 step a world a round, not {block}")
-    return block
 
 
 def settled_and_samples(scene, settle, samples, every):

@@ -49,19 +49,19 @@ def cpus_allowed():
     """The CPUs this process's threads may run on (their affinities, together), sorted; None where
     the system does not say. Its contestants are held to the CPUs of the thread that starts them
     (`taskset -c 1 dc ...` runs the judge and every contestant on CPU 1)."""
+    if not hasattr(os, "sched_getaffinity"):
+        return None
     try:
-        cpus = set()
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                cpus |= os.sched_getaffinity(int(tid))
-            except OSError:   # (a thread that ended meanwhile)
-                pass
-        return sorted(cpus or os.sched_getaffinity(0))
-    except (AttributeError, OSError):
+        threads = [int(tid) for tid in os.listdir("/proc/self/task")]
+    except OSError:
+        threads = [0]   # (this thread's alone)
+    cpus = set()
+    for tid in threads:
         try:
-            return sorted(os.sched_getaffinity(0))
-        except (AttributeError, OSError):
-            return None
+            cpus |= os.sched_getaffinity(tid)
+        except OSError:   # (a thread that ended meanwhile)
+            pass
+    return sorted(cpus) or None
 
 
 def _ranges(cpus):

@@ -107,7 +107,6 @@ def _shaped(label, arrays, what, points):
         raise PluginError(f"the variant {label!r} answered {what} impulses of shape "
                           f"{None if a is None else a.shape}; the step has {points} contact points, so ({points},)")
     return a
-    return out
 
 
 def held_claims(label, header, arrays, cap):
