@@ -112,7 +112,7 @@ def judge_cpu(scene, settings, steps):
 
 def calls(scene, settings, steps, runs):
     """--calls: builtin alone through the path, `runs` times; for each run the medians over the
-    settled steps (from a third of the run on) of each call's wall time and its sandbox's CPU,
+    settled steps (from a third of the run on) of each call's wall time and its sandbox's CPU in it,
     builtin's and the null contestant's (the same request), the null's least of each over the run
     (the floors a call's charge is taken from: contest/charge.py), and the median charge's two
     terms, wall less the null's least wall and CPU less its least CPU (microseconds)."""
@@ -120,7 +120,7 @@ def calls(scene, settings, steps, runs):
     seen, record = [], charge.StepCharges.record
 
     def recorded(self, kind, contestant, null):
-        seen.append((*contestant.last, *null.last))
+        seen.append((*charge.in_call(contestant), *charge.in_call(null)))
         return record(self, kind, contestant, null)
     print(f"\neach call, builtin alone through the path, {runs} run(s) of {steps} steps (us; medians from a third "
           "of each run on)")

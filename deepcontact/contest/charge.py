@@ -2,11 +2,17 @@
 
 A step's wall time holds its contestant's calls and the null contestant's round trips of the same
 requests. Both are taken out of it, and each call put back at its charge: the larger of its wall
-time less the null's least round trip of that kind of request over the whole run, and its
-sandbox's CPU since its previous call (Contestant.call measures both) less the null's least CPU
-for that kind of request; never below zero. The floors are the null's least over the run, of the
-variant's own requests (an oracle's carry the reference), so that a contestant that slows the null
-(work left running in its sandbox, charged to it by its CPU) cannot enlarge what is subtracted.
+time less the null's least round trip of that kind of request over the whole run, and the CPU its
+sandbox used in the call (Contestant.call measures both) less the null's least for that kind of
+request; never below zero. The floors are the null's least over the run, of the variant's own
+requests (an oracle's carry the reference), so that a contestant that slows the null (work left
+running in its sandbox) cannot enlarge what is subtracted.
+
+The CPU its sandbox used between calls, unasked (Contestant.outside: work left running), is charged
+too, spread evenly over the run's steps: the kernel accounts a process running on another core into
+its control group only at a scheduler tick (every few milliseconds), so that work reaches the
+judge's reads in lumps that land on a few steps, which a median step would miss; which step it
+served no one can say, and evenly it raises every step's time alike.
 """
 import math
 
@@ -30,20 +36,22 @@ class NullFloors:
 class StepCharges:
     """One variant's calls in a loop, step by step: `record` after each call (with the null's
     round trip of the same request), `step_done` after each step; at the end of the run, with the
-    floors its null round trips set (`nulls`: the least of each kind), `charged` and `uncharged`
-    per step."""
+    floors its null round trips set (`nulls`: the least of each kind), `charged`, `uncharged` and
+    `unasked` per step."""
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
+        self.outside = 0.0   # the CPU its sandbox used between calls, over the run (spread over its steps)
         self.floors = NullFloors()
         self.nulls = self.floors.least   # kind of request -> (least wall, least CPU) of the null's round trips
 
     def record(self, kind, contestant, null):
         """After `contestant` and `null` answered the same request of this kind (their `last`)."""
-        wall, cpu = contestant.last
+        wall, cpu = in_call(contestant)
         self.within += wall + null.last[0]
         self.calls.append((kind, wall, cpu))
-        self.floors.seen(kind, null.last)
+        self.outside += contestant.outside
+        self.floors.seen(kind, in_call(null))
 
     def step_done(self):
         """Closes the step (a step that asked nothing: no calls, charged nothing)."""
@@ -55,10 +63,23 @@ class StepCharges:
         return np.array([sum(call_charge(wall, cpu, self.nulls[kind]) for kind, wall, cpu in calls
                              if kinds is None or kind in kinds) for _, calls in self.steps], np.float64)
 
+    def unasked(self):
+        """Seconds charged per step for the CPU its sandbox used between calls, evenly over the
+        steps that asked it something (one that asked nothing is charged nothing)."""
+        asked = np.array([bool(calls) for _, calls in self.steps], bool)
+        return np.where(asked, self.outside / max(int(asked.sum()), 1), 0.0)
+
     def uncharged(self):
         """Seconds of each step's wall time not charged to it: the round trips in it, less the
         charges of its calls (negative where a call's CPU exceeded its wall time)."""
         return np.array([w for w, _ in self.steps], np.float64) - self.charged()
+
+
+def in_call(contestant):
+    """(wall, CPU) of `contestant`'s last call, the CPU only what its sandbox used once asked (the
+    CPU before, between its calls, is `outside`)."""
+    wall, cpu = contestant.last
+    return wall, cpu - contestant.outside
 
 
 def call_charge(wall, cpu, floor):

@@ -2,8 +2,10 @@
 
 A call costs the larger of its wall time (the judge's clock, around the request and its answer)
 and the CPU time the contestant's sandbox used since its previous call ended (its control group:
-every process and thread it runs, between calls too). Its setup (import and construction) is
-charged the same way, from the moment it said it was ready. Every call has a deadline; past it the
+every process and thread it runs, between calls too); the part of that CPU used before the request
+was sent (work left running between calls) is kept apart, `outside`, for the loop and replay to
+spread over a run's steps (charge.py). Its setup (import and construction) is charged the same way,
+from the moment it said it was ready. Every call has a deadline; past it the
 contestant is stopped and named. Transport is measured against the null contestant (the same
 sandbox and path, no plug-in code: `Contestant.null()`), never by a contestant; what the
 contestant left running is counted from its control group by the judge, never asked.
@@ -61,6 +63,9 @@ class Contestant:
         self.label, self.null_contestant = label, null
         self.who = who or f"the variant {label!r}"   # (how its errors name it)
         self.left_running = [0, 0]
+        # the CPU of its last call's `last` that its sandbox used before it was asked (between its
+        # answer before and the request): work left running, which no one step can be charged
+        self.outside, self.outside_s = 0.0, 0.0   # (and over all its calls)
         self.setup_s, self.setup_wall_s, self.start_s, self.after_s = 0.0, 0.0, 0.0, 0.0
         # what its ctx holds: the judge's one description of its start (starts.described), the same
         # that says whether it is an oracle; never what its process says of itself
@@ -154,6 +159,8 @@ class Contestant:
         socket.send_fds(self._line(), [FDS], fds)
 
     def _timed(self, data, deadline, doing, before=None, fds=()):
+        # (its CPU since its last answer, read before it is asked: work it did unasked, `outside`)
+        sent = self.sandbox.cpu_seconds()
         t0 = time.perf_counter()
         try:
             if before is not None:   # (a step's arena set up: its schema, then its descriptors, maybe none)
@@ -169,6 +176,8 @@ class Contestant:
         self._wall = time.perf_counter() - t0
         cpu = self.sandbox.cpu_seconds()
         used = 0.0 if cpu is None or self.cpu_last is None else cpu - self.cpu_last
+        self.outside = 0.0 if sent is None or self.cpu_last is None else min(max(sent - self.cpu_last, 0.0), used)
+        self.outside_s += self.outside
         self.cpu_last = cpu
         self.last = (self._wall, used)   # (both, for a loop's charge: charge.py)
         return max(self._wall, used), header, arrays

@@ -3,9 +3,10 @@
 Unlike replay, errors feed back: a start that leaves the solver short of the answer changes the
 next state. Every variant runs alike: its start (and a plug-in method) in a sandbox of its own
 (deepcontact/contest), each step through Python; every call is charged here, as replay's: the
-larger of its wall time and its sandbox's CPU since its previous call, each less the null
-contestant's least over the run (contest/charge.py), so a start that gives what Box2D's warm start
-gives measures what builtin does, and work it leaves running is charged to it. What the path itself costs over
+larger of its wall time and its sandbox's CPU in the call, each less the null contestant's least
+over the run, and the CPU its sandbox used between calls spread over its steps (contest/charge.py),
+so a start that gives what Box2D's warm start gives measures what builtin does, and work it leaves
+running is charged to it, on its typical step too. What the path itself costs over
 one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
 same scene from the same initial state under the same stopping rule; the reference trajectory is
 the one stepped with each step's reference solution (float64 PGS to a residual of 1e-12).
@@ -80,7 +81,8 @@ class _Adapter:
         # (the step's contact keys, and those of the step before, as arrays: contest/keyed.py)
         self.keys, self.known, self.previous = None, KeySet(), KeyedImpulses()
         self.charges = StepCharges()
-        self.transport = self.timing = np.zeros(0)   # per step, once settled: seconds not charged, the start's charge
+        # per step, once settled: seconds not charged, the CPU used between calls, the start's charge
+        self.transport = self.unasked = self.timing = np.zeros(0)
         self.method = None   # a plug-in method's RemoteMethod, in the same process
         # (its steps' ctx in shared memory; the columns only an oracle sees in an arena of their own)
         self.channel = StepChannel(contestant.traits["needs_reference"] or contestant.traits["needs_recorded"])
@@ -134,9 +136,11 @@ class _Adapter:
 
     def settle(self):
         """Once the run is over (the null's least round trips over it known): per step, the
-        seconds not charged (transport) and the start's charge (timing)."""
+        seconds not charged (transport), the CPU its sandbox used between calls (unasked, spread
+        over the steps that asked it: contest/charge.py) and the start's charge with it (timing)."""
         self.transport = self.charges.uncharged()
-        self.timing = self.charges.charged(("start",))
+        self.unasked = self.charges.unasked()
+        self.timing = self.charges.charged(("start",)) + self.unasked
 
 
 def run_loop(scene, start_fn, settings, steps, start="builtin", solved=None, report=True, solve_fn=None):
@@ -256,7 +260,8 @@ def closed_loop(scene: "Scene", starts: dict, *, settings: SolveSettings = Solve
 
 
 def _interleaved(scene, runs, steps):
-    """[(trajectory, adapter, ms per step less the round trips)] of each run (variant, its
+    """[(trajectory, adapter, ms per step less the round trips, with what its contestant used
+    between them)] of each run (variant, its
     settings, whether progress counts it): each variant's start (and a plug-in method) in a
     process of its own, each step through Python, the variants stepped in turn, step by step, in
     an order shuffled per step by a fixed seed, so that a busy moment of the machine, or the
@@ -290,7 +295,8 @@ def _interleaved(scene, runs, steps):
     for adapter in loops:
         adapter.settle()
         t = adapter.follower.trajectory()
-        out.append((t, adapter, t.seconds * 1e3 - adapter.transport[:len(t.seconds)] * 1e3))
+        n = len(t.seconds)
+        out.append((t, adapter, (t.seconds - adapter.transport[:n] + adapter.unasked[:n]) * 1e3))
     return out
 
 

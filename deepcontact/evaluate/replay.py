@@ -12,6 +12,7 @@ against the step's reference solution (in impulses, and in body velocities after
 whether the PSOR guard fell back, prediction and solve time, and with `budgets` the measured time
 and reached residual of fixed sweep budgets.
 """
+import collections
 from collections.abc import Callable
 import copy
 import dataclasses
@@ -23,7 +24,7 @@ import numpy as np
 
 from .. import arguments, protocol, workers
 from ..contest import Contestant, deadline_for, start_all
-from ..contest.charge import NullFloors, call_charge
+from ..contest.charge import NullFloors, call_charge, in_call
 from ..contest.client import packed
 from ..contest.wire import checked_answer, held_claims, unanswered
 from ..errors import InputError
@@ -297,10 +298,17 @@ def evaluate_simulation(task):
     finally:
         for c in (*contestants.values(), null):
             c.close()
-    for row in rows:   # (noticed after any call, ended with its process; the CPU it used after its last call charged)
+    # (noticed after any call, ended with its process; the CPU it used after its last call charged,
+    # and what it used between its calls spread over its steps' starts: contest/charge.py)
+    steps = collections.Counter(r.start for r in rows)
+    twin = contestants[asked[-1].label] if yard is not None else None
+    for row in rows:
         c = contestants[row.start]
         row.left_running = tuple(c.left_running)
         row.setup_ms += c.after_s * 1e3
+        row.predict_ms += c.outside_s * 1e3 / steps[row.start]
+        if row.predict_ms_again is not None:   # (the yardstick's row: its A/A twin's start, its own sandbox)
+            row.predict_ms_again += twin.outside_s * 1e3 / steps[row.start]
     return rows
 
 
@@ -344,10 +352,10 @@ class _JudgedStep:
             # of the step's bytes, as the variant's call is; a repeat of it measured the
             # null 0.2 ms faster than any real start's call)
             self.null.call(request, self.deadline)
-            floor = self.floors.seen("start", self.null.last)
+            floor = self.floors.seen("start", in_call(self.null))
             _, _, arrays = c.call(request, self.deadline)
             normal, tangent = checked_answer(v.label, arrays, self.problem.points)
-            self.variants[i] = (v, c, normal, tangent, call_charge(*c.last, floor))
+            self.variants[i] = (v, c, normal, tangent, call_charge(*in_call(c), floor))
 
     def solve(self, order):
         """Every variant's solve from its start (the yardstick's twin's too), asked once, in the
@@ -362,10 +370,10 @@ class _JudgedStep:
         self.answers = {i: [] for i in self.variants}
         first = next(iter(self.requests))
         self.null.call(wire[first], deadline)
-        self.floors.seen("solve", self.null.last)
+        self.floors.seen("solve", in_call(self.null))
         took = {i: self._asked(i, wire[i]) for i in order}
         self.null.call(wire[first], deadline)
-        self.floor = self.floors.seen("solve", self.null.last)
+        self.floor = self.floors.seen("solve", in_call(self.null))
         for row in self.variants.values():
             row[1].status()
         self.times = {i: call_charge(*t, self.floor) * 1e3 for i, t in took.items()}
@@ -375,7 +383,7 @@ class _JudgedStep:
         c = self.variants[i][1]
         _, head, arrays = c.call(wire, self.deadline)
         self.answers[i].append(self._kept(i, head, arrays))
-        return c.last
+        return in_call(c)
 
     def _kept(self, i, head, arrays):
         """An answer of variant i as the judge keeps it: its impulses and no other array
@@ -522,7 +530,7 @@ def _budgets(contestant, problem, request, null, label, traced):
     for b in BUDGETS:
         asked = request["settings"].but(max_iterations=b, tolerance=0.0)
         _, head, arrays = contestant.call({**request, "settings": asked}, deadline_for(problem.points))
-        took = contestant.last
+        took = in_call(contestant)
         judged = judge(problem, *checked_answer(label, arrays, problem.points, also=("claims",))).residual
         held_claims(label, head, arrays, b)
         if is_native(asked.accelerate):   # (the judge's own run of the same sweeps, off the clock)
