@@ -209,10 +209,11 @@ def test_a_process_working_in_the_background_is_charged_to_the_calls(run, tmp_pa
     out = tmp_path / "r"
     s = summary_of(evaluate(run, out, "--starts", "builtin,hostile:Detached", every=3), out)["starts"]
     detached, builtin = s["hostile:Detached"], s["builtin"]
-    # 0.3 s of CPU burnt between its calls: charged to the calls after it, and what falls after its
+    # 0.3 s of CPU burnt between its calls: what reaches the judge's reads between calls spread over
+    # its steps, what reaches them during a call charged to that call, and what falls after its
     # last call to its total (it slows every variant on two cores, but it alone pays for its CPU).
     # At least 60 ms of it: the run may end the burner early, and a call is charged the larger of
-    # its wall time and its CPU, so CPU burnt under a call's own wall time does not add (0.1 s of
+    # its wall time and its CPU, so CPU counted under a call's own wall time does not add (0.1 s of
     # burning once showed as 51 ms, in an idle CI run)
     assert detached["total_ms_sum"] > builtin["total_ms_sum"] + 60.0, (detached, builtin)
 

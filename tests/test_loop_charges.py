@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from conftest import dc
+from deepcontact import make_starts
+from deepcontact.contest.charge import unasked_pool
 
 CONTESTANTS = textwrap.dedent("""
     import os
@@ -91,6 +93,27 @@ def test_work_left_running_in_replay_is_charged_on_its_typical_step(stacked, tmp
     assert summary[busy]["left_running"] == [0, 1]
 
 
+def test_replay_spreads_what_its_own_contestants_used_between_calls(stacked, monkeypatch):
+    from deepcontact.evaluate import replay
+    seen, spread = [], replay.spread_unasked
+
+    def spreads(rows, contestants, null, twin=None):   # (the real one, its arguments kept)
+        before = {id(r): r.predict_ms for r in rows}
+        spread(rows, contestants, null, twin)
+        seen.append((rows, contestants, null, twin, before))
+    monkeypatch.setattr(replay, "spread_unasked", spreads)
+    rows = replay.evaluate([stacked], make_starts(["builtin", "zero"]), every=6)
+    [(spread_rows, contestants, null, twin, before)] = seen
+    assert spread_rows == rows and twin is not None and set(contestants) == {"builtin", "zero", twin.label}
+    # every one of them read its CPU between calls apart, from the calls of this run
+    for c in (*contestants.values(), null):
+        assert c.unasked and c.calls >= len(rows) // 2 and c.outside_s >= 0, (c.label, c.calls)
+    for label, c in contestants.items():
+        mine = [r for r in rows if r.start == label]
+        share = unasked_pool(c.outside_s, c.calls, null.outside_s, null.calls) * 1e3 / max(len(mine), 1)
+        assert all(r.predict_ms == pytest.approx(before[id(r)] + share) for r in mine), label
+
+
 def test_a_net_time_at_or_below_zero_is_a_measurement_error_never_a_win():
     from deepcontact.evaluate.loop_report import loop_table
     from deepcontact.evaluate.verdicts import loop_verdict
@@ -141,6 +164,26 @@ def test_cpu_used_between_calls_is_spread_over_the_steps_not_charged_where_it_la
     # what the null used between its calls is no floor: the least CPU of its calls, once asked
     charges.record("start", Answered(1.0e-3, 0.2e-3), Answered(0.5e-3, 0.3e-3, outside=0.25e-3))
     assert charges.nulls["start"] == (0.5e-3, pytest.approx(0.05e-3))
+    charges.step_done()
+    # but its mean between calls (every guest's send and return, after the judge's read) is taken
+    # off as many times: 8 ms less 9 calls x its mean (0.25 ms over its 9), over the 9 steps that asked
+    pool = 8e-3 - 9 * 0.25e-3 / 9
+    assert list(charges.unasked()) == pytest.approx([pool / 9] * 8 + [0.0] + [pool / 9])
+
+
+def test_replay_spreads_each_sandboxs_cpu_between_calls_over_its_rows_starts():
+    from types import SimpleNamespace as Seen
+    from deepcontact.evaluate.replay import spread_unasked
+    rows = [Seen(start=name, predict_ms=0.1, predict_ms_again=0.1 if name == "builtin" else None)
+            for _ in range(4) for name in ("builtin", "busy")]
+    null = Seen(outside_s=10e-6, calls=10)   # (1 us a call: its guest's send and return)
+    contestants = {"builtin": Seen(outside_s=5e-6, calls=5), "busy": Seen(outside_s=40e-3 + 5e-6, calls=5)}
+    twin = Seen(outside_s=9e-6, calls=5)
+    spread_unasked(rows, contestants, null, twin)
+    busy = [r.predict_ms for r in rows if r.start == "busy"]
+    assert busy == pytest.approx([0.1 + 40 / 4] * 4)   # (40 ms over its 4 rows, its 5 us of sends taken off)
+    assert [r.predict_ms for r in rows if r.start == "builtin"] == pytest.approx([0.1] * 4)
+    assert [r.predict_ms_again for r in rows if r.start == "builtin"] == pytest.approx([0.1 + 4e-3 / 4] * 4)
 
 
 def test_a_null_slowed_by_a_contestant_does_not_enlarge_what_is_subtracted():

@@ -9,10 +9,12 @@ requests (an oracle's carry the reference), so that a contestant that slows the 
 running in its sandbox) cannot enlarge what is subtracted.
 
 The CPU its sandbox used between calls, unasked (Contestant.outside: work left running), is charged
-too, spread evenly over the run's steps: the kernel accounts a process running on another core into
-its control group only at a scheduler tick (every few milliseconds), so that work reaches the
-judge's reads in lumps that land on a few steps, which a median step would miss; which step it
-served no one can say, and evenly it raises every step's time alike.
+too, spread evenly over the steps that asked it: the kernel accounts a process running on another
+core into its control group only at a scheduler tick (every few milliseconds), so that work reaches
+the judge's reads in lumps that land on a few steps, which a median step would miss; which step it
+served no one can say, and evenly it raises every step's time alike. Less the null contestant's
+mean between its own calls, as many times: every guest's send and return to its line, after the
+judge's read, a few microseconds a call. (CPU the kernel accounts during a call is that call's.)
 """
 import math
 
@@ -41,7 +43,9 @@ class StepCharges:
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
-        self.outside = 0.0   # the CPU its sandbox used between calls, over the run (spread over its steps)
+        # the CPU its sandbox used between calls over the run (spread over its steps), its calls,
+        # and the same of the null contestant's paired calls (its mean is taken off: unasked_pool)
+        self.outside, self.asked, self.null_outside = 0.0, 0, 0.0
         self.floors = NullFloors()
         self.nulls = self.floors.least   # kind of request -> (least wall, least CPU) of the null's round trips
 
@@ -50,7 +54,8 @@ class StepCharges:
         wall, cpu = in_call(contestant)
         self.within += wall + null.last[0]
         self.calls.append((kind, wall, cpu))
-        self.outside += contestant.outside
+        self.outside, self.asked = self.outside + contestant.outside, self.asked + 1
+        self.null_outside += null.outside
         self.floors.seen(kind, in_call(null))
 
     def step_done(self):
@@ -67,12 +72,20 @@ class StepCharges:
         """Seconds charged per step for the CPU its sandbox used between calls, evenly over the
         steps that asked it something (one that asked nothing is charged nothing)."""
         asked = np.array([bool(calls) for _, calls in self.steps], bool)
-        return np.where(asked, self.outside / max(int(asked.sum()), 1), 0.0)
+        pool = unasked_pool(self.outside, self.asked, self.null_outside, self.asked)
+        return np.where(asked, pool / max(int(asked.sum()), 1), 0.0)
 
     def uncharged(self):
         """Seconds of each step's wall time not charged to it: the round trips in it, less the
         charges of its calls (negative where a call's CPU exceeded its wall time)."""
         return np.array([w for w, _ in self.steps], np.float64) - self.charged()
+
+
+def unasked_pool(outside, calls, null_outside, null_calls):
+    """Seconds of the CPU a contestant's sandbox used between calls that are its to be charged:
+    their sum `outside` over its `calls` calls, less as many times the null contestant's mean
+    between its own (`null_outside` over `null_calls`); never below zero."""
+    return max(outside - calls * null_outside / max(null_calls, 1), 0.0)
 
 
 def in_call(contestant):

@@ -2,10 +2,11 @@
 
 A call costs the larger of its wall time (the judge's clock, around the request and its answer)
 and the CPU time the contestant's sandbox used since its previous call ended (its control group:
-every process and thread it runs, between calls too); the part of that CPU used before the request
-was sent (work left running between calls) is kept apart, `outside`, for the loop and replay to
-spread over a run's steps (charge.py). Its setup (import and construction) is charged the same way,
-from the moment it said it was ready. Every call has a deadline; past it the
+every process and thread it runs, between calls too). A contestant made with `unasked=True` (the
+loop's and replay's) has its group read once more just before each request, so the part of that
+CPU used between calls (work left running) is kept apart, `outside`, to be spread over a run's
+steps (charge.py). Its setup (import and construction) is charged whole, from the moment it said it
+was ready. Every call has a deadline; past it the
 contestant is stopped and named. Transport is measured against the null contestant (the same
 sandbox and path, no plug-in code: `Contestant.null()`), never by a contestant; what the
 contestant left running is counted from its control group by the judge, never asked.
@@ -59,13 +60,16 @@ class Contestant:
     sends the setup and charges it. `call` returns (charged seconds, header, arrays)."""
 
     def __init__(self, label, name, start=None, method="none", spec=None, checkpoint=None, threads=1, networks=(),
-                 null=False, describe=None, engine=None, who=None):
+                 null=False, describe=None, engine=None, who=None, unasked=False):
         self.label, self.null_contestant = label, null
         self.who = who or f"the variant {label!r}"   # (how its errors name it)
         self.left_running = [0, 0]
-        # the CPU of its last call's `last` that its sandbox used before it was asked (between its
-        # answer before and the request): work left running, which no one step can be charged
-        self.outside, self.outside_s = 0.0, 0.0   # (and over all its calls)
+        # unasked: the CPU of its last call's `last` that its sandbox used before it was asked
+        # (between its answer before and the request: work left running, which no one step can be
+        # charged), read apart, `outside`; with its sum and the calls since its setup. Only where
+        # it is spread: in a job, each read of its group asks the broker (tens of microseconds)
+        self.unasked = unasked
+        self.outside, self.outside_s, self.calls = 0.0, 0.0, 0
         self.setup_s, self.setup_wall_s, self.start_s, self.after_s = 0.0, 0.0, 0.0, 0.0
         # what its ctx holds: the judge's one description of its start (starts.described), the same
         # that says whether it is an oracle; never what its process says of itself
@@ -129,6 +133,7 @@ class Contestant:
             self.baseline = self.sandbox.processes()
             self.setup_s, header, _ = self._timed(pickle.dumps(self._setup), SETUP_DEADLINE, "setting up")
             self.setup_wall_s = self._wall
+            self.outside_s, self.calls = 0.0, 0   # (the setup's is in setup_s, charged whole)
         except BaseException:
             self.close()
             raise
@@ -160,7 +165,7 @@ class Contestant:
 
     def _timed(self, data, deadline, doing, before=None, fds=()):
         # (its CPU since its last answer, read before it is asked: work it did unasked, `outside`)
-        sent = self.sandbox.cpu_seconds()
+        sent = self.sandbox.cpu_seconds() if self.unasked else None
         t0 = time.perf_counter()
         try:
             if before is not None:   # (a step's arena set up: its schema, then its descriptors, maybe none)
@@ -177,7 +182,7 @@ class Contestant:
         cpu = self.sandbox.cpu_seconds()
         used = 0.0 if cpu is None or self.cpu_last is None else cpu - self.cpu_last
         self.outside = 0.0 if sent is None or self.cpu_last is None else min(max(sent - self.cpu_last, 0.0), used)
-        self.outside_s += self.outside
+        self.outside_s, self.calls = self.outside_s + self.outside, self.calls + 1
         self.cpu_last = cpu
         self.last = (self._wall, used)   # (both, for a loop's charge: charge.py)
         return max(self._wall, used), header, arrays

@@ -112,7 +112,8 @@ def _send(conn, data):
     armed: a `ulimit -t`). The judge reads the group as soon as the answer arrives: a call whose
     work was not yet there read as no CPU, a floor of 0 that every charge of the run then paid.
     (Another thread's time, a plug-in's own, is accounted at its own events, and charged all the
-    same: by the next call, or at the end.)"""
+    same: in the call it reaches the group in, between calls spread over the run's steps
+    (contest/charge.py), or at the end.)"""
     time.thread_time_ns()
     conn.send_bytes(data)
 

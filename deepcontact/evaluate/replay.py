@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import arguments, protocol, workers
 from ..contest import Contestant, deadline_for, start_all
-from ..contest.charge import NullFloors, call_charge, in_call
+from ..contest.charge import NullFloors, call_charge, in_call, unasked_pool
 from ..contest.client import packed
 from ..contest.wire import checked_answer, held_claims, unanswered
 from ..errors import InputError
@@ -236,7 +236,7 @@ def visible_context(ctx, traits, label):
 def open_contestants(table, settings):
     """([Contestant] in the table's order, the null contestant): one sandbox per variant
     (deepcontact/contest), started side by side, and the null contestant that measures transport
-    for all of them."""
+    for all of them; each with its CPU between calls read apart (unasked), to be spread."""
     spec, checkpoint, networks = None, None, []
     for v in table:
         inner = getattr(v.start, "start", v.start)
@@ -250,8 +250,8 @@ def open_contestants(table, settings):
     try:
         for v in table:
             made.append(Contestant(v.label, v.name, v.start, v.accelerate, spec, checkpoint, protocol.threads_asked,
-                                   networks))
-        made.append(Contestant("(null)", "null", null=True))
+                                   networks, unasked=True))
+        made.append(Contestant("(null)", "null", null=True, unasked=True))
     except BaseException:
         for c in made:
             c.close()
@@ -298,18 +298,27 @@ def evaluate_simulation(task):
     finally:
         for c in (*contestants.values(), null):
             c.close()
-    # (noticed after any call, ended with its process; the CPU it used after its last call charged,
-    # and what it used between its calls spread over its steps' starts: contest/charge.py)
-    steps = collections.Counter(r.start for r in rows)
-    twin = contestants[asked[-1].label] if yard is not None else None
-    for row in rows:
+    spread_unasked(rows, contestants, null, contestants[asked[-1].label] if yard is not None else None)
+    for row in rows:   # (noticed after any call, ended with its process; the CPU it used after its last call charged)
         c = contestants[row.start]
         row.left_running = tuple(c.left_running)
         row.setup_ms += c.after_s * 1e3
-        row.predict_ms += c.outside_s * 1e3 / steps[row.start]
-        if row.predict_ms_again is not None:   # (the yardstick's row: its A/A twin's start, its own sandbox)
-            row.predict_ms_again += twin.outside_s * 1e3 / steps[row.start]
     return rows
+
+
+def spread_unasked(rows, contestants, null, twin=None):
+    """Each variant's CPU between its calls (Contestant.outside_s, less the null contestant's mean
+    between its own as many times: charge.unasked_pool) spread evenly over its rows, with its
+    start's time (predict_ms); the yardstick's A/A twin's (its own sandbox) with the twin's start
+    (predict_ms_again). contestants: {label: Contestant}."""
+    steps = collections.Counter(r.start for r in rows)
+
+    def share(c, n):
+        return unasked_pool(c.outside_s, c.calls, null.outside_s, null.calls) * 1e3 / n
+    for row in rows:
+        row.predict_ms += share(contestants[row.start], steps[row.start])
+        if row.predict_ms_again is not None and twin is not None:
+            row.predict_ms_again += share(twin, steps[row.start])
 
 
 def _steps_to_judge(files, scene, engine, sim_seed, every):

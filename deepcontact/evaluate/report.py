@@ -190,8 +190,9 @@ def contestants_line(summary):
            f"noise. Deadlines: {deadline_rule()}.\n"]
     left = [(n, s["left_running"]) for n, s in summary.items() if any(s.get("left_running") or ())]
     if left:
-        out.append("Left threads or processes running after their calls (counted by the judge; their CPU between "
-                   "calls spread evenly over the variant's steps, and ended with their sandboxes): "
+        out.append("Left threads or processes running after their calls (counted by the judge; their CPU charged, "
+                   "what reached the judge's reads between calls spread evenly over the variant's steps, and ended "
+                   "with their sandboxes): "
                    + ", ".join(f"{md_text(n)} ({t} thread{'s' if t != 1 else ''}, {p} "
                                f"process{'es' if p != 1 else ''})" for n, (t, p) in left) + ".\n")
     return out
