@@ -171,6 +171,20 @@ def test_cpu_used_between_calls_is_spread_over_the_steps_not_charged_where_it_la
     assert list(charges.unasked()) == pytest.approx([pool / 9] * 8 + [0.0] + [pool / 9])
 
 
+def test_in_the_loop_cpu_beyond_a_calls_wall_time_is_spread_too():
+    # (the kernel accounted a lump of work left running while the call was on: 4 ms of CPU in a
+    # call of 1 ms; or the contestant's own threads, in parallel: the same every step, spread alike)
+    from deepcontact.contest.charge import StepCharges
+    charges = StepCharges()
+    null = Answered(0.5e-3, 0.1e-3)
+    for k in range(4):
+        charges.record("start", Answered(1.0e-3, 0.2e-3 if k else 4.2e-3), null)
+        charges.step_done()
+    # (the first call: its CPU up to its wall time, less the null's least CPU)
+    assert list(charges.charged()) == pytest.approx([0.9e-3] + [0.5e-3] * 3)
+    assert list(charges.unasked()) == pytest.approx([(4.2e-3 - 1.0e-3) / 4] * 4)
+
+
 def test_replay_spreads_each_sandboxs_cpu_between_calls_over_its_rows_starts():
     from types import SimpleNamespace as Seen
     from deepcontact.evaluate.replay import spread_unasked

@@ -1,5 +1,6 @@
 """Training and inference: shapes, losses, overfitting, exact resume, determinism, bad input."""
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -214,11 +215,11 @@ def test_solver_loss_is_zero_at_the_solution_and_trains(tiny, tmp_path):
 @pytest.mark.process
 def test_data_parallel_training_under_torchrun(tiny, tmp_path):
     import subprocess
-    from conftest import installed
-    torchrun = installed("torchrun")   # (torch's own, beside this interpreter: a venv need not be activated)
-    assert torchrun is not None, "torch installs torchrun beside the interpreter"
+    # (torchrun's own module, by this interpreter: its script is where torch was installed, which a
+    # venv made with --system-site-packages does not hold, and a venv need not be activated)
+    torchrun = [sys.executable, "-m", "torch.distributed.run"]
     out = tmp_path / "ddp"
-    r = subprocess.run([torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", "--no-plots",
+    r = subprocess.run([*torchrun, "--nproc_per_node", "2", "-m", "deepcontact.cli.main", "train", "--no-plots",
                         str(tiny), "-o", str(out), "--epochs", "2", "--width", "4", "--depth", "2", "--batch-size", "8",
                         "--optimizer", "adam"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -3,18 +3,20 @@
 A step's wall time holds its contestant's calls and the null contestant's round trips of the same
 requests. Both are taken out of it, and each call put back at its charge: the larger of its wall
 time less the null's least round trip of that kind of request over the whole run, and the CPU its
-sandbox used in the call (Contestant.call measures both) less the null's least for that kind of
-request; never below zero. The floors are the null's least over the run, of the variant's own
+sandbox used in the call, up to its wall time (Contestant.call measures both), less the null's
+least for that kind of request; never below zero. The floors are the null's least over the run, of the variant's own
 requests (an oracle's carry the reference), so that a contestant that slows the null (work left
 running in its sandbox) cannot enlarge what is subtracted.
 
-The CPU its sandbox used between calls, unasked (Contestant.outside: work left running), is charged
-too, spread evenly over the steps that asked it: the kernel accounts a process running on another
-core into its control group only at a scheduler tick (every few milliseconds), so that work reaches
-the judge's reads in lumps that land on a few steps, which a median step would miss; which step it
-served no one can say, and evenly it raises every step's time alike. Less the null contestant's
-mean between its own calls, as many times: every guest's send and return to its line, after the
-judge's read, a few microseconds a call. (CPU the kernel accounts during a call is that call's.)
+The CPU its sandbox used between calls, unasked (Contestant.outside: work left running), and in a
+call beyond its wall time (in parallel with it: its own threads', or work left running that the
+kernel accounted then) is charged too, spread evenly over the steps that asked it: the kernel
+accounts a process running on another core into its control group only at a scheduler tick
+(every few milliseconds), so that work reaches the judge's reads in lumps that land on a few steps,
+which a median step would miss; which step it served no one can say, and evenly it raises every
+step's time alike. Less the null contestant's mean of the same, as many times: every guest's send
+and return to its line, after the judge's read, a few microseconds a call. (Replay, whose steps are
+each longer than a tick, spreads only what falls between calls: replay.spread_unasked.)
 """
 import math
 
@@ -43,20 +45,22 @@ class StepCharges:
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
-        # the CPU its sandbox used between calls over the run (spread over its steps), its calls,
-        # and the same of the null contestant's paired calls (its mean is taken off: unasked_pool)
+        # the CPU its sandbox used between calls and beyond its calls' wall times over the run
+        # (spread over its steps: placed), its calls, and the same of the null contestant's paired
+        # calls (its mean is taken off: unasked_pool)
         self.outside, self.asked, self.null_outside = 0.0, 0, 0.0
         self.floors = NullFloors()
         self.nulls = self.floors.least   # kind of request -> (least wall, least CPU) of the null's round trips
 
     def record(self, kind, contestant, null):
         """After `contestant` and `null` answered the same request of this kind (their `last`)."""
-        wall, cpu = in_call(contestant)
+        wall, cpu, apart = placed(contestant)
+        null_wall, null_cpu, null_apart = placed(null)
         self.within += wall + null.last[0]
         self.calls.append((kind, wall, cpu))
-        self.outside, self.asked = self.outside + contestant.outside, self.asked + 1
-        self.null_outside += null.outside
-        self.floors.seen(kind, in_call(null))
+        self.outside, self.asked = self.outside + apart, self.asked + 1
+        self.null_outside += null_apart
+        self.floors.seen(kind, (null_wall, null_cpu))
 
     def step_done(self):
         """Closes the step (a step that asked nothing: no calls, charged nothing)."""
@@ -69,8 +73,9 @@ class StepCharges:
                              if kinds is None or kind in kinds) for _, calls in self.steps], np.float64)
 
     def unasked(self):
-        """Seconds charged per step for the CPU its sandbox used between calls, evenly over the
-        steps that asked it something (one that asked nothing is charged nothing)."""
+        """Seconds charged per step for the CPU its sandbox used between calls and beyond its calls'
+        wall times, evenly over the steps that asked it something (one that asked nothing is
+        charged nothing)."""
         asked = np.array([bool(calls) for _, calls in self.steps], bool)
         pool = unasked_pool(self.outside, self.asked, self.null_outside, self.asked)
         return np.where(asked, pool / max(int(asked.sum()), 1), 0.0)
@@ -93,6 +98,15 @@ def in_call(contestant):
     CPU before, between its calls, is `outside`)."""
     wall, cpu = contestant.last
     return wall, cpu - contestant.outside
+
+
+def placed(contestant):
+    """(wall, CPU, apart) of `contestant`'s last call in a loop: the CPU its sandbox used once
+    asked, up to the call's wall time, and apart the CPU it used between calls and beyond that
+    wall time, which the loop spreads over its steps."""
+    wall, cpu = in_call(contestant)
+    beyond = max(cpu - wall, 0.0)
+    return wall, cpu - beyond, contestant.outside + beyond
 
 
 def call_charge(wall, cpu, floor):
