@@ -1,7 +1,8 @@
 """The closed loop charged like replay: every call its wall time or its sandbox's CPU in it, the
-larger, each less the null contestant's least over the run, and the CPU its sandbox used between
-calls spread over its steps; work a contestant leaves running is charged to it, on its typical step
-too, and a net time at or below zero is a measurement error stated, never a win."""
+larger, each less the null contestant's least over the run, and the CPU no call can have used
+(between calls, or beyond what its CPUs could run in a call's wall time) spread over its steps; work
+a contestant leaves running is charged to it, on its typical step too, and a net time at or below
+zero is a measurement error stated, never a win."""
 import csv
 import json
 import sys
@@ -171,18 +172,23 @@ def test_cpu_used_between_calls_is_spread_over_the_steps_not_charged_where_it_la
     assert list(charges.unasked()) == pytest.approx([pool / 9] * 8 + [0.0] + [pool / 9])
 
 
-def test_in_the_loop_cpu_beyond_a_calls_wall_time_is_spread_too():
-    # (the kernel accounted a lump of work left running while the call was on: 4 ms of CPU in a
-    # call of 1 ms; or the contestant's own threads, in parallel: the same every step, spread alike)
-    from deepcontact.contest.charge import StepCharges
+def test_cpu_no_call_can_have_used_is_set_apart_and_a_calls_own_threads_are_not():
+    from deepcontact.contest.charge import StepCharges, split_cpu
+    # 1 ms of wall on 2 CPUs: at most 2 ms of CPU can be the call's; the 0.3 ms read before the
+    # request was used between calls
+    assert split_cpu(2.3e-3, 0.3e-3, 1.0e-3, 2) == pytest.approx((2.0e-3, 0.3e-3))
+    # a lump the kernel accounted while the call was on (4 ms in a call of 1 ms) was run before it
+    assert split_cpu(4.5e-3, 0.3e-3, 1.0e-3, 2) == pytest.approx((2.0e-3, 2.5e-3))
+    assert split_cpu(0.2e-3, 0.0, 1.0e-3, 1) == (0.2e-3, 0.0)
+    # so a start that works on two threads on every fourth step keeps that step's charge: its
+    # steps keep their shape (its heavy steps spread over all would move its median)
     charges = StepCharges()
     null = Answered(0.5e-3, 0.1e-3)
-    for k in range(4):
-        charges.record("start", Answered(1.0e-3, 0.2e-3 if k else 4.2e-3), null)
+    for k in range(8):
+        charges.record("start", Answered(1.0e-3, 1.9e-3 if k % 4 == 3 else 0.2e-3), null)
         charges.step_done()
-    # (the first call: its CPU up to its wall time, less the null's least CPU)
-    assert list(charges.charged()) == pytest.approx([0.9e-3] + [0.5e-3] * 3)
-    assert list(charges.unasked()) == pytest.approx([(4.2e-3 - 1.0e-3) / 4] * 4)
+    assert list(charges.charged()) == pytest.approx([0.5e-3, 0.5e-3, 0.5e-3, 1.8e-3] * 2)
+    assert list(charges.unasked()) == pytest.approx([0.0] * 8)
 
 
 def test_replay_spreads_each_sandboxs_cpu_between_calls_over_its_rows_starts():

@@ -3,20 +3,21 @@
 A step's wall time holds its contestant's calls and the null contestant's round trips of the same
 requests. Both are taken out of it, and each call put back at its charge: the larger of its wall
 time less the null's least round trip of that kind of request over the whole run, and the CPU its
-sandbox used in the call, up to its wall time (Contestant.call measures both), less the null's
-least for that kind of request; never below zero. The floors are the null's least over the run, of the variant's own
+sandbox used in the call (Contestant.call measures both) less the null's least for that kind of
+request; never below zero. The floors are the null's least over the run, of the variant's own
 requests (an oracle's carry the reference), so that a contestant that slows the null (work left
 running in its sandbox) cannot enlarge what is subtracted.
 
-The CPU its sandbox used between calls, unasked (Contestant.outside: work left running), and in a
-call beyond its wall time (in parallel with it: its own threads', or work left running that the
-kernel accounted then) is charged too, spread evenly over the steps that asked it: the kernel
-accounts a process running on another core into its control group only at a scheduler tick
-(every few milliseconds), so that work reaches the judge's reads in lumps that land on a few steps,
-which a median step would miss; which step it served no one can say, and evenly it raises every
-step's time alike. Less the null contestant's mean of the same, as many times: every guest's send
-and return to its line, after the judge's read, a few microseconds a call. (Replay, whose steps are
-each longer than a tick, spreads only what falls between calls: replay.spread_unasked.)
+The CPU its group was charged that no call can have used (`split_cpu`: Contestant.outside) is
+charged too, spread evenly over the steps that asked it (replay's: replay.spread_unasked): what it
+used between calls, unasked (work left running), and what a call's reads show beyond what the CPUs
+it may run on could run in that call's wall time (run before it, accounted late). The kernel
+accounts a process running on another core into its control group only at a scheduler tick (every
+few milliseconds), so that work reaches the judge's reads in lumps that land on a few steps, which
+a median step would miss; which step it served no one can say, and evenly it raises every step's
+time alike. Less the null contestant's mean of the same, as many times: every guest's send and
+return to its line, after the judge's read, a few microseconds a call. A call's own parallel work
+(its threads, within its CPUs) stays that call's, so a start's steps keep their shape.
 """
 import math
 
@@ -45,22 +46,21 @@ class StepCharges:
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
-        # the CPU its sandbox used between calls and beyond its calls' wall times over the run
-        # (spread over its steps: placed), its calls, and the same of the null contestant's paired
-        # calls (its mean is taken off: unasked_pool)
+        # the CPU its group was charged that no call can have used, over the run (spread over its
+        # steps: split_cpu), its calls, and the same of the null contestant's paired calls (its
+        # mean is taken off: unasked_pool)
         self.outside, self.asked, self.null_outside = 0.0, 0, 0.0
         self.floors = NullFloors()
         self.nulls = self.floors.least   # kind of request -> (least wall, least CPU) of the null's round trips
 
     def record(self, kind, contestant, null):
         """After `contestant` and `null` answered the same request of this kind (their `last`)."""
-        wall, cpu, apart = placed(contestant)
-        null_wall, null_cpu, null_apart = placed(null)
+        wall, cpu = in_call(contestant)
         self.within += wall + null.last[0]
         self.calls.append((kind, wall, cpu))
-        self.outside, self.asked = self.outside + apart, self.asked + 1
-        self.null_outside += null_apart
-        self.floors.seen(kind, (null_wall, null_cpu))
+        self.outside, self.asked = self.outside + contestant.outside, self.asked + 1
+        self.null_outside += null.outside
+        self.floors.seen(kind, in_call(null))
 
     def step_done(self):
         """Closes the step (a step that asked nothing: no calls, charged nothing)."""
@@ -73,40 +73,41 @@ class StepCharges:
                              if kinds is None or kind in kinds) for _, calls in self.steps], np.float64)
 
     def unasked(self):
-        """Seconds charged per step for the CPU its sandbox used between calls and beyond its calls'
-        wall times, evenly over the steps that asked it something (one that asked nothing is
-        charged nothing)."""
+        """Seconds charged per step for the CPU its group was charged that no call can have used,
+        evenly over the steps that asked it something (one that asked nothing is charged
+        nothing)."""
         asked = np.array([bool(calls) for _, calls in self.steps], bool)
         pool = unasked_pool(self.outside, self.asked, self.null_outside, self.asked)
         return np.where(asked, pool / max(int(asked.sum()), 1), 0.0)
 
     def uncharged(self):
         """Seconds of each step's wall time not charged to it: the round trips in it, less the
-        charges of its calls (negative where a call's CPU exceeded its wall time)."""
+        charges of its calls (negative where a call's CPU exceeded its wall time: its threads')."""
         return np.array([w for w, _ in self.steps], np.float64) - self.charged()
 
 
+def split_cpu(used, between, wall, cpus):
+    """(the CPU a call used, the CPU no call can have used) of a call whose group was charged `used`
+    seconds since the call before, `between` of them before its request (read then), `wall` its
+    wall time and `cpus` the CPUs its sandbox may run on: beyond `wall` times `cpus`, the call's
+    CPU was run before it and accounted late (a lump of work left running); apart too."""
+    within = used - between
+    beyond = max(within - wall * cpus, 0.0)
+    return within - beyond, between + beyond
+
+
 def unasked_pool(outside, calls, null_outside, null_calls):
-    """Seconds of the CPU a contestant's sandbox used between calls that are its to be charged:
-    their sum `outside` over its `calls` calls, less as many times the null contestant's mean
-    between its own (`null_outside` over `null_calls`); never below zero."""
+    """Seconds of the CPU a contestant's group was charged that no call can have used that are its
+    to be charged: their sum `outside` over its `calls` calls, less as many times the null
+    contestant's mean of the same (`null_outside` over `null_calls`); never below zero."""
     return max(outside - calls * null_outside / max(null_calls, 1), 0.0)
 
 
 def in_call(contestant):
-    """(wall, CPU) of `contestant`'s last call, the CPU only what its sandbox used once asked (the
-    CPU before, between its calls, is `outside`)."""
+    """(wall, CPU) of `contestant`'s last call, the CPU only what the call can have used (the rest,
+    `outside`, is spread: split_cpu)."""
     wall, cpu = contestant.last
     return wall, cpu - contestant.outside
-
-
-def placed(contestant):
-    """(wall, CPU, apart) of `contestant`'s last call in a loop: the CPU its sandbox used once
-    asked, up to the call's wall time, and apart the CPU it used between calls and beyond that
-    wall time, which the loop spreads over its steps."""
-    wall, cpu = in_call(contestant)
-    beyond = max(cpu - wall, 0.0)
-    return wall, cpu - beyond, contestant.outside + beyond
 
 
 def call_charge(wall, cpu, floor):

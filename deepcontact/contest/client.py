@@ -2,11 +2,12 @@
 
 A call costs the larger of its wall time (the judge's clock, around the request and its answer)
 and the CPU time the contestant's sandbox used since its previous call ended (its control group:
-every process and thread it runs, between calls too). A contestant made with `unasked=True` (the
-loop's and replay's) has its group read once more just before each request, so the part of that
-CPU used between calls (work left running) is kept apart, `outside`, to be spread over a run's
-steps (charge.py). Its setup (import and construction) is charged whole, from the moment it said it
-was ready. Every call has a deadline; past it the
+every process and thread it runs, between calls too): what `call` returns (the studies' charge).
+A contestant made with `unasked=True` (the loop's and replay's) has its group read once more just
+before each request, so the CPU no call can have used (between calls: work left running; or
+beyond what its CPUs could run in the call's wall time) is kept apart, `outside`, to be spread over
+a run's steps (charge.py). Its setup (import and construction) is charged whole, from the moment it
+said it was ready. Every call has a deadline; past it the
 contestant is stopped and named. Transport is measured against the null contestant (the same
 sandbox and path, no plug-in code: `Contestant.null()`), never by a contestant; what the
 contestant left running is counted from its control group by the judge, never asked.
@@ -25,6 +26,7 @@ from ..solver.methods import SOLVERS, check_plausible, is_native, judge
 from ..warmstart.starts import NAMES, STARTS, TRAITS, Builtin, Checked, Remote, described
 from . import broker as _broker, grants, sandbox, shape
 from .arena import FDS
+from .charge import split_cpu
 from .wire import ANSWER_MAX, checked_answer, held_claims, unanswered, unpack
 
 SETUP_DEADLINE = 300.0   # seconds a contestant may take to start and make its start (torch, a model, on a busy machine)
@@ -68,7 +70,7 @@ class Contestant:
         # (between its answer before and the request: work left running, which no one step can be
         # charged), read apart, `outside`; with its sum and the calls since its setup. Only where
         # it is spread: in a job, each read of its group asks the broker (tens of microseconds)
-        self.unasked = unasked
+        self.unasked, self.cpus = unasked, len(os.sched_getaffinity(0))   # (its forks run on the judge's CPUs)
         self.outside, self.outside_s, self.calls = 0.0, 0.0, 0
         self.setup_s, self.setup_wall_s, self.start_s, self.after_s = 0.0, 0.0, 0.0, 0.0
         # what its ctx holds: the judge's one description of its start (starts.described), the same
@@ -181,7 +183,8 @@ class Contestant:
         self._wall = time.perf_counter() - t0
         cpu = self.sandbox.cpu_seconds()
         used = 0.0 if cpu is None or self.cpu_last is None else cpu - self.cpu_last
-        self.outside = 0.0 if sent is None or self.cpu_last is None else min(max(sent - self.cpu_last, 0.0), used)
+        self.outside = 0.0 if sent is None or self.cpu_last is None else \
+            split_cpu(used, min(max(sent - self.cpu_last, 0.0), used), self._wall, self.cpus)[1]
         self.outside_s, self.calls = self.outside_s + self.outside, self.calls + 1
         self.cpu_last = cpu
         self.last = (self._wall, used)   # (both, for a loop's charge: charge.py)

@@ -4,8 +4,8 @@ Unlike replay, errors feed back: a start that leaves the solver short of the ans
 next state. Every variant runs alike: its start (and a plug-in method) in a sandbox of its own
 (deepcontact/contest), each step through Python; every call is charged here, as replay's: the
 larger of its wall time and its sandbox's CPU in the call, each less the null contestant's least
-over the run, and the CPU its sandbox used between calls (and, in the loop, beyond a call's wall
-time) spread over its steps (contest/charge.py),
+over the run, and the CPU no call can have used (between calls: work left running) spread over its
+steps (contest/charge.py),
 so a start that gives what Box2D's warm start gives measures what builtin does, and work it leaves
 running is charged to it, on its typical step too. What the path itself costs over
 one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
@@ -50,7 +50,8 @@ class LoopResult:
     iterations: np.ndarray
     ms_per_step: np.ndarray
     predict_ms: np.ndarray     # per step, the start's share of ms_per_step (0 where the step asked it nothing:
-                               # no contact point), so that both are taken over the same steps
+                               # no contact point), so that both are taken over the same steps; with the
+                               # CPU its sandbox used that no call can have used, spread (contest/charge.py)
     drift: np.ndarray          # max over surviving bodies of |position - reference position|, per step
     penetration: float
     finite: bool
@@ -137,9 +138,8 @@ class _Adapter:
 
     def settle(self):
         """Once the run is over (the null's least round trips over it known): per step, the
-        seconds not charged (transport), the CPU its sandbox used between calls and beyond its
-        calls' wall times (unasked, spread over the steps that asked it: contest/charge.py) and the
-        start's charge with it (timing)."""
+        seconds not charged (transport), the CPU no call can have used (unasked, spread over the
+        steps that asked it: contest/charge.py) and the start's charge with it (timing)."""
         self.transport = self.charges.uncharged()
         self.unasked = self.charges.unasked()
         self.timing = self.charges.charged(("start",)) + self.unasked
