@@ -7,13 +7,14 @@ import csv
 import json
 import sys
 import textwrap
+from types import SimpleNamespace as Seen
 
 import numpy as np
 import pytest
 
 from conftest import dc
 from deepcontact import make_starts
-from deepcontact.contest.charge import unasked_pool
+from deepcontact.contest.charge import in_call, unasked_pool
 
 CONTESTANTS = textwrap.dedent("""
     import os
@@ -109,6 +110,7 @@ def test_replay_spreads_what_its_own_contestants_used_between_calls(stacked, mon
     # every one of them read its CPU between calls apart, from the calls of this run
     for c in (*contestants.values(), null):
         assert c.unasked and c.calls >= len(rows) // 2 and c.outside_s >= 0, (c.label, c.calls)
+        assert c.cpus == 1   # (the threads each is granted: one, whatever the machine's CPUs)
     for label, c in contestants.items():
         mine = [r for r in rows if r.start == label]
         share = unasked_pool(c.outside_s, c.calls, null.outside_s, null.calls) * 1e3 / max(len(mine), 1)
@@ -191,8 +193,46 @@ def test_cpu_no_call_can_have_used_is_set_apart_and_a_calls_own_threads_are_not(
     assert list(charges.unasked()) == pytest.approx([0.0] * 8)
 
 
+class ScriptedGroup:
+    """A sandbox whose control group's CPU reads are given in turn (None: a read that failed)."""
+
+    def __init__(self, reads):
+        self.reads = list(reads)
+
+    def cpu_seconds(self):
+        return self.reads.pop(0)
+
+
+def test_a_contestants_call_sets_apart_what_no_call_can_have_used(monkeypatch):
+    # (its group's reads, scripted: the real ones depend on the kernel's ticks; the call itself,
+    # its line and its answer, is not what is tested here)
+    from deepcontact.contest.client import Contestant
+
+    def contestant(threads, reads):
+        c = object.__new__(Contestant)
+        c.unasked, c.cpus, c.cpu_last = True, threads, 1.0
+        c.outside, c.outside_s, c.calls = 0.0, 0.0, 0
+        c.sandbox, c.conn = ScriptedGroup(reads), Seen(send_bytes=lambda data: None)
+        monkeypatch.setattr(c, "_receive", lambda deadline, doing: ({}, {}), raising=False)
+        return c
+    clock = iter([10.0, 10.001, 20.0, 20.001, 30.0, 30.001, 40.0, 40.001])   # (each call 1 ms of wall)
+    monkeypatch.setattr("deepcontact.contest.client.time.perf_counter", lambda: next(clock))
+    c = contestant(1, [1.0003, 1.0043])   # 0.3 ms between calls, then 4 ms in a 1 ms call on 1 thread
+    assert c._timed(b"", 1.0, "answering")[0] == pytest.approx(4.3e-3)   # (what `call` returns: all of it)
+    assert c.last == pytest.approx((1e-3, 4.3e-3)) and c.outside == pytest.approx(3.3e-3)
+    assert in_call(c) == pytest.approx((1e-3, 1e-3))
+    c = contestant(2, [1.0003, 1.0023])   # granted two threads: 2 ms in 1 ms of wall is the call's
+    c._timed(b"", 1.0, "answering")
+    assert c.outside == pytest.approx(0.3e-3) and c.outside_s == pytest.approx(0.3e-3) and c.calls == 1
+    c = contestant(1, [None, 1.0043])   # the read before the request failed: the bound still holds
+    c._timed(b"", 1.0, "answering")
+    assert c.outside == pytest.approx(3.3e-3)
+    c = contestant(1, [1.0003, None])   # the read after it failed: its CPU is charged to the next call
+    c._timed(b"", 1.0, "answering")
+    assert c.last[1] == 0.0 and c.outside == 0.0 and c.cpu_last == 1.0
+
+
 def test_replay_spreads_each_sandboxs_cpu_between_calls_over_its_rows_starts():
-    from types import SimpleNamespace as Seen
     from deepcontact.evaluate.replay import spread_unasked
     rows = [Seen(start=name, predict_ms=0.1, predict_ms_again=0.1 if name == "builtin" else None)
             for _ in range(4) for name in ("builtin", "busy")]

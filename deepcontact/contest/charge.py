@@ -10,14 +10,16 @@ running in its sandbox) cannot enlarge what is subtracted.
 
 The CPU its group was charged that no call can have used (`split_cpu`: Contestant.outside) is
 charged too, spread evenly over the steps that asked it (replay's: replay.spread_unasked): what it
-used between calls, unasked (work left running), and what a call's reads show beyond what the CPUs
-it may run on could run in that call's wall time (run before it, accounted late). The kernel
+used between calls, unasked (work left running), and what a call's reads show beyond what the
+threads it is granted could run in that call's wall time (run before it and accounted late, or run
+on threads it was not granted). The kernel
 accounts a process running on another core into its control group only at a scheduler tick (every
 few milliseconds), so that work reaches the judge's reads in lumps that land on a few steps, which
 a median step would miss; which step it served no one can say, and evenly it raises every step's
 time alike. Less the null contestant's mean of the same, as many times: every guest's send and
 return to its line, after the judge's read, a few microseconds a call. A call's own parallel work
-(its threads, within its CPUs) stays that call's, so a start's steps keep their shape.
+on the threads it is granted (`dc evaluate --threads`) stays that call's, so a start's steps keep
+their shape; a lump up to that bound that the kernel accounts during a call stays there too.
 """
 import math
 
@@ -89,8 +91,9 @@ class StepCharges:
 def split_cpu(used, between, wall, cpus):
     """(the CPU a call used, the CPU no call can have used) of a call whose group was charged `used`
     seconds since the call before, `between` of them before its request (read then), `wall` its
-    wall time and `cpus` the CPUs its sandbox may run on: beyond `wall` times `cpus`, the call's
-    CPU was run before it and accounted late (a lump of work left running); apart too."""
+    wall time and `cpus` the threads it is granted (at most the CPUs it may run on): beyond `wall`
+    times `cpus`, the call's CPU was run before it and accounted late (a lump of work left running),
+    or on threads it was not granted; apart too."""
     within = used - between
     beyond = max(within - wall * cpus, 0.0)
     return within - beyond, between + beyond

@@ -5,8 +5,8 @@ and the CPU time the contestant's sandbox used since its previous call ended (it
 every process and thread it runs, between calls too): what `call` returns (the studies' charge).
 A contestant made with `unasked=True` (the loop's and replay's) has its group read once more just
 before each request, so the CPU no call can have used (between calls: work left running; or
-beyond what its CPUs could run in the call's wall time) is kept apart, `outside`, to be spread over
-a run's steps (charge.py). Its setup (import and construction) is charged whole, from the moment it
+beyond what the threads it is granted could run in the call's wall time) is kept apart, `outside`,
+to be spread over a run's steps (charge.py). Its setup (import and construction) is charged whole, from the moment it
 said it was ready. Every call has a deadline; past it the
 contestant is stopped and named. Transport is measured against the null contestant (the same
 sandbox and path, no plug-in code: `Contestant.null()`), never by a contestant; what the
@@ -66,11 +66,12 @@ class Contestant:
         self.label, self.null_contestant = label, null
         self.who = who or f"the variant {label!r}"   # (how its errors name it)
         self.left_running = [0, 0]
-        # unasked: the CPU of its last call's `last` that its sandbox used before it was asked
-        # (between its answer before and the request: work left running, which no one step can be
-        # charged), read apart, `outside`; with its sum and the calls since its setup. Only where
-        # it is spread: in a job, each read of its group asks the broker (tens of microseconds)
-        self.unasked, self.cpus = unasked, len(os.sched_getaffinity(0))   # (its forks run on the judge's CPUs)
+        # unasked: the CPU of its last call's `last` that no call can have used (between calls:
+        # work left running; or beyond what the threads it is granted could run in the call's wall
+        # time), set apart, `outside` (charge.split_cpu); with its sum and the calls since its
+        # setup. Only where it is spread: in a job, each read of its group asks the broker (tens
+        # of microseconds)
+        self.unasked = unasked
         self.outside, self.outside_s, self.calls = 0.0, 0.0, 0
         self.setup_s, self.setup_wall_s, self.start_s, self.after_s = 0.0, 0.0, 0.0, 0.0
         # what its ctx holds: the judge's one description of its start (starts.described), the same
@@ -95,6 +96,8 @@ class Contestant:
             names = [name, method, *networks]
             modules = [] if made else [type(getattr(start, "start", start)).__module__]
         self._setup = setup
+        # (the threads it is granted, on the CPUs it starts on: the judge's, which its sandbox inherits)
+        self.cpus = max(min(len(os.sched_getaffinity(0)), int(setup["threads"])), 1)
         if grants.runs_plugin_code(names, modules):
             sandbox.refuse_bare(self.who, _broker.missing_fences())
         self.sandbox = _broker.new(grants.Grant(names, modules, [checkpoint] if checkpoint else []),
@@ -183,10 +186,13 @@ class Contestant:
         self._wall = time.perf_counter() - t0
         cpu = self.sandbox.cpu_seconds()
         used = 0.0 if cpu is None or self.cpu_last is None else cpu - self.cpu_last
-        self.outside = 0.0 if sent is None or self.cpu_last is None else \
-            split_cpu(used, min(max(sent - self.cpu_last, 0.0), used), self._wall, self.cpus)[1]
+        # (a read that failed before the request sets nothing apart as between calls; the bound holds)
+        between = 0.0 if sent is None or cpu is None or self.cpu_last is None else \
+            min(max(sent - self.cpu_last, 0.0), used)
+        self.outside = split_cpu(used, between, self._wall, self.cpus)[1] if self.unasked else 0.0
         self.outside_s, self.calls = self.outside_s + self.outside, self.calls + 1
-        self.cpu_last = cpu
+        if cpu is not None:   # (a read that failed: this call's CPU is charged to the next)
+            self.cpu_last = cpu
         self.last = (self._wall, used)   # (both, for a loop's charge: charge.py)
         return max(self._wall, used), header, arrays
 

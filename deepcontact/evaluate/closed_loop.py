@@ -4,8 +4,8 @@ Unlike replay, errors feed back: a start that leaves the solver short of the ans
 next state. Every variant runs alike: its start (and a plug-in method) in a sandbox of its own
 (deepcontact/contest), each step through Python; every call is charged here, as replay's: the
 larger of its wall time and its sandbox's CPU in the call, each less the null contestant's least
-over the run, and the CPU no call can have used (between calls: work left running) spread over its
-steps (contest/charge.py),
+over the run, and the CPU no call can have used (between calls: work left running; or beyond what
+its granted threads could run in a call) spread over its steps (contest/charge.py),
 so a start that gives what Box2D's warm start gives measures what builtin does, and work it leaves
 running is charged to it, on its typical step too. What the path itself costs over
 one native call a step (Python stepping, the request built) is measured and stated. Every start runs the
@@ -83,7 +83,7 @@ class _Adapter:
         # (the step's contact keys, and those of the step before, as arrays: contest/keyed.py)
         self.keys, self.known, self.previous = None, KeySet(), KeyedImpulses()
         self.charges = StepCharges()
-        # per step, once settled: seconds not charged, the CPU used between calls, the start's charge
+        # per step, once settled: seconds not charged, the CPU no call can have used, the start's charge
         self.transport = self.unasked = self.timing = np.zeros(0)
         self.method = None   # a plug-in method's RemoteMethod, in the same process
         # (its steps' ctx in shared memory; the columns only an oracle sees in an arena of their own)

@@ -236,7 +236,7 @@ def visible_context(ctx, traits, label):
 def open_contestants(table, settings):
     """([Contestant] in the table's order, the null contestant): one sandbox per variant
     (deepcontact/contest), started side by side, and the null contestant that measures transport
-    for all of them; each with its CPU between calls read apart (unasked), to be spread."""
+    for all of them; each with the CPU no call can have used set apart (unasked), to be spread."""
     spec, checkpoint, networks = None, None, []
     for v in table:
         inner = getattr(v.start, "start", v.start)
@@ -307,9 +307,10 @@ def evaluate_simulation(task):
 
 
 def spread_unasked(rows, contestants, null, twin=None):
-    """Each variant's CPU between its calls (Contestant.outside_s, less the null contestant's mean
-    between its own as many times: charge.unasked_pool) spread evenly over its rows, with its
-    start's time (predict_ms); the yardstick's A/A twin's (its own sandbox) with the twin's start
+    """Each variant's CPU that no call can have used (Contestant.outside_s: between its calls, or
+    beyond what its granted threads could run in a call; less the null contestant's mean of the
+    same as many times: charge.unasked_pool) spread evenly over its rows, with its start's time
+    (predict_ms); the yardstick's A/A twin's (its own sandbox) with the twin's start
     (predict_ms_again). contestants: {label: Contestant}."""
     steps = collections.Counter(r.start for r in rows)
 

@@ -191,8 +191,8 @@ def contestants_line(summary):
     left = [(n, s["left_running"]) for n, s in summary.items() if any(s.get("left_running") or ())]
     if left:
         out.append("Left threads or processes running after their calls (counted by the judge; their CPU charged, "
-                   "what reached the judge's reads between calls spread evenly over the variant's steps, and ended "
-                   "with their sandboxes): "
+                   "what no call can have used spread evenly over the variant's steps, and ended with their "
+                   "sandboxes): "
                    + ", ".join(f"{md_text(n)} ({t} thread{'s' if t != 1 else ''}, {p} "
                                f"process{'es' if p != 1 else ''})" for n, (t, p) in left) + ".\n")
     return out
@@ -202,8 +202,9 @@ def fenced_line():
     """How every contestant was fenced and charged (contest/), the missing fences named."""
     return (f"Each variant ran in a sandbox of its own ({describe_fences()}), made from its names there (the judge "
             f"holds none of its state, and it none of the judge's, no other variant's and no run folder), and every "
-            f"call was charged here, the larger of its wall time and the CPU its sandbox used in it, with the CPU it "
-            f"used between calls spread evenly over its steps, and its answer judged here.")
+            f"call was charged here, the larger of its wall time and the CPU its sandbox used in it, with the CPU no "
+            f"call can have used (between calls, or beyond what the threads it is granted could run in a call) "
+            f"spread evenly over its steps, and its answer judged here.")
 
 
 def provenance(summary):
