@@ -48,6 +48,11 @@ PROBE = textwrap.dedent("""
             out["socket_unix"] = refused(libc.syscall(41, ctypes.c_long(1), 1, 0))
             out["socket_unix_high_bits"] = refused(libc.syscall(41, ctypes.c_long(1 | (1 << 32)), 1, 0))
             out["ptrace"] = refused(libc.syscall(101, ctypes.c_long(16), ctypes.c_long(1), 0, 0))
+            try:   # (its CPUs, the judge's, asked again: it may not set them at all)
+                os.sched_setaffinity(0, os.sched_getaffinity(0))
+                out["sched_setaffinity"] = 0
+            except OSError as e:
+                out["sched_setaffinity"] = e.errno
             try:
                 open(SECRET).read()
                 out["secret"] = "read"
@@ -119,7 +124,8 @@ def test_a_forked_contestant_sees_and_may_do_what_a_fresh_one_may(probe_module, 
     assert forked_b["pids"] == [1, 2]   # (its own namespace: neither the zygote nor a rival)
     assert forked_b["CapEff"] == forked_b["CapPrm"] == "0000000000000000"
     assert (forked_b["NoNewPrivs"], forked_b["Seccomp"], forked_b["uid"]) == ("1", "2", 65534)
-    for call in ("unshare", "mount", "clone_newuser", "socket_unix", "socket_unix_high_bits", "ptrace"):
+    for call in ("unshare", "mount", "clone_newuser", "socket_unix", "socket_unix_high_bits", "ptrace",
+                 "sched_setaffinity"):
         assert forked_b[call] == eperm, (call, forked_b)
     assert forked_b["secret"] == "FileNotFoundError"
     assert forked_b["/dev/shm"] == forked_b["/tmp"] == ["token-b"]   # (nothing of a's)

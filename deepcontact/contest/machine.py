@@ -133,6 +133,10 @@ class _ArgRule(ctypes.Structure):
 # namespace of its own, where making a namespace needs no capability, so clone may not ask for one
 # (bubblewrap's --disable-userns does this for a fresh job), and clone3 (whose flags a filter
 # cannot read) answers ENOSYS: the C library then falls back to clone.
+# "contestant" also refuses sched_setaffinity: a contestant runs on the CPUs the judge's thread
+# had (a fork is held to them before its filter is on; a fresh sandbox inherits them), which the
+# measurement's protocol records and its charge bounds (charge.split_cpu); one that could widen
+# them would make both untrue.
 # "zygote": dc's own code only, which makes each fork's namespaces and mounts (a job's writable
 # folders attached from the trees the judge made) before the fork's own filter is on.
 SECCOMP_POLICIES = ("contestant", "job", "zygote")
@@ -150,6 +154,8 @@ def _policy_rules(policy):
     if policy in ("contestant", "job"):   # (one rule a flag: any of them set refuses the call)
         rules += [("clone", "refuse", [_ArgRule(0, SCMP_CMP_MASKED_EQ, flag, flag)]) for flag in CLONE_FLAGS]
         rules.append(("clone3", "absent", []))
+    if policy == "contestant":
+        rules.append(("sched_setaffinity", "refuse", []))
     return rules
 
 
