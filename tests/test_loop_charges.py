@@ -117,6 +117,56 @@ def test_replay_spreads_what_its_own_contestants_used_between_calls(stacked, mon
         assert all(r.predict_ms == pytest.approx(before[id(r)] + share) for r in mine), label
 
 
+BURNS_BETWEEN = textwrap.dedent("""
+    import os, time
+    import numpy as np
+    from deepcontact.solver.methods import MethodResult
+
+    class Method:
+        '''Answers with its start at once; its first call leaves a process that burns 0.2 s of CPU
+        and ends, between its calls.'''
+        calls = 0
+        def __call__(self, problem, normal, tangent, settings):
+            Method.calls += 1
+            if Method.calls == 1 and os.fork() == 0:
+                end = time.process_time() + 0.2
+                while time.process_time() < end:
+                    pass
+                os._exit(0)
+            return MethodResult(normal, tangent, np.zeros(1))
+    """)
+
+
+def test_a_studys_plugin_method_is_charged_the_cpu_it_used_beyond_its_calls(stacked, tmp_path, monkeypatch):
+    # (the studies time a step by its wall time less its solves' round trips: work a method's
+    # process did beside them, which that wall time does not hold, is added)
+    import time
+    from conftest import plugin_modules
+    from deepcontact.contest import RemoteMethod
+    from deepcontact.solver.problem import StepProblem
+    from deepcontact.solver.settings import SolveSettings
+    forget = plugin_modules(tmp_path, monkeypatch, {"burns_between": BURNS_BETWEEN})
+    remote = RemoteMethod("burns_between:Method")
+    try:
+        problem = StepProblem.from_step_file(sorted(stacked.glob("seed-000000/step-*.xml"))[-1])
+        settings = SolveSettings(accelerate="burns_between:Method")
+        zeros = np.zeros(problem.points)
+        remote.solve(problem, zeros, zeros, settings)
+        first = remote.take_transport()
+        burnt = remote.contestant.sandbox.cpu_seconds()
+        for _ in range(200):   # (until the burner's CPU is in its group: it is once it has ended)
+            if remote.contestant.sandbox.cpu_seconds() - burnt >= 0.15:
+                break
+            time.sleep(0.05)
+        remote.solve(problem, zeros, zeros, settings)
+        # its round trip less what its process used before it was asked (0.2 s in all, some of it
+        # counted in the first call already): far below zero
+        assert remote.take_transport() < min(first, 0.0) - 0.1, first
+    finally:
+        remote.close()
+        forget()
+
+
 def test_a_net_time_at_or_below_zero_is_a_measurement_error_never_a_win():
     from deepcontact.evaluate.loop_report import loop_table
     from deepcontact.evaluate.verdicts import loop_verdict

@@ -399,8 +399,9 @@ class RemoteMethod:
         null = self.null.call(request, deadline_for(n))[0]
         if self.charges is not None:
             self.charges.record("solve", self.contestant, self.null)
-        else:
-            self.pending += min(null, took)
+        else:   # (the CPU its call was charged beyond its wall time is added to the step: threads, or work
+            # left running between calls, which the step's wall time does not hold)
+            self.pending += min(null, took) - (took - self.contestant.last[0])
         normal, tangent = checked_answer(self.contestant.label, arrays, n, also=("claims",))
         held_claims(self.contestant.label, header, arrays, settings.max_iterations)   # (its iterations are recorded)
         check_plausible(self.name, problem, normal, tangent)
@@ -408,7 +409,9 @@ class RemoteMethod:
         return dataclasses.replace(judged, iterations=int(header.get("iterations", 0)), relaxation=settings.relaxation)
 
     def take_transport(self):
-        """Seconds of round trips since the last call (a step's), to subtract from its time."""
+        """Seconds to subtract from a step's wall time since the last call: its solves' round trips
+        (the null's), less the CPU they were charged beyond their wall times (negative where that
+        is the more)."""
         out, self.pending = self.pending, 0.0
         return out
 
