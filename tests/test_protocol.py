@@ -77,10 +77,13 @@ import os
 import numpy as np
 import torch
 from deepcontact.warmstart.starts import StartValue
+AT_IMPORT = torch.get_num_threads()   # (torch imported here, under the contestant's filter)
 class Start:
     def __call__(self, ctx):
         if torch.get_num_threads() != 3:   # (the judge's --threads, in the contestant's own process)
             raise ValueError(f"this contestant has {torch.get_num_threads()} torch threads")
+        if AT_IMPORT != 3:   # (MKL, which counts cores by moving itself to each, which it may not, is told)
+            raise ValueError(f"torch took {AT_IMPORT} threads at its import")
         pools = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
         if set(pools.values()) != {"3"}:   # (numpy's pool too, sized before its import)
             raise ValueError(f"this contestant's thread pools were told {pools}")

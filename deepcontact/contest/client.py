@@ -384,6 +384,13 @@ class RemoteMethod:
         self.name = name
         self.contestant = contestant or Contestant(name, "builtin", Builtin(), name).begin()
         self.null, self._own_null = null, null is None
+        if self.null is None:   # (started here, not in a step's time: its start would be the first step's)
+            try:
+                self.null = Contestant.null()
+            except BaseException:
+                if contestant is None:
+                    self.contestant.close()
+                raise
         self.pending, self.charges = 0.0, charges
 
     def solve(self, problem, start_n, start_t, settings):
@@ -393,8 +400,6 @@ class RemoteMethod:
         request = {"op": "solve", "problem": pickle.dumps(unanswered(problem)),
                    "normal": np.asarray(start_n, np.float64), "tangent": np.asarray(start_t, np.float64),
                    "settings": settings}
-        if self.null is None:
-            self.null = Contestant.null()
         took, header, arrays = self.contestant.call(request, deadline_for(n))
         null = self.null.call(request, deadline_for(n))[0]
         if self.charges is not None:

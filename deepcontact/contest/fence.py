@@ -27,7 +27,10 @@ SYSTEM = ("/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin")
 # dc's variables a contestant keeps (its environment is otherwise cleared)
 KEPT_ENV = ("PATH", "LANG", "LC_ALL", "TZ", "OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE")
 # The thread pools a library starts at import (numpy's OpenBLAS, torch's OpenMP) size themselves to
-# the machine's cores unless told: a contestant's are told its own thread count.
+# the machine's cores unless told: a contestant's are told its own thread count. MKL_DYNAMIC off:
+# MKL (in torch) counts the cores at import by setting its affinity to each in turn, which a
+# contestant's seccomp filter refuses (it may not move off its CPUs), and then takes one thread
+# unless the count it is told is final.
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 MEMORY_FLOOR = 1 << 30   # bytes: the least share of the machine's memory a sandbox gets
@@ -159,7 +162,8 @@ def thread_env(fence):
     defaults), and, in a cleared environment, Python's warnings off unless dc shows its own (-v):
     a library's warning in a contestant is advice to its author, not a line of dc's report, as in
     dc's own process (cli/terminal.setup_logging)."""
-    out = {} if fence.threads is None else dict.fromkeys(THREAD_VARIABLES, str(fence.threads))
+    out = {} if fence.threads is None else {**dict.fromkeys(THREAD_VARIABLES, str(fence.threads)),
+                                            "MKL_DYNAMIC": "FALSE"}
     if fence.environment == "clear" and not logging.getLogger("py.warnings").isEnabledFor(logging.WARNING):
         out["PYTHONWARNINGS"] = "ignore"
     return out
