@@ -113,7 +113,7 @@ def test_replay_spreads_what_its_own_contestants_used_between_calls(stacked, mon
         assert c.cpus == 1   # (the threads each is granted: one, whatever the machine's CPUs)
     for label, c in contestants.items():
         mine = [r for r in rows if r.start == label]
-        share = unasked_pool(c.outside_s, c.calls, null.outside_s, null.calls) * 1e3 / max(len(mine), 1)
+        share = unasked_pool(c, null) * 1e3 / max(len(mine), 1)
         assert all(r.predict_ms == pytest.approx(before[id(r)] + share) for r in mine), label
 
 
@@ -212,7 +212,9 @@ def test_cpu_used_between_calls_is_spread_over_the_steps_not_charged_where_it_la
     # each step: its call's wall less the null's (0.5 ms), and 8 ms of CPU between calls over the 8
     # steps that asked it
     assert list(charges.charged()) == pytest.approx([0.5e-3] * 8 + [0.0])
-    assert list(charges.unasked()) == pytest.approx([1.0e-3] * 8 + [0.0])
+    # (the contestant's own sums over the run, which its calls keep: Contestant.outside_s, calls)
+    assert list(charges.unasked(unasked_pool(Seen(outside_s=8e-3, calls=8), Seen(outside_s=0.0, calls=8)))) \
+        == pytest.approx([1.0e-3] * 8 + [0.0])
     assert list(charges.uncharged()) == pytest.approx([1.0e-3] * 8 + [0.0])   # (the round trips less the charges)
     # what the null used between its calls is no floor: the least CPU of its calls, once asked
     charges.record("start", Answered(1.0e-3, 0.2e-3), Answered(0.5e-3, 0.3e-3, outside=0.25e-3))
@@ -221,7 +223,8 @@ def test_cpu_used_between_calls_is_spread_over_the_steps_not_charged_where_it_la
     # but its mean between calls (every guest's send and return, after the judge's read) is taken
     # off as many times: 8 ms less 9 calls x its mean (0.25 ms over its 9), over the 9 steps that asked
     pool = 8e-3 - 9 * 0.25e-3 / 9
-    assert list(charges.unasked()) == pytest.approx([pool / 9] * 8 + [0.0] + [pool / 9])
+    assert unasked_pool(Seen(outside_s=8e-3, calls=9), Seen(outside_s=0.25e-3, calls=9)) == pytest.approx(pool)
+    assert list(charges.unasked(pool)) == pytest.approx([pool / 9] * 8 + [0.0] + [pool / 9])
 
 
 def test_cpu_no_call_can_have_used_is_set_apart_and_a_calls_own_threads_are_not():
@@ -240,7 +243,8 @@ def test_cpu_no_call_can_have_used_is_set_apart_and_a_calls_own_threads_are_not(
         charges.record("start", Answered(1.0e-3, 1.9e-3 if k % 4 == 3 else 0.2e-3), null)
         charges.step_done()
     assert list(charges.charged()) == pytest.approx([0.5e-3, 0.5e-3, 0.5e-3, 1.8e-3] * 2)
-    assert list(charges.unasked()) == pytest.approx([0.0] * 8)
+    assert list(charges.unasked(unasked_pool(Seen(outside_s=0.0, calls=8), Seen(outside_s=0.0, calls=8)))) \
+        == pytest.approx([0.0] * 8)
 
 
 class ScriptedGroup:

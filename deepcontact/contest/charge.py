@@ -8,8 +8,9 @@ request; never below zero. The floors are the null's least over the run, of the 
 requests (an oracle's carry the reference), so that a contestant that slows the null (work left
 running in its sandbox) cannot enlarge what is subtracted.
 
-The CPU its group was charged that no call can have used (`split_cpu`: Contestant.outside) is
-charged too, spread evenly over the steps that asked it (replay's: replay.spread_unasked): what it
+The CPU its group was charged that no call can have used (`split_cpu`: Contestant.outside, summed
+in its outside_s) is charged too, spread evenly over the steps that asked it (`unasked`; replay's:
+replay.spread_unasked): what it
 used between calls, unasked (work left running), and what a call's reads show beyond what the
 threads it is granted could run in that call's wall time (run before it and accounted late, or run
 on threads it was not granted). The kernel
@@ -48,10 +49,6 @@ class StepCharges:
 
     def __init__(self):
         self.steps, self.calls, self.within = [], [], 0.0
-        # the CPU its group was charged that no call can have used, over the run (spread over its
-        # steps: split_cpu), its calls, and the same of the null contestant's paired calls (its
-        # mean is taken off: unasked_pool)
-        self.outside, self.asked, self.null_outside = 0.0, 0, 0.0
         self.floors = NullFloors()
         self.nulls = self.floors.least   # kind of request -> (least wall, least CPU) of the null's round trips
 
@@ -60,8 +57,6 @@ class StepCharges:
         wall, cpu = in_call(contestant)
         self.within += wall + null.last[0]
         self.calls.append((kind, wall, cpu))
-        self.outside, self.asked = self.outside + contestant.outside, self.asked + 1
-        self.null_outside += null.outside
         self.floors.seen(kind, in_call(null))
 
     def step_done(self):
@@ -74,12 +69,11 @@ class StepCharges:
         return np.array([sum(call_charge(wall, cpu, self.nulls[kind]) for kind, wall, cpu in calls
                              if kinds is None or kind in kinds) for _, calls in self.steps], np.float64)
 
-    def unasked(self):
-        """Seconds charged per step for the CPU its group was charged that no call can have used,
-        evenly over the steps that asked it something (one that asked nothing is charged
-        nothing)."""
+    def unasked(self, pool):
+        """Seconds charged per step for `pool` seconds of CPU that no call can have used
+        (unasked_pool), evenly over the steps that asked it something (one that asked nothing is
+        charged nothing)."""
         asked = np.array([bool(calls) for _, calls in self.steps], bool)
-        pool = unasked_pool(self.outside, self.asked, self.null_outside, self.asked)
         return np.where(asked, pool / max(int(asked.sum()), 1), 0.0)
 
     def uncharged(self):
@@ -99,11 +93,11 @@ def split_cpu(used, between, wall, cpus):
     return within - beyond, between + beyond
 
 
-def unasked_pool(outside, calls, null_outside, null_calls):
-    """Seconds of the CPU a contestant's group was charged that no call can have used that are its
-    to be charged: their sum `outside` over its `calls` calls, less as many times the null
-    contestant's mean of the same (`null_outside` over `null_calls`); never below zero."""
-    return max(outside - calls * null_outside / max(null_calls, 1), 0.0)
+def unasked_pool(contestant, null):
+    """Seconds of the CPU `contestant`'s group was charged that no call can have used that are its
+    to be charged: their sum over its calls since its setup (outside_s), less as many times the
+    null contestant's mean of the same; never below zero."""
+    return max(contestant.outside_s - contestant.calls * null.outside_s / max(null.calls, 1), 0.0)
 
 
 def in_call(contestant):

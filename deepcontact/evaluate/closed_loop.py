@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import arguments, workers
 from ..contest import RemoteMethod, deadline_for
-from ..contest.charge import StepCharges
+from ..contest.charge import StepCharges, unasked_pool
 from ..contest.arena import StepChannel
 from ..contest.keyed import KeyedImpulses, KeySet
 from ..contest.wire import checked_answer
@@ -141,7 +141,7 @@ class _Adapter:
         seconds not charged (transport), the CPU no call can have used (unasked, spread over the
         steps that asked it: contest/charge.py) and the start's charge with it (timing)."""
         self.transport = self.charges.uncharged()
-        self.unasked = self.charges.unasked()
+        self.unasked = self.charges.unasked(unasked_pool(self.contestant, self.null))
         self.timing = self.charges.charged(("start",)) + self.unasked
 
 

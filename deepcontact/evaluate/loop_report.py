@@ -25,10 +25,9 @@ def _loop_path_line(results):
     path = max(getattr(r, "path_ms", 0.0) for r in ours)
     # (the path's cost is a difference of two runs' medians: at or below zero, it is within their noise)
     noise = ", at or below zero: within the two runs' noise" if path <= 0 else ""
-    return (f"{fenced_line()} Every step went through Python; each call was charged the larger of its wall time "
-            f"and its sandbox's CPU in it, each less the null contestant's least over the run, and the CPU no call "
-            f"can have used (between calls, or beyond what its CPUs could run in a call's wall time) spread evenly "
-            f"over the steps that asked it, for every variant alike (the round trips left uncharged: at most {transport:.3f} ms a step, median). "
+    return (f"{fenced_line()} Every step went through Python; each call was charged less the null "
+            f"contestant's least over the run, for every variant alike (the round trips left uncharged: at most "
+            f"{transport:.3f} ms a step, median). "
             f"A net time per step at or below zero is a measurement error, never a win. Deadlines: "
             f"{deadline_rule()}. What that path costs over the project's native loop (one call a step), "
             f"{path:.3f} ms a step (builtin both ways, median{noise}), is in every row of the project's solver, alike; "

@@ -315,7 +315,7 @@ def spread_unasked(rows, contestants, null, twin=None):
     steps = collections.Counter(r.start for r in rows)
 
     def share(c, n):
-        return unasked_pool(c.outside_s, c.calls, null.outside_s, null.calls) * 1e3 / n
+        return unasked_pool(c, null) * 1e3 / n
     for row in rows:
         row.predict_ms += share(contestants[row.start], steps[row.start])
         if row.predict_ms_again is not None and twin is not None:
