@@ -192,6 +192,25 @@ def test_a_net_time_at_or_below_zero_is_a_measurement_error_never_a_win():
     assert line.startswith("**Verdict**: none is named: Box2D's warm start's own time") and "**fast**" not in line
 
 
+def test_a_start_slow_on_every_step_it_is_asked_has_no_smallest_median_from_steps_it_is_not():
+    # (a pile that falls for 45 of its 60 steps touches nothing there: no start is asked, and each
+    # variant's step is the engine's alone; a fork bomb slow on every step it was asked was said to
+    # have the smallest median, 0.62x builtin's, from the engine's steps' noise)
+    from deepcontact.evaluate.verdicts import loop_verdict
+    rng = np.random.default_rng(3)
+    falling = np.full(60, np.nan)
+    falling[45:] = 1e-5
+    builtin = np.concatenate([rng.uniform(0.045, 0.055, 45), rng.uniform(1.0, 1.2, 15)])
+    again = builtin * (1 + 0.01 * rng.standard_normal(60))
+    slow = np.concatenate([builtin[:45] * 0.6, builtin[45:] * 40])
+    rows = [loop_row("builtin", builtin, again), loop_row("slow", slow)]
+    for r in rows:
+        r.residuals = falling
+    line = loop_verdict(rows, 1e-4)
+    assert "slow has the smallest median" not in line and "**slow**" not in line, line
+    assert "intervals over the steps with contact points" in line, line
+
+
 class Answered:
     """What a Contestant's last call measured (Contestant.last: wall seconds, CPU seconds; outside:
     the part of that CPU its sandbox used before it was asked)."""

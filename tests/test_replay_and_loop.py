@@ -177,6 +177,44 @@ def test_the_closed_loops_reference_is_computed_once_and_checked_before_use(tmp_
     assert third == drift["first"]
 
 
+def test_a_kept_reference_cut_short_or_behind_a_linked_folder_is_not_used(tmp_path, monkeypatch):
+    # (a trajectory shorter than asked, its digest made again, had been read back; and the folder,
+    # a link, was followed to write and read elsewhere)
+    import io
+    import json
+    from deepcontact.evaluate import closed_loop, reference_cache
+    run = tmp_path / "run"
+    assert dc("simulate", *SMALL_PILE[:-2], "--steps", "40", "-q", "-o", run).returncode == 0
+    args = ["evaluate", run, "--closed-loop", "--starts", "builtin", "--no-budgets", "--no-plots"]
+    assert dc(*args, "-q", "-o", tmp_path / "first").returncode == 0
+    [kept] = reference_cache.folder_for(run).iterdir()
+    with np.load(kept, allow_pickle=False) as z:
+        meta, arrays = json.loads(str(z["meta"])), {k: z[k] for k in z.files if k != "meta"}
+    first = int(arrays["counts"][0])
+    arrays.update(counts=arrays["counts"][:1], index=arrays["index"][:first], position=arrays["position"][:first],
+                  **{k: arrays[k][:1] for k in ("energies", "iterations", "seconds", "residuals")})
+    meta["digest"] = reference_cache._digest(arrays)
+    buffer = io.BytesIO()
+    np.savez(buffer, meta=np.array(json.dumps(meta, sort_keys=True)), **arrays)
+    kept.write_bytes(buffer.getvalue())
+    computed = []
+    original = closed_loop.reference_trajectory
+    monkeypatch.setattr(closed_loop, "reference_trajectory", lambda *a, **k: computed.append(a) or original(*a, **k))
+    assert dc(*args, "-q", "-o", tmp_path / "again").returncode == 0
+    assert len(computed) == 1
+    drift = {p.name: (p / "report.md").read_text().split("| builtin |")[1].split("|")[9:12]
+             for p in (tmp_path / "first", tmp_path / "again")}
+    assert drift["first"] == drift["again"], drift
+    elsewhere = tmp_path / "elsewhere"
+    reference_cache.folder_for(run).rename(elsewhere)
+    reference_cache.folder_for(run).symlink_to(elsewhere)
+    before = {p.name: p.read_bytes() for p in elsewhere.iterdir()}
+    done = dc(*args, "-o", tmp_path / "linked")
+    assert done.returncode == 0 and len(computed) == 2
+    assert "is a link, which dc never follows" in done.stderr, done.stderr
+    assert {p.name: p.read_bytes() for p in elsewhere.iterdir()} == before
+
+
 def in_lockstep(a, b, steps):
     """Two steppers stepped together `steps` times: each pair of their LoopSteps, whose solutions
     are there or not alike."""

@@ -53,6 +53,16 @@ PROBE = textwrap.dedent("""
                 out["sched_setaffinity"] = 0
             except OSError as e:
                 out["sched_setaffinity"] = e.errno
+            for name in ("environ", "mem"):   # (its namespace's PID 1)
+                try:
+                    with open("/proc/1/" + name, "rb") as f:
+                        if name == "mem":   # (at its first mapped byte)
+                            with open("/proc/1/maps") as maps:
+                                f.seek(int(maps.readline().split("-")[0], 16))
+                        data = f.read(1 if name == "mem" else 1 << 20)
+                    out["init_" + name] = "the judge's variable" if b"judges-own-value" in data else "read"
+                except OSError as e:
+                    out["init_" + name] = e.errno
             try:
                 open(SECRET).read()
                 out["secret"] = "read"
@@ -109,6 +119,7 @@ def probe_two(module):
 
 
 def test_a_forked_contestant_sees_and_may_do_what_a_fresh_one_may(probe_module, monkeypatch):
+    monkeypatch.setenv("DC_TEST_JUDGES_OWN", "judges-own-value")   # (a variable of dc's, a token say)
     kind, forked_a, forked_b = probe_two(probe_module)
     assert kind == "ForkedProcess"
     monkeypatch.setenv("DC_NO_ZYGOTE", "1")
@@ -117,8 +128,15 @@ def test_a_forked_contestant_sees_and_may_do_what_a_fresh_one_may(probe_module, 
     # (bubblewrap leaves its root folder writable, a tmpfs of no size limit; a fork's root is
     # read-only: stricter, never looser; its bounding set is the one thing else that may differ)
     assert forked_b["read_only_root"] == 30 and fresh_b["read_only_root"] in (0, 30)
+    # (a fork's PID 1 is a copy of the zygote, whose memory no contestant may read; bubblewrap's
+    # is its own small init, which holds the contestant's own command line and none of dc's
+    # environment)
+    for found in (forked_a, forked_b):
+        assert found["init_environ"] == found["init_mem"] == 13, found   # (EACCES)
+    for found in (fresh_a, fresh_b):
+        assert found["init_environ"] in ("read", 13), found
     for found in (forked_a, forked_b, fresh_a, fresh_b):
-        found.pop("CapBnd"), found.pop("read_only_root")
+        found.pop("CapBnd"), found.pop("read_only_root"), found.pop("init_environ"), found.pop("init_mem")
     assert forked_a == fresh_a and forked_b == fresh_b
     eperm = 1
     assert forked_b["pids"] == [1, 2]   # (its own namespace: neither the zygote nor a rival)
@@ -244,9 +262,10 @@ HOSTILE = textwrap.dedent("""
                 for fd in os.listdir(f"/proc/{pid}/fd"):
                     try:
                         out.append(os.readlink(f"/proc/{pid}/fd/{fd}"))
-                    except OSError:   # (the listing's own descriptor, closed)
-                        pass
-                return sorted(out)
+                    except OSError as e:
+                        if e.errno != 2:   # (the listing's own descriptor, closed)
+                            out.append(e.errno)
+                return sorted(out, key=str)
             mounts = [line.split()[4] for line in open("/proc/self/mountinfo")]
             raise RuntimeError("FOUND" + json.dumps({"own": targets("self"), "init": targets(1), "mounts": mounts}))
 
@@ -398,7 +417,9 @@ def test_a_forked_contestant_holds_no_descriptor_or_mount_of_the_zygotes(hostile
     own = [t for t in found["own"] if t != "/dev/null"]
     assert len(own) == 3 and sum(t.startswith("socket:") for t in own) == 1, found   # (its line, its two streams)
     assert all(t.startswith("pipe:") for t in own if not t.startswith("socket:")), found
-    assert found["init"] == ["/dev/null"] * 3, found   # (its PID 1 holds nothing of the zygote's)
+    # (its PID 1 holds nothing of the zygote's: three descriptors, on /dev/null, whose targets it
+    # may not even read: the PID 1 of a fork is undumpable)
+    assert found["init"] == [13] * 3, found
     # (its root first, then only what its fence record names: no /proc of the machine's, no old root)
     assert found["mounts"][0] == "/" and found["mounts"].count("/") == 1 and found["mounts"].count("/proc") == 1
     allowed = ("/proc", "/dev", "/tmp", *fence.SYSTEM, "/etc/", sys.prefix, sys.base_prefix,

@@ -199,6 +199,10 @@ class Sandbox:
         if machine.bwrap() is None:   # (else set inside: fence.bwrap_argv; a bare run is marked all the same)
             env = dict(os.environ if env is None else env, **fences.thread_env(self.fence),
                        **{fences.MARKER: self.fence.profile})
+        elif fences.environment(self.fence) is not None:
+            # (a cleared environment is bubblewrap's to set; bubblewrap itself, whose PID 1 in the
+            # namespace its contestant can read through /proc/1, is given none of dc's)
+            env = {}
         out, err = (self._stream(which) for which in ("stdout", "stderr"))
         try:
             self.process = subprocess.Popen(

@@ -165,11 +165,12 @@ def _fastest_first(times, ranked_times, candidates):
                   key=lambda n: (float(_median(list(ranked_times[n].values()))), float(_median(list(times[n].values())))))
 
 
-def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
+def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None, totals=None):
     """The verdict on `times` ({label: {step key: charged ms}}): `candidates` the labels that may
     win, `base` Box2D's warm start's label, `aa_pair` (first, second) its paired A/A times,
     `setup_ms` {label: setup charged} added to each total, `unfinished` {label: step keys it ended
-    above the tolerance} (infinite in the medians, module docstring). None without the base."""
+    above the tolerance} (infinite in the medians, module docstring), `totals` {label: ms of the
+    whole run} where the times judged are not all its steps (else their sum). None without the base."""
     if base is None or base not in times:
         return None
     rng = np.random.default_rng(SEED)
@@ -178,7 +179,8 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None):
     v = Verdict(base=base, aa=ratio_interval(*aa_pair, rng))
     v.unfinished = {name: len(set(unfinished.get(name, ())) & set(t)) for name, t in times.items()}
     v.vs_base = {name: ratio_interval(*paired(t, ranked_times[base]), rng) for name, t in ranked_times.items()}
-    v.totals = {name: float(sum(t.values())) + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
+    v.totals = {name: float(totals[name] if totals and name in totals else sum(t.values()))
+                + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
     quiet = aa_steps(len(aa_pair[0]), v.aa)
     v.power = {name: power_of(times[name], times[base], setup_ms.get(name, 0.0) - setup_ms.get(base, 0.0),
                               v.vs_base[name], v.aa, quiet) for name in times if name != base}

@@ -6,9 +6,12 @@ Each is kept beside the run (`.RUN.references/`, one file per trajectory, named 
 what determines it: content-addressed), written whole (a temporary name renamed), and checked
 before it is used: its stored key must equal the key asked for (a changed scene, step count,
 setting or build is another name, and a file renamed into its place is refused by its key), its
-arrays must have the shapes the key implies and hash to the digest stored with them. Anything
-else is recomputed, and the file replaced. A run folder that cannot be written beside is no
-error: the reference is then computed as before.
+arrays must have the shapes the key implies (every step of a finite trajectory) and hash to the
+digest stored with them. Anything else is recomputed, and the file replaced. A run folder that
+cannot be written beside is no error: the reference is then computed as before; nor is a folder
+of references that is a link, which is never followed (computed, not kept, and said). The checks
+are against a stale, truncated or damaged file, not a forged one: whoever can write beside a run
+can change the run itself.
 """
 import hashlib
 import io
@@ -57,10 +60,15 @@ def cached(scene, steps, folder, settings, compute):
     """The reference trajectory of scene over steps, each step solved as settings say: read from
     folder where a checked one is there, else compute() (a Trajectory) and kept there. Its steps
     are reported to workers.progress either way (the progress total counts them)."""
+    if os.path.islink(folder):
+        log.warning("%s is a link, which dc never follows: the reference trajectory is stepped and not kept", folder)
+        return compute()
     key = _key(scene, steps, settings)
     path = Path(folder) / f"{hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()}.npz"
     found = _load(path, key)
     if found is not None:
+        log.info("the reference trajectory read back from %s, kept by an earlier command (remove it to step it again)",
+                 path)
         workers.progress(steps)
         return found
     trajectory = compute()
@@ -138,7 +146,9 @@ def _load(path, key):
             return None
         counts, index, position = arrays["counts"], arrays["index"], arrays["position"]
         n = len(counts)
-        if (n > key["steps"] or counts.sum() != len(index) or position.shape != (len(index), 2)
+        finite = bool(arrays["scalars"][1])
+        if (n > key["steps"] or (finite and n != key["steps"]) or counts.sum() != len(index)
+                or position.shape != (len(index), 2)
                 or any(len(arrays[k]) != n for k in ("energies", "iterations", "seconds", "residuals"))):
             return None
     except (ValueError, KeyError, TypeError, OSError, EOFError, RecursionError, zipfile.BadZipFile):

@@ -310,10 +310,15 @@ def loop_verdict(results, tolerance):
     left_out = _loop_left_out(candidates, fair, tolerance, errors)
     if base.start in errors or not fair:
         return _none_left(base.start in errors) + left_out
-    times = {r.start: dict(enumerate(np.asarray(r.ms_per_step, np.float64))) for r in ours}
+    # (judged on the steps that asked some start: on a step with no contact point no start runs, and
+    # its time, the engine's alone, would be the median of a run mostly in free fall; each run's
+    # total stays its whole run's)
+    asked = _asked_steps(ours)
+    times = {r.start: {i: t for i, t in enumerate(np.asarray(r.ms_per_step, np.float64)) if i in asked} for r in ours}
+    aa = [np.asarray(x, np.float64)[[i for i in range(len(x)) if i in asked]] for x in (base.ms_per_step, base.ms_again)]
     unfinished = {r.start: _loop_unfinished(r, tolerance) for r in ours}
-    v = decide(times, [r.start for r in fair], base.start, (base.ms_per_step, base.ms_again),
-               {r.start: r.setup_ms for r in ours}, unfinished)
+    v = decide(times, [r.start for r in fair], base.start, aa, {r.start: r.setup_ms for r in ours}, unfinished,
+               totals={r.start: float(np.sum(r.ms_per_step)) for r in ours})
     said = v.as_dict()   # (the power of the variants it may name: one that stopped being finite is named at no length)
     said["power"] = {n: p for n, p in said["power"].items() if n in {r.start for r in fair}}
     power = power_words(said)
@@ -321,8 +326,8 @@ def loop_verdict(results, tolerance):
         return (f"**Verdict**: no clear winner: {count(v.steps, 'step')} to judge on, and a winner is named from at "
                 f"least {MIN_STEPS}." + left_out + power + _fence_caveat())
     head = _loop_head(v, base.start, [r.start for r in fair])
-    return (f"{head} ({'; '.join(_loop_intervals(v, base.start))}; 95% intervals over the steps)."
-            + left_out + power + _fence_caveat())
+    return (f"{head} ({'; '.join(_loop_intervals(v, base.start))}; 95% intervals over the steps with contact "
+            "points)." + left_out + power + _fence_caveat())
 
 
 def _none_left(base_in_error):
@@ -369,6 +374,16 @@ def _loop_intervals(v, base):
 def runner_name(runner, unfinished):
     """The runner-up as a verdict names it: by its label only where it converged."""
     return md_text(runner) if not unfinished.get(runner, 0) else "(a variant that did not converge)"
+
+
+def _asked_steps(rows):
+    """The steps on which some row's start was asked (a contact point: a residual); every step
+    where none was (a run that never touched)."""
+    asked = set()
+    for r in rows:
+        res = None if r.residuals is None else np.asarray(r.residuals, np.float64)
+        asked.update(range(len(r.ms_per_step)) if res is None else np.flatnonzero(np.isfinite(res)).tolist())
+    return asked or set(range(max((len(r.ms_per_step) for r in rows), default=0)))
 
 
 def _loop_unfinished(r, tolerance):
