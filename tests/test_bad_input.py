@@ -149,6 +149,19 @@ def test_out_of_range_scenes_are_refused_not_aborted(tmp_path, old, new, needle)
     assert not (tmp_path / "out").exists()
 
 
+def test_a_bound_written_as_it_is_named_is_within_it(tmp_path):
+    # (a scene holds its numbers in float32: dt="1e-6" read as 9.99999997e-07 was refused as below
+    # "between 1e-6 and 10 s"; a density of 1e20 as above "at most 1e20")
+    for old, new in (('dt="0.016666668"', 'dt="1e-6"'), ('radius="0.5" density="1"/>', 'radius="0.5" density="1e20"/>')):
+        path = scene_with(tmp_path, old, new)
+        r = dc("validate", str(path))
+        assert r.returncode == 0, r.stdout
+    path = scene_with(tmp_path, 'dt="0.016666668"', 'dt="1e-6"')
+    assert dc("simulate", str(path), "--steps", "2", "-q", "-o", tmp_path / "small").returncode == 0
+    one_line_error(dc("simulate", str(scene_with(tmp_path, 'dt="0.016666668"', 'dt="0.9e-6"')), "-o", tmp_path / "o"),
+                   "dt must be between 1e-6 and 10 s")
+
+
 def test_a_shape_lost_to_rounding_is_refused(tmp_path):
     # Box2D shifts the inertia to the centre of mass in float32 and asserts it is > 0: a small
     # circle far from its body's origin cancels out.

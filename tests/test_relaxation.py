@@ -65,6 +65,19 @@ def test_over_relaxation_needs_fewer_sweeps_on_the_settled_pile(hard_problems):
     assert sweeps(1.7) < 0.7 * sweeps(1.0)
 
 
+def test_a_w_that_is_zero_in_float32_is_refused_before_any_step_is_written(tmp_path):
+    # (w = 1e-300 was taken: a step keeps w in float32, where it is 0, and every step file written
+    # failed the schema; the float32 solver swept with 0 and the stack sank through its floor)
+    from deepcontact.errors import OptionError
+    r = dc("simulate", "stack", "--param", "count=5", "--steps", "3", "--solver", "pgs", "--relaxation", "1e-300",
+           "-o", tmp_path / "run")
+    assert r.returncode == 2 and "1e-300 is 0 in float32" in r.stderr and not (tmp_path / "run").exists(), r.stderr
+    with pytest.raises(OptionError, match="is 0 in float32"):
+        SolveSettings(relaxation=1e-300)
+    assert SolveSettings(relaxation=1e-45).relaxation == 1e-45   # (float32's least number: kept)
+    assert parse_relaxation("0.8") == 0.8
+
+
 def test_auto_picks_the_w_with_the_fewest_median_sweeps():
     assert best_w([{w: abs(w - 1.5) * 100 + 10 for w in np.round(np.arange(1.0, 2.0, 0.1), 1)}] * 3) == 1.5
     assert best_w([]) == 1.0

@@ -83,6 +83,38 @@ def test_exact_mode_in_the_loop_follows_box2d_up_to_the_divergence_point():
     assert max(d for d, _, _ in steps) < 1e-5
 
 
+def test_exact_mode_hands_back_box2ds_impulses_with_their_signed_zeros():
+    # (a frictionless stack: Box2D clamps each tangent impulse to [-0, 0] and writes -0 where it
+    # pushed; the exact mode, which had left out the rows no friction needs, wrote +0)
+    scene = generate("stack", 0, {"count": "5", "friction": "0"})
+    k, positions = 8, scene.solver.position_iterations
+    ours, theirs = build_world(scene), build_world(scene)
+    for w in (ours, theirs):
+        for _ in range(9):
+            w.step(scene.dt, k, positions)
+    _, want = theirs.step(scene.dt, k, positions, record=True)
+    got = PGSStepper(ours, scene, SolveSettings(mode="exact", max_iterations=k, tolerance=0), "builtin").step().contacts
+    assert np.signbit(want["tangent_impulse"]).any()
+    for key in ("normal_impulse", "tangent_impulse"):
+        assert np.array_equal(np.asarray(want[key], np.float64).view(np.uint64),
+                              np.asarray(got[key], np.float64).view(np.uint64)), key
+
+
+def test_the_residual_a_solve_stops_on_is_the_same_with_the_rows_no_friction_needs(tmp_path):
+    # (the scale a residual is taken against read the tangent velocities of frictionless rows
+    # posed all the same (prune=False): another residual of the same iterate, another stop)
+    import deepcontact as dcl
+    run = tmp_path / "run"
+    assert dc("simulate", "confined", "--param", "count=100", "--steps", "40", "-q", "-o", run).returncode == 0
+    for path in sorted(run.glob("seed-*/step-*.xml"))[5::5]:
+        problem = dcl.StepProblem.from_step_file(path)
+        for mode in ("float32", "float64"):
+            pruned, posed = (dcl.solve(problem, mode=mode, tolerance=1e-6, stop_on="residual", max_iterations=500,
+                                       prune=prune) for prune in (True, False))
+            assert pruned.iterations == posed.iterations and pruned.residual == posed.residual, (path.name, mode)
+            assert np.array_equal(pruned.normal_impulse, posed.normal_impulse), (path.name, mode)
+
+
 def test_simulate_with_pgs_records_iterations_and_residual(tmp_path):
     out = tmp_path / "run"
     r = dc("simulate", *SMALL_PILE, "--solver", "pgs", "--start", "zero", "--tolerance", "1e-4",

@@ -249,12 +249,14 @@ private:
         return plausible;
     }
 
-    // A point's |relative normal velocity - bias| and (with a friction row) |tangent velocity| at
-    // the current velocities, each taken into worst where larger.
+    // A point's |relative normal velocity - bias| and (with friction) |tangent velocity| at the
+    // current velocities, each taken into worst where larger. (Friction, not a friction row: a
+    // frictionless row posed all the same, unpruned, leaves the problem and its residual as they
+    // were, and so must its scale.)
     void take_free_velocity(const ContactManifold<R>& m, const ContactPoint<R>& p, V2<R> tangent, double& worst) const {
         const V2<R> dv = relative_velocity(m, p);
         worst = std::max(worst, std::abs(double(dot(dv, m.normal)) - double(p.bias)));
-        if (m.friction_row) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
+        if (m.friction_row && m.friction > R(0)) worst = std::max(worst, std::abs(double(dot(dv, tangent))));
     }
 
     // Velocity of B relative to A at a contact point, as the solver computes it.

@@ -25,6 +25,11 @@ MAX_COEFFICIENT = 1e9   # friction and restitution: the generators' limit (1e20 
 MAX_COUNT = 2 ** 31 - 1   # steps and iterations: Box2D's int32
 
 
+def _f32(bound):
+    """A bound as a scene holds a value (float32): a value written as the bound itself is within it."""
+    return float(np.float32(bound))
+
+
 def _within(limit, *values):
     return all(math.isfinite(v) and abs(v) <= limit for v in values)
 
@@ -81,7 +86,7 @@ def check_scene(scene, path=None):
 
 def _world(scene):
     at = scene.lines.get
-    if not (_finite(scene.dt) and 1e-6 <= scene.dt <= 10):
+    if not (_finite(scene.dt) and _f32(1e-6) <= scene.dt <= 10):
         yield f"dt must be between 1e-6 and 10 s, got {scene.dt}", at("world")
     if not 1 <= scene.steps <= MAX_COUNT:
         yield f"steps must be between 1 and {MAX_COUNT}, got {scene.steps}", at("world")
@@ -138,7 +143,7 @@ def _shape(s, effects):
             yield f"{s.kind} {name} must be a finite number >= 0"
         if name != "density" and v is not None and v > MAX_COEFFICIENT:
             yield f"{s.kind} {name} must be at most {MAX_COEFFICIENT:g}"
-    if s.density is not None and s.density > 1e20:
+    if s.density is not None and s.density > _f32(1e20):
         yield f"{s.kind} density must be at most 1e20 kg/m^2"
     yield from _GEOMETRY[s.kind](s)
 
@@ -179,7 +184,9 @@ def _mass(where, b):
     if mass <= 0:
         yield f"{where} is dynamic but has no mass: give a circle or polygon a density > 0", b.line
     if not lo <= mass <= hi:
-        yield (f"{where}: its mass {mass:.3g} kg is outside [{lo:g}, {hi:g}] (float32 could not hold it, "
+        # (its digits to the one that tells it from the bound: never "1e+20 is outside [..., 1e+20]")
+        shown = f"{mass:.3g}" if float(f"{mass:.3g}") != (lo if mass < lo else hi) else f"{mass:.9g}"
+        yield (f"{where}: its mass {shown} kg is outside [{lo:g}, {hi:g}] (float32 could not hold it, "
                f"or its inverse, safely)", b.line)
     if not b.fixed_rotation:
         # Box2D shifts the inertia to the centre of mass in float32 and asserts it stays > 0:

@@ -150,7 +150,8 @@ class PGSStepper:
             and is_native(settings.accelerate)
         if self.native or self.posed:
             self.step_settings = PGSStepSettings(
-                step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve),
+                step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve,
+                                  prune=settings.mode != "exact"),   # (pgs.solve: Box2D's zeros' signs)
                 solve=self.solve_options, start=start, warm_scale=0.0, inv_dt0=self.inv_dt,
                 position_iterations=scene.solver.position_iterations, record=record)
         world.find_new_contacts()   # Step would do this itself, after our Collide

@@ -6,9 +6,19 @@ TOLERANCE and CAP are the defaults of every command and function that solves to 
 """
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from .._box2d import Acceleration, SolveOptions, is_global
 from ..errors import OptionError
 from .registry import SOLVERS
+
+def relaxation_too_small(w):
+    """The one line saying w is a positive number that rounds to 0 in float32, or None: a step file
+    (and the float32 solver) keeps w in float32, where it would be 0, outside (0, 2), and the file
+    would fail the schema it was written by."""
+    if w > 0.0 and float(np.float32(w)) == 0.0:
+        return f"relaxation must be in (0, 2), and {w:g} is 0 in float32, in which a step keeps it"
+    return None
 
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
 # dc evaluate's cap: a verdict needs variants that reach the tolerance on every step, and at 1000
@@ -58,6 +68,9 @@ class SolveSettings:
         except TypeError:   # a field that cannot be hashed (a list, an array) is of no type it may have
             key = None
         self._check_types()
+        small = relaxation_too_small(self.relaxation) if isinstance(self.relaxation, (int, float)) else None
+        if small:
+            raise _error(small, "relaxation")
         if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
             raise _error("--mode exact is Box2D's PGS: it takes no over-relaxation", "relaxation")
         if self.mode == "exact" and self.order != "island":
