@@ -162,6 +162,16 @@ def test_a_bound_written_as_it_is_named_is_within_it(tmp_path):
                    "dt must be between 1e-6 and 10 s")
 
 
+def test_a_scenes_own_cap_too_large_for_the_loop_names_the_scene_and_its_line(tmp_path):
+    # (the cap came from <solver velocity_iterations>: the line named neither, and read as an option)
+    path = tmp_path / "stack.xml"
+    assert dc("simulate", "stack", "--param", "count=2", "--write-scene", path).returncode == 0
+    path.write_text(re.sub(r'velocity_iterations="\d+"', 'velocity_iterations="2000000000"', path.read_text()))
+    line = one_line_error(dc("simulate", str(path), "--solver", "pgs", "-o", tmp_path / "o"),
+                          "the scene's velocity_iterations")
+    assert re.match(rf"dc simulate: error: {re.escape(str(path))}:\d+: a cap of 2,000,000,000 sweeps", line), line
+
+
 def test_a_shape_lost_to_rounding_is_refused(tmp_path):
     # Box2D shifts the inertia to the centre of mass in float32 and asserts it is > 0: a small
     # circle far from its body's origin cancels out.

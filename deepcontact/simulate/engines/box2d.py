@@ -1,10 +1,11 @@
 """Box2D 2.4.1 (Debian's): its own velocity solver, or the project's solver in its loop."""
 from collections.abc import Callable
 import functools
+import logging
 
 from ... import arguments
 from ..._box2d import box2d_version
-from ...errors import InputError
+from ...errors import InputError, show_path
 from ...resources import check_step_work
 from ...scene.xml import fmt
 from ...solver.methods import GLOBAL, method_origin, takes_relaxation
@@ -14,6 +15,8 @@ from .. import stepping
 from ..build import build_world
 from ..pgs_loop import PGSStepper, check_loop, check_scene_for_loop
 from . import Engine, Setting
+
+log = logging.getLogger(__name__)
 
 
 class Box2D(Engine):
@@ -117,7 +120,17 @@ class Box2DLoop(Box2D):
         """Refuses a scene the loop cannot step (continuous collision, sleeping) and a step whose
         work would run for hours (InputError naming `source`)."""
         check_scene_for_loop(scene, source)
-        check_step_work(len(scene.bodies), self.solver.max_iterations, f"a cap of {self.solver.max_iterations:,} sweeps a step")
+        if self.solver.mode == "exact":
+            _say_where_exact_is_not_box2ds(scene, source)
+        cap = self.solver.max_iterations
+        # (a cap the scene's own velocity_iterations gave, no --max-iterations: the scene's line)
+        from_scene = cap == scene.solver.velocity_iterations
+        try:
+            check_step_work(len(scene.bodies), cap, f"a cap of {cap:,} sweeps a step" + (
+                " (the scene's velocity_iterations; --max-iterations sets another)" if from_scene else ""))
+        except InputError as e:
+            raise InputError(e.message, source if from_scene else None,
+                             scene.lines.get("solver") if from_scene and source else None) from None
 
     def stepper(self, world, scene, record=True, residual=None):
         """As Engine.stepper; residual: each step states its residual (PGSStepper's: by default
@@ -140,6 +153,23 @@ class Box2DLoop(Box2D):
 
     def __repr__(self):
         return f"Box2D(solver={self.solver!r}, start={self.start!r})"
+
+
+_SAID = set()
+
+
+def _say_where_exact_is_not_box2ds(scene, source):
+    """One warning, once a scene, where the exact mode cannot give Box2D's own answer: a static
+    body given a velocity, which Box2D's step moves once for each island it is in before it poses
+    the next island's contacts, where the loop poses every island's first (docs/solver.md)."""
+    moving = [k for k, b in enumerate(scene.bodies) if b.type == "static" and (b.vx or b.vy or b.omega)]
+    if not moving or (scene.name, str(source)) in _SAID:
+        return
+    _SAID.add((scene.name, str(source)))
+    where = f"{show_path(source)}: " if source else ""
+    log.warning("%sbody %d is static with a velocity, which Box2D's own step moves once for each island it is in: "
+                "--mode exact poses every island before it moves, so its answers are not Box2D's where such a "
+                "body touches more than one island", where, moving[0])
 
 
 def _solve_xml(options, start, solution):
