@@ -172,6 +172,18 @@ def test_a_scenes_own_cap_too_large_for_the_loop_names_the_scene_and_its_line(tm
     assert re.match(rf"dc simulate: error: {re.escape(str(path))}:\d+: a cap of 2,000,000,000 sweeps", line), line
 
 
+def test_the_librarys_generate_refuses_a_count_of_another_kind_or_beyond_the_machine():
+    # (generate("stack", 0, {"count": 5.0}) raised a bare TypeError; a billion boxes were made
+    # until the process was killed for its memory)
+    import deepcontact
+    from deepcontact.errors import OptionError
+    with pytest.raises(OptionError, match="count=5.0 is not a whole number"):
+        deepcontact.generate("stack", 0, {"count": 5.0})
+    with pytest.raises(OptionError, match="bodies would need about .* GB of memory to make"):
+        deepcontact.generate("stack", 0, {"count": 10 ** 9})
+    assert len(deepcontact.generate("stack", 0, {"count": 5, "size": 2}).bodies) == 6
+
+
 def test_a_shape_lost_to_rounding_is_refused(tmp_path):
     # Box2D shifts the inertia to the centre of mass in float32 and asserts it is > 0: a small
     # circle far from its body's origin cancels out.

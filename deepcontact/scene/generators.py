@@ -14,6 +14,7 @@ import numpy as np
 from .. import arguments
 from .._box2d import linear_slop, polygon_radius
 from ..errors import InputError, OptionError
+from ..resources import SCENE_BYTES_PER_BODY, gigabytes, machine_memory
 from .check import check_scene
 from .model import Body, Circle, Edge, Effects, Polygon, RemoveEvent, Scene, Solver, f32
 
@@ -278,6 +279,20 @@ def _convert(name, key, text, default):
     return value
 
 
+def _of_its_kind(name, key, value, default):
+    """OptionError where a value given as a number is not of its parameter's kind: a whole number
+    for a count (5.0 is not), a number for a size, True or False for a switch."""
+    if isinstance(default, bool):
+        ok = isinstance(value, (bool, np.bool_))
+    elif isinstance(default, int):
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    else:
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not ok:
+        kind = "true or false" if isinstance(default, bool) else "whole number" if isinstance(default, int) else "number"
+        raise OptionError(f"generator {name!r}: parameter {key}={value!r} is not a {kind}", "--param")
+
+
 # What each parameter may be: sizes, counts and densities positive, the rest not negative.
 _POSITIVE = {"count", "box", "radius", "sigma", "size", "density", "top_density", "bullet_density", "ratio",
              "length", "thickness", "inner", "spacing", "dt", "steps", "base", "levels", "blocks", "stack"}
@@ -310,6 +325,7 @@ def _checked_params(name, params):
             raise OptionError(f"generator {name!r} has no parameter {key!r}; "
                              f"its parameters are {', '.join(defaults)}", "--param")
         given[key] = _convert(name, key, value, defaults[key]) if isinstance(value, str) else value
+        _of_its_kind(name, key, given[key], defaults[key])
     for key, value in given.items():
         if isinstance(value, bool):
             continue
@@ -324,12 +340,21 @@ def _checked_params(name, params):
 
 def generate(name: str, seed: int = 0, params: dict | None = None, velocity_iterations: int = 8,
              position_iterations: int = 3) -> Scene:
-    """Make a scene with a built-in generator. `params` maps names to values or strings.
+    """Make a scene with a built-in generator. `params` maps names to values of their parameter's
+    kind (a whole number for a count, a number for a size, True or False for a switch) or to their
+    text, as `--param` gives them. A parameter of another kind, out of its range, or a scene more
+    bodies than this machine's memory can make is an OptionError.
 
     The scene is checked (scene.check.check_scene) before it is returned."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= 2 ** 31 - 1:
         raise OptionError(f"a seed is a whole number from 0 to {2 ** 31 - 1}, got {seed!r}", "--seed")
-    _, given = _checked_params(name, params)
+    every, given = _checked_params(name, params)
+    # (the library's own guard, the machine's memory: a command's stricter one, --max-memory, runs first)
+    bodies, memory = int(BODY_COUNT[name](every)), machine_memory()
+    if memory is not None and bodies * SCENE_BYTES_PER_BODY > memory:
+        raise OptionError(f"generator {name!r}: {bodies:,} bodies would need about "
+                          f"{gigabytes(bodies * SCENE_BYTES_PER_BODY):.3g} GB of memory to make, more than this "
+                          f"machine's {gigabytes(memory):.3g} GB", "--param")
     parts = GENERATORS[name](seed, **given)
     scene = Scene(name=name, dt=f32(parts["dt"]), steps=int(parts["steps"]),
                  solver=Solver(velocity_iterations=velocity_iterations,
