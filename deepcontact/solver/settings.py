@@ -16,7 +16,7 @@ def relaxation_too_small(w):
     """The one line saying w is a positive number that rounds to 0 in float32, or None: a step file
     (and the float32 solver) keeps w in float32, where it would be 0, outside (0, 2), and the file
     would fail the schema it was written by."""
-    if w > 0.0 and float(np.float32(w)) == 0.0:
+    if 0.0 < w < 1e-30 and float(np.float32(w)) == 0.0:   # (a w past float32's range is the (0, 2) rule's)
         return f"relaxation must be in (0, 2), and {w:g} is 0 in float32, in which a step keeps it"
     return None
 
