@@ -209,6 +209,9 @@ def test_a_start_slow_on_every_step_it_is_asked_has_no_smallest_median_from_step
     line = loop_verdict(rows, 1e-4)
     assert "slow has the smallest median" not in line and "**slow**" not in line, line
     assert "intervals over the steps with contact points" in line, line
+    from deepcontact.evaluate.loop_report import loop_table
+    table = {r.split("|")[1].strip(): float(r.split("|")[8]) for r in loop_table(rows, 1e-4).splitlines()[2:]}
+    assert table["slow"] > 10 * table["builtin"], table   # (the table's medians: the same steps)
 
 
 class Answered:

@@ -74,6 +74,10 @@ def test_a_w_that_is_zero_in_float32_is_refused_before_any_step_is_written(tmp_p
     assert r.returncode == 2 and "1e-300 is 0 in float32" in r.stderr and not (tmp_path / "run").exists(), r.stderr
     with pytest.raises(OptionError, match="is 0 in float32"):
         SolveSettings(relaxation=1e-300)
+    with pytest.raises(OptionError, match="1.99999999 is 2 in float32"):   # (the same at the top of the range)
+        SolveSettings(relaxation=1.99999999)
+    with pytest.raises(ValueError, match="is 2 in float32"):
+        parse_relaxation("1.99999999")
     assert SolveSettings(relaxation=1e-45).relaxation == 1e-45   # (float32's least number: kept)
     assert parse_relaxation("0.8") == 0.8
 

@@ -128,13 +128,11 @@ def test_a_forked_contestant_sees_and_may_do_what_a_fresh_one_may(probe_module, 
     # (bubblewrap leaves its root folder writable, a tmpfs of no size limit; a fork's root is
     # read-only: stricter, never looser; its bounding set is the one thing else that may differ)
     assert forked_b["read_only_root"] == 30 and fresh_b["read_only_root"] in (0, 30)
-    # (a fork's PID 1 is a copy of the zygote, whose memory no contestant may read; bubblewrap's
-    # is its own small init, which holds the contestant's own command line and none of dc's
-    # environment)
-    for found in (forked_a, forked_b):
-        assert found["init_environ"] == found["init_mem"] == 13, found   # (EACCES)
-    for found in (fresh_a, fresh_b):
-        assert found["init_environ"] in ("read", 13), found
+    # (its PID 1: a fork's is the copy of the zygote it was forked from, which it holds itself;
+    # bubblewrap's is its own small init, which holds the contestant's command line and none of
+    # dc's environment: it held every variable of dc's, a token say)
+    for found in (forked_a, forked_b, fresh_a, fresh_b):
+        assert found["init_environ"] in ("read", 13) and found["init_mem"] in ("read", 13), found
     for found in (forked_a, forked_b, fresh_a, fresh_b):
         found.pop("CapBnd"), found.pop("read_only_root"), found.pop("init_environ"), found.pop("init_mem")
     assert forked_a == fresh_a and forked_b == fresh_b
@@ -262,10 +260,9 @@ HOSTILE = textwrap.dedent("""
                 for fd in os.listdir(f"/proc/{pid}/fd"):
                     try:
                         out.append(os.readlink(f"/proc/{pid}/fd/{fd}"))
-                    except OSError as e:
-                        if e.errno != 2:   # (the listing's own descriptor, closed)
-                            out.append(e.errno)
-                return sorted(out, key=str)
+                    except OSError:   # (the listing's own descriptor, closed)
+                        pass
+                return sorted(out)
             mounts = [line.split()[4] for line in open("/proc/self/mountinfo")]
             raise RuntimeError("FOUND" + json.dumps({"own": targets("self"), "init": targets(1), "mounts": mounts}))
 
@@ -417,9 +414,7 @@ def test_a_forked_contestant_holds_no_descriptor_or_mount_of_the_zygotes(hostile
     own = [t for t in found["own"] if t != "/dev/null"]
     assert len(own) == 3 and sum(t.startswith("socket:") for t in own) == 1, found   # (its line, its two streams)
     assert all(t.startswith("pipe:") for t in own if not t.startswith("socket:")), found
-    # (its PID 1 holds nothing of the zygote's: three descriptors, on /dev/null, whose targets it
-    # may not even read: the PID 1 of a fork is undumpable)
-    assert found["init"] == [13] * 3, found
+    assert found["init"] == ["/dev/null"] * 3, found   # (its PID 1 holds nothing of the zygote's)
     # (its root first, then only what its fence record names: no /proc of the machine's, no old root)
     assert found["mounts"][0] == "/" and found["mounts"].count("/") == 1 and found["mounts"].count("/proc") == 1
     allowed = ("/proc", "/dev", "/tmp", *fence.SYSTEM, "/etc/", sys.prefix, sys.base_prefix,

@@ -206,13 +206,8 @@ def _init(request, channel, out, err, status, seccomp, trees=()):
         kernel.install_seccomp(program)
         _report(status, b"J")
         os.close(status)
-        # (a copy of the zygote, which every contestant's request passed through: the contestant,
-        # a process of the same user in its namespace, may not open its memory through /proc/1/mem;
-        # the contestant's own process is as it always was)
-        kernel.set_dumpable(False)
         pid = os.fork()
         if pid == 0:
-            kernel.set_dumpable(True)
             if "job" in request:
                 _job(request, channel, out, err)
             _contestant(request, channel, out, err)

@@ -21,7 +21,6 @@ MS_REMOUNT, MS_BIND, MS_REC, MS_PRIVATE = 32, 4096, 0x4000, 1 << 18
 MNT_DETACH = 2
 
 _PR_SET_PDEATHSIG = 1
-_PR_SET_DUMPABLE = 4
 _PR_SET_SECCOMP, _SECCOMP_MODE_FILTER = 22, 2
 _PR_CAPBSET_DROP = 24
 _PR_SET_NO_NEW_PRIVS = 38
@@ -182,12 +181,6 @@ def loopback_up():
 def die_with_parent(signal_number):
     """This process sent signal_number when the thread that forked it ends."""
     _checked(_libc.prctl(_PR_SET_PDEATHSIG, signal_number, 0, 0, 0), "prctl(PDEATHSIG)")
-
-
-def set_dumpable(dumpable):
-    """Whether a process of the same user may open this one's memory and environment through
-    /proc (the kernel's ptrace access check, which seccomp cannot see: a file is opened)."""
-    _checked(_libc.prctl(_PR_SET_DUMPABLE, int(bool(dumpable)), 0, 0, 0), "prctl(DUMPABLE)")
 
 
 class _CapHeader(ctypes.Structure):

@@ -287,6 +287,17 @@ def loop_residuals(r):
     return res[np.isfinite(res)]
 
 
+def on_asked_steps(r, values):
+    """A loop row's per-step values on the steps its start was asked (those with contact points: a
+    residual), as its iterations are taken; every step where it has no residuals (Box2D's own
+    solver) or none was asked."""
+    v = np.asarray(values, np.float64)
+    if r.residuals is None:
+        return v
+    asked = np.isfinite(np.asarray(r.residuals, np.float64)[:len(v)])
+    return v[:len(asked)][asked] if asked.any() else v
+
+
 def loop_above(r, tolerance):
     """The share of a row's steps whose residual ended above the tolerance (None: not judged)."""
     res = loop_residuals(r)

@@ -185,7 +185,8 @@ def _mass(where, b):
         yield f"{where} is dynamic but has no mass: give a circle or polygon a density > 0", b.line
     if not lo <= mass <= hi:
         # (its digits to the one that tells it from the bound: never "1e+20 is outside [..., 1e+20]")
-        shown = f"{mass:.3g}" if float(f"{mass:.3g}") != (lo if mass < lo else hi) else f"{mass:.9g}"
+        bound = lo if mass < lo else hi
+        shown = next(f"{mass:.{p}g}" for p in range(3, 18) if float(f"{mass:.{p}g}") != bound)
         yield (f"{where}: its mass {shown} kg is outside [{lo:g}, {hi:g}] (float32 could not hold it, "
                f"or its inverse, safely)", b.line)
     if not b.fixed_rotation:

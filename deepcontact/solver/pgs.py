@@ -88,7 +88,9 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
     With relaxation w != 1 (PSOR) or accelerate="nncg", and guard, a solve whose residual climbs
     tenfold above its best continues as plain PGS (checked every 4 sweeps;
     Solution.relaxation_fallback says when). A solve ends on a sweep's iterate, whose tangents can
-    lie just outside the friction cone (as Box2D's do): the residual counts the excess. A start is
+    lie just outside the friction cone (as Box2D's do): the residual counts the excess. prune: leave
+    out the rows and terms the scene does not need (the answer is the same, up to the sign of a
+    zero); the exact mode, Box2D's arithmetic, never does. A start is
     projected onto the cone before use (cone=False: taken as given, which is how `judge` measures
     an answer, so it agrees with the solve that made it). carry: the native World whose carried
     state (the lagged method's factor and penalty) the solve uses and updates, as a step of the

@@ -10,7 +10,7 @@ happen in. The solver's guard (pgs.solve) still drops w to 1 within any solve th
 import numpy as np
 
 from .methods import solve
-from .settings import relaxation_too_small
+from .settings import relaxation_unheld
 
 CANDIDATES = (1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6, 1.7, 1.8, 1.9)
 TRIAL_STEPS = 8
@@ -28,8 +28,8 @@ def parse_relaxation(text):
         raise ValueError(f"relaxation must be a number in (0, 2) or auto, got {text!r}") from None
     if not (0.0 < w < 2.0):
         raise ValueError(f"relaxation must be in (0, 2) or auto, got {text}")
-    if relaxation_too_small(w):
-        raise ValueError(relaxation_too_small(w))
+    if relaxation_unheld(w):
+        raise ValueError(relaxation_unheld(w))
     return w
 
 

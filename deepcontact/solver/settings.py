@@ -12,12 +12,12 @@ from .._box2d import Acceleration, SolveOptions, is_global
 from ..errors import OptionError
 from .registry import SOLVERS
 
-def relaxation_too_small(w):
-    """The one line saying w is a positive number that rounds to 0 in float32, or None: a step file
-    (and the float32 solver) keeps w in float32, where it would be 0, outside (0, 2), and the file
-    would fail the schema it was written by."""
-    if 0.0 < w < 1e-30 and float(np.float32(w)) == 0.0:   # (a w past float32's range is the (0, 2) rule's)
-        return f"relaxation must be in (0, 2), and {w:g} is 0 in float32, in which a step keeps it"
+def relaxation_unheld(w):
+    """The one line saying a w in (0, 2) is 0 or 2 in float32, or None: a step file (and the
+    float32 solver) keeps w in float32, where it would be outside (0, 2), and the file would fail
+    the schema it was written by."""
+    if 0.0 < w < 2.0 and float(np.float32(w)) in (0.0, 2.0):
+        return f"relaxation must be in (0, 2), and {w!r} is {float(np.float32(w)):g} in float32, in which a step keeps it"
     return None
 
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
@@ -68,7 +68,7 @@ class SolveSettings:
         except TypeError:   # a field that cannot be hashed (a list, an array) is of no type it may have
             key = None
         self._check_types()
-        small = relaxation_too_small(self.relaxation) if isinstance(self.relaxation, (int, float)) else None
+        small = relaxation_unheld(self.relaxation) if isinstance(self.relaxation, (int, float)) else None
         if small:
             raise _error(small, "relaxation")
         if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
