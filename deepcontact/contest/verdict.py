@@ -179,8 +179,9 @@ def decide(times, candidates, base, aa_pair, setup_ms=None, unfinished=None, tot
     v = Verdict(base=base, aa=ratio_interval(*aa_pair, rng))
     v.unfinished = {name: len(set(unfinished.get(name, ())) & set(t)) for name, t in times.items()}
     v.vs_base = {name: ratio_interval(*paired(t, ranked_times[base]), rng) for name, t in ranked_times.items()}
-    v.totals = {name: float(totals[name] if totals and name in totals else sum(t.values()))
-                + float(setup_ms.get(name, 0.0)) for name, t in times.items()}
+    totals = totals or {}
+    v.totals = {name: float(totals.get(name, sum(t.values()))) + float(setup_ms.get(name, 0.0))
+                for name, t in times.items()}
     quiet = aa_steps(len(aa_pair[0]), v.aa)
     v.power = {name: power_of(times[name], times[base], setup_ms.get(name, 0.0) - setup_ms.get(base, 0.0),
                               v.vs_base[name], v.aa, quiet) for name in times if name != base}

@@ -287,15 +287,21 @@ def loop_residuals(r):
     return res[np.isfinite(res)]
 
 
-def on_asked_steps(r, values):
-    """A loop row's per-step values on the steps its start was asked (those with contact points: a
-    residual), as its iterations are taken; every step where it has no residuals (Box2D's own
-    solver) or none was asked."""
-    v = np.asarray(values, np.float64)
+def _asked(r):
+    """The steps of a loop row on which its start was asked (those with contact points: a
+    residual); every step where it has no residuals (Box2D's own solver)."""
+    n = len(r.ms_per_step)
     if r.residuals is None:
-        return v
-    asked = np.isfinite(np.asarray(r.residuals, np.float64)[:len(v)])
-    return v[:len(asked)][asked] if asked.any() else v
+        return np.arange(n)
+    return np.flatnonzero(np.isfinite(np.asarray(r.residuals, np.float64)[:n]))
+
+
+def on_asked_steps(r, values):
+    """A loop row's per-step values on the steps its start was asked, as its iterations are taken;
+    every step where none was."""
+    v = np.asarray(values, np.float64)
+    asked = _asked(r)
+    return v[asked] if len(asked) else v
 
 
 def loop_above(r, tolerance):
@@ -321,15 +327,7 @@ def loop_verdict(results, tolerance):
     left_out = _loop_left_out(candidates, fair, tolerance, errors)
     if base.start in errors or not fair:
         return _none_left(base.start in errors) + left_out
-    # (judged on the steps that asked some start: on a step with no contact point no start runs, and
-    # its time, the engine's alone, would be the median of a run mostly in free fall; each run's
-    # total stays its whole run's)
-    asked = _asked_steps(ours)
-    times = {r.start: {i: t for i, t in enumerate(np.asarray(r.ms_per_step, np.float64)) if i in asked} for r in ours}
-    aa = [np.asarray(x, np.float64)[[i for i in range(len(x)) if i in asked]] for x in (base.ms_per_step, base.ms_again)]
-    unfinished = {r.start: _loop_unfinished(r, tolerance) for r in ours}
-    v = decide(times, [r.start for r in fair], base.start, aa, {r.start: r.setup_ms for r in ours}, unfinished,
-               totals={r.start: float(np.sum(r.ms_per_step)) for r in ours})
+    v = _judged(ours, fair, base, tolerance)
     said = v.as_dict()   # (the power of the variants it may name: one that stopped being finite is named at no length)
     said["power"] = {n: p for n, p in said["power"].items() if n in {r.start for r in fair}}
     power = power_words(said)
@@ -387,14 +385,16 @@ def runner_name(runner, unfinished):
     return md_text(runner) if not unfinished.get(runner, 0) else "(a variant that did not converge)"
 
 
-def _asked_steps(rows):
-    """The steps on which some row's start was asked (a contact point: a residual); every step
-    where none was (a run that never touched)."""
-    asked = set()
-    for r in rows:
-        res = None if r.residuals is None else np.asarray(r.residuals, np.float64)
-        asked.update(range(len(r.ms_per_step)) if res is None else np.flatnonzero(np.isfinite(res)).tolist())
-    return asked or set(range(max((len(r.ms_per_step) for r in rows), default=0)))
+def _judged(ours, fair, base, tolerance):
+    """contest.verdict.decide on the loop's rows, judged on the steps that asked some start: on a
+    step with no contact point no start runs, and its time, the engine's alone, would be the median
+    of a run mostly in free fall (every step where none was asked); each total stays its whole run's."""
+    asked = sorted(set().union(*(_asked(r).tolist() for r in ours))) or range(len(base.ms_per_step))
+    times = {r.start: {i: float(r.ms_per_step[i]) for i in asked if i < len(r.ms_per_step)} for r in ours}
+    aa = [np.asarray(x, np.float64)[[i for i in asked if i < len(x)]] for x in (base.ms_per_step, base.ms_again)]
+    return decide(times, [r.start for r in fair], base.start, aa, {r.start: r.setup_ms for r in ours},
+                  {r.start: _loop_unfinished(r, tolerance) for r in ours},
+                  totals={r.start: float(np.sum(r.ms_per_step)) for r in ours})
 
 
 def _loop_unfinished(r, tolerance):

@@ -151,7 +151,7 @@ class PGSStepper:
         if self.native or self.posed:
             self.step_settings = PGSStepSettings(
                 step=StepSettings(dt=scene.dt, gravity=self.gravity, block_solve=scene.solver.block_solve,
-                                  prune=settings.mode != "exact"),   # (pgs.solve: Box2D's zeros' signs)
+                                  prune=settings.prunes),
                 solve=self.solve_options, start=start, warm_scale=0.0, inv_dt0=self.inv_dt,
                 position_iterations=scene.solver.position_iterations, record=record)
         world.find_new_contacts()   # Step would do this itself, after our Collide

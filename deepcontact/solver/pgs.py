@@ -105,9 +105,7 @@ def solve(problem: "StepProblem", start_normal: np.ndarray | None = None, start_
         settings = SolveSettings(mode=mode, tolerance=tolerance, stop_on=stop_on, relaxation=relaxation, guard=guard,
                                  accelerate=accelerate,
                                  max_iterations=problem.velocity_iterations if max_iterations is None else max_iterations)
-    # (its dt checked before the options divide by it; the exact mode is Box2D's arithmetic whole,
-    # rows and terms a scene does not need too: they change only zeros' signs, which it keeps)
-    step = problem.settings(prune and settings.mode != "exact")
+    step = problem.settings(prune and settings.prunes)   # (its dt checked before the options divide by it)
     opts = settings.native(dt=problem.dt, history=history, final_residual=final_residual, cone=cone)
     starts = start_impulses(problem, start_normal, start_tangent)
     try:

@@ -28,8 +28,9 @@ def parse_relaxation(text):
         raise ValueError(f"relaxation must be a number in (0, 2) or auto, got {text!r}") from None
     if not (0.0 < w < 2.0):
         raise ValueError(f"relaxation must be in (0, 2) or auto, got {text}")
-    if relaxation_unheld(w):
-        raise ValueError(relaxation_unheld(w))
+    unheld = relaxation_unheld(w)
+    if unheld:
+        raise ValueError(unheld)
     return w
 
 

@@ -12,14 +12,6 @@ from .._box2d import Acceleration, SolveOptions, is_global
 from ..errors import OptionError
 from .registry import SOLVERS
 
-def relaxation_unheld(w):
-    """The one line saying a w in (0, 2) is 0 or 2 in float32, or None: a step file (and the
-    float32 solver) keeps w in float32, where it would be outside (0, 2), and the file would fail
-    the schema it was written by."""
-    if 0.0 < w < 2.0 and float(np.float32(w)) in (0.0, 2.0):
-        return f"relaxation must be in (0, 2), and {w!r} is {float(np.float32(w)):g} in float32, in which a step keeps it"
-    return None
-
 TOLERANCE = 1e-4   # the residual a solve to a tolerance stops below, unless told otherwise
 # dc evaluate's cap: a verdict needs variants that reach the tolerance on every step, and at 1000
 # every variant left 3-16% of the held-out pile's steps above 1e-4 (builtin's p95 is 1698 sweeps,
@@ -68,9 +60,9 @@ class SolveSettings:
         except TypeError:   # a field that cannot be hashed (a list, an array) is of no type it may have
             key = None
         self._check_types()
-        small = relaxation_unheld(self.relaxation) if isinstance(self.relaxation, (int, float)) else None
-        if small:
-            raise _error(small, "relaxation")
+        unheld = relaxation_unheld(self.relaxation) if isinstance(self.relaxation, (int, float)) else None
+        if unheld:
+            raise _error(unheld, "relaxation")
         if self.mode == "exact" and self.relaxation != 1.0:   # (the native rule, but naming the flag)
             raise _error("--mode exact is Box2D's PGS: it takes no over-relaxation", "relaxation")
         if self.mode == "exact" and self.order != "island":
@@ -132,9 +124,24 @@ class SolveSettings:
             field = str(e).split()[0] if str(e) else ""
             raise OptionError(str(e), FLAGS.get(field)) from None
 
+    @property
+    def prunes(self) -> bool:
+        """Whether its problem leaves out the rows and terms a scene does not need (the answer is the
+        same up to the sign of a zero): not in the exact mode, which is Box2D's arithmetic whole."""
+        return self.mode != "exact"
+
     def but(self, **changes) -> "SolveSettings":
         """These settings with some fields changed (checked again)."""
         return replace(self, **changes)
+
+
+def relaxation_unheld(w):
+    """The one line saying a w in (0, 2) is 0 or 2 in float32, or None: a step file (and the
+    float32 solver) keeps w in float32, where it would be outside (0, 2), and the file would fail
+    the schema it was written by."""
+    if 0.0 < w < 2.0 and float(np.float32(w)) in (0.0, 2.0):
+        return f"relaxation must be in (0, 2), and {w!r} is {float(np.float32(w)):g} in float32, in which a step keeps it"
+    return None
 
 
 def _error(message, field):
